@@ -1,0 +1,46 @@
+"""Validation helpers that turn bad tensors into clear `InputError`s at API edges."""
+from __future__ import annotations
+
+import torch
+
+from .errors import InputError
+
+
+def check_shape(t: torch.Tensor, name: str, shape: tuple) -> torch.Tensor:
+    """Check `t` against `shape`, where -1 matches any size. Returns `t`."""
+    if not isinstance(t, torch.Tensor):
+        raise InputError(f"{name}: expected a torch.Tensor of shape {_fmt(shape)}, got {type(t).__name__}")
+    if t.dim() != len(shape) or any(s != -1 and s != d for s, d in zip(shape, t.shape)):
+        raise InputError(f"{name}: expected shape {_fmt(shape)}, got {tuple(t.shape)}")
+    return t
+
+
+def check_finite(t: torch.Tensor, name: str) -> torch.Tensor:
+    """Raise if `t` holds NaN or infinity."""
+    if not bool(torch.isfinite(t).all()):
+        bad = int((~torch.isfinite(t)).sum())
+        raise InputError(f"{name}: {bad} non-finite value(s) (NaN or inf)")
+    return t
+
+
+def check_directions(t: torch.Tensor, name: str, tol: float = 1e-3) -> torch.Tensor:
+    """Check a (N, 3) tensor of finite unit vectors."""
+    check_shape(t, name, (-1, 3))
+    check_finite(t, name)
+    if t.numel():
+        err = (t.norm(dim=-1) - 1).abs().max().item()
+        if err > tol:
+            raise InputError(f"{name}: directions must be unit length (max |norm - 1| = {err:.3g} > {tol})")
+    return t
+
+
+def check_range(t: torch.Tensor, name: str, lo: float, hi: float) -> torch.Tensor:
+    """Check lo <= t <= hi elementwise."""
+    check_finite(t, name)
+    if t.numel() and (t.min().item() < lo or t.max().item() > hi):
+        raise InputError(f"{name}: values must lie in [{lo}, {hi}], got [{t.min().item():.4g}, {t.max().item():.4g}]")
+    return t
+
+
+def _fmt(shape: tuple) -> str:
+    return "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"

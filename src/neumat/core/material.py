@@ -1,0 +1,54 @@
+"""The `Material` protocol shared by ground-truth sources and learned models."""
+from __future__ import annotations
+
+import torch
+
+from .query import Query, Sample
+
+
+class Material:
+    """Anything that answers batched reflectance queries.
+
+    Subclasses implement `eval`; samplers also implement `sample` and `pdf` and set
+    `can_sample = True`. Values are linear RGB BRDF values without the cosine factor.
+    """
+
+    #: registry / display name
+    name: str = "material"
+    #: whether `sample` and `pdf` are implemented
+    can_sample: bool = False
+    #: whether the material needs Query.uv (and uses footprint / lod when given)
+    spatially_varying: bool = False
+    #: whether directions span the whole sphere (translucent objects) instead of the upper hemisphere
+    full_sphere: bool = False
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """BRDF value f(wi, wo), shape (N, 3), linear RGB, cosine excluded."""
+        raise NotImplementedError(f"{type(self).__name__}.eval")
+
+    def sample(self, q: Query, u: torch.Tensor) -> Sample:
+        """Sample wo given q.wi and uniform numbers u (N, 2) in [0, 1)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot sample (can_sample = False)")
+
+    def pdf(self, q: Query) -> torch.Tensor:
+        """Solid-angle density (N,) with which `sample` produces q.wo given q.wi."""
+        raise NotImplementedError(f"{type(self).__name__} has no pdf (can_sample = False)")
+
+    def __call__(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
+
+    def describe(self) -> str:
+        """One line for tables and CLI output."""
+        return self.name
+
+
+def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """Mask (N,) of queries with both directions strictly above the surface."""
+    return (wi[:, 2] > 0) & (wo[:, 2] > 0)
+
+
+def sample_weight(f: torch.Tensor, wo: torch.Tensor, pdf: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """weight = f * cos(theta_o) / pdf, zero where `valid` is false or pdf is 0. Shapes (N,3),(N,3),(N,),(N,)."""
+    ok = valid & (pdf > 0)
+    w = f * (wo[:, 2].clamp(min=0) / torch.where(ok, pdf, torch.ones_like(pdf))).unsqueeze(-1)
+    return torch.where(ok.unsqueeze(-1), w, torch.zeros_like(w))

@@ -1,0 +1,101 @@
+"""`Query` (what a material is asked) and `Sample` (what a sampler returns).
+
+Directions are in the local shading frame (z = normal, x = tangent), unit length, pointing
+away from the surface: `wi` towards the light, `wo` towards the viewer.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import torch
+
+from .checks import check_directions, check_finite, check_shape
+from .errors import InputError
+
+
+@dataclass
+class Query:
+    """A batch of N material queries.
+
+    wi, wo:    (N, 3) unit directions (local frame; object space for translucent objects).
+    uv:        (N, 2) texture coordinates in [0, 1] (spatially varying materials), or None.
+    footprint: (N, 2, 2) symmetric positive definite texture-space filter Sigma (uv units^2), or None.
+    lod:       (N,) mip level, or None.
+    x:         (N, 3) object-space position (translucent objects), or None.
+    """
+
+    wi: torch.Tensor
+    wo: torch.Tensor | None = None
+    uv: torch.Tensor | None = None
+    footprint: torch.Tensor | None = None
+    lod: torch.Tensor | None = None
+    x: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        check_directions(self.wi, "Query.wi")
+        n = self.wi.shape[0]
+        if self.wo is not None:
+            check_directions(self.wo, "Query.wo")
+        shapes = {"wo": (n, 3), "uv": (n, 2), "footprint": (n, 2, 2), "lod": (n,), "x": (n, 3)}
+        for name, shape in shapes.items():
+            t = getattr(self, name)
+            if t is not None:
+                check_shape(t, f"Query.{name}", shape)
+                check_finite(t, f"Query.{name}")
+
+    def __len__(self) -> int:
+        return self.wi.shape[0]
+
+    @property
+    def device(self) -> torch.device:
+        return self.wi.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.wi.dtype
+
+    def require(self, *names: str, who: str = "material") -> None:
+        """Raise a clear error if one of the named optional fields is missing."""
+        for name in names:
+            if getattr(self, name) is None:
+                raise InputError(f"{who} needs Query.{name}, but the query has none")
+
+    def with_wo(self, wo: torch.Tensor) -> "Query":
+        """The same query with outgoing directions `wo` (N, 3)."""
+        return replace(self, wo=wo)
+
+    def swapped(self) -> "Query":
+        """The query with wi and wo exchanged (for reciprocity)."""
+        if self.wo is None:
+            raise InputError("Query.swapped needs Query.wo")
+        return replace(self, wi=self.wo, wo=self.wi)
+
+    def to(self, device=None, dtype=None) -> "Query":
+        """Move every tensor field to `device` / `dtype`."""
+        kw = {}
+        for f in fields(self):
+            t = getattr(self, f.name)
+            kw[f.name] = None if t is None else t.to(device=device, dtype=dtype)
+        return Query(**kw)
+
+    def __getitem__(self, index) -> "Query":
+        """Select a sub-batch (slice, bool mask or index tensor)."""
+        kw = {}
+        for f in fields(self):
+            t = getattr(self, f.name)
+            kw[f.name] = None if t is None else t[index]
+        return Query(**kw)
+
+
+@dataclass
+class Sample:
+    """Result of importance sampling an outgoing direction.
+
+    wo:     (N, 3) sampled unit direction.
+    pdf:    (N,) solid-angle density of wo (0 where sampling failed).
+    weight: (N, 3) eval * cos(theta_o) / pdf (0 where sampling failed).
+    """
+
+    wo: torch.Tensor
+    pdf: torch.Tensor
+    weight: torch.Tensor
