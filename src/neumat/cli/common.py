@@ -1,0 +1,56 @@
+"""Helpers shared by CLI commands: clean error reporting, the console, key=value overrides."""
+from __future__ import annotations
+
+import json
+from typing import Any, Callable
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..core.config import parse_value
+from ..core.errors import InputError, NeumatError
+
+console = Console(stderr=True)
+
+
+def run_command(fn: Callable[[], Any]) -> Any:
+    """Run `fn`, turning neumat errors and missing files into a one-line message and exit code 2."""
+    try:
+        return fn()
+    except (NeumatError, FileNotFoundError) as e:
+        console.print(f"[bold red]error:[/] {e}")
+        raise typer.Exit(2) from None
+
+
+def parse_overrides(items: list[str] | None) -> dict[str, Any]:
+    """`["nside=32", "lr=1e-3"]` -> {"nside": 32, "lr": 0.001}."""
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(f"--set expects key=value, got {item!r}")
+        out[key.strip()] = parse_value(value)
+    return out
+
+
+def print_table(title: str, rows: list[dict[str, Any]]) -> None:
+    """Print rows (dicts with the same keys) as a rich table on stdout."""
+    table = Table(title=title)
+    keys = list(rows[0]) if rows else []
+    for k in keys:
+        table.add_column(k)
+    for r in rows:
+        table.add_row(*(_fmt(r[k]) for k in keys))
+    Console().print(table)
+
+
+def print_json(obj: Any) -> None:
+    """Print one JSON object on stdout."""
+    print(json.dumps(obj, indent=2, default=float))
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)

@@ -1,0 +1,24 @@
+"""The `neumat` command line."""
+from __future__ import annotations
+
+import typer
+
+from . import check, data, demo, fitting, rendering
+from .common import run_command
+
+app = typer.Typer(help="neumat: compact learned models of material appearance.", no_args_is_help=True,
+                  pretty_exceptions_enable=False, add_completion=False)
+app.add_typer(data.app, name="data")
+for module in (rendering, fitting, check, demo):
+    module.register(app)
+
+
+@app.command()
+def version() -> None:
+    """Print the neumat version."""
+    from .. import __version__
+    run_command(lambda: print(__version__))
+
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,31 @@
+import pytest
+import torch
+
+from neumat.core.errors import InputError
+from neumat.core.material import sample_weight
+from neumat.core.query import Query
+
+
+def test_query_validates_inputs():
+    wi = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    q = Query(wi, wi.flip(0))
+    assert len(q) == 2 and q.swapped().wi.equal(wi.flip(0))
+    assert len(q[torch.tensor([True, False])]) == 1
+    with pytest.raises(InputError, match="Query.wi: expected shape"):
+        Query(torch.zeros(3))
+    with pytest.raises(InputError, match="unit length"):
+        Query(torch.ones(2, 3))
+    with pytest.raises(InputError, match="non-finite"):
+        Query(torch.tensor([[float("nan"), 0.0, 1.0]]))
+    with pytest.raises(InputError, match="Query.uv: expected shape \\(2, 2\\)"):
+        Query(wi, wi, uv=torch.zeros(3, 2))
+    with pytest.raises(InputError, match="needs Query.uv"):
+        q.require("uv")
+
+
+def test_sample_weight_zero_where_invalid():
+    f = torch.ones(3, 3)
+    wo = torch.tensor([[0.0, 0.0, 1.0]] * 3)
+    pdf = torch.tensor([0.5, 0.0, 2.0])
+    w = sample_weight(f, wo, pdf, torch.tensor([True, True, False]))
+    assert torch.equal(w, torch.tensor([[2.0] * 3, [0.0] * 3, [0.0] * 3]))
