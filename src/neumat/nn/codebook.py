@@ -1,0 +1,181 @@
+"""Feature storage on grid vertices: codebook indices learned end to end (VQ-AD), dense, or low-bit.
+
+`VQFeatures` follows variable-bitrate neural fields (Takikawa et al. 2022, VQ-AD), which NeuBRDF
+(Dou et al. 2024, Sec. 3.3) uses: every vertex stores a b-bit index into a codebook D (2^b, k). While
+training, each vertex holds logits over the 2^b entries (dense, exactly as VQ-AD; 2n x 2^b floats, i.e.
+49922 x 512 = 25.6 M floats = 102 MB fp32, about 0.3 GB with Adam state, at the NeuBRDF defaults); the
+forward pass returns the codebook row of the argmax index, the codebook gets the gradient of that hard
+lookup, and the logits get the gradient of the softmax mixture (straight-through estimator, as in
+kaolin-wisp's CodebookOctreeGrid). `freeze()` replaces the logits by the integer indices.
+
+Storage (bits, the paper's formula): vq: V b + p k 2^b; dense: V k p; lowbit: V k q, with V vertices,
+p the float precision in bits (16 for fp16) and q the low-bit width.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from neumat.core.errors import InputError
+
+FLOAT_BITS = {"fp16": 16, "fp32": 32}
+
+
+def float_bits(precision: str) -> int:
+    """Bits per stored float of a precision name ("fp16" or "fp32")."""
+    if precision not in FLOAT_BITS:
+        raise InputError(f"precision: expected one of {', '.join(FLOAT_BITS)}, got {precision!r}")
+    return FLOAT_BITS[precision]
+
+
+def _check_ids(ids: torch.Tensor, n: int) -> None:
+    if not isinstance(ids, torch.Tensor) or ids.dtype.is_floating_point or ids.dtype == torch.bool:
+        raise InputError("ids: expected an integer tensor of vertex ids")
+    if ids.numel() and (ids.min().item() < 0 or ids.max().item() >= n):
+        raise InputError(f"ids: vertex ids must lie in [0, {n})")
+
+
+def _positive_int(v, name: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        raise InputError(f"{name}: expected a positive integer, got {v!r}")
+    return v
+
+
+class VQFeatures(nn.Module):
+    """k-dim features of `num_vertices` vertices, each a row of a learned codebook (2^bits, dim).
+
+    forward(ids (...,) int) -> (..., dim). Training: straight-through softmax over per-vertex logits;
+    frozen: integer index lookup.
+    """
+
+    def __init__(self, num_vertices: int, dim: int, bits: int, init_std: float = 1.0) -> None:
+        super().__init__()
+        self.num_vertices = _positive_int(num_vertices, "num_vertices")
+        self.dim = _positive_int(dim, "dim")
+        self.bits = _positive_int(bits, "bits")
+        if bits > 16:
+            raise InputError(f"bits: expected at most 16 index bits, got {bits}")
+        self.codebook = nn.Parameter(torch.randn(2 ** bits, dim) * init_std)
+        self.logits = nn.Parameter(torch.randn(num_vertices, 2 ** bits) * 0.01)
+
+    @property
+    def frozen(self) -> bool:
+        return self.logits is None
+
+    def indices(self) -> torch.Tensor:
+        """Current integer index (num_vertices,) of every vertex (argmax of the logits once trained)."""
+        return self.index if self.frozen else self.logits.detach().argmax(-1)
+
+    def freeze(self) -> None:
+        """Replace the logits by int32 indices (export / runtime). Irreversible."""
+        if self.frozen:
+            return
+        idx = self.logits.detach().argmax(-1).to(torch.int32)
+        self.logits = None
+        self.register_buffer("index", idx)
+
+    def forward(self, ids: torch.Tensor) -> torch.Tensor:
+        _check_ids(ids, self.num_vertices)
+        if self.frozen:
+            return self.codebook[self.index[ids].long()]
+        if not torch.is_grad_enabled():
+            return self.codebook[self.logits.argmax(-1)[ids]]
+        if ids.numel() >= self.num_vertices:  # cheaper to mix every vertex once, then gather
+            return self._straight_through(self.logits)[ids]
+        return self._straight_through(self.logits[ids])
+
+    def _straight_through(self, logits: torch.Tensor) -> torch.Tensor:
+        """(one_hot - softmax.detach() + softmax) @ D, as VQ-AD (kaolin-wisp CodebookOctreeGrid): the value
+        and the codebook gradient are those of the hard index; the logits get the softmax gradient."""
+        hard = self.codebook[logits.argmax(-1)]
+        soft = torch.softmax(logits, -1) @ self.codebook.detach()
+        return hard + (soft - soft.detach())
+
+    def storage_bits(self, float_bits: int) -> int:
+        """Index bits plus codebook floats: V b + float_bits k 2^b."""
+        return self.num_vertices * self.bits + float_bits * self.dim * 2 ** self.bits
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        if prefix + "index" in state_dict and not self.frozen:  # loading an exported (frozen) model
+            self.logits = None
+            self.register_buffer("index", torch.zeros(self.num_vertices, dtype=torch.int32))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+class DenseFeatures(nn.Module):
+    """Features stored directly, (num_vertices, dim) floats (the 'w/o quantization' ablation)."""
+
+    def __init__(self, num_vertices: int, dim: int, init_std: float = 0.1) -> None:
+        super().__init__()
+        self.num_vertices = _positive_int(num_vertices, "num_vertices")
+        self.dim = _positive_int(dim, "dim")
+        self.features = nn.Parameter(torch.randn(num_vertices, dim) * init_std)
+
+    def forward(self, ids: torch.Tensor) -> torch.Tensor:
+        _check_ids(ids, self.num_vertices)
+        return self.features[ids]
+
+    def freeze(self) -> None:
+        """Nothing to freeze: dense features are stored as they are."""
+
+    def storage_bits(self, float_bits: int) -> int:
+        return self.num_vertices * self.dim * float_bits
+
+
+class LowBitFeatures(nn.Module):
+    """Dense features quantised to `feature_bits` uniform levels on [-1, 1] (the 'low-bit' ablation).
+
+    Training simulates the quantisation with a straight-through rounding (as in neural image / texture
+    compression); `freeze()` stores the integer codes (uint8).
+    """
+
+    def __init__(self, num_vertices: int, dim: int, feature_bits: int, init_std: float = 0.1) -> None:
+        super().__init__()
+        self.num_vertices = _positive_int(num_vertices, "num_vertices")
+        self.dim = _positive_int(dim, "dim")
+        self.feature_bits = _positive_int(feature_bits, "feature_bits")
+        if feature_bits > 8:
+            raise InputError(f"feature_bits: expected at most 8 bits, got {feature_bits}")
+        self.levels = 2 ** feature_bits - 1
+        self.features = nn.Parameter((torch.randn(num_vertices, dim) * init_std).clamp(-1, 1))
+
+    @property
+    def frozen(self) -> bool:
+        return self.features is None
+
+    def _codes(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.round((x.clamp(-1, 1) + 1) * (self.levels / 2))
+
+    def _decode(self, codes: torch.Tensor) -> torch.Tensor:
+        return codes * (2 / self.levels) - 1
+
+    def forward(self, ids: torch.Tensor) -> torch.Tensor:
+        _check_ids(ids, self.num_vertices)
+        if self.frozen:
+            return self._decode(self.codes[ids].float())
+        x = self.features[ids].clamp(-1, 1)
+        return x + (self._decode(self._codes(x)) - x).detach()
+
+    def freeze(self) -> None:
+        """Replace the float features by their uint8 codes. Irreversible."""
+        if self.frozen:
+            return
+        codes = self._codes(self.features.detach()).to(torch.uint8)
+        self.features = None
+        self.register_buffer("codes", codes)
+
+    def storage_bits(self, float_bits: int) -> int:
+        return self.num_vertices * self.dim * self.feature_bits
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        if prefix + "codes" in state_dict and not self.frozen:
+            self.features = None
+            self.register_buffer("codes", torch.zeros(self.num_vertices, self.dim, dtype=torch.uint8))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def storage_bytes(bits: int) -> int:
+    """Bytes needed for `bits` bits."""
+    return math.ceil(bits / 8)

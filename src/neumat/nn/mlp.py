@@ -1,0 +1,77 @@
+"""A tiny fully connected network with a FLOP count, for neural material decoders."""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from neumat.core.errors import InputError
+
+ACTIVATIONS = {
+    "relu": nn.ReLU,
+    "leaky_relu": nn.LeakyReLU,
+    "silu": nn.SiLU,
+    "gelu": nn.GELU,
+    "tanh": nn.Tanh,
+    "sigmoid": nn.Sigmoid,
+    "softplus": nn.Softplus,
+    "exp": None,  # built by _make_activation
+}
+
+
+class _Exp(nn.Module):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.exp(x)
+
+
+def _make_activation(name: str, where: str) -> nn.Module:
+    if name not in ACTIVATIONS:
+        raise InputError(f"{where}: unknown activation {name!r} (known: {', '.join(ACTIVATIONS)})")
+    if name == "exp":
+        return _Exp()
+    if name in ("relu", "leaky_relu", "silu"):  # safe in place after a linear layer
+        return ACTIVATIONS[name](inplace=True)
+    return ACTIVATIONS[name]()
+
+
+class MLP(nn.Module):
+    """in_dim -> [hidden] * n_hidden_layers -> out_dim, `activation` after each hidden layer and
+    `out_activation` (None for linear) after the last. forward: (..., in_dim) -> (..., out_dim)."""
+
+    def __init__(self, in_dim: int, hidden: int, n_hidden_layers: int, out_dim: int,
+                 activation: str = "relu", out_activation: str | None = None) -> None:
+        super().__init__()
+        for name, v, lo in (("in_dim", in_dim, 1), ("hidden", hidden, 1), ("n_hidden_layers", n_hidden_layers, 0),
+                            ("out_dim", out_dim, 1)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise InputError(f"MLP.{name}: expected an integer >= {lo}, got {v!r}")
+        dims = [in_dim] + [hidden] * n_hidden_layers + [out_dim]
+        layers: list[nn.Module] = []
+        for i, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
+            layers.append(nn.Linear(a, b))
+            if i < len(dims) - 2:
+                layers.append(_make_activation(activation, "MLP.activation"))
+        if out_activation is not None:
+            layers.append(_make_activation(out_activation, "MLP.out_activation"))
+        self.net = nn.Sequential(*layers)
+        self.dims = tuple(dims)
+        self.has_out_activation = out_activation is not None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.shape[-1] != self.dims[0]:
+            raise InputError(f"MLP input: expected last dimension {self.dims[0]}, got {tuple(x.shape)}")
+        return self.net(x)
+
+    def linears(self) -> list[nn.Linear]:
+        """The linear layers, input to output."""
+        return [m for m in self.net if isinstance(m, nn.Linear)]
+
+    def flops(self) -> int:
+        """Floating-point operations per evaluation: 2 in out per linear layer (per output, `in` multiplies
+        and `in` adds: in - 1 partial sums plus the bias), plus one per activated output."""
+        lin = sum(2 * a * b for a, b in zip(self.dims[:-1], self.dims[1:]))
+        act = sum(self.dims[1:-1]) + (self.dims[-1] if self.has_out_activation else 0)
+        return lin + act
+
+    def num_parameters(self) -> int:
+        """Weights and biases."""
+        return sum(p.numel() for p in self.parameters())

@@ -1,0 +1,106 @@
+"""Vertex feature storage: straight-through VQ codebook, dense and low-bit features, storage formula."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from neumat.core.errors import InputError
+from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
+
+
+def test_storage_formula_matches_paper_table4():
+    v = 2 * (6 * 64 ** 2 + 6 * 64 + 1)  # 2 n at Nside 64
+    assert v == 49922
+    vq = VQFeatures(v, 16, 9)
+    # 2 n b + 16 k 2^b bits (paper Sec. 3.3, fp16)
+    assert vq.storage_bits(16) == 49922 * 9 + 16 * 16 * 512 == 580370
+    assert storage_bytes(vq.storage_bits(float_bits("fp16"))) == 72547  # paper: 0.07 MB
+    assert storage_bytes(DenseFeatures(v, 16).storage_bits(16)) == 1597504  # paper: 1.60 MB
+    assert storage_bytes(LowBitFeatures(v, 16, 4).storage_bits(16)) == 399376  # paper: 0.40 MB
+    # compression ratio of the paper's formula, dense fp16 over vq
+    assert DenseFeatures(v, 16).storage_bits(16) / vq.storage_bits(16) == pytest.approx(16 * v * 16 / 580370)
+
+
+def test_straight_through_forward_hard_backward_soft(gen):
+    vq = VQFeatures(20, 3, 3)
+    ids = torch.tensor([[0, 5, 7, 19], [3, 3, 1, 0]])
+    out = vq(ids)
+    torch.testing.assert_close(out, vq.codebook[vq.logits.argmax(-1)[ids]], rtol=0, atol=1e-7)
+    g = torch.randn(out.shape, generator=gen)
+    (out * g).sum().backward()
+    grad_logits, grad_code = vq.logits.grad.clone(), vq.codebook.grad.clone()
+    # reference (float64 autograd): the codebook gets the gradient of the hard lookup D[argmax], the
+    # logits that of the soft mixture softmax(logits) @ D with D held fixed
+    lg = vq.logits.detach().double().requires_grad_()
+    cb = vq.codebook.detach().double().requires_grad_()
+    hard = cb[lg.argmax(-1)[ids]]
+    soft = torch.softmax(lg[ids], -1) @ cb.detach()
+    ((hard + soft) * g.double()).sum().backward()
+    torch.testing.assert_close(grad_logits.double(), lg.grad, rtol=1e-4, atol=1e-7)
+    torch.testing.assert_close(grad_code.double(), cb.grad, rtol=1e-4, atol=1e-7)
+    # the whole-table path (many ids) gives the same values and gradients
+    vq.zero_grad()
+    many = torch.cat([ids.reshape(-1), torch.arange(20)])
+    (vq(many)[:8].reshape(2, 4, 3) * g).sum().backward()
+    torch.testing.assert_close(vq.logits.grad, grad_logits, rtol=1e-5, atol=1e-7)
+
+
+def test_vq_learns_indices_end_to_end():
+    torch.manual_seed(0)
+    protos = torch.randn(8, 4)
+    assign = torch.randint(0, 8, (200,))
+    target = protos[assign]
+    vq = VQFeatures(200, 4, 4, init_std=0.5)
+    opt = torch.optim.Adam(vq.parameters(), lr=0.05)
+    ids = torch.arange(200)
+    for _ in range(300):
+        opt.zero_grad()
+        loss = ((vq(ids) - target) ** 2).mean()
+        loss.backward()
+        opt.step()
+    vq.freeze()
+    err = ((vq(ids) - target) ** 2).mean().item() / (target ** 2).mean().item()
+    assert err < 1e-3, err
+
+
+def test_freeze_and_state_dict_roundtrip():
+    vq = VQFeatures(30, 4, 5)
+    ids = torch.randint(0, 30, (50,))
+    with torch.no_grad():  # the exact hard lookup (training adds soft - soft, off by rounding)
+        before = vq(ids)
+    vq.freeze()
+    assert vq.frozen and vq.index.dtype == torch.int32
+    torch.testing.assert_close(vq(ids), before, rtol=0, atol=0)
+    fresh = VQFeatures(30, 4, 5)
+    fresh.load_state_dict(vq.state_dict())
+    torch.testing.assert_close(fresh(ids), before, rtol=0, atol=0)
+
+    lb = LowBitFeatures(30, 4, 3)
+    out = lb(ids)
+    levels = (out.detach() + 1) * 7 / 2
+    torch.testing.assert_close(levels, levels.round(), rtol=0, atol=1e-5)  # on the 2^3 - 1 grid
+    out.sum().backward()
+    assert lb.features.grad.abs().sum() > 0  # straight-through rounding passes gradient
+    lb.freeze()
+    torch.testing.assert_close(lb(ids), out.detach(), rtol=0, atol=1e-6)
+    fresh = LowBitFeatures(30, 4, 3)
+    fresh.load_state_dict(lb.state_dict())
+    torch.testing.assert_close(fresh(ids), out.detach(), rtol=0, atol=1e-6)
+
+
+def test_bad_input_raises():
+    with pytest.raises(InputError, match="bits"):
+        VQFeatures(10, 4, 0)
+    with pytest.raises(InputError, match="bits"):
+        VQFeatures(10, 4, 17)
+    with pytest.raises(InputError, match="feature_bits"):
+        LowBitFeatures(10, 4, 9)
+    with pytest.raises(InputError, match="num_vertices"):
+        DenseFeatures(0, 4)
+    vq = VQFeatures(10, 4, 2)
+    with pytest.raises(InputError, match="ids"):
+        vq(torch.tensor([10]))
+    with pytest.raises(InputError, match="ids"):
+        vq(torch.tensor([0.5]))
+    with pytest.raises(InputError, match="precision"):
+        float_bits("fp8")
