@@ -22,6 +22,7 @@ from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
+from neumat.models.registry import MODELS
 from neumat.nn.mlp import MLP
 
 
@@ -124,6 +125,7 @@ class NeuralTexture(nn.Module):
         return sum(p.numel() for p in self.levels)
 
 
+@MODELS.register("neubrdf")
 class NeuBRDF(nn.Module, Material):
     """NeuBRDF material model (see module docstring).
 
