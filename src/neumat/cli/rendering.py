@@ -8,7 +8,7 @@ import typer
 from .common import print_json, print_table, run_command
 
 SCENE_HELP = "sphere | plane | mesh:PATH"
-LIGHT_HELP = "point | dir | env:PATH | const:VALUE"
+LIGHT_HELP = "point[:x/y/z] | dir[:x/y/z] | const:VALUE | env:PATH | env:sky"
 
 
 def register(app: typer.Typer) -> None:
@@ -18,7 +18,7 @@ def register(app: typer.Typer) -> None:
 
 def render(material: str = typer.Argument(..., help="material file (.binary, .bsdf, .nmat) or analytic spec"),
            scene: str = typer.Option("sphere", help=SCENE_HELP),
-           light: str = typer.Option("env:default", help=LIGHT_HELP),
+           light: str = typer.Option("env:sky", help=LIGHT_HELP),
            spp: int = typer.Option(64, min=1, help="samples per pixel"),
            resolution: int = typer.Option(256, min=8, help="image width and height in pixels"),
            strategy: str = typer.Option("mis", help="mis | light | material"),
@@ -41,7 +41,7 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
 
 def compare(materials: list[str] = typer.Argument(..., help="reference first, then the materials to compare"),
             scene: str = typer.Option("sphere", help=SCENE_HELP),
-            light: str = typer.Option("env:default", help=LIGHT_HELP),
+            light: str = typer.Option("env:sky", help=LIGHT_HELP),
             spp: int = typer.Option(64, min=1),
             resolution: int = typer.Option(256, min=8),
             n_configs: int = typer.Option(2 ** 18, help="random (wi, wo) configurations for reflectance errors"),
@@ -71,7 +71,8 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
         if out is not None:
             from ..viz.compare import compare_image
             from ..io.images import write_image_ldr
-            write_image_ldr(out, compare_image(imgs[ref_name], {n: imgs[n] for n in materials[1:]}))
+            values = {r["material"]: {k: v for k, v in r.items() if k != "material"} for r in rows}
+            write_image_ldr(out, compare_image(imgs[ref_name], {n: imgs[n] for n in materials[1:]}, values))
         if json:
             print_json({"reference": ref_name, "results": rows})
         else:

@@ -1,0 +1,95 @@
+"""Side-by-side comparison picture: one row per model, "reference | model | FLIP error map"."""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from ..core.errors import InputError
+from ..io.images import image_to_numpy
+from ..metrics.image import flip_map
+from ..metrics.tonemap import to_ldr
+
+#: panels narrower than this many pixels are enlarged by an integer factor (nearest neighbour)
+MIN_PANEL_WIDTH = 160
+PAD = 4
+BACKGROUND = (32, 32, 32)
+TEXT = (235, 235, 235)
+FONT_SIZE = 12
+
+
+def compare_image(ref, others: dict, metrics: dict | None = None, tonemap: str = "clip",
+                  exposure: float = 0.0) -> np.ndarray:
+    """Comparison picture (H', W', 3) uint8 of linear images (H, W, 3) (numpy or torch).
+
+    One row per entry of `others` (name -> image): the tone-mapped reference, the tone-mapped model
+    and its LDR-FLIP error map (magma colour map, 0 black .. 1 white-yellow), with labels above and
+    the metric values below: `metrics[name]` (name -> {metric: value}) if given, else the mean FLIP.
+    """
+    from matplotlib import colormaps
+
+    if not others:
+        raise InputError("compare_image: `others` is empty; give at least one model image")
+    ref = image_to_numpy(ref, "compare_image: ref")
+    ref_ldr = _to_uint8(to_ldr(ref, exposure=exposure, tonemap=tonemap))
+    scale = max(1, math.ceil(MIN_PANEL_WIDTH / ref.shape[1]))
+    font = ImageFont.load_default(size=FONT_SIZE)
+    rows = []
+    for name, img in others.items():
+        img = image_to_numpy(img, f"compare_image: others[{name!r}]")
+        if img.shape != ref.shape:
+            raise InputError(f"compare_image: others[{name!r}] has shape {img.shape}, the reference {ref.shape}")
+        error = flip_map(ref, img, tonemap=tonemap, exposure=exposure)
+        if metrics is not None and name in metrics:
+            values = metrics[name]
+        else:
+            values = {"flip": float(error.mean())}
+        panels = [ref_ldr, _to_uint8(to_ldr(img, exposure=exposure, tonemap=tonemap)),
+                  _to_uint8(colormaps["magma"](error)[:, :, :3])]
+        rows.append(_row([_enlarge(p, scale) for p in panels], ["reference", str(name), "FLIP error"],
+                         _format_metrics(values), font))
+    return np.concatenate(rows, axis=0)
+
+
+def _to_uint8(x: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(x, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _enlarge(img: np.ndarray, scale: int) -> np.ndarray:
+    return img.repeat(scale, axis=0).repeat(scale, axis=1) if scale > 1 else img
+
+
+def _format_metrics(values: dict) -> list[str]:
+    """'name=value' items, numbers with 4 significant digits."""
+    return [f"{k}={v:.4g}" if isinstance(v, numbers.Real) else f"{k}={v}" for k, v in values.items()]
+
+
+def _wrap(items: list[str], font, width: int) -> list[str]:
+    """Join items with spaces into lines no wider than `width` pixels (an item is never split)."""
+    lines: list[str] = []
+    for item in items:
+        if lines and font.getlength(lines[-1] + "   " + item) <= width:
+            lines[-1] += "   " + item
+        else:
+            lines.append(item)
+    return lines
+
+
+def _row(panels: list[np.ndarray], labels: list[str], items: list[str], font) -> np.ndarray:
+    """Panels side by side with a label above each and the wrapped metric items below."""
+    h, w = panels[0].shape[:2]
+    line_h = font.getbbox("Ag")[3] + 4
+    width = len(panels) * w + (len(panels) + 1) * PAD
+    lines = _wrap(items, font, width - 2 * PAD)
+    height = PAD + line_h + h + PAD + len(lines) * line_h + PAD
+    canvas = Image.new("RGB", (width, height), BACKGROUND)
+    draw = ImageDraw.Draw(canvas)
+    for k, (panel, label) in enumerate(zip(panels, labels)):
+        x = PAD + k * (w + PAD)
+        draw.text((x, PAD), label, fill=TEXT, font=font)
+        canvas.paste(Image.fromarray(panel), (x, PAD + line_h))
+    for k, line in enumerate(lines):
+        draw.text((PAD, PAD + line_h + h + PAD + k * line_h), line, fill=TEXT, font=font)
+    return np.asarray(canvas)

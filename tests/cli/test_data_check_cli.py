@@ -1,0 +1,79 @@
+"""`neumat data info`, `neumat data convert`, `neumat check`, `neumat version` through the real CLI app."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from neumat import __version__
+from neumat.cli.main import app
+from neumat.io.merl import MERL_DIMS, MERL_SCALE, read_merl, write_merl
+
+runner = CliRunner()
+
+
+def _json(result) -> dict:
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+def test_version():
+    r = runner.invoke(app, ["version"])
+    assert r.exit_code == 0 and r.stdout.strip() == __version__
+
+
+def test_info_merl(tmp_path):
+    table = np.full((3, *MERL_DIMS), 750.0)
+    table[1, 0, 0, :3] = -1.0  # three missing cells
+    path = tmp_path / "grey.binary"
+    write_merl(path, table)
+    d = _json(runner.invoke(app, ["data", "info", str(path), "--json"]))
+    assert d["kind"].startswith("MERL") and d["size_on_disk_bytes"] == path.stat().st_size
+    assert d["missing_entries"] == 3 and d["valid"] is True
+    assert d["value_min"] == pytest.approx(750 * MERL_SCALE[0]) and d["value_max"] == pytest.approx(750 * MERL_SCALE[2])
+
+
+def test_info_rgl(shared_data):
+    d = _json(runner.invoke(app, ["data", "info", str(shared_data / "rgl/paper_white_rgb.bsdf"), "--json"]))
+    assert d["kind"].startswith("RGL") and d["isotropic"] is True and d["valid"] is True
+    assert "paper" in d["description"].lower() and 0 <= d["value_min"] < d["value_max"]
+
+
+def test_info_spec_and_errors(tmp_path):
+    d = _json(runner.invoke(app, ["data", "info", "lambert:albedo=0.5", "--json"]))
+    assert d["kind"] == "analytic material"
+    assert d["sampled_value_min"] == pytest.approx(0.5 / np.pi) == pytest.approx(d["sampled_value_max"])
+    bad = tmp_path / "short.binary"
+    bad.write_bytes(b"\x5a\x00\x00\x00" * 3 + b"\x00" * 100)
+    for arg, words in ((str(bad), "header"), ("nosuchmodel:x=1", "unknown"), (str(tmp_path / "none.bsdf"), "exist")):
+        r = runner.invoke(app, ["data", "info", arg])
+        assert r.exit_code == 2 and "error" in r.output and words in r.output, r.output
+
+
+def test_convert_analytic_to_merl(tmp_path):
+    out = tmp_path / "lam.binary"
+    r = runner.invoke(app, ["data", "convert", "lambert:albedo=0.3/0.6/0.9", str(out)])
+    assert r.exit_code == 0, r.output
+    t = read_merl(out).table
+    valid = t[0] >= 0
+    for c, a in enumerate((0.3, 0.6, 0.9)):
+        np.testing.assert_allclose(t[c][valid] * MERL_SCALE[c], a / np.pi, rtol=1e-6)
+    r = runner.invoke(app, ["data", "convert", "lambert", str(tmp_path / "x.png")])
+    assert r.exit_code == 2 and ".binary" in r.output
+
+
+def test_check_passes_for_lambert_and_reports_json():
+    d = _json(runner.invoke(app, ["check", "lambert:albedo=1", "--angles", "10,60", "--samples", "20000",
+                                  "--json"]))
+    assert d["passed"] is True and d["reciprocity_passed"] is True
+    for row in d["angles"]:
+        assert row["chi2_passed"] is True
+        # directional albedo of a white Lambertian surface is 1 (within 5 standard errors)
+        assert all(abs(a - 1) <= 5 * row["albedo_stderr"] + 1e-6 for a in row["albedo_rgb"])
+
+
+def test_check_rejects_bad_angles():
+    r = runner.invoke(app, ["check", "lambert", "--angles", "95"])
+    assert r.exit_code == 2 and "--angles" in r.output
