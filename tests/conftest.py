@@ -1,7 +1,6 @@
-"""Shared fixtures: the real-data folder, seeded generators, one torch thread per xdist worker."""
+"""Shared fixtures: the real-data folder, seeded generators, one torch thread per test process."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -9,8 +8,9 @@ import torch
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
-if os.environ.get("PYTEST_XDIST_WORKER"):
-    torch.set_num_threads(1)
+# one torch thread per test process: xdist runs one process per core, and small test batches gain
+# nothing from intra-op threads while oversubscribed cores slow them down many times over
+torch.set_num_threads(1)
 
 
 @pytest.fixture

@@ -243,6 +243,11 @@ class NeuBRDF(nn.Module, Material):
             mask[vid + hpx.south_grid_offset(n) if south else vid] = True
         return mask
 
+    @property
+    def is_runtime(self) -> bool:
+        """Whether `runtime()` is in effect (model files record it and re-enter runtime mode on load)."""
+        return self._pixel_features is not None
+
     def freeze(self) -> None:
         """Freeze the vertex features to integers (indices or low-bit codes) for export."""
         self.grid.freeze()

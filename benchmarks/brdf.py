@@ -1,0 +1,232 @@
+"""BRDF model benchmark: every BRDF model x measured (RGL) and analytic materials.
+
+For each (model, material): fit with the model's recipe (`--steps` overrides the step count), then
+  - RMSE-HDR, MAE-HDR over random cosine-weighted configurations (`neumat.metrics.hdr.reflectance_errors`),
+  - image MAE / RMSE / SSIM / FLIP of a sphere under an environment map against the reference material's
+    rendering (`neumat.render.render.render` + `neumat.metrics.image.image_metrics`). Both images use
+    light (environment) sampling with the same seed, so they share their sample directions and the
+    difference measures the BRDFs, not Monte Carlo noise; the exposure maps the reference's 99th
+    percentile to 1,
+  - stored bytes (fp16), fit time, evaluations per second (no_grad, batches of 2^16 queries).
+Prints rich tables (per pair, per model averaged over materials) beside the NeuBRDF paper's Table 3 (MERL
+averages, image metrics following NBRDF), and writes them as Markdown (`--out`).
+
+    python benchmarks/brdf.py --quick
+    python benchmarks/brdf.py --models neubrdf,nbrdf --materials paper_white_rgb,plastic --steps 5000
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from rich.console import Console
+from rich.table import Table
+
+from neumat.core.query import Query
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.io.open_material import open_material
+from neumat.io.shared_data import shared_data_dir
+from neumat.metrics.hdr import reflectance_errors
+from neumat.metrics.image import image_metrics
+from neumat.models.registry import model_class
+from neumat.render.render import render
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+
+#: benchmark model name -> (registry name, config fields)
+MODELS = {
+    "neubrdf": ("neubrdf", {}),
+    "neubrdf-dense": ("neubrdf", {"features": "dense"}),
+    "neubrdf-lowbit": ("neubrdf", {"features": "lowbit"}),
+    "naive-mlp": ("naive-mlp", {}),
+    "nbrdf": ("nbrdf", {}),
+    "ggx": ("ggx", {}),
+}
+
+#: analytic materials (spec strings) beside the measured RGL files
+ANALYTIC = {
+    "plastic": "plastic:diffuse=0.6/0.3/0.15,roughness=0.3",
+    "gold-ggx": "ggx:roughness=0.15,fresnel=conductor,material=gold",
+    "principled-aniso": "principled:base_color=0.8/0.5/0.2,metallic=1,roughness=0.4,anisotropy=0.6",
+}
+
+#: NeuBRDF paper, Table 3: image MAE / RMSE / SSIM averaged over all MERL materials
+PAPER_TABLE3 = {
+    "GGX [Walter 2007]": (0.0189, 0.0206, 0.969),
+    "Low et al.": (0.0080, 0.0088, 0.986),
+    "Dupuy et al.": (0.0174, 0.0190, 0.976),
+    "NPF": (0.0056, 0.0062, 0.990),
+    "NBRDF [Sztrajman 2021]": (0.0028, 0.0033, 0.995),
+    "NeuBRDF (ours in the paper)": (0.0017, 0.0031, 0.996),
+}
+
+#: --quick: few steps, small grids and images, two materials
+QUICK = {"steps": 150, "batch_cap": 4096, "no_ema": True, "nside": 16, "hdr_n": 2 ** 15, "resolution": 48, "spp": 8,
+         "materials": ["paper_white_rgb", "plastic"]}
+FULL = {"steps": None, "batch_cap": None, "no_ema": False, "nside": None, "hdr_n": 2 ** 20, "resolution": 256,
+        "spp": 64, "materials": None}
+
+COLUMNS = ["rmse_hdr", "mae_hdr", "img_mae", "img_rmse", "img_ssim", "img_flip", "bytes_fp16", "fit_s", "evals_per_s"]
+
+
+def available_materials(data: Path | None) -> dict[str, str]:
+    """Benchmark material name -> what `open_material` opens: RGL files from shared data, then analytic specs."""
+    out = {}
+    if data is not None:
+        for path in sorted((data / "rgl").glob("*.bsdf")):
+            out[path.stem] = str(path)
+    out.update(ANALYTIC)
+    return out
+
+
+def build_model(name: str, nside: int | None):
+    registry, fields = MODELS[name]
+    if nside is not None and registry == "neubrdf":
+        fields = {**fields, "nside": nside}
+    return model_class(registry)(**fields), registry
+
+
+def evals_per_second(model, device, n: int = 2 ** 16, repeats: int = 5) -> float:
+    gen = torch.Generator().manual_seed(0)
+    q = Query(sample_cosine_hemisphere(torch.rand(n, 2, generator=gen)),
+              sample_cosine_hemisphere(torch.rand(n, 2, generator=gen))).to(device)
+    with torch.no_grad():
+        model.eval(q)  # warm-up
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            model.eval(q)
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+    return n * repeats / (time.perf_counter() - t0)
+
+
+def sphere_image(material, light: str, settings: dict, device) -> np.ndarray:
+    img = render(material, "sphere", light, spp=settings["spp"], resolution=settings["resolution"],
+                 strategy="light", seed=0, device=device)
+    return img.detach().cpu().numpy()
+
+
+def run(args) -> tuple[list[dict], dict]:
+    settings = dict(QUICK if args.quick else FULL)
+    if args.steps is not None:
+        settings["steps"] = args.steps
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    data = shared_data_dir()
+    known = available_materials(data)
+    names = args.materials.split(",") if args.materials else (settings["materials"] or list(known))
+    unknown = [m for m in names if m not in known]
+    if unknown:
+        sys.exit(f"unknown material(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    models = args.models.split(",") if args.models else list(MODELS)
+    bad = [m for m in models if m not in MODELS]
+    if bad:
+        sys.exit(f"unknown model(s) {', '.join(bad)}; known: {', '.join(MODELS)}")
+    envmap = Path(args.envmap) if args.envmap else (data / "envmap" / "studio_small_03_1k.hdr" if data else None)
+    light = f"env:{envmap}" if envmap is not None and envmap.is_file() else "env:sky"
+    settings.update(device=str(device), light=light)
+    console = Console(stderr=True)
+    rows = []
+    for mat_name in names:
+        source = open_material(known[mat_name])
+        ref_img = sphere_image(source, light, settings, device)
+        exposure = -math.log2(max(float(np.percentile(ref_img, 99)), 1e-6))
+        for model_name in models:
+            torch.manual_seed(0)
+            model, registry = build_model(model_name, settings["nside"])
+            recipe = recipe_for(registry)
+            if settings["batch_cap"]:
+                recipe = replace(recipe, batch_size=min(recipe.batch_size, settings["batch_cap"]))
+            if settings["no_ema"]:  # an EMA of weight 0.01 would still hold ~20 % of the initial weights
+                recipe = replace(recipe, ema=0.0)
+            steps = settings["steps"] or recipe.steps
+            console.print(f"[bold]{model_name}[/] on {mat_name}: {steps} steps of {recipe.batch_size}")
+            result = fit(model, source, recipe, steps=steps, device=device, progress=not args.no_progress)
+            hdr = reflectance_errors(model, source, n=settings["hdr_n"], device=device)
+            img = image_metrics(ref_img, sphere_image(model, light, settings, device), exposure=exposure)
+            rows.append({"model": model_name, "material": mat_name, "rmse_hdr": hdr["rmse_hdr"],
+                         "mae_hdr": hdr["mae_hdr"], "img_mae": img["mae"], "img_rmse": img["rmse"],
+                         "img_ssim": img["ssim"], "img_flip": img["flip"], "bytes_fp16": model.size_bytes("fp16"),
+                         "fit_s": result.seconds, "evals_per_s": evals_per_second(model, device), "steps": steps})
+    return rows, settings
+
+
+def averages(rows: list[dict]) -> list[dict]:
+    out = []
+    for model in dict.fromkeys(r["model"] for r in rows):
+        mine = [r for r in rows if r["model"] == model]
+        out.append({"model": model, "material": f"mean of {len(mine)}",
+                    **{c: float(np.mean([r[c] for r in mine])) for c in COLUMNS}})
+    return out
+
+
+def fmt(column: str, value) -> str:
+    if isinstance(value, str):
+        return value
+    if column == "bytes_fp16":
+        return f"{int(value):,}"
+    if column == "evals_per_s":
+        return f"{value:.3g}"
+    if column == "fit_s":
+        return f"{value:.1f}"
+    return f"{value:.4f}"
+
+
+def tables(rows: list[dict]) -> list[tuple[str, list[str], list[list[str]]]]:
+    head = ["model", "material"] + COLUMNS
+    per_pair = [[fmt(c, r[c]) for c in head] for r in rows]
+    mean = [[fmt(c, r[c]) for c in head] for r in averages(rows)]
+    paper = [[name, f"{mae:.4f}", f"{rmse:.4f}", f"{ssim:.3f}"] for name, (mae, rmse, ssim) in PAPER_TABLE3.items()]
+    return [("Per model and material", head, per_pair), ("Per model, averaged over materials", head, mean),
+            ("Reference: NeuBRDF paper Table 3 (MERL, image MAE / RMSE / SSIM)", ["method", "MAE", "RMSE", "SSIM"],
+             paper)]
+
+
+def markdown(rows: list[dict], settings: dict) -> str:
+    lines = ["# BRDF benchmark", "", "Settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()), "",
+             "rmse_hdr / mae_hdr: reflectance-space errors over cosine-weighted configurations; img_*: sphere "
+             "under the environment map vs the reference's rendering (tone-mapped sRGB, FLIP mean); bytes at fp16; "
+             "evals_per_s: model.eval throughput (no_grad, 2^16 queries).", ""]
+    for title, head, body in tables(rows):
+        lines += [f"## {title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(r) + " |" for r in body]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--steps", type=int, default=None, help="fit steps per model (default: each recipe's)")
+    p.add_argument("--materials", help="comma-separated material names (RGL file stems or analytic names)")
+    p.add_argument("--models", help=f"comma-separated models (default all: {', '.join(MODELS)})")
+    p.add_argument("--quick", action="store_true",
+                   help="smoke run: 150 steps, batch <= 4096, no EMA, NeuBRDF nside 16, 48^2 px at 8 spp, 2 materials")
+    p.add_argument("--out", default="benchmarks/results/brdf.md", help="Markdown output file")
+    p.add_argument("--device", default=None, help="torch device (default: cuda if available)")
+    p.add_argument("--envmap", default=None, help="environment map (default: shared studio_small_03_1k.hdr)")
+    p.add_argument("--no-progress", action="store_true", help="hide the fit progress bars")
+    args = p.parse_args(argv)
+    rows, settings = run(args)
+    console = Console(width=None if sys.stdout.isatty() else 220)  # full columns in logs and pipes
+    for title, head, body in tables(rows):
+        table = Table(title=title)
+        for h in head:
+            table.add_column(h, justify="left" if h in ("model", "material", "method") else "right")
+        for r in body:
+            table.add_row(*r)
+        console.print(table)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(markdown(rows, settings))
+    console.print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

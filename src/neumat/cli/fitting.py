@@ -1,0 +1,137 @@
+"""`neumat fit` and `neumat eval`."""
+from __future__ import annotations
+
+import difflib
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+
+import typer
+
+from ..core.errors import InputError
+from .common import parse_overrides, print_json, print_table, run_command
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(fit)
+    app.command("eval")(evaluate)
+
+
+def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .nmat) or analytic spec"),
+        model: str = typer.Option("neubrdf", "--model", "-m", help="registered model name"),
+        set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field"),
+        steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
+        device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
+        seed: int = typer.Option(None, help="seed of the model initialisation and the queries (default: recipe's)"),
+        checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
+        resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+        out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
+    """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file."""
+    def go():
+        import torch
+
+        from ..io.modelfile import save_model
+        from ..io.open_material import open_material
+        from ..fit.trainer import fit as fit_model
+
+        if out.suffix != ".nmat":
+            raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
+        m, recipe = build_model_and_recipe(model, parse_overrides(set_), seed)
+        src = open_material(source)
+        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        result = fit_model(m, src, recipe, steps=steps, device=dev, progress=not quiet, checkpoint=checkpoint,
+                           resume=resume)
+        metrics = {"final_loss": result.history[-1]["loss"] if result.history else None,
+                   "fit_seconds": result.seconds}
+        save_model(result.model, out, recipe=replace(recipe, steps=result.steps), source=source, metrics=metrics)
+        print(f"wrote {out} ({result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']})")
+    run_command(go)
+
+
+def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None):
+    """A fresh model `model` and its recipe with `overrides` applied (model config fields first, then recipe
+    fields; unknown keys raise). The model is initialised after seeding torch with the recipe's seed."""
+    import torch
+
+    from ..core.config import config_from_dict, config_to_dict
+    from ..fit.recipe import Recipe, check_recipe, recipe_for
+    from ..io.modelfile import model_config_class
+    from ..models.registry import model_class
+
+    cls = model_class(model)
+    config_cls = model_config_class(cls)
+    config_keys = {f.name for f in fields(config_cls)}
+    recipe_keys = {f.name for f in fields(Recipe)}
+    unknown = [k for k in overrides if k not in config_keys | recipe_keys]
+    if unknown:
+        hints = {k: difflib.get_close_matches(k, config_keys | recipe_keys, n=2) for k in unknown}
+        text = "; ".join(f"{k!r}" + (f" (did you mean {', '.join(h)}?)" if h else "") for k, h in hints.items())
+        raise InputError(f"--set: unknown key(s) {text}: not a field of {model!r}'s config "
+                           f"({', '.join(sorted(config_keys))}) nor of the recipe ({', '.join(sorted(recipe_keys))})")
+    recipe = config_from_dict(Recipe, {**config_to_dict(recipe_for(model)),
+                                       **{k: v for k, v in overrides.items() if k not in config_keys}})
+    if seed is not None:
+        recipe.seed = seed
+    check_recipe(recipe)
+    cfg = config_from_dict(config_cls, {k: v for k, v in overrides.items() if k in config_keys})
+    torch.manual_seed(recipe.seed)
+    return cls(config=cfg), recipe
+
+
+def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
+             against: str = typer.Option(..., "--against", help="reference: material file or analytic spec"),
+             n: int = typer.Option(2 ** 20, "--n", min=1, help="random (wi, wo) configurations"),
+             image: bool = typer.Option(True, "--image/--no-image", help="also compare sphere renderings"),
+             spp: int = typer.Option(64, min=1, help="samples per pixel of the renderings"),
+             resolution: int = typer.Option(256, min=8, help="rendering width and height"),
+             device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
+             seed: int = typer.Option(0),
+             json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
+    """Compare MODEL with a reference: reflectance errors, rendered-image metrics, size and speed."""
+    def go():
+        import torch
+
+        from ..io.modelfile import load_model
+        from ..io.open_material import open_material
+        from ..metrics.hdr import reflectance_errors
+
+        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        m = load_model(model, device=dev)
+        ref = open_material(against)
+        row = {"model": str(model), "against": against}
+        row.update(reflectance_errors(m, ref, n=n, seed=seed, device=dev))
+        if image:
+            from ..metrics.image import image_metrics
+            from ..render.render import render
+
+            opts = dict(scene="sphere", spp=spp, resolution=(resolution, resolution), seed=seed, device=dev)
+            row.update(image_metrics(render(ref, **opts), render(m, **opts)))
+        row["bytes_fp16"] = int(m.size_bytes("fp16"))
+        row["evals_per_second"] = evals_per_second(m, dev)
+        if json:
+            print_json(row)
+        else:
+            print_table(f"{model} against {against}", [{"metric": k, "value": v} for k, v in row.items()])
+    run_command(go)
+
+
+def evals_per_second(material, device, batch: int = 2 ** 16, min_seconds: float = 0.2) -> float:
+    """Throughput of `material.eval` on batches of cosine-weighted queries (after one warm-up batch)."""
+    import torch
+
+    from ..fit.query_samplers import QUERY_SAMPLERS
+
+    gen = torch.Generator().manual_seed(0)
+    q = QUERY_SAMPLERS.get("cosine")(material, material)(batch, gen, device)
+    sync = torch.cuda.synchronize if torch.device(device).type == "cuda" else (lambda: None)
+    with torch.no_grad():
+        material.eval(q)
+        sync()
+        count, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < min_seconds:
+            material.eval(q)
+            count += batch
+        sync()
+        return count / (time.perf_counter() - t0)
+

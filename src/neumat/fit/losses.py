@@ -1,0 +1,66 @@
+"""Training losses between predicted and target BRDF values.
+
+A loss is built as `LOSSES.get(name)()` and called `loss(pred (N, 3), target (N, 3), q: Query)` -> scalar.
+Losses are `nn.Module`s, so a loss that keeps state (running statistics) keeps it in buffers, which the
+trainer checkpoints. Models and recipe modules may register their own at import time.
+
+Built-ins (means over the N queries and 3 channels):
+  "log_cos":  |log(1 + f_hat cos_i) - log(1 + f cos_i)|, cos_i = max(wi_z, 0). The L1 (absolute) form,
+              as NBRDF (Sztrajman et al. 2021; their code's `mean_absolute_logarithmic_error` on
+              cosine-weighted values) and Neural Appearance Models (Zeltner et al. 2024, "L1 loss in log
+              space"); NeuBRDF leaves its loss to the supplement, and follows NBRDF in evaluation.
+  "l1":       |f_hat - f|.
+  "l2":       (f_hat - f)^2.
+  "relative": (f_hat - f)^2 / (sg(f_hat)^2 + eps), eps = 0.01, the prediction-relative L2 of Noise2Noise
+              (Lehtinen et al. 2018) used by Timonen et al. 2025 (sg = stop gradient).
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ..core.query import Query
+from ..core.registry import Registry
+
+LOSSES: Registry = Registry("loss")
+
+
+def _cos_i(q: Query, like: torch.Tensor) -> torch.Tensor:
+    return q.wi[:, 2:3].clamp(min=0).to(like.dtype)
+
+
+@LOSSES.register("log_cos")
+class LogCosLoss(nn.Module):
+    """mean |log(1 + f_hat cos_i) - log(1 + f cos_i)| (NBRDF)."""
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        c = _cos_i(q, pred)
+        return (torch.log1p(pred * c) - torch.log1p(target * c)).abs().mean()
+
+
+@LOSSES.register("l1")
+class L1Loss(nn.Module):
+    """mean |f_hat - f|."""
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        return (pred - target).abs().mean()
+
+
+@LOSSES.register("l2")
+class L2Loss(nn.Module):
+    """mean (f_hat - f)^2."""
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        return (pred - target).square().mean()
+
+
+@LOSSES.register("relative")
+class RelativeL2Loss(nn.Module):
+    """mean (f_hat - f)^2 / (sg(f_hat)^2 + eps) (Noise2Noise's HDR loss)."""
+
+    def __init__(self, eps: float = 0.01) -> None:
+        super().__init__()
+        self.eps = eps
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        return ((pred - target).square() / (pred.detach().square() + self.eps)).mean()

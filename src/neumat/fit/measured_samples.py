@@ -1,0 +1,103 @@
+"""A Material made of measured samples (wi, wo[, uv]) -> value: sparse measurements and replay buffers.
+
+Queries drawn from the samples themselves (`MeasuredSamples.query`, used by the "replay" query sampler)
+are answered exactly from storage. Any other query is answered by the nearest stored sample (Euclidean
+distance of the concatenated [wi, wo(, uv)] vectors): a piecewise-constant interpolant, so that the
+samples are a Material like any other (render, metrics), though a coarse one where they are sparse.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from ..core.checks import check_directions, check_finite, check_range, check_shape
+from ..core.errors import InputError
+from ..core.material import Material
+from ..core.query import Query
+
+
+@dataclass
+class SampleQuery(Query):
+    """A Query whose rows are the stored samples `index` (N,) of `samples`."""
+
+    index: torch.Tensor | None = None
+    samples: "MeasuredSamples | None" = field(default=None, repr=False, compare=False)
+
+
+class MeasuredSamples(Material):
+    """N measured BRDF samples.
+
+    wi, wo: (N, 3) unit directions in the upper hemisphere (local frame).
+    value:  (N, 3) linear RGB BRDF values, cosine excluded.
+    uv:     (N, 2) texture coordinates in [0, 1] for spatially varying measurements, or None.
+    """
+
+    can_sample = False
+
+    def __init__(self, wi: torch.Tensor, wo: torch.Tensor, value: torch.Tensor,
+                 uv: torch.Tensor | None = None, name: str = "samples") -> None:
+        check_directions(wi, f"{name}: wi")
+        check_directions(wo, f"{name}: wo")
+        n = wi.shape[0]
+        if n == 0:
+            raise InputError(f"{name}: expected at least one sample")
+        check_shape(wo, f"{name}: wo", (n, 3))
+        check_shape(value, f"{name}: value", (n, 3))
+        check_finite(value, f"{name}: value")
+        if bool(((wi[:, 2] < 0) | (wo[:, 2] < 0)).any()):
+            raise InputError(f"{name}: wi and wo must lie in the upper hemisphere (z >= 0)")
+        if uv is not None:
+            check_shape(uv, f"{name}: uv", (n, 2))
+            check_range(uv, f"{name}: uv", 0.0, 1.0)
+        self.wi, self.wo, self.value, self.uv = wi, wo, value, uv
+        self.name = name
+        self.spatially_varying = uv is not None
+        self._cache: dict = {}
+
+    @classmethod
+    def from_material(cls, material: Material, q: Query, name: str | None = None) -> "MeasuredSamples":
+        """`material` measured at the queries `q` (values computed without gradient)."""
+        with torch.no_grad():
+            value = material.eval(q)
+        return cls(q.wi, q.wo, value, uv=q.uv, name=name or f"samples of {material.describe()}")
+
+    def __len__(self) -> int:
+        return self.wi.shape[0]
+
+    def _on(self, device: torch.device) -> dict[str, torch.Tensor]:
+        key = str(device)
+        if key not in self._cache:
+            self._cache[key] = {k: None if t is None else t.to(device)
+                                for k, t in (("wi", self.wi), ("wo", self.wo), ("value", self.value), ("uv", self.uv))}
+        return self._cache[key]
+
+    def query(self, index: torch.Tensor, dtype: torch.dtype = torch.float32) -> SampleQuery:
+        """The stored samples `index` (N,) (on index's device) as a query that `eval` answers exactly."""
+        s = self._on(index.device)
+        uv = None if s["uv"] is None else s["uv"][index].to(dtype)
+        return SampleQuery(s["wi"][index].to(dtype), s["wo"][index].to(dtype), uv=uv, index=index, samples=self)
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """Stored values (N, 3) of the samples a `SampleQuery` names; otherwise of the nearest samples."""
+        s = self._on(q.device)
+        if isinstance(q, SampleQuery) and q.samples is self:
+            return s["value"][q.index].to(q.dtype)
+        q.require("wo", who=f"{self.name}.eval")
+        if self.spatially_varying:
+            q.require("uv", who=f"{self.name}.eval (spatially varying samples)")
+        return s["value"][self.nearest(q)].to(q.dtype)
+
+    def nearest(self, q: Query) -> torch.Tensor:
+        """Index (N,) of the stored sample nearest to each query (brute force, in chunks)."""
+        s = self._on(q.device)
+        keys = torch.cat([s["wi"], s["wo"]] + ([s["uv"]] if self.spatially_varying else []), -1).float()
+        parts = [q.wi, q.wo] + ([q.uv] if self.spatially_varying else [])
+        x = torch.cat([p.float() for p in parts], -1)
+        if x.shape[0] == 0:
+            return torch.zeros(0, dtype=torch.long, device=x.device)
+        chunk = max(1, 2 ** 22 // len(self))
+        return torch.cat([torch.cdist(x[i:i + chunk], keys).argmin(-1) for i in range(0, x.shape[0], chunk)])
+
+    def describe(self) -> str:
+        return f"{self.name} ({len(self)} measured samples{', spatially varying' if self.spatially_varying else ''})"

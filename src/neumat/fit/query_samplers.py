@@ -1,0 +1,101 @@
+"""Distributions of training queries.
+
+`QUERY_SAMPLERS.get(name)(source, model)` returns `draw(n, generator, device) -> Query`. Random numbers come
+from `generator` (drawn on the generator's device, then moved to `device`), so a fit is reproducible from
+its seed and resumable from the generator state. Models and recipe modules may register their own.
+
+Built-ins:
+  "cosine":       wi and wo independent, each cosine-weighted on the upper hemisphere (density
+                  cos(theta)/pi); uv uniform in [0, 1]^2 when the source or the model is spatially varying.
+  "rusinkiewicz": (theta_h, theta_d) uniform in [0, pi/2)^2, phi_h and phi_d uniform in [0, 2 pi), configurations
+                  with wi or wo below the horizon rejected (so: uniform on the valid part of that box);
+                  the MERL parametrisation, dense near the specular peak.
+  "replay":       uniform draws, with replacement, of the stored samples of a `MeasuredSamples` source
+                  (sparse measurements): the targets are the measured values themselves.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+
+from ..core.coords import rusinkiewicz_to_io
+from ..core.errors import InputError
+from ..core.material import Material
+from ..core.query import Query
+from ..core.registry import Registry
+from ..warp.hemisphere import sample_cosine_hemisphere
+from .measured_samples import MeasuredSamples
+
+QueryDraw = Callable[[int, torch.Generator, torch.device], Query]
+
+QUERY_SAMPLERS: Registry = Registry("query sampler")
+
+
+def uniform(n: int, d: int, generator: torch.Generator, device) -> torch.Tensor:
+    """(n, d) uniform numbers in [0, 1) from `generator`, on `device` (float32)."""
+    return torch.rand(n, d, generator=generator, device=generator.device).to(device)
+
+
+def _needs_uv(source: Material, model) -> bool:
+    return bool(getattr(source, "spatially_varying", False) or getattr(model, "spatially_varying", False))
+
+
+def _require_hemisphere(source: Material, sampler: str) -> None:
+    if getattr(source, "full_sphere", False):
+        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        raise InputError(f"query sampler {sampler!r} draws BRDF queries on the upper hemisphere, but the source "
+                         f"{name!r} spans the whole sphere")
+
+
+@QUERY_SAMPLERS.register("cosine")
+def cosine_queries(source: Material, model=None) -> QueryDraw:
+    """Cosine-weighted wi and wo (see module docstring)."""
+    _require_hemisphere(source, "cosine")
+    with_uv = _needs_uv(source, model)
+
+    def draw(n: int, generator: torch.Generator, device) -> Query:
+        u = uniform(n, 6 if with_uv else 4, generator, device)
+        uv = u[:, 4:6] if with_uv else None
+        return Query(sample_cosine_hemisphere(u[:, 0:2]), sample_cosine_hemisphere(u[:, 2:4]), uv=uv)
+
+    return draw
+
+
+@QUERY_SAMPLERS.register("rusinkiewicz")
+def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
+    """Uniform (theta_h, phi_h, theta_d, phi_d) with below-horizon configurations rejected."""
+    _require_hemisphere(source, "rusinkiewicz")
+    with_uv = _needs_uv(source, model)
+
+    def draw(n: int, generator: torch.Generator, device) -> Query:
+        got, count = [], 0
+        while count < n:
+            u = uniform(2 * (n - count) + 16, 6 if with_uv else 4, generator, device)
+            half_pi = 0.5 * math.pi
+            wi, wo = rusinkiewicz_to_io(half_pi * u[:, 0], 2 * math.pi * u[:, 1], half_pi * u[:, 2],
+                                        2 * math.pi * u[:, 3])
+            ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+            wi, wo, u = wi[ok], wo[ok], u[ok]
+            got.append((wi / wi.norm(dim=-1, keepdim=True), wo / wo.norm(dim=-1, keepdim=True), u[:, 4:6]))
+            count += wi.shape[0]
+        wi, wo, uv = (torch.cat(parts)[:n] for parts in zip(*got))
+        return Query(wi, wo, uv=uv if with_uv else None)
+
+    return draw
+
+
+@QUERY_SAMPLERS.register("replay")
+def replay_queries(source: Material, model=None) -> QueryDraw:
+    """Uniform draws of the stored samples of a MeasuredSamples source."""
+    if not isinstance(source, MeasuredSamples):
+        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        raise InputError(f"query sampler 'replay' needs a neumat.fit.measured_samples.MeasuredSamples source, "
+                         f"got {name!r} ({type(source).__name__})")
+
+    def draw(n: int, generator: torch.Generator, device) -> Query:
+        index = torch.randint(len(source), (n,), generator=generator, device=generator.device).to(device)
+        return source.query(index)
+
+    return draw

@@ -1,0 +1,9 @@
+"""Training recipe of the GGX baseline: a few thousand Adam steps on the 7 (or 8) parameters.
+
+Rusinkiewicz queries (uniform in theta_h) put enough samples near the specular peak to fit sharp lobes;
+log(1 + f cos) L1 loss as the neural models, so that all baselines minimise the same objective.
+"""
+from neumat.fit.recipe import Recipe
+
+RECIPE = Recipe(steps=2000, batch_size=16384, lr=2e-2, schedule="cosine", lr_min=1e-3,
+                loss="log_cos", queries="rusinkiewicz")

@@ -1,0 +1,11 @@
+"""Training recipe of NBRDF (Sztrajman et al. 2021), from the authors' PyTorch code.
+
+Their script draws 800k Rusinkiewicz configurations uniform in (theta_h, theta_d, phi_d), trains on 80 %
+(640k) for 100 epochs in batches of 512 with Adam (lr 5e-4, betas (0.9, 0.999), eps 1e-15) on
+mean |log(1 + f cos_i) - log(1 + f_hat cos_i)|. Mapped to online steps: 640k / 512 = 1250 steps per epoch,
+x 100 epochs = 125k steps of 512 fresh Rusinkiewicz queries (the same distribution, not a fixed set).
+"""
+from neumat.fit.recipe import Recipe
+
+RECIPE = Recipe(steps=125_000, batch_size=512, lr=5e-4, betas=(0.9, 0.999), eps=1e-15,
+                loss="log_cos", queries="rusinkiewicz")

@@ -1,0 +1,106 @@
+"""NBRDF (Sztrajman, Rainer, Ritschel, Weyrich, CGF 2021): one tiny MLP per material on the
+Rusinkiewicz half and difference vectors.
+
+Input: h = normalize(wi + wo) and d = wi in the frame where h is the pole, both Cartesian
+(hx, hy, hz, dx, dy, dz), exactly the 6 inputs of the authors' code (`Xvars`). Network 6-21-21-3 with
+ReLU; output transform of their code: f = max(exp(x) - 1, 0) (their comment: "additional relu is
+max() op as in code in nn.h"), which gives an exact 0 where the network output is negative. Weights
+start uniform in [-0.05, 0.05], biases at 0, as theirs. Their loss and schedule are in
+`neumat.fit.recipes.nbrdf`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from neumat.core.config import config_from_dict
+from neumat.core.coords import io_to_hd
+from neumat.core.errors import InputError
+from neumat.core.material import Material, upper_hemisphere
+from neumat.core.query import Query
+from neumat.models.registry import MODELS
+from neumat.nn.codebook import float_bits, storage_bytes
+from neumat.nn.mlp import MLP
+
+OUTPUTS = ("exp_minus_one", "exp")
+
+
+@dataclass
+class Config:
+    """NBRDF hyper-parameters; defaults are the authors' (paper Sec. 4 and their PyTorch code)."""
+
+    hidden: int = 21
+    """Neurons per hidden layer."""
+    hidden_layers: int = 2
+    """Number of hidden layers."""
+    activation: str = "relu"
+    """Hidden activation."""
+    output: str = "exp_minus_one"
+    """Output transform: "exp_minus_one" (max(exp(x) - 1, 0), the authors' code) or "exp"."""
+    init_range: float = 0.05
+    """Weights are initialised uniform in [-init_range, init_range], biases at 0 (authors' code)."""
+
+
+def _check_config(c: Config) -> None:
+    for name, lo in (("hidden", 1), ("hidden_layers", 0)):
+        v = getattr(c, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise InputError(f"NBRDF.{name}: expected an integer >= {lo}, got {v!r}")
+    if c.output not in OUTPUTS:
+        raise InputError(f"NBRDF.output: expected one of {', '.join(OUTPUTS)}, got {c.output!r}")
+    if not c.init_range > 0:
+        raise InputError(f"NBRDF.init_range: expected a positive number, got {c.init_range!r}")
+
+
+@MODELS.register("nbrdf")
+class NBRDF(nn.Module, Material):
+    """out(MLP([h, d])) with the Rusinkiewicz half / difference vectors (see module docstring)."""
+
+    name = "nbrdf"
+    can_sample = False
+    Config = Config
+
+    def __init__(self, config: Config | None = None, **kwargs) -> None:
+        nn.Module.__init__(self)
+        if config is not None and kwargs:
+            raise InputError("NBRDF: pass either a Config or keyword fields, not both")
+        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        _check_config(cfg)
+        self.cfg = cfg
+        self.mlp = MLP(6, cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
+        with torch.no_grad():
+            for lin in self.mlp.linears():
+                lin.weight.uniform_(-cfg.init_range, cfg.init_range)
+                lin.bias.zero_()
+
+    @property
+    def config(self) -> Config:
+        return self.cfg
+
+    @staticmethod
+    def encode(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        """Network input (N, 6): (hx, hy, hz, dx, dy, dz) of directions wi, wo (N, 3)."""
+        h, d = io_to_hd(wi, wo)
+        return torch.cat([h, d], -1)
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
+        q.require("wo", who="NBRDF.eval")
+        dtype = self.mlp.linears()[0].weight.dtype
+        x = self.mlp(self.encode(q.wi.to(dtype), q.wo.to(dtype)))
+        f = torch.relu(torch.exp(x) - 1) if self.cfg.output == "exp_minus_one" else torch.exp(x)
+        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
+        return f.to(q.dtype)
+
+    def forward(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
+
+    def size_bytes(self, precision: str = "fp16") -> int:
+        """MLP weights and biases at `precision` (6-21-21-3: 675 floats)."""
+        return storage_bytes(self.mlp.num_parameters() * float_bits(precision))
+
+    def flops(self) -> int:
+        """MLP floating-point operations per evaluation (input encoding and output transform not counted)."""
+        return self.mlp.flops()

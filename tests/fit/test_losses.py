@@ -1,0 +1,56 @@
+"""Losses against closed forms (float64), gradients of the relative loss, registry errors."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from neumat.core.errors import UnknownNameError
+from neumat.core.query import Query
+from neumat.fit.losses import LOSSES
+
+S = math.sqrt(0.5)
+WI = torch.tensor([[0.0, 0.0, 1.0], [S, 0.0, S], [1.0, 0.0, 0.0]], dtype=torch.float64)
+Q = Query(WI, torch.tensor([[0.0, 0.0, 1.0]] * 3, dtype=torch.float64))
+PRED = torch.tensor([[1.0, 2.0, 3.0], [0.5, 0.0, 4.0], [7.0, 1.0, 2.0]], dtype=torch.float64)
+TARGET = torch.tensor([[2.0, 2.0, 1.0], [0.5, 1.0, 0.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+
+
+def _mean(rows):
+    return sum(sum(r) for r in rows) / 9
+
+
+def test_log_cos_closed_form():
+    # row 0: cos 1, row 1: cos sqrt(1/2), row 2: cos 0 (grazing light: no contribution)
+    L = math.log
+    expected = _mean([[abs(L(2) - L(3)), 0.0, abs(L(4) - L(2))],
+                      [0.0, abs(L(1) - L(1 + S)), abs(L(1 + 4 * S) - L(1))],
+                      [0.0, 0.0, 0.0]])
+    got = LOSSES.get("log_cos")()(PRED, TARGET, Q)
+    assert got.item() == pytest.approx(expected, rel=1e-12)
+
+
+def test_l1_l2_closed_forms():
+    d = [[1, 0, 2], [0, 1, 4], [6, 0, 1]]
+    assert LOSSES.get("l1")()(PRED, TARGET, Q).item() == pytest.approx(_mean(d), rel=1e-12)
+    assert LOSSES.get("l2")()(PRED, TARGET, Q).item() == pytest.approx(_mean([[x * x for x in r] for r in d]),
+                                                                          rel=1e-12)
+
+
+def test_relative_value_and_gradient():
+    loss = LOSSES.get("relative")()
+    pred = PRED.clone().requires_grad_(True)
+    value = loss(pred, TARGET, Q)
+    expected = ((PRED - TARGET) ** 2 / (PRED ** 2 + 0.01)).mean()
+    assert value.item() == pytest.approx(expected.item(), rel=1e-12)
+    value.backward()
+    # the denominator is a constant (stop gradient): d/dp = 2 (p - t) / (p^2 + eps) / 9
+    torch.testing.assert_close(pred.grad, 2 * (PRED - TARGET) / (PRED ** 2 + 0.01) / 9, rtol=1e-12, atol=0)
+
+
+def test_losses_are_zero_at_the_target_and_unknown_names_raise():
+    for name in ("log_cos", "l1", "l2", "relative"):
+        assert LOSSES.get(name)()(TARGET, TARGET, Q).item() == 0.0
+    with pytest.raises(UnknownNameError, match="log_cos"):
+        LOSSES.get("logcos")

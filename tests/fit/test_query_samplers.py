@@ -1,0 +1,115 @@
+"""Query samplers: chi-square tests against their densities, uv for spatially varying sources, replay."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from neumat.core.errors import InputError
+from neumat.core.material import Material
+from neumat.fit.measured_samples import MeasuredSamples
+from neumat.fit.query_samplers import QUERY_SAMPLERS
+from neumat.testing.chi2 import chi2_2d, chi2_directions
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Small tensors run much faster on one thread, above all on a busy machine."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+class _Plain(Material):
+    name = "plain"
+
+
+class _Textured(Material):
+    name = "textured"
+    spatially_varying = True
+
+
+class _Sphere(Material):
+    name = "translucent"
+    full_sphere = True
+
+
+def _sampler_fn(name, source, pick):
+    """chi2 sample_fn: draws len(u) queries from the sampler (its own generator) and picks a quantity."""
+    draw = QUERY_SAMPLERS.get(name)(source, None)
+    gen = torch.Generator().manual_seed(5)
+    return lambda u: pick(draw(u.shape[0], gen, "cpu"))
+
+
+@pytest.mark.parametrize("which", ["wi", "wo"])
+def test_cosine_sampler_chi2(which):
+    res = chi2_directions(_sampler_fn("cosine", _Plain(), lambda q: getattr(q, which).double()),
+                          lambda w: w[:, 2].clamp(min=0) / math.pi, n_samples=100_000, res=(16, 32), n_tests=2)
+    assert res, res.message
+
+
+def test_cosine_sampler_independence_and_uv():
+    draw = QUERY_SAMPLERS.get("cosine")(_Textured(), None)
+    q = draw(20_000, torch.Generator().manual_seed(0), "cpu")
+    assert q.uv is not None and q.uv.shape == (20_000, 2) and float(q.uv.min()) >= 0 and float(q.uv.max()) < 1
+    # wi and wo independent: correlation of their z components ~ 0 (sd 1/sqrt(N) = 0.007)
+    assert abs(float(np.corrcoef(q.wi[:, 2].numpy(), q.wo[:, 2].numpy())[0, 1])) < 0.03
+    assert QUERY_SAMPLERS.get("cosine")(_Plain(), None)(4, torch.Generator(), "cpu").uv is None
+
+
+def _valid_fraction(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Fraction of phi_d in [0, 2 pi) with wi_z > 0 and wo_z > 0 for theta_h = x pi/2, theta_d = y pi/2.
+    wi_z, wo_z = cos th cos td -/+ sin th sin td cos phi_d, so |cos phi_d| < c = 1 / (tan th tan td)."""
+    th, td = x * math.pi / 2, y * math.pi / 2
+    c = 1 / (torch.tan(th) * torch.tan(td)).clamp(min=1e-300)
+    return torch.where(c >= 1, torch.ones_like(c), 1 - 2 / math.pi * torch.acos(c.clamp(max=1)))
+
+
+def test_rusinkiewicz_sampler_chi2():
+    """(theta_h, theta_d) must have density proportional to the valid fraction of phi_d (closed form)."""
+    from neumat.core.coords import io_to_rusinkiewicz
+
+    g = (torch.arange(4000, dtype=torch.float64) + 0.5) / 4000
+    norm = _valid_fraction(g[:, None], g[None, :]).mean().item()
+
+    def pick(q):
+        th, _, td, _ = io_to_rusinkiewicz(q.wi.double(), q.wo.double())
+        return torch.stack([th, td], -1) / (math.pi / 2)
+
+    res = chi2_2d(_sampler_fn("rusinkiewicz", _Plain(), pick), lambda p: _valid_fraction(p[:, 0], p[:, 1]) / norm,
+                  n_samples=100_000, res=(16, 16), quad=24)  # the density has a sqrt kink: more points
+    assert res, res.message
+
+
+def test_rusinkiewicz_sampler_valid_and_exact_count():
+    q = QUERY_SAMPLERS.get("rusinkiewicz")(_Textured(), None)(1000, torch.Generator().manual_seed(1), "cpu")
+    assert len(q) == 1000 and q.uv.shape == (1000, 2)
+    assert bool((q.wi[:, 2] > 0).all() and (q.wo[:, 2] > 0).all())
+
+
+def test_replay_sampler_draws_stored_samples_uniformly():
+    n = 7
+    gen = torch.Generator().manual_seed(0)
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + 0.1, dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + 0.1, dim=-1)
+    samples = MeasuredSamples(wi, wo, torch.arange(3 * n, dtype=torch.float32).reshape(n, 3))
+    q = QUERY_SAMPLERS.get("replay")(samples, None)(14_000, torch.Generator().manual_seed(2), "cpu")
+    torch.testing.assert_close(samples.eval(q), samples.value[q.index], rtol=0, atol=0)
+    torch.testing.assert_close(q.wi, wi[q.index], rtol=0, atol=0)
+    counts = torch.bincount(q.index, minlength=n).double()
+    stat = float(((counts - 2000) ** 2 / 2000).sum())
+    assert stat < 22.5  # chi-square, 6 degrees of freedom, p = 0.001
+
+
+@pytest.mark.parametrize("name", ["cosine", "rusinkiewicz"])
+def test_full_sphere_source_raises(name):
+    with pytest.raises(InputError, match="translucent.*whole sphere"):
+        QUERY_SAMPLERS.get(name)(_Sphere(), None)
+
+
+def test_replay_needs_measured_samples():
+    with pytest.raises(InputError, match="MeasuredSamples.*plain"):
+        QUERY_SAMPLERS.get("replay")(_Plain(), None)

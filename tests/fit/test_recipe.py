@@ -1,0 +1,49 @@
+"""Recipes: schedules in closed form, validation, lookup of a model's defaults."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+
+from neumat.core.config import config_from_dict, config_to_dict
+from neumat.core.errors import InputError, UnknownNameError
+from neumat.fit.recipe import Recipe, check_recipe, learning_rate, recipe_for
+
+
+def test_step_schedule():
+    r = Recipe(steps=100, batch_size=8, lr=0.1, lr_decay=0.5, lr_decay_every=30)
+    assert [learning_rate(r, s, 100) for s in (0, 29, 30, 59, 60, 99)] == [0.1, 0.1, 0.05, 0.05, 0.025, 0.0125]
+    assert learning_rate(replace(r, lr_decay_every=0), 99, 100) == 0.1
+
+
+def test_cosine_schedule():
+    r = Recipe(steps=11, batch_size=8, lr=0.1, lr_min=0.01, schedule="cosine")
+    assert learning_rate(r, 0, 11) == pytest.approx(0.1)
+    assert learning_rate(r, 5, 11) == pytest.approx(0.055)
+    assert learning_rate(r, 10, 11) == pytest.approx(0.01)
+    assert learning_rate(r, 3, 11) == pytest.approx(0.01 + 0.09 * 0.5 * (1 + math.cos(math.pi * 0.3)))
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(steps=-1), "steps"), (dict(batch_size=0), "batch_size"), (dict(lr=0.0), "lr"),
+    (dict(ema=1.5), "ema"), (dict(betas=(0.9, 1.0)), "betas"), (dict(schedule="linear"), "schedule"),
+    (dict(lr=float("nan")), "lr"), (dict(log_every=0), "log_every"), (dict(steps=2.5), "steps"),
+])
+def test_bad_recipe_raises(change, match):
+    with pytest.raises(InputError, match=match):
+        check_recipe(replace(Recipe(steps=10, batch_size=8, lr=0.1), **change))
+
+
+def test_recipe_for_neubrdf_is_a_valid_copy_and_round_trips():
+    r = recipe_for("neubrdf")
+    check_recipe(r)
+    assert (r.loss, r.queries) == ("log_cos", "cosine")
+    r.steps = 1
+    assert recipe_for("neubrdf").steps != 1  # callers get copies
+    assert config_from_dict(Recipe, config_to_dict(r)) == r
+
+
+def test_recipe_for_unknown_model_raises():
+    with pytest.raises(UnknownNameError, match="no training recipe for model 'nope'"):
+        recipe_for("nope")
