@@ -14,15 +14,6 @@ from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.testing.chi2 import chi2_2d, chi2_directions
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Small tensors run much faster on one thread, above all on a busy machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 class _Plain(Material):
     name = "plain"
 

@@ -49,15 +49,6 @@ class Constant(nn.Module, Material):
         self.calls.append((step, total))
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Small batches train faster on one thread, and much faster on a busy machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _test_queries(n: int = 20000) -> Query:
     g = torch.Generator().manual_seed(99)
     return Query(sample_cosine_hemisphere(torch.rand(n, 2, generator=g)),

@@ -16,14 +16,6 @@ from neumat.io.open_material import open_material
 from neumat.models.neubrdf import NeuBRDF
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _dirs(n: int, gen: torch.Generator) -> torch.Tensor:
     v = torch.randn(n, 3, generator=gen, dtype=torch.float64)
     v[:, 2] = v[:, 2].abs() + 1e-3

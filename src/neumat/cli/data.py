@@ -5,6 +5,7 @@ from pathlib import Path
 
 import typer
 
+from . import btf
 from .common import print_json, print_table, run_command
 
 app = typer.Typer(help="Inspect and convert material data.", no_args_is_help=True)
@@ -38,3 +39,6 @@ def convert(source: str = typer.Argument(..., help="RGL .bsdf, .nmat or analytic
         write_merl(out, table)
         print(f"wrote {out} ({out.stat().st_size} bytes)")
     run_command(go)
+
+
+btf.register_data(app)

@@ -26,8 +26,15 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+        dictionary: Path = typer.Option(None, help="sparse-btf: the trained dictionary ensemble (.nmat)"),
+        tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V"),
         out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
-    """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file."""
+    """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file.
+    `--model sparse-btf` codes a BTF (.nbtf) with a dictionary from `neumat fit-dictionary` instead."""
+    if model == "sparse-btf":
+        run_command(lambda: _code_sparse_btf(source, dictionary, tau, out))
+        return
+
     def go():
         import torch
 
@@ -47,6 +54,25 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         save_model(result.model, out, recipe=replace(recipe, steps=result.steps), source=source, metrics=metrics)
         print(f"wrote {out} ({result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']})")
     run_command(go)
+
+
+def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out: Path) -> None:
+    """SparseBTF has no gradient training: project the BTF on the dictionary ensemble and save the codes."""
+    from ..io.btf import read_btf
+    from ..io.modelfile import save_model
+    from ..models.sparse_btf import SparseBTF
+    from ..models.sparse_dictionary import BTFDictionary
+    from .btf import parse_tau
+
+    if dictionary is None:
+        raise InputError("--model sparse-btf needs --dictionary (train one with `neumat fit-dictionary`)")
+    if out.suffix != ".nmat":
+        raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
+    t0 = time.perf_counter()
+    model = SparseBTF.encode(read_btf(source), BTFDictionary.load(dictionary), None if tau is None else parse_tau(tau))
+    seconds = time.perf_counter() - t0
+    save_model(model, out, source=source, metrics={"coding_seconds": seconds, "bytes": model.size_bytes()})
+    print(f"wrote {out} ({model.size_bytes()} bytes, coded in {seconds:.1f} s)")
 
 
 def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None):

@@ -8,11 +8,11 @@ from ..core.material import Material
 
 #: file suffix -> human-readable kind
 MATERIAL_SUFFIXES = {".binary": "MERL measured BRDF", ".bsdf": "RGL measured BRDF (tensor file)",
-                     ".nmat": "neumat model"}
+                     ".nmat": "neumat model", ".nbtf": "neumat BTF table"}
 
 
 def open_material(name: str | Path, **kwargs) -> Material:
-    """A Material from a `.binary` (MERL), `.bsdf` (RGL) or `.nmat` file, or an analytic spec
+    """A Material from a `.binary` (MERL), `.bsdf` (RGL), `.nbtf` (BTF table) or `.nmat` file, or an analytic spec
     such as ``ggx:roughness=0.2,fresnel=dielectric,eta=1.5``. Keyword arguments go to the reader."""
     text = str(name)
     path = Path(text)
@@ -26,6 +26,9 @@ def open_material(name: str | Path, **kwargs) -> Material:
         if suffix == ".bsdf":
             from ..reflectance.measured import RglMaterial
             return RglMaterial.from_file(path, **kwargs)
+        if suffix == ".nbtf":
+            from .btf import read_btf
+            return read_btf(path, **kwargs)
         from .modelfile import load_model
         return load_model(path, **kwargs)
     if path.exists():

@@ -1,0 +1,82 @@
+"""BTF commands: `neumat fit-dictionary` (SparseBTF ensemble training) and `neumat data btf-generate`."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import print_table, run_command
+
+
+def parse_tau(text: str) -> tuple[int, int, int]:
+    from ..core.errors import InputError
+    parts = [p for p in text.replace("/", ",").split(",") if p]
+    try:
+        vals = [int(p) for p in parts]
+    except ValueError:
+        raise InputError(f"--tau {text!r}: expected one integer or Y,U,V integers such as 256,32,32") from None
+    if len(vals) == 1:
+        vals *= 3
+    if len(vals) != 3:
+        raise InputError(f"--tau {text!r}: expected one integer or three (Y,U,V)")
+    return tuple(vals)
+
+
+def register(app: typer.Typer) -> None:
+    """Add `fit-dictionary` to the main app."""
+
+    @app.command("fit-dictionary")
+    def fit_dictionary(
+            btfs: list[Path] = typer.Argument(..., help=".nbtf files of the training set (one direction set)"),
+            out: Path = typer.Option(..., "-o", "--out", help="output dictionary file (.nmat)"),
+            dictionaries: int = typer.Option(8, "--dictionaries", "-k", help="K dictionaries per ensemble"),
+            tau: str = typer.Option("256,32,32", "--tau", help="training sparsity tau_l, Y,U,V or one value"),
+            patch: int = typer.Option(10, "--patch", help="spatial patch size of a data point"),
+            fraction: float = typer.Option(1.0, "--fraction", help="random fraction of data points used"),
+            iterations: int = typer.Option(20, "--iterations", help="maximum training iterations"),
+            seed: int = typer.Option(0, "--seed")) -> None:
+        """Train the SparseBTF dictionary ensemble once on a few BTFs."""
+        from ..io.btf import read_btf
+        from ..models.sparse_dictionary import train_dictionary
+
+        def go():
+            data = [read_btf(p) for p in btfs]
+            d = train_dictionary(data, dictionaries, parse_tau(tau), patch, sample_fraction=fraction,
+                                 max_iters=iterations, seed=seed, progress=True)
+            d.save(out)
+            rows = [{"channel": ch, "iterations": d.info["iterations"][ch], "seconds": d.info["seconds"][ch],
+                     "objective": d.info["objective"][ch][-1]} for ch in "YUV"]
+            print_table(f"dictionary {out} ({d.info['points']} data points)", rows)
+        run_command(go)
+
+
+def register_data(data_app: typer.Typer) -> None:
+    """Add `btf-generate` to the `neumat data` sub-app."""
+
+    @data_app.command("btf-generate")
+    def btf_generate(
+            textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...)"),
+            out: Path = typer.Argument(..., help="output .nbtf file"),
+            size: int = typer.Option(64, "--size", help="BTF resolution (size x size texels)"),
+            crop: int = typer.Option(0, "--crop", help="crop this many source texels first (0: the whole set)"),
+            directions: str = typer.Option("hemi151", "--directions",
+                                           help="direction set: hemi151, ubo81, rings:<n>x<deg> or a count"),
+            spp: int = typer.Option(4, "--spp", help="sub-pixel rays per texel (square number)"),
+            relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from set)"),
+            device: str = typer.Option("cpu", "--device")) -> None:
+        """Generate a BTF from a PBR texture set by ray marching its displaced height field."""
+        from ..io.btf import write_btf
+        from ..io.texture_set import load_texture_set
+        from ..reflectance.btf import direction_set
+        from ..reflectance.btf_generate import generate_btf, texture_tile
+
+        def go():
+            ts = load_texture_set(textures)
+            tile, tile_relief = texture_tile(ts, size, crop or None)
+            d = direction_set(int(directions) if directions.isdigit() else directions)
+            btf = generate_btf(tile, d, d, relief=relief or tile_relief, spp=spp, device=device, progress=True,
+                               label=ts.name)
+            write_btf(out, btf, extra={"source": str(textures), "crop": crop, "relief": relief or tile_relief})
+            print(f"wrote {out}: {size}x{size} texels, {d.shape[0]}x{d.shape[0]} directions "
+                  f"({out.stat().st_size} bytes)")
+        run_command(go)

@@ -1,0 +1,173 @@
+"""BTF files: the neumat `.nbtf` format (reader and writer) and UBO2014 archives through `btf-extractor`.
+
+`.nbtf` layout (a safetensors container, so any safetensors reader can open it):
+
+- metadata key ``neumat_btf``: a JSON object with ``format = "neumat-btf"``, ``version = 1``,
+  ``height``, ``width``, ``n_light``, ``n_view``, ``channels = "RGB"``, ``dtype`` ("float16" or "float32"),
+  ``quantity`` (apparent BRDF, linear RGB, cosine excluded), ``uv`` (texel-centre convention), ``label``,
+  ``clamped`` (number of values clamped to the float16 range on writing) and a free ``extra`` object;
+- tensors ``light_dirs (L, 3)`` and ``view_dirs (V, 3)`` float32 unit vectors (z = macro normal);
+- one chunk per light direction, ``light_00000 ... light_{L-1}``, each ``(V, H, W, 3)`` in ``dtype``.
+
+Chunks are read lazily, so `read_btf(path, lights=[...])` loads a subset of light directions.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from ..core.errors import DataFormatError, InputError
+from ..reflectance.btf import TabulatedBTF, check_btf_arrays
+
+FORMAT = "neumat-btf"
+VERSION = 1
+FP16_MAX = 65504.0
+
+
+def _chunk(i: int) -> str:
+    return f"light_{i:05d}"
+
+
+def write_btf(path: str | Path, btf: TabulatedBTF, dtype: str = "float16", extra: dict | None = None) -> Path:
+    """Write `btf` as a `.nbtf` file; values beyond the float16 range are clamped (and counted)."""
+    from safetensors.torch import save_file
+
+    if dtype not in ("float16", "float32"):
+        raise InputError(f"write_btf dtype: expected 'float16' or 'float32', got {dtype!r}")
+    path = Path(path)
+    data = btf.data.detach().cpu()
+    l, v, h, w, _ = data.shape
+    clamped = 0
+    tensors = {"light_dirs": btf.light_dirs.detach().cpu().float().clone(),
+               "view_dirs": btf.view_dirs.detach().cpu().float().clone()}
+    for i in range(l):
+        chunk = data[i].float()
+        if dtype == "float16":
+            clamped += int((chunk.abs() > FP16_MAX).sum())
+            chunk = chunk.clamp(-FP16_MAX, FP16_MAX).half()
+        tensors[_chunk(i)] = chunk.contiguous()
+    header = {"format": FORMAT, "version": VERSION, "height": h, "width": w, "n_light": l, "n_view": v,
+              "channels": "RGB", "dtype": dtype,
+              "quantity": "apparent BRDF: radiance / (perpendicular irradiance * cos theta_light), linear RGB",
+              "uv": "texel (row i, col j) centre at uv = ((j + 0.5) / W, 1 - (i + 0.5) / H)",
+              "label": btf.label, "clamped": clamped, "extra": extra or {}}
+    save_file(tensors, str(path), metadata={"neumat_btf": json.dumps(header)})
+    return path
+
+
+def read_btf_header(path: str | Path) -> dict:
+    """The JSON header of a `.nbtf` file (validated)."""
+    from safetensors import safe_open
+
+    path = _existing(path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            meta = f.metadata() or {}
+            keys = set(f.keys())
+    except Exception as e:  # safetensors raises its own error types for truncated / malformed files
+        raise DataFormatError(f"{path}: not a readable .nbtf (safetensors) file: {e}") from None
+    return _validate_header(path, meta, keys)
+
+
+def read_btf(path: str | Path, device=None, lights: list[int] | None = None, neighbours: int = 3) -> TabulatedBTF:
+    """Read a `.nbtf` file as a float32 `TabulatedBTF` on `device` (optionally only some light slices)."""
+    from safetensors import safe_open
+
+    header = read_btf_header(path)
+    n_l, n_v, h, w = header["n_light"], header["n_view"], header["height"], header["width"]
+    sel = list(range(n_l)) if lights is None else list(lights)
+    bad = [i for i in sel if not 0 <= i < n_l]
+    if bad:
+        raise InputError(f"read_btf lights: indices {bad} outside 0..{n_l - 1}")
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            light_dirs = f.get_tensor("light_dirs")
+            view_dirs = f.get_tensor("view_dirs")
+            chunks = [f.get_tensor(_chunk(i)) for i in sel]
+    except Exception as e:
+        raise DataFormatError(f"{path}: cannot read BTF chunks (truncated or corrupt file?): {e}") from None
+    if tuple(light_dirs.shape) != (n_l, 3) or tuple(view_dirs.shape) != (n_v, 3):
+        raise DataFormatError(f"{path}: header says {n_l} light and {n_v} view directions, but the direction lists "
+                              f"have shapes {tuple(light_dirs.shape)} and {tuple(view_dirs.shape)}")
+    for i, c in zip(sel, chunks):
+        if tuple(c.shape) != (n_v, h, w, 3):
+            raise DataFormatError(f"{path}: chunk {_chunk(i)} has shape {tuple(c.shape)}, expected {(n_v, h, w, 3)} "
+                                  "from the header")
+    data = torch.stack(chunks).to(device=device, dtype=torch.float32)
+    try:
+        return TabulatedBTF(data, light_dirs[sel].to(device), view_dirs.to(device), neighbours=neighbours,
+                            label=header.get("label", Path(path).stem))
+    except InputError as e:
+        raise DataFormatError(f"{path}: {e}") from None
+
+
+def read_ubo2014(path: str | Path, device=None, neighbours: int = 3) -> TabulatedBTF:
+    """Read a UBO2014 `.btf` archive (Bonn BTF database) with the `btf-extractor` package.
+
+    Images are BGR in the archive; they are returned as linear RGB apparent BRDFs exactly as stored.
+    Raises InputError when `btf-extractor` is not installed.
+    """
+    try:
+        from btf_extractor import Ubo2014
+    except ImportError:
+        raise InputError("reading UBO2014 archives needs the 'btf-extractor' package (pip install btf-extractor); "
+                         "it builds a C++ extension and is not a neumat dependency") from None
+    import numpy as np
+
+    path = _existing(path)
+    btf = Ubo2014(str(path))
+    angles = sorted(btf.angles_set)  # (tl, pl, tv, pv) in degrees
+    lights = sorted({(a[0], a[1]) for a in angles})
+    views = sorted({(a[2], a[3]) for a in angles})
+    if len(angles) != len(lights) * len(views):
+        raise DataFormatError(f"{path}: {len(angles)} images is not {len(lights)} lights x {len(views)} views")
+    li = {d: i for i, d in enumerate(lights)}
+    vi = {d: i for i, d in enumerate(views)}
+    h, w = btf.img_shape[:2]
+    data = np.zeros((len(lights), len(views), h, w, 3), np.float32)
+    for a in angles:
+        data[li[(a[0], a[1])], vi[(a[2], a[3])]] = btf.angles_to_image(*a)[..., ::-1]
+
+    def dirs(pairs):
+        t = torch.tensor(pairs, dtype=torch.float64).deg2rad()
+        return torch.stack([t[:, 0].sin() * t[:, 1].cos(), t[:, 0].sin() * t[:, 1].sin(), t[:, 0].cos()], -1).float()
+
+    return TabulatedBTF(torch.from_numpy(data).to(device), dirs(lights).to(device), dirs(views).to(device),
+                        neighbours=neighbours, label=path.stem)
+
+
+def _existing(path: str | Path) -> Path:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"BTF file {str(path)!r} does not exist")
+    return path
+
+
+def _validate_header(path: Path, meta: dict, keys: set[str]) -> dict:
+    if "neumat_btf" not in meta:
+        raise DataFormatError(f"{path}: no 'neumat_btf' header; not a neumat BTF file")
+    try:
+        header = json.loads(meta["neumat_btf"])
+    except json.JSONDecodeError as e:
+        raise DataFormatError(f"{path}: malformed 'neumat_btf' header ({e})") from None
+    if header.get("format") != FORMAT:
+        raise DataFormatError(f"{path}: header format {header.get('format')!r}, expected {FORMAT!r}")
+    if header.get("version") != VERSION:
+        raise DataFormatError(f"{path}: header version {header.get('version')!r}, this reader knows {VERSION}")
+    for k in ("height", "width", "n_light", "n_view"):
+        if not isinstance(header.get(k), int) or header[k] < 1:
+            raise DataFormatError(f"{path}: header field {k!r} must be a positive integer, got {header.get(k)!r}")
+    chunks = {k for k in keys if k.startswith("light_") and k != "light_dirs"}
+    expected = {_chunk(i) for i in range(header["n_light"])}
+    if chunks != expected:
+        raise DataFormatError(f"{path}: header says {header['n_light']} light directions but the file has "
+                              f"{len(chunks)} light chunks")
+    for k in ("light_dirs", "view_dirs"):
+        if k not in keys:
+            raise DataFormatError(f"{path}: missing tensor {k!r}")
+    return header
+
+
+__all__ = ["write_btf", "read_btf", "read_btf_header", "read_ubo2014", "check_btf_arrays"]

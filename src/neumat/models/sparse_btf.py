@@ -1,0 +1,337 @@
+"""SparseBTF (Kavoosi et al., EGSR 2023): a BTF stored as sparse coefficients of a dictionary ensemble that
+was trained once (`neumat.models.sparse_dictionary`), evaluated as a spatially varying `Material`.
+
+Stored per BTF (Sec. 3.3-3.4), per YUV channel c: for every p x p patch (data point) its dictionary index
+(membership), its number of non-zero coefficients (count), and that many values with their 4D index tuples
+(l1, l2, l3, l4) into the coefficient tensor; plus the per-image mean and std of the standardisation.
+The shared ensemble is kept as buffers (`dict_n`, (3, K, m_n, m_n)).
+
+- `element` reconstructs single elements (Eq. 5) in the standardised model space;
+- `element_interpolated` interpolates over direction bins in coefficient space (Eq. 6, generalised from
+  2 bins to the k-nearest inverse-distance weights of `neumat.reflectance.btf.angular_weights`): it equals
+  the same weighted sum of Eq. 5 values;
+- `eval` answers Query(wi, wo, uv): wrap-around bilinear over 4 texels and k x k angular bins. With
+  `angular = "coefficient"` the angular interpolation is done in coefficient space (Eq. 6) and the per-image
+  mean/std are interpolated with the same weights before the inverse transform (fast, the paper's runtime
+  path); with `angular = "value"` every bin is reconstructed and inverted to linear RGB first, which equals
+  `TabulatedBTF(decode())` exactly;
+- `blend` interpolates two SparseBTFs in coefficient space (Eqs. 7-9) with the change-of-basis matrices
+  R^(n) = U^(n,k)T U^(n,p) when the data points use different dictionaries.
+
+Storage (`storage`) follows the authors' released coefficient files: per non-zero coefficient a float16
+value and four uint16 indices; per data point and channel a uint16 membership and a uint16 count; the
+ensemble in float16; the standardisation statistics as float32.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+from torch import nn
+
+from neumat.core.config import config_from_dict
+from neumat.core.errors import InputError
+from neumat.core.material import Material, upper_hemisphere
+from neumat.core.query import Query
+from neumat.models.registry import MODELS
+from neumat.models.sparse_dictionary import (BTFDictionary, Codes, Ensemble, check_patch_grid, code_points,
+                                             decode_points, dense_coefficients, from_data_points, keep_largest,
+                                             model_space_to_rgb, mode_product, prepare_btf, unravel)
+from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
+
+CHANNELS = "YUV"
+
+
+@dataclass
+class Config:
+    """SparseBTF sizes; defaults are the paper's UBO2014 setting (Sec. 4)."""
+
+    patch: int = 10
+    """p: spatial patch size of a data point (p x p texels)."""
+    num_dictionaries: int = 8
+    """K: dictionaries per ensemble (one ensemble per YUV channel)."""
+    n_light: int = 151
+    """m3: light directions of the BTF."""
+    n_view: int = 151
+    """m4: view directions of the BTF."""
+    height: int = 400
+    """H texels (a multiple of patch)."""
+    width: int = 400
+    """W texels (a multiple of patch)."""
+    tau: tuple[int, int, int] = (256, 32, 32)
+    """tau_t: maximum non-zero coefficients per data point for Y, U, V (the testing sparsity)."""
+    tau_train: tuple[int, int, int] = (256, 32, 32)
+    """tau_l of the dictionary (Y, U, V); coding requires tau >= tau_train."""
+    log_eps: float = 0.01
+    """eps of the log transform log(x + eps)."""
+    error_threshold: float = 0.0
+    """Coding stops adding coefficients once the mean squared error per element (model space) is below this."""
+    neighbours: int = 3
+    """k nearest direction bins of the angular interpolation (light and view separately)."""
+    angular: str = "coefficient"
+    """Angular interpolation in "coefficient" space (Eq. 6) or in "value" space (linear RGB)."""
+
+
+def _check_config(c: Config) -> None:
+    for name in ("patch", "num_dictionaries", "n_light", "n_view", "height", "width", "neighbours"):
+        v = getattr(c, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InputError(f"SparseBTF.{name}: expected a positive integer, got {v!r}")
+    check_patch_grid(c.height, c.width, c.patch)
+    for name in ("tau", "tau_train"):
+        v = getattr(c, name)
+        if len(v) != 3 or any(t < 1 for t in v):
+            raise InputError(f"SparseBTF.{name}: expected three positive integers (Y, U, V), got {v!r}")
+    low = [ch for ch, t, tl in zip(CHANNELS, c.tau, c.tau_train) if t < tl]
+    if low:
+        raise InputError(f"SparseBTF.tau {tuple(c.tau)} is smaller than the training sparsity tau_train "
+                         f"{tuple(c.tau_train)} for channel(s) {', '.join(low)}; the paper requires tau_t >= tau_l")
+    if c.angular not in ("coefficient", "value"):
+        raise InputError(f"SparseBTF.angular: expected 'coefficient' or 'value', got {c.angular!r}")
+    if not c.log_eps > 0 or c.error_threshold < 0:
+        raise InputError("SparseBTF: log_eps must be > 0 and error_threshold >= 0")
+
+
+@MODELS.register("sparse-btf")
+class SparseBTF(nn.Module, Material):
+    """A BTF in SparseBTF form (see module docstring). Build with `SparseBTF.encode(btf, dictionary, tau)`."""
+
+    name = "sparse-btf"
+    can_sample = False
+    spatially_varying = True
+    Config = Config
+
+    def __init__(self, config: Config | None = None, **kwargs) -> None:
+        nn.Module.__init__(self)
+        if config is not None and kwargs:
+            raise InputError("SparseBTF: pass either a Config or keyword fields, not both")
+        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        _check_config(cfg)
+        self.cfg = cfg
+        p, k, l, v = cfg.patch, cfg.num_dictionaries, cfg.n_light, cfg.n_view
+        n_patches = (cfg.height // p) * (cfg.width // p)
+        t = max(cfg.tau)
+        for n, m in enumerate((p, p, l, v), start=1):
+            self.register_buffer(f"dict_{n}", torch.eye(m).expand(3, k, m, m).clone())
+        self.register_buffer("light_dirs", torch.zeros(l, 3))
+        self.register_buffer("view_dirs", torch.zeros(v, 3))
+        self.register_buffer("mean", torch.zeros(l, v, 3))
+        self.register_buffer("std", torch.ones(l, v, 3))
+        self.register_buffer("membership", torch.zeros(3, n_patches, dtype=torch.int32))
+        self.register_buffer("counts", torch.zeros(3, n_patches, dtype=torch.int32))
+        self.register_buffer("values", torch.zeros(3, n_patches, t))
+        self.register_buffer("index", torch.zeros(3, n_patches, t, 4, dtype=torch.int32))
+
+    # ------------------------------------------------------------------------------------ building
+    @classmethod
+    def encode(cls, btf: TabulatedBTF, dictionary: BTFDictionary, tau: int | tuple[int, int, int] | None = None,
+               error_threshold: float = 0.0, neighbours: int = 3, angular: str = "coefficient") -> "SparseBTF":
+        """Sparse representation of `btf` with a trained `dictionary` (Sec. 3.3). tau: tau_t for Y, U, V (one
+        int for all); default the dictionary's tau_train."""
+        tau = dictionary.tau_train if tau is None else (tau,) * 3 if isinstance(tau, int) else tuple(tau)
+        l, v, h, w, _ = btf.data.shape
+        cfg = Config(patch=dictionary.patch, num_dictionaries=dictionary.num_dictionaries, n_light=l, n_view=v,
+                     height=h, width=w, tau=tuple(int(t) for t in tau), tau_train=tuple(dictionary.tau_train),
+                     log_eps=dictionary.log_eps, error_threshold=error_threshold, neighbours=neighbours,
+                     angular=angular)
+        _check_config(cfg)
+        dictionary.check_compatible(btf.light_dirs, btf.view_dirs, f"BTF {btf.label!r}")
+        model = cls(cfg).to(btf.data.device)
+        points, mean, std = prepare_btf(btf.data, cfg.patch, cfg.log_eps)
+        model.light_dirs.copy_(btf.light_dirs)
+        model.view_dirs.copy_(btf.view_dirs)
+        model.mean.copy_(mean)
+        model.std.copy_(std)
+        for c, ens in enumerate(dictionary.ensembles):
+            ens = ens.to(btf.data.device)
+            for n in range(4):
+                getattr(model, f"dict_{n + 1}")[c] = ens.mats[n]
+            model._store_codes(c, code_points(points[c], ens, cfg.tau[c], error_threshold))
+        return model
+
+    def _store_codes(self, c: int, codes: Codes) -> None:
+        t = codes.values.shape[1]
+        self.membership[c] = codes.membership.to(torch.int32)
+        self.counts[c] = codes.counts.to(torch.int32)
+        self.values[c].zero_()
+        self.index[c].zero_()
+        self.values[c, :, :t] = codes.values
+        self.index[c, :, :t] = codes.index.to(torch.int32)
+
+    def codes(self, c: int) -> Codes:
+        """The sparse codes of channel c (error unknown: zeros)."""
+        return Codes(self.membership[c].long(), self.values[c], self.index[c].long(), self.counts[c].long(),
+                     torch.zeros_like(self.values[c, :, 0]))
+
+    def ensemble(self, c: int) -> Ensemble:
+        return Ensemble([getattr(self, f"dict_{n}")[c] for n in range(1, 5)])
+
+    @property
+    def point_shape(self) -> tuple[int, int, int, int]:
+        c = self.cfg
+        return (c.patch, c.patch, c.n_light, c.n_view)
+
+    # ------------------------------------------------------------------------------------ reconstruction
+    def decode_points(self) -> torch.Tensor:
+        """Reconstructed standardised data points (3, P, p, p, L, V) (Eq. 4)."""
+        return torch.stack([decode_points(self.codes(c), self.ensemble(c)) for c in range(3)])
+
+    def decode(self) -> TabulatedBTF:
+        """The full reconstructed BTF (L, V, H, W, 3), linear RGB."""
+        z = from_data_points(self.decode_points(), self.cfg.height, self.cfg.width)
+        yuv = z * self.std[:, :, None, None, :] + self.mean[:, :, None, None, :]
+        return TabulatedBTF(model_space_to_rgb(yuv, self.cfg.log_eps), self.light_dirs, self.view_dirs,
+                            self.cfg.neighbours, label="sparse-btf")
+
+    def _gather(self, c: int, patch: torch.Tensor):
+        """Membership (...), values (..., T) and index tuples (..., T, 4) of the data points `patch`."""
+        return self.membership[c][patch].long(), self.values[c][patch], self.index[c][patch].long()
+
+    def element(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor, x3: torch.Tensor,
+                x4: torch.Tensor) -> torch.Tensor:
+        """Eq. 5: standardised value (...) of channel c at (x1, x2, x3, x4) of data points `patch` (all (...))."""
+        memb, vals, idx = self._gather(c, patch)
+        u1 = self.dict_1[c][memb[..., None], x1[..., None], idx[..., 0]]
+        u2 = self.dict_2[c][memb[..., None], x2[..., None], idx[..., 1]]
+        u3 = self.dict_3[c][memb[..., None], x3[..., None], idx[..., 2]]
+        u4 = self.dict_4[c][memb[..., None], x4[..., None], idx[..., 3]]
+        return (vals * u1 * u2 * u3 * u4).sum(-1)
+
+    def element_interpolated(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
+                             light_idx: torch.Tensor, light_w: torch.Tensor, view_idx: torch.Tensor,
+                             view_w: torch.Tensor) -> torch.Tensor:
+        """Eq. 6: sum_{a,b} light_w[a] view_w[b] * element(.., light_idx[a], view_idx[b]) computed in
+        coefficient space. patch, x1, x2: (...); light_idx, light_w: (..., kl); view_idx, view_w: (..., kv)."""
+        memb, vals, idx = self._gather(c, patch)
+        u1 = self.dict_1[c][memb[..., None], x1[..., None], idx[..., 0]]
+        u2 = self.dict_2[c][memb[..., None], x2[..., None], idx[..., 1]]
+        m3 = self.dict_3[c][memb[..., None, None], light_idx[..., :, None], idx[..., None, :, 2]]
+        m4 = self.dict_4[c][memb[..., None, None], view_idx[..., :, None], idx[..., None, :, 3]]
+        u3 = (light_w[..., None] * m3).sum(-2)
+        u4 = (view_w[..., None] * m4).sum(-2)
+        return (vals * u1 * u2 * u3 * u4).sum(-1)
+
+    def _texels(self, uv: torch.Tensor):
+        """Patch index, in-patch row/col (N, 4) and bilinear weights (N, 4) of uv (N, 2)."""
+        p, h, w = self.cfg.patch, self.cfg.height, self.cfg.width
+        rows, cols, sw = bilinear_taps(uv, h, w)
+        patch = (rows // p) * (w // p) + cols // p
+        return patch, rows % p, cols % p, sw
+
+    def eval(self, q: Query, batch: int = 1 << 14) -> torch.Tensor:
+        q.require("uv", who="SparseBTF")
+        out = [self._eval_batch(q[s:s + batch]) for s in range(0, len(q), batch)]
+        return torch.cat(out) if out else torch.zeros(0, 3, dtype=q.dtype, device=q.device)
+
+    def _eval_batch(self, q: Query) -> torch.Tensor:
+        dev = self.values.device
+        wi, wo, uv = (t.to(dev, torch.float32) for t in (q.wi, q.wo, q.uv))
+        li, lw = angular_weights(self.light_dirs, wi, self.cfg.neighbours)
+        vi, vw = angular_weights(self.view_dirs, wo, self.cfg.neighbours)
+        patch, x1, x2, sw = self._texels(uv)
+        if self.cfg.angular == "coefficient":
+            # (N, 4) taps, angular bins folded into the dictionary rows (Eq. 6)
+            lw4, li4 = lw[:, None].expand(-1, 4, -1), li[:, None].expand(-1, 4, -1)
+            vw4, vi4 = vw[:, None].expand(-1, 4, -1), vi[:, None].expand(-1, 4, -1)
+            z = torch.stack([self.element_interpolated(c, patch, x1, x2, li4, lw4, vi4, vw4) for c in range(3)], -1)
+            z = (z * sw[..., None]).sum(1)                                             # (N, 3)
+            bin_w = lw[:, :, None] * vw[:, None, :]
+            mean = (self.mean[li[:, :, None], vi[:, None, :]] * bin_w[..., None]).sum((1, 2))
+            std = (self.std[li[:, :, None], vi[:, None, :]] * bin_w[..., None]).sum((1, 2))
+            f = model_space_to_rgb(z * std + mean, self.cfg.log_eps)
+        else:
+            n, kl, kv = len(q), li.shape[1], vi.shape[1]
+            shape = (n, 4, kl, kv)
+            pa, a1, a2 = (t[:, :, None, None].expand(shape) for t in (patch, x1, x2))
+            l3 = li[:, None, :, None].expand(shape)
+            v4 = vi[:, None, None, :].expand(shape)
+            z = torch.stack([self.element(c, pa, a1, a2, l3, v4) for c in range(3)], -1)  # (N, 4, kl, kv, 3)
+            yuv = z * self.std[l3, v4] + self.mean[l3, v4]
+            rgb = model_space_to_rgb(yuv, self.cfg.log_eps)
+            wts = sw[:, :, None, None] * lw[:, None, :, None] * vw[:, None, None, :]
+            f = (rgb * wts[..., None]).sum((1, 2, 3))
+        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, torch.zeros_like(f))
+        return f.to(q.wi.device, q.wi.dtype)
+
+    # ------------------------------------------------------------------------------------ inter-BTF blending
+    @staticmethod
+    def blend(a: "SparseBTF", b: "SparseBTF", alpha: float, tau: tuple[int, int, int] | None = None) -> "SparseBTF":
+        """(1 - alpha) a + alpha b in coefficient space (Eqs. 7-9), per data point in a's dictionary.
+
+        b's coefficients are moved to a's dictionary by S_b x_n R^(n), R^(n) = U^(n,k)T U^(n,p) (exact for
+        orthonormal bases) and the blend keeps the `tau` largest coefficients (default a.tau + b.tau, which
+        is exact when both points use the same dictionary). Mean and std are blended linearly.
+        """
+        if a.cfg.patch != b.cfg.patch or a.point_shape != b.point_shape or \
+                (a.cfg.height, a.cfg.width) != (b.cfg.height, b.cfg.width):
+            raise InputError("SparseBTF.blend: both BTFs need the same size, patch and direction counts")
+        for n in range(1, 5):
+            if not torch.equal(getattr(a, f"dict_{n}"), getattr(b, f"dict_{n}")):
+                raise InputError("SparseBTF.blend: the two BTFs were coded with different dictionary ensembles")
+        tau = tuple(ta + tb for ta, tb in zip(a.cfg.tau, b.cfg.tau)) if tau is None else tuple(tau)
+        shape = a.point_shape
+        out = SparseBTF(replace(a.cfg, tau=tau, tau_train=tuple(min(t, tl) for t, tl in zip(tau, a.cfg.tau_train)))
+                        ).to(a.values.device)
+        for n in range(1, 5):
+            getattr(out, f"dict_{n}").copy_(getattr(a, f"dict_{n}"))
+        out.light_dirs.copy_(a.light_dirs)
+        out.view_dirs.copy_(a.view_dirs)
+        out.mean.copy_((1 - alpha) * a.mean + alpha * b.mean)
+        out.std.copy_((1 - alpha) * a.std + alpha * b.std)
+        for c in range(3):
+            ca, cb = a.codes(c), b.codes(c)
+            sa, sb = dense_coefficients(ca, shape), dense_coefficients(cb, shape)
+            for n in range(1, 5):
+                u = getattr(a, f"dict_{n}")[c]
+                r = u[ca.membership].transpose(1, 2) @ u[cb.membership]        # R^(n): (P, m, m), Eq. 9
+                sb = mode_product(sb, r, n)
+            s = ((1 - alpha) * sa + alpha * sb).reshape(sa.shape[0], -1)
+            vals, idx, counts, err = keep_largest(s, tau[c])
+            out._store_codes(c, Codes(ca.membership, vals, unravel(idx, shape), counts, err))
+        return out
+
+    # ------------------------------------------------------------------------------------ accounting
+    def storage(self, value_bytes: int = 2, index_bytes: int = 2) -> dict:
+        """Bytes of the representation (module docstring): per-BTF parts, the shared ensemble, totals."""
+        c = self.cfg
+        nnz = int(self.counts.long().sum())
+        n_points = self.counts.numel()
+        d = {
+            "coefficients": nnz,
+            "values": nnz * value_bytes,
+            "indices": nnz * 4 * index_bytes,
+            "membership": n_points * index_bytes,
+            "counts": n_points * index_bytes,
+            "statistics": 2 * c.n_light * c.n_view * 3 * 4,
+            "dictionary": 3 * c.num_dictionaries * (2 * c.patch ** 2 + c.n_light ** 2 + c.n_view ** 2) * value_bytes,
+        }
+        d["per_btf"] = d["values"] + d["indices"] + d["membership"] + d["counts"] + d["statistics"]
+        d["total"] = d["per_btf"] + d["dictionary"]
+        d["uncompressed_fp16"] = c.n_light * c.n_view * c.height * c.width * 3 * 2
+        d["compression_ratio"] = d["uncompressed_fp16"] / d["total"]
+        return d
+
+    def size_bytes(self, precision: str = "fp16") -> int:
+        """Total bytes (per-BTF codes + shared ensemble) with values stored at `precision`."""
+        value_bytes = {"fp16": 2, "fp32": 4, "bf16": 2, "int8": 1}.get(precision)
+        if value_bytes is None:
+            raise InputError(f"SparseBTF.size_bytes precision: expected fp16, fp32, bf16 or int8, got {precision!r}")
+        return int(self.storage(value_bytes=value_bytes)["total"])
+
+    def flops(self) -> int:
+        """Approximate floating-point operations of one `eval` query (coefficient-space path)."""
+        k = self.cfg.neighbours
+        return int(4 * sum(self.cfg.tau) * (2 * k + 5) + 60)
+
+    def describe(self) -> str:
+        c = self.cfg
+        return (f"sparse-btf ({c.height}x{c.width} texels, {c.n_light}x{c.n_view} directions, "
+                f"tau {tuple(c.tau)}, K={c.num_dictionaries})")
+
+
+def mse(reference: TabulatedBTF, test: TabulatedBTF) -> float:
+    """Mean squared error of two BTF tables over all entries (linear RGB)."""
+    return float(((reference.data - test.data.to(reference.data)) ** 2).mean())
+
+
+__all__ = ["SparseBTF", "Config", "mse"]

@@ -1,0 +1,446 @@
+"""SparseBTF building blocks (Kavoosi et al. 2023, Sec. 3.1-3.3): BTF data points and the ensemble of
+orthonormal 4D dictionaries, its training (Eq. 2) and sparse coding (Eq. 3).
+
+Data points (Sec. 3.1): a BTF (L, V, H, W, 3) is log transformed (log(x + eps)), converted RGB -> YUV
+(BT.601, as in the authors' code), and every angular image (one light, one view, one channel) is
+standardised by its own mean and standard deviation over the texels (stored, so the transform inverts
+exactly). The result is cut into non-overlapping p x p spatial patches; one data point per patch and
+channel is the 4D tensor X (m1, m2, m3, m4) = (patch row, patch col, light, view), the paper's order
+(m1, m2 spatial; m3 incoming; m4 outgoing).
+
+Dictionary ensemble (Sec. 3.2): K dictionaries, each four orthonormal matrices U^(n,k) (m_n x m_n).
+Training minimises sum_i ||X_i - S_i x_1 U^(1,m_i) ... x_4 U^(4,m_i)||^2 with ||S_i||_0 <= tau_l (Eq. 2) by
+alternating (a) coding: every point is projected on every dictionary (Eq. 3), the tau_l largest
+coefficients kept (optimal for an orthonormal basis), and assigned to the dictionary with the sparsest,
+then lowest-error, representation; (b) update: for each dictionary and mode n, the orthogonal Procrustes
+solution U^(n) = polar(sum_i Z_i(n) S_i(n)^T) with Z_i = X_i x_{m != n} U^(m)T (the other modes fixed),
+followed by re-coding. Both steps never increase the objective; training stops when the relative decrease
+is below `tol`. Initialisation: a random partition of the points into K groups and the HOSVD bases
+(left singular vectors of each mode unfolding) of every group.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..core.errors import DataFormatError, InputError
+
+#: RGB -> YUV (BT.601 analogue), rows Y, U, V
+RGB_TO_YUV = torch.tensor([[0.299, 0.587, 0.114],
+                           [-0.14713, -0.28886, 0.436],
+                           [0.615, -0.51499, -0.10001]], dtype=torch.float64)
+YUV_TO_RGB = torch.linalg.inv(RGB_TO_YUV)
+#: standard deviations below this are treated as 1 (constant angular images, e.g. fully shadowed)
+MIN_STD = 1e-6
+
+
+# ----------------------------------------------------------------------------------------- transforms
+def rgb_to_model_space(data: torch.Tensor, eps: float) -> torch.Tensor:
+    """log(max(x, 0) + eps) then RGB -> YUV, on the last axis (..., 3)."""
+    logd = torch.log(data.clamp(min=0) + eps)
+    return logd @ RGB_TO_YUV.to(logd).T
+
+
+def model_space_to_rgb(yuv: torch.Tensor, eps: float) -> torch.Tensor:
+    """Inverse of `rgb_to_model_space` (values below 0 may appear from approximation errors; kept)."""
+    return torch.exp(yuv @ YUV_TO_RGB.to(yuv).T) - eps
+
+
+def image_statistics(yuv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per angular image and channel mean and std (L, V, 3) of yuv (L, V, H, W, 3)."""
+    mean = yuv.mean(dim=(2, 3))
+    std = yuv.std(dim=(2, 3), unbiased=False)
+    return mean, torch.where(std > MIN_STD, std, torch.ones_like(std))
+
+
+def to_data_points(z: torch.Tensor, patch: int) -> torch.Tensor:
+    """Standardised (L, V, H, W, 3) -> data points (3, P, p, p, L, V), patches in row-major order."""
+    l, v, h, w, c = z.shape
+    check_patch_grid(h, w, patch)
+    x = z.reshape(l, v, h // patch, patch, w // patch, patch, c)
+    return x.permute(6, 2, 4, 3, 5, 0, 1).reshape(c, (h // patch) * (w // patch), patch, patch, l, v)
+
+
+def from_data_points(points: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """Inverse of `to_data_points`: (3, P, p, p, L, V) -> (L, V, H, W, 3)."""
+    c, _, p, _, l, v = points.shape
+    x = points.reshape(c, height // p, width // p, p, p, l, v)
+    return x.permute(5, 6, 1, 3, 2, 4, 0).reshape(l, v, height, width, c)
+
+
+def check_patch_grid(height: int, width: int, patch: int) -> None:
+    """Raise unless the H x W texels split into whole p x p patches."""
+    if patch < 1 or height % patch or width % patch:
+        raise InputError(f"SparseBTF: the BTF's {height} x {width} texels do not split into {patch} x {patch} "
+                         "patches; crop or resample it to a multiple of the patch size")
+
+
+# ----------------------------------------------------------------------------------------- tensor algebra
+def mode_product(x: torch.Tensor, u: torch.Tensor, mode: int) -> torch.Tensor:
+    """x (N, m1, ..., m4) times_mode u: multiplies every mode-`mode` fibre (mode 1..4) by u (m_out, m_in).
+    u may also be (N, m_out, m_in), one matrix per point."""
+    moved = x.movedim(mode, -1)
+    shape = moved.shape
+    if u.dim() == 2:
+        out = moved.reshape(-1, shape[-1]) @ u.T
+    else:
+        out = moved.reshape(shape[0], -1, shape[-1]) @ u.transpose(1, 2)
+    return out.reshape(*shape[:-1], u.shape[-2]).movedim(-1, mode)
+
+
+def project(x: torch.Tensor, mats: list[torch.Tensor]) -> torch.Tensor:
+    """Coefficients S = x x_1 U1^T x_2 U2^T x_3 U3^T x_4 U4^T (Eq. 3); mats (m_n, m_n) or (N, m_n, m_n)."""
+    for n, u in enumerate(mats, start=1):
+        x = mode_product(x, u.transpose(-1, -2), n)
+    return x
+
+
+def reconstruct(s: torch.Tensor, mats: list[torch.Tensor]) -> torch.Tensor:
+    """Data points x = S x_1 U1 x_2 U2 x_3 U3 x_4 U4 (Eq. 4)."""
+    for n, u in enumerate(mats, start=1):
+        s = mode_product(s, u, n)
+    return s
+
+
+def keep_largest(s: torch.Tensor, tau: int, threshold: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Sparsify coefficients s (N, M) of orthonormal bases.
+
+    Keeps the tau largest |s| per point, or fewer: as few as make the mean squared error per element
+    (||x||^2 - sum kept s^2) / M fall to `threshold` (at least one). Returns values (N, tau) (zero beyond
+    the count), flat indices (N, tau), counts (N,) and the mean squared errors (N,).
+    """
+    n, m = s.shape
+    tau = min(tau, m)
+    vals, idx = s.abs().topk(tau, dim=-1)
+    vals = s.gather(1, idx)
+    total = (s * s).sum(-1)
+    kept = (vals * vals).cumsum(-1)
+    err = (total[:, None] - kept).clamp(min=0) / m
+    if threshold > 0:
+        reached = err <= threshold
+        counts = torch.where(reached.any(-1), reached.float().argmax(-1) + 1, torch.full_like(total, tau).long())
+    else:
+        counts = torch.full((n,), tau, dtype=torch.long, device=s.device)
+    live = torch.arange(tau, device=s.device)[None, :] < counts[:, None]
+    vals = torch.where(live, vals, torch.zeros_like(vals))
+    final_err = err.gather(1, (counts - 1)[:, None])[:, 0]
+    return vals, idx, counts, final_err
+
+
+def unravel(flat: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """Flat indices (...) into a tensor of `shape` -> index tuples (..., len(shape))."""
+    out = []
+    for size in reversed(shape):
+        out.append(flat % size)
+        flat = torch.div(flat, size, rounding_mode="floor")
+    return torch.stack(out[::-1], -1)
+
+
+# ----------------------------------------------------------------------------------------- the ensemble
+@dataclass
+class Ensemble:
+    """K dictionaries of four orthonormal matrices: mats[n] (K, m_n, m_n), n = 0..3 (modes 1..4)."""
+
+    mats: list[torch.Tensor]
+
+    @property
+    def size(self) -> int:
+        return self.mats[0].shape[0]
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        """(m1, m2, m3, m4) of the data points it codes."""
+        return tuple(u.shape[1] for u in self.mats)
+
+    def dictionary(self, k: int) -> list[torch.Tensor]:
+        return [u[k] for u in self.mats]
+
+    def orthonormality_error(self) -> float:
+        """max |U^T U - I| over all dictionaries and modes."""
+        err = 0.0
+        for u in self.mats:
+            eye = torch.eye(u.shape[1], dtype=u.dtype, device=u.device)
+            err = max(err, float((u.transpose(1, 2) @ u - eye).abs().max()))
+        return err
+
+    def to(self, device=None, dtype=None) -> "Ensemble":
+        return Ensemble([u.to(device=device, dtype=dtype) for u in self.mats])
+
+
+@dataclass
+class Codes:
+    """Sparse codes of N data points: membership (N,), values (N, tau), index tuples (N, tau, 4) into the
+    coefficient tensor, counts (N,) of live coefficients (values beyond the count are 0) and the mean
+    squared error per element (N,) of each point's representation (model space)."""
+
+    membership: torch.Tensor
+    values: torch.Tensor
+    index: torch.Tensor
+    counts: torch.Tensor
+    error: torch.Tensor
+
+
+def code_points(x: torch.Tensor, ensemble: Ensemble, tau: int, threshold: float = 0.0,
+                chunk: int = 256) -> Codes:
+    """Sparse codes of data points x (N, m1, m2, m3, m4) (Sec. 3.3): project on every dictionary, keep the
+    tau largest coefficients (or stop at `threshold`), pick the sparsest, then lowest-error, dictionary."""
+    if tuple(x.shape[1:]) != ensemble.shape:
+        raise InputError(f"SparseBTF: data points have shape {tuple(x.shape[1:])} but the dictionary ensemble was "
+                         f"trained for {ensemble.shape} (patch, patch, lights, views); a dictionary only codes "
+                         "BTFs of the angular resolution and patch size it was trained on (paper, Sec. 5)")
+    n = x.shape[0]
+    m = math.prod(ensemble.shape)
+    tau = min(tau, m)
+    parts = []
+    for s in range(0, n, chunk):
+        xc = x[s:s + chunk]
+        best = None
+        for k in range(ensemble.size):
+            coeffs = project(xc, ensemble.dictionary(k)).reshape(xc.shape[0], -1)
+            vals, idx, counts, err = keep_largest(coeffs, tau, threshold)
+            if best is None:
+                best = [torch.zeros_like(counts), vals, idx, counts, err]
+                continue
+            better = (counts < best[3]) | ((counts == best[3]) & (err < best[4]))
+            best[0] = torch.where(better, torch.full_like(counts, k), best[0])
+            best[1] = torch.where(better[:, None], vals, best[1])
+            best[2] = torch.where(better[:, None], idx, best[2])
+            best[3] = torch.where(better, counts, best[3])
+            best[4] = torch.where(better, err, best[4])
+        parts.append(best)
+    memb, vals, idx, counts, err = (torch.cat([p[i] for p in parts]) for i in range(5))
+    return Codes(memb, vals, unravel(idx, ensemble.shape), counts, err)
+
+
+def dense_coefficients(codes: Codes, shape: tuple[int, ...]) -> torch.Tensor:
+    """Dense coefficient tensors (N, m1, m2, m3, m4) of sparse codes."""
+    n = codes.values.shape[0]
+    flat = torch.zeros(n, math.prod(shape), dtype=codes.values.dtype, device=codes.values.device)
+    strides = torch.tensor([math.prod(shape[i + 1:]) for i in range(len(shape))], device=codes.index.device)
+    flat_idx = (codes.index * strides).sum(-1)
+    flat.scatter_add_(1, flat_idx, codes.values)
+    return flat.reshape(n, *shape)
+
+
+def decode_points(codes: Codes, ensemble: Ensemble) -> torch.Tensor:
+    """Reconstructed data points (N, m1, m2, m3, m4) (Eq. 4), grouped by dictionary."""
+    s = dense_coefficients(codes, ensemble.shape)
+    out = torch.empty_like(s)
+    for k in range(ensemble.size):
+        sel = codes.membership == k
+        if bool(sel.any()):
+            out[sel] = reconstruct(s[sel], ensemble.dictionary(k))
+    return out
+
+
+# ----------------------------------------------------------------------------------------- training
+def hosvd_bases(x: torch.Tensor) -> list[torch.Tensor]:
+    """Orthonormal bases (m_n, m_n) of the mode-n unfoldings of x (N, m1, ..., m4) (HOSVD factors)."""
+    mats = []
+    for n in range(1, x.dim()):
+        unf = x.movedim(n, 1).reshape(x.shape[0], x.shape[n], -1)
+        gram = torch.einsum("nar,nbr->ab", unf, unf)
+        _, vecs = torch.linalg.eigh(gram.double())
+        mats.append(vecs.flip(-1).to(x.dtype))
+    return mats
+
+
+def procrustes(a: torch.Tensor) -> torch.Tensor:
+    """The orthonormal U maximising tr(U^T a), i.e. the polar factor of a (m, m)."""
+    u, _, vh = torch.linalg.svd(a.double())
+    return (u @ vh).to(a.dtype)
+
+
+@dataclass
+class TrainingLog:
+    """Objective (sum of squared errors) after every iteration, seconds, and iterations run."""
+
+    objective: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    iterations: int = 0
+
+
+def train_ensemble(x: torch.Tensor, num_dictionaries: int, tau: int, max_iters: int = 20, tol: float = 1e-3,
+                   seed: int = 0, progress: bool = False, description: str = "training dictionaries"
+                   ) -> tuple[Ensemble, TrainingLog]:
+    """Train an ensemble of `num_dictionaries` orthonormal 4D dictionaries on data points x (N, m1..m4) with
+    training sparsity `tau` (tau_l), alternating coding/assignment and Procrustes updates (module docstring)."""
+    if x.dim() != 5:
+        raise InputError(f"train_ensemble x: expected data points (N, m1, m2, m3, m4), got {tuple(x.shape)}")
+    n = x.shape[0]
+    if num_dictionaries < 1 or num_dictionaries > n:
+        raise InputError(f"train_ensemble: need 1 <= K <= number of data points ({n}), got K = {num_dictionaries}")
+    if tau < 1:
+        raise InputError(f"train_ensemble tau: expected >= 1, got {tau}")
+    t0 = time.perf_counter()
+    gen = torch.Generator().manual_seed(seed)
+    groups = torch.randperm(n, generator=gen).to(x.device) % num_dictionaries
+    init = [hosvd_bases(x[groups == k]) for k in range(num_dictionaries)]
+    ens = Ensemble([torch.stack([d[j] for d in init]) for j in range(4)])
+    log = TrainingLog()
+    shape = ens.shape
+    steps = range(max_iters)
+    if progress:
+        from rich.progress import track
+        steps = track(steps, description=description)
+    codes = code_points(x, ens, tau)
+    for _ in steps:
+        for k in range(num_dictionaries):
+            sel = codes.membership == k
+            if not bool(sel.any()):
+                # re-seed an empty dictionary from the worst-represented points
+                worst = codes.error.topk(max(1, n // num_dictionaries)).indices
+                for j, u in enumerate(hosvd_bases(x[worst])):
+                    ens.mats[j][k] = u
+                continue
+            xk = x[sel]
+            for mode in range(1, 5):
+                mats = ens.dictionary(k)
+                s = dense_coefficients(_subset(codes, sel), shape)
+                z = xk
+                for j, u in enumerate(mats, start=1):
+                    if j != mode:
+                        z = mode_product(z, u.T, j)
+                zn = z.movedim(mode, 1).reshape(z.shape[0], shape[mode - 1], -1)
+                sn = s.movedim(mode, 1).reshape(s.shape[0], shape[mode - 1], -1)
+                ens.mats[mode - 1][k] = procrustes(torch.einsum("nar,nbr->ab", zn, sn))
+                sub = code_points(xk, Ensemble([u[k:k + 1] for u in ens.mats]), tau)
+                _assign(codes, sel, sub, k)
+        codes = code_points(x, ens, tau)
+        obj = float(codes.error.sum()) * math.prod(shape)
+        log.objective.append(obj)
+        log.iterations += 1
+        if len(log.objective) > 1 and log.objective[-2] - obj <= tol * abs(log.objective[-2]):
+            break
+    log.seconds = time.perf_counter() - t0
+    return ens, log
+
+
+def _subset(codes: Codes, sel: torch.Tensor) -> Codes:
+    return Codes(codes.membership[sel], codes.values[sel], codes.index[sel], codes.counts[sel], codes.error[sel])
+
+
+def _assign(codes: Codes, sel: torch.Tensor, sub: Codes, k: int) -> None:
+    codes.values[sel] = sub.values
+    codes.index[sel] = sub.index
+    codes.counts[sel] = sub.counts
+    codes.error[sel] = sub.error
+    codes.membership[sel] = k
+
+
+# ----------------------------------------------------------------------------------------- dictionary files
+@dataclass
+class BTFDictionary:
+    """Three ensembles (Y, U, V) trained once, plus what a BTF must match to be coded with them.
+
+    light_dirs (L, 3), view_dirs (V, 3): the angular sampling; patch: p; tau_train: (tau_Y, tau_U, tau_V);
+    log_eps: eps of the log transform; log: training objective history per channel, seconds.
+    """
+
+    ensembles: list[Ensemble]
+    light_dirs: torch.Tensor
+    view_dirs: torch.Tensor
+    patch: int
+    tau_train: tuple[int, int, int]
+    log_eps: float
+    info: dict = field(default_factory=dict)
+
+    @property
+    def num_dictionaries(self) -> int:
+        return self.ensembles[0].size
+
+    def check_compatible(self, light_dirs: torch.Tensor, view_dirs: torch.Tensor, what: str = "BTF") -> None:
+        """Refuse a BTF sampled at other directions (the paper's stated limitation, Sec. 5)."""
+        for name, mine, theirs in (("light", self.light_dirs, light_dirs), ("view", self.view_dirs, view_dirs)):
+            if mine.shape != theirs.shape:
+                raise InputError(f"{what} has {theirs.shape[0]} {name} directions but the dictionary was trained for "
+                                 f"{mine.shape[0]}; SparseBTF dictionaries only code BTFs of the angular resolution "
+                                 "they were trained on: train a dictionary for this direction set")
+            if float((mine.to(theirs) - theirs).abs().max()) > 1e-4:
+                raise InputError(f"{what}'s {name} directions differ from the dictionary's (same count, other "
+                                 "directions); train a dictionary for this direction set")
+
+    def save(self, path: str | Path) -> Path:
+        """Write a `.nmat`-style file: safetensors tensors plus a JSON header (type "btf-dictionary")."""
+        from safetensors.torch import save_file
+
+        from .. import __version__
+        tensors = {"light_dirs": self.light_dirs.float().cpu().clone(),
+                   "view_dirs": self.view_dirs.float().cpu().clone()}
+        for c, ens in enumerate(self.ensembles):
+            for j, u in enumerate(ens.mats):
+                tensors[f"U{j + 1}_{'YUV'[c]}"] = u.float().cpu().clone()
+        header = {"type": "btf-dictionary", "patch": self.patch, "tau_train": list(self.tau_train),
+                  "log_eps": self.log_eps, "num_dictionaries": self.num_dictionaries, "info": self.info,
+                  "neumat_version": __version__}
+        save_file(tensors, str(path), metadata={"neumat": json.dumps(header)})
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path, device=None) -> "BTFDictionary":
+        """Read a file written by `save`."""
+        from safetensors import safe_open
+
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"dictionary file {str(path)!r} does not exist")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                meta = json.loads((f.metadata() or {}).get("neumat", "{}"))
+                tensors = {k: f.get_tensor(k) for k in f.keys()}
+        except Exception as e:
+            raise DataFormatError(f"{path}: not a readable dictionary file: {e}") from None
+        if meta.get("type") != "btf-dictionary":
+            raise DataFormatError(f"{path}: header type {meta.get('type')!r}, expected 'btf-dictionary'")
+        try:
+            ens = [Ensemble([tensors[f"U{j + 1}_{ch}"].to(device) for j in range(4)]) for ch in "YUV"]
+        except KeyError as e:
+            raise DataFormatError(f"{path}: missing dictionary tensor {e}") from None
+        return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device), int(meta["patch"]),
+                   tuple(meta["tau_train"]), float(meta["log_eps"]), meta.get("info", {}))
+
+
+def prepare_btf(data: torch.Tensor, patch: int, log_eps: float
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """BTF data (L, V, H, W, 3) -> data points (3, P, p, p, L, V), mean and std (L, V, 3) (Sec. 3.1)."""
+    yuv = rgb_to_model_space(data.float(), log_eps)
+    mean, std = image_statistics(yuv)
+    z = (yuv - mean[:, :, None, None, :]) / std[:, :, None, None, :]
+    return to_data_points(z, patch), mean, std
+
+
+def train_dictionary(btfs: list, num_dictionaries: int = 8, tau_train: tuple[int, int, int] = (256, 32, 32),
+                     patch: int = 10, log_eps: float = 0.01, sample_fraction: float = 1.0, max_iters: int = 20,
+                     tol: float = 1e-3, seed: int = 0, progress: bool = False) -> BTFDictionary:
+    """Train the Y, U and V ensembles once on a few BTFs (TabulatedBTF objects of one direction set).
+
+    sample_fraction: the random fraction of data points used (the paper: 10%).
+    """
+    if not btfs:
+        raise InputError("train_dictionary: expected at least one BTF")
+    first = btfs[0]
+    for b in btfs[1:]:
+        if b.light_dirs.shape != first.light_dirs.shape or b.view_dirs.shape != first.view_dirs.shape or \
+                float((b.light_dirs - first.light_dirs).abs().max()) > 1e-4 or \
+                float((b.view_dirs - first.view_dirs).abs().max()) > 1e-4:
+            raise InputError(f"train_dictionary: BTF {b.label!r} has another direction set than {first.label!r}")
+    if not 0 < sample_fraction <= 1:
+        raise InputError(f"train_dictionary sample_fraction: expected (0, 1], got {sample_fraction}")
+    points = torch.cat([prepare_btf(b.data, patch, log_eps)[0] for b in btfs], dim=1)
+    gen = torch.Generator().manual_seed(seed)
+    n = points.shape[1]
+    keep = torch.randperm(n, generator=gen)[:max(num_dictionaries, round(n * sample_fraction))]
+    ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": int(keep.numel()),
+                           "btfs": [b.label for b in btfs]}
+    for c, ch in enumerate("YUV"):
+        ens, log = train_ensemble(points[c][keep.to(points.device)], num_dictionaries, tau_train[c], max_iters, tol,
+                                  seed + c, progress, f"training {ch} dictionaries")
+        ensembles.append(ens)
+        info["objective"][ch], info["seconds"][ch], info["iterations"][ch] = log.objective, log.seconds, log.iterations
+    return BTFDictionary(ensembles, first.light_dirs.clone(), first.view_dirs.clone(), patch, tuple(tau_train),
+                         log_eps, info)

@@ -1,0 +1,187 @@
+"""Generate a BTF from a PBR texture set by ray marching its displaced height field.
+
+For every view direction the texels of the reference plane (z = mean height) are seen orthographically:
+each (sub-)pixel ray arriving along -wo is marched to its first intersection with the height field
+(parallax and masking). For every light direction the hit point is lit by a directional light of unit
+irradiance perpendicular to it, with cast shadows (a second march towards wi), and shaded with the
+principled BRDF of the texture maps at the hit point in the frame of the local surface normal. Direct light
+only: inter-reflections between surface bumps are ignored.
+
+Stored value: apparent BRDF = outgoing radiance / cos(theta_light) of the macro surface (cosine excluded,
+like every neumat BRDF), see `neumat.reflectance.btf`.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+
+from ..core.errors import InputError
+from ..io.texture_set import TextureSet
+from .btf import TabulatedBTF
+from .heightfield import HeightField
+from .microfacet import principled_eval
+
+#: shader(wi_local (N, 3), wo_local (N, 3), color (N, 3), metalness (N,), roughness (N,)) -> BRDF (N, 3)
+Shader = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def principled_shader(wi, wo, color, metalness, roughness) -> torch.Tensor:
+    """The principled BRDF (isotropic, specular 0.5) of the texture maps."""
+    return principled_eval(wi, wo, color, metalness, roughness, torch.zeros_like(roughness))
+
+
+def lambert_shader(wi, wo, color, metalness, roughness) -> torch.Tensor:
+    """color / pi above the surface (for validation and tests)."""
+    up = ((wi[:, 2] > 0) & (wo[:, 2] > 0)).to(color.dtype)[:, None]
+    return color / math.pi * up
+
+
+def _frame(n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Tangent and bitangent (N, 3) of unit normals n (N, 3), the tangent closest to +x."""
+    x = torch.zeros_like(n)
+    x[:, 0] = 1
+    t = x - n * n[:, :1]
+    t = t / t.norm(dim=-1, keepdim=True).clamp(min=1e-8)
+    return t, torch.cross(n, t, dim=-1)
+
+
+def generate_btf(textures: TextureSet, light_dirs: torch.Tensor, view_dirs: torch.Tensor,
+                 relief: float | None = None, spp: int = 4, shadows: bool = True, normals: str = "height",
+                 shader: Shader = principled_shader, step: float = 0.25, device=None, progress: bool = False,
+                 label: str | None = None) -> TabulatedBTF:
+    """BTF (L, V, H, W, 3) of `textures` (H x W texels) seen from `view_dirs` under `light_dirs`.
+
+    relief: displacement in texels of a height-map value of 1 (default: textures.height_scale * W, the
+    set's own scale when the set is a whole texture). spp: sub-pixel rays per texel (a square number,
+    stratified). shadows: cast shadows on (False gives the height field without light occlusion).
+    normals: "height" (normals of the displaced height field) or "map" (the set's normal map).
+    """
+    if normals not in ("height", "map"):
+        raise InputError(f"generate_btf normals: expected 'height' or 'map', got {normals!r}")
+    root = int(round(math.sqrt(spp)))
+    if spp < 1 or root * root != spp:
+        raise InputError(f"generate_btf spp: expected a square number >= 1, got {spp}")
+    for name, d in (("light", light_dirs), ("view", view_dirs)):
+        if d.dim() != 2 or d.shape[1] != 3 or bool((d[:, 2] <= 0).any()):
+            raise InputError(f"generate_btf {name}_dirs: expected (D, 3) upper-hemisphere directions")
+    device = torch.device(device) if device is not None else textures.color.device
+    tex = textures.to(device)
+    h, w = tex.size
+    relief = tex.height_scale * w if relief is None else float(relief)
+    field = HeightField(tex.height * relief, step=step)
+    shading_normals = field.normals() if normals == "height" else tex.normal
+    maps = torch.cat([tex.color, tex.metalness[..., None], tex.roughness[..., None], shading_normals], -1)
+
+    # stratified sub-pixel positions of every texel, (H * W * spp,)
+    rows, cols = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device), indexing="ij")
+    off = (torch.arange(root, device=device) + 0.5) / root
+    oy, ox = torch.meshgrid(off, off, indexing="ij")
+    s0 = (cols[..., None].float() + ox.reshape(-1)).reshape(-1)
+    t0 = (h - rows[..., None].float() - oy.reshape(-1)).reshape(-1)
+
+    ld = light_dirs.to(device, torch.float32)
+    vd = view_dirs.to(device, torch.float32)
+    out = torch.zeros(ld.shape[0], vd.shape[0], h, w, 3, device=device)
+    views = range(vd.shape[0])
+    if progress:
+        from rich.progress import track
+        views = track(views, description=f"generating BTF {label or tex.name}")
+    for v in views:
+        wo = vd[v].expand(s0.shape[0], 3)
+        p = field.intersect_view(s0, t0, wo)
+        m = field.sample(maps, p[:, 0], p[:, 1])
+        color, metal, rough = m[:, :3].clamp(0, 1), m[:, 3].clamp(0, 1), m[:, 4].clamp(0, 1)
+        n = m[:, 5:8] / m[:, 5:8].norm(dim=-1, keepdim=True)
+        tangent, bitangent = _frame(n)
+        to_local = torch.stack([tangent, bitangent, n], 1)              # (N, 3, 3) rows = frame axes
+        wo_local = (to_local @ wo[:, :, None])[..., 0]
+        for l in range(ld.shape[0]):
+            wi = ld[l].expand_as(wo)
+            wi_local = (to_local @ wi[:, :, None])[..., 0]
+            f = shader(wi_local, wo_local, color, metal, rough)
+            radiance = f * wi_local[:, 2:3].clamp(min=0)
+            if shadows:
+                radiance = radiance * field.visible(p, wi).to(radiance.dtype)[:, None]
+            out[l, v] = (radiance / ld[l, 2]).reshape(h, w, spp, 3).mean(2)
+    return TabulatedBTF(out, ld, vd, label=label or tex.name)
+
+
+def texture_tile(textures: TextureSet, size: int, crop: int | None = None, row: int = 0, col: int = 0
+                 ) -> tuple[TextureSet, float]:
+    """A crop x crop texel tile of `textures` at (row, col), resampled (antialiased) to size x size, and its
+    relief: the displacement in tile texels of a height value of 1 (from textures.height_scale)."""
+    import torch.nn.functional as F
+    from dataclasses import replace
+
+    full_w = textures.size[1]
+    crop = min(textures.size) if crop is None else crop
+    tile = textures.crop(row, col, crop, crop)
+
+    def resize(t: torch.Tensor) -> torch.Tensor:
+        x = (t if t.dim() == 3 else t[..., None]).permute(2, 0, 1)[None]
+        y = F.interpolate(x, size=(size, size), mode="bilinear", antialias=True, align_corners=False)[0]
+        y = y.permute(1, 2, 0)
+        return y if t.dim() == 3 else y[..., 0]
+
+    normal = resize(tile.normal)
+    tile = replace(tile, color=resize(tile.color), normal=normal / normal.norm(dim=-1, keepdim=True),
+                   roughness=resize(tile.roughness), metalness=resize(tile.metalness), height=resize(tile.height))
+    return tile, textures.height_scale * full_w * size / crop
+
+
+def procedural_texture_set(kind: str, size: int = 32, seed: int = 0) -> TextureSet:
+    """A small synthetic PBR texture set with mesoscale relief (height in [0, 1]) for tests and examples.
+
+    kinds: "bumps" (random round bumps, plastic), "weave" (over-under threads, cloth), "bricks" (raised bricks
+    and mortar grooves), "dents" (dented metal), "ridges" (parallel grooves, anisotropic relief).
+    """
+    g = torch.Generator().manual_seed(seed)
+    y, x = torch.meshgrid((torch.arange(size) + 0.5) / size, (torch.arange(size) + 0.5) / size, indexing="ij")
+
+    def blobs(count: int, radius: float) -> torch.Tensor:
+        c = torch.rand(count, 2, generator=g)
+        dx = (x[None] - c[:, 0, None, None] + 0.5) % 1 - 0.5
+        dy = (y[None] - c[:, 1, None, None] + 0.5) % 1 - 0.5
+        return torch.exp(-(dx ** 2 + dy ** 2) / radius ** 2).amax(0)
+
+    def tint(a, b, t):
+        return torch.tensor(a) * (1 - t[..., None]) + torch.tensor(b) * t[..., None]
+
+    metal = torch.zeros(size, size)
+    if kind == "bumps":
+        height = blobs(8, 0.09)
+        color = tint((0.6, 0.15, 0.1), (0.9, 0.8, 0.3), height)
+        rough = 0.25 + 0.3 * (1 - height)
+    elif kind == "weave":
+        n = 4
+        a, b = torch.sin(math.pi * n * 2 * x), torch.sin(math.pi * n * 2 * y)
+        warp = (torch.cos(math.pi * n * 2 * y) > 0).float()
+        height = 0.5 + 0.5 * torch.where(warp > 0, a.abs(), b.abs()) * (0.6 + 0.4 * torch.rand(size, size, generator=g))
+        color = torch.where(warp[..., None] > 0, torch.tensor((0.1, 0.2, 0.6)), torch.tensor((0.7, 0.6, 0.5)))
+        rough = torch.full((size, size), 0.6)
+    elif kind == "bricks":
+        rows = (y * 4).floor()
+        shift = (rows % 2) * 0.25
+        u = (x + shift) * 2 % 1
+        v = y * 4 % 1
+        mortar = ((u < 0.08) | (v < 0.12)).float()
+        height = (1 - mortar) * (0.8 + 0.2 * torch.rand(size, size, generator=g))
+        color = tint((0.55, 0.22, 0.12), (0.75, 0.75, 0.7), mortar)
+        rough = 0.7 + 0.2 * mortar
+    elif kind == "dents":
+        height = 1 - blobs(10, 0.07)
+        color = torch.tensor((0.9, 0.65, 0.35)).expand(size, size, 3).clone()
+        metal = torch.ones(size, size)
+        rough = 0.2 + 0.2 * (1 - height)
+    elif kind == "ridges":
+        height = 0.5 + 0.5 * torch.sin(2 * math.pi * 5 * x + 0.5 * torch.sin(2 * math.pi * y))
+        color = tint((0.2, 0.5, 0.25), (0.85, 0.9, 0.8), height)
+        rough = 0.35 + 0.2 * height
+    else:
+        raise InputError(f"procedural_texture_set kind {kind!r}: expected bumps, weave, bricks, dents or ridges")
+    from ..io.texture_set import normals_from_height
+    return TextureSet(color=color.float().contiguous(), normal=normals_from_height(height, 0.02),
+                      roughness=rough.float().clamp(0.05, 1).contiguous(), metalness=metal.contiguous(),
+                      height=height.float().contiguous(), name=kind, normal_from_height=True, height_scale=0.02)

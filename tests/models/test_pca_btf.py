@@ -1,0 +1,39 @@
+"""PCA baseline of BTFs (equal-storage comparison partner of SparseBTF)."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from neumat import InputError, Query
+from neumat.models.pca_btf import PCABTF, ranks_for_bytes
+from neumat.models.sparse_btf import mse
+from btf_util import N_DIRS, SIZE, synthetic_btf
+
+
+def test_full_rank_is_exact_and_error_falls_with_rank():
+    btf = synthetic_btf(3)
+    full = PCABTF.fit(btf, (N_DIRS ** 2,) * 3)
+    assert mse(btf, full.decode()) < 1e-9
+    errs = [mse(btf, PCABTF.fit(btf, (r, r, r)).decode()) for r in (1, 2, 4, 8, 16)]
+    assert all(b < a for a, b in zip(errs, errs[1:]))
+
+
+def test_eval_at_bins_and_texel_centres_matches_decoded_table(gen):
+    model = PCABTF.fit(synthetic_btf(4), (4, 2, 2))
+    table = model.decode().data
+    n = 40
+    li, vi = torch.randint(0, N_DIRS, (2, n), generator=gen)
+    rows, cols = torch.randint(0, SIZE, (2, n), generator=gen)
+    uv = torch.stack([(cols + 0.5) / SIZE, 1 - (rows + 0.5) / SIZE], -1)
+    q = Query(model.light_dirs[li], model.view_dirs[vi], uv=uv)
+    assert torch.allclose(model.eval(q), table[li, vi, rows, cols], rtol=1e-4, atol=1e-5)
+
+
+def test_ranks_for_bytes_fits_the_budget():
+    budget = 20000
+    ranks = ranks_for_bytes(budget, N_DIRS, N_DIRS, SIZE, SIZE, split=(4, 1, 1))
+    used = PCABTF.fit(synthetic_btf(5), ranks).storage()["total"]
+    assert used <= budget < used + 2 * (N_DIRS ** 2 + SIZE ** 2) * 3
+    assert ranks[0] > ranks[1]
+    with pytest.raises(InputError, match="budget"):
+        ranks_for_bytes(10, N_DIRS, N_DIRS, SIZE, SIZE)

@@ -1,0 +1,163 @@
+"""SparseBTF: dictionary-ensemble training, sparse coding, Eq. 5/6 reconstruction, Eq. 7-9 blending, storage."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from neumat import InputError, Query
+from neumat.models.sparse_btf import SparseBTF, mse
+from neumat.models.sparse_dictionary import (BTFDictionary, code_points, decode_points, prepare_btf,
+                                             train_dictionary, train_ensemble)
+from neumat.reflectance.btf import TabulatedBTF, angular_weights, direction_set
+
+from btf_util import N_DIRS, SIZE, synthetic_btf
+
+PATCH = 4
+
+
+@pytest.fixture(scope="module")
+def trained() -> BTFDictionary:
+    return train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
+                            patch=PATCH, max_iters=8, seed=0)
+
+
+def test_training_keeps_orthonormality_and_objective_decreases(trained):
+    for ens in trained.ensembles:
+        assert ens.orthonormality_error() < 1e-5
+    for obj in trained.info["objective"].values():
+        assert all(b <= a * (1 + 1e-6) for a, b in zip(obj, obj[1:]))
+
+
+def test_training_beats_its_initialisation_on_structured_data(gen):
+    base = [torch.linalg.qr(torch.randn(m, m, generator=gen))[0][:, :2] for m in (4, 4, 6, 6)]
+    x = torch.einsum("nabcd,ia,jb,kc,ld->nijkl", torch.randn(40, 2, 2, 2, 2, generator=gen), *base)
+    x = x + 0.01 * torch.randn(x.shape, generator=gen)
+    ens, log = train_ensemble(x, 2, tau=16, max_iters=10)
+    assert log.objective[-1] <= log.objective[0]
+    assert ens.orthonormality_error() < 1e-5
+    # the planted 2x2x2x2 structure is recovered: 16 coefficients leave only the noise
+    codes = code_points(x, ens, 16)
+    assert float(codes.error.mean()) < 3 * 0.01 ** 2
+
+
+def test_all_coefficients_reconstruct_exactly(trained):
+    btf = synthetic_btf(7)
+    full = SparseBTF.encode(btf, trained, tau=PATCH * PATCH * N_DIRS * N_DIRS)
+    assert mse(btf, full.decode()) < 1e-9
+    points, _, _ = prepare_btf(btf.data, PATCH, trained.log_eps)
+    codes = code_points(points[0], trained.ensembles[0], 10 ** 9)
+    assert torch.allclose(decode_points(codes, trained.ensembles[0]), points[0], atol=1e-4)
+
+
+def test_error_falls_monotonically_with_tau(trained):
+    btf = synthetic_btf(8)
+    points, _, _ = prepare_btf(btf.data, PATCH, trained.log_eps)
+    model_err, linear_err = [], []
+    for tau in (24, 48, 96, 192, 384):
+        codes = code_points(points[0], trained.ensembles[0], tau)
+        model_err.append(float(codes.error.mean()))
+        linear_err.append(mse(btf, SparseBTF.encode(btf, trained, (tau, 8 + tau // 8, 8 + tau // 8)).decode()))
+    assert all(b < a for a, b in zip(model_err, model_err[1:]))
+    assert all(b < a for a, b in zip(linear_err, linear_err[1:])), linear_err
+
+
+def test_element_reconstruction_matches_full_decode(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(9), trained, (40, 10, 10))
+    dense = model.decode_points()                                           # (3, P, p, p, L, V)
+    n = 50
+    idx = [torch.randint(0, s, (n,), generator=gen) for s in dense.shape[1:]]
+    for c in range(3):
+        assert torch.allclose(model.element(c, *idx), dense[c][tuple(idx)], atol=1e-5)
+
+
+def test_coefficient_space_interpolation_equals_value_interpolation(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
+    n, k = 30, 3
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
+    li, lw = angular_weights(model.light_dirs, wi, k)
+    vi, vw = angular_weights(model.view_dirs, wo, k)
+    patch, x1, x2 = (torch.randint(0, s, (n,), generator=gen) for s in (model.counts.shape[1], PATCH, PATCH))
+    for c in range(3):
+        eq6 = model.element_interpolated(c, patch, x1, x2, li, lw, vi, vw)
+        values = torch.stack([torch.stack([model.element(c, patch, x1, x2, li[:, a], vi[:, b]) for b in range(k)], -1)
+                              for a in range(k)], -2)                       # (n, kl, kv)
+        ref = (values * lw[:, :, None] * vw[:, None, :]).sum((1, 2))
+        assert torch.allclose(eq6, ref, atol=1e-5)
+
+
+def test_value_space_eval_equals_the_decoded_table(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(11), trained, (40, 10, 10), angular="value")
+    n = 64
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
+    q = Query(wi, wo, uv=torch.rand(n, 2, generator=gen))
+    assert torch.allclose(model.eval(q), model.decode().eval(q), rtol=1e-4, atol=1e-5)
+    # the coefficient-space path interpolates in model space; at bin directions and texel centres the
+    # weights are one-hot and both paths return the decoded table entry
+    fast = SparseBTF.encode(synthetic_btf(11), trained, (40, 10, 10))
+    li, vi = torch.randint(0, N_DIRS, (2, n), generator=gen)
+    rows, cols = torch.randint(0, SIZE, (2, n), generator=gen)
+    uv = torch.stack([(cols + 0.5) / SIZE, 1 - (rows + 0.5) / SIZE], -1)
+    q = Query(model.light_dirs[li], model.view_dirs[vi], uv=uv)
+    table = model.decode().data[li, vi, rows, cols]
+    assert torch.allclose(fast.eval(q), table, rtol=1e-4, atol=1e-5)
+    assert torch.allclose(model.eval(q), table, rtol=1e-4, atol=1e-5)
+
+
+def test_blending_same_and_different_dictionaries(trained):
+    a = SparseBTF.encode(synthetic_btf(12), trained, (40, 10, 10))
+    b = SparseBTF.encode(synthetic_btf(13), trained, (40, 10, 10))
+    alpha = 0.3
+    mixed = SparseBTF.blend(a, b, alpha)
+    expect = (1 - alpha) * a.decode_points() + alpha * b.decode_points()
+    # Eq. 8-9 change of basis is exact with enough coefficients, whatever the memberships
+    exact = SparseBTF.blend(a, b, alpha, tau=(10 ** 6,) * 3)
+    assert torch.allclose(exact.decode_points(), expect, atol=1e-4)
+    same = a.membership == b.membership
+    assert bool(same.any())
+    got = mixed.decode_points()
+    for c in range(3):
+        assert torch.allclose(got[c][same[c]], expect[c][same[c]], atol=1e-4)
+    assert torch.allclose(mixed.mean, (1 - alpha) * a.mean + alpha * b.mean)
+
+
+def test_storage_accounting(trained):
+    model = SparseBTF.encode(synthetic_btf(14), trained, (40, 10, 10))
+    st = model.storage()
+    points = (SIZE // PATCH) ** 2
+    assert st["coefficients"] == points * 60
+    assert st["values"] == 2 * st["coefficients"] and st["indices"] == 8 * st["coefficients"]
+    assert st["membership"] == st["counts"] == 2 * 3 * points
+    assert st["dictionary"] == 3 * 2 * (2 * PATCH ** 2 + 2 * N_DIRS ** 2) * 2
+    assert model.size_bytes() == st["total"]
+    thr = SparseBTF.encode(synthetic_btf(14), trained, (400, 100, 100), error_threshold=1e-2)
+    assert int(thr.counts.sum()) < 600 * points
+    assert thr.storage()["coefficients"] == int(thr.counts.sum())
+
+
+def test_state_dict_round_trip(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(15), trained, (40, 10, 10))
+    again = SparseBTF(config=model.cfg)
+    again.load_state_dict(model.state_dict())
+    q = Query(model.light_dirs[:5], model.view_dirs[:5], uv=torch.rand(5, 2, generator=gen))
+    assert torch.equal(again.eval(q), model.eval(q))
+
+
+def test_dictionary_file_round_trip(tmp_path, trained):
+    back = BTFDictionary.load(trained.save(tmp_path / "dict.nmat"))
+    assert back.tau_train == trained.tau_train and back.patch == trained.patch
+    for a, b in zip(back.ensembles, trained.ensembles):
+        assert all(torch.equal(x, y) for x, y in zip(a.mats, b.mats))
+
+
+def test_bad_input_is_refused(trained):
+    with pytest.raises(InputError, match="tau_t >= tau_l"):
+        SparseBTF.encode(synthetic_btf(16), trained, (8, 8, 8))
+    other = synthetic_btf(17, dirs=direction_set(13))
+    with pytest.raises(InputError, match="angular resolution"):
+        SparseBTF.encode(other, trained)
+    with pytest.raises(InputError, match="patches"):
+        SparseBTF.encode(synthetic_btf(18, size=10), trained)
+    with pytest.raises(InputError, match="another direction set"):
+        train_dictionary([synthetic_btf(1), other], num_dictionaries=1, tau_train=(4, 4, 4), patch=PATCH)
