@@ -16,3 +16,8 @@ __all__ = [
 ]
 
 # --- GGX warps (owned by the GGX engineer): add `from .ggx import ...` here and extend __all__ ---
+from .ggx import (ggx_reflection_pdf, ggx_vndf_pdf, invert_ggx_reflection, invert_ggx_vndf,  # noqa: E402
+                  sample_ggx_reflection, sample_ggx_vndf)
+
+__all__ += ["sample_ggx_vndf", "ggx_vndf_pdf", "invert_ggx_vndf",
+            "sample_ggx_reflection", "ggx_reflection_pdf", "invert_ggx_reflection"]
