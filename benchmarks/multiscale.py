@@ -1,0 +1,185 @@
+"""Multi-scale SVBRDF benchmark (Timonen et al. 2025, Sec. 5.2): fit models to prefiltered SVBRDFs and
+evaluate them on the planar scene over scales x directional lights x cameras.
+
+For each texture set and model: fit with the model's recipe (steps / batch / footprint samples overridable:
+full-size runs belong on a GPU), then render the plane (one sample through each pixel centre, the material
+filters by the pixel footprint, light sampling of a directional light) for `--scales` texture scales
+(geometric, from 1/8 texel to the whole texture per pixel) x 4 lights x 3 camera tilts, against the
+reference SVBRDF with `--ref-samples` footprint samples. Prints per-scale FLIP, a Table-6-style table
+(SSIM, FLIP, RMSE, MAE on tone-mapped images, RMSE/MAE-HDR over random Sec. 4.2 queries), bytes (fp32)
+and FLOPs, training steps/s, and evaluations/s of each model against the principled GGX point evaluation
+on the same batch. Writes the per-scale FLIP chart (the paper's Fig. 4) to benchmarks/results/.
+
+    python benchmarks/multiscale.py --quick
+    python benchmarks/multiscale.py --device cuda --steps 100000 --batch 65536 --max-size 1024
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from neumat.core.query import Query
+from neumat.fit.footprint_queries import footprint_queries
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.io.texture_set import load_texture_set
+from neumat.metrics.flops import model_flops
+from neumat.metrics.hdr import reflectance_errors
+from neumat.metrics.image import image_metrics
+from neumat.models.registry import build_model
+from neumat.reflectance.microfacet import principled_eval
+from neumat.reflectance.svbrdf import SVBRDF
+from neumat.render.render import render
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf"
+RESULTS = Path(__file__).resolve().parent / "results"
+LIGHTS = ["dir:0.3/1/0.2", "dir:-0.8/0.6/0.3", "dir:0.5/0.4/-0.9", "dir:0/0.35/1"]
+TILTS = [0.0, 35.0, 65.0]
+DISTANCE, FOV = 3.0, 40.0
+
+
+def plane_scales(n: int, resolution: int, texels: int) -> list[float]:
+    """uv_scale values from ~1/8 texel to ~2 textures per pixel at the image centre (head-on camera)."""
+    visible = 2 * DISTANCE * math.tan(math.radians(FOV) / 2)  # world units across the image
+    lo = resolution / (8 * visible * texels)
+    hi = 2 * resolution / visible
+    return list(np.geomspace(lo, hi, n))
+
+
+def render_set(material, scales, lights, tilts, resolution, device) -> list[torch.Tensor]:
+    images = []
+    for s in scales:
+        for light in lights:
+            for tilt in tilts:
+                images.append(render(material, scene="plane", light=light, spp=1, resolution=resolution,
+                                     strategy="light", jitter=False, device=device, tilt=tilt, distance=DISTANCE,
+                                     fov=FOV, uv_scale=float(s)).cpu())
+    return images
+
+
+def evals_per_second(fn, n: int, device, repeats: int = 5) -> float:
+    fn()  # warm-up
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    t = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    return n * repeats / (time.perf_counter() - t)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--materials", nargs="*", default=None, help="texture-set folders (default: all shared sets)")
+    ap.add_argument("--models", nargs="*", default=["multiscale", "tripleplane"])
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--batch", type=int, default=8192)
+    ap.add_argument("--samples", type=int, default=16, help="footprint samples of the training targets")
+    ap.add_argument("--ref-samples", type=int, default=256, help="footprint samples of the reference images")
+    ap.add_argument("--max-size", type=int, default=256, help="downscale the texture sets to this size")
+    ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("--scales", type=int, default=21)
+    ap.add_argument("--hdr-queries", type=int, default=2 ** 16)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--short-run-optimiser", action="store_true",
+                    help="Adam (0.9, 0.999), lr 1e-2, EMA 0.02 instead of the paper's long-run settings")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 1 material, 200 steps, 5 scales, 32 px")
+    args = ap.parse_args()
+    if args.quick:
+        args.materials = args.materials or [str(DATA / "Wood092_1K")]
+        args.steps, args.batch, args.samples, args.ref_samples = 200, 1024, 4, 32
+        args.max_size, args.resolution, args.scales, args.hdr_queries = 64, 32, 5, 4096
+        args.short_run_optimiser = True
+    device = torch.device(args.device)
+    folders = [Path(m) for m in (args.materials or sorted(p for p in DATA.iterdir() if p.is_dir()))]
+    lights, tilts = (LIGHTS[:2], TILTS[1:2]) if args.quick else (LIGHTS, TILTS)
+    RESULTS.mkdir(exist_ok=True)
+
+    per_scale: dict[str, list[list[float]]] = {m: [] for m in args.models}
+    rows: dict[str, list[dict]] = {m: [] for m in args.models}
+    for folder in folders:
+        textures = load_texture_set(folder, max_size=args.max_size).to(device)
+        source = SVBRDF(textures, samples=args.samples)
+        reference = SVBRDF(textures, samples=args.ref_samples, seed=1)
+        size = 1 << int(math.floor(math.log2(max(textures.size))))
+        scales = plane_scales(args.scales, args.resolution, max(textures.size))
+        print(f"\n== {textures.name} ({textures.size[1]}x{textures.size[0]}), model pyramids {size}^2, "
+              f"{args.steps} steps x {args.batch} queries, {args.samples}-sample targets")
+        t = time.perf_counter()
+        ref_images = render_set(reference, scales, lights, tilts, args.resolution, device)
+        print(f"reference: {len(ref_images)} images in {time.perf_counter() - t:.0f} s")
+        for name in args.models:
+            torch.manual_seed(0)
+            model = build_model({"type": name, "spatial_size": size}).to(device)
+            recipe = replace(recipe_for(name), steps=args.steps, batch_size=args.batch)
+            if args.short_run_optimiser:
+                recipe = replace(recipe, lr=1e-2, betas=(0.9, 0.999), ema=0.02, lr_decay_every=0)
+            result = fit(model, source, recipe, device=device, progress=True)
+            images = render_set(result.model, scales, lights, tilts, args.resolution, device)
+            metrics = [image_metrics(r, m) for r, m in zip(ref_images, images)]
+            per_img = len(lights) * len(tilts)
+            per_scale[name].append([float(np.mean([m["flip"] for m in metrics[i * per_img:(i + 1) * per_img]]))
+                                    for i in range(len(scales))])
+            hdr = reflectance_errors(result.model, reference, n=args.hdr_queries, device=device,
+                                     query_sampler=footprint_queries(reference, model))
+            rows[name].append({**{k: float(np.mean([m[k] for m in metrics])) for k in ("ssim", "flip", "rmse", "mae")},
+                               "rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"],
+                               "steps_per_s": result.steps / result.seconds})
+            print(f"{name}: FLIP {rows[name][-1]['flip']:.4f}, fit {result.seconds:.0f} s")
+
+    print(f"\nPer-scale FLIP (mean over {len(folders)} material(s), {len(lights)} lights, {len(tilts)} cameras); "
+          "scale 0 = finest")
+    print("model         " + " ".join(f"{i:>6d}" for i in range(args.scales)))
+    for name in args.models:
+        curve = np.mean(per_scale[name], 0)
+        print(f"{name:<13s} " + " ".join(f"{v:6.4f}" for v in curve))
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        for name in args.models:
+            ax.plot(np.arange(args.scales), np.mean(per_scale[name], 0), label=name)
+        ax.set_xlabel("scale (fine -> coarse)")
+        ax.set_ylabel("FLIP")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(RESULTS / "multiscale_flip.png", dpi=120)
+        print(f"chart: {RESULTS / 'multiscale_flip.png'}")
+    except ImportError:
+        pass
+
+    n = 1 << 16
+    g = torch.Generator().manual_seed(0)
+    q = Query(sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), sample_cosine_hemisphere(torch.rand(n, 2, generator=g)),
+              uv=torch.rand(n, 2, generator=g)).to(device)
+    params = (torch.rand(n, 3, device=device), torch.rand(n, device=device), torch.rand(n, device=device),
+              torch.zeros(n, device=device))
+    with torch.no_grad():
+        ggx_rate = evals_per_second(lambda: principled_eval(q.wi, q.wo, *params), n, device)
+    print(f"\nTable 6 style ({args.steps} steps of {args.batch} queries per model; paper: ~500k steps of 65536)")
+    print(f"{'model':<13s} {'SSIM':>7s} {'FLIP':>7s} {'RMSE':>7s} {'MAE':>7s} {'RMSE-HDR':>9s} {'MAE-HDR':>8s} "
+          f"{'kB fp32':>9s} {'FLOPs':>6s} {'steps/s':>8s} {'eval/s':>10s} {'x GGX':>6s}")
+    for name in args.models:
+        model = build_model({"type": name, "spatial_size": size}).to(device)
+        with torch.no_grad():
+            rate = evals_per_second(lambda: model.eval(q), n, device)
+        r = {k: float(np.mean([row[k] for row in rows[name]])) for k in rows[name][0]}
+        print(f"{name:<13s} {r['ssim']:7.4f} {r['flip']:7.4f} {r['rmse']:7.4f} {r['mae']:7.4f} {r['rmse_hdr']:9.4f} "
+              f"{r['mae_hdr']:8.4f} {model.size_bytes('fp32') / 1e3:9.1f} {model_flops(model):6d} "
+              f"{r['steps_per_s']:8.2f} {rate:10.3g} {ggx_rate / rate:6.1f}")
+    print(f"principled GGX point evaluation: {ggx_rate:.3g} eval/s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,78 @@
+"""The training query distribution of Timonen et al. 2025, Sec. 4.2: directions, uv and footprints.
+
+wi and wo are cosine-weighted on the upper hemisphere, uv uniform in [0, 1]^2, and the footprint follows
+Eq. 9, Sigma = e1 diag((1 + z2) / cos(theta_o), 1) R(u3), read as the linear map from a unit isotropic
+Gaussian to texture space; `Query.footprint` holds its covariance
+
+    C = e1^2 R(u3)^T diag(((1 + z2) / cos theta_o)^2, 1) R(u3)      (uv units^2)
+
+with log2 e1 = l_min + (l_max - l_min) e2, e2 = (exp(5 e3) - 1) / (exp(5) - 1), e3 ~ U(0, 1) (fine levels
+drawn more often), z2 ~ N(0, 0.2^2), u3 ~ U(0, 2 pi), and theta_o the angle between the geometric normal and
+the viewing direction wo. Two guards the paper leaves implicit: 1 + z2 is clamped to at least 0.2 (4
+standard deviations) and cos theta_o to at least `min_cos`, bounding the elongation.
+
+Registered as the "footprint" query sampler (`neumat.fit.query_samplers.QUERY_SAMPLERS`).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..core.errors import InputError
+from ..core.material import Material
+from ..core.query import Query
+from ..warp.hemisphere import sample_cosine_hemisphere
+from .query_samplers import QUERY_SAMPLERS, QueryDraw, uniform
+
+#: paper values: log2 of the footprint scale (uv units) spans [L_MIN, L_MAX]
+L_MIN, L_MAX = -13.0, 1.0
+#: exponent of the fine-level bias e2 = (exp(B e3) - 1) / (exp(B) - 1)
+FINE_BIAS = 5.0
+#: standard deviation of z2 in the elongation (1 + z2) / cos theta_o
+ELONGATION_STD = 0.2
+
+
+def footprint_scale(e3: torch.Tensor, l_min: float = L_MIN, l_max: float = L_MAX) -> torch.Tensor:
+    """e1 (N,) in uv units from uniform e3 (N,): log2 e1 = l_min + (l_max - l_min)(exp(5 e3) - 1)/(exp(5) - 1)."""
+    e2 = torch.expm1(FINE_BIAS * e3) / math.expm1(FINE_BIAS)
+    return torch.exp2(l_min + (l_max - l_min) * e2)
+
+
+def footprint_covariance(scale: torch.Tensor, elongation: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """C = scale^2 R(angle)^T diag(elongation^2, 1) R(angle), (N, 2, 2), for (N,) inputs (Eq. 9)."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)
+    d = torch.stack([elongation * elongation, torch.ones_like(elongation)], -1)
+    cov = rot.transpose(-1, -2) @ (d.unsqueeze(-1) * rot)
+    cov = 0.5 * (cov + cov.transpose(-1, -2))  # exactly symmetric
+    return (scale * scale).view(-1, 1, 1) * cov
+
+
+def sample_footprints(cos_view: torch.Tensor, u: torch.Tensor, z2: torch.Tensor, min_cos: float = 0.01,
+                      l_min: float = L_MIN, l_max: float = L_MAX) -> torch.Tensor:
+    """Eq. 9 covariances (N, 2, 2) from cos theta_o (N,), uniforms u (N, 2) (e3, u3 / 2 pi) and z2 (N,) ~ N(0, 0.2^2)."""
+    scale = footprint_scale(u[:, 0], l_min, l_max)
+    elongation = (1 + z2).clamp(min=0.2) / cos_view.clamp(min=min_cos)
+    return footprint_covariance(scale, elongation, 2 * math.pi * u[:, 1])
+
+
+@QUERY_SAMPLERS.register("footprint")
+def footprint_queries(source: Material, model=None, min_cos: float = 0.01, l_min: float = L_MIN,
+                      l_max: float = L_MAX) -> QueryDraw:
+    """draw(n, generator, device) -> Query with cosine-weighted wi, wo, uniform uv and Eq. 9 footprints."""
+    if getattr(source, "full_sphere", False):
+        raise InputError("query sampler 'footprint' draws surface queries, but the source spans the whole sphere")
+    if not (0 < min_cos <= 1) or not (l_min < l_max):
+        raise InputError(f"footprint_queries: expected 0 < min_cos <= 1 and l_min < l_max, got min_cos={min_cos}, "
+                         f"l_min={l_min}, l_max={l_max}")
+
+    def draw(n: int, generator: torch.Generator, device) -> Query:
+        u = uniform(n, 8, generator, device)
+        z2 = ELONGATION_STD * torch.randn(n, generator=generator, device=generator.device).to(device)
+        wi = sample_cosine_hemisphere(u[:, 0:2])
+        wo = sample_cosine_hemisphere(u[:, 2:4])
+        cov = sample_footprints(wo[:, 2], u[:, 6:8], z2, min_cos, l_min, l_max)
+        return Query(wi, wo, uv=u[:, 4:6], footprint=cov)
+
+    return draw

@@ -1,0 +1,56 @@
+"""Learned shading frames decoded from a spatial latent (Zeltner et al. 2024; Timonen et al. 2025, Sec. 3.1).
+
+A linear layer maps the latent z (N, D) to a normal and a tangent (3 + 3 values); the normal is
+normalised, the tangent made orthogonal to it (Gram-Schmidt) and the bitangent completes a right-handed
+frame. Directions are expressed in that frame and then, as Timonen et al. do, projected to the unit disk
+and lifted back to the upper hemisphere, w -> (w_x, w_y, sqrt(1 - w_x^2 - w_y^2)): a direction that the
+frame puts below the horizon is mirrored above it instead of leaving the domain of the angular textures.
+At initialisation (zero weights, bias = (0, 0, 1 | 1, 0, 0)) the frame is the geometric one.
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+_EPS = 1e-12
+
+
+def lift_to_hemisphere(w: torch.Tensor) -> torch.Tensor:
+    """(x, y, sqrt(1 - x^2 - y^2)) of w (N, 3): disk projection and lift; finite gradient at the rim."""
+    xy = w[:, :2]
+    z = (1 - (xy * xy).sum(-1)).clamp(min=1e-10).sqrt()
+    return torch.cat([xy, z.unsqueeze(-1)], -1)
+
+
+def frame_from_vectors(normal: torch.Tensor, tangent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Orthonormal (t, b, n), each (N, 3), from unnormalised normal and tangent vectors (N, 3)."""
+    n = normal / normal.norm(dim=-1, keepdim=True).clamp(min=_EPS)
+    t = tangent - (tangent * n).sum(-1, keepdim=True) * n
+    t = t / t.norm(dim=-1, keepdim=True).clamp(min=_EPS)
+    return t, torch.cross(n, t, dim=-1), n
+
+
+class ShadingFrame(nn.Module):
+    """forward(z (N, D), wi (N, 3), wo (N, 3)) -> (wi', wo'): directions in the learned frame, lifted."""
+
+    def __init__(self, latent_dim: int) -> None:
+        super().__init__()
+        self.decode = nn.Linear(latent_dim, 6)
+        with torch.no_grad():
+            self.decode.weight.zero_()
+            self.decode.bias.copy_(torch.tensor([0.0, 0.0, 1.0, 1.0, 0.0, 0.0]))
+
+    def frame(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(t, b, n) (N, 3) each."""
+        v = self.decode(z)
+        return frame_from_vectors(v[:, :3], v[:, 3:])
+
+    def forward(self, z: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        t, b, n = self.frame(z)
+        local = lambda w: torch.stack([(w * t).sum(-1), (w * b).sum(-1), (w * n).sum(-1)], -1)  # noqa: E731
+        return lift_to_hemisphere(local(wi)), lift_to_hemisphere(local(wo))
+
+    def flops(self) -> int:
+        """Decode layer, normalisations and Gram-Schmidt (~40), a cross product (9), two 3x3 transforms (30)
+        and two lifts (~8)."""
+        return 2 * self.decode.in_features * 6 + 40 + 9 + 30 + 8

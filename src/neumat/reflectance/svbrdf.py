@@ -1,0 +1,181 @@
+"""A spatially varying principled material from PBR maps, and its prefiltered (apparent) value.
+
+Point value at uv (no mip maps: the function keeps its full complexity, Timonen et al. 2025 Sec. 4.1):
+the maps are looked up bilinearly at the finest resolution (wrap tiling, `neumat.nn.latent_texture`
+orientation), the normal map gives a shading normal n_s, wi and wo are moved into the perturbed frame
+(tangent = +u projected onto the plane of n_s) and shaded with the principled GGX BRDF:
+
+    f(wi, wo | uv) = f_principled(wi', wo') * (wi . n_s) / wi_z
+
+The factor (wi . n_s) / wi_z turns the normal-mapped cosine into the geometric one of our convention
+(values exclude cos with respect to the geometric normal z), so that f cos_i = f_principled cos_s as
+in a real-time shader. Directions below the perturbed horizon (wi . n_s <= 0 or wo . n_s <= 0) give 0,
+as do directions below the geometric horizon.
+
+Apparent value (paper Eq. 1) for a Gaussian footprint of covariance Sigma (Query.footprint, uv^2):
+
+    f(wi, wo | uv, Sigma) = E_{x ~ N(uv, Sigma)} f(wi, wo | x)
+
+estimated with `samples` Monte Carlo positions per query (256 by default, as the paper), computed in
+batches. Values are symmetrised, (f(wi, wo) + f(wo, wi)) / 2, as the paper's targets; the principled
+BRDF is reciprocal, so this averages the two cosine ratios. Without a footprint (and without a lod) the
+point value is returned; a lod alone means the isotropic footprint of that mip level
+(`latent_texture.isotropic_footprint`).
+"""
+from __future__ import annotations
+
+import torch
+
+from ..core.errors import InputError
+from ..core.frames import frame_from_normal_tangent, to_local, to_world
+from ..core.material import Material, sample_weight
+from ..core.query import Query, Sample
+from ..io.texture_set import TextureSet, load_texture_set
+from ..nn.latent_texture import bilinear, check_footprint, isotropic_footprint
+from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
+from .microfacet import principled_eval, principled_pdf, principled_sample
+
+#: probability with which `sample` draws a cosine-weighted direction (defensive mixture)
+DEFENSIVE_PROBABILITY = 0.1
+
+
+class SVBRDF(Material):
+    """Principled SVBRDF of a `TextureSet`; `eval` is the prefiltered, symmetrised value (module docstring).
+
+    samples:    Monte Carlo positions per footprint (paper: 256).
+    seed:       seed of the footprint sample generator; every eval call draws fresh positions.
+    chunk:      queries x samples evaluated at once (memory bound).
+    specular:   principled specular level (dielectric F0 = 0.08 specular).
+
+    sample / pdf importance-sample the unfiltered normal-mapped principled lobe at the footprint centre,
+    mixed with cosine sampling of the geometric hemisphere (probability DEFENSIVE_PROBABILITY) so the pdf is
+    positive wherever the filtered value can be; weight = eval cos / pdf uses the filtered value.
+    """
+
+    can_sample = True
+    spatially_varying = True
+
+    def __init__(self, textures: TextureSet, samples: int = 256, seed: int = 0, chunk: int = 1 << 20,
+                 specular: float = 0.5) -> None:
+        if not isinstance(textures, TextureSet):
+            raise InputError(f"SVBRDF: expected a TextureSet, got {type(textures).__name__}")
+        for key, v in (("samples", samples), ("chunk", chunk)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InputError(f"SVBRDF.{key}: expected a positive integer, got {v!r}")
+        self.textures = textures
+        self.samples, self.chunk, self.specular = samples, chunk, float(specular)
+        self.name = f"svbrdf:{textures.name}"
+        # one (8, H, W) stack: base colour (3), normal (3), roughness, metalness
+        self.maps = torch.cat([textures.color, textures.normal, textures.roughness[..., None],
+                               textures.metalness[..., None]], -1).permute(2, 0, 1).contiguous()
+        self.generator = torch.Generator(device=self.maps.device).manual_seed(seed)
+
+    @classmethod
+    def from_folder(cls, folder, height_scale: float | None = None, max_size: int | None = None,
+                    **kwargs) -> "SVBRDF":
+        """Read a texture-set folder (`neumat.io.texture_set.load_texture_set`) and wrap it."""
+        extra = {} if height_scale is None else {"height_scale": height_scale}
+        return cls(load_texture_set(folder, max_size=max_size, **extra), **kwargs)
+
+    def to(self, device) -> "SVBRDF":
+        """The material with its maps (and sample generator) on `device`."""
+        out = SVBRDF(self.textures.to(device), self.samples, 0, self.chunk, self.specular)
+        out.generator = torch.Generator(device=out.maps.device).manual_seed(int(self.generator.initial_seed()))
+        return out
+
+    def describe(self) -> str:
+        h, w = self.textures.size
+        return f"{self.name} ({w}x{h} texels, {self.samples} footprint samples)"
+
+    # ------------------------------------------------------------------------------ point value
+
+    def parameters_at(self, uv: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Bilinear map values at uv (N, 2): base_color (N, 3), normal (N, 3) unit, roughness, metallic (N,)."""
+        m = bilinear(self.maps.to(uv.device), uv)
+        n = m[:, 3:6]
+        n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        return {"base_color": m[:, 0:3], "normal": n, "roughness": m[:, 6], "metallic": m[:, 7]}
+
+    def _shading_frame(self, normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        tangent = torch.zeros_like(normal)
+        tangent[:, 0] = 1
+        t, b = frame_from_normal_tangent(normal, tangent)
+        return t, b, normal
+
+    def eval_point(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
+                   symmetrise: bool = True) -> torch.Tensor:
+        """Unfiltered value f(wi, wo | uv) (N, 3) (module docstring), symmetrised unless told not to."""
+        p = self.parameters_at(uv)
+        t, b, n = self._shading_frame(p["normal"])
+        li, lo = to_local(wi, t, b, n), to_local(wo, t, b, n)
+        zero = torch.zeros_like(p["roughness"])
+        f = principled_eval(li, lo, p["base_color"], p["metallic"], p["roughness"], zero, self.specular)
+        up = (wi[:, 2] > 0) & (wo[:, 2] > 0) & (li[:, 2] > 0) & (lo[:, 2] > 0)
+        ratio_i = li[:, 2] / wi[:, 2].clamp(min=1e-12)
+        ratio = 0.5 * (ratio_i + lo[:, 2] / wo[:, 2].clamp(min=1e-12)) if symmetrise else ratio_i
+        return torch.where(up.unsqueeze(-1), f * ratio.unsqueeze(-1), torch.zeros_like(f))
+
+    # ----------------------------------------------------------------------------- filtered value
+
+    def footprint_of(self, q: Query) -> torch.Tensor | None:
+        """The query's footprint covariance (N, 2, 2), the isotropic one of q.lod, or None (point query)."""
+        if q.footprint is not None:
+            return check_footprint(q.footprint, "Query.footprint")
+        if q.lod is not None:
+            return isotropic_footprint(q.lod, self.textures.size[1])
+        return None
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """Prefiltered, symmetrised value (N, 3) (paper Eq. 1, Monte Carlo with `samples` positions)."""
+        q.require("wo", who="SVBRDF.eval")
+        q.require("uv", who="SVBRDF.eval")
+        cov = self.footprint_of(q)
+        if cov is None:
+            return self.eval_point(q.wi, q.wo, q.uv)
+        chol = torch.linalg.cholesky(cov.double()).to(q.dtype)
+        k = self.samples
+        per_chunk = max(1, self.chunk // k)
+        out = []
+        for s in range(0, len(q), per_chunk):
+            e = min(len(q), s + per_chunk)
+            z = torch.randn(e - s, k, 2, generator=self.generator, device=self.generator.device).to(q.device, q.dtype)
+            pts = q.uv[s:e, None, :] + torch.einsum("nij,nkj->nki", chol[s:e], z)
+            rep = lambda t: t[s:e, None, :].expand(-1, k, -1).reshape(-1, t.shape[-1])  # noqa: E731
+            f = self.eval_point(rep(q.wi), rep(q.wo), pts.reshape(-1, 2))
+            out.append(f.reshape(e - s, k, 3).mean(1))
+        return torch.cat(out) if out else q.wi.new_zeros(0, 3)
+
+    # ---------------------------------------------------------------------------------- sampling
+
+    def _centre_lobe(self, q: Query):
+        p = self.parameters_at(q.uv)
+        t, b, n = self._shading_frame(p["normal"])
+        zero = torch.zeros_like(p["roughness"])
+        return (t, b, n), (p["base_color"], p["metallic"], p["roughness"], zero, self.specular)
+
+    def sample(self, q: Query, u: torch.Tensor) -> Sample:
+        """Sample wo: principled lobe at the footprint centre, or cosine with DEFENSIVE_PROBABILITY."""
+        q.require("uv", who="SVBRDF.sample")
+        frame, params = self._centre_lobe(q)
+        pick_cos = u[:, 0] < DEFENSIVE_PROBABILITY
+        u0 = torch.where(pick_cos, u[:, 0] / DEFENSIVE_PROBABILITY,
+                         (u[:, 0] - DEFENSIVE_PROBABILITY) / (1 - DEFENSIVE_PROBABILITY))
+        u2 = torch.stack([u0.clamp(0, 1 - 1e-7), u[:, 1]], -1)
+        wo_lobe, pdf_lobe = principled_sample(to_local(q.wi, *frame), u2, *params)
+        wo = torch.where(pick_cos.unsqueeze(-1), sample_cosine_hemisphere(u2), to_world(wo_lobe, *frame))
+        wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        sq = q.with_wo(wo)
+        pdf = self.pdf(sq)
+        # a failed lobe sample (pdf 0, e.g. wi below the perturbed horizon) is a failed sample
+        valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & (pick_cos | (pdf_lobe > 0))
+        pdf = torch.where(valid, pdf, torch.zeros_like(pdf))
+        return Sample(wo, pdf, sample_weight(self.eval(sq), wo, pdf, valid))
+
+    def pdf(self, q: Query) -> torch.Tensor:
+        """Solid-angle density (N,) of `sample`."""
+        q.require("wo", who="SVBRDF.pdf")
+        q.require("uv", who="SVBRDF.pdf")
+        frame, params = self._centre_lobe(q)
+        lobe = principled_pdf(to_local(q.wi, *frame), to_local(q.wo, *frame), *params)
+        pdf = DEFENSIVE_PROBABILITY * cosine_hemisphere_pdf(q.wo) + (1 - DEFENSIVE_PROBABILITY) * lobe
+        return torch.where((q.wo[:, 2] > 0) & (q.wi[:, 2] > 0), pdf, torch.zeros_like(pdf))

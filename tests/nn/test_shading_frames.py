@@ -1,0 +1,41 @@
+import torch
+
+from neumat.core.frames import frame_from_normal_tangent, to_local
+from neumat.nn.shading_frames import ShadingFrame, lift_to_hemisphere
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+
+
+def _dirs(n, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), sample_cosine_hemisphere(torch.rand(n, 2, generator=g))
+
+
+def test_identity_at_initialisation():
+    wi, wo = _dirs(100)
+    frame = ShadingFrame(5)
+    a, b = frame(torch.randn(100, 5), wi, wo)
+    torch.testing.assert_close(a, wi)
+    torch.testing.assert_close(b, wo)
+
+
+def test_decoded_frame_matches_core_frames_and_lifts_below_horizon():
+    wi, wo = _dirs(500, seed=1)
+    frame = ShadingFrame(3)
+    with torch.no_grad():
+        frame.decode.weight.normal_()
+    z = torch.randn(500, 3)
+    v = frame.decode(z).detach()
+    n = v[:, :3] / v[:, :3].norm(dim=-1, keepdim=True)
+    t, b = frame_from_normal_tangent(n, v[:, 3:])
+    ref = to_local(wi, t, b, n)
+    got, _ = frame(z, wi, wo)
+    torch.testing.assert_close(got[:, :2], ref[:, :2], atol=1e-5, rtol=0)
+    torch.testing.assert_close(got[:, 2], ref[:, 2].abs(), atol=2e-3, rtol=0)
+    assert bool((ref[:, 2] < 0).any())
+    torch.testing.assert_close(got.norm(dim=-1), torch.ones(500), atol=1e-5, rtol=0)
+
+
+def test_lift_has_finite_gradient_on_the_rim():
+    w = torch.tensor([[1.0, 0.0, 0.0], [0.6, 0.8, 0.0]], requires_grad=True)
+    lift_to_hemisphere(w).sum().backward()
+    assert bool(torch.isfinite(w.grad).all())
