@@ -77,3 +77,11 @@ def test_check_passes_for_lambert_and_reports_json():
 def test_check_rejects_bad_angles():
     r = runner.invoke(app, ["check", "lambert", "--angles", "95"])
     assert r.exit_code == 2 and "--angles" in r.output
+
+
+def test_open_material_reads_a_texture_set_folder(shared_data):
+    from neumat import open_material
+    from neumat.reflectance.svbrdf import SVBRDF
+
+    m = open_material(shared_data / "svbrdf" / "Paper001_1K", max_size=32)
+    assert isinstance(m, SVBRDF) and m.spatially_varying

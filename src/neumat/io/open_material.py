@@ -12,11 +12,15 @@ MATERIAL_SUFFIXES = {".binary": "MERL measured BRDF", ".bsdf": "RGL measured BRD
 
 
 def open_material(name: str | Path, **kwargs) -> Material:
-    """A Material from a `.binary` (MERL), `.bsdf` (RGL), `.nbtf` (BTF table) or `.nmat` file, or an analytic spec
-    such as ``ggx:roughness=0.2,fresnel=dielectric,eta=1.5``. Keyword arguments go to the reader."""
+    """A Material from a `.binary` (MERL), `.bsdf` (RGL), `.nbtf` (BTF table) or `.nmat` file, a PBR texture-set
+    folder (an SVBRDF), or an analytic spec such as ``ggx:roughness=0.2,fresnel=dielectric,eta=1.5``.
+    Keyword arguments go to the reader."""
     text = str(name)
     path = Path(text)
     suffix = path.suffix.lower()
+    if path.is_dir():
+        from ..reflectance.svbrdf import SVBRDF
+        return SVBRDF.from_folder(path, **kwargs)
     if suffix in MATERIAL_SUFFIXES:
         if not path.is_file():
             raise InputError(f"material file {text!r} does not exist")
