@@ -12,6 +12,8 @@ from .common import console, print_table, run_command
 DEFAULT_RGL = "rgl/cc_ibiza_sunset_rgb.bsdf"
 #: environment map of the demo renders when the reference data is present (else the procedural sky)
 DEFAULT_ENV = "envmap/studio_small_03_1k.hdr"
+#: (wi, wo) pairs at which the reference is measured once before the fit
+POOL_SIZE = 2 ** 18
 #: measured-like fallback: an analytic plastic tabulated to the MERL layout
 FALLBACK_SPEC = "plastic:diffuse=0.35/0.12/0.05,roughness=0.15,eta=1.5"
 
@@ -40,13 +42,14 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
 
     import torch
 
+    from ..fit.measured_samples import MeasuredSamples
     from ..fit.recipe import recipe_for
     from ..fit.trainer import fit
     from ..io.images import write_image, write_image_ldr
     from ..io.modelfile import save_model
     from ..io.open_material import open_material
     from ..io.shared_data import shared_data_dir
-    from ..metrics.hdr import reflectance_errors
+    from ..metrics.hdr import cosine_queries, reflectance_errors
     from ..metrics.image import image_metrics
     from ..models.neubrdf import NeuBRDF
     from ..render.render import render
@@ -54,19 +57,22 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
     from ..viz.report import write_report
     from ..viz.slices import brdf_slice_image, polar_plot
 
-    out.mkdir(parents=True, exist_ok=True)
     dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
     data = shared_data_dir()
     reference, source_name = _reference(source, data, out)
+    out.mkdir(parents=True, exist_ok=True)
     light = f"env:{data / DEFAULT_ENV}" if data is not None and (data / DEFAULT_ENV).is_file() else "env:sky"
     console.print(f"[bold]neumat demo[/]: fitting NeuBRDF (N_side {nside}) to {source_name} on {dev}")
 
+    # measured sources are slow to evaluate: measure once on a pool of cosine-distributed queries, then replay it
+    pool = cosine_queries(POOL_SIZE, torch.Generator().manual_seed(seed), torch.device("cpu"))
+    samples = MeasuredSamples.from_material(reference, pool, name=source_name)
     torch.manual_seed(seed)
     model = NeuBRDF(nside=nside)
     recipe = recipe_for("neubrdf")
     recipe.seed = seed
-    result = fit(model, reference, recipe, steps=steps, device=dev, progress=True)
-    model = result.model.eval()
+    result = fit(model, samples, recipe, steps=steps, device=dev, progress=True, queries="replay")
+    model = result.model.runtime()  # the paper's runtime form: frozen integer indices, 1/4 corner weights
     errors = reflectance_errors(model, reference, n=2 ** 18, seed=seed, device=dev)
     model_path = save_model(model, out / "neubrdf.nmat", recipe=recipe, source=source_name,
                             metrics={**errors, "fit_seconds": result.seconds})
@@ -86,7 +92,7 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
 
     summary = {"source": source_name, "nside": nside, "steps": result.steps, "fit_seconds": result.seconds,
                "bytes_fp16": model.size_bytes("fp16"), **errors, **{f"image_{k}": v for k, v in metrics.items()}}
-    print_table("NeuBRDF against its reference", [summary])
+    print_table("NeuBRDF against its reference", [{"quantity": k, "value": v} for k, v in summary.items()])
     report = write_report(out / "report.html", f"neumat demo: NeuBRDF fitted to {source_name}", [
         {"heading": "Sphere under an environment map",
          "text": f"Reference and model rendered identically ({resolution}x{resolution}, {spp} spp, {light}); "
@@ -117,5 +123,6 @@ def _reference(source: str | None, data: Path | None, out: Path):
         return open_material(path), path.name
     path = out / "plastic.binary"
     if not path.is_file():
+        out.mkdir(parents=True, exist_ok=True)
         write_merl(path, tabulate_merl(open_material(FALLBACK_SPEC), progress=True))
     return open_material(path, interpolate=True), f"{path.name} (MERL tabulation of {FALLBACK_SPEC})"
