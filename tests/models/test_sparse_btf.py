@@ -161,3 +161,11 @@ def test_bad_input_is_refused(trained):
         SparseBTF.encode(synthetic_btf(18, size=10), trained)
     with pytest.raises(InputError, match="another direction set"):
         train_dictionary([synthetic_btf(1), other], num_dictionaries=1, tau_train=(4, 4, 4), patch=PATCH)
+
+
+def test_renders_a_btf_textured_plane(trained):
+    from neumat.render.render import render
+    model = SparseBTF.encode(synthetic_btf(11), trained, (40, 10, 10))
+    img = render(model, scene="plane", light="env:sky", spp=4, resolution=16)
+    assert img.shape == (16, 16, 3)
+    assert bool(torch.isfinite(img).all()) and float(img.mean()) > 1e-3

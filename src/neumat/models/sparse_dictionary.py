@@ -83,14 +83,13 @@ def check_patch_grid(height: int, width: int, patch: int) -> None:
 # ----------------------------------------------------------------------------------------- tensor algebra
 def mode_product(x: torch.Tensor, u: torch.Tensor, mode: int) -> torch.Tensor:
     """x (N, m1, ..., m4) times_mode u: multiplies every mode-`mode` fibre (mode 1..4) by u (m_out, m_in).
-    u may also be (N, m_out, m_in), one matrix per point."""
-    moved = x.movedim(mode, -1)
-    shape = moved.shape
-    if u.dim() == 2:
-        out = moved.reshape(-1, shape[-1]) @ u.T
-    else:
-        out = moved.reshape(shape[0], -1, shape[-1]) @ u.transpose(1, 2)
-    return out.reshape(*shape[:-1], u.shape[-2]).movedim(-1, mode)
+    u may also be (N, m_out, m_in), one matrix per point. Computed as u @ x viewed as (N, A, m_in, B),
+    which needs no transposed copy of x."""
+    shape = x.shape
+    a, b = math.prod(shape[1:mode]), math.prod(shape[mode + 1:])
+    xv = x.reshape(shape[0], a, shape[mode], b)
+    out = (u if u.dim() == 2 else u[:, None]) @ xv
+    return out.reshape(*shape[:mode], u.shape[-2], *shape[mode + 1:])
 
 
 def project(x: torch.Tensor, mats: list[torch.Tensor]) -> torch.Tensor:
