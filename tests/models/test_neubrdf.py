@@ -75,9 +75,15 @@ def test_lookup_matches_healpy_idw(gen):
         torch.testing.assert_close(feats[:, 16 * part:16 * (part + 1)], ref, rtol=1e-9, atol=1e-12)
 
 
-def test_runtime_mode_is_exact_refactoring(gen):
-    m = NeuBRDF(nside=8, index_bits=6, hidden=32)
-    q = Query(_dirs(2000, gen), _dirs(2000, gen))
+@pytest.mark.parametrize("hidden_layers", [0, 1, 2])
+def test_runtime_mode_is_exact_refactoring(gen, hidden_layers):
+    """runtime(): cached per-pixel first-layer pre-activations, chunked; the same function as the
+    uniform-weight lookup (also below the horizon, where both give 0)."""
+    m = NeuBRDF(nside=8, index_bits=6, hidden=32, hidden_layers=hidden_layers)
+    m.prune(_dirs(200, gen), _dirs(200, gen))
+    wi, wo = _dirs(40000, gen), _dirs(40000, gen)  # more than one chunk
+    wo[::7, 2] *= -1
+    q = Query(wi, wo)
     m.freeze()
     m.cfg.interpolation = "uniform"
     with torch.no_grad():
@@ -85,6 +91,7 @@ def test_runtime_mode_is_exact_refactoring(gen):
         fast = m.runtime().eval(q)
     assert m.config.interpolation == "uniform"
     torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-6)
+    assert bool((fast[::7] == 0).all())
 
 
 def test_zero_below_horizon_and_dtype(gen):
@@ -152,46 +159,6 @@ def test_texture_model_needs_uv(gen):
     assert f.shape == (3, 3)
 
 
-@pytest.fixture
-def one_thread():
-    """Small batches train faster on one thread, and much faster on a busy machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
-@pytest.mark.parametrize("features, bound", [("vq", 0.4), ("dense", 0.25)])
-def test_fit_blinn_lobe(features, bound, one_thread):
-    """300 Adam steps on a float64 Lambert + Blinn-Phong lobe, Nside 8, b 6, MLP 2 x 32.
-
-    Measured relative L2 error on held-out directions (seeds fixed, one thread): vq 0.326 (b = 9: 0.278),
-    dense 0.172; runtime mode vq 0.315, dense 0.202; a constant
-    (the mean RGB value) scores 0.69. Runtime mode (1/4 weights, frozen) must stay close.
-    """
-    torch.manual_seed(0)
-    gen = torch.Generator().manual_seed(1)
-    m = NeuBRDF(nside=8, index_bits=6, hidden=32, features=features)
-    opt = torch.optim.Adam(m.parameters(), lr=0.03)
-    for _ in range(300):
-        wi, wo = _dirs(4096, gen, torch.float64), _dirs(4096, gen, torch.float64)
-        pred = m.eval(Query(wi.float(), wo.float()))
-        loss = ((torch.log1p(pred) - torch.log1p(_blinn(wi, wo).float())) ** 2).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    test = torch.Generator().manual_seed(99)
-    wi, wo = _dirs(20000, test, torch.float64), _dirs(20000, test, torch.float64)
-    y = _blinn(wi, wo)
-    const = ((y.mean(0) - y).norm() / y.norm()).item()
-    with torch.no_grad():
-        err = ((m.eval(Query(wi.float(), wo.float())).double() - y).norm() / y.norm()).item()
-        err_rt = ((m.runtime().eval(Query(wi.float(), wo.float())).double() - y).norm() / y.norm()).item()
-    assert const > 0.65
-    assert err < bound, err
-    assert err_rt < bound + 0.05, err_rt
-
-
 @pytest.mark.parametrize("kwargs, match", [
     (dict(index_bits=0), "index_bits"),
     (dict(index_bits=17), "index_bits"),
@@ -215,3 +182,93 @@ def test_bad_query_raises(gen):
         m.eval(Query(_dirs(3, gen)))
     with pytest.raises(InputError, match="unit length"):
         m.prune(torch.ones(3, 3), _dirs(3, gen))
+
+
+def test_optimizer_hook_updates_only_the_batch_logits(gen):
+    """model.optimizer: sparse VQ logit gradients and a lazy row-wise Adam; other parameters dense Adam."""
+    m = NeuBRDF(nside=4, index_bits=4, hidden=8)
+    opt = m.optimizer(1e-2, (0.9, 0.999), 1e-8)
+    before = m.grid.logits.detach().clone()
+    mlp_before = m.mlp.net[0].weight.detach().clone()
+    w = torch.tensor([[0.0, 0.0, 1.0]])
+    m.eval(Query(w, w)).sum().backward()
+    assert m.grid.logits.grad.is_sparse
+    opt.step()
+    changed = (m.grid.logits.detach() != before).any(-1)
+    slots, _, _ = hpx.grid_corners(4, w, False)
+    slots_o, _, _ = hpx.grid_corners(4, w, True)
+    expected = torch.zeros_like(changed)
+    expected[torch.cat([slots, slots_o]).reshape(-1)] = True
+    assert torch.equal(changed, expected)
+    assert not torch.equal(m.mlp.net[0].weight.detach(), mlp_before)
+
+
+def test_training_levels_of_a_pruned_grid(gen):
+    """Supervised pixels are looked up at their own level or, `coarse_fraction` of the time, uniformly at
+    one of the ancestor levels read by pruned pixels; pruned pixels always at their own level."""
+    nside = 16
+    m = NeuBRDF(nside=nside, features="dense", hidden=8)
+    wi = _dirs(30, gen) * 0.05 + torch.tensor([0.5, 0.0, 0.85])
+    wi = wi / wi.norm(dim=-1, keepdim=True)
+    m.prune(wi, _dirs(30, gen))
+    coarse = hpx.shared_ancestor_levels(nside, m.level_i)
+    pix = hpx.vec2pix(nside, wi[:1]).expand(40000)
+    bits = [l for l in range(1, 5) if (int(coarse[pix[0]]) >> l) & 1]
+    assert bits, "the test direction must have coarse ancestors"
+    torch.manual_seed(0)
+    level = m._training_levels(pix, torch.zeros_like(pix), coarse)
+    counts = torch.bincount(level, minlength=5).double() / level.numel()
+    assert abs(counts[0] - (1 - m.coarse_fraction)) < 0.01
+    for l in range(1, 5):
+        want = m.coarse_fraction / len(bits) if l in bits else 0.0
+        assert abs(counts[l] - want) < 0.01
+    far = hpx.vec2pix(nside, torch.tensor([[-0.6, 0.0, 0.8]])).expand(100)
+    lv = m.level_i[far].long()
+    assert int(lv[0]) > 0 and torch.equal(m._training_levels(far, lv, coarse), lv)
+
+
+def test_pruning_lowers_held_out_error(gen):
+    """Paper Sec. 3.2.1 on ~300 sparse measurements at N_side 32: with the pruned multi-resolution grid
+    (and its ancestor levels trained) directions near, but not at, the measurements are predicted better
+    than by the unpruned grid, whose neighbouring pixels read untrained corners. Measured relative L1 on
+    held-out directions (300 steps, seeds 0 / 1): unpruned 0.124 / 0.129, pruned 0.090 / 0.101; runtime
+    mode 0.089 / 0.103. Two fits of about 5 - 12 s each (idle / loaded machine)."""
+    from dataclasses import replace
+
+    from neumat.fit.measured_samples import MeasuredSamples
+    from neumat.fit.recipe import recipe_for
+    from neumat.fit.trainer import fit
+    from neumat.reflectance.analytic import Plastic
+
+    g = torch.Generator().manual_seed(0)
+
+    def cone(theta, phi):
+        t = (theta + 0.35 * (2 * torch.rand(300, generator=g) - 1)).clamp(0.02, 1.5)
+        p = phi + 0.35 * (2 * torch.rand(300, generator=g) - 1) / math.sin(theta)
+        return torch.stack([t.sin() * p.cos(), t.sin() * p.sin(), t.cos()], -1)
+
+    def jitter(w):
+        v = w + 0.1 * torch.randn(w.shape, generator=g)
+        v[:, 2] = v[:, 2].abs()
+        return v / v.norm(dim=-1, keepdim=True)
+
+    source = Plastic(diffuse=(0.6, 0.3, 0.15), roughness=0.3)
+    wi, wo = cone(0.6, 0.0), cone(0.6, math.pi)
+    samples = MeasuredSamples.from_material(source, Query(wi, wo))
+    held = Query(jitter(wi), jitter(wo))
+    recipe = replace(recipe_for("neubrdf"), batch_size=300, lr=1e-2, ema=0.0, lr_decay_every=0, queries="replay")
+    errors = {}
+    for pruned in (False, True):
+        torch.manual_seed(0)
+        m = NeuBRDF(nside=32, index_bits=6, hidden=32)
+        if pruned:
+            m.prune(wi, wo)
+        fit(m, samples, recipe, steps=300, progress=False)
+        with torch.no_grad():
+            y = source.eval(held)
+            errors[pruned] = ((m.eval(held) - y).abs().sum() / y.abs().sum()).item()
+            if pruned:
+                err_rt = ((m.runtime().eval(held) - y).abs().sum() / y.abs().sum()).item()
+    # measured with the trainer's RowAdam (seed 0): unpruned 0.145, pruned 0.114 held-out relative L1
+    assert errors[True] < 0.85 * errors[False] and errors[True] < 0.125, errors
+    assert err_rt < errors[True] + 0.01

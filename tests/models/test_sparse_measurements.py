@@ -69,7 +69,7 @@ def test_pruned_pixels_share_their_ancestor_features():
     pix = torch.arange(hpx.npix(nside))
     centres = hpx.pix2vec(nside, pix).float()
     pix, centres = pix[centres[:, 2] > 0.05], centres[centres[:, 2] > 0.05]
-    corners = hpx.ancestor_corner_vertices(nside, pix, level[pix])
+    corners = hpx.ancestor_corner_vertices(nside, pix, torch.minimum(level[pix], hpx.grid_level_cap(nside, False)[pix]))
     table = model.grid.features.detach()
     with torch.no_grad():
         feats = model.features(Query(centres, centres))[:, :16]

@@ -104,3 +104,44 @@ def test_bad_input_raises():
         vq(torch.tensor([0.5]))
     with pytest.raises(InputError, match="precision"):
         float_bits("fp8")
+
+
+def test_row_adam_matches_adam_dense_and_lazy_on_sparse_rows(gen):
+    """Dense gradients: torch.optim.Adam's update. Sparse row gradients: Adam on the rows present (equal to
+    dense Adam while every row is present), other rows and their moments untouched."""
+    from neumat.nn.row_adam import RowAdam
+
+    w0 = torch.randn(6, 4, generator=gen)
+    dense, sparse, ref = (torch.nn.Parameter(w0.clone()) for _ in range(3))
+    opt_ref = torch.optim.Adam([ref], lr=0.1, betas=(0.8, 0.9), eps=1e-6)
+    opt = RowAdam([dense, sparse], lr=0.1, betas=(0.8, 0.9), eps=1e-6)
+    all_rows = torch.arange(6)
+    for _ in range(3):
+        g = torch.randn(6, 4, generator=gen)
+        for p in (dense, ref):
+            p.grad = g.clone()
+        sparse.grad = torch.sparse_coo_tensor(all_rows[None], g, (6, 4), check_invariants=True)
+        opt_ref.step()
+        opt.step()
+    torch.testing.assert_close(dense, ref, rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(sparse, ref, rtol=1e-5, atol=1e-6)
+    before, m_before = sparse.detach().clone(), opt.state[sparse]["exp_avg"].clone()
+    rows = torch.tensor([1, 4])
+    sparse.grad = torch.sparse_coo_tensor(rows[None], torch.randn(2, 4, generator=gen), (6, 4), check_invariants=True)
+    opt.step()
+    moved = (sparse.detach() != before).any(-1)
+    assert moved.tolist() == [False, True, False, False, True, False]
+    assert torch.equal(opt.state[sparse]["exp_avg"][[0, 2, 3, 5]], m_before[[0, 2, 3, 5]])
+
+
+def test_vq_sparse_gradient_equals_dense(gen):
+    vq = VQFeatures(40, 3, 4)
+    ids = torch.randint(0, 40, (25, 4), generator=gen)
+    g = torch.randn(25, 4, 3, generator=gen)
+    (vq(ids) * g).sum().backward()
+    dense_grad = vq.logits.grad.clone()
+    vq.zero_grad(set_to_none=True)
+    vq.sparse_grad = True
+    (vq(ids) * g).sum().backward()
+    assert vq.logits.grad.is_sparse
+    torch.testing.assert_close(vq.logits.grad.to_dense(), dense_grad)

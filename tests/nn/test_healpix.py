@@ -164,3 +164,44 @@ def test_bad_input_raises():
         hpx.parent(1, torch.tensor([0]))
     with pytest.raises(InputError, match="level"):
         hpx.ancestor_corner_vertices(4, torch.tensor([0]), 3)
+
+
+def test_mirror_pixels_match_healpy(gen):
+    nside = 8
+    mirror = hpx.mirror_pixels(nside)
+    assert torch.equal(mirror[mirror], torch.arange(12 * nside ** 2))
+    v = torch.randn(5000, 3, generator=gen, dtype=torch.float64)
+    v = v / v.norm(dim=-1, keepdim=True)
+    pix = torch.from_numpy(hp.vec2pix(nside, *v.numpy().T))
+    pix_mirrored = torch.from_numpy(hp.vec2pix(nside, v[:, 0].numpy(), v[:, 1].numpy(), -v[:, 2].numpy()))
+    assert torch.equal(mirror[pix], pix_mirrored)
+
+
+@pytest.mark.parametrize("south", [False, True])
+def test_grid_level_cap(south):
+    nside = 8
+    cap = hpx.grid_level_cap(nside, south)
+    h, v = hpx.hemisphere_size(nside), hpx.nvertices(nside)
+    pix = torch.arange(hpx.npix(nside))
+    z = hpx.pix2vec(nside, pix)[:, 2]
+    on_hemisphere = z <= 1e-12 if south else z >= -1e-12
+    assert bool((cap[on_hemisphere] >= 0).all()) and bool((cap[~on_hemisphere] == -1).all())
+    for level in range(4):
+        vid = hpx.ancestor_corner_vertices(nside, pix, level)
+        on_grid = ((vid >= v - h) if south else (vid < h)).all(-1)
+        assert torch.equal(on_grid, cap >= level)
+    assert int(cap.max()) == 3 and int(cap[on_hemisphere].min()) == 0  # poles vs the equator ring
+
+
+def test_shared_ancestor_levels_brute_force(gen):
+    nside = 8
+    sup = torch.rand(hpx.npix(nside), generator=gen) < 0.03
+    levels = hpx.pruned_levels(nside, sup)
+    mask = hpx.shared_ancestor_levels(nside, levels)
+    pix = torch.arange(hpx.npix(nside))
+    anc = pix.clone()
+    for level in range(1, 4):
+        anc = hpx.parent(nside >> (level - 1), anc)  # level-`level` ancestor at nside / 2^level
+        for p in range(0, hpx.npix(nside), 7):
+            want = bool(((levels == level) & (anc == anc[p])).any())
+            assert bool((mask[p] >> level) & 1) == want

@@ -98,7 +98,10 @@ def fit(model: nn.Module, source: Material, recipe: Recipe | None = None, *, ste
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise InputError(f"fit: model {getattr(model, 'name', type(model).__name__)!r} has no trainable parameters")
-    opt = torch.optim.Adam(params, lr=recipe.lr, betas=tuple(recipe.betas), eps=recipe.eps)
+    # a model may bring its own optimiser (e.g. NeuBRDF's row-sparse Adam for codebook logits)
+    make_optimizer = getattr(model, "optimizer", None)
+    opt = (make_optimizer(recipe.lr, tuple(recipe.betas), recipe.eps) if callable(make_optimizer)
+           else torch.optim.Adam(params, lr=recipe.lr, betas=tuple(recipe.betas), eps=recipe.eps))
     ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
     gen = torch.Generator(device=dev).manual_seed(recipe.seed)
     state = {"step": 0, "history": [], "seconds": 0.0, "running": torch.zeros((), device=dev)}
@@ -129,7 +132,7 @@ def fit(model: nn.Module, source: Material, recipe: Recipe | None = None, *, ste
             opt.zero_grad(set_to_none=True)
             value.backward()
             if recipe.grad_clip > 0:
-                nn.utils.clip_grad_norm_(params, recipe.grad_clip)
+                _clip_gradients(params, recipe.grad_clip)
             opt.step()
             if ema is not None:
                 ema.update(model)
@@ -155,6 +158,16 @@ def fit(model: nn.Module, source: Material, recipe: Recipe | None = None, *, ste
         model.load_state_dict(ema.state_dict())
     model.train(False)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total)
+
+
+def _clip_gradients(params: list[torch.Tensor], max_norm: float) -> None:
+    """Scale all gradients (dense or sparse) so that their joint 2-norm is at most `max_norm`."""
+    grads = [p.grad.coalesce().values() if p.grad.is_sparse else p.grad for p in params if p.grad is not None]
+    total = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))
+    scale = (max_norm / (total + 1e-6)).clamp(max=1.0)
+    for p in params:
+        if p.grad is not None:
+            p.grad.mul_(scale)
 
 
 def _model_device(model: nn.Module) -> torch.device:

@@ -22,6 +22,7 @@ from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
+from neumat.nn.row_adam import RowAdam
 from neumat.models.registry import MODELS
 from neumat.nn.mlp import MLP
 
@@ -134,13 +135,16 @@ class NeuBRDF(nn.Module, Material):
     with a smooth gradient and lets the tiny MLP work in log space, where such data is close to
     piecewise smooth. Values below the horizon (wi_z <= 0 or wo_z <= 0) are 0.
 
-    Runtime: `runtime()` freezes the indices, switches to 1/4 weights and caches the per-pixel average
-    of the 4 corner features (an exact refactoring of the same function: lookup + one gather).
+    Runtime: `runtime()` freezes the indices, switches to 1/4 weights and caches, per pixel, the average
+    of the 4 corner features and its product with the first MLP layer (an exact refactoring of the same
+    function: a pixel lookup and one gather per direction replace the first layer).
     """
 
     name = "neubrdf"
     can_sample = False
     Config = Config
+    coarse_fraction = 0.5
+    """Share of training lookups in supervised pixels of a pruned grid made at an ancestor level (`prune`)."""
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
@@ -163,9 +167,15 @@ class NeuBRDF(nn.Module, Material):
         # hierarchy level of every ring pixel for each grid (0 = unpruned; see `prune`)
         self.register_buffer("level_i", torch.zeros(12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(12 * n * n, dtype=torch.int8))
+        # (lookup level S+, S-, coarse training levels S+, S-) per pixel of pruned grids (`prune`), else None
+        self._pruning: tuple[torch.Tensor, ...] | None = None
+        self._training_steps = False  # set by `on_step` (the trainer), cleared by `train`
+        self.register_load_state_dict_post_hook(lambda module, keys: module._update_pruning())
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
+        # runtime caches (see `runtime`): per-pixel mean corner features and first-layer pre-activations
         self._pixel_features: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._runtime_table: torch.Tensor | None = None
 
     @property
     def config(self) -> Config:
@@ -178,12 +188,39 @@ class NeuBRDF(nn.Module, Material):
         n = self.cfg.nside
         if self._pixel_features is not None:
             return self._pixel_features[int(south)][hpx.vec2pix_unchecked(n, hpx.hemisphere_direction(w, south))]
-        slots, vid, d = hpx.grid_corners(n, w, south, self.level_o if south else self.level_i)
+        d = hpx.hemisphere_direction(w, south)
+        pix = hpx.vec2pix_unchecked(n, d)
+        if self._pruning is None:
+            level = 0
+        else:
+            level = self._pruning[int(south)][pix]
+            if self._training_steps and self.training and torch.is_grad_enabled():
+                level = self._training_levels(pix, level, self._pruning[2 + int(south)])
+        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
         feats = self.grid(slots)  # (N, 4, k)
         if self.cfg.interpolation == "uniform":
             return feats.mean(1)
         wts = hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
         return (wts.unsqueeze(-1) * feats).sum(1)
+
+    def _training_levels(self, pix: torch.Tensor, level: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
+        """Lookup levels (N,) while training a pruned grid: a direction in a supervised pixel whose ancestors
+        are read by pruned pixels (bit masks `coarse`, see `hpx.shared_ancestor_levels`) is looked up, with
+        probability `coarse_fraction`, at one of those ancestor levels (uniformly chosen), so that the
+        ancestors' corners, which the pruned pixels read, learn the reflectance inside the ancestor.
+        Active during a fit only (see `on_step`)."""
+        mask = torch.where(level == 0, coarse[pix], 0)
+        count = torch.zeros_like(mask)
+        for l in range(1, self.cfg.nside.bit_length()):
+            count += (mask >> l) & 1
+        u = torch.rand(pix.shape, device=pix.device)
+        pick = (u * (count / self.coarse_fraction)).long()  # u < fraction -> pick < count: a coarse level
+        seen = torch.zeros_like(mask)
+        for l in range(1, self.cfg.nside.bit_length()):
+            bit = (mask >> l) & 1
+            level = torch.where((bit == 1) & (seen == pick), l, level)
+            seen += bit
+        return level
 
     def features(self, q: Query) -> torch.Tensor:
         """MLP input (N, 2 k + c): [psi(wi; S+), psi(mirrored wo; S-)(, T(uv))]."""
@@ -199,37 +236,67 @@ class NeuBRDF(nn.Module, Material):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NeuBRDF.eval")
-        if self._pixel_features is not None and self.texture is None and not torch.is_grad_enabled():
+        if self._runtime_table is not None and self.texture is None and not torch.is_grad_enabled():
             f = self._runtime_eval(q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype))
         else:
             f = torch.exp(self.mlp(self.features(q)))
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
+        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0)
         return f.to(q.dtype)
 
-    def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-        """exp(MLP) of cached per-pixel features; one pixel lookup for wi and mirrored wo together."""
-        n = wi.shape[0]
-        d = torch.cat([hpx.hemisphere_direction(wi, False), hpx.hemisphere_direction(wo, True)])
-        pix = hpx.vec2pix_unchecked(self.cfg.nside, d)
-        fi, fo = self._pixel_features
-        x = torch.cat([fi.index_select(0, pix[:n]), fo.index_select(0, pix[n:])], -1)
-        return torch.exp(self.mlp(x))
+    def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:
+        """exp(MLP) from the runtime table, (N, 3): one pixel lookup for wi and wo together, then the first
+        layer as the sum of two table rows (the pre-activations of the wi pixel and of the wo pixel), the
+        rest of the MLP on chunks that stay in cache. Directions below the horizon give finite values that
+        the caller masks."""
+        n, m = self.cfg.nside, wi.shape[0]
+        rest = self.mlp.net[1:]
+        out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
+        for s in range(0, m, chunk):
+            c = min(chunk, m - s)
+            x, y, z = (torch.cat([wi[s:s + c, i], wo[s:s + c, i]]) for i in range(3))
+            pix = hpx.vec2pix_xyz(n, x, y, z)
+            rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
+            h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
+            torch.exp(rest(h), out=out[s:s + c])
+        return out
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
+
+    def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> RowAdam:
+        """The optimiser to train this model with (the trainer's hook): Adam on every trainable parameter,
+        with the VQ logits switched to sparse row gradients and updated lazily, only on the vertices of
+        each batch (a dense Adam step would touch all 2n x 2^b logits, 25.6 M at the defaults)."""
+        if isinstance(self.grid, VQFeatures):
+            self.grid.sparse_grad = True
+        return RowAdam([p for p in self.parameters() if p.requires_grad], lr=lr, betas=betas, eps=eps)
 
     # ------------------------------------------------------------------------ pruning and runtime
 
     def prune(self, wi: torch.Tensor, wo: torch.Tensor) -> None:
         """Multi-resolution sparse grids from the supervised directions wi, wo (N, 3) (paper Sec. 3.2.1):
-        a pixel holding no training direction uses its nearest ancestor that holds one. Call before
-        training on sparse measurements."""
+        a pixel holding no training direction uses the corners of its nearest ancestor that holds one. Call
+        before training on sparse measurements: training then also looks directions up at those ancestor
+        levels (`coarse_fraction` of the lookups, see `_training_levels`), so that the corners the pruned
+        pixels read are trained on the reflectance inside the ancestor, not left at their initial values."""
         n = self.cfg.nside
         for south, w, name in ((False, wi, "wi"), (True, wo, "wo")):
             check_directions(w, f"NeuBRDF.prune {name}")
             sup = hpx.supervised_pixels(n, hpx.hemisphere_direction(w, south))
             getattr(self, "level_o" if south else "level_i").copy_(hpx.pruned_levels(n, sup).to(torch.int8))
-        self._pixel_features = None
+        self._update_pruning()
+        self._drop_runtime()
+
+    def _update_pruning(self) -> None:
+        """Lookup levels of the pruned grids: `level_i` / `level_o` capped where the ancestor's corners
+        would leave the hemisphere grid (`hpx.grid_level_cap`), and the ancestor levels to train."""
+        if bool((self.level_i == 0).all()) and bool((self.level_o == 0).all()):
+            self._pruning = None
+            return
+        n, dev = self.cfg.nside, self.level_i.device
+        levels = [torch.minimum(level.long(), hpx.grid_level_cap(n, south).clamp(min=0).to(dev))
+                  for south, level in ((False, self.level_i), (True, self.level_o))]
+        self._pruning = (*levels, *(hpx.shared_ancestor_levels(n, level) for level in levels))
 
     def used_slots(self) -> torch.Tensor:
         """Mask (2 n,) of grid slots referenced by some pixel of the (pruned) grids."""
@@ -237,43 +304,63 @@ class NeuBRDF(nn.Module, Material):
         mask = torch.zeros(2 * hpx.hemisphere_size(n), dtype=torch.bool, device=self.level_i.device)
         pix = torch.arange(12 * n * n, device=mask.device)
         z = hpx.pix2vec(n, pix)[:, 2].to(mask.device)
-        for south, level, keep in ((False, self.level_i, z >= -1e-12), (True, self.level_o, z <= 1e-12)):
+        for south, keep in ((False, z >= -1e-12), (True, z <= 1e-12)):
             p = pix[keep]
-            vid = hpx.ancestor_corner_vertices(n, p, level[p].long())
+            vid = hpx.ancestor_corner_vertices(n, p, 0 if self._pruning is None else self._pruning[int(south)][p])
             mask[vid + hpx.south_grid_offset(n) if south else vid] = True
         return mask
 
     @property
     def is_runtime(self) -> bool:
         """Whether `runtime()` is in effect (model files record it and re-enter runtime mode on load)."""
-        return self._pixel_features is not None
+        return self._runtime_table is not None
 
     def freeze(self) -> None:
         """Freeze the vertex features to integers (indices or low-bit codes) for export."""
         self.grid.freeze()
-        self._pixel_features = None
+        self._drop_runtime()
 
     def train(self, mode: bool = True) -> "NeuBRDF":
         """torch train / inference switch; training drops the runtime cache (it would go stale)."""
         if mode:
-            self._pixel_features = None
+            self._drop_runtime()
+        self._training_steps = False
         return super().train(mode)
+
+    def on_step(self, step: int, total_steps: int) -> None:
+        """Trainer hook, called before every training step: from now until the next `train()` call,
+        lookups with gradient in training mode use the coarse training levels of pruned grids (see
+        `_training_levels`); evaluation outside a fit stays deterministic."""
+        self._training_steps = True
+
+    def _drop_runtime(self) -> None:
+        self._pixel_features = None
+        self._runtime_table = None
 
     @torch.no_grad()
     def runtime(self) -> "NeuBRDF":
-        """Switch to the paper's runtime mode: frozen indices, 1/4 weights, per-pixel feature cache."""
+        """Switch to the paper's runtime mode: frozen indices, 1/4 weights, per-pixel caches.
+
+        Caches, for every ring pixel p of each grid: the mean F(p) of its 4 (ancestor) corner features, and
+        the first-layer pre-activations W_i F_i(p) + b and W_o F_o(p) (W = [W_i, W_o] the first MLP layer),
+        stacked in one table (2 x 12 N_side^2, hidden), the latter indexed by the pixel of the unmirrored wo. Evaluation is then two pixel lookups, two
+        gathers, an add and the rest of the MLP: the same function as `interpolation="uniform"`."""
         self.freeze()
         self.cfg = replace(self.cfg, interpolation="uniform")
-        n = self.cfg.nside
+        n, k = self.cfg.nside, self.cfg.feature_dim
         pix = torch.arange(12 * n * n, device=self.level_i.device)
         tables = []
-        for south, level in ((False, self.level_i), (True, self.level_o)):
-            vid = hpx.ancestor_corner_vertices(n, pix, level.long())
+        for south in (False, True):
+            vid = hpx.ancestor_corner_vertices(n, pix, 0 if self._pruning is None else self._pruning[int(south)])
             ok = (vid >= hpx.nvertices(n) - hpx.hemisphere_size(n)) if south else (vid < hpx.hemisphere_size(n))
             slots = (vid + hpx.south_grid_offset(n) if south else vid).clamp(0, 2 * hpx.hemisphere_size(n) - 1)
             # pixels outside the hemisphere are never looked up; their entries are left at 0
             tables.append(torch.where(ok.all(-1, keepdim=True), self.grid(slots).mean(1), 0.0))
         self._pixel_features = (tables[0], tables[1])
+        first = self.mlp.net[0]
+        w_i, w_o = first.weight[:, :k], first.weight[:, k:2 * k]
+        pre_o = tables[1][hpx.mirror_pixels(n).to(pix.device)] @ w_o.t()
+        self._runtime_table = torch.cat([torch.addmm(first.bias, tables[0], w_i.t()), pre_o])
         return self.train(False)
 
     # ------------------------------------------------------------------------------------ storage

@@ -155,6 +155,7 @@ class SharedNeuBRDF(nn.Module, Material):
         d = hpx.hemisphere_direction(w, south)
         pix = hpx.vec2pix_unchecked(n, d)
         level = (self.level_o if south else self.level_i)[ids, pix].long()
+        level = torch.minimum(level, hpx.grid_level_cap(n, south).to(pix.device)[pix])  # stay on the grid
         vid = hpx.ancestor_corner_vertices(n, pix, level)
         slots = (vid + hpx.south_grid_offset(n) if south else vid) + (ids * self.slots_per_material).unsqueeze(-1)
         feats = self.grid(slots)

@@ -8,6 +8,11 @@ forward pass returns the codebook row of the argmax index, the codebook gets the
 lookup, and the logits get the gradient of the softmax mixture (straight-through estimator, as in
 kaolin-wisp's CodebookOctreeGrid). `freeze()` replaces the logits by the integer indices.
 
+Speed: a batch touches only some vertices, so the straight-through step runs on the unique ids of the
+batch only (a fused autograd function: the forward pass is an argmax, the softmax is computed in the
+backward pass), and with `sparse_grad = True` the logits get a sparse row gradient that `RowAdam`
+updates lazily (only the rows of the batch), instead of a dense 2n x 2^b gradient and Adam step.
+
 Storage (bits, the paper's formula): vq: V b + p k 2^b; dense: V k p; lowbit: V k q, with V vertices,
 p the float precision in bits (16 for fp16) and q the low-bit width.
 """
@@ -17,6 +22,7 @@ import math
 
 import torch
 from torch import nn
+from torch.autograd.function import once_differentiable
 
 from neumat.core.errors import InputError
 
@@ -43,11 +49,37 @@ def _positive_int(v, name: str) -> int:
     return v
 
 
+class _StraightThrough(torch.autograd.Function):
+    """out = D[argmax l] (U, k) of logit rows l (U, 2^b); backward: D gets the gradient of the hard lookup,
+    l that of softmax(l) @ D with D held fixed: s * (g D^T - <g, s D>) per row, s = softmax(l)."""
+
+    @staticmethod
+    def forward(ctx, rows: torch.Tensor, codebook: torch.Tensor) -> torch.Tensor:
+        idx = rows.argmax(-1)
+        ctx.save_for_backward(rows, codebook, idx)
+        return codebook[idx]
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g: torch.Tensor):
+        rows, codebook, idx = ctx.saved_tensors
+        grad_rows = grad_code = None
+        if ctx.needs_input_grad[0]:
+            s = torch.softmax(rows, -1)
+            gd = g @ codebook.t()
+            gd.sub_((s * gd).sum(-1, keepdim=True))
+            grad_rows = s.mul_(gd)
+        if ctx.needs_input_grad[1]:
+            grad_code = torch.zeros_like(codebook).index_add_(0, idx, g)
+        return grad_rows, grad_code
+
+
 class VQFeatures(nn.Module):
     """k-dim features of `num_vertices` vertices, each a row of a learned codebook (2^bits, dim).
 
-    forward(ids (...,) int) -> (..., dim). Training: straight-through softmax over per-vertex logits;
-    frozen: integer index lookup.
+    forward(ids (...,) int) -> (..., dim). Training: straight-through softmax over per-vertex logits, on the
+    unique ids of the batch; frozen: integer index lookup. `sparse_grad`: give the logits a sparse row
+    gradient (train with `RowAdam`; torch.optim.Adam rejects sparse gradients).
     """
 
     def __init__(self, num_vertices: int, dim: int, bits: int, init_std: float = 1.0) -> None:
@@ -59,6 +91,7 @@ class VQFeatures(nn.Module):
             raise InputError(f"bits: expected at most 16 index bits, got {bits}")
         self.codebook = nn.Parameter(torch.randn(2 ** bits, dim) * init_std)
         self.logits = nn.Parameter(torch.randn(num_vertices, 2 ** bits) * 0.01)
+        self.sparse_grad = False
 
     @property
     def frozen(self) -> bool:
@@ -80,18 +113,11 @@ class VQFeatures(nn.Module):
         _check_ids(ids, self.num_vertices)
         if self.frozen:
             return self.codebook[self.index[ids].long()]
+        uniq, inv = torch.unique(ids, return_inverse=True)
         if not torch.is_grad_enabled():
-            return self.codebook[self.logits.argmax(-1)[ids]]
-        if ids.numel() >= self.num_vertices:  # cheaper to mix every vertex once, then gather
-            return self._straight_through(self.logits)[ids]
-        return self._straight_through(self.logits[ids])
-
-    def _straight_through(self, logits: torch.Tensor) -> torch.Tensor:
-        """(one_hot - softmax.detach() + softmax) @ D, as VQ-AD (kaolin-wisp CodebookOctreeGrid): the value
-        and the codebook gradient are those of the hard index; the logits get the softmax gradient."""
-        hard = self.codebook[logits.argmax(-1)]
-        soft = torch.softmax(logits, -1) @ self.codebook.detach()
-        return hard + (soft - soft.detach())
+            return self.codebook[self.logits[uniq].argmax(-1)][inv]
+        rows = nn.functional.embedding(uniq, self.logits, sparse=self.sparse_grad)
+        return _StraightThrough.apply(rows, self.codebook)[inv]
 
     def storage_bits(self, float_bits: int) -> int:
         """Index bits plus codebook floats: V b + float_bits k 2^b."""
@@ -102,7 +128,6 @@ class VQFeatures(nn.Module):
             self.logits = None
             self.register_buffer("index", torch.zeros(self.num_vertices, dtype=torch.int32))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-
 
 class DenseFeatures(nn.Module):
     """Features stored directly, (num_vertices, dim) floats (the 'w/o quantization' ablation)."""

@@ -21,6 +21,7 @@ The merged sphere grid has 2 n slots: S+ at slots [0, n), S- at [n, 2 n). `wi` i
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -78,27 +79,32 @@ def _isqrt(x: torch.Tensor) -> torch.Tensor:
 
 
 def _loc2pix(n: int, z: torch.Tensor, sth: torch.Tensor, tt: torch.Tensor) -> torch.Tensor:
-    """Ring pixel of points with cos(theta) = z, sin(theta) = sth and tt = phi / (pi / 2) in [0, 4)
-    (healpy loc2pix; the polar caps use the sin(theta) form, accurate near the poles)."""
+    """Ring pixel (int32, or int64 past 2^31 pixels) of points with cos(theta) = z, sin(theta) = sth and
+    tt = phi / (pi / 2) in [0, 4), all contiguous (healpy loc2pix; the polar caps use the sin(theta) form,
+    accurate near the poles). Written with few, mostly in-place tensor operations: it is a hot path."""
     itype = torch.int32 if 12 * n * n < 2 ** 31 else torch.int64
     za = z.abs()
-    # equatorial belt
+    # equatorial belt: jp, jm index the pixel along the two families of boundary lines
     temp1 = tt.mul(n).add_(0.5 * n)
-    temp2 = z * (0.75 * n)
-    jp = (temp1 - temp2).to(itype)
-    jm = (temp1 + temp2).to(itype)
-    ir = jp - jm + (n + 1)
-    kshift = 1 - (ir & 1)
-    pix_eq = torch.remainder((jp + jm + kshift + (1 - n)) >> 1, 4 * n).add_((ir - 1) * (4 * n)).add_(2 * n * (n - 1))
+    temp2 = z.mul(0.75 * n)
+    jp = torch.sub(temp1, temp2).to(itype)
+    jm = temp1.add_(temp2).to(itype)
+    ir = torch.sub(jp, jm).add_(n + 1)  # ring number counted from z = 2/3
+    kshift = torch.bitwise_and(ir, 1).neg_().add_(1)
+    pix_eq = jp.add_(jm).add_(kshift).add_(1 - n).bitwise_right_shift_(1).remainder_(4 * n)
+    pix_eq.add_(ir.sub_(1).mul_(4 * n)).add_(2 * n * (n - 1))
     # polar caps
-    tp = tt - tt.floor()
-    tmp = sth.mul(n).div_(torch.sqrt((1 + za) * (1 / 3)))
-    jp = (tp * tmp).to(itype)
-    jm = ((1 - tp) * tmp).to(itype)
-    ir = jp + jm + 1
-    ip = torch.minimum((tt * ir).to(itype), 4 * ir - 1)
-    pix_cap = torch.where(z > 0, 2 * ir * (ir - 1) + ip, (12 * n * n) - 2 * ir * (ir + 1) + ip)
-    return torch.where(za <= 2 / 3, pix_eq, pix_cap).long()
+    tp = torch.frac(tt)
+    tmp = sth.mul(n).div_(za.add(1).mul_(1 / 3).sqrt_())
+    jp = torch.mul(tp, tmp).to(itype)
+    jm = tp.neg_().add_(1).mul_(tmp).to(itype)
+    ir = jp.add_(jm).add_(1)
+    ip = torch.minimum(tt.mul(ir).to(itype), ir.mul(4).sub_(1))
+    two_ir = ir.mul(2)
+    north = ir.sub(1).mul_(two_ir).add_(ip)
+    south = ir.add_(1).mul_(two_ir).neg_().add_(12 * n * n).add_(ip)
+    pix_cap = torch.where(z > 0, north, south)
+    return torch.where(za <= 2 / 3, pix_eq, pix_cap)
 
 
 def _phi2tt(phi: torch.Tensor) -> torch.Tensor:
@@ -116,7 +122,7 @@ def ang2pix(nside: int, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         raise InputError(f"theta, phi: expected equal shapes, got {tuple(theta.shape)} and {tuple(phi.shape)}")
     if theta.numel() and (theta.min().item() < 0 or theta.max().item() > math.pi + 1e-6):
         raise InputError("theta: colatitudes must lie in [0, pi]")
-    return _loc2pix(nside, torch.cos(theta), torch.sin(theta).abs(), _phi2tt(phi))
+    return _loc2pix(nside, torch.cos(theta), torch.sin(theta).abs(), _phi2tt(phi)).long()
 
 
 def vec2pix(nside: int, v: torch.Tensor) -> torch.Tensor:
@@ -128,7 +134,12 @@ def vec2pix(nside: int, v: torch.Tensor) -> torch.Tensor:
 
 def vec2pix_unchecked(nside: int, v: torch.Tensor) -> torch.Tensor:
     """`vec2pix` without input checks (hot path); v (N, 3) unit vectors, nside a positive int."""
-    x, y, z = v.unbind(-1)
+    return vec2pix_xyz(nside, *(c.contiguous() for c in v.unbind(-1))).long()
+
+
+def vec2pix_xyz(nside: int, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """Ring pixel (N,) int32 (int64 past 2^31 pixels) of unit vectors given as contiguous coordinate
+    arrays x, y, z (N,); unchecked, the fastest form (strided coordinates slow atan2 down ~7x)."""
     tt = torch.atan2(y, x).mul_(2 / math.pi)
     tt = torch.where(tt < 0, tt + 4, tt)
     tt.masked_fill_(tt >= 4, 0.0)
@@ -392,6 +403,14 @@ def hemisphere_direction(w: torch.Tensor, south: bool) -> torch.Tensor:
     return torch.stack([x, y, -z if south else z], -1)
 
 
+def mirror_pixels(nside: int) -> torch.Tensor:
+    """Ring pixel (12 nside^2,) int64 holding the mirror image (pi - theta, phi) of each ring pixel: the same
+    position in ring 4 nside - r as in ring r (HEALPix is symmetric about the equator)."""
+    nside = check_nside(nside)
+    centres = pix2vec(nside, torch.arange(12 * nside * nside))
+    return vec2pix_unchecked(nside, centres * torch.tensor([1.0, 1.0, -1.0], dtype=centres.dtype))
+
+
 def grid_corners(nside: int, w: torch.Tensor, south: bool, levels: torch.Tensor | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """NeuBRDF grid lookup of directions w (N, 3), unchecked (hot path).
@@ -402,8 +421,16 @@ def grid_corners(nside: int, w: torch.Tensor, south: bool, levels: torch.Tensor 
     """
     d = hemisphere_direction(w, south)
     pix = vec2pix_unchecked(nside, d)
-    vid = _corner_vertices(nside, pix, 0 if levels is None else levels[pix].long())
-    return (vid + south_grid_offset(nside) if south else vid), vid, d
+    slots, vid = pixel_corner_slots(nside, pix, south, 0 if levels is None else levels[pix].long())
+    return slots, vid, d
+
+
+def pixel_corner_slots(nside: int, pix: torch.Tensor, south: bool, level: torch.Tensor | int = 0
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(slots (N, 4) into the merged 2 n sphere grid, vertex ids (N, 4)) of the corners of the level-`level`
+    ancestors of ring pixels pix (N,) on the S+ (south False) or S- grid; unchecked (hot path)."""
+    vid = _corner_vertices(nside, pix, level)
+    return (vid + south_grid_offset(nside) if south else vid), vid
 
 
 def grid_vertex_ids(nside: int) -> torch.Tensor:
@@ -454,3 +481,38 @@ def pruned_levels(nside: int, supervised: torch.Tensor) -> torch.Tensor:
         found |= has
     level = torch.where(found, level, torch.full_like(level, nside.bit_length() - 1))
     return level[nest]
+
+
+def shared_ancestor_levels(nside: int, levels: torch.Tensor) -> torch.Tensor:
+    """Bit mask (12 nside^2,) int64 per ring pixel p of a pruned grid (`levels` from `pruned_levels`): bit
+    L >= 1 is set when p's level-L ancestor is read by some pixel of level L, i.e. when its corners hold
+    the features of pruned pixels. Training lookups of directions in p at those levels train them."""
+    nside = check_nside(nside, power_of_two=True)
+    if not isinstance(levels, torch.Tensor) or levels.shape != (12 * nside * nside,):
+        raise InputError(f"levels: expected a tensor of shape ({12 * nside * nside},)")
+    pix = torch.arange(12 * nside * nside, device=levels.device)
+    nest = ring2nest(nside, pix)
+    lv = torch.empty_like(pix)
+    lv[nest] = levels.long()
+    mask = torch.zeros_like(pix)
+    for l in range(1, nside.bit_length()):
+        used = (lv == l).view(-1, 4 ** l).any(-1)
+        mask |= used.long().repeat_interleave(4 ** l) << l
+    return mask[nest]
+
+
+@functools.lru_cache(maxsize=16)
+def grid_level_cap(nside: int, south: bool) -> torch.Tensor:
+    """Largest hierarchy level (12 nside^2,) int64 at which each ring pixel's ancestor still has all 4
+    corners on the S+ grid (vertex rings 0 .. 2 nside + 1; `south` False) or on S- (rings 2 nside - 1 ..
+    4 nside); -1 for pixels with corners off the grid. Pruned lookups must not climb past it: coarse
+    pixels near the equator span both hemispheres. Cached per (nside, south) on the CPU: do not modify."""
+    nside = check_nside(nside, power_of_two=True)
+    pix = torch.arange(12 * nside * nside)
+    h, v = hemisphere_size(nside), nvertices(nside)
+    cap = torch.full_like(pix, -1)
+    for l in range(nside.bit_length()):
+        vid = _corner_vertices(nside, pix, l)
+        on_grid = ((vid >= v - h) if south else (vid < h)).all(-1)
+        cap = torch.where(on_grid, torch.full_like(cap, l), cap)
+    return cap

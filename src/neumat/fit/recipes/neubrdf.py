@@ -23,10 +23,14 @@ do not have; the values below are therefore ours, each with its reason:
 Positivity and dynamic range are handled by the model, not the recipe: the MLP predicts log f and the
 model returns exp(.) (positive, smooth gradients in log space), 0 below the horizon.
 
-CPU budget: the paper-size model took about 5 s per step of 8192 queries on a busy 2-core machine with
-"vq" features (the straight-through softmax over 49922 x 512 logits dominates) and about 1 s with "dense"
-features, so the full recipe is meant for a GPU; on a CPU, fit a smaller grid (e.g.
-`--set nside=16`) or fewer steps (`--steps`).
+CPU budget (benchmarks/neubrdf_speed.py; one thread, batch 8192, k 16, b 9, MLP 2 x 64, CPU seconds per
+step on a shared, loaded 2-core machine): "vq" 0.054 / 0.12 / 0.43 s at N_side 16 / 32 / 64 (0.43 s was
+1.07 s before the unique-slot straight-through and the lazy row-wise Adam of `NeuBRDF.optimizer`, which
+the trainer must call to get these numbers),
+"dense" 0.03 - 0.045 s, "lowbit" 0.05 - 0.07 s. The full recipe (20000 steps of 2^14) is meant for a GPU.
+On a CPU fit N_side 32 with vq (`--set nside=32 --steps 2000`: 2000 steps of 2^14, ~8 min on one
+thread; quality at that budget not yet measured); on a busy machine use one torch thread (two threads on
+two loaded cores ran 3 - 10x slower than one).
 """
 from __future__ import annotations
 

@@ -1,0 +1,53 @@
+"""Adam that also takes sparse row gradients, for per-vertex parameters of which a batch touches few rows."""
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+class RowAdam(torch.optim.Optimizer):
+    """Adam (torch.optim.Adam's update, no weight decay / amsgrad) that also takes sparse gradients: a
+    parameter with a sparse row gradient (e.g. `VQFeatures.logits` with `sparse_grad`) is updated lazily,
+    only on the rows present in the gradient, whose moments alone advance (as torch.optim.SparseAdam)."""
+
+    def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999),
+                 eps: float = 1e-8) -> None:
+        super().__init__(params, dict(lr=lr, betas=tuple(betas), eps=eps))
+
+    @torch.no_grad()
+    def step(self, closure=None):
+        loss = None
+        if closure is not None:
+            with torch.enable_grad():
+                loss = closure()
+        for group in self.param_groups:
+            lr, (b1, b2), eps = group["lr"], group["betas"], group["eps"]
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                state = self.state[p]
+                if not state:
+                    state["step"] = torch.zeros((), dtype=torch.float32)
+                    state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                    state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                state["step"] += 1
+                t = state["step"].item()
+                step_size, bc2_sqrt = lr / (1 - b1 ** t), math.sqrt(1 - b2 ** t)
+                m, v = state["exp_avg"], state["exp_avg_sq"]
+                if p.grad.is_sparse:
+                    g = p.grad.coalesce()
+                    rows, vals = g.indices()[0], g.values()
+                    m_r = m.index_select(0, rows).lerp_(vals, 1 - b1)
+                    v_r = v.index_select(0, rows).mul_(b2).addcmul_(vals, vals, value=1 - b2)
+                    m.index_copy_(0, rows, m_r)
+                    v.index_copy_(0, rows, v_r)
+                    # m / (sqrt(v) / c + eps) = c m / (sqrt(v) + c eps), c = bc2_sqrt: one pass fewer
+                    upd = m_r.div_(v_r.sqrt_().add_(bc2_sqrt * eps))
+                    p.index_add_(0, rows, upd, alpha=-step_size * bc2_sqrt)
+                else:
+                    g = p.grad
+                    m.lerp_(g, 1 - b1)
+                    v.mul_(b2).addcmul_(g, g, value=1 - b2)
+                    p.addcdiv_(m, v.sqrt().div_(bc2_sqrt).add_(eps), value=-step_size)
+        return loss
