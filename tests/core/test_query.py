@@ -29,3 +29,14 @@ def test_sample_weight_zero_where_invalid():
     pdf = torch.tensor([0.5, 0.0, 2.0])
     w = sample_weight(f, wo, pdf, torch.tensor([True, True, False]))
     assert torch.equal(w, torch.tensor([[2.0] * 3, [0.0] * 3, [0.0] * 3]))
+
+
+def test_trusted_query_skips_validation_but_behaves_like_a_query():
+    wi = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    q = Query.trusted(wi, wi.flip(0))
+    assert torch.equal(q.wi, wi) and torch.equal(q.wo, wi.flip(0)) and q.uv is None and len(q) == 2
+    assert torch.equal(q.swapped().wi, wi.flip(0))  # the usual methods work on it
+    bad = torch.tensor([[0.0, 0.0, 2.0]])
+    Query.trusted(bad)  # no check: the caller vouches for its tensors
+    with pytest.raises(InputError, match="unit length"):
+        Query(bad)

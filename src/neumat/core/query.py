@@ -43,6 +43,19 @@ class Query:
                 check_shape(t, f"Query.{name}", shape)
                 check_finite(t, f"Query.{name}")
 
+    @classmethod
+    def trusted(cls, wi: torch.Tensor, wo: torch.Tensor | None = None, uv: torch.Tensor | None = None,
+                footprint: torch.Tensor | None = None, lod: torch.Tensor | None = None,
+                x: torch.Tensor | None = None) -> "Query":
+        """A Query built without validation (no shape, finiteness or unit-length checks, no host syncs).
+
+        Only for internal hot loops (the renderer) whose tensors are correct by construction; everything
+        else should call `Query(...)`.
+        """
+        q = object.__new__(cls)
+        q.__dict__.update(wi=wi, wo=wo, uv=uv, footprint=footprint, lod=lod, x=x)
+        return q
+
     def __len__(self) -> int:
         return self.wi.shape[0]
 

@@ -27,8 +27,8 @@ from ..core.material import Material, sample_weight
 from ..core.query import Query, Sample
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from ..warp.hemisphere import sample_cosine_hemisphere
-from .microfacet import (fresnel_conductor, fresnel_dielectric, fresnel_schlick, microfacet_brdf, principled_eval,
-                         principled_pdf, principled_sample)
+from .microfacet import (_dot, _half_vector, _microfacet_brdf, fresnel_conductor, fresnel_dielectric, fresnel_schlick,
+                         ggx_ndf, principled_eval, principled_pdf, principled_sample, smith_g1)
 
 #: RGB complex refractive indices (eta, k) of conductors, as Mitsuba 3 (rgb variants) derives them from its spectra
 CONDUCTORS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -129,9 +129,12 @@ class AnalyticMaterial(Material):
         normal = torch.tensor([0.0, 0.0, 1.0], dtype=wi.dtype, device=wi.device)
         wo = self._draw(torch.where(up, wi, normal), u.to(wi.dtype))
         wo = torch.where(up & torch.isfinite(wo).all(-1, keepdim=True), wo, normal)
+        return self._pdf_and_weight(wi, wo)
+
+    def _pdf_and_weight(self, wi: torch.Tensor, wo: torch.Tensor) -> Sample:
+        """The Sample of drawn directions wo (N, 3): pdf (N,) and weight eval * cos_o / pdf (N, 3)."""
         pdf = self._pdf(wi, wo)
-        valid = pdf > 0
-        return Sample(wo=wo, pdf=pdf, weight=sample_weight(self._eval(wi, wo), wo, pdf, valid))
+        return Sample(wo=wo, pdf=pdf, weight=sample_weight(self._eval(wi, wo), wo, pdf, pdf > 0))
 
     def describe(self) -> str:
         """The spec string of this material."""
@@ -244,13 +247,27 @@ class GGX(AnalyticMaterial):
         return torch.ones(cos.shape[0], 3, dtype=cos.dtype, device=cos.device)
 
     def _eval(self, wi, wo):
-        return microfacet_brdf(wi, wo, self.alpha_x, self.alpha_y, self._fresnel)
+        return _microfacet_brdf(wi, wo, self.alpha_x, self.alpha_y, self._fresnel)
 
     def _draw(self, wi, u):
         return sample_ggx_reflection(wi, u, self.alpha_x, self.alpha_y)
 
     def _pdf(self, wi, wo):
-        return ggx_reflection_pdf(wi, wo, self.alpha_x, self.alpha_y)
+        return self._pdf_at_half_vector(wi, wo, _half_vector(wi, wo))
+
+    def _pdf_at_half_vector(self, wi, wo, h):
+        """Visible-normal reflection density G1(wi) D(h) / (4 cos_i) (N,) (as `ggx_reflection_pdf`); 0 unless
+        both directions are up."""
+        d_vis = smith_g1(wi, self.alpha_x, self.alpha_y) * ggx_ndf(h, self.alpha_x, self.alpha_y)
+        pdf = d_vis / (4 * wi[:, 2]).clamp(min=torch.finfo(wi.dtype).tiny)
+        return torch.where(self._both_up(wi, wo), pdf, torch.zeros_like(pdf))
+
+    def _pdf_and_weight(self, wi, wo):
+        # one half vector for both; weight = f cos_o / pdf simplifies to G1(wo) F(wi.h)
+        h = _half_vector(wi, wo)
+        pdf = self._pdf_at_half_vector(wi, wo, h)
+        weight = self._fresnel(_dot(wi, h)) * smith_g1(wo, self.alpha_x, self.alpha_y).unsqueeze(-1)
+        return Sample(wo=wo, pdf=pdf, weight=torch.where((pdf > 0).unsqueeze(-1), weight, torch.zeros_like(weight)))
 
     def spec_params(self) -> dict:
         p = ({"roughness": self.alpha_x} if self._isotropic else {"alpha_x": self.alpha_x, "alpha_y": self.alpha_y})
@@ -299,7 +316,7 @@ class Plastic(AnalyticMaterial):
         return fresnel_dielectric(cos, self.eta).unsqueeze(-1).expand(-1, 3)
 
     def _eval(self, wi, wo):
-        spec = microfacet_brdf(wi, wo, self.roughness, self.roughness, self._coat_fresnel)
+        spec = _microfacet_brdf(wi, wo, self.roughness, self.roughness, self._coat_fresnel)
         t_i = 1 - fresnel_dielectric(wi[:, 2].clamp(min=0), self.eta)
         t_o = 1 - fresnel_dielectric(wo[:, 2].clamp(min=0), self.eta)
         scale = 1 / (math.pi * self.eta ** 2 * (1 - self.fdr_internal))

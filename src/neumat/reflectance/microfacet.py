@@ -43,9 +43,22 @@ def _per_query_rgb(x, n: int, ref: torch.Tensor, name: str) -> torch.Tensor:
     return check_shape(t, name, (n, 3))
 
 
+def _alpha(x, n: int, ref: torch.Tensor, name: str):
+    """A roughness argument as a Python float (cheap scalar arithmetic) or an (N,) tensor."""
+    if isinstance(x, (int, float)) and not isinstance(x, bool):
+        return float(x)
+    return _per_query(x, n, ref, name)
+
+
+def _rgb_broadcastable(x, n: int, ref: torch.Tensor, name: str) -> torch.Tensor:
+    """A (3,) or (N, 3) value as a tensor on the device / dtype of `ref` that broadcasts against (N, 3)."""
+    t = torch.as_tensor(x, dtype=ref.dtype, device=ref.device)
+    return check_shape(t, name, (3,) if t.dim() == 1 else (n, 3))
+
+
 def ggx_ndf(m: torch.Tensor, alpha_x, alpha_y) -> torch.Tensor:
     """GGX normal distribution D(m) (N,) per steradian for unit m (N, 3); 0 where m_z <= 0."""
-    ax, ay = _per_query(alpha_x, m.shape[0], m, "alpha_x"), _per_query(alpha_y, m.shape[0], m, "alpha_y")
+    ax, ay = _alpha(alpha_x, m.shape[0], m, "alpha_x"), _alpha(alpha_y, m.shape[0], m, "alpha_y")
     q = (m[:, 0] / ax) ** 2 + (m[:, 1] / ay) ** 2 + m[:, 2] ** 2
     d = 1 / (math.pi * ax * ay * q * q)
     return torch.where(m[:, 2] > 0, d, torch.zeros_like(d))
@@ -53,12 +66,10 @@ def ggx_ndf(m: torch.Tensor, alpha_x, alpha_y) -> torch.Tensor:
 
 def smith_g1(w: torch.Tensor, alpha_x, alpha_y) -> torch.Tensor:
     """Smith masking G1(w) = 2 w_z / (w_z + sqrt(w_z^2 + ax^2 w_x^2 + ay^2 w_y^2)) (N,); 0 where w_z <= 0."""
-    ax, ay = _per_query(alpha_x, w.shape[0], w, "alpha_x"), _per_query(alpha_y, w.shape[0], w, "alpha_y")
-    z = w[:, 2]
-    root = (z * z + (ax * w[:, 0]) ** 2 + (ay * w[:, 1]) ** 2).sqrt()
-    up = z > 0
-    g = 2 * z / torch.where(up, z + root, torch.ones_like(z))
-    return torch.where(up, g, torch.zeros_like(g))
+    ax, ay = _alpha(alpha_x, w.shape[0], w, "alpha_x"), _alpha(alpha_y, w.shape[0], w, "alpha_y")
+    z = w[:, 2].clamp(min=0)  # 0 below the horizon, where G1 = 0 / root = 0
+    root = (w[:, 2] ** 2 + (ax * w[:, 0]) ** 2 + (ay * w[:, 1]) ** 2).sqrt()
+    return 2 * z / (z + root).clamp(min=torch.finfo(w.dtype).tiny)
 
 
 def fresnel_conductor(cos_theta: torch.Tensor, eta, k) -> torch.Tensor:
@@ -67,15 +78,25 @@ def fresnel_conductor(cos_theta: torch.Tensor, eta, k) -> torch.Tensor:
     Exact Fresnel equations in the form of Mitsuba 3's `fresnel_conductor`; cos_theta is clamped to [0, 1].
     """
     n = cos_theta.shape[0]
-    eta, k = _per_query_rgb(eta, n, cos_theta, "eta"), _per_query_rgb(k, n, cos_theta, "k")
-    c = cos_theta.clamp(0, 1).unsqueeze(-1)
+    eta, k = _rgb_broadcastable(eta, n, cos_theta, "eta"), _rgb_broadcastable(k, n, cos_theta, "k")
+    if eta.dim() == 1 and k.dim() == 1:
+        # per-material constants: work channel-major, (3, 1) constants against a (1, N) cosine row, so every
+        # operation runs over long contiguous rows instead of rows of 3; the result is a transposed view
+        return _fresnel_conductor(cos_theta.clamp(0, 1).unsqueeze(0), eta.unsqueeze(-1), k.unsqueeze(-1)).T
+    return _fresnel_conductor(cos_theta.clamp(0, 1).unsqueeze(-1), eta, k)
+
+
+def _fresnel_conductor(c: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """Conductor Fresnel for broadcastable c (cosines in [0, 1]), eta and k."""
+    eta2_minus_k2 = eta * eta - k * k
+    four_eta2_k2 = 4 * eta * eta * k * k  # for per-material constants computed once, not per query
     c2 = c * c
     s2 = 1 - c2
-    t1 = eta * eta - k * k - s2
-    a2pb2 = (t1 * t1 + 4 * eta * eta * k * k).clamp(min=0).sqrt()
+    t1 = eta2_minus_k2 - s2
+    a2pb2 = (t1 * t1 + four_eta2_k2).sqrt()  # argument >= 0: a sum of non-negative terms
     a = (0.5 * (a2pb2 + t1)).clamp(min=0).sqrt()
     term1 = a2pb2 + c2
-    term2 = 2 * c * a
+    term2 = (2 * c) * a
     r_s = (term1 - term2) / (term1 + term2)
     term3 = a2pb2 * c2 + s2 * s2
     term4 = term2 * s2
@@ -108,9 +129,14 @@ def fresnel_schlick(cos_theta: torch.Tensor, f0) -> torch.Tensor:
     return f0 + (1 - f0) * w
 
 
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Row-wise dot product (N,) of (N, 3) tensors, column by column (faster than a reduction over rows of 3)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
 def _half_vector(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     h = wi + wo
-    return h / h.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    return h / _dot(h, h).sqrt().clamp(min=1e-12).unsqueeze(-1)
 
 
 def microfacet_brdf(wi: torch.Tensor, wo: torch.Tensor, alpha_x, alpha_y,
@@ -122,11 +148,17 @@ def microfacet_brdf(wi: torch.Tensor, wo: torch.Tensor, alpha_x, alpha_y,
     check_directions(wi, "wi")
     check_directions(wo, "wo")
     check_shape(wo, "wo", tuple(wi.shape))
+    return _microfacet_brdf(wi, wo, alpha_x, alpha_y, fresnel)
+
+
+def _microfacet_brdf(wi: torch.Tensor, wo: torch.Tensor, alpha_x, alpha_y,
+                     fresnel: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """`microfacet_brdf` without input checks, for callers whose directions are already validated."""
     h = _half_vector(wi, wo)
-    up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-    denom = torch.where(up, 4 * wi[:, 2] * wo[:, 2], torch.ones_like(wi[:, 2]))
+    # where a direction is below the horizon its G1 is 0, so the clamped denominator only guards 0 / 0
+    denom = (4 * wi[:, 2] * wo[:, 2]).clamp(min=torch.finfo(wi.dtype).tiny)
     s = ggx_ndf(h, alpha_x, alpha_y) * smith_g1(wi, alpha_x, alpha_y) * smith_g1(wo, alpha_x, alpha_y) / denom
-    return fresnel((wi * h).sum(-1)) * torch.where(up, s, torch.zeros_like(s)).unsqueeze(-1)
+    return fresnel(_dot(wi, h)) * s.unsqueeze(-1)
 
 
 def principled_params_to_alpha(roughness: torch.Tensor, anisotropy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

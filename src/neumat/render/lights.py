@@ -22,8 +22,8 @@ import torch
 
 from ..core.errors import InputError
 from ..warp.sphere import sample_uniform_sphere
-from ..warp.tabulated2d import Tabulated2D
-from .envmaps import dir_to_equirect, read_envmap, sky_envmap
+from ..warp.alias import AliasTable
+from .envmaps import read_envmap, sky_envmap
 from .spec import as_float, as_vector, check_options, parse_option_value, parse_spec, unknown_name
 
 LIGHT_FORMS = ["point[:x/y/z]", "dir[:x/y/z]", "const:VALUE", "env:PATH", "env:sky"]
@@ -52,7 +52,8 @@ class Light(ABC):
 
     @abstractmethod
     def sample(self, p: torch.Tensor, u: torch.Tensor) -> LightSample:
-        """Sample a direction towards the light from points p (N, 3) with uniform numbers u (N, 2)."""
+        """Sample a direction towards the light from points p (N, 3) with uniform numbers u (N, 2) (float32 or
+        float64); outputs take the dtype of p."""
 
     def eval(self, d: torch.Tensor) -> torch.Tensor:
         """Radiance (N, 3) arriving from unit directions d (N, 3) (0 for delta lights)."""
@@ -115,10 +116,10 @@ class ConstantEnvironment(Light):
         self.value = torch.tensor(value, dtype=torch.float32, device=device)
 
     def sample(self, p: torch.Tensor, u: torch.Tensor) -> LightSample:
-        wi = sample_uniform_sphere(u)
+        wi = sample_uniform_sphere(u.to(p.dtype))
         n = p.shape[0]
-        return LightSample(wi, self.value.to(p.dtype).expand(n, 3), torch.full_like(u[:, 0], 1 / (4 * math.pi)),
-                           torch.full_like(u[:, 0], math.inf))
+        return LightSample(wi, self.value.to(p.dtype).expand(n, 3), torch.full_like(wi[:, 0], 1 / (4 * math.pi)),
+                           torch.full_like(wi[:, 0], math.inf))
 
     def eval(self, d: torch.Tensor) -> torch.Tensor:
         return self.value.to(d.dtype).expand(d.shape[0], 3)
@@ -131,12 +132,14 @@ class EnvironmentMap(Light):
     """Equirectangular environment map (see `envmaps` for the mapping), looked up per texel (nearest).
 
     image: (H, W, 3) linear RGB radiance; scale multiplies it; rotation (degrees) turns the map about +y.
-    Sampling: `Tabulated2D` picks a texel with probability proportional to luminance times the texel's
-    solid angle (2 pi / W) (cos theta_top - cos theta_bottom), the exact integral of sin theta over its
-    row; inside the texel the direction is uniform in solid angle (phi linear, cos theta linear). The
-    solid-angle pdf is thus piecewise constant: P(texel) / solid angle(texel), with no singularity at the
-    poles. Sampled positions keep 1e-4 of a texel away from texel edges so that float32 directions map
-    back to the texel they were drawn from.
+    Sampling: an `AliasTable` (O(1) per sample) picks a texel with probability proportional to luminance
+    times the texel's solid angle (2 pi / W) (cos theta_top - cos theta_bottom), the exact integral of
+    sin theta over its row (tables built in float64); inside the texel the direction is uniform in solid
+    angle (phi linear, cos theta linear). The solid-angle pdf is thus piecewise constant:
+    P(texel) / solid angle(texel), with no singularity at the poles. Sampled positions keep 1e-4 of a texel
+    away from texel edges so that float32 directions map back to the texel they were drawn from. The phi
+    offset inside the texel comes from the bits of u[:, 0] left after the texel choice: pass float64 u
+    (as the renderer does) for full resolution.
     """
 
     EDGE = 1e-4
@@ -151,53 +154,51 @@ class EnvironmentMap(Light):
         self.height, self.width = img.shape[:2]
         edges = torch.cos(torch.arange(self.height + 1, device=img.device, dtype=torch.float64) * math.pi
                           / self.height)
-        self.cos_edges = edges  # (H + 1,) cos theta at the row boundaries, decreasing
+        self.cos_edges = edges.float()  # (H + 1,) cos theta at the row boundaries, decreasing
         solid_angle = (edges[:-1] - edges[1:]) * (2 * math.pi / self.width)  # (H,) per texel
         weights = (self.image.double() @ self.image.new_tensor(_LUMINANCE, dtype=torch.float64)) * solid_angle[:, None]
         if not float(weights.sum()) > 0:
             raise InputError(f"{name}: the environment map is black, nothing to light the scene")
-        self.table = Tabulated2D(weights)
+        self.table = AliasTable(weights)
         #: (H, W) solid-angle density inside each texel: P(texel) / solid angle(texel)
         self.texel_pdf = (weights / weights.sum() / solid_angle[:, None]).float()
-        c, s = math.cos(math.radians(rotation)), math.sin(math.radians(rotation))
-        self.rotation = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=torch.float32,
-                                     device=img.device)  # local -> world
+        self._flat_image = self.image.reshape(-1, 3)
+        self._flat_pdf = self.texel_pdf.reshape(-1)
+        #: turn about +y (radians); it only shifts phi: phi_world = phi_map - rotation
+        self.rotation_rad = math.radians(rotation)
 
-    def _texel(self, local: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        uv = dir_to_equirect(local)
-        i = (uv[:, 1] * self.height).long().clamp(0, self.height - 1)
-        j = (uv[:, 0] * self.width).long().clamp(0, self.width - 1)
-        return i, j
+    def _texel(self, d: torch.Tensor) -> torch.Tensor:
+        """Flat texel index (N,) (row * W + column) of world directions d (N, 3)."""
+        x, z = d[:, 0].contiguous(), d[:, 2].contiguous()  # atan2 on strided views misses the vectorised kernel
+        u = torch.remainder((torch.atan2(x, -z) + self.rotation_rad) * (1 / (2 * math.pi)), 1.0)
+        v = torch.acos(d[:, 1].clamp(-1, 1)) * (1 / math.pi)
+        i = (v * self.height).long().clamp(0, self.height - 1)
+        j = (u * self.width).long().clamp(0, self.width - 1)
+        return i * self.width + j
 
     def sample(self, p: torch.Tensor, u: torch.Tensor) -> LightSample:
-        q, _ = self.table.sample(u.double())
-        x, y = q[:, 0] * self.width, q[:, 1] * self.height
-        j = x.floor().long().clamp(0, self.width - 1)
-        i = y.floor().long().clamp(0, self.height - 1)
-        fx = (x - j).clamp(self.EDGE, 1 - self.EDGE)
-        fy = (y - i).clamp(self.EDGE, 1 - self.EDGE)
-        cos_theta = self.cos_edges[i] + fy * (self.cos_edges[i + 1] - self.cos_edges[i])
-        sin_theta = (1 - cos_theta * cos_theta).clamp(min=0).sqrt()
-        phi = (j + fx) * (2 * math.pi / self.width)
-        local = torch.stack([sin_theta * torch.sin(phi), cos_theta, -sin_theta * torch.cos(phi)], -1)
-        wi = (local @ self.rotation.double().T).to(u.dtype)
-        pdf = self.texel_pdf[i, j].to(u.dtype)
-        return LightSample(wi, self.image[i, j].to(u.dtype), pdf, torch.full_like(pdf, math.inf))
+        texel, fx, fy = self.table.sample(u)
+        i, j = texel // self.width, texel % self.width
+        fx = fx.float().clamp(self.EDGE, 1 - self.EDGE)
+        fy = fy.float().clamp(self.EDGE, 1 - self.EDGE)
+        top = self.cos_edges[i]
+        cos_theta = top + fy * (self.cos_edges[i + 1] - top)
+        sin_theta = ((1 - cos_theta) * (1 + cos_theta)).clamp(min=0).sqrt()  # no cancellation near the poles
+        phi = (j + fx) * (2 * math.pi / self.width) - self.rotation_rad
+        dtype = p.dtype
+        wi = torch.stack([sin_theta * torch.sin(phi), cos_theta, -sin_theta * torch.cos(phi)], -1).to(dtype)
+        pdf = self._flat_pdf[texel].to(dtype)
+        return LightSample(wi, self._flat_image[texel].to(dtype), pdf, torch.full_like(pdf, math.inf))
 
     def eval(self, d: torch.Tensor) -> torch.Tensor:
-        i, j = self._texel(self._to_local(d))
-        return self.image[i, j].to(d.dtype)
+        return self._flat_image[self._texel(d)].to(d.dtype)
 
     def pdf(self, d: torch.Tensor) -> torch.Tensor:
-        i, j = self._texel(self._to_local(d))
-        return self.texel_pdf[i, j].to(d.dtype)
+        return self._flat_pdf[self._texel(d)].to(d.dtype)
 
     def eval_pdf(self, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        i, j = self._texel(self._to_local(d))
-        return self.image[i, j].to(d.dtype), self.texel_pdf[i, j].to(d.dtype)
-
-    def _to_local(self, d: torch.Tensor) -> torch.Tensor:
-        return d @ self.rotation.to(d.dtype)
+        texel = self._texel(d)
+        return self._flat_image[texel].to(d.dtype), self._flat_pdf[texel].to(d.dtype)
 
 
 _POINT_OPTIONS = {"intensity": "radiant intensity in W/sr, number or r/g/b (default pi |position|^2)",

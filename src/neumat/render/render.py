@@ -11,6 +11,8 @@ from .scenes import make_scene
 
 #: pixel samples traced per batch (bounds memory; the batch is split into whole pixels where spp allows)
 BATCH_SAMPLES = 1 << 18
+#: the same on CPU, where a smaller batch keeps the working set in cache (about 1.5x faster than 2^18)
+CPU_BATCH_SAMPLES = 1 << 16
 
 
 def render(material: Material, scene: str = "sphere", light: str | Light = "env:sky", spp: int = 64,
@@ -26,7 +28,8 @@ def render(material: Material, scene: str = "sphere", light: str | Light = "env:
     deterministic for a given seed, device and batch size. Keyword options go to the scene, except the
     render options `jitter` (bool, default True: sample positions uniformly over each pixel, a box
     filter; False: every sample through the pixel centre, for materials that filter by the footprint
-    themselves) and `batch_size` (pixel samples per batch, default BATCH_SAMPLES).
+    themselves) and `batch_size` (pixel samples per batch, default CPU_BATCH_SAMPLES on CPU, else
+    BATCH_SAMPLES).
     """
     if not isinstance(material, Material) and not all(hasattr(material, a) for a in ("eval", "can_sample")):
         raise InputError(f"material: expected a neumat Material, got {type(material).__name__}")
@@ -38,10 +41,10 @@ def render(material: Material, scene: str = "sphere", light: str | Light = "env:
     check_strategy(strategy)
     width, height = _resolution(resolution)
     jitter = bool(scene_options.pop("jitter", True))
-    batch = scene_options.pop("batch_size", BATCH_SAMPLES)
+    device = torch.device(device) if device is not None else _material_device(material)
+    batch = scene_options.pop("batch_size", CPU_BATCH_SAMPLES if device.type == "cpu" else BATCH_SAMPLES)
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise InputError(f"batch_size: expected a positive integer, got {batch!r}")
-    device = torch.device(device) if device is not None else _material_device(material)
 
     the_scene = make_scene(scene, (width, height), **scene_options)
     the_light = light if isinstance(light, Light) else make_light(light, device=device)
@@ -66,8 +69,8 @@ def _render_chunk(material, scene, light, pix, ns, width, jitter, strategy, gen)
     """Radiance (P * ns, 3) of ns samples in each pixel of `pix` (flat indices)."""
     device = pix.device
     n = pix.shape[0] * ns
-    u = torch.rand(n, 6, generator=gen, device=device)
-    offset = u[:, 4:6] if jitter else torch.full((n, 2), 0.5, device=device)
+    u = torch.rand(n, 6, generator=gen, device=device, dtype=torch.float64)  # float64: full texel resolution
+    offset = u[:, 4:6].float() if jitter else torch.full((n, 2), 0.5, device=device)
     pixel_xy = torch.stack([pix % width, pix // width], -1).repeat_interleave(ns, 0).to(torch.float32)
     rays = scene.camera.rays(pixel_xy + offset)
     hits = scene.intersect(rays, with_uv=bool(getattr(material, "spatially_varying", False)))
