@@ -29,11 +29,12 @@ from rich.console import Console
 from rich.table import Table
 
 from neumat.core.query import Query
+from neumat.fit.measured_samples import MeasuredSamples
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
-from neumat.metrics.hdr import reflectance_errors
+from neumat.metrics.hdr import cosine_queries, reflectance_errors
 from neumat.metrics.image import image_metrics
 from neumat.models.registry import model_class
 from neumat.render.render import render
@@ -71,6 +72,9 @@ QUICK = {"steps": 150, "batch_cap": 4096, "no_ema": True, "nside": 16, "hdr_n": 
          "materials": ["paper_white_rgb", "plastic"]}
 FULL = {"steps": None, "batch_cap": None, "no_ema": False, "nside": None, "hdr_n": 2 ** 20, "resolution": 256,
         "spp": 64, "materials": None}
+#: --pool N: the source is measured once at N cosine-distributed (wi, wo) pairs and every model is fitted by
+#: replaying them (measured sources are slow to evaluate online); 0 = online targets
+DEFAULT_POOL = 0
 
 COLUMNS = ["rmse_hdr", "mae_hdr", "img_mae", "img_rmse", "img_ssim", "img_flip", "bytes_fp16", "fit_s", "evals_per_s"]
 
@@ -116,8 +120,9 @@ def sphere_image(material, light: str, settings: dict, device) -> np.ndarray:
 
 def run(args) -> tuple[list[dict], dict]:
     settings = dict(QUICK if args.quick else FULL)
-    if args.steps is not None:
-        settings["steps"] = args.steps
+    for key in ("steps", "nside", "pool", "resolution", "spp"):
+        if getattr(args, key) is not None:
+            settings[key] = getattr(args, key)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     data = shared_data_dir()
     known = available_materials(data)
@@ -136,6 +141,10 @@ def run(args) -> tuple[list[dict], dict]:
     rows = []
     for mat_name in names:
         source = open_material(known[mat_name])
+        train_source, queries = source, None
+        if settings.get("pool", DEFAULT_POOL):
+            pool = cosine_queries(settings["pool"], torch.Generator().manual_seed(1), torch.device("cpu"))
+            train_source, queries = MeasuredSamples.from_material(source, pool, name=mat_name), "replay"
         ref_img = sphere_image(source, light, settings, device)
         exposure = -math.log2(max(float(np.percentile(ref_img, 99)), 1e-6))
         for model_name in models:
@@ -148,7 +157,10 @@ def run(args) -> tuple[list[dict], dict]:
                 recipe = replace(recipe, ema=0.0)
             steps = settings["steps"] or recipe.steps
             console.print(f"[bold]{model_name}[/] on {mat_name}: {steps} steps of {recipe.batch_size}")
-            result = fit(model, source, recipe, steps=steps, device=device, progress=not args.no_progress)
+            result = fit(model, train_source, recipe, steps=steps, device=device, progress=not args.no_progress,
+                         queries=queries)
+            if hasattr(model, "runtime"):  # NeuBRDF is measured in the paper's runtime form (frozen indices)
+                model = model.runtime()
             hdr = reflectance_errors(model, source, n=settings["hdr_n"], device=device)
             img = image_metrics(ref_img, sphere_image(model, light, settings, device), exposure=exposure)
             rows.append({"model": model_name, "material": mat_name, "rmse_hdr": hdr["rmse_hdr"],
@@ -204,6 +216,11 @@ def markdown(rows: list[dict], settings: dict) -> str:
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=None, help="fit steps per model (default: each recipe's)")
+    p.add_argument("--nside", type=int, default=None, help="N_side of the NeuBRDF variants (default: the paper's 64)")
+    p.add_argument("--pool", type=int, default=None,
+                   help="measure each source once at this many (wi, wo) pairs and fit by replaying them")
+    p.add_argument("--resolution", type=int, default=None, help="sphere image size in pixels")
+    p.add_argument("--spp", type=int, default=None, help="samples per pixel of the sphere images")
     p.add_argument("--materials", help="comma-separated material names (RGL file stems or analytic names)")
     p.add_argument("--models", help=f"comma-separated models (default all: {', '.join(MODELS)})")
     p.add_argument("--quick", action="store_true",
