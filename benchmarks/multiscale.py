@@ -10,13 +10,19 @@ reference SVBRDF with `--ref-samples` footprint samples. Prints per-scale FLIP, 
 and FLOPs, training steps/s, and evaluations/s of each model against the principled GGX point evaluation
 on the same batch. Writes the per-scale FLIP chart (the paper's Fig. 4) to benchmarks/results/.
 
+Models are registry names, optionally with config overrides for ablations, e.g.
+`multiscale:gating=false:shading_frame=false`. With `--markdown` the tables and the chart are also written
+to benchmarks/results/multiscale.md.
+
     python benchmarks/multiscale.py --quick
     python benchmarks/multiscale.py --device cuda --steps 100000 --batch 65536 --max-size 1024
 """
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -24,7 +30,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neumat.core.query import Query
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
@@ -36,13 +41,23 @@ from neumat.models.registry import build_model
 from neumat.reflectance.microfacet import principled_eval
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.render.render import render
-from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf"
 RESULTS = Path(__file__).resolve().parent / "results"
 LIGHTS = ["dir:0.3/1/0.2", "dir:-0.8/0.6/0.3", "dir:0.5/0.4/-0.9", "dir:0/0.35/1"]
 TILTS = [0.0, 35.0, 65.0]
 DISTANCE, FOV = 3.0, 40.0
+ALL_MODELS = ["multiscale", "tripleplane", "zeltner", "neumip", "nbrdf-uv", "ggx-mipmap"]
+
+
+def model_spec(text: str, size: int) -> dict:
+    """`name[:key=json_value]...` -> a registry spec with the pyramid size `size`."""
+    name, *options = text.split(":")
+    spec = {"type": name, "spatial_size": size}
+    for option in options:
+        key, _, value = option.partition("=")
+        spec[key] = json.loads(value)
+    return spec
 
 
 def plane_scales(n: int, resolution: int, texels: int) -> list[float]:
@@ -79,7 +94,7 @@ def evals_per_second(fn, n: int, device, repeats: int = 5) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--materials", nargs="*", default=None, help="texture-set folders (default: all shared sets)")
-    ap.add_argument("--models", nargs="*", default=["multiscale", "tripleplane"])
+    ap.add_argument("--models", nargs="*", default=ALL_MODELS, help="model specs name[:key=value]...")
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--batch", type=int, default=8192)
     ap.add_argument("--samples", type=int, default=16, help="footprint samples of the training targets")
@@ -92,6 +107,7 @@ def main() -> None:
     ap.add_argument("--short-run-optimiser", action="store_true",
                     help="Adam (0.9, 0.999), lr 1e-2, EMA 0.02 instead of the paper's long-run settings")
     ap.add_argument("--quick", action="store_true", help="smoke run: 1 material, 200 steps, 5 scales, 32 px")
+    ap.add_argument("--markdown", action="store_true", help="write benchmarks/results/multiscale.md")
     args = ap.parse_args()
     if args.quick:
         args.materials = args.materials or [str(DATA / "Wood092_1K")]
@@ -118,8 +134,8 @@ def main() -> None:
         print(f"reference: {len(ref_images)} images in {time.perf_counter() - t:.0f} s")
         for name in args.models:
             torch.manual_seed(0)
-            model = build_model({"type": name, "spatial_size": size}).to(device)
-            recipe = replace(recipe_for(name), steps=args.steps, batch_size=args.batch)
+            model = build_model(model_spec(name, size)).to(device)
+            recipe = replace(recipe_for(model.name), steps=args.steps, batch_size=args.batch)
             if args.short_run_optimiser:
                 recipe = replace(recipe, lr=1e-2, betas=(0.9, 0.999), ema=0.02, lr_decay_every=0)
             result = fit(model, source, recipe, device=device, progress=True)
@@ -135,12 +151,13 @@ def main() -> None:
                                "steps_per_s": result.steps / result.seconds})
             print(f"{name}: FLIP {rows[name][-1]['flip']:.4f}, fit {result.seconds:.0f} s")
 
-    print(f"\nPer-scale FLIP (mean over {len(folders)} material(s), {len(lights)} lights, {len(tilts)} cameras); "
-          "scale 0 = finest")
-    print("model         " + " ".join(f"{i:>6d}" for i in range(args.scales)))
+    lines = [f"Per-scale FLIP (mean over {len(folders)} material(s), {len(lights)} lights, {len(tilts)} cameras; "
+             "scale 0 = finest)", "", "| model | " + " | ".join(str(i) for i in range(args.scales)) + " |",
+             "|---" * (args.scales + 1) + "|"]
     for name in args.models:
         curve = np.mean(per_scale[name], 0)
-        print(f"{name:<13s} " + " ".join(f"{v:6.4f}" for v in curve))
+        lines.append(f"| {name} | " + " | ".join(f"{v:.4f}" for v in curve) + " |")
+    print("\n" + "\n".join(lines))
     try:
         import matplotlib
 
@@ -161,23 +178,36 @@ def main() -> None:
 
     n = 1 << 16
     g = torch.Generator().manual_seed(0)
-    q = Query(sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), sample_cosine_hemisphere(torch.rand(n, 2, generator=g)),
-              uv=torch.rand(n, 2, generator=g)).to(device)
+    q = footprint_queries(reference, None)(n, g, "cpu").to(device)  # Sec. 4.2 queries with footprints
     params = (torch.rand(n, 3, device=device), torch.rand(n, device=device), torch.rand(n, device=device),
               torch.zeros(n, device=device))
     with torch.no_grad():
         ggx_rate = evals_per_second(lambda: principled_eval(q.wi, q.wo, *params), n, device)
-    print(f"\nTable 6 style ({args.steps} steps of {args.batch} queries per model; paper: ~500k steps of 65536)")
-    print(f"{'model':<13s} {'SSIM':>7s} {'FLIP':>7s} {'RMSE':>7s} {'MAE':>7s} {'RMSE-HDR':>9s} {'MAE-HDR':>8s} "
-          f"{'kB fp32':>9s} {'FLOPs':>6s} {'steps/s':>8s} {'eval/s':>10s} {'x GGX':>6s}")
+    lines += ["", f"Table 6 style ({args.steps} steps of {args.batch} queries per model, {args.samples}-sample targets; "
+              "paper: ~500k steps of 65536)", "",
+              "| model | SSIM | FLIP | RMSE | MAE | RMSE-HDR | MAE-HDR | kB fp32 | FLOPs | steps/s | eval/s | x GGX |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in args.models:
-        model = build_model({"type": name, "spatial_size": size}).to(device)
+        model = build_model(model_spec(name, size)).to(device)
         with torch.no_grad():
             rate = evals_per_second(lambda: model.eval(q), n, device)
         r = {k: float(np.mean([row[k] for row in rows[name]])) for k in rows[name][0]}
-        print(f"{name:<13s} {r['ssim']:7.4f} {r['flip']:7.4f} {r['rmse']:7.4f} {r['mae']:7.4f} {r['rmse_hdr']:9.4f} "
-              f"{r['mae_hdr']:8.4f} {model.size_bytes('fp32') / 1e3:9.1f} {model_flops(model):6d} "
-              f"{r['steps_per_s']:8.2f} {rate:10.3g} {ggx_rate / rate:6.1f}")
+        lines.append(f"| {name} | {r['ssim']:.4f} | {r['flip']:.4f} | {r['rmse']:.4f} | {r['mae']:.4f} | "
+                     f"{r['rmse_hdr']:.4f} | {r['mae_hdr']:.4f} | {model.size_bytes('fp32') / 1e3:.1f} | "
+                     f"{model_flops(model)} | {r['steps_per_s']:.2f} | {rate:.3g} | {ggx_rate / rate:.1f} |")
+    print("\n".join(lines[-len(args.models) - 4:]))
+    if args.markdown:
+        names = ", ".join(f.name for f in folders)
+        header = [f"# Multi-scale SVBRDF benchmark ({names})", "",
+                  f"Command: `python benchmarks/multiscale.py {' '.join(sys.argv[1:])}` on {device.type}; texture sets "
+                  f"at most {args.max_size}^2, model pyramids {size}^2, {args.scales} scales x {len(lights)} lights x "
+                  f"{len(tilts)} cameras at {args.resolution} px, references with {args.ref_samples} footprint "
+                  f"samples; HDR errors over {args.hdr_queries} Sec. 4.2 queries. Training budget: {args.steps} "
+                  f"steps x {args.batch} queries" + (" (short-run optimiser: Adam (0.9, 0.999), lr 1e-2, EMA 0.02)"
+                                                     if args.short_run_optimiser else " (paper recipe)") + ".", "",
+                  "![per-scale FLIP](multiscale_flip.png)", ""]
+        (RESULTS / "multiscale.md").write_text("\n".join(header + lines) + "\n")
+        print(f"wrote {RESULTS / 'multiscale.md'}")
     print(f"principled GGX point evaluation: {ggx_rate:.3g} eval/s")
 
 

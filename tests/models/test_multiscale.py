@@ -11,6 +11,7 @@ from neumat.fit.losses import LOSSES
 from neumat.fit.recipe import recipe_for
 from neumat.models.multiscale import Config, MultiScale
 from neumat.models.registry import build_model, model_class
+from neumat.nn.angular_texture import disk_polar, half_difference
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 SMALL = {"spatial_size": 16, "spatial_channels": 4, "half_channels": 4, "diff_channels": 4, "angular_radial": 8,
@@ -117,7 +118,8 @@ def test_recipe_and_loss_follow_the_paper():
 def test_fit_small_svbrdf_on_cpu(shared_data):
     """A 16 x 16 crop of Wood092 (at 256^2), a small model, 300 steps of 1024 Sec. 4.2 queries with 4-sample
     targets. Short-run optimiser (documented deviation): Adam (0.9, 0.999), lr 1e-2, EMA 0.02. The error
-    relative to 64-sample targets must fall below 60 % of that of the best constant (measured 0.139 vs 0.310)."""
+    relative to 64-sample targets must fall below 40 % of that of the best constant (measured 0.078 vs 0.310;
+    0.139 before the shading-frame weight scale)."""
     from neumat.fit.trainer import fit
     from neumat.io.texture_set import load_texture_set
     from neumat.reflectance.svbrdf import SVBRDF
@@ -139,12 +141,13 @@ def test_fit_small_svbrdf_on_cpu(shared_data):
         err = rel_error(result.model.eval(q))
     const = rel_error(target.mean(0, keepdim=True).expand_as(target))
     print(f"relative squared error {err:.4f}, constant {const:.4f}")
-    assert err < 0.6 * const and math.isfinite(err)
+    assert err < 0.4 * const and math.isfinite(err)
 
 
 def test_flop_count_matches_measured_matrix_products():
-    """The matrix-product part of the analytic count (MLP, gating, frame and warp decoders) equals torch's
-    FLOP counter; the rest (activations, exp, texture reads, warps, frame maths) is stated per block."""
+    """The matrix-product part of the analytic count (MLP, frame and warp decoders) equals torch's FLOP
+    counter; the gating products are elementwise multiply-adds on the texture reads (2 D_s (D_h + D_d)), not
+    seen by the counter; the rest (activations, exp, texture reads, warps, frame maths) is stated per block."""
     from neumat.metrics.flops import measured_matmul_flops, model_flops
 
     m = MultiScale(**SMALL)
@@ -152,8 +155,23 @@ def test_flop_count_matches_measured_matrix_products():
     mlp = 2 * sum(a * b for a, b in zip(m.mlp.dims[:-1], m.mlp.dims[1:]))
     gating = 2 * (c.half_channels + c.diff_channels) * c.spatial_channels
     decoders = 2 * c.spatial_channels * 6 + 2 * 2 * c.spatial_channels * 2 * c.warp_terms
-    assert measured_matmul_flops(m, _queries(64)) == mlp + gating + decoders
+    assert measured_matmul_flops(m, _queries(64)) == mlp + decoders
     assert model_flops(m) > mlp + gating + decoders
+
+
+def test_gating_equals_per_query_matrix_products():
+    """The channels-first gating equals z_h = H z_s with H read as (D_h, D_s) matrices per query."""
+    torch.manual_seed(5)
+    m = MultiScale(**SMALL, shading_frame=False, radial_warps=False)
+    q = _queries(32)
+    z_s = m.spatial_latent(q)
+    h, d = half_difference(q.wi, q.wo)
+    r_h, phi_h = disk_polar(h)
+    r_d, phi_d = disk_polar(d, math.pi)
+    c = m.cfg
+    z_h = torch.bmm(m.half_texture(r_h, phi_h).reshape(32, c.half_channels, -1), z_s.unsqueeze(-1)).squeeze(-1)
+    z_d = torch.bmm(m.diff_texture(r_d, phi_d).reshape(32, c.diff_channels, -1), z_s.unsqueeze(-1)).squeeze(-1)
+    torch.testing.assert_close(m.latents(q), torch.cat([z_h, z_d], -1), rtol=1e-5, atol=1e-6)
 
 
 def test_tripleplane_concatenates_without_warps_or_frame():

@@ -94,3 +94,16 @@ def test_difference_read_is_reciprocal():
 def test_bad_sizes_raise():
     with pytest.raises(InputError, match="radial"):
         AngularTexture(4, 1, 8)
+
+
+
+def test_read_is_differentiable_in_texture_and_radius():
+    """Gradients of the fused read (texels and r, which the radial warps need) match finite differences."""
+    torch.manual_seed(3)
+    tex = AngularTexture(2, 5, 7, math.pi).double()
+    g = torch.Generator().manual_seed(4)
+    r = (torch.rand(20, generator=g, dtype=torch.float64) * 0.9 + 0.05).requires_grad_()
+    phi = torch.rand(20, generator=g, dtype=torch.float64) * 3 * math.pi
+    raw = tex.raw.detach().clone().requires_grad_()
+    read = lambda raw, r: torch.func.functional_call(tex, {"raw": raw}, (r, phi))  # noqa: E731
+    assert torch.autograd.gradcheck(read, (raw, r))

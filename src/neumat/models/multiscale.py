@@ -183,16 +183,14 @@ class MultiScale(nn.Module, Material):
         r_d, phi_d = disk_polar(d, math.pi)
         if self.warp_h is not None:
             r_h, r_d = self.warp_h(r_h, z_s), self.warp_d(r_d, z_s)
-        a_h = self.half_texture(r_h, phi_h)
-        a_d = self.diff_texture(r_d, phi_d)
-        if z_s is None:
-            return torch.cat([a_h, a_d], -1)
-        if not self.cfg.gating:
-            return torch.cat([a_h, a_d, z_s], -1)
-        n = z_s.shape[0]
-        a_h = torch.bmm(a_h.view(n, self.cfg.half_channels, -1), z_s.unsqueeze(-1)).squeeze(-1)
-        a_d = torch.bmm(a_d.view(n, self.cfg.diff_channels, -1), z_s.unsqueeze(-1)).squeeze(-1)
-        return torch.cat([a_h, a_d], -1)
+        if z_s is None or not self.cfg.gating:
+            a_h, a_d = self.half_texture(r_h, phi_h), self.diff_texture(r_d, phi_d)
+            return torch.cat([a_h, a_d] if z_s is None else [a_h, a_d, z_s], -1)
+        # gating on channels-first reads: H (D_h, D_s, N) times z_s (D_s, N), summed over D_s
+        z = z_s.t().unsqueeze(0)
+        z_h = (self.half_texture.read(r_h, phi_h).view(self.cfg.half_channels, -1, len(z_s)) * z).sum(1)
+        z_d = (self.diff_texture.read(r_d, phi_d).view(self.cfg.diff_channels, -1, len(z_s)) * z).sum(1)
+        return torch.cat([z_h, z_d], 0).t()
 
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from ..core.errors import InputError
@@ -55,7 +56,8 @@ def disk_polar(w: torch.Tensor, period: float = 2 * math.pi) -> tuple[torch.Tens
 
 
 class AngularTexture(nn.Module):
-    """A learned (C, R, P) polar texture (module docstring); forward(r (N,), phi (N,)) -> (N, C).
+    """A learned (C, R, P) polar texture (module docstring); forward(r (N,), phi (N,)) -> (N, C) (a
+    transposed view of the channels-first `read`).
 
     period: 2 pi (half vectors) or pi (difference vectors). An optional `precondition` module maps the
     raw parameters to the texture of the forward pass.
@@ -75,26 +77,24 @@ class AngularTexture(nn.Module):
         """(C, R, P) texture of the forward pass."""
         return self.raw if self.precondition is None else self.precondition(self.raw)
 
-    def forward(self, r: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+    def padded(self) -> torch.Tensor:
+        """(C, R, P + 2) texture with the pole row set to texel (0, 0) and one circular column each side."""
         tex = self.texture()
-        c, nr, nphi = tex.shape
-        x = r.to(tex.dtype).clamp(0, 1) * (nr - 1)
-        i0 = x.floor().clamp(max=nr - 2)
-        fr = (x - i0).unsqueeze(-1)
-        i0 = i0.long()
-        y = torch.remainder(phi.to(tex.dtype), self.period) / self.period * nphi - 0.5
-        j0 = y.floor()
-        fp = (y - j0).unsqueeze(-1)
-        j0 = j0.long() % nphi
-        j1 = (j0 + 1) % nphi
-        flat = tex.reshape(c, nr * nphi).t()
-        pole = flat[0].expand(r.shape[0], c)
+        rows = torch.cat([tex[:, :1, :1].expand(-1, 1, self.angular), tex[:, 1:]], 1)
+        return torch.cat([rows[:, :, -1:], rows, rows[:, :, :1]], 2)
 
-        def row(i: torch.Tensor) -> torch.Tensor:
-            ring = torch.lerp(flat[i * nphi + j0], flat[i * nphi + j1], fp)
-            return torch.where((i == 0).unsqueeze(-1), pole, ring)
+    def read(self, r: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """Channels-first read (C, N) of (r, phi) (N,): one fused bilinear `grid_sample` over `padded`
+        (corner-aligned grid: row i at r = i / (R - 1), padded column j + 1 at phi_j)."""
+        tex = self.padded()
+        column = torch.remainder(phi.to(tex.dtype), self.period) * (self.angular / self.period) + 0.5
+        grid = torch.stack([column * (2 / (self.angular + 1)) - 1, r.to(tex.dtype).clamp(0, 1) * 2 - 1], -1)
+        out = F.grid_sample(tex.unsqueeze(0), grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="border",
+                            align_corners=True)
+        return out.view(self.channels, -1)
 
-        return torch.lerp(row(i0), row(i0 + 1), fr)
+    def forward(self, r: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        return self.read(r, phi).t()
 
     def num_parameters(self) -> int:
         return self.raw.numel()

@@ -29,17 +29,14 @@ def texel_coords(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tenso
 
 
 def bilinear(tex: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear lookup with wrap tiling: tex (C, H, W), uv (N, 2) -> (N, C); differentiable in tex."""
+    """Bilinear lookup with wrap tiling: tex (C, H, W), uv (N, 2) -> (N, C); differentiable in tex.
+    One fused `grid_sample` over the texture padded circularly by one texel (corner-aligned grid)."""
     c, h, w = tex.shape
-    x, y = texel_coords(uv.to(tex.dtype), h, w)
-    x0, y0 = x.floor(), y.floor()
-    fx, fy = (x - x0).unsqueeze(-1), (y - y0).unsqueeze(-1)
-    x0, y0 = x0.long() % w, y0.long() % h
-    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
-    flat = tex.reshape(c, h * w).t()
-    top = torch.lerp(flat[y0 * w + x0], flat[y0 * w + x1], fx)
-    bottom = torch.lerp(flat[y1 * w + x0], flat[y1 * w + x1], fx)
-    return torch.lerp(top, bottom, fy)
+    x, y = texel_coords(torch.remainder(uv.to(tex.dtype), 1.0), h, w)  # in [-1/2, W - 1/2], [-1/2, H - 1/2]
+    grid = torch.stack([(x + 1) * (2 / (w + 1)) - 1, (y + 1) * (2 / (h + 1)) - 1], -1)
+    padded = F.pad(tex.unsqueeze(0), (1, 1, 1, 1), mode="circular")
+    out = F.grid_sample(padded, grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="border", align_corners=True)
+    return out.view(c, -1).t()
 
 
 def box_pyramid(tex: torch.Tensor) -> list[torch.Tensor]:

@@ -1,0 +1,31 @@
+"""Zeltner et al. 2024 style decoder, as a baseline of Timonen et al. 2025 (Sec. 5.2): latent pyramid,
+learned shading frame decoded from the latent, and an MLP on the concatenated latent and the directions
+expressed in that frame (no angular tabulation, no gating).
+
+    log f = MLP(z_s, F(z_s) wi, F(z_s) wo)
+
+A configuration of `neumat.models.neumip` (shading_frame on). Trained like every model of the paper's
+common codebase: textures optimised directly with the preconditioner, no encoder / multi-stage training.
+Defaults: 8 latent channels, MLP 14 -> 20 x 3 -> 3 and a linear frame decoder: 2526 FLOPs (gated: 2484).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from neumat.models import neumip
+from neumat.models.registry import MODELS
+
+
+@dataclass
+class Config(neumip.Config):
+    """Fields as `neumat.models.neumip.Config`, with the learned shading frame on."""
+
+    shading_frame: bool = True
+
+
+@MODELS.register("zeltner")
+class Zeltner(neumip.NeuMIP):
+    """Latent pyramid + learned shading frame + MLP (see module docstring)."""
+
+    name = "zeltner"
+    Config = Config
