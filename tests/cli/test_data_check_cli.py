@@ -85,3 +85,14 @@ def test_open_material_reads_a_texture_set_folder(shared_data):
 
     m = open_material(shared_data / "svbrdf" / "Paper001_1K", max_size=32)
     assert isinstance(m, SVBRDF) and m.spatially_varying
+
+
+def test_open_material_rejects_unknown_reader_options(shared_data):
+    from neumat import InputError, open_material
+
+    with pytest.raises(InputError, match="unknown reader option.*frobnicate.*known: height_scale, max_size"):
+        open_material(shared_data / "svbrdf" / "Paper001_1K", frobnicate=1)
+    with pytest.raises(InputError, match="unknown reader option"):
+        open_material(shared_data / "rgl" / "paper_white_rgb.bsdf", max_size=3)
+    with pytest.raises(InputError, match="spec string"):
+        open_material("lambert", max_size=3)

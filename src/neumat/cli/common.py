@@ -23,13 +23,13 @@ def run_command(fn: Callable[[], Any]) -> Any:
         raise typer.Exit(2) from None
 
 
-def parse_overrides(items: list[str] | None) -> dict[str, Any]:
-    """`["nside=32", "lr=1e-3"]` -> {"nside": 32, "lr": 0.001}."""
+def parse_overrides(items: list[str] | None, option: str = "--set") -> dict[str, Any]:
+    """`["nside=32", "lr=1e-3"]` -> {"nside": 32, "lr": 0.001}; `option` names the flag in errors."""
     out = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise InputError(f"--set expects key=value, got {item!r}")
+            raise InputError(f"{option} expects key=value, got {item!r}")
         out[key.strip()] = parse_value(value)
     return out
 

@@ -26,6 +26,9 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+        source_option: list[str] = typer.Option(None, "--source-option",
+                                                help="key=value passed to the source reader, e.g. max_size=256 "
+                                                     "or samples=64 for a texture-set folder"),
         dictionary: Path = typer.Option(None, help="sparse-btf: the trained dictionary ensemble (.nmat)"),
         tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V"),
         out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
@@ -45,7 +48,7 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         if out.suffix != ".nmat":
             raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
         m, recipe = build_model_and_recipe(model, parse_overrides(set_), seed)
-        src = open_material(source)
+        src = open_material(source, **parse_overrides(source_option, "--source-option"))
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
         result = fit_model(m, src, recipe, steps=steps, device=dev, progress=not quiet, checkpoint=checkpoint,
                            resume=resume)
