@@ -51,3 +51,20 @@ def test_config_round_trip_and_strictness():
 def test_parse_value():
     assert parse_value("3") == 3 and parse_value("0.5") == 0.5
     assert parse_value("true") is True and parse_value("ggx") == "ggx"
+
+
+def test_resolve_config_takes_a_config_or_fields_but_not_both():
+    from neumat.core.config import resolve_config
+
+    @dataclass
+    class Cfg:
+        size: int = 4
+
+    assert resolve_config(Cfg, None, {"size": 8}, "m").size == 8
+    assert resolve_config(Cfg, Cfg(2), {}, "m").size == 2
+    with pytest.raises(InputError, match="m: pass either"):
+        resolve_config(Cfg, Cfg(2), {"size": 8}, "m")
+    with pytest.raises(InputError, match="m: config must be a"):
+        resolve_config(Cfg, {"size": 8}, {}, "m")
+    with pytest.raises(InputError, match="unknown key"):
+        resolve_config(Cfg, None, {"sise": 8}, "m")

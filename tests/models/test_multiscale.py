@@ -9,7 +9,7 @@ from neumat.core.query import Query
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LOSSES
 from neumat.fit.recipe import recipe_for
-from neumat.models.multiscale import Config, MultiScale
+from neumat.models.multiscale import MultiScale
 from neumat.models.registry import build_model, model_class
 from neumat.nn.angular_texture import disk_polar, half_difference
 from neumat.warp.hemisphere import sample_cosine_hemisphere

@@ -8,7 +8,7 @@ from neumat import InputError, Query
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import (BTFDictionary, code_points, decode_points, prepare_btf,
                                              train_dictionary, train_ensemble)
-from neumat.reflectance.btf import TabulatedBTF, angular_weights, direction_set
+from neumat.reflectance.btf import angular_weights, direction_set
 
 from btf_util import N_DIRS, SIZE, synthetic_btf
 

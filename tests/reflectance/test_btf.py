@@ -1,7 +1,6 @@
 """Tabulated BTF material, direction sets and the .nbtf file format."""
 from __future__ import annotations
 
-import math
 
 import pytest
 import torch

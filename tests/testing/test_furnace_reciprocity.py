@@ -4,7 +4,7 @@ import math
 import pytest
 import torch
 
-from neumat import InputError, Material, Query
+from neumat import InputError, Material
 from neumat.reflectance.analytic import GGX, Lambert, Plastic, Principled
 from neumat.reflectance.microfacet import fresnel_dielectric
 from neumat.testing.furnace import white_furnace

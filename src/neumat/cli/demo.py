@@ -47,7 +47,6 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
     from ..fit.trainer import fit
     from ..io.images import write_image, write_image_ldr
     from ..io.modelfile import save_model
-    from ..io.open_material import open_material
     from ..io.shared_data import shared_data_dir
     from ..metrics.hdr import cosine_queries, reflectance_errors
     from ..metrics.image import image_metrics

@@ -28,6 +28,17 @@ def config_from_dict(cls: type[C], data: dict, *, ignore: tuple[str, ...] = ("ty
     return cls(**kwargs)
 
 
+def resolve_config(cls: type[C], config: C | None, fields: dict, who: str) -> C:
+    """The config of a model built as `Model(config)` or `Model(**fields)` (strictly parsed); both raise."""
+    if config is not None and fields:
+        raise InputError(f"{who}: pass either a Config or keyword fields, not both")
+    if config is None:
+        return config_from_dict(cls, fields)
+    if not isinstance(config, cls):
+        raise InputError(f"{who}: config must be a {cls.__qualname__}, got {type(config).__name__}")
+    return config
+
+
 def parse_value(text: str) -> Any:
     """Parse a command-line value: int, float, bool, comma-free string."""
     low = text.strip().lower()

@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from neumat.core.checks import check_shape
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, sample_weight, upper_hemisphere
 from neumat.core.query import Query, Sample
@@ -92,9 +92,7 @@ class GGXFit(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError("GGXFit: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, 'GGXFit')
         _check_config(cfg)
         self.cfg = cfg
         a = (cfg.init_alpha - cfg.alpha_min) / (cfg.alpha_max - cfg.alpha_min)

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.frames import frame_from_normal_tangent, to_local
 from neumat.core.material import Material, upper_hemisphere
@@ -71,9 +71,7 @@ class GGXMipmap(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError(f"{self.name}: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, self.name)
         for name in ("spatial_size", "max_probes"):
             v = getattr(cfg, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:

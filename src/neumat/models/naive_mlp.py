@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
@@ -52,9 +52,7 @@ class NaiveMLP(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError("NaiveMLP: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, 'NaiveMLP')
         _check_config(cfg)
         self.cfg = cfg
         self.mlp = MLP(6, cfg.hidden, cfg.hidden_layers, 3, cfg.activation)

@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from neumat.core.checks import check_directions
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
@@ -148,9 +148,7 @@ class NeuBRDF(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError("NeuBRDF: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, 'NeuBRDF')
         _check_config(cfg)
         self.cfg = cfg
         self.spatially_varying = cfg.texture_channels > 0

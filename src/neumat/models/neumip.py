@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
@@ -92,9 +92,7 @@ class NeuMIP(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError(f"{self.name}: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(type(self).Config, kwargs)
+        cfg = resolve_config(type(self).Config, config, kwargs, self.name)
         _check_config(cfg, self.name)
         self.cfg = cfg
         ds = cfg.spatial_channels

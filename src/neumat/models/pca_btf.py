@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
@@ -52,9 +52,7 @@ class PCABTF(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError("PCABTF: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, 'PCABTF')
         for name in ("n_light", "n_view", "height", "width", "neighbours"):
             if getattr(cfg, name) < 1:
                 raise InputError(f"PCABTF.{name}: expected a positive integer, got {getattr(cfg, name)!r}")

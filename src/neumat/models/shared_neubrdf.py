@@ -24,7 +24,7 @@ import torch
 from torch import nn
 
 from neumat.core.checks import check_directions, check_shape
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.coords import rusinkiewicz_to_io
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
@@ -112,9 +112,7 @@ class SharedNeuBRDF(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError("SharedNeuBRDF: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, 'SharedNeuBRDF')
         _check_config(cfg)
         self.cfg = cfg
         n, t, k = cfg.nside, cfg.num_materials, cfg.feature_dim

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import nn
 
-from neumat.core.config import config_from_dict
+from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
@@ -103,9 +103,7 @@ class SparseBTF(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        if config is not None and kwargs:
-            raise InputError("SparseBTF: pass either a Config or keyword fields, not both")
-        cfg = config if config is not None else config_from_dict(Config, kwargs)
+        cfg = resolve_config(Config, config, kwargs, 'SparseBTF')
         _check_config(cfg)
         self.cfg = cfg
         p, k, l, v = cfg.patch, cfg.num_dictionaries, cfg.n_light, cfg.n_view
