@@ -25,9 +25,9 @@ def register(app: typer.Typer) -> None:
 def demo(out: Path = typer.Option(Path("out/demo"), "-o", "--out", help="output folder"),
          source: str = typer.Option(None, help="material to fit (default: a shared RGL material, else a "
                                                 "MERL tabulation of an analytic plastic)"),
-         steps: int = typer.Option(1500, min=1, help="training steps"),
-         nside: int = typer.Option(32, min=1, help="HEALPix N_side of the NeuBRDF grids"),
-         spp: int = typer.Option(64, min=1),
+         steps: int = typer.Option(1000, min=1, help="training steps"),
+         nside: int = typer.Option(16, min=1, help="HEALPix N_side of the NeuBRDF grids"),
+         spp: int = typer.Option(32, min=1, help="samples per pixel of the renders"),
          resolution: int = typer.Option(256, min=16),
          device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
          seed: int = typer.Option(0)) -> None:
