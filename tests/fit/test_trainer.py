@@ -55,11 +55,13 @@ def _test_queries(n: int = 20000) -> Query:
                  sample_cosine_hemisphere(torch.rand(n, 2, generator=g)))
 
 
-@pytest.mark.parametrize("features, bound", [("vq", 0.28), ("dense", 0.10)])
+@pytest.mark.parametrize("features, bound", [("vq", 0.28), ("dense", 0.19)])
 def test_neubrdf_fit_reaches_error(features, bound):
     """300 steps of 4096 cosine-weighted queries, log_cos loss, lr 0.03, EMA 0.05; NeuBRDF N_side 8, b 6,
     MLP 2 x 32, on a Lambert + Blinn-Phong lobe. Relative L2 error on held-out cosine-weighted queries,
-    measured (seeds fixed, one thread): vq 0.242, dense 0.074; a constant (the mean) scores 0.69.
+    measured (seeds fixed, one thread): vq 0.254, dense 0.142; a constant (the mean) scores 0.69. (With
+    the earlier ReLU MLP, default output initialisation and index logits at the base learning rate: vq
+    0.238, dense 0.074; ReLU collapsed on dark measured materials, see `neumat.fit.recipes.neubrdf`.)
     Each fit takes about 6 s on one core."""
     torch.manual_seed(0)
     m = NeuBRDF(nside=8, index_bits=6, hidden=32, features=features)
@@ -156,6 +158,18 @@ def test_on_step_hook_and_schedule():
     res = fit(m, Blinn(), recipe, progress=False, callback=lambda r: lrs.append(r["lr"]))
     assert m.calls == [(s, 6) for s in range(6)]
     assert lrs == [0.1, 0.1, 0.05, 0.05, 0.025, 0.025] == [r["lr"] for r in res.history]
+
+
+def test_model_optimizer_and_lr_scale_of_its_groups():
+    """A model's `optimizer` hook is used; a param group's "lr_scale" multiplies the schedule's rate."""
+    m = NeuBRDF(nside=2, index_bits=2, hidden=4)
+    made = []
+    hook = m.optimizer
+    m.optimizer = lambda *a: made.append(hook(*a)) or made[-1]
+    fit(m, Blinn(), Recipe(steps=3, batch_size=16, lr=0.01, lr_decay=0.5, lr_decay_every=2), progress=False)
+    (opt,) = made
+    assert [g["lr"] for g in opt.param_groups] == [0.005, 0.005 * NeuBRDF.index_lr_scale]
+    assert opt.param_groups[1]["params"] == [m.grid.logits] and NeuBRDF.index_lr_scale == 10.0
 
 
 def test_progress_bar_and_default_recipe(monkeypatch):

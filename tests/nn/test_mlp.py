@@ -56,3 +56,16 @@ def test_bad_input_raises():
         MLP(True, 4, 1, 1)
     with pytest.raises(InputError, match="last dimension"):
         MLP(3, 4, 1, 1)(torch.zeros(2, 4))
+
+
+def test_start_constant_outputs_the_value_and_still_trains():
+    torch.manual_seed(0)
+    m = MLP(5, 16, 2, 3, "silu")
+    value = torch.tensor([-1.0, 0.5, 2.0])
+    m.start_constant(value)
+    x = torch.randn(64, 5)
+    torch.testing.assert_close(m(x), value.expand(64, 3))
+    m(x).square().sum().backward()
+    assert m.linears()[-1].weight.grad.abs().sum() > 0  # the zeroed layer gets gradient at once
+    with pytest.raises(InputError, match="start_constant"):
+        m.start_constant(torch.zeros(2))

@@ -7,7 +7,10 @@ model), gradient-norm clipping, checkpoints (model, optimiser, EMA, loss state, 
 number generator states) from which `resume=True` continues bit for bit as if never interrupted.
 
 Models may define `on_step(step, total_steps)` (annealing, freezing); it is called before every step on
-the model and on its EMA copy.
+the model and on its EMA copy. They may also define `init_from_targets(target (N, C))`, called once before
+the first step of a fresh fit (not on resume) with the source's values on one batch of queries drawn with
+seed `recipe.seed + 1`, to start the model at the data's scale, and `optimizer(lr, betas, eps)` to bring
+their own optimiser; the schedule's learning rate is multiplied by a param group's "lr_scale" (default 1).
 """
 from __future__ import annotations
 
@@ -102,10 +105,17 @@ def fit(model: nn.Module, source: Material, recipe: Recipe | None = None, *, ste
     make_optimizer = getattr(model, "optimizer", None)
     opt = (make_optimizer(recipe.lr, tuple(recipe.betas), recipe.eps) if callable(make_optimizer)
            else torch.optim.Adam(params, lr=recipe.lr, betas=tuple(recipe.betas), eps=recipe.eps))
+    resuming = resume and Path(checkpoint).is_file()
+    init = getattr(model, "init_from_targets", None)
+    if callable(init) and not resuming:
+        # a model may set its output scale from the data before the first step (NeuBRDF: see its method)
+        q0 = draw(recipe.batch_size, torch.Generator(device=dev).manual_seed(recipe.seed + 1), dev)
+        with torch.no_grad():
+            init(source.eval(q0).to(dev))
     ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
     gen = torch.Generator(device=dev).manual_seed(recipe.seed)
     state = {"step": 0, "history": [], "seconds": 0.0, "running": torch.zeros((), device=dev)}
-    if resume and Path(checkpoint).is_file():
+    if resuming:
         state = _load_checkpoint(checkpoint, recipe, model, opt, ema, loss_fn, gen)
     total = recipe.steps
     hook = getattr(model, "on_step", None)
@@ -116,7 +126,7 @@ def fit(model: nn.Module, source: Material, recipe: Recipe | None = None, *, ste
         for step in range(state["step"], total):
             lr = learning_rate(recipe, step, total)
             for group in opt.param_groups:
-                group["lr"] = lr
+                group["lr"] = lr * group.get("lr_scale", 1.0)
             if hook is not None:
                 hook(step, total)
                 if ema_hook is not None:

@@ -54,8 +54,8 @@ class Config:
     """Neurons per hidden layer of the shared MLP."""
     hidden_layers: int = 2
     """Hidden layers of the shared MLP."""
-    activation: str = "relu"
-    """Hidden activation of the shared MLP."""
+    activation: str = "silu"
+    """Hidden activation of the shared MLP (SiLU, as NeuBRDF's; see `neumat.models.neubrdf.Config`)."""
     interpolation: str = "idw"
     """Corner weights: "idw" (inverse great-circle distance, training) or "uniform" (1/4, runtime)."""
 
@@ -181,6 +181,13 @@ class SharedNeuBRDF(nn.Module, Material):
         f = torch.exp(self.mlp(x))
         f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
         return f.to(q.dtype)
+
+    @torch.no_grad()
+    def init_from_targets(self, target: torch.Tensor) -> None:
+        """Trainer hook: start at the per-channel median of `target` (N, 3) (all materials), as NeuBRDF."""
+        if target.ndim != 2 or target.shape[1] != 3:
+            raise InputError(f"SharedNeuBRDF.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
+        self.mlp.start_constant(target.median(0).values.clamp(min=1e-4).log())
 
     def eval_material(self, i: int, q: Query) -> torch.Tensor:
         """BRDF value (N, 3) of material i at the plain query q."""

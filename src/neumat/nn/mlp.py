@@ -61,6 +61,17 @@ class MLP(nn.Module):
             raise InputError(f"MLP input: expected last dimension {self.dims[0]}, got {tuple(x.shape)}")
         return self.net(x)
 
+    @torch.no_grad()
+    def start_constant(self, value: torch.Tensor) -> None:
+        """Make the network output the constant `value` (out_dim,) before its out_activation: last layer
+        weights 0, biases `value` (gradients still reach every layer after the first step)."""
+        last = self.linears()[-1]
+        if value.shape != last.bias.shape:
+            raise InputError(f"MLP.start_constant: expected a value of shape {tuple(last.bias.shape)}, "
+                             f"got {tuple(value.shape)}")
+        last.weight.zero_()
+        last.bias.copy_(value.to(last.bias))
+
     def linears(self) -> list[nn.Linear]:
         """The linear layers, input to output."""
         return [m for m in self.net if isinstance(m, nn.Linear)]

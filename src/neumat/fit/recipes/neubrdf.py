@@ -23,6 +23,22 @@ do not have; the values below are therefore ours, each with its reason:
 Positivity and dynamic range are handled by the model, not the recipe: the MLP predicts log f and the
 model returns exp(.) (positive, smooth gradients in log space), 0 below the horizon.
 
+Collapse on dark measured materials, and the two model defaults that prevent it. With a ReLU MLP and the
+default initialisation (outputs near exp(0) = 1), the fit of RGL cc_ibiza_sunset (a dark paint under a
+clear coat: per-channel medians 0.009 / 0.0035 / 0.001, 12 % of the measured values negative) died within
+15 steps: every ReLU unit of the second hidden layer stopped firing and the output fell to ~1e-7, where the
+log_cos gradient (prop. to f) vanishes; the loss stayed at the all-zero value 0.034. Not the cause: the
+learning rate (3e-3 collapsed too), negative targets (clamping them changed nothing), the VQ codebook
+(dense collapsed too), a learning-rate warm-up (100 or 300 steps). What fixes it (N_side 16, 300 steps of
+2^14 replaying 2^18 measured samples, log_cos error on held-out queries; all-zero output 0.0320):
+  - ReLU as before: 0.0320 (collapsed); ReLU + start at the median: 0.0207 on cc_ibiza_sunset, but one
+    channel of cc_iris_purple_gem still collapsed and paper_white stalled at a constant (0.0099);
+  - SiLU (`Config.activation`) + start at the median (`NeuBRDF.init_from_targets`, called by the trainer
+    with the targets of one batch): 0.0180 on cc_ibiza_sunset, 0.0180 on cc_iris_purple_gem (all-zero
+    0.0249), 0.0040 on paper_white (0.0086 with ReLU at the same budget): the defaults;
+  - NBRDF's output max(e^x - 1, 0) instead of exp, which keeps the log_cos gradient from vanishing: its
+    clamp killed channels instead (0.0310).
+
 CPU budget (benchmarks/neubrdf_speed.py; one thread, batch 8192, k 16, b 9, MLP 2 x 64, CPU seconds per
 step on a shared, loaded 2-core machine): "vq" 0.054 / 0.12 / 0.43 s at N_side 16 / 32 / 64 (0.43 s was
 1.07 s before the unique-slot straight-through and the lazy row-wise Adam of `NeuBRDF.optimizer`, which
