@@ -8,8 +8,7 @@ import typer
 
 from .common import console, print_table, run_command
 
-#: RGL material fitted by default when the reference data is present (NeuBRDF currently collapses to a zero
-#: output on cc_ibiza_sunset_rgb; see the BRDF benchmark)
+#: RGL material fitted by default when the reference data is present
 DEFAULT_RGL = "rgl/paper_white_rgb.bsdf"
 #: environment map of the demo renders when the reference data is present (else the procedural sky)
 DEFAULT_ENV = "envmap/studio_small_03_1k.hdr"
