@@ -41,10 +41,11 @@ class Config:
     """Neurons per hidden MLP layer."""
     hidden_layers: int = 2
     """Number of hidden MLP layers."""
-    activation: str = "silu"
-    """Hidden activation of the MLP (the paper does not name one). SiLU, not ReLU: at the recipe's learning
-    rate 1e-2, ReLU units of the second layer died within a few hundred steps on dark measured materials
-    (all 64 on RGL cc_ibiza_sunset: the model became constant); see `neumat.fit.recipes.neubrdf`."""
+    activation: str = "leaky_relu"
+    """Hidden activation of the MLP (the paper does not name one). Leaky ReLU (slope 0.01), not ReLU: at the
+    recipe's learning rate 1e-2, ReLU units of the second layer died within a few hundred steps on dark
+    measured materials (all 64 on RGL cc_ibiza_sunset: the model became constant); SiLU fits as well but
+    evaluates ~30 % slower. See `neumat.fit.recipes.neubrdf`."""
     features: str = "vq"
     """Vertex feature storage: "vq" (codebook indices, the paper), "dense" (floats per vertex) or
     "lowbit" (per-vertex features quantised to `lowbit_bits` bits); the last two are the Table 4 ablations."""

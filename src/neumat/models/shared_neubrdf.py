@@ -54,8 +54,8 @@ class Config:
     """Neurons per hidden layer of the shared MLP."""
     hidden_layers: int = 2
     """Hidden layers of the shared MLP."""
-    activation: str = "silu"
-    """Hidden activation of the shared MLP (SiLU, as NeuBRDF's; see `neumat.models.neubrdf.Config`)."""
+    activation: str = "leaky_relu"
+    """Hidden activation of the shared MLP (as NeuBRDF's; see `neumat.models.neubrdf.Config`)."""
     interpolation: str = "idw"
     """Corner weights: "idw" (inverse great-circle distance, training) or "uniform" (1/4, runtime)."""
 

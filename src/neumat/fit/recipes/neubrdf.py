@@ -33,11 +33,16 @@ learning rate (3e-3 collapsed too), negative targets (clamping them changed noth
 2^14 replaying 2^18 measured samples, log_cos error on held-out queries; all-zero output 0.0320):
   - ReLU as before: 0.0320 (collapsed); ReLU + start at the median: 0.0207 on cc_ibiza_sunset, but one
     channel of cc_iris_purple_gem still collapsed and paper_white stalled at a constant (0.0099);
-  - SiLU (`Config.activation`) + start at the median (`NeuBRDF.init_from_targets`, called by the trainer
-    with the targets of one batch): 0.0180 on cc_ibiza_sunset, 0.0180 on cc_iris_purple_gem (all-zero
-    0.0249), 0.0040 on paper_white (0.0086 with ReLU at the same budget): the defaults;
+  - SiLU + start at the median (`NeuBRDF.init_from_targets`, called by the trainer with the targets of
+    one batch): 0.0180 on cc_ibiza_sunset, 0.0180 on cc_iris_purple_gem (all-zero 0.0249), 0.0040 on
+    paper_white (0.0086 with ReLU at the same budget); leaky ReLU + start at the median: 0.0202 on
+    cc_ibiza_sunset, no collapse;
   - NBRDF's output max(e^x - 1, 0) instead of exp, which keeps the log_cos gradient from vanishing: its
     clamp killed channels instead (0.0310).
+The defaults are leaky ReLU (`Config.activation`) and the start at the median: at 1000 steps (index
+logits at 10x the rate, `NeuBRDF.index_lr_scale`) leaky ReLU and SiLU fit equally well (vch_golden_yellow
+0.0095 / 0.0102, cc_iris_purple_gem 0.0091 / 0.0087), and leaky ReLU evaluates ~30 % faster (runtime mode,
+one thread: 2.4-2.8e6 vs 1.8-1.9e6 evaluations per CPU second).
 
 CPU budget (benchmarks/neubrdf_speed.py; one thread, batch 8192, k 16, b 9, MLP 2 x 64, CPU seconds per
 step on a shared, loaded 2-core machine): "vq" 0.054 / 0.12 / 0.43 s at N_side 16 / 32 / 64 (0.43 s was
