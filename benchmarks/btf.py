@@ -5,8 +5,11 @@ reconstruction throughput (CPU, and CUDA when available), coefficient- vs value-
     python benchmarks/btf.py --size 40 --dirs rings:3x30 --patch 10 --dictionaries 4 --iterations 10
     python benchmarks/btf.py --shared ../shared/data/svbrdf   # generated from the real PBR sets
     python benchmarks/btf.py --render              # also renders a BTF-textured plane and bunny (PNGs)
+    python benchmarks/btf.py --train-seeds 6 --train-shared ../shared/data/svbrdf --tiles 2 --dictionaries 8
+                                                   # a larger training set (benchmarks/results/btf_vs_pca.md)
 
-Training set: the first two materials; test set: the others (never seen in training).
+Training set: the first two materials (with --train-seeds S also their layouts from seeds 2..S, with
+--train-shared also tiles of real PBR sets); test set: the others (never seen in training).
 MSE is reported on linear RGB (the BTF values) and in the log-YUV space the models code (log(x + eps), before
 the per-image standardisation). PCA gets the same per-BTF bytes as SparseBTF's codes plus statistics, and is
 charged for its bases and means ("PCA"); "PCA paper" is charged only its per-texel coefficients, as the
@@ -27,7 +30,11 @@ from neumat.models.pca_btf import PCABTF, ranks_for_bytes
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
-from neumat.reflectance.btf_generate import generate_btf, procedural_texture_set, texture_tile
+from neumat.reflectance.btf_generate import (
+    generate_btf,
+    procedural_texture_set,
+    texture_tile,
+)
 
 
 def table(title, rows):
@@ -51,6 +58,28 @@ def materials(args, dirs):
     kinds = ["bumps", "weave", "bricks", "dents", "ridges"]
     return {k: generate_btf(procedural_texture_set(k, args.size, seed=1), dirs, dirs, relief=args.relief * 4,
                             spp=args.spp) for k in kinds}
+
+
+def extra_training_btfs(args, dirs, kinds: list[str]) -> dict:
+    """More training BTFs (args.train_size texels, default args.size): the procedural `kinds` with seeds
+    2..args.train_seeds, and args.tiles tiles of every PBR set in args.train_shared (relief x
+    args.shared_relief). Test materials stay unseen."""
+    out, size = {}, args.train_size or args.size
+    for seed in range(2, args.train_seeds + 1):
+        for k in kinds:
+            out[f"{k}#{seed}"] = generate_btf(procedural_texture_set(k, size, seed=seed), dirs, dirs,
+                                              relief=args.relief * 4, spp=args.spp)
+    if args.train_shared:
+        from neumat.io.texture_set import load_texture_set
+        for folder in sorted(Path(args.train_shared).iterdir()):
+            ts = load_texture_set(folder)
+            crop = min(256, *ts.size)
+            for i in range(args.tiles):
+                at = i * crop % max(1, min(ts.size) - crop + 1)
+                tile, relief = texture_tile(ts, size, crop=crop, row=at, col=at)
+                out[f"{ts.name}#{i}"] = generate_btf(tile, dirs, dirs, relief=relief * args.shared_relief,
+                                                     spp=args.spp)
+    return out
 
 
 def log_mse(reference, test, eps: float) -> float:
@@ -136,6 +165,15 @@ def main():
     ap.add_argument("--relief", type=float, default=1.0)
     ap.add_argument("--queries", type=int, default=1 << 15)
     ap.add_argument("--shared", default="")
+    ap.add_argument("--train-seeds", type=int, default=1,
+                    help="also train on the two training kinds generated with seeds 2..S")
+    ap.add_argument("--train-shared", default="", help="also train on tiles of the PBR sets in this folder")
+    ap.add_argument("--tiles", type=int, default=1, help="tiles per PBR set for --train-shared")
+    ap.add_argument("--shared-relief", type=float, default=8.0, help="relief multiplier of --train-shared tiles")
+    ap.add_argument("--train-size", type=int, default=0,
+                    help="texels of the extra training BTFs (default --size; a dictionary fits any size)")
+    ap.add_argument("--sample-fraction", type=float, default=1.0, help="fraction of training data points used")
+    ap.add_argument("--mults", default="1,2,4,8,16", help="tau_t = tau_l times these")
     ap.add_argument("--render", action="store_true", help="render a plane and the bunny (benchmarks/results/)")
     ap.add_argument("--render-spp", type=int, default=16)
     ap.add_argument("--render-size", type=int, default=128)
@@ -148,18 +186,24 @@ def main():
     gen_s = time.perf_counter() - t
     names = list(btfs)
     train, test = names[:2], names[2:]
+    extra = extra_training_btfs(args, dirs, train)
+    btfs.update(extra)
+    train += list(extra)
+    gen_s = time.perf_counter() - t
     t = time.perf_counter()
     dic = train_dictionary([btfs[k] for k in train], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                           progress=True)
+                           sample_fraction=args.sample_fraction, progress=True)
     train_s = time.perf_counter() - t
-    print(f"{len(names)} BTFs of {args.size}x{args.size} texels x {dirs.shape[0]}x{dirs.shape[0]} directions "
+    print(f"{len(btfs)} BTFs of {args.size}x{args.size} texels (extra training BTFs "
+          f"{args.train_size or args.size}x{args.train_size or args.size}) x {dirs.shape[0]}x{dirs.shape[0]} directions "
           f"generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, tau_l={tau_l}, patch {args.patch}) "
-          f"trained on {train} in {train_s:.1f} s ({torch.get_num_threads()} threads; the paper: 101 h on 128 "
-          f"cores); iterations {dic.info['iterations']}")
+          f"trained on {train} ({dic.info['points']} data points per channel) in {train_s:.1f} s "
+          f"({torch.get_num_threads()} threads; the paper: 101 h on 128 cores); iterations {dic.info['iterations']}")
 
     rows, models = [], {}
+    mults = [int(m) for m in args.mults.split(",")]
     for name in test:
-        for mult in (1, 2, 4, 8, 16):
+        for mult in mults:
             tau = tuple(t * mult for t in tau_l)
             t = time.perf_counter()
             sp = SparseBTF.encode(btfs[name], dic, tau)
@@ -187,16 +231,19 @@ def main():
         name = test[0]
         # the SparseBTF is rendered from its decoded table (equal to its value-space eval; the coefficient-space
         # path runs at the throughput in the last table, too slow for figures on CPU)
-        figure_models = {"reference": btfs[name], "sparse-btf": models[(name, 4)].decode()}
-        st = models[(name, 4)].storage()
+        fig_mult = 4 if 4 in mults else mults[-1]
+        fig = models[(name, fig_mult)]
+        figure_models = {"reference": btfs[name], "sparse-btf": fig.decode()}
+        st = fig.storage()
         figure_models["pca"] = PCABTF.fit(btfs[name], ranks_for_bytes(st["per_btf"], dirs.shape[0], dirs.shape[0],
                                                                       args.size, args.size,
-                                                                      split=models[(name, 4)].cfg.tau))
+                                                                      split=fig.cfg.tau))
         out = Path(__file__).parent / "results"
-        table(f"renders of {name} (tau x4, equal per-BTF bytes) under studio_small_03, {args.render_spp} spp, "
+        table(f"renders of {name} (tau x{fig_mult}, equal per-BTF bytes) under studio_small_03, {args.render_spp} spp, "
               f"written to {out}", render_figures(figure_models, out, args.render_spp, args.render_size))
 
-    sp = models[(test[0], 2)]
+    speed_mult = 2 if 2 in mults else mults[0]
+    sp = models[(test[0], speed_mult)]
     dev_rows = []
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     for device in devices:
@@ -211,7 +258,7 @@ def main():
         table_btf = type(decoded)(decoded.data.to(device), decoded.light_dirs, decoded.view_dirs)
         dev_rows.append({"device": device, "angular interpolation": "decoded full table (TabulatedBTF)",
                          "evals / s": throughput(table_btf, args.queries, device)})
-    table(f"reconstruction throughput ({test[0]}, tau x2, 4 texels x 3x3 direction bins per query)", dev_rows)
+    table(f"reconstruction throughput ({test[0]}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)", dev_rows)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,12 @@ import torch
 
 from neumat import InputError
 from neumat.io.texture_set import TextureSet
-from neumat.reflectance.btf_generate import generate_btf, lambert_shader, procedural_texture_set
+from neumat.reflectance.btf_generate import (
+    elevation_groups,
+    generate_btf,
+    lambert_shader,
+    procedural_texture_set,
+)
 from neumat.reflectance.heightfield import HeightField
 
 SIZE = 24
@@ -74,6 +79,28 @@ def test_generated_btf_of_a_procedural_set_is_finite_and_positive():
     btf = generate_btf(procedural_texture_set("bumps", 8), d, d, relief=2.0, spp=1)
     assert btf.data.shape == (7, 7, 8, 8, 3)
     assert bool(torch.isfinite(btf.data).all()) and float(btf.data.min()) >= 0 and float(btf.data.max()) > 0
+
+
+def test_lights_generated_together_equal_each_light_alone():
+    """The generator shades and shadow-marches all lights of one elevation at once; every light must give
+    what it gives alone (same march steps), with cast shadows and a metal BRDF."""
+    from neumat.reflectance.btf import direction_set
+    d = direction_set("rings:3x30")
+    ts = procedural_texture_set("dents", 10, seed=1)
+    together = generate_btf(ts, d, d[:3], relief=4.0, spp=4).data
+    for l in (0, 5, 16):
+        alone = generate_btf(ts, d[l:l + 1], d[:3], relief=4.0, spp=4).data
+        torch.testing.assert_close(together[l:l + 1], alone, rtol=1e-6, atol=1e-7)
+
+
+def test_elevation_groups_cover_every_direction_once_by_ring():
+    from neumat.reflectance.btf import direction_set
+    d = direction_set("hemi151")
+    groups = elevation_groups(d, per_direction=100, max_points=2000)       # at most 20 directions per group
+    flat = torch.cat(groups)
+    assert sorted(flat.tolist()) == list(range(151))
+    assert all(len(g) <= 20 and float(d[g, 2].max() - d[g, 2].min()) < 1e-6 for g in groups)
+    assert len(elevation_groups(d, per_direction=100)) == 6                 # one group per ring
 
 
 def test_bad_generator_input():

@@ -5,7 +5,8 @@ each (sub-)pixel ray arriving along -wo is marched to its first intersection wit
 (parallax and masking). For every light direction the hit point is lit by a directional light of unit
 irradiance perpendicular to it, with cast shadows (a second march towards wi), and shaded with the
 principled BRDF of the texture maps at the hit point in the frame of the local surface normal. Direct light
-only: inter-reflections between surface bumps are ignored.
+only: inter-reflections between surface bumps are ignored. The lights of one elevation are shaded and
+shadow-marched together (`elevation_groups`; the march takes the same steps as for each light alone).
 
 Stored value: apparent BRDF = outgoing radiance / cos(theta_light) of the macro surface (cosine excluded,
 like every neumat BRDF), see `neumat.reflectance.btf`.
@@ -84,6 +85,7 @@ def generate_btf(textures: TextureSet, light_dirs: torch.Tensor, view_dirs: torc
     ld = light_dirs.to(device, torch.float32)
     vd = view_dirs.to(device, torch.float32)
     out = torch.zeros(ld.shape[0], vd.shape[0], h, w, 3, device=device)
+    light_groups = elevation_groups(ld, s0.shape[0])
     views = range(vd.shape[0])
     if progress:
         from rich.progress import track
@@ -97,15 +99,31 @@ def generate_btf(textures: TextureSet, light_dirs: torch.Tensor, view_dirs: torc
         tangent, bitangent = _frame(n)
         to_local = torch.stack([tangent, bitangent, n], 1)              # (N, 3, 3) rows = frame axes
         wo_local = (to_local @ wo[:, :, None])[..., 0]
-        for l in range(ld.shape[0]):
-            wi = ld[l].expand_as(wo)
-            wi_local = (to_local @ wi[:, :, None])[..., 0]
-            f = shader(wi_local, wo_local, color, metal, rough)
+        for group in light_groups:
+            k = group.numel()
+            wi = ld[group][:, None, :].expand(k, s0.shape[0], 3).reshape(-1, 3)     # (k N, 3), light-major
+            wi_local = (to_local.repeat(k, 1, 1) @ wi[:, :, None])[..., 0]
+            f = shader(wi_local, wo_local.repeat(k, 1), color.repeat(k, 1), metal.repeat(k), rough.repeat(k))
             radiance = f * wi_local[:, 2:3].clamp(min=0)
             if shadows:
-                radiance = radiance * field.visible(p, wi).to(radiance.dtype)[:, None]
-            out[l, v] = (radiance / ld[l, 2]).reshape(h, w, spp, 3).mean(2)
+                radiance = radiance * field.visible(p.repeat(k, 1), wi).to(radiance.dtype)[:, None]
+            radiance = radiance.reshape(k, h * w, spp, 3).mean(2) / ld[group, 2][:, None, None]
+            out[group, v] = radiance.reshape(k, h, w, 3)
     return TabulatedBTF(out, ld, vd, label=label or tex.name)
+
+
+def elevation_groups(dirs: torch.Tensor, per_direction: int, max_points: int = 1 << 20) -> list[torch.Tensor]:
+    """Indices of the directions `dirs` (D, 3) grouped by equal elevation (z within 1e-6), each group cut
+    into chunks of at most max(1, max_points // per_direction) directions. A shadow march of a group takes
+    the same steps as that of each of its directions alone: its step count depends on the elevation only."""
+    z = dirs[:, 2]
+    order = torch.argsort(z)
+    cut = torch.nonzero(z[order].diff().abs() > 1e-6).flatten() + 1
+    chunk = max(1, max_points // max(per_direction, 1))
+    groups = []
+    for ring in torch.tensor_split(order, cut.tolist()):
+        groups.extend(ring.split(chunk))
+    return groups
 
 
 def texture_tile(textures: TextureSet, size: int, crop: int | None = None, row: int = 0, col: int = 0
