@@ -7,12 +7,18 @@ For each (model, material): fit with the model's recipe (`--steps` overrides the
     light (environment) sampling with the same seed, so they share their sample directions and the
     difference measures the BRDFs, not Monte Carlo noise; the exposure maps the reference's 99th
     percentile to 1,
-  - stored bytes (fp16), fit time, evaluations per second (no_grad, batches of 2^16 queries).
+  - FLOPs per evaluation (`neumat.metrics.flops.model_flops`), stored bytes (fp16), fit time, evaluations
+    per second (no_grad, batches of 2^16 queries).
 Prints rich tables (per pair, per model averaged over materials) beside the NeuBRDF paper's Table 3 (MERL
 averages, image metrics following NBRDF), and writes them as Markdown (`--out`).
 
+`--table4`: the homogeneous-BRDF comparison of Timonen et al. 2025 (Tables 3 and 4): the four FLOP-matched
+"-t4" models (naive MLP, NBRDF, tripleplane, the gated model) on the shared RGL materials, with the paper's
+numbers beside ours (written to benchmarks/results/brdf_table4_rgl.md).
+
     python benchmarks/brdf.py --quick
     python benchmarks/brdf.py --models neubrdf,nbrdf --materials paper_white_rgb,plastic --steps 5000
+    python benchmarks/brdf.py --table4 --pool 262144 --batch-cap 8192 --steps 6000,nbrdf-t4=20000
 """
 from __future__ import annotations
 
@@ -31,9 +37,11 @@ from rich.table import Table
 from neumat.core.query import Query
 from neumat.fit.measured_samples import MeasuredSamples
 from neumat.fit.recipe import recipe_for
+from neumat.fit.recipes.multiscale import HOMOGENEOUS_RECIPE
 from neumat.fit.trainer import fit
 from neumat.io.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
+from neumat.metrics.flops import model_flops
 from neumat.metrics.hdr import cosine_queries, reflectance_errors
 from neumat.metrics.image import image_metrics
 from neumat.models.registry import model_class
@@ -48,7 +56,32 @@ MODELS = {
     "naive-mlp": ("naive-mlp", {}),
     "nbrdf": ("nbrdf", {}),
     "ggx": ("ggx", {}),
+    # Timonen et al. 2025, Table 3: homogeneous models at ~800-900 FLOPs per evaluation (our analytic count),
+    # SiLU hidden layers and an exponential output (their Sec. 5 standardisation)
+    "naive-mlp-t4": ("naive-mlp", {"hidden": 16, "hidden_layers": 2, "activation": "silu"}),
+    "nbrdf-t4": ("nbrdf", {"hidden": 16, "hidden_layers": 2, "activation": "silu", "output": "exp"}),
+    # 8-channel 16 x 48 angular textures as the gated model; the warps' FLOPs go to a wider MLP (16 -> 17 -> 3)
+    "tripleplane-t4": ("tripleplane", {"homogeneous": True, "half_channels": 8, "diff_channels": 8,
+                                        "angular_phi": 48, "hidden": 17, "hidden_layers": 1}),
+    "multiscale-t4": ("multiscale", {"homogeneous": True, "angular_phi": 48}),
 }
+
+#: benchmark model name -> recipe, where it is not the registry model's default `RECIPE`
+RECIPES = {"tripleplane-t4": HOMOGENEOUS_RECIPE, "multiscale-t4": HOMOGENEOUS_RECIPE}
+
+#: --table4: Timonen et al. 2025 Tables 3 and 4 row -> our model; paper (FLOPs, total kB fp32) and
+#: (SSIM, FLIP, RMSE, MAE, RMSE-HDR, MAE-HDR) over 30 MERL / RGL materials
+TABLE4_MODELS = {"Naive MLP": "naive-mlp-t4", "NBRDF [SRRW21]": "nbrdf-t4", "Tripleplane [XMWY24]": "tripleplane-t4",
+                 "Ours (gated)": "multiscale-t4"}
+PAPER_MS_TABLE3 = {"Naive MLP": (831, 2.70), "NBRDF [SRRW21]": (791, 2.25), "Tripleplane [XMWY24]": (888, 50.9),
+                   "Ours (gated)": (842, 50.6)}
+PAPER_MS_TABLE4 = {
+    "Naive MLP": (0.9928, 0.0184, 0.0055, 0.0024, 1.0743, 0.0024),
+    "NBRDF [SRRW21]": (0.9939, 0.0158, 0.0044, 0.0020, 0.6534, 0.0020),
+    "Tripleplane [XMWY24]": (0.9974, 0.0104, 0.0029, 0.0012, 0.8144, 0.0012),
+    "Ours (gated)": (0.9972, 0.0107, 0.0028, 0.0012, 0.4801, 0.0012),
+}
+TABLE4_OUT = "benchmarks/results/brdf_table4_rgl.md"
 
 #: analytic materials (spec strings) beside the measured RGL files
 ANALYTIC = {
@@ -76,7 +109,29 @@ FULL = {"steps": None, "batch_cap": None, "no_ema": False, "nside": None, "hdr_n
 #: replaying them (measured sources are slow to evaluate online); 0 = online targets
 DEFAULT_POOL = 0
 
-COLUMNS = ["rmse_hdr", "mae_hdr", "img_mae", "img_rmse", "img_ssim", "img_flip", "bytes_fp16", "fit_s", "evals_per_s"]
+COLUMNS = ["rmse_hdr", "mae_hdr", "img_mae", "img_rmse", "img_ssim", "img_flip", "flops", "bytes_fp16", "fit_s",
+           "evals_per_s"]
+#: averaged per model beside COLUMNS, not shown in the generic tables
+EXTRA = ["bytes_fp32"]
+
+
+def parse_steps(text: str) -> tuple[int | None, dict[str, int]]:
+    """`--steps`: "6000" (every model) or "6000,nbrdf-t4=20000" (per-model overrides, default optional)
+    -> (default or None, {model: steps})."""
+    default, per_model = None, {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        name, _, value = part.rpartition("=")
+        try:
+            steps = int(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--steps: expected N or MODEL=N, got {part!r}") from None
+        if steps < 0:
+            raise argparse.ArgumentTypeError(f"--steps: expected a step count >= 0, got {part!r}")
+        if name:
+            per_model[name] = steps
+        else:
+            default = steps
+    return default, per_model
 
 
 def available_materials(data: Path | None) -> dict[str, str]:
@@ -120,23 +175,30 @@ def sphere_image(material, light: str, settings: dict, device) -> np.ndarray:
 
 def run(args) -> tuple[list[dict], dict]:
     settings = dict(QUICK if args.quick else FULL)
-    for key in ("steps", "nside", "pool", "resolution", "spp"):
+    for key in ("nside", "pool", "resolution", "spp", "batch_cap"):
         if getattr(args, key) is not None:
             settings[key] = getattr(args, key)
+    default_steps, model_steps = args.steps if args.steps is not None else (None, {})
+    if default_steps is not None:
+        settings["steps"] = default_steps
+    if model_steps:
+        settings["model_steps"] = model_steps
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     data = shared_data_dir()
     known = available_materials(data)
-    names = args.materials.split(",") if args.materials else (settings["materials"] or list(known))
+    rgl = [m for m, spec in known.items() if spec.endswith(".bsdf")]
+    default_materials = rgl if args.table4 else (settings["materials"] or list(known))
+    names = args.materials.split(",") if args.materials else default_materials
     unknown = [m for m in names if m not in known]
     if unknown:
         sys.exit(f"unknown material(s) {', '.join(unknown)}; known: {', '.join(known)}")
-    models = args.models.split(",") if args.models else list(MODELS)
-    bad = [m for m in models if m not in MODELS]
+    models = args.models.split(",") if args.models else list(TABLE4_MODELS.values() if args.table4 else MODELS)
+    bad = [m for m in [*models, *model_steps] if m not in MODELS]
     if bad:
         sys.exit(f"unknown model(s) {', '.join(bad)}; known: {', '.join(MODELS)}")
     envmap = Path(args.envmap) if args.envmap else (data / "envmap" / "studio_small_03_1k.hdr" if data else None)
     light = f"env:{envmap}" if envmap is not None and envmap.is_file() else "env:sky"
-    settings.update(device=str(device), light=light)
+    settings.update(materials=names, device=str(device), light=light)
     console = Console(stderr=True)
     rows = []
     for mat_name in names:
@@ -150,12 +212,12 @@ def run(args) -> tuple[list[dict], dict]:
         for model_name in models:
             torch.manual_seed(0)
             model, registry = build_model(model_name, settings["nside"])
-            recipe = recipe_for(registry)
+            recipe = replace(RECIPES[model_name]) if model_name in RECIPES else recipe_for(registry)
             if settings["batch_cap"]:
                 recipe = replace(recipe, batch_size=min(recipe.batch_size, settings["batch_cap"]))
             if settings["no_ema"]:  # an EMA of weight 0.01 would still hold ~20 % of the initial weights
                 recipe = replace(recipe, ema=0.0)
-            steps = settings["steps"] or recipe.steps
+            steps = model_steps.get(model_name, settings["steps"] or recipe.steps)
             console.print(f"[bold]{model_name}[/] on {mat_name}: {steps} steps of {recipe.batch_size}")
             result = fit(model, train_source, recipe, steps=steps, device=device, progress=not args.no_progress,
                          queries=queries)
@@ -165,8 +227,10 @@ def run(args) -> tuple[list[dict], dict]:
             img = image_metrics(ref_img, sphere_image(model, light, settings, device), exposure=exposure)
             rows.append({"model": model_name, "material": mat_name, "rmse_hdr": hdr["rmse_hdr"],
                          "mae_hdr": hdr["mae_hdr"], "img_mae": img["mae"], "img_rmse": img["rmse"],
-                         "img_ssim": img["ssim"], "img_flip": img["flip"], "bytes_fp16": model.size_bytes("fp16"),
-                         "fit_s": result.seconds, "evals_per_s": evals_per_second(model, device), "steps": steps})
+                         "img_ssim": img["ssim"], "img_flip": img["flip"], "flops": model_flops(model),
+                         "bytes_fp16": model.size_bytes("fp16"), "bytes_fp32": model.size_bytes("fp32"),
+                         "fit_s": result.seconds, "evals_per_s": evals_per_second(model, device), "steps": steps,
+                         "batch": recipe.batch_size})
     return rows, settings
 
 
@@ -175,15 +239,15 @@ def averages(rows: list[dict]) -> list[dict]:
     for model in dict.fromkeys(r["model"] for r in rows):
         mine = [r for r in rows if r["model"] == model]
         out.append({"model": model, "material": f"mean of {len(mine)}",
-                    **{c: float(np.mean([r[c] for r in mine])) for c in COLUMNS}})
+                    **{c: float(np.mean([r[c] for r in mine])) for c in COLUMNS + EXTRA}})
     return out
 
 
 def fmt(column: str, value) -> str:
     if isinstance(value, str):
         return value
-    if column == "bytes_fp16":
-        return f"{int(value):,}"
+    if column in ("bytes_fp16", "flops"):
+        return f"{round(value):,}"
     if column == "evals_per_s":
         return f"{value:.3g}"
     if column == "fit_s":
@@ -191,22 +255,45 @@ def fmt(column: str, value) -> str:
     return f"{value:.4f}"
 
 
-def tables(rows: list[dict]) -> list[tuple[str, list[str], list[list[str]]]]:
+def table4(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """Timonen et al. 2025 Tables 3 + 4 layout: per method the paper's row, then ours (mean over materials)."""
+    head = ["method", "source", "FLOPs", "kB fp32", "SSIM", "FLIP", "RMSE", "MAE", "RMSE-HDR", "MAE-HDR"]
+    ours = {r["model"]: r for r in averages(rows)}
+    body = []
+    for method, model in TABLE4_MODELS.items():
+        flops, kb = PAPER_MS_TABLE3[method]
+        body.append([method, "paper (30 MERL/RGL)", f"{flops:,}", f"{kb:.2f}"] +
+                    [f"{v:.4f}" for v in PAPER_MS_TABLE4[method]])
+        if model in ours:
+            r = ours[model]
+            body.append([method, f"ours: {model}, {r['material']} RGL", fmt("flops", r["flops"]),
+                         f"{r['bytes_fp32'] / 1000:.2f}"] +
+                        [f"{r[c]:.4f}" for c in ("img_ssim", "img_flip", "img_rmse", "img_mae", "rmse_hdr", "mae_hdr")])
+    return head, body
+
+
+def tables(rows: list[dict], with_table4: bool = False) -> list[tuple[str, list[str], list[list[str]]]]:
     head = ["model", "material"] + COLUMNS
     per_pair = [[fmt(c, r[c]) for c in head] for r in rows]
     mean = [[fmt(c, r[c]) for c in head] for r in averages(rows)]
+    out = [("Per model and material", head, per_pair), ("Per model, averaged over materials", head, mean)]
+    if with_table4:
+        return [("Timonen et al. 2025 Tables 3 and 4: paper vs ours", *table4(rows))] + out
     paper = [[name, f"{mae:.4f}", f"{rmse:.4f}", f"{ssim:.3f}"] for name, (mae, rmse, ssim) in PAPER_TABLE3.items()]
-    return [("Per model and material", head, per_pair), ("Per model, averaged over materials", head, mean),
-            ("Reference: NeuBRDF paper Table 3 (MERL, image MAE / RMSE / SSIM)", ["method", "MAE", "RMSE", "SSIM"],
-             paper)]
+    return out + [("Reference: NeuBRDF paper Table 3 (MERL, image MAE / RMSE / SSIM)", ["method", "MAE", "RMSE", "SSIM"],
+                   paper)]
 
 
-def markdown(rows: list[dict], settings: dict) -> str:
-    lines = ["# BRDF benchmark", "", "Settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()), "",
-             "rmse_hdr / mae_hdr: reflectance-space errors over cosine-weighted configurations; img_*: sphere "
-             "under the environment map vs the reference's rendering (tone-mapped sRGB, FLIP mean); bytes at fp16; "
-             "evals_per_s: model.eval throughput (no_grad, 2^16 queries).", ""]
-    for title, head, body in tables(rows):
+def markdown(rows: list[dict], settings: dict, with_table4: bool = False) -> str:
+    legend = ("rmse_hdr / mae_hdr: reflectance-space errors over cosine-weighted configurations; img_*: sphere "
+              "under the environment map vs the reference's rendering (tone-mapped sRGB, FLIP mean); bytes at fp16; "
+              "evals_per_s: model.eval throughput (no_grad, 2^16 queries); flops: model_flops (analytic, per "
+              "evaluation).")
+    lines = ["# BRDF benchmark", "", "Settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()), "", legend,
+             ""]
+    fits = dict.fromkeys(f"{r['model']}: {r['steps']} steps x {r['batch']}" for r in rows)
+    lines += ["Fits: " + "; ".join(fits), ""]
+    for title, head, body in tables(rows, with_table4):
         lines += [f"## {title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(r) + " |" for r in body]
         lines.append("")
@@ -215,7 +302,10 @@ def markdown(rows: list[dict], settings: dict) -> str:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--steps", type=int, default=None, help="fit steps per model (default: each recipe's)")
+    p.add_argument("--steps", type=parse_steps, default=None,
+                   help="fit steps: N for every model, and/or MODEL=N overrides, comma-separated "
+                        "(default: each recipe's)")
+    p.add_argument("--batch-cap", type=int, default=None, help="cap every recipe's batch size (CPU budgets)")
     p.add_argument("--nside", type=int, default=None, help="N_side of the NeuBRDF variants (default: the paper's 64)")
     p.add_argument("--pool", type=int, default=None,
                    help="measure each source once at this many (wi, wo) pairs and fit by replaying them")
@@ -225,23 +315,26 @@ def main(argv=None) -> None:
     p.add_argument("--models", help=f"comma-separated models (default all: {', '.join(MODELS)})")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 150 steps, batch <= 4096, no EMA, NeuBRDF nside 16, 48^2 px at 8 spp, 2 materials")
-    p.add_argument("--out", default="benchmarks/results/brdf.md", help="Markdown output file")
+    p.add_argument("--table4", action="store_true",
+                   help="Timonen et al. 2025 Table 4: the -t4 models on the RGL materials, paper numbers beside ours")
+    p.add_argument("--out", default=None,
+                   help=f"Markdown output file (default benchmarks/results/brdf.md, {TABLE4_OUT} with --table4)")
     p.add_argument("--device", default=None, help="torch device (default: cuda if available)")
     p.add_argument("--envmap", default=None, help="environment map (default: shared studio_small_03_1k.hdr)")
     p.add_argument("--no-progress", action="store_true", help="hide the fit progress bars")
     args = p.parse_args(argv)
     rows, settings = run(args)
     console = Console(width=None if sys.stdout.isatty() else 220)  # full columns in logs and pipes
-    for title, head, body in tables(rows):
+    for title, head, body in tables(rows, args.table4):
         table = Table(title=title)
         for h in head:
-            table.add_column(h, justify="left" if h in ("model", "material", "method") else "right")
+            table.add_column(h, justify="left" if h in ("model", "material", "method", "source") else "right")
         for r in body:
             table.add_row(*r)
         console.print(table)
-    out = Path(args.out)
+    out = Path(args.out or (TABLE4_OUT if args.table4 else "benchmarks/results/brdf.md"))
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(markdown(rows, settings))
+    out.write_text(markdown(rows, settings, args.table4))
     console.print(f"wrote {out}")
 
 
