@@ -22,13 +22,24 @@ def small_btf(gen) -> TabulatedBTF:
 
 
 def test_direction_sets_are_unit_upper_hemisphere():
-    for spec, n in (("hemi151", 151), ("ubo81", 81), ("rings:3x30", 17), (25, 25)):
+    for spec, n in (("hemi151", 151), ("ubo151", 151), ("ubo81", 81), ("rings:3x30", 17), (25, 25)):
         d = direction_set(spec)
         assert d.shape == (n, 3)
         assert torch.allclose(d.norm(dim=-1), torch.ones(n), atol=1e-6)
         assert bool((d[:, 2] > 0).all())
     with pytest.raises(InputError, match="direction set"):
         direction_set("rings:9x15")
+
+
+def test_ubo151_ring_angles_and_azimuth_offsets():
+    d = direction_set("ubo151").double()
+    theta = torch.rad2deg(torch.acos(d[:, 2].clamp(max=1)))
+    phi = torch.rad2deg(torch.atan2(d[:, 1], d[:, 0])) % 360
+    for theta_deg, count, offset in ((11.0, 6, 15.0), (52.5, 18, 7.5), (75.0, 24, 0.0)):
+        ring = (theta - theta_deg).abs() < 1e-4
+        assert int(ring.sum()) == count
+        assert torch.allclose(phi[ring].sort().values, (offset + 360.0 / count * torch.arange(count)).double(),
+                              atol=1e-4)
 
 
 def test_lookup_at_bins_and_texel_centres_is_exact(small_btf):

@@ -1,4 +1,4 @@
-"""BTF files: the neumat `.nbtf` format (reader and writer) and UBO2014 archives through `btf-extractor`.
+"""BTF files: the neumat `.nbtf` format (reader and writer); Bonn / UBO2014 `.btf` files: `neumat.io.ubo2014`.
 
 `.nbtf` layout (a safetensors container, so any safetensors reader can open it):
 
@@ -103,41 +103,6 @@ def read_btf(path: str | Path, device=None, lights: list[int] | None = None, nei
         raise DataFormatError(f"{path}: {e}") from None
 
 
-def read_ubo2014(path: str | Path, device=None, neighbours: int = 3) -> TabulatedBTF:
-    """Read a UBO2014 `.btf` archive (Bonn BTF database) with the `btf-extractor` package.
-
-    Images are BGR in the archive; they are returned as linear RGB apparent BRDFs exactly as stored.
-    Raises InputError when `btf-extractor` is not installed.
-    """
-    try:
-        from btf_extractor import Ubo2014
-    except ImportError:
-        raise InputError("reading UBO2014 archives needs the 'btf-extractor' package (pip install btf-extractor); "
-                         "it builds a C++ extension and is not a neumat dependency") from None
-    import numpy as np
-
-    path = _existing(path)
-    btf = Ubo2014(str(path))
-    angles = sorted(btf.angles_set)  # (tl, pl, tv, pv) in degrees
-    lights = sorted({(a[0], a[1]) for a in angles})
-    views = sorted({(a[2], a[3]) for a in angles})
-    if len(angles) != len(lights) * len(views):
-        raise DataFormatError(f"{path}: {len(angles)} images is not {len(lights)} lights x {len(views)} views")
-    li = {d: i for i, d in enumerate(lights)}
-    vi = {d: i for i, d in enumerate(views)}
-    h, w = btf.img_shape[:2]
-    data = np.zeros((len(lights), len(views), h, w, 3), np.float32)
-    for a in angles:
-        data[li[(a[0], a[1])], vi[(a[2], a[3])]] = btf.angles_to_image(*a)[..., ::-1]
-
-    def dirs(pairs):
-        t = torch.tensor(pairs, dtype=torch.float64).deg2rad()
-        return torch.stack([t[:, 0].sin() * t[:, 1].cos(), t[:, 0].sin() * t[:, 1].sin(), t[:, 0].cos()], -1).float()
-
-    return TabulatedBTF(torch.from_numpy(data).to(device), dirs(lights).to(device), dirs(views).to(device),
-                        neighbours=neighbours, label=path.stem)
-
-
 def _existing(path: str | Path) -> Path:
     path = Path(path)
     if not path.is_file():
@@ -170,4 +135,4 @@ def _validate_header(path: Path, meta: dict, keys: set[str]) -> dict:
     return header
 
 
-__all__ = ["write_btf", "read_btf", "read_btf_header", "read_ubo2014", "check_btf_arrays"]
+__all__ = ["write_btf", "read_btf", "read_btf_header", "check_btf_arrays"]

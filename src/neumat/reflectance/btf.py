@@ -27,23 +27,27 @@ from ..core.material import Material, upper_hemisphere
 from ..core.query import Query
 
 #: polar angles (degrees) and azimuth counts of the 151-direction hemispherical set used by default
-#: (rings every 15 degrees, counts proportional to sin(theta); the same size as the UBO2014 set, whose
-#: measured dome positions are not public and are read from the files themselves)
+#: (rings every 15 degrees, counts proportional to sin(theta); the same size as the UBO2014 set)
 HEMI151_RINGS = ((0.0, 1), (15.0, 12), (30.0, 23), (45.0, 32), (60.0, 39), (75.0, 44))
 #: the UBO2003 / UTIA 81-direction set (Sattler et al. 2003)
 UBO81_RINGS = ((0.0, 1), (15.0, 6), (30.0, 12), (45.0, 18), (60.0, 20), (75.0, 24))
+#: the nominal 151 directions of Bonn's Dome 1 (UBO2014), (theta_deg, count, azimuth offset_deg) per ring, as
+#: btflib's `create_ubo_dome1_sampling.m` lists them; real files store their own measured directions
+UBO151_RINGS = ((0.0, 1, 0.0), (11.0, 6, 15.0), (23.5, 12, 0.0), (30.0, 12, 15.0), (37.5, 12, 0.0),
+                (45.0, 18, 0.0), (52.5, 18, 7.5), (60.0, 24, 0.0), (67.5, 24, 7.5), (75.0, 24, 0.0))
 
 
 def ring_directions(rings, dtype=torch.float32, device=None) -> torch.Tensor:
-    """Unit directions (D, 3) on rings [(theta_deg, count), ...]; ring azimuths phi = 2 pi j / count."""
+    """Unit directions (D, 3) on rings [(theta_deg, count[, offset_deg]), ...]; ring azimuths
+    phi = 2 pi j / count + offset."""
     out = []
-    for theta_deg, count in rings:
+    for theta_deg, count, *offset in rings:
         if count < 1 or not 0 <= theta_deg < 90:
             raise InputError(f"ring_directions: ring (theta={theta_deg}, count={count}) needs 0 <= theta < 90 "
                              "and count >= 1")
         t = math.radians(theta_deg)
         for j in range(int(count)):
-            p = 2 * math.pi * j / count
+            p = 2 * math.pi * j / count + math.radians(offset[0] if offset else 0.0)
             out.append((math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)))
     return torch.tensor(out, dtype=dtype, device=device)
 
@@ -51,7 +55,7 @@ def ring_directions(rings, dtype=torch.float32, device=None) -> torch.Tensor:
 def direction_set(spec: str | int, dtype=torch.float32, device=None) -> torch.Tensor:
     """A named hemispherical direction set (D, 3).
 
-    "hemi151" (default size of UBO2014), "ubo81" (UBO2003), or "rings:<n_rings>x<step_deg>" such as
+    "hemi151" (default size of UBO2014), "ubo151" (the nominal UBO2014 dome), "ubo81" (UBO2003), or "rings:<n_rings>x<step_deg>" such as
     "rings:3x30" (rings at 0, 30, 60 degrees with counts proportional to sin theta), or an int n giving
     a ring set of about n directions (rings every 15 degrees up to 75).
     """
@@ -59,6 +63,8 @@ def direction_set(spec: str | int, dtype=torch.float32, device=None) -> torch.Te
         return ring_directions(HEMI151_RINGS, dtype, device)
     if spec == "ubo81":
         return ring_directions(UBO81_RINGS, dtype, device)
+    if spec == "ubo151":
+        return ring_directions(UBO151_RINGS, dtype, device)
     if isinstance(spec, int) or (isinstance(spec, str) and spec.isdigit()):
         n = int(spec)
         if n < 1:
@@ -76,7 +82,7 @@ def direction_set(spec: str | int, dtype=torch.float32, device=None) -> torch.Te
                                                        / math.radians(step))))
                               for i in range(1, n_rings)]
         return ring_directions(rings, dtype, device)
-    raise InputError(f"direction set {spec!r}: expected 'hemi151', 'ubo81', 'rings:<n>x<deg>' or a count")
+    raise InputError(f"direction set {spec!r}: expected 'hemi151', 'ubo151', 'ubo81', 'rings:<n>x<deg>' or a count")
 
 
 def _rings_for_count(n: int, step: float, n_rings: int) -> list[tuple[float, int]]:
