@@ -30,3 +30,22 @@ def test_gram_schmidt_tangent(gen):
     t, b = frame_from_normal_tangent(n, rough)
     assert (t * n).sum(-1).abs().max() < 1e-12
     assert torch.allclose(torch.cross(t, b, dim=-1), n, atol=1e-12)
+
+
+def test_gram_schmidt_is_layout_independent_and_clamps_degenerate_tangents(gen):
+    """Column-major inputs (e.g. transposed texture reads) give the same frame; a tangent parallel to n is
+    divided by max(|t|, 1e-12), with finite gradients (as `Tensor.norm` clamped at 1e-12)."""
+    n = torch.nn.functional.normalize(torch.randn(300, 3, generator=gen, dtype=torch.float64), dim=-1)
+    t = torch.randn(300, 3, generator=gen, dtype=torch.float64)
+    column_major = lambda x: x.t().contiguous().t()  # noqa: E731
+    for a, b in zip(frame_from_normal_tangent(n, t), frame_from_normal_tangent(column_major(n), column_major(t))):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-15)
+    t = (n[:2] * 3).requires_grad_()
+    tangent, _ = frame_from_normal_tangent(n[:2], t)
+    residual = t - (t * n[:2]).sum(-1, keepdim=True) * n[:2]
+    reference = residual / residual.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    torch.testing.assert_close(tangent, reference)
+    (grad,) = torch.autograd.grad(tangent.sum(), t)
+    (ref_grad,) = torch.autograd.grad(reference.sum(), t)
+    assert bool(torch.isfinite(grad).all())
+    torch.testing.assert_close(grad, ref_grad)

@@ -145,9 +145,11 @@ def test_fit_small_svbrdf_on_cpu(shared_data):
 
 
 def test_flop_count_matches_measured_matrix_products():
-    """The matrix-product part of the analytic count (MLP, frame and warp decoders) equals torch's FLOP
-    counter; the gating products are elementwise multiply-adds on the texture reads (2 D_s (D_h + D_d)), not
-    seen by the counter; the rest (activations, exp, texture reads, warps, frame maths) is stated per block."""
+    """The matrix-product part of the analytic count (MLP, frame and warp decoders) equals torch's FLOP counter
+    per query: the counter's total grows by that much per query (the spatial preconditioner's block-diagonal
+    product is per batch, not per query); the gating products are elementwise multiply-adds on the texture
+    reads (2 D_s (D_h + D_d)), not seen by the counter; the rest (activations, exp, texture reads, warps, frame
+    maths) is stated per block."""
     from neumat.metrics.flops import measured_matmul_flops, model_flops
 
     m = MultiScale(**SMALL)
@@ -155,7 +157,8 @@ def test_flop_count_matches_measured_matrix_products():
     mlp = 2 * sum(a * b for a, b in zip(m.mlp.dims[:-1], m.mlp.dims[1:]))
     gating = 2 * (c.half_channels + c.diff_channels) * c.spatial_channels
     decoders = 2 * c.spatial_channels * 6 + 2 * 2 * c.spatial_channels * 2 * c.warp_terms
-    assert measured_matmul_flops(m, _queries(64)) == mlp + decoders
+    total = lambda n: measured_matmul_flops(m, _queries(n)) * n  # noqa: E731
+    assert total(128) - total(64) == 64 * (mlp + decoders)
     assert model_flops(m) > mlp + gating + decoders
 
 

@@ -105,3 +105,27 @@ def test_bad_footprints_and_sizes_raise():
         check_footprint(torch.ones(3, 2))
     with pytest.raises(InputError, match="power of two"):
         LatentPyramid(4, 12)
+
+
+def test_atlas_lookups_equal_level_by_level_bilinear_reads():
+    """trilinear / filter_anisotropic (one grid_sample over the padded-level atlas) equal blends of `bilinear`
+    reads of each level, for a non-square pyramid, with uv outside [0, 1]^2 and lods beyond the pyramid."""
+    g = torch.Generator().manual_seed(7)
+    levels = [l.requires_grad_() for l in box_pyramid(torch.randn(3, 12, 20, dtype=torch.float64, generator=g))]
+    uv = torch.rand(400, 2, dtype=torch.float64, generator=g) * 3 - 1
+    lod = torch.rand(400, dtype=torch.float64, generator=g) * 7 - 1
+    c = lod.clamp(0, len(levels) - 1)
+    lo = c.floor().long()
+    t = (c - lo).unsqueeze(-1)
+    reads = torch.stack([bilinear(tex, uv) for tex in levels])  # (L, N, C)
+    rows = torch.arange(400)
+    ref = (1 - t) * reads[lo, rows] + t * reads[(lo + 1).clamp(max=len(levels) - 1), rows]
+    got = trilinear(levels, uv, lod)
+    torch.testing.assert_close(got, ref, rtol=1e-12, atol=1e-12)
+    for a, b in zip(torch.autograd.grad(got.square().sum(), levels), torch.autograd.grad(ref.square().sum(), levels)):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+    tiny = _covariances(400, 1e-6, 1.0, g)
+    torch.testing.assert_close(filter_anisotropic(levels, uv, tiny), bilinear(levels[0], uv))
+    empty = uv[:0]
+    assert filter_anisotropic(levels, empty, tiny[:0]).shape == (0, 3)
+    assert trilinear(levels, empty, lod[:0]).shape == (0, 3)

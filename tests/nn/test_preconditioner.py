@@ -48,3 +48,22 @@ def test_module_and_bad_strength():
     assert torch.equal(FrequencyPreconditioner(0.0)(raw), raw)
     with pytest.raises(InputError, match="strength"):
         FrequencyPreconditioner(-1.0)
+
+
+def test_flat_matches_per_texture_preconditioning_with_gradients():
+    """`flat` (FFT for large textures, one block-diagonal matrix for small ones) equals `precondition` of every
+    texture, values and gradients, for a mip pyramid and for non-square / unordered sizes."""
+    g = torch.Generator().manual_seed(1)
+    for shapes in ([(3, 32 >> l, 32 >> l) for l in range(6)], [(2, 3, 5), (2, 24, 20), (2, 1, 1), (2, 16, 16)]):
+        raws = [torch.randn(s, dtype=torch.float64, generator=g, requires_grad=True) for s in shapes]
+        module = FrequencyPreconditioner(10.0)
+        got = module.flat(raws)
+        ref = torch.cat([precondition(r, 10.0).reshape(shapes[0][0], -1) for r in raws], 1)
+        torch.testing.assert_close(got, ref, rtol=1e-12, atol=1e-12)
+        weight = torch.randn(got.shape, dtype=torch.float64, generator=g)
+        a = torch.autograd.grad((got * weight).sum(), raws)
+        b = torch.autograd.grad((ref * weight).sum(), raws)
+        for x, y in zip(a, b):
+            torch.testing.assert_close(x, y, rtol=1e-12, atol=1e-12)
+        torch.testing.assert_close(module.flat(raws), got)  # cached matrix / kernels reused
+    assert torch.equal(FrequencyPreconditioner(0.0).flat(raws), torch.cat([r.reshape(2, -1) for r in raws], 1))

@@ -21,7 +21,8 @@ def frame_from_normal(n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def frame_from_normal_tangent(n: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Gram-Schmidt: a unit tangent orthogonal to n (N, 3) from a rough tangent t (N, 3), and the bitangent."""
     t = t - (t * n).sum(-1, keepdim=True) * n
-    t = t / t.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+    # = t / max(|t|, 1e-12); not Tensor.norm, which is ~10x slower on column-major (N, 3) inputs
+    t = t / (t * t).sum(-1, keepdim=True).clamp(min=1e-24).sqrt()
     return t, torch.cross(n, t, dim=-1)
 
 

@@ -10,9 +10,14 @@ anisotropic): up to `max_probes` trilinear probes along the major axis, at the m
 of the Gaussian: a trilinear probe of level l (box pyramid + bilinear tent) has a standard deviation of about
 2^l / 2 texels per axis, so a Gaussian of standard deviation s texels uses lod = log2(2 s); n probes spaced d
 apart add a variance d^2 (n^2 - 1) / 12 along the major axis, which makes up major^2 - minor^2.
+
+Implementation: trilinear probes of all levels go through one `grid_sample` over an atlas of the levels,
+each padded circularly by one texel (built from the flattened levels by one `index_select`), whatever the
+number of levels and probes.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -21,6 +26,7 @@ from torch import nn
 
 from ..core.checks import check_finite, check_shape
 from ..core.errors import InputError
+from .preconditioner import FrequencyPreconditioner
 
 
 def texel_coords(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -36,7 +42,7 @@ def bilinear(tex: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     grid = torch.stack([(x + 1) * (2 / (w + 1)) - 1, (y + 1) * (2 / (h + 1)) - 1], -1)
     padded = F.pad(tex.unsqueeze(0), (1, 1, 1, 1), mode="circular")
     out = F.grid_sample(padded, grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="border", align_corners=True)
-    return out.view(c, -1).t()
+    return out.view(c, -1).t().contiguous()  # row-major: per-row reductions (e.g. norms) of slices stay fast
 
 
 def box_pyramid(tex: torch.Tensor) -> list[torch.Tensor]:
@@ -87,26 +93,74 @@ def footprint_axes(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch
     return major, minor, torch.stack([torch.cos(theta), torch.sin(theta)], -1)
 
 
+def flat_levels(levels: list[torch.Tensor]) -> torch.Tensor:
+    """Mip levels (C, H_l, W_l) flattened row-major and concatenated, finest first: (C, sum H_l W_l)."""
+    c = levels[0].shape[0]
+    return torch.cat([tex.reshape(c, -1) for tex in levels], 1)
+
+
+@functools.lru_cache(maxsize=64)
+def atlas_layout(sizes: tuple[tuple[int, int], ...], device: torch.device) -> dict[str, torch.Tensor]:
+    """Layout of an atlas of levels of sizes ((H_l, W_l), ...), each padded circularly by one texel: level 0
+    on the left, the others stacked top to bottom to its right. Returns "source" (H_a W_a,) (long: the
+    `flat_levels` column of every atlas texel, 0 for unused ones), "size" (L, 2) (W_l, H_l), "origin" (L, 2)
+    (float64 atlas coordinates (x, y) of texel coordinate (0, 0) of each level) and "shape" (2,) (W_a, H_a)."""
+    places, top = [(0, 0)], 0  # (left, top) of every padded level
+    for h, _ in sizes[1:]:
+        places.append((sizes[0][1] + 2, top))
+        top += h + 2
+    height = max(sizes[0][0] + 2, top)
+    width = sizes[0][1] + 2 + (max(w for _, w in sizes[1:]) + 2 if len(sizes) > 1 else 0)
+    source = torch.zeros(height, width, dtype=torch.long)
+    start = 0
+    for (h, w), (left, top) in zip(sizes, places):
+        rows = torch.remainder(torch.arange(-1, h + 1), h)
+        cols = torch.remainder(torch.arange(-1, w + 1), w)
+        source[top:top + h + 2, left:left + w + 2] = start + rows[:, None] * w + cols[None, :]
+        start += h * w
+    return {"source": source.flatten().to(device), "size": torch.tensor([(w, h) for h, w in sizes], device=device),
+            "origin": torch.tensor([(left + 1, top + 1) for left, top in places], dtype=torch.float64, device=device),
+            "shape": torch.tensor([width, height], device=device)}
+
+
+def trilinear_flat(flat: torch.Tensor, sizes: list[tuple[int, int]], uv: torch.Tensor, lod: torch.Tensor,
+                   scale: torch.Tensor | None = None) -> torch.Tensor:
+    """Trilinear lookups (N, C) in the levels of sizes [(H_l, W_l)] stored as `flat_levels` (C, T): bilinear
+    (wrap tiling) in the two levels around lod (N,) (clamped to the pyramid), blended linearly and multiplied
+    by scale (N,) if given. One `grid_sample` over an atlas of the circularly padded levels."""
+    layout = atlas_layout(tuple(tuple(int(v) for v in hw) for hw in sizes), flat.device)
+    width, height = (int(v) for v in layout["shape"])
+    atlas = flat.index_select(1, layout["source"]).view(1, -1, height, width)
+    lod = lod.clamp(0, len(sizes) - 1)
+    lo = lod.floor()
+    t = (lod - lo).to(flat.dtype)
+    lo = lo.long()
+    pair = torch.stack([lo, (lo + 1).clamp(max=len(sizes) - 1)], -1)  # (N, 2); weight t = 0 when clamped
+    uv = torch.remainder(uv.to(flat.dtype), 1.0)
+    flip = torch.stack([uv[:, 0], 1 - uv[:, 1]], -1).unsqueeze(1)  # (u, 1 - v)
+    texel = flip * layout["size"][pair].to(flat.dtype) - 0.5  # (N, 2, 2): x = u W - 1/2, y = (1 - v) H - 1/2
+    grid = (texel + layout["origin"][pair].to(flat.dtype)) * (2 / (layout["shape"].to(flat.dtype) - 1)) - 1
+    # grid rows: the lower and the upper level of every lookup (CPU kernels vectorise along a grid row)
+    out = F.grid_sample(atlas, grid.transpose(0, 1).unsqueeze(0), mode="bilinear", padding_mode="border",
+                        align_corners=True)[0]  # (C, 2, N)
+    blend = torch.stack([1 - t, t])
+    if scale is not None:
+        blend = blend * scale.to(flat.dtype)
+    return (out * blend).sum(1).t()
+
+
 def trilinear(levels: list[torch.Tensor], uv: torch.Tensor, lod: torch.Tensor) -> torch.Tensor:
     """Trilinear lookup: bilinear in the two levels around lod (N,) (clamped to the pyramid), blended."""
-    lod = lod.clamp(0, len(levels) - 1)
-    lo = lod.floor().long()
-    t = (lod - lo).unsqueeze(-1).to(levels[0].dtype)
-    out = uv.new_zeros(uv.shape[0], levels[0].shape[0], dtype=levels[0].dtype)
-    for l, tex in enumerate(levels):
-        w = torch.where((lo == l).unsqueeze(-1), 1 - t, 0.0) + torch.where((lo + 1 == l).unsqueeze(-1), t, 0.0)
-        sel = (w[:, 0] > 0).nonzero().squeeze(-1)
-        if sel.numel():
-            out = out.index_add(0, sel, w[sel] * bilinear(tex, uv[sel]))
-    return out
+    return trilinear_flat(flat_levels(levels), [tex.shape[1:] for tex in levels], uv, lod.to(uv.dtype))
 
 
 def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: torch.Tensor,
-                       max_probes: int = 16) -> torch.Tensor:
+                       max_probes: int = 16, flat: torch.Tensor | None = None) -> torch.Tensor:
     """Gaussian-footprint filtered lookup of a pyramid (see module docstring).
 
     levels: mip levels (C, H_l, W_l), level 0 finest, level l about 2^l times coarser; uv (N, 2);
-    footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels.
+    footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels. `flat`: the
+    levels' `flat_levels`, when the caller has it already (levels then only give the sizes).
     """
     _, h, w = levels[0].shape
     scale = torch.tensor([w, h], dtype=footprint.dtype, device=footprint.device)
@@ -122,9 +176,10 @@ def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: 
     used = k.unsqueeze(0) < n.unsqueeze(-1)
     delta = offset.unsqueeze(-1) * axis.unsqueeze(1) / scale  # (N, P, 2) uv offsets
     rows, probe = used.nonzero(as_tuple=True)
-    values = trilinear(levels, uv[rows] + delta[rows, probe], lod[rows])
-    out = uv.new_zeros(uv.shape[0], levels[0].shape[0], dtype=levels[0].dtype)
-    return out.index_add(0, rows, values / n[rows].unsqueeze(-1).to(values.dtype))
+    flat = flat_levels(levels) if flat is None else flat
+    values = trilinear_flat(flat, [tex.shape[1:] for tex in levels], uv[rows] + delta[rows, probe], lod[rows],
+                            1 / n[rows])
+    return uv.new_zeros(uv.shape[0], flat.shape[0], dtype=flat.dtype).index_add(0, rows, values)
 
 
 def isotropic_footprint(lod: torch.Tensor, width: int) -> torch.Tensor:
@@ -162,14 +217,20 @@ class LatentPyramid(nn.Module):
             return list(self.raw)
         return [self.precondition(t) for t in self.raw]
 
+    def flat(self) -> torch.Tensor:
+        """`flat_levels` (C, T) of `levels()` (all preconditioned at once when the preconditioner can)."""
+        if isinstance(self.precondition, FrequencyPreconditioner):
+            return self.precondition.flat(list(self.raw))
+        return flat_levels(self.levels())
+
     def forward(self, uv: torch.Tensor, footprint: torch.Tensor | None = None,
                 lod: torch.Tensor | None = None) -> torch.Tensor:
-        levels = self.levels()
         if footprint is not None:
-            return filter_anisotropic(levels, uv, footprint, self.max_probes)
+            return filter_anisotropic(list(self.raw), uv, footprint, self.max_probes, flat=self.flat())
         if lod is not None:
-            return trilinear(levels, uv, lod.to(uv.dtype))
-        return bilinear(levels[0], uv)
+            return trilinear_flat(self.flat(), [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype))
+        finest = self.raw[0] if self.precondition is None else self.precondition(self.raw[0])
+        return bilinear(finest, uv)
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.raw)

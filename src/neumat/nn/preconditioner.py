@@ -8,6 +8,10 @@ with fx, fy in cycles per texel (numpy/torch `fftfreq`, in [-1/2, 1/2)) and circ
 even and K(0, 0) = 1, so T is real, keeps the texture mean, and the map P -> T is linear and invertible:
 it does not change the optimum, but neighbouring texels move together early in training, as with Nicolet et
 al.'s "large steps". The paper uses A = 10 for the spatial texture and A = 5 for the angular textures.
+
+`FrequencyPreconditioner` caches its kernels, and `flat` preconditions a list of textures (a mip pyramid) at
+once: the small ones (at most SMALL_TEXELS texels per channel, where the per-call cost of an FFT dominates)
+with one block-diagonal matrix product (the same linear map, its matrix built once in float64).
 """
 from __future__ import annotations
 
@@ -21,6 +25,8 @@ from ..core.errors import InputError
 #: the paper's strengths
 SPATIAL_STRENGTH = 10.0
 ANGULAR_STRENGTH = 5.0
+#: textures of at most this many texels (per channel) are preconditioned by a dense matrix in `flat`
+SMALL_TEXELS = 256
 
 
 def preconditioner_kernel(height: int, width: int, strength: float, dtype=torch.float32, device=None) -> torch.Tensor:
@@ -44,17 +50,53 @@ def unprecondition(texture: torch.Tensor, strength: float) -> torch.Tensor:
     return torch.fft.irfft2(torch.fft.rfft2(texture) / k, s=(h, w))
 
 
+def precondition_matrix(height: int, width: int, strength: float, dtype=torch.float32, device=None) -> torch.Tensor:
+    """The map P -> T as a (H W, H W) matrix M on row-major flattened textures: T_flat = P_flat @ M."""
+    basis = torch.eye(height * width, dtype=torch.float64).view(-1, height, width)
+    return precondition(basis, strength).reshape(height * width, -1).to(dtype=dtype, device=device)
+
+
 class FrequencyPreconditioner(nn.Module):
-    """Module form of `precondition` with a fixed strength A; forward(raw (..., H, W)) -> (..., H, W)."""
+    """Module form of `precondition` with a fixed strength A; forward(raw (..., H, W)) -> (..., H, W).
+    Kernels and matrices are cached per size, dtype and device."""
 
     def __init__(self, strength: float) -> None:
         super().__init__()
         if not (isinstance(strength, (int, float)) and math.isfinite(strength) and strength >= 0):
             raise InputError(f"FrequencyPreconditioner.strength: expected a finite number >= 0, got {strength!r}")
         self.strength = float(strength)
+        self._cache: dict[tuple, torch.Tensor] = {}
+
+    def _cached(self, key: tuple, make) -> torch.Tensor:
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
 
     def forward(self, raw: torch.Tensor) -> torch.Tensor:
-        return raw if self.strength == 0 else precondition(raw, self.strength)
+        if self.strength == 0:
+            return raw
+        h, w = raw.shape[-2:]
+        k = self._cached(("kernel", h, w, raw.dtype, raw.device),
+                         lambda: preconditioner_kernel(h, w, self.strength, raw.dtype, raw.device))
+        return torch.fft.irfft2(torch.fft.rfft2(raw) * k, s=(h, w))
+
+    def flat(self, raws: list[torch.Tensor]) -> torch.Tensor:
+        """The preconditioned textures of raws [(C, H_i, W_i)], flattened row-major and concatenated:
+        (C, sum H_i W_i). Textures of at most SMALL_TEXELS texels go through one block-diagonal matrix product."""
+        c = raws[0].shape[0]
+        if self.strength == 0:
+            return torch.cat([raw.reshape(c, -1) for raw in raws], 1)
+        small = [i for i, raw in enumerate(raws) if raw.shape[-2] * raw.shape[-1] <= SMALL_TEXELS]
+        pieces = [None if i in small else self(raw).reshape(c, -1) for i, raw in enumerate(raws)]
+        if small:
+            sizes = tuple(tuple(raws[i].shape[-2:]) for i in small)
+            dtype, device = raws[0].dtype, raws[0].device
+            matrix = self._cached(("matrix", sizes, dtype, device), lambda: torch.block_diag(
+                *(precondition_matrix(h, w, self.strength, dtype, device) for h, w in sizes)))
+            dense = torch.cat([raws[i].reshape(c, -1) for i in small], 1) @ matrix
+            for i, part in zip(small, dense.split([h * w for h, w in sizes], 1)):
+                pieces[i] = part
+        return torch.cat(pieces, 1)
 
     def extra_repr(self) -> str:
         return f"strength={self.strength}"
