@@ -7,6 +7,7 @@ reconstruction throughput (CPU, and CUDA when available), coefficient- vs value-
     python benchmarks/btf.py --render              # also renders a BTF-textured plane and bunny (PNGs)
     python benchmarks/btf.py --train-seeds 6 --train-shared ../shared/data/svbrdf --tiles 2 --dictionaries 8
                                                    # a larger training set (benchmarks/results/btf_vs_pca.md)
+    python benchmarks/btf.py --neubrdf             # also NeuBRDF with a neural texture at SparseBTF's bytes
 
 Training set: the first two materials (with --train-seeds S also their layouts from seeds 2..S, with
 --train-shared also tiles of real PBR sets); test set: the others (never seen in training).
@@ -14,18 +15,33 @@ MSE is reported on linear RGB (the BTF values) and in the log-YUV space the mode
 the per-image standardisation). PCA gets the same per-BTF bytes as SparseBTF's codes plus statistics, and is
 charged for its bases and means ("PCA"); "PCA paper" is charged only its per-texel coefficients, as the
 compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (32)'s 2122: 22801 x 3 / 64).
+
+--neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
+resolution, one latent vector per texel) whose fp16 size_bytes() is closest to SparseBTF's per-BTF bytes (the
+texture channels take the budget; grid and MLP fixed by --neubrdf-nside / --neubrdf-hidden), fitted with the
+NeuBRDF recipe (Adam 1e-2 halved every quarter of --neubrdf-steps, EMA; loss log_cos, or each loss of
+--neubrdf-loss) to exactly the BTF's table entries (every texel centre x every (light, view) pair, replayed),
+then decoded over the same entries and scored with the same MSEs. "constant floor" is the smallest MSE any
+constant-over-space model (a NeuBRDF without texture included) can reach on the table: in linear RGB that of
+the per-(light, view) spatial mean, in log-YUV the spatial variance of the log-YUV values.
 """
 from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 from rich.console import Console
 from rich.table import Table
 
+from neumat.core.errors import InputError
 from neumat.core.query import Query
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.models.btf_table_queries import decode_table, table_samples
+from neumat.models.neubrdf import NeuBRDF
 from neumat.models.pca_btf import PCABTF, ranks_for_bytes
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import rgb_to_model_space, train_dictionary
@@ -86,6 +102,41 @@ def log_mse(reference, test, eps: float) -> float:
     """MSE in log-YUV (the models' space before standardisation)."""
     a = rgb_to_model_space(reference.data, eps)
     return float(((a - rgb_to_model_space(test.data.to(reference.data), eps)) ** 2).mean())
+
+
+def constant_floor(btf, eps: float) -> tuple[float, float]:
+    """Smallest MSE any constant-over-space model can reach on the table, in linear RGB (that of the
+    per-(light, view) spatial mean) and in log-YUV (the spatial variance of the log-YUV values)."""
+    linear = float(((btf.data - btf.data.mean(dim=(2, 3), keepdim=True)) ** 2).mean())
+    yuv = rgb_to_model_space(btf.data, eps)
+    return linear, float(((yuv - yuv.mean(dim=(2, 3), keepdim=True)) ** 2).mean())
+
+
+def neubrdf_for_bytes(budget: int, height: int, width: int, nside: int, hidden: int) -> NeuBRDF:
+    """A NeuBRDF (vq grid N_side `nside`, k 8, b 6, MLP 2 x `hidden`) with a height x width neural texture whose
+    channel count makes its fp16 size_bytes() closest to `budget` (at least one channel)."""
+    def make(c: int) -> NeuBRDF:
+        return NeuBRDF(nside=nside, feature_dim=8, index_bits=6, hidden=hidden, texture_height=height,
+                       texture_width=width, texture_channels=c)
+
+    c = 1
+    while make(c + 1).size_bytes() <= budget:
+        c += 1
+    if abs(make(c + 1).size_bytes() - budget) < abs(make(c).size_bytes() - budget):
+        c += 1
+    return make(c)
+
+
+def fit_neubrdf(btf, budget: int, loss: str, args) -> tuple[NeuBRDF, float]:
+    """NeuBRDF with a neural texture at ~`budget` bytes fitted with `loss` to the table entries of `btf`;
+    (model, seconds)."""
+    h, w = btf.shape[2:]
+    torch.manual_seed(0)
+    model = neubrdf_for_bytes(budget, h, w, args.neubrdf_nside, args.neubrdf_hidden)
+    recipe = replace(recipe_for("neubrdf"), steps=args.neubrdf_steps, batch_size=args.neubrdf_batch,
+                     lr_decay_every=max(1, args.neubrdf_steps // 4), loss=loss)
+    result = fit(model, table_samples(btf), recipe, queries="replay", progress=False)
+    return model, result.seconds
 
 
 def bunny_with_uv(path: Path) -> Path:
@@ -174,6 +225,13 @@ def main():
                     help="texels of the extra training BTFs (default --size; a dictionary fits any size)")
     ap.add_argument("--sample-fraction", type=float, default=1.0, help="fraction of training data points used")
     ap.add_argument("--mults", default="1,2,4,8,16", help="tau_t = tau_l times these")
+    ap.add_argument("--neubrdf", action="store_true",
+                    help="also fit NeuBRDF with a neural texture at SparseBTF's per-BTF bytes (module docstring)")
+    ap.add_argument("--neubrdf-steps", type=int, default=1000)
+    ap.add_argument("--neubrdf-loss", default="log_cos", help="comma-separated fit losses (neumat.fit.losses)")
+    ap.add_argument("--neubrdf-batch", type=int, default=4096)
+    ap.add_argument("--neubrdf-nside", type=int, default=4)
+    ap.add_argument("--neubrdf-hidden", type=int, default=32)
     ap.add_argument("--render", action="store_true", help="render a plane and the bunny (benchmarks/results/)")
     ap.add_argument("--render-spp", type=int, default=16)
     ap.add_argument("--render-size", type=int, default=128)
@@ -200,7 +258,7 @@ def main():
           f"trained on {train} ({dic.info['points']} data points per channel) in {train_s:.1f} s "
           f"({torch.get_num_threads()} threads; the paper: 101 h on 128 cores); iterations {dic.info['iterations']}")
 
-    rows, models = [], {}
+    rows, models, rows_by = [], {}, {}
     mults = [int(m) for m in args.mults.split(",")]
     for name in test:
         for mult in mults:
@@ -225,7 +283,32 @@ def main():
                          "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
                          "compression": st["compression_ratio"], "coding s": code_s})
             models[(name, mult)] = sp
+            rows_by[(name, mult)] = rows[-1]
     table("SparseBTF vs PCA at equal per-BTF storage (MSE on linear RGB apparent BRDF and in log-YUV)", rows)
+
+    if args.neubrdf:
+        neu_rows = []
+        for name in test:
+            floor, floor_log = constant_floor(btfs[name], dic.log_eps)
+            for mult, loss in ((m, l) for m in mults for l in args.neubrdf_loss.split(",")):
+                sp_row = rows_by[(name, mult)]
+                try:
+                    model, seconds = fit_neubrdf(btfs[name], sp_row["per-BTF bytes"], loss, args)
+                except InputError as e:                         # a non-finite loss: say so, go on
+                    print(f"NeuBRDF fit of {name} (tau x{mult}, {loss}) failed: {e}")
+                    continue
+                decoded = decode_table(model, btfs[name])
+                c = model.cfg
+                neu_rows.append({"btf": name, "tau x": mult, "loss": loss, "sparse bytes": sp_row["per-BTF bytes"],
+                                 "NeuBRDF bytes": model.size_bytes(),
+                                 "texture h x w x c": f"{c.texture_height}x{c.texture_width}x{c.texture_channels}",
+                                 "NeuBRDF MSE": mse(btfs[name], decoded), "sparse MSE": sp_row["sparse MSE"],
+                                 "PCA MSE": sp_row["PCA MSE"], "constant floor MSE": floor,
+                                 "NeuBRDF log MSE": log_mse(btfs[name], decoded, dic.log_eps),
+                                 "sparse log MSE": sp_row["sparse log MSE"], "PCA log MSE": sp_row["PCA log MSE"],
+                                 "constant floor log MSE": floor_log, "fit s": seconds})
+        table(f"NeuBRDF + neural texture at SparseBTF's per-BTF bytes (N_side {args.neubrdf_nside}, k 8, b 6, MLP 2 x "
+              f"{args.neubrdf_hidden}; {args.neubrdf_steps} steps of {args.neubrdf_batch} table entries)", neu_rows)
 
     if args.render:
         name = test[0]
