@@ -4,7 +4,7 @@ reconstruction throughput (CPU, and CUDA when available), coefficient- vs value-
     python benchmarks/btf.py                       # procedural texture sets (no data needed)
     python benchmarks/btf.py --size 40 --dirs rings:3x30 --patch 10 --dictionaries 4 --iterations 10
     python benchmarks/btf.py --shared ../shared/data/svbrdf   # generated from the real PBR sets
-    python benchmarks/btf.py --render              # also renders a BTF-textured plane and bunny (PNGs)
+    python benchmarks/btf.py --render              # also renders a BTF-textured plane and bunny (comparison PNGs)
     python benchmarks/btf.py --train-seeds 6 --train-shared ../shared/data/svbrdf --tiles 2 --dictionaries 8
                                                    # a larger training set (benchmarks/results/btf_vs_pca.md)
     python benchmarks/btf.py --neubrdf             # also NeuBRDF with a neural texture at SparseBTF's bytes
@@ -28,6 +28,7 @@ the per-(light, view) spatial mean, in log-YUV the spatial variance of the log-Y
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -163,10 +164,13 @@ def bunny_with_uv(path: Path) -> Path:
 
 
 def render_figures(models: dict, out: Path, spp: int, resolution: int) -> list[dict]:
-    """Render every model on a plane and the bunny under an environment map; PNGs into `out`."""
-    from neumat.io.images import write_image
+    """Render every model on a plane and the bunny under an environment map; writes `btf_<scene>_compare.png`
+    (reference | model | FLIP error map, a row per model) into `out`, at the exposure that puts the reference's
+    99th-percentile luminance at 0.9 (the metrics use the same exposure)."""
+    from neumat.io.images import write_image_ldr
     from neumat.metrics.image import image_metrics
     from neumat.render.render import render
+    from neumat.viz.compare import compare_image
 
     out.mkdir(parents=True, exist_ok=True)
     env = "env:/work/shared/data/envmap/studio_small_03_1k.hdr"
@@ -175,16 +179,25 @@ def render_figures(models: dict, out: Path, spp: int, resolution: int) -> list[d
     scenes = {"plane": "plane,uv_scale=2", "bunny": f"mesh:{bunny}"}
     rows = []
     for scene_name, scene in scenes.items():
-        images = {}
+        images, seconds = {}, {}
         for name, model in models.items():
             t = time.perf_counter()
             images[name] = render(model, scene=scene, light=env, spp=spp, resolution=resolution).cpu()
-            write_image(out / f"btf_{scene_name}_{name}.png", images[name])
-            seconds = time.perf_counter() - t
-            m = image_metrics(images["reference"], images[name]) if name != "reference" else {}
-            rows.append({"scene": scene_name, "model": name, "seconds": seconds,
+            seconds[name] = time.perf_counter() - t
+        ref = images["reference"]
+        luminance = ref @ torch.tensor([0.2126, 0.7152, 0.0722])
+        exposure = math.log2(0.9 / max(torch.quantile(luminance.flatten(), 0.99).item(), 1e-8))
+        metrics = {}
+        for name, img in images.items():
+            m = image_metrics(ref, img, exposure=exposure) if name != "reference" else {}
+            if m:
+                metrics[name] = {"PSNR": m["psnr"], "FLIP": m["flip"]}
+            rows.append({"scene": scene_name, "model": name, "seconds": seconds[name], "exposure": exposure,
                          "PSNR": m.get("psnr", float("nan")), "FLIP": m.get("flip", float("nan")),
-                         "file": f"btf_{scene_name}_{name}.png"})
+                         "file": f"btf_{scene_name}_compare.png"})
+        others = {name: img for name, img in images.items() if name != "reference"}
+        write_image_ldr(out / f"btf_{scene_name}_compare.png",
+                        compare_image(ref, others, metrics=metrics, exposure=exposure))
     return rows
 
 
