@@ -138,15 +138,16 @@ def test_pruning_uses_ancestors(gen):
 def test_texture_lookup_bilinear_wrap_and_mips():
     tex = NeuralTexture(4, 8, 2, 2)
     t0, t1 = tex.levels[0].detach(), tex.levels[1].detach()
-    # texel centre (row 1, col 3) of level 0
-    uv = torch.tensor([[3.5 / 8, 1.5 / 4]])
+    # texel centre (row 1, col 3) of level 0: v points up, row 0 is the top
+    uv = torch.tensor([[3.5 / 8, 1 - 1.5 / 4]])
     torch.testing.assert_close(tex(uv, None), t0[:, 1, 3][None])
     # halfway between the last and the first column: wraps around
-    uv = torch.tensor([[0.0, 1.5 / 4]])
+    uv = torch.tensor([[0.0, 1 - 1.5 / 4]])
     torch.testing.assert_close(tex(uv, None), 0.5 * (t0[:, 1, 7] + t0[:, 1, 0])[None])
-    # lod 0.5 blends level 0 and level 1 equally (level 1 is 2 x 4)
-    uv = torch.tensor([[1.5 / 4, 0.5 / 2]])
-    ref = 0.5 * tex._bilinear(t0, uv) + 0.5 * t1[:, 0, 1][None]
+    # lod 0.5 blends level 0 and level 1 (2 x 4) equally, at level 1's texel centre (row 0, col 1)
+    uv = torch.tensor([[1.5 / 4, 1 - 0.5 / 2]])
+    ref = 0.5 * (0.5 * (t0[:, 0, 3] + t0[:, 1, 3]) * 0.5 + 0.5 * (t0[:, 0, 2] + t0[:, 1, 2]) * 0.5)[None]
+    ref = ref + 0.5 * t1[:, 0, 1][None]
     torch.testing.assert_close(tex(uv, torch.tensor([0.5])), ref)
 
 

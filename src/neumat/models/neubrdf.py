@@ -22,6 +22,7 @@ from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
+from neumat.nn.latent_texture import bilinear, trilinear
 from neumat.nn.row_adam import RowAdam
 from neumat.models.registry import MODELS
 from neumat.nn.mlp import MLP
@@ -91,7 +92,8 @@ def _check_config(c: Config) -> None:
 
 class NeuralTexture(nn.Module):
     """Learned feature texture T, `levels` mip levels of (c, h >> l, w >> l); bilinear lookup with
-    wrapping uv, trilinear across levels by lod. forward(uv (N, 2), lod (N,) or None) -> (N, c)."""
+    wrapping uv, trilinear across levels by lod. forward(uv (N, 2), lod (N,) or None) -> (N, c).
+    Texel (row i, column j) is centred at uv = ((j + 1/2) / w, 1 - (i + 1/2) / h), as everywhere in neumat."""
 
     def __init__(self, height: int, width: int, channels: int, levels: int, init_std: float = 0.1) -> None:
         super().__init__()
@@ -100,30 +102,8 @@ class NeuralTexture(nn.Module):
 
     def forward(self, uv: torch.Tensor, lod: torch.Tensor | None) -> torch.Tensor:
         if len(self.levels) == 1 or lod is None:
-            return self._bilinear(self.levels[0], uv)
-        lod = lod.clamp(0, len(self.levels) - 1)
-        lo = lod.floor().long()
-        hi = (lo + 1).clamp(max=len(self.levels) - 1)
-        t = (lod - lo).unsqueeze(-1)
-        out = torch.zeros(uv.shape[0], self.levels[0].shape[0], device=uv.device, dtype=uv.dtype)
-        for l, tex in enumerate(self.levels):
-            wl = torch.where(lo == l, 1 - t.squeeze(-1), 0.0) + torch.where(hi == l, t.squeeze(-1), 0.0)
-            if bool((wl > 0).any()):
-                out = out + wl.unsqueeze(-1) * self._bilinear(tex, uv)
-        return out
-
-    @staticmethod
-    def _bilinear(tex: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-        c, h, w = tex.shape
-        x = uv[:, 0] * w - 0.5
-        y = uv[:, 1] * h - 0.5
-        x0, y0 = x.floor(), y.floor()
-        fx, fy = (x - x0).unsqueeze(-1), (y - y0).unsqueeze(-1)
-        x0, y0 = x0.long() % w, y0.long() % h
-        x1, y1 = (x0 + 1) % w, (y0 + 1) % h
-        flat = tex.reshape(c, h * w).t()
-        g = lambda yy, xx: flat[yy * w + xx]  # noqa: E731
-        return ((1 - fy) * ((1 - fx) * g(y0, x0) + fx * g(y0, x1)) + fy * ((1 - fx) * g(y1, x0) + fx * g(y1, x1)))
+            return bilinear(self.levels[0], uv)
+        return trilinear(list(self.levels), uv, lod)
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.levels)
