@@ -13,6 +13,8 @@ on the same batch.
 Models are registry names, optionally with config overrides for ablations, e.g.
 `multiscale:gating=false:shading_frame=false`. With `--markdown` the tables are also written to
 benchmarks/results/multiscale.md and the per-scale FLIP chart (the paper's Fig. 4) to multiscale_flip.png beside it.
+A long run can be split across processes by --models, each with `--save part.json`, then reported together
+with `--merge a.json b.json --markdown`.
 
     python benchmarks/multiscale.py --quick
     python benchmarks/multiscale.py --device cuda --steps 100000 --batch 65536 --max-size 1024
@@ -111,38 +113,17 @@ def plot_per_scale(curves: dict[str, np.ndarray], path: Path) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--materials", nargs="*", default=None, help="texture-set folders (default: all shared sets)")
-    ap.add_argument("--models", nargs="*", default=ALL_MODELS, help="model specs name[:key=value]...")
-    ap.add_argument("--steps", type=int, default=3000)
-    ap.add_argument("--batch", type=int, default=8192)
-    ap.add_argument("--samples", type=int, default=16, help="footprint samples of the training targets")
-    ap.add_argument("--ref-samples", type=int, default=256, help="footprint samples of the reference images")
-    ap.add_argument("--max-size", type=int, default=256, help="downscale the texture sets to this size")
-    ap.add_argument("--resolution", type=int, default=64)
-    ap.add_argument("--scales", type=int, default=21)
-    ap.add_argument("--hdr-queries", type=int, default=2 ** 16)
-    ap.add_argument("--device", default="cpu")
-    ap.add_argument("--short-run-optimiser", action="store_true",
-                    help="Adam (0.9, 0.999), lr 1e-2, EMA 0.02 instead of the paper's long-run settings")
-    ap.add_argument("--quick", action="store_true", help="smoke run: 1 material, 200 steps, 5 scales, 32 px")
-    ap.add_argument("--markdown", action="store_true", help="write benchmarks/results/multiscale.md")
-    args = ap.parse_args()
-    if args.quick:
-        args.materials = args.materials or [str(DATA / "Wood092_1K")]
-        args.steps, args.batch, args.samples, args.ref_samples = 200, 1024, 4, 32
-        args.max_size, args.resolution, args.scales, args.hdr_queries = 64, 32, 5, 4096
-        args.short_run_optimiser = True
-    device = torch.device(args.device)
-    folders = [Path(m) for m in (args.materials or sorted(p for p in DATA.iterdir() if p.is_dir()))]
+def fit_and_score(args, folders: list[Path], device) -> dict:
+    """Fit every model of args.models to every texture set and score it. Returns {"materials": [names],
+    "models": [specs], "per_scale": {model: [per-scale FLIP (scales,) per material]}, "rows": {model: [metrics
+    per material]}, "settings": the budget}."""
     lights, tilts = (LIGHTS[:2], TILTS[1:2]) if args.quick else (LIGHTS, TILTS)
-    RESULTS.mkdir(exist_ok=True)
-
     per_scale: dict[str, list[list[float]]] = {m: [] for m in args.models}
     rows: dict[str, list[dict]] = {m: [] for m in args.models}
+    materials = []
     for folder in folders:
         textures = load_texture_set(folder, max_size=args.max_size).to(device)
+        materials.append(textures.name)
         source = SVBRDF(textures, samples=args.samples)
         reference = SVBRDF(textures, samples=args.ref_samples, seed=1)
         size = 1 << int(math.floor(math.log2(max(textures.size))))
@@ -170,51 +151,127 @@ def main() -> None:
                                "rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"],
                                "steps_per_s": result.steps / result.seconds})
             print(f"{name}: FLIP {rows[name][-1]['flip']:.4f}, fit {result.seconds:.0f} s")
+    settings = {"steps": args.steps, "batch": args.batch, "samples": args.samples, "ref_samples": args.ref_samples,
+                "max_size": args.max_size, "resolution": args.resolution, "scales": args.scales,
+                "hdr_queries": args.hdr_queries, "short_run_optimiser": args.short_run_optimiser,
+                "lights": len(lights), "cameras": len(tilts), "device": device.type}
+    return {"materials": materials, "models": list(args.models), "per_scale": per_scale, "rows": rows,
+            "settings": settings}
 
-    lines = [f"Per-scale FLIP (mean over {len(folders)} material(s), {len(lights)} lights, {len(tilts)} cameras; "
-             "scale 0 = finest)", "", "| model | " + " | ".join(str(i) for i in range(args.scales)) + " |",
-             "|---" * (args.scales + 1) + "|"]
-    for name in args.models:
-        curve = np.mean(per_scale[name], 0)
+
+def merge_results(paths: list[Path]) -> dict:
+    """Results of several `--save` runs over the same texture sets and settings, their models side by side."""
+    parts = [json.loads(Path(p).read_text()) for p in paths]
+    first = parts[0]
+    for path, part in zip(paths[1:], parts[1:]):
+        for key in ("materials", "settings"):
+            if part[key] != first[key]:
+                raise SystemExit(f"--merge: {path} has other {key} than {paths[0]}: {part[key]} vs {first[key]}")
+    merged = {"materials": first["materials"], "settings": first["settings"], "models": [], "per_scale": {},
+              "rows": {}}
+    for part in parts:
+        for name in part["models"]:
+            if name in merged["per_scale"]:
+                raise SystemExit(f"--merge: model {name!r} appears in more than one file")
+            merged["models"].append(name)
+            merged["per_scale"][name] = part["per_scale"][name]
+            merged["rows"][name] = part["rows"][name]
+    return merged
+
+
+def report(results: dict, device, markdown: bool, command: str) -> None:
+    """Print the per-scale FLIP, per-material FLIP and Table-6-style tables; with `markdown`, also write them
+    and the per-scale chart to benchmarks/results/."""
+    st, models, materials = results["settings"], results["models"], results["materials"]
+    lines = [f"Per-scale FLIP (mean over {len(materials)} material(s), {st['lights']} lights, {st['cameras']} "
+             "cameras; scale 0 = finest)", "", "| model | " + " | ".join(str(i) for i in range(st["scales"])) + " |",
+             "|---" * (st["scales"] + 1) + "|"]
+    for name in models:
+        curve = np.mean(results["per_scale"][name], 0)
         lines.append(f"| {name} | " + " | ".join(f"{v:.4f}" for v in curve) + " |")
+    if len(materials) > 1:
+        lines += ["", "Mean FLIP per material", "", "| model | " + " | ".join(materials) + " |",
+                  "|---" * (len(materials) + 1) + "|"]
+        for name in models:
+            lines.append(f"| {name} | " + " | ".join(f"{r['flip']:.4f}" for r in results["rows"][name]) + " |")
     print("\n" + "\n".join(lines))
-    if args.markdown:
-        plot_per_scale({name: np.mean(per_scale[name], 0) for name in args.models}, RESULTS / "multiscale_flip.png")
-        print(f"chart: {RESULTS / 'multiscale_flip.png'}")
 
     n = 1 << 16
     g = torch.Generator().manual_seed(0)
+    size = 1 << int(math.floor(math.log2(st["max_size"])))
+    reference = SVBRDF(load_texture_set(DATA / "Wood092_1K", max_size=st["max_size"]))
     q = footprint_queries(reference, None)(n, g, "cpu").to(device)  # Sec. 4.2 queries with footprints
     params = (torch.rand(n, 3, device=device), torch.rand(n, device=device), torch.rand(n, device=device),
               torch.zeros(n, device=device))
     with torch.no_grad():
         ggx_rate = evals_per_second(lambda: principled_eval(q.wi, q.wo, *params), n, device)
-    lines += ["", f"Table 6 style ({args.steps} steps of {args.batch} queries per model, {args.samples}-sample targets; "
-              "paper: ~500k steps of 65536)", "",
+    lines += ["", f"Table 6 style ({st['steps']} steps of {st['batch']} queries per model, {st['samples']}-sample "
+              "targets; paper: ~500k steps of 65536)", "",
               "| model | SSIM | FLIP | RMSE | MAE | RMSE-HDR | MAE-HDR | kB fp32 | FLOPs | steps/s | eval/s | x GGX |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for name in args.models:
+    for name in models:
         model = build_model(model_spec(name, size)).to(device)
         with torch.no_grad():
             rate = evals_per_second(lambda: model.eval(q), n, device)
-        r = {k: float(np.mean([row[k] for row in rows[name]])) for k in rows[name][0]}
+        rows = results["rows"][name]
+        r = {k: float(np.mean([row[k] for row in rows])) for k in rows[0]}
         lines.append(f"| {name} | {r['ssim']:.4f} | {r['flip']:.4f} | {r['rmse']:.4f} | {r['mae']:.4f} | "
                      f"{r['rmse_hdr']:.4f} | {r['mae_hdr']:.4f} | {model.size_bytes('fp32') / 1e3:.1f} | "
                      f"{model_flops(model)} | {r['steps_per_s']:.2f} | {rate:.3g} | {ggx_rate / rate:.1f} |")
-    print("\n".join(lines[-len(args.models) - 4:]))
-    if args.markdown:
-        names = ", ".join(f.name for f in folders)
-        header = [f"# Multi-scale SVBRDF benchmark ({names})", "",
-                  f"Command: `python benchmarks/multiscale.py {' '.join(sys.argv[1:])}` on {device.type}; texture sets "
-                  f"at most {args.max_size}^2, model pyramids {size}^2, {args.scales} scales x {len(lights)} lights x "
-                  f"{len(tilts)} cameras at {args.resolution} px, references with {args.ref_samples} footprint "
-                  f"samples; HDR errors over {args.hdr_queries} Sec. 4.2 queries. Training budget: {args.steps} "
-                  f"steps x {args.batch} queries" + (" (short-run optimiser: Adam (0.9, 0.999), lr 1e-2, EMA 0.02)"
-                                                     if args.short_run_optimiser else " (paper recipe)") + ".", "",
-                  "![per-scale FLIP](multiscale_flip.png)", ""]
+    lines += ["", f"principled GGX point evaluation: {ggx_rate:.3g} eval/s; \"x GGX\" = GGX evaluations per second "
+              "/ the model's (same batch of 65536 queries, model sizes of the first texture set)."]
+    print("\n".join(lines[-len(models) - 6:]))
+    if markdown:
+        header = [f"# Multi-scale SVBRDF benchmark ({', '.join(materials)})", "",
+                  f"Command: `{command}` on {st['device']}; texture sets at most {st['max_size']}^2, model pyramids "
+                  f"{size}^2, {st['scales']} scales x {st['lights']} lights x {st['cameras']} cameras at "
+                  f"{st['resolution']} px, references with {st['ref_samples']} footprint samples; HDR errors over "
+                  f"{st['hdr_queries']} Sec. 4.2 queries. Training budget: {st['steps']} steps x {st['batch']} queries"
+                  + (" (short-run optimiser: Adam (0.9, 0.999), lr 1e-2, EMA 0.02)" if st["short_run_optimiser"]
+                     else " (paper recipe)") + ".", "", "![per-scale FLIP](multiscale_flip.png)", ""]
         (RESULTS / "multiscale.md").write_text("\n".join(header + lines) + "\n")
-        print(f"wrote {RESULTS / 'multiscale.md'}")
-    print(f"principled GGX point evaluation: {ggx_rate:.3g} eval/s")
+        plot_per_scale({name: np.mean(results["per_scale"][name], 0) for name in models},
+                       RESULTS / "multiscale_flip.png")
+        print(f"wrote {RESULTS / 'multiscale.md'} and multiscale_flip.png")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--materials", nargs="*", default=None, help="texture-set folders (default: all shared sets)")
+    ap.add_argument("--models", nargs="*", default=ALL_MODELS, help="model specs name[:key=value]...")
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--batch", type=int, default=8192)
+    ap.add_argument("--samples", type=int, default=16, help="footprint samples of the training targets")
+    ap.add_argument("--ref-samples", type=int, default=256, help="footprint samples of the reference images")
+    ap.add_argument("--max-size", type=int, default=256, help="downscale the texture sets to this size")
+    ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("--scales", type=int, default=21)
+    ap.add_argument("--hdr-queries", type=int, default=2 ** 16)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--short-run-optimiser", action="store_true",
+                    help="Adam (0.9, 0.999), lr 1e-2, EMA 0.02 instead of the paper's long-run settings")
+    ap.add_argument("--quick", action="store_true", help="smoke run: 1 material, 200 steps, 5 scales, 32 px")
+    ap.add_argument("--save", type=Path, default=None, help="also write the fitted models' scores to this JSON file")
+    ap.add_argument("--merge", type=Path, nargs="+", default=None,
+                    help="fit nothing: report the scores of several --save files (e.g. runs split by --models)")
+    ap.add_argument("--markdown", action="store_true",
+                    help="write benchmarks/results/multiscale.md and multiscale_flip.png")
+    args = ap.parse_args()
+    if args.quick:
+        args.materials = args.materials or [str(DATA / "Wood092_1K")]
+        args.steps, args.batch, args.samples, args.ref_samples = 200, 1024, 4, 32
+        args.max_size, args.resolution, args.scales, args.hdr_queries = 64, 32, 5, 4096
+        args.short_run_optimiser = True
+    device = torch.device(args.device)
+    RESULTS.mkdir(exist_ok=True)
+    if args.merge:
+        results = merge_results(args.merge)
+    else:
+        folders = [Path(m) for m in (args.materials or sorted(p for p in DATA.iterdir() if p.is_dir()))]
+        results = fit_and_score(args, folders, device)
+        if args.save:
+            args.save.write_text(json.dumps(results, indent=1))
+    report(results, device, args.markdown, "python benchmarks/multiscale.py " + " ".join(sys.argv[1:]))
 
 
 if __name__ == "__main__":
