@@ -11,8 +11,9 @@ and FLOPs, training steps/s, and evaluations/s of each model against the princip
 on the same batch.
 
 Models are registry names, optionally with config overrides for ablations, e.g.
-`multiscale:gating=false:shading_frame=false`. With `--markdown` the tables are also written to
-benchmarks/results/multiscale.md and the per-scale FLIP chart (the paper's Fig. 4) to multiscale_flip.png beside it.
+`multiscale:gating=false:shading_frame=false`. With `--markdown [PATH]` the tables are also written to PATH
+(default benchmarks/results/multiscale.md) and the per-scale FLIP chart (the paper's Fig. 4) beside it
+(<stem>_flip.png).
 A long run can be split across processes by --models, each with `--save part.json`, then reported together
 with `--merge a.json b.json --markdown`.
 
@@ -168,7 +169,7 @@ def merge_results(paths: list[Path]) -> dict:
             if part[key] != first[key]:
                 raise SystemExit(f"--merge: {path} has other {key} than {paths[0]}: {part[key]} vs {first[key]}")
     merged = {"materials": first["materials"], "settings": first["settings"], "models": [], "per_scale": {},
-              "rows": {}}
+              "rows": {}, "commands": [c for part in parts for c in part.get("commands", [])]}
     for part in parts:
         for name in part["models"]:
             if name in merged["per_scale"]:
@@ -179,9 +180,9 @@ def merge_results(paths: list[Path]) -> dict:
     return merged
 
 
-def report(results: dict, device, markdown: bool, command: str) -> None:
-    """Print the per-scale FLIP, per-material FLIP and Table-6-style tables; with `markdown`, also write them
-    and the per-scale chart to benchmarks/results/."""
+def report(results: dict, device, markdown: Path | None) -> None:
+    """Print the per-scale FLIP, per-material FLIP and Table-6-style tables; with `markdown` (a .md path), also
+    write them there and the per-scale chart beside it (<stem>_flip.png)."""
     st, models, materials = results["settings"], results["models"], results["materials"]
     lines = [f"Per-scale FLIP (mean over {len(materials)} material(s), {st['lights']} lights, {st['cameras']} "
              "cameras; scale 0 = finest)", "", "| model | " + " | ".join(str(i) for i in range(st["scales"])) + " |",
@@ -222,17 +223,17 @@ def report(results: dict, device, markdown: bool, command: str) -> None:
               "/ the model's (same batch of 65536 queries, model sizes of the first texture set)."]
     print("\n".join(lines[-len(models) - 6:]))
     if markdown:
+        chart = markdown.with_name(markdown.stem + "_flip.png")
         header = [f"# Multi-scale SVBRDF benchmark ({', '.join(materials)})", "",
-                  f"Command: `{command}` on {st['device']}; texture sets at most {st['max_size']}^2, model pyramids "
+                  "Commands: " + "; ".join(f"`{c}`" for c in results["commands"]) + f" on {st['device']}; texture sets at most {st['max_size']}^2, model pyramids "
                   f"{size}^2, {st['scales']} scales x {st['lights']} lights x {st['cameras']} cameras at "
                   f"{st['resolution']} px, references with {st['ref_samples']} footprint samples; HDR errors over "
                   f"{st['hdr_queries']} Sec. 4.2 queries. Training budget: {st['steps']} steps x {st['batch']} queries"
                   + (" (short-run optimiser: Adam (0.9, 0.999), lr 1e-2, EMA 0.02)" if st["short_run_optimiser"]
-                     else " (paper recipe)") + ".", "", "![per-scale FLIP](multiscale_flip.png)", ""]
-        (RESULTS / "multiscale.md").write_text("\n".join(header + lines) + "\n")
-        plot_per_scale({name: np.mean(results["per_scale"][name], 0) for name in models},
-                       RESULTS / "multiscale_flip.png")
-        print(f"wrote {RESULTS / 'multiscale.md'} and multiscale_flip.png")
+                     else " (paper recipe)") + ".", "", f"![per-scale FLIP]({chart.name})", ""]
+        markdown.write_text("\n".join(header + lines) + "\n")
+        plot_per_scale({name: np.mean(results["per_scale"][name], 0) for name in models}, chart)
+        print(f"wrote {markdown} and {chart}")
 
 
 def main() -> None:
@@ -254,8 +255,9 @@ def main() -> None:
     ap.add_argument("--save", type=Path, default=None, help="also write the fitted models' scores to this JSON file")
     ap.add_argument("--merge", type=Path, nargs="+", default=None,
                     help="fit nothing: report the scores of several --save files (e.g. runs split by --models)")
-    ap.add_argument("--markdown", action="store_true",
-                    help="write benchmarks/results/multiscale.md and multiscale_flip.png")
+    ap.add_argument("--markdown", type=Path, nargs="?", const=RESULTS / "multiscale.md", default=None,
+                    help="write the tables to this .md file (default benchmarks/results/multiscale.md) and the "
+                         "per-scale chart beside it (<stem>_flip.png)")
     args = ap.parse_args()
     if args.quick:
         args.materials = args.materials or [str(DATA / "Wood092_1K")]
@@ -263,15 +265,19 @@ def main() -> None:
         args.max_size, args.resolution, args.scales, args.hdr_queries = 64, 32, 5, 4096
         args.short_run_optimiser = True
     device = torch.device(args.device)
+    command = "python benchmarks/multiscale.py " + " ".join(sys.argv[1:])
     RESULTS.mkdir(exist_ok=True)
     if args.merge:
         results = merge_results(args.merge)
     else:
         folders = [Path(m) for m in (args.materials or sorted(p for p in DATA.iterdir() if p.is_dir()))]
         results = fit_and_score(args, folders, device)
+        results["commands"] = [command]
         if args.save:
             args.save.write_text(json.dumps(results, indent=1))
-    report(results, device, args.markdown, "python benchmarks/multiscale.py " + " ".join(sys.argv[1:]))
+    if args.merge:
+        results["commands"].append(command)
+    report(results, device, args.markdown)
 
 
 if __name__ == "__main__":
