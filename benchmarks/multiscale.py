@@ -220,13 +220,14 @@ def report(results: dict, device, markdown: Path | None) -> None:
                      f"{r['rmse_hdr']:.4f} | {r['mae_hdr']:.4f} | {model.size_bytes('fp32') / 1e3:.1f} | "
                      f"{model_flops(model)} | {r['steps_per_s']:.2f} | {rate:.3g} | {ggx_rate / rate:.1f} |")
     lines += ["", f"principled GGX point evaluation: {ggx_rate:.3g} eval/s; \"x GGX\" = GGX evaluations per second "
-              "/ the model's (same batch of 65536 queries, model sizes of the first texture set)."]
+              f"/ the model's (same batch of 65536 queries; models with {size}^2 pyramids)."]
     print("\n".join(lines[-len(models) - 6:]))
     if markdown:
         chart = markdown.with_name(markdown.stem + "_flip.png")
         header = [f"# Multi-scale SVBRDF benchmark ({', '.join(materials)})", "",
-                  "Commands: " + "; ".join(f"`{c}`" for c in results["commands"]) + f" on {st['device']}; texture sets at most {st['max_size']}^2, model pyramids "
-                  f"{size}^2, {st['scales']} scales x {st['lights']} lights x {st['cameras']} cameras at "
+                  "Commands: " + "; ".join(f"`{c}`" for c in results["commands"])
+                  + f" on {st['device']}; texture sets at most {st['max_size']}^2, model pyramids {size}^2, "
+                  f"{st['scales']} scales x {st['lights']} lights x {st['cameras']} cameras at "
                   f"{st['resolution']} px, references with {st['ref_samples']} footprint samples; HDR errors over "
                   f"{st['hdr_queries']} Sec. 4.2 queries. Training budget: {st['steps']} steps x {st['batch']} queries"
                   + (" (short-run optimiser: Adam (0.9, 0.999), lr 1e-2, EMA 0.02)" if st["short_run_optimiser"]
@@ -269,14 +270,13 @@ def main() -> None:
     RESULTS.mkdir(exist_ok=True)
     if args.merge:
         results = merge_results(args.merge)
+        results["commands"].append(command)
     else:
         folders = [Path(m) for m in (args.materials or sorted(p for p in DATA.iterdir() if p.is_dir()))]
         results = fit_and_score(args, folders, device)
         results["commands"] = [command]
         if args.save:
             args.save.write_text(json.dumps(results, indent=1))
-    if args.merge:
-        results["commands"].append(command)
     report(results, device, args.markdown)
 
 
