@@ -41,6 +41,7 @@ from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
+from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
 from neumat.models.pca_btf import PCABTF, ranks_for_bytes
@@ -185,7 +186,7 @@ def render_figures(models: dict, out: Path, spp: int, resolution: int) -> list[d
             images[name] = render(model, scene=scene, light=env, spp=spp, resolution=resolution).cpu()
             seconds[name] = time.perf_counter() - t
         ref = images["reference"]
-        luminance = ref @ torch.tensor([0.2126, 0.7152, 0.0722])
+        luminance = ref @ torch.tensor(LUMINANCE)
         exposure = math.log2(0.9 / max(torch.quantile(luminance.flatten(), 0.99).item(), 1e-8))
         metrics = {}
         for name, img in images.items():

@@ -11,6 +11,9 @@ import torch
 
 from ..core.errors import UnknownNameError
 
+#: Rec. 709 luminance weights of linear RGB
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+
 
 def _xp(x):
     """The array module (torch or numpy) that `x` belongs to."""

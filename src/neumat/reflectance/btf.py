@@ -55,9 +55,9 @@ def ring_directions(rings, dtype=torch.float32, device=None) -> torch.Tensor:
 def direction_set(spec: str | int, dtype=torch.float32, device=None) -> torch.Tensor:
     """A named hemispherical direction set (D, 3).
 
-    "hemi151" (default size of UBO2014), "ubo151" (the nominal UBO2014 dome), "ubo81" (UBO2003), or "rings:<n_rings>x<step_deg>" such as
-    "rings:3x30" (rings at 0, 30, 60 degrees with counts proportional to sin theta), or an int n giving
-    a ring set of about n directions (rings every 15 degrees up to 75).
+    "hemi151" (default size of UBO2014), "ubo151" (the nominal UBO2014 dome), "ubo81" (UBO2003), or
+    "rings:<n_rings>x<step_deg>" such as "rings:3x30" (rings at 0, 30, 60 degrees with counts proportional to
+    sin theta), or an int n giving a ring set of about n directions (rings every 15 degrees up to 75).
     """
     if spec == "hemi151":
         return ring_directions(HEMI151_RINGS, dtype, device)

@@ -21,13 +21,13 @@ from dataclasses import dataclass
 import torch
 
 from ..core.errors import InputError
+from ..metrics.tonemap import LUMINANCE
 from ..warp.sphere import sample_uniform_sphere
 from ..warp.alias import AliasTable
 from .envmaps import read_envmap, sky_envmap
 from .spec import as_float, as_vector, check_options, parse_option_value, parse_spec, unknown_name
 
 LIGHT_FORMS = ["point[:x/y/z]", "dir[:x/y/z]", "const:VALUE", "env:PATH", "env:sky"]
-_LUMINANCE = (0.2126, 0.7152, 0.0722)
 
 
 @dataclass
@@ -156,7 +156,7 @@ class EnvironmentMap(Light):
                           / self.height)
         self.cos_edges = edges.float()  # (H + 1,) cos theta at the row boundaries, decreasing
         solid_angle = (edges[:-1] - edges[1:]) * (2 * math.pi / self.width)  # (H,) per texel
-        weights = (self.image.double() @ self.image.new_tensor(_LUMINANCE, dtype=torch.float64)) * solid_angle[:, None]
+        weights = (self.image.double() @ self.image.new_tensor(LUMINANCE, dtype=torch.float64)) * solid_angle[:, None]
         if not float(weights.sum()) > 0:
             raise InputError(f"{name}: the environment map is black, nothing to light the scene")
         self.table = AliasTable(weights)

@@ -14,9 +14,7 @@ from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
 from ..metrics.hdr import material_device
-
-#: Rec. 709 luminance weights of linear RGB
-LUMINANCE = (0.2126, 0.7152, 0.0722)
+from ..metrics.tonemap import LUMINANCE
 
 
 def brdf_slice_image(material: Material, resolution: int = 90, channels: str = "rgb", decades: float = 5.0,
