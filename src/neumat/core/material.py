@@ -1,7 +1,10 @@
 """The `Material` protocol shared by ground-truth sources and learned models."""
 from __future__ import annotations
 
+import functools
+
 import torch
+from torch import nn
 
 from .query import Query, Sample
 
@@ -11,7 +14,17 @@ class Material:
 
     Subclasses implement `eval`; samplers also implement `sample` and `pdf` and set
     `can_sample = True`. Values are linear RGB BRDF values without the cosine factor.
+
+    Learned models are also `torch.nn.Module`s, whose `eval()` (no argument) switches to inference mode.
+    Both meanings are kept: on a Module subclass, `eval()` without a query calls `nn.Module.eval` and
+    `eval(q)` evaluates the material.
     """
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("eval")
+        if own is not None and issubclass(cls, nn.Module):
+            cls.eval = _keep_module_eval(own)
 
     #: registry / display name
     name: str = "material"
@@ -40,6 +53,18 @@ class Material:
     def describe(self) -> str:
         """One line for tables and CLI output."""
         return self.name
+
+
+def _keep_module_eval(evaluate):
+    """`evaluate(self, q, ...)` that, called with no arguments, is `nn.Module.eval(self)` instead."""
+
+    @functools.wraps(evaluate)
+    def eval(self, *args, **kwargs):
+        if not args and not kwargs:
+            return nn.Module.eval(self)
+        return evaluate(self, *args, **kwargs)
+
+    return eval
 
 
 def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,42 @@
+"""Material.eval(q) on learned models coexists with torch's Module.eval() (inference mode)."""
+import pytest
+import torch
+from torch import nn
+
+from neumat.core.material import Material
+from neumat.core.query import Query
+from neumat.models.registry import build_model, load_all
+
+SMALL = {"multiscale": {"spatial_size": 8}, "tripleplane": {"spatial_size": 8}, "zeltner": {"spatial_size": 8},
+         "neumip": {"spatial_size": 8}, "nbrdf-uv": {"spatial_size": 8}, "ggx-mipmap": {"spatial_size": 8}}
+
+
+class Constant(nn.Module, Material):
+    def __init__(self):
+        super().__init__()
+        self.value = nn.Parameter(torch.full((3,), 0.25))
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return self.value.expand(len(q.wi), 3)
+
+    def forward(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
+
+
+def test_module_eval_without_query_switches_mode_and_with_query_evaluates():
+    m = Constant()
+    assert m.training
+    assert m.eval() is m and not m.training
+    q = Query(wi=torch.tensor([[0.0, 0.0, 1.0]]), wo=torch.tensor([[0.0, 0.0, 1.0]]))
+    assert torch.equal(m.eval(q), torch.full((1, 3), 0.25))
+    assert torch.equal(m(q), torch.full((1, 3), 0.25))
+
+
+@pytest.mark.parametrize("name", load_all().names())
+def test_every_registered_model_accepts_module_eval(name):
+    model = build_model({"type": name, **SMALL.get(name, {})})
+    if not isinstance(model, nn.Module):
+        pytest.skip(f"{name} is not a torch Module")
+    model.train(True)
+    assert model.eval() is model
+    assert not any(m.training for m in model.modules())
