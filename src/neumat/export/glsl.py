@@ -1,0 +1,372 @@
+"""GLSL export of the multi-scale models (Timonen et al. 2025, Sec. 5.3: the model as a pixel shader).
+
+`export_glsl(model)` turns a fitted `neumat.models.multiscale.MultiScale` (the gated model, its homogeneous
+variant, and the configurations built on it: tripleplane, the ablations) into GLSL 3.30 source plus its
+textures. The source defines
+
+    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)   // spatially varying; footprint in uv^2
+    vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)     // spatially varying; trilinear at lod
+    vec3 neumat_eval(vec3 wi, vec3 wo)                             // homogeneous
+
+computing exactly what `model.eval(q)` computes (directions in the local frame, z up; linear RGB BRDF value
+without the cosine; 0 below the horizon): the same anisotropic filtering of the latent pyramid (up to
+`max_probes` trilinear probes at the minor-axis level), the same polar angular textures, radial warps,
+shading frame, gating and MLP. Small decoders are baked into the source as constants. Textures are RGBA32F
+`sampler2DArray`s (4 channels per layer) read only with `texelFetch`, so filtering and wrapping are done in
+the shader and do not depend on the driver:
+
+    neumat_spatial  all pyramid levels in one atlas (level 0 at the origin, the others stacked to its right)
+    neumat_half     the half-vector texture, azimuths along x, radii along y (row 0 = pole)
+    neumat_diff     the difference-vector texture, same layout
+
+`GLSLExport.write(folder)` writes `neumat.glsl`, one raw little-endian float32 file per texture (layers x
+height x width x 4) and `manifest.json` (sizes, layers, entry points). `neumat.testing.parity.glsl_eval` runs
+an export on an OpenGL context (EGL, headless) for parity checks.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..core.errors import InputError
+from ..models.multiscale import MultiScale
+from ..nn.radial_warp import MIN_ALPHA
+
+GLSL_VERSION = "#version 330 core"
+
+
+@dataclass
+class GLSLExport:
+    """GLSL source (without a #version line) and its textures: name -> float32 array (layers, H, W, 4)."""
+
+    source: str
+    textures: dict[str, np.ndarray] = field(default_factory=dict)
+    spatially_varying: bool = True
+
+    def write(self, folder: str | Path) -> Path:
+        """Write neumat.glsl, <texture>.f32 files and manifest.json into `folder` (created); returns it."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "neumat.glsl").write_text(self.source)
+        manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "textures": {},
+                    "entry": ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+                              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
+                    if self.spatially_varying else ["vec3 neumat_eval(vec3 wi, vec3 wo)"]}
+        for name, data in self.textures.items():
+            layers, height, width, _ = data.shape
+            data.astype("<f4").tofile(folder / f"{name}.f32")
+            manifest["textures"][name] = {"file": f"{name}.f32", "target": "sampler2DArray", "format": "RGBA32F",
+                                          "width": width, "height": height, "layers": layers}
+        (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        return folder
+
+
+def _floats(name: str, values: torch.Tensor) -> str:
+    """`const float name[n] = float[](...);` of a tensor's values (row-major)."""
+    flat = values.detach().double().flatten().cpu().numpy()
+    if not np.isfinite(flat).all():
+        raise InputError(f"export_glsl: parameter {name} has non-finite values; the model cannot be exported")
+    body = ", ".join(f"{v:.9e}" for v in flat)
+    return f"const float {name}[{len(flat)}] = float[]({body});"
+
+
+def _layers(tex: torch.Tensor) -> np.ndarray:
+    """(C, H, W) -> float32 (ceil(C / 4), H, W, 4), channel c in layer c // 4, component c % 4."""
+    c, h, w = tex.shape
+    layers = -(-c // 4)
+    out = torch.zeros(layers * 4, h, w, dtype=torch.float64)
+    out[:c] = tex.detach().double().cpu()
+    out = out.view(layers, 4, h, w).permute(0, 2, 3, 1)
+    if not torch.isfinite(out).all():
+        raise InputError("export_glsl: a texture has non-finite values; the model cannot be exported")
+    return out.float().contiguous().numpy()
+
+
+def _atlas(levels: list[torch.Tensor]) -> tuple[np.ndarray, list[tuple[int, int]], list[tuple[int, int]]]:
+    """Pyramid levels (C, h, w) -> atlas texture, level sizes (w, h) and origins (x, y)."""
+    c, h0, w0 = levels[0].shape
+    origins, top = [(0, 0)], 0
+    for tex in levels[1:]:
+        origins.append((w0, top))
+        top += tex.shape[1]
+    width = w0 + (max(t.shape[2] for t in levels[1:]) if len(levels) > 1 else 0)
+    atlas = torch.zeros(c, max(h0, top), width, dtype=torch.float64)
+    for tex, (x, y) in zip(levels, origins):
+        atlas[:, y:y + tex.shape[1], x:x + tex.shape[2]] = tex.detach().double()
+    return _layers(atlas), [(t.shape[2], t.shape[1]) for t in levels], origins
+
+
+def _ivec2s(name: str, pairs: list[tuple[int, int]]) -> str:
+    body = ", ".join(f"ivec2({a}, {b})" for a, b in pairs)
+    return f"const ivec2 {name}[{len(pairs)}] = ivec2[]({body});"
+
+
+_COMMON = """
+float nm_softplus(float x) { return x > 20.0 ? x : (x < -15.0 ? exp(x) : log(1.0 + exp(x))); }
+float nm_silu(float x) { return x / (1.0 + exp(-x)); }
+
+// i modulo n for i in [-n, 2n) (GLSL leaves % of negative operands undefined)
+int nm_wrap(int i, int n) { return i < 0 ? i + n : (i >= n ? i - n : i); }
+
+vec3 nm_lift(vec3 w) { return vec3(w.xy, sqrt(max(1.0 - dot(w.xy, w.xy), 1e-10))); }
+
+// Rusinkiewicz half and difference vectors (neumat.nn.angular_texture.half_difference)
+void nm_half_difference(vec3 wi, vec3 wo, out vec3 h, out vec3 d) {
+    h = wi + wo;
+    h = h / max(length(h), 1e-12);
+    float s2 = h.x * h.x + h.y * h.y;
+    bool pole = s2 < 1e-14;
+    float s = sqrt(pole ? 1.0 : s2);
+    float cp = pole ? 1.0 : h.x / s, sp = pole ? 0.0 : h.y / s, st = pole ? 0.0 : s, ct = h.z;
+    float x = cp * wi.x + sp * wi.y, y = -sp * wi.x + cp * wi.y;
+    d = vec3(ct * x - st * wi.z, y, st * x + ct * wi.z);
+}
+
+// (r, phi) of the disk projection, phi in [0, period)
+vec2 nm_disk_polar(vec3 w, float period) {
+    float r2 = w.x * w.x + w.y * w.y;
+    if (r2 < 1e-14) return vec2(0.0, 0.0);
+    return vec2(min(sqrt(r2), 1.0), mod(atan(w.y, w.x), period));
+}
+"""
+
+
+def _angular_reader(name: str, sampler: str, channels: int, radial: int, azimuths: int, period: float) -> str:
+    """GLSL `void name(float r, float phi, out vec4 a[L])`: bilinear polar read (neumat.nn.angular_texture)."""
+    layers = -(-channels // 4)
+    return f"""
+void {name}(float r, float phi, out vec4 a[{layers}]) {{
+    float c = mod(phi, {period:.9e}) * {azimuths / period:.9e} - 0.5;
+    float y = clamp(r, 0.0, 1.0) * {radial - 1}.0;
+    float c0f = floor(c), r0f = floor(y);
+    float fc = c - c0f, fr = y - r0f;
+    int c0 = int(c0f), r0 = min(int(r0f), {radial - 1}), r1 = min(r0 + 1, {radial - 1});
+    int c1 = nm_wrap(c0 + 1, {azimuths});
+    c0 = nm_wrap(c0, {azimuths});
+    int a0 = r0 == 0 ? 0 : c0, b0 = r0 == 0 ? 0 : c1;  // the pole row is texel (0, 0) for every azimuth
+    for (int l = 0; l < {layers}; ++l) {{
+        vec4 t00 = texelFetch({sampler}, ivec3(a0, r0, l), 0), t01 = texelFetch({sampler}, ivec3(b0, r0, l), 0);
+        vec4 t10 = texelFetch({sampler}, ivec3(c0, r1, l), 0), t11 = texelFetch({sampler}, ivec3(c1, r1, l), 0);
+        a[l] = mix(mix(t00, t01, fc), mix(t10, t11, fc), fr);
+    }}
+}}
+"""
+
+
+def _spatial_reader(model: MultiScale) -> tuple[str, dict[str, np.ndarray]]:
+    """GLSL of the spatial latent: nm_spatial_lod(uv, lod, out z) and nm_spatial_footprint(uv, cov, out z)."""
+    with torch.no_grad():
+        atlas, sizes, origins = _atlas(model.spatial.levels())
+    levels, layers, probes = len(sizes), atlas.shape[0], model.spatial.max_probes
+    w0, h0 = sizes[0]
+    src = f"""
+uniform sampler2DArray neumat_spatial;
+const int NM_LEVELS = {levels};
+{_ivec2s("NM_LEVEL_SIZE", sizes)}
+{_ivec2s("NM_LEVEL_ORIGIN", origins)}
+
+vec4 nm_spatial_texel(int level, int x, int y, int layer) {{
+    ivec2 s = NM_LEVEL_SIZE[level];
+    ivec2 t = ivec2(nm_wrap(x, s.x), nm_wrap(y, s.y));
+    return texelFetch(neumat_spatial, ivec3(NM_LEVEL_ORIGIN[level] + t, layer), 0);
+}}
+
+// weight x bilinear lookup (wrap tiling) of one level, added to z
+void nm_spatial_bilinear(int level, vec2 uv, float weight, inout vec4 z[{layers}]) {{
+    vec2 p = fract(uv);
+    ivec2 s = NM_LEVEL_SIZE[level];
+    float x = p.x * float(s.x) - 0.5, y = (1.0 - p.y) * float(s.y) - 0.5;
+    float x0f = floor(x), y0f = floor(y);
+    float fx = x - x0f, fy = y - y0f;
+    int x0 = int(x0f), y0 = int(y0f);
+    for (int l = 0; l < {layers}; ++l) {{
+        vec4 top = mix(nm_spatial_texel(level, x0, y0, l), nm_spatial_texel(level, x0 + 1, y0, l), fx);
+        vec4 bottom = mix(nm_spatial_texel(level, x0, y0 + 1, l), nm_spatial_texel(level, x0 + 1, y0 + 1, l), fx);
+        z[l] += weight * mix(top, bottom, fy);
+    }}
+}}
+
+void nm_spatial_trilinear(vec2 uv, float lod, float weight, inout vec4 z[{layers}]) {{
+    lod = clamp(lod, 0.0, float(NM_LEVELS - 1));
+    float lo = floor(lod);
+    float t = lod - lo;
+    int l0 = int(lo), l1 = min(int(lo) + 1, NM_LEVELS - 1);
+    nm_spatial_bilinear(l0, uv, weight * (1.0 - t), z);
+    nm_spatial_bilinear(l1, uv, weight * t, z);
+}}
+
+void nm_spatial_lod(vec2 uv, float lod, out vec4 z[{layers}]) {{
+    for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
+    nm_spatial_trilinear(uv, lod, 1.0, z);
+}}
+
+// anisotropic filtering of a Gaussian footprint (covariance in uv^2; neumat.nn.latent_texture)
+void nm_spatial_footprint(vec2 uv, mat2 cov, out vec4 z[{layers}]) {{
+    for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
+    vec2 scale = vec2({w0}.0, {h0}.0);
+    float a = cov[0][0] * scale.x * scale.x, b = cov[1][0] * scale.x * scale.y, c = cov[1][1] * scale.y * scale.y;
+    float mean = 0.5 * (a + c), half_gap = sqrt(0.25 * (a - c) * (a - c) + b * b);
+    float theta = (b == 0.0 && a == c) ? 0.0 : 0.5 * atan(2.0 * b, a - c);
+    float major = sqrt(max(mean + half_gap, 0.0)), minor = max(sqrt(max(mean - half_gap, 0.0)), 1e-12);
+    vec2 axis = vec2(cos(theta), sin(theta));
+    float n = clamp(ceil(major / minor), 1.0, {probes}.0);
+    float sigma = max(minor, major / {probes}.0);
+    float lod = log2(max(2.0 * sigma, 1e-12));
+    float spacing = sqrt(max(12.0 * (major * major - sigma * sigma), 0.0) / max(n * n - 1.0, 1.0));
+    for (int k = 0; k < {probes}; ++k) {{
+        if (float(k) >= n) break;
+        float offset = (float(k) - 0.5 * (n - 1.0)) * spacing;
+        nm_spatial_trilinear(uv + offset * axis / scale, lod, 1.0 / n, z);
+    }}
+}}
+"""
+    return src, {"neumat_spatial": atlas}
+
+
+def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> str:
+    """GLSL statements `target[o] = B[o] + sum_i W[o * in + i] * source(i)` (source: an expression in i)."""
+    return f"""    for (int o = 0; o < {out_dim}; ++o) {{
+        float acc = {name}_B[o];
+        for (int i = 0; i < {in_dim}; ++i) acc += {name}_W[o * {in_dim} + i] * {source};
+        {target}[o] = acc;
+    }}
+"""
+
+
+def export_glsl(model) -> GLSLExport:
+    """GLSL source and textures computing `model.eval` (see module docstring). model: a MultiScale (or a
+    configuration of it such as tripleplane); anything else raises InputError."""
+    if not isinstance(model, MultiScale):
+        raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane), got "
+                         f"{type(model).__name__} ({getattr(model, 'name', '?')})")
+    cfg = model.cfg
+    spatial = model.spatial is not None
+    gated = spatial and cfg.gating
+    ds = cfg.spatial_channels
+    zl = -(-ds // 4)  # spatial latent layers
+    consts, textures, parts = [], {}, [_COMMON]
+    zs = "z[i / 4][i % 4]"  # z_s[i] in a vec4 array `z`
+
+    if spatial:
+        src, tex = _spatial_reader(model)
+        parts.append(src)
+        textures.update(tex)
+    with torch.no_grad():
+        for tex_name, module, channels in (("neumat_half", model.half_texture, model.half_texture.channels),
+                                           ("neumat_diff", model.diff_texture, model.diff_texture.channels)):
+            textures[tex_name] = _layers(module.texture())
+            parts.append(f"uniform sampler2DArray {tex_name};")
+            parts.append(_angular_reader(f"nm_read_{tex_name[7:]}", tex_name, channels, module.radial,
+                                         module.angular, module.period))
+
+    decode = []  # body of nm_decode(wi, wo, z)
+    if model.frame is not None:
+        consts += [_floats("NM_FRAME_W", model.frame.decode.weight * model.frame.weight_scale),
+                   _floats("NM_FRAME_B", model.frame.decode.bias)]
+        decode.append("    float v[6];\n" + _linear("NM_FRAME", 6, ds, zs, "v") + """    vec3 n = vec3(v[0], v[1], v[2]);
+    n = n / max(length(n), 1e-12);
+    vec3 t = vec3(v[3], v[4], v[5]);
+    t = t - dot(t, n) * n;
+    t = t / max(length(t), 1e-12);
+    vec3 bt = cross(n, t);
+    wi = nm_lift(vec3(dot(wi, t), dot(wi, bt), dot(wi, n)));
+    wo = nm_lift(vec3(dot(wo, t), dot(wo, bt), dot(wo, n)));
+""")
+    else:
+        decode.append("    wi = nm_lift(wi);\n    wo = nm_lift(wo);\n")
+    decode.append(f"""    vec3 h, d;
+    nm_half_difference(wi, wo, h, d);
+    vec2 ph = nm_disk_polar(h, {2 * math.pi:.9e});
+    vec2 pd = nm_disk_polar(d, {math.pi:.9e});
+""")
+    if model.warp_h is not None:
+        k = cfg.warp_terms
+        for tag, warp, coord in (("H", model.warp_h, "ph"), ("D", model.warp_d, "pd")):
+            if warp.latent_dim > 0:
+                consts += [_floats(f"NM_WARP{tag}_W", warp.decode.weight), _floats(f"NM_WARP{tag}_B", warp.decode.bias)]
+                decode.append(f"    float w{tag}[{2 * k}];\n" + _linear(f"NM_WARP{tag}", 2 * k, ds, zs, f"w{tag}"))
+            else:
+                consts.append(_floats(f"NM_WARP{tag}_P", warp.params))
+                decode.append(f"    float w{tag}[{2 * k}];\n    for (int i = 0; i < {2 * k}; ++i) "
+                              f"w{tag}[i] = NM_WARP{tag}_P[i];\n")
+            decode.append(f"""    {{
+        float top = w{tag}[0];
+        for (int i = 1; i < {k}; ++i) top = max(top, w{tag}[i]);
+        float total = 0.0, acc = 0.0, r = clamp({coord}.x, 1e-9, 1.0);
+        for (int i = 0; i < {k}; ++i) {{
+            float e = exp(w{tag}[i] - top);
+            total += e;
+            acc += e * exp(({MIN_ALPHA:.9e} + nm_softplus(w{tag}[{k} + i])) * log(r));
+        }}
+        {coord}.x = acc / total;
+    }}
+""")
+    hl, dl = -(-model.half_texture.channels // 4), -(-model.diff_texture.channels // 4)
+    decode.append(f"    vec4 ah[{hl}], ad[{dl}];\n    nm_read_half(ph.x, ph.y, ah);\n    nm_read_diff(pd.x, pd.y, ad);\n")
+    mlp = model.mlp.linears()
+    in_dim = mlp[0].in_features
+    decode.append(f"    float x[{in_dim}];\n")
+    dh, dd = cfg.half_channels, cfg.diff_channels
+    if gated:
+        decode.append(f"""    for (int o = 0; o < {dh}; ++o) {{
+        float acc = 0.0;
+        for (int i = 0; i < {ds}; ++i) {{ int c = o * {ds} + i; acc += ah[c / 4][c % 4] * {zs}; }}
+        x[o] = acc;
+    }}
+    for (int o = 0; o < {dd}; ++o) {{
+        float acc = 0.0;
+        for (int i = 0; i < {ds}; ++i) {{ int c = o * {ds} + i; acc += ad[c / 4][c % 4] * {zs}; }}
+        x[{dh} + o] = acc;
+    }}
+""")
+    else:
+        decode.append(f"    for (int i = 0; i < {dh}; ++i) x[i] = ah[i / 4][i % 4];\n"
+                      f"    for (int i = 0; i < {dd}; ++i) x[{dh} + i] = ad[i / 4][i % 4];\n")
+        if spatial:
+            decode.append(f"    for (int i = 0; i < {ds}; ++i) x[{dh + dd} + i] = {zs};\n")
+    previous = "x"
+    for i, layer in enumerate(mlp):
+        consts += [_floats(f"NM_L{i}_W", layer.weight), _floats(f"NM_L{i}_B", layer.bias)]
+        last = i == len(mlp) - 1
+        act = "" if last else "nm_silu"
+        decode.append(f"    float y{i}[{layer.out_features}];\n"
+                      + _linear(f"NM_L{i}", layer.out_features, layer.in_features, f"{previous}[i]", f"y{i}"))
+        if act:
+            decode.append(f"    for (int o = 0; o < {layer.out_features}; ++o) y{i}[o] = {act}(y{i}[o]);\n")
+        previous = f"y{i}"
+    decode.append(f"    return exp(vec3({previous}[0], {previous}[1], {previous}[2]));\n")
+
+    z_param = f", vec4 z[{zl}]" if spatial else ""
+    parts.append("\n".join(consts))
+    parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo{z_param}) {{\n" + "".join(decode) + "}\n")
+    if spatial:
+        parts.append(f"""
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{zl}];
+    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode(wi, wo, z);
+}}
+
+vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{zl}];
+    nm_spatial_lod(uv, lod, z);
+    return nm_decode(wi, wo, z);
+}}
+""")
+    else:
+        parts.append("""
+vec3 neumat_eval(vec3 wi, vec3 wo) {
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    return nm_decode(wi, wo);
+}
+""")
+    header = (f"// neumat GLSL export of a '{model.name}' model ({'gated' if gated else 'concatenated latents'}"
+              f"{', spatially varying' if spatial else ', homogeneous'}); see neumat.export.glsl.\n")
+    return GLSLExport(header + "\n".join(parts), textures, spatial)

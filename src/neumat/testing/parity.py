@@ -1,0 +1,106 @@
+"""Run an exported GLSL material on an OpenGL context, for parity checks against the torch model.
+
+`glsl_eval(export, q)` draws one fragment per query into an RGBA32F framebuffer: the fragment shader reads
+its query (wi, wo, uv, footprint or lod) from float textures with `texelFetch`, calls the export's
+`neumat_eval` and writes the value. Needs `moderngl` and an OpenGL 3.3 context; by default a headless EGL one
+(Mesa llvmpipe runs it on the CPU).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.errors import InputError
+from ..core.query import Query
+from ..export.glsl import GLSL_VERSION, GLSLExport
+
+_VERTEX = GLSL_VERSION + """
+in vec2 position;
+void main() { gl_Position = vec4(position, 0.0, 1.0); }
+"""
+
+_FRAGMENT = GLSL_VERSION + """
+uniform sampler2D q_wi, q_wo, q_uv, q_filter;
+out vec4 colour;
+{material}
+void main() {{
+    ivec2 p = ivec2(gl_FragCoord.xy);
+    vec3 wi = texelFetch(q_wi, p, 0).xyz, wo = texelFetch(q_wo, p, 0).xyz;
+    vec4 f = texelFetch(q_filter, p, 0);
+    vec2 uv = texelFetch(q_uv, p, 0).xy;
+    {call}
+}}
+"""
+
+
+def _context(backend: str | None):
+    try:
+        import moderngl
+    except ImportError as e:  # pragma: no cover - moderngl is a dev dependency
+        raise InputError("glsl_eval needs the 'moderngl' package (pip install moderngl)") from e
+    return moderngl, moderngl.create_standalone_context(**({"backend": backend} if backend else {}))
+
+
+def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: int = 256) -> torch.Tensor:
+    """Values (N, 3) of the exported material at the queries q (float32, on q's device). Spatially varying
+    exports use q.footprint if given, else q.lod (0 when absent); they need q.uv."""
+    n = len(q.wi)
+    if n == 0:
+        return q.wi.new_zeros(0, 3)
+    if export.spatially_varying:
+        q.require("uv", who="glsl_eval (spatially varying export)")
+        if q.footprint is not None:
+            call, mode = "colour = vec4(neumat_eval(wi, wo, uv, mat2(f.x, f.y, f.y, f.z)), 1.0);", 0
+        else:
+            call, mode = "colour = vec4(neumat_eval_lod(wi, wo, uv, f.w), 1.0);", 1
+    else:
+        call, mode = "colour = vec4(neumat_eval(wi, wo), 1.0);", 2
+    moderngl, ctx = _context(backend)
+    try:
+        cols = min(width, n)
+        rows = -(-n // cols)
+
+        def upload(values: torch.Tensor, unit: int):
+            data = np.zeros((rows * cols, 4), np.float32)
+            data[:n, :values.shape[1]] = values.detach().float().cpu().numpy()
+            tex = ctx.texture((cols, rows), 4, data.tobytes(), dtype="f4")
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            tex.use(unit)
+            return tex
+
+        filt = torch.zeros(n, 4)
+        if mode == 0:
+            fp = q.footprint.detach().float().cpu()
+            filt[:, 0], filt[:, 1], filt[:, 2] = fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]
+        elif mode == 1 and q.lod is not None:
+            filt[:, 3] = q.lod.detach().float().cpu()
+        uv = q.uv if export.spatially_varying else torch.zeros(n, 2)
+        inputs = {"q_wi": q.wi, "q_wo": q.wo, "q_uv": uv, "q_filter": filt}
+        program = ctx.program(vertex_shader=_VERTEX,
+                              fragment_shader=_FRAGMENT.format(material=export.source, call=call))
+        keep = []
+        for unit, (name, values) in enumerate(inputs.items()):
+            if name in program:  # unused inputs (uv of a homogeneous export) are compiled away
+                keep.append(upload(values, unit))
+                program[name] = unit
+        for unit, (name, data) in enumerate(export.textures.items(), start=len(inputs)):
+            if name not in program:
+                continue
+            layers, height, width_, _ = data.shape
+            tex = ctx.texture_array((width_, height, layers), 4, np.ascontiguousarray(data, np.float32).tobytes(),
+                                    dtype="f4")
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            tex.use(unit)
+            keep.append(tex)
+            program[name] = unit
+        quad = ctx.buffer(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32).tobytes())
+        vao = ctx.vertex_array(program, [(quad, "2f", "position")])
+        target = ctx.texture((cols, rows), 4, dtype="f4")
+        fbo = ctx.framebuffer(color_attachments=[target])
+        fbo.use()
+        ctx.viewport = (0, 0, cols, rows)
+        vao.render(moderngl.TRIANGLE_STRIP)
+        out = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(rows * cols, 4)[:n, :3]
+        return torch.from_numpy(out.copy()).to(q.wi.device)
+    finally:
+        ctx.release()
