@@ -53,6 +53,9 @@ def test_registry_config_roundtrip_and_state_dict():
         MultiScale(spatial_size=24)
     with pytest.raises(InputError, match="hidden"):
         MultiScale(hidden=0)
+    with pytest.raises(InputError, match="frame_weight_scale"):
+        MultiScale(frame_weight_scale=-1.0)
+    assert MultiScale(spatial_size=8, frame_weight_scale=0.5).frame.weight_scale == 0.5
 
 
 def test_output_is_positive_reciprocal_and_zero_below_horizon():

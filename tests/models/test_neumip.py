@@ -57,3 +57,6 @@ def test_bad_config_raises():
         build_model({"type": "neumip", "directions": "polar"})
     with pytest.raises(InputError, match="power of two"):
         build_model({"type": "zeltner", "spatial_size": 12})
+    with pytest.raises(InputError, match="frame_weight_scale"):
+        build_model({"type": "zeltner", "frame_weight_scale": float("nan")})
+    assert build_model({"type": "zeltner", "spatial_size": 8, "frame_weight_scale": 1.0}).frame.weight_scale == 1.0
