@@ -10,18 +10,9 @@ from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
 from neumat.models.registry import build_model
 
-moderngl = pytest.importorskip("moderngl", reason="moderngl is needed to run exported GLSL")
+from neumat.testing.parity import glsl_eval, opengl_available
 
-
-def _egl_available() -> bool:
-    try:
-        moderngl.create_standalone_context(backend="egl").release()
-        return True
-    except Exception:  # no EGL driver on this machine
-        return False
-
-
-needs_gl = pytest.mark.skipif(not _egl_available(), reason="no headless OpenGL 3.3 context (EGL) on this machine")
+needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
 
 CONFIGS = {
     "gated": {"type": "multiscale", "spatial_size": 16},
@@ -60,8 +51,6 @@ def _queries(n: int, min_cos: float, spatial: bool, footprint: bool) -> Query:
 
 
 def _relative_error(model, q):
-    from neumat.testing.parity import glsl_eval
-
     with torch.no_grad():
         ref = model.eval(q)
     out = glsl_eval(export_glsl(model), q)
@@ -86,8 +75,6 @@ def test_glsl_matches_torch(name, footprint):
 
 @needs_gl
 def test_glsl_is_zero_below_the_horizon():
-    from neumat.testing.parity import glsl_eval
-
     model = _model(CONFIGS["homogeneous"])
     q = Query(wi=torch.tensor([[0.0, 0.6, -0.8], [0.0, 0.0, 1.0]]), wo=torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, -0.8]]))
     assert torch.equal(glsl_eval(export_glsl(model), q), torch.zeros(2, 3))

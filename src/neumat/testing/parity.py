@@ -41,6 +41,16 @@ def _context(backend: str | None):
     return moderngl, moderngl.create_standalone_context(**({"backend": backend} if backend else {}))
 
 
+def opengl_available(backend: str | None = "egl") -> bool:
+    """Whether `glsl_eval` can run here: moderngl is installed and an OpenGL 3.3 context can be created."""
+    try:
+        _, ctx = _context(backend)
+    except Exception:  # no moderngl, no driver, no display
+        return False
+    ctx.release()
+    return True
+
+
 def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: int = 256) -> torch.Tensor:
     """Values (N, 3) of the exported material at the queries q (float32, on q's device). Spatially varying
     exports use q.footprint if given, else q.lod (0 when absent); they need q.uv."""

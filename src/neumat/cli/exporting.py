@@ -1,0 +1,43 @@
+"""`neumat export`: a fitted model as GLSL source plus textures (`neumat.export.glsl`)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import run_command
+
+
+def register(app: typer.Typer) -> None:
+    app.command("export")(export)
+
+
+def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale model"),
+           out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
+           check: int = typer.Option(0, "--check", min=0,
+                                     help="also run the shader on N random queries (headless OpenGL) and print "
+                                          "its largest relative difference from the torch model")) -> None:
+    """Write MODEL as GLSL 3.30 (neumat.glsl), its textures (raw float32) and manifest.json to OUT."""
+    def go():
+        import torch
+
+        from ..export.glsl import export_glsl
+        from ..io.modelfile import load_model
+
+        m = load_model(model, device="cpu")
+        exported = export_glsl(m)
+        folder = exported.write(out)
+        size = sum(t.nbytes for t in exported.textures.values())
+        print(f"wrote {folder / 'neumat.glsl'} ({len(exported.source)} characters) and "
+              f"{len(exported.textures)} textures ({size / 1e6:.2f} MB) to {folder}")
+        if check:
+            from ..fit.footprint_queries import footprint_queries
+            from ..testing.parity import glsl_eval
+
+            q = footprint_queries(m, m)(check, torch.Generator().manual_seed(0), torch.device("cpu"))
+            with torch.no_grad():
+                ref = m.eval(q)
+            rel = (glsl_eval(exported, q) - ref).abs() / ref.abs().clamp(min=1e-6)
+            print(f"shader vs torch on {check} Sec. 4.2 queries: max relative difference {float(rel.max()):.2e}, "
+                  f"median {float(rel.median()):.2e}")
+    run_command(go)

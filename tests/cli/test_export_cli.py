@@ -1,0 +1,42 @@
+import json
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from neumat.cli.main import app
+from neumat.io.modelfile import save_model
+from neumat.models.registry import build_model
+
+from neumat.testing.parity import opengl_available
+
+needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
+
+
+def _saved(tmp_path, spec):
+    torch.manual_seed(0)
+    return save_model(build_model(spec), tmp_path / "m.nmat")
+
+
+def test_export_writes_glsl_textures_and_manifest(tmp_path):
+    path = _saved(tmp_path, {"type": "multiscale", "spatial_size": 8})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl")])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "glsl" / "manifest.json").read_text())
+    assert sorted(manifest["textures"]) == ["neumat_diff", "neumat_half", "neumat_spatial"]
+    assert "neumat_eval" in (tmp_path / "glsl" / "neumat.glsl").read_text()
+
+
+@needs_gl
+def test_export_check_runs_the_shader(tmp_path):
+    path = _saved(tmp_path, {"type": "multiscale", "homogeneous": True})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "500"])
+    assert result.exit_code == 0, result.output
+    rel = float(result.output.split("max relative difference ")[1].split(",")[0])
+    assert rel < 1e-2
+
+
+def test_export_refuses_a_model_without_a_shader(tmp_path):
+    path = _saved(tmp_path, {"type": "nbrdf"})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl")])
+    assert result.exit_code != 0 and "multi-scale model" in result.output
