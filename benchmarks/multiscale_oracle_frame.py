@@ -13,6 +13,7 @@ import torch
 from torch import nn
 
 import multiscale as benchmark
+from neumat.core.frames import to_local
 from neumat.models.multiscale import MultiScale
 from neumat.models.registry import MODELS
 from neumat.nn.shading_frames import lift_to_hemisphere
@@ -37,8 +38,7 @@ class NormalMapFrame(nn.Module):
     def forward(self, z: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         source = _SOURCES[-1]
         t, b, n = source._shading_frame(source.parameters_at(self.uv)["normal"])
-        local = lambda w: torch.stack([(w * t).sum(-1), (w * b).sum(-1), (w * n).sum(-1)], -1)  # noqa: E731
-        return lift_to_hemisphere(local(wi)), lift_to_hemisphere(local(wo))
+        return lift_to_hemisphere(to_local(wi, t, b, n)), lift_to_hemisphere(to_local(wo, t, b, n))
 
     def flops(self) -> int:
         """Two 3 x 3 transforms and two lifts (the normal-map fetch is a texture read)."""

@@ -20,6 +20,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..core.frames import to_local
+
 _EPS = 1e-12
 
 
@@ -57,8 +59,7 @@ class ShadingFrame(nn.Module):
 
     def forward(self, z: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         t, b, n = self.frame(z)
-        local = lambda w: torch.stack([(w * t).sum(-1), (w * b).sum(-1), (w * n).sum(-1)], -1)  # noqa: E731
-        return lift_to_hemisphere(local(wi)), lift_to_hemisphere(local(wo))
+        return lift_to_hemisphere(to_local(wi, t, b, n)), lift_to_hemisphere(to_local(wo, t, b, n))
 
     def flops(self) -> int:
         """Decode layer, normalisations and Gram-Schmidt (~40), a cross product (9), two 3x3 transforms (30)
