@@ -3,18 +3,21 @@ reconstruction throughput (CPU, and CUDA when available), coefficient- vs value-
 
     python benchmarks/btf.py                       # procedural texture sets (no data needed)
     python benchmarks/btf.py --size 40 --dirs rings:3x30 --patch 10 --dictionaries 4 --iterations 10
-    python benchmarks/btf.py --shared ../shared/data/svbrdf   # generated from the real PBR sets
+    python benchmarks/btf.py --size 120 --test shared --shared-relief 4
+                                                   # test on BTFs generated from the six real PBR sets
     python benchmarks/btf.py --render              # also renders a BTF-textured plane and bunny (comparison PNGs)
     python benchmarks/btf.py --train-seeds 6 --train-shared ../shared/data/svbrdf --tiles 2 --dictionaries 8
                                                    # a larger training set (benchmarks/results/btf_vs_pca.md)
     python benchmarks/btf.py --neubrdf             # also NeuBRDF with a neural texture at SparseBTF's bytes
 
-Training set: the first two materials (with --train-seeds S also their layouts from seeds 2..S, with
---train-shared also tiles of real PBR sets); test set: the others (never seen in training).
+Training set: --train (with --train-seeds S also their procedural layouts from seeds 2..S, with
+--train-shared also tiles of real PBR sets); test set: --test, never seen in training (refused otherwise).
 MSE is reported on linear RGB (the BTF values) and in the log-YUV space the models code (log(x + eps), before
 the per-image standardisation). PCA gets the same per-BTF bytes as SparseBTF's codes plus statistics, and is
 charged for its bases and means ("PCA"); "PCA paper" is charged only its per-texel coefficients, as the
 compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (32)'s 2122: 22801 x 3 / 64).
+Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`).
+"statistics share" is the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
 
 --neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
 resolution, one latent vector per texel) whose fp16 size_bytes() is closest to SparseBTF's per-BTF bytes (the
@@ -44,7 +47,7 @@ from neumat.fit.trainer import fit
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
-from neumat.models.pca_btf import PCABTF, ranks_for_bytes
+from neumat.models.pca_btf import PCABTF, best_ranks, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
@@ -64,29 +67,54 @@ def table(title, rows):
     Console(width=220).print(t)
 
 
-def materials(args, dirs):
-    if args.shared:
-        from neumat.io.texture_set import load_texture_set
-        out = {}
-        for folder in sorted(Path(args.shared).iterdir()):
-            ts = load_texture_set(folder)
-            tile, relief = texture_tile(ts, args.size, crop=min(256, *ts.size))
-            out[ts.name] = generate_btf(tile, dirs, dirs, relief=relief * args.relief, spp=args.spp)
-        return out
-    kinds = ["bumps", "weave", "bricks", "dents", "ridges"]
-    return {k: generate_btf(procedural_texture_set(k, args.size, seed=1), dirs, dirs, relief=args.relief * 4,
-                            spp=args.spp) for k in kinds}
+PROCEDURAL = ("bumps", "weave", "bricks", "dents", "ridges")
+
+
+def material_names(spec: str, shared: str) -> list[str]:
+    """Names in a comma-separated `spec`: procedural kinds, texture-set folders under `shared`, or `shared`
+    for all of them."""
+    folders = sorted(p.name for p in Path(shared).iterdir() if p.is_dir()) if shared and Path(shared).is_dir() else []
+    names = []
+    for token in filter(None, spec.split(",")):
+        if token == "shared":
+            if not folders:
+                raise SystemExit(f"'shared' in {spec!r}: no texture sets under --shared {shared!r}")
+            names += folders
+        elif token in PROCEDURAL or token in folders:
+            names.append(token)
+        else:
+            raise SystemExit(f"unknown material {token!r}: expected one of {PROCEDURAL}, 'shared', or a "
+                             f"texture-set folder under --shared ({shared!r})")
+    return names
+
+
+def generate_material(name: str, args, dirs, tile_index: int = 0):
+    """The BTF of a procedural kind (seed 1, relief 4 x --relief) or of a texture set under --shared (a --crop
+    tile at row = column = --crop-at + tile_index x crop (wrapped into the image), resampled to --size texels,
+    relief x --shared-relief)."""
+    if name in PROCEDURAL:
+        return generate_btf(procedural_texture_set(name, args.size, seed=1), dirs, dirs, relief=args.relief * 4,
+                            spp=args.spp)
+    from neumat.io.texture_set import load_texture_set
+    ts = load_texture_set(Path(args.shared) / name)
+    crop = min(args.crop or args.size, *ts.size)
+    at = (args.crop_at + tile_index * crop) % (min(ts.size) - crop + 1)
+    tile, relief = texture_tile(ts, args.size, crop=crop, row=at, col=at)
+    return generate_btf(tile, dirs, dirs, relief=relief * args.shared_relief, spp=args.spp)
 
 
 def extra_training_btfs(args, dirs, kinds: list[str]) -> dict:
     """More training BTFs (args.train_size texels, default args.size): the procedural `kinds` with seeds
-    2..args.train_seeds, and args.tiles tiles of every PBR set in args.train_shared (relief x
-    args.shared_relief). Test materials stay unseen."""
+    2..args.train_seeds, tiles 1..args.train_tiles - 1 of the texture sets in `kinds`, and args.tiles tiles of
+    every PBR set in args.train_shared (relief x args.shared_relief). Test materials stay unseen."""
     out, size = {}, args.train_size or args.size
     for seed in range(2, args.train_seeds + 1):
-        for k in kinds:
+        for k in (k for k in kinds if k in PROCEDURAL):
             out[f"{k}#{seed}"] = generate_btf(procedural_texture_set(k, size, seed=seed), dirs, dirs,
                                               relief=args.relief * 4, spp=args.spp)
+    for i in range(1, args.train_tiles):
+        for k in (k for k in kinds if k not in PROCEDURAL):
+            out[f"{k}#{i}"] = generate_material(k, args, dirs, tile_index=i)
     if args.train_shared:
         from neumat.io.texture_set import load_texture_set
         for folder in sorted(Path(args.train_shared).iterdir()):
@@ -229,10 +257,18 @@ def main():
     ap.add_argument("--spp", type=int, default=1)
     ap.add_argument("--relief", type=float, default=1.0)
     ap.add_argument("--queries", type=int, default=1 << 15)
-    ap.add_argument("--shared", default="")
+    ap.add_argument("--train", default="bumps,weave", help="training materials (procedural kinds or texture sets)")
+    ap.add_argument("--test", default="bricks,dents,ridges",
+                    help="test materials, never trained on: procedural kinds, texture-set folders under --shared, "
+                         "or 'shared' for all of them")
+    ap.add_argument("--shared", default="../shared/data/svbrdf", help="folder of the PBR texture sets")
+    ap.add_argument("--crop", type=int, default=0,
+                    help="texture-set texels per BTF tile side (default --size: one texture texel per BTF texel)")
+    ap.add_argument("--crop-at", type=int, default=300, help="row and column of the texture-set test tiles")
     ap.add_argument("--train-seeds", type=int, default=1,
                     help="also train on the two training kinds generated with seeds 2..S")
     ap.add_argument("--train-shared", default="", help="also train on tiles of the PBR sets in this folder")
+    ap.add_argument("--train-tiles", type=int, default=1, help="tiles of each texture set named in --train")
     ap.add_argument("--tiles", type=int, default=1, help="tiles per PBR set for --train-shared")
     ap.add_argument("--shared-relief", type=float, default=8.0, help="relief multiplier of --train-shared tiles")
     ap.add_argument("--train-size", type=int, default=0,
@@ -254,10 +290,11 @@ def main():
     tau_l = tuple(int(t) for t in args.tau_train.split(","))
 
     t = time.perf_counter()
-    btfs = materials(args, dirs)
-    gen_s = time.perf_counter() - t
-    names = list(btfs)
-    train, test = names[:2], names[2:]
+    train, test = material_names(args.train, args.shared), material_names(args.test, args.shared)
+    if set(train) & set(test) or (args.train_shared and any(n not in PROCEDURAL for n in test)):
+        raise SystemExit(f"the test materials {test} must not be used in training ({train}"
+                         f"{', --train-shared ' + args.train_shared if args.train_shared else ''})")
+    btfs = {name: generate_material(name, args, dirs) for name in train + test}
     extra = extra_training_btfs(args, dirs, train)
     btfs.update(extra)
     train += list(extra)
@@ -281,10 +318,11 @@ def main():
             sp = SparseBTF.encode(btfs[name], dic, tau)
             code_s = time.perf_counter() - t
             st = sp.storage()
-            ranks = ranks_for_bytes(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size, split=tau)
+            total = rank_budget(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
+            ranks = best_ranks(btfs[name], total, dic.log_eps)
             pca = PCABTF.fit(btfs[name], ranks, log_eps=dic.log_eps)
             paper_rank = st["per_btf"] // (2 * args.size * args.size)        # fp16 coefficients per texel
-            paper_ranks = tuple(round(paper_rank * t / sum(tau)) for t in tau)
+            paper_ranks = best_ranks(btfs[name], paper_rank, dic.log_eps)
             pca_paper = PCABTF.fit(btfs[name], paper_ranks, log_eps=dic.log_eps)
             decoded, pca_decoded = sp.decode(), pca.decode()
             rows.append({"btf": name, "tau_t (Y,U,V)": str(tau), "coefficients": st["coefficients"],
@@ -294,6 +332,7 @@ def main():
                          "PCA log MSE": log_mse(btfs[name], pca_decoded, dic.log_eps),
                          "PCA paper ranks": str(paper_ranks),
                          "PCA paper MSE": mse(btfs[name], pca_paper.decode()), "per-BTF bytes": st["per_btf"],
+                         "statistics share": st["statistics"] / st["per_btf"],
                          "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
                          "compression": st["compression_ratio"], "coding s": code_s})
             models[(name, mult)] = sp
@@ -332,9 +371,9 @@ def main():
         fig = models[(name, fig_mult)]
         figure_models = {"reference": btfs[name], "sparse-btf": fig.decode()}
         st = fig.storage()
-        figure_models["pca"] = PCABTF.fit(btfs[name], ranks_for_bytes(st["per_btf"], dirs.shape[0], dirs.shape[0],
-                                                                      args.size, args.size,
-                                                                      split=fig.cfg.tau))
+        total = rank_budget(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
+        figure_models["pca"] = PCABTF.fit(btfs[name], best_ranks(btfs[name], total, dic.log_eps),
+                                          log_eps=dic.log_eps)
         out = Path(__file__).parent / "results"
         table(f"renders of {name} (tau x{fig_mult}, equal per-BTF bytes) under studio_small_03, {args.render_spp} spp, "
               f"written to {out}", render_figures(figure_models, out, args.render_spp, args.render_size))

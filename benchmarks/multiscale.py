@@ -122,13 +122,14 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
     lights, tilts = (LIGHTS[:2], TILTS[1:2]) if args.quick else (LIGHTS, TILTS)
     per_scale: dict[str, list[list[float]]] = {m: [] for m in args.models}
     rows: dict[str, list[dict]] = {m: [] for m in args.models}
-    materials = []
+    materials, pyramids = [], []
     for folder in folders:
         textures = load_texture_set(folder, max_size=args.max_size).to(device)
         materials.append(textures.name)
         source = SVBRDF(textures, samples=args.samples)
         reference = SVBRDF(textures, samples=args.ref_samples, seed=1)
         size = 1 << int(math.floor(math.log2(max(textures.size))))
+        pyramids.append(size)
         scales = plane_scales(args.scales, args.resolution, max(textures.size))
         print(f"\n== {textures.name} ({textures.size[1]}x{textures.size[0]}), model pyramids {size}^2, "
               f"{args.steps} steps x {args.batch} queries, {args.samples}-sample targets")
@@ -157,8 +158,8 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
                 "max_size": args.max_size, "resolution": args.resolution, "scales": args.scales,
                 "hdr_queries": args.hdr_queries, "short_run_optimiser": args.short_run_optimiser,
                 "lights": len(lights), "cameras": len(tilts), "device": device.type}
-    return {"materials": materials, "models": list(args.models), "per_scale": per_scale, "rows": rows,
-            "settings": settings}
+    return {"materials": materials, "pyramids": pyramids, "models": list(args.models), "per_scale": per_scale,
+            "rows": rows, "settings": settings}
 
 
 def merge_results(paths: list[Path]) -> dict:
@@ -170,6 +171,7 @@ def merge_results(paths: list[Path]) -> dict:
             if part[key] != first[key]:
                 raise SystemExit(f"--merge: {path} has other {key} than {paths[0]}: {part[key]} vs {first[key]}")
     merged = {"materials": first["materials"], "settings": first["settings"], "models": [], "per_scale": {},
+              "pyramids": first.get("pyramids"),
               "rows": {}, "commands": [c for part in parts for c in part.get("commands", [])]}
     for part in parts:
         for name in part["models"]:
@@ -200,7 +202,8 @@ def report(results: dict, device, markdown: Path | None) -> None:
 
     n = 1 << 16
     g = torch.Generator().manual_seed(0)
-    size = 1 << int(math.floor(math.log2(st["max_size"])))
+    # the speed models get the largest pyramid the fits used (files saved before "pyramids" existed: --max-size)
+    size = max(results.get("pyramids") or [1 << int(math.floor(math.log2(st["max_size"])))])
     # Sec. 4.2 queries with footprints; the draw only asks its source whether it is a surface (any Material is)
     q = footprint_queries(Material())(n, g, "cpu").to(device)
     params = (torch.rand(n, 3, device=device), torch.rand(n, device=device), torch.rand(n, device=device),

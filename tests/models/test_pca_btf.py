@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.models.pca_btf import PCABTF, ranks_for_bytes
+from neumat.models.pca_btf import PCABTF, best_ranks, ranks_for_bytes
+from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.models.sparse_btf import mse
 from btf_util import N_DIRS, SIZE, synthetic_btf
 
@@ -37,3 +38,21 @@ def test_ranks_for_bytes_fits_the_budget():
     assert ranks[0] > ranks[1]
     with pytest.raises(InputError, match="budget"):
         ranks_for_bytes(10, N_DIRS, N_DIRS, SIZE, SIZE)
+
+
+def test_best_ranks_is_the_best_split_by_brute_force():
+    btf = synthetic_btf(6)
+    ref = rgb_to_model_space(btf.data, 0.01)
+
+    def model_space_error(ranks):
+        return float(((rgb_to_model_space(PCABTF.fit(btf, ranks).decode().data, 0.01) - ref) ** 2).sum())
+
+    for total in (1, 3, 7):
+        splits = [(a, b, total - a - b) for a in range(total + 1) for b in range(total + 1 - a)]
+        errors = {s: model_space_error(s) for s in splits}
+        best = best_ranks(btf, total)
+        assert sum(best) == total
+        assert errors[best] <= min(errors.values()) * (1 + 1e-6) + 1e-9
+        assert len(set(errors.values())) > 1                   # the split matters on this BTF
+    with pytest.raises(InputError, match="non-negative"):
+        best_ranks(btf, -1)

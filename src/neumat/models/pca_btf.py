@@ -141,18 +141,42 @@ class PCABTF(nn.Module, Material):
         return f"pca-btf ({c.height}x{c.width} texels, {c.n_light}x{c.n_view} directions, ranks {tuple(c.ranks)})"
 
 
-def ranks_for_bytes(budget: int, n_light: int, n_view: int, height: int, width: int,
-                    split: tuple[float, float, float] = (1.0, 1.0, 1.0), value_bytes: int = 2) -> tuple[int, int, int]:
-    """The largest PCA ranks (Y, U, V), proportional to `split`, whose storage fits in `budget` bytes."""
+def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int, value_bytes: int = 2) -> int:
+    """The most principal components, over the three channels together, whose storage (means, bases,
+    per-texel coefficients) fits in `budget` bytes."""
     lv, hw = n_light * n_view, height * width
-    per_rank = (lv + hw) * value_bytes
     free = budget - 3 * lv * value_bytes
     if free < 0:
         raise InputError(f"ranks_for_bytes: a budget of {budget} bytes does not even hold the PCA means")
-    total = free // per_rank
+    return free // ((lv + hw) * value_bytes)
+
+
+def ranks_for_bytes(budget: int, n_light: int, n_view: int, height: int, width: int,
+                    split: tuple[float, float, float] = (1.0, 1.0, 1.0), value_bytes: int = 2) -> tuple[int, int, int]:
+    """The largest PCA ranks (Y, U, V), proportional to `split`, whose storage fits in `budget` bytes."""
+    total = rank_budget(budget, n_light, n_view, height, width, value_bytes)
     ranks = [int(total * s / sum(split)) for s in split]
     i = 0
     while sum(ranks) < total:  # hand out the remainder, Y first
         ranks[i % 3] += 1
         i += 1
     return tuple(ranks)
+
+
+def best_ranks(btf: TabulatedBTF, total: int, log_eps: float = 0.01) -> tuple[int, int, int]:
+    """The split of `total` principal components over Y, U, V with the least squared error in the model
+    space (log(x + eps), YUV): the `total` largest eigenvalues of the three channels' centred texel x angle
+    matrices, counted per channel (every component costs the same, and each channel's eigenvalues fall)."""
+    if total < 0:
+        raise InputError(f"best_ranks: expected a non-negative component count, got {total!r}")
+    l, v, h, w, _ = btf.data.shape
+    yuv = rgb_to_model_space(btf.data.float(), log_eps)
+    eig = []
+    for c in range(3):
+        x = yuv[..., c].reshape(l * v, h * w).double()
+        x = x - x.mean(1, keepdim=True)                                              # centred over texels
+        gram = x @ x.T if l * v <= h * w else x.T @ x
+        eig.append(torch.linalg.eigvalsh(gram).flip(0).clamp_min(0))
+    channel = torch.cat([torch.full((len(e),), c) for c, e in enumerate(eig)])
+    order = torch.cat(eig).argsort(descending=True, stable=True)[:total]
+    return tuple(int((channel[order] == c).sum()) for c in range(3))
