@@ -64,7 +64,7 @@ def table(title, rows):
         t.add_column(k)
     for r in rows:
         t.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
-    Console(width=220).print(t)
+    Console(width=320).print(t)
 
 
 PROCEDURAL = ("bumps", "weave", "bricks", "dents", "ridges")
@@ -205,7 +205,7 @@ def render_figures(models: dict, out: Path, spp: int, resolution: int) -> list[d
     env = "env:/work/shared/data/envmap/studio_small_03_1k.hdr"
     import tempfile
     bunny = bunny_with_uv(Path(tempfile.mkdtemp()) / "bunny_uv.ply")
-    scenes = {"plane": "plane,uv_scale=2", "bunny": f"mesh:{bunny}"}
+    scenes = {"plane": "plane,uv_scale=2", "bunny": f"mesh:{bunny},zoom=1.3"}
     rows = []
     for scene_name, scene in scenes.items():
         images, seconds = {}, {}
