@@ -40,3 +40,21 @@ def test_export_refuses_a_model_without_a_shader(tmp_path):
     path = _saved(tmp_path, {"type": "nbrdf"})
     result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl")])
     assert result.exit_code != 0 and "multi-scale model" in result.output
+
+
+@needs_gl
+def test_export_check_runs_a_sparse_btf(tmp_path):
+    from neumat.models.sparse_btf import SparseBTF
+    from neumat.models.sparse_dictionary import train_dictionary
+
+    from btf_util import synthetic_btf
+
+    dictionary = train_dictionary([synthetic_btf(s) for s in (1, 2)], num_dictionaries=2, tau_train=(16, 4, 4),
+                                  patch=4, max_iters=2)
+    path = save_model(SparseBTF.encode(synthetic_btf(3), dictionary, (32, 8, 8)), tmp_path / "b.nmat")
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "500"])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "glsl" / "manifest.json").read_text())
+    assert manifest["textures"]["sbtf_codes"]["file"] == "sbtf_codes.f32"
+    rel = float(result.output.split("max relative difference ")[1].split(",")[0])
+    assert rel < 1e-4

@@ -12,7 +12,7 @@ def register(app: typer.Typer) -> None:
     app.command("export")(export)
 
 
-def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale model"),
+def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale model or a sparse-btf"),
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run the shader on N random queries (headless OpenGL) and print "

@@ -240,10 +240,15 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
 
 def export_glsl(model) -> GLSLExport:
     """GLSL source and textures computing `model.eval` (see module docstring). model: a MultiScale (or a
-    configuration of it such as tripleplane); anything else raises InputError."""
+    configuration of it such as tripleplane), or a SparseBTF (`neumat.export.glsl_sparse_btf`); anything else
+    raises InputError."""
+    from ..models.sparse_btf import SparseBTF
+    if isinstance(model, SparseBTF):
+        from .glsl_sparse_btf import export_sparse_btf
+        return export_sparse_btf(model)
     if not isinstance(model, MultiScale):
-        raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane), got "
-                         f"{type(model).__name__} ({getattr(model, 'name', '?')})")
+        raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane) or a sparse-btf, "
+                         f"got {type(model).__name__} ({getattr(model, 'name', '?')})")
     cfg = model.cfg
     spatial = model.spatial is not None
     gated = spatial and cfg.gating

@@ -1,0 +1,189 @@
+"""GLSL export of SparseBTF (Kavoosi et al. 2023, Sec. 3.4: the sparse coefficients, their index tuples, the
+membership vector and the dictionary ensemble uploaded as textures, one BTF element reconstructed per query).
+
+`export_sparse_btf(model)` computes exactly what `SparseBTF.eval` computes with `angular = "coefficient"`
+(Eq. 6): the k nearest light and view bins with inverse-angular-distance weights, wrap-around bilinear over 4
+texels, per texel and YUV channel the sum over its data point's coefficients of value x U1 x U2 x (weighted
+U3 rows) x (weighted U4 rows), then the interpolated per-image mean and std, YUV -> RGB and exp. BTFs are not
+prefiltered, so the footprint and lod arguments of the common entry points are ignored (as in `eval`):
+
+    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv)
+    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
+    vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)
+
+Textures (RGBA32F `sampler2DArray`s, read with `texelFetch` only):
+
+    sbtf_codes   layer c (Y, U, V), row = data point, column t: (value, l1 x p + l2, l3, l4) of coefficient t
+    sbtf_points  layer c, data point i at (i % width, i / width): (membership, count, 0, 0)
+    sbtf_dict_s  layer c x K + k, row i, column j: (U1[i, j], U2[i, j], 0, 0) of dictionary k of channel c
+    sbtf_dict_a  layer c x K + k, row i, column j: (U3[i, j], U4[i, j], 0, 0) (zero-padded to max(L, V))
+    sbtf_stats   layer 0 mean, layer 1 std: row = light bin, column = view bin, rgb = (Y, U, V)
+
+Light and view directions are baked into the source as constants.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.errors import InputError
+from ..models.sparse_btf import SparseBTF
+from ..models.sparse_dictionary import YUV_TO_RGB
+from .glsl import GLSLExport
+
+#: the largest texture side the export relies on (OpenGL 3.3 guarantees 1024; desktop GPUs give 16384)
+MAX_SIDE = 16384
+#: data points per row of sbtf_points
+POINTS_WIDTH = 1024
+
+
+def _vec3s(name: str, dirs: torch.Tensor) -> str:
+    body = ", ".join(f"vec3({x:.9e}, {y:.9e}, {z:.9e})" for x, y, z in dirs.double().tolist())
+    return f"const vec3 {name}[{len(dirs)}] = vec3[]({body});"
+
+
+def _rgba(*channels: torch.Tensor) -> np.ndarray:
+    """Stack up to four (layers, H, W) tensors into float32 (layers, H, W, 4), the rest zero."""
+    out = np.zeros((*channels[0].shape, 4), np.float32)
+    for i, ch in enumerate(channels):
+        out[..., i] = ch.detach().float().cpu().numpy()
+    return out
+
+
+def _textures(model: SparseBTF) -> dict[str, np.ndarray]:
+    c = model.cfg
+    p, k, n_points = c.patch, c.num_dictionaries, model.counts.shape[1]
+    t = model.values.shape[2]
+    side = max(c.n_light, c.n_view)
+    if n_points > MAX_SIDE or t > MAX_SIDE or side > MAX_SIDE:
+        raise InputError(f"export_glsl: this SparseBTF needs textures of {n_points} x {t} and {side} x {side} "
+                         f"texels; the export supports sides up to {MAX_SIDE}")
+    idx = model.index.long()
+    codes = _rgba(model.values, (idx[..., 0] * p + idx[..., 1]).float(), idx[..., 2].float(), idx[..., 3].float())
+    rows = -(-n_points // POINTS_WIDTH)
+    width = min(n_points, POINTS_WIDTH)
+    pad = rows * width - n_points
+    membership = torch.nn.functional.pad(model.membership.float(), (0, pad)).reshape(3, rows, width)
+    counts = torch.nn.functional.pad(model.counts.float(), (0, pad)).reshape(3, rows, width)
+    d3 = torch.zeros(3 * k, side, side)
+    d4 = torch.zeros(3 * k, side, side)
+    d3[:, :c.n_light, :c.n_light] = model.dict_3.reshape(3 * k, c.n_light, c.n_light)
+    d4[:, :c.n_view, :c.n_view] = model.dict_4.reshape(3 * k, c.n_view, c.n_view)
+    stats = torch.stack([model.mean, model.std])                                  # (2, L, V, 3)
+    return {
+        "sbtf_codes": codes,
+        "sbtf_points": _rgba(membership, counts),
+        "sbtf_dict_s": _rgba(model.dict_1.reshape(3 * k, p, p), model.dict_2.reshape(3 * k, p, p)),
+        "sbtf_dict_a": _rgba(d3, d4),
+        "sbtf_stats": _rgba(stats[..., 0], stats[..., 1], stats[..., 2]),
+    }
+
+
+_SOURCE = """// SparseBTF ({describe}), exported by neumat
+const int SB_H = {h}, SB_W = {w}, SB_P = {p}, SB_PW = {pw}, SB_K = {k}, SB_L = {l}, SB_V = {v};
+const int SB_NB = {nb}, SB_POINTS_W = {points_w};
+const float SB_EPS = {eps:.9e};
+const mat3 SB_YUV_TO_RGB = mat3({yuv});
+{light_dirs}
+{view_dirs}
+uniform sampler2DArray sbtf_codes, sbtf_points, sbtf_dict_s, sbtf_dict_a, sbtf_stats;
+
+// i (a whole number, any sign) modulo n, in [0, n); GLSL's % is undefined for negative operands
+int sb_wrap(float i, int n) {{ int r = int(i - float(n) * floor(i / float(n))); return r >= n ? r - n : r; }}
+
+vec3 sb_dir(bool light, int i) {{ return light ? SB_LIGHT[i] : SB_VIEW[i]; }}
+
+// the SB_NB bins nearest to w (largest dot product first) and their inverse-angular-distance weights
+void sb_nearest(vec3 w, bool light, out int idx[SB_NB], out float wt[SB_NB]) {{
+    float best[SB_NB];
+    for (int i = 0; i < SB_NB; ++i) {{ best[i] = -3.0; idx[i] = 0; }}
+    int n = light ? SB_L : SB_V;
+    for (int d = 0; d < n; ++d) {{
+        float s = dot(w, sb_dir(light, d));
+        if (s > best[SB_NB - 1]) {{
+            int j = SB_NB - 1;
+            while (j > 0 && s > best[j - 1]) {{ best[j] = best[j - 1]; idx[j] = idx[j - 1]; --j; }}
+            best[j] = s; idx[j] = d;
+        }}
+    }}
+    bool exact = false;
+    float angle[SB_NB];
+    for (int i = 0; i < SB_NB; ++i) {{
+        vec3 t = sb_dir(light, idx[i]);
+        angle[i] = atan(length(cross(w, t)), dot(w, t));
+        exact = exact || angle[i] <= 1e-7;
+    }}
+    float total = 0.0;
+    for (int i = 0; i < SB_NB; ++i) {{
+        wt[i] = exact ? (angle[i] <= 1e-7 ? 1.0 : 0.0) : 1.0 / max(angle[i], 1e-7);
+        total += wt[i];
+    }}
+    for (int i = 0; i < SB_NB; ++i) wt[i] /= total;
+}}
+
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    int li[SB_NB], vi[SB_NB];
+    float lw[SB_NB], vw[SB_NB];
+    sb_nearest(wi, true, li, lw);
+    sb_nearest(wo, false, vi, vw);
+    float x = uv.x * float(SB_W) - 0.5, y = (1.0 - uv.y) * float(SB_H) - 0.5;
+    float x0 = floor(x), y0 = floor(y), fx = x - x0, fy = y - y0;
+    vec3 z = vec3(0.0);
+    for (int tap = 0; tap < 4; ++tap) {{
+        int dx = tap % 2, dy = tap / 2;
+        int col = sb_wrap(x0 + float(dx), SB_W), row = sb_wrap(y0 + float(dy), SB_H);
+        float sw = (dx == 1 ? fx : 1.0 - fx) * (dy == 1 ? fy : 1.0 - fy);
+        int point = (row / SB_P) * SB_PW + col / SB_P, x1 = row % SB_P, x2 = col % SB_P;
+        for (int c = 0; c < 3; ++c) {{
+            vec4 info = texelFetch(sbtf_points, ivec3(point % SB_POINTS_W, point / SB_POINTS_W, c), 0);
+            int layer = c * SB_K + int(info.x), count = int(info.y);
+            float acc = 0.0;
+            for (int t = 0; t < count; ++t) {{
+                vec4 code = texelFetch(sbtf_codes, ivec3(t, point, c), 0);
+                int l12 = int(code.y), l3 = int(code.z), l4 = int(code.w);
+                float u1 = texelFetch(sbtf_dict_s, ivec3(l12 / SB_P, x1, layer), 0).x;
+                float u2 = texelFetch(sbtf_dict_s, ivec3(l12 % SB_P, x2, layer), 0).y;
+                float u3 = 0.0, u4 = 0.0;
+                for (int a = 0; a < SB_NB; ++a) u3 += lw[a] * texelFetch(sbtf_dict_a, ivec3(l3, li[a], layer), 0).x;
+                for (int b = 0; b < SB_NB; ++b) u4 += vw[b] * texelFetch(sbtf_dict_a, ivec3(l4, vi[b], layer), 0).y;
+                acc += code.x * u1 * u2 * u3 * u4;
+            }}
+            z[c] += sw * acc;
+        }}
+    }}
+    vec3 mean = vec3(0.0), std_ = vec3(0.0);
+    for (int a = 0; a < SB_NB; ++a)
+        for (int b = 0; b < SB_NB; ++b) {{
+            float wab = lw[a] * vw[b];
+            mean += wab * texelFetch(sbtf_stats, ivec3(vi[b], li[a], 0), 0).xyz;
+            std_ += wab * texelFetch(sbtf_stats, ivec3(vi[b], li[a], 1), 0).xyz;
+        }}
+    return exp(SB_YUV_TO_RGB * (z * std_ + mean)) - SB_EPS;
+}}
+
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{ return neumat_eval(wi, wo, uv); }}
+vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{ return neumat_eval(wi, wo, uv); }}
+"""
+
+
+def export_sparse_btf(model: SparseBTF) -> GLSLExport:
+    """GLSL source and textures computing `model.eval` with coefficient-space angular interpolation (module
+    docstring). A model set to `angular = "value"` is exported with the coefficient-space path (the paper's
+    runtime); the two agree on table entries and differ slightly between bins."""
+    c = model.cfg
+    if not torch.isfinite(model.values).all() or not torch.isfinite(model.mean).all() \
+            or not torch.isfinite(model.std).all():
+        raise InputError("export_glsl: this SparseBTF has non-finite coefficients or statistics")
+    nb = min(c.neighbours, c.n_light, c.n_view)
+    if nb != min(c.neighbours, c.n_light) or nb != min(c.neighbours, c.n_view):
+        raise InputError(f"export_glsl: {c.neighbours} neighbours with {c.n_light} light and {c.n_view} view "
+                         "directions: the shader needs the same neighbour count for both")
+    yuv = ", ".join(f"{v:.9e}" for v in YUV_TO_RGB.T.flatten().tolist())          # GLSL mat3 is column-major
+    source = _SOURCE.format(
+        describe=model.describe(), h=c.height, w=c.width, p=c.patch, pw=c.width // c.patch,
+        k=c.num_dictionaries, l=c.n_light, v=c.n_view, nb=nb, points_w=min(model.counts.shape[1], POINTS_WIDTH),
+        eps=c.log_eps, yuv=yuv, light_dirs=_vec3s("SB_LIGHT", model.light_dirs),
+        view_dirs=_vec3s("SB_VIEW", model.view_dirs))
+    with torch.no_grad():
+        return GLSLExport(source, _textures(model), spatially_varying=True)
