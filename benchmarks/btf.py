@@ -270,7 +270,8 @@ def main():
     ap.add_argument("--train-shared", default="", help="also train on tiles of the PBR sets in this folder")
     ap.add_argument("--train-tiles", type=int, default=1, help="tiles of each texture set named in --train")
     ap.add_argument("--tiles", type=int, default=1, help="tiles per PBR set for --train-shared")
-    ap.add_argument("--shared-relief", type=float, default=8.0, help="relief multiplier of --train-shared tiles")
+    ap.add_argument("--shared-relief", type=float, default=8.0,
+                    help="relief multiplier of texture-set tiles (--test, --train and --train-shared)")
     ap.add_argument("--train-size", type=int, default=0,
                     help="texels of the extra training BTFs (default --size; a dictionary fits any size)")
     ap.add_argument("--sample-fraction", type=float, default=1.0, help="fraction of training data points used")

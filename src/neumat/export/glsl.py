@@ -21,7 +21,8 @@ the shader and do not depend on the driver:
 
 `GLSLExport.write(folder)` writes `neumat.glsl`, one raw little-endian float32 file per texture (layers x
 height x width x 4) and `manifest.json` (sizes, layers, entry points). `neumat.testing.parity.glsl_eval` runs
-an export on an OpenGL context (EGL, headless) for parity checks.
+an export on an OpenGL context (EGL, headless) for parity checks. SparseBTF models are handed to
+`neumat.export.glsl_sparse_btf`.
 """
 from __future__ import annotations
 

@@ -1,9 +1,10 @@
 """PCA baseline for BTFs (the paper's Table 5): per BTF and YUV channel, a truncated PCA of the matrix whose
 rows are texels and whose columns are the L x V angular samples, in the same model space as SparseBTF
 (log(x + eps), RGB -> YUV). Stored: per channel a mean over texels (L V), r basis vectors (L V x r) and
-r coefficients per texel (H W x r), all float16. `ranks_for_bytes` picks ranks for a storage budget, so
-PCA can be compared with SparseBTF at equal storage. Lookup: the same wrap-around bilinear and k-nearest
-angular interpolation as `TabulatedBTF`, in linear RGB.
+r coefficients per texel (H W x r), all float16. `rank_budget` gives the component count of a storage
+budget and `best_ranks` its least-error split over Y, U, V, so PCA can be compared with SparseBTF at equal
+storage. Lookup: the same wrap-around bilinear and k-nearest angular interpolation as `TabulatedBTF`, in
+linear RGB.
 """
 from __future__ import annotations
 
@@ -147,20 +148,8 @@ def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int,
     lv, hw = n_light * n_view, height * width
     free = budget - 3 * lv * value_bytes
     if free < 0:
-        raise InputError(f"ranks_for_bytes: a budget of {budget} bytes does not even hold the PCA means")
+        raise InputError(f"rank_budget: a budget of {budget} bytes does not even hold the PCA means")
     return free // ((lv + hw) * value_bytes)
-
-
-def ranks_for_bytes(budget: int, n_light: int, n_view: int, height: int, width: int,
-                    split: tuple[float, float, float] = (1.0, 1.0, 1.0), value_bytes: int = 2) -> tuple[int, int, int]:
-    """The largest PCA ranks (Y, U, V), proportional to `split`, whose storage fits in `budget` bytes."""
-    total = rank_budget(budget, n_light, n_view, height, width, value_bytes)
-    ranks = [int(total * s / sum(split)) for s in split]
-    i = 0
-    while sum(ranks) < total:  # hand out the remainder, Y first
-        ranks[i % 3] += 1
-        i += 1
-    return tuple(ranks)
 
 
 def best_ranks(btf: TabulatedBTF, total: int, log_eps: float = 0.01) -> tuple[int, int, int]:
