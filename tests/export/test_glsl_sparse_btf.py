@@ -91,6 +91,9 @@ def test_export_files_and_bad_input(dictionary, tmp_path):
     exported = export_glsl(model)
     folder = exported.write(tmp_path / "sbtf")
     manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["entry"][0] == "vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv)"
+    for entry in manifest["entry"]:
+        assert entry.split("(")[0].split()[-1] + "(" in exported.source
     assert set(manifest["textures"]) == {"sbtf_codes", "sbtf_points", "sbtf_dict_s", "sbtf_dict_a", "sbtf_stats"}
     codes = manifest["textures"]["sbtf_codes"]
     assert (codes["layers"], codes["height"], codes["width"]) == (3, model.counts.shape[1], 40)

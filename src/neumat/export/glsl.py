@@ -48,6 +48,8 @@ class GLSLExport:
     source: str
     textures: dict[str, np.ndarray] = field(default_factory=dict)
     spatially_varying: bool = True
+    entry: list[str] | None = None
+    """The entry points the source defines (manifest.json); default those of `spatially_varying`."""
 
     def write(self, folder: str | Path) -> Path:
         """Write neumat.glsl, <texture>.f32 files and manifest.json into `folder` (created); returns it."""
@@ -55,9 +57,9 @@ class GLSLExport:
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "neumat.glsl").write_text(self.source)
         manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "textures": {},
-                    "entry": ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
-                              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
-                    if self.spatially_varying else ["vec3 neumat_eval(vec3 wi, vec3 wo)"]}
+                    "entry": self.entry or (["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+                                             "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
+                                            if self.spatially_varying else ["vec3 neumat_eval(vec3 wi, vec3 wo)"])}
         for name, data in self.textures.items():
             layers, height, width, _ = data.shape
             data.astype("<f4").tofile(folder / f"{name}.f32")

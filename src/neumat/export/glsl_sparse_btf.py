@@ -35,6 +35,9 @@ from .glsl import GLSLExport
 MAX_SIDE = 16384
 #: data points per row of sbtf_points
 POINTS_WIDTH = 1024
+ENTRY_POINTS = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv)",
+                "vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+                "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
 
 
 def _vec3s(name: str, dirs: torch.Tensor) -> str:
@@ -186,4 +189,4 @@ def export_sparse_btf(model: SparseBTF) -> GLSLExport:
         eps=c.log_eps, yuv=yuv, light_dirs=_vec3s("SB_LIGHT", model.light_dirs),
         view_dirs=_vec3s("SB_VIEW", model.view_dirs))
     with torch.no_grad():
-        return GLSLExport(source, _textures(model), spatially_varying=True)
+        return GLSLExport(source, _textures(model), spatially_varying=True, entry=ENTRY_POINTS)
