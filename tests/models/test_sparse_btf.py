@@ -86,6 +86,21 @@ def test_coefficient_space_interpolation_equals_value_interpolation(trained, gen
         assert torch.allclose(eq6, ref, atol=1e-5)
 
 
+def test_batched_taps_equal_eq6_per_element(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
+    n, k = 50, 3
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
+    li, lw = angular_weights(model.light_dirs, wi, k)
+    vi, vw = angular_weights(model.view_dirs, wo, k)
+    patch, x1, x2, _ = model._texels(torch.rand(n, 2, generator=gen) * 3 - 1)
+    assert len(set(model.membership[0].tolist())) > 1           # the taps use more than one dictionary
+    expand = lambda t: t[:, None].expand(-1, 4, -1)             # noqa: E731
+    for c in range(3):
+        ref = model.element_interpolated(c, patch, x1, x2, expand(li), expand(lw), expand(vi), expand(vw))
+        assert torch.allclose(model._taps_interpolated(c, patch, x1, x2, li, lw, vi, vw), ref, atol=1e-6)
+
+
 def test_value_space_eval_equals_the_decoded_table(trained, gen):
     model = SparseBTF.encode(synthetic_btf(11), trained, (40, 10, 10), angular="value")
     n = 64

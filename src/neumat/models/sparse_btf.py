@@ -209,6 +209,21 @@ class SparseBTF(nn.Module, Material):
         u4 = (view_w[..., None] * m4).sum(-2)
         return (vals * u1 * u2 * u3 * u4).sum(-1)
 
+    def _taps_interpolated(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
+                           light_idx: torch.Tensor, light_w: torch.Tensor, view_idx: torch.Tensor,
+                           view_w: torch.Tensor) -> torch.Tensor:
+        """`element_interpolated` for the 4 bilinear taps of N queries that share their angular bins: patch, x1,
+        x2 (N, 4); light_idx, light_w (N, kl); view_idx, view_w (N, kv) -> (N, 4). The weighted U3 / U4 rows
+        are formed once per query and dictionary, (K, N, L) and (K, N, V), and then gathered per coefficient."""
+        memb, vals, idx = self._gather(c, patch)
+        rows = torch.arange(len(patch), device=patch.device)[:, None, None]
+        u3_rows = (self.dict_3[c][:, light_idx] * light_w[None, ..., None]).sum(2)      # (K, N, L)
+        u4_rows = (self.dict_4[c][:, view_idx] * view_w[None, ..., None]).sum(2)        # (K, N, V)
+        m = memb[..., None]
+        u1 = self.dict_1[c][m, x1[..., None], idx[..., 0]]
+        u2 = self.dict_2[c][m, x2[..., None], idx[..., 1]]
+        return (vals * u1 * u2 * u3_rows[m, rows, idx[..., 2]] * u4_rows[m, rows, idx[..., 3]]).sum(-1)
+
     def _texels(self, uv: torch.Tensor):
         """Patch index, in-patch row/col (N, 4) and bilinear weights (N, 4) of uv (N, 2)."""
         p, h, w = self.cfg.patch, self.cfg.height, self.cfg.width
@@ -228,10 +243,7 @@ class SparseBTF(nn.Module, Material):
         vi, vw = angular_weights(self.view_dirs, wo, self.cfg.neighbours)
         patch, x1, x2, sw = self._texels(uv)
         if self.cfg.angular == "coefficient":
-            # (N, 4) taps, angular bins folded into the dictionary rows (Eq. 6)
-            lw4, li4 = lw[:, None].expand(-1, 4, -1), li[:, None].expand(-1, 4, -1)
-            vw4, vi4 = vw[:, None].expand(-1, 4, -1), vi[:, None].expand(-1, 4, -1)
-            z = torch.stack([self.element_interpolated(c, patch, x1, x2, li4, lw4, vi4, vw4) for c in range(3)], -1)
+            z = torch.stack([self._taps_interpolated(c, patch, x1, x2, li, lw, vi, vw) for c in range(3)], -1)
             z = (z * sw[..., None]).sum(1)                                             # (N, 3)
             bin_w = lw[:, :, None] * vw[:, None, :]
             mean = (self.mean[li[:, :, None], vi[:, None, :]] * bin_w[..., None]).sum((1, 2))
