@@ -11,8 +11,9 @@ The shared ensemble is kept as buffers (`dict_n`, (3, K, m_n, m_n)).
   2 bins to the k-nearest inverse-distance weights of `neumat.reflectance.btf.angular_weights`): it equals
   the same weighted sum of Eq. 5 values;
 - `eval` answers Query(wi, wo, uv): wrap-around bilinear over 4 texels and k x k angular bins. With
-  `angular = "coefficient"` the angular interpolation is done in coefficient space (Eq. 6) and the per-image
-  mean/std are interpolated with the same weights before the inverse transform (fast, the paper's runtime
+  `angular = "coefficient"` the angular interpolation is done in coefficient space (Eq. 6, batched: the
+  weighted U3 / U4 rows are formed once per query and shared by its 4 texels) and the per-image mean/std are
+  interpolated with the same weights before the inverse transform (fast, the paper's runtime
   path); with `angular = "value"` every bin is reconstructed and inverted to linear RGB first, which equals
   `TabulatedBTF(decode())` exactly;
 - `blend` interpolates two SparseBTFs in coefficient space (Eqs. 7-9) with the change-of-basis matrices
