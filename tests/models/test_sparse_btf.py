@@ -70,13 +70,18 @@ def test_element_reconstruction_matches_full_decode(trained, gen):
         assert torch.allclose(model.element(c, *idx), dense[c][tuple(idx)], atol=1e-5)
 
 
+def _bins(model: SparseBTF, n: int, k: int, gen: torch.Generator):
+    """The k nearest light and view bins and weights (li, lw, vi, vw), each (n, k), of n random upper
+    directions."""
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
+    return (*angular_weights(model.light_dirs, wi, k), *angular_weights(model.view_dirs, wo, k))
+
+
 def test_coefficient_space_interpolation_equals_value_interpolation(trained, gen):
     model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
     n, k = 30, 3
-    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
-    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
-    li, lw = angular_weights(model.light_dirs, wi, k)
-    vi, vw = angular_weights(model.view_dirs, wo, k)
+    li, lw, vi, vw = _bins(model, n, k, gen)
     patch, x1, x2 = (torch.randint(0, s, (n,), generator=gen) for s in (model.counts.shape[1], PATCH, PATCH))
     for c in range(3):
         eq6 = model.element_interpolated(c, patch, x1, x2, li, lw, vi, vw)
@@ -89,10 +94,7 @@ def test_coefficient_space_interpolation_equals_value_interpolation(trained, gen
 def test_batched_taps_equal_eq6_per_element(trained, gen):
     model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
     n, k = 50, 3
-    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
-    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) + torch.tensor([0, 0, 1.0]), dim=-1)
-    li, lw = angular_weights(model.light_dirs, wi, k)
-    vi, vw = angular_weights(model.view_dirs, wo, k)
+    li, lw, vi, vw = _bins(model, n, k, gen)
     patch, x1, x2, _ = model._texels(torch.rand(n, 2, generator=gen) * 3 - 1)
     assert len(set(model.membership[0].tolist())) > 1           # the taps use more than one dictionary
     expand = lambda t: t[:, None].expand(-1, 4, -1)             # noqa: E731
