@@ -47,7 +47,7 @@ from neumat.fit.trainer import fit
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
-from neumat.models.pca_btf import PCABTF, best_ranks, rank_budget
+from neumat.models.pca_btf import PCABTF, best_ranks, channel_spectra, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
@@ -312,6 +312,7 @@ def main():
 
     rows, models, rows_by = [], {}, {}
     mults = [int(m) for m in args.mults.split(",")]
+    spectra = {name: channel_spectra(btfs[name], dic.log_eps) for name in test}
     for name in test:
         for mult in mults:
             tau = tuple(t * mult for t in tau_l)
@@ -320,10 +321,10 @@ def main():
             code_s = time.perf_counter() - t
             st = sp.storage()
             total = rank_budget(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
-            ranks = best_ranks(btfs[name], total, dic.log_eps)
+            ranks = best_ranks(spectra[name], total)
             pca = PCABTF.fit(btfs[name], ranks, log_eps=dic.log_eps)
             paper_rank = st["per_btf"] // (2 * args.size * args.size)        # fp16 coefficients per texel
-            paper_ranks = best_ranks(btfs[name], paper_rank, dic.log_eps)
+            paper_ranks = best_ranks(spectra[name], paper_rank)
             pca_paper = PCABTF.fit(btfs[name], paper_ranks, log_eps=dic.log_eps)
             decoded, pca_decoded = sp.decode(), pca.decode()
             rows.append({"btf": name, "tau_t (Y,U,V)": str(tau), "coefficients": st["coefficients"],
@@ -373,7 +374,7 @@ def main():
         figure_models = {"reference": btfs[name], "sparse-btf": fig.decode()}
         st = fig.storage()
         total = rank_budget(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
-        figure_models["pca"] = PCABTF.fit(btfs[name], best_ranks(btfs[name], total, dic.log_eps),
+        figure_models["pca"] = PCABTF.fit(btfs[name], best_ranks(spectra[name], total),
                                           log_eps=dic.log_eps)
         out = Path(__file__).parent / "results"
         table(f"renders of {name} (tau x{fig_mult}, equal per-BTF bytes) under studio_small_03, {args.render_spp} spp, "

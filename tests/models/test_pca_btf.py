@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.models.pca_btf import PCABTF, best_ranks, rank_budget
+from neumat.models.pca_btf import PCABTF, best_ranks, channel_spectra, rank_budget
 from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.models.sparse_btf import mse
 from btf_util import N_DIRS, SIZE, synthetic_btf
@@ -33,7 +33,7 @@ def test_eval_at_bins_and_texel_centres_matches_decoded_table(gen):
 def test_rank_budget_fits_the_budget():
     budget = 20000
     total = rank_budget(budget, N_DIRS, N_DIRS, SIZE, SIZE)
-    ranks = best_ranks(synthetic_btf(5), total)
+    ranks = best_ranks(channel_spectra(synthetic_btf(5)), total)
     used = PCABTF.fit(synthetic_btf(5), ranks).storage()["total"]
     assert sum(ranks) == total > 0
     assert used <= budget < used + 2 * (N_DIRS ** 2 + SIZE ** 2)
@@ -51,9 +51,9 @@ def test_best_ranks_is_the_best_split_by_brute_force():
     for total in (1, 3, 7):
         splits = [(a, b, total - a - b) for a in range(total + 1) for b in range(total + 1 - a)]
         errors = {s: model_space_error(s) for s in splits}
-        best = best_ranks(btf, total)
+        best = best_ranks(channel_spectra(btf), total)
         assert sum(best) == total
         assert errors[best] <= min(errors.values()) * (1 + 1e-6) + 1e-9
         assert len(set(errors.values())) > 1                   # the split matters on this BTF
     with pytest.raises(InputError, match="non-negative"):
-        best_ranks(btf, -1)
+        best_ranks(channel_spectra(btf), -1)

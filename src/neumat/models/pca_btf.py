@@ -2,7 +2,7 @@
 rows are texels and whose columns are the L x V angular samples, in the same model space as SparseBTF
 (log(x + eps), RGB -> YUV). Stored: per channel a mean over texels (L V), r basis vectors (L V x r) and
 r coefficients per texel (H W x r), all float16. `rank_budget` gives the component count of a storage
-budget and `best_ranks` its least-error split over Y, U, V, so PCA can be compared with SparseBTF at equal
+budget and `best_ranks` (of `channel_spectra`) its least-error split over Y, U, V, so PCA can be compared with SparseBTF at equal
 storage. Lookup: the same wrap-around bilinear and k-nearest angular interpolation as `TabulatedBTF`, in
 linear RGB.
 """
@@ -152,20 +152,26 @@ def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int,
     return free // ((lv + hw) * value_bytes)
 
 
-def best_ranks(btf: TabulatedBTF, total: int, log_eps: float = 0.01) -> tuple[int, int, int]:
-    """The split of `total` principal components over Y, U, V with the least squared error in the model
-    space (log(x + eps), YUV): the `total` largest eigenvalues of the three channels' centred texel x angle
-    matrices, counted per channel (every component costs the same, and each channel's eigenvalues fall)."""
-    if total < 0:
-        raise InputError(f"best_ranks: expected a non-negative component count, got {total!r}")
+def channel_spectra(btf: TabulatedBTF, log_eps: float = 0.01) -> list[torch.Tensor]:
+    """Eigenvalues, largest first, of the Y, U and V channels' centred texel x angle matrices in the model
+    space (log(x + eps), YUV): the squared error each principal component removes."""
     l, v, h, w, _ = btf.data.shape
     yuv = rgb_to_model_space(btf.data.float(), log_eps)
-    eig = []
+    spectra = []
     for c in range(3):
         x = yuv[..., c].reshape(l * v, h * w).double()
         x = x - x.mean(1, keepdim=True)                                              # centred over texels
         gram = x @ x.T if l * v <= h * w else x.T @ x
-        eig.append(torch.linalg.eigvalsh(gram).flip(0).clamp_min(0))
-    channel = torch.cat([torch.full((len(e),), c) for c, e in enumerate(eig)])
-    order = torch.cat(eig).argsort(descending=True, stable=True)[:total]
+        spectra.append(torch.linalg.eigvalsh(gram).flip(0).clamp_min(0))
+    return spectra
+
+
+def best_ranks(spectra: list[torch.Tensor], total: int) -> tuple[int, int, int]:
+    """The split of `total` principal components over Y, U, V with the least squared error, given the
+    channels' `channel_spectra`: the `total` largest eigenvalues of the three, counted per channel (every
+    component costs the same, and each channel's eigenvalues fall)."""
+    if total < 0:
+        raise InputError(f"best_ranks: expected a non-negative component count, got {total!r}")
+    channel = torch.cat([torch.full((len(e),), c) for c, e in enumerate(spectra)])
+    order = torch.cat(spectra).argsort(descending=True, stable=True)[:total]
     return tuple(int((channel[order] == c).sum()) for c in range(3))
