@@ -188,5 +188,4 @@ def export_sparse_btf(model: SparseBTF) -> GLSLExport:
         k=c.num_dictionaries, l=c.n_light, v=c.n_view, nb=nb, points_w=min(model.counts.shape[1], POINTS_WIDTH),
         eps=c.log_eps, yuv=yuv, light_dirs=_vec3s("SB_LIGHT", model.light_dirs),
         view_dirs=_vec3s("SB_VIEW", model.view_dirs))
-    with torch.no_grad():
-        return GLSLExport(source, _textures(model), spatially_varying=True, entry=ENTRY_POINTS)
+    return GLSLExport(source, _textures(model), spatially_varying=True, entry=ENTRY_POINTS)
