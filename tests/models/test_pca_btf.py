@@ -5,10 +5,11 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.models.pca_btf import PCABTF, best_ranks, channel_spectra, rank_budget
+from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.models.sparse_btf import mse
 from btf_util import N_DIRS, SIZE, synthetic_btf
+from neumat.reflectance.btf import TabulatedBTF
 
 
 def test_full_rank_is_exact_and_error_falls_with_rank():
@@ -16,7 +17,8 @@ def test_full_rank_is_exact_and_error_falls_with_rank():
     full = PCABTF.fit(btf, (N_DIRS ** 2,) * 3)
     assert mse(btf, full.decode()) < 1e-9
     errs = [mse(btf, PCABTF.fit(btf, (r, r, r)).decode()) for r in (1, 2, 4, 8, 16)]
-    assert all(b < a for a, b in zip(errs, errs[1:]))
+    assert all(b < a for a, b in zip(errs[:4], errs[1:4]))
+    assert errs[3] < 1e-12 and errs[4] <= errs[3]             # the synthetic BTF has rank 7 in log-YUV
 
 
 def test_eval_at_bins_and_texel_centres_matches_decoded_table(gen):
@@ -33,7 +35,7 @@ def test_eval_at_bins_and_texel_centres_matches_decoded_table(gen):
 def test_rank_budget_fits_the_budget():
     budget = 20000
     total = rank_budget(budget, N_DIRS, N_DIRS, SIZE, SIZE)
-    ranks = best_ranks(channel_spectra(synthetic_btf(5)), total)
+    ranks = best_ranks(decompose(synthetic_btf(5)).eigenvalues, total)
     used = PCABTF.fit(synthetic_btf(5), ranks).storage()["total"]
     assert sum(ranks) == total > 0
     assert used <= budget < used + 2 * (N_DIRS ** 2 + SIZE ** 2)
@@ -51,9 +53,34 @@ def test_best_ranks_is_the_best_split_by_brute_force():
     for total in (1, 3, 7):
         splits = [(a, b, total - a - b) for a in range(total + 1) for b in range(total + 1 - a)]
         errors = {s: model_space_error(s) for s in splits}
-        best = best_ranks(channel_spectra(btf), total)
+        best = best_ranks(decompose(btf).eigenvalues, total)
         assert sum(best) == total
         assert errors[best] <= min(errors.values()) * (1 + 1e-6) + 1e-9
         assert len(set(errors.values())) > 1                   # the split matters on this BTF
     with pytest.raises(InputError, match="non-negative"):
-        best_ranks(channel_spectra(btf), -1)
+        best_ranks(decompose(btf).eigenvalues, -1)
+
+
+def test_both_gram_sides_and_the_randomised_path_give_the_same_components():
+    btf = synthetic_btf(7, size=16)                          # 256 texels > 81 angular samples: angle Gram
+    small = TabulatedBTF(btf.data[:, :, :4, :6], btf.light_dirs, btf.view_dirs)   # 24 texels: texel Gram
+    angle_side, texel_side = decompose(btf), decompose(small)
+    randomised = decompose(btf, max_rank=20, exact_limit=0, oversample=4)
+    assert angle_side.exact and texel_side.exact and not randomised.exact
+    r = 6
+    for dec, b in ((angle_side, btf), (texel_side, small), (randomised, btf)):
+        model = PCABTF.fit(b, (r, r, r), decomposition=dec)
+        yuv = rgb_to_model_space(b.data, 0.01)
+        err = float(((rgb_to_model_space(model.decode().data, 0.01) - yuv) ** 2).sum())
+        tail = sum(float(e[r:].sum()) for e in decompose(b).eigenvalues)   # the Eckart-Young optimum
+        assert err == pytest.approx(tail, rel=1e-4)
+    for e, f in zip(angle_side.eigenvalues, randomised.eigenvalues):
+        assert torch.allclose(e[:20], f, rtol=1e-4, atol=1e-7 * float(e[0]))
+
+
+def test_fit_refuses_a_decomposition_of_another_btf_or_too_few_components():
+    btf = synthetic_btf(8)
+    with pytest.raises(InputError, match="another BTF"):
+        PCABTF.fit(btf, (2, 1, 1), decomposition=decompose(synthetic_btf(8), log_eps=0.1))
+    with pytest.raises(InputError, match="exceed"):
+        PCABTF.fit(btf, (4, 1, 1), decomposition=decompose(btf, max_rank=3))

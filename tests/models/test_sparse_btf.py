@@ -6,7 +6,7 @@ import torch
 
 from neumat import InputError, Query
 from neumat.models.sparse_btf import SparseBTF, mse
-from neumat.models.sparse_dictionary import (BTFDictionary, code_points, decode_points, prepare_btf,
+from neumat.models.sparse_dictionary import (BTFDictionary, code_points, decode_points, mode_product, prepare_btf,
                                              train_dictionary, train_ensemble)
 from neumat.reflectance.btf import angular_weights, direction_set
 
@@ -19,6 +19,20 @@ PATCH = 4
 def trained() -> BTFDictionary:
     return train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
                             patch=PATCH, max_iters=8, seed=0)
+
+
+def test_mode_product_matches_einsum_for_every_mode(gen):
+    x = torch.randn(3, 2, 3, 4, 5, generator=gen, dtype=torch.float64)
+    letters = "abcd"
+    for mode in range(1, 5):
+        m = x.shape[mode]
+        u = torch.randn(m + 1, m, generator=gen, dtype=torch.float64)          # one matrix, or one per point
+        per_point = torch.randn(3, m + 1, m, generator=gen, dtype=torch.float64)
+        src = "n" + letters
+        dst = src.replace(letters[mode - 1], "z")
+        assert torch.allclose(mode_product(x, u, mode), torch.einsum(f"z{letters[mode - 1]},{src}->{dst}", u, x))
+        assert torch.allclose(mode_product(x, per_point, mode),
+                              torch.einsum(f"nz{letters[mode - 1]},{src}->{dst}", per_point, x))
 
 
 def test_training_keeps_orthonormality_and_objective_decreases(trained):

@@ -1,9 +1,11 @@
 """PCA baseline for BTFs (the paper's Table 5): per BTF and YUV channel, a truncated PCA of the matrix whose
 rows are texels and whose columns are the L x V angular samples, in the same model space as SparseBTF
 (log(x + eps), RGB -> YUV). Stored: per channel a mean over texels (L V), r basis vectors (L V x r) and
-r coefficients per texel (H W x r), all float16. `rank_budget` gives the component count of a storage
-budget and `best_ranks` (of `channel_spectra`) its least-error split over Y, U, V, so PCA can be compared with SparseBTF at equal
-storage. Lookup: the same wrap-around bilinear and k-nearest angular interpolation as `TabulatedBTF`, in
+r coefficients per texel (H W x r), all float16. `decompose` computes the principal components once per
+BTF (exactly from the smaller Gram matrix, or by randomised subspace iteration when both sides are large, as
+for 151 x 151 directions and 100 x 100 texels); `rank_budget` gives the component count of a storage budget
+and `best_ranks` (of the decomposition's eigenvalues) its least-error split over Y, U, V, so PCA can be
+compared with SparseBTF at equal storage. Lookup: the same wrap-around bilinear and k-nearest angular interpolation as `TabulatedBTF`, in
 linear RGB.
 """
 from __future__ import annotations
@@ -69,26 +71,28 @@ class PCABTF(nn.Module, Material):
 
     @classmethod
     def fit(cls, btf: TabulatedBTF, ranks: tuple[int, int, int], log_eps: float = 0.01,
-            neighbours: int = 3) -> "PCABTF":
-        """Truncated PCA of `btf` with `ranks` components for Y, U, V."""
+            neighbours: int = 3, decomposition: "Decomposition | None" = None) -> "PCABTF":
+        """Truncated PCA of `btf` with `ranks` components for Y, U, V (from `decomposition`, a `decompose` of
+        this BTF with at least max(ranks) components, when given)."""
         l, v, h, w, _ = btf.data.shape
-        cfg = Config(n_light=l, n_view=v, height=h, width=w, ranks=tuple(int(r) for r in ranks), log_eps=log_eps,
-                     neighbours=neighbours)
+        ranks = tuple(int(r) for r in ranks)
+        dec = decomposition if decomposition is not None else decompose(btf, log_eps, max(ranks))
+        if dec.mean.shape[1] != l * v or dec.coeffs.shape[1] != h * w or dec.log_eps != log_eps:
+            raise InputError(f"PCABTF.fit: the decomposition is of another BTF ({dec.mean.shape[1]} angular samples, "
+                             f"{dec.coeffs.shape[1]} texels, log_eps {dec.log_eps}) than this one ({l * v}, {h * w}, "
+                             f"{log_eps})")
+        if any(r > len(e) and len(e) < min(l * v, h * w) for r, e in zip(ranks, dec.eigenvalues)):
+            raise InputError(f"PCABTF.fit: ranks {ranks} exceed the {[len(e) for e in dec.eigenvalues]} components "
+                             "the decomposition kept")
+        cfg = Config(n_light=l, n_view=v, height=h, width=w, ranks=ranks, log_eps=log_eps, neighbours=neighbours)
         model = cls(cfg).to(btf.data.device)
         model.light_dirs.copy_(btf.light_dirs)
         model.view_dirs.copy_(btf.view_dirs)
-        yuv = rgb_to_model_space(btf.data.float(), log_eps)                       # (L, V, H, W, 3)
+        model.mean.copy_(dec.mean)
         for c in range(3):
-            x = yuv[..., c].reshape(l * v, h * w).T.double()                       # texels x angles
-            mean = x.mean(0)
-            xc = x - mean
-            r = min(cfg.ranks[c], min(xc.shape))
-            model.mean[c] = mean.float()
-            if r > 0:
-                _, vecs = torch.linalg.eigh(xc.T @ xc)
-                basis = vecs[:, -r:].flip(-1)                                       # (LV, r)
-                model.basis[c, :, :r] = basis.float()
-                model.coeffs[c, :, :r] = (xc @ basis).float()
+            r = min(ranks[c], len(dec.eigenvalues[c]))
+            model.basis[c, :, :r] = dec.basis[c, :, :r]
+            model.coeffs[c, :, :r] = dec.coeffs[c, :, :r]
         return model
 
     def decode(self) -> TabulatedBTF:
@@ -152,23 +156,68 @@ def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int,
     return free // ((lv + hw) * value_bytes)
 
 
-def channel_spectra(btf: TabulatedBTF, log_eps: float = 0.01) -> list[torch.Tensor]:
-    """Eigenvalues, largest first, of the Y, U and V channels' centred texel x angle matrices in the model
-    space (log(x + eps), YUV): the squared error each principal component removes."""
+@dataclass
+class Decomposition:
+    """Principal components of a BTF's Y, U, V channels in the model space (log(x + eps), YUV), largest first.
+
+    mean (3, LV) over texels; eigenvalues: per channel (R_c,), the squared error each component removes;
+    basis (3, LV, R) orthonormal columns; coeffs (3, HW, R) = centred data @ basis; exact: False when
+    computed by randomised subspace iteration (then only the leading R components are kept)."""
+
+    mean: torch.Tensor
+    eigenvalues: list[torch.Tensor]
+    basis: torch.Tensor
+    coeffs: torch.Tensor
+    log_eps: float
+    exact: bool
+
+
+def decompose(btf: TabulatedBTF, log_eps: float = 0.01, max_rank: int | None = None, exact_limit: int = 4096,
+              oversample: int = 16, power_iterations: int = 6) -> Decomposition:
+    """Principal components of `btf` (all of them, or the leading `max_rank`). Exact (eigendecomposition of
+    the smaller Gram matrix, float64) unless both sides of the texel x angle matrix exceed `exact_limit` and
+    `max_rank` is given: then randomised subspace iteration (`torch.svd_lowrank`, max_rank + `oversample`
+    vectors, `power_iterations` passes, float64), whose leading components match the exact ones to about
+    float32 precision on BTF spectra (test)."""
     l, v, h, w, _ = btf.data.shape
-    yuv = rgb_to_model_space(btf.data.float(), log_eps)
-    spectra = []
+    lv, hw = l * v, h * w
+    if max_rank is not None and max_rank < 0:
+        raise InputError(f"decompose: expected a non-negative max_rank, got {max_rank!r}")
+    r_max = min(lv, hw) if max_rank is None else min(max_rank, lv, hw)
+    exact = max_rank is None or min(lv, hw) <= exact_limit or r_max + oversample >= min(lv, hw)
+    yuv = rgb_to_model_space(btf.data.float(), log_eps)                            # (L, V, H, W, 3)
+    mean = torch.zeros(3, lv, device=btf.data.device)
+    basis = torch.zeros(3, lv, max(r_max, 1), device=btf.data.device)
+    coeffs = torch.zeros(3, hw, max(r_max, 1), device=btf.data.device)
+    eigenvalues = []
     for c in range(3):
-        x = yuv[..., c].reshape(l * v, h * w).double()
-        x = x - x.mean(1, keepdim=True)                                              # centred over texels
-        gram = x @ x.T if l * v <= h * w else x.T @ x
-        spectra.append(torch.linalg.eigvalsh(gram).flip(0).clamp_min(0))
-    return spectra
+        x = yuv[..., c].reshape(lv, hw).T.double()                                  # texels x angles
+        mu = x.mean(0)
+        xc = x - mu
+        mean[c] = mu.float()
+        if exact:
+            if lv <= hw:
+                e, vecs = torch.linalg.eigh(xc.T @ xc)
+                e, b = e.flip(0).clamp_min(0), vecs.flip(-1)
+            else:                                 # texel Gram: basis = xc^T u / sqrt(e)
+                e, u = torch.linalg.eigh(xc @ xc.T)
+                e, u = e.flip(0).clamp_min(0), u.flip(-1)
+                live = e > e[0] * 1e-12 if len(e) and e[0] > 0 else torch.zeros_like(e, dtype=torch.bool)
+                b = torch.zeros(lv, len(e), dtype=xc.dtype, device=xc.device)
+                b[:, live] = (xc.T @ u[:, live]) / e[live].sqrt()
+            e, b = e[:r_max], b[:, :r_max]
+        else:
+            _, sv, b = torch.svd_lowrank(xc, q=r_max + oversample, niter=power_iterations)
+            e, b = sv[:r_max] ** 2, b[:, :r_max]
+        eigenvalues.append(e.float())
+        basis[c, :, :b.shape[1]] = b.float()
+        coeffs[c, :, :b.shape[1]] = (xc @ b).float()
+    return Decomposition(mean, eigenvalues, basis, coeffs, log_eps, exact)
 
 
 def best_ranks(spectra: list[torch.Tensor], total: int) -> tuple[int, int, int]:
     """The split of `total` principal components over Y, U, V with the least squared error, given the
-    channels' `channel_spectra`: the `total` largest eigenvalues of the three, counted per channel (every
+    channels' eigenvalues (`Decomposition.eigenvalues`): the `total` largest eigenvalues of the three, counted per channel (every
     component costs the same, and each channel's eigenvalues fall)."""
     if total < 0:
         raise InputError(f"best_ranks: expected a non-negative component count, got {total!r}")
