@@ -47,7 +47,7 @@ from neumat.fit.trainer import fit
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
-from neumat.models.pca_btf import PCABTF, best_ranks, channel_spectra, rank_budget
+from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
@@ -167,6 +167,30 @@ def fit_neubrdf(btf, budget: int, loss: str, args) -> tuple[NeuBRDF, float]:
                      lr_decay_every=max(1, args.neubrdf_steps // 4), loss=loss)
     result = fit(model, table_samples(btf), recipe, queries="replay", progress=False)
     return model, result.seconds
+
+
+def neubrdf_rows(name: str, btf, mults: list[int], rows_by: dict, log_eps: float, args) -> list[dict]:
+    """NeuBRDF with a neural texture at SparseBTF's per-BTF bytes for every tau row of one test BTF."""
+    out = []
+    floor, floor_log = constant_floor(btf, log_eps)
+    for mult, loss in ((m, l) for m in mults for l in args.neubrdf_loss.split(",")):
+        sp_row = rows_by[(name, mult)]
+        try:
+            model, seconds = fit_neubrdf(btf, sp_row["per-BTF bytes"], loss, args)
+        except InputError as e:                         # a non-finite loss: say so, go on
+            print(f"NeuBRDF fit of {name} (tau x{mult}, {loss}) failed: {e}")
+            continue
+        decoded = decode_table(model, btf)
+        c = model.cfg
+        out.append({"btf": name, "tau x": mult, "loss": loss, "sparse bytes": sp_row["per-BTF bytes"],
+                    "NeuBRDF bytes": model.size_bytes(),
+                    "texture h x w x c": f"{c.texture_height}x{c.texture_width}x{c.texture_channels}",
+                    "NeuBRDF MSE": mse(btf, decoded), "sparse MSE": sp_row["sparse MSE"],
+                    "PCA MSE": sp_row["PCA MSE"], "constant floor MSE": floor,
+                    "NeuBRDF log MSE": log_mse(btf, decoded, log_eps),
+                    "sparse log MSE": sp_row["sparse log MSE"], "PCA log MSE": sp_row["PCA log MSE"],
+                    "constant floor log MSE": floor_log, "fit s": seconds})
+    return out
 
 
 def bunny_with_uv(path: Path) -> Path:
@@ -295,7 +319,7 @@ def main():
     if set(train) & set(test) or (args.train_shared and any(n not in PROCEDURAL for n in test)):
         raise SystemExit(f"the test materials {test} must not be used in training ({train}"
                          f"{', --train-shared ' + args.train_shared if args.train_shared else ''})")
-    btfs = {name: generate_material(name, args, dirs) for name in train + test}
+    btfs = {name: generate_material(name, args, dirs) for name in train}
     extra = extra_training_btfs(args, dirs, train)
     btfs.update(extra)
     train += list(extra)
@@ -304,64 +328,59 @@ def main():
     dic = train_dictionary([btfs[k] for k in train], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
                            sample_fraction=args.sample_fraction, progress=True)
     train_s = time.perf_counter() - t
-    print(f"{len(btfs)} BTFs of {args.size}x{args.size} texels (extra training BTFs "
-          f"{args.train_size or args.size}x{args.train_size or args.size}) x {dirs.shape[0]}x{dirs.shape[0]} directions "
-          f"generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, tau_l={tau_l}, patch {args.patch}) "
-          f"trained on {train} ({dic.info['points']} data points per channel) in {train_s:.1f} s "
-          f"({torch.get_num_threads()} threads; the paper: 101 h on 128 cores); iterations {dic.info['iterations']}")
+    del btfs                                           # test BTFs are generated one at a time (memory)
+    print(f"{len(train)} training BTFs ({args.train_size or args.size}x{args.train_size or args.size} texels) x "
+          f"{dirs.shape[0]}x{dirs.shape[0]} directions generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, "
+          f"tau_l={tau_l}, patch {args.patch}) trained on {train} ({dic.info['points']} data points per channel) in "
+          f"{train_s:.1f} s ({torch.get_num_threads()} threads; the paper: 101 h on 128 cores); iterations "
+          f"{dic.info['iterations']}")
 
-    rows, models, rows_by = [], {}, {}
+    rows, models, rows_by, neu_rows, first = [], {}, {}, [], None
     mults = [int(m) for m in args.mults.split(",")]
-    spectra = {name: channel_spectra(btfs[name], dic.log_eps) for name in test}
     for name in test:
+        t = time.perf_counter()
+        btf = generate_material(name, args, dirs)
+        print(f"test BTF {name} ({args.size}x{args.size} texels) generated in {time.perf_counter() - t:.1f} s")
+        coded = {}
         for mult in mults:
             tau = tuple(t * mult for t in tau_l)
             t = time.perf_counter()
-            sp = SparseBTF.encode(btfs[name], dic, tau)
-            code_s = time.perf_counter() - t
+            coded[mult] = SparseBTF.encode(btf, dic, tau), time.perf_counter() - t
+        budgets = {m: sp.storage()["per_btf"] for m, (sp, _) in coded.items()}
+        totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}
+        paper_totals = {m: b // (2 * args.size * args.size) for m, b in budgets.items()}   # fp16 per texel
+        t = time.perf_counter()
+        dec = decompose(btf, dic.log_eps, max(*totals.values(), *paper_totals.values()))
+        pca_s = time.perf_counter() - t
+        for mult, (sp, code_s) in coded.items():
             st = sp.storage()
-            total = rank_budget(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
-            ranks = best_ranks(spectra[name], total)
-            pca = PCABTF.fit(btfs[name], ranks, log_eps=dic.log_eps)
-            paper_rank = st["per_btf"] // (2 * args.size * args.size)        # fp16 coefficients per texel
-            paper_ranks = best_ranks(spectra[name], paper_rank)
-            pca_paper = PCABTF.fit(btfs[name], paper_ranks, log_eps=dic.log_eps)
+            ranks, paper_ranks = best_ranks(dec.eigenvalues, totals[mult]), best_ranks(dec.eigenvalues, paper_totals[mult])
+            pca = PCABTF.fit(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
+            pca_paper = PCABTF.fit(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
             decoded, pca_decoded = sp.decode(), pca.decode()
-            rows.append({"btf": name, "tau_t (Y,U,V)": str(tau), "coefficients": st["coefficients"],
-                         "sparse MSE": mse(btfs[name], decoded), "PCA ranks": str(ranks),
-                         "PCA MSE": mse(btfs[name], pca_decoded),
-                         "sparse log MSE": log_mse(btfs[name], decoded, dic.log_eps),
-                         "PCA log MSE": log_mse(btfs[name], pca_decoded, dic.log_eps),
+            rows.append({"btf": name, "tau_t (Y,U,V)": str(tuple(t * mult for t in tau_l)),
+                         "coefficients": st["coefficients"],
+                         "sparse MSE": mse(btf, decoded), "PCA ranks": str(ranks),
+                         "PCA MSE": mse(btf, pca_decoded),
+                         "sparse log MSE": log_mse(btf, decoded, dic.log_eps),
+                         "PCA log MSE": log_mse(btf, pca_decoded, dic.log_eps),
                          "PCA paper ranks": str(paper_ranks),
-                         "PCA paper MSE": mse(btfs[name], pca_paper.decode()), "per-BTF bytes": st["per_btf"],
+                         "PCA paper MSE": mse(btf, pca_paper.decode()), "per-BTF bytes": st["per_btf"],
                          "statistics share": st["statistics"] / st["per_btf"],
                          "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
-                         "compression": st["compression_ratio"], "coding s": code_s})
+                         "compression": st["compression_ratio"], "coding s": code_s,
+                         "PCA decomposition s": pca_s})
+            del decoded, pca_decoded
             models[(name, mult)] = sp
             rows_by[(name, mult)] = rows[-1]
+        if args.neubrdf:
+            neu_rows += neubrdf_rows(name, btf, mults, rows_by, dic.log_eps, args)
+        if first is None and args.render:
+            first = btf, dec
+        del btf, dec
     table("SparseBTF vs PCA at equal per-BTF storage (MSE on linear RGB apparent BRDF and in log-YUV)", rows)
 
     if args.neubrdf:
-        neu_rows = []
-        for name in test:
-            floor, floor_log = constant_floor(btfs[name], dic.log_eps)
-            for mult, loss in ((m, l) for m in mults for l in args.neubrdf_loss.split(",")):
-                sp_row = rows_by[(name, mult)]
-                try:
-                    model, seconds = fit_neubrdf(btfs[name], sp_row["per-BTF bytes"], loss, args)
-                except InputError as e:                         # a non-finite loss: say so, go on
-                    print(f"NeuBRDF fit of {name} (tau x{mult}, {loss}) failed: {e}")
-                    continue
-                decoded = decode_table(model, btfs[name])
-                c = model.cfg
-                neu_rows.append({"btf": name, "tau x": mult, "loss": loss, "sparse bytes": sp_row["per-BTF bytes"],
-                                 "NeuBRDF bytes": model.size_bytes(),
-                                 "texture h x w x c": f"{c.texture_height}x{c.texture_width}x{c.texture_channels}",
-                                 "NeuBRDF MSE": mse(btfs[name], decoded), "sparse MSE": sp_row["sparse MSE"],
-                                 "PCA MSE": sp_row["PCA MSE"], "constant floor MSE": floor,
-                                 "NeuBRDF log MSE": log_mse(btfs[name], decoded, dic.log_eps),
-                                 "sparse log MSE": sp_row["sparse log MSE"], "PCA log MSE": sp_row["PCA log MSE"],
-                                 "constant floor log MSE": floor_log, "fit s": seconds})
         table(f"NeuBRDF + neural texture at SparseBTF's per-BTF bytes (N_side {args.neubrdf_nside}, k 8, b 6, MLP 2 x "
               f"{args.neubrdf_hidden}; {args.neubrdf_steps} steps of {args.neubrdf_batch} table entries)", neu_rows)
 
@@ -371,11 +390,11 @@ def main():
         # path runs at the throughput in the last table, too slow for figures on CPU)
         fig_mult = 4 if 4 in mults else mults[-1]
         fig = models[(name, fig_mult)]
-        figure_models = {"reference": btfs[name], "sparse-btf": fig.decode()}
-        st = fig.storage()
-        total = rank_budget(st["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
-        figure_models["pca"] = PCABTF.fit(btfs[name], best_ranks(spectra[name], total),
-                                          log_eps=dic.log_eps)
+        btf, dec = first
+        figure_models = {"reference": btf, "sparse-btf": fig.decode()}
+        total = rank_budget(fig.storage()["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
+        figure_models["pca"] = PCABTF.fit(btf, best_ranks(dec.eigenvalues, total), log_eps=dic.log_eps,
+                                          decomposition=dec)
         out = Path(__file__).parent / "results"
         table(f"renders of {name} (tau x{fig_mult}, equal per-BTF bytes) under studio_small_03, {args.render_spp} spp, "
               f"written to {out}", render_figures(figure_models, out, args.render_spp, args.render_size))

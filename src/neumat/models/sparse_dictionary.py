@@ -188,9 +188,10 @@ class Codes:
 
 
 def code_points(x: torch.Tensor, ensemble: Ensemble, tau: int, threshold: float = 0.0,
-                chunk: int = 256) -> Codes:
+                chunk: int | None = None) -> Codes:
     """Sparse codes of data points x (N, m1, m2, m3, m4) (Sec. 3.3): project on every dictionary, keep the
-    tau largest coefficients (or stop at `threshold`), pick the sparsest, then lowest-error, dictionary."""
+    tau largest coefficients (or stop at `threshold`), pick the sparsest, then lowest-error, dictionary.
+    chunk: points projected together (default: about 2^25 coefficients, 128 MB of float32, per chunk)."""
     if tuple(x.shape[1:]) != ensemble.shape:
         raise InputError(f"SparseBTF: data points have shape {tuple(x.shape[1:])} but the dictionary ensemble was "
                          f"trained for {ensemble.shape} (patch, patch, lights, views); a dictionary only codes "
@@ -198,6 +199,7 @@ def code_points(x: torch.Tensor, ensemble: Ensemble, tau: int, threshold: float 
     n = x.shape[0]
     m = math.prod(ensemble.shape)
     tau = min(tau, m)
+    chunk = chunk or max(1, (1 << 25) // m)
     parts = []
     for s in range(0, n, chunk):
         xc = x[s:s + chunk]
@@ -286,6 +288,7 @@ def train_ensemble(x: torch.Tensor, num_dictionaries: int, tau: int, max_iters: 
     ens = Ensemble([torch.stack([d[j] for d in init]) for j in range(4)])
     log = TrainingLog()
     shape = ens.shape
+    chunk = max(1, (1 << 25) // math.prod(shape))         # points per chunk of the dictionary update (memory)
     steps = range(max_iters)
     if progress:
         from rich.progress import track
@@ -300,19 +303,24 @@ def train_ensemble(x: torch.Tensor, num_dictionaries: int, tau: int, max_iters: 
                 for j, u in enumerate(hosvd_bases(x[worst])):
                     ens.mats[j][k] = u
                 continue
-            xk = x[sel]
+            xk, members = x[sel], _subset(codes, sel)
             for mode in range(1, 5):
                 mats = ens.dictionary(k)
-                s = dense_coefficients(_subset(codes, sel), shape)
-                z = xk
-                for j, u in enumerate(mats, start=1):
-                    if j != mode:
-                        z = mode_product(z, u.T, j)
-                zn = z.movedim(mode, 1).reshape(z.shape[0], shape[mode - 1], -1)
-                sn = s.movedim(mode, 1).reshape(s.shape[0], shape[mode - 1], -1)
-                ens.mats[mode - 1][k] = procrustes(torch.einsum("nar,nbr->ab", zn, sn))
+                cross = torch.zeros(shape[mode - 1], shape[mode - 1], dtype=x.dtype, device=x.device)
+                for lo in range(0, xk.shape[0], chunk):          # sum over members of z_(n) s_(n)^T
+                    part = slice(lo, lo + chunk)
+                    s = dense_coefficients(_subset(members, part), shape)
+                    z = xk[part]
+                    for j, u in enumerate(mats, start=1):
+                        if j != mode:
+                            z = mode_product(z, u.T, j)
+                    zn = z.movedim(mode, 1).reshape(z.shape[0], shape[mode - 1], -1)
+                    sn = s.movedim(mode, 1).reshape(s.shape[0], shape[mode - 1], -1)
+                    cross += torch.einsum("nar,nbr->ab", zn, sn)
+                ens.mats[mode - 1][k] = procrustes(cross)
                 sub = code_points(xk, Ensemble([u[k:k + 1] for u in ens.mats]), tau)
                 _assign(codes, sel, sub, k)
+                members = _subset(codes, sel)
         codes = code_points(x, ens, tau)
         obj = float(codes.error.sum()) * math.prod(shape)
         log.objective.append(obj)
@@ -433,14 +441,20 @@ def train_dictionary(btfs: list, num_dictionaries: int = 8, tau_train: tuple[int
             raise InputError(f"train_dictionary: BTF {b.label!r} has another direction set than {first.label!r}")
     if not 0 < sample_fraction <= 1:
         raise InputError(f"train_dictionary sample_fraction: expected (0, 1], got {sample_fraction}")
-    points = torch.cat([prepare_btf(b.data, patch, log_eps)[0] for b in btfs], dim=1)
+    counts = [(b.data.shape[2] // patch) * (b.data.shape[3] // patch) for b in btfs]
+    n = sum(counts)
     gen = torch.Generator().manual_seed(seed)
-    n = points.shape[1]
     keep = torch.randperm(n, generator=gen)[:max(num_dictionaries, round(n * sample_fraction))]
-    ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": int(keep.numel()),
+    points = torch.empty(3, len(keep), patch, patch, *first.data.shape[:2], device=first.data.device)
+    start = 0
+    for b, count in zip(btfs, counts):                 # one BTF at a time: only the kept points are held
+        pos = ((keep >= start) & (keep < start + count)).nonzero()[:, 0]
+        points[:, pos.to(points.device)] = prepare_btf(b.data, patch, log_eps)[0][:, (keep[pos] - start).to(points.device)]
+        start += count
+    ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": len(keep),
                            "btfs": [b.label for b in btfs]}
     for c, ch in enumerate("YUV"):
-        ens, log = train_ensemble(points[c][keep.to(points.device)], num_dictionaries, tau_train[c], max_iters, tol,
+        ens, log = train_ensemble(points[c], num_dictionaries, tau_train[c], max_iters, tol,
                                   seed + c, progress, f"training {ch} dictionaries")
         ensembles.append(ens)
         info["objective"][ch], info["seconds"][ch], info["iterations"][ch] = log.objective, log.seconds, log.iterations
