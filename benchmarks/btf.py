@@ -354,7 +354,8 @@ def main():
         pca_s = time.perf_counter() - t
         for mult, (sp, code_s) in coded.items():
             st = sp.storage()
-            ranks, paper_ranks = best_ranks(dec.eigenvalues, totals[mult]), best_ranks(dec.eigenvalues, paper_totals[mult])
+            ranks = best_ranks(dec.eigenvalues, totals[mult])
+            paper_ranks = best_ranks(dec.eigenvalues, paper_totals[mult])
             pca = PCABTF.fit(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
             pca_paper = PCABTF.fit(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
             decoded, pca_decoded = sp.decode(), pca.decode()

@@ -449,7 +449,8 @@ def train_dictionary(btfs: list, num_dictionaries: int = 8, tau_train: tuple[int
     start = 0
     for b, count in zip(btfs, counts):                 # one BTF at a time: only the kept points are held
         pos = ((keep >= start) & (keep < start + count)).nonzero()[:, 0]
-        points[:, pos.to(points.device)] = prepare_btf(b.data, patch, log_eps)[0][:, (keep[pos] - start).to(points.device)]
+        prepared = prepare_btf(b.data, patch, log_eps)[0]
+        points[:, pos.to(points.device)] = prepared[:, (keep[pos] - start).to(points.device)]
         start += count
     ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": len(keep),
                            "btfs": [b.label for b in btfs]}
