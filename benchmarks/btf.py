@@ -9,6 +9,10 @@ reconstruction throughput (CPU, and CUDA when available), coefficient- vs value-
     python benchmarks/btf.py --train-seeds 6 --train-shared ../shared/data/svbrdf --tiles 2 --dictionaries 8
                                                    # a larger training set (benchmarks/results/btf_vs_pca.md)
     python benchmarks/btf.py --neubrdf             # also NeuBRDF with a neural texture at SparseBTF's bytes
+    python -u benchmarks/btf.py --dirs ubo151 --size 100 --train-size 20 --tau-train 256,32,32 --dictionaries 8 \
+        --iterations 3 --train-seeds 6 --train-shared ../shared/data/svbrdf --shared-relief 4 \
+        --save-dictionary d151.nmat            # the paper's Table 5 regime (about 40 min of training on 2 cores;
+                                               # later runs: --dictionary d151.nmat)
 
 Training set: --train (with --train-seeds S also their procedural layouts from seeds 2..S, with
 --train-shared also tiles of real PBR sets); test set: --test, never seen in training (refused otherwise).
@@ -16,7 +20,8 @@ MSE is reported on linear RGB (the BTF values) and in the log-YUV space the mode
 the per-image standardisation). PCA gets the same per-BTF bytes as SparseBTF's codes plus statistics, and is
 charged for its bases and means ("PCA"); "PCA paper" is charged only its per-texel coefficients, as the
 compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (32)'s 2122: 22801 x 3 / 64).
-Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`).
+Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`) of one
+`pca_btf.decompose` per test BTF ("PCA decomposition s"). Test BTFs are generated one at a time.
 "statistics share" is the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
 
 --neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
@@ -49,7 +54,7 @@ from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
 from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
-from neumat.models.sparse_dictionary import rgb_to_model_space, train_dictionary
+from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
 from neumat.reflectance.btf_generate import (
     generate_btf,
@@ -126,6 +131,26 @@ def extra_training_btfs(args, dirs, kinds: list[str]) -> dict:
                 out[f"{ts.name}#{i}"] = generate_btf(tile, dirs, dirs, relief=relief * args.shared_relief,
                                                      spp=args.spp)
     return out
+
+
+def train_on_materials(train: list[str], args, dirs, tau_l: tuple[int, int, int]) -> BTFDictionary:
+    """Generate the training BTFs (materials `train` plus the extra ones), train the dictionary, print its cost."""
+    t = time.perf_counter()
+    btfs = {name: generate_material(name, args, dirs) for name in train}
+    extra = extra_training_btfs(args, dirs, train)
+    btfs.update(extra)
+    train = train + list(extra)
+    gen_s = time.perf_counter() - t
+    t = time.perf_counter()
+    dic = train_dictionary([btfs[k] for k in train], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
+                           sample_fraction=args.sample_fraction, progress=True)
+    train_s = time.perf_counter() - t
+    print(f"{len(train)} training BTFs ({args.train_size or args.size}x{args.train_size or args.size} texels) x "
+          f"{dirs.shape[0]}x{dirs.shape[0]} directions generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, "
+          f"tau_l={tau_l}, patch {args.patch}) trained on {train} ({dic.info['points']} data points per channel) in "
+          f"{train_s:.1f} s ({torch.get_num_threads()} threads; the paper: 101 h on 128 cores); iterations "
+          f"{dic.info['iterations']}")
+    return dic
 
 
 def log_mse(reference, test, eps: float) -> float:
@@ -299,6 +324,9 @@ def main():
     ap.add_argument("--train-size", type=int, default=0,
                     help="texels of the extra training BTFs (default --size; a dictionary fits any size)")
     ap.add_argument("--sample-fraction", type=float, default=1.0, help="fraction of training data points used")
+    ap.add_argument("--dictionary", default="", help="a dictionary saved by --save-dictionary: skip training "
+                    "(its training BTFs must not be test materials)")
+    ap.add_argument("--save-dictionary", default="", help="write the trained dictionary here")
     ap.add_argument("--mults", default="1,2,4,8,16", help="tau_t = tau_l times these")
     ap.add_argument("--neubrdf", action="store_true",
                     help="also fit NeuBRDF with a neural texture at SparseBTF's per-BTF bytes (module docstring)")
@@ -314,26 +342,23 @@ def main():
     dirs = direction_set(int(args.dirs) if args.dirs.isdigit() else args.dirs)
     tau_l = tuple(int(t) for t in args.tau_train.split(","))
 
-    t = time.perf_counter()
     train, test = material_names(args.train, args.shared), material_names(args.test, args.shared)
     if set(train) & set(test) or (args.train_shared and any(n not in PROCEDURAL for n in test)):
         raise SystemExit(f"the test materials {test} must not be used in training ({train}"
                          f"{', --train-shared ' + args.train_shared if args.train_shared else ''})")
-    btfs = {name: generate_material(name, args, dirs) for name in train}
-    extra = extra_training_btfs(args, dirs, train)
-    btfs.update(extra)
-    train += list(extra)
-    gen_s = time.perf_counter() - t
-    t = time.perf_counter()
-    dic = train_dictionary([btfs[k] for k in train], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                           sample_fraction=args.sample_fraction, progress=True)
-    train_s = time.perf_counter() - t
-    del btfs                                           # test BTFs are generated one at a time (memory)
-    print(f"{len(train)} training BTFs ({args.train_size or args.size}x{args.train_size or args.size} texels) x "
-          f"{dirs.shape[0]}x{dirs.shape[0]} directions generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, "
-          f"tau_l={tau_l}, patch {args.patch}) trained on {train} ({dic.info['points']} data points per channel) in "
-          f"{train_s:.1f} s ({torch.get_num_threads()} threads; the paper: 101 h on 128 cores); iterations "
-          f"{dic.info['iterations']}")
+    if args.dictionary:
+        dic = BTFDictionary.load(args.dictionary)
+        tau_l = dic.tau_train
+        if set(test) & set(dic.info.get("btfs", [])):
+            raise SystemExit(f"{args.dictionary} was trained on test materials "
+                             f"{sorted(set(test) & set(dic.info['btfs']))}")
+        print(f"dictionary {args.dictionary} (K={dic.num_dictionaries}, tau_l={dic.tau_train}, patch {dic.patch}, "
+              f"{dic.info.get('points')} data points per channel from {dic.info.get('btfs')}) trained in "
+              f"{sum(dic.info.get('seconds', {}).values()):.1f} s; iterations {dic.info.get('iterations')}")
+    else:
+        dic = train_on_materials(train, args, dirs, tau_l)
+        if args.save_dictionary:
+            print(f"dictionary written to {dic.save(args.save_dictionary)}")
 
     rows, models, rows_by, neu_rows, first = [], {}, {}, [], None
     mults = [int(m) for m in args.mults.split(",")]
