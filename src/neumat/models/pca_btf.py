@@ -198,14 +198,13 @@ def decompose(btf: TabulatedBTF, log_eps: float = 0.01, max_rank: int | None = N
         if exact:
             if lv <= hw:
                 e, vecs = torch.linalg.eigh(xc.T @ xc)
-                e, b = e.flip(0).clamp_min(0), vecs.flip(-1)
-            else:                                 # texel Gram: basis = xc^T u / sqrt(e)
+                e, b = e.flip(0).clamp_min(0)[:r_max], vecs.flip(-1)[:, :r_max]
+            else:                                 # texel Gram: basis = xc^T u / sqrt(e), for the kept components only
                 e, u = torch.linalg.eigh(xc @ xc.T)
-                e, u = e.flip(0).clamp_min(0), u.flip(-1)
+                e, u = e.flip(0).clamp_min(0)[:r_max], u.flip(-1)[:, :r_max]
                 live = e > e[0] * 1e-12 if len(e) and e[0] > 0 else torch.zeros_like(e, dtype=torch.bool)
                 b = torch.zeros(lv, len(e), dtype=xc.dtype, device=xc.device)
                 b[:, live] = (xc.T @ u[:, live]) / e[live].sqrt()
-            e, b = e[:r_max], b[:, :r_max]
         else:
             _, sv, b = torch.svd_lowrank(xc, q=r_max + oversample, niter=power_iterations)
             e, b = sv[:r_max] ** 2, b[:, :r_max]
