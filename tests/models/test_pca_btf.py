@@ -8,8 +8,9 @@ from neumat import InputError, Query
 from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.models.sparse_btf import mse
-from btf_util import N_DIRS, SIZE, synthetic_btf
 from neumat.reflectance.btf import TabulatedBTF
+
+from btf_util import N_DIRS, SIZE, synthetic_btf
 
 
 def test_full_rank_is_exact_and_error_falls_with_rank():
