@@ -23,7 +23,8 @@ charged for its bases and means ("PCA"); "PCA paper" is charged only its per-tex
 compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (32)'s 2122: 22801 x 3 / 64).
 Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`) of one
 `pca_btf.decompose` per test BTF ("PCA decomposition s"). Test BTFs are generated one at a time.
-"statistics share" is the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
+"coding s (all rates)" codes a test BTF at every --mults rate with one projection of its data points
+(`SparseBTF.encode_rates`). "statistics share" is the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
 
 --neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
 resolution, one latent vector per texel) whose fp16 size_bytes() is closest to SparseBTF's per-BTF bytes (the
@@ -50,6 +51,7 @@ from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
+from neumat.io.texture_set import load_texture_set
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
@@ -94,43 +96,48 @@ def material_names(spec: str, shared: str) -> list[str]:
     return names
 
 
+def procedural_btf(kind: str, size: int, seed: int, args, dirs):
+    """The BTF of procedural `kind` (seed, size x size texels, relief 4 x --relief)."""
+    return generate_btf(procedural_texture_set(kind, size, seed=seed), dirs, dirs, relief=args.relief * 4,
+                        spp=args.spp)
+
+
+def texture_set_btf(ts, size: int, crop: int, at: int, args, dirs):
+    """The BTF of the crop x crop tile of texture set `ts` at row = column = `at`, resampled to size x size
+    texels, relief x --shared-relief."""
+    tile, relief = texture_tile(ts, size, crop=crop, row=at, col=at)
+    return generate_btf(tile, dirs, dirs, relief=relief * args.shared_relief, spp=args.spp)
+
+
 def generate_material(name: str, args, dirs, tile_index: int = 0):
-    """The BTF of a procedural kind (seed 1, relief 4 x --relief) or of a texture set under --shared (a --crop
-    tile at row = column = --crop-at + tile_index x crop (wrapped into the image), resampled to --size texels,
-    relief x --shared-relief)."""
+    """The BTF of a procedural kind (seed 1) or of a texture set under --shared (a --crop tile at row = column =
+    --crop-at + tile_index x crop, wrapped into the image), at --size texels."""
     if name in PROCEDURAL:
-        return generate_btf(procedural_texture_set(name, args.size, seed=1), dirs, dirs, relief=args.relief * 4,
-                            spp=args.spp)
-    from neumat.io.texture_set import load_texture_set
+        return procedural_btf(name, args.size, 1, args, dirs)
     ts = load_texture_set(Path(args.shared) / name)
     crop = min(args.crop or args.size, *ts.size)
-    at = (args.crop_at + tile_index * crop) % (min(ts.size) - crop + 1)
-    tile, relief = texture_tile(ts, args.size, crop=crop, row=at, col=at)
-    return generate_btf(tile, dirs, dirs, relief=relief * args.shared_relief, spp=args.spp)
+    return texture_set_btf(ts, args.size, crop, (args.crop_at + tile_index * crop) % (min(ts.size) - crop + 1),
+                           args, dirs)
 
 
 def extra_training_btfs(args, dirs, kinds: list[str]) -> dict:
     """More training BTFs (args.train_size texels, default args.size): the procedural `kinds` with seeds
     2..args.train_seeds, tiles 1..args.train_tiles - 1 of the texture sets in `kinds`, and args.tiles tiles of
-    every PBR set in args.train_shared (relief x args.shared_relief). Test materials stay unseen."""
+    every PBR set in args.train_shared (256-texel crops; relief x args.shared_relief). Test materials stay
+    unseen."""
     out, size = {}, args.train_size or args.size
     for seed in range(2, args.train_seeds + 1):
         for k in (k for k in kinds if k in PROCEDURAL):
-            out[f"{k}#{seed}"] = generate_btf(procedural_texture_set(k, size, seed=seed), dirs, dirs,
-                                              relief=args.relief * 4, spp=args.spp)
+            out[f"{k}#{seed}"] = procedural_btf(k, size, seed, args, dirs)
     for i in range(1, args.train_tiles):
         for k in (k for k in kinds if k not in PROCEDURAL):
             out[f"{k}#{i}"] = generate_material(k, args, dirs, tile_index=i)
-    if args.train_shared:
-        from neumat.io.texture_set import load_texture_set
-        for folder in sorted(Path(args.train_shared).iterdir()):
-            ts = load_texture_set(folder)
-            crop = min(256, *ts.size)
-            for i in range(args.tiles):
-                at = i * crop % max(1, min(ts.size) - crop + 1)
-                tile, relief = texture_tile(ts, size, crop=crop, row=at, col=at)
-                out[f"{ts.name}#{i}"] = generate_btf(tile, dirs, dirs, relief=relief * args.shared_relief,
-                                                     spp=args.spp)
+    for folder in sorted(Path(args.train_shared).iterdir()) if args.train_shared else []:
+        ts = load_texture_set(folder)
+        crop = min(256, *ts.size)
+        for i in range(args.tiles):
+            out[f"{ts.name}#{i}"] = texture_set_btf(ts, size, crop, i * crop % max(1, min(ts.size) - crop + 1),
+                                                    args, dirs)
     return out
 
 
@@ -367,18 +374,16 @@ def main():
         t = time.perf_counter()
         btf = generate_material(name, args, dirs)
         print(f"test BTF {name} ({args.size}x{args.size} texels) generated in {time.perf_counter() - t:.1f} s")
-        coded = {}
-        for mult in mults:
-            tau = tuple(t * mult for t in tau_l)
-            t = time.perf_counter()
-            coded[mult] = SparseBTF.encode(btf, dic, tau), time.perf_counter() - t
-        budgets = {m: sp.storage()["per_btf"] for m, (sp, _) in coded.items()}
+        t = time.perf_counter()
+        coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, [tuple(t * m for t in tau_l) for m in mults])))
+        code_s = time.perf_counter() - t
+        budgets = {m: sp.storage()["per_btf"] for m, sp in coded.items()}
         totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}
         paper_totals = {m: b // (2 * args.size * args.size) for m, b in budgets.items()}   # fp16 per texel
         t = time.perf_counter()
         dec = decompose(btf, dic.log_eps, max(*totals.values(), *paper_totals.values()))
         pca_s = time.perf_counter() - t
-        for mult, (sp, code_s) in coded.items():
+        for mult, sp in coded.items():
             st = sp.storage()
             ranks = best_ranks(dec.eigenvalues, totals[mult])
             paper_ranks = best_ranks(dec.eigenvalues, paper_totals[mult])
@@ -395,7 +400,7 @@ def main():
                          "PCA paper MSE": mse(btf, pca_paper.decode()), "per-BTF bytes": st["per_btf"],
                          "statistics share": st["statistics"] / st["per_btf"],
                          "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
-                         "compression": st["compression_ratio"], "coding s": code_s,
+                         "compression": st["compression_ratio"], "coding s (all rates)": code_s,
                          "PCA decomposition s": pca_s})
             del decoded, pca_decoded
             models[(name, mult)] = sp

@@ -6,8 +6,9 @@ import torch
 
 from neumat import InputError, Query
 from neumat.models.sparse_btf import SparseBTF, mse
-from neumat.models.sparse_dictionary import (BTFDictionary, code_points, decode_points, mode_product, prepare_btf,
-                                             train_dictionary, train_ensemble)
+from neumat.models.sparse_dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
+                                             keep_largest, mode_product, prepare_btf, project, train_dictionary,
+                                             train_ensemble)
 from neumat.reflectance.btf import angular_weights, direction_set
 
 from btf_util import N_DIRS, SIZE, synthetic_btf
@@ -73,6 +74,41 @@ def test_error_falls_monotonically_with_tau(trained):
         linear_err.append(mse(btf, SparseBTF.encode(btf, trained, (tau, 8 + tau // 8, 8 + tau // 8)).decode()))
     assert all(b < a for a, b in zip(model_err, model_err[1:]))
     assert all(b < a for a, b in zip(linear_err, linear_err[1:])), linear_err
+
+
+def _brute_force_codes(x: torch.Tensor, ens, tau: int, threshold: float) -> tuple[list, list, list]:
+    """Per point and dictionary: project, keep the tau largest, pick the sparsest then lowest-error."""
+    membership, counts, errors = [], [], []
+    for point in x:
+        options = []
+        for k in range(ens.size):
+            s = project(point[None], ens.dictionary(k)).reshape(1, -1)
+            _, _, count, err = keep_largest(s, tau, threshold)
+            options.append((int(count), float(err), k))
+        count, err, k = min(options)
+        membership.append(k)
+        counts.append(count)
+        errors.append(err)
+    return membership, counts, errors
+
+
+@pytest.mark.parametrize("threshold", [0.0, 0.05])
+def test_coding_several_rates_at_once_equals_coding_each(trained, threshold):
+    btf = synthetic_btf(8)
+    points, _, _ = prepare_btf(btf.data, PATCH, trained.log_eps)
+    taus = (8, 24, 96)
+    for codes, tau in zip(code_points_at_rates(points[0], trained.ensembles[0], taus, threshold, chunk=3), taus):
+        membership, counts, errors = _brute_force_codes(points[0], trained.ensembles[0], tau, threshold)
+        assert codes.membership.tolist() == membership
+        assert codes.counts.tolist() == counts
+        assert torch.allclose(codes.error, torch.tensor(errors), rtol=1e-5, atol=1e-7)
+    models = SparseBTF.encode_rates(btf, trained, [(24, 8, 8), 48], error_threshold=threshold)
+    for model, tau in zip(models, [(24, 8, 8), 48]):
+        single = SparseBTF.encode(btf, trained, tau, error_threshold=threshold)
+        assert model.cfg == single.cfg
+        assert all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), single.state_dict().values()))
+    with pytest.raises(InputError, match="no tau"):
+        SparseBTF.encode_rates(btf, trained, [])
 
 
 def test_element_reconstruction_matches_full_decode(trained, gen):

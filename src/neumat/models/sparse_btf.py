@@ -35,7 +35,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.registry import MODELS
-from neumat.models.sparse_dictionary import (BTFDictionary, Codes, Ensemble, check_patch_grid, code_points,
+from neumat.models.sparse_dictionary import (BTFDictionary, Codes, Ensemble, check_patch_grid, code_points_at_rates,
                                              decode_points, dense_coefficients, from_data_points, keep_largest,
                                              model_space_to_rgb, mode_product, prepare_btf, unravel)
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
@@ -127,26 +127,40 @@ class SparseBTF(nn.Module, Material):
                error_threshold: float = 0.0, neighbours: int = 3, angular: str = "coefficient") -> "SparseBTF":
         """Sparse representation of `btf` with a trained `dictionary` (Sec. 3.3). tau: tau_t for Y, U, V (one
         int for all); default the dictionary's tau_train."""
-        tau = dictionary.tau_train if tau is None else (tau,) * 3 if isinstance(tau, int) else tuple(tau)
+        return cls.encode_rates(btf, dictionary, [tau], error_threshold, neighbours, angular)[0]
+
+    @classmethod
+    def encode_rates(cls, btf: TabulatedBTF, dictionary: BTFDictionary,
+                     taus: list[int | tuple[int, int, int] | None], error_threshold: float = 0.0,
+                     neighbours: int = 3, angular: str = "coefficient") -> list["SparseBTF"]:
+        """`encode` at every tau of `taus` (same results), projecting the BTF's data points on the dictionaries
+        once for all of them."""
+        if not taus:
+            raise InputError("SparseBTF.encode_rates: no tau given")
+        taus = [dictionary.tau_train if t is None else (t,) * 3 if isinstance(t, int) else tuple(t) for t in taus]
         l, v, h, w, _ = btf.data.shape
-        cfg = Config(patch=dictionary.patch, num_dictionaries=dictionary.num_dictionaries, n_light=l, n_view=v,
-                     height=h, width=w, tau=tuple(int(t) for t in tau), tau_train=tuple(dictionary.tau_train),
-                     log_eps=dictionary.log_eps, error_threshold=error_threshold, neighbours=neighbours,
-                     angular=angular)
-        _check_config(cfg)
+        cfgs = [Config(patch=dictionary.patch, num_dictionaries=dictionary.num_dictionaries, n_light=l, n_view=v,
+                       height=h, width=w, tau=tuple(int(t) for t in tau), tau_train=tuple(dictionary.tau_train),
+                       log_eps=dictionary.log_eps, error_threshold=error_threshold, neighbours=neighbours,
+                       angular=angular) for tau in taus]
+        for cfg in cfgs:
+            _check_config(cfg)
         dictionary.check_compatible(btf.light_dirs, btf.view_dirs, f"BTF {btf.label!r}")
-        model = cls(cfg).to(btf.data.device)
-        points, mean, std = prepare_btf(btf.data, cfg.patch, cfg.log_eps)
-        model.light_dirs.copy_(btf.light_dirs)
-        model.view_dirs.copy_(btf.view_dirs)
-        model.mean.copy_(mean)
-        model.std.copy_(std)
+        models = [cls(cfg).to(btf.data.device) for cfg in cfgs]
+        points, mean, std = prepare_btf(btf.data, dictionary.patch, dictionary.log_eps)
+        for model in models:
+            model.light_dirs.copy_(btf.light_dirs)
+            model.view_dirs.copy_(btf.view_dirs)
+            model.mean.copy_(mean)
+            model.std.copy_(std)
         for c, ens in enumerate(dictionary.ensembles):
             ens = ens.to(btf.data.device)
-            for n in range(4):
-                getattr(model, f"dict_{n + 1}")[c] = ens.mats[n]
-            model._store_codes(c, code_points(points[c], ens, cfg.tau[c], error_threshold))
-        return model
+            codes = code_points_at_rates(points[c], ens, [cfg.tau[c] for cfg in cfgs], error_threshold)
+            for model, code in zip(models, codes):
+                for n in range(4):
+                    getattr(model, f"dict_{n + 1}")[c] = ens.mats[n]
+                model._store_codes(c, code)
+        return models
 
     def _store_codes(self, c: int, codes: Codes) -> None:
         t = codes.values.shape[1]

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -192,33 +193,52 @@ def code_points(x: torch.Tensor, ensemble: Ensemble, tau: int, threshold: float 
     """Sparse codes of data points x (N, m1, m2, m3, m4) (Sec. 3.3): project on every dictionary, keep the
     tau largest coefficients (or stop at `threshold`), pick the sparsest, then lowest-error, dictionary.
     chunk: points projected together (default: about 2^25 coefficients, 128 MB of float32, per chunk)."""
+    return code_points_at_rates(x, ensemble, [tau], threshold, chunk)[0]
+
+
+def code_points_at_rates(x: torch.Tensor, ensemble: Ensemble, taus: Sequence[int], threshold: float = 0.0,
+                         chunk: int | None = None) -> list[Codes]:
+    """`code_points` for every tau of `taus`, projecting each data point on each dictionary once: only the
+    top-k selection and the choice of dictionary depend on tau. Returns one Codes per tau, in order."""
     if tuple(x.shape[1:]) != ensemble.shape:
         raise InputError(f"SparseBTF: data points have shape {tuple(x.shape[1:])} but the dictionary ensemble was "
                          f"trained for {ensemble.shape} (patch, patch, lights, views); a dictionary only codes "
                          "BTFs of the angular resolution and patch size it was trained on (paper, Sec. 5)")
+    if not taus:
+        raise InputError("SparseBTF: no coefficient count tau given")
     n = x.shape[0]
     m = math.prod(ensemble.shape)
-    tau = min(tau, m)
+    taus = [min(int(t), m) for t in taus]
     chunk = chunk or max(1, (1 << 25) // m)
-    parts = []
+    parts = [[] for _ in taus]
     for s in range(0, n, chunk):
         xc = x[s:s + chunk]
-        best = None
+        best = [None] * len(taus)
         for k in range(ensemble.size):
             coeffs = project(xc, ensemble.dictionary(k)).reshape(xc.shape[0], -1)
-            vals, idx, counts, err = keep_largest(coeffs, tau, threshold)
-            if best is None:
-                best = [torch.zeros_like(counts), vals, idx, counts, err]
-                continue
-            better = (counts < best[3]) | ((counts == best[3]) & (err < best[4]))
-            best[0] = torch.where(better, torch.full_like(counts, k), best[0])
-            best[1] = torch.where(better[:, None], vals, best[1])
-            best[2] = torch.where(better[:, None], idx, best[2])
-            best[3] = torch.where(better, counts, best[3])
-            best[4] = torch.where(better, err, best[4])
-        parts.append(best)
-    memb, vals, idx, counts, err = (torch.cat([p[i] for p in parts]) for i in range(5))
-    return Codes(memb, vals, unravel(idx, ensemble.shape), counts, err)
+            for r, tau in enumerate(taus):
+                best[r] = _keep_better(best[r], k, *keep_largest(coeffs, tau, threshold))
+        for r in range(len(taus)):
+            parts[r].append(best[r])
+    out = []
+    for p in parts:
+        memb, vals, idx, counts, err = (torch.cat([c[i] for c in p]) for i in range(5))
+        out.append(Codes(memb, vals, unravel(idx, ensemble.shape), counts, err))
+    return out
+
+
+def _keep_better(best: list | None, k: int, vals: torch.Tensor, idx: torch.Tensor, counts: torch.Tensor,
+                 err: torch.Tensor) -> list:
+    """Per point, the sparser (then lower-error) of the codes in `best` [membership, vals, idx, counts, err]
+    and dictionary k's codes."""
+    if best is None:
+        return [torch.full_like(counts, k), vals, idx, counts, err]
+    better = (counts < best[3]) | ((counts == best[3]) & (err < best[4]))
+    return [torch.where(better, torch.full_like(counts, k), best[0]),
+            torch.where(better[:, None], vals, best[1]),
+            torch.where(better[:, None], idx, best[2]),
+            torch.where(better, counts, best[3]),
+            torch.where(better, err, best[4])]
 
 
 def dense_coefficients(codes: Codes, shape: tuple[int, ...]) -> torch.Tensor:
