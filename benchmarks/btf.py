@@ -23,7 +23,8 @@ charged for its bases and means ("PCA"); "PCA paper" is charged only its per-tex
 compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (32)'s 2122: 22801 x 3 / 64).
 Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`) of one
 `pca_btf.decompose` per test BTF ("PCA decomposition s"). Test BTFs are generated one at a time.
-"coding s (all rates)" codes a test BTF at every --mults rate with one projection of its data points
+--oracle adds "oracle sparse MSE" / "oracle sparse log MSE": the test BTF coded with a dictionary trained on
+itself alone, a bound on what a better training set could give. "coding s (all rates)" codes a test BTF at every --mults rate with one projection of its data points
 (`SparseBTF.encode_rates`). "statistics share" is the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
 
 --neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
@@ -336,6 +337,9 @@ def main():
                     "(its training BTFs must not be test materials)")
     ap.add_argument("--save-dictionary", default="", help="write the trained dictionary here")
     ap.add_argument("--mults", default="1,2,4,8,16", help="tau_t = tau_l times these")
+    ap.add_argument("--oracle", action="store_true",
+                    help="also code every test BTF with a dictionary trained on that BTF alone (same K, tau_l, "
+                         "iterations): how much of the gap to PCA a better training set could close")
     ap.add_argument("--neubrdf", action="store_true",
                     help="also fit NeuBRDF with a neural texture at SparseBTF's per-BTF bytes (module docstring)")
     ap.add_argument("--neubrdf-steps", type=int, default=1000)
@@ -377,6 +381,12 @@ def main():
         t = time.perf_counter()
         coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, [tuple(t * m for t in tau_l) for m in mults])))
         code_s = time.perf_counter() - t
+        if args.oracle:
+            t = time.perf_counter()
+            own = train_dictionary([btf], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
+                                   sample_fraction=args.sample_fraction, progress=True)
+            oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, [tuple(t * m for t in tau_l) for m in mults])))
+            print(f"oracle dictionary of {name} trained and used in {time.perf_counter() - t:.1f} s")
         budgets = {m: sp.storage()["per_btf"] for m, sp in coded.items()}
         totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}
         paper_totals = {m: b // (2 * args.size * args.size) for m, b in budgets.items()}   # fp16 per texel
@@ -402,6 +412,11 @@ def main():
                          "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
                          "compression": st["compression_ratio"], "coding s (all rates)": code_s,
                          "PCA decomposition s": pca_s})
+            if args.oracle:
+                own_decoded = oracle[mult].decode()
+                rows[-1] |= {"oracle sparse MSE": mse(btf, own_decoded),
+                             "oracle sparse log MSE": log_mse(btf, own_decoded, dic.log_eps)}
+                del own_decoded
             del decoded, pca_decoded
             models[(name, mult)] = sp
             rows_by[(name, mult)] = rows[-1]
