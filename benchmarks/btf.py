@@ -24,8 +24,9 @@ compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (
 Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`) of one
 `pca_btf.decompose` per test BTF ("PCA decomposition s"). Test BTFs are generated one at a time.
 --oracle adds "oracle sparse MSE" / "oracle sparse log MSE": the test BTF coded with a dictionary trained on
-itself alone, a bound on what a better training set could give. "coding s (all rates)" codes a test BTF at every --mults rate with one projection of its data points
-(`SparseBTF.encode_rates`). "statistics share" is the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
+itself alone, a bound on what a better training set could give. "coding s (all rates)" codes a test BTF at
+every --mults rate with one projection of its data points (`SparseBTF.encode_rates`). "statistics share" is
+the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations.
 
 --neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
 resolution, one latent vector per texel) whose fp16 size_bytes() is closest to SparseBTF's per-BTF bytes (the
@@ -462,7 +463,8 @@ def main():
         table_btf = type(decoded)(decoded.data.to(device), decoded.light_dirs, decoded.view_dirs)
         dev_rows.append({"device": device, "angular interpolation": "decoded full table (TabulatedBTF)",
                          "evals / s": throughput(table_btf, args.queries, device)})
-    table(f"reconstruction throughput ({test[0]}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)", dev_rows)
+    table(f"reconstruction throughput ({test[0]}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)",
+          dev_rows)
 
 
 if __name__ == "__main__":

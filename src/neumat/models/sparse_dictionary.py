@@ -110,7 +110,8 @@ def reconstruct(s: torch.Tensor, mats: list[torch.Tensor]) -> torch.Tensor:
     return s
 
 
-def keep_largest(s: torch.Tensor, tau: int, threshold: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def keep_largest(s: torch.Tensor, tau: int, threshold: float = 0.0
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Sparsify coefficients s (N, M) of orthonormal bases.
 
     Keeps the tau largest |s| per point, or fewer: as few as make the mean squared error per element
