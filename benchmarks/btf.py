@@ -375,18 +375,19 @@ def main():
 
     rows, models, rows_by, neu_rows, first = [], {}, {}, [], None
     mults = [int(m) for m in args.mults.split(",")]
+    taus = {m: tuple(t * m for t in tau_l) for m in mults}                 # tau_t per rate
     for name in test:
         t = time.perf_counter()
         btf = generate_material(name, args, dirs)
         print(f"test BTF {name} ({args.size}x{args.size} texels) generated in {time.perf_counter() - t:.1f} s")
         t = time.perf_counter()
-        coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, [tuple(t * m for t in tau_l) for m in mults])))
+        coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, list(taus.values()))))
         code_s = time.perf_counter() - t
         if args.oracle:
             t = time.perf_counter()
             own = train_dictionary([btf], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
                                    sample_fraction=args.sample_fraction, progress=True)
-            oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, [tuple(t * m for t in tau_l) for m in mults])))
+            oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, list(taus.values()))))
             print(f"oracle dictionary of {name} trained and used in {time.perf_counter() - t:.1f} s")
         budgets = {m: sp.storage()["per_btf"] for m, sp in coded.items()}
         totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}
@@ -401,7 +402,7 @@ def main():
             pca = PCABTF.fit(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
             pca_paper = PCABTF.fit(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
             decoded, pca_decoded = sp.decode(), pca.decode()
-            rows.append({"btf": name, "tau_t (Y,U,V)": str(tuple(t * mult for t in tau_l)),
+            rows.append({"btf": name, "tau_t (Y,U,V)": str(taus[mult]),
                          "coefficients": st["coefficients"],
                          "sparse MSE": mse(btf, decoded), "PCA ranks": str(ranks),
                          "PCA MSE": mse(btf, pca_decoded),

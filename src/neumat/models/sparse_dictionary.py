@@ -341,7 +341,7 @@ def train_ensemble(x: torch.Tensor, num_dictionaries: int, tau: int, max_iters: 
                 ens.mats[mode - 1][k] = procrustes(cross)
                 sub = code_points(xk, Ensemble([u[k:k + 1] for u in ens.mats]), tau)
                 _assign(codes, sel, sub, k)
-                members = _subset(codes, sel)
+                members = sub                                    # = _subset(codes, sel) up to membership
         codes = code_points(x, ens, tau)
         obj = float(codes.error.sum()) * math.prod(shape)
         log.objective.append(obj)
