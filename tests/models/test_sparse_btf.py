@@ -141,16 +141,33 @@ def test_coefficient_space_interpolation_equals_value_interpolation(trained, gen
         assert torch.allclose(eq6, ref, atol=1e-5)
 
 
-def test_batched_taps_equal_eq6_per_element(trained, gen):
+def test_merged_taps_equal_eq6_per_element(trained, gen):
     model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
-    n, k = 50, 3
+    n, k = 200, 3
     li, lw, vi, vw = _bins(model, n, k, gen)
-    patch, x1, x2, _ = model._texels(torch.rand(n, 2, generator=gen) * 3 - 1)
+    patch, x1, x2, tap_w = model._texels(torch.rand(n, 2, generator=gen) * 3 - 1)
     assert len(set(model.membership[0].tolist())) > 1           # the taps use more than one dictionary
+    data_points = torch.tensor([len(set(row)) for row in patch.tolist()])
+    assert set(data_points.tolist()) == {1, 2, 4}               # taps within one, across one or two patch edges
     expand = lambda t: t[:, None].expand(-1, 4, -1)             # noqa: E731
     for c in range(3):
         ref = model.element_interpolated(c, patch, x1, x2, expand(li), expand(lw), expand(vi), expand(vw))
-        assert torch.allclose(model._taps_interpolated(c, patch, x1, x2, li, lw, vi, vw), ref, atol=1e-6)
+        got = model._texel_sum_interpolated(c, patch, x1, x2, tap_w, li, lw, vi, vw)
+        assert torch.allclose(got, (ref * tap_w).sum(1), atol=1e-6)
+
+
+def test_eval_in_batches_equals_one_batch(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
+    n = 300
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
+    q = Query(wi, wo, uv=torch.rand(n, 2, generator=gen))
+    for angular in ("coefficient", "value"):
+        model.cfg.angular = angular
+        whole = model.eval(q, batch=n)
+        assert torch.allclose(model.eval(q, batch=7), whole, rtol=1e-5, atol=1e-7)  # summation order differs
+        assert torch.allclose(model.eval(q), whole, rtol=1e-5, atol=1e-7)           # default batch size
+        assert model.eval(q[:0]).shape == (0, 3)
 
 
 def test_value_space_eval_equals_the_decoded_table(trained, gen):

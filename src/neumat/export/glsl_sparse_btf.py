@@ -3,8 +3,9 @@ membership vector and the dictionary ensemble uploaded as textures, one BTF elem
 
 `export_sparse_btf(model)` computes exactly what `SparseBTF.eval` computes with `angular = "coefficient"`
 (Eq. 6): the k nearest light and view bins with inverse-angular-distance weights, wrap-around bilinear over 4
-texels, per texel and YUV channel the sum over its data point's coefficients of value x U1 x U2 x (weighted
-U3 rows) x (weighted U4 rows), then the interpolated per-image mean and std, YUV -> RGB and exp. BTFs are not
+texels, per data point those texels fall in (1, 2 or 4) and YUV channel the sum over its coefficients of
+value x (bilinear-weighted U1 rows) x (bilinear-weighted U2 rows) x (weighted U3 rows) x (weighted U4 rows),
+then the interpolated per-image mean and std, YUV -> RGB and exp. BTFs are not
 prefiltered, so the footprint and lod arguments of the common entry points are ignored (as in `eval`):
 
     vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv)
@@ -132,29 +133,39 @@ vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv) {{
     sb_nearest(wo, false, vi, vw);
     float x = uv.x * float(SB_W) - 0.5, y = (1.0 - uv.y) * float(SB_H) - 0.5;
     float x0 = floor(x), y0 = floor(y), fx = x - x0, fy = y - y0;
+    int row[2] = int[](sb_wrap(y0, SB_H), sb_wrap(y0 + 1.0, SB_H));
+    int col[2] = int[](sb_wrap(x0, SB_W), sb_wrap(x0 + 1.0, SB_W));
+    float wy[2] = float[](1.0 - fy, fy), wx[2] = float[](1.0 - fx, fx);
+    // the 4 taps are rows x cols; both rows (cols) lie in one patch row (col) unless they straddle a patch
+    // edge, so the taps fall in 1, 2 or 4 data points, each visited once with the separable spatial factor
+    // (sum over its rows of wy U1[x1, l1]) x (sum over its cols of wx U2[x2, l2])
+    bool one_r = row[0] / SB_P == row[1] / SB_P, one_c = col[0] / SB_P == col[1] / SB_P;
     vec3 z = vec3(0.0);
-    for (int tap = 0; tap < 4; ++tap) {{
-        int dx = tap % 2, dy = tap / 2;
-        int col = sb_wrap(x0 + float(dx), SB_W), row = sb_wrap(y0 + float(dy), SB_H);
-        float sw = (dx == 1 ? fx : 1.0 - fx) * (dy == 1 ? fy : 1.0 - fy);
-        int point = (row / SB_P) * SB_PW + col / SB_P, x1 = row % SB_P, x2 = col % SB_P;
-        for (int c = 0; c < 3; ++c) {{
-            vec4 info = texelFetch(sbtf_points, ivec3(point % SB_POINTS_W, point / SB_POINTS_W, c), 0);
-            int layer = c * SB_K + int(info.x), count = int(info.y);
-            float acc = 0.0;
-            for (int t = 0; t < count; ++t) {{
-                vec4 code = texelFetch(sbtf_codes, ivec3(t, point, c), 0);
-                int l12 = int(code.y), l3 = int(code.z), l4 = int(code.w);
-                float u1 = texelFetch(sbtf_dict_s, ivec3(l12 / SB_P, x1, layer), 0).x;
-                float u2 = texelFetch(sbtf_dict_s, ivec3(l12 % SB_P, x2, layer), 0).y;
-                float u3 = 0.0, u4 = 0.0;
-                for (int a = 0; a < SB_NB; ++a) u3 += lw[a] * texelFetch(sbtf_dict_a, ivec3(l3, li[a], layer), 0).x;
-                for (int b = 0; b < SB_NB; ++b) u4 += vw[b] * texelFetch(sbtf_dict_a, ivec3(l4, vi[b], layer), 0).y;
-                acc += code.x * u1 * u2 * u3 * u4;
+    for (int a = 0; a < (one_r ? 1 : 2); ++a)
+        for (int b = 0; b < (one_c ? 1 : 2); ++b) {{
+            int point = (row[a] / SB_P) * SB_PW + col[b] / SB_P;
+            int r0 = row[a] % SB_P, r1 = row[one_r ? 1 : a] % SB_P, c0 = col[b] % SB_P, c1 = col[one_c ? 1 : b] % SB_P;
+            float wr0 = one_r ? wy[0] : wy[a], wr1 = one_r ? wy[1] : 0.0;
+            float wc0 = one_c ? wx[0] : wx[b], wc1 = one_c ? wx[1] : 0.0;
+            for (int c = 0; c < 3; ++c) {{
+                vec4 info = texelFetch(sbtf_points, ivec3(point % SB_POINTS_W, point / SB_POINTS_W, c), 0);
+                int layer = c * SB_K + int(info.x), count = int(info.y);
+                float acc = 0.0;
+                for (int t = 0; t < count; ++t) {{
+                    vec4 code = texelFetch(sbtf_codes, ivec3(t, point, c), 0);
+                    int l1 = int(code.y) / SB_P, l2 = int(code.y) % SB_P, l3 = int(code.z), l4 = int(code.w);
+                    float u1 = wr0 * texelFetch(sbtf_dict_s, ivec3(l1, r0, layer), 0).x
+                             + wr1 * texelFetch(sbtf_dict_s, ivec3(l1, r1, layer), 0).x;
+                    float u2 = wc0 * texelFetch(sbtf_dict_s, ivec3(l2, c0, layer), 0).y
+                             + wc1 * texelFetch(sbtf_dict_s, ivec3(l2, c1, layer), 0).y;
+                    float u3 = 0.0, u4 = 0.0;
+                    for (int i = 0; i < SB_NB; ++i) u3 += lw[i] * texelFetch(sbtf_dict_a, ivec3(l3, li[i], layer), 0).x;
+                    for (int j = 0; j < SB_NB; ++j) u4 += vw[j] * texelFetch(sbtf_dict_a, ivec3(l4, vi[j], layer), 0).y;
+                    acc += code.x * u1 * u2 * u3 * u4;
+                }}
+                z[c] += acc;
             }}
-            z[c] += sw * acc;
         }}
-    }}
     vec3 mean = vec3(0.0), std_ = vec3(0.0);
     for (int a = 0; a < SB_NB; ++a)
         for (int b = 0; b < SB_NB; ++b) {{

@@ -11,8 +11,9 @@ The shared ensemble is kept as buffers (`dict_n`, (3, K, m_n, m_n)).
   2 bins to the k-nearest inverse-distance weights of `neumat.reflectance.btf.angular_weights`): it equals
   the same weighted sum of Eq. 5 values;
 - `eval` answers Query(wi, wo, uv): wrap-around bilinear over 4 texels and k x k angular bins. With
-  `angular = "coefficient"` the angular interpolation is done in coefficient space (Eq. 6, batched: the
-  weighted U3 / U4 rows are formed once per query and shared by its 4 texels) and the per-image mean/std are
+  `angular = "coefficient"` the angular interpolation is done in coefficient space (Eq. 6, batched: taps of a
+  query in one data point are merged, and the weighted U3 / U4 rows are formed once per query and data
+  point; `_texel_sum_interpolated`) and the per-image mean/std are
   interpolated with the same weights before the inverse transform (fast, the paper's runtime
   path); with `angular = "value"` every bin is reconstructed and inverted to linear RGB first, which equals
   `TabulatedBTF(decode())` exactly;
@@ -224,20 +225,32 @@ class SparseBTF(nn.Module, Material):
         u4 = (view_w[..., None] * m4).sum(-2)
         return (vals * u1 * u2 * u3 * u4).sum(-1)
 
-    def _taps_interpolated(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
-                           light_idx: torch.Tensor, light_w: torch.Tensor, view_idx: torch.Tensor,
-                           view_w: torch.Tensor) -> torch.Tensor:
-        """`element_interpolated` for the 4 bilinear taps of N queries that share their angular bins: patch, x1,
-        x2 (N, 4); light_idx, light_w (N, kl); view_idx, view_w (N, kv) -> (N, 4). The weighted U3 / U4 rows
-        are formed once per query and dictionary, (K, N, L) and (K, N, V), and then gathered per coefficient."""
-        memb, vals, idx = self._gather(c, patch)
-        rows = torch.arange(len(patch), device=patch.device)[:, None, None]
-        u3_rows = (self.dict_3[c][:, light_idx] * light_w[None, ..., None]).sum(2)      # (K, N, L)
-        u4_rows = (self.dict_4[c][:, view_idx] * view_w[None, ..., None]).sum(2)        # (K, N, V)
-        m = memb[..., None]
-        u1 = self.dict_1[c][m, x1[..., None], idx[..., 0]]
-        u2 = self.dict_2[c][m, x2[..., None], idx[..., 1]]
-        return (vals * u1 * u2 * u3_rows[m, rows, idx[..., 2]] * u4_rows[m, rows, idx[..., 3]]).sum(-1)
+    def _texel_sum_interpolated(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
+                                tap_w: torch.Tensor, light_idx: torch.Tensor, light_w: torch.Tensor,
+                                view_idx: torch.Tensor, view_w: torch.Tensor) -> torch.Tensor:
+        """sum_t tap_w[t] * element_interpolated(c, patch[:, t], x1[:, t], x2[:, t], ...) for the 4 bilinear taps
+        of N queries: patch, x1, x2, tap_w (N, 4); light_idx, light_w (N, kl); view_idx, view_w (N, kv) -> (N,).
+
+        The taps of a query that lie in one data point share its coefficients, so they are merged into one
+        (query, data point) pair with the spatial factor S = sum_t tap_w[t] U1[x1_t, :] (x) U2[x2_t, :] (p x p);
+        the weighted U3 / U4 rows are formed once per pair. Each coefficient then costs three gathers.
+        """
+        n, p = patch.shape[0], self.cfg.patch
+        lead, pair_of_tap = _pairs_of_taps(patch)
+        query = torch.arange(n, device=patch.device)[:, None].expand(n, 4)[lead]     # (M,)
+        pair_patch = patch[lead]                                                     # (M,)
+        memb_tap = self.membership[c][patch].long()                                  # (N, 4)
+        memb = memb_tap[lead]                                                        # (M,)
+        r1 = self.dict_1[c][memb_tap, x1] * tap_w[..., None]                         # (N, 4, p)
+        r2 = self.dict_2[c][memb_tap, x2]
+        outer = (r1[..., :, None] * r2[..., None, :]).reshape(n * 4, p * p)
+        s = outer.new_zeros(len(query), p * p).index_add_(0, pair_of_tap.reshape(-1), outer)
+        l, v = self.cfg.n_light, self.cfg.n_view
+        r3 = (self.dict_3[c].reshape(-1, l)[memb[:, None] * l + light_idx[query]] * light_w[query, :, None]).sum(1)
+        r4 = (self.dict_4[c].reshape(-1, v)[memb[:, None] * v + view_idx[query]] * view_w[query, :, None]).sum(1)
+        vals, idx = self.values[c][pair_patch], self.index[c][pair_patch].long()     # (M, T), (M, T, 4)
+        z = vals * s.gather(1, idx[..., 0] * p + idx[..., 1]) * r3.gather(1, idx[..., 2]) * r4.gather(1, idx[..., 3])
+        return z.new_zeros(n).index_add_(0, query, z.sum(-1))
 
     def _texels(self, uv: torch.Tensor):
         """Patch index, in-patch row/col (N, 4) and bilinear weights (N, 4) of uv (N, 2)."""
@@ -246,8 +259,13 @@ class SparseBTF(nn.Module, Material):
         patch = (rows // p) * (w // p) + cols // p
         return patch, rows % p, cols % p, sw
 
-    def eval(self, q: Query, batch: int = 1 << 14) -> torch.Tensor:
+    def eval(self, q: Query, batch: int | None = None) -> torch.Tensor:
+        """Apparent BRDF (N, 3) at q (wi, wo, uv), `batch` queries at a time (default: sized so that one
+        batch touches about 2^18 coefficients, which keeps the gathers in cache)."""
         q.require("uv", who="SparseBTF")
+        if batch is None:
+            per_query = max(self.cfg.tau) * (1 if self.cfg.angular == "coefficient" else self.cfg.neighbours ** 2)
+            batch = max(64, (1 << 18) // per_query)
         out = [self._eval_batch(q[s:s + batch]) for s in range(0, len(q), batch)]
         return torch.cat(out) if out else torch.zeros(0, 3, dtype=q.dtype, device=q.device)
 
@@ -258,8 +276,8 @@ class SparseBTF(nn.Module, Material):
         vi, vw = angular_weights(self.view_dirs, wo, self.cfg.neighbours)
         patch, x1, x2, sw = self._texels(uv)
         if self.cfg.angular == "coefficient":
-            z = torch.stack([self._taps_interpolated(c, patch, x1, x2, li, lw, vi, vw) for c in range(3)], -1)
-            z = (z * sw[..., None]).sum(1)                                             # (N, 3)
+            z = torch.stack([self._texel_sum_interpolated(c, patch, x1, x2, sw, li, lw, vi, vw)
+                             for c in range(3)], -1)                                   # (N, 3)
             bin_w = lw[:, :, None] * vw[:, None, :]
             mean = (self.mean[li[:, :, None], vi[:, None, :]] * bin_w[..., None]).sum((1, 2))
             std = (self.std[li[:, :, None], vi[:, None, :]] * bin_w[..., None]).sum((1, 2))
@@ -352,6 +370,17 @@ class SparseBTF(nn.Module, Material):
         c = self.cfg
         return (f"sparse-btf ({c.height}x{c.width} texels, {c.n_light}x{c.n_view} directions, "
                 f"tau {tuple(c.tau)}, K={c.num_dictionaries})")
+
+
+def _pairs_of_taps(patch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Group the 4 taps of each query by data point. patch (N, 4) -> lead (N, 4), true at the first tap of
+    each distinct data point of a query, and pair_of_tap (N, 4), the index of every tap's (query, data point)
+    pair, pairs numbered as the lead taps in row-major order."""
+    n, taps = patch.shape
+    first = (patch[:, :, None] == patch[:, None, :]).to(torch.uint8).argmax(-1)         # (N, 4)
+    lead = first == torch.arange(taps, device=patch.device)
+    pair_of_lead = lead.reshape(-1).long().cumsum(0).reshape(n, taps) - 1
+    return lead, pair_of_lead.gather(1, first)
 
 
 def mse(reference: TabulatedBTF, test: TabulatedBTF) -> float:
