@@ -1,5 +1,6 @@
 """SparseBTF benchmark: quality vs coefficients, storage, PCA at equal storage, training / coding time and
-reconstruction throughput (CPU, and CUDA when available), coefficient- vs value-space interpolation.
+reconstruction throughput (CPU, CUDA when available, the exported GLSL when an OpenGL 3.3 context can be made),
+coefficient- vs value-space interpolation.
 
     python benchmarks/btf.py                       # procedural texture sets (no data needed)
     python benchmarks/btf.py --size 40 --dirs rings:3x30 --patch 10 --dictionaries 4 --iterations 10
@@ -53,6 +54,7 @@ from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
+from neumat.io.shared_data import shared_data_dir
 from neumat.io.texture_set import load_texture_set
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
@@ -61,6 +63,7 @@ from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
+from neumat.testing.parity import opengl_available
 from neumat.reflectance.btf_generate import (
     generate_btf,
     procedural_texture_set,
@@ -228,13 +231,21 @@ def neubrdf_rows(name: str, btf, mults: list[int], rows_by: dict, log_eps: float
     return out
 
 
+def shared_file(relative: str) -> Path:
+    """A file of the shared reference data (`neumat.io.shared_data`); exits with a message when it is absent."""
+    data = shared_data_dir()
+    path = data / relative if data is not None else None
+    if path is None or not path.is_file():
+        raise SystemExit(f"--render needs shared/data/{relative} (set NEUMAT_SHARED_DATA or put shared/ beside the "
+                         "checkout)")
+    return path
+
+
 def bunny_with_uv(path: Path) -> Path:
     """The 453-vertex Stanford bunny with spherical texture coordinates (the shared mesh has none), as PLY."""
-    import math
-
     from neumat.render.scenes import import_mitsuba
     mi = import_mitsuba()
-    src = mi.load_dict({"type": "ply", "filename": "/work/shared/data/mesh/stanford_bunny_res4_453v.ply"})
+    src = mi.load_dict({"type": "ply", "filename": str(shared_file("mesh/stanford_bunny_res4_453v.ply"))})
     params = mi.traverse(src)
     pos = torch.tensor(list(params["vertex_positions"])).reshape(-1, 3)
     faces = list(params["faces"])
@@ -261,7 +272,7 @@ def render_figures(models: dict, out: Path, spp: int, resolution: int) -> list[d
     from neumat.viz.compare import compare_image
 
     out.mkdir(parents=True, exist_ok=True)
-    env = "env:/work/shared/data/envmap/studio_small_03_1k.hdr"
+    env = f"env:{shared_file('envmap/studio_small_03_1k.hdr')}"
     import tempfile
     bunny = bunny_with_uv(Path(tempfile.mkdtemp()) / "bunny_uv.ply")
     scenes = {"plane": "plane,uv_scale=2", "bunny": f"mesh:{bunny},zoom=1.3"}
@@ -289,11 +300,39 @@ def render_figures(models: dict, out: Path, spp: int, resolution: int) -> list[d
     return rows
 
 
-def throughput(model, n, device, reps=3):
+def speed_queries(n: int) -> Query:
+    """n random queries (directions mostly above the horizon, uv in [0, 1))."""
     g = torch.Generator().manual_seed(0)
     wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=g) - torch.tensor([0.5, 0.5, -0.2]), dim=-1)
     wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=g) - torch.tensor([0.5, 0.5, -0.2]), dim=-1)
-    q = Query(wi, wo, uv=torch.rand(n, 2, generator=g)).to(device)
+    return Query(wi, wo, uv=torch.rand(n, 2, generator=g))
+
+
+def glsl_throughput(model, n: int) -> float:
+    """Evaluations per second of the model's GLSL export on the local OpenGL (llvmpipe here): the marginal rate
+    between n / 8 and n queries, so that context creation, compilation and uploads do not count."""
+    from neumat.export.glsl import export_glsl
+    from neumat.testing.parity import glsl_eval
+    exported, q = export_glsl(model), speed_queries(n)
+    glsl_eval(exported, q[:64])                                   # driver start-up
+
+    def best_of(m: int, reps: int = 3) -> float:
+        times = []
+        for _ in range(reps):
+            t = time.perf_counter()
+            glsl_eval(exported, q[:m])
+            times.append(time.perf_counter() - t)
+        return min(times)
+
+    marginal = best_of(n) - best_of(n // 8)
+    if marginal <= 0:
+        print(f"GLSL throughput: {n} queries ran no slower than {n // 8} (overheads dominate); use more --queries")
+        return float("nan")
+    return (n - n // 8) / marginal
+
+
+def throughput(model, n, device, reps=3):
+    q = speed_queries(n).to(device)
     model.eval(q)
     if device == "cuda":
         torch.cuda.synchronize()
@@ -435,12 +474,12 @@ def main():
 
     if args.render:
         name = test[0]
-        # the SparseBTF is rendered from its decoded table (equal to its value-space eval; the coefficient-space
-        # path runs at the throughput in the last table, too slow for figures on CPU)
+        # the SparseBTF is rendered through its coefficient-space eval (Eq. 6, the paper's runtime path: angular
+        # interpolation in log space) and through its decoded table (linear interpolation, as the reference)
         fig_mult = 4 if 4 in mults else mults[-1]
         fig = models[(name, fig_mult)]
         btf, dec = first
-        figure_models = {"reference": btf, "sparse-btf": fig.decode()}
+        figure_models = {"reference": btf, "sparse-btf Eq. 6": fig, "sparse-btf table": fig.decode()}
         total = rank_budget(fig.storage()["per_btf"], dirs.shape[0], dirs.shape[0], args.size, args.size)
         figure_models["pca"] = PCABTF.fit(btf, best_ranks(dec.eigenvalues, total), log_eps=dic.log_eps,
                                           decomposition=dec)
@@ -464,6 +503,9 @@ def main():
         table_btf = type(decoded)(decoded.data.to(device), decoded.light_dirs, decoded.view_dirs)
         dev_rows.append({"device": device, "angular interpolation": "decoded full table (TabulatedBTF)",
                          "evals / s": throughput(table_btf, args.queries, device)})
+    if opengl_available():
+        dev_rows.append({"device": "cpu (OpenGL: llvmpipe)", "angular interpolation": "exported GLSL (coefficient)",
+                         "evals / s": glsl_throughput(sp, args.queries)})
     table(f"reconstruction throughput ({test[0]}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)",
           dev_rows)
 
