@@ -377,7 +377,7 @@ def _pairs_of_taps(patch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     each distinct data point of a query, and pair_of_tap (N, 4), the index of every tap's (query, data point)
     pair, pairs numbered as the lead taps in row-major order."""
     n, taps = patch.shape
-    first = (patch[:, :, None] == patch[:, None, :]).to(torch.uint8).argmax(-1)         # (N, 4)
+    first = (patch[:, :, None] == patch[:, None, :]).int().argmax(-1)                   # (N, 4)
     lead = first == torch.arange(taps, device=patch.device)
     pair_of_lead = lead.reshape(-1).long().cumsum(0).reshape(n, taps) - 1
     return lead, pair_of_lead.gather(1, first)

@@ -26,7 +26,7 @@ from torch import nn
 
 from ..core.checks import check_finite, check_shape
 from ..core.errors import InputError
-from .preconditioner import FrequencyPreconditioner
+from .preconditioner import FrequencyPreconditioner, flat_levels
 
 
 def texel_coords(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -91,12 +91,6 @@ def footprint_axes(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch
     major = (mean + half).clamp(min=0).sqrt()
     minor = (mean - half).clamp(min=0).sqrt()
     return major, minor, torch.stack([torch.cos(theta), torch.sin(theta)], -1)
-
-
-def flat_levels(levels: list[torch.Tensor]) -> torch.Tensor:
-    """Mip levels (C, H_l, W_l) flattened row-major and concatenated, finest first: (C, sum H_l W_l)."""
-    c = levels[0].shape[0]
-    return torch.cat([tex.reshape(c, -1) for tex in levels], 1)
 
 
 @functools.lru_cache(maxsize=64)

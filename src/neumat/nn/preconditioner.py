@@ -56,6 +56,12 @@ def precondition_matrix(height: int, width: int, strength: float, dtype=torch.fl
     return precondition(basis, strength).reshape(height * width, -1).to(dtype=dtype, device=device)
 
 
+def flat_levels(levels: list[torch.Tensor]) -> torch.Tensor:
+    """Mip levels (C, H_l, W_l) flattened row-major and concatenated, finest first: (C, sum H_l W_l)."""
+    c = levels[0].shape[0]
+    return torch.cat([tex.reshape(c, -1) for tex in levels], 1)
+
+
 class FrequencyPreconditioner(nn.Module):
     """Module form of `precondition` with a fixed strength A; forward(raw (..., H, W)) -> (..., H, W).
     Kernels and matrices are cached per size, dtype and device."""
@@ -85,7 +91,7 @@ class FrequencyPreconditioner(nn.Module):
         (C, sum H_i W_i). Textures of at most SMALL_TEXELS texels go through one block-diagonal matrix product."""
         c = raws[0].shape[0]
         if self.strength == 0:
-            return torch.cat([raw.reshape(c, -1) for raw in raws], 1)
+            return flat_levels(raws)
         small = [i for i, raw in enumerate(raws) if raw.shape[-2] * raw.shape[-1] <= SMALL_TEXELS]
         pieces = [None if i in small else self(raw).reshape(c, -1) for i, raw in enumerate(raws)]
         if small:
