@@ -154,6 +154,12 @@ def test_merged_taps_equal_eq6_per_element(trained, gen):
         ref = model.element_interpolated(c, patch, x1, x2, expand(li), expand(lw), expand(vi), expand(vw))
         got = model._texel_sum_interpolated(c, patch, x1, x2, tap_w, li, lw, vi, vw)
         assert torch.allclose(got, (ref * tap_w).sum(1), atol=1e-6)
+        # the value-space path: Eq. 5 at every tap and bin pair
+        bins = model._texel_bins(c, patch, x1, x2, li, vi)                      # (n, 4, k, k)
+        shape = (n, 4, k, k)
+        eq5 = model.element(c, *(t[:, :, None, None].expand(shape) for t in (patch, x1, x2)),
+                            li[:, None, :, None].expand(shape), vi[:, None, None, :].expand(shape))
+        assert torch.allclose(bins, eq5, atol=1e-6)
 
 
 def test_eval_in_batches_equals_one_batch(trained, gen):

@@ -252,6 +252,31 @@ class SparseBTF(nn.Module, Material):
         z = vals * s.gather(1, idx[..., 0] * p + idx[..., 1]) * r3.gather(1, idx[..., 2]) * r4.gather(1, idx[..., 3])
         return z.new_zeros(n).index_add_(0, query, z.sum(-1))
 
+    def _texel_bins(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
+                    light_idx: torch.Tensor, view_idx: torch.Tensor) -> torch.Tensor:
+        """Eq. 5 values (N, 4, kl, kv) of channel c at the 4 bilinear taps (patch, x1, x2: (N, 4)) of N queries
+        and every pair of their light / view bins (light_idx (N, kl), view_idx (N, kv)). The U3 / U4 entries
+        of a data point's coefficients are gathered once per (query, data point) pair and shared by its taps;
+        the kl x kv bin sums of each tap are one batched matrix product."""
+        n, kl, kv = patch.shape[0], light_idx.shape[1], view_idx.shape[1]
+        lead, pair_of_tap = _pairs_of_taps(patch)
+        query = torch.arange(n, device=patch.device)[:, None].expand(n, 4)[lead]     # (M,)
+        pair_patch = patch[lead]
+        memb = self.membership[c][pair_patch].long()                                 # (M,)
+        vals, idx = self.values[c][pair_patch], self.index[c][pair_patch].long()     # (M, T), (M, T, 4)
+        l, v, t = self.cfg.n_light, self.cfg.n_view, vals.shape[1]
+        rows3 = self.dict_3[c].reshape(-1, l)[memb[:, None] * l + light_idx[query]]  # (M, kl, L)
+        rows4 = self.dict_4[c].reshape(-1, v)[memb[:, None] * v + view_idx[query]]   # (M, kv, V)
+        u3 = rows3.gather(2, idx[:, None, :, 2].expand(-1, kl, t))                   # (M, kl, T)
+        u4 = rows4.gather(2, idx[:, None, :, 3].expand(-1, kv, t))                   # (M, kv, T)
+        tap_pair = pair_of_tap.reshape(-1)                                            # (4N,)
+        memb_tap = memb[tap_pair]
+        u1 = self.dict_1[c][memb_tap, x1.reshape(-1)].gather(1, idx[tap_pair, :, 0])   # (4N, T)
+        u2 = self.dict_2[c][memb_tap, x2.reshape(-1)].gather(1, idx[tap_pair, :, 1])
+        spatial = vals[tap_pair] * u1 * u2
+        z = torch.bmm(spatial[:, None, :] * u3[tap_pair], u4[tap_pair].transpose(1, 2))  # (4N, kl, kv)
+        return z.reshape(n, 4, kl, kv)
+
     def _texels(self, uv: torch.Tensor):
         """Patch index, in-patch row/col (N, 4) and bilinear weights (N, 4) of uv (N, 2)."""
         p, h, w = self.cfg.patch, self.cfg.height, self.cfg.width
@@ -260,12 +285,11 @@ class SparseBTF(nn.Module, Material):
         return patch, rows % p, cols % p, sw
 
     def eval(self, q: Query, batch: int | None = None) -> torch.Tensor:
-        """Apparent BRDF (N, 3) at q (wi, wo, uv), `batch` queries at a time (default: sized so that one
-        batch touches about 2^18 coefficients, which keeps the gathers in cache)."""
+        """Apparent BRDF (N, 3) at q (wi, wo, uv), `batch` queries at a time (default: 2^18 / max(tau) queries,
+        which keeps the gathers in cache)."""
         q.require("uv", who="SparseBTF")
         if batch is None:
-            per_query = max(self.cfg.tau) * (1 if self.cfg.angular == "coefficient" else self.cfg.neighbours ** 2)
-            batch = max(64, (1 << 18) // per_query)
+            batch = max(64, (1 << 18) // max(self.cfg.tau))
         out = [self._eval_batch(q[s:s + batch]) for s in range(0, len(q), batch)]
         return torch.cat(out) if out else torch.zeros(0, 3, dtype=q.dtype, device=q.device)
 
@@ -285,10 +309,9 @@ class SparseBTF(nn.Module, Material):
         else:
             n, kl, kv = len(q), li.shape[1], vi.shape[1]
             shape = (n, 4, kl, kv)
-            pa, a1, a2 = (t[:, :, None, None].expand(shape) for t in (patch, x1, x2))
             l3 = li[:, None, :, None].expand(shape)
             v4 = vi[:, None, None, :].expand(shape)
-            z = torch.stack([self.element(c, pa, a1, a2, l3, v4) for c in range(3)], -1)  # (N, 4, kl, kv, 3)
+            z = torch.stack([self._texel_bins(c, patch, x1, x2, li, vi) for c in range(3)], -1)  # (N, 4, kl, kv, 3)
             yuv = z * self.std[l3, v4] + self.mean[l3, v4]
             rgb = model_space_to_rgb(yuv, self.cfg.log_eps)
             wts = sw[:, :, None, None] * lw[:, None, :, None] * vw[:, None, None, :]
