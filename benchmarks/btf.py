@@ -52,6 +52,7 @@ from rich.table import Table
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
+from neumat.export.glsl import export_glsl
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
@@ -63,12 +64,12 @@ from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
-from neumat.testing.parity import opengl_available
 from neumat.reflectance.btf_generate import (
     generate_btf,
     procedural_texture_set,
     texture_tile,
 )
+from neumat.testing.parity import glsl_eval, opengl_available
 
 
 def table(title, rows):
@@ -311,8 +312,6 @@ def speed_queries(n: int) -> Query:
 def glsl_throughput(model, n: int) -> float:
     """Evaluations per second of the model's GLSL export on the local OpenGL (llvmpipe here): the marginal rate
     between n / 8 and n queries, so that context creation, compilation and uploads do not count."""
-    from neumat.export.glsl import export_glsl
-    from neumat.testing.parity import glsl_eval
     exported, q = export_glsl(model), speed_queries(n)
     glsl_eval(exported, q[:64])                                   # driver start-up
 

@@ -174,6 +174,8 @@ def test_eval_in_batches_equals_one_batch(trained, gen):
         assert torch.allclose(model.eval(q, batch=7), whole, rtol=1e-5, atol=1e-7)  # summation order differs
         assert torch.allclose(model.eval(q), whole, rtol=1e-5, atol=1e-7)           # default batch size
         assert model.eval(q[:0]).shape == (0, 3)
+    with pytest.raises(InputError, match="batch"):
+        model.eval(q, batch=0)
 
 
 def test_value_space_eval_equals_the_decoded_table(trained, gen):

@@ -290,6 +290,8 @@ class SparseBTF(nn.Module, Material):
         q.require("uv", who="SparseBTF")
         if batch is None:
             batch = max(64, (1 << 18) // max(self.cfg.tau))
+        if batch < 1:
+            raise InputError(f"SparseBTF.eval: batch must be at least 1, got {batch}")
         out = [self._eval_batch(q[s:s + batch]) for s in range(0, len(q), batch)]
         return torch.cat(out) if out else torch.zeros(0, 3, dtype=q.dtype, device=q.device)
 
