@@ -206,7 +206,9 @@ def decompose(btf: TabulatedBTF, log_eps: float = 0.01, max_rank: int | None = N
                 b = torch.zeros(lv, len(e), dtype=xc.dtype, device=xc.device)
                 b[:, live] = (xc.T @ u[:, live]) / e[live].sqrt()
         else:
-            _, sv, b = torch.svd_lowrank(xc, q=r_max + oversample, niter=power_iterations)
+            with torch.random.fork_rng(devices=[xc.device] if xc.is_cuda else []):
+                torch.manual_seed(0)                      # the random test matrix: same components every run
+                _, sv, b = torch.svd_lowrank(xc, q=r_max + oversample, niter=power_iterations)
             e, b = sv[:r_max] ** 2, b[:, :r_max]
         eigenvalues.append(e.float())
         basis[c, :, :b.shape[1]] = b.float()
