@@ -310,8 +310,9 @@ def speed_queries(n: int) -> Query:
 
 
 def glsl_throughput(model, n: int) -> float:
-    """Evaluations per second of the model's GLSL export on the local OpenGL (llvmpipe here): the marginal rate
-    between n / 8 and n queries, so that context creation, compilation and uploads do not count."""
+    """Evaluations per second of the model's GLSL export on the local EGL OpenGL (llvmpipe on a CPU-only machine):
+    the marginal rate between n / 8 and n queries, so that context creation, compilation and uploads do not
+    count."""
     exported, q = export_glsl(model), speed_queries(n)
     glsl_eval(exported, q[:64])                                   # driver start-up
 
@@ -503,7 +504,7 @@ def main():
         dev_rows.append({"device": device, "angular interpolation": "decoded full table (TabulatedBTF)",
                          "evals / s": throughput(table_btf, args.queries, device)})
     if opengl_available():
-        dev_rows.append({"device": "cpu (OpenGL: llvmpipe)", "angular interpolation": "exported GLSL (coefficient)",
+        dev_rows.append({"device": "OpenGL (EGL)", "angular interpolation": "exported GLSL (coefficient)",
                          "evals / s": glsl_throughput(sp, args.queries)})
     table(f"reconstruction throughput ({test[0]}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)",
           dev_rows)

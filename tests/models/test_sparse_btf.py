@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.models.sparse_btf import SparseBTF, mse
+from neumat.models.sparse_btf import SparseBTF, _pairs_of_taps, mse
 from neumat.models.sparse_dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
                                              keep_largest, mode_product, prepare_btf, project, train_dictionary,
                                              train_ensemble)
@@ -150,12 +150,13 @@ def test_merged_taps_equal_eq6_per_element(trained, gen):
     data_points = torch.tensor([len(set(row)) for row in patch.tolist()])
     assert set(data_points.tolist()) == {1, 2, 4}               # taps within one, across one or two patch edges
     expand = lambda t: t[:, None].expand(-1, 4, -1)             # noqa: E731
+    pairs = _pairs_of_taps(patch)
     for c in range(3):
         ref = model.element_interpolated(c, patch, x1, x2, expand(li), expand(lw), expand(vi), expand(vw))
-        got = model._texel_sum_interpolated(c, patch, x1, x2, tap_w, li, lw, vi, vw)
+        got = model._texel_sum_interpolated(c, pairs, x1, x2, tap_w, li, lw, vi, vw)
         assert torch.allclose(got, (ref * tap_w).sum(1), atol=1e-6)
         # the value-space path: Eq. 5 at every tap and bin pair
-        bins = model._texel_bins(c, patch, x1, x2, li, vi)                      # (n, 4, k, k)
+        bins = model._texel_bins(c, pairs, x1, x2, li, vi)                      # (n, 4, k, k)
         shape = (n, 4, k, k)
         eq5 = model.element(c, *(t[:, :, None, None].expand(shape) for t in (patch, x1, x2)),
                             li[:, None, :, None].expand(shape), vi[:, None, None, :].expand(shape))

@@ -27,6 +27,7 @@ ensemble in float16; the standardisation statistics as float32.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import torch
 from torch import nn
@@ -225,51 +226,46 @@ class SparseBTF(nn.Module, Material):
         u4 = (view_w[..., None] * m4).sum(-2)
         return (vals * u1 * u2 * u3 * u4).sum(-1)
 
-    def _texel_sum_interpolated(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
+    def _texel_sum_interpolated(self, c: int, pairs: TapPairs, x1: torch.Tensor, x2: torch.Tensor,
                                 tap_w: torch.Tensor, light_idx: torch.Tensor, light_w: torch.Tensor,
                                 view_idx: torch.Tensor, view_w: torch.Tensor) -> torch.Tensor:
         """sum_t tap_w[t] * element_interpolated(c, patch[:, t], x1[:, t], x2[:, t], ...) for the 4 bilinear taps
-        of N queries: patch, x1, x2, tap_w (N, 4); light_idx, light_w (N, kl); view_idx, view_w (N, kv) -> (N,).
+        of N queries (`pairs` = _pairs_of_taps(patch)): x1, x2, tap_w (N, 4); light_idx, light_w (N, kl);
+        view_idx, view_w (N, kv) -> (N,).
 
         The taps of a query that lie in one data point share its coefficients, so they are merged into one
         (query, data point) pair with the spatial factor S = sum_t tap_w[t] U1[x1_t, :] (x) U2[x2_t, :] (p x p);
         the weighted U3 / U4 rows are formed once per pair. Each coefficient then costs three gathers.
         """
-        n, p = patch.shape[0], self.cfg.patch
-        lead, pair_of_tap = _pairs_of_taps(patch)
-        query = torch.arange(n, device=patch.device)[:, None].expand(n, 4)[lead]     # (M,)
-        pair_patch = patch[lead]                                                     # (M,)
-        memb_tap = self.membership[c][patch].long()                                  # (N, 4)
-        memb = memb_tap[lead]                                                        # (M,)
+        n, p = x1.shape[0], self.cfg.patch
+        memb = self.membership[c][pairs.patch].long()                                # (M,)
+        memb_tap = memb[pairs.pair_of_tap]                                           # (N, 4)
         r1 = self.dict_1[c][memb_tap, x1] * tap_w[..., None]                         # (N, 4, p)
         r2 = self.dict_2[c][memb_tap, x2]
         outer = (r1[..., :, None] * r2[..., None, :]).reshape(n * 4, p * p)
-        s = outer.new_zeros(len(query), p * p).index_add_(0, pair_of_tap.reshape(-1), outer)
-        l, v = self.cfg.n_light, self.cfg.n_view
-        r3 = (self.dict_3[c].reshape(-1, l)[memb[:, None] * l + light_idx[query]] * light_w[query, :, None]).sum(1)
-        r4 = (self.dict_4[c].reshape(-1, v)[memb[:, None] * v + view_idx[query]] * view_w[query, :, None]).sum(1)
-        vals, idx = self.values[c][pair_patch], self.index[c][pair_patch].long()     # (M, T), (M, T, 4)
+        s = outer.new_zeros(len(memb), p * p).index_add_(0, pairs.pair_of_tap.reshape(-1), outer)
+        q = pairs.query
+        r3 = (self.dict_3[c][memb[:, None], light_idx[q]] * light_w[q, :, None]).sum(1)  # (M, L)
+        r4 = (self.dict_4[c][memb[:, None], view_idx[q]] * view_w[q, :, None]).sum(1)    # (M, V)
+        vals, idx = self.values[c][pairs.patch], self.index[c][pairs.patch].long()   # (M, T), (M, T, 4)
         z = vals * s.gather(1, idx[..., 0] * p + idx[..., 1]) * r3.gather(1, idx[..., 2]) * r4.gather(1, idx[..., 3])
-        return z.new_zeros(n).index_add_(0, query, z.sum(-1))
+        return z.new_zeros(n).index_add_(0, q, z.sum(-1))
 
-    def _texel_bins(self, c: int, patch: torch.Tensor, x1: torch.Tensor, x2: torch.Tensor,
+    def _texel_bins(self, c: int, pairs: TapPairs, x1: torch.Tensor, x2: torch.Tensor,
                     light_idx: torch.Tensor, view_idx: torch.Tensor) -> torch.Tensor:
-        """Eq. 5 values (N, 4, kl, kv) of channel c at the 4 bilinear taps (patch, x1, x2: (N, 4)) of N queries
-        and every pair of their light / view bins (light_idx (N, kl), view_idx (N, kv)). The U3 / U4 entries
-        of a data point's coefficients are gathered once per (query, data point) pair and shared by its taps;
-        the kl x kv bin sums of each tap are one batched matrix product."""
-        n, kl, kv = patch.shape[0], light_idx.shape[1], view_idx.shape[1]
-        lead, pair_of_tap = _pairs_of_taps(patch)
-        query = torch.arange(n, device=patch.device)[:, None].expand(n, 4)[lead]     # (M,)
-        pair_patch = patch[lead]
-        memb = self.membership[c][pair_patch].long()                                 # (M,)
-        vals, idx = self.values[c][pair_patch], self.index[c][pair_patch].long()     # (M, T), (M, T, 4)
-        l, v, t = self.cfg.n_light, self.cfg.n_view, vals.shape[1]
-        rows3 = self.dict_3[c].reshape(-1, l)[memb[:, None] * l + light_idx[query]]  # (M, kl, L)
-        rows4 = self.dict_4[c].reshape(-1, v)[memb[:, None] * v + view_idx[query]]   # (M, kv, V)
+        """Eq. 5 values (N, 4, kl, kv) of channel c at the 4 bilinear taps of N queries (`pairs` =
+        _pairs_of_taps(patch); x1, x2: (N, 4)) and every pair of their light / view bins (light_idx (N, kl),
+        view_idx (N, kv)). The U3 / U4 entries of a data point's coefficients are gathered once per (query, data
+        point) pair and shared by its taps; the kl x kv bin sums of each tap are one batched matrix product."""
+        n, kl, kv = x1.shape[0], light_idx.shape[1], view_idx.shape[1]
+        memb = self.membership[c][pairs.patch].long()                                # (M,)
+        vals, idx = self.values[c][pairs.patch], self.index[c][pairs.patch].long()   # (M, T), (M, T, 4)
+        t = vals.shape[1]
+        rows3 = self.dict_3[c][memb[:, None], light_idx[pairs.query]]                # (M, kl, L)
+        rows4 = self.dict_4[c][memb[:, None], view_idx[pairs.query]]                 # (M, kv, V)
         u3 = rows3.gather(2, idx[:, None, :, 2].expand(-1, kl, t))                   # (M, kl, T)
         u4 = rows4.gather(2, idx[:, None, :, 3].expand(-1, kv, t))                   # (M, kv, T)
-        tap_pair = pair_of_tap.reshape(-1)                                            # (4N,)
+        tap_pair = pairs.pair_of_tap.reshape(-1)                                      # (4N,)
         memb_tap = memb[tap_pair]
         u1 = self.dict_1[c][memb_tap, x1.reshape(-1)].gather(1, idx[tap_pair, :, 0])   # (4N, T)
         u2 = self.dict_2[c][memb_tap, x2.reshape(-1)].gather(1, idx[tap_pair, :, 1])
@@ -301,8 +297,9 @@ class SparseBTF(nn.Module, Material):
         li, lw = angular_weights(self.light_dirs, wi, self.cfg.neighbours)
         vi, vw = angular_weights(self.view_dirs, wo, self.cfg.neighbours)
         patch, x1, x2, sw = self._texels(uv)
+        pairs = _pairs_of_taps(patch)
         if self.cfg.angular == "coefficient":
-            z = torch.stack([self._texel_sum_interpolated(c, patch, x1, x2, sw, li, lw, vi, vw)
+            z = torch.stack([self._texel_sum_interpolated(c, pairs, x1, x2, sw, li, lw, vi, vw)
                              for c in range(3)], -1)                                   # (N, 3)
             bin_w = lw[:, :, None] * vw[:, None, :]
             mean = (self.mean[li[:, :, None], vi[:, None, :]] * bin_w[..., None]).sum((1, 2))
@@ -313,7 +310,7 @@ class SparseBTF(nn.Module, Material):
             shape = (n, 4, kl, kv)
             l3 = li[:, None, :, None].expand(shape)
             v4 = vi[:, None, None, :].expand(shape)
-            z = torch.stack([self._texel_bins(c, patch, x1, x2, li, vi) for c in range(3)], -1)  # (N, 4, kl, kv, 3)
+            z = torch.stack([self._texel_bins(c, pairs, x1, x2, li, vi) for c in range(3)], -1)  # (N, 4, kl, kv, 3)
             yuv = z * self.std[l3, v4] + self.mean[l3, v4]
             rgb = model_space_to_rgb(yuv, self.cfg.log_eps)
             wts = sw[:, :, None, None] * lw[:, None, :, None] * vw[:, None, None, :]
@@ -397,15 +394,26 @@ class SparseBTF(nn.Module, Material):
                 f"tau {tuple(c.tau)}, K={c.num_dictionaries})")
 
 
-def _pairs_of_taps(patch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Group the 4 taps of each query by data point. patch (N, 4) -> lead (N, 4), true at the first tap of
-    each distinct data point of a query, and pair_of_tap (N, 4), the index of every tap's (query, data point)
-    pair, pairs numbered as the lead taps in row-major order."""
+class TapPairs(NamedTuple):
+    """The 4 bilinear taps of N queries grouped into M (query, data point) pairs (`_pairs_of_taps`)."""
+
+    pair_of_tap: torch.Tensor
+    """(N, 4): the pair of every tap."""
+    query: torch.Tensor
+    """(M,): the query of every pair."""
+    patch: torch.Tensor
+    """(M,): the data point of every pair."""
+
+
+def _pairs_of_taps(patch: torch.Tensor) -> TapPairs:
+    """Group the 4 taps of each query (data points `patch` (N, 4)) by data point; pairs are numbered in the
+    order of their first taps, row-major."""
     n, taps = patch.shape
     first = (patch[:, :, None] == patch[:, None, :]).int().argmax(-1)                   # (N, 4)
-    lead = first == torch.arange(taps, device=patch.device)
+    lead = first == torch.arange(taps, device=patch.device)                              # first tap of its pair
     pair_of_lead = lead.reshape(-1).long().cumsum(0).reshape(n, taps) - 1
-    return lead, pair_of_lead.gather(1, first)
+    query = torch.arange(n, device=patch.device)[:, None].expand(n, taps)[lead]
+    return TapPairs(pair_of_lead.gather(1, first), query, patch[lead])
 
 
 def mse(reference: TabulatedBTF, test: TabulatedBTF) -> float:
