@@ -7,8 +7,8 @@ import torch
 from neumat import InputError, Query
 from neumat.models.sparse_btf import SparseBTF, _pairs_of_taps, mse
 from neumat.models.sparse_dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
-                                             keep_largest, mode_product, prepare_btf, project, train_dictionary,
-                                             train_ensemble)
+                                             keep_largest, mode_product, model_space_to_rgb, prepare_btf, project,
+                                             rgb_to_model_space, train_dictionary, train_ensemble)
 from neumat.reflectance.btf import angular_weights, direction_set
 
 from btf_util import N_DIRS, SIZE, synthetic_btf
@@ -20,6 +20,19 @@ PATCH = 4
 def trained() -> BTFDictionary:
     return train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
                             patch=PATCH, max_iters=8, seed=0)
+
+
+def test_model_space_round_trip_and_no_negative_values(gen):
+    rgb = torch.rand(1000, 3, generator=gen, dtype=torch.float64) * 10
+    rgb[:10] = 0
+    assert torch.allclose(model_space_to_rgb(rgb_to_model_space(rgb, 0.01), 0.01), rgb, atol=1e-12)
+    yuv = rgb_to_model_space(rgb, 0.01) + torch.randn(1000, 3, generator=gen, dtype=torch.float64)
+    back = model_space_to_rgb(yuv, 0.01)
+    unclamped = torch.exp(yuv @ torch.linalg.inv(torch.tensor([[0.299, 0.587, 0.114], [-0.14713, -0.28886, 0.436],
+                                                               [0.615, -0.51499, -0.10001]], dtype=torch.float64)).T)
+    assert (unclamped < 0.01).any()                               # errors that would give negative values ...
+    assert torch.allclose(back, (unclamped - 0.01).clamp(min=0), rtol=1e-12, atol=0)
+    assert (back[unclamped < 0.01] == 0).all()                    # ... are clamped to 0, the rest unchanged
 
 
 def test_mode_product_matches_einsum_for_every_mode(gen):
@@ -227,6 +240,25 @@ def test_storage_accounting(trained):
     thr = SparseBTF.encode(synthetic_btf(14), trained, (400, 100, 100), error_threshold=1e-2)
     assert int(thr.counts.sum()) < 600 * points
     assert thr.storage()["coefficients"] == int(thr.counts.sum())
+
+
+def test_stored_float16_parts_keep_the_coding_error(trained):
+    """Storage charges values, dictionaries and (with statistics_bytes=2) the statistics at float16 while the
+    model keeps float32: rounding them changes the reconstruction far less than the coding error does."""
+    btf = synthetic_btf(19)
+    model = SparseBTF.encode(btf, trained, (40, 10, 10))
+    rounded = SparseBTF(config=model.cfg)
+    rounded.load_state_dict(model.state_dict())
+    for name in ("values", "dict_1", "dict_2", "dict_3", "dict_4", "mean", "std"):
+        buffer = getattr(rounded, name)
+        buffer.copy_(buffer.half().float())
+    exact = model.decode()
+    error = mse(btf, exact)
+    assert mse(exact, rounded.decode()) < 1e-3 * error
+    assert abs(mse(btf, rounded.decode()) - error) < 1e-2 * error
+    st, st16 = model.storage(), model.storage(statistics_bytes=2)
+    assert st["statistics"] == 2 * st16["statistics"] == 2 * N_DIRS * N_DIRS * 3 * 4
+    assert st["per_btf"] - st16["per_btf"] == st16["statistics"]
 
 
 def test_state_dict_round_trip(trained, gen):

@@ -173,7 +173,7 @@ vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv) {{
             mean += wab * texelFetch(sbtf_stats, ivec3(vi[b], li[a], 0), 0).xyz;
             std_ += wab * texelFetch(sbtf_stats, ivec3(vi[b], li[a], 1), 0).xyz;
         }}
-    return exp(SB_YUV_TO_RGB * (z * std_ + mean)) - SB_EPS;
+    return max(exp(SB_YUV_TO_RGB * (z * std_ + mean)) - SB_EPS, vec3(0.0));
 }}
 
 vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{ return neumat_eval(wi, wo, uv); }}

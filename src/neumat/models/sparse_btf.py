@@ -22,7 +22,7 @@ The shared ensemble is kept as buffers (`dict_n`, (3, K, m_n, m_n)).
 
 Storage (`storage`) follows the authors' released coefficient files: per non-zero coefficient a float16
 value and four uint16 indices; per data point and channel a uint16 membership and a uint16 count; the
-ensemble in float16; the standardisation statistics as float32.
+ensemble in float16; the standardisation statistics as float32 (or float16: `storage(statistics_bytes=2)`).
 """
 from __future__ import annotations
 
@@ -356,8 +356,9 @@ class SparseBTF(nn.Module, Material):
         return out
 
     # ------------------------------------------------------------------------------------ accounting
-    def storage(self, value_bytes: int = 2, index_bytes: int = 2) -> dict:
-        """Bytes of the representation (module docstring): per-BTF parts, the shared ensemble, totals."""
+    def storage(self, value_bytes: int = 2, index_bytes: int = 2, statistics_bytes: int = 4) -> dict:
+        """Bytes of the representation (module docstring): per-BTF parts, the shared ensemble, totals.
+        statistics_bytes: per stored mean / std (4 as the authors' files; 2 loses nothing measurable, docs/btf.md)."""
         c = self.cfg
         nnz = int(self.counts.long().sum())
         n_points = self.counts.numel()
@@ -367,7 +368,7 @@ class SparseBTF(nn.Module, Material):
             "indices": nnz * 4 * index_bytes,
             "membership": n_points * index_bytes,
             "counts": n_points * index_bytes,
-            "statistics": 2 * c.n_light * c.n_view * 3 * 4,
+            "statistics": 2 * c.n_light * c.n_view * 3 * statistics_bytes,
             "dictionary": 3 * c.num_dictionaries * (2 * c.patch ** 2 + c.n_light ** 2 + c.n_view ** 2) * value_bytes,
         }
         d["per_btf"] = d["values"] + d["indices"] + d["membership"] + d["counts"] + d["statistics"]

@@ -48,8 +48,9 @@ def rgb_to_model_space(data: torch.Tensor, eps: float) -> torch.Tensor:
 
 
 def model_space_to_rgb(yuv: torch.Tensor, eps: float) -> torch.Tensor:
-    """Inverse of `rgb_to_model_space` (values below 0 may appear from approximation errors; kept)."""
-    return torch.exp(yuv @ YUV_TO_RGB.to(yuv).T) - eps
+    """Inverse of `rgb_to_model_space`; values that approximation errors push below 0 are clamped to 0 (a BTF
+    value is non-negative, and the forward transform clamps the same way)."""
+    return (torch.exp(yuv @ YUV_TO_RGB.to(yuv).T) - eps).clamp(min=0)
 
 
 def image_statistics(yuv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
