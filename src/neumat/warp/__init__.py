@@ -2,6 +2,7 @@
 from .disk import concentric_disk_pdf, invert_concentric_disk, sample_concentric_disk
 from .hemisphere import (cosine_hemisphere_pdf, invert_cosine_hemisphere, invert_uniform_hemisphere,
                          sample_cosine_hemisphere, sample_uniform_hemisphere, uniform_hemisphere_pdf)
+from .microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, sample_proxy
 from .sphere import invert_uniform_sphere, sample_uniform_sphere, uniform_sphere_pdf
 from .spherical_gaussian import invert_vmf, sample_vmf, vmf_pdf
 from .tabulated2d import Tabulated2D
@@ -13,6 +14,7 @@ __all__ = [
     "sample_uniform_sphere", "uniform_sphere_pdf", "invert_uniform_sphere",
     "sample_vmf", "vmf_pdf", "invert_vmf",
     "Tabulated2D",
+    "ProxyLobes", "proxy_from_raw", "sample_proxy", "proxy_pdf",
 ]
 
 # --- GGX warps (owned by the GGX engineer): add `from .ggx import ...` here and extend __all__ ---

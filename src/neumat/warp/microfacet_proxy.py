@@ -1,0 +1,149 @@
+"""The analytic two-lobe sampling proxy of Real-Time Neural Appearance Models (Zeltner et al. 2024, App. A),
+the distribution whose 9 parameters the neural importance-sampling decoder predicts.
+
+In the local shading frame (z = normal), per query:
+
+    p(wo) = w_d p_d(wo) + w_s p_s(wo),  w_d + w_s = 1                                              (Eq. 8)
+
+- p_d: cosine-weighted about the tilted normal n_d = normalize(-mu_d,x, -mu_d,y, 1) (Eq. 9), max(0, wo.n_d)/pi;
+- p_s: reflection of wi about a half vector h = normalize(M h_std) (Eq. 12), h_std drawn from the GGX NDF of
+  unit roughness, M = [[a_x, 0, -mu_s,x], [a_y rho, a_y sqrt(1 - rho^2), -mu_s,y], [0, 0, 1]] (Eq. 11):
+  elliptical anisotropy (a_x, a_y, correlation rho) and non-centred mean slopes (Dupuy 2015). Its density
+  (Eq. 10) is p_std(normalize(M^-1 h)) det(M^-1) / |M^-1 h|^3 / (4 |wo.h|), h = normalize(wi + wo) taken on
+  the upper side. For unit roughness D_std = 1/pi everywhere, and sampling it by the usual technique draws
+  h_std with density D_std(h) h_z = h_z / pi (cosine-weighted): that is the p_std used here, so density and
+  sampler agree (Eq. 10 writes D_std for it).
+
+Directions are (N, 3) unit vectors; wo may fall below the horizon (the density is normalised over the whole
+sphere). `proxy_from_raw` maps raw network outputs (N, 9) to valid parameters with the paper's kind of final
+activations (its "quadratic approximations of tanh and sinh" are not given; ours are in `soft_tanh` and
+`soft_sinh`) and a softmax over the two weights.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+from ..core.checks import check_directions, check_finite, check_shape
+from ..core.errors import InputError
+from ..core.frames import frame_from_normal, to_world
+from ._checks import check_u
+from .hemisphere import sample_cosine_hemisphere
+
+#: smallest roughness and largest |correlation| `proxy_from_raw` produces (M stays invertible)
+MIN_ALPHA = 1e-3
+MAX_RHO = 0.99
+RAW_NAMES = ("w_d", "mu_d,x", "mu_d,y", "w_s", "alpha_x", "alpha_y", "rho", "mu_s,x", "mu_s,y")
+
+
+class ProxyLobes(NamedTuple):
+    """Parameters of the two-lobe proxy for N queries: w_d (N,) diffuse weight (w_s = 1 - w_d), mu_d (N, 2)
+    diffuse tilt slopes, alpha (N, 2) roughness (a_x, a_y) in (0, 1], rho (N,) in (-1, 1), mu_s (N, 2) mean
+    slopes of the specular lobe."""
+
+    w_d: torch.Tensor
+    mu_d: torch.Tensor
+    alpha: torch.Tensor
+    rho: torch.Tensor
+    mu_s: torch.Tensor
+
+
+def soft_tanh(x: torch.Tensor) -> torch.Tensor:
+    """Piecewise-quadratic tanh: x (1 - |x| / 4) for |x| <= 2, sign(x) beyond (C1, range [-1, 1])."""
+    c = x.clamp(-2, 2)
+    return c * (1 - c.abs() / 4)
+
+
+def soft_sinh(x: torch.Tensor) -> torch.Tensor:
+    """Quadratic odd growth for unbounded slopes: x (1 + |x| / 2) (C1, slope 1 at 0, range R)."""
+    return x * (1 + x.abs() / 2)
+
+
+def proxy_from_raw(raw: torch.Tensor) -> ProxyLobes:
+    """Valid proxy parameters from raw decoder outputs (N, 9) ordered as `RAW_NAMES`: softmax over (w_d, w_s),
+    alpha = MIN_ALPHA + (1 - MIN_ALPHA) (soft_tanh + 1) / 2, rho = MAX_RHO soft_tanh, mu = soft_sinh."""
+    check_shape(raw, "raw proxy parameters", (-1, 9))
+    check_finite(raw, "raw proxy parameters")
+    w = torch.softmax(raw[:, [0, 3]], -1)
+    alpha = MIN_ALPHA + (1 - MIN_ALPHA) * (soft_tanh(raw[:, 4:6]) + 1) / 2
+    return ProxyLobes(w[:, 0], soft_sinh(raw[:, 1:3]), alpha, MAX_RHO * soft_tanh(raw[:, 6]), soft_sinh(raw[:, 7:9]))
+
+
+def check_lobes(lobes: ProxyLobes, n: int) -> None:
+    """Shapes (n, ...) and ranges of `lobes`; InputError naming the first problem."""
+    for name, t, shape in (("w_d", lobes.w_d, (n,)), ("mu_d", lobes.mu_d, (n, 2)), ("alpha", lobes.alpha, (n, 2)),
+                           ("rho", lobes.rho, (n,)), ("mu_s", lobes.mu_s, (n, 2))):
+        check_shape(t, name, shape)
+        check_finite(t, name)
+    if n and not bool(((lobes.w_d >= 0) & (lobes.w_d <= 1)).all()):
+        raise InputError("proxy w_d: mixing weights must lie in [0, 1]")
+    if n and not bool((lobes.alpha > 0).all()):
+        raise InputError(f"proxy alpha: roughness must be > 0, got min {lobes.alpha.min().item():.4g}")
+    if n and not bool((lobes.rho.abs() < 1).all()):
+        raise InputError("proxy rho: the correlation must lie in (-1, 1)")
+
+
+def _diffuse_normal(lobes: ProxyLobes) -> torch.Tensor:
+    """n_d (N, 3) of Eq. 9."""
+    n = torch.cat([-lobes.mu_d, torch.ones_like(lobes.w_d)[:, None]], -1)
+    return n / n.norm(dim=-1, keepdim=True)
+
+
+def _apply_m(lobes: ProxyLobes, v: torch.Tensor) -> torch.Tensor:
+    """M v (N, 3) with M of Eq. 11."""
+    ax, ay = lobes.alpha.unbind(-1)
+    s = (1 - lobes.rho ** 2).sqrt()
+    x = ax * v[:, 0] - lobes.mu_s[:, 0] * v[:, 2]
+    y = ay * lobes.rho * v[:, 0] + ay * s * v[:, 1] - lobes.mu_s[:, 1] * v[:, 2]
+    return torch.stack([x, y, v[:, 2]], -1)
+
+
+def _apply_m_inverse(lobes: ProxyLobes, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """M^-1 v (N, 3) and det(M^-1) (N,)."""
+    ax, ay = lobes.alpha.unbind(-1)
+    s = (1 - lobes.rho ** 2).sqrt()
+    px = v[:, 0] + lobes.mu_s[:, 0] * v[:, 2]                 # undo the slope offset, then the 2 x 2 block
+    py = v[:, 1] + lobes.mu_s[:, 1] * v[:, 2]
+    x = px / ax
+    y = (py - ay * lobes.rho * x) / (ay * s)
+    return torch.stack([x, y, v[:, 2]], -1), 1 / (ax * ay * s)
+
+
+def sample_proxy(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Directions wo (N, 3) from the mixture, for wi (N, 3) and u (N, 2) in [0, 1)^2: u_x picks the lobe and is
+    rescaled to [0, 1) for the lobe's own warp."""
+    check_directions(wi, "wi")
+    check_u(u)
+    check_shape(u, "u", (wi.shape[0], 2))
+    check_lobes(lobes, wi.shape[0])
+    w_d = lobes.w_d.to(u)
+    diffuse = u[:, 0] < w_d
+    u0 = torch.where(diffuse, u[:, 0] / w_d.clamp(min=1e-12), (u[:, 0] - w_d) / (1 - w_d).clamp(min=1e-12))
+    local = sample_cosine_hemisphere(torch.stack([u0.clamp(0, 1 - 1e-7), u[:, 1]], -1))
+    n_d = _diffuse_normal(lobes)
+    wo_d = to_world(local, *frame_from_normal(n_d), n_d)
+    h = _apply_m(lobes, local)
+    h = h / h.norm(dim=-1, keepdim=True)
+    wo_s = 2 * (wi * h).sum(-1, keepdim=True) * h - wi
+    return torch.where(diffuse[:, None], wo_d, wo_s)
+
+
+def proxy_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """Solid-angle density (N,) of `sample_proxy` at wo (N, 3) given wi (N, 3) (Eqs. 8-10)."""
+    check_directions(wi, "wi")
+    check_directions(wo, "wo")
+    check_lobes(lobes, wi.shape[0])
+    p_d = (wo * _diffuse_normal(lobes)).sum(-1).clamp(min=0) / math.pi
+    h = wi + wo
+    h = torch.where(h[:, 2:] < 0, -h, h)                      # the half vector on the upper side
+    length = h.norm(dim=-1)
+    ok = (length > 1e-12) & (h[:, 2] > 0)
+    h = h / torch.where(ok, length, torch.ones_like(length))[:, None]
+    v, det_inv = _apply_m_inverse(lobes, h)
+    r = v.norm(dim=-1)
+    p_h = (v[:, 2] / r) / math.pi * det_inv / r ** 3
+    cos_oh = (wo * h).sum(-1).abs()
+    p_s = torch.where(ok & (cos_oh > 0), p_h / (4 * cos_oh.clamp(min=1e-12)), torch.zeros_like(p_h))
+    return lobes.w_d * p_d + (1 - lobes.w_d) * p_s
