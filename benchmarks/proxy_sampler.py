@@ -3,6 +3,7 @@ against cosine sampling and each material's own sampler.
 
     python benchmarks/proxy_sampler.py                       # analytic materials + the shared RGL BRDFs
     python benchmarks/proxy_sampler.py --materials "ggx:roughness=0.1" path/to/model.nmat --steps 1000
+    python benchmarks/proxy_sampler.py --render          # also benchmarks/results/proxy_sampler_render.png
 
 For every material: fit a `ProxySampler` (`fit_sampler`, --steps x --batch), then at each incident elevation
 estimate the luminance albedo with --samples one-sample estimates f cos / p from cosine sampling, from the
@@ -10,6 +11,11 @@ material's own sampler (when it has one) and from the learned proxy. "rel var" i
 estimates (lower is better; the efficiency gain of A over B is rel var B / rel var A at equal sample counts).
 "albedo" is the proxy's estimate, "albedo ref" the reference (own sampler, else cosine) estimate: the
 proxy is unbiased when they agree within a few standard errors ("z" = difference / combined standard error).
+
+--render: a sphere of --render-material under the shared studio environment map, direct light with MIS at
+--render-spp, its material strategy drawing from cosine sampling (what the renderer does for a material that
+cannot sample, e.g. most learned models), from the learned proxy, and from the material's own sampler, against
+the material's own sampler at 64x the samples (reference); PSNR and FLIP at the reference's exposure.
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
+from neumat.core.material import Material
 from neumat.core.query import Query
 from neumat.io.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
@@ -46,6 +53,59 @@ def estimates(material, theta: float, n: int, how: str, seed: int = 1) -> torch.
         return material.sample(Query(wi), u).weight.float() @ lum
 
 
+class WithoutSampler(Material):
+    """`material` evaluated as is but with no sampler of its own (as most learned models)."""
+
+    def __init__(self, material: Material) -> None:
+        self.material, self.name = material, material.name
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return self.material.eval(q)
+
+
+def render_figure(spec: str, steps: int, batch: int, spp: int, resolution: int) -> list[dict]:
+    """Write benchmarks/results/proxy_sampler_render.png (module docstring); one row per sampler."""
+    from neumat.io.images import write_image_ldr
+    from neumat.metrics.image import image_metrics
+    from neumat.render.render import render
+    from neumat.viz.compare import compare_image
+
+    data = shared_data_dir()
+    env = data / "envmap" / "studio_small_03_1k.hdr" if data is not None else None
+    if env is None or not env.is_file():
+        raise SystemExit("--render needs shared/data/envmap/studio_small_03_1k.hdr (set NEUMAT_SHARED_DATA)")
+    material = open_material(spec)
+    torch.manual_seed(0)
+    sampled = SampledMaterial(material, fit_sampler(material, steps=steps, batch=batch, progress=False).sampler)
+    light = f"env:{env}"
+    ref = render(material, "sphere", light, spp=64 * spp, resolution=resolution, seed=1)
+    exposure = math.log2(0.9 / max(torch.quantile(ref @ torch.tensor(LUMINANCE), 0.99).item(), 1e-8))
+    images, metrics, rows = {}, {}, []
+    for name, m in (("cosine sampling (no sampler)", WithoutSampler(material)), ("learned proxy", sampled),
+                    ("own sampler", material)):
+        t = time.perf_counter()
+        images[name] = render(m, "sphere", light, spp=spp, resolution=resolution, seed=2)
+        seconds = time.perf_counter() - t
+        mt = image_metrics(ref, images[name], exposure=exposure)
+        metrics[name] = {"PSNR": mt["psnr"], "FLIP": mt["flip"]}
+        rows.append({"material": spec, "sampler": name, "spp": spp, "PSNR": mt["psnr"], "FLIP": mt["flip"],
+                     "render s": seconds})
+    out = Path(__file__).parent / "results" / "proxy_sampler_render.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_image_ldr(out, compare_image(ref, images, metrics=metrics, exposure=exposure))
+    print(f"written {out}")
+    return rows
+
+
+def print_table(title: str, rows: list[dict]) -> None:
+    table = Table(title=title)
+    for k in rows[0]:
+        table.add_column(k)
+    for r in rows:
+        table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
+    Console(width=250).print(table)
+
+
 def default_materials() -> list[str]:
     data = shared_data_dir()
     rgl = sorted(str(p) for p in (data / "rgl").glob("*.bsdf")) if data is not None else []
@@ -61,7 +121,17 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=4096)
     ap.add_argument("--samples", type=int, default=200_000)
     ap.add_argument("--thetas", default="0,30,60,80", help="incident elevations, degrees")
+    ap.add_argument("--render", action="store_true", help="also render the comparison picture (module docstring)")
+    ap.add_argument("--render-material", default="ggx:roughness=0.1")
+    ap.add_argument("--render-spp", type=int, default=4)
+    ap.add_argument("--render-size", type=int, default=160)
+    ap.add_argument("--no-table", action="store_true", help="skip the variance table")
     args = ap.parse_args()
+    if args.render:
+        print_table("Sphere under studio_small_03: direct light, MIS, material strategy from each sampler",
+                    render_figure(args.render_material, args.steps, args.batch, args.render_spp, args.render_size))
+    if args.no_table:
+        return
     thetas = [float(t) for t in args.thetas.split(",")]
     rows = []
     for spec in args.materials or default_materials():
@@ -88,14 +158,9 @@ def main() -> None:
                          "albedo": est["proxy"].mean().item(), "albedo ref": ref.mean().item(),
                          "z": (est["proxy"].mean() - ref.mean()).item() / max(se, 1e-30),
                          "fit s": fit_s})
-    table = Table(title=f"Learned proxy sampler vs cosine and own sampling ({args.steps} x {args.batch} fit, "
-                        f"{args.samples} samples per cell, {torch.get_num_threads()} threads; sampler MLP "
-                        f"{fit.sampler.flops()} FLOPs, {sum(p.numel() for p in fit.sampler.parameters())} parameters)")
-    for k in rows[0]:
-        table.add_column(k)
-    for r in rows:
-        table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
-    Console(width=250).print(table)
+    print_table(f"Learned proxy sampler vs cosine and own sampling ({args.steps} x {args.batch} fit, "
+                f"{args.samples} samples per cell, {torch.get_num_threads()} threads; sampler MLP "
+                f"{fit.sampler.flops()} FLOPs, {sum(p.numel() for p in fit.sampler.parameters())} parameters)", rows)
 
 
 if __name__ == "__main__":
