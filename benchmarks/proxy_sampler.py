@@ -5,7 +5,8 @@ against cosine sampling and each material's own sampler.
     python benchmarks/proxy_sampler.py --materials "ggx:roughness=0.1" path/to/model.nmat --steps 1000
     python benchmarks/proxy_sampler.py --render          # also benchmarks/results/proxy_sampler_render.png
 
-For every material: fit a `ProxySampler` (`fit_sampler`, --steps x --batch), then at each incident elevation
+For every material: fit a `ProxySampler` (`fit_sampler`, --steps x --batch; on an SVBRDF conditioned on its
+texture parameters, and estimates taken at a uniform random uv per sample), then at each incident elevation
 estimate the luminance albedo with --samples one-sample estimates f cos / p from cosine sampling, from the
 material's own sampler (when it has one) and from the learned proxy. "rel var" is Var / mean^2 of the
 estimates (lower is better; the efficiency gain of A over B is rel var B / rel var A at equal sample counts).
@@ -42,15 +43,17 @@ ANALYTIC = ["ggx:roughness=0.05", "ggx:roughness=0.15", "ggx:roughness=0.4", "gg
 
 
 def estimates(material, theta: float, n: int, how: str, seed: int = 1) -> torch.Tensor:
-    """n one-sample estimates (luminance of f cos / p) of the albedo at elevation theta (degrees), azimuth 30."""
+    """n one-sample estimates (luminance of f cos / p) of the albedo at elevation theta (degrees), azimuth 30;
+    on a spatially varying material at a uniform random uv per sample (the texture's mean albedo)."""
     t, p = math.radians(theta), math.radians(30.0)
     wi = torch.tensor([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)]).expand(n, 3)
-    u = torch.rand(n, 2, generator=torch.Generator().manual_seed(seed))
+    u = torch.rand(n, 4, generator=torch.Generator().manual_seed(seed))
+    q = Query(wi, uv=u[:, 2:] if getattr(material, "spatially_varying", False) else None)
     lum = torch.tensor(LUMINANCE)
     with torch.no_grad():
         if how == "cosine":
-            return (material.eval(Query(wi, sample_cosine_hemisphere(u))).float() @ lum) * math.pi
-        return material.sample(Query(wi), u).weight.float() @ lum
+            return (material.eval(q.with_wo(sample_cosine_hemisphere(u[:, :2]))).float() @ lum) * math.pi
+        return material.sample(q, u[:, :2]).weight.float() @ lum
 
 
 class WithoutSampler(Material):
@@ -107,11 +110,14 @@ def print_table(title: str, rows: list[dict]) -> None:
 
 
 def default_materials() -> list[str]:
+    """The analytic set, the shared RGL BRDFs and two shared PBR texture sets (SVBRDFs) when present."""
     data = shared_data_dir()
     rgl = sorted(str(p) for p in (data / "rgl").glob("*.bsdf")) if data is not None else []
+    svbrdf = [str(data / "svbrdf" / n) for n in ("Metal027_1K", "Leather05_1K_partial")
+              if (data / "svbrdf" / n).is_dir()] if data is not None else []
     if not rgl:
         print("no shared RGL BRDFs found (set NEUMAT_SHARED_DATA or put shared/ beside the checkout): analytic only")
-    return ANALYTIC + rgl
+    return ANALYTIC + rgl + svbrdf
 
 
 def main() -> None:
@@ -136,7 +142,7 @@ def main() -> None:
     rows = []
     for spec in args.materials or default_materials():
         material = open_material(spec)
-        name = Path(spec).stem if Path(spec).is_file() else spec
+        name = Path(spec).name if Path(spec).exists() else spec
         torch.manual_seed(0)
         t = time.perf_counter()
         fit = fit_sampler(material, steps=args.steps, batch=args.batch, progress=False)

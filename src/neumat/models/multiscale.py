@@ -168,6 +168,16 @@ class MultiScale(nn.Module, Material):
         footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
         return self.spatial(q.uv, footprint, q.lod)
 
+    @property
+    def sampling_feature_dim(self) -> int:
+        """Features `sampling_features` gives a learned sampler (`neumat.models.proxy_sampler`): D_s."""
+        return self.cfg.spatial_channels
+
+    def sampling_features(self, q: Query) -> torch.Tensor:
+        """z_s (N, D_s) without gradient, the latent a learned importance sampler conditions on."""
+        with torch.no_grad():
+            return self.spatial_latent(q)
+
     def latents(self, q: Query) -> torch.Tensor:
         """MLP input: [z_h, z_d] (N, D_h + D_d), or [z_h, z_d, z_s] without gating."""
         q.require("wo", who="multiscale.eval")

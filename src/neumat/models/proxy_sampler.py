@@ -1,20 +1,22 @@
-"""Neural importance sampling for any (homogeneous) BRDF: the importance-sampling decoder of Real-Time Neural
-Appearance Models (Zeltner et al. 2024, Sec. 4.3, 5.2), a small MLP that maps the incident direction to the 9
-parameters of the analytic two-lobe proxy (`neumat.warp.microfacet_proxy`), sampled and evaluated in closed
-form, so density and sampler agree exactly.
+"""Neural importance sampling for any BRDF: the importance-sampling decoder of Real-Time Neural Appearance
+Models (Zeltner et al. 2024, Sec. 4.3, 5.2), a small MLP that maps the incident direction (and, on spatially
+varying materials, a per-point feature vector) to the 9 parameters of the analytic two-lobe proxy
+(`neumat.warp.microfacet_proxy`), sampled and evaluated in closed form, so density and sampler agree exactly.
 
-- `ProxySampler`: MLP wi (N, 3) -> raw (N, 9) -> `ProxyLobes`; starts at w_d = 0.5, alpha = 0.5, no tilt.
+- `ProxySampler`: MLP [wi (N, 3), features (N, F)] -> raw (N, 9) -> `ProxyLobes`; starts at w_d = 0.5,
+  alpha = 0.5, no tilt.
 - `fit_sampler(material, sampler)`: trains it against the material's f cos(theta_o) as the paper trains its
   sampler against the learned BRDF: directions drawn from the current proxy are scored with the KL divergence
   KL(f cos / a || p), through its score-function gradient -E_p[(f cos / p) grad log p] (Mueller et al. 2019);
-  f is the luminance of the material's value and wi uniform over the upper hemisphere. One sample per wi, so
-  the per-wi normaliser a(wi) is replaced by the batch mean of f cos / p: directions wi with a higher albedo
-  weigh more.
+  f is the luminance of the material's value, wi uniform over the upper hemisphere and uv uniform over the
+  texture. One sample per query, so the per-query normaliser a(wi, uv) is replaced by the batch mean of
+  f cos / p: queries with a higher albedo weigh more.
 - `SampledMaterial(material, sampler)`: the material with the sampler attached (`can_sample = True`): eval is
   the material's, `sample` / `pdf` the proxy's, weight = f cos / p.
 
-The paper also feeds the latent code z(x) of its spatially varying model; here only wi is an input, so
-spatially varying materials are refused.
+Spatially varying materials provide the features through `sampling_features(q) -> (N, F)` (no gradient) and
+`sampling_feature_dim`: the paper feeds its latent code z(x), as the multiscale model does with its spatial
+latent z_s; a reference SVBRDF gives its texture parameters at uv (the paper's encoder input k(x)).
 """
 from __future__ import annotations
 
@@ -38,6 +40,8 @@ from neumat.warp.microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, 
 class Config:
     """Sizes of the sampling decoder (the paper does not state its sampler's; ours: 2 x 32, ReLU)."""
 
+    features: int = 0
+    """F, per-point features of a spatially varying material (0 for homogeneous BRDFs)."""
     hidden: int = 32
     """Neurons per hidden layer."""
     hidden_layers: int = 2
@@ -45,26 +49,27 @@ class Config:
 
 
 class ProxySampler(nn.Module):
-    """MLP from wi (N, 3) (local frame) to the two-lobe proxy's parameters."""
+    """MLP from wi (N, 3) (local frame) and features (N, F) to the two-lobe proxy's parameters."""
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         super().__init__()
         self.cfg = resolve_config(Config, config, kwargs, "ProxySampler")
-        self.mlp = MLP(3, self.cfg.hidden, self.cfg.hidden_layers, 9)
+        if isinstance(self.cfg.features, bool) or not isinstance(self.cfg.features, int) or self.cfg.features < 0:
+            raise InputError(f"ProxySampler features: expected an integer >= 0, got {self.cfg.features!r}")
+        self.mlp = MLP(3 + self.cfg.features, self.cfg.hidden, self.cfg.hidden_layers, 9)
         self.mlp.start_constant(torch.zeros(9))
 
-    def lobes(self, wi: torch.Tensor) -> ProxyLobes:
+    def lobes(self, wi: torch.Tensor, features: torch.Tensor | None = None) -> ProxyLobes:
+        """Proxy parameters for wi (N, 3) and, when the sampler has F > 0 features, features (N, F)."""
+        f = self.cfg.features
+        got = None if features is None else tuple(features.shape)
+        if f == 0 and features is not None:
+            raise InputError(f"ProxySampler: this sampler takes no features (F = 0), got features of shape {got}")
+        if f > 0 and got != (len(wi), f):
+            raise InputError(f"ProxySampler: expected features of shape ({len(wi)}, {f}), got {got}")
         dtype = self.mlp.linears()[0].weight.dtype
-        lobes = proxy_from_raw(self.mlp(wi.to(dtype)))
-        return ProxyLobes(*(t.to(wi.dtype) for t in lobes))
-
-    def sample(self, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """wo (N, 3) for wi (N, 3) and u (N, 2) in [0, 1)^2."""
-        return sample_proxy(self.lobes(wi), wi, u)
-
-    def pdf(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-        """Solid-angle density (N,) of `sample`."""
-        return proxy_pdf(self.lobes(wi), wi, wo)
+        x = wi.to(dtype) if features is None else torch.cat([wi.to(dtype), features.to(dtype)], -1)
+        return ProxyLobes(*(t.to(wi.dtype) for t in proxy_from_raw(self.mlp(x))))
 
     def flops(self) -> int:
         """MLP operations per query (activations and the proxy's closed forms not counted)."""
@@ -77,18 +82,24 @@ class SampledMaterial(Material):
     can_sample = True
 
     def __init__(self, material: Material, sampler: ProxySampler) -> None:
-        _check_homogeneous(material, "SampledMaterial")
+        if feature_dim(material, "SampledMaterial") != sampler.cfg.features:
+            raise InputError(f"SampledMaterial: the sampler takes {sampler.cfg.features} features, "
+                             f"{type(material).__name__} gives {feature_dim(material, 'SampledMaterial')}")
         self.material, self.sampler = material, sampler
         self.name = f"{getattr(material, 'name', 'material')}+proxy-sampler"
+        self.spatially_varying = bool(getattr(material, "spatially_varying", False))
 
     def eval(self, q: Query) -> torch.Tensor:
         return self.material.eval(q)
+
+    def lobes(self, q: Query) -> ProxyLobes:
+        return self.sampler.lobes(q.wi, features_of(self.material, q))
 
     @torch.no_grad()
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
             raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
-        lobes = self.sampler.lobes(q.wi)
+        lobes = self.lobes(q)
         wo = sample_proxy(lobes, q.wi, u.to(q.wi.dtype))
         wo = wo / wo.norm(dim=-1, keepdim=True)
         pdf = proxy_pdf(lobes, q.wi, wo)
@@ -98,7 +109,7 @@ class SampledMaterial(Material):
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:
         q.require("wo", who="SampledMaterial.pdf")
-        return self.sampler.pdf(q.wi, q.wo)
+        return proxy_pdf(self.lobes(q), q.wi, q.wo)
 
     def describe(self) -> str:
         return f"{self.material.describe()} + proxy sampler"
@@ -114,25 +125,44 @@ class SamplerFit:
     seconds: float
 
 
-def _check_homogeneous(material, who: str) -> None:
+def feature_dim(material, who: str) -> int:
+    """F of `material`: 0 for a homogeneous BRDF, its `sampling_feature_dim` when spatially varying."""
     if not callable(getattr(material, "eval", None)):
         raise InputError(f"{who}: expected a Material, got {type(material).__name__}")
-    if getattr(material, "spatially_varying", False) or getattr(material, "full_sphere", False):
-        raise InputError(f"{who}: {type(material).__name__} is spatially varying or translucent; the proxy sampler "
-                         "conditions on wi only (homogeneous BRDFs)")
+    if getattr(material, "full_sphere", False):
+        raise InputError(f"{who}: {type(material).__name__} is translucent (full sphere); the proxy samples BRDFs")
+    if not getattr(material, "spatially_varying", False):
+        return 0
+    if not callable(getattr(material, "sampling_features", None)):
+        raise InputError(f"{who}: {type(material).__name__} is spatially varying but has no sampling_features(q) "
+                         "to condition the sampler on")
+    return int(material.sampling_feature_dim)
+
+
+def features_of(material, q: Query) -> torch.Tensor | None:
+    """The material's sampling features at q (N, F) without gradient, or None for a homogeneous BRDF."""
+    if not getattr(material, "spatially_varying", False):
+        return None
+    q.require("uv", who=f"{type(material).__name__} sampling features")
+    with torch.no_grad():
+        return material.sampling_features(q).detach()
 
 
 def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: int = 2000, batch: int = 4096,
                 lr: float = 3e-3, seed: int = 0, log_every: int = 100, progress: bool = True) -> SamplerFit:
-    """Train `sampler` (default a new `ProxySampler()`) on `material` (module docstring): `steps` Adam steps
-    of `batch` (wi, wo) pairs, learning rate `lr` halved at 50% and 75% of the steps."""
-    _check_homogeneous(material, "fit_sampler")
+    """Train `sampler` (default a new `ProxySampler` with the material's feature count) on `material` (module
+    docstring): `steps` Adam steps of `batch` (wi, uv, wo) queries, learning rate `lr` halved at 50% and 75%
+    of the steps."""
+    features = feature_dim(material, "fit_sampler")
     for name, v in (("steps", steps), ("batch", batch), ("log_every", log_every)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise InputError(f"fit_sampler {name}: expected an integer >= 1, got {v!r}")
     if not lr > 0:
         raise InputError(f"fit_sampler lr: expected > 0, got {lr!r}")
-    sampler = sampler if sampler is not None else ProxySampler()
+    sampler = sampler if sampler is not None else ProxySampler(features=features)
+    if sampler.cfg.features != features:
+        raise InputError(f"fit_sampler: the sampler takes {sampler.cfg.features} features, "
+                         f"{type(material).__name__} gives {features}")
     sampler.train()
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(sampler.parameters(), lr=lr)
@@ -144,13 +174,14 @@ def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: 
         from rich.progress import track
         iterator = track(iterator, description="fitting the proxy sampler")
     for step in iterator:
-        u = torch.rand(batch, 4, generator=gen)
+        u = torch.rand(batch, 6, generator=gen)
         wi = sample_uniform_hemisphere(u[:, :2])
-        lobes = sampler.lobes(wi)
+        q = Query(wi, uv=u[:, 4:] if features else None)
+        lobes = sampler.lobes(wi, features_of(material, q))
         with torch.no_grad():
-            wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u[:, 2:])
+            wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u[:, 2:4])
             wo = wo / wo.norm(dim=-1, keepdim=True)
-            target = (material.eval(Query(wi, wo)).float() @ lum).clamp(min=0) * wo[:, 2].clamp(min=0)
+            target = (material.eval(q.with_wo(wo)).float() @ lum).clamp(min=0) * wo[:, 2].clamp(min=0)
             if not bool(torch.isfinite(target).all()):
                 raise InputError(f"fit_sampler: {material.describe()} returned non-finite values")
         pdf = proxy_pdf(lobes, wi, wo)

@@ -98,6 +98,15 @@ class SVBRDF(Material):
         n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return {"base_color": m[:, 0:3], "normal": n, "roughness": m[:, 6], "metallic": m[:, 7]}
 
+    #: features `sampling_features` gives a learned sampler (`neumat.models.proxy_sampler`)
+    sampling_feature_dim = 8
+
+    def sampling_features(self, q: Query) -> torch.Tensor:
+        """Texture parameters at q.uv (N, 8): base colour, unit normal, roughness, metalness."""
+        q.require("uv", who="SVBRDF.sampling_features")
+        p = self.parameters_at(q.uv)
+        return torch.cat([p["base_color"], p["normal"], p["roughness"][:, None], p["metallic"][:, None]], -1)
+
     def _shading_frame(self, normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         tangent = torch.zeros_like(normal)
         tangent[:, 0] = 1
