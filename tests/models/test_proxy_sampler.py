@@ -50,11 +50,13 @@ def test_learned_sampler_is_unbiased_and_far_better_than_cosine_sampling(ggx_sam
     assert abs(learned.mean() - reference.mean()) < 4 * standard_error
     rel_learned = learned.var() / learned.mean() ** 2
     rel_cosine = cosine.var() / cosine.mean() ** 2
-    assert rel_learned < rel_cosine / 30, (rel_learned, rel_cosine)   # measured: 1/80 at 30 deg, 1/160 at 60
+    assert rel_learned < rel_cosine / 30, (rel_learned, rel_cosine)   # measured: 1/89 at 30 deg, 1/146 at 60
 
 
 def test_sampler_and_density_agree(ggx_sampled):
-    r = chi2_material(ggx_sampled, incident(40.0, 1)[0].double(), n_samples=200_000, sphere=True, quad=16)
+    # 1M samples: at 200k this fitted proxy drew p = 0.0017 (seed 0), while its seeds 0-5 at 1M and 0-1 at 4M
+    # (60 x 120 cells) give p = 0.09-0.78: a fluctuation of the smaller test, not a mismatch
+    r = chi2_material(ggx_sampled, incident(40.0, 1)[0].double(), n_samples=1_000_000, sphere=True, quad=16)
     assert r, r.message
 
 
@@ -92,12 +94,12 @@ def test_sampler_conditioned_on_texture_parameters(dents_sampled, tilted):
     own = estimates(svbrdf, 60.0, 100_000, 2, uv=uv)                   # the SVBRDF's principled sampler
     assert abs(learned.mean() - own.mean()) < 4 * (learned.std() + own.std()) / 100_000 ** 0.5
     rel_learned, rel_cosine = learned.var() / learned.mean() ** 2, cosine.var() / cosine.mean() ** 2
-    assert rel_learned < rel_cosine / 20, (rel_learned, rel_cosine)  # measured: 1/94 tilted, 1/2300 flat
+    assert rel_learned < rel_cosine / 20, (rel_learned, rel_cosine)  # measured: 1/61 tilted, 1/5600 flat
 
 
 def test_conditioned_sampler_and_density_agree(dents_sampled):
     template = Query(incident(40.0, 1).double(), uv=_most_tilted_texel(dents_sampled.material)[None].double())
-    r = chi2_material(dents_sampled, template.wi[0], n_samples=200_000, template=template, sphere=True, quad=16)
+    r = chi2_material(dents_sampled, template.wi[0], n_samples=1_000_000, template=template, sphere=True, quad=16)
     assert r, r.message
 
 
