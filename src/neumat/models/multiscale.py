@@ -33,9 +33,10 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.registry import MODELS
+from neumat.models.spatial_latent import SpatialLatent
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
-from neumat.nn.latent_texture import LatentPyramid, check_footprint
+from neumat.nn.latent_texture import LatentPyramid
 from neumat.nn.mlp import MLP
 from neumat.nn.preconditioner import FrequencyPreconditioner, preconditioner_kernel
 from neumat.nn.radial_warp import RadialWarp
@@ -116,7 +117,7 @@ def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) ->
 
 
 @MODELS.register("multiscale")
-class MultiScale(nn.Module, Material):
+class MultiScale(nn.Module, Material, SpatialLatent):
     """The gated multi-scale model (see module docstring). eval(q) -> (N, 3)."""
 
     name = "multiscale"
@@ -161,22 +162,6 @@ class MultiScale(nn.Module, Material):
     @property
     def config(self) -> Config:
         return self.cfg
-
-    def spatial_latent(self, q: Query) -> torch.Tensor:
-        """z_s (N, D_s) of the query's uv and footprint (or lod)."""
-        q.require("uv", who="multiscale (spatially varying)")
-        footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
-        return self.spatial(q.uv, footprint, q.lod)
-
-    @property
-    def sampling_feature_dim(self) -> int:
-        """Features `sampling_features` gives a learned sampler (`neumat.models.proxy_sampler`): D_s."""
-        return self.cfg.spatial_channels
-
-    def sampling_features(self, q: Query) -> torch.Tensor:
-        """z_s (N, D_s) without gradient, the latent a learned importance sampler conditions on."""
-        with torch.no_grad():
-            return self.spatial_latent(q)
 
     def latents(self, q: Query) -> torch.Tensor:
         """MLP input: [z_h, z_d] (N, D_h + D_d), or [z_h, z_d, z_s] without gating."""

@@ -27,9 +27,10 @@ from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.multiscale import preconditioned_noise
 from neumat.models.registry import MODELS
+from neumat.models.spatial_latent import SpatialLatent
 from neumat.nn.angular_texture import half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
-from neumat.nn.latent_texture import LatentPyramid, check_footprint
+from neumat.nn.latent_texture import LatentPyramid
 from neumat.nn.mlp import MLP
 from neumat.nn.preconditioner import FrequencyPreconditioner
 from neumat.nn.shading_frames import ShadingFrame
@@ -85,7 +86,7 @@ def _check_config(c: Config, who: str) -> None:
 
 
 @MODELS.register("neumip")
-class NeuMIP(nn.Module, Material):
+class NeuMIP(nn.Module, Material, SpatialLatent):
     """exp(MLP([z_s, directions])) with z_s from a filtered latent pyramid (module docstring); eval -> (N, 3)."""
 
     name = "neumip"
@@ -116,9 +117,7 @@ class NeuMIP(nn.Module, Material):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         q.require("wo", who=f"{self.name}.eval")
-        q.require("uv", who=f"{self.name} (spatially varying)")
-        footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
-        z_s = self.spatial(q.uv, footprint, q.lod)
+        z_s = self.spatial_latent(q)
         wi, wo = q.wi.to(z_s.dtype), q.wo.to(z_s.dtype)
         if self.frame is not None:
             wi, wo = self.frame(z_s, wi, wo)

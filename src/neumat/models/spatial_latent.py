@@ -1,0 +1,29 @@
+"""The spatial latent of models built on a learned latent pyramid (`self.spatial`, `cfg.spatial_channels`):
+z_s at a query, and the same z_s without gradient as the features a learned importance sampler conditions on
+(`neumat.models.proxy_sampler`, as Zeltner et al. 2024 feed their sampling decoder the latent code)."""
+from __future__ import annotations
+
+import torch
+
+from neumat.core.query import Query
+from neumat.nn.latent_texture import check_footprint
+
+
+class SpatialLatent:
+    """Mixin for spatially varying models with a `LatentPyramid` `self.spatial`."""
+
+    def spatial_latent(self, q: Query) -> torch.Tensor:
+        """z_s (N, D_s) of the query's uv and footprint (or lod)."""
+        q.require("uv", who=f"{self.name} (spatially varying)")
+        footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
+        return self.spatial(q.uv, footprint, q.lod)
+
+    @property
+    def sampling_feature_dim(self) -> int:
+        """D_s: the features `sampling_features` gives."""
+        return self.cfg.spatial_channels
+
+    def sampling_features(self, q: Query) -> torch.Tensor:
+        """z_s (N, D_s) without gradient."""
+        with torch.no_grad():
+            return self.spatial_latent(q)
