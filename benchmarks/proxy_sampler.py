@@ -3,7 +3,7 @@ against cosine sampling and each material's own sampler.
 
     python benchmarks/proxy_sampler.py                       # analytic materials + the shared RGL BRDFs
     python benchmarks/proxy_sampler.py --materials "ggx:roughness=0.1" path/to/model.nmat --steps 1000
-    python benchmarks/proxy_sampler.py --render          # also benchmarks/results/proxy_sampler_render.png
+    python benchmarks/proxy_sampler.py --render          # also benchmarks/results/proxy_sampler_render_ggx.png
 
 For every material: fit a `ProxySampler` (`fit_sampler`, --steps x --batch; on an SVBRDF conditioned on its
 texture parameters, and estimates taken at a uniform random uv per sample), then at each incident elevation
@@ -13,10 +13,11 @@ estimates (lower is better; the efficiency gain of A over B is rel var B / rel v
 "albedo" is the proxy's estimate, "albedo ref" the reference (own sampler, else cosine) estimate: the
 proxy is unbiased when they agree within a few standard errors ("z" = difference / combined standard error).
 
---render: a sphere of --render-material under the shared studio environment map, direct light with MIS at
---render-spp, its material strategy drawing from cosine sampling (what the renderer does for a material that
-cannot sample, e.g. most learned models), from the learned proxy, and from the material's own sampler, against
-the material's own sampler at 64x the samples (reference); PSNR and FLIP at the reference's exposure.
+--render: a sphere (a plane for a spatially varying material) of each --render-material under the shared
+studio environment map, direct light with MIS at --render-spp, its material strategy drawing from cosine
+sampling (what the renderer does for a material that cannot sample, e.g. most learned models), from the
+learned proxy, and from the material's own sampler if it has one; the reference is the same estimator at 64x
+the samples with the material's own sampler (else the proxy); PSNR and FLIP at the reference's exposure.
 """
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ class WithoutSampler(Material):
 
 
 def render_figure(spec: str, steps: int, batch: int, spp: int, resolution: int) -> list[dict]:
-    """Write benchmarks/results/proxy_sampler_render.png (module docstring); one row per sampler."""
+    """Write benchmarks/results/proxy_sampler_render_<name>.png (module docstring); one row per sampler."""
     from neumat.io.images import write_image_ldr
     from neumat.metrics.image import image_metrics
     from neumat.render.render import render
@@ -80,20 +81,23 @@ def render_figure(spec: str, steps: int, batch: int, spp: int, resolution: int) 
     material = open_material(spec)
     torch.manual_seed(0)
     sampled = SampledMaterial(material, fit_sampler(material, steps=steps, batch=batch, progress=False).sampler)
+    own = getattr(material, "can_sample", False)
+    scene = "plane,uv_scale=2" if getattr(material, "spatially_varying", False) else "sphere"
     light = f"env:{env}"
-    ref = render(material, "sphere", light, spp=64 * spp, resolution=resolution, seed=1)
+    ref = render(material if own else sampled, scene, light, spp=64 * spp, resolution=resolution, seed=1)
     exposure = math.log2(0.9 / max(torch.quantile(ref @ torch.tensor(LUMINANCE), 0.99).item(), 1e-8))
     images, metrics, rows = {}, {}, []
-    for name, m in (("cosine sampling (no sampler)", WithoutSampler(material)), ("learned proxy", sampled),
-                    ("own sampler", material)):
+    samplers = [("cosine sampling (no sampler)", WithoutSampler(material)), ("learned proxy", sampled)]
+    for name, m in samplers + ([("own sampler", material)] if own else []):
         t = time.perf_counter()
-        images[name] = render(m, "sphere", light, spp=spp, resolution=resolution, seed=2)
+        images[name] = render(m, scene, light, spp=spp, resolution=resolution, seed=2)
         seconds = time.perf_counter() - t
         mt = image_metrics(ref, images[name], exposure=exposure)
         metrics[name] = {"PSNR": mt["psnr"], "FLIP": mt["flip"]}
         rows.append({"material": spec, "sampler": name, "spp": spp, "PSNR": mt["psnr"], "FLIP": mt["flip"],
                      "render s": seconds})
-    out = Path(__file__).parent / "results" / "proxy_sampler_render.png"
+    stem = (Path(spec).stem if Path(spec).exists() else spec.split(":")[0]).replace(".", "_")
+    out = Path(__file__).parent / "results" / f"proxy_sampler_render_{stem}.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     write_image_ldr(out, compare_image(ref, images, metrics=metrics, exposure=exposure))
     print(f"written {out}")
@@ -128,14 +132,15 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=200_000)
     ap.add_argument("--thetas", default="0,30,60,80", help="incident elevations, degrees")
     ap.add_argument("--render", action="store_true", help="also render the comparison picture (module docstring)")
-    ap.add_argument("--render-material", default="ggx:roughness=0.1")
+    ap.add_argument("--render-material", nargs="*", default=["ggx:roughness=0.1"], help="specs or files")
     ap.add_argument("--render-spp", type=int, default=4)
     ap.add_argument("--render-size", type=int, default=160)
     ap.add_argument("--no-table", action="store_true", help="skip the variance table")
     args = ap.parse_args()
     if args.render:
-        print_table("Sphere under studio_small_03: direct light, MIS, material strategy from each sampler",
-                    render_figure(args.render_material, args.steps, args.batch, args.render_spp, args.render_size))
+        rows = [r for spec in args.render_material
+                for r in render_figure(spec, args.steps, args.batch, args.render_spp, args.render_size)]
+        print_table("Renders under studio_small_03: direct light, MIS, material strategy from each sampler", rows)
     if args.no_table:
         return
     thetas = [float(t) for t in args.thetas.split(",")]

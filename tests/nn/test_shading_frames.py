@@ -39,3 +39,27 @@ def test_lift_has_finite_gradient_on_the_rim():
     w = torch.tensor([[1.0, 0.0, 0.0], [0.6, 0.8, 0.0]], requires_grad=True)
     lift_to_hemisphere(w).sum().backward()
     assert bool(torch.isfinite(w.grad).all())
+
+
+def test_several_frames_are_independent_single_frames():
+    """frames = 2 (Zeltner et al.'s Eq. 7): each 3-block of the output equals a one-frame decoder with that
+    frame's rows of the decoding layer; at initialisation both are the geometric frame."""
+    wi, wo = _dirs(200, seed=2)
+    z = torch.randn(200, 4)
+    two = ShadingFrame(4, weight_scale=0.3, frames=2)
+    a, b = two(z, wi, wo)
+    torch.testing.assert_close(a, torch.cat([wi, wi], -1))
+    torch.testing.assert_close(b, torch.cat([wo, wo], -1))
+    with torch.no_grad():
+        two.decode.weight.normal_()
+        two.decode.bias.normal_()
+    a, b = two(z, wi, wo)
+    for k in range(2):
+        one = ShadingFrame(4, weight_scale=0.3)
+        with torch.no_grad():
+            one.decode.weight.copy_(two.decode.weight[6 * k:6 * k + 6])
+            one.decode.bias.copy_(two.decode.bias[6 * k:6 * k + 6])
+        ai, bi = one(z, wi, wo)
+        torch.testing.assert_close(a[:, 3 * k:3 * k + 3], ai)
+        torch.testing.assert_close(b[:, 3 * k:3 * k + 3], bi)
+    assert two.flops() == 2 * ShadingFrame(4, frames=1).flops()

@@ -54,6 +54,8 @@ class Config:
     """MLP direction inputs: "cartesian" (wi, wo) or "rusinkiewicz" (half and difference vectors)."""
     shading_frame: bool = False
     """Express wi, wo in a shading frame decoded from z_s first (Zeltner et al. 2024)."""
+    frames: int = 1
+    """Learned shading frames with `shading_frame` (Zeltner et al. decode 2); the MLP reads wi, wo in each."""
     frame_weight_scale: float = 0.1
     """Factor on the shading-frame decoder's weights, i.e. its relative learning rate under Adam
     (`neumat.nn.shading_frames`; 1 measured ~1.7x worse mean FLIP on Wood092)."""
@@ -69,7 +71,7 @@ class Config:
 
 def _check_config(c: Config, who: str) -> None:
     for name, lo in (("spatial_channels", 1), ("spatial_size", 1), ("hidden", 1), ("hidden_layers", 0),
-                     ("max_probes", 1)):
+                     ("max_probes", 1), ("frames", 1)):
         v = getattr(c, name)
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise InputError(f"{who}.{name}: expected an integer >= {lo}, got {v!r}")
@@ -77,6 +79,8 @@ def _check_config(c: Config, who: str) -> None:
         raise InputError(f"{who}.spatial_size: expected a power of two, got {c.spatial_size}")
     if c.directions not in DIRECTIONS:
         raise InputError(f"{who}.directions: expected one of {', '.join(DIRECTIONS)}, got {c.directions!r}")
+    if c.frames > 1 and (not c.shading_frame or c.directions != "cartesian"):
+        raise InputError(f"{who}.frames: {c.frames} frames need shading_frame=True and cartesian directions")
     for name in ("spatial_precondition", "init_std", "init_log_value", "frame_weight_scale"):
         v = getattr(c, name)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -105,8 +109,8 @@ class NeuMIP(nn.Module, Material, SpatialLatent):
         with torch.no_grad():
             for p in self.spatial.raw:
                 p.copy_(preconditioned_noise(tuple(p.shape), cfg.init_std, cfg.spatial_precondition))
-        self.frame = ShadingFrame(ds, cfg.frame_weight_scale) if cfg.shading_frame else None
-        self.mlp = MLP(ds + 6, cfg.hidden, cfg.hidden_layers, 3, "silu")
+        self.frame = ShadingFrame(ds, cfg.frame_weight_scale, cfg.frames) if cfg.shading_frame else None
+        self.mlp = MLP(ds + 6 * (cfg.frames if cfg.shading_frame else 1), cfg.hidden, cfg.hidden_layers, 3, "silu")
         with torch.no_grad():
             self.mlp.linears()[-1].bias.fill_(cfg.init_log_value)
 
@@ -117,7 +121,10 @@ class NeuMIP(nn.Module, Material, SpatialLatent):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         q.require("wo", who=f"{self.name}.eval")
-        z_s = self.spatial_latent(q)
+        return self.decode(self.spatial_latent(q), q)
+
+    def decode(self, z_s: torch.Tensor, q: Query) -> torch.Tensor:
+        """BRDF value (N, 3) of latents z_s (N, D_s) at the directions of q (the decoder without the texture)."""
         wi, wo = q.wi.to(z_s.dtype), q.wo.to(z_s.dtype)
         if self.frame is not None:
             wi, wo = self.frame(z_s, wi, wo)

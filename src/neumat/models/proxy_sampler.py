@@ -148,6 +148,20 @@ def features_of(material, q: Query) -> torch.Tensor | None:
         return material.sampling_features(q).detach()
 
 
+def proxy_kl_loss(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor, brdf, who: str) -> torch.Tensor:
+    """KL(f cos / a || p) through its score-function gradient (module docstring): wo (N, 3) drawn from the
+    detached `lobes` with u (N, 2), scored against brdf(wo) -> (N, 3), evaluated without gradient."""
+    with torch.no_grad():
+        wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u)
+        wo = wo / wo.norm(dim=-1, keepdim=True)
+        target = (brdf(wo).float() @ torch.tensor(LUMINANCE, device=wo.device)).clamp(min=0) * wo[:, 2].clamp(min=0)
+        if not bool(torch.isfinite(target).all()):
+            raise InputError(f"proxy sampler fit: {who} returned non-finite values")
+    pdf = proxy_pdf(lobes, wi, wo)
+    ratio = target / pdf.detach().clamp(min=1e-12)
+    return -(ratio * pdf.clamp(min=1e-12).log()).mean() / ratio.mean().clamp(min=1e-12)
+
+
 def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: int = 2000, batch: int = 4096,
                 lr: float = 3e-3, seed: int = 0, log_every: int = 100, progress: bool = True) -> SamplerFit:
     """Train `sampler` (default a new `ProxySampler` with the material's feature count) on `material` (module
@@ -167,7 +181,6 @@ def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: 
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(sampler.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, [steps // 2, 3 * steps // 4], gamma=0.5)
-    lum = torch.tensor(LUMINANCE)
     history, running, start = [], 0.0, time.perf_counter()
     iterator = range(steps)
     if progress:
@@ -178,15 +191,7 @@ def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: 
         wi = sample_uniform_hemisphere(u[:, :2])
         q = Query(wi, uv=u[:, 4:] if features else None)
         lobes = sampler.lobes(wi, features_of(material, q))
-        with torch.no_grad():
-            wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u[:, 2:4])
-            wo = wo / wo.norm(dim=-1, keepdim=True)
-            target = (material.eval(q.with_wo(wo)).float() @ lum).clamp(min=0) * wo[:, 2].clamp(min=0)
-            if not bool(torch.isfinite(target).all()):
-                raise InputError(f"fit_sampler: {material.describe()} returned non-finite values")
-        pdf = proxy_pdf(lobes, wi, wo)
-        ratio = target / pdf.detach().clamp(min=1e-12)
-        loss = -(ratio * pdf.clamp(min=1e-12).log()).mean() / ratio.mean().clamp(min=1e-12)
+        loss = proxy_kl_loss(lobes, wi, u[:, 2:4], lambda wo: material.eval(q.with_wo(wo)), material.describe())
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -1,11 +1,12 @@
 """Learned shading frames decoded from a spatial latent (Zeltner et al. 2024; Timonen et al. 2025, Sec. 3.1).
 
-A linear layer maps the latent z (N, D) to a normal and a tangent (3 + 3 values); the normal is
+A linear layer maps the latent z (N, D) to a normal and a tangent (3 + 3 values) per frame (Zeltner et al.
+decode N = 2 frames with one layer of 12 outputs, their Eq. 7; Timonen et al. one); each normal is
 normalised, the tangent made orthogonal to it (Gram-Schmidt) and the bitangent completes a right-handed
 frame. Directions are expressed in that frame and then, as Timonen et al. do, projected to the unit disk
 and lifted back to the upper hemisphere, w -> (w_x, w_y, sqrt(1 - w_x^2 - w_y^2)): a direction that the
 frame puts below the horizon is mirrored above it instead of leaving the domain of the angular textures.
-At initialisation (zero weights, bias = (0, 0, 1 | 1, 0, 0)) the frame is the geometric one.
+At initialisation (zero weights, bias = (0, 0, 1 | 1, 0, 0) per frame) every frame is the geometric one.
 
 The decoder's weights enter scaled, v = bias + `weight_scale` W z (default 0.1). With Adam, whose steps are
 about the learning rate per parameter whatever the gradient's size, this is a learning rate 10x lower for W:
@@ -20,6 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..core.errors import InputError
 from ..core.frames import to_local
 
 _EPS = 1e-12
@@ -41,27 +43,35 @@ def frame_from_vectors(normal: torch.Tensor, tangent: torch.Tensor) -> tuple[tor
 
 
 class ShadingFrame(nn.Module):
-    """forward(z (N, D), wi (N, 3), wo (N, 3)) -> (wi', wo'): directions in the learned frame, lifted.
-    weight_scale: factor on the decoder weights (module docstring)."""
+    """forward(z (N, D), wi (N, 3), wo (N, 3)) -> (wi', wo'), each (N, 3 frames): directions in every learned
+    frame, lifted, frame after frame. weight_scale: factor on the decoder weights (module docstring)."""
 
-    def __init__(self, latent_dim: int, weight_scale: float = 0.1) -> None:
+    def __init__(self, latent_dim: int, weight_scale: float = 0.1, frames: int = 1) -> None:
         super().__init__()
-        self.weight_scale = float(weight_scale)
-        self.decode = nn.Linear(latent_dim, 6)
+        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+            raise InputError(f"ShadingFrame.frames: expected an integer >= 1, got {frames!r}")
+        self.weight_scale, self.frames = float(weight_scale), frames
+        self.decode = nn.Linear(latent_dim, 6 * frames)
         with torch.no_grad():
             self.decode.weight.zero_()
-            self.decode.bias.copy_(torch.tensor([0.0, 0.0, 1.0, 1.0, 0.0, 0.0]))
+            self.decode.bias.copy_(torch.tensor([0.0, 0.0, 1.0, 1.0, 0.0, 0.0]).repeat(frames))
 
-    def frame(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(t, b, n) (N, 3) each."""
+    def frame(self, z: torch.Tensor, index: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(t, b, n) (N, 3) each of frame `index`."""
+        return self._frames(z)[index]
+
+    def _frames(self, z: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
         v = F.linear(z, self.decode.weight * self.weight_scale, self.decode.bias)
-        return frame_from_vectors(v[:, :3], v[:, 3:])
+        return [frame_from_vectors(v[:, 6 * k:6 * k + 3], v[:, 6 * k + 3:6 * k + 6]) for k in range(self.frames)]
 
     def forward(self, z: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        t, b, n = self.frame(z)
-        return lift_to_hemisphere(to_local(wi, t, b, n)), lift_to_hemisphere(to_local(wo, t, b, n))
+        out_i, out_o = [], []
+        for t, b, n in self._frames(z):
+            out_i.append(lift_to_hemisphere(to_local(wi, t, b, n)))
+            out_o.append(lift_to_hemisphere(to_local(wo, t, b, n)))
+        return torch.cat(out_i, -1), torch.cat(out_o, -1)
 
     def flops(self) -> int:
-        """Decode layer, normalisations and Gram-Schmidt (~40), a cross product (9), two 3x3 transforms (30)
-        and two lifts (~8)."""
-        return 2 * self.decode.in_features * 6 + 40 + 9 + 30 + 8
+        """Decode layer; per frame normalisations and Gram-Schmidt (~40), a cross product (9), two 3x3
+        transforms (30) and two lifts (~8)."""
+        return 2 * self.decode.in_features * 6 * self.frames + (40 + 9 + 30 + 8) * self.frames

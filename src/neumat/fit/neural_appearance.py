@@ -1,0 +1,116 @@
+"""Two-phase training of `neumat.models.neural_appearance.NeuralAppearance` (Zeltner et al. 2024, Sec. 5).
+
+Phase 1 (encoder): surface parameters k(x) of the source (`source.sampling_features`) are encoded to z and
+decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted, x uniform.
+Then `model.bake(source)` writes the encoder's latents into every texel of every pyramid level.
+Phase 2 (latents): the pyramid texels are optimised directly, with the decoders, on filtered targets
+f(wi, wo | x, Sigma) for the footprints of `neumat.fit.footprint_queries` (fine levels drawn more often, as the
+paper's exponentially distributed filter footprints).
+
+Every step also trains the sampling decoder on the same queries: directions drawn from its current proxy are
+scored against the model's current BRDF (no gradient) by the KL divergence, with the latent detached, so the
+sampler does not disturb the BRDF (`neumat.models.proxy_sampler.proxy_kl_loss`). BRDF loss: "log_cos", the
+paper's L1 in log space. Adam; the learning rate halves at 50% and 75% of each phase.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import torch
+
+from ..core.errors import InputError
+from ..core.query import Query
+from ..warp.hemisphere import sample_cosine_hemisphere
+from .footprint_queries import footprint_queries
+from .losses import LogCosLoss
+from .query_samplers import uniform
+
+
+@dataclass
+class NeuralAppearanceFit:
+    """history: {"phase", "step", "brdf loss", "sampler loss"} every `log_every` steps; seconds per phase."""
+
+    history: list[dict]
+    seconds: dict
+
+
+def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps: int = 2000,
+                          batch: int = 4096, lr: float = 3e-3, seed: int = 0, log_every: int = 100,
+                          progress: bool = True) -> NeuralAppearanceFit:
+    """Train `model` (a NeuralAppearance) on the spatially varying `source` in place (module docstring)."""
+    from ..models.neural_appearance import NeuralAppearance
+    from ..models.proxy_sampler import proxy_kl_loss
+
+    if not isinstance(model, NeuralAppearance):
+        raise InputError(f"fit_neural_appearance: expected a NeuralAppearance model, got {type(model).__name__}")
+    if not getattr(source, "spatially_varying", False) or not callable(getattr(source, "sampling_features", None)):
+        raise InputError(f"fit_neural_appearance: the source {type(source).__name__} must be spatially varying and "
+                         "give its surface parameters through sampling_features(q) (e.g. an SVBRDF)")
+    if int(source.sampling_feature_dim) != model.cfg.surface_features:
+        raise InputError(f"fit_neural_appearance: the source gives {source.sampling_feature_dim} surface parameters, "
+                         f"the model's encoder reads {model.cfg.surface_features} (Config.surface_features)")
+    for name, v in (("encoder_steps", encoder_steps), ("latent_steps", latent_steps), ("batch", batch),
+                    ("log_every", log_every)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < (0 if name.endswith("steps") else 1):
+            raise InputError(f"fit_neural_appearance {name}: expected an integer >= "
+                             f"{0 if name.endswith('steps') else 1}, got {v!r}")
+    if not lr > 0:
+        raise InputError(f"fit_neural_appearance lr: expected > 0, got {lr!r}")
+    gen = torch.Generator().manual_seed(seed)
+    brdf_loss = LogCosLoss()
+    draw_filtered = footprint_queries(source)
+    history, seconds = [], {}
+    model.train()
+
+    def phase(name: str, steps: int, params, step_fn) -> None:
+        if steps == 0:
+            return
+        opt = torch.optim.Adam(params, lr=lr)
+        sched = torch.optim.lr_scheduler.MultiStepLR(opt, [steps // 2, 3 * steps // 4], gamma=0.5)
+        iterator = range(steps)
+        if progress:
+            from rich.progress import track
+            iterator = track(iterator, description=f"neural appearance: {name}")
+        start, sums = time.perf_counter(), [0.0, 0.0]
+        for step in iterator:
+            losses = step_fn()
+            opt.zero_grad()
+            sum(losses).backward()
+            opt.step()
+            sched.step()
+            sums = [a + b.item() for a, b in zip(sums, losses)]
+            if (step + 1) % log_every == 0 or step + 1 == steps:
+                count = step % log_every + 1
+                history.append({"phase": name, "step": step + 1, "brdf loss": sums[0] / count,
+                                "sampler loss": sums[1] / count})
+                sums = [0.0, 0.0]
+        seconds[name] = time.perf_counter() - start
+
+    def losses_at(q: Query, z: torch.Tensor, u: torch.Tensor, target: torch.Tensor):
+        pred = model.decode(z, q)
+        lobes = model.sampler.lobes(q.wi, z.detach())
+        kl = proxy_kl_loss(lobes, q.wi, u, lambda wo: model.decode(z.detach(), q.with_wo(wo)), model.name)
+        return brdf_loss(pred, target, q), kl
+
+    def encoder_step():
+        u = uniform(batch, 8, gen, "cpu")
+        q = Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=u[:, 4:6])
+        with torch.no_grad():
+            k = source.sampling_features(q)
+            target = source.eval(q)
+        return losses_at(q, model.encode(k), u[:, 6:8], target)
+
+    def latent_step():
+        q = draw_filtered(batch, gen, "cpu")
+        u = uniform(batch, 2, gen, "cpu")
+        with torch.no_grad():
+            target = source.eval(q)
+        return losses_at(q, model.spatial_latent(q), u, target)
+
+    decoders = [p for n, p in model.named_parameters() if not n.startswith(("spatial.", "encoder."))]
+    phase("encoder", encoder_steps, decoders + list(model.encoder.parameters()), encoder_step)
+    model.bake(source)
+    phase("latents", latent_steps, decoders + list(model.spatial.parameters()), latent_step)
+    model.eval()
+    return NeuralAppearanceFit(history, seconds)
