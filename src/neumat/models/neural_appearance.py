@@ -30,12 +30,12 @@ from neumat.core.errors import InputError
 from neumat.core.material import sample_weight
 from neumat.core.query import Query, Sample
 from neumat.models import neumip
-from neumat.models.proxy_sampler import ProxySampler
+from neumat.models.proxy_sampler import ProxySampler, defensive_pdf, sample_defensive
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
 from neumat.nn.preconditioner import preconditioner_kernel
-from neumat.warp.microfacet_proxy import ProxyLobes, proxy_pdf, sample_proxy
+from neumat.warp.microfacet_proxy import ProxyLobes
 
 
 @dataclass
@@ -90,20 +90,20 @@ class NeuralAppearance(neumip.NeuMIP):
 
     @torch.no_grad()
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
-        """Draw wo given q.wi (and q.uv) and u (N, 2) in [0, 1)^2; weight = eval cos / pdf."""
+        """Draw wo given q.wi (and q.uv) and u (N, 2) in [0, 1)^2 from the proxy with a defensive cosine share
+        (`neumat.models.proxy_sampler.DEFENSIVE`); weight = eval cos / pdf."""
         if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
             raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
         lobes = self.lobes(q)
-        wo = sample_proxy(lobes, q.wi, u.to(q.wi.dtype))
-        wo = wo / wo.norm(dim=-1, keepdim=True)
-        pdf = proxy_pdf(lobes, q.wi, wo)
+        wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype))
+        pdf = defensive_pdf(lobes, q.wi, wo)
         return Sample(wo, pdf, sample_weight(self.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
 
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) of `sample` at q.wo."""
         q.require("wo", who=f"{self.name}.pdf")
-        return proxy_pdf(self.lobes(q), q.wi, q.wo)
+        return defensive_pdf(self.lobes(q), q.wi, q.wo)
 
     # ------------------------------------------------------------------------------ encoder
     def encode(self, k: torch.Tensor) -> torch.Tensor:
