@@ -22,7 +22,8 @@ the shader and do not depend on the driver:
 `GLSLExport.write(folder)` writes `neumat.glsl`, one raw little-endian float32 file per texture (layers x
 height x width x 4) and `manifest.json` (sizes, layers, entry points). `neumat.testing.parity.glsl_eval` runs
 an export on an OpenGL context (EGL, headless) for parity checks. SparseBTF models are handed to
-`neumat.export.glsl_sparse_btf`.
+`neumat.export.glsl_sparse_btf`, the latent-pyramid MLPs (neumip, zeltner, neural-appearance) to
+`neumat.export.glsl_latent_mlp`.
 """
 from __future__ import annotations
 
@@ -243,15 +244,21 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
 
 def export_glsl(model) -> GLSLExport:
     """GLSL source and textures computing `model.eval` (see module docstring). model: a MultiScale (or a
-    configuration of it such as tripleplane), or a SparseBTF (`neumat.export.glsl_sparse_btf`); anything else
-    raises InputError."""
+    configuration of it such as tripleplane), a neumip-family model (`neumat.export.glsl_latent_mlp`, with the
+    neural-appearance sampler), or a SparseBTF (`neumat.export.glsl_sparse_btf`); anything else raises
+    InputError."""
+    from ..models.neumip import NeuMIP
     from ..models.sparse_btf import SparseBTF
     if isinstance(model, SparseBTF):
         from .glsl_sparse_btf import export_sparse_btf
         return export_sparse_btf(model)
+    if isinstance(model, NeuMIP):
+        from .glsl_latent_mlp import export_latent_mlp
+        return export_latent_mlp(model)
     if not isinstance(model, MultiScale):
-        raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane) or a sparse-btf, "
-                         f"got {type(model).__name__} ({getattr(model, 'name', '?')})")
+        raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane), a latent-pyramid MLP "
+                         f"(neumip, zeltner, neural-appearance) or a sparse-btf, got {type(model).__name__} "
+                         f"({getattr(model, 'name', '?')})")
     cfg = model.cfg
     spatial = model.spatial is not None
     gated = spatial and cfg.gating

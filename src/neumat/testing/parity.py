@@ -51,13 +51,26 @@ def opengl_available(backend: str | None = "egl") -> bool:
     return True
 
 
-def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: int = 256) -> torch.Tensor:
+def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: int = 256, entry: str = "eval",
+              u: torch.Tensor | None = None) -> torch.Tensor:
     """Values (N, 3) of the exported material at the queries q (float32, on q's device). Spatially varying
-    exports use q.footprint if given, else q.lod (0 when absent); they need q.uv."""
+    exports use q.footprint if given, else q.lod (0 when absent); they need q.uv. entry "pdf" (density in
+    channel 0) and "sample" (wo for u (N, 2); q.wo unused) call the sampler entry points of exports that
+    have them (with q.footprint)."""
     n = len(q.wi)
     if n == 0:
         return q.wi.new_zeros(0, 3)
-    if export.spatially_varying:
+    if entry not in ("eval", "pdf", "sample"):
+        raise InputError(f"glsl_eval entry: expected 'eval', 'pdf' or 'sample', got {entry!r}")
+    if entry != "eval":
+        q.require("uv", "footprint", who=f"glsl_eval entry {entry!r}")
+        if entry == "sample" and (u is None or u.shape != (n, 2)):
+            raise InputError(f"glsl_eval entry 'sample': expected u of shape ({n}, 2)")
+        fp = "mat2(f.x, f.y, f.y, f.z)"
+        call = ("colour = vec4(neumat_pdf(wi, wo, uv, " + fp + "), 0.0, 0.0, 1.0);" if entry == "pdf" else
+                "colour = vec4(neumat_sample(wi, uv, " + fp + ", wo.xy), 1.0);")
+        mode = 0
+    elif export.spatially_varying:
         q.require("uv", who="glsl_eval (spatially varying export)")
         if q.footprint is not None:
             call, mode = "colour = vec4(neumat_eval(wi, wo, uv, mat2(f.x, f.y, f.y, f.z)), 1.0);", 0
@@ -85,7 +98,7 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
         elif mode == 1 and q.lod is not None:
             filt[:, 3] = q.lod.detach().float().cpu()
         uv = q.uv if export.spatially_varying else torch.zeros(n, 2)
-        inputs = {"q_wi": q.wi, "q_wo": q.wo, "q_uv": uv, "q_filter": filt}
+        inputs = {"q_wi": q.wi, "q_wo": u if entry == "sample" else q.wo, "q_uv": uv, "q_filter": filt}
         program = ctx.program(vertex_shader=_VERTEX,
                               fragment_shader=_FRAGMENT.format(material=export.source, call=call))
         keep = []

@@ -1,0 +1,214 @@
+"""GLSL export of the latent-pyramid + MLP models (`neumat.models.neumip` family: neumip, zeltner,
+neural-appearance), the shader runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7).
+
+Entry points (directions in the local frame, z up; uv texture coordinates; footprint a uv^2 covariance):
+
+    vec3  neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)     // BRDF value, cosine excluded
+    vec3  neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)
+    // neural-appearance only: its importance sampler (proxy + defensive cosine share)
+    vec3  neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)    // wo for u in [0, 1)^2
+    float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)      // its solid-angle density
+
+computing what `model.eval`, `model.sample(q, u).wo` and `model.pdf` compute: the latent z from the same
+anisotropic filtering of the pyramid as the multi-scale export (`neumat.export.glsl`), the learned frames, the
+SiLU MLP with exponential output, and the sampler MLP (ReLU) with the proxy's activations, closed-form sampling
+and density (`neumat.warp.microfacet_proxy`). Decoders are constants in the source; the pyramid is one
+RGBA32F `sampler2DArray` atlas (`neumat_spatial`).
+"""
+from __future__ import annotations
+
+import math
+
+
+from ..core.errors import InputError
+from ..models.neumip import NeuMIP
+from ..warp.microfacet_proxy import MAX_RHO, MIN_ALPHA
+from .glsl import _COMMON, GLSLExport, _floats, _linear, _spatial_reader
+
+
+def _mlp(prefix: str, mlp, source: str, activation: str) -> tuple[list[str], str, str]:
+    """Constants, statements and the name of the output array of an MLP whose input is `source` (an
+    expression in i)."""
+    consts, body, previous = [], "", source
+    layers = mlp.linears()
+    for i, layer in enumerate(layers):
+        consts += [_floats(f"{prefix}{i}_W", layer.weight), _floats(f"{prefix}{i}_B", layer.bias)]
+        body += f"    float {prefix.lower()}{i}[{layer.out_features}];\n" + _linear(
+            f"{prefix}{i}", layer.out_features, layer.in_features, previous, f"{prefix.lower()}{i}")
+        if i < len(layers) - 1:
+            body += f"    for (int o = 0; o < {layer.out_features}; ++o) {prefix.lower()}{i}[o] = " \
+                    f"{activation}({prefix.lower()}{i}[o]);\n"
+        previous = f"{prefix.lower()}{i}[i]"
+    return consts, body, f"{prefix.lower()}{len(layers) - 1}"
+
+
+_SAMPLING = """
+float nm_relu(float x) { return max(x, 0.0); }
+float nm_soft_tanh(float x) { float c = clamp(x, -2.0, 2.0); return c * (1.0 - abs(c) / 4.0); }
+float nm_soft_sinh(float x) { return x * (1.0 + abs(x) / 2.0); }
+
+// concentric disk, lifted (neumat.warp.hemisphere.sample_cosine_hemisphere)
+vec3 nm_cosine(vec2 u) {
+    float a = 2.0 * u.x - 1.0, b = 2.0 * u.y - 1.0;
+    bool first = abs(a) > abs(b);
+    float r = first ? a : b;
+    float phi = first ? 0.785398163 * b / (a == 0.0 ? 1.0 : a) : 1.570796327 - 0.785398163 * a / (b == 0.0 ? 1.0 : b);
+    vec2 p = r * vec2(cos(phi), sin(phi));
+    return vec3(p, sqrt(max(1.0 - dot(p, p), 0.0)));
+}
+
+// Duff et al. 2017 (neumat.core.frames.frame_from_normal)
+void nm_basis(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z), c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+struct NmLobes { float wd; vec2 mud; vec2 alpha; float rho; vec2 mus; };
+
+vec3 nm_diffuse_normal(NmLobes p) { return normalize(vec3(-p.mud, 1.0)); }
+
+vec3 nm_apply_m(NmLobes p, vec3 v) {
+    float s = sqrt(1.0 - p.rho * p.rho);
+    return vec3(p.alpha.x * v.x - p.mus.x * v.z, p.alpha.y * p.rho * v.x + p.alpha.y * s * v.y - p.mus.y * v.z, v.z);
+}
+
+float nm_proxy_pdf(NmLobes p, vec3 wi, vec3 wo) {
+    float pd = max(dot(wo, nm_diffuse_normal(p)), 0.0) / 3.141592654;
+    vec3 h = wi + wo;
+    if (h.z < 0.0) h = -h;
+    float len = length(h);
+    float ps = 0.0;
+    if (len > 1e-12 && h.z > 0.0) {
+        h /= len;
+        float s = sqrt(1.0 - p.rho * p.rho);
+        float px = h.x + p.mus.x * h.z, py = h.y + p.mus.y * h.z;
+        float x = px / p.alpha.x;
+        vec3 v = vec3(x, (py - p.alpha.y * p.rho * x) / (p.alpha.y * s), h.z);
+        float r = length(v);
+        float ph = (v.z / r) / 3.141592654 / (p.alpha.x * p.alpha.y * s) / (r * r * r);
+        float c = abs(dot(wo, h));
+        if (c > 0.0) ps = ph / (4.0 * max(c, 1e-12));
+    }
+    return p.wd * pd + (1.0 - p.wd) * ps;
+}
+
+vec3 nm_proxy_sample(NmLobes p, vec3 wi, vec2 u) {
+    bool diffuse = u.x < p.wd;
+    float u0 = diffuse ? u.x / max(p.wd, 1e-12) : (u.x - p.wd) / max(1.0 - p.wd, 1e-12);
+    vec3 local = nm_cosine(vec2(clamp(u0, 0.0, 1.0 - 1e-7), u.y));
+    if (diffuse) {
+        vec3 n = nm_diffuse_normal(p), t, b;
+        nm_basis(n, t, b);
+        return local.x * t + local.y * b + local.z * n;
+    }
+    vec3 h = normalize(nm_apply_m(p, local));
+    return 2.0 * dot(wi, h) * h - wi;
+}
+"""
+
+
+def export_latent_mlp(model: NeuMIP) -> GLSLExport:
+    """GLSL source and textures of a neumip-family model (module docstring)."""
+    from ..models.neural_appearance import NeuralAppearance
+    from ..models.proxy_sampler import DEFENSIVE
+
+    if not isinstance(model, NeuMIP):
+        raise InputError(f"export_latent_mlp: expected a neumip-family model, got {type(model).__name__}")
+    cfg = model.cfg
+    if cfg.directions != "cartesian":
+        raise InputError(f"export_glsl: {model.name} with {cfg.directions!r} directions has no GLSL export "
+                         "(cartesian only)")
+    ds, zl = cfg.spatial_channels, -(-cfg.spatial_channels // 4)
+    zs = "z[i / 4][i % 4]"
+    src, textures = _spatial_reader(model)
+    parts, consts = [_COMMON, src], []
+    frames = cfg.frames if model.frame is not None else 0
+    decode = ""
+    if frames:
+        consts += [_floats("NM_FRAME_W", model.frame.decode.weight * model.frame.weight_scale),
+                   _floats("NM_FRAME_B", model.frame.decode.bias)]
+        decode += f"    float v[{6 * frames}];\n" + _linear("NM_FRAME", 6 * frames, ds, zs, "v")
+        decode += f"    vec3 di[{frames}], dw[{frames}];\n"
+        decode += f"""    for (int k = 0; k < {frames}; ++k) {{
+        vec3 n = vec3(v[6 * k], v[6 * k + 1], v[6 * k + 2]);
+        n = n / max(length(n), 1e-12);
+        vec3 t = vec3(v[6 * k + 3], v[6 * k + 4], v[6 * k + 5]);
+        t = t - dot(t, n) * n;
+        t = t / max(length(t), 1e-12);
+        vec3 bt = cross(n, t);
+        di[k] = nm_lift(vec3(dot(wi, t), dot(wi, bt), dot(wi, n)));
+        dw[k] = nm_lift(vec3(dot(wo, t), dot(wo, bt), dot(wo, n)));
+    }}
+"""
+        n_dir = 3 * frames
+        direction = (f"(i < {n_dir} ? di[i / 3][i % 3] : dw[(i - {n_dir}) / 3][(i - {n_dir}) % 3])")
+    else:
+        n_dir = 3
+        direction = "(i < 3 ? wi[i] : wo[i - 3])"
+    in_dim = ds + 2 * n_dir
+    decode += f"    float x[{in_dim}];\n    for (int i = 0; i < {ds}; ++i) x[i] = {zs};\n"
+    decode += f"    for (int i = 0; i < {2 * n_dir}; ++i) x[{ds} + i] = {direction};\n"
+    mlp_consts, mlp_body, out = _mlp("NM_L", model.mlp, "x[i]", "nm_silu")
+    consts += mlp_consts
+    decode += mlp_body + f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n"
+    parts.append("\n".join(consts))
+    parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{\n{decode}}}\n")
+    parts.append(f"""
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{zl}];
+    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode(wi, wo, z);
+}}
+
+vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{zl}];
+    nm_spatial_lod(uv, lod, z);
+    return nm_decode(wi, wo, z);
+}}
+""")
+    entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+             "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
+    if isinstance(model, NeuralAppearance):
+        s_consts, s_body, s_out = _mlp("NM_S", model.sampler.mlp, "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])",
+                                       "nm_relu")
+        parts.append(_SAMPLING + "\n".join(s_consts))
+        parts.append(f"""
+NmLobes nm_lobes(vec3 wi, vec4 z[{zl}]) {{
+{s_body}    float r[9];
+    for (int i = 0; i < 9; ++i) r[i] = {s_out}[i];
+    NmLobes p;
+    float top = max(r[0], r[3]);
+    float ed = exp(r[0] - top), es = exp(r[3] - top);
+    p.wd = ed / (ed + es);
+    p.mud = vec2(nm_soft_sinh(r[1]), nm_soft_sinh(r[2]));
+    p.alpha = {MIN_ALPHA:.9e} + (1.0 - {MIN_ALPHA:.9e}) * (vec2(nm_soft_tanh(r[4]), nm_soft_tanh(r[5])) + 1.0) / 2.0;
+    p.rho = {MAX_RHO:.9e} * nm_soft_tanh(r[6]);
+    p.mus = vec2(nm_soft_sinh(r[7]), nm_soft_sinh(r[8]));
+    return p;
+}}
+
+vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u) {{
+    vec4 z[{zl}];
+    nm_spatial_footprint(uv, footprint, z);
+    bool cosine = u.x < {DEFENSIVE:.9e};
+    float u0 = cosine ? u.x / {DEFENSIVE:.9e} : (u.x - {DEFENSIVE:.9e}) / {1 - DEFENSIVE:.9e};
+    vec2 v = vec2(clamp(u0, 0.0, 1.0 - 1e-7), u.y);
+    vec3 wo = cosine ? nm_cosine(v) : nm_proxy_sample(nm_lobes(wi, z), wi, v);
+    return normalize(wo);
+}}
+
+float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    vec4 z[{zl}];
+    nm_spatial_footprint(uv, footprint, z);
+    return {1 - DEFENSIVE:.9e} * nm_proxy_pdf(nm_lobes(wi, z), wi, wo)
+        + {DEFENSIVE:.9e} * max(wo.z, 0.0) / {math.pi:.9e};
+}}
+""")
+        entry += ["vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)",
+                  "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)"]
+    header = f"// neumat GLSL export of a '{model.name}' model; see neumat.export.glsl_latent_mlp.\n"
+    return GLSLExport(header + "\n".join(parts), textures, True, entry)
