@@ -22,3 +22,26 @@ def test_fit_rejects_unknown_model_option(shared_data, tmp_path):
     result = CliRunner().invoke(app, ["fit", str(folder), "--model", "multiscale", "-o", str(tmp_path / "x.nmat"),
                                       "--steps", "1", "--set", "spatial_sise=16"])
     assert result.exit_code != 0 and "spatial_size" in result.output
+
+
+def test_fit_neural_appearance_on_a_texture_set_folder(shared_data, tmp_path):
+    """`neumat fit <texture-set folder> --model neural-appearance`: the two-phase training; the model reloads,
+    evaluates and samples."""
+    import torch
+
+    from neumat import Query
+
+    out = tmp_path / "wood_na.nmat"
+    folder = shared_data / "svbrdf" / "Wood092_1K"
+    args = ["fit", str(folder), "--model", "neural-appearance", "-o", str(out), "--steps", "4", "--quiet",
+            "--source-option", "max_size=32", "--set", "batch_size=64"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    model = load_model(out)
+    assert model.name == "neural-appearance" and model.cfg.spatial_size == 32    # the texture's resolution
+    q = Query(torch.tensor([[0.0, 0.6, 0.8]]), uv=torch.tensor([[0.2, 0.3]]))
+    s = model.sample(q, torch.tensor([[0.3, 0.7]]))
+    assert bool(s.pdf > 0) and torch.isfinite(model.eval(q.with_wo(s.wo))).all()
+    bad = CliRunner().invoke(app, ["fit", str(folder), "--model", "neural-appearance", "-o", str(tmp_path / "x.nmat"),
+                                   "--steps", "1", "--set", "spatial_sise=16"])
+    assert bad.exit_code != 0 and "spatial_size" in bad.output

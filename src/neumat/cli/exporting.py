@@ -12,7 +12,8 @@ def register(app: typer.Typer) -> None:
     app.command("export")(export)
 
 
-def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale model or a sparse-btf"),
+def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale, neumip-family "
+                                        "(neumip, zeltner, neural-appearance) or sparse-btf model"),
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run the shader on N random queries (headless OpenGL) and print "

@@ -33,9 +33,14 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V"),
         out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
     """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file.
-    `--model sparse-btf` codes a BTF (.nbtf) with a dictionary from `neumat fit-dictionary` instead."""
+    `--model sparse-btf` codes a BTF (.nbtf) with a dictionary from `neumat fit-dictionary` instead;
+    `--model neural-appearance` trains in two phases (encoder, then latents; half the steps each, default 4000)."""
     if model == "sparse-btf":
         run_command(lambda: _code_sparse_btf(source, dictionary, tau, out))
+        return
+    if model == "neural-appearance":
+        run_command(lambda: _fit_neural_appearance(source, parse_overrides(set_), steps, seed, quiet,
+                                                   parse_overrides(source_option, "--source-option"), out))
         return
 
     def go():
@@ -57,6 +62,48 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         save_model(result.model, out, recipe=replace(recipe, steps=result.steps), source=source, metrics=metrics)
         print(f"wrote {out} ({result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']})")
     run_command(go)
+
+
+def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed: int | None, quiet: bool,
+                           source_options: dict, out: Path) -> None:
+    """`neumat fit SOURCE --model neural-appearance`: `fit.neural_appearance.fit_neural_appearance` on the CPU.
+    --set takes the model's config fields and batch_size, lr; spatial_size defaults to the texture's size."""
+    import difflib
+    from dataclasses import fields
+
+    import torch
+
+    from ..fit.neural_appearance import fit_neural_appearance
+    from ..io.modelfile import save_model
+    from ..io.open_material import open_material
+    from ..models.neural_appearance import Config, NeuralAppearance
+
+    if out.suffix != ".nmat":
+        raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
+    known = {f.name for f in fields(Config)} | {"batch_size", "lr"}
+    unknown = [k for k in overrides if k not in known]
+    if unknown:
+        hints = {k: difflib.get_close_matches(k, known, n=2) for k in unknown}
+        raise InputError("--set: unknown key(s) " + ", ".join(f"{k!r} (did you mean {' or '.join(h)}?)" if h else
+                                                            repr(k) for k, h in hints.items())
+                         + f" for neural-appearance: {', '.join(sorted(known))}")
+    src = open_material(source, **source_options)
+    config = {k: v for k, v in overrides.items() if k not in ("batch_size", "lr")}
+    size = getattr(getattr(src, "textures", None), "size", None)
+    if "spatial_size" not in config and size is not None:
+        config["spatial_size"] = 1 << (min(size).bit_length() - 1)         # the texture's resolution (paper)
+    torch.manual_seed(0 if seed is None else seed)
+    model = NeuralAppearance(**config)
+    total = 4000 if steps is None else steps
+    result = fit_neural_appearance(model, src, encoder_steps=total // 2, latent_steps=total - total // 2,
+                                   batch=int(overrides.get("batch_size", 4096)), lr=float(overrides.get("lr", 3e-3)),
+                                   seed=0 if seed is None else seed, progress=not quiet)
+    last = result.history[-1] if result.history else {}
+    metrics = {"fit_seconds": result.seconds, "final_brdf_loss": last.get("brdf loss"),
+               "final_sampler_loss": last.get("sampler loss")}
+    save_model(model, out, source=source, metrics=metrics)
+    print(f"wrote {out} (neural-appearance, {model.cfg.spatial_size}^2 latents, {total} steps, "
+          f"{sum(result.seconds.values()):.1f} s, final log_cos {metrics['final_brdf_loss']})")
 
 
 def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out: Path) -> None:
