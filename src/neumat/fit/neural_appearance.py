@@ -2,7 +2,9 @@
 
 Phase 1 (encoder): surface parameters k(x) of the source (`source.sampling_features`) are encoded to z and
 decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted, x uniform.
-Then `model.bake(source)` writes the encoder's latents into every texel of every pyramid level.
+Then `model.bake(source)` writes the encoder's latents into every texel of every pyramid level (with
+encoder_steps = 0 there is no encoder phase and no bake: the latents are optimised from their random
+initialisation, the paper's "direct optimisation" ablation).
 Phase 2 (latents): the pyramid texels are optimised directly, with the decoders, on filtered targets
 f(wi, wo | x, Sigma) for the footprints of `neumat.fit.footprint_queries` (fine levels drawn more often, as the
 paper's exponentially distributed filter footprints).
@@ -110,7 +112,8 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
 
     decoders = [p for n, p in model.named_parameters() if not n.startswith(("spatial.", "encoder."))]
     phase("encoder", encoder_steps, decoders + list(model.encoder.parameters()), encoder_step)
-    model.bake(source)
+    if encoder_steps:
+        model.bake(source)
     phase("latents", latent_steps, decoders + list(model.spatial.parameters()), latent_step)
     model.eval()
     return NeuralAppearanceFit(history, seconds)

@@ -1,0 +1,128 @@
+"""Real-Time Neural Appearance Models on SVBRDF texture sets: the full model against its ablations and the
+zeltner baseline, at equal steps and batch.
+
+    python benchmarks/neural_appearance.py                           # three shared texture sets at 64^2
+    python benchmarks/neural_appearance.py --sets Metal027_1K --size 128 --steps 4000
+
+Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 halved at 50% / 75%):
+  "full"          encoder phase (half the steps), bake, latent phase (`fit_neural_appearance`), 2 frames;
+  "no encoder"    the latents optimised from random values for all the steps (the paper's Fig. 8 ablation);
+  "1 frame"       as "full" with one learned shading frame;
+  "zeltner"       the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
+                  the shared trainer on the same loss, queries (Eq. 9 footprints), steps and batch.
+Scores on held-out queries: "point log_cos" / "point rel L1" at point queries (cosine-weighted wi, wo,
+uniform uv), "filtered log_cos" at Eq. 9 footprints against the SVBRDF's filtered value (256 samples);
+"sampler gain" = rel var of cosine-sampled / model-sampled one-sample albedo estimates at 45 degrees and
+uniform uv (neural-appearance variants). The texture set is read at --size texels (`max_size`).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import replace
+
+import torch
+from rich.console import Console
+from rich.table import Table
+
+from neumat.core.query import Query
+from neumat.fit.footprint_queries import footprint_queries
+from neumat.fit.losses import LogCosLoss
+from neumat.fit.neural_appearance import fit_neural_appearance
+from neumat.fit.query_samplers import uniform
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.io.shared_data import shared_data_dir
+from neumat.metrics.tonemap import LUMINANCE
+from neumat.models.neural_appearance import NeuralAppearance
+from neumat.models.zeltner import Zeltner
+from neumat.reflectance.svbrdf import SVBRDF
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+
+
+def held_out(source, n: int) -> dict:
+    """Point and filtered held-out queries with their targets."""
+    g = torch.Generator().manual_seed(12345)
+    u = uniform(n, 6, g, "cpu")
+    point = Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=u[:, 4:6])
+    filtered = footprint_queries(source)(n, g, "cpu")
+    with torch.no_grad():
+        return {"point": (point, source.eval(point)), "filtered": (filtered, source.eval(filtered))}
+
+
+def scores(model, data: dict) -> dict:
+    loss = LogCosLoss()
+    out = {}
+    with torch.no_grad():
+        q, t = data["point"]
+        p = model.eval(q)
+        out["point log_cos"] = loss(p, t, q).item()
+        out["point rel L1"] = ((p - t).abs().sum() / t.abs().sum()).item()
+        q, t = data["filtered"]
+        out["filtered log_cos"] = loss(model.eval(q), t, q).item()
+    return out
+
+
+def sampler_gain(model, n: int = 100_000) -> float:
+    t = math.radians(45.0)
+    u = torch.rand(n, 4, generator=torch.Generator().manual_seed(7))
+    q = Query(torch.tensor([math.sin(t), 0.0, math.cos(t)]).expand(n, 3), uv=u[:, 2:])
+    lum = torch.tensor(LUMINANCE)
+    with torch.no_grad():
+        cosine = (model.eval(q.with_wo(sample_cosine_hemisphere(u[:, :2]))) @ lum) * math.pi
+        learned = model.sample(q, u[:, :2]).weight @ lum
+    rel = [(x.var() / x.mean() ** 2).item() for x in (cosine, learned)]
+    return rel[0] / rel[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sets", default="Metal027_1K,Leather05_1K_partial,Wood092_1K")
+    ap.add_argument("--size", type=int, default=64)
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--batch", type=int, default=2048)
+    ap.add_argument("--train-samples", type=int, default=16, help="footprint samples of the training targets")
+    ap.add_argument("--queries", type=int, default=4096, help="held-out queries of each kind")
+    args = ap.parse_args()
+    data_dir = shared_data_dir()
+    if data_dir is None:
+        raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
+    rows = []
+    for name in args.sets.split(","):
+        folder = data_dir / "svbrdf" / name
+        train_src = SVBRDF.from_folder(folder, max_size=args.size, samples=args.train_samples)
+        data = held_out(SVBRDF.from_folder(folder, max_size=args.size, samples=256), args.queries)
+        size = 1 << (min(train_src.textures.size).bit_length() - 1)
+        half = args.steps // 2
+        variants = {"full": ({}, half), "no encoder": ({}, 0), "1 frame": ({"frames": 1}, half)}
+        for variant, (config, encoder_steps) in variants.items():
+            torch.manual_seed(0)
+            model = NeuralAppearance(spatial_size=size, **config)
+            t = time.perf_counter()
+            fit_neural_appearance(model, train_src, encoder_steps=encoder_steps,
+                                  latent_steps=args.steps - encoder_steps, batch=args.batch, progress=False)
+            seconds = time.perf_counter() - t
+            rows.append({"set": name, "model": variant, **scores(model, data), "sampler gain": sampler_gain(model),
+                         "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds})
+            print(rows[-1], flush=True)
+        torch.manual_seed(0)
+        baseline = Zeltner(spatial_size=size)
+        recipe = replace(recipe_for("zeltner"), batch_size=args.batch, loss="log_cos", lr_decay_every=0)
+        t = time.perf_counter()
+        fit(baseline, train_src, recipe, steps=args.steps, progress=False)
+        seconds = time.perf_counter() - t
+        rows.append({"set": name, "model": "zeltner", **scores(baseline, data), "sampler gain": float("nan"),
+                     "bytes (fp16)": baseline.size_bytes("fp16"), "FLOPs": baseline.flops(), "fit s": seconds})
+        print(rows[-1], flush=True)
+    table = Table(title=f"neural-appearance on {args.size}^2 texture sets, {args.steps} steps x {args.batch} "
+                        f"({torch.get_num_threads()} threads)")
+    for k in rows[0]:
+        table.add_column(k)
+    for r in rows:
+        table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
+    Console(width=200).print(table)
+
+
+if __name__ == "__main__":
+    main()
