@@ -60,6 +60,17 @@ def test_bake_writes_the_encoder_latents_into_every_level(bumps, precondition):
         torch.testing.assert_close(model.spatial_latent(q1), model.encode(coarse), atol=1e-4, rtol=1e-4)
 
 
+def test_no_encoder_phase_means_no_bake(bumps):
+    """encoder_steps = 0 is the paper's direct-optimisation ablation: the latents keep their initialisation
+    (then train), they are not replaced by the untrained encoder's output."""
+    torch.manual_seed(2)
+    model = NeuralAppearance(spatial_size=SIZE)
+    before = [t.detach().clone() for t in model.spatial.raw]
+    fit_neural_appearance(model, bumps, encoder_steps=0, latent_steps=1, batch=64, progress=False)
+    change = max(float((a - b.detach()).abs().max()) for a, b in zip(before, model.spatial.raw))
+    assert 0 < change < 0.01                                           # one Adam step of lr 3e-3
+
+
 def test_training_fits_the_svbrdf(trained, bumps):
     model, result = trained
     q = _held_out()
