@@ -75,8 +75,9 @@ class NeuralAppearance(neumip.NeuMIP):
         c = self.cfg
         for name in ("surface_features", "encoder_hidden", "encoder_layers", "sampler_hidden", "sampler_layers"):
             v = getattr(c, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < (0 if name.endswith("layers") else 1):
-                raise InputError(f"{self.name}.{name}: expected a positive integer, got {v!r}")
+            lo = 0 if name.endswith("layers") else 1
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise InputError(f"{self.name}.{name}: expected an integer >= {lo}, got {v!r}")
         self.encoder = MLP(c.surface_features, c.encoder_hidden, c.encoder_layers, c.spatial_channels, "silu")
         self.sampler = ProxySampler(features=c.spatial_channels, hidden=c.sampler_hidden,
                                     hidden_layers=c.sampler_layers)
