@@ -232,6 +232,42 @@ void nm_spatial_footprint(vec2 uv, mat2 cov, out vec4 z[{layers}]) {{
     return src, {"neumat_spatial": atlas}
 
 
+def spatial_entry_points(layers: int) -> str:
+    """GLSL of neumat_eval (footprint) and neumat_eval_lod around `nm_decode(wi, wo, z)`, z: `layers` vec4s of
+    the filtered spatial latent; 0 below the horizon."""
+    return f"""
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{layers}];
+    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode(wi, wo, z);
+}}
+
+vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{layers}];
+    nm_spatial_lod(uv, lod, z);
+    return nm_decode(wi, wo, z);
+}}
+"""
+
+
+def mlp_chain(prefix: str, mlp, source: str, activation: str) -> tuple[list[str], str, str]:
+    """Constants (`<prefix><layer>_W / _B`), statements and the name of the output array of an MLP (neumat.nn.mlp)
+    whose input is `source` (an expression in i), `activation` (a GLSL function) after every hidden layer."""
+    consts, body, previous = [], "", source
+    layers = mlp.linears()
+    for i, layer in enumerate(layers):
+        name, array = f"{prefix}{i}", f"{prefix.lower()}{i}"
+        consts += [_floats(f"{name}_W", layer.weight), _floats(f"{name}_B", layer.bias)]
+        body += f"    float {array}[{layer.out_features}];\n" + _linear(name, layer.out_features, layer.in_features,
+                                                                           previous, array)
+        if i < len(layers) - 1:
+            body += f"    for (int o = 0; o < {layer.out_features}; ++o) {array}[o] = {activation}({array}[o]);\n"
+        previous = f"{array}[i]"
+    return consts, body, f"{prefix.lower()}{len(layers) - 1}"
+
+
 def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> str:
     """GLSL statements `target[o] = B[o] + sum_i W[o * in + i] * source(i)` (source: an expression in i)."""
     return f"""    for (int o = 0; o < {out_dim}; ++o) {{
@@ -344,37 +380,15 @@ def export_glsl(model) -> GLSLExport:
                       f"    for (int i = 0; i < {dd}; ++i) x[{dh} + i] = ad[i / 4][i % 4];\n")
         if spatial:
             decode.append(f"    for (int i = 0; i < {ds}; ++i) x[{dh + dd} + i] = {zs};\n")
-    previous = "x"
-    for i, layer in enumerate(mlp):
-        consts += [_floats(f"NM_L{i}_W", layer.weight), _floats(f"NM_L{i}_B", layer.bias)]
-        last = i == len(mlp) - 1
-        act = "" if last else "nm_silu"
-        decode.append(f"    float y{i}[{layer.out_features}];\n"
-                      + _linear(f"NM_L{i}", layer.out_features, layer.in_features, f"{previous}[i]", f"y{i}"))
-        if act:
-            decode.append(f"    for (int o = 0; o < {layer.out_features}; ++o) y{i}[o] = {act}(y{i}[o]);\n")
-        previous = f"y{i}"
-    decode.append(f"    return exp(vec3({previous}[0], {previous}[1], {previous}[2]));\n")
+    mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_silu")
+    consts += mlp_consts
+    decode.append(mlp_body + f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n")
 
     z_param = f", vec4 z[{zl}]" if spatial else ""
     parts.append("\n".join(consts))
     parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo{z_param}) {{\n" + "".join(decode) + "}\n")
     if spatial:
-        parts.append(f"""
-vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
-    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z[{zl}];
-    nm_spatial_footprint(uv, footprint, z);
-    return nm_decode(wi, wo, z);
-}}
-
-vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
-    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z[{zl}];
-    nm_spatial_lod(uv, lod, z);
-    return nm_decode(wi, wo, z);
-}}
-""")
+        parts.append(spatial_entry_points(zl))
     else:
         parts.append("""
 vec3 neumat_eval(vec3 wi, vec3 wo) {

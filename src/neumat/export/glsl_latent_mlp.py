@@ -23,23 +23,7 @@ import math
 from ..core.errors import InputError
 from ..models.neumip import NeuMIP
 from ..warp.microfacet_proxy import MAX_RHO, MIN_ALPHA
-from .glsl import _COMMON, GLSLExport, _floats, _linear, _spatial_reader
-
-
-def _mlp(prefix: str, mlp, source: str, activation: str) -> tuple[list[str], str, str]:
-    """Constants, statements and the name of the output array of an MLP whose input is `source` (an
-    expression in i)."""
-    consts, body, previous = [], "", source
-    layers = mlp.linears()
-    for i, layer in enumerate(layers):
-        consts += [_floats(f"{prefix}{i}_W", layer.weight), _floats(f"{prefix}{i}_B", layer.bias)]
-        body += f"    float {prefix.lower()}{i}[{layer.out_features}];\n" + _linear(
-            f"{prefix}{i}", layer.out_features, layer.in_features, previous, f"{prefix.lower()}{i}")
-        if i < len(layers) - 1:
-            body += f"    for (int o = 0; o < {layer.out_features}; ++o) {prefix.lower()}{i}[o] = " \
-                    f"{activation}({prefix.lower()}{i}[o]);\n"
-        previous = f"{prefix.lower()}{i}[i]"
-    return consts, body, f"{prefix.lower()}{len(layers) - 1}"
+from .glsl import _COMMON, GLSLExport, _floats, _linear, _spatial_reader, mlp_chain, spatial_entry_points
 
 
 _SAMPLING = """
@@ -150,30 +134,16 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     in_dim = ds + 2 * n_dir
     decode += f"    float x[{in_dim}];\n    for (int i = 0; i < {ds}; ++i) x[i] = {zs};\n"
     decode += f"    for (int i = 0; i < {2 * n_dir}; ++i) x[{ds} + i] = {direction};\n"
-    mlp_consts, mlp_body, out = _mlp("NM_L", model.mlp, "x[i]", "nm_silu")
+    mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_silu")
     consts += mlp_consts
     decode += mlp_body + f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n"
     parts.append("\n".join(consts))
     parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{\n{decode}}}\n")
-    parts.append(f"""
-vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
-    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z[{zl}];
-    nm_spatial_footprint(uv, footprint, z);
-    return nm_decode(wi, wo, z);
-}}
-
-vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
-    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z[{zl}];
-    nm_spatial_lod(uv, lod, z);
-    return nm_decode(wi, wo, z);
-}}
-""")
+    parts.append(spatial_entry_points(zl))
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
     if isinstance(model, NeuralAppearance):
-        s_consts, s_body, s_out = _mlp("NM_S", model.sampler.mlp, "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])",
+        s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])",
                                        "nm_relu")
         parts.append(_SAMPLING + "\n".join(s_consts))
         parts.append(f"""
