@@ -3,6 +3,7 @@ zeltner baseline, at equal steps and batch.
 
     python benchmarks/neural_appearance.py                           # three shared texture sets at 64^2
     python benchmarks/neural_appearance.py --sets Metal027_1K --size 128 --steps 4000
+    python benchmarks/neural_appearance.py --speed                   # evaluations / samples per second only
 
 Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 halved at 50% / 75%):
   "full"          encoder phase (half the steps), bake, latent phase (`fit_neural_appearance`), 2 frames;
@@ -15,6 +16,11 @@ Scores on held-out queries: "point log_cos" / "point rel L1" at point queries (c
 uniform uv), "filtered log_cos" at Eq. 9 footprints against the SVBRDF's filtered value (256 samples);
 "sampler gain" = rel var of cosine-sampled / model-sampled one-sample albedo estimates at 45 degrees and
 uniform uv (neural-appearance variants). The texture set is read at --size texels (`max_size`).
+
+--speed: evaluations per second on the CPU instead (no training; speed does not depend on the weights):
+model.eval, model.sample and the SVBRDF reference's point value (`eval_point`) on the same 2^16 point
+queries, and eval with a footprint (anisotropic filtering) against the SVBRDF's filtered value (--train-samples
+positions per footprint; the paper's is 256); best of three.
 """
 from __future__ import annotations
 
@@ -77,6 +83,41 @@ def sampler_gain(model, n: int = 100_000) -> float:
     return rel[0] / rel[1]
 
 
+def rate(fn, n: int) -> float:
+    """Calls of fn() per second times n (best of three, after one warm-up)."""
+    with torch.no_grad():
+        fn()
+        best = min(_timed(fn) for _ in range(3))
+    return n / best
+
+
+def _timed(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def speed_rows(name: str, source, size: int, n: int) -> list[dict]:
+    """--speed: evals / samples per second of the models and of the SVBRDF reference (module docstring)."""
+    g = torch.Generator().manual_seed(3)
+    u = uniform(n, 6, g, "cpu")
+    point = Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=u[:, 4:6])
+    filtered = footprint_queries(source)(n, g, "cpu")
+    models = {"neural-appearance": NeuralAppearance(spatial_size=size), "zeltner": Zeltner(spatial_size=size)}
+    rows = []
+    for label, m in models.items():
+        m.eval()
+        row = {"set": name, "model": label, "eval/s (point)": rate(lambda: m.eval(point), n),
+               "eval/s (footprint)": rate(lambda: m.eval(filtered), n)}
+        row["sample/s"] = rate(lambda: m.sample(point, u[:, :2]), n) if m.can_sample else float("nan")
+        rows.append(row | {"FLOPs": m.flops()})
+    rows.append({"set": name, "model": f"SVBRDF reference ({source.samples} footprint samples)",
+                 "eval/s (point)": rate(lambda: source.eval_point(point.wi, point.wo, point.uv), n),
+                 "eval/s (footprint)": rate(lambda: source.eval(filtered), n),
+                 "sample/s": rate(lambda: source.sample(point, u[:, :2]), n), "FLOPs": float("nan")})
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sets", default="Metal027_1K,Leather05_1K_partial,Wood092_1K")
@@ -85,6 +126,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=2048)
     ap.add_argument("--train-samples", type=int, default=16, help="footprint samples of the training targets")
     ap.add_argument("--queries", type=int, default=4096, help="held-out queries of each kind")
+    ap.add_argument("--speed", action="store_true", help="evaluations per second only (module docstring)")
     args = ap.parse_args()
     data_dir = shared_data_dir()
     if data_dir is None:
@@ -93,8 +135,11 @@ def main() -> None:
     for name in args.sets.split(","):
         folder = data_dir / "svbrdf" / name
         train_src = SVBRDF.from_folder(folder, max_size=args.size, samples=args.train_samples)
-        data = held_out(SVBRDF.from_folder(folder, max_size=args.size, samples=256), args.queries)
         size = 1 << (min(train_src.textures.size).bit_length() - 1)
+        if args.speed:
+            rows += speed_rows(name, train_src, size, 1 << 16)
+            continue
+        data = held_out(SVBRDF.from_folder(folder, max_size=args.size, samples=256), args.queries)
         half = args.steps // 2
         variants = {"full": ({}, half), "no encoder": ({}, 0), "1 frame": ({"frames": 1}, half)}
         for variant, (config, encoder_steps) in variants.items():
@@ -118,8 +163,8 @@ def main() -> None:
             rows.append({"set": name, "model": variant, **scores(baseline, data), "sampler gain": float("nan"),
                          "bytes (fp16)": baseline.size_bytes("fp16"), "FLOPs": baseline.flops(), "fit s": seconds})
             print(rows[-1], flush=True)
-    table = Table(title=f"neural-appearance on {args.size}^2 texture sets, {args.steps} steps x {args.batch} "
-                        f"({torch.get_num_threads()} threads)")
+    what = "speed" if args.speed else f"{args.steps} steps x {args.batch}"
+    table = Table(title=f"neural-appearance on {args.size}^2 texture sets, {what} ({torch.get_num_threads()} threads)")
     for k in rows[0]:
         table.add_column(k)
     for r in rows:
