@@ -143,8 +143,8 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
     if isinstance(model, NeuralAppearance):
-        s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])",
-                                       "nm_relu")
+        sampler_input = "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])"           # [wi, z] as ProxySampler
+        s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, sampler_input, "nm_relu")
         parts.append(_SAMPLING + "\n".join(s_consts))
         parts.append(f"""
 NmLobes nm_lobes(vec3 wi, vec4 z[{zl}]) {{
