@@ -6,6 +6,7 @@ import functools
 import torch
 from torch import nn
 
+from .errors import InputError
 from .query import Query, Sample
 
 
@@ -65,6 +66,13 @@ def _keep_module_eval(evaluate):
         return evaluate(self, *args, **kwargs)
 
     return eval
+
+
+def check_sample_u(q: Query, u) -> torch.Tensor:
+    """The uniform numbers u of `Material.sample(q, u)`: a tensor of shape (len(q), 2), else InputError."""
+    if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
+        raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
+    return u
 
 
 def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:

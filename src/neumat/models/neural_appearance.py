@@ -27,10 +27,9 @@ import torch
 import torch.nn.functional as F
 
 from neumat.core.errors import InputError
-from neumat.core.material import sample_weight
 from neumat.core.query import Query, Sample
 from neumat.models import neumip
-from neumat.models.proxy_sampler import ProxySampler, defensive_pdf, sample_defensive
+from neumat.models.proxy_sampler import ProxySampler, defensive_pdf, draw_sample
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -93,12 +92,7 @@ class NeuralAppearance(neumip.NeuMIP):
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Draw wo given q.wi (and q.uv) and u (N, 2) in [0, 1)^2 from the proxy with a defensive cosine share
         (`neumat.models.proxy_sampler.DEFENSIVE`); weight = eval cos / pdf."""
-        if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
-            raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
-        lobes = self.lobes(q)
-        wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype))
-        pdf = defensive_pdf(lobes, q.wi, wo)
-        return Sample(wo, pdf, sample_weight(self.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
+        return draw_sample(self.lobes(q), q, u, self)
 
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:

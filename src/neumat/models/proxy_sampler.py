@@ -33,7 +33,7 @@ from torch import nn
 
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, sample_weight
+from neumat.core.material import Material, check_sample_u, sample_weight
 from neumat.core.query import Query, Sample
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.nn.mlp import MLP
@@ -57,6 +57,15 @@ def sample_defensive(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor) -> to
 def defensive_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     """Solid-angle density (N,) of `sample_defensive`."""
     return (1 - DEFENSIVE) * proxy_pdf(lobes, wi, wo) + DEFENSIVE * cosine_hemisphere_pdf(wo)
+
+
+def draw_sample(lobes: ProxyLobes, q: Query, u: torch.Tensor, material: Material) -> Sample:
+    """`Material.sample` with the lobes of q: wo from `sample_defensive`, its density and the weight
+    material f cos / pdf."""
+    check_sample_u(q, u)
+    wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype))
+    pdf = defensive_pdf(lobes, q.wi, wo)
+    return Sample(wo, pdf, sample_weight(material.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
 
 
 @dataclass
@@ -120,13 +129,7 @@ class SampledMaterial(Material):
 
     @torch.no_grad()
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
-        if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
-            raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
-        lobes = self.lobes(q)
-        wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype))
-        pdf = defensive_pdf(lobes, q.wi, wo)
-        f = self.material.eval(q.with_wo(wo))
-        return Sample(wo, pdf, sample_weight(f, wo, pdf, pdf > 0))
+        return draw_sample(self.lobes(q), q, u, self.material)
 
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:

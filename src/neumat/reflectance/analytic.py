@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError, UnknownNameError
-from ..core.material import Material, sample_weight
+from ..core.material import Material, check_sample_u, sample_weight
 from ..core.query import Query, Sample
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from ..warp.hemisphere import sample_cosine_hemisphere
@@ -122,8 +122,7 @@ class AnalyticMaterial(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Draw wo given q.wi and u (N, 2) in [0, 1)^2; pdf and weight are 0 where sampling failed."""
-        if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
-            raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
+        check_sample_u(q, u)
         wi = q.wi
         up = (wi[:, 2] > 0).unsqueeze(-1)
         normal = torch.tensor([0.0, 0.0, 1.0], dtype=wi.dtype, device=wi.device)
