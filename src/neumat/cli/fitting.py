@@ -68,9 +68,6 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
                            source_options: dict, out: Path) -> None:
     """`neumat fit SOURCE --model neural-appearance`: `fit.neural_appearance.fit_neural_appearance` on the CPU.
     --set takes the model's config fields and batch_size, lr; spatial_size defaults to the texture's size."""
-    import difflib
-    from dataclasses import fields
-
     import torch
 
     from ..fit.neural_appearance import fit_neural_appearance
@@ -81,12 +78,9 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
     if out.suffix != ".nmat":
         raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
     known = {f.name for f in fields(Config)} | {"batch_size", "lr"}
-    unknown = [k for k in overrides if k not in known]
+    unknown = _unknown_keys(overrides, known)
     if unknown:
-        hints = {k: difflib.get_close_matches(k, known, n=2) for k in unknown}
-        raise InputError("--set: unknown key(s) " + ", ".join(f"{k!r} (did you mean {' or '.join(h)}?)" if h else
-                                                            repr(k) for k, h in hints.items())
-                         + f" for neural-appearance: {', '.join(sorted(known))}")
+        raise InputError(f"--set: unknown key(s) {unknown} for neural-appearance: {', '.join(sorted(known))}")
     src = open_material(source, **source_options)
     config = {k: v for k, v in overrides.items() if k not in ("batch_size", "lr")}
     size = getattr(getattr(src, "textures", None), "size", None)
@@ -125,6 +119,12 @@ def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out:
     print(f"wrote {out} ({model.size_bytes()} bytes, coded in {seconds:.1f} s)")
 
 
+def _unknown_keys(overrides: dict, known: set[str]) -> str:
+    """The keys of `overrides` not in `known`, each with its closest known names ("" when all are known)."""
+    hints = {k: difflib.get_close_matches(k, known, n=2) for k in overrides if k not in known}
+    return "; ".join(f"{k!r}" + (f" (did you mean {', '.join(h)}?)" if h else "") for k, h in hints.items())
+
+
 def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None):
     """A fresh model `model` and its recipe with `overrides` applied (model config fields first, then recipe
     fields; unknown keys raise). The model is initialised after seeding torch with the recipe's seed."""
@@ -139,10 +139,8 @@ def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None)
     config_cls = model_config_class(cls)
     config_keys = {f.name for f in fields(config_cls)}
     recipe_keys = {f.name for f in fields(Recipe)}
-    unknown = [k for k in overrides if k not in config_keys | recipe_keys]
-    if unknown:
-        hints = {k: difflib.get_close_matches(k, config_keys | recipe_keys, n=2) for k in unknown}
-        text = "; ".join(f"{k!r}" + (f" (did you mean {', '.join(h)}?)" if h else "") for k, h in hints.items())
+    text = _unknown_keys(overrides, config_keys | recipe_keys)
+    if text:
         raise InputError(f"--set: unknown key(s) {text}: not a field of {model!r}'s config "
                            f"({', '.join(sorted(config_keys))}) nor of the recipe ({', '.join(sorted(recipe_keys))})")
     recipe = config_from_dict(Recipe, {**config_to_dict(recipe_for(model)),
