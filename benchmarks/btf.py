@@ -49,9 +49,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import torch
-from rich.console import Console
-from rich.table import Table
 
+from neumat.cli.common import print_table
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
@@ -75,12 +74,8 @@ from neumat.testing.parity import glsl_eval, opengl_available
 
 
 def table(title, rows):
-    t = Table(title=title)
-    for k in rows[0]:
-        t.add_column(k)
-    for r in rows:
-        t.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
-    Console(width=320).print(t)
+    """A results table, wide enough for the logs the benchmark is run into."""
+    print_table(title, rows, width=320)
 
 
 PROCEDURAL = ("bumps", "weave", "bricks", "dents", "ridges")

@@ -30,9 +30,7 @@ import time
 from dataclasses import replace
 
 import torch
-from rich.console import Console
-from rich.table import Table
-
+from neumat.cli.common import print_table
 from neumat.core.query import Query
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LogCosLoss
@@ -164,12 +162,8 @@ def main() -> None:
                          "bytes (fp16)": baseline.size_bytes("fp16"), "FLOPs": baseline.flops(), "fit s": seconds})
             print(rows[-1], flush=True)
     what = "speed" if args.speed else f"{args.steps} steps x {args.batch}"
-    table = Table(title=f"neural-appearance on {args.size}^2 texture sets, {what} ({torch.get_num_threads()} threads)")
-    for k in rows[0]:
-        table.add_column(k)
-    for r in rows:
-        table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
-    Console(width=200).print(table)
+    print_table(f"neural-appearance on {args.size}^2 texture sets, {what} ({torch.get_num_threads()} threads)", rows,
+                width=200)
 
 
 if __name__ == "__main__":

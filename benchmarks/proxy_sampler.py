@@ -27,9 +27,7 @@ import time
 from pathlib import Path
 
 import torch
-from rich.console import Console
-from rich.table import Table
-
+from neumat.cli.common import print_table
 from neumat.core.material import Material
 from neumat.core.query import Query
 from neumat.io.open_material import open_material
@@ -104,15 +102,6 @@ def render_figure(spec: str, steps: int, batch: int, spp: int, resolution: int) 
     return rows
 
 
-def print_table(title: str, rows: list[dict]) -> None:
-    table = Table(title=title)
-    for k in rows[0]:
-        table.add_column(k)
-    for r in rows:
-        table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()))
-    Console(width=250).print(table)
-
-
 def default_materials() -> list[str]:
     """The analytic set, the shared RGL BRDFs and two shared PBR texture sets (SVBRDFs) when present."""
     data = shared_data_dir()
@@ -140,7 +129,8 @@ def main() -> None:
     if args.render:
         rows = [r for spec in args.render_material
                 for r in render_figure(spec, args.steps, args.batch, args.render_spp, args.render_size)]
-        print_table("Renders under studio_small_03: direct light, MIS, material strategy from each sampler", rows)
+        print_table("Renders under studio_small_03: direct light, MIS, material strategy from each sampler", rows,
+                    width=250)
     if args.no_table:
         return
     thetas = [float(t) for t in args.thetas.split(",")]
@@ -171,7 +161,7 @@ def main() -> None:
                          "fit s": fit_s})
     print_table(f"Learned proxy sampler vs cosine and own sampling ({args.steps} x {args.batch} fit, "
                 f"{args.samples} samples per cell, {torch.get_num_threads()} threads; sampler MLP "
-                f"{fit.sampler.flops()} FLOPs, {sum(p.numel() for p in fit.sampler.parameters())} parameters)", rows)
+                f"{fit.sampler.flops()} FLOPs, {sum(p.numel() for p in fit.sampler.parameters())} parameters)", rows, width=250)
 
 
 if __name__ == "__main__":

@@ -34,15 +34,16 @@ def parse_overrides(items: list[str] | None, option: str = "--set") -> dict[str,
     return out
 
 
-def print_table(title: str, rows: list[dict[str, Any]]) -> None:
-    """Print rows (dicts with the same keys) as a rich table on stdout."""
+def print_table(title: str, rows: list[dict[str, Any]], width: int | None = None) -> None:
+    """Print rows (dicts with the same keys) as a rich table on stdout, `width` characters wide (default: the
+    terminal's; benchmarks writing logs pass a wide one)."""
     table = Table(title=title)
     keys = list(rows[0]) if rows else []
     for k in keys:
         table.add_column(k)
     for r in rows:
         table.add_row(*(_fmt(r[k]) for k in keys))
-    Console().print(table)
+    Console(width=width).print(table)
 
 
 def print_json(obj: Any) -> None:
