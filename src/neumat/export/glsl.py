@@ -232,6 +232,27 @@ void nm_spatial_footprint(vec2 uv, mat2 cov, out vec4 z[{layers}]) {{
     return src, {"neumat_spatial": atlas}
 
 
+def shading_frames(frame, latent_dim: int, source: str) -> tuple[list[str], str]:
+    """Constants and statements of a `neumat.nn.shading_frames.ShadingFrame` decoded from the latent `source`
+    (an expression in i): wi and wo in every learned frame, lifted, as vec3 arrays di[frames], dw[frames]."""
+    k = frame.frames
+    consts = [_floats("NM_FRAME_W", frame.decode.weight * frame.weight_scale),
+              _floats("NM_FRAME_B", frame.decode.bias)]
+    code = f"    float v[{6 * k}];\n" + _linear("NM_FRAME", 6 * k, latent_dim, source, "v") + f"""    vec3 di[{k}], dw[{k}];
+    for (int k = 0; k < {k}; ++k) {{
+        vec3 n = vec3(v[6 * k], v[6 * k + 1], v[6 * k + 2]);
+        n = n / max(length(n), 1e-12);
+        vec3 t = vec3(v[6 * k + 3], v[6 * k + 4], v[6 * k + 5]);
+        t = t - dot(t, n) * n;
+        t = t / max(length(t), 1e-12);
+        vec3 bt = cross(n, t);
+        di[k] = nm_lift(vec3(dot(wi, t), dot(wi, bt), dot(wi, n)));
+        dw[k] = nm_lift(vec3(dot(wo, t), dot(wo, bt), dot(wo, n)));
+    }}
+"""
+    return consts, code
+
+
 def spatial_entry_points(layers: int) -> str:
     """GLSL of neumat_eval (footprint) and neumat_eval_lod around `nm_decode(wi, wo, z)`, z: `layers` vec4s of
     the filtered spatial latent; 0 below the horizon."""
@@ -317,17 +338,9 @@ def export_glsl(model) -> GLSLExport:
 
     decode = []  # body of nm_decode(wi, wo, z)
     if model.frame is not None:
-        consts += [_floats("NM_FRAME_W", model.frame.decode.weight * model.frame.weight_scale),
-                   _floats("NM_FRAME_B", model.frame.decode.bias)]
-        decode.append("    float v[6];\n" + _linear("NM_FRAME", 6, ds, zs, "v") + """    vec3 n = vec3(v[0], v[1], v[2]);
-    n = n / max(length(n), 1e-12);
-    vec3 t = vec3(v[3], v[4], v[5]);
-    t = t - dot(t, n) * n;
-    t = t / max(length(t), 1e-12);
-    vec3 bt = cross(n, t);
-    wi = nm_lift(vec3(dot(wi, t), dot(wi, bt), dot(wi, n)));
-    wo = nm_lift(vec3(dot(wo, t), dot(wo, bt), dot(wo, n)));
-""")
+        frame_consts, frame_code = shading_frames(model.frame, ds, zs)
+        consts += frame_consts
+        decode.append(frame_code + "    wi = di[0];\n    wo = dw[0];\n")
     else:
         decode.append("    wi = nm_lift(wi);\n    wo = nm_lift(wo);\n")
     decode.append(f"""    vec3 h, d;

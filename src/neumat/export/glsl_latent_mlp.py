@@ -23,7 +23,7 @@ import math
 from ..core.errors import InputError
 from ..models.neumip import NeuMIP
 from ..warp.microfacet_proxy import MAX_RHO, MIN_ALPHA
-from .glsl import _COMMON, GLSLExport, _floats, _linear, _spatial_reader, mlp_chain, spatial_entry_points
+from .glsl import _COMMON, GLSLExport, _spatial_reader, mlp_chain, shading_frames, spatial_entry_points
 
 
 _SAMPLING = """
@@ -111,21 +111,9 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     frames = cfg.frames if model.frame is not None else 0
     decode = ""
     if frames:
-        consts += [_floats("NM_FRAME_W", model.frame.decode.weight * model.frame.weight_scale),
-                   _floats("NM_FRAME_B", model.frame.decode.bias)]
-        decode += f"    float v[{6 * frames}];\n" + _linear("NM_FRAME", 6 * frames, ds, zs, "v")
-        decode += f"    vec3 di[{frames}], dw[{frames}];\n"
-        decode += f"""    for (int k = 0; k < {frames}; ++k) {{
-        vec3 n = vec3(v[6 * k], v[6 * k + 1], v[6 * k + 2]);
-        n = n / max(length(n), 1e-12);
-        vec3 t = vec3(v[6 * k + 3], v[6 * k + 4], v[6 * k + 5]);
-        t = t - dot(t, n) * n;
-        t = t / max(length(t), 1e-12);
-        vec3 bt = cross(n, t);
-        di[k] = nm_lift(vec3(dot(wi, t), dot(wi, bt), dot(wi, n)));
-        dw[k] = nm_lift(vec3(dot(wo, t), dot(wo, bt), dot(wo, n)));
-    }}
-"""
+        frame_consts, frame_code = shading_frames(model.frame, ds, zs)
+        consts += frame_consts
+        decode += frame_code
         n_dir = 3 * frames
         direction = (f"(i < {n_dir} ? di[i / 3][i % 3] : dw[(i - {n_dir}) / 3][(i - {n_dir}) % 3])")
     else:
