@@ -24,6 +24,7 @@ import torch
 from ..core.errors import InputError
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
+from .adam_steps import adam_steps
 from .footprint_queries import footprint_queries
 from .losses import LogCosLoss
 from .query_samplers import uniform
@@ -68,25 +69,10 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
     def phase(name: str, steps: int, params, step_fn) -> None:
         if steps == 0:
             return
-        opt = torch.optim.Adam(params, lr=lr)
-        sched = torch.optim.lr_scheduler.MultiStepLR(opt, [steps // 2, 3 * steps // 4], gamma=0.5)
-        iterator = range(steps)
-        if progress:
-            from rich.progress import track
-            iterator = track(iterator, description=f"neural appearance: {name}")
-        start, sums = time.perf_counter(), [0.0, 0.0]
-        for step in iterator:
-            losses = step_fn()
-            opt.zero_grad()
-            sum(losses).backward()
-            opt.step()
-            sched.step()
-            sums = [a + b.item() for a, b in zip(sums, losses)]
-            if (step + 1) % log_every == 0 or step + 1 == steps:
-                count = step % log_every + 1
-                history.append({"phase": name, "step": step + 1, "brdf loss": sums[0] / count,
-                                "sampler loss": sums[1] / count})
-                sums = [0.0, 0.0]
+        start = time.perf_counter()
+        records = adam_steps(params, steps, lr, step_fn, ("brdf loss", "sampler loss"),
+                             f"neural appearance: {name}", log_every, progress)
+        history.extend({"phase": name, **r} for r in records)
         seconds[name] = time.perf_counter() - start
 
     def losses_at(q: Query, z: torch.Tensor, u: torch.Tensor, target: torch.Tensor):

@@ -35,6 +35,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, check_sample_u, sample_weight
 from neumat.core.query import Query, Sample
+from neumat.fit.adam_steps import adam_steps
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.nn.mlp import MLP
 from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere
@@ -204,26 +205,16 @@ def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: 
                          f"{type(material).__name__} gives {features}")
     sampler.train()
     gen = torch.Generator().manual_seed(seed)
-    opt = torch.optim.Adam(sampler.parameters(), lr=lr)
-    sched = torch.optim.lr_scheduler.MultiStepLR(opt, [steps // 2, 3 * steps // 4], gamma=0.5)
-    history, running, start = [], 0.0, time.perf_counter()
-    iterator = range(steps)
-    if progress:
-        from rich.progress import track
-        iterator = track(iterator, description="fitting the proxy sampler")
-    for step in iterator:
+
+    def step():
         u = torch.rand(batch, 6, generator=gen)
         wi = sample_uniform_hemisphere(u[:, :2])
         q = Query(wi, uv=u[:, 4:] if features else None)
         lobes = sampler.lobes(wi, features_of(material, q))
-        loss = proxy_kl_loss(lobes, wi, u[:, 2:4], lambda wo: material.eval(q.with_wo(wo)), material.describe())
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        running += loss.item()
-        if (step + 1) % log_every == 0 or step + 1 == steps:
-            history.append({"step": step + 1, "loss": running / ((step % log_every) + 1)})
-            running = 0.0
+        return (proxy_kl_loss(lobes, wi, u[:, 2:4], lambda wo: material.eval(q.with_wo(wo)), material.describe()),)
+
+    start = time.perf_counter()
+    history = adam_steps(sampler.parameters(), steps, lr, step, ("loss",), "fitting the proxy sampler", log_every,
+                         progress)
     sampler.eval()
     return SamplerFit(sampler, history, time.perf_counter() - start)
