@@ -29,11 +29,12 @@ import torch.nn.functional as F
 from neumat.core.errors import InputError
 from neumat.core.query import Query, Sample
 from neumat.models import neumip
+from neumat.models.btf_table_queries import texel_centre_uv
 from neumat.models.proxy_sampler import ProxySampler, defensive_pdf, draw_sample
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
-from neumat.nn.preconditioner import preconditioner_kernel
+from neumat.nn.preconditioner import unprecondition
 from neumat.warp.microfacet_proxy import ProxyLobes
 
 
@@ -84,9 +85,7 @@ class NeuralAppearance(neumip.NeuMIP):
     # ------------------------------------------------------------------------------ sampling
     def lobes(self, q: Query) -> ProxyLobes:
         """Proxy parameters at q (uv, footprint / lod as for eval) for q.wi."""
-        with torch.no_grad():
-            z = self.spatial_latent(q)
-        return self.sampler.lobes(q.wi, z)
+        return self.sampler.lobes(q.wi, self.sampling_features(q))
 
     @torch.no_grad()
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
@@ -113,9 +112,7 @@ class NeuralAppearance(neumip.NeuMIP):
         """Fill every pyramid level with the encoder's latents of the source's surface parameters at its texel
         centres (finest level), box-filtered for the coarser levels (Sec. 5.1 step 2)."""
         size = self.cfg.spatial_size
-        centres = (torch.arange(size, dtype=torch.float32) + 0.5) / size
-        v, u = torch.meshgrid(1 - centres, centres, indexing="ij")      # texture row 0 is the top, v = 1
-        uv = torch.stack([u, v], -1).reshape(-1, 2)
+        uv = texel_centre_uv(size, size)
         wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(len(uv), 3)
         k = source.sampling_features(Query(wi, uv=uv)).float()
         if k.shape != (len(uv), self.cfg.surface_features):
@@ -125,16 +122,8 @@ class NeuralAppearance(neumip.NeuMIP):
         for level, raw in enumerate(self.spatial.raw):
             kl = F.avg_pool2d(finest, 1 << level) if level else finest
             z = self.encode(kl[0].reshape(kl.shape[1], -1).t()).t().reshape(raw.shape)
-            raw.copy_(self._unprecondition(z))
-
-    def _unprecondition(self, texture: torch.Tensor) -> torch.Tensor:
-        """Raw parameters whose preconditioned texture is `texture` (C, H, W) (the inverse filter)."""
-        strength = self.cfg.spatial_precondition
-        if not strength:
-            return texture
-        h, w = texture.shape[-2:]
-        kernel = preconditioner_kernel(h, w, strength, texture.dtype, texture.device)
-        return torch.fft.irfft2(torch.fft.rfft2(texture) / kernel, s=(h, w))
+            strength = self.cfg.spatial_precondition
+            raw.copy_(unprecondition(z, strength) if strength else z)
 
     # ------------------------------------------------------------------------------ accounting
     def size_bytes(self, precision: str = "fp16") -> int:
