@@ -35,13 +35,6 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
     """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file.
     `--model sparse-btf` codes a BTF (.nbtf) with a dictionary from `neumat fit-dictionary` instead;
     `--model neural-appearance` trains in two phases (encoder, then latents; half the steps each, default 4000)."""
-    if model == "sparse-btf":
-        run_command(lambda: _code_sparse_btf(source, dictionary, tau, out))
-        return
-    if model == "neural-appearance":
-        run_command(lambda: _fit_neural_appearance(source, parse_overrides(set_), steps, seed, quiet,
-                                                   parse_overrides(source_option, "--source-option"), out))
-        return
 
     def go():
         import torch
@@ -52,6 +45,11 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
 
         if out.suffix != ".nmat":
             raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
+        if model == "sparse-btf":
+            return _code_sparse_btf(source, dictionary, tau, out)
+        if model == "neural-appearance":
+            return _fit_neural_appearance(source, parse_overrides(set_), steps, seed, quiet,
+                                          parse_overrides(source_option, "--source-option"), out)
         m, recipe = build_model_and_recipe(model, parse_overrides(set_), seed)
         src = open_material(source, **parse_overrides(source_option, "--source-option"))
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
@@ -75,8 +73,6 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
     from ..io.open_material import open_material
     from ..models.neural_appearance import Config, NeuralAppearance
 
-    if out.suffix != ".nmat":
-        raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
     known = {f.name for f in fields(Config)} | {"batch_size", "lr"}
     unknown = _unknown_keys(overrides, known)
     if unknown:
@@ -110,8 +106,6 @@ def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out:
 
     if dictionary is None:
         raise InputError("--model sparse-btf needs --dictionary (train one with `neumat fit-dictionary`)")
-    if out.suffix != ".nmat":
-        raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
     t0 = time.perf_counter()
     model = SparseBTF.encode(read_btf(source), BTFDictionary.load(dictionary), None if tau is None else parse_tau(tau))
     seconds = time.perf_counter() - t0
