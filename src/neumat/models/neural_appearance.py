@@ -97,7 +97,7 @@ class NeuralAppearance(neumip.NeuMIP):
     def pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) of `sample` at q.wo."""
         q.require("wo", who=f"{self.name}.pdf")
-        return defensive_pdf(self.lobes(q), q.wi, q.wo)
+        return defensive_pdf(self.lobes(q), q.wi, q.wo, check=False)
 
     # ------------------------------------------------------------------------------ encoder
     def encode(self, k: torch.Tensor) -> torch.Tensor:

@@ -32,6 +32,7 @@ import torch
 from torch import nn
 
 from neumat.core.config import resolve_config
+from neumat.core.checks import check_finite
 from neumat.core.errors import InputError
 from neumat.core.material import Material, check_sample_u, sample_weight
 from neumat.core.query import Query, Sample
@@ -46,26 +47,27 @@ from neumat.warp.microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, 
 DEFENSIVE = 0.05
 
 
-def sample_defensive(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    """wo (N, 3) from (1 - DEFENSIVE) proxy + DEFENSIVE cosine; u (N, 2), u_x picks and is rescaled."""
+def sample_defensive(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor, check: bool = True) -> torch.Tensor:
+    """wo (N, 3) from (1 - DEFENSIVE) proxy + DEFENSIVE cosine; u (N, 2), u_x picks and is rescaled; check as
+    in `sample_proxy`."""
     cosine = u[:, 0] < DEFENSIVE
     u0 = torch.where(cosine, u[:, 0] / DEFENSIVE, (u[:, 0] - DEFENSIVE) / (1 - DEFENSIVE)).clamp(0, 1 - 1e-7)
     v = torch.stack([u0, u[:, 1]], -1)
-    wo = torch.where(cosine[:, None], sample_cosine_hemisphere(v), sample_proxy(lobes, wi, v))
+    wo = torch.where(cosine[:, None], sample_cosine_hemisphere(v), sample_proxy(lobes, wi, v, check))
     return wo / wo.norm(dim=-1, keepdim=True)
 
 
-def defensive_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-    """Solid-angle density (N,) of `sample_defensive`."""
-    return (1 - DEFENSIVE) * proxy_pdf(lobes, wi, wo) + DEFENSIVE * cosine_hemisphere_pdf(wo)
+def defensive_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor, check: bool = True) -> torch.Tensor:
+    """Solid-angle density (N,) of `sample_defensive`; check as in `sample_proxy`."""
+    return (1 - DEFENSIVE) * proxy_pdf(lobes, wi, wo, check) + DEFENSIVE * cosine_hemisphere_pdf(wo)
 
 
 def draw_sample(lobes: ProxyLobes, q: Query, u: torch.Tensor, material: Material) -> Sample:
-    """`Material.sample` with the lobes of q: wo from `sample_defensive`, its density and the weight
-    material f cos / pdf."""
-    check_sample_u(q, u)
-    wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype))
-    pdf = defensive_pdf(lobes, q.wi, wo)
+    """`Material.sample` with the lobes of q (from `proxy_from_raw`): wo from `sample_defensive`, its density and
+    the weight material f cos / pdf. Only u is checked: q's directions and the lobes are valid already."""
+    check_finite(check_sample_u(q, u), "u")
+    wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype), check=False)
+    pdf = defensive_pdf(lobes, q.wi, wo, check=False)
     return Sample(wo, pdf, sample_weight(material.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
 
 
@@ -135,7 +137,7 @@ class SampledMaterial(Material):
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:
         q.require("wo", who="SampledMaterial.pdf")
-        return defensive_pdf(self.lobes(q), q.wi, q.wo)
+        return defensive_pdf(self.lobes(q), q.wi, q.wo, check=False)
 
     def describe(self) -> str:
         return f"{self.material.describe()} + proxy sampler"
@@ -178,12 +180,12 @@ def proxy_kl_loss(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor, brdf, wh
     """KL(f cos / a || p) through its score-function gradient (module docstring): wo (N, 3) drawn from the
     detached `lobes` with u (N, 2), scored against brdf(wo) -> (N, 3), evaluated without gradient."""
     with torch.no_grad():
-        wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u)
+        wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u, check=False)
         wo = wo / wo.norm(dim=-1, keepdim=True)
         target = (brdf(wo).float() @ torch.tensor(LUMINANCE, device=wo.device)).clamp(min=0) * wo[:, 2].clamp(min=0)
         if not bool(torch.isfinite(target).all()):
             raise InputError(f"proxy sampler fit: {who} returned non-finite values")
-    pdf = proxy_pdf(lobes, wi, wo)
+    pdf = proxy_pdf(lobes, wi, wo, check=False)
     ratio = target / pdf.detach().clamp(min=1e-12)
     return -(ratio * pdf.clamp(min=1e-12).log()).mean() / ratio.mean().clamp(min=1e-12)
 

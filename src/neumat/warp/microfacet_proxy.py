@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import torch
 
-from ..core.checks import check_directions, check_finite, check_shape
+from ..core.checks import check_directions, check_finite, check_range, check_shape
 from ..core.errors import InputError
 from ..core.frames import frame_from_normal, to_world
 from ._checks import check_u
@@ -77,8 +77,7 @@ def check_lobes(lobes: ProxyLobes, n: int) -> None:
                            ("rho", lobes.rho, (n,)), ("mu_s", lobes.mu_s, (n, 2))):
         check_shape(t, name, shape)
         check_finite(t, name)
-    if n and not bool(((lobes.w_d >= 0) & (lobes.w_d <= 1)).all()):
-        raise InputError("proxy w_d: mixing weights must lie in [0, 1]")
+    check_range(lobes.w_d, "proxy w_d (mixing weight)", 0.0, 1.0)
     if n and not bool((lobes.alpha > 0).all()):
         raise InputError(f"proxy alpha: roughness must be > 0, got min {lobes.alpha.min().item():.4g}")
     if n and not bool((lobes.rho.abs() < 1).all()):
@@ -111,13 +110,15 @@ def _apply_m_inverse(lobes: ProxyLobes, v: torch.Tensor) -> tuple[torch.Tensor, 
     return torch.stack([x, y, v[:, 2]], -1), 1 / (ax * ay * s)
 
 
-def sample_proxy(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+def sample_proxy(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor, check: bool = True) -> torch.Tensor:
     """Directions wo (N, 3) from the mixture, for wi (N, 3) and u (N, 2) in [0, 1)^2: u_x picks the lobe and is
-    rescaled to [0, 1) for the lobe's own warp."""
-    check_directions(wi, "wi")
-    check_u(u)
-    check_shape(u, "u", (wi.shape[0], 2))
-    check_lobes(lobes, wi.shape[0])
+    rescaled to [0, 1) for the lobe's own warp. check=False skips the input checks, for hot loops whose lobes
+    come from `proxy_from_raw` and whose directions and u are valid by construction."""
+    if check:
+        check_directions(wi, "wi")
+        check_u(u)
+        check_shape(u, "u", (wi.shape[0], 2))
+        check_lobes(lobes, wi.shape[0])
     w_d = lobes.w_d.to(u)
     diffuse = u[:, 0] < w_d
     u0 = torch.where(diffuse, u[:, 0] / w_d.clamp(min=1e-12), (u[:, 0] - w_d) / (1 - w_d).clamp(min=1e-12))
@@ -130,11 +131,12 @@ def sample_proxy(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor) -> torch.
     return torch.where(diffuse[:, None], wo_d, wo_s)
 
 
-def proxy_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-    """Solid-angle density (N,) of `sample_proxy` at wo (N, 3) given wi (N, 3) (Eqs. 8-10)."""
-    check_directions(wi, "wi")
-    check_directions(wo, "wo")
-    check_lobes(lobes, wi.shape[0])
+def proxy_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor, check: bool = True) -> torch.Tensor:
+    """Solid-angle density (N,) of `sample_proxy` at wo (N, 3) given wi (N, 3) (Eqs. 8-10); check as there."""
+    if check:
+        check_directions(wi, "wi")
+        check_directions(wo, "wo")
+        check_lobes(lobes, wi.shape[0])
     p_d = (wo * _diffuse_normal(lobes)).sum(-1).clamp(min=0) / math.pi
     h = wi + wo
     h = torch.where(h[:, 2:] < 0, -h, h)                      # the half vector on the upper side
