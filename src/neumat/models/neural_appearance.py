@@ -91,7 +91,8 @@ class NeuralAppearance(neumip.NeuMIP):
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Draw wo given q.wi (and q.uv) and u (N, 2) in [0, 1)^2 from the proxy with a defensive cosine share
         (`neumat.models.proxy_sampler.DEFENSIVE`); weight = eval cos / pdf."""
-        return draw_sample(self.lobes(q), q, u, self)
+        z = self.sampling_features(q)                       # filtered once, for the lobes and the weights
+        return draw_sample(self.sampler.lobes(q.wi, z), q, u, lambda wo: self.decode(z, q.with_wo(wo)))
 
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import nn
@@ -62,13 +63,14 @@ def defensive_pdf(lobes: ProxyLobes, wi: torch.Tensor, wo: torch.Tensor, check: 
     return (1 - DEFENSIVE) * proxy_pdf(lobes, wi, wo, check) + DEFENSIVE * cosine_hemisphere_pdf(wo)
 
 
-def draw_sample(lobes: ProxyLobes, q: Query, u: torch.Tensor, material: Material) -> Sample:
+def draw_sample(lobes: ProxyLobes, q: Query, u: torch.Tensor, brdf: Callable[[torch.Tensor], torch.Tensor]) -> Sample:
     """`Material.sample` with the lobes of q (from `proxy_from_raw`): wo from `sample_defensive`, its density and
-    the weight material f cos / pdf. Only u is checked: q's directions and the lobes are valid already."""
+    the weight brdf(wo) cos / pdf, brdf(wo) (N, 3) the material's value at q with those wo. Only u is checked:
+    q's directions and the lobes are valid already."""
     check_finite(check_sample_u(q, u), "u")
     wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype), check=False)
     pdf = defensive_pdf(lobes, q.wi, wo, check=False)
-    return Sample(wo, pdf, sample_weight(material.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
+    return Sample(wo, pdf, sample_weight(brdf(wo), wo, pdf, pdf > 0))
 
 
 @dataclass
@@ -132,7 +134,7 @@ class SampledMaterial(Material):
 
     @torch.no_grad()
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
-        return draw_sample(self.lobes(q), q, u, self.material)
+        return draw_sample(self.lobes(q), q, u, lambda wo: self.material.eval(q.with_wo(wo)))
 
     @torch.no_grad()
     def pdf(self, q: Query) -> torch.Tensor:
