@@ -22,6 +22,7 @@ class Query:
     footprint: (N, 2, 2) symmetric positive definite texture-space filter Sigma (uv units^2), or None.
     lod:       (N,) mip level, or None.
     x:         (N, 3) object-space position (translucent objects), or None.
+    n:         (N, 3) unit object-space outward surface normal at x (translucent objects), or None.
     """
 
     wi: torch.Tensor
@@ -30,13 +31,14 @@ class Query:
     footprint: torch.Tensor | None = None
     lod: torch.Tensor | None = None
     x: torch.Tensor | None = None
+    n: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         check_directions(self.wi, "Query.wi")
         n = self.wi.shape[0]
         if self.wo is not None:
             check_directions(self.wo, "Query.wo")
-        shapes = {"wo": (n, 3), "uv": (n, 2), "footprint": (n, 2, 2), "lod": (n,), "x": (n, 3)}
+        shapes = {"wo": (n, 3), "uv": (n, 2), "footprint": (n, 2, 2), "lod": (n,), "x": (n, 3), "n": (n, 3)}
         for name, shape in shapes.items():
             t = getattr(self, name)
             if t is not None:
@@ -46,14 +48,14 @@ class Query:
     @classmethod
     def trusted(cls, wi: torch.Tensor, wo: torch.Tensor | None = None, uv: torch.Tensor | None = None,
                 footprint: torch.Tensor | None = None, lod: torch.Tensor | None = None,
-                x: torch.Tensor | None = None) -> "Query":
+                x: torch.Tensor | None = None, n: torch.Tensor | None = None) -> "Query":
         """A Query built without validation (no shape, finiteness or unit-length checks, no host syncs).
 
         Only for internal hot loops (the renderer) whose tensors are correct by construction; everything
         else should call `Query(...)`.
         """
         q = object.__new__(cls)
-        q.__dict__.update(wi=wi, wo=wo, uv=uv, footprint=footprint, lod=lod, x=x)
+        q.__dict__.update(wi=wi, wo=wo, uv=uv, footprint=footprint, lod=lod, x=x, n=n)
         return q
 
     def __len__(self) -> int:

@@ -23,3 +23,9 @@ from .ggx import (ggx_reflection_pdf, ggx_vndf_pdf, invert_ggx_reflection, inver
 
 __all__ += ["sample_ggx_vndf", "ggx_vndf_pdf", "invert_ggx_vndf",
             "sample_ggx_reflection", "ggx_reflection_pdf", "invert_ggx_reflection"]
+
+# --- azimuthal-equidistant Gaussian lobe (NeuPreSS importance sampling) ---
+from .azimuthal_gaussian import (azimuthal_gaussian_pdf, invert_azimuthal_gaussian,  # noqa: E402
+                                 sample_azimuthal_gaussian)
+
+__all__ += ["sample_azimuthal_gaussian", "azimuthal_gaussian_pdf", "invert_azimuthal_gaussian"]

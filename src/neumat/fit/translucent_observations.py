@@ -1,0 +1,121 @@
+"""Training data for translucent-object models: path-traced observations of S_hat under directional light.
+
+As in NeuPreSS (Sec. 4.2): every image has its own random light direction and a camera orbiting the
+object; only rays that hit the object are kept. An image here is an orthographic view of the object's
+bounding sphere from a direction uniform on the sphere, with jittered pixel positions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..core.errors import DataFormatError, InputError
+from ..core.frames import frame_from_normal
+from ..reflectance.translucent import TranslucentObject
+from ..warp.sphere import sample_uniform_sphere
+
+
+@dataclass
+class Observations:
+    """N observations, all (N, 3) float32 object space: surface point x, outward normal n, view direction
+    wo (towards the camera), light direction wi (towards the light) and the observed S_hat (RGB, 1/sr)."""
+
+    x: torch.Tensor
+    n: torch.Tensor
+    wo: torch.Tensor
+    wi: torch.Tensor
+    value: torch.Tensor
+
+    def __post_init__(self) -> None:
+        n = self.x.shape[0]
+        for f in fields(self):
+            t = getattr(self, f.name)
+            if not isinstance(t, torch.Tensor) or t.shape != (n, 3):
+                raise InputError(f"Observations.{f.name}: expected a tensor of shape ({n}, 3), "
+                                 f"got {getattr(t, 'shape', type(t))}")
+            if not bool(torch.isfinite(t).all()):
+                raise InputError(f"Observations.{f.name} has non-finite values")
+
+    def __len__(self) -> int:
+        return self.x.shape[0]
+
+    def __getitem__(self, index) -> "Observations":
+        return Observations(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+
+    def split(self, fraction: float, seed: int = 0) -> tuple["Observations", "Observations"]:
+        """(rest, held-out) with a random `fraction` of the observations held out."""
+        if not 0 < fraction < 1:
+            raise InputError(f"split fraction: expected a number in (0, 1), got {fraction!r}")
+        perm = torch.randperm(len(self), generator=torch.Generator().manual_seed(seed))
+        k = max(1, int(round(fraction * len(self))))
+        return self[perm[k:]], self[perm[:k]]
+
+    def save(self, path: str | Path) -> None:
+        """Write an .npz file with the five arrays."""
+        np.savez_compressed(path, **{f.name: getattr(self, f.name).numpy() for f in fields(self)})
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Observations":
+        """Read what `save` wrote; missing files or arrays raise."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"observations file {path} does not exist")
+        try:
+            data = np.load(path)
+            arrays = {f.name: torch.from_numpy(np.asarray(data[f.name], dtype=np.float32)) for f in fields(cls)}
+        except (KeyError, ValueError, OSError) as e:
+            raise DataFormatError(f"{path}: not a neumat observations file ({e})") from e
+        return cls(**arrays)
+
+
+def orbit_rays(obj: TranslucentObject, view: torch.Tensor, resolution: int,
+               generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Origins and directions (R^2, 3) float64 of a jittered orthographic view of the bounding sphere from
+    the unit direction `view` (3,) (the camera looks along -view)."""
+    centre = torch.from_numpy((obj.bbox_min + obj.bbox_max) / 2)
+    radius = obj.diagonal / 2
+    t, b = frame_from_normal(view[None].double())
+    u = (torch.arange(resolution, dtype=torch.float64)[:, None] + torch.rand(resolution, resolution, 2,
+                                                                              generator=generator,
+                                                                              dtype=torch.float64)[..., 0])
+    v = (torch.arange(resolution, dtype=torch.float64)[None, :] + torch.rand(resolution, resolution,
+                                                                              generator=generator,
+                                                                              dtype=torch.float64))
+    s = (2 * u / resolution - 1).reshape(-1, 1) * radius
+    r = (2 * v / resolution - 1).reshape(-1, 1) * radius
+    o = centre + 2 * radius * view.double() + s * t + r * b
+    d = (-view.double()).expand_as(o).contiguous()
+    return o, d
+
+
+def collect_observations(obj: TranslucentObject, images: int, resolution: int = 32, spp: int | None = None,
+                         seed: int = 0, progress: bool = False) -> Observations:
+    """Observations from `images` orthographic views (resolution^2 jittered rays each), each with its own
+    light direction uniform on the sphere and camera direction uniform on the sphere; `spp` paths per ray
+    (default: the object's)."""
+    for name, v in (("images", images), ("resolution", resolution)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InputError(f"collect_observations {name}: expected a positive integer, got {v!r}")
+    gen = torch.Generator().manual_seed(int(seed))
+    dirs = sample_uniform_sphere(torch.rand(2 * images, 2, generator=gen, dtype=torch.float64))
+    parts: dict[str, list[torch.Tensor]] = {f.name: [] for f in fields(Observations)}
+    views = range(images)
+    if progress:
+        from rich.progress import track
+        views = track(views, description="path tracing views")
+    for k in views:
+        light, view = dirs[2 * k], dirs[2 * k + 1]
+        o, d = orbit_rays(obj, view, resolution, gen)
+        hit, x, n = obj.first_hits(o, d)
+        if not bool(hit.any()):
+            continue
+        value = obj.trace(o[hit], d[hit], light, spp=spp)
+        m = int(hit.sum())
+        for name, t in (("x", x), ("n", n), ("wo", -d[hit]), ("wi", light.expand(m, 3)), ("value", value)):
+            parts[name].append(t.float())
+    if not parts["x"]:
+        raise InputError("collect_observations: no view hit the object")
+    return Observations(**{name: torch.cat(ts) for name, ts in parts.items()})

@@ -1,0 +1,43 @@
+"""Observations of a path-traced translucent object: geometry of the views, values, file round trip."""
+import numpy as np
+import pytest
+import torch
+
+from neumat import InputError
+from neumat.core.errors import DataFormatError
+from neumat.fit.translucent_observations import Observations, collect_observations
+from tests.mitsuba_util import mitsuba_or_skip
+
+
+@pytest.mark.mitsuba
+def test_collect_observations_on_the_unit_sphere(tmp_path):
+    mitsuba_or_skip()
+    from neumat.reflectance.translucent import TranslucentObject
+    obj = TranslucentObject(spp=4)
+    obs = collect_observations(obj, images=3, resolution=8)
+    assert 0 < len(obs) <= 3 * 64
+    assert torch.allclose(obs.x.norm(dim=-1), torch.ones(len(obs)), atol=1e-5)  # points on the surface
+    assert torch.allclose(obs.n, obs.x, atol=1e-4)  # outward normals of the sphere
+    assert bool(((obs.n * obs.wo).sum(-1) > 0).all())  # seen from outside
+    assert len(torch.unique(obs.wi, dim=0)) == 3  # one light per view
+    assert bool(torch.isfinite(obs.value).all()) and float(obs.value.mean()) > 0
+    obs.save(tmp_path / "o.npz")
+    back = Observations.load(tmp_path / "o.npz")
+    assert torch.equal(back.value, obs.value) and torch.equal(back.x, obs.x)
+    rest, held = obs.split(0.25)
+    assert len(rest) + len(held) == len(obs) and len(held) == round(0.25 * len(obs))
+
+
+def test_observations_bad_input(tmp_path):
+    x = torch.zeros(4, 3)
+    with pytest.raises(InputError, match="Observations.value"):
+        Observations(x=x, n=x, wo=x, wi=x, value=torch.zeros(4, 2))
+    with pytest.raises(InputError, match="non-finite"):
+        Observations(x=x, n=x, wo=x, wi=x, value=torch.full((4, 3), float("nan")))
+    with pytest.raises(InputError, match="does not exist"):
+        Observations.load(tmp_path / "missing.npz")
+    np.savez(tmp_path / "other.npz", x=np.zeros((4, 3)))
+    with pytest.raises(DataFormatError, match="observations"):
+        Observations.load(tmp_path / "other.npz")
+    with pytest.raises(InputError, match="images"):
+        collect_observations(None, images=0)
