@@ -93,8 +93,8 @@ class TranslucentObject(Material):
         self.bbox_max = np.array(box.max, dtype=np.float64)
         self.diagonal = float(np.linalg.norm(self.bbox_max - self.bbox_min))
         sigma_t, albedo = medium_grids(config, self.bbox_min, self.bbox_max)
-        self.scenes = {interior: mi.load_dict(_scene_dict(config, shape, interior, sigma_t, albedo, self.bbox_min,
-                                                          self.bbox_max))
+        self._grids = (sigma_t, albedo, self.bbox_min, self.bbox_max)
+        self.scenes = {interior: mi.load_dict(_scene_dict(config, shape, interior, *self._grids))
                        for interior in ("medium", "black")}
         self._params = {k: mi.traverse(s) for k, s in self.scenes.items()}
         self._light_key = next(k for k in self._params["medium"].keys() if k.startswith("light.") and "to_world" in k)
@@ -169,9 +169,29 @@ class TranslucentObject(Material):
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
         return out
 
-    def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int) -> torch.Tensor:
+    def trace_environment(self, o: torch.Tensor, d: torch.Tensor, image: np.ndarray, seed: int = 0) -> torch.Tensor:
+        """Subsurface radiance (N, 3) float64 along rays o + t d (N, 3), one path each, under the equirectangular
+        environment `image` (H, W, 3) (the mapping of `neumat.render.envmaps`, nearest-texel radiance as
+        `EnvironmentMap` looks it up: each texel is repeated 4 x 4 before Mitsuba's bilinear lookup)."""
+        image = np.asarray(image, dtype=np.float32)
+        if image.ndim != 3 or image.shape[2] != 3 or not np.isfinite(image).all():
+            raise InputError(f"environment image: expected a finite (H, W, 3) array, got shape {image.shape}")
+        fine = np.repeat(np.repeat(image, 4, 0), 4, 1)
+        scenes = {}
+        for interior, scene in self.scenes.items():
+            desc = _scene_dict(self.config, _shape_dict(self.config), interior, *self._grids)
+            desc["light"] = {"type": "envmap", "bitmap": self.mi.Bitmap(fine)}
+            scenes[interior] = self.mi.load_dict(desc)
+        out = torch.zeros(o.shape[0], 3, dtype=torch.float64)
+        for start in range(0, o.shape[0], WAVEFRONT):
+            sl = slice(start, start + WAVEFRONT)
+            out[sl] = (self._radiance("medium", o[sl], d[sl], seed + start, scenes)
+                       - self._radiance("black", o[sl], d[sl], seed + start, scenes))
+        return out
+
+    def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int, scenes=None) -> torch.Tensor:
         mi = self.mi
-        scene = self.scenes[interior]
+        scene = (scenes or self.scenes)[interior]
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed, o.shape[0])
         value, _, _ = scene.integrator().sample(scene, sampler, self._ray(o, d))

@@ -1,0 +1,420 @@
+"""Spherical harmonic PRT from a NeuPreSS-style full-sphere material (TG et al., Sec. 4.3, Eqs. 9-11).
+
+A translucent object's subsurface scattering under distant light, S_hat(wi; x, wo) (1/sr, RGB: radiance
+towards wo at surface point x under a unit-irradiance directional light from wi), is projected per vertex
+and per view direction onto real SH in wi (Eq. 10):
+
+    a_lm(x_v, wo) = integral_{4 pi} S_hat(wi; x_v, wo) Y_lm(wi) dwi,
+
+an environment onto the same basis (Eq. 9), b_lm = integral L_env Y_lm, and the outgoing radiance is the
+per-channel dot product (Eq. 11) L(x_v, wo) = sum_lm a_lm(x_v, wo) b_lm, exact whenever S_hat or L_env is
+band-limited to the stored degree.
+
+View bins. As in the paper ("an even 16 x 64 distribution of wo directions at each vertex"), the
+hemisphere around each vertex normal n is cut into view_theta x view_phi bins of equal solid angle:
+uniform in cos theta and in phi, in the frame (t, b, n) of `neumat.core.frames.frame_from_normal`, phi
+measured from t towards b. Bin (i, j) covers 1 - cos theta in [i, i + 1] / view_theta and phi in
+2 pi [j, j + 1] / view_phi; a_lm is computed at its centre. At render time a_lm at wo is bilinear in the
+continuous bin coordinates
+
+    s = (1 - cos theta) view_theta - 0.5   (clamped to [0, view_theta - 1]),
+    r = phi view_phi / (2 pi) - 0.5        (wrapping: bin view_phi - 1 neighbours bin 0),
+
+which are integers at bin centres; wo below the vertex's horizon (cos theta <= 0) gives radiance 0.
+
+Light quadrature. The paper Monte Carlo samples wi; here a deterministic rule is used, so that the result
+does not depend on a seed and is exact for band-limited transport:
+  "gauss" (default): a product rule, Gauss-Legendre nodes in z = cos theta (object space) times equally
+      spaced phi, n_z = round(sqrt(M / 2)) rings of n_phi = M // n_z points (about M in all, weights
+      w_z 2 pi / n_phi). It integrates every spherical polynomial of degree <= min(2 n_z - 1, n_phi - 1)
+      exactly (degree 43 for M = 1024), so a_lm of an S_hat of SH degree d is exact when 2 d is below that.
+  "fibonacci": M points of a Fibonacci (golden spiral) sphere with equal weights 4 pi / M; uniform point
+      density, but only approximately exact (errors ~1e-5 relative for low-degree integrands at M = 1024).
+"""
+from __future__ import annotations
+
+import json
+import math
+import operator
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from neumat.core.checks import check_directions, check_finite, check_shape
+from neumat.core.errors import DataFormatError, InputError
+from neumat.core.frames import frame_from_normal, to_local, to_world
+from neumat.core.query import Query
+from neumat.nn.codebook import float_bits, storage_bytes
+from neumat.nn.spherical_harmonics import real_sh, sh_count
+
+LIGHT_RULES = ("gauss", "fibonacci")
+FILE_TYPE = "sh-prt"
+
+
+@dataclass
+class PRTConfig:
+    """SH PRT precomputation settings; defaults are the paper's (Sec. 4.3 and 5)."""
+
+    degree: int = 2
+    """SH degree L in wi (the paper: l <= 2, nine coefficients); (L + 1)^2 coefficients per view bin."""
+    view_theta: int = 16
+    """View bins in cos theta on the hemisphere around each vertex normal (the paper: 16)."""
+    view_phi: int = 64
+    """View bins in phi (the paper: 64)."""
+    light_samples: int = 1024
+    """Quadrature directions wi over the sphere for Eq. 10 (about this many for the "gauss" rule)."""
+    light_rule: str = "gauss"
+    """Quadrature rule for wi: "gauss" (Gauss-Legendre x uniform phi) or "fibonacci" (see the module doc)."""
+    batch_size: int = 65536
+    """Material evaluations per batch."""
+
+
+def _positive_int(value, name: str, minimum: int = 1) -> int:
+    try:
+        v = operator.index(value)
+    except TypeError:
+        v = None
+    if v is None or isinstance(value, bool) or v < minimum:
+        raise InputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return v
+
+
+def _check_config(c: PRTConfig) -> PRTConfig:
+    if not isinstance(c, PRTConfig):
+        raise InputError(f"config: expected a PRTConfig, got {type(c).__name__}")
+    _positive_int(c.degree, "PRTConfig.degree", 0)
+    for name in ("view_theta", "view_phi", "light_samples", "batch_size"):
+        _positive_int(getattr(c, name), f"PRTConfig.{name}")
+    if c.light_rule not in LIGHT_RULES:
+        raise InputError(f"PRTConfig.light_rule: expected one of {LIGHT_RULES}, got {c.light_rule!r}")
+    return c
+
+
+# ---- quadrature -----------------------------------------------------------------------------------------------
+def sphere_quadrature(samples: int, rule: str = "gauss", dtype=torch.float64, device=None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Deterministic quadrature over the unit sphere: directions (M, 3) and weights (M,) in steradians (they
+    sum to 4 pi). rule "gauss": Gauss-Legendre in z times uniform phi (M close to `samples`); "fibonacci":
+    exactly `samples` Fibonacci-sphere points with equal weights. See the module docstring."""
+    samples = _positive_int(samples, "samples")
+    if rule not in LIGHT_RULES:
+        raise InputError(f"rule: expected one of {LIGHT_RULES}, got {rule!r}")
+    if rule == "gauss":
+        n_z = max(1, round(math.sqrt(samples / 2)))
+        n_phi = max(1, samples // n_z)
+        z, wz = np.polynomial.legendre.leggauss(n_z)
+        phi = (np.arange(n_phi) + 0.5) * (2 * math.pi / n_phi)
+        zz, pp = np.meshgrid(z, phi, indexing="ij")
+        weights = np.repeat(wz * (2 * math.pi / n_phi), n_phi)
+    else:
+        j = np.arange(samples)
+        zz = 1 - (2 * j + 1) / samples
+        pp = np.remainder(j * math.pi * (3 - math.sqrt(5)), 2 * math.pi)  # golden angle
+        weights = np.full(samples, 4 * math.pi / samples)
+    zz, pp = zz.ravel(), pp.ravel()
+    s = np.sqrt(np.clip(1 - zz * zz, 0, None))
+    d = np.stack([s * np.cos(pp), s * np.sin(pp), zz], -1)
+    return (torch.as_tensor(d, dtype=dtype, device=device), torch.as_tensor(weights, dtype=dtype, device=device))
+
+
+def view_bin_directions(view_theta: int, view_phi: int, dtype=torch.float32, device=None) -> torch.Tensor:
+    """Local-frame (z = normal) centre directions (view_theta, view_phi, 3) of the equal-solid-angle view bins."""
+    view_theta = _positive_int(view_theta, "view_theta")
+    view_phi = _positive_int(view_phi, "view_phi")
+    cos_t = 1 - (torch.arange(view_theta, dtype=torch.float64) + 0.5) / view_theta
+    phi = (torch.arange(view_phi, dtype=torch.float64) + 0.5) * (2 * math.pi / view_phi)
+    sin_t = (1 - cos_t * cos_t).clamp(min=0).sqrt()
+    d = torch.stack([sin_t[:, None] * torch.cos(phi)[None], sin_t[:, None] * torch.sin(phi)[None],
+                     cos_t[:, None].expand(view_theta, view_phi)], -1)
+    return d.to(dtype=dtype, device=device)
+
+
+# ---- lighting coefficients (Eq. 9) -------------------------------------------------------------------------------
+def sh_light_coefficients(env, degree: int, samples: int = 4096, rule: str = "gauss",
+                          texel_subdivision: int = 1) -> torch.Tensor:
+    """b_lm = integral L_env(w) Y_lm(w) dw (Eq. 9), (C, 3) float32 with C = (degree + 1)^2.
+
+    env: an `EnvironmentMap` (integrated over its texels: each texel's radiance times the integral of Y_lm over
+    the texel, by texel_subdivision^2 midpoints uniform in cos theta and phi with equal shares of the texel's
+    exact solid angle; 1 = the texel centre); a `DirectionalLight` (b = E Y_lm(d), its irradiance E from d);
+    any other distant `Light` (its `eval`) or a callable radiance(d (N, 3) float64) -> (N, 3), integrated with
+    `sphere_quadrature(samples, rule)`. Directions are in the light's (world = object) space.
+    """
+    from neumat.render.lights import DirectionalLight, EnvironmentMap, Light, PointLight
+
+    sh_count(degree)  # validates degree
+    degree = operator.index(degree)
+    if isinstance(env, EnvironmentMap):
+        d, w, radiance = _envmap_quadrature(env, _positive_int(texel_subdivision, "texel_subdivision"))
+    elif isinstance(env, DirectionalLight):
+        d = env.direction.double().cpu()[None]
+        return (real_sh(d, degree)[0, :, None] * env.irradiance.double().cpu().expand(3)[None]).float()
+    elif isinstance(env, PointLight):
+        raise InputError("env: a point light is not distant; SH PRT needs distant lighting")
+    elif isinstance(env, Light) or callable(env):
+        fn = env.eval if isinstance(env, Light) else env
+        d, w = sphere_quadrature(samples, rule)
+        radiance = fn(d)
+        if not isinstance(radiance, torch.Tensor):
+            raise InputError(f"env: the radiance callable returned {type(radiance).__name__}, expected a tensor")
+        check_shape(radiance, "env radiance", (d.shape[0], 3))
+        radiance = radiance.double().cpu()
+    else:
+        raise InputError(f"env: expected an EnvironmentMap, a distant Light or a callable radiance(d), "
+                         f"got {type(env).__name__}")
+    check_finite(radiance, "env radiance")
+    return (real_sh(d, degree).T @ (radiance * w[:, None])).float()
+
+
+def _envmap_quadrature(env, k: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Directions (H W k^2, 3), weights and radiance of k x k midpoints per texel of an EnvironmentMap."""
+    h, wd = env.height, env.width
+    sub = (torch.arange(k, dtype=torch.float64) + 0.5) / k
+    edges = torch.cos(torch.arange(h + 1, dtype=torch.float64) * math.pi / h)  # decreasing
+    cos_t = edges[:-1, None] + sub[None] * (edges[1:] - edges[:-1])[:, None]  # (H, k)
+    phi_map = (torch.arange(wd, dtype=torch.float64)[:, None] + sub[None]) * (2 * math.pi / wd)  # (W, k)
+    solid = (edges[:-1] - edges[1:]) * (2 * math.pi / wd) / (k * k)  # (H,) per sub-point
+    ct = cos_t[:, None, :, None].expand(h, wd, k, k)
+    phi = phi_map[None, :, None, :].expand(h, wd, k, k) - env.rotation_rad  # phi_world = phi_map - rotation
+    st = (1 - ct * ct).clamp(min=0).sqrt()
+    d = torch.stack([st * torch.sin(phi), ct, -st * torch.cos(phi)], -1).reshape(-1, 3)
+    w = solid[:, None, None, None].expand(h, wd, k, k).reshape(-1)
+    radiance = env.image.double().cpu()[:, :, None, None, :].expand(h, wd, k, k, 3).reshape(-1, 3)
+    return d, w, radiance
+
+
+# ---- the PRT table ---------------------------------------------------------------------------------------------
+class SHPRT:
+    """Per-vertex, per-view-bin SH transport coefficients a_lm (Eq. 10) and their use (Eq. 11).
+
+    coefficients: (V, view_theta, view_phi, C, 3) float32, C = (degree + 1)^2; points, normals: (V, 3) object-
+    space vertex positions and unit normals (the normals define the view bins). Build with `from_material`.
+    """
+
+    def __init__(self, coefficients: torch.Tensor, points: torch.Tensor, normals: torch.Tensor,
+                 config: PRTConfig | None = None) -> None:
+        cfg = _check_config(PRTConfig() if config is None else config)
+        _check_vertices(points, normals)
+        v = points.shape[0]
+        check_shape(coefficients, "coefficients", (v, cfg.view_theta, cfg.view_phi, sh_count(cfg.degree), 3))
+        if not coefficients.is_floating_point():
+            raise InputError(f"coefficients: expected a floating-point tensor, got {coefficients.dtype}")
+        check_finite(coefficients, "coefficients")
+        self.config = cfg
+        self.coefficients = coefficients.float()
+        device = self.coefficients.device
+        self.points = points.float().to(device)
+        self.normals = normals.float().to(device)
+
+    # ---- properties ------------------------------------------------------------------------------------------
+    @property
+    def degree(self) -> int:
+        return self.config.degree
+
+    @property
+    def num_coefficients(self) -> int:
+        return sh_count(self.config.degree)
+
+    @property
+    def num_vertices(self) -> int:
+        return self.coefficients.shape[0]
+
+    @property
+    def device(self) -> torch.device:
+        return self.coefficients.device
+
+    def to(self, device) -> "SHPRT":
+        """The same table on `device`."""
+        return SHPRT(self.coefficients.to(device), self.points.to(device), self.normals.to(device), self.config)
+
+    def size_bytes(self, precision: str = "fp16") -> int:
+        """Storage of the coefficients at `precision` ("fp16" or "fp32"). Vertex positions and normals are
+        not counted: the mesh holds them."""
+        return storage_bytes(self.coefficients.numel() * float_bits(precision))
+
+    # ---- precomputation (Eq. 10) -----------------------------------------------------------------------------
+    @classmethod
+    def from_material(cls, material, points: torch.Tensor, normals: torch.Tensor, config: PRTConfig | None = None,
+                      progress: bool = False, device=None) -> "SHPRT":
+        """Project `material`'s S_hat onto SH in wi at every vertex and view-bin centre.
+
+        material: a full-sphere material (`full_sphere = True`, e.g. NeuPreSS) whose `eval(Query(wi, wo, x, n))`
+        gives S_hat (N, 3); points, normals (V, 3): object-space vertices and unit normals. Queries are float32
+        on `device` (default: the device of `points`); sums are accumulated in float64.
+        """
+        cfg = _check_config(PRTConfig() if config is None else config)
+        if not callable(getattr(material, "eval", None)):
+            raise InputError(f"material: expected a Material with eval(Query), got {type(material).__name__}")
+        if not getattr(material, "full_sphere", False):
+            raise InputError(f"material: expected a full-sphere material (translucent object, full_sphere = True), "
+                             f"got {type(material).__name__}")
+        _check_vertices(points, normals)
+        device = points.device if device is None else torch.device(device)
+        pts, nrm = points.to(device, torch.float32), normals.to(device, torch.float32)
+        nrm = nrm / nrm.norm(dim=-1, keepdim=True)
+        t, b = frame_from_normal(nrm)
+
+        wi, weights = sphere_quadrature(cfg.light_samples, cfg.light_rule, device=device)
+        basis_w = real_sh(wi, cfg.degree) * weights[:, None]  # (M, C) float64
+        wi = wi.float()
+        m, c = wi.shape[0], basis_w.shape[1]
+        local = view_bin_directions(cfg.view_theta, cfg.view_phi, device=device).reshape(-1, 3)  # (B, 3)
+        n_bins, n_vert = local.shape[0], pts.shape[0]
+        n_pairs = n_vert * n_bins
+        pair_chunk = max(1, cfg.batch_size // m)
+        light_chunk = min(m, cfg.batch_size)
+        out = torch.empty(n_pairs, c, 3, dtype=torch.float32, device=device)
+
+        chunks = range(0, n_pairs, pair_chunk)
+        if progress:
+            from rich.progress import track
+            chunks = track(chunks, description=f"SH PRT ({n_vert} vertices x {n_bins} views)")
+        with torch.no_grad():
+            for p0 in chunks:
+                p = torch.arange(p0, min(p0 + pair_chunk, n_pairs), device=device)
+                v, k = p // n_bins, p % n_bins
+                wo = to_world(local[k], t[v], b[v], nrm[v])
+                wo = wo / wo.norm(dim=-1, keepdim=True)
+                acc = torch.zeros(len(p), c, 3, dtype=torch.float64, device=device)
+                for l0 in range(0, m, light_chunk):
+                    l1 = min(l0 + light_chunk, m)
+                    nl = l1 - l0
+                    q = Query.trusted(wi=wi[l0:l1].repeat(len(p), 1), wo=wo.repeat_interleave(nl, 0),
+                                      x=pts[v].repeat_interleave(nl, 0), n=nrm[v].repeat_interleave(nl, 0))
+                    val = material.eval(q)
+                    if not isinstance(val, torch.Tensor) or tuple(val.shape) != (len(p) * nl, 3):
+                        raise InputError(f"material.eval: expected a ({len(p) * nl}, 3) tensor, got "
+                                         f"{tuple(getattr(val, 'shape', ()))}")
+                    acc += torch.einsum("pmk,mc->pck", val.reshape(len(p), nl, 3).double(), basis_w[l0:l1])
+                out[p0:p0 + len(p)] = acc.float()
+        check_finite(out, "material.eval projections")
+        coeffs = out.reshape(n_vert, cfg.view_theta, cfg.view_phi, c, 3)
+        return cls(coeffs, pts, nrm, cfg)
+
+    # ---- lighting and rendering (Eqs. 9, 11) -------------------------------------------------------------------
+    def light_coefficients(self, env: "EnvironmentMap | Callable[[torch.Tensor], torch.Tensor]",  # noqa: F821
+                           samples: int = 4096, rule: str = "gauss", texel_subdivision: int = 1) -> torch.Tensor:
+        """b_lm (C, 3) of a distant environment at this table's degree (Eq. 9); see `sh_light_coefficients`."""
+        return sh_light_coefficients(env, self.degree, samples, rule, texel_subdivision).to(self.device)
+
+    def coefficients_at(self, vertex_index: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """a_lm (N, C, 3) bilinearly interpolated over the view bins at object-space wo (N, 3) of the vertices
+        `vertex_index` (N,), and a mask (N,) of wo above the vertex's horizon (a is 0 elsewhere)."""
+        vi = self._check_index(vertex_index, "vertex_index")
+        n = vi.shape[0]
+        check_directions(wo, "wo")
+        check_shape(wo, "wo", (n, 3))
+        vi, w = vi.to(self.device), wo.to(self.device, torch.float32)
+        nrm = self.normals[vi]
+        t, b = frame_from_normal(nrm)
+        loc = to_local(w, t, b, nrm)
+        above = loc[:, 2] > 0
+        nt, nphi = self.config.view_theta, self.config.view_phi
+        s = ((1 - loc[:, 2].clamp(0, 1)) * nt - 0.5).clamp(0, nt - 1)
+        phi = torch.remainder(torch.atan2(loc[:, 1], loc[:, 0]), 2 * math.pi)
+        r = phi * (nphi / (2 * math.pi)) - 0.5
+        i0 = s.floor().long().clamp(0, nt - 1)
+        i1 = (i0 + 1).clamp(max=nt - 1)
+        fs = (s - i0).clamp(0, 1)[:, None, None]
+        j0f = r.floor()
+        fr = (r - j0f).clamp(0, 1)[:, None, None]
+        j0 = torch.remainder(j0f.long(), nphi)
+        j1 = torch.remainder(j0 + 1, nphi)
+        a = self.coefficients
+        out = ((1 - fs) * ((1 - fr) * a[vi, i0, j0] + fr * a[vi, i0, j1])
+               + fs * ((1 - fr) * a[vi, i1, j0] + fr * a[vi, i1, j1]))
+        return out * above[:, None, None], above
+
+    def radiance(self, vertex_index: torch.Tensor, wo: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """L(x_v, wo) = sum_lm a_lm(x_v, wo) b_lm per RGB channel (Eq. 11), (N, 3) in wo's dtype; a_lm is
+        bilinear over the view bins (see the module docstring); 0 where wo is below the vertex's horizon."""
+        bb = self._check_b(b)
+        a, _ = self.coefficients_at(vertex_index, wo)
+        return (a * bb[None]).sum(1).to(wo.dtype)
+
+    def radiance_barycentric(self, vertex_indices: torch.Tensor, bary: torch.Tensor, wo: torch.Tensor,
+                             b: torch.Tensor) -> torch.Tensor:
+        """Radiance (N, 3) at points inside triangles: sum_k bary_k radiance(vertex_indices[:, k], wo, b), with
+        vertex_indices (N, 3) long and barycentric weights bary (N, 3)."""
+        vi = self._check_index(vertex_indices, "vertex_indices", (-1, 3))
+        check_shape(bary, "bary", (vi.shape[0], 3))
+        if not bary.is_floating_point():
+            raise InputError(f"bary: expected a floating-point tensor, got {bary.dtype}")
+        check_finite(bary, "bary")
+        check_shape(wo, "wo", (vi.shape[0], 3))
+        bb = self._check_b(b)
+        out = torch.zeros(vi.shape[0], 3, dtype=torch.float32, device=self.device)
+        bw = bary.to(self.device, torch.float32)
+        for k in range(3):
+            a, _ = self.coefficients_at(vi[:, k], wo)
+            out += bw[:, k:k + 1] * (a * bb[None]).sum(1)
+        return out.to(wo.dtype)
+
+    def _check_index(self, idx, name: str, shape: tuple = (-1,)) -> torch.Tensor:
+        check_shape(idx, name, shape)
+        if idx.is_floating_point() or idx.is_complex() or idx.dtype == torch.bool:
+            raise InputError(f"{name}: expected an integer (long) tensor of vertex indices, got {idx.dtype}")
+        if idx.numel() and (int(idx.min()) < 0 or int(idx.max()) >= self.num_vertices):
+            raise InputError(f"{name}: vertex indices must lie in [0, {self.num_vertices}), got "
+                             f"[{int(idx.min())}, {int(idx.max())}]")
+        return idx.long()
+
+    def _check_b(self, b) -> torch.Tensor:
+        check_shape(b, "b", (self.num_coefficients, 3))
+        check_finite(b, "b")
+        return b.to(self.device, torch.float32)
+
+    # ---- files -----------------------------------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write a safetensors file (coefficients, points, normals float32; the config in the JSON metadata)."""
+        from safetensors.torch import save_file
+
+        from neumat import __version__
+        tensors = {"coefficients": self.coefficients.float().cpu().contiguous(),
+                   "points": self.points.float().cpu().contiguous(), "normals": self.normals.float().cpu().contiguous()}
+        header = {"type": FILE_TYPE, "config": asdict(self.config), "neumat_version": __version__}
+        save_file(tensors, str(path), metadata={"neumat": json.dumps(header)})
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path, device=None) -> "SHPRT":
+        """Read a file written by `save`; wrong or inconsistent files raise DataFormatError."""
+        from safetensors import safe_open
+
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"SH PRT file {str(path)!r} does not exist")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                meta = json.loads((f.metadata() or {}).get("neumat", "{}"))
+                tensors = {k: f.get_tensor(k) for k in f.keys()}
+        except Exception as e:
+            raise DataFormatError(f"{path}: not a readable SH PRT file: {type(e).__name__}: {e}") from None
+        if not isinstance(meta, dict) or meta.get("type") != FILE_TYPE:
+            kind = meta.get("type") if isinstance(meta, dict) else None
+            raise DataFormatError(f"{path}: header type {kind!r}, expected {FILE_TYPE!r}")
+        try:
+            known = {f.name for f in fields(PRTConfig)}
+            cfg = PRTConfig(**{k: v for k, v in meta["config"].items() if k in known})
+            return cls(tensors["coefficients"].to(device), tensors["points"].to(device),
+                       tensors["normals"].to(device), cfg)
+        except KeyError as e:
+            raise DataFormatError(f"{path}: missing field {e}") from None
+        except (InputError, TypeError, AttributeError) as e:
+            raise DataFormatError(f"{path}: inconsistent SH PRT file: {e}") from None
+
+
+def _check_vertices(points, normals) -> None:
+    check_shape(points, "points", (-1, 3))
+    if not points.is_floating_point():
+        raise InputError(f"points: expected a floating-point tensor, got {points.dtype}")
+    check_finite(points, "points")
+    if points.shape[0] < 1:
+        raise InputError("points: expected at least one vertex")
+    check_shape(normals, "normals", (points.shape[0], 3))
+    if not normals.is_floating_point():
+        raise InputError(f"normals: expected a floating-point tensor, got {normals.dtype}")
+    check_directions(normals, "normals")
