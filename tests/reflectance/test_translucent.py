@@ -91,16 +91,24 @@ def test_eval_on_surface_back_side_and_off_surface():
 
 
 def test_eval_groups_queries_by_light_direction():
-    """Two interleaved light directions give, per query, what tracing each light alone gives (same seed)."""
-    obj = _object()
+    """Two interleaved light directions give, per query, what tracing each light alone gives: a fresh object
+    with the same seed tracing the lights in eval's (sorted) order draws the same random numbers."""
+    obj, alone_obj = _object(), _object()
     x = torch.nn.functional.normalize(torch.tensor([[0.2, 0.1, 1.0], [0.1, -0.3, 1.0]]), dim=-1)
     wo = x.clone()
-    wi = torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    wi = torch.tensor([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # sorted order: the second light first
     f = obj.eval(Query(wi=wi, wo=wo, x=x))
-    for k in range(2):
-        o = x[k:k + 1].double() + 1e-3 * obj.diagonal * wo[k:k + 1].double()
-        alone = obj.trace(o, -wo[k:k + 1].double(), wi[k].double())
+    for k in (1, 0):
+        o = x[k:k + 1].double() + 1e-3 * alone_obj.diagonal * wo[k:k + 1].double()
+        alone = alone_obj.trace(o, -wo[k:k + 1].double(), wi[k].double())
         assert torch.allclose(f[k].double(), alone[0], rtol=1e-5, atol=1e-8)
+
+
+def test_successive_traces_draw_fresh_random_numbers():
+    obj = _object()
+    o, d = _ray_down(1, x=0.2)
+    light = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    assert not torch.equal(obj.trace(o, d, light, spp=16), obj.trace(o, d, light, spp=16))
 
 
 @pytest.mark.parametrize("kw, match", [(dict(media=("marble", "jam")), "unknown medium"),

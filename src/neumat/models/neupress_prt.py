@@ -29,7 +29,7 @@ does not depend on a seed and is exact for band-limited transport:
       w_z 2 pi / n_phi). It integrates every spherical polynomial of degree <= min(2 n_z - 1, n_phi - 1)
       exactly (degree 43 for M = 1024), so a_lm of an S_hat of SH degree d is exact when 2 d is below that.
   "fibonacci": M points of a Fibonacci (golden spiral) sphere with equal weights 4 pi / M; uniform point
-      density, but only approximately exact (errors ~1e-5 relative for low-degree integrands at M = 1024).
+      density, but not exact: Gram matrix errors of the SH up to degree 4 of ~6e-4 at M = 1024, ~8e-5 at 4096.
 """
 from __future__ import annotations
 

@@ -85,6 +85,7 @@ class TranslucentObject(Material):
         if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
             raise InputError(f"spp: expected a positive integer, got {spp!r}")
         self.spp, self.seed = spp, int(seed)
+        self._calls = 0  # each trace call draws fresh random numbers (seeded by seed and this count)
         self.mi = mi = import_mitsuba()
         shape = _shape_dict(config)
         probe = mi.load_dict({"type": "scene", "shape": shape})
@@ -164,7 +165,7 @@ class TranslucentObject(Material):
             sl = slice(start, min(n, start + rays_per_call))
             oo = o[sl].repeat_interleave(spp, 0)
             dd = d[sl].repeat_interleave(spp, 0)
-            seed = self.seed + start
+            seed = self._next_seed()
             diff = self._radiance("medium", oo, dd, seed) - self._radiance("black", oo, dd, seed)
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
         return out
@@ -185,8 +186,9 @@ class TranslucentObject(Material):
         out = torch.zeros(o.shape[0], 3, dtype=torch.float64)
         for start in range(0, o.shape[0], WAVEFRONT):
             sl = slice(start, start + WAVEFRONT)
-            out[sl] = (self._radiance("medium", o[sl], d[sl], seed + start, scenes)
-                       - self._radiance("black", o[sl], d[sl], seed + start, scenes))
+            call_seed = self._next_seed() + seed
+            out[sl] = (self._radiance("medium", o[sl], d[sl], call_seed, scenes)
+                       - self._radiance("black", o[sl], d[sl], call_seed, scenes))
         return out
 
     def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int, scenes=None) -> torch.Tensor:
@@ -196,6 +198,11 @@ class TranslucentObject(Material):
         sampler.seed(seed, o.shape[0])
         value, _, _ = scene.integrator().sample(scene, sampler, self._ray(o, d))
         return torch.from_numpy(np.array(value, dtype=np.float64).T.copy())
+
+    def _next_seed(self) -> int:
+        """A seed for Mitsuba's sampler not used by an earlier call (paths of different calls independent)."""
+        self._calls += 1
+        return (self.seed * 1_000_003 + self._calls) % (1 << 31)
 
     def _set_light(self, light: torch.Tensor) -> None:
         """Point the directional emitter of both scenes so that light arrives from `light`."""

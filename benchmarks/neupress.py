@@ -1,0 +1,135 @@
+"""NeuPreSS on a path-traced translucent object: held-out error, size, fit time, evaluation speed, and
+environment-lit images against the Mitsuba 3 reference.
+
+    python benchmarks/neupress.py                       # marble/ketchup sphere, defaults below
+    python benchmarks/neupress.py --images 3000 --spp 8 --steps 3000 --image-out benchmarks/results/neupress.png
+
+Data (Sec. 4.2 of the paper, scaled down): --images orthographic views of --res^2 jittered rays, each view with
+its own light direction and camera direction, --spp paths per ray; held-out: --test-images views with their own
+lights at --test-spp paths per ray, traced twice with different seeds so that the noise of the reference itself
+is known ("noise floor": half the mean squared difference of the two traces).
+Variants: "paper" (Fourier G ~ N(18, 1), 7 layers of 128, spherical angles) and "low frequency" (G ~ N(0, 0.5^2)),
+each trained --steps Adam steps of --batch observations (lr 1e-3 halved at 50% / 75%), then the light sampler
+(--sampler-steps). Scores: held-out MSE (linear RGB, 1/sr) and the same relative to the variance of the held-out
+values (1 = no better than their mean).
+Images: --image-res^2 pixels, subsurface radiance only, under the shared forest map (downsampled to 128 x 64):
+the reference with --ref-spp paths per pixel, the models at --render-spp with environment ("light") or model
+("model") importance sampling; MSE against the reference and seconds per image, in the same run.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+from neumat.cli.common import print_table
+from neumat.fit.neupress import fit_neupress, fit_neupress_sampler
+from neumat.fit.translucent_observations import Observations, collect_observations
+from neumat.io.shared_data import shared_data_dir
+from neumat.models.neupress import NeuPreSS
+from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
+from neumat.render.envmaps import read_envmap
+from neumat.render.lights import EnvironmentMap
+from neumat.render.translucent import orbit_camera, render_translucent, render_translucent_reference
+
+VARIANTS = {"paper": {}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.5}}
+
+
+def held_out(obj: TranslucentObject, images: int, res: int, spp: int) -> tuple[Observations, float]:
+    """Held-out observations (mean of two traces) and the noise floor of that mean (its MSE to the truth)."""
+    a = collect_observations(obj, images, res, spp=spp, seed=991)
+    o = a.x.double() + 1e-3 * obj.diagonal * a.wo.double()
+    second = torch.zeros_like(a.value, dtype=torch.float64)
+    for light in torch.unique(a.wi, dim=0):
+        m = (a.wi == light).all(-1)
+        second[m] = obj.trace(o[m], -a.wo[m].double(), light.double(), spp=spp)  # fresh random numbers
+    floor = float(((a.value.double() - second) ** 2).mean() / 4)  # variance of the mean of two traces
+    return Observations(a.x, a.n, a.wo, a.wi, ((a.value.double() + second) / 2).float()), floor
+
+
+def environment(size: int = 128) -> EnvironmentMap:
+    path = shared_data_dir() / "envmap" / "forest_slope_1k.hdr"
+    image = read_envmap(path)
+    h, w = image.shape[:2]
+    small = image[: h - h % (size // 2), : w - w % size].reshape(size // 2, h // (size // 2), size, w // size, 3)
+    return EnvironmentMap(small.mean((1, 3)).astype(np.float32))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--images", type=int, default=1500)
+    p.add_argument("--res", type=int, default=32)
+    p.add_argument("--spp", type=int, default=8)
+    p.add_argument("--test-images", type=int, default=12)
+    p.add_argument("--test-spp", type=int, default=2048)
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--batch", type=int, default=4096)
+    p.add_argument("--sampler-steps", type=int, default=300)
+    p.add_argument("--image-res", type=int, default=32)
+    p.add_argument("--ref-spp", type=int, default=1024)
+    p.add_argument("--render-spp", type=int, default=32)
+    p.add_argument("--image-out", default=None, help="write a comparison PNG here")
+    a = p.parse_args()
+    torch.manual_seed(0)
+    obj = TranslucentObject(TranslucentConfig(), spp=a.spp)
+    t = time.perf_counter()
+    train = collect_observations(obj, a.images, a.res, progress=True)
+    collect_s = time.perf_counter() - t
+    t = time.perf_counter()
+    test, floor = held_out(obj, a.test_images, a.res // 2, a.test_spp)
+    test_s = time.perf_counter() - t
+    paths = len(train) * a.spp
+    print(f"training data: {len(train)} observations x {a.spp} paths in {collect_s:.0f} s "
+          f"({paths / collect_s:.3g} paths/s, 2 traces each: with and without the interior); held-out: "
+          f"{len(test)} x 2 x {a.test_spp} paths in {test_s:.0f} s; held-out variance "
+          f"{float(test.value.var()):.4g}, noise floor {floor:.3g}")
+    bounds = (torch.tensor(obj.bbox_min).float(), torch.tensor(obj.bbox_max).float())
+
+    env = environment()
+    camera = orbit_camera(obj, a.image_res)
+    t = time.perf_counter()
+    reference = render_translucent_reference(obj, env, camera, a.image_res, spp=a.ref_spp)
+    ref_s = time.perf_counter() - t
+    rows, images = [], {"reference": reference}
+    for name, cfg in VARIANTS.items():
+        model = NeuPreSS(**cfg)
+        t = time.perf_counter()
+        hist = fit_neupress(model, train, steps=a.steps, batch=a.batch, bounds=bounds)
+        fit_s = time.perf_counter() - t
+        t = time.perf_counter()
+        kl = fit_neupress_sampler(model, train, steps=a.sampler_steps)
+        sampler_s = time.perf_counter() - t
+        with torch.no_grad():
+            pred = model.raw(test.wi, test.x, test.wo).clamp(min=0)
+            t = time.perf_counter()
+            for _ in range(3):
+                model.raw(test.wi, test.x, test.wo)
+            evals = 3 * len(test) / (time.perf_counter() - t)
+        mse = float(((pred - test.value) ** 2).mean())
+        row = {"variant": name, "held-out MSE": f"{mse:.4g}", "rel. to variance": f"{mse / float(test.value.var()):.3f}",
+               "train MSE (noisy)": f"{hist[-1]['mse']:.4g}", "final KL": f"{kl[-1]['kl']:.3f}",
+               "fit s": f"{fit_s:.0f}+{sampler_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024}
+        for strategy in ("light", "model"):
+            t = time.perf_counter()
+            img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy=strategy)
+            row[f"{strategy} IS s"] = f"{time.perf_counter() - t:.1f}"
+            row[f"{strategy} IS image MSE"] = f"{float(((img - reference) ** 2).mean()):.3g}"
+            images[f"{name}, {strategy} IS"] = img
+        rows.append(row)
+    print_table(f"NeuPreSS, {len(train)} training observations ({a.images} views x {a.spp} spp); reference image "
+                f"{a.ref_spp} spp in {ref_s:.0f} s; image mean {float(reference.mean()):.4g}", rows, width=250)
+    if a.image_out:
+        _save(images, a.image_out)
+
+
+def _save(images: dict, path: str) -> None:
+    from neumat.io.images import write_image_ldr
+    from neumat.metrics.tonemap import tonemap
+    panels = [tonemap(v.numpy(), "aces") for v in images.values()]
+    write_image_ldr(path, np.concatenate(panels, 1))
+    print(f"wrote {path}: " + " | ".join(images))
+
+
+if __name__ == "__main__":
+    main()
