@@ -7,8 +7,8 @@ and per view direction onto real SH in wi (Eq. 10):
     a_lm(x_v, wo) = integral_{4 pi} S_hat(wi; x_v, wo) Y_lm(wi) dwi,
 
 an environment onto the same basis (Eq. 9), b_lm = integral L_env Y_lm, and the outgoing radiance is the
-per-channel dot product (Eq. 11) L(x_v, wo) = sum_lm a_lm(x_v, wo) b_lm, exact whenever S_hat or L_env is
-band-limited to the stored degree.
+per-channel dot product (Eq. 11) L(x_v, wo) = sum_lm a_lm(x_v, wo) b_lm, exact (at view-bin centres) whenever
+S_hat or L_env is band-limited to the stored degree.
 
 View bins. As in the paper ("an even 16 x 64 distribution of wo directions at each vertex"), the
 hemisphere around each vertex normal n is cut into view_theta x view_phi bins of equal solid angle:
@@ -22,12 +22,16 @@ continuous bin coordinates
 
 which are integers at bin centres; wo below the vertex's horizon (cos theta <= 0) gives radiance 0.
 
+Lighting (Eq. 9): an `EnvironmentMap` is integrated texel by texel (its radiance is piecewise constant), with a
+per-texel Gauss-Legendre rule accurate to ~1e-8 for the stored degree; other distant lights or callables use
+the light quadrature below; a directional light projects exactly (b = E Y_lm(d)).
+
 Light quadrature. The paper Monte Carlo samples wi; here a deterministic rule is used, so that the result
 does not depend on a seed and is exact for band-limited transport:
   "gauss" (default): a product rule, Gauss-Legendre nodes in z = cos theta (object space) times equally
       spaced phi, n_z = round(sqrt(M / 2)) rings of n_phi = M // n_z points (about M in all, weights
       w_z 2 pi / n_phi). It integrates every spherical polynomial of degree <= min(2 n_z - 1, n_phi - 1)
-      exactly (degree 43 for M = 1024), so a_lm of an S_hat of SH degree d is exact when 2 d is below that.
+      exactly (degree 43 for M = 1024), so a_lm of an S_hat of SH degree d is exact when d + degree is <= that.
   "fibonacci": M points of a Fibonacci (golden spiral) sphere with equal weights 4 pi / M; uniform point
       density, but not exact: Gram matrix errors of the SH up to degree 4 of ~6e-4 at M = 1024, ~8e-5 at 4096.
 """
@@ -38,7 +42,7 @@ import math
 import operator
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import torch
@@ -49,6 +53,9 @@ from neumat.core.frames import frame_from_normal, to_local, to_world
 from neumat.core.query import Query
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.spherical_harmonics import real_sh, sh_count
+
+if TYPE_CHECKING:
+    from neumat.render.lights import EnvironmentMap, Light
 
 LIGHT_RULES = ("gauss", "fibonacci")
 FILE_TYPE = "sh-prt"
@@ -134,56 +141,89 @@ def view_bin_directions(view_theta: int, view_phi: int, dtype=torch.float32, dev
 
 # ---- lighting coefficients (Eq. 9) -------------------------------------------------------------------------------
 def sh_light_coefficients(env, degree: int, samples: int = 4096, rule: str = "gauss",
-                          texel_subdivision: int = 1) -> torch.Tensor:
+                          texel_nodes: int | None = None) -> torch.Tensor:
     """b_lm = integral L_env(w) Y_lm(w) dw (Eq. 9), (C, 3) float32 with C = (degree + 1)^2.
 
-    env: an `EnvironmentMap` (integrated over its texels: each texel's radiance times the integral of Y_lm over
-    the texel, by texel_subdivision^2 midpoints uniform in cos theta and phi with equal shares of the texel's
-    exact solid angle; 1 = the texel centre); a `DirectionalLight` (b = E Y_lm(d), its irradiance E from d);
-    any other distant `Light` (its `eval`) or a callable radiance(d (N, 3) float64) -> (N, 3), integrated with
-    `sphere_quadrature(samples, rule)`. Directions are in the light's (world = object) space.
+    env: an `EnvironmentMap`: integrated texel by texel, each texel's (constant) radiance times the integral of
+      Y_lm over the texel, by a texel_nodes x texel_nodes Gauss-Legendre rule in (theta, phi) with the sin theta
+      Jacobian (None: the smallest order whose error bound for degree-`degree` SH is below 1e-8 relative:
+      1-2 for ordinary maps, more for tiny ones); texel_nodes = 1 is the texel-centre direction weighted by the
+      texel's exact solid angle (error O(texel size^2));
+    a `DirectionalLight`: b = E Y_lm(d) (irradiance E arriving from d);
+    any other distant `Light` (its `eval`) or a callable radiance(d (N, 3) float64) -> (N, 3): integrated with
+      `sphere_quadrature(samples, rule)`.
+    Directions are in the light's (world = object) space.
     """
     from neumat.render.lights import DirectionalLight, EnvironmentMap, Light, PointLight
 
     sh_count(degree)  # validates degree
     degree = operator.index(degree)
     if isinstance(env, EnvironmentMap):
-        d, w, radiance = _envmap_quadrature(env, _positive_int(texel_subdivision, "texel_subdivision"))
-    elif isinstance(env, DirectionalLight):
+        k = _texel_nodes(env, degree) if texel_nodes is None else _positive_int(texel_nodes, "texel_nodes")
+        return _envmap_coefficients(env, degree, k).float()
+    if isinstance(env, DirectionalLight):
         d = env.direction.double().cpu()[None]
         return (real_sh(d, degree)[0, :, None] * env.irradiance.double().cpu().expand(3)[None]).float()
-    elif isinstance(env, PointLight):
+    if isinstance(env, PointLight):
         raise InputError("env: a point light is not distant; SH PRT needs distant lighting")
-    elif isinstance(env, Light) or callable(env):
-        fn = env.eval if isinstance(env, Light) else env
-        d, w = sphere_quadrature(samples, rule)
-        radiance = fn(d)
-        if not isinstance(radiance, torch.Tensor):
-            raise InputError(f"env: the radiance callable returned {type(radiance).__name__}, expected a tensor")
-        check_shape(radiance, "env radiance", (d.shape[0], 3))
-        radiance = radiance.double().cpu()
-    else:
+    if not (isinstance(env, Light) or callable(env)):
         raise InputError(f"env: expected an EnvironmentMap, a distant Light or a callable radiance(d), "
                          f"got {type(env).__name__}")
+    fn = env.eval if isinstance(env, Light) else env
+    d, w = sphere_quadrature(samples, rule)
+    radiance = fn(d)
+    if not isinstance(radiance, torch.Tensor):
+        raise InputError(f"env: the radiance callable returned {type(radiance).__name__}, expected a tensor")
+    check_shape(radiance, "env radiance", (d.shape[0], 3))
+    radiance = radiance.double().cpu()
     check_finite(radiance, "env radiance")
     return (real_sh(d, degree).T @ (radiance * w[:, None])).float()
 
 
-def _envmap_quadrature(env, k: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Directions (H W k^2, 3), weights and radiance of k x k midpoints per texel of an EnvironmentMap."""
+def _texel_nodes(env, degree: int, tol: float = 1e-8) -> int:
+    """Smallest Gauss-Legendre order n whose error bound (omega h)^2n (n!)^4 / ((2n + 1) ((2n)!)^3) for a
+    band-limit omega = degree + 1 over a texel of side h (radians) is below tol."""
+    h = max(math.pi / env.height, 2 * math.pi / env.width)
+    x = (degree + 1) * h
+    for n in range(1, 17):
+        if x ** (2 * n) * math.factorial(n) ** 4 / ((2 * n + 1) * math.factorial(2 * n) ** 3) < tol:
+            return n
+    return 16
+
+
+def _envmap_coefficients(env, degree: int, k: int, max_points: int = 1 << 20) -> torch.Tensor:
+    """(C, 3) float64 integral of an EnvironmentMap against Y_lm, texel by texel (see `sh_light_coefficients`)."""
     h, wd = env.height, env.width
-    sub = (torch.arange(k, dtype=torch.float64) + 0.5) / k
-    edges = torch.cos(torch.arange(h + 1, dtype=torch.float64) * math.pi / h)  # decreasing
-    cos_t = edges[:-1, None] + sub[None] * (edges[1:] - edges[:-1])[:, None]  # (H, k)
-    phi_map = (torch.arange(wd, dtype=torch.float64)[:, None] + sub[None]) * (2 * math.pi / wd)  # (W, k)
-    solid = (edges[:-1] - edges[1:]) * (2 * math.pi / wd) / (k * k)  # (H,) per sub-point
-    ct = cos_t[:, None, :, None].expand(h, wd, k, k)
-    phi = phi_map[None, :, None, :].expand(h, wd, k, k) - env.rotation_rad  # phi_world = phi_map - rotation
-    st = (1 - ct * ct).clamp(min=0).sqrt()
-    d = torch.stack([st * torch.sin(phi), ct, -st * torch.cos(phi)], -1).reshape(-1, 3)
-    w = solid[:, None, None, None].expand(h, wd, k, k).reshape(-1)
-    radiance = env.image.double().cpu()[:, :, None, None, :].expand(h, wd, k, k, 3).reshape(-1, 3)
-    return d, w, radiance
+    theta_edges = torch.arange(h + 1, dtype=torch.float64) * (math.pi / h)
+    if k == 1:  # texel centres with exact solid angles
+        nodes, node_w = torch.tensor([0.5], dtype=torch.float64), torch.ones(1, dtype=torch.float64)
+        cos_e = torch.cos(theta_edges)
+        row_w = cos_e[:-1] - cos_e[1:]  # (H,) integral of sin theta over each row
+    else:
+        x, wx = np.polynomial.legendre.leggauss(k)
+        nodes, node_w = torch.as_tensor((x + 1) / 2), torch.as_tensor(wx / 2)  # on [0, 1], weights sum to 1
+        row_w = None
+    theta = theta_edges[:-1, None] + nodes[None] * (math.pi / h)  # (H, k)
+    phi = (torch.arange(wd, dtype=torch.float64)[:, None] + nodes[None]) * (2 * math.pi / wd) - env.rotation_rad
+    sin_p, cos_p = torch.sin(phi).reshape(-1), torch.cos(phi).reshape(-1)  # (W k,)
+    phi_w = node_w.repeat(wd) * (2 * math.pi / wd)  # (W k,)
+    image = env.image.double().cpu()
+    out = torch.zeros(sh_count(degree), 3, dtype=torch.float64)
+    rows = max(1, max_points // (wd * k * k))
+    for r0 in range(0, h, rows):
+        r1 = min(r0 + rows, h)
+        th = theta[r0:r1].reshape(-1)  # (R k,)
+        if row_w is None:
+            th_w = (node_w[None] * torch.sin(theta[r0:r1]) * (math.pi / h)).reshape(-1)
+        else:
+            th_w = row_w[r0:r1].repeat_interleave(k)
+        st, ct = torch.sin(th)[:, None], torch.cos(th)[:, None]
+        d = torch.stack([st * sin_p[None], ct.expand(-1, len(sin_p)), -st * cos_p[None]], -1).reshape(-1, 3)
+        w = (th_w[:, None] * phi_w[None]).reshape(-1)
+        # radiance of each node: its texel's, rows (R, k) x columns (W, k)
+        rad = image[r0:r1, None, :, None, :].expand(-1, k, -1, k, -1).reshape(-1, 3)
+        out += real_sh(d, degree).T @ (rad * w[:, None])
+    return out
 
 
 # ---- the PRT table ---------------------------------------------------------------------------------------------
@@ -295,10 +335,10 @@ class SHPRT:
         return cls(coeffs, pts, nrm, cfg)
 
     # ---- lighting and rendering (Eqs. 9, 11) -------------------------------------------------------------------
-    def light_coefficients(self, env: "EnvironmentMap | Callable[[torch.Tensor], torch.Tensor]",  # noqa: F821
-                           samples: int = 4096, rule: str = "gauss", texel_subdivision: int = 1) -> torch.Tensor:
+    def light_coefficients(self, env: EnvironmentMap | Light | Callable[[torch.Tensor], torch.Tensor],
+                           samples: int = 4096, rule: str = "gauss", texel_nodes: int | None = None) -> torch.Tensor:
         """b_lm (C, 3) of a distant environment at this table's degree (Eq. 9); see `sh_light_coefficients`."""
-        return sh_light_coefficients(env, self.degree, samples, rule, texel_subdivision).to(self.device)
+        return sh_light_coefficients(env, self.degree, samples, rule, texel_nodes).to(self.device)
 
     def coefficients_at(self, vertex_index: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """a_lm (N, C, 3) bilinearly interpolated over the view bins at object-space wo (N, 3) of the vertices
