@@ -107,9 +107,11 @@ def main() -> None:
                 model.raw(test.wi, test.x, test.wo)
             evals = 3 * len(test) / (time.perf_counter() - t)
         mse = float(((pred - test.value) ** 2).mean())
-        row = {"variant": name, "held-out MSE": f"{mse:.4g}", "rel. to variance": f"{mse / float(test.value.var()):.3f}",
+        row = {"variant": name, "held-out MSE": f"{mse:.4g}",
+               "rel. to variance": f"{mse / float(test.value.var()):.3f}",
                "train MSE (noisy)": f"{hist[-1]['mse']:.4g}", "final KL": f"{kl[-1]['kl']:.3f}",
-               "fit s": f"{fit_s:.0f}+{sampler_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024}
+               "fit s": f"{fit_s:.0f}+{sampler_s:.0f}", "evals/s": f"{evals:.3g}",
+               "KB fp32": model.size_bytes() // 1024}
         for strategy in ("light", "model"):
             t = time.perf_counter()
             img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy=strategy)
