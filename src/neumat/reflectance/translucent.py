@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from ..core.checks import check_directions, check_finite, check_shape
-from ..core.errors import DataFormatError, InputError
+from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
 from ..render.scenes import import_mitsuba
@@ -291,14 +291,3 @@ def _up(w: torch.Tensor) -> list[float]:
 def _np3(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().cpu().numpy().astype(np.float32).T)
 
-
-def read_translucent_config(data: dict) -> TranslucentConfig:
-    """A TranslucentConfig from a plain dict; unknown keys raise DataFormatError."""
-    known = set(TranslucentConfig.__dataclass_fields__)
-    unknown = set(data) - known
-    if unknown:
-        raise DataFormatError(f"translucent config: unknown keys {sorted(unknown)}; known: {sorted(known)}")
-    kw = dict(data)
-    if "media" in kw:
-        kw["media"] = tuple(kw["media"])
-    return TranslucentConfig(**kw)
