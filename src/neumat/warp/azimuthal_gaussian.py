@@ -20,25 +20,15 @@ import math
 
 import torch
 
-from ..core.checks import check_directions, check_finite, check_shape
+from ..core.checks import check_directions
 from ..core.errors import InputError
 from ..core.frames import frame_from_normal, to_local, to_world
-from ._checks import check_u
+from ._checks import check_u, lobe_parameters
 
 
 def _prepare(n: int, axis, sigma, ref: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Broadcast axis to (N, 3) and sigma to (N,) on the device/dtype of `ref`; check them."""
-    axis = torch.as_tensor(axis, dtype=ref.dtype, device=ref.device)
-    if axis.dim() == 1:
-        check_shape(axis, "axis", (3,))
-        axis = axis.expand(n, 3)
-    check_directions(axis, "axis")
-    check_shape(axis, "axis", (n, 3))
-    sigma = torch.as_tensor(sigma, dtype=ref.dtype, device=ref.device)
-    if sigma.dim() == 0:
-        sigma = sigma.expand(n)
-    check_shape(sigma, "sigma", (n,))
-    check_finite(sigma, "sigma")
+    axis, sigma = lobe_parameters(n, axis, sigma, ref, "axis", "sigma")
     if n and sigma.min().item() <= 0:
         raise InputError(f"sigma: standard deviation must be > 0, got {sigma.min().item():.4g}")
     return axis, sigma

@@ -9,10 +9,10 @@ import math
 
 import torch
 
-from ..core.checks import check_directions, check_finite, check_shape
+from ..core.checks import check_directions
 from ..core.errors import InputError
 from ..core.frames import frame_from_normal, to_local, to_world
-from ._checks import check_u
+from ._checks import check_u, lobe_parameters
 
 #: below this kappa (0, subnormals) the lobe is the uniform sphere; the expm1 forms are exact above it
 _KAPPA_UNIFORM = 1e-20
@@ -20,17 +20,7 @@ _KAPPA_UNIFORM = 1e-20
 
 def _prepare(n: int, mu, kappa, ref: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Broadcast mu to (N, 3) and kappa to (N,) on the device/dtype of `ref`."""
-    mu = torch.as_tensor(mu, dtype=ref.dtype, device=ref.device)
-    if mu.dim() == 1:
-        check_shape(mu, "mu", (3,))
-        mu = mu.expand(n, 3)
-    check_directions(mu, "mu")
-    check_shape(mu, "mu", (n, 3))
-    kappa = torch.as_tensor(kappa, dtype=ref.dtype, device=ref.device)
-    if kappa.dim() == 0:
-        kappa = kappa.expand(n)
-    check_shape(kappa, "kappa", (n,))
-    check_finite(kappa, "kappa")
+    mu, kappa = lobe_parameters(n, mu, kappa, ref, "mu", "kappa")
     if n and kappa.min().item() < 0:
         raise InputError(f"kappa: concentration must be >= 0, got {kappa.min().item():.4g}")
     return mu, kappa
