@@ -42,5 +42,12 @@ def check_range(t: torch.Tensor, name: str, lo: float, hi: float) -> torch.Tenso
     return t
 
 
+def check_int(v, name: str, lo: int = 1) -> int:
+    """Check that `v` is an int (not a bool) no smaller than `lo`. Returns `v`."""
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise InputError(f"{name}: expected an integer >= {lo}, got {v!r}")
+    return v
+
+
 def _fmt(shape: tuple) -> str:
     return "(" + ", ".join("N" if s == -1 else str(s) for s in shape) + ")"

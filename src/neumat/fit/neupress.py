@@ -7,8 +7,8 @@ import math
 
 import torch
 
+from ..core.checks import check_int
 from ..core.coords import spherical_to_dir
-from ..core.errors import InputError
 from ..models.neupress import NeuPreSS
 from ..warp.azimuthal_gaussian import azimuthal_gaussian_pdf
 from .adam_steps import adam_steps
@@ -87,5 +87,4 @@ def fit_neupress_sampler(model: NeuPreSS, observations: Observations, steps: int
 
 def _check_steps(steps: int, batch: int) -> None:
     for name, v in (("steps", steps), ("batch", batch)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InputError(f"NeuPreSS fit {name}: expected a positive integer, got {v!r}")
+        check_int(v, f"NeuPreSS fit {name}")

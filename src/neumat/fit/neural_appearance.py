@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
@@ -55,9 +56,7 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
                          f"the model's encoder reads {model.cfg.surface_features} (Config.surface_features)")
     for name, v in (("encoder_steps", encoder_steps), ("latent_steps", latent_steps), ("batch", batch),
                     ("log_every", log_every)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < (0 if name.endswith("steps") else 1):
-            raise InputError(f"fit_neural_appearance {name}: expected an integer >= "
-                             f"{0 if name.endswith('steps') else 1}, got {v!r}")
+        check_int(v, f"fit_neural_appearance {name}", 0 if name.endswith("steps") else 1)
     if not lr > 0:
         raise InputError(f"fit_neural_appearance lr: expected > 0, got {lr!r}")
     gen = torch.Generator().manual_seed(seed)

@@ -10,6 +10,7 @@ import importlib
 import math
 from dataclasses import dataclass, replace
 
+from ..core.checks import check_int
 from ..core.errors import InputError, UnknownNameError
 
 
@@ -57,9 +58,7 @@ def check_recipe(r: Recipe) -> Recipe:
     """Raise InputError naming the first invalid field of `r`; returns `r`."""
     for name, lo in (("steps", 0), ("batch_size", 1), ("lr_decay_every", 0), ("log_every", 1),
                      ("checkpoint_every", 1)):
-        v = getattr(r, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"Recipe.{name}: expected an integer >= {lo}, got {v!r}")
+        check_int(getattr(r, name), f"Recipe.{name}", lo)
     for name in ("lr", "eps", "lr_decay", "ema", "grad_clip", "lr_min"):
         v = getattr(r, name)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:

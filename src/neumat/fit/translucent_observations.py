@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..core.checks import check_int
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal
 from ..reflectance.translucent import TranslucentObject
@@ -97,8 +98,7 @@ def collect_observations(obj: TranslucentObject, images: int, resolution: int = 
     light direction uniform on the sphere and camera direction uniform on the sphere; `spp` paths per ray
     (default: the object's)."""
     for name, v in (("images", images), ("resolution", resolution)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InputError(f"collect_observations {name}: expected a positive integer, got {v!r}")
+        check_int(v, f"collect_observations {name}")
     gen = torch.Generator().manual_seed(int(seed))
     dirs = sample_uniform_sphere(torch.rand(2 * images, 2, generator=gen, dtype=torch.float64))
     parts: dict[str, list[torch.Tensor]] = {f.name: [] for f in fields(Observations)}

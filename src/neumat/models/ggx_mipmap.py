@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.frames import frame_from_normal_tangent, to_local
@@ -73,9 +74,7 @@ class GGXMipmap(nn.Module, Material):
         nn.Module.__init__(self)
         cfg = resolve_config(Config, config, kwargs, self.name)
         for name in ("spatial_size", "max_probes"):
-            v = getattr(cfg, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise InputError(f"ggx-mipmap.{name}: expected a positive integer, got {v!r}")
+            check_int(getattr(cfg, name), f"ggx-mipmap.{name}")
         if cfg.spatial_size & (cfg.spatial_size - 1):
             raise InputError(f"ggx-mipmap.spatial_size: expected a power of two, got {cfg.spatial_size}")
         for name in ("init_albedo", "init_f0", "init_alpha"):

@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
@@ -95,9 +96,7 @@ def _check_config(c: Config) -> None:
     for name, lo in (("spatial_channels", 1), ("spatial_size", 1), ("half_channels", 1), ("diff_channels", 1),
                      ("angular_radial", 2), ("angular_phi", 1), ("hidden", 1), ("hidden_layers", 0),
                      ("warp_terms", 1), ("max_probes", 1)):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"multiscale.{name}: expected an integer >= {lo}, got {v!r}")
+        check_int(getattr(c, name), f"multiscale.{name}", lo)
     if c.spatial_size & (c.spatial_size - 1):
         raise InputError(f"multiscale.spatial_size: expected a power of two, got {c.spatial_size}")
     if isinstance(c.init_log_value, bool) or not isinstance(c.init_log_value, (int, float)) or not math.isfinite(

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
-from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.registry import MODELS
@@ -34,9 +34,7 @@ class Config:
 
 def _check_config(c: Config) -> None:
     for name, lo in (("hidden", 1), ("hidden_layers", 0)):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"NaiveMLP.{name}: expected an integer >= {lo}, got {v!r}")
+        check_int(getattr(c, name), f"NaiveMLP.{name}", lo)
 
 
 @MODELS.register("naive-mlp")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.coords import io_to_hd
 from neumat.core.errors import InputError
@@ -45,9 +46,7 @@ class Config:
 
 def _check_config(c: Config) -> None:
     for name, lo in (("hidden", 1), ("hidden_layers", 0)):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"NBRDF.{name}: expected an integer >= {lo}, got {v!r}")
+        check_int(getattr(c, name), f"NBRDF.{name}", lo)
     if c.output not in OUTPUTS:
         raise InputError(f"NBRDF.output: expected one of {', '.join(OUTPUTS)}, got {c.output!r}")
     if not c.init_range > 0:

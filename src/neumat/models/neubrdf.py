@@ -15,17 +15,17 @@ from dataclasses import dataclass, replace
 import torch
 from torch import nn
 
-from neumat.core.checks import check_directions
+from neumat.core.checks import check_directions, check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
 from neumat.nn.latent_texture import bilinear, trilinear
-from neumat.nn.row_adam import RowAdam
-from neumat.models.registry import MODELS
 from neumat.nn.mlp import MLP
+from neumat.nn.row_adam import RowAdam
 
 
 @dataclass
@@ -65,15 +65,10 @@ class Config:
 
 
 def _check_config(c: Config) -> None:
-    def pos_int(name: str, lo: int = 1) -> None:
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"NeuBRDF.{name}: expected an integer >= {lo}, got {v!r}")
-
     for name in ("nside", "feature_dim", "index_bits", "hidden", "lowbit_bits", "texture_levels"):
-        pos_int(name)
+        check_int(getattr(c, name), f"NeuBRDF.{name}")
     for name in ("hidden_layers", "texture_height", "texture_width", "texture_channels"):
-        pos_int(name, 0)
+        check_int(getattr(c, name), f"NeuBRDF.{name}", 0)
     hpx.check_nside(c.nside, "NeuBRDF.nside", power_of_two=True)
     if c.index_bits > 16:
         raise InputError(f"NeuBRDF.index_bits: expected 1 .. 16, got {c.index_bits}")

@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
@@ -72,9 +73,7 @@ class Config:
 def _check_config(c: Config, who: str) -> None:
     for name, lo in (("spatial_channels", 1), ("spatial_size", 1), ("hidden", 1), ("hidden_layers", 0),
                      ("max_probes", 1), ("frames", 1)):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"{who}.{name}: expected an integer >= {lo}, got {v!r}")
+        check_int(getattr(c, name), f"{who}.{name}", lo)
     if c.spatial_size & (c.spatial_size - 1):
         raise InputError(f"{who}.spatial_size: expected a power of two, got {c.spatial_size}")
     if c.directions not in DIRECTIONS:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.coords import dir_to_spherical
 from neumat.core.errors import InputError
@@ -61,9 +62,7 @@ class Config:
 
 def _check_config(c: Config) -> None:
     for name in ("features", "width", "layers"):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InputError(f"NeuPreSS.{name}: expected a positive integer, got {v!r}")
+        check_int(getattr(c, name), f"NeuPreSS.{name}")
     if not c.sampler_hidden or any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in c.sampler_hidden):
         raise InputError(f"NeuPreSS.sampler_hidden: expected positive integers, got {c.sampler_hidden!r}")
     if c.direction_encoding not in DIRECTION_ENCODINGS:

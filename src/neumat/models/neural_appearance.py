@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from neumat.core.checks import check_int
 from neumat.core.errors import InputError
 from neumat.core.query import Query, Sample
 from neumat.models import neumip
@@ -74,10 +75,7 @@ class NeuralAppearance(neumip.NeuMIP):
         super().__init__(config, **kwargs)
         c = self.cfg
         for name in ("surface_features", "encoder_hidden", "encoder_layers", "sampler_hidden", "sampler_layers"):
-            v = getattr(c, name)
-            lo = 0 if name.endswith("layers") else 1
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise InputError(f"{self.name}.{name}: expected an integer >= {lo}, got {v!r}")
+            check_int(getattr(c, name), f"{self.name}.{name}", 0 if name.endswith("layers") else 1)
         self.encoder = MLP(c.surface_features, c.encoder_hidden, c.encoder_layers, c.spatial_channels, "silu")
         self.sampler = ProxySampler(features=c.spatial_channels, hidden=c.sampler_hidden,
                                     hidden_layers=c.sampler_layers)

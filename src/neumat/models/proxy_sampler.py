@@ -32,8 +32,8 @@ from typing import Callable
 import torch
 from torch import nn
 
+from neumat.core.checks import check_finite, check_int
 from neumat.core.config import resolve_config
-from neumat.core.checks import check_finite
 from neumat.core.errors import InputError
 from neumat.core.material import Material, check_sample_u, sample_weight
 from neumat.core.query import Query, Sample
@@ -42,7 +42,6 @@ from neumat.metrics.tonemap import LUMINANCE
 from neumat.nn.mlp import MLP
 from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere
 from neumat.warp.microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, sample_proxy
-
 
 #: probability of drawing a cosine-weighted direction instead of the proxy's (defensive mixture)
 DEFENSIVE = 0.05
@@ -91,8 +90,7 @@ class ProxySampler(nn.Module):
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         super().__init__()
         self.cfg = resolve_config(Config, config, kwargs, "ProxySampler")
-        if isinstance(self.cfg.features, bool) or not isinstance(self.cfg.features, int) or self.cfg.features < 0:
-            raise InputError(f"ProxySampler features: expected an integer >= 0, got {self.cfg.features!r}")
+        check_int(self.cfg.features, "ProxySampler features", 0)
         self.mlp = MLP(3 + self.cfg.features, self.cfg.hidden, self.cfg.hidden_layers, 9)
         self.mlp.start_constant(torch.zeros(9))
 
@@ -199,8 +197,7 @@ def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: 
     of the steps."""
     features = feature_dim(material, "fit_sampler")
     for name, v in (("steps", steps), ("batch", batch), ("log_every", log_every)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InputError(f"fit_sampler {name}: expected an integer >= 1, got {v!r}")
+        check_int(v, f"fit_sampler {name}")
     if not lr > 0:
         raise InputError(f"fit_sampler lr: expected > 0, got {lr!r}")
     sampler = sampler if sampler is not None else ProxySampler(features=features)

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from neumat.core.checks import check_directions, check_shape
+from neumat.core.checks import check_directions, check_int, check_shape
 from neumat.core.config import resolve_config
 from neumat.core.coords import rusinkiewicz_to_io
 from neumat.core.errors import InputError
@@ -63,9 +63,7 @@ class Config:
 def _check_config(c: Config) -> None:
     for name, lo in (("num_materials", 1), ("nside", 1), ("feature_dim", 1), ("index_bits", 1), ("hidden", 1),
                      ("hidden_layers", 0)):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise InputError(f"SharedNeuBRDF.{name}: expected an integer >= {lo}, got {v!r}")
+        check_int(getattr(c, name), f"SharedNeuBRDF.{name}", lo)
     hpx.check_nside(c.nside, "SharedNeuBRDF.nside", power_of_two=True)
     if c.index_bits > 16:
         raise InputError(f"SharedNeuBRDF.index_bits: expected 1 .. 16, got {c.index_bits}")

@@ -32,14 +32,27 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.registry import MODELS
-from neumat.models.sparse_dictionary import (BTFDictionary, Codes, Ensemble, check_patch_grid, code_points_at_rates,
-                                             decode_points, dense_coefficients, from_data_points, keep_largest,
-                                             model_space_to_rgb, mode_product, prepare_btf, unravel)
+from neumat.models.sparse_dictionary import (
+    BTFDictionary,
+    Codes,
+    Ensemble,
+    check_patch_grid,
+    code_points_at_rates,
+    decode_points,
+    dense_coefficients,
+    from_data_points,
+    keep_largest,
+    mode_product,
+    model_space_to_rgb,
+    prepare_btf,
+    unravel,
+)
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
 
 CHANNELS = "YUV"
@@ -77,9 +90,7 @@ class Config:
 
 def _check_config(c: Config) -> None:
     for name in ("patch", "num_dictionaries", "n_light", "n_view", "height", "width", "neighbours"):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InputError(f"SparseBTF.{name}: expected a positive integer, got {v!r}")
+        check_int(getattr(c, name), f"SparseBTF.{name}")
     check_patch_grid(c.height, c.width, c.patch)
     for name in ("tau", "tau_train"):
         v = getattr(c, name)

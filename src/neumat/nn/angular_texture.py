@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..core.errors import InputError
+from ..core.checks import check_int
 
 _EPS = 1e-12
 
@@ -67,8 +67,7 @@ class AngularTexture(nn.Module):
                  init_std: float = 0.1, precondition: nn.Module | None = None) -> None:
         super().__init__()
         for name, v, lo in (("channels", channels, 1), ("radial", radial, 2), ("angular", angular, 1)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise InputError(f"AngularTexture.{name}: expected an integer >= {lo}, got {v!r}")
+            check_int(v, f"AngularTexture.{name}", lo)
         self.channels, self.radial, self.angular, self.period = channels, radial, angular, float(period)
         self.raw = nn.Parameter(torch.randn(channels, radial, angular) * init_std)
         self.precondition = precondition

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 from torch.autograd.function import once_differentiable
 
+from neumat.core.checks import check_int
 from neumat.core.errors import InputError
 
 FLOAT_BITS = {"fp16": 16, "fp32": 32}
@@ -44,9 +45,7 @@ def _check_ids(ids: torch.Tensor, n: int) -> None:
 
 
 def _positive_int(v, name: str) -> int:
-    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-        raise InputError(f"{name}: expected a positive integer, got {v!r}")
-    return v
+    return check_int(v, name)
 
 
 class _StraightThrough(torch.autograd.Function):

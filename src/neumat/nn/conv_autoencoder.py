@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from neumat.core.checks import check_finite
+from neumat.core.checks import check_finite, check_int
 from neumat.core.errors import InputError
 
 
@@ -21,8 +21,7 @@ class ConvAutoencoder(nn.Module):
         super().__init__()
         for name, v, lo in (("channels", channels, 1), ("resolution", resolution, 4), ("code_dim", code_dim, 1),
                             ("width", width, 1)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise InputError(f"ConvAutoencoder.{name}: expected an integer >= {lo}, got {v!r}")
+            check_int(v, f"ConvAutoencoder.{name}", lo)
         if resolution & (resolution - 1):
             raise InputError(f"ConvAutoencoder.resolution: expected a power of two, got {resolution}")
         self.channels, self.resolution = channels, resolution

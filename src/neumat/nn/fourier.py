@@ -6,6 +6,7 @@ import math
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.errors import InputError
 
 
@@ -16,8 +17,7 @@ class FourierFeatures(nn.Module):
     def __init__(self, in_dim: int, n_features: int = 256, mean: float = 18.0, std: float = 1.0, seed: int = 0) -> None:
         super().__init__()
         for name, v in (("in_dim", in_dim), ("n_features", n_features)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise InputError(f"FourierFeatures.{name}: expected a positive integer, got {v!r}")
+            check_int(v, f"FourierFeatures.{name}")
         if not (math.isfinite(mean) and math.isfinite(std) and std >= 0):
             raise InputError(f"FourierFeatures: expected a finite mean and std >= 0, got mean={mean!r}, std={std!r}")
         gen = torch.Generator().manual_seed(int(seed))

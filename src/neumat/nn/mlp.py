@@ -4,6 +4,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.errors import InputError
 
 ACTIVATIONS = {
@@ -42,8 +43,7 @@ class MLP(nn.Module):
         super().__init__()
         for name, v, lo in (("in_dim", in_dim, 1), ("hidden", hidden, 1), ("n_hidden_layers", n_hidden_layers, 0),
                             ("out_dim", out_dim, 1)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise InputError(f"MLP.{name}: expected an integer >= {lo}, got {v!r}")
+            check_int(v, f"MLP.{name}", lo)
         dims = [in_dim] + [hidden] * n_hidden_layers + [out_dim]
         layers: list[nn.Module] = []
         for i, (a, b) in enumerate(zip(dims[:-1], dims[1:])):

@@ -4,6 +4,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from neumat.core.checks import check_int
 from neumat.core.errors import InputError
 
 
@@ -18,8 +19,7 @@ class SkipMLP(nn.Module):
     def __init__(self, in_dim: int, width: int, layers: int, out_dim: int) -> None:
         super().__init__()
         for name, v in (("in_dim", in_dim), ("width", width), ("layers", layers), ("out_dim", out_dim)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise InputError(f"SkipMLP.{name}: expected a positive integer, got {v!r}")
+            check_int(v, f"SkipMLP.{name}")
         self.first = nn.Linear(in_dim, width)
         self.hidden = nn.ModuleList(nn.Linear(width, width) for _ in range(layers - 1))
         self.out = nn.Linear(width, out_dim)
