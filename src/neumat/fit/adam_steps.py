@@ -9,10 +9,11 @@ import torch
 
 def adam_steps(params: Iterable[torch.nn.Parameter], steps: int, lr: float,
                step_fn: Callable[[], Sequence[torch.Tensor]], names: Sequence[str], description: str,
-               log_every: int, progress: bool) -> list[dict]:
+               log_every: int, progress: bool, on_record: Callable[[dict], None] | None = None) -> list[dict]:
     """`steps` Adam steps (learning rate `lr`, halved at 50% and 75% of the steps) on the sum of the losses
     step_fn() returns, one per name of `names`. Returns a record {"step", <name>: mean loss since the last
-    record} every `log_every` steps and after the last."""
+    record} every `log_every` steps and after the last; `on_record(record)` sees each record as it is made
+    and may add fields to it (a validation loss, say)."""
     opt = torch.optim.Adam(params, lr=lr)
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, [steps // 2, 3 * steps // 4], gamma=0.5)
     iterator = range(steps)
@@ -30,5 +31,7 @@ def adam_steps(params: Iterable[torch.nn.Parameter], steps: int, lr: float,
         if (step + 1) % log_every == 0 or step + 1 == steps:
             count = step % log_every + 1
             history.append({"step": step + 1, **{n: v / count for n, v in zip(names, sums)}})
+            if on_record is not None:
+                on_record(history[-1])
             sums = [0.0] * len(names)
     return history
