@@ -8,13 +8,16 @@ Data (Sec. 4.2 of the paper, scaled down): --images orthographic views of --res^
 its own light direction and camera direction, --spp paths per ray; held-out: --test-images views with their own
 lights at --test-spp paths per ray, traced twice with different seeds so that the noise of the reference itself
 is known ("noise floor": half the mean squared difference of the two traces).
-Variants: "paper" (Fourier G ~ N(18, 1), 7 layers of 128, spherical angles) and "low frequency" (G ~ N(0, 0.5^2)),
-each trained --steps Adam steps of --batch observations (lr 1e-3 halved at 50% / 75%), then the light sampler
-(--sampler-steps). Scores: held-out MSE (linear RGB, 1/sr) and the same relative to the variance of the held-out
-values (1 = no better than their mean).
+Variants: "paper" (Fourier G ~ N(18, 1), 7 layers of 128, spherical angles), "low frequency" (G ~ N(0, 0.3^2))
+and "smooth" (G ~ N(0, 0.1^2)), each trained --steps Adam steps of --batch observations (lr 1e-3 halved at 50% /
+75%) with 5% of the training observations held back for validation (the fit keeps the weights of the best
+validation record, every 100 steps), then the light sampler (--sampler-steps). Scores: held-out MSE (linear RGB,
+1/sr) and the same relative to the variance of the held-out values (1 = no better than their mean; the noise
+floor over that variance is the best a perfect model could score).
 Images: --image-res^2 pixels, subsurface radiance only, under the shared forest map (downsampled to 128 x 64):
-the reference with --ref-spp paths per pixel, the models at --render-spp with environment ("light") or model
-("model") importance sampling; MSE against the reference and seconds per image, in the same run.
+the reference with --ref-spp paths per pixel; path tracing and the models at --render-spp, the models with
+environment ("light") or model ("model") importance sampling; MSE, FLIP and SSIM against the reference and seconds
+per image, in the same run.
 """
 from __future__ import annotations
 
@@ -27,13 +30,15 @@ from neumat.cli.common import print_table
 from neumat.fit.neupress import fit_neupress, fit_neupress_sampler
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.io.shared_data import shared_data_dir
+from neumat.metrics.image import image_metrics
 from neumat.models.neupress import NeuPreSS
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.envmaps import read_envmap
 from neumat.render.lights import EnvironmentMap
 from neumat.render.translucent import orbit_camera, render_translucent, render_translucent_reference
 
-VARIANTS = {"paper": {}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.5}}
+VARIANTS = {"paper": {}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.3},
+            "smooth": {"feature_mean": 0.0, "feature_std": 0.1}}
 
 
 def held_out(obj: TranslucentObject, images: int, res: int, spp: int) -> tuple[Observations, float]:
@@ -74,16 +79,17 @@ def main() -> None:
     torch.manual_seed(0)
     obj = TranslucentObject(TranslucentConfig(), spp=a.spp)
     t = time.perf_counter()
-    train = collect_observations(obj, a.images, a.res, progress=True)
+    data = collect_observations(obj, a.images, a.res, progress=True)
     collect_s = time.perf_counter() - t
+    train, validation = data.split(0.05)
     t = time.perf_counter()
     test, floor = held_out(obj, a.test_images, a.res // 2, a.test_spp)
     test_s = time.perf_counter() - t
-    paths = len(train) * a.spp
-    print(f"training data: {len(train)} observations x {a.spp} paths in {collect_s:.0f} s "
+    paths = len(data) * a.spp
+    print(f"training data: {len(data)} observations x {a.spp} paths in {collect_s:.0f} s "
           f"({paths / collect_s:.3g} paths/s, 2 traces each: with and without the interior); held-out: "
           f"{len(test)} x 2 x {a.test_spp} paths in {test_s:.0f} s; held-out variance "
-          f"{float(test.value.var()):.4g}, noise floor {floor:.3g}")
+          f"{float(test.value.var()):.4g}, noise floor {floor:.3g} ({floor / float(test.value.var()):.3f} of it)")
     bounds = (torch.tensor(obj.bbox_min).float(), torch.tensor(obj.bbox_max).float())
 
     env = environment()
@@ -91,11 +97,15 @@ def main() -> None:
     t = time.perf_counter()
     reference = render_translucent_reference(obj, env, camera, a.image_res, spp=a.ref_spp)
     ref_s = time.perf_counter() - t
-    rows, images = [], {"reference": reference}
+    t = time.perf_counter()
+    traced = render_translucent_reference(obj, env, camera, a.image_res, spp=a.render_spp, seed=1)
+    images = {"reference": reference, f"path tracing {a.render_spp} spp": traced}
+    image_rows = [_image_row("path tracing (Mitsuba volpath)", traced, reference, time.perf_counter() - t)]
+    rows = []
     for name, cfg in VARIANTS.items():
         model = NeuPreSS(**cfg)
         t = time.perf_counter()
-        hist = fit_neupress(model, train, steps=a.steps, batch=a.batch, bounds=bounds)
+        hist = fit_neupress(model, train, steps=a.steps, batch=a.batch, bounds=bounds, validation=validation)
         fit_s = time.perf_counter() - t
         t = time.perf_counter()
         kl = fit_neupress_sampler(model, train, steps=a.sampler_steps)
@@ -107,30 +117,39 @@ def main() -> None:
                 model.raw(test.wi, test.x, test.wo)
             evals = 3 * len(test) / (time.perf_counter() - t)
         mse = float(((pred - test.value) ** 2).mean())
-        row = {"variant": name, "held-out MSE": f"{mse:.4g}",
-               "rel. to variance": f"{mse / float(test.value.var()):.3f}",
-               "train MSE (noisy)": f"{hist[-1]['mse']:.4g}", "final KL": f"{kl[-1]['kl']:.3f}",
-               "fit s": f"{fit_s:.0f}+{sampler_s:.0f}", "evals/s": f"{evals:.3g}",
-               "KB fp32": model.size_bytes() // 1024}
+        rows.append({"variant": name, "held-out MSE": f"{mse:.4g}",
+                     "rel. to variance": f"{mse / float(test.value.var()):.3f}",
+                     "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
+                     "best step": min(hist, key=lambda r: r["validation_mse"])["step"],
+                     "final KL": f"{kl[-1]['kl']:.3f}", "fit s": f"{fit_s:.0f}+{sampler_s:.0f}",
+                     "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024})
         for strategy in ("light", "model"):
             t = time.perf_counter()
             img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy=strategy)
-            row[f"{strategy} IS s"] = f"{time.perf_counter() - t:.1f}"
-            row[f"{strategy} IS image MSE"] = f"{float(((img - reference) ** 2).mean()):.3g}"
+            image_rows.append(_image_row(f"{name}, {strategy} IS", img, reference, time.perf_counter() - t))
             images[f"{name}, {strategy} IS"] = img
-        rows.append(row)
-    print_table(f"NeuPreSS, {len(train)} training observations ({a.images} views x {a.spp} spp); reference image "
-                f"{a.ref_spp} spp in {ref_s:.0f} s; image mean {float(reference.mean()):.4g}", rows, width=250)
+    print_table(f"NeuPreSS, {len(data)} observations ({a.images} views x {a.spp} spp, 5% of them for validation); "
+                f"held-out {len(test)}", rows, width=250)
+    print_table(f"Images {a.image_res}^2 under the forest map at {a.render_spp} spp against a {a.ref_spp}-spp "
+                f"reference ({ref_s:.0f} s; image mean {float(reference.mean()):.4g}); FLIP and SSIM after ACES",
+                image_rows, width=250)
     if a.image_out:
         _save(images, a.image_out)
 
 
+def _image_row(method: str, image: torch.Tensor, reference: torch.Tensor, seconds: float) -> dict:
+    m = image_metrics(reference.numpy(), image.numpy(), tonemap="aces")
+    return {"method": method, "seconds": f"{seconds:.1f}", "MSE": f"{float(((image - reference) ** 2).mean()):.3g}",
+            "FLIP": f"{m['flip']:.3f}", "SSIM": f"{m['ssim']:.3f}"}
+
+
 def _save(images: dict, path: str) -> None:
     from neumat.io.images import write_image_ldr
-    from neumat.metrics.tonemap import tonemap
-    panels = [tonemap(v.numpy(), "aces") for v in images.values()]
-    write_image_ldr(path, np.concatenate(panels, 1))
-    print(f"wrote {path}: " + " | ".join(images))
+    from neumat.viz.compare import compare_image
+    others = {k: v for k, v in images.items() if k != "reference"}
+    metrics = {k: {"mse": float(((v - images["reference"]) ** 2).mean())} for k, v in others.items()}
+    write_image_ldr(path, compare_image(images["reference"], others, metrics, tonemap="aces"))
+    print(f"wrote {path}: reference | method | FLIP rows for " + ", ".join(others))
 
 
 if __name__ == "__main__":
