@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
 import torch
 from neumat.cli.common import print_table
 from neumat.fit.neupress import fit_neupress, fit_neupress_sampler
@@ -33,7 +32,7 @@ from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
 from neumat.models.neupress import NeuPreSS
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
-from neumat.render.envmaps import read_envmap
+from neumat.render.envmaps import downsample_envmap, read_envmap
 from neumat.render.lights import EnvironmentMap
 from neumat.render.translucent import orbit_camera, render_translucent, render_translucent_reference
 
@@ -53,12 +52,8 @@ def held_out(obj: TranslucentObject, images: int, res: int, spp: int) -> tuple[O
     return Observations(a.x, a.n, a.wo, a.wi, ((a.value.double() + second) / 2).float()), floor
 
 
-def environment(size: int = 128) -> EnvironmentMap:
-    path = shared_data_dir() / "envmap" / "forest_slope_1k.hdr"
-    image = read_envmap(path)
-    h, w = image.shape[:2]
-    small = image[: h - h % (size // 2), : w - w % size].reshape(size // 2, h // (size // 2), size, w // size, 3)
-    return EnvironmentMap(small.mean((1, 3)).astype(np.float32))
+def environment(width: int = 128) -> EnvironmentMap:
+    return EnvironmentMap(downsample_envmap(read_envmap(shared_data_dir() / "envmap" / "forest_slope_1k.hdr"), width))
 
 
 def main() -> None:

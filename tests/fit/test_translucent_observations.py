@@ -21,9 +21,12 @@ def test_collect_observations_on_the_unit_sphere(tmp_path):
     assert bool(((obs.n * obs.wo).sum(-1) > 0).all())  # seen from outside
     assert len(torch.unique(obs.wi, dim=0)) == 3  # one light per view
     assert bool(torch.isfinite(obs.value).all()) and float(obs.value.mean()) > 0
-    obs.save(tmp_path / "o.npz")
+    obs.save(tmp_path / "o.npz", source={"object": {"media": ["marble", "ketchup"]}})
     back = Observations.load(tmp_path / "o.npz")
     assert torch.equal(back.value, obs.value) and torch.equal(back.x, obs.x)
+    assert Observations.load_source(tmp_path / "o.npz") == {"object": {"media": ["marble", "ketchup"]}}
+    obs.save(tmp_path / "plain.npz")
+    assert Observations.load_source(tmp_path / "plain.npz") is None
     rest, held = obs.split(0.25)
     assert len(rest) + len(held) == len(obs) and len(held) == round(0.25 * len(obs))
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from neumat import DataFormatError, InputError, UnknownNameError
-from neumat.render.envmaps import dir_to_equirect, equirect_to_dir, sky_envmap
+from neumat.render.envmaps import dir_to_equirect, downsample_envmap, equirect_to_dir, sky_envmap
 from neumat.render.lights import (ConstantEnvironment, DirectionalLight, EnvironmentMap, PointLight,
                                   make_light)
 from neumat.testing.chi2 import chi2_directions
@@ -153,3 +153,33 @@ def test_real_environment_maps_load_and_sample(shared_data):
         s = env.sample(torch.zeros(2048, 3), torch.rand(2048, 2, generator=torch.Generator().manual_seed(0)))
         assert torch.isfinite(s.radiance).all() and (s.pdf > 0).all(), path.name
         torch.testing.assert_close(s.pdf, env.pdf(s.wi), rtol=2e-3, atol=0)
+
+
+def test_downsample_envmap_keeps_the_mean_of_each_block():
+    rng = np.random.default_rng(0)
+    img = rng.random((37, 70, 3)).astype(np.float32)  # 37 x 70 -> 4 x 8: blocks of 9 x 8, the rest dropped
+    small = downsample_envmap(img, 8)
+    assert small.shape == (4, 8, 3) and small.dtype == np.float32
+    assert np.allclose(small[2, 5], img[18:27, 40:48].mean((0, 1)), atol=1e-6)
+    assert np.allclose(downsample_envmap(img[:36, :64], 64 // 8).mean(), img[:36, :64].mean(), atol=1e-6)
+    with pytest.raises(InputError, match="even integer"):
+        downsample_envmap(img, 7)
+    with pytest.raises(InputError, match="at least"):
+        downsample_envmap(img, 128)
+
+
+@pytest.mark.parametrize("width", [16, 512])
+def test_sky_sun_gives_its_irradiance_at_any_width(width):
+    """At 16 texels across no texel centre lies on the 2-degree disc: the sun goes to the nearest texel (it
+    used to divide by zero and fill the map with NaN)."""
+    sun = torch.tensor([math.cos(math.radians(35)) * math.sin(math.radians(40)), math.sin(math.radians(35)),
+                        math.cos(math.radians(35)) * math.cos(math.radians(40))], dtype=torch.float64)
+    with_sun, without = sky_envmap(width=width), sky_envmap(width=width, sun_irradiance=0.0)
+    assert np.isfinite(with_sun).all()
+    h, w = with_sun.shape[:2]
+    v, u = (torch.arange(h) + 0.5) / h, (torch.arange(w) + 0.5) / w
+    vv, uu = torch.meshgrid(v, u, indexing="ij")
+    d = equirect_to_dir(torch.stack([uu.reshape(-1), vv.reshape(-1)], -1).double())
+    d_omega = (2 * math.pi ** 2 * torch.sin(vv * math.pi) / (h * w)).reshape(-1).double()
+    disc = torch.from_numpy(with_sun - without).reshape(-1, 3).double().mean(-1)
+    assert float((disc * (d @ sun).clamp(min=0) * d_omega).sum()) == pytest.approx(3.0, rel=1e-4)

@@ -6,6 +6,7 @@ bounding sphere from a direction uniform on the sphere, with jittered pixel posi
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -54,9 +55,11 @@ class Observations:
         k = max(1, int(round(fraction * len(self))))
         return self[perm[k:]], self[perm[:k]]
 
-    def save(self, path: str | Path) -> None:
-        """Write an .npz file with the five arrays."""
-        np.savez_compressed(path, **{f.name: getattr(self, f.name).numpy() for f in fields(self)})
+    def save(self, path: str | Path, source: dict | None = None) -> None:
+        """Write an .npz file with the five arrays and, if given, `source` (a JSON-serialisable dict: what
+        was traced, e.g. the object's config) for `load_source`."""
+        extra = {} if source is None else {"source": np.array(json.dumps(source))}
+        np.savez_compressed(path, **{f.name: getattr(self, f.name).numpy() for f in fields(self)}, **extra)
 
     @classmethod
     def load(cls, path: str | Path) -> "Observations":
@@ -70,6 +73,18 @@ class Observations:
         except (KeyError, ValueError, OSError) as e:
             raise DataFormatError(f"{path}: not a neumat observations file ({e})") from e
         return cls(**arrays)
+
+    @staticmethod
+    def load_source(path: str | Path) -> dict | None:
+        """The `source` dict saved with the observations in `path` (None if none was saved)."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"observations file {path} does not exist")
+        try:
+            data = np.load(path)
+            return json.loads(str(data["source"])) if "source" in data.files else None
+        except (ValueError, OSError) as e:
+            raise DataFormatError(f"{path}: not a neumat observations file ({e})") from e
 
 
 def orbit_rays(obj: TranslucentObject, view: torch.Tensor, resolution: int,

@@ -55,6 +55,22 @@ def read_envmap(path: str | Path) -> np.ndarray:
     return img.astype(np.float32)
 
 
+def downsample_envmap(image: np.ndarray, width: int) -> np.ndarray:
+    """Box-filtered copy (width / 2, width, 3) float32 of an equirectangular map (H, W, 3) with W >= width and
+    H >= width / 2: each output texel is the mean of the input texels it covers (the trailing rows and
+    columns that do not fill a whole texel are dropped). Path-traced references repeat texels, so small maps
+    keep them fast."""
+    image = np.asarray(image, dtype=np.float32)
+    if isinstance(width, bool) or not isinstance(width, int) or width < 2 or width % 2:
+        raise InputError(f"downsample_envmap width: expected an even integer >= 2, got {width!r}")
+    if image.ndim != 3 or image.shape[2] != 3 or image.shape[1] < width or image.shape[0] < width // 2:
+        raise InputError(f"downsample_envmap: expected an (H, W, 3) map of at least {width // 2} x {width}, "
+                         f"got shape {image.shape}")
+    h, w = image.shape[:2]
+    fy, fx = h // (width // 2), w // width
+    return image[: fy * (width // 2), : fx * width].reshape(width // 2, fy, width, fx, 3).mean((1, 3))
+
+
 def sky_envmap(width: int = 512, sun_elevation: float = 35.0, sun_azimuth: float = 40.0,
                sun_irradiance: float = 3.0, sky_irradiance: float = 1.0) -> np.ndarray:
     """A procedural clear sky with a sun, float32 (width / 2, width, 3) in the mapping above.
@@ -96,6 +112,8 @@ def _sky(width: int, sun_elevation: float, sun_azimuth: float, sun_irradiance: f
 
     radius = math.radians(2.0)
     disc = np.clip((cos_sun - math.cos(radius)) / (1 - math.cos(radius)) * 4, 0, 1)  # soft edge
+    if not (disc * np.clip(cos_sun, 0, None)).any():  # coarse map, no texel centre on the disc: the nearest texel
+        disc = (cos_sun == cos_sun.max()).astype(np.float64)
     disc_irradiance = (disc * np.clip(cos_sun, 0, None) * solid_angle).sum()
     sun_color = np.array([1.0, 0.92, 0.8]) / np.mean([1.0, 0.92, 0.8])
     img = img + disc[..., None] * sun_color * (sun_irradiance / disc_irradiance)

@@ -1,0 +1,159 @@
+"""`neumat translucent trace | fit | render`: NeuPreSS on a path-traced translucent object (Mitsuba 3)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import print_table, run_command
+
+app = typer.Typer(help="Translucent objects (NeuPreSS): trace observations with Mitsuba 3, fit, render.",
+                  no_args_is_help=True)
+
+
+def register(main: typer.Typer) -> None:
+    """Add the `translucent` sub-app to the main app."""
+    main.add_typer(app, name="translucent")
+
+
+@app.command()
+def trace(out: Path = typer.Argument(..., help="observations file to write (.npz)"),
+          shape: str = typer.Option("sphere", help="'sphere' or a closed PLY triangle mesh"),
+          media: str = typer.Option("marble,ketchup", help="the two Jensen et al. media the noise mixes, A,B"),
+          size_mm: float = typer.Option(4.0, help="millimetres across the bounding-box diagonal (smaller: more "
+                                                   "translucent)"),
+          roughness: float = typer.Option(0.3, help="GGX alpha of the dielectric surface"),
+          images: int = typer.Option(1500, min=1, help="views, each with its own light direction"),
+          resolution: int = typer.Option(32, min=1, help="rays per side of each view"),
+          spp: int = typer.Option(8, min=1, help="paths per ray"),
+          seed: int = typer.Option(0)) -> None:
+    """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
+    def go():
+        from ..core.config import config_to_dict
+        from ..fit.translucent_observations import collect_observations
+        from ..reflectance.translucent import TranslucentConfig, TranslucentObject
+
+        _check_suffix(out, ".npz", "trace OUT")
+        cfg = TranslucentConfig(shape=shape, media=tuple(m.strip() for m in media.split(",")), size_mm=size_mm,
+                                roughness=roughness)
+        obj = TranslucentObject(cfg, spp=spp, seed=seed)
+        obs = collect_observations(obj, images, resolution, seed=seed, progress=True)
+        obs.save(out, source={"object": config_to_dict(cfg), "spp": spp, "seed": seed,
+                              "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]})
+        print(f"wrote {out}: {len(obs)} observations x {spp} paths ({obj.describe()})")
+    run_command(go)
+
+
+@app.command()
+def fit(observations: Path = typer.Argument(..., help="observations file from `neumat translucent trace`"),
+        out: Path = typer.Option(..., "-o", "--out", help="model file to write (.nmat)"),
+        steps: int = typer.Option(2000, min=1, help="Adam steps of the appearance module"),
+        batch: int = typer.Option(4096, min=1),
+        lr: float = typer.Option(1e-3),
+        feature_mean: float = typer.Option(0.0, help="mean of the Fourier matrix G (the paper: 18)"),
+        feature_std: float = typer.Option(0.1, help="standard deviation of G (the paper: 1); small values "
+                                                    "generalise from few, noisy observations"),
+        validation: float = typer.Option(0.05, help="fraction held back; the fit keeps the best weights on it"),
+        sampler_steps: int = typer.Option(300, min=1, help="Adam steps of the importance-sampling module"),
+        seed: int = typer.Option(0)) -> None:
+    """Fit NeuPreSS (appearance, then light sampler) to traced observations and save it."""
+    def go():
+        import torch
+
+        from ..fit.neupress import fit_neupress, fit_neupress_sampler
+        from ..fit.translucent_observations import Observations
+        from ..io.modelfile import save_model
+        from ..models.neupress import NeuPreSS
+
+        _check_suffix(out, ".nmat", "fit --out")
+        data = Observations.load(observations)
+        source = Observations.load_source(observations) or {}
+        box = source.get("bbox", [data.x.min(0).values.tolist(), data.x.max(0).values.tolist()])
+        bounds = torch.tensor(box[0]), torch.tensor(box[1])
+        train, held = data.split(validation, seed=seed)
+        torch.manual_seed(seed)
+        model = NeuPreSS(feature_mean=feature_mean, feature_std=feature_std)
+        history = fit_neupress(model, train, steps=steps, batch=batch, lr=lr, bounds=bounds, seed=seed,
+                               progress=True, validation=held)
+        kl = fit_neupress_sampler(model, train, steps=sampler_steps, seed=seed, progress=True)
+        best = min(history, key=lambda r: r["validation_mse"])
+        variance = float(held.value.var())
+        metrics = {"validation_mse": best["validation_mse"], "validation_variance": variance,
+                   "best_step": best["step"], "sampler_kl": kl[-1]["kl"]}
+        save_model(model, out, source=observations, metrics=metrics)
+        print_table(f"wrote {out} ({model.size_bytes() // 1024} KB fp32)", [{
+            "observations": len(data), "validation": len(held), "best step": best["step"],
+            "validation MSE": best["validation_mse"], "relative to its variance": best["validation_mse"] / variance,
+            "sampler KL": kl[-1]["kl"]}])
+    run_command(go)
+
+
+@app.command()
+def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
+           observations: Path = typer.Argument(..., help="its observations file (names the object it shows)"),
+           out: Path = typer.Option(..., "-o", "--out", help="image (.png, .exr, .hdr); with --reference-spp a "
+                                                            "comparison picture (.png)"),
+           envmap: str = typer.Option("sky", help="'sky' or an equirectangular .hdr / .exr map"),
+           env_width: int = typer.Option(128, help="box-filter the map to this width first"),
+           resolution: int = typer.Option(64, min=8, help="image width and height"),
+           spp: int = typer.Option(64, min=1, help="samples per pixel"),
+           strategy: str = typer.Option("light", help="light (environment importance sampling) | model (the "
+                                                      "learned Gaussian lobe)"),
+           reference_spp: int = typer.Option(0, min=0, help="also path-trace the reference at this many spp and "
+                                                           "compare"),
+           azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
+           elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
+           seed: int = typer.Option(0)) -> None:
+    """Render MODEL on the geometry of its object under an environment map (Eq. 5)."""
+    def go():
+        import time
+
+        from ..core.config import config_from_dict
+        from ..core.errors import InputError
+        from ..fit.translucent_observations import Observations
+        from ..io.images import write_image, write_image_ldr
+        from ..io.modelfile import load_model
+        from ..metrics.image import image_metrics
+        from ..models.neupress import NeuPreSS
+        from ..reflectance.translucent import TranslucentConfig, TranslucentObject
+        from ..render.envmaps import downsample_envmap, read_envmap, sky_envmap
+        from ..render.lights import EnvironmentMap
+        from ..render.translucent import orbit_camera, render_translucent, render_translucent_reference
+        from ..viz.compare import compare_image
+
+        m = load_model(model)
+        if not isinstance(m, NeuPreSS):
+            raise InputError(f"{model}: expected a NeuPreSS model, got {type(m).__name__}")
+        source = Observations.load_source(observations)
+        if source is None or "object" not in source:
+            raise InputError(f"{observations}: no object description (write it with `neumat translucent trace`)")
+        if reference_spp and out.suffix.lower() != ".png":
+            raise InputError(f"--out {out}: the comparison picture of --reference-spp is a .png")
+        obj = TranslucentObject(config_from_dict(TranslucentConfig, source["object"]), spp=1, seed=seed)
+        image = sky_envmap(width=env_width) if envmap == "sky" else read_envmap(envmap)
+        env = EnvironmentMap(downsample_envmap(image, env_width))
+        camera = orbit_camera(obj, resolution, azimuth, elevation)
+        t = time.perf_counter()
+        img = render_translucent(m, obj, env, camera, resolution, spp=spp, strategy=strategy, seed=seed)
+        seconds = time.perf_counter() - t
+        if not reference_spp:
+            write_image(out, img, tonemap="aces")
+            print(f"wrote {out} ({seconds:.1f} s)")
+            return
+        t = time.perf_counter()
+        reference = render_translucent_reference(obj, env, camera, resolution, spp=reference_spp, seed=seed + 1)
+        ref_seconds = time.perf_counter() - t
+        scores = image_metrics(reference.numpy(), img.numpy(), tonemap="aces")
+        scores["mse"] = float(((img - reference) ** 2).mean())
+        name = f"NeuPreSS, {strategy} IS, {spp} spp"
+        write_image_ldr(out, compare_image(reference, {name: img}, {name: scores}, tonemap="aces"))
+        print_table(f"wrote {out}: against a {reference_spp}-spp path-traced reference ({ref_seconds:.0f} s)",
+                    [{"method": name, "seconds": seconds, "MSE": scores["mse"], "FLIP": scores["flip"],
+                      "SSIM": scores["ssim"]}])
+    run_command(go)
+
+
+def _check_suffix(path: Path, suffix: str, what: str) -> None:
+    from ..core.errors import InputError
+    if path.suffix.lower() != suffix:
+        raise InputError(f"{what}: expected a {suffix} file, got {str(path)!r}")

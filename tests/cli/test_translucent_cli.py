@@ -1,0 +1,73 @@
+"""`neumat translucent trace | fit | render` end to end on a tiny budget, and their errors."""
+from __future__ import annotations
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from neumat.cli.main import app
+from neumat.fit.translucent_observations import Observations
+from neumat.io.images import read_image
+from neumat.io.modelfile import load_model, read_header
+from neumat.models.neupress import NeuPreSS
+from tests.mitsuba_util import mitsuba_or_skip
+
+
+def _run(*args):
+    return CliRunner().invoke(app, ["translucent", *map(str, args)])
+
+
+def _said(result) -> str:
+    """The command's output with rich's line wrapping undone."""
+    return "".join(result.output.split())
+
+
+@pytest.mark.mitsuba
+def test_trace_fit_render(tmp_path):
+    mitsuba_or_skip()
+    obs, model, image, picture = (tmp_path / n for n in ("o.npz", "m.nmat", "img.exr", "cmp.png"))
+    r = _run("trace", obs, "--images", 4, "--resolution", 8, "--spp", 2, "--media", "marble,skin1")
+    assert r.exit_code == 0, r.output
+    data = Observations.load(obs)
+    assert len(data) > 0 and Observations.load_source(obs)["object"]["media"] == ["marble", "skin1"]
+
+    r = _run("fit", obs, "-o", model, "--steps", 20, "--batch", 64, "--sampler-steps", 2, "--validation", 0.25)
+    assert r.exit_code == 0, r.output
+    m = load_model(model)
+    assert isinstance(m, NeuPreSS) and m.cfg.feature_std == 0.1
+    metrics = read_header(model)["metrics"]
+    assert 1 <= metrics["best_step"] <= 20 and metrics["validation_mse"] > 0
+    box = Observations.load_source(obs)["bbox"]  # the object's bounding box, written by trace
+    assert torch.allclose(m.box_min, torch.tensor(box[0])) and torch.allclose(m.box_max, torch.tensor(box[1]))
+
+    r = _run("render", model, obs, "-o", image, "--resolution", 8, "--spp", 2, "--env-width", 16)
+    assert r.exit_code == 0, r.output
+    img = read_image(image)
+    assert img.shape == (8, 8, 3) and float(img.max()) > 0 and float(img.min()) >= 0
+
+    r = _run("render", model, obs, "-o", picture, "--resolution", 8, "--spp", 2, "--env-width", 16,
+             "--strategy", "model", "--reference-spp", 2)
+    assert r.exit_code == 0, r.output
+    assert "FLIP" in _said(r) and read_image(picture).ndim == 3
+
+    r = _run("render", model, obs, "-o", tmp_path / "x.exr", "--reference-spp", 2)
+    assert r.exit_code == 2 and ".png" in _said(r)
+
+
+def test_errors_name_the_problem(tmp_path):
+    r = _run("trace", tmp_path / "o.txt")
+    assert r.exit_code == 2 and ".npz" in _said(r)
+    r = _run("fit", tmp_path / "missing.npz", "-o", tmp_path / "m.nmat")
+    assert r.exit_code == 2 and "doesnotexist" in _said(r)
+    x = torch.zeros(4, 3)
+    Observations(x, x, x, x, x).save(tmp_path / "plain.npz")
+    r = _run("fit", tmp_path / "plain.npz", "-o", tmp_path / "m.pt")
+    assert r.exit_code == 2 and ".nmat" in _said(r)
+    from neumat.io.modelfile import save_model
+    from neumat.models.registry import build_model
+    other = save_model(build_model({"type": "naive-mlp"}), tmp_path / "other.nmat")
+    r = _run("render", other, tmp_path / "plain.npz", "-o", tmp_path / "i.png")
+    assert r.exit_code == 2 and "NeuPreSS" in _said(r)
+    save_model(NeuPreSS(features=4, width=4, layers=1, sampler_hidden=(4,)), tmp_path / "n.nmat")
+    r = _run("render", tmp_path / "n.nmat", tmp_path / "plain.npz", "-o", tmp_path / "i.png")
+    assert r.exit_code == 2 and "objectdescription" in _said(r)
