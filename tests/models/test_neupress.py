@@ -168,3 +168,5 @@ def test_validation_keeps_the_weights_that_generalise_best():
     assert results["validated"] < 0.7 * results["plain"], results
     with pytest.raises(InputError, match="validation"):
         fit_neupress(m, train, steps=1, validation=validation[:0])
+    with pytest.raises(InputError, match="diverged"):  # Adam steps of 1e30 overflow float32
+        fit_neupress(m, train, steps=2, lr=1e30, log_every=1, validation=validation)

@@ -51,6 +51,9 @@ def fit_neupress(model: NeuPreSS, observations: Observations, steps: int = 4000,
             best["weights"] = [p.detach().clone() for p in params]
 
     history = adam_steps(params, steps, lr, step, ["mse"], "NeuPreSS appearance", log_every, progress, keep_best)
+    if best["weights"] is None:
+        raise InputError(f"fit_neupress: the validation MSE was never finite ({history[-1]['validation_mse']}); "
+                         f"the fit diverged (lower lr, now {lr})")
     with torch.no_grad():
         for p, w in zip(params, best["weights"]):
             p.copy_(w)
