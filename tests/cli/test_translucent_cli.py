@@ -34,7 +34,7 @@ def test_trace_fit_render(tmp_path):
     r = _run("fit", obs, "-o", model, "--steps", 20, "--batch", 64, "--sampler-steps", 2, "--validation", 0.25)
     assert r.exit_code == 0, r.output
     m = load_model(model)
-    assert isinstance(m, NeuPreSS) and m.cfg.feature_std == 0.1
+    assert isinstance(m, NeuPreSS) and m.cfg.feature_std == 0.3
     metrics = read_header(model)["metrics"]
     assert 1 <= metrics["best_step"] <= 20 and metrics["validation_mse"] > 0
     box = Observations.load_source(obs)["bbox"]  # the object's bounding box, written by trace

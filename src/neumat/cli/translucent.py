@@ -51,7 +51,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
         batch: int = typer.Option(4096, min=1),
         lr: float = typer.Option(1e-3),
         feature_mean: float = typer.Option(0.0, help="mean of the Fourier matrix G (the paper: 18)"),
-        feature_std: float = typer.Option(0.1, help="standard deviation of G (the paper: 1); small values "
+        feature_std: float = typer.Option(0.3, help="standard deviation of G (the paper: 1); small values "
                                                     "generalise from few, noisy observations"),
         validation: float = typer.Option(0.05, help="fraction held back; the fit keeps the best weights on it"),
         sampler_steps: int = typer.Option(300, min=1, help="Adam steps of the importance-sampling module"),
