@@ -58,3 +58,18 @@ def test_export_check_runs_a_sparse_btf(tmp_path):
     assert manifest["textures"]["sbtf_codes"]["file"] == "sbtf_codes.f32"
     rel = float(result.output.split("max relative difference ")[1].split(",")[0])
     assert rel < 1e-4
+
+
+@needs_gl
+def test_export_check_runs_a_neupress(tmp_path):
+    torch.manual_seed(0)
+    model = build_model({"type": "neupress"})  # the paper's sizes and Fourier scale
+    model.set_bounds(torch.tensor([-1.0, -1.0, -1.0]), torch.tensor([1.0, 1.0, 1.0]))
+    path = save_model(model, tmp_path / "n.nmat")
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "300"])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "glsl" / "manifest.json").read_text())
+    assert "vec3 neumat_translucent(vec3 wi, vec3 x, vec3 wo)" in manifest["entry"]
+    text = " ".join(result.output.split())
+    assert float(text.split("S_hat max difference ")[1].split(" ")[0]) < 1e-3
+    assert float(text.split("sigma max relative difference ")[1].split(" ")[0]) < 1e-3

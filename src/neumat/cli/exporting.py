@@ -13,7 +13,7 @@ def register(app: typer.Typer) -> None:
 
 
 def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale, neumip-family "
-                                        "(neumip, zeltner, neural-appearance) or sparse-btf model"),
+                                        "(neumip, zeltner, neural-appearance), sparse-btf or neupress model"),
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run the shader on N random queries (headless OpenGL) and print "
@@ -31,7 +31,13 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
         size = sum(t.nbytes for t in exported.textures.values())
         print(f"wrote {folder / 'neumat.glsl'} ({len(exported.source)} characters) and "
               f"{len(exported.textures)} textures ({size / 1e6:.2f} MB) to {folder}")
-        if check:
+        if check and getattr(m, "name", None) == "neupress":
+            from ..testing.parity import neupress_parity
+
+            d = neupress_parity(exported, m, check)
+            print(f"shader vs torch on {check} random queries: S_hat max difference {d['translucent']:.2e} of its "
+                  f"largest value, sigma max relative difference {d['sigma']:.2e}")
+        elif check:
             from ..fit.footprint_queries import footprint_queries
             from ..testing.parity import glsl_eval
 

@@ -131,6 +131,14 @@ void nm_half_difference(vec3 wi, vec3 wo, out vec3 h, out vec3 d) {
     d = vec3(ct * x - st * wi.z, y, st * x + ct * wi.z);
 }
 
+// Duff et al. 2017 (neumat.core.frames.frame_from_normal)
+void nm_basis(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z), c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
 // (r, phi) of the disk projection, phi in [0, period)
 vec2 nm_disk_polar(vec3 w, float period) {
     float r2 = w.x * w.x + w.y * w.y;
@@ -302,10 +310,14 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
 def export_glsl(model) -> GLSLExport:
     """GLSL source and textures computing `model.eval` (see module docstring). model: a MultiScale (or a
     configuration of it such as tripleplane), a neumip-family model (`neumat.export.glsl_latent_mlp`, with the
-    neural-appearance sampler), or a SparseBTF (`neumat.export.glsl_sparse_btf`); anything else raises
-    InputError."""
+    neural-appearance sampler), a SparseBTF (`neumat.export.glsl_sparse_btf`) or a NeuPreSS translucent object
+    (`neumat.export.glsl_neupress`); anything else raises InputError."""
     from ..models.neumip import NeuMIP
+    from ..models.neupress import NeuPreSS
     from ..models.sparse_btf import SparseBTF
+    if isinstance(model, NeuPreSS):
+        from .glsl_neupress import export_neupress
+        return export_neupress(model)
     if isinstance(model, SparseBTF):
         from .glsl_sparse_btf import export_sparse_btf
         return export_sparse_btf(model)
@@ -314,8 +326,8 @@ def export_glsl(model) -> GLSLExport:
         return export_latent_mlp(model)
     if not isinstance(model, MultiScale):
         raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane), a latent-pyramid MLP "
-                         f"(neumip, zeltner, neural-appearance) or a sparse-btf, got {type(model).__name__} "
-                         f"({getattr(model, 'name', '?')})")
+                         f"(neumip, zeltner, neural-appearance), a sparse-btf or a neupress, got "
+                         f"{type(model).__name__} ({getattr(model, 'name', '?')})")
     cfg = model.cfg
     spatial = model.spatial is not None
     gated = spatial and cfg.gating

@@ -41,14 +41,6 @@ vec3 nm_cosine(vec2 u) {
     return vec3(p, sqrt(max(1.0 - dot(p, p), 0.0)));
 }
 
-// Duff et al. 2017 (neumat.core.frames.frame_from_normal)
-void nm_basis(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z), c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
 struct NmLobes { float wd; vec2 mud; vec2 alpha; float rho; vec2 mus; };
 
 vec3 nm_diffuse_normal(NmLobes p) { return normalize(vec3(-p.mud, 1.0)); }

@@ -2,7 +2,8 @@
 
 `glsl_eval(export, q)` draws one fragment per query into an RGBA32F framebuffer: the fragment shader reads
 its query (wi, wo, uv, footprint or lod) from float textures with `texelFetch`, calls the export's
-`neumat_eval` and writes the value. Needs `moderngl` and an OpenGL 3.3 context; by default a headless EGL one
+`neumat_eval` and writes the value. `glsl_run(export, inputs, call)` does the same for any entry point
+(the NeuPreSS export's, say). Needs `moderngl` and an OpenGL 3.3 context; by default a headless EGL one
 (Mesa llvmpipe runs it on the CPU).
 """
 from __future__ import annotations
@@ -20,14 +21,12 @@ void main() { gl_Position = vec4(position, 0.0, 1.0); }
 """
 
 _FRAGMENT = GLSL_VERSION + """
-uniform sampler2D q_wi, q_wo, q_uv, q_filter;
+{uniforms}
 out vec4 colour;
 {material}
 void main() {{
     ivec2 p = ivec2(gl_FragCoord.xy);
-    vec3 wi = texelFetch(q_wi, p, 0).xyz, wo = texelFetch(q_wo, p, 0).xyz;
-    vec4 f = texelFetch(q_filter, p, 0);
-    vec2 uv = texelFetch(q_uv, p, 0).xy;
+{reads}
     {call}
 }}
 """
@@ -78,6 +77,29 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
             call, mode = "colour = vec4(neumat_eval_lod(wi, wo, uv, f.w), 1.0);", 1
     else:
         call, mode = "colour = vec4(neumat_eval(wi, wo), 1.0);", 2
+    filt = torch.zeros(n, 4)
+    if mode == 0:
+        fp = q.footprint.detach().float().cpu()
+        filt[:, 0], filt[:, 1], filt[:, 2] = fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]
+    elif mode == 1 and q.lod is not None:
+        filt[:, 3] = q.lod.detach().float().cpu()
+    uv = q.uv if export.spatially_varying else torch.zeros(n, 2)
+    inputs = {"q_wi": q.wi, "q_wo": u if entry == "sample" else q.wo, "q_uv": uv, "q_filter": filt}
+    call = "vec3 wi = q_wi.xyz, wo = q_wo.xyz; vec2 uv = q_uv.xy; vec4 f = q_filter;\n    " + call
+    return glsl_run(export, inputs, call, backend, width)[:, :3].to(q.wi.device)
+
+
+def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, backend: str | None = "egl",
+             width: int = 256) -> torch.Tensor:
+    """Run `call` (GLSL statements that set `vec4 colour`) once per row of the inputs, with the export's source
+    and textures; each input (N, k <= 4) is a vec4 variable of its name (zero-padded). Returns colour (N, 4)
+    float32 on the CPU. One fragment per row of an RGBA32F framebuffer `width` wide."""
+    n = len(next(iter(inputs.values())))
+    if any(v.shape[0] != n or v.dim() != 2 or v.shape[1] > 4 for v in inputs.values()):
+        raise InputError(f"glsl_run inputs: expected (N, k <= 4) tensors with one N, got "
+                         f"{ {k: tuple(v.shape) for k, v in inputs.items()} }")
+    if n == 0:
+        return torch.zeros(0, 4)
     moderngl, ctx = _context(backend)
     try:
         cols = min(width, n)
@@ -91,21 +113,15 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
             tex.use(unit)
             return tex
 
-        filt = torch.zeros(n, 4)
-        if mode == 0:
-            fp = q.footprint.detach().float().cpu()
-            filt[:, 0], filt[:, 1], filt[:, 2] = fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]
-        elif mode == 1 and q.lod is not None:
-            filt[:, 3] = q.lod.detach().float().cpu()
-        uv = q.uv if export.spatially_varying else torch.zeros(n, 2)
-        inputs = {"q_wi": q.wi, "q_wo": u if entry == "sample" else q.wo, "q_uv": uv, "q_filter": filt}
-        program = ctx.program(vertex_shader=_VERTEX,
-                              fragment_shader=_FRAGMENT.format(material=export.source, call=call))
+        fragment = _FRAGMENT.format(
+            uniforms="\n".join(f"uniform sampler2D {name}_in;" for name in inputs), material=export.source,
+            reads="\n".join(f"    vec4 {name} = texelFetch({name}_in, p, 0);" for name in inputs), call=call)
+        program = ctx.program(vertex_shader=_VERTEX, fragment_shader=fragment)
         keep = []
         for unit, (name, values) in enumerate(inputs.items()):
-            if name in program:  # unused inputs (uv of a homogeneous export) are compiled away
+            if f"{name}_in" in program:  # unused inputs (uv of a homogeneous export) are compiled away
                 keep.append(upload(values, unit))
-                program[name] = unit
+                program[f"{name}_in"] = unit
         for unit, (name, data) in enumerate(export.textures.items(), start=len(inputs)):
             if name not in program:
                 continue
@@ -123,7 +139,25 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
         fbo.use()
         ctx.viewport = (0, 0, cols, rows)
         vao.render(moderngl.TRIANGLE_STRIP)
-        out = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(rows * cols, 4)[:n, :3]
-        return torch.from_numpy(out.copy()).to(q.wi.device)
+        out = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(rows * cols, 4)[:n]
+        return torch.from_numpy(out.copy())
     finally:
         ctx.release()
+
+
+def neupress_parity(export: GLSLExport, model, n: int, seed: int = 0, backend: str | None = "egl") -> dict[str, float]:
+    """Largest differences of a NeuPreSS export from `model` on n random queries (x uniform in its bounding box,
+    wi, wo uniform on the sphere): "translucent" relative to the largest value, "sigma" relative."""
+    from ..warp.sphere import sample_uniform_sphere
+
+    g = torch.Generator().manual_seed(seed)
+    x = model.box_min + (model.box_max - model.box_min) * torch.rand(n, 3, generator=g)
+    wi, wo = (sample_uniform_sphere(torch.rand(n, 2, generator=g)) for _ in range(2))
+    with torch.no_grad():
+        f = model.eval(Query(wi=wi, wo=wo, x=x))
+        sigma = model.sigma(x, wo)
+    inputs = {"wi": wi, "x": x, "wo": wo}
+    g_f = glsl_run(export, inputs, "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);", backend)[:, :3]
+    g_sigma = glsl_run(export, inputs, "colour = vec4(neumat_sigma(x.xyz, wo.xyz));", backend)[:, 0]
+    return {"translucent": float((g_f - f).abs().max() / f.abs().max().clamp(min=1e-30)),
+            "sigma": float(((g_sigma - sigma) / sigma).abs().max())}
