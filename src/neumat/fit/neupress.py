@@ -9,10 +9,10 @@ import torch
 
 from ..core.checks import check_int
 from ..core.coords import spherical_to_dir
-from ..core.errors import InputError
 from ..models.neupress import NeuPreSS
 from ..warp.azimuthal_gaussian import azimuthal_gaussian_pdf
 from .adam_steps import adam_steps
+from .translucent_fit import fit_observations
 from .translucent_observations import Observations
 
 
@@ -26,48 +26,16 @@ def fit_neupress(model: NeuPreSS, observations: Observations, steps: int = 4000,
     holds "validation_mse" and the model ends with the weights of the record where that was lowest (early
     stopping: noisy path-traced targets are otherwise learnt by heart). Returns the loss history of
     `adam_steps`."""
-    _check_steps(steps, batch)
     lo, hi = bounds if bounds is not None else (observations.x.min(0).values, observations.x.max(0).values)
     model.set_bounds(lo, hi)
-    gen = torch.Generator().manual_seed(seed)
-    obs = observations
     params = [p for name, p in model.named_parameters() if name.startswith("appearance")]
-
-    def step():
-        idx = torch.randint(len(obs), (batch,), generator=gen)
-        pred = model.raw(obs.wi[idx], obs.x[idx], obs.wo[idx])
-        return (((pred - obs.value[idx]) ** 2).mean(),)
-
-    if validation is None:
-        return adam_steps(params, steps, lr, step, ["mse"], "NeuPreSS appearance", log_every, progress)
-    if len(validation) == 0:
-        raise InputError("fit_neupress validation: expected at least one observation, got none")
-    best = {"mse": math.inf, "weights": None}
-
-    def keep_best(record: dict) -> None:
-        record["validation_mse"] = validation_mse(model, validation, batch)
-        if record["validation_mse"] < best["mse"]:
-            best["mse"] = record["validation_mse"]
-            best["weights"] = [p.detach().clone() for p in params]
-
-    history = adam_steps(params, steps, lr, step, ["mse"], "NeuPreSS appearance", log_every, progress, keep_best)
-    if best["weights"] is None:
-        raise InputError(f"fit_neupress: the validation MSE was never finite ({history[-1]['validation_mse']}); "
-                         f"the fit diverged (lower lr, now {lr})")
-    with torch.no_grad():
-        for p, w in zip(params, best["weights"]):
-            p.copy_(w)
-    return history
+    return fit_observations(neupress_predict(model), params, observations, steps, batch, lr, seed, progress,
+                            log_every, validation, "NeuPreSS appearance")
 
 
-def validation_mse(model: NeuPreSS, observations: Observations, batch: int = 65536) -> float:
-    """Mean squared error of the unclamped appearance module on `observations` (what `fit_neupress` fits)."""
-    total = 0.0
-    with torch.no_grad():
-        for i in range(0, len(observations), batch):
-            o = observations[i:i + batch]
-            total += float(((model.raw(o.wi, o.x, o.wo) - o.value) ** 2).sum())
-    return total / (len(observations) * observations.value.shape[-1])
+def neupress_predict(model: NeuPreSS):
+    """The unclamped appearance module as a function of observations (what `fit_neupress` fits)."""
+    return lambda o: model.raw(o.wi, o.x, o.wo)
 
 
 def light_grid(n_theta: int = 32, n_phi: int = 64, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..core.checks import check_directions, check_finite, check_shape
+from ..core.checks import check_directions, check_finite, check_int, check_shape
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
@@ -131,6 +131,20 @@ class TranslucentObject(Material):
                              "(no surface within 1e-3 diagonals along wo)")
         visible = (n * wo.double().cpu()).sum(-1) > 0
         return visible.to(x.device), (n / n.norm(dim=-1, keepdim=True)).to(x.device, x.dtype)
+
+    def surface_samples(self, n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n points uniform over the object's surface area: positions (n, 3), outward unit normals (n, 3) and the
+        area each stands for (n,) (the total area / n), float64; a quadrature over the surface."""
+        check_int(n, "surface_samples n")
+        mi = self.mi
+        u = torch.rand(n, 2, generator=torch.Generator().manual_seed(int(seed)), dtype=torch.float64).numpy()
+        shape = self.scenes["black"].shapes()[0]
+        ps = shape.sample_position(0.0, mi.Point2f(u[:, 0].astype(np.float32), u[:, 1].astype(np.float32)))
+        x = torch.from_numpy(np.array(ps.p, dtype=np.float64).T.copy())
+        normal = torch.from_numpy(np.array(ps.n, dtype=np.float64).T.copy())
+        pdf = np.broadcast_to(np.array(ps.pdf, dtype=np.float64).reshape(-1), (n,))  # uniform shapes give one value
+        area = torch.from_numpy(1.0 / pdf / n)
+        return x, normal / normal.norm(dim=-1, keepdim=True), area
 
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat(q.wi; q.x, q.wo), (N, 3) linear RGB per steradian (Monte Carlo, `spp` paths each)."""

@@ -43,7 +43,7 @@ def _pixel_rays(camera: Camera, resolution: int, spp: int, gen: torch.Generator)
 def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camera: Camera, resolution: int,
                        spp: int = 16, strategy: str = "light", seed: int = 0, batch: int = 1 << 15) -> torch.Tensor:
     """(resolution, resolution, 3) float32 subsurface radiance of `model` (a Material with full_sphere,
-    queried with x, wo and wi; with strategy "model" it must have `sample_incident`) on the geometry of
+    queried with x, wo, wi and the normal n; with strategy "model" it must have `sample_incident`) on the geometry of
     `obj`, lit by `env`, `spp` samples per pixel (jittered over the pixel)."""
     if strategy not in STRATEGIES:
         raise InputError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
@@ -67,7 +67,7 @@ def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camer
                 q = Query(wi=n[sl], wo=wo[sl], x=x[sl], n=n[sl])
                 wi, pdf = model.sample_incident(q, u.float())
                 radiance = env.eval(wi)
-            f = model.eval(Query(wi=wi, wo=wo[sl], x=x[sl]))
+            f = model.eval(Query(wi=wi, wo=wo[sl], x=x[sl], n=n[sl]))
             ok = (pdf > 0).unsqueeze(-1)
             values[sl] = torch.where(ok, f * radiance / pdf.clamp(min=1e-30).unsqueeze(-1), torch.zeros_like(f))
     image = torch.zeros(o.shape[0], 3)

@@ -1,0 +1,166 @@
+"""The dipole BSSRDF of a homogeneous translucent object (Jensen, Marschner, Levoy, Hanrahan 2001): the analytic
+baseline NeuPreSS compares against, here fitted to the same path-traced observations by gradient descent (as Deng
+et al. 2022 fit it by differentiable rendering).
+
+S_d(x_i, wi; x_o, wo) = Ft(eta, wi) R_d(|x_i - x_o|) Ft(eta, wo) / pi with the dipole profile
+
+    R_d(r) = alpha' / (4 pi) [z_r (s_tr d_r + 1) e^(-s_tr d_r) / d_r^3 + z_v (s_tr d_v + 1) e^(-s_tr d_v) / d_v^3],
+    s_t' = s_a + s_s', alpha' = s_s' / s_t', s_tr = sqrt(3 s_a s_t'), z_r = 1 / s_t', z_v = z_r (1 + 4 A / 3),
+    d_{r,v} = sqrt(r^2 + z_{r,v}^2), A = (1 + F_dr) / (1 - F_dr), F_dr = -1.440 / eta^2 + 0.710 / eta + 0.668
+    + 0.0636 eta,
+
+per RGB channel. Under a directional light of unit irradiance from wi, the light reaching the lit surface gives
+
+    S_hat(wi; x_o, wo) = Ft(eta, n_o . wo) / pi * sum_k R_d(|x_k - x_o|) Ft(eta, n_k . wi) max(n_k . wi, 0) A_k
+
+over a fixed quadrature of surface points x_k with normals n_k and areas A_k (`set_surface`; exact visibility for
+convex objects, self-shadowing of concave ones is ignored, as in the dipole model). The six learned parameters
+are log s_a and log s_s' per channel, in 1 / object unit; eta is fixed. Queries need x, wo and n (the normal at x).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from neumat.core.checks import check_int
+from neumat.core.config import resolve_config
+from neumat.core.errors import InputError
+from neumat.core.material import Material
+from neumat.core.query import Query
+from neumat.models.registry import MODELS
+from neumat.nn.codebook import float_bits, storage_bytes
+from neumat.reflectance.microfacet import fresnel_dielectric
+
+
+@dataclass
+class Config:
+    samples: int = 8192
+    """Surface points of the quadrature over incidence points (buffers, set by `set_surface`)."""
+    ior: float = 1.5
+    """Index of refraction inside (outside 1)."""
+    init_sigma_a: float = 0.05
+    """Initial absorption coefficient, 1 / object unit, all channels."""
+    init_sigma_s: float = 2.0
+    """Initial reduced scattering coefficient, 1 / object unit, all channels."""
+    batch: int = 1024
+    """Queries per chunk of the (queries x samples) sum."""
+
+
+def _check_config(c: Config) -> None:
+    check_int(c.samples, "DipoleBSSRDF.samples")
+    check_int(c.batch, "DipoleBSSRDF.batch")
+    for name in ("ior", "init_sigma_a", "init_sigma_s"):
+        v = getattr(c, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise InputError(f"DipoleBSSRDF.{name}: expected a finite number > 0, got {v!r}")
+
+
+def diffuse_fresnel_reflectance(eta: float) -> float:
+    """F_dr, the polynomial fit to the diffuse Fresnel reflectance that Jensen et al. 2001 use."""
+    return -1.440 / eta ** 2 + 0.710 / eta + 0.668 + 0.0636 * eta
+
+
+def dipole_profile(r: torch.Tensor, sigma_a: torch.Tensor, sigma_s: torch.Tensor, eta: float) -> torch.Tensor:
+    """R_d (..., 3) at distances r (...) for coefficients sigma_a, sigma_s' (3,) in 1 / the unit of r."""
+    sigma_t = sigma_a + sigma_s
+    alpha = sigma_s / sigma_t
+    sigma_tr = torch.sqrt(3 * sigma_a * sigma_t)
+    f_dr = diffuse_fresnel_reflectance(eta)
+    a = (1 + f_dr) / (1 - f_dr)
+    z_r = 1 / sigma_t
+    z_v = z_r * (1 + 4 * a / 3)
+    r2 = (r * r)[..., None]
+    d_r, d_v = torch.sqrt(r2 + z_r * z_r), torch.sqrt(r2 + z_v * z_v)
+    real = z_r * (sigma_tr * d_r + 1) * torch.exp(-sigma_tr * d_r) / d_r ** 3
+    virtual = z_v * (sigma_tr * d_v + 1) * torch.exp(-sigma_tr * d_v) / d_v ** 3
+    return alpha / (4 * math.pi) * (real + virtual)
+
+
+def dipole_total_reflectance(sigma_a: torch.Tensor, sigma_s: torch.Tensor, eta: float) -> torch.Tensor:
+    """Integral of R_d over the plane, (alpha' / 2) (1 + e^(-4/3 A sqrt(3 (1 - alpha')))) e^(-sqrt(3 (1 - alpha')))
+    (closed form, Jensen and Buhler 2002): the total diffuse reflectance (3,)."""
+    alpha = sigma_s / (sigma_a + sigma_s)
+    f_dr = diffuse_fresnel_reflectance(eta)
+    a = (1 + f_dr) / (1 - f_dr)
+    root = torch.sqrt(3 * (1 - alpha))
+    return alpha / 2 * (1 + torch.exp(-4 / 3 * a * root)) * torch.exp(-root)
+
+
+@MODELS.register("dipole-bssrdf")
+class DipoleBSSRDF(nn.Module, Material):
+    """S_hat(wi; x, wo) of a homogeneous object by the dipole (see the module docstring)."""
+
+    name = "dipole-bssrdf"
+    full_sphere = True
+    can_sample = False
+    Config = Config
+
+    def __init__(self, config: Config | None = None, **kwargs) -> None:
+        nn.Module.__init__(self)
+        self.cfg = resolve_config(Config, config, kwargs, "DipoleBSSRDF")
+        _check_config(self.cfg)
+        n = self.cfg.samples
+        self.log_sigma_a = nn.Parameter(torch.full((3,), math.log(self.cfg.init_sigma_a)))
+        self.log_sigma_s = nn.Parameter(torch.full((3,), math.log(self.cfg.init_sigma_s)))
+        self.register_buffer("points", torch.zeros(n, 3))
+        self.register_buffer("normals", torch.zeros(n, 3))
+        self.register_buffer("areas", torch.zeros(n))
+
+    @property
+    def config(self) -> Config:
+        return self.cfg
+
+    def set_surface(self, points: torch.Tensor, normals: torch.Tensor, areas: torch.Tensor) -> None:
+        """The quadrature: Config.samples surface points (n, 3), unit outward normals (n, 3), areas (n,)."""
+        n = self.cfg.samples
+        if points.shape != (n, 3) or normals.shape != (n, 3) or areas.shape != (n,):
+            raise InputError(f"DipoleBSSRDF.set_surface: expected ({n}, 3), ({n}, 3), ({n},) (Config.samples = {n}), "
+                             f"got {tuple(points.shape)}, {tuple(normals.shape)}, {tuple(areas.shape)}")
+        if not (torch.isfinite(points).all() and torch.isfinite(normals).all() and bool((areas > 0).all())):
+            raise InputError("DipoleBSSRDF.set_surface: points and normals must be finite and areas > 0")
+        with torch.no_grad():
+            self.points.copy_(points)
+            self.normals.copy_(normals / normals.norm(dim=-1, keepdim=True))
+            self.areas.copy_(areas)
+
+    def coefficients(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(sigma_a, sigma_s') (3,) each, 1 / object unit."""
+        return self.log_sigma_a.exp(), self.log_sigma_s.exp()
+
+    def raw(self, wi: torch.Tensor, x: torch.Tensor, wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+        """S_hat (N, 3) for object-space wi, x, wo and the normal n at x, all (N, 3) (what fitting compares)."""
+        if not bool(self.areas.sum() > 0):
+            raise InputError("DipoleBSSRDF: no surface quadrature yet; call set_surface (points of the object)")
+        sigma_a, sigma_s = self.coefficients()
+        eta = float(self.cfg.ior)
+        cos_o = (n * wo).sum(-1)
+        out_factor = (1 - fresnel_dielectric(cos_o.clamp(min=0), eta)) * (cos_o > 0) / math.pi
+        chunks = []
+        for s in range(0, x.shape[0], self.cfg.batch):
+            sl = slice(s, s + self.cfg.batch)
+            cos_k = wi[sl] @ self.normals.T  # (B, K)
+            lit = cos_k.clamp(min=0)
+            ft = 1 - fresnel_dielectric(lit.reshape(-1), eta).reshape(lit.shape)
+            weight = ft * lit * self.areas  # (B, K)
+            r = torch.cdist(x[sl], self.points)
+            chunks.append(torch.einsum("bk,bkc->bc", weight, dipole_profile(r, sigma_a, sigma_s, eta)))
+        return torch.cat(chunks, 0) * out_factor[:, None]
+
+    def eval(self, q: Query) -> torch.Tensor:
+        q.require("x", "wo", "n", who="DipoleBSSRDF.eval")
+        dtype = self.points.dtype
+        return self.raw(q.wi.to(dtype), q.x.to(dtype), q.wo.to(dtype), q.n.to(dtype)).to(q.dtype)
+
+    def forward(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
+
+    def size_bytes(self, precision: str = "fp32") -> int:
+        """The six coefficients (the quadrature is geometry, not material)."""
+        return storage_bytes(6 * float_bits(precision))
+
+    def flops(self) -> int:
+        """Per query: a distance, the profile (~40 operations) and the weight for each surface point."""
+        return 60 * self.cfg.samples
