@@ -14,6 +14,8 @@ and "smooth" (G ~ N(0, 0.1^2)), each trained --steps Adam steps of --batch obser
 validation record, every 100 steps), then the light sampler (--sampler-steps). Scores: held-out MSE (linear RGB,
 1/sr) and the same relative to the variance of the held-out values (1 = no better than their mean; the noise
 floor over that variance is the best a perfect model could score).
+Baseline: the dipole BSSRDF of a homogeneous medium (Jensen et al. 2001) over a --dipole-samples surface quadrature,
+its six coefficients fitted to the same observations (--dipole-steps, same validation, first 4096 of it).
 Images: --image-res^2 pixels, subsurface radiance only, under the shared forest map (downsampled to 128 x 64):
 the reference with --ref-spp paths per pixel; path tracing and the models at --render-spp, the models with
 environment ("light") or model ("model") importance sampling; MSE, FLIP and SSIM against the reference and seconds
@@ -26,10 +28,12 @@ import time
 
 import torch
 from neumat.cli.common import print_table
+from neumat.fit.dipole_bssrdf import dipole_predict, fit_dipole
 from neumat.fit.neupress import fit_neupress, fit_neupress_sampler
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
+from neumat.models.dipole_bssrdf import DipoleBSSRDF
 from neumat.models.neupress import NeuPreSS
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.envmaps import downsample_envmap, read_envmap
@@ -69,6 +73,8 @@ def main() -> None:
     p.add_argument("--image-res", type=int, default=64)
     p.add_argument("--ref-spp", type=int, default=8192)
     p.add_argument("--render-spp", type=int, default=32)
+    p.add_argument("--dipole-samples", type=int, default=4096, help="surface quadrature of the dipole baseline")
+    p.add_argument("--dipole-steps", type=int, default=300)
     p.add_argument("--image-out", default=None, help="write a comparison PNG here")
     a = p.parse_args()
     torch.manual_seed(0)
@@ -123,6 +129,7 @@ def main() -> None:
             img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy=strategy)
             image_rows.append(_image_row(f"{name}, {strategy} IS", img, reference, time.perf_counter() - t))
             images[f"{name}, {strategy} IS"] = img
+    rows.append(_dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows))
     print_table(f"NeuPreSS, {len(data)} observations ({a.images} views x {a.spp} spp, 5% of them for validation); "
                 f"held-out {len(test)}", rows, width=250)
     print_table(f"Images {a.image_res}^2 under the forest map at {a.render_spp} spp against a {a.ref_spp}-spp "
@@ -130,6 +137,32 @@ def main() -> None:
                 image_rows, width=250)
     if a.image_out:
         _save(images, a.image_out)
+
+
+def _dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows) -> dict:
+    """The homogeneous dipole baseline fitted to the same observations: its table row; adds its image."""
+    model = DipoleBSSRDF(samples=a.dipole_samples)
+    model.set_surface(*(t.float() for t in obj.surface_samples(a.dipole_samples)))
+    t = time.perf_counter()
+    hist = fit_dipole(model, train, steps=a.dipole_steps, validation=validation[:4096])
+    fit_s = time.perf_counter() - t
+    with torch.no_grad():
+        pred = dipole_predict(model)(test)
+        t = time.perf_counter()
+        dipole_predict(model)(test)
+        evals = len(test) / (time.perf_counter() - t)
+    mse = float(((pred - test.value) ** 2).mean())
+    t = time.perf_counter()
+    with torch.no_grad():
+        img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy="light")
+    image_rows.append(_image_row("dipole (homogeneous), light IS", img, reference, time.perf_counter() - t))
+    images["dipole, light IS"] = img
+    sigma_a, sigma_s = (", ".join(f"{v:.3g}" for v in c.tolist()) for c in model.coefficients())
+    print(f"dipole coefficients (1/object unit): sigma_a {sigma_a}; sigma_s' {sigma_s}")
+    return {"variant": "dipole (homogeneous)", "held-out MSE": f"{mse:.4g}",
+            "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
+            "best step": min(hist, key=lambda r: r["validation_mse"])["step"], "final KL": "-",
+            "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": "0 (6 numbers)"}
 
 
 def _image_row(method: str, image: torch.Tensor, reference: torch.Tensor, seconds: float) -> dict:
