@@ -2,7 +2,7 @@
 environment-lit images against the Mitsuba 3 reference.
 
     python benchmarks/neupress.py                       # marble/ketchup sphere, defaults below
-    python benchmarks/neupress.py --images 3000 --spp 8 --steps 3000 --image-out benchmarks/results/neupress.png
+    python benchmarks/neupress.py --images 3000 --spp 128 --steps 3000 --image-out benchmarks/results/neupress.png
 
 Data (Sec. 4.2 of the paper, scaled down): --images orthographic views of --res^2 jittered rays, each view with
 its own light direction and camera direction, --spp paths per ray; held-out: --test-images views with their own

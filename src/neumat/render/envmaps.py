@@ -76,8 +76,9 @@ def sky_envmap(width: int = 512, sun_elevation: float = 35.0, sun_azimuth: float
     """A procedural clear sky with a sun, float32 (width / 2, width, 3) in the mapping above.
 
     Sky: blue zenith to pale horizon with a glow around the sun, a dim grey-brown ground below the
-    horizon. Sun: a disc of 2 degrees radius. Angles in degrees; the sun direction is
-    (cos e sin a, sin e, cos e cos a), so azimuth 0 faces the default cameras (on +z). The sky (without
+    horizon. Sun: a disc of 2 degrees radius (the nearest texel on maps too coarse to hold it). Angles in
+    degrees; the sun direction is (cos e sin a, sin e, cos e cos a), so azimuth 0 faces the default cameras
+    (on +z). The sky (without
     sun) is scaled to give `sky_irradiance` on an upward-facing surface and the sun disc to give
     `sun_irradiance` at normal incidence (both RGB-averaged).
     """
