@@ -78,9 +78,8 @@ def sky_envmap(width: int = 512, sun_elevation: float = 35.0, sun_azimuth: float
     Sky: blue zenith to pale horizon with a glow around the sun, a dim grey-brown ground below the
     horizon. Sun: a disc of 2 degrees radius (the nearest texel on maps too coarse to hold it). Angles in
     degrees; the sun direction is (cos e sin a, sin e, cos e cos a), so azimuth 0 faces the default cameras
-    (on +z). The sky (without
-    sun) is scaled to give `sky_irradiance` on an upward-facing surface and the sun disc to give
-    `sun_irradiance` at normal incidence (both RGB-averaged).
+    (on +z). The sky (without sun) is scaled to give `sky_irradiance` on an upward-facing surface and the sun
+    disc to give `sun_irradiance` at normal incidence (both RGB-averaged).
     """
     if isinstance(width, bool) or not isinstance(width, int) or width < 8 or width % 2:
         raise InputError(f"sky_envmap: width must be an even integer >= 8, got {width!r}")
