@@ -37,7 +37,6 @@ does not depend on a seed and is exact for band-limited transport:
 """
 from __future__ import annotations
 
-import json
 import math
 import operator
 from dataclasses import asdict, dataclass, fields
@@ -51,6 +50,7 @@ from neumat.core.checks import check_directions, check_finite, check_shape
 from neumat.core.errors import DataFormatError, InputError
 from neumat.core.frames import frame_from_normal, to_local, to_world
 from neumat.core.query import Query
+from neumat.io.tagged_file import read_tagged, write_tagged
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.spherical_harmonics import real_sh, sh_count
 
@@ -410,32 +410,16 @@ class SHPRT:
     # ---- files -----------------------------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """Write a safetensors file (coefficients, points, normals float32; the config in the JSON metadata)."""
-        from safetensors.torch import save_file
-
         from neumat import __version__
-        tensors = {"coefficients": self.coefficients.float().cpu().contiguous(),
-                   "points": self.points.float().cpu().contiguous(), "normals": self.normals.float().cpu().contiguous()}
-        header = {"type": FILE_TYPE, "config": asdict(self.config), "neumat_version": __version__}
-        save_file(tensors, str(path), metadata={"neumat": json.dumps(header)})
-        return Path(path)
+        tensors = {"coefficients": self.coefficients.float(), "points": self.points.float(),
+                   "normals": self.normals.float()}
+        return write_tagged(path, tensors, {"type": FILE_TYPE, "config": asdict(self.config),
+                                            "neumat_version": __version__})
 
     @classmethod
     def load(cls, path: str | Path, device=None) -> "SHPRT":
         """Read a file written by `save`; wrong or inconsistent files raise DataFormatError."""
-        from safetensors import safe_open
-
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"SH PRT file {str(path)!r} does not exist")
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                meta = json.loads((f.metadata() or {}).get("neumat", "{}"))
-                tensors = {k: f.get_tensor(k) for k in f.keys()}
-        except Exception as e:
-            raise DataFormatError(f"{path}: not a readable SH PRT file: {type(e).__name__}: {e}") from None
-        if not isinstance(meta, dict) or meta.get("type") != FILE_TYPE:
-            kind = meta.get("type") if isinstance(meta, dict) else None
-            raise DataFormatError(f"{path}: header type {kind!r}, expected {FILE_TYPE!r}")
+        meta, tensors = read_tagged(path, FILE_TYPE, "SH PRT")
         try:
             known = {f.name for f in fields(PRTConfig)}
             cfg = PRTConfig(**{k: v for k, v in meta["config"].items() if k in known})

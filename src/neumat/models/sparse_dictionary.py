@@ -20,7 +20,6 @@ is below `tol`. Initialisation: a random partition of the points into K groups a
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Sequence
@@ -30,6 +29,7 @@ from pathlib import Path
 import torch
 
 from ..core.errors import DataFormatError, InputError
+from ..io.tagged_file import read_tagged, write_tagged
 
 #: RGB -> YUV (BT.601 analogue), rows Y, U, V
 RGB_TO_YUV = torch.tensor([[0.299, 0.587, 0.114],
@@ -399,36 +399,20 @@ class BTFDictionary:
 
     def save(self, path: str | Path) -> Path:
         """Write a `.nmat`-style file: safetensors tensors plus a JSON header (type "btf-dictionary")."""
-        from safetensors.torch import save_file
-
         from .. import __version__
-        tensors = {"light_dirs": self.light_dirs.float().cpu().clone(),
-                   "view_dirs": self.view_dirs.float().cpu().clone()}
+        tensors = {"light_dirs": self.light_dirs.float(), "view_dirs": self.view_dirs.float()}
         for c, ens in enumerate(self.ensembles):
             for j, u in enumerate(ens.mats):
-                tensors[f"U{j + 1}_{'YUV'[c]}"] = u.float().cpu().clone()
+                tensors[f"U{j + 1}_{'YUV'[c]}"] = u.float()
         header = {"type": "btf-dictionary", "patch": self.patch, "tau_train": list(self.tau_train),
                   "log_eps": self.log_eps, "num_dictionaries": self.num_dictionaries, "info": self.info,
                   "neumat_version": __version__}
-        save_file(tensors, str(path), metadata={"neumat": json.dumps(header)})
-        return Path(path)
+        return write_tagged(path, tensors, header)
 
     @classmethod
     def load(cls, path: str | Path, device=None) -> "BTFDictionary":
         """Read a file written by `save`."""
-        from safetensors import safe_open
-
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"dictionary file {str(path)!r} does not exist")
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                meta = json.loads((f.metadata() or {}).get("neumat", "{}"))
-                tensors = {k: f.get_tensor(k) for k in f.keys()}
-        except Exception as e:
-            raise DataFormatError(f"{path}: not a readable dictionary file: {e}") from None
-        if meta.get("type") != "btf-dictionary":
-            raise DataFormatError(f"{path}: header type {meta.get('type')!r}, expected 'btf-dictionary'")
+        meta, tensors = read_tagged(path, "btf-dictionary", "dictionary")
         try:
             ens = [Ensemble([tensors[f"U{j + 1}_{ch}"].to(device) for j in range(4)]) for ch in "YUV"]
         except KeyError as e:

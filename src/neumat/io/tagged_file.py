@@ -1,0 +1,42 @@
+"""Safetensors files whose metadata holds one JSON header with a "type": the format of the SparseBTF
+dictionary and of SH-PRT tables (model files have their own, stricter header: `neumat.io.modelfile`)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from ..core.errors import DataFormatError, InputError
+
+#: metadata key of the JSON header
+HEADER_KEY = "neumat"
+
+
+def write_tagged(path: str | Path, tensors: dict[str, torch.Tensor], header: dict) -> Path:
+    """Write copies of `tensors` (on the CPU) and `header` (a JSON object with a "type") to `path`."""
+    from safetensors.torch import save_file
+
+    save_file({k: v.detach().cpu().contiguous().clone() for k, v in tensors.items()}, str(path),  # no shared storage
+              metadata={HEADER_KEY: json.dumps(header)})
+    return Path(path)
+
+
+def read_tagged(path: str | Path, file_type: str, what: str) -> tuple[dict, dict[str, torch.Tensor]]:
+    """(header, tensors) of a file `write_tagged` wrote with header type `file_type`. A missing file raises
+    InputError; an unreadable one, or one of another type, DataFormatError naming `what` (e.g. "SH PRT")."""
+    from safetensors import safe_open
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what} file {str(path)!r} does not exist")
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            header = json.loads((f.metadata() or {}).get(HEADER_KEY, "{}"))
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except Exception as e:  # safetensors raises its own error types for truncated / malformed files
+        raise DataFormatError(f"{path}: not a readable {what} file: {type(e).__name__}: {e}") from None
+    if not isinstance(header, dict) or header.get("type") != file_type:
+        kind = header.get("type") if isinstance(header, dict) else None
+        raise DataFormatError(f"{path}: header type {kind!r}, expected {file_type!r}")
+    return header, tensors
