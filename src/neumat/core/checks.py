@@ -1,6 +1,8 @@
 """Validation helpers that turn bad tensors into clear `InputError`s at API edges."""
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .errors import InputError
@@ -46,6 +48,16 @@ def check_int(v, name: str, lo: int = 1) -> int:
     """Check that `v` is an int (not a bool) no smaller than `lo`. Returns `v`."""
     if isinstance(v, bool) or not isinstance(v, int) or v < lo:
         raise InputError(f"{name}: expected an integer >= {lo}, got {v!r}")
+    return v
+
+
+def check_number(v, name: str, lo: float | None = None, strict: bool = False) -> float:
+    """Check that `v` is a finite int or float (not a bool), and >= lo (> lo if `strict`) when `lo` is given.
+    Returns `v`."""
+    bound = "" if lo is None else f" {'>' if strict else '>='} {lo}"
+    if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+            or (lo is not None and (v <= lo if strict else v < lo))):
+        raise InputError(f"{name}: expected a finite number{bound}, got {v!r}")
     return v
 
 

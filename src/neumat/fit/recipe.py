@@ -10,7 +10,7 @@ import importlib
 import math
 from dataclasses import dataclass, replace
 
-from ..core.checks import check_int
+from ..core.checks import check_int, check_number
 from ..core.errors import InputError, UnknownNameError
 
 
@@ -60,9 +60,7 @@ def check_recipe(r: Recipe) -> Recipe:
                      ("checkpoint_every", 1)):
         check_int(getattr(r, name), f"Recipe.{name}", lo)
     for name in ("lr", "eps", "lr_decay", "ema", "grad_clip", "lr_min"):
-        v = getattr(r, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise InputError(f"Recipe.{name}: expected a finite number >= 0, got {v!r}")
+        check_number(getattr(r, name), f"Recipe.{name}", 0)
     if r.lr <= 0:
         raise InputError(f"Recipe.lr: expected a positive learning rate, got {r.lr!r}")
     if r.ema > 1:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from neumat.core.checks import check_int
+from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material
@@ -53,9 +53,7 @@ def _check_config(c: Config) -> None:
     check_int(c.samples, "DipoleBSSRDF.samples")
     check_int(c.batch, "DipoleBSSRDF.batch")
     for name in ("ior", "init_sigma_a", "init_sigma_s"):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise InputError(f"DipoleBSSRDF.{name}: expected a finite number > 0, got {v!r}")
+        check_number(getattr(c, name), f"DipoleBSSRDF.{name}", 0, strict=True)
 
 
 def diffuse_fresnel_reflectance(eta: float) -> float:

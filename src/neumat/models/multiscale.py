@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
-from neumat.core.checks import check_int
+from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
@@ -99,13 +99,9 @@ def _check_config(c: Config) -> None:
         check_int(getattr(c, name), f"multiscale.{name}", lo)
     if c.spatial_size & (c.spatial_size - 1):
         raise InputError(f"multiscale.spatial_size: expected a power of two, got {c.spatial_size}")
-    if isinstance(c.init_log_value, bool) or not isinstance(c.init_log_value, (int, float)) or not math.isfinite(
-            c.init_log_value):
-        raise InputError(f"multiscale.init_log_value: expected a finite number, got {c.init_log_value!r}")
+    check_number(c.init_log_value, "multiscale.init_log_value")
     for name in ("spatial_precondition", "angular_precondition", "init_std", "frame_weight_scale"):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise InputError(f"multiscale.{name}: expected a finite number >= 0, got {v!r}")
+        check_number(getattr(c, name), f"multiscale.{name}", 0)
 
 
 def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) -> torch.Tensor:

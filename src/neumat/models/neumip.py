@@ -14,14 +14,13 @@ Defaults are FLOP-matched to the gated model (2484 FLOPs): 8 latent channels, ML
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
-from neumat.core.checks import check_int
+from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
@@ -81,9 +80,7 @@ def _check_config(c: Config, who: str) -> None:
     if c.frames > 1 and (not c.shading_frame or c.directions != "cartesian"):
         raise InputError(f"{who}.frames: {c.frames} frames need shading_frame=True and cartesian directions")
     for name in ("spatial_precondition", "init_std", "init_log_value", "frame_weight_scale"):
-        v = getattr(c, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise InputError(f"{who}.{name}: expected a finite number, got {v!r}")
+        check_number(getattr(c, name), f"{who}.{name}")
     if c.spatial_precondition < 0 or c.init_std < 0 or c.frame_weight_scale < 0:
         raise InputError(f"{who}: spatial_precondition, init_std and frame_weight_scale must be >= 0")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..core.checks import check_directions, check_finite, check_int, check_shape
+from ..core.checks import check_directions, check_finite, check_int, check_number, check_shape
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
@@ -263,10 +263,8 @@ def _check_config(c: TranslucentConfig) -> None:
         path = Path(c.shape)
         if not path.is_file() or path.suffix.lower() != ".ply":
             raise InputError(f"translucent shape: expected 'sphere' or an existing .ply file, got {c.shape!r}")
-    for key, lo in (("size_mm", 0.0), ("roughness", 0.0), ("noise_frequency", 0.0)):
-        v = getattr(c, key)
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > lo):
-            raise InputError(f"translucent {key}: expected a finite number > {lo}, got {v!r}")
+    for key in ("size_mm", "roughness", "noise_frequency"):
+        check_number(getattr(c, key), f"translucent {key}", 0.0, strict=True)
     if not (isinstance(c.ior, (int, float)) and c.ior > 1):
         raise InputError(f"translucent ior: expected a number > 1, got {c.ior!r}")
     for key in ("grid_resolution", "max_depth"):
