@@ -6,6 +6,7 @@ import torch
 
 from neumat import InputError
 from neumat.testing.chi2 import chi2_2d, chi2_directions
+from neumat.testing.jacobian import sphere_jacobian
 from neumat.warp import (concentric_disk_pdf, cosine_hemisphere_pdf, invert_concentric_disk,
                          invert_cosine_hemisphere, invert_uniform_hemisphere, invert_uniform_sphere,
                          sample_concentric_disk, sample_cosine_hemisphere, sample_uniform_hemisphere,
@@ -23,14 +24,6 @@ def _u(n, seed=0, lo=1e-3):
     return lo + (1 - 2 * lo) * torch.rand(n, 2, generator=g, dtype=torch.float64)
 
 
-def _sphere_jacobian(sample, u, h=1e-6):
-    """|d w / d u0 x d w / d u1| by central differences (solid angle per unit u-area)."""
-    e0, e1 = torch.tensor([h, 0.0], dtype=u.dtype), torch.tensor([0.0, h], dtype=u.dtype)
-    d0 = (sample(u + e0) - sample(u - e0)) / (2 * h)
-    d1 = (sample(u + e1) - sample(u - e1)) / (2 * h)
-    return torch.linalg.cross(d0, d1).norm(dim=-1)
-
-
 @pytest.mark.parametrize("name", DIRECTION_WARPS)
 def test_direction_warp_roundtrips_and_jacobian(name):
     sample, pdf, invert, _ = DIRECTION_WARPS[name]
@@ -41,7 +34,7 @@ def test_direction_warp_roundtrips_and_jacobian(name):
     torch.testing.assert_close(invert(w), u, atol=1e-9, rtol=0)
     torch.testing.assert_close(sample(invert(w)), w, atol=1e-9, rtol=0)
     # pdf * |Jacobian| = 1 (the warp pushes the uniform density forward)
-    torch.testing.assert_close(pdf(w) * _sphere_jacobian(sample, u), torch.ones(2000, dtype=torch.float64),
+    torch.testing.assert_close(pdf(w) * sphere_jacobian(sample, u), torch.ones(2000, dtype=torch.float64),
                                atol=0, rtol=1e-5)
 
 
