@@ -44,10 +44,6 @@ def _check_ids(ids: torch.Tensor, n: int) -> None:
         raise InputError(f"ids: vertex ids must lie in [0, {n})")
 
 
-def _positive_int(v, name: str) -> int:
-    return check_int(v, name)
-
-
 class _StraightThrough(torch.autograd.Function):
     """out = D[argmax l] (U, k) of logit rows l (U, 2^b); backward: D gets the gradient of the hard lookup,
     l that of softmax(l) @ D with D held fixed: s * (g D^T - <g, s D>) per row, s = softmax(l)."""
@@ -83,9 +79,9 @@ class VQFeatures(nn.Module):
 
     def __init__(self, num_vertices: int, dim: int, bits: int, init_std: float = 1.0) -> None:
         super().__init__()
-        self.num_vertices = _positive_int(num_vertices, "num_vertices")
-        self.dim = _positive_int(dim, "dim")
-        self.bits = _positive_int(bits, "bits")
+        self.num_vertices = check_int(num_vertices, "num_vertices")
+        self.dim = check_int(dim, "dim")
+        self.bits = check_int(bits, "bits")
         if bits > 16:
             raise InputError(f"bits: expected at most 16 index bits, got {bits}")
         self.codebook = nn.Parameter(torch.randn(2 ** bits, dim) * init_std)
@@ -133,8 +129,8 @@ class DenseFeatures(nn.Module):
 
     def __init__(self, num_vertices: int, dim: int, init_std: float = 0.1) -> None:
         super().__init__()
-        self.num_vertices = _positive_int(num_vertices, "num_vertices")
-        self.dim = _positive_int(dim, "dim")
+        self.num_vertices = check_int(num_vertices, "num_vertices")
+        self.dim = check_int(dim, "dim")
         self.features = nn.Parameter(torch.randn(num_vertices, dim) * init_std)
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
@@ -157,9 +153,9 @@ class LowBitFeatures(nn.Module):
 
     def __init__(self, num_vertices: int, dim: int, feature_bits: int, init_std: float = 0.1) -> None:
         super().__init__()
-        self.num_vertices = _positive_int(num_vertices, "num_vertices")
-        self.dim = _positive_int(dim, "dim")
-        self.feature_bits = _positive_int(feature_bits, "feature_bits")
+        self.num_vertices = check_int(num_vertices, "num_vertices")
+        self.dim = check_int(dim, "dim")
+        self.feature_bits = check_int(feature_bits, "feature_bits")
         if feature_bits > 8:
             raise InputError(f"feature_bits: expected at most 8 bits, got {feature_bits}")
         self.levels = 2 ** feature_bits - 1
