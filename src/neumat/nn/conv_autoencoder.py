@@ -62,8 +62,7 @@ def train_autoencoder(model: ConvAutoencoder, volumes: torch.Tensor, steps: int 
                       seed: int = 0) -> list[float]:
     """Fit `model` to reconstruct `volumes` (M, C, R, R, R) (full batch, Adam, MSE). Returns the loss per
     step. The model's initial weights are re-seeded with `seed` for reproducibility."""
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise InputError(f"steps: expected a positive integer, got {steps!r}")
+    check_int(steps, "steps")
     model._check(volumes)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)

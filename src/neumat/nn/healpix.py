@@ -26,7 +26,7 @@ import math
 
 import torch
 
-from neumat.core.checks import check_directions, check_finite
+from neumat.core.checks import check_directions, check_finite, check_int
 from neumat.core.errors import InputError
 
 # face layout constants of the 12 base pixels (healpix_base.cc)
@@ -38,8 +38,7 @@ _JPLL = (1, 3, 5, 7, 0, 2, 4, 6, 1, 3, 5, 7)
 
 def check_nside(nside, name: str = "nside", power_of_two: bool = False) -> int:
     """Return `nside` as int; raise InputError unless it is a positive integer (and a power of 2 if asked)."""
-    if isinstance(nside, bool) or not isinstance(nside, int) or nside < 1:
-        raise InputError(f"{name}: expected a positive integer, got {nside!r}")
+    check_int(nside, name)
     if power_of_two and nside & (nside - 1):
         raise InputError(f"{name}: expected a power of two (nested scheme / hierarchy), got {nside}")
     return nside

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..core.checks import check_finite, check_shape
+from ..core.checks import check_finite, check_int, check_shape
 from ..core.errors import InputError
 from .preconditioner import FrequencyPreconditioner, flat_levels
 
@@ -198,8 +198,7 @@ class LatentPyramid(nn.Module):
         super().__init__()
         if isinstance(size, bool) or not isinstance(size, int) or size < 1 or size & (size - 1):
             raise InputError(f"LatentPyramid.size: expected a power of two, got {size!r}")
-        if isinstance(channels, bool) or not isinstance(channels, int) or channels < 1:
-            raise InputError(f"LatentPyramid.channels: expected a positive integer, got {channels!r}")
+        check_int(channels, "LatentPyramid.channels")
         self.size, self.channels, self.max_probes = size, channels, max_probes
         self.raw = nn.ParameterList(nn.Parameter(torch.randn(channels, size >> l, size >> l) * init_std)
                                     for l in range(pyramid_levels(size, size)))

@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..core.checks import check_int
 from ..core.errors import InputError
 
 MIN_ALPHA = 0.5
@@ -44,8 +45,7 @@ class RadialWarp(nn.Module):
 
     def __init__(self, terms: int = 2, latent_dim: int = 0) -> None:
         super().__init__()
-        if isinstance(terms, bool) or not isinstance(terms, int) or terms < 1:
-            raise InputError(f"RadialWarp.terms: expected a positive integer, got {terms!r}")
+        check_int(terms, "RadialWarp.terms")
         self.terms, self.latent_dim = terms, latent_dim
         init = _initial_parameters(terms)
         if latent_dim > 0:

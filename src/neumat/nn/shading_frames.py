@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..core.errors import InputError
+from ..core.checks import check_int
 from ..core.frames import to_local
 
 _EPS = 1e-12
@@ -48,8 +48,7 @@ class ShadingFrame(nn.Module):
 
     def __init__(self, latent_dim: int, weight_scale: float = 0.1, frames: int = 1) -> None:
         super().__init__()
-        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-            raise InputError(f"ShadingFrame.frames: expected an integer >= 1, got {frames!r}")
+        check_int(frames, "ShadingFrame.frames")
         self.weight_scale, self.frames = float(weight_scale), frames
         self.decode = nn.Linear(latent_dim, 6 * frames)
         with torch.no_grad():

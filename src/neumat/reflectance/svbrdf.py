@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import torch
 
+from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.frames import frame_from_normal_tangent, to_local, to_world
 from ..core.material import Material, sample_weight
@@ -60,8 +61,7 @@ class SVBRDF(Material):
         if not isinstance(textures, TextureSet):
             raise InputError(f"SVBRDF: expected a TextureSet, got {type(textures).__name__}")
         for key, v in (("samples", samples), ("chunk", chunk)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise InputError(f"SVBRDF.{key}: expected a positive integer, got {v!r}")
+            check_int(v, f"SVBRDF.{key}")
         self.textures = textures
         self.samples, self.chunk, self.specular = samples, chunk, float(specular)
         self.name = f"svbrdf:{textures.name}"

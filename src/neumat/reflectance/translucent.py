@@ -82,8 +82,7 @@ class TranslucentObject(Material):
     def __init__(self, config: TranslucentConfig | None = None, spp: int = 64, seed: int = 0) -> None:
         self.config = config = config or TranslucentConfig()
         _check_config(config)
-        if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
-            raise InputError(f"spp: expected a positive integer, got {spp!r}")
+        check_int(spp, "spp")
         self.spp, self.seed = spp, int(seed)
         self._calls = 0  # each trace call draws fresh random numbers (seeded by seed and this count)
         self.mi = mi = import_mitsuba()
@@ -268,9 +267,7 @@ def _check_config(c: TranslucentConfig) -> None:
     if not (isinstance(c.ior, (int, float)) and c.ior > 1):
         raise InputError(f"translucent ior: expected a number > 1, got {c.ior!r}")
     for key in ("grid_resolution", "max_depth"):
-        v = getattr(c, key)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 2:
-            raise InputError(f"translucent {key}: expected an integer >= 2, got {v!r}")
+        check_int(getattr(c, key), f"translucent {key}", 2)
 
 
 def _shape_dict(c: TranslucentConfig) -> dict:

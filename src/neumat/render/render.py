@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import torch
 
+from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.material import Material
 from .integrators import check_strategy, shade_direct
@@ -36,15 +37,13 @@ def render(material: Material, scene: str = "sphere", light: str | Light = "env:
     if getattr(material, "full_sphere", False):
         raise InputError(f"material {getattr(material, 'name', '?')!r}: the renderer shades reflectance "
                          "(BRDF) materials; full-sphere (translucent) materials are not supported")
-    if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
-        raise InputError(f"spp: expected a positive integer, got {spp!r}")
+    check_int(spp, "spp")
     check_strategy(strategy)
     width, height = _resolution(resolution)
     jitter = bool(scene_options.pop("jitter", True))
     device = torch.device(device) if device is not None else _material_device(material)
     batch = scene_options.pop("batch_size", CPU_BATCH_SAMPLES if device.type == "cpu" else BATCH_SAMPLES)
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise InputError(f"batch_size: expected a positive integer, got {batch!r}")
+    check_int(batch, "batch_size")
 
     the_scene = make_scene(scene, (width, height), **scene_options)
     the_light = light if isinstance(light, Light) else make_light(light, device=device)

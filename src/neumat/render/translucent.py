@@ -12,6 +12,7 @@ import math
 import numpy as np
 import torch
 
+from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.query import Query
 from ..reflectance.translucent import TranslucentObject
@@ -49,8 +50,7 @@ def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camer
         raise InputError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
     if strategy == "model" and not hasattr(model, "sample_incident"):
         raise InputError(f"strategy 'model': {type(model).__name__} has no sample_incident")
-    if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
-        raise InputError(f"spp: expected a positive integer, got {spp!r}")
+    check_int(spp, "spp")
     gen = torch.Generator().manual_seed(seed)
     o, d = _pixel_rays(camera, resolution, spp, gen)
     hit, x, n = obj.first_hits(o, d)
