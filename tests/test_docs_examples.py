@@ -24,6 +24,9 @@ def _examples() -> list:
 
 @pytest.mark.parametrize("code", _examples())
 def test_documented_example_runs(code, tmp_path, request):
+    if "import mitsuba" in code or "integrations import mitsuba" in code:
+        from mitsuba_util import mitsuba_or_skip
+        mitsuba_or_skip()  # skips with the reason when Mitsuba 3's LLVM backend is unusable
     if "../shared" in code:
         shared = request.getfixturevalue("shared_data").parent  # skips when ../shared/data is absent
         code = code.replace("../shared", str(shared))

@@ -1,0 +1,291 @@
+"""Mitsuba 3 BSDF plugin for any neumat `Material`: path-trace a fitted model inside a Mitsuba scene.
+
+    from neumat.integrations import mitsuba as nm_mitsuba
+    mi = nm_mitsuba.register()          # the llvm_ad_rgb variant unless an RGB variant is already set
+    scene = mi.load_dict({..., "shape": {"type": "ply", ..., "bsdf": {"type": "neumat", "material": "m.nmat"}}})
+    image = nm_mitsuba.render(scene, spp=64)        # (H, W, 3) float32 torch tensor, linear RGB
+
+`material` is anything `neumat.open_material` reads (a `.nmat` model, a MERL / RGL / BTF file, a texture-set
+folder or an analytic spec such as "ggx:roughness=0.2"); `bsdf(material)` wraps a Material object instead.
+
+Conventions. Mitsuba's local frame is neumat's (z the shading normal, x the tangent dp/du). In radiance
+transport `si.wi` points to the viewer and the evaluated `wo` to the light, so `eval` returns
+f(wi=wo_mitsuba, wo=si.wi) cos(theta_wo) (the neumat renderer's argument order); in importance transport the
+roles swap. `sample` draws the light direction with `material.sample(Query(wi=viewer), u)` (cosine-weighted
+where the material cannot sample) and weights it by eval / pdf, so sample, eval and pdf agree for
+non-reciprocal models too. Spatially varying materials get uv = si.uv modulo 1 (tiling) and no footprint:
+Mitsuba's path tracer carries no ray differentials, so they are evaluated at their finest level.
+The surface is one-sided, as Mitsuba's own BSDFs; wrap it in a `twosided` BSDF for two-sided use.
+
+The plugin runs torch on concrete arrays, so Dr.Jit must trace the integrator's loops and virtual calls in
+evaluated mode (`evaluated_mode()`, used by `render`); a call in a symbolic scope raises InputError.
+"""
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..core.errors import InputError
+from ..core.material import Material
+from ..core.query import Query
+from ..render.scenes import import_mitsuba
+from ..warp.hemisphere import sample_cosine_hemisphere
+
+#: the plugin name registered with Mitsuba
+PLUGIN_NAME = "neumat"
+#: rows per torch call (bounds the memory of large wavefronts through neural models)
+CHUNK = 1 << 18
+
+_classes: dict[str, type] = {}
+
+
+def register(variant: str | None = None):
+    """Register the "neumat" BSDF plugin and return the `mitsuba` module.
+
+    variant: a Mitsuba RGB variant to set first (default: keep the current one, or set llvm_ad_rgb when none
+    is set). Registering again (or for another variant) is harmless."""
+    mi = import_mitsuba() if variant is None else _set_variant(variant)
+    if not mi.is_rgb or mi.is_polarized:
+        raise InputError(f"Mitsuba variant {mi.variant()!r}: the neumat plugin needs an unpolarised RGB variant "
+                         "(for example llvm_ad_rgb or cuda_ad_rgb)")
+    cls = _bsdf_class(mi)
+    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
+    return mi
+
+
+def bsdf(material: Material | str | Path):
+    """A Mitsuba BSDF object around `material` (a Material, or anything `open_material` reads), for use as
+    the value of a "bsdf" entry in `mi.load_dict`. Registers the plugin (see `register`) if needed."""
+    mi = register() if not _classes else _current_mitsuba()
+    return _bsdf_class(mi)(mi.Properties(PLUGIN_NAME), material=material)
+
+
+@contextlib.contextmanager
+def evaluated_mode():
+    """Within the block, Dr.Jit evaluates loops, virtual calls and conditionals instead of recording them
+    symbolically, as the plugin needs. The previous flags are restored on exit."""
+    import drjit as dr
+    flags = (dr.JitFlag.SymbolicLoops, dr.JitFlag.SymbolicCalls, dr.JitFlag.SymbolicConditionals)
+    before = [dr.flag(f) for f in flags]
+    try:
+        for f in flags:
+            dr.set_flag(f, False)
+        yield
+    finally:
+        for f, b in zip(flags, before):
+            dr.set_flag(f, b)
+
+
+def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0) -> torch.Tensor:
+    """`mi.render(scene, spp=spp, seed=seed, sensor=sensor)` in evaluated mode, as a float32 (H, W, C) torch
+    tensor on the CPU (linear RGB, plus any extra film channels)."""
+    mi = _current_mitsuba()
+    if not isinstance(scene, mi.Scene):
+        raise InputError(f"scene: expected a mitsuba Scene (mi.load_dict / mi.load_file), got {type(scene).__name__}")
+    with evaluated_mode():
+        image = mi.render(scene, spp=0 if spp is None else spp, seed=seed, sensor=sensor)
+    return torch.from_numpy(np.array(image, dtype=np.float32))
+
+
+def _set_variant(variant: str):
+    mi = import_mitsuba()
+    if not isinstance(variant, str) or variant not in mi.variants():
+        raise InputError(f"variant: expected one of the installed Mitsuba variants {mi.variants()}, got {variant!r}")
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return mi
+
+
+def _current_mitsuba():
+    import mitsuba as mi
+    if mi.variant() is None:
+        return import_mitsuba()
+    return mi
+
+
+def _bsdf_class(mi) -> type:
+    """The plugin class for the current variant (Mitsuba's base classes differ per variant)."""
+    variant = mi.variant()
+    if variant not in _classes:
+        _classes[variant] = _make_bsdf_class(mi)
+    return _classes[variant]
+
+
+def _make_bsdf_class(mi) -> type:
+    import drjit as dr
+
+    class NeumatBSDF(mi.BSDF):
+        """A neumat Material as a one-sided glossy-reflection Mitsuba BSDF (see the module docstring)."""
+
+        def __init__(self, props, material=None):
+            mi.BSDF.__init__(self, props)
+            if material is None:
+                if "material" not in props:
+                    raise InputError("neumat BSDF: the 'material' property (a model file, measured file, "
+                                     "texture-set folder or analytic spec) is required")
+                material = props["material"]
+            self.material = _open(material)
+            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+            if self.material.spatially_varying:
+                flags = flags | mi.BSDFFlags.SpatiallyVarying
+            self.m_flags = flags
+            self.m_components = [flags]
+            self._device, self._dtype = _material_device_dtype(self.material)
+
+        def eval(self, ctx, si, wo, active=True):
+            value, _ = self._eval_pdf(ctx, si, wo, active, want_pdf=False)
+            return value
+
+        def pdf(self, ctx, si, wo, active=True):
+            _, pdf = self._eval_pdf(ctx, si, wo, active, want_value=False)
+            return pdf
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self._eval_pdf(ctx, si, wo, active)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            _require_evaluated(dr)
+            n = dr.width((si.wi, sample2, active))
+            bs = dr.zeros(mi.BSDFSample3f, n)
+            viewer = _vec(si.wi, self._dtype, n)
+            ok = _mask(active, n) & (viewer[:, 2] > 0) & _enabled(ctx, mi)
+            rows = ok.nonzero().squeeze(1)
+            wo = torch.zeros_like(viewer)
+            wo[:, 2] = 1.0
+            pdf = torch.zeros(viewer.shape[0], dtype=self._dtype)
+            weight = torch.zeros(viewer.shape[0], 3, dtype=self._dtype)
+            if rows.numel():
+                u = _vec(sample2, self._dtype, n)[rows]
+                uv = self._uv(si, rows, n)
+                w_s, p_s = self._sample(viewer[rows], u, uv)
+                good = (p_s > 0) & (w_s[:, 2] > 0) & torch.isfinite(w_s).all(-1) & torch.isfinite(p_s)
+                w_s = torch.where(good[:, None], w_s, wo[rows])
+                light, view = (viewer[rows], w_s) if _importance(ctx, mi) else (w_s, viewer[rows])
+                f = self._call(lambda q: self.material.eval(q), light, view, uv)
+                ratio = f * w_s[:, 2:3] / torch.where(good, p_s, torch.ones_like(p_s))[:, None]
+                weight[rows] = torch.where(good[:, None] & torch.isfinite(ratio), ratio, torch.zeros_like(ratio))
+                pdf[rows] = torch.where(good, p_s, torch.zeros_like(p_s))
+                wo[rows] = w_s
+            bs.wo = mi.Vector3f(*(mi.Float(wo[:, i].float().contiguous()) for i in range(3)))
+            bs.pdf = mi.Float(pdf.float())
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+            bs.sampled_component = mi.UInt32(0)
+            return bs, _color(mi, weight)
+
+        def to_string(self):
+            return f"NeumatBSDF[material={self.material.describe()!r}]"
+
+        # --- torch side ---------------------------------------------------------------------------
+
+        def _eval_pdf(self, ctx, si, wo, active, want_value=True, want_pdf=True):
+            _require_evaluated(dr)
+            n = dr.width((si.wi, wo, active))
+            viewer, other = _vec(si.wi, self._dtype, n), _vec(wo, self._dtype, n)
+            ok = _mask(active, n) & (viewer[:, 2] > 0) & (other[:, 2] > 0) & _enabled(ctx, mi)
+            rows = ok.nonzero().squeeze(1)
+            value = torch.zeros(n, 3, dtype=self._dtype)
+            pdf = torch.zeros(n, dtype=self._dtype)
+            if rows.numel():
+                uv = self._uv(si, rows, n)
+                v, o = viewer[rows], other[rows]
+                if want_value:
+                    light, view = (v, o) if _importance(ctx, mi) else (o, v)
+                    f = self._call(lambda q: self.material.eval(q), light, view, uv)
+                    value[rows] = f * o[:, 2:3]
+                if want_pdf:
+                    pdf[rows] = self._pdf(v, o, uv)
+            return _color(mi, value), mi.Float(pdf.float())
+
+        def _uv(self, si, rows, n):
+            if not self.material.spatially_varying:
+                return None
+            return torch.remainder(_vec(si.uv, self._dtype, n)[rows], 1.0)
+
+        def _sample(self, viewer, u, uv):
+            """Light directions (M, 3) drawn given the viewer directions, and their densities (M,)."""
+            if not self.material.can_sample:
+                w = sample_cosine_hemisphere(u)
+                return w, w[:, 2].clamp(min=0) / np.pi
+            out = [self.material.sample(_query(viewer[s], None, uv, s, self._device), u[s].to(self._device))
+                   for s in _chunks(viewer.shape[0])]
+            return (torch.cat([o.wo for o in out]).to("cpu", self._dtype),
+                    torch.cat([o.pdf for o in out]).to("cpu", self._dtype))
+
+        def _pdf(self, viewer, light, uv):
+            if not self.material.can_sample:
+                return light[:, 2].clamp(min=0) / np.pi
+            return self._call(lambda q: self.material.pdf(q), viewer, light, uv)
+
+        def _call(self, fn, wi, wo, uv):
+            with torch.no_grad():
+                parts = [fn(_query(wi[s], wo[s], uv, s, self._device)) for s in _chunks(wi.shape[0])]
+            out = torch.cat(parts).to("cpu", self._dtype)
+            if not bool(torch.isfinite(out).all()):
+                raise InputError(f"neumat BSDF: material {self.material.describe()!r} returned non-finite "
+                                 "values (NaN or inf)")
+            return out
+
+    return NeumatBSDF
+
+
+def _open(material) -> Material:
+    if isinstance(material, Material):
+        if material.full_sphere:
+            raise InputError(f"material {material.name!r}: full-sphere (translucent) materials are whole objects, "
+                             "not surface BSDFs; the Mitsuba plugin takes reflectance materials")
+        return material
+    if isinstance(material, (str, Path)):
+        from ..io.open_material import open_material
+        return _open(open_material(material))
+    raise InputError(f"material: expected a neumat Material, a file path or a spec string, "
+                     f"got {type(material).__name__}")
+
+
+def _material_device_dtype(material) -> tuple[torch.device, torch.dtype]:
+    params = material.parameters() if isinstance(material, torch.nn.Module) else ()
+    for p in params:
+        return p.device, torch.float32
+    return torch.device("cpu"), torch.float32
+
+
+def _require_evaluated(dr) -> None:
+    if dr.flag(dr.JitFlag.SymbolicScope):
+        raise InputError("neumat BSDF: called while Dr.Jit records symbolically; render with "
+                         "neumat.integrations.mitsuba.render(scene) or inside `with evaluated_mode():`")
+
+
+def _vec(v, dtype, n: int) -> torch.Tensor:
+    """A Dr.Jit vector or point (D components over n lanes, or one broadcast value) as a (n, D) torch tensor
+    on the CPU."""
+    t = torch.from_numpy(np.array(v, dtype=np.float32).reshape(len(v), -1).T.copy()).to(dtype)
+    return t.expand(n, -1) if t.shape[0] == 1 else t
+
+
+def _mask(active, n: int) -> torch.Tensor:
+    m = torch.from_numpy(np.array(active, dtype=bool)).reshape(-1)
+    return m.expand(n) if m.numel() == 1 else m
+
+
+def _enabled(ctx, mi) -> bool:
+    return bool(ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0))
+
+
+def _importance(ctx, mi) -> bool:
+    return ctx.mode == mi.TransportMode.Importance
+
+
+def _color(mi, rgb: torch.Tensor):
+    return mi.Color3f(*(mi.Float(rgb[:, i].float().contiguous()) for i in range(3)))
+
+
+def _chunks(n: int):
+    return [slice(s, min(s + CHUNK, n)) for s in range(0, n, CHUNK)]
+
+
+def _query(wi, wo, uv, rows: slice, device) -> Query:
+    return Query(wi.to(device), None if wo is None else wo.to(device),
+                 uv=None if uv is None else uv[rows].to(device))
