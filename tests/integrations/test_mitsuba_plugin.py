@@ -120,6 +120,13 @@ def test_sample_returns_its_pdf_and_eval_over_pdf(mi, name):
     assert torch.allclose(weight[ok], _np(value)[ok] / pdf[ok, None], rtol=2e-3, atol=1e-5)
 
 
+class _NaNs(Material):
+    name = "nans"
+
+    def eval(self, q):
+        return torch.full((len(q), 3), float("nan"))
+
+
 class _NoSampler(Material):
     """GGX without its sampler: the plugin must fall back to cosine-weighted sampling."""
 
@@ -243,6 +250,9 @@ def test_bad_input_is_refused_clearly(mi):
         plugin.register("no_such_variant")
     with pytest.raises(InputError, match="mitsuba Scene"):
         plugin.render("scene.xml")
+    si = _interaction(mi, torch.tensor([[0.0, 0.0, 1.0]]), torch.zeros(1, 2))
+    with pytest.raises(InputError, match="non-finite"):
+        plugin.bsdf(_NaNs()).eval(mi.BSDFContext(), si, mi.Vector3f(0, 0, 1))
     # a symbolic loop cannot hand concrete arrays to torch: the plugin says how to render instead
     bsdf = plugin.bsdf(Lambert())
     si = dr.zeros(mi.SurfaceInteraction3f, 4)

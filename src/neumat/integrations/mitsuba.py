@@ -31,6 +31,7 @@ import torch
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
+from ..metrics.hdr import material_device
 from ..render.scenes import import_mitsuba
 from ..warp.hemisphere import sample_cosine_hemisphere
 
@@ -38,6 +39,8 @@ from ..warp.hemisphere import sample_cosine_hemisphere
 PLUGIN_NAME = "neumat"
 #: rows per torch call (bounds the memory of large wavefronts through neural models)
 CHUNK = 1 << 18
+#: the precision of the torch side (Mitsuba's RGB variants are single precision)
+_DTYPE = torch.float32
 
 _classes: dict[str, type] = {}
 
@@ -133,7 +136,7 @@ def _make_bsdf_class(mi) -> type:
                 flags = flags | mi.BSDFFlags.SpatiallyVarying
             self.m_flags = flags
             self.m_components = [flags]
-            self._device, self._dtype = _material_device_dtype(self.material)
+            self._device = material_device(self.material)
 
         def eval(self, ctx, si, wo, active=True):
             value, _ = self._eval_pdf(ctx, si, wo, active, want_pdf=False)
@@ -150,27 +153,27 @@ def _make_bsdf_class(mi) -> type:
             _require_evaluated(dr)
             n = dr.width((si.wi, sample2, active))
             bs = dr.zeros(mi.BSDFSample3f, n)
-            viewer = _vec(si.wi, self._dtype, n)
+            viewer = _vec(si.wi, n)
             ok = _mask(active, n) & (viewer[:, 2] > 0) & _enabled(ctx, mi)
             rows = ok.nonzero().squeeze(1)
             wo = torch.zeros_like(viewer)
             wo[:, 2] = 1.0
-            pdf = torch.zeros(viewer.shape[0], dtype=self._dtype)
-            weight = torch.zeros(viewer.shape[0], 3, dtype=self._dtype)
+            pdf = torch.zeros(viewer.shape[0], dtype=_DTYPE)
+            weight = torch.zeros(viewer.shape[0], 3, dtype=_DTYPE)
             if rows.numel():
-                u = _vec(sample2, self._dtype, n)[rows]
+                u = _vec(sample2, n)[rows]
                 uv = self._uv(si, rows, n)
                 w_s, p_s = self._sample(viewer[rows], u, uv)
                 good = (p_s > 0) & (w_s[:, 2] > 0) & torch.isfinite(w_s).all(-1) & torch.isfinite(p_s)
                 w_s = torch.where(good[:, None], w_s, wo[rows])
                 light, view = (viewer[rows], w_s) if _importance(ctx, mi) else (w_s, viewer[rows])
-                f = self._call(lambda q: self.material.eval(q), light, view, uv)
+                f = self._call(self.material.eval, light, view, uv)
                 ratio = f * w_s[:, 2:3] / torch.where(good, p_s, torch.ones_like(p_s))[:, None]
                 weight[rows] = torch.where(good[:, None] & torch.isfinite(ratio), ratio, torch.zeros_like(ratio))
                 pdf[rows] = torch.where(good, p_s, torch.zeros_like(p_s))
                 wo[rows] = w_s
-            bs.wo = mi.Vector3f(*(mi.Float(wo[:, i].float().contiguous()) for i in range(3)))
-            bs.pdf = mi.Float(pdf.float())
+            bs.wo = mi.Vector3f(*(mi.Float(wo[:, i].contiguous()) for i in range(3)))
+            bs.pdf = mi.Float(pdf)
             bs.eta = 1.0
             bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
             bs.sampled_component = mi.UInt32(0)
@@ -184,46 +187,47 @@ def _make_bsdf_class(mi) -> type:
         def _eval_pdf(self, ctx, si, wo, active, want_value=True, want_pdf=True):
             _require_evaluated(dr)
             n = dr.width((si.wi, wo, active))
-            viewer, other = _vec(si.wi, self._dtype, n), _vec(wo, self._dtype, n)
+            viewer, other = _vec(si.wi, n), _vec(wo, n)
             ok = _mask(active, n) & (viewer[:, 2] > 0) & (other[:, 2] > 0) & _enabled(ctx, mi)
             rows = ok.nonzero().squeeze(1)
-            value = torch.zeros(n, 3, dtype=self._dtype)
-            pdf = torch.zeros(n, dtype=self._dtype)
+            value = torch.zeros(n, 3, dtype=_DTYPE)
+            pdf = torch.zeros(n, dtype=_DTYPE)
             if rows.numel():
                 uv = self._uv(si, rows, n)
                 v, o = viewer[rows], other[rows]
                 if want_value:
                     light, view = (v, o) if _importance(ctx, mi) else (o, v)
-                    f = self._call(lambda q: self.material.eval(q), light, view, uv)
+                    f = self._call(self.material.eval, light, view, uv)
                     value[rows] = f * o[:, 2:3]
                 if want_pdf:
                     pdf[rows] = self._pdf(v, o, uv)
-            return _color(mi, value), mi.Float(pdf.float())
+            return _color(mi, value), mi.Float(pdf)
 
         def _uv(self, si, rows, n):
             if not self.material.spatially_varying:
                 return None
-            return torch.remainder(_vec(si.uv, self._dtype, n)[rows], 1.0)
+            return torch.remainder(_vec(si.uv, n)[rows], 1.0)
 
         def _sample(self, viewer, u, uv):
             """Light directions (M, 3) drawn given the viewer directions, and their densities (M,)."""
             if not self.material.can_sample:
                 w = sample_cosine_hemisphere(u)
                 return w, w[:, 2].clamp(min=0) / np.pi
-            out = [self.material.sample(_query(viewer[s], None, uv, s, self._device), u[s].to(self._device))
-                   for s in _chunks(viewer.shape[0])]
-            return (torch.cat([o.wo for o in out]).to("cpu", self._dtype),
-                    torch.cat([o.pdf for o in out]).to("cpu", self._dtype))
+            with torch.no_grad():
+                out = [self.material.sample(_query(viewer[s], None, uv, s, self._device), u[s].to(self._device))
+                       for s in _chunks(viewer.shape[0])]
+            return (torch.cat([o.wo for o in out]).to("cpu", _DTYPE),
+                    torch.cat([o.pdf for o in out]).to("cpu", _DTYPE))
 
         def _pdf(self, viewer, light, uv):
             if not self.material.can_sample:
                 return light[:, 2].clamp(min=0) / np.pi
-            return self._call(lambda q: self.material.pdf(q), viewer, light, uv)
+            return self._call(self.material.pdf, viewer, light, uv)
 
         def _call(self, fn, wi, wo, uv):
             with torch.no_grad():
                 parts = [fn(_query(wi[s], wo[s], uv, s, self._device)) for s in _chunks(wi.shape[0])]
-            out = torch.cat(parts).to("cpu", self._dtype)
+            out = torch.cat(parts).to("cpu", _DTYPE)
             if not bool(torch.isfinite(out).all()):
                 raise InputError(f"neumat BSDF: material {self.material.describe()!r} returned non-finite "
                                  "values (NaN or inf)")
@@ -245,23 +249,16 @@ def _open(material) -> Material:
                      f"got {type(material).__name__}")
 
 
-def _material_device_dtype(material) -> tuple[torch.device, torch.dtype]:
-    params = material.parameters() if isinstance(material, torch.nn.Module) else ()
-    for p in params:
-        return p.device, torch.float32
-    return torch.device("cpu"), torch.float32
-
-
 def _require_evaluated(dr) -> None:
     if dr.flag(dr.JitFlag.SymbolicScope):
         raise InputError("neumat BSDF: called while Dr.Jit records symbolically; render with "
                          "neumat.integrations.mitsuba.render(scene) or inside `with evaluated_mode():`")
 
 
-def _vec(v, dtype, n: int) -> torch.Tensor:
+def _vec(v, n: int) -> torch.Tensor:
     """A Dr.Jit vector or point (D components over n lanes, or one broadcast value) as a (n, D) torch tensor
     on the CPU."""
-    t = torch.from_numpy(np.array(v, dtype=np.float32).reshape(len(v), -1).T.copy()).to(dtype)
+    t = torch.from_numpy(np.array(v, dtype=np.float32).reshape(len(v), -1).T.copy()).to(_DTYPE)
     return t.expand(n, -1) if t.shape[0] == 1 else t
 
 
@@ -279,7 +276,7 @@ def _importance(ctx, mi) -> bool:
 
 
 def _color(mi, rgb: torch.Tensor):
-    return mi.Color3f(*(mi.Float(rgb[:, i].float().contiguous()) for i in range(3)))
+    return mi.Color3f(*(mi.Float(rgb[:, i].contiguous()) for i in range(3)))
 
 
 def _chunks(n: int):
