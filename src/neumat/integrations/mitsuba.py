@@ -18,7 +18,9 @@ Mitsuba's path tracer carries no ray differentials, so they are evaluated at the
 The surface is one-sided, as Mitsuba's own BSDFs; wrap it in a `twosided` BSDF for two-sided use.
 
 The plugin runs torch on concrete arrays, so Dr.Jit must trace the integrator's loops and virtual calls in
-evaluated mode (`evaluated_mode()`, used by `render`); a call in a symbolic scope raises InputError.
+evaluated mode (`evaluated_mode()`, used by `render`); a call in a symbolic scope raises InputError. Mitsuba's
+symbolic virtual calls trace every live BSDF instance, so while a neumat BSDF object exists, render every scene
+(also those without one) in evaluated mode.
 """
 from __future__ import annotations
 
@@ -252,7 +254,9 @@ def _open(material) -> Material:
 def _require_evaluated(dr) -> None:
     if dr.flag(dr.JitFlag.SymbolicScope):
         raise InputError("neumat BSDF: called while Dr.Jit records symbolically; render with "
-                         "neumat.integrations.mitsuba.render(scene) or inside `with evaluated_mode():`")
+                         "neumat.integrations.mitsuba.render(scene) or inside `with evaluated_mode():`. "
+                         "Mitsuba's symbolic virtual calls trace every live BSDF, so this applies to every "
+                         "scene rendered while a neumat BSDF object exists")
 
 
 def _vec(v, n: int) -> torch.Tensor:
