@@ -248,6 +248,9 @@ def test_bad_input_is_refused_clearly(mi):
         plugin.bsdf(NeuPreSS())
     with pytest.raises(InputError, match="installed Mitsuba variants"):
         plugin.register("no_such_variant")
+    with pytest.raises(InputError, match="unpolarised RGB variant"):
+        plugin.register("scalar_spectral")
+    assert mi.variant() == "llvm_ad_rgb"  # a refused variant is not set
     with pytest.raises(InputError, match="mitsuba Scene"):
         plugin.render("scene.xml")
     si = _interaction(mi, torch.tensor([[0.0, 0.0, 1.0]]), torch.zeros(1, 2))

@@ -52,10 +52,8 @@ def register(variant: str | None = None):
 
     variant: a Mitsuba RGB variant to set first (default: keep the current one, or set llvm_ad_rgb when none
     is set). Registering again (or for another variant) is harmless."""
-    mi = import_mitsuba() if variant is None else _set_variant(variant)
-    if not mi.is_rgb or mi.is_polarized:
-        raise InputError(f"Mitsuba variant {mi.variant()!r}: the neumat plugin needs an unpolarised RGB variant "
-                         "(for example llvm_ad_rgb or cuda_ad_rgb)")
+    mi = _current_mitsuba() if variant is None else _set_variant(variant)
+    _check_rgb(mi.variant())
     cls = _bsdf_class(mi)
     mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
     return mi
@@ -63,8 +61,8 @@ def register(variant: str | None = None):
 
 def bsdf(material: Material | str | Path):
     """A Mitsuba BSDF object around `material` (a Material, or anything `open_material` reads), for use as
-    the value of a "bsdf" entry in `mi.load_dict`. Registers the plugin (see `register`) if needed."""
-    mi = register() if not _classes else _current_mitsuba()
+    the value of a "bsdf" entry in `mi.load_dict`, for the current variant (see `register`)."""
+    mi = register()
     return _bsdf_class(mi)(mi.Properties(PLUGIN_NAME), material=material)
 
 
@@ -99,16 +97,23 @@ def _set_variant(variant: str):
     mi = import_mitsuba()
     if not isinstance(variant, str) or variant not in mi.variants():
         raise InputError(f"variant: expected one of the installed Mitsuba variants {mi.variants()}, got {variant!r}")
+    _check_rgb(variant)
     if mi.variant() != variant:
         mi.set_variant(variant)
     return mi
 
 
+def _check_rgb(variant: str) -> None:
+    parts = variant.split("_")
+    if "rgb" not in parts or "polarized" in parts:
+        raise InputError(f"Mitsuba variant {variant!r}: the neumat plugin needs an unpolarised RGB variant "
+                         "(for example llvm_ad_rgb or cuda_ad_rgb)")
+
+
 def _current_mitsuba():
+    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is."""
     import mitsuba as mi
-    if mi.variant() is None:
-        return import_mitsuba()
-    return mi
+    return import_mitsuba() if mi.variant() is None else mi
 
 
 def _bsdf_class(mi) -> type:
