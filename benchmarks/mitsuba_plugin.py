@@ -21,6 +21,7 @@ the table's non-reciprocity.
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from dataclasses import replace
 
@@ -39,23 +40,26 @@ from neumat.reflectance.measured import RglMaterial
 from neumat.viz.compare import compare_image
 
 
+@functools.lru_cache(maxsize=None)
+def bunny_to_world(mi, path: str):
+    """The transform that scales the mesh at `path` to height 1 and stands it centred on y = 0 (read once)."""
+    box = mi.load_dict({"type": "ply", "filename": path}).bbox()
+    lo, hi = np.array(box.min), np.array(box.max)
+    centre = (lo + hi) / 2
+    return (mi.ScalarTransform4f().scale(1.0 / float(hi[1] - lo[1]))
+            .translate([-float(centre[0]), -float(lo[1]), -float(centre[2])]))
+
+
 def bunny_scene(mi, bsdf, res: int, spp: int, depth: int, data):
     """The bunny (scaled to height 1, standing on y = 0) on a 6 x 6 diffuse floor, camera in front and above."""
-    mesh = mi.load_dict({"type": "ply", "filename": str(data / "mesh" / "stanford_bunny_35k.ply")})
-    box = mesh.bbox()
-    lo, hi = np.array(box.min), np.array(box.max)
-    scale = 1.0 / float(hi[1] - lo[1])
-    centre = (lo + hi) / 2
-    to_world = (mi.ScalarTransform4f().scale(scale)
-                .translate([-float(centre[0]), -float(lo[1]), -float(centre[2])]))
+    bunny = str(data / "mesh" / "stanford_bunny_35k.ply")
     return mi.load_dict({
         "type": "scene", "integrator": {"type": "path", "max_depth": depth},
         "sensor": {"type": "perspective", "fov": 32,
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.4, 3.2], target=[0, 0.45, 0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
                    "sampler": {"type": "independent", "sample_count": spp}},
-        "bunny": {"type": "ply", "filename": str(data / "mesh" / "stanford_bunny_35k.ply"), "to_world": to_world,
-                  "bsdf": bsdf},
+        "bunny": {"type": "ply", "filename": bunny, "to_world": bunny_to_world(mi, bunny), "bsdf": bsdf},
         "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(3),
                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}},
         "env": {"type": "envmap", "filename": str(data / "envmap" / "studio_small_03_1k.hdr")}})

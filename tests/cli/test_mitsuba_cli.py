@@ -48,7 +48,7 @@ def test_errors_name_the_problem(tmp_path):
     scene = tmp_path / "scene.xml"
     scene.write_text(SCENE)
     cases = [(["mitsuba-render", str(tmp_path / "none.xml"), "-o", "x.png"], "doesnotexist"),
-             (["mitsuba-render", str(scene), "-D", "mat", "-o", "x.png"], "-DexpectsNAME=VALUE"),
+             (["mitsuba-render", str(scene), "-D", "mat", "-o", "x.png"], "-Dexpectskey=value"),
              (["mitsuba-render", str(scene), "-D", "mat=/no/model.nmat", "-o", "x.png"], "doesnotexist"),
              (["mitsuba-render", str(scene), "-D", "mat=ggx:roughnes=0.2", "-o", "x.png"], "roughnes")]
     for args, message in cases:

@@ -23,14 +23,15 @@ def run_command(fn: Callable[[], Any]) -> Any:
         raise typer.Exit(2) from None
 
 
-def parse_overrides(items: list[str] | None, option: str = "--set") -> dict[str, Any]:
-    """`["nside=32", "lr=1e-3"]` -> {"nside": 32, "lr": 0.001}; `option` names the flag in errors."""
+def parse_overrides(items: list[str] | None, option: str = "--set", text: bool = False) -> dict[str, Any]:
+    """`["nside=32", "lr=1e-3"]` -> {"nside": 32, "lr": 0.001}, or with `text` the values as written;
+    `option` names the flag in errors."""
     out = {}
     for item in items or []:
         key, sep, value = item.partition("=")
-        if not sep or not key:
+        if not sep or not key.strip():
             raise InputError(f"{option} expects key=value, got {item!r}")
-        out[key.strip()] = parse_value(value)
+        out[key.strip()] = value if text else parse_value(value)
     return out
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import run_command
+from .common import parse_overrides, run_command
 
 
 def register(app: typer.Typer) -> None:
@@ -27,7 +27,7 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
     def go():
         if not scene.is_file():
             raise InputError(f"scene file {str(scene)!r} does not exist")
-        params = _defines(define)
+        params = parse_overrides(define, "-D", text=True)  # Mitsuba substitutes the text as written
         mi = plugin.register()
         try:
             loaded = mi.load_file(str(scene), **params)
@@ -38,13 +38,3 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
         print(f"wrote {out}")
     run_command(go)
 
-
-def _defines(items: list[str] | None) -> dict[str, str]:
-    """["mat=model.nmat"] -> {"mat": "model.nmat"}: values stay text, as Mitsuba substitutes them."""
-    out = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"-D expects NAME=VALUE, got {item!r}")
-        out[key.strip()] = value
-    return out

@@ -25,7 +25,8 @@ def trace(out: Path = typer.Argument(..., help="observations file to write (.npz
           roughness: float = typer.Option(0.3, help="GGX alpha of the dielectric surface"),
           images: int = typer.Option(1500, min=1, help="views, each with its own light direction"),
           resolution: int = typer.Option(32, min=1, help="rays per side of each view"),
-          spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: 32 is ~1.7x the time of 8)"),
+          spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: "
+                                                  "32 is ~1.7x the time of 8)"),
           seed: int = typer.Option(0)) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
     def go():
