@@ -70,7 +70,7 @@ from neumat.reflectance.btf_generate import (
     procedural_texture_set,
     texture_tile,
 )
-from neumat.testing.parity import glsl_eval, opengl_available
+from neumat.testing.parity import glsl_evals_per_second, opengl_available
 
 
 def table(title, rows):
@@ -307,25 +307,11 @@ def speed_queries(n: int) -> Query:
 
 
 def glsl_throughput(model, n: int) -> float:
-    """Evaluations per second of the model's GLSL export on the local EGL OpenGL (llvmpipe on a CPU-only machine):
-    the marginal rate between n / 8 and n queries, so that context creation, compilation and uploads do not
-    count."""
-    exported, q = export_glsl(model), speed_queries(n)
-    glsl_eval(exported, q[:64])                                   # driver start-up
-
-    def best_of(m: int, reps: int = 3) -> float:
-        times = []
-        for _ in range(reps):
-            t = time.perf_counter()
-            glsl_eval(exported, q[:m])
-            times.append(time.perf_counter() - t)
-        return min(times)
-
-    marginal = best_of(n) - best_of(n // 8)
-    if marginal <= 0:
+    """Evaluations per second of the model's GLSL export on the local EGL OpenGL (`glsl_evals_per_second`)."""
+    rate = glsl_evals_per_second(export_glsl(model), speed_queries(n))
+    if rate != rate:
         print(f"GLSL throughput: {n} queries ran no slower than {n // 8} (overheads dominate); use more --queries")
-        return float("nan")
-    return (n - n // 8) / marginal
+    return rate
 
 
 def throughput(model, n, device, reps=3):

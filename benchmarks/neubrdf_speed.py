@@ -7,7 +7,9 @@ Prints two tables:
 - evaluation: evaluations per second of `model.eval(q)` in training mode (idw weights, no gradient) and in
   `runtime()` mode, for batches 2^16 .. 2^20 (queries built beforehand), per wall-clock second and per
   CPU second of the process (the latter is less sensitive to other processes on a shared machine; with
-  T threads on an idle machine the wall rate is at most T times the CPU rate).
+  T threads on an idle machine the wall rate is at most T times the CPU rate); then the same model's GLSL
+  export (`neumat.export.glsl_neubrdf`) on the local OpenGL, llvmpipe on a CPU-only machine (marginal rate,
+  `neumat.testing.parity.glsl_evals_per_second`), where a headless context can be created.
 
 The machine load average is printed next to the numbers (timings on a shared machine are noisy).
 
@@ -23,7 +25,9 @@ import time
 import torch
 
 from neumat.core.query import Query
+from neumat.export.glsl import export_glsl
 from neumat.models.neubrdf import NeuBRDF
+from neumat.testing.parity import glsl_evals_per_second, opengl_available
 
 
 def cosine_dirs(n: int, gen: torch.Generator) -> torch.Tensor:
@@ -96,6 +100,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5, help="timed training steps (median reported)")
     ap.add_argument("--eval-log2", type=int, nargs="+", default=[16, 18, 20], help="log2 of the eval batches")
     ap.add_argument("--eval-nside", type=int, default=64)
+    ap.add_argument("--glsl-log2", type=int, default=18, help="log2 of the GLSL batch (0: skip the shader)")
     ap.add_argument("--skip-train", action="store_true")
     ap.add_argument("--skip-eval", action="store_true")
     ap.add_argument("--quick", action="store_true", help="one N_side (16), 2 steps, batch 2^16 only")
@@ -124,6 +129,12 @@ def main() -> None:
             rt = evals_per_second(fast, 2 ** lg, 3)
             cols = [f"{w:.3g} ({c:.3g})" for w, c in (slow, rt)]
             print(f"{'2^' + str(lg):>8} {cols[0]:>20} {cols[1]:>20} {load():>14}", flush=True)
+        if a.glsl_log2 and opengl_available():
+            gen = torch.Generator().manual_seed(1)
+            q = Query(cosine_dirs(2 ** a.glsl_log2, gen), cosine_dirs(2 ** a.glsl_log2, gen))
+            rate = glsl_evals_per_second(export_glsl(fast), q)
+            print(f"GLSL export of runtime(), batch 2^{a.glsl_log2}: {rate:.3g} evals per wall second "
+                  f"(llvmpipe here unless a GPU driver is present) {load():>14}")
 
 
 if __name__ == "__main__":

@@ -73,3 +73,15 @@ def test_export_check_runs_a_neupress(tmp_path):
     text = " ".join(result.output.split())
     assert float(text.split("S_hat max difference ")[1].split(" ")[0]) < 1e-3
     assert float(text.split("sigma max relative difference ")[1].split(" ")[0]) < 1e-3
+
+
+@needs_gl
+def test_export_check_runs_a_neubrdf_with_its_texture(tmp_path):
+    path = _saved(tmp_path, {"type": "neubrdf", "nside": 8, "feature_dim": 8, "index_bits": 5, "hidden": 16,
+                             "texture_height": 8, "texture_width": 8, "texture_channels": 4, "texture_levels": 2})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "500"])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "glsl" / "manifest.json").read_text())
+    assert sorted(manifest["textures"]) == ["nbrdf_features", "nbrdf_index", "nbrdf_vertices", "neumat_spatial"]
+    rel = float(result.output.split("max relative difference ")[1].split(",")[0])
+    assert rel < 1e-4

@@ -76,7 +76,8 @@ def test_glsl_matches_torch(name, footprint):
 @needs_gl
 def test_glsl_is_zero_below_the_horizon():
     model = _model(CONFIGS["homogeneous"])
-    q = Query(wi=torch.tensor([[0.0, 0.6, -0.8], [0.0, 0.0, 1.0]]), wo=torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, -0.8]]))
+    q = Query(wi=torch.tensor([[0.0, 0.6, -0.8], [0.0, 0.0, 1.0]]),
+              wo=torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, -0.8]]))
     assert torch.equal(glsl_eval(export_glsl(model), q), torch.zeros(2, 3))
 
 

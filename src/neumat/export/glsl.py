@@ -170,15 +170,22 @@ void {name}(float r, float phi, out vec4 a[{layers}]) {{
 """
 
 
-def _spatial_reader(model: MultiScale) -> tuple[str, dict[str, np.ndarray]]:
-    """GLSL of the spatial latent: nm_spatial_lod(uv, lod, out z) and nm_spatial_footprint(uv, cov, out z)."""
+def _spatial_reader(model) -> tuple[str, dict[str, np.ndarray]]:
+    """GLSL of a model's spatial latent pyramid (`model.spatial`), see `pyramid_reader`."""
     with torch.no_grad():
-        atlas, sizes, origins = _atlas(model.spatial.levels())
-    levels, layers, probes = len(sizes), atlas.shape[0], model.spatial.max_probes
+        return pyramid_reader(model.spatial.levels(), model.spatial.max_probes)
+
+
+def pyramid_reader(levels: list[torch.Tensor], max_probes: int | None) -> tuple[str, dict[str, np.ndarray]]:
+    """GLSL of a latent pyramid, levels (C, H_l, W_l), as the texture `neumat_spatial`:
+    nm_spatial_lod(uv, lod, out z) (trilinear, `neumat.nn.latent_texture.trilinear`) and, unless max_probes
+    is None, nm_spatial_footprint(uv, cov, out z) (`filter_anisotropic` with up to max_probes probes)."""
+    atlas, sizes, origins = _atlas(levels)
+    layers, probes = atlas.shape[0], max_probes
     w0, h0 = sizes[0]
     src = f"""
 uniform sampler2DArray neumat_spatial;
-const int NM_LEVELS = {levels};
+const int NM_LEVELS = {len(sizes)};
 {_ivec2s("NM_LEVEL_SIZE", sizes)}
 {_ivec2s("NM_LEVEL_ORIGIN", origins)}
 
@@ -216,7 +223,9 @@ void nm_spatial_lod(vec2 uv, float lod, out vec4 z[{layers}]) {{
     for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
     nm_spatial_trilinear(uv, lod, 1.0, z);
 }}
-
+"""
+    if max_probes is not None:
+        src += f"""
 // anisotropic filtering of a Gaussian footprint (covariance in uv^2; neumat.nn.latent_texture)
 void nm_spatial_footprint(vec2 uv, mat2 cov, out vec4 z[{layers}]) {{
     for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
@@ -246,7 +255,8 @@ def shading_frames(frame, latent_dim: int, source: str) -> tuple[list[str], str]
     k = frame.frames
     consts = [_floats("NM_FRAME_W", frame.decode.weight * frame.weight_scale),
               _floats("NM_FRAME_B", frame.decode.bias)]
-    code = f"    float v[{6 * k}];\n" + _linear("NM_FRAME", 6 * k, latent_dim, source, "v") + f"""    vec3 di[{k}], dw[{k}];
+    code = f"    float v[{6 * k}];\n" + _linear("NM_FRAME", 6 * k, latent_dim, source, "v")
+    code += f"""    vec3 di[{k}], dw[{k}];
     for (int k = 0; k < {k}; ++k) {{
         vec3 n = vec3(v[6 * k], v[6 * k + 1], v[6 * k + 2]);
         n = n / max(length(n), 1e-12);
@@ -310,11 +320,16 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
 def export_glsl(model) -> GLSLExport:
     """GLSL source and textures computing `model.eval` (see module docstring). model: a MultiScale (or a
     configuration of it such as tripleplane), a neumip-family model (`neumat.export.glsl_latent_mlp`, with the
-    neural-appearance sampler), a SparseBTF (`neumat.export.glsl_sparse_btf`) or a NeuPreSS translucent object
+    neural-appearance sampler), a NeuBRDF (`neumat.export.glsl_neubrdf`), a SparseBTF
+    (`neumat.export.glsl_sparse_btf`) or a NeuPreSS translucent object
     (`neumat.export.glsl_neupress`); anything else raises InputError."""
+    from ..models.neubrdf import NeuBRDF
     from ..models.neumip import NeuMIP
     from ..models.neupress import NeuPreSS
     from ..models.sparse_btf import SparseBTF
+    if isinstance(model, NeuBRDF):
+        from .glsl_neubrdf import export_neubrdf
+        return export_neubrdf(model)
     if isinstance(model, NeuPreSS):
         from .glsl_neupress import export_neupress
         return export_neupress(model)
@@ -326,7 +341,7 @@ def export_glsl(model) -> GLSLExport:
         return export_latent_mlp(model)
     if not isinstance(model, MultiScale):
         raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane), a latent-pyramid MLP "
-                         f"(neumip, zeltner, neural-appearance), a sparse-btf or a neupress, got "
+                         f"(neumip, zeltner, neural-appearance), a neubrdf, a sparse-btf or a neupress, got "
                          f"{type(model).__name__} ({getattr(model, 'name', '?')})")
     cfg = model.cfg
     spatial = model.spatial is not None
@@ -383,7 +398,8 @@ def export_glsl(model) -> GLSLExport:
     }}
 """)
     hl, dl = -(-model.half_texture.channels // 4), -(-model.diff_texture.channels // 4)
-    decode.append(f"    vec4 ah[{hl}], ad[{dl}];\n    nm_read_half(ph.x, ph.y, ah);\n    nm_read_diff(pd.x, pd.y, ad);\n")
+    decode.append(f"    vec4 ah[{hl}], ad[{dl}];\n"
+                  "    nm_read_half(ph.x, ph.y, ah);\n    nm_read_diff(pd.x, pd.y, ad);\n")
     mlp = model.mlp.linears()
     in_dim = mlp[0].in_features
     decode.append(f"    float x[{in_dim}];\n")

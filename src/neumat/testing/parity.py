@@ -89,6 +89,29 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
     return glsl_run(export, inputs, call, backend, width)[:, :3].to(q.wi.device)
 
 
+def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "egl") -> float:
+    """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine): the
+    marginal rate between len(q) / 8 and len(q) queries (best of 3 each), so that context creation, compilation
+    and uploads do not count. NaN when the larger batch ran no slower (overheads dominate: use more queries)."""
+    import time
+
+    n = len(q.wi)
+    if n < 64:
+        raise InputError(f"glsl_evals_per_second: expected at least 64 queries, got {n}")
+    glsl_eval(export, q[:64], backend)  # driver start-up
+
+    def best_of(m: int) -> float:
+        times = []
+        for _ in range(3):
+            start = time.perf_counter()
+            glsl_eval(export, q[:m], backend)
+            times.append(time.perf_counter() - start)
+        return min(times)
+
+    marginal = best_of(n) - best_of(n // 8)
+    return (n - n // 8) / marginal if marginal > 0 else float("nan")
+
+
 def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, backend: str | None = "egl",
              width: int = 256) -> torch.Tensor:
     """Run `call` (GLSL statements that set `vec4 colour`) once per row of the inputs, with the export's source

@@ -1,0 +1,165 @@
+"""Parity of the NeuBRDF GLSL export with the torch model (EGL / llvmpipe): the shader's HEALPix indexing
+against `neumat.nn.healpix` and healpy, and `neumat_eval` against `NeuBRDF.eval` for every feature storage,
+both corner weightings, pruned grids, the runtime mode, the neural texture and the paper's sizes."""
+import json
+
+import pytest
+import torch
+
+from neumat.core.errors import InputError
+from neumat.core.query import Query
+from neumat.export.glsl import export_glsl
+from neumat.models.neubrdf import NeuBRDF
+from neumat.nn import healpix as hpx
+from neumat.testing.parity import glsl_eval, glsl_run, opengl_available
+
+needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
+
+SMALL = {"nside": 8, "feature_dim": 8, "index_bits": 5, "hidden": 16}
+
+
+def _directions(n: int, g: torch.Generator, upper: bool) -> torch.Tensor:
+    w = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    if upper:
+        w[:, 2] = w[:, 2].abs()
+    return w
+
+
+def _near_boundary(nside: int, w: torch.Tensor, g: torch.Generator, eps: float = 1e-5) -> torch.Tensor:
+    """Mask (N,) of directions whose ring pixel changes within about eps radians (float32 rounding of the
+    shader's atan / sqrt may put them in the neighbouring pixel)."""
+    pix = hpx.vec2pix(nside, w)
+    near = torch.zeros(len(w), dtype=torch.bool)
+    for _ in range(8):
+        moved = torch.nn.functional.normalize(w.double() + eps * torch.randn(w.shape, generator=g, dtype=torch.float64),
+                                              dim=-1)
+        near |= hpx.vec2pix(nside, moved.float()) != pix
+    return near
+
+
+def _export_with_nside(nside: int):
+    """An export whose HEALPix functions run at `nside` (the model itself stays small)."""
+    shader = export_glsl(NeuBRDF(nside=8, feature_dim=4, index_bits=2, hidden=4, hidden_layers=1).train(False))
+    shader.source = shader.source.replace("const int NM_NSIDE = 8;", f"const int NM_NSIDE = {nside};")
+    return shader
+
+
+def _ints(shader, w: torch.Tensor, expression: str) -> torch.Tensor:
+    """An ivec4 GLSL expression of `w` evaluated exactly (split in 16-bit halves: floats hold 24 bits)."""
+    hi = glsl_run(shader, {"w": w}, f"ivec4 r = {expression}; colour = vec4(r / 65536);")
+    lo = glsl_run(shader, {"w": w}, f"ivec4 r = {expression}; colour = vec4(r % 65536);")
+    return hi.long() * 65536 + lo.long()
+
+
+@needs_gl
+@pytest.mark.parametrize("nside", [1, 2, 8, 64, 1024])
+def test_shader_pixels_and_corners_match_healpix(nside):
+    healpy = pytest.importorskip("healpy", reason="healpy gives the reference pixelisation")
+    g = torch.Generator().manual_seed(nside)
+    w = _directions(20000, g, upper=False)
+    w[:8] = torch.tensor([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0],
+                          [0.6, 0, 0.8], [0, -0.6, -0.8]])
+    shader = _export_with_nside(nside)
+    pix = _ints(shader, w, "ivec4(nm_vec2pix(w.xyz))")[:, 0]
+    reference = torch.from_numpy(healpy.vec2pix(nside, *w.double().numpy().T))
+    differ = pix != reference
+    assert not (differ & ~_near_boundary(nside, w, g)).any(), f"{int(differ.sum())} pixels differ from healpy"
+    assert float(differ.float().mean()) < 5e-3
+    for level in range(nside.bit_length()):
+        corners = _ints(shader, w, f"nm_corner_vertices(nm_vec2pix(w.xyz), {level})")
+        assert torch.equal(corners, hpx.ancestor_corner_vertices(nside, pix, level)), f"level {level}"
+
+
+def _model(spec: dict, seed: int = 1) -> NeuBRDF:
+    torch.manual_seed(seed)
+    model = NeuBRDF(**spec).train(False)
+    with torch.no_grad():  # an MLP that is far from constant, so that every input matters
+        for p in model.mlp.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+        if model.texture is not None:
+            for level in model.texture.levels:
+                level.mul_(10.0)
+    return model
+
+
+def _parity(model: NeuBRDF, n: int = 4096, lod: bool = False, seed: int = 2) -> float:
+    """Largest relative difference of the shader from model.eval over random queries (both directions on the
+    hemisphere, uv over three tiles), leaving out lookups within 1e-5 rad of a pixel boundary."""
+    g = torch.Generator().manual_seed(seed)
+    wi, wo = _directions(n, g, upper=True), _directions(n, g, upper=True)
+    uv = torch.rand(n, 2, generator=g) * 3 - 1 if model.texture is not None else None
+    q = Query(wi=wi, wo=wo, uv=uv, lod=torch.rand(n, generator=g) * 5 - 1 if lod else None)
+    with torch.no_grad():
+        reference = model.eval(q)
+    out = glsl_eval(export_glsl(model), q)
+    nside = model.cfg.nside
+    keep = ~(_near_boundary(nside, wi, g) | _near_boundary(nside, wo * torch.tensor([1.0, 1.0, -1.0]), g))
+    assert int(keep.sum()) > 0.9 * n
+    return float(((out - reference).abs() / reference.abs().clamp(min=1e-6))[keep].max())
+
+
+CONFIGS = {
+    "vq-idw": SMALL,
+    "vq-uniform": {**SMALL, "interpolation": "uniform"},
+    "dense": {**SMALL, "features": "dense"},
+    "lowbit": {**SMALL, "features": "lowbit", "lowbit_bits": 3},
+    "silu-3-layers": {**SMALL, "activation": "silu", "hidden_layers": 3},
+    "nside-1": {**SMALL, "nside": 1},
+}
+
+
+@needs_gl
+@pytest.mark.parametrize("name", CONFIGS)
+def test_eval_matches_torch(name):
+    error = _parity(_model(CONFIGS[name]))
+    assert error < 1e-4, f"{name}: max relative difference {error:.2e}"
+
+
+@needs_gl
+def test_runtime_and_pruned_grids_match_torch():
+    model = _model(SMALL)
+    g = torch.Generator().manual_seed(5)
+    model.prune(_directions(60, g, upper=True), _directions(60, g, upper=True))  # most pixels pruned
+    assert int((model.level_i > 0).sum()) > 0.5 * len(model.level_i)
+    assert _parity(model) < 1e-4
+    model.runtime()  # frozen indices, 1/4 weights, runtime table in torch
+    assert model.is_runtime
+    assert _parity(model) < 1e-4
+
+
+@needs_gl
+def test_neural_texture_matches_torch():
+    model = _model({**SMALL, "texture_height": 16, "texture_width": 12, "texture_channels": 6,
+                    "texture_levels": 3})
+    shader = export_glsl(model)
+    assert shader.spatially_varying and "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)" in shader.entry
+    assert _parity(model, lod=True) < 1e-4
+    assert _parity(model, lod=False) < 1e-4  # no lod: level 0, as eval
+
+
+@needs_gl
+def test_paper_sizes_runtime_match_torch():
+    model = _model({"nside": 64})  # N_side 64, k 16, b 9, 2 x 64 hidden (paper Sec. 4)
+    model.runtime()
+    assert _parity(model, n=2048) < 1e-4
+
+
+def test_tables_are_compact_and_written(tmp_path):
+    model = _model(SMALL)
+    shader = export_glsl(model)
+    slots = 2 * hpx.hemisphere_size(8)
+    assert set(shader.textures) == {"nbrdf_index", "nbrdf_features", "nbrdf_vertices"}
+    index = torch.from_numpy(shader.textures["nbrdf_index"]).flatten()
+    assert torch.equal(index[:slots].long(), model.grid.indices().long())
+    assert torch.equal(torch.from_numpy(shader.textures["nbrdf_features"]).flatten()[:32 * 8],
+                       model.grid.codebook.detach().flatten())
+    model.runtime()
+    assert set(export_glsl(model).textures) == {"nbrdf_index", "nbrdf_features"}  # 1/4 weights: no directions
+    manifest = json.loads((shader.write(tmp_path) / "manifest.json").read_text())
+    assert manifest["entry"] == ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
+    assert (tmp_path / "nbrdf_index.f32").stat().st_size == shader.textures["nbrdf_index"].nbytes
+
+
+def test_unsupported_activation_is_refused():
+    with pytest.raises(InputError, match="gelu"):
+        export_glsl(NeuBRDF(**SMALL, activation="gelu"))
