@@ -1,4 +1,5 @@
-"""`neumat demo` end to end at toy size: fit, runtime model file, renders, comparison picture, HTML report."""
+"""`neumat demo` end to end at toy size: fit, runtime model file, renders, comparison picture, HTML report, web
+viewer page."""
 from __future__ import annotations
 
 import re
@@ -26,6 +27,8 @@ def test_demo_writes_report_model_and_pictures(tmp_path):
     assert read_image(out / "compare.png").shape[1] >= 3 * 24
     wi = torch.tensor([[0.0, 0.6, 0.8]])
     assert torch.isfinite(model.eval(Query(wi, wi))).all()
+    page = (out / "viewer.html").read_text()
+    assert "neumat viewer: NeuBRDF fitted to plastic" in page and "nm_vec2pix" in page
 
 
 def test_demo_reports_a_bad_source(tmp_path):

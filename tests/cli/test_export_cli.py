@@ -85,3 +85,11 @@ def test_export_check_runs_a_neubrdf_with_its_texture(tmp_path):
     assert sorted(manifest["textures"]) == ["nbrdf_features", "nbrdf_index", "nbrdf_vertices", "neumat_spatial"]
     rel = float(result.output.split("max relative difference ")[1].split(",")[0])
     assert rel < 1e-4
+
+
+def test_export_web_writes_the_viewer_page(tmp_path):
+    path = _saved(tmp_path, {"type": "neubrdf", "nside": 4, "feature_dim": 4, "index_bits": 3, "hidden": 8})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--web"])
+    assert result.exit_code == 0, result.output
+    page = (tmp_path / "glsl" / "viewer.html").read_text()
+    assert "<title>neumat viewer: neubrdf (m.nmat)</title>" in page and "nbrdf_index" in page

@@ -1,5 +1,5 @@
 """`neumat demo`: the main job end to end — fit NeuBRDF to a measured material, render reference
-and model side by side with a FLIP error map, write an HTML report."""
+and model side by side with a FLIP error map, write an HTML report and the model's web viewer page."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -48,6 +48,7 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
     from ..io.images import write_image, write_image_ldr
     from ..io.modelfile import save_model
     from ..io.shared_data import shared_data_dir
+    from ..export.web.viewer import write_viewer
     from ..metrics.hdr import cosine_queries, reflectance_errors
     from ..metrics.image import image_metrics
     from ..models.neubrdf import NeuBRDF
@@ -75,6 +76,7 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
     errors = reflectance_errors(model, reference, n=2 ** 18, seed=seed, device=dev)
     model_path = save_model(model, out / "neubrdf.nmat", recipe=recipe, source=source_name,
                             metrics={**errors, "fit_seconds": result.seconds})
+    viewer = write_viewer(model, out / "viewer.html", title=f"NeuBRDF fitted to {source_name}")
 
     console.print(f"rendering reference and model ({resolution}x{resolution}, {spp} spp, {light})")
     images, times = {}, {}
@@ -103,7 +105,8 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
          "images": [("reference", brdf_slice_image(reference)), ("NeuBRDF", brdf_slice_image(model))]},
         {"heading": "In-plane BRDF (log scale)",
          "images": [("reference vs NeuBRDF", polar_plot({"reference": reference, "NeuBRDF": model}))]},
-        {"heading": "Files", "text": f"model: {model_path.name}; images: reference.exr, neubrdf.exr, compare.png"},
+        {"heading": "Files", "text": f"model: {model_path.name}; images: reference.exr, neubrdf.exr, compare.png; "
+                                     f"{viewer.name}: the model's GLSL export in an interactive WebGL 2 page"},
     ])
     console.print(f"[bold green]wrote[/] {report}")
     return report

@@ -17,7 +17,9 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run the shader on N random queries (headless OpenGL) and print "
-                                          "its largest relative difference from the torch model")) -> None:
+                                          "its largest relative difference from the torch model"),
+           web: bool = typer.Option(False, "--web", help="also write OUT/viewer.html: a self-contained WebGL 2 "
+                                                         "page showing the material on a sphere or a plane")) -> None:
     """Write MODEL as GLSL 3.30 (neumat.glsl), its textures (raw float32) and manifest.json to OUT."""
     def go():
         import torch
@@ -31,6 +33,11 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
         size = sum(t.nbytes for t in exported.textures.values())
         print(f"wrote {folder / 'neumat.glsl'} ({len(exported.source)} characters) and "
               f"{len(exported.textures)} textures ({size / 1e6:.2f} MB) to {folder}")
+        if web:
+            from ..export.web.viewer import write_viewer
+
+            page = write_viewer(exported, folder / "viewer.html", title=f"{getattr(m, 'name', 'model')} ({model.name})")
+            print(f"wrote {page} ({page.stat().st_size / 1e6:.2f} MB): open it in a browser with WebGL 2")
         if check and getattr(m, "name", None) == "neupress":
             from ..testing.parity import neupress_parity
 

@@ -52,15 +52,22 @@ class GLSLExport:
     entry: list[str] | None = None
     """The entry points the source defines (manifest.json); default those of `spatially_varying`."""
 
+    def entry_points(self) -> list[str]:
+        """GLSL signatures of the entry points the source defines."""
+        if self.entry:
+            return list(self.entry)
+        if self.spatially_varying:
+            return ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+                    "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
+        return ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
+
     def write(self, folder: str | Path) -> Path:
         """Write neumat.glsl, <texture>.f32 files and manifest.json into `folder` (created); returns it."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "neumat.glsl").write_text(self.source)
         manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "textures": {},
-                    "entry": self.entry or (["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
-                                             "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
-                                            if self.spatially_varying else ["vec3 neumat_eval(vec3 wi, vec3 wo)"])}
+                    "entry": self.entry_points()}
         for name, data in self.textures.items():
             layers, height, width, _ = data.shape
             data.astype("<f4").tofile(folder / f"{name}.f32")
