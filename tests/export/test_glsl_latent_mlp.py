@@ -73,6 +73,24 @@ def test_glsl_sampler_matches_torch():
     assert float(((got - pdf).abs() / pdf.clamp(min=1e-6)).max()) < 1e-4
 
 
+@needs_gl
+def test_glsl_albedo_output_matches_torch():
+    from neumat.testing.parity import glsl_run
+
+    model = _model({**CONFIGS["neural-appearance"], "albedo": True})
+    q = _queries(2048, True)
+    with torch.no_grad():
+        reference = model.albedo(q)
+        brdf = model.eval(q)
+    export = export_glsl(model)
+    assert "vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)" in export.entry
+    fp = q.footprint
+    inputs = {"wi": q.wi, "wo": q.wo, "uv": q.uv, "f": torch.stack([fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]], -1)}
+    got = glsl_run(export, inputs, "colour = vec4(neumat_albedo(wi.xyz, wo.xyz, uv.xy, mat2(f.x, f.y, f.y, f.z)), 1.0);")
+    assert float(((got[:, :3] - reference).abs() / reference.clamp(min=1e-6)).max()) < 1e-4
+    assert float(((glsl_eval(export, q) - brdf).abs() / brdf.clamp(min=1e-6)).max()) < 1e-4  # eval unchanged
+
+
 def test_export_lists_the_sampler_entry_points_and_refuses_what_it_cannot_export():
     export = export_glsl(_model(CONFIGS["neural-appearance"]))
     assert "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)" in export.entry

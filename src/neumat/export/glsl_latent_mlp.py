@@ -5,6 +5,8 @@ Entry points (directions in the local frame, z up; uv texture coordinates; footp
 
     vec3  neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)     // BRDF value, cosine excluded
     vec3  neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)
+    // neural-appearance with Config.albedo: the directional albedo for the viewer direction wo (Sec. 6.4)
+    vec3  neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
     // neural-appearance only: its importance sampler (proxy + defensive cosine share)
     vec3  neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)    // wo for u in [0, 1)^2
     float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)      // its solid-angle density
@@ -116,12 +118,26 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     decode += f"    for (int i = 0; i < {2 * n_dir}; ++i) x[{ds} + i] = {direction};\n"
     mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_silu")
     consts += mlp_consts
-    decode += mlp_body + f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n"
+    decode += mlp_body
     parts.append("\n".join(consts))
-    parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{\n{decode}}}\n")
+    parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{\n{decode}"
+                 f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n}}\n")
     parts.append(spatial_entry_points(zl))
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
+    if getattr(cfg, "albedo", False):  # neural-appearance's albedo output (Sec. 6.4)
+        parts.append(f"""vec3 nm_decode_albedo(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
+{decode}    return exp(vec3({out}[3], {out}[4], {out}[5]));
+}}
+
+vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{zl}];
+    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode_albedo(wi, wo, z);
+}}
+""")
+        entry.append("vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)")
     if isinstance(model, NeuralAppearance):
         sampler_input = "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])"           # [wi, z] as ProxySampler
         s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, sampler_input, "nm_relu")

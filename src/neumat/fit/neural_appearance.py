@@ -13,11 +13,17 @@ Every step also trains the sampling decoder on the same queries: directions draw
 scored against the model's current BRDF (no gradient) by the KL divergence, with the latent detached, so the
 sampler does not disturb the BRDF (`neumat.models.proxy_sampler.proxy_kl_loss`). BRDF loss: "log_cos", the
 paper's L1 in log space. Adam; the learning rate halves at 50% and 75% of each phase.
+
+With `Config.albedo` every step also fits the decoder's albedo output with an L2 loss against one-sample
+estimates of the source's directional albedo at the same (x, wo) (and footprint): f(w', wo | x) cos / p(w')
+with w' from an even mixture of the source's own sampler given wo and the cosine density, or pi f(w', wo | x) for
+a cosine-distributed w' when the source cannot sample (Sec. 6.4; unbiased, so the L2 optimum is the albedo).
 """
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -33,7 +39,8 @@ from .query_samplers import uniform
 
 @dataclass
 class NeuralAppearanceFit:
-    """history: {"phase", "step", "brdf loss", "sampler loss"} every `log_every` steps; seconds per phase."""
+    """history: {"phase", "step", "brdf loss", "sampler loss"[, "albedo loss"]} every `log_every` steps; seconds
+    per phase."""
 
     history: list[dict]
     seconds: dict
@@ -65,20 +72,41 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
     history, seconds = [], {}
     model.train()
 
+    albedo = model.cfg.albedo
+    names = ("brdf loss", "sampler loss") + (("albedo loss",) if albedo else ())
+
     def phase(name: str, steps: int, params, step_fn) -> None:
         if steps == 0:
             return
         start = time.perf_counter()
-        records = adam_steps(params, steps, lr, step_fn, ("brdf loss", "sampler loss"),
-                             f"neural appearance: {name}", log_every, progress)
+        records = adam_steps(params, steps, lr, step_fn, names, f"neural appearance: {name}", log_every, progress)
         history.extend({"phase": name, **r} for r in records)
         seconds[name] = time.perf_counter() - start
 
+    def albedo_estimate(q: Query) -> torch.Tensor:
+        """One-sample estimates (N, 3) of the source's albedo at q's x and wo: f(w', wo) cos(theta') / p(w'), w'
+        from an even mixture of the source's sampler given wo and the cosine density (defensive: the estimate stays
+        below 2 pi f even where the sampler misses f), or cosine-distributed when the source cannot sample."""
+        u = uniform(len(q), 2, gen, "cpu")
+        with torch.no_grad():
+            if not getattr(source, "can_sample", False):
+                return math.pi * source.eval(replace(q, wi=sample_cosine_hemisphere(u)))
+            cosine = u[:, 0] < 0.5
+            v = torch.stack([torch.where(cosine, 2 * u[:, 0], 2 * u[:, 0] - 1).clamp(max=1 - 1e-7), u[:, 1]], -1)
+            given_wo = replace(q, wi=q.wo, wo=None)
+            w = torch.where(cosine.unsqueeze(-1), sample_cosine_hemisphere(v), source.sample(given_wo, v).wo)
+            w = torch.where((w[:, 2] > 0).unsqueeze(-1), w, torch.tensor([0.0, 0.0, 1.0]))  # failed samples
+            p = 0.5 * source.pdf(given_wo.with_wo(w)) + 0.5 * w[:, 2] / math.pi
+            return source.eval(replace(q, wi=w)) * (w[:, 2] / p).unsqueeze(-1)
+
     def losses_at(q: Query, z: torch.Tensor, u: torch.Tensor, target: torch.Tensor):
-        pred = model.decode(z, q)
+        out = model.decode_outputs(z, q)
         lobes = model.sampler.lobes(q.wi, z.detach())
         kl = proxy_kl_loss(lobes, q.wi, u, lambda wo: model.decode(z.detach(), q.with_wo(wo)), model.name)
-        return brdf_loss(pred, target, q), kl
+        losses = (brdf_loss(out[:, :3], target, q), kl)
+        if albedo:
+            losses += (((out[:, 3:] - albedo_estimate(q)) ** 2).mean(),)
+        return losses
 
     def encoder_step():
         u = uniform(batch, 8, gen, "cpu")

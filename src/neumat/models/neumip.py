@@ -106,13 +106,19 @@ class NeuMIP(nn.Module, Material, SpatialLatent):
             for p in self.spatial.raw:
                 p.copy_(preconditioned_noise(tuple(p.shape), cfg.init_std, cfg.spatial_precondition))
         self.frame = ShadingFrame(ds, cfg.frame_weight_scale, cfg.frames) if cfg.shading_frame else None
-        self.mlp = MLP(ds + 6 * (cfg.frames if cfg.shading_frame else 1), cfg.hidden, cfg.hidden_layers, 3, "silu")
+        self.mlp = MLP(ds + 6 * (cfg.frames if cfg.shading_frame else 1), cfg.hidden, cfg.hidden_layers,
+                       self.outputs, "silu")
         with torch.no_grad():
             self.mlp.linears()[-1].bias.fill_(cfg.init_log_value)
 
     @property
     def config(self) -> Config:
         return self.cfg
+
+    @property
+    def outputs(self) -> int:
+        """MLP outputs: log f (3); subclasses may add more after them."""
+        return 3
 
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
@@ -121,6 +127,10 @@ class NeuMIP(nn.Module, Material, SpatialLatent):
 
     def decode(self, z_s: torch.Tensor, q: Query) -> torch.Tensor:
         """BRDF value (N, 3) of latents z_s (N, D_s) at the directions of q (the decoder without the texture)."""
+        return self.decode_outputs(z_s, q)[:, :3]
+
+    def decode_outputs(self, z_s: torch.Tensor, q: Query) -> torch.Tensor:
+        """exp of all MLP outputs (N, `outputs`) of latents z_s at the directions of q, 0 below the horizon."""
         wi, wo = q.wi.to(z_s.dtype), q.wo.to(z_s.dtype)
         if self.frame is not None:
             wi, wo = self.frame(z_s, wi, wo)

@@ -18,6 +18,10 @@ with the encoder's output, and the latents are fine-tuned directly on filtered t
 paper: coarse levels are baked from box-filtered parameters (the paper prefilters with LEAN), a fractional
 level is read trilinearly (the paper picks one of the two levels by Russian roulette) and the sampler is
 trained on the same queries as the BRDF (the paper draws a second batch).
+
+Albedo inference (Sec. 6.4, `Config.albedo`): the BRDF MLP has 3 more outputs, exp(.) of which is the
+directional albedo alpha(x, wo) = int f(x, wi, wo) cos(theta_i) dwi (`albedo(q)`), fitted with an L2 loss against
+one-sample estimates of the source's albedo.
 """
 from __future__ import annotations
 
@@ -61,6 +65,9 @@ class Config(neumip.Config):
     """Neurons per hidden layer of the sampling decoder (paper: 32)."""
     sampler_layers: int = 3
     """Hidden layers of the sampling decoder (paper: 3)."""
+    albedo: bool = False
+    """The BRDF decoder also outputs the directional albedo alpha(x, wo) = int f cos(theta_i) dwi as an extra RGB
+    triplet (Sec. 6.4), trained with L2 against one-sample estimates; read it with `albedo(q)`."""
 
 
 @MODELS.register("neural-appearance")
@@ -79,6 +86,20 @@ class NeuralAppearance(neumip.NeuMIP):
         self.encoder = MLP(c.surface_features, c.encoder_hidden, c.encoder_layers, c.spatial_channels, "silu")
         self.sampler = ProxySampler(features=c.spatial_channels, hidden=c.sampler_hidden,
                                     hidden_layers=c.sampler_layers)
+
+    @property
+    def outputs(self) -> int:
+        """MLP outputs: log f (3), then log alpha (3) with `Config.albedo`."""
+        return 6 if self.cfg.albedo else 3
+
+    def albedo(self, q: Query) -> torch.Tensor:
+        """Directional albedo (N, 3) for the viewer direction q.wo at q.uv (footprint / lod as for eval), the
+        decoder's extra output (Sec. 6.4); q.wi is a network input the training makes it independent of.
+        0 below either horizon. Raises InputError unless the model was built with `albedo=True`."""
+        if not self.cfg.albedo:
+            raise InputError(f"{self.name}.albedo: the model has no albedo output (build it with albedo=True)")
+        q.require("wo", who=f"{self.name}.albedo")
+        return self.decode_outputs(self.spatial_latent(q), q)[:, 3:]
 
     # ------------------------------------------------------------------------------ sampling
     def lobes(self, q: Query) -> ProxyLobes:
