@@ -86,7 +86,8 @@ def test_glsl_albedo_output_matches_torch():
     assert "vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)" in export.entry
     fp = q.footprint
     inputs = {"wi": q.wi, "wo": q.wo, "uv": q.uv, "f": torch.stack([fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]], -1)}
-    got = glsl_run(export, inputs, "colour = vec4(neumat_albedo(wi.xyz, wo.xyz, uv.xy, mat2(f.x, f.y, f.y, f.z)), 1.0);")
+    call = "colour = vec4(neumat_albedo(wi.xyz, wo.xyz, uv.xy, mat2(f.x, f.y, f.y, f.z)), 1.0);"
+    got = glsl_run(export, inputs, call)
     assert float(((got[:, :3] - reference).abs() / reference.clamp(min=1e-6)).max()) < 1e-4
     assert float(((glsl_eval(export, q) - brdf).abs() / brdf.clamp(min=1e-6)).max()) < 1e-4  # eval unchanged
 

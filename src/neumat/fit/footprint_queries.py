@@ -51,7 +51,8 @@ def footprint_covariance(scale: torch.Tensor, elongation: torch.Tensor, angle: t
 
 def sample_footprints(cos_view: torch.Tensor, u: torch.Tensor, z2: torch.Tensor, min_cos: float = 0.01,
                       l_min: float = L_MIN, l_max: float = L_MAX) -> torch.Tensor:
-    """Eq. 9 covariances (N, 2, 2) from cos theta_o (N,), uniforms u (N, 2) (e3, u3 / 2 pi) and z2 (N,) ~ N(0, 0.2^2)."""
+    """Eq. 9 covariances (N, 2, 2) from cos theta_o (N,), uniforms u (N, 2) (e3, u3 / 2 pi) and
+    z2 (N,) ~ N(0, 0.2^2)."""
     scale = footprint_scale(u[:, 0], l_min, l_max)
     elongation = (1 + z2).clamp(min=0.2) / cos_view.clamp(min=min_cos)
     return footprint_covariance(scale, elongation, 2 * math.pi * u[:, 1])

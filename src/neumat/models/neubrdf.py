@@ -338,8 +338,9 @@ class NeuBRDF(nn.Module, Material):
 
         Caches, for every ring pixel p of each grid: the mean F(p) of its 4 (ancestor) corner features, and
         the first-layer pre-activations W_i F_i(p) + b and W_o F_o(p) (W = [W_i, W_o] the first MLP layer),
-        stacked in one table (2 x 12 N_side^2, hidden), the latter indexed by the pixel of the unmirrored wo. Evaluation is then two pixel lookups, two
-        gathers, an add and the rest of the MLP: the same function as `interpolation="uniform"`."""
+        stacked in one table (2 x 12 N_side^2, hidden), the latter indexed by the pixel of the unmirrored wo.
+        Evaluation is then two pixel lookups, two gathers, an add and the rest of the MLP: the same function as
+        `interpolation="uniform"`."""
         self.freeze()
         self.cfg = replace(self.cfg, interpolation="uniform")
         n, k = self.cfg.nside, self.cfg.feature_dim
