@@ -189,12 +189,12 @@ def export_neubrdf(model: NeuBRDF) -> GLSLExport:
     idw = cfg.interpolation == "idw"
     textures: dict[str, np.ndarray] = {}
     with torch.no_grad():
-        slots = torch.arange(model.grid.num_vertices, device=model.level_i.device)
         if vq:
             textures["nbrdf_index"] = _table(model.grid.indices().double())
             textures["nbrdf_features"] = _table(model.grid.codebook)
-        else:
-            textures["nbrdf_features"] = _table(model.grid(slots))
+        else:  # the decoded feature of every slot, exactly what eval reads
+            textures["nbrdf_features"] = _table(model.grid(torch.arange(model.grid.num_vertices,
+                                                                        device=model.level_i.device)))
         if pruned:
             textures["nbrdf_levels"] = _table(torch.cat([model._pruning[0], model._pruning[1]]).double())
         if idw:
@@ -233,8 +233,7 @@ void nm_lookup(vec3 w, bool south, out float psi[{k}]) {{
     c = cfg.texture_channels
     textured = model.texture is not None
     if textured:
-        with torch.no_grad():
-            src, tex = pyramid_reader([level.detach() for level in model.texture.levels], None)
+        src, tex = pyramid_reader([level.detach() for level in model.texture.levels], None)
         parts.append(src)
         textures.update(tex)
     z_param = f", vec4 z[{-(-c // 4)}]" if textured else ""
