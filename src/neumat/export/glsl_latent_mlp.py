@@ -119,15 +119,26 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_silu")
     consts += mlp_consts
     decode += mlp_body
+    outputs = model.outputs  # log f, then log albedo for neural-appearance with Config.albedo (Sec. 6.4)
     parts.append("\n".join(consts))
-    parts.append(f"vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{\n{decode}"
-                 f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n}}\n")
+    parts.append(f"""void nm_outputs(vec3 wi, vec3 wo, vec4 z[{zl}], out float o[{outputs}]) {{
+{decode}    for (int i = 0; i < {outputs}; ++i) o[i] = {out}[i];
+}}
+
+vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
+    float o[{outputs}];
+    nm_outputs(wi, wo, z, o);
+    return exp(vec3(o[0], o[1], o[2]));
+}}
+""")
     parts.append(spatial_entry_points(zl))
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
-    if getattr(cfg, "albedo", False):  # neural-appearance's albedo output (Sec. 6.4)
+    if outputs > 3:
         parts.append(f"""vec3 nm_decode_albedo(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
-{decode}    return exp(vec3({out}[3], {out}[4], {out}[5]));
+    float o[{outputs}];
+    nm_outputs(wi, wo, z, o);
+    return exp(vec3(o[3], o[4], o[5]));
 }}
 
 vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{

@@ -41,7 +41,7 @@ TABLE_WIDTH = 1024
 ACTIVATIONS = {
     "relu": "float nm_act(float x) { return max(x, 0.0); }",
     "leaky_relu": "float nm_act(float x) { return x >= 0.0 ? x : 0.01 * x; }",
-    "silu": "float nm_act(float x) { return x / (1.0 + exp(-x)); }",
+    "silu": "float nm_act(float x) { return nm_silu(x); }",
     "tanh": "float nm_act(float x) { return tanh(x); }",
     "sigmoid": "float nm_act(float x) { return 1.0 / (1.0 + exp(-x)); }",
     "softplus": "float nm_act(float x) { return nm_softplus(x); }",
