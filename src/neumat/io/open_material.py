@@ -10,12 +10,14 @@ from ..core.material import Material
 
 #: file suffix -> human-readable kind
 MATERIAL_SUFFIXES = {".binary": "MERL measured BRDF", ".bsdf": "RGL measured BRDF (tensor file)",
-                     ".nmat": "neumat model", ".nbtf": "neumat BTF table", ".btf": "Bonn / UBO2014 BTF"}
+                     ".nmat": "neumat model", ".nbtf": "neumat BTF table", ".btf": "Bonn / UBO2014 BTF",
+                     ".json": "layered material description"}
 
 
 def open_material(name: str | Path, **kwargs) -> Material:
     """A Material from a `.binary` (MERL), `.bsdf` (RGL), `.nbtf` (BTF table), `.btf` (Bonn / UBO2014) or
-    `.nmat` file, a PBR texture-set folder (an SVBRDF), or an analytic spec such as
+    `.nmat` file, a layered-material description (`.json`, `neumat.io.layered_file`), a PBR texture-set folder
+    (an SVBRDF), or an analytic spec such as
     ``ggx:roughness=0.2,fresnel=dielectric,eta=1.5``. Keyword arguments go to the reader."""
     text = str(name)
     path = Path(text)
@@ -38,6 +40,9 @@ def open_material(name: str | Path, **kwargs) -> Material:
         if suffix == ".btf":
             from .ubo2014 import read_ubo2014
             return _read(read_ubo2014, path, kwargs, "UBO2014 BTF file")
+        if suffix == ".json":
+            from .layered_file import read_layered
+            return _read(read_layered, path, kwargs, "layered-material description")
         from .modelfile import load_model
         return _read(load_model, path, kwargs, "model file")
     if path.exists():

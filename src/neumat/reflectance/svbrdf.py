@@ -32,8 +32,9 @@ from ..core.frames import frame_from_normal_tangent, to_local, to_world
 from ..core.material import Material, sample_weight
 from ..core.query import Query, Sample
 from ..io.texture_set import TextureSet, load_texture_set
-from ..nn.latent_texture import bilinear, check_footprint, isotropic_footprint
+from ..nn.latent_texture import bilinear
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
+from .footprint_filter import filtered_eval, query_footprint
 from .microfacet import principled_eval, principled_pdf, principled_sample
 
 #: probability with which `sample` draws a cosine-weighted direction (defensive mixture)
@@ -131,11 +132,7 @@ class SVBRDF(Material):
 
     def footprint_of(self, q: Query) -> torch.Tensor | None:
         """The query's footprint covariance (N, 2, 2), the isotropic one of q.lod, or None (point query)."""
-        if q.footprint is not None:
-            return check_footprint(q.footprint, "Query.footprint")
-        if q.lod is not None:
-            return isotropic_footprint(q.lod, self.textures.size[1])
-        return None
+        return query_footprint(q, self.textures.size[1])
 
     def eval(self, q: Query) -> torch.Tensor:
         """Prefiltered, symmetrised value (N, 3) (paper Eq. 1, Monte Carlo with `samples` positions)."""
@@ -144,18 +141,7 @@ class SVBRDF(Material):
         cov = self.footprint_of(q)
         if cov is None:
             return self.eval_point(q.wi, q.wo, q.uv)
-        chol = torch.linalg.cholesky(cov.double()).to(q.dtype)
-        k = self.samples
-        per_chunk = max(1, self.chunk // k)
-        out = []
-        for s in range(0, len(q), per_chunk):
-            e = min(len(q), s + per_chunk)
-            z = torch.randn(e - s, k, 2, generator=self.generator, device=self.generator.device).to(q.device, q.dtype)
-            pts = q.uv[s:e, None, :] + torch.einsum("nij,nkj->nki", chol[s:e], z)
-            rep = lambda t: t[s:e, None, :].expand(-1, k, -1).reshape(-1, t.shape[-1])  # noqa: E731
-            f = self.eval_point(rep(q.wi), rep(q.wo), pts.reshape(-1, 2))
-            out.append(f.reshape(e - s, k, 3).mean(1))
-        return torch.cat(out) if out else q.wi.new_zeros(0, 3)
+        return filtered_eval(self.eval_point, q, cov, self.samples, self.chunk, self.generator)
 
     # ---------------------------------------------------------------------------------- sampling
 

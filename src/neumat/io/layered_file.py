@@ -1,0 +1,109 @@
+"""Layered material descriptions (`.json` with "type": "layered"), read into `neumat.reflectance.layered`.
+
+    {"type": "layered",
+     "base": "Tiles074_1K",                      # any material `open_material` opens; paths relative to this file
+     "max_size": 256,                            # optional: downscale a texture-set base to at most this size
+     "coats": [                                  # bottom to top
+       {"eta": 1.5, "roughness": 0.03, "tint": [0.9, 0.95, 1.0]},
+       {"eta": 1.5, "roughness": {"smudges": {"seed": 1, "size": 256}, "low": 0.05, "high": 0.4},
+        "weight": {"image": "mask.png"}, "normal": "coat_normal.png"}]}
+
+A coat's `roughness` (GGX alpha) and `weight` are numbers or maps: {"smudges": {smudge_map arguments}} or
+{"image": path} (grey values in [0, 1], linear), mapped to [low, high] (roughness: no default; weight: 0 and 1).
+`normal` is an optional OpenGL-convention normal-map image. Unknown keys raise.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..core.errors import InputError
+from ..reflectance.layered import Coat, LayeredMaterial
+from ..reflectance.smudge_map import smudge_map
+from .images import read_image
+
+_TOP_KEYS = {"type", "base", "max_size", "coats", "samples", "name"}
+_COAT_KEYS = {"eta", "roughness", "weight", "tint", "normal"}
+
+
+def _check_keys(d: dict, known: set, where: str) -> None:
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InputError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+
+
+def _scalar_map(value, where: str, folder: Path, low: float | None, high: float | None):
+    """A number, or a map from {"smudges": {...}} / {"image": path} scaled to [low, high]."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if not isinstance(value, dict):
+        raise InputError(f"{where}: expected a number or an object with 'smudges' or 'image', got {value!r}")
+    _check_keys(value, {"smudges", "image", "low", "high"}, where)
+    lo, hi = value.get("low", low), value.get("high", high)
+    if lo is None or hi is None:
+        raise InputError(f"{where}: a map needs 'low' and 'high' (the values of mask 0 and 1)")
+    if ("smudges" in value) == ("image" in value):
+        raise InputError(f"{where}: give exactly one of 'smudges' and 'image'")
+    if "smudges" in value:
+        args = value["smudges"]
+        if not isinstance(args, dict):
+            raise InputError(f"{where} smudges: expected an object of smudge_map arguments, got {args!r}")
+        try:
+            mask = smudge_map(**args)
+        except TypeError as e:
+            raise InputError(f"{where} smudges: {e}") from None
+    else:
+        img = read_image(folder / value["image"], srgb=False)
+        mask = torch.from_numpy(np.asarray(img, dtype=np.float32)).reshape(img.shape[0], img.shape[1], -1)
+        mask = mask[..., :3].mean(-1).clamp(0, 1)
+    return float(lo) + (float(hi) - float(lo)) * mask
+
+
+def _normal_map(path, where: str, folder: Path) -> torch.Tensor:
+    img = np.asarray(read_image(folder / str(path), srgb=False), dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] < 3:
+        raise InputError(f"{where}: {path} is not an RGB normal map (shape {img.shape})")
+    n = torch.from_numpy(img[..., :3] * 2 - 1)
+    return n / n.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+
+
+def read_layered(path: str | Path, samples: int | None = None) -> LayeredMaterial:
+    """The LayeredMaterial a description file defines (module docstring); `samples` overrides its footprint
+    sample count."""
+    from .open_material import open_material
+
+    path = Path(path)
+    try:
+        spec = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"{path}: not a readable JSON layered-material description ({e})") from None
+    if not isinstance(spec, dict) or spec.get("type") != "layered":
+        raise InputError(f"{path}: expected a JSON object with \"type\": \"layered\"")
+    _check_keys(spec, _TOP_KEYS, str(path))
+    if "base" not in spec or not isinstance(spec.get("coats"), list) or not spec["coats"]:
+        raise InputError(f"{path}: needs a 'base' material and a non-empty 'coats' list")
+    folder = path.parent
+    base_name = str(spec["base"])
+    base_path = folder / base_name
+    if base_path.exists():
+        options = {"max_size": int(spec["max_size"])} if "max_size" in spec and base_path.is_dir() else {}
+        base = open_material(base_path, **options)
+    else:
+        base = open_material(base_name)
+    coats = []
+    for i, c in enumerate(spec["coats"]):
+        where = f"{path} coat {i}"
+        if not isinstance(c, dict):
+            raise InputError(f"{where}: expected an object, got {c!r}")
+        _check_keys(c, _COAT_KEYS, where)
+        if "roughness" not in c:
+            raise InputError(f"{where}: needs a 'roughness' (GGX alpha)")
+        coats.append(Coat(roughness=_scalar_map(c["roughness"], f"{where} roughness", folder, None, None),
+                          weight=_scalar_map(c.get("weight", 1.0), f"{where} weight", folder, 0.0, 1.0),
+                          eta=float(c.get("eta", 1.5)), tint=tuple(c.get("tint", (1.0, 1.0, 1.0))),
+                          normal=None if c.get("normal") is None else _normal_map(c["normal"], where, folder)))
+    n = int(samples if samples is not None else spec.get("samples", 256))
+    return LayeredMaterial(base, coats, samples=n, name=spec.get("name") or f"layered:{path.stem}")

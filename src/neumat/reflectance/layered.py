@@ -1,0 +1,286 @@
+"""Layered reference materials: textured rough dielectric coats over a base material.
+
+Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 8) bake layered material graphs whose shading is
+"a weighted combination of standard BRDF models". This material is such a graph: a base (an SVBRDF from a PBR
+texture set, or any homogeneous material) under coats listed bottom to top. At a point uv, coat by coat,
+
+    f <- (1 - w) f + w [ f_coat + A T f ]                     (w: the coat's weight, its presence in [0, 1])
+
+    f_coat = D(h) G1(wi') G1(wo') F_eta(wi' . h) / (4 mu_i mu_o) * (mu_i / wi_z + mu_o / wo_z) / 2
+    A      = (1 - E(mu_i)) (1 - E(mu_o)) / (1 - E_avg)          (albedo scaling: Kelemen and Szirmay-Kalos 2001,
+                                                                 Kulla and Conty 2017)
+    T      = tint ^ ((1 / mu_i_t + 1 / mu_o_t) / 2)             (Beer-Lambert along the refracted paths)
+
+with wi', wo' the directions in the coat's shading frame (its own normal map; tangent +u projected), mu_i, mu_o
+their cosines, mu_t = sqrt(1 - (1 - mu^2) / eta^2) the refracted cosines, E the coat lobe's directional albedo and
+E_avg its cosine-weighted average (`neumat.reflectance.coat_albedo`). The cosine ratio is the SVBRDF convention
+(`neumat.reflectance.svbrdf`): values exclude the geometric cosine. Directions below a coat's shading horizon see
+no light through that coat (its share is 0). Every factor is symmetric in wi and wo, so f is reciprocal; over a
+white Lambertian base, a flat colourless coat conserves energy exactly (up to the albedo table's error).
+
+Filtering, as the SVBRDF: with a footprint (or a lod), `eval` averages the point value over Gaussian positions.
+Sampling, per query at the footprint centre: a one-sample mixture over the components, top coat first, coat k
+chosen with probability R_k w_k E_k(mu_i) (R_k: the mass the coats above leave, prod (1 - w E)), the base with the
+remainder; coats sample GGX visible normals in their frames, the base uses its own sampler (cosine if it has
+none); the pdf is the mixture's density.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import torch
+
+from ..core.checks import check_int
+from ..core.errors import InputError
+from ..core.frames import frame_from_normal_tangent, to_local, to_world
+from ..core.material import Material, sample_weight
+from ..core.query import Query, Sample
+from ..nn.latent_texture import bilinear
+from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
+from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
+from .coat_albedo import ALPHA_MIN, CoatAlbedo
+from .footprint_filter import filtered_eval, query_footprint
+from .microfacet import _microfacet_brdf, fresnel_dielectric
+
+#: surface parameters one coat adds to `sampling_features`: alpha, weight, unit normal (3)
+COAT_FEATURES = 5
+
+
+@dataclass
+class Coat:
+    """One rough dielectric coat. roughness: GGX alpha in [1e-3, 1]; weight: presence in [0, 1] (both numbers or
+    (H, W) maps); eta: index of refraction in [1, 4]; tint: RGB transmittance in (0, 1] at normal incidence, in and
+    out; normal: optional (H, W, 3) normal map (tangent space, z up)."""
+
+    roughness: float | torch.Tensor = 0.05
+    weight: float | torch.Tensor = 1.0
+    eta: float = 1.5
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    normal: torch.Tensor | None = None
+
+
+def _map(value, name: str, lo: float, hi: float) -> torch.Tensor:
+    """A number or (H, W) map as a float32 (1, H, W) tensor, range-checked."""
+    t = torch.as_tensor(value, dtype=torch.float32)
+    if t.dim() == 0:
+        t = t.reshape(1, 1)
+    if t.dim() != 2 or min(t.shape) < 1:
+        raise InputError(f"{name}: expected a number or an (H, W) map, got shape {tuple(t.shape)}")
+    if not bool(torch.isfinite(t).all()) or float(t.min()) < lo or float(t.max()) > hi:
+        raise InputError(f"{name}: values must lie in [{lo}, {hi}], got [{float(t.min()):.4g}, {float(t.max()):.4g}]")
+    return t[None]
+
+
+def _coat_maps(coat: Coat, who: str) -> torch.Tensor:
+    """(5, H, W): alpha, weight, normal; maps of different sizes are resampled to the largest."""
+    alpha = _map(coat.roughness, f"{who} roughness", ALPHA_MIN, 1.0)
+    weight = _map(coat.weight, f"{who} weight", 0.0, 1.0)
+    if coat.normal is None:
+        normal = torch.tensor([0.0, 0.0, 1.0]).view(3, 1, 1)
+    else:
+        n = torch.as_tensor(coat.normal, dtype=torch.float32)
+        if n.dim() != 3 or n.shape[-1] != 3 or not bool(torch.isfinite(n).all()) or not bool((n[..., 2] > 0).all()):
+            raise InputError(f"{who} normal: expected an (H, W, 3) map of finite upward normals, got shape "
+                             f"{tuple(n.shape)}")
+        normal = (n / n.norm(dim=-1, keepdim=True)).permute(2, 0, 1)
+    parts = [alpha, weight, normal]
+    h = max(p.shape[1] for p in parts)
+    w = max(p.shape[2] for p in parts)
+    resized = [p if p.shape[1:] == (h, w) else
+               torch.nn.functional.interpolate(p[None], size=(h, w), mode="bilinear", align_corners=False)[0]
+               for p in parts]
+    return torch.cat(resized)
+
+
+@functools.lru_cache(maxsize=16)
+def coat_albedo(eta: float) -> CoatAlbedo:
+    """The albedo table of index eta, computed once per process (about 0.5 s)."""
+    return CoatAlbedo(eta)
+
+
+class LayeredMaterial(Material):
+    """Coats (bottom to top) over `base` (module docstring).
+
+    base:     an SVBRDF (spatially varying: needs `eval_point` and `sampling_features`) or a homogeneous material.
+    coats:    a list of `Coat`, bottom to top.
+    samples, seed, chunk: footprint filtering as `neumat.reflectance.svbrdf.SVBRDF`.
+    """
+
+    can_sample = True
+    spatially_varying = True
+
+    def __init__(self, base: Material, coats: list[Coat], samples: int = 256, seed: int = 0,
+                 chunk: int = 1 << 20, name: str | None = None) -> None:
+        if not isinstance(base, Material):
+            raise InputError(f"LayeredMaterial base: expected a Material, got {type(base).__name__}")
+        if getattr(base, "full_sphere", False):
+            raise InputError("LayeredMaterial base: a translucent (full-sphere) material cannot be coated")
+        if base.spatially_varying and not all(callable(getattr(base, a, None))
+                                              for a in ("eval_point", "sampling_features")):
+            raise InputError(f"LayeredMaterial base: the spatially varying {type(base).__name__} must give point "
+                             "values (eval_point) and surface parameters (sampling_features), as an SVBRDF does")
+        if not isinstance(coats, (list, tuple)) or not coats or not all(isinstance(c, Coat) for c in coats):
+            raise InputError("LayeredMaterial coats: expected a non-empty list of Coat")
+        for key, v in (("samples", samples), ("chunk", chunk)):
+            check_int(v, f"LayeredMaterial.{key}")
+        self.base, self.coats = base, list(coats)
+        self.maps = [_coat_maps(c, f"coat {i}") for i, c in enumerate(self.coats)]
+        self.albedos = []
+        for i, c in enumerate(self.coats):
+            tint = torch.as_tensor(c.tint, dtype=torch.float32)
+            if tint.shape != (3,) or not bool(((tint > 0) & (tint <= 1)).all()):
+                raise InputError(f"coat {i} tint: expected 3 values in (0, 1], got {c.tint!r}")
+            if isinstance(c.eta, bool) or not isinstance(c.eta, (int, float)):
+                raise InputError(f"coat {i} eta: expected a number in [1, 4], got {c.eta!r}")
+            self.albedos.append(coat_albedo(float(c.eta)))  # checks the range
+        self.samples, self.chunk = samples, chunk
+        self.generator = torch.Generator().manual_seed(seed)
+        self.name = name or f"layered:{getattr(base, 'name', type(base).__name__)}+{len(self.coats)} coat(s)"
+
+    def describe(self) -> str:
+        coats = ", ".join(f"eta {c.eta:g}" for c in self.coats)
+        return f"{self.name} (coats bottom to top: {coats}; {self.samples} footprint samples)"
+
+    @property
+    def texture_width(self) -> int:
+        """Width in texels of the finest texture (what a lod is relative to)."""
+        base = self.base.textures.size[1] if self.base.spatially_varying else 1
+        return max([base] + [m.shape[2] for m in self.maps])
+
+    # ------------------------------------------------------------------------------ parameters
+
+    @property
+    def sampling_feature_dim(self) -> int:
+        base = int(self.base.sampling_feature_dim) if self.base.spatially_varying else 0
+        return base + COAT_FEATURES * len(self.coats)
+
+    def _coat_at(self, i: int, uv: torch.Tensor):
+        """alpha (N,), weight (N,) and frame (t, b, n) of coat i at uv (N, 2)."""
+        p = bilinear(self.maps[i].to(uv.device, uv.dtype), uv)
+        n = p[:, 2:5] / p[:, 2:5].norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        tangent = torch.zeros_like(n)
+        tangent[:, 0] = 1
+        t, b = frame_from_normal_tangent(n, tangent)
+        return p[:, 0], p[:, 1], (t, b, n)
+
+    def sampling_features(self, q: Query) -> torch.Tensor:
+        """Surface parameters at q.uv (N, K): the base's (an SVBRDF's 8), then per coat alpha, weight, normal."""
+        q.require("uv", who="LayeredMaterial.sampling_features")
+        parts = [self.base.sampling_features(q)] if self.base.spatially_varying else []
+        for i in range(len(self.coats)):
+            alpha, weight, (_, _, n) = self._coat_at(i, q.uv)
+            parts.append(torch.cat([alpha[:, None], weight[:, None], n], -1))
+        return torch.cat(parts, -1)
+
+    # ------------------------------------------------------------------------------ point value
+
+    def _base_point(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+        if self.base.spatially_varying:
+            return self.base.eval_point(wi, wo, uv)
+        return self.base.eval(Query(wi, wo))
+
+    def eval_point(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+        """Unfiltered value f(wi, wo | uv) (N, 3) (module docstring)."""
+        f = self._base_point(wi, wo, uv)
+        up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        for i, (coat, table) in enumerate(zip(self.coats, self.albedos)):
+            alpha, weight, frame = self._coat_at(i, uv)
+            li, lo = to_local(wi, *frame), to_local(wo, *frame)
+            ok = up & (li[:, 2] > 0) & (lo[:, 2] > 0)
+            mu_i, mu_o = li[:, 2].clamp(min=1e-6), lo[:, 2].clamp(min=1e-6)
+            fresnel = lambda c: fresnel_dielectric(c, coat.eta).unsqueeze(-1).expand(-1, 3)  # noqa: E731
+            a = alpha.clamp(min=ALPHA_MIN)
+            ratio = 0.5 * (mu_i / wi[:, 2].clamp(min=1e-6) + mu_o / wo[:, 2].clamp(min=1e-6))
+            top = _microfacet_brdf(li, lo, a, a, fresnel) * ratio.unsqueeze(-1)
+            scale = (1 - table(mu_i, a)) * (1 - table(mu_o, a)) / (1 - table.averaged(a)).clamp(min=1e-6)
+            top = top + scale.unsqueeze(-1) * self._transmittance(coat, mu_i, mu_o) * f
+            covered = torch.where(ok.unsqueeze(-1), top, torch.zeros_like(top))
+            f = (1 - weight).unsqueeze(-1) * f + weight.unsqueeze(-1) * covered
+        return torch.where(up.unsqueeze(-1), f, torch.zeros_like(f))
+
+    @staticmethod
+    def _transmittance(coat: Coat, mu_i: torch.Tensor, mu_o: torch.Tensor) -> torch.Tensor:
+        """T = tint^((1/mu_i_t + 1/mu_o_t) / 2) (N, 3) along the refracted paths (1 for a colourless coat)."""
+        tint = torch.as_tensor(coat.tint, dtype=mu_i.dtype, device=mu_i.device)
+        if bool((tint == 1).all()):
+            return torch.ones(1, 3, dtype=mu_i.dtype, device=mu_i.device)
+        refracted = lambda mu: (1 - (1 - mu * mu) / coat.eta ** 2).clamp(min=1e-6).sqrt()  # noqa: E731
+        length = 0.5 * (1 / refracted(mu_i) + 1 / refracted(mu_o))
+        return torch.exp(length.unsqueeze(-1) * tint.log())
+
+    # ----------------------------------------------------------------------------- filtered value
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """Prefiltered value (N, 3): the point value, or its mean over the query's footprint."""
+        q.require("wo", who="LayeredMaterial.eval")
+        q.require("uv", who="LayeredMaterial.eval")
+        cov = query_footprint(q, self.texture_width)
+        if cov is None:
+            return self.eval_point(q.wi, q.wo, q.uv)
+        return filtered_eval(self.eval_point, q, cov, self.samples, self.chunk, self.generator)
+
+    # ---------------------------------------------------------------------------------- sampling
+
+    def _mixture(self, wi: torch.Tensor, uv: torch.Tensor):
+        """Component probabilities (N, C + 1) (coats top to bottom, then the base), coat alphas and frames."""
+        coats, probs = [], []
+        remaining = torch.ones_like(wi[:, 0])
+        for i in reversed(range(len(self.coats))):
+            alpha, weight, frame = self._coat_at(i, uv)
+            mu = to_local(wi, *frame)[:, 2]
+            e = weight * self.albedos[i](mu.clamp(min=0), alpha) * (mu > 0)
+            probs.append(remaining * e)
+            remaining = remaining * (1 - e)
+            coats.append((alpha.clamp(min=ALPHA_MIN), frame))
+        probs.append(remaining)
+        return torch.stack(probs, -1), coats
+
+    def _base_query(self, wi: torch.Tensor, uv: torch.Tensor, wo: torch.Tensor | None = None) -> Query:
+        return Query(wi, wo, uv=uv) if self.base.spatially_varying else Query(wi, wo)
+
+    def sample(self, q: Query, u: torch.Tensor) -> Sample:
+        """Sample wo from the component mixture at the footprint centre (module docstring)."""
+        q.require("uv", who="LayeredMaterial.sample")
+        probs, coats = self._mixture(q.wi, q.uv)
+        cdf = probs.cumsum(-1)
+        pick = (u[:, :1] >= cdf[:, :-1]).sum(-1)                                     # (N,) component index
+        lo = torch.where(pick > 0, cdf.gather(1, (pick - 1).clamp(min=0)[:, None])[:, 0], torch.zeros_like(u[:, 0]))
+        p = probs.gather(1, pick[:, None])[:, 0]
+        u0 = ((u[:, 0] - lo) / p.clamp(min=1e-12)).clamp(0, 1 - 1e-7)
+        u2 = torch.stack([u0, u[:, 1]], -1)
+        if self.base.can_sample:
+            drawn = self.base.sample(self._base_query(q.wi, q.uv), u2)
+            wo, base_ok = drawn.wo, drawn.pdf > 0          # the base's failed samples stay failed
+        else:
+            wo, base_ok = sample_cosine_hemisphere(u2), torch.ones_like(pick, dtype=torch.bool)
+        for k, (alpha, frame) in enumerate(coats):
+            li = to_local(q.wi, *frame)
+            safe = torch.where((li[:, 2] > 0).unsqueeze(-1), li, torch.tensor([0.0, 0.0, 1.0], dtype=li.dtype))
+            lw = to_world(sample_ggx_reflection(safe, u2, alpha, alpha), *frame)
+            wo = torch.where((pick == k).unsqueeze(-1), lw, wo)
+        wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        sq = q.with_wo(wo)
+        pdf = self.pdf(sq)
+        valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & ((pick < len(coats)) | base_ok)
+        pdf = torch.where(valid, pdf, torch.zeros_like(pdf))
+        return Sample(wo, pdf, sample_weight(self.eval(sq), wo, pdf, valid))
+
+    def pdf(self, q: Query) -> torch.Tensor:
+        """Solid-angle density (N,) of `sample`."""
+        q.require("wo", who="LayeredMaterial.pdf")
+        q.require("uv", who="LayeredMaterial.pdf")
+        probs, coats = self._mixture(q.wi, q.uv)
+        if self.base.can_sample:
+            base = self.base.pdf(self._base_query(q.wi, q.uv, q.wo))
+        else:
+            base = cosine_hemisphere_pdf(q.wo)
+        pdf = probs[:, -1] * base
+        for k, (alpha, frame) in enumerate(coats):
+            li, lo = to_local(q.wi, *frame), to_local(q.wo, *frame)
+            ok = (probs[:, k] > 0) & (li[:, 2] > 0) & (lo[:, 2] > 0)
+            safe_i = torch.where(ok.unsqueeze(-1), li, torch.tensor([0.0, 0.0, 1.0], dtype=li.dtype))
+            safe_o = torch.where(ok.unsqueeze(-1), lo, torch.tensor([0.0, 0.0, 1.0], dtype=lo.dtype))
+            lobe = ggx_reflection_pdf(safe_i, safe_o, alpha, alpha)
+            pdf = pdf + torch.where(ok, probs[:, k] * lobe, torch.zeros_like(lobe))
+        return torch.where((q.wo[:, 2] > 0) & (q.wi[:, 2] > 0), pdf, torch.zeros_like(pdf))
