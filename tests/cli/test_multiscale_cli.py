@@ -45,3 +45,19 @@ def test_fit_neural_appearance_on_a_texture_set_folder(shared_data, tmp_path):
     bad = CliRunner().invoke(app, ["fit", str(folder), "--model", "neural-appearance", "-o", str(tmp_path / "x.nmat"),
                                    "--steps", "1", "--set", "spatial_sise=16"])
     assert bad.exit_code != 0 and "spatial_size" in bad.output
+
+
+def test_fit_neural_appearance_on_a_layered_description(tmp_path):
+    """A `.json` layered material is a source like any other: spatial_size comes from its coat maps, the encoder's
+    surface_features from the material (5 per coat over a homogeneous base)."""
+    import json
+
+    spec = {"type": "layered", "base": "lambert:albedo=0.5/0.4/0.3", "samples": 4,
+            "coats": [{"roughness": {"smudges": {"size": 16, "seed": 3}, "low": 0.05, "high": 0.3}}]}
+    (tmp_path / "coated.json").write_text(json.dumps(spec))
+    out = tmp_path / "coated.nmat"
+    result = CliRunner().invoke(app, ["fit", str(tmp_path / "coated.json"), "--model", "neural-appearance", "-o",
+                                      str(out), "--steps", "4", "--quiet", "--set", "batch_size=64"])
+    assert result.exit_code == 0, result.output
+    model = load_model(out)
+    assert model.cfg.spatial_size == 16 and model.cfg.surface_features == 5

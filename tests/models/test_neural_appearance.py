@@ -173,3 +173,21 @@ def test_albedo_output_is_optional_and_saved(tmp_path):
         assert torch.equal(loaded.eval(q), with_albedo.eval(q))
     below = Query(torch.tensor([[0.0, 0.6, -0.8]]), torch.tensor([[0.6, 0.0, 0.8]]), uv=torch.tensor([[0.3, 0.4]]))
     assert torch.equal(with_albedo.albedo(below), torch.zeros(1, 3))
+
+
+def test_training_fits_a_layered_material(bumps):
+    """The paper's use: bake a layered material (here the bumps under a smudged clear coat, 8 + 5 surface
+    parameters) into the latent pyramid and decoders."""
+    from neumat.reflectance.layered import Coat, LayeredMaterial
+    from neumat.reflectance.smudge_map import smudge_map
+
+    coated = LayeredMaterial(bumps, [Coat(roughness=0.05 + 0.3 * smudge_map(SIZE, seed=1), eta=1.5)], samples=4)
+    torch.manual_seed(0)
+    model = NeuralAppearance(spatial_size=SIZE, surface_features=coated.sampling_feature_dim)
+    fit_neural_appearance(model, coated, encoder_steps=200, latent_steps=200, batch=512, progress=False)
+    q = _held_out()
+    with torch.no_grad():
+        target = coated.eval(q)
+        err = LogCosLoss()(model.eval(q), target, q).item()
+        mean_model = LogCosLoss()(target.mean(0).expand_as(target), target, q).item()
+    assert err < mean_model / 2, (err, mean_model)                  # measured: 0.0168 vs 0.0511

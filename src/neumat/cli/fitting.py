@@ -79,9 +79,11 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
         raise InputError(f"--set: unknown key(s) {unknown} for neural-appearance: {', '.join(sorted(known))}")
     src = open_material(source, **source_options)
     config = {k: v for k, v in overrides.items() if k not in ("batch_size", "lr")}
-    size = getattr(getattr(src, "textures", None), "size", None)
+    size = getattr(getattr(src, "textures", None), "size", None) or getattr(src, "texture_size", None)
     if "spatial_size" not in config and size is not None:
         config["spatial_size"] = 1 << (min(size).bit_length() - 1)         # the texture's resolution (paper)
+    if "surface_features" not in config and getattr(src, "sampling_feature_dim", None) is not None:
+        config["surface_features"] = int(src.sampling_feature_dim)       # what the encoder reads: k(x)
     torch.manual_seed(0 if seed is None else seed)
     model = NeuralAppearance(**config)
     total = 4000 if steps is None else steps

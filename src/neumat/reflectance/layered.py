@@ -143,10 +143,11 @@ class LayeredMaterial(Material):
         return f"{self.name} (coats bottom to top: {coats}; {self.samples} footprint samples)"
 
     @property
-    def texture_width(self) -> int:
-        """Width in texels of the finest texture (what a lod is relative to)."""
-        base = self.base.textures.size[1] if self.base.spatially_varying else 1
-        return max([base] + [m.shape[2] for m in self.maps])
+    def texture_size(self) -> tuple[int, int]:
+        """(height, width) in texels of the finest texture, the base's or a coat map's (what a lod refers to)."""
+        sizes = [tuple(self.base.textures.size)] if self.base.spatially_varying else []
+        sizes += [tuple(m.shape[1:]) for m in self.maps]
+        return max(s[0] for s in sizes), max(s[1] for s in sizes)
 
     # ------------------------------------------------------------------------------ parameters
 
@@ -215,7 +216,7 @@ class LayeredMaterial(Material):
         """Prefiltered value (N, 3): the point value, or its mean over the query's footprint."""
         q.require("wo", who="LayeredMaterial.eval")
         q.require("uv", who="LayeredMaterial.eval")
-        cov = query_footprint(q, self.texture_width)
+        cov = query_footprint(q, self.texture_size[1])
         if cov is None:
             return self.eval_point(q.wi, q.wo, q.uv)
         return filtered_eval(self.eval_point, q, cov, self.samples, self.chunk, self.generator)
