@@ -9,6 +9,7 @@ from neumat.io.modelfile import save_model
 from neumat.models.registry import build_model
 
 from neumat.testing.parity import opengl_available
+from neumat.testing.slang_parity import slang_available
 
 needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
 
@@ -93,3 +94,24 @@ def test_export_web_writes_the_viewer_page(tmp_path):
     assert result.exit_code == 0, result.output
     page = (tmp_path / "glsl" / "viewer.html").read_text()
     assert "<title>neumat viewer: neubrdf (m.nmat)</title>" in page and "nbrdf_index" in page
+
+
+def test_export_slang_refuses_a_model_it_cannot_export(tmp_path):
+    path = _saved(tmp_path, {"type": "multiscale", "spatial_size": 8})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang"])
+    assert result.exit_code == 2 and "export_slang" in result.output and "MultiScale" in result.output
+    assert not (tmp_path / "out").exists()
+
+
+@needs_gl
+@pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device cannot be created")
+def test_export_slang_writes_and_checks_the_module(tmp_path):
+    path = _saved(tmp_path, {"type": "zeltner", "spatial_size": 8, "hidden": 8, "hidden_layers": 1})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang", "--check", "300"])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "out" / "slang" / "manifest.json").read_text())
+    assert manifest["interfaces"] == ["INeumatMaterial"] and "neumat_spatial" in manifest["buffers"]
+    assert (tmp_path / "out" / "neumat.glsl").exists()  # the GLSL export beside it, as without --slang
+    text = " ".join(result.output.split())
+    assert float(text.split("Slang module (CPU) vs torch on the same queries: max relative difference ")[1]
+                 .split(",")[0]) < 1e-4

@@ -1,4 +1,5 @@
-"""`neumat export`: a fitted model as GLSL source plus textures (`neumat.export.glsl`)."""
+"""`neumat export`: a fitted model as GLSL source plus textures (`neumat.export.glsl`), and with --slang also as
+a Slang module (`neumat.export.slang`, neumip family) in OUT/slang."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,7 +20,11 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
                                      help="also run the shader on N random queries (headless OpenGL) and print "
                                           "its largest relative difference from the torch model"),
            web: bool = typer.Option(False, "--web", help="also write OUT/viewer.html: a self-contained WebGL 2 "
-                                                         "page showing the material on a sphere or a plane")) -> None:
+                                                         "page showing the material on a sphere or a plane"),
+           slang: bool = typer.Option(False, "--slang", help="also write a Slang module (neumat.slang, its buffers, "
+                                                             "manifest.json) to OUT/slang; neumip, zeltner and "
+                                                             "neural-appearance models; --check checks it too, on "
+                                                             "slangpy's CPU device")) -> None:
     """Write MODEL as GLSL 3.30 (neumat.glsl), its textures (raw float32) and manifest.json to OUT."""
     def go():
         import torch
@@ -28,11 +33,19 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
         from ..io.modelfile import load_model
 
         m = load_model(model, device="cpu")
+        if slang:
+            from ..export.slang import export_slang
+
+            slang_export = export_slang(m)  # refuses other models before anything is written
         exported = export_glsl(m)
         folder = exported.write(out)
         size = sum(t.nbytes for t in exported.textures.values())
         print(f"wrote {folder / 'neumat.glsl'} ({len(exported.source)} characters) and "
               f"{len(exported.textures)} textures ({size / 1e6:.2f} MB) to {folder}")
+        if slang:
+            slang_folder = slang_export.write(folder / "slang")
+            print(f"wrote {slang_folder / 'neumat.slang'} ({len(slang_export.source)} characters), "
+                  f"{len(slang_export.buffers)} buffer(s) and manifest.json to {slang_folder}")
         if web:
             from ..export.web.viewer import write_viewer
 
@@ -54,4 +67,10 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
             rel = (glsl_eval(exported, q) - ref).abs() / ref.abs().clamp(min=1e-6)
             print(f"shader vs torch on {check} Sec. 4.2 queries: max relative difference {float(rel.max()):.2e}, "
                   f"median {float(rel.median()):.2e}")
+            if slang:
+                from ..testing.slang_parity import slang_eval
+
+                rel = (slang_eval(slang_export, q) - ref).abs() / ref.abs().clamp(min=1e-6)
+                print(f"Slang module (CPU) vs torch on the same queries: max relative difference "
+                      f"{float(rel.max()):.2e}, median {float(rel.median()):.2e}")
     run_command(go)

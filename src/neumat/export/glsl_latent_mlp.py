@@ -15,7 +15,8 @@ computing what `model.eval`, `model.sample(q, u).wo` and `model.pdf` compute: th
 anisotropic filtering of the pyramid as the multi-scale export (`neumat.export.glsl`), the learned frames, the
 SiLU MLP with exponential output, and the sampler MLP (ReLU) with the proxy's activations, closed-form sampling
 and density (`neumat.warp.microfacet_proxy`). Decoders are constants in the source; the pyramid is one
-RGBA32F `sampler2DArray` atlas (`neumat_spatial`).
+RGBA32F `sampler2DArray` atlas (`neumat_spatial`). `neumat.export.slang` spells this source in Slang (a
+shader module with interfaces and a compute entry point), so both dialects compute the same function.
 """
 from __future__ import annotations
 

@@ -1,0 +1,266 @@
+"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance): one shader module per
+neural material implementing a fixed interface, as the runtime of Real-Time Neural Appearance Models
+(Zeltner et al. 2024, Sec. 7) generates for the Slang shading language.
+
+`export_slang(model) -> SlangExport`. The module (`neumat.slang`) defines, with directions in the local frame
+(z up, wi towards the light, wo towards the viewer), uv texture coordinates (wrapping) and footprint the
+pixel filter's covariance in uv^2 (symmetric):
+
+    interface INeumatMaterial {                                  // every neumip-family model
+        float3 eval(float3 wi, float3 wo, float2 uv, float2x2 footprint);   // BRDF value, cosine excluded
+        float3 eval_lod(float3 wi, float3 wo, float2 uv, float lod);        // trilinear at a mip level
+    }
+    interface INeumatSampler : INeumatMaterial {                 // neural-appearance
+        float3 sample(float3 wi, float2 uv, float2x2 footprint, float2 u);  // wo for u in [0, 1)^2
+        float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint);     // its solid-angle density
+    }
+    interface INeumatAlbedo {                                    // neural-appearance with Config.albedo
+        float3 albedo(float3 wi, float3 wo, float2 uv, float2x2 footprint); // directional albedo for wo
+    }
+    struct NeumatMaterial : <the interfaces the model has> { ... }
+
+plus the free functions `neumat_eval`, `neumat_eval_lod`, ... the methods call, and a compute entry point
+`neumat_batch` that answers a batch of queries (`neumat.testing.slang_parity` runs it on slangpy's CPU
+device; its buffers are listed in `manifest.json`). Values are what `model.eval`, `model.albedo`,
+`model.sample(q, u).wo` and `model.pdf` compute: the same anisotropic filtering of the latent pyramid (wrap
+tiling, up to max_probes trilinear probes), learned frames, SiLU MLP with exp output, and proxy sampler with
+its defensive cosine share.
+
+One source of truth for the math: the module is the GLSL export (`neumat.export.glsl_latent_mlp`, itself
+parity-tested) spelled in Slang by `glsl_to_slang`, a token-level rewrite of the GLSL subset those generators
+emit (vector / matrix types, lerp, frac, atan2, static const arrays); every texture becomes a
+`StructuredBuffer<float4>` read by index (layer, row, column), so no hardware sampling is involved and the
+module runs on Slang's CPU target. Decoder weights are constants in the source. The Slang-only parts
+(interfaces, struct, compute entry point) are written here.
+
+`SlangExport.write(folder)` writes `neumat.slang`, one raw little-endian float32 file per buffer
+(layers x height x width x 4, i.e. float4 elements in buffer order) and `manifest.json`.
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import InputError
+from .glsl import GLSLExport
+
+#: floats per query in the compute entry point's input buffer `neumat_queries` (offsets in QUERY_LAYOUT)
+QUERY_FLOATS = 16
+QUERY_LAYOUT = {"wi": 0, "wo": 3, "uv": 6, "lod": 8, "footprint_xx_xy_yy": 9, "u": 12}
+#: floats per query in the output buffer `neumat_results`: rgb (eval, eval_lod, albedo), wo (sample), pdf in 0
+RESULT_FLOATS = 4
+#: threads per group of `neumat_batch`
+GROUP_SIZE = 64
+#: the compute entry point's query kinds (`neumat_entry`)
+ENTRY_CODES = {"eval": 0, "eval_lod": 1, "albedo": 2, "sample": 3, "pdf": 4}
+
+_SIGNATURES = {
+    "eval": "float3 eval(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
+    "eval_lod": "float3 eval_lod(float3 wi, float3 wo, float2 uv, float lod)",
+    "albedo": "float3 albedo(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
+    "sample": "float3 sample(float3 wi, float2 uv, float2x2 footprint, float2 u)",
+    "pdf": "float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
+}
+#: interface -> (base clause, methods); NeumatMaterial implements those whose methods the model has
+_INTERFACES = {"INeumatMaterial": ("", ("eval", "eval_lod")),
+               "INeumatSampler": (" : INeumatMaterial", ("sample", "pdf")),
+               "INeumatAlbedo": ("", ("albedo",))}
+
+
+@dataclass
+class SlangExport:
+    """Slang module source and its buffers: name -> float32 array (layers, H, W, 4), bound as
+    `StructuredBuffer<float4>` of layers * H * W elements. entries: the methods of `NeumatMaterial`
+    (keys of ENTRY_CODES)."""
+
+    source: str
+    buffers: dict[str, np.ndarray] = field(default_factory=dict)
+    entries: list[str] = field(default_factory=list)
+    interfaces: list[str] = field(default_factory=list)
+    model: str = ""
+
+    def entry_points(self) -> list[str]:
+        """Slang signatures of the methods of `NeumatMaterial`."""
+        return [_SIGNATURES[e] for e in self.entries]
+
+    def write(self, folder: str | Path) -> Path:
+        """Write neumat.slang, <buffer>.f32 files and manifest.json into `folder` (created); returns it."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "neumat.slang").write_text(self.source)
+        manifest = {
+            "source": "neumat.slang", "language": "slang", "model": self.model, "struct": "NeumatMaterial",
+            "interfaces": self.interfaces, "entry": self.entry_points(), "buffers": {},
+            "compute": {"entry": "neumat_batch", "numthreads": [GROUP_SIZE, 1, 1],
+                        "queries": "neumat_queries", "results": "neumat_results", "count": "neumat_count",
+                        "kind": "neumat_entry", "kinds": {e: ENTRY_CODES[e] for e in self.entries},
+                        "query_floats": QUERY_FLOATS, "query_layout": QUERY_LAYOUT, "result_floats": RESULT_FLOATS},
+        }
+        for name, data in self.buffers.items():
+            layers, height, width, _ = data.shape
+            data.astype("<f4").tofile(folder / f"{name}.f32")
+            manifest["buffers"][name] = {"file": f"{name}.f32", "type": "StructuredBuffer<float4>",
+                                         "elements": layers * height * width, "width": width, "height": height,
+                                         "layers": layers, "order": "layer, row, column"}
+        (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        return folder
+
+
+# ------------------------------------------------------------------------------ GLSL -> Slang
+_TYPES = {"vec2": "float2", "vec3": "float3", "vec4": "float4", "ivec2": "int2", "ivec3": "int3", "ivec4": "int4",
+          "mat2": "float2x2"}
+_FUNCTIONS = {"mix": "lerp", "fract": "frac", "mod": "nm_mod"}  # GLSL mod floors; Slang's fmod truncates
+_LEFTOVER = re.compile(r"\b(i?vec[234]|mat[234]|texelFetch|texture\w*|sampler\w*|uniform|dFd[xy]|inversesqrt)\b"
+                       r"|\b(mix|fract|mod)\s*\(|\w\[\]\(")
+
+_PRELUDE = """
+// GLSL's mod: x - y floor(x / y) (Slang's fmod truncates)
+float nm_mod(float x, float y) { return x - y * floor(x / y); }
+"""
+
+
+def _calls(src: str, name: str, rewrite) -> str:
+    """`src` with every call `name(a, b, ...)` replaced by rewrite([a, b, ...]) (top-level arguments, stripped)."""
+    out, pos = [], 0
+    pattern = re.compile(rf"\b{name}\s*\(")
+    while (m := pattern.search(src, pos)) is not None:
+        depth, args, start, i = 1, [], m.end(), m.end()
+        while depth:
+            c = src[i]
+            if c in "([":
+                depth += 1
+            elif c in ")]":
+                depth -= 1
+            if (c == "," and depth == 1) or depth == 0:
+                args.append(src[start:i].strip())
+                start = i + 1
+            i += 1
+        out += [src[pos:m.start()], rewrite(args)]
+        pos = i
+    return "".join(out) + src[pos:]
+
+
+def glsl_to_slang(source: str, textures: dict[str, np.ndarray]) -> str:
+    """Slang spelling of GLSL `source` in the subset the neumat GLSL generators emit: vector / matrix types,
+    mix / fract / two-argument atan / mod, `const T name[n] = T[](...)` arrays, and `sampler2DArray` textures
+    (`textures`: name -> (layers, H, W, 4)) read with `texelFetch(name, ivec3(x, y, layer), 0)`, which become
+    `StructuredBuffer<float4>` globals read by index. Raises RuntimeError if GLSL spellings remain (a
+    generator that emits something this rewrite does not know)."""
+    src = re.sub(r"^const (\w+) (\w+)\[(\d+)\] = \1\[\]\((.*)\);$", r"static const \1 \2[\3] = { \4 };", source,
+                 flags=re.M)
+    src = re.sub(r"^const ", "static const ", src, flags=re.M)
+    for name, data in textures.items():
+        layers, height, width, _ = data.shape
+        src = src.replace(f"uniform sampler2DArray {name};", f"""StructuredBuffer<float4> {name};  // {layers} layers \
+x {height} rows x {width} columns
+float4 nm_fetch_{name}(int3 p) {{ return {name}[(p.z * {height} + p.y) * {width} + p.x]; }}""")
+
+    def fetch(args: list[str]) -> str:
+        if len(args) != 3 or args[0] not in textures or args[2] != "0":
+            raise RuntimeError(f"glsl_to_slang: unsupported texelFetch({', '.join(args)})")
+        return f"nm_fetch_{args[0]}({args[1]})"
+
+    src = _calls(src, "texelFetch", fetch)
+    src = _calls(src, "atan", lambda args: f"{'atan2' if len(args) == 2 else 'atan'}({', '.join(args)})")
+    for glsl, slang in _TYPES.items():
+        src = re.sub(rf"\b{glsl}\b", slang, src)
+    for glsl, slang in _FUNCTIONS.items():
+        src = re.sub(rf"\b{glsl}(?=\s*\()", slang, src)
+    code = re.sub(r"//[^\n]*", "", src)
+    if (m := _LEFTOVER.search(code)) is not None:
+        raise RuntimeError(f"glsl_to_slang: GLSL spelling {m.group(0)!r} left in the Slang source")
+    return _PRELUDE + src
+
+
+# ------------------------------------------------------------------------------ the Slang-only parts
+def _interfaces() -> str:
+    out = []
+    for name, (base, methods) in _INTERFACES.items():
+        body = "".join(f"    {_SIGNATURES[m]};\n" for m in methods)
+        out.append(f"interface {name}{base} {{\n{body}}}\n")
+    return "\n".join(out)
+
+
+def _material(entries: list[str], interfaces: list[str]) -> str:
+    methods = ""
+    for e in entries:
+        args = re.findall(r"(\w+)(?:,|\))", _SIGNATURES[e])  # parameter names, in order
+        methods += f"    {_SIGNATURES[e]} {{ return neumat_{e}({', '.join(args)}); }}\n"
+    return f"""
+/// The exported material: stateless; its latent pyramid is the global buffer neumat_spatial.
+struct NeumatMaterial : {', '.join(interfaces)} {{
+{methods}}}
+"""
+
+
+def _kernel(entries: list[str]) -> str:
+    calls = {
+        "eval": "float4(m.eval(wi, wo, uv, footprint), 1.0)",
+        "eval_lod": "float4(m.eval_lod(wi, wo, uv, lod), 1.0)",
+        "albedo": "float4(m.albedo(wi, wo, uv, footprint), 1.0)",
+        "sample": "float4(m.sample(wi, uv, footprint, u), 1.0)",
+        "pdf": "float4(m.pdf(wi, wo, uv, footprint), 0.0, 0.0, 1.0)",
+    }
+    cases = "".join(f"    case {ENTRY_CODES[e]}: r = {calls[e]}; break;\n" for e in entries)
+    lay = QUERY_LAYOUT
+    f = lay["footprint_xx_xy_yy"]
+    return f"""
+// ---- batch evaluation (tests, examples): {QUERY_FLOATS} floats per query in neumat_queries
+//   wi {lay['wi']}..{lay['wi'] + 2}, wo {lay['wo']}..{lay['wo'] + 2}, uv {lay['uv']}..{lay['uv'] + 1}, \
+lod {lay['lod']}, footprint (xx, xy, yy) {f}..{f + 2}, u {lay['u']}..{lay['u'] + 1}
+// results: {RESULT_FLOATS} floats per query (rgb, wo, or the pdf in the first); neumat_entry picks the method:
+// {', '.join(f'{e} {ENTRY_CODES[e]}' for e in entries)}
+StructuredBuffer<float> neumat_queries;
+RWStructuredBuffer<float> neumat_results;
+uniform uint neumat_count;
+uniform int neumat_entry;
+
+[shader("compute")]
+[numthreads({GROUP_SIZE}, 1, 1)]
+void neumat_batch(uint3 tid: SV_DispatchThreadID) {{
+    uint i = tid.x;
+    if (i >= neumat_count) return;
+    uint b = i * {QUERY_FLOATS};
+    float3 wi = float3(neumat_queries[b + {lay['wi']}], neumat_queries[b + {lay['wi'] + 1}], \
+neumat_queries[b + {lay['wi'] + 2}]);
+    float3 wo = float3(neumat_queries[b + {lay['wo']}], neumat_queries[b + {lay['wo'] + 1}], \
+neumat_queries[b + {lay['wo'] + 2}]);
+    float2 uv = float2(neumat_queries[b + {lay['uv']}], neumat_queries[b + {lay['uv'] + 1}]);
+    float lod = neumat_queries[b + {lay['lod']}];
+    float xx = neumat_queries[b + {f}], xy = neumat_queries[b + {f + 1}], yy = neumat_queries[b + {f + 2}];
+    float2x2 footprint = float2x2(xx, xy, xy, yy);
+    float2 u = float2(neumat_queries[b + {lay['u']}], neumat_queries[b + {lay['u'] + 1}]);
+    NeumatMaterial m;
+    float4 r = float4(0.0);
+    switch (neumat_entry) {{
+{cases}    default: break;
+    }}
+    for (int k = 0; k < {RESULT_FLOATS}; ++k) neumat_results[i * {RESULT_FLOATS} + k] = r[k];
+}}
+"""
+
+
+def export_slang(model) -> SlangExport:
+    """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance; module
+    docstring). Anything else raises InputError naming the model type."""
+    from ..models.neumip import NeuMIP
+    from .glsl_latent_mlp import export_latent_mlp
+
+    if not isinstance(model, NeuMIP):
+        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), got "
+                         f"{type(model).__name__} ({getattr(model, 'name', '?')})")
+    if model.cfg.directions != "cartesian":
+        raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
+                         "(cartesian only)")
+    glsl: GLSLExport = export_latent_mlp(model)
+    entries = [e for e in ENTRY_CODES if f"neumat_{e}(" in glsl.source]
+    interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
+    body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures)
+    header = (f"// neumat Slang module of a '{model.name}' model (methods: {', '.join(entries)}); see "
+              "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json.\n")
+    source = header + body + "\n" + _interfaces() + _material(entries, interfaces) + _kernel(entries)
+    return SlangExport(source, dict(glsl.textures), entries, interfaces, model.name)
