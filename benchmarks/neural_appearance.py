@@ -4,6 +4,7 @@ zeltner baseline, at equal steps and batch.
     python benchmarks/neural_appearance.py                           # three shared texture sets at 64^2
     python benchmarks/neural_appearance.py --sets Metal027_1K --size 128 --steps 4000
     python benchmarks/neural_appearance.py --speed                   # evaluations / samples per second only
+    python benchmarks/neural_appearance.py --coat --variants full,ggx-mipmap,zeltner   # layered sources (Fig. 3)
 
 Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 halved at 50% / 75%):
   "full"          encoder phase (half the steps), bake, latent phase (`fit_neural_appearance`), 2 frames;
@@ -11,7 +12,13 @@ Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 hal
   "1 frame"       as "full" with one learned shading frame;
   "zeltner"       the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
                   the shared trainer (its recipe: EMA, Adam betas 0.99) on the same loss, queries (Eq. 9
-                  footprints), steps and batch; "zeltner, Eq. 10 loss" with its recipe's own loss.
+                  footprints), steps and batch; "zeltner (Eq. 10 loss)" with its recipe's own loss;
+  "ggx-mipmap"    the analytic baseline: diffuse + anisotropic GGX with 12 textured, filtered parameters per
+                  texel (`neumat.models.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
+                  paper's Fig. 3 compares its neural model with such a textured analytic fit).
+--variants picks some of them (default all but ggx-mipmap). --coat puts every texture set under a smudged clear
+coat (`neumat.reflectance.layered`: eta 1.5, GGX alpha 0.03 to 0.3 by a procedural smudge mask), the kind of
+layered material the paper bakes; the encoder then reads 8 + 5 surface parameters.
 Scores on held-out queries: "point log_cos" / "point rel L1" at point queries (cosine-weighted wi, wo,
 uniform uv), "filtered log_cos" at Eq. 9 footprints against the SVBRDF's filtered value (256 samples);
 "sampler gain" = rel var of cosine-sampled / model-sampled one-sample albedo estimates at 45 degrees and
@@ -20,7 +27,9 @@ uniform uv (neural-appearance variants). The texture set is read at --size texel
 --speed: evaluations per second on the CPU instead (no training; speed does not depend on the weights):
 model.eval, model.sample and the SVBRDF reference's point value (`eval_point`) on the same 2^16 point
 queries, and eval with a footprint (anisotropic filtering) against the SVBRDF's filtered value (--train-samples
-positions per footprint; the paper's is 256); best of three.
+positions per footprint; the paper's is 256); best of three. The models' shader exports on the footprint queries:
+GLSL on this OpenGL (llvmpipe without a GPU) and the Slang module on slangpy's CPU device (marginal rates, so
+compilation and uploads do not count).
 """
 from __future__ import annotations
 
@@ -32,6 +41,8 @@ from dataclasses import replace
 import torch
 from neumat.cli.common import print_table
 from neumat.core.query import Query
+from neumat.export.glsl import export_glsl
+from neumat.export.slang import export_slang
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LogCosLoss
 from neumat.fit.neural_appearance import fit_neural_appearance
@@ -41,8 +52,25 @@ from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.tonemap import LUMINANCE
 from neumat.models.neural_appearance import NeuralAppearance
+from neumat.models.ggx_mipmap import GGXMipmap
 from neumat.models.zeltner import Zeltner
+from neumat.reflectance.layered import Coat, LayeredMaterial
+from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF
+from neumat.testing.parity import glsl_evals_per_second, opengl_available
+from neumat.testing.slang_parity import slang_available, slang_evals_per_second
+
+VARIANTS = ("full", "no encoder", "1 frame", "zeltner", "zeltner (Eq. 10 loss)", "ggx-mipmap")
+
+
+def open_source(folder, size: int, samples: int, coat: bool):
+    """The texture set at `size` texels, under a smudged clear coat with `coat`."""
+    svbrdf = SVBRDF.from_folder(folder, max_size=size, samples=samples)
+    if not coat:
+        return svbrdf
+    roughness = 0.03 + 0.27 * smudge_map(min(svbrdf.textures.size), seed=1)
+    return LayeredMaterial(svbrdf, [Coat(roughness=roughness, eta=1.5)], samples=samples,
+                           name=f"{svbrdf.name} + smudged coat")
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 
@@ -108,11 +136,16 @@ def speed_rows(name: str, source, size: int, n: int) -> list[dict]:
         row = {"set": name, "model": label, "eval/s (point)": rate(lambda: m.eval(point), n),
                "eval/s (footprint)": rate(lambda: m.eval(filtered), n)}
         row["sample/s"] = rate(lambda: m.sample(point, u[:, :2]), n) if m.can_sample else float("nan")
+        row["GLSL eval/s (llvmpipe)"] = glsl_evals_per_second(export_glsl(m), filtered) if opengl_available() \
+            else float("nan")
+        row["Slang eval/s (CPU)"] = slang_evals_per_second(export_slang(m), filtered) if slang_available() \
+            else float("nan")
         rows.append(row | {"FLOPs": m.flops()})
     rows.append({"set": name, "model": f"SVBRDF reference ({source.samples} footprint samples)",
                  "eval/s (point)": rate(lambda: source.eval_point(point.wi, point.wo, point.uv), n),
                  "eval/s (footprint)": rate(lambda: source.eval(filtered), n),
-                 "sample/s": rate(lambda: source.sample(point, u[:, :2]), n), "FLOPs": float("nan")})
+                 "sample/s": rate(lambda: source.sample(point, u[:, :2]), n), "GLSL eval/s (llvmpipe)": float("nan"),
+                 "Slang eval/s (CPU)": float("nan"), "FLOPs": float("nan")})
     return rows
 
 
@@ -125,24 +158,32 @@ def main() -> None:
     ap.add_argument("--train-samples", type=int, default=16, help="footprint samples of the training targets")
     ap.add_argument("--queries", type=int, default=4096, help="held-out queries of each kind")
     ap.add_argument("--speed", action="store_true", help="evaluations per second only (module docstring)")
+    ap.add_argument("--coat", action="store_true", help="layered sources: a smudged clear coat over each set")
+    ap.add_argument("--variants", default=",".join(VARIANTS[:-1]), help=f"comma-separated, of: {', '.join(VARIANTS)}")
     args = ap.parse_args()
+    chosen = args.variants.split(",")
+    unknown = sorted(set(chosen) - set(VARIANTS))
+    if unknown:
+        raise SystemExit(f"--variants: unknown {', '.join(unknown)} (known: {', '.join(VARIANTS)})")
     data_dir = shared_data_dir()
     if data_dir is None:
         raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
     rows = []
     for name in args.sets.split(","):
         folder = data_dir / "svbrdf" / name
-        train_src = SVBRDF.from_folder(folder, max_size=args.size, samples=args.train_samples)
-        size = 1 << (min(train_src.textures.size).bit_length() - 1)
+        train_src = open_source(folder, args.size, args.train_samples, args.coat)
+        size = 1 << (min(train_src.texture_size if args.coat else train_src.textures.size).bit_length() - 1)
         if args.speed:
             rows += speed_rows(name, train_src, size, 1 << 16)
             continue
-        data = held_out(SVBRDF.from_folder(folder, max_size=args.size, samples=256), args.queries)
+        data = held_out(open_source(folder, args.size, 256, args.coat), args.queries)
         half = args.steps // 2
         variants = {"full": ({}, half), "no encoder": ({}, 0), "1 frame": ({"frames": 1}, half)}
         for variant, (config, encoder_steps) in variants.items():
+            if variant not in chosen:
+                continue
             torch.manual_seed(0)
-            model = NeuralAppearance(spatial_size=size, **config)
+            model = NeuralAppearance(spatial_size=size, surface_features=train_src.sampling_feature_dim, **config)
             t = time.perf_counter()
             fit_neural_appearance(model, train_src, encoder_steps=encoder_steps,
                                   latent_steps=args.steps - encoder_steps, batch=args.batch, progress=False)
@@ -150,10 +191,14 @@ def main() -> None:
             rows.append({"set": name, "model": variant, **scores(model, data), "sampler gain": sampler_gain(model),
                          "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds})
             print(rows[-1], flush=True)
-        for variant, loss in (("zeltner", "log_cos"), ("zeltner, Eq. 10 loss", None)):
+        baselines = (("zeltner", Zeltner, "log_cos"), ("zeltner (Eq. 10 loss)", Zeltner, None),
+                     ("ggx-mipmap", GGXMipmap, "log_cos"))
+        for variant, kind, loss in baselines:
+            if variant not in chosen:
+                continue
             torch.manual_seed(0)
-            baseline = Zeltner(spatial_size=size)
-            recipe = replace(recipe_for("zeltner"), batch_size=args.batch, lr_decay_every=0)
+            baseline = kind(spatial_size=size)
+            recipe = replace(recipe_for(kind.name), batch_size=args.batch, lr_decay_every=0)
             recipe.loss = loss or recipe.loss
             t = time.perf_counter()
             fit(baseline, train_src, recipe, steps=args.steps, progress=False)
@@ -162,7 +207,8 @@ def main() -> None:
                          "bytes (fp16)": baseline.size_bytes("fp16"), "FLOPs": baseline.flops(), "fit s": seconds})
             print(rows[-1], flush=True)
     what = "speed" if args.speed else f"{args.steps} steps x {args.batch}"
-    print_table(f"neural-appearance on {args.size}^2 texture sets, {what} ({torch.get_num_threads()} threads)", rows,
+    sets = "texture sets under a smudged coat" if args.coat else "texture sets"
+    print_table(f"neural-appearance on {args.size}^2 {sets}, {what} ({torch.get_num_threads()} threads)", rows,
                 width=200)
 
 
