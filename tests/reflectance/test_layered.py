@@ -242,6 +242,8 @@ def test_bad_json_descriptions_raise(tmp_path, change, message):
     (dict(eta=0.5), "eta"),
     (dict(eta="glass"), "eta"),
     (dict(tint=(1.2, 1.0, 1.0)), "tint"),
+    (dict(tint="amber"), "tint"),
+    (dict(roughness="rough"), "roughness"),
     (dict(normal=torch.tensor([0.0, 0.0, -1.0]).expand(4, 4, 3)), "normal"),
     (dict(roughness=torch.rand(2, 3, 4)), "roughness"),
 ])

@@ -72,7 +72,7 @@ class CoatAlbedo:
 
     def _alpha_weights(self, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         s = alpha.to(torch.float64).clamp(ALPHA_MIN, 1).sqrt()
-        x = (s - self.sqrt_alpha[0]) / (self.sqrt_alpha[1] - self.sqrt_alpha[0])
+        x = (s - float(self.sqrt_alpha[0])) / float(self.sqrt_alpha[1] - self.sqrt_alpha[0])
         i = x.floor().clamp(0, len(self.sqrt_alpha) - 2).long()
         return i, (x - i).clamp(0, 1)
 
@@ -82,7 +82,7 @@ class CoatAlbedo:
         x = mu.to(torch.float64).clamp(0, 1) * (len(self.mu) - 1)
         j = x.floor().clamp(0, len(self.mu) - 2).long()
         s = x - j
-        e = self.table
+        e = self.table.to(mu.device)
         lo = e[i, j] * (1 - s) + e[i, j + 1] * s
         hi = e[i + 1, j] * (1 - s) + e[i + 1, j + 1] * s
         return (lo * (1 - t) + hi * t).to(mu.dtype)
@@ -90,4 +90,5 @@ class CoatAlbedo:
     def averaged(self, alpha: torch.Tensor) -> torch.Tensor:
         """E_avg (N,) at alphas (N,): linear in sqrt(alpha), so it is the exact average of the interpolated E."""
         i, t = self._alpha_weights(alpha)
-        return (self.average[i] * (1 - t) + self.average[i + 1] * t).to(alpha.dtype)
+        average = self.average.to(alpha.device)
+        return (average[i] * (1 - t) + average[i + 1] * t).to(alpha.dtype)

@@ -62,7 +62,10 @@ class Coat:
 
 def _map(value, name: str, lo: float, hi: float) -> torch.Tensor:
     """A number or (H, W) map as a float32 (1, H, W) tensor, range-checked."""
-    t = torch.as_tensor(value, dtype=torch.float32)
+    try:
+        t = torch.as_tensor(value, dtype=torch.float32)
+    except (TypeError, ValueError, RuntimeError):
+        raise InputError(f"{name}: expected a number or an (H, W) map, got {type(value).__name__}") from None
     if t.dim() == 0:
         t = t.reshape(1, 1)
     if t.dim() != 2 or min(t.shape) < 1:
@@ -128,7 +131,10 @@ class LayeredMaterial(Material):
         self.maps = [_coat_maps(c, f"coat {i}") for i, c in enumerate(self.coats)]
         self.albedos = []
         for i, c in enumerate(self.coats):
-            tint = torch.as_tensor(c.tint, dtype=torch.float32)
+            try:
+                tint = torch.as_tensor(c.tint, dtype=torch.float32)
+            except (TypeError, ValueError, RuntimeError):
+                tint = torch.zeros(0)
             if tint.shape != (3,) or not bool(((tint > 0) & (tint <= 1)).all()):
                 raise InputError(f"coat {i} tint: expected 3 values in (0, 1], got {c.tint!r}")
             if isinstance(c.eta, bool) or not isinstance(c.eta, (int, float)):
