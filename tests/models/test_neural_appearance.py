@@ -14,6 +14,7 @@ from neumat.io.modelfile import load_model, save_model
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX
 from neumat.reflectance.btf_generate import procedural_texture_set
+from neumat.reflectance.lean import lean_pyramid
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.chi2 import chi2_material
 from neumat.warp.hemisphere import sample_cosine_hemisphere
@@ -40,10 +41,10 @@ def _held_out(n: int = 8000) -> Query:
     return Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=u[:, 4:6])
 
 
-@pytest.mark.parametrize("precondition", [0.0, 10.0])
-def test_bake_writes_the_encoder_latents_into_every_level(bumps, precondition):
+@pytest.mark.parametrize("precondition, lean", [(0.0, False), (10.0, False), (0.0, True)])
+def test_bake_writes_the_encoder_latents_into_every_level(bumps, precondition, lean):
     torch.manual_seed(1)
-    model = NeuralAppearance(spatial_size=SIZE, spatial_precondition=precondition)
+    model = NeuralAppearance(spatial_size=SIZE, spatial_precondition=precondition, lean=lean)
     model.bake(bumps)
     centres = (torch.arange(SIZE) + 0.5) / SIZE
     v, u = torch.meshgrid(1 - centres, centres, indexing="ij")
@@ -52,8 +53,11 @@ def test_bake_writes_the_encoder_latents_into_every_level(bumps, precondition):
     k = bumps.sampling_features(q)
     with torch.no_grad():
         torch.testing.assert_close(model.spatial_latent(q), model.encode(k), atol=1e-4, rtol=1e-4)
-        # level 1 at its texel centres (lod 1 reads that level alone): the encoder of 2 x 2 box-filtered k
-        coarse = F.avg_pool2d(k.t().reshape(1, -1, SIZE, SIZE), 2)[0].reshape(k.shape[1], -1).t()
+        # level 1 at its texel centres (lod 1 reads that level alone): the encoder of 2 x 2 box-filtered k, or of
+        # LEAN-prefiltered k (normal and roughness from the slope moments)
+        finest = k.t().reshape(-1, SIZE, SIZE)
+        maps = lean_pyramid(finest, list(bumps.surface_normal_groups), 2)[1] if lean else F.avg_pool2d(finest, 2)
+        coarse = maps.reshape(k.shape[1], -1).t()
         c1 = (torch.arange(SIZE // 2) + 0.5) / (SIZE // 2)
         v1, u1 = torch.meshgrid(1 - c1, c1, indexing="ij")
         q1 = Query(q.wi[: len(coarse)], uv=torch.stack([u1, v1], -1).reshape(-1, 2), lod=torch.ones(len(coarse)))

@@ -12,6 +12,7 @@ from neumat.io.texture_set import TextureSet
 from neumat.reflectance.analytic import Lambert
 from neumat.reflectance.coat_albedo import CoatAlbedo
 from neumat.reflectance.layered import COAT_FEATURES, Coat, LayeredMaterial
+from neumat.reflectance.lean import NormalGroup
 from neumat.reflectance.microfacet import fresnel_dielectric, ggx_ndf, smith_g1
 from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF
@@ -184,6 +185,8 @@ def test_sampling_features_are_the_base_parameters_then_each_coat():
     torch.testing.assert_close(k[:, :8], m.base.sampling_features(Query(wi, uv=uv)))
     assert bool((k[:, 8] >= 0.1).all()) and bool(((k[:, 9] - 0.9).abs() < 1e-6).all())
     torch.testing.assert_close(k[:, 10:13].norm(dim=-1), torch.ones(32))
+    # LEAN prefiltering finds each layer's normal and roughness: the base's principled pair, then the coat's alpha
+    assert m.surface_normal_groups == (NormalGroup(3, 6, 2.0), NormalGroup(10, 8, 1.0))
 
 
 def test_smudge_map_tiles_and_is_deterministic():

@@ -14,10 +14,11 @@ reports 2 x 16 and 3 x 64), no frequency preconditioner (that is Timonen et al.'
 Training (Sec. 5, `neumat.fit.neural_appearance.fit_neural_appearance`): an encoder MLP maps the
 source's surface parameters k(x) (`source.sampling_features`, e.g. an SVBRDF's base colour, normal, roughness,
 metalness) to z, trained end to end with both decoders; `bake` then fills every texel of every pyramid level
-with the encoder's output, and the latents are fine-tuned directly on filtered targets. Differences from the
-paper: coarse levels are baked from box-filtered parameters (the paper prefilters with LEAN), a fractional
-level is read trilinearly (the paper picks one of the two levels by Russian roulette) and the sampler is
-trained on the same queries as the BRDF (the paper draws a second batch).
+with the encoder's output, and the latents are fine-tuned directly on filtered targets. Coarse levels are baked
+from LEAN-prefiltered parameters (`Config.lean`: normal-map slope spread becomes roughness; the encoder reads one
+normal and one isotropic roughness per layer, so LEAN's anisotropic covariance is reduced to its trace).
+Differences from the paper: a fractional level is read trilinearly (the paper picks one of the two levels by
+Russian roulette) and the sampler is trained on the same queries as the BRDF (the paper draws a second batch).
 
 Albedo inference (Sec. 6.4, `Config.albedo`): the BRDF MLP has 3 more outputs, exp(.) of which is the
 directional albedo alpha(x, wo) = int f(x, wi, wo) cos(theta_i) dwi (`albedo(q)`), fitted with an L2 loss against
@@ -40,6 +41,7 @@ from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
 from neumat.nn.preconditioner import unprecondition
+from neumat.reflectance.lean import lean_pyramid
 from neumat.warp.microfacet_proxy import ProxyLobes
 
 
@@ -65,6 +67,10 @@ class Config(neumip.Config):
     """Neurons per hidden layer of the sampling decoder (paper: 32)."""
     sampler_layers: int = 3
     """Hidden layers of the sampling decoder (paper: 3)."""
+    lean: bool = True
+    """`bake` fills coarse levels from LEAN-prefiltered surface parameters (Sec. 5.1; `neumat.reflectance.lean`)
+    where the source names its normal and roughness channels (`surface_normal_groups`); else, or when False,
+    from box-filtered ones."""
     albedo: bool = False
     """The BRDF decoder also outputs the directional albedo alpha(x, wo) = int f cos(theta_i) dwi as an extra RGB
     triplet (Sec. 6.4), trained with L2 against one-sample estimates; read it with `albedo(q)`."""
@@ -130,7 +136,8 @@ class NeuralAppearance(neumip.NeuMIP):
     @torch.no_grad()
     def bake(self, source) -> None:
         """Fill every pyramid level with the encoder's latents of the source's surface parameters at its texel
-        centres (finest level), box-filtered for the coarser levels (Sec. 5.1 step 2)."""
+        centres (finest level), LEAN-prefiltered (`Config.lean`) or box-filtered for the coarser levels (Sec. 5.1
+        step 2)."""
         size = self.cfg.spatial_size
         uv = texel_centre_uv(size, size)
         wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(len(uv), 3)
@@ -138,10 +145,14 @@ class NeuralAppearance(neumip.NeuMIP):
         if k.shape != (len(uv), self.cfg.surface_features):
             raise InputError(f"{self.name}.bake: the source gives surface parameters of shape {tuple(k.shape)}, "
                              f"expected ({len(uv)}, {self.cfg.surface_features})")
-        finest = k.t().reshape(1, -1, size, size)
-        for level, raw in enumerate(self.spatial.raw):
-            kl = F.avg_pool2d(finest, 1 << level) if level else finest
-            z = self.encode(kl[0].reshape(kl.shape[1], -1).t()).t().reshape(raw.shape)
+        finest = k.t().reshape(-1, size, size)
+        groups = list(getattr(source, "surface_normal_groups", ()))
+        if self.cfg.lean and groups:
+            pyramid = lean_pyramid(finest, groups, len(self.spatial.raw))
+        else:
+            pyramid = [F.avg_pool2d(finest[None], 1 << level)[0] for level in range(len(self.spatial.raw))]
+        for raw, kl in zip(self.spatial.raw, pyramid):
+            z = self.encode(kl.reshape(kl.shape[0], -1).t()).t().reshape(raw.shape)
             strength = self.cfg.spatial_precondition
             raw.copy_(unprecondition(z, strength) if strength else z)
 

@@ -41,6 +41,7 @@ from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .coat_albedo import ALPHA_MIN, CoatAlbedo
 from .footprint_filter import filtered_eval, query_footprint
+from .lean import NormalGroup
 from .microfacet import _microfacet_brdf, fresnel_dielectric
 
 #: surface parameters one coat adds to `sampling_features`: alpha, weight, unit normal (3)
@@ -161,6 +162,14 @@ class LayeredMaterial(Material):
     def sampling_feature_dim(self) -> int:
         base = int(self.base.sampling_feature_dim) if self.base.spatially_varying else 0
         return base + COAT_FEATURES * len(self.coats)
+
+    @property
+    def surface_normal_groups(self) -> tuple[NormalGroup, ...]:
+        """Normal and roughness channels of every layer in `sampling_features` (LEAN prefiltering)."""
+        groups = tuple(getattr(self.base, "surface_normal_groups", ())) if self.base.spatially_varying else ()
+        start = self.sampling_feature_dim - COAT_FEATURES * len(self.coats)
+        return groups + tuple(NormalGroup(normal=start + COAT_FEATURES * i + 2, roughness=start + COAT_FEATURES * i,
+                                          alpha_power=1.0) for i in range(len(self.coats)))
 
     def _coat_at(self, i: int, uv: torch.Tensor):
         """alpha (N,), weight (N,) and frame (t, b, n) of coat i at uv (N, 2)."""

@@ -35,6 +35,7 @@ from ..io.texture_set import TextureSet, load_texture_set
 from ..nn.latent_texture import bilinear
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .footprint_filter import filtered_eval, query_footprint
+from .lean import NormalGroup
 from .microfacet import principled_eval, principled_pdf, principled_sample
 
 #: probability with which `sample` draws a cosine-weighted direction (defensive mixture)
@@ -102,6 +103,9 @@ class SVBRDF(Material):
     #: features `sampling_features` gives a learned sampler (`neumat.models.proxy_sampler`) and the encoder of
     #: `neumat.models.neural_appearance` (its surface parameters k(x))
     sampling_feature_dim = 8
+    #: the normal (channels 3-5) and principled roughness (6, alpha = roughness^2) among them, for LEAN
+    #: prefiltering of coarse levels (`neumat.reflectance.lean`)
+    surface_normal_groups = (NormalGroup(normal=3, roughness=6, alpha_power=2.0),)
 
     def sampling_features(self, q: Query) -> torch.Tensor:
         """Texture parameters at q.uv (N, 8): base colour, unit normal, roughness, metalness."""
