@@ -24,8 +24,8 @@ from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 def _directions(n, seed=0):
     g = torch.Generator().manual_seed(seed)
-    return (sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), sample_cosine_hemisphere(torch.rand(n, 2, generator=g)),
-            torch.rand(n, 2, generator=g))
+    wi = sample_cosine_hemisphere(torch.rand(n, 2, generator=g))
+    return wi, sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), torch.rand(n, 2, generator=g)
 
 
 def _checker_set(size=8):
