@@ -74,6 +74,21 @@ def test_check_passes_for_lambert_and_reports_json():
         assert all(abs(a - 1) <= 5 * row["albedo_stderr"] + 1e-6 for a in row["albedo_rgb"])
 
 
+def test_check_tests_a_spatially_varying_material_at_a_texel(tmp_path):
+    """A layered .json (white Lambert under a smudged clear coat) is checked at --uv: it samples correctly and
+    reflects all light (albedo 1 within 5 standard errors plus the coat albedo table's 3e-3)."""
+    spec = {"type": "layered", "base": "lambert:albedo=1", "samples": 4,
+            "coats": [{"roughness": {"smudges": {"size": 16}, "low": 0.1, "high": 0.4}}]}
+    (tmp_path / "coated.json").write_text(json.dumps(spec))
+    d = _json(runner.invoke(app, ["check", str(tmp_path / "coated.json"), "--angles", "40", "--samples", "20000",
+                                  "--uv", "0.3,0.6", "--json"]))
+    assert d["passed"] is True and d["uv"] == "0.3,0.6"
+    row = d["angles"][0]
+    assert all(abs(a - 1) <= 5 * row["albedo_stderr"] + 3e-3 for a in row["albedo_rgb"]), row
+    r = runner.invoke(app, ["check", str(tmp_path / "coated.json"), "--uv", "0.5"])
+    assert r.exit_code != 0 and "--uv" in r.output
+
+
 def test_check_rejects_bad_angles():
     r = runner.invoke(app, ["check", "lambert", "--angles", "95"])
     assert r.exit_code == 2 and "--angles" in r.output
