@@ -13,10 +13,13 @@ Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 hal
   "zeltner"       the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
                   the shared trainer (its recipe: EMA, Adam betas 0.99) on the same loss, queries (Eq. 9
                   footprints), steps and batch; "zeltner (Eq. 10 loss)" with its recipe's own loss;
+  "half-difference" as "full", directions uniform in Rusinkiewicz half and difference angles (the paper's);
+  "blurred"       as "full", targets directionally blurred early (a 10-degree cone around wo shrinking to 0
+                  at half of the steps, 4 directions each; the paper's schedule for narrow peaks);
   "ggx-mipmap"    the analytic baseline: diffuse + anisotropic GGX with 12 textured, filtered parameters per
                   texel (`neumat.models.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
                   paper's Fig. 3 compares its neural model with such a textured analytic fit).
---variants picks some of them (default all but ggx-mipmap). --coat puts every texture set under a smudged clear
+--variants picks some of them (default: full, no encoder, 1 frame and the two zeltner rows). --coat puts every texture set under a smudged clear
 coat (`neumat.reflectance.layered`: eta 1.5, GGX alpha 0.03 to 0.3 by a procedural smudge mask), the kind of
 layered material the paper bakes; the encoder then reads 8 + 5 surface parameters.
 Scores on held-out queries: "point log_cos" / "point rel L1" at point queries (cosine-weighted wi, wo,
@@ -60,7 +63,8 @@ from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.parity import glsl_evals_per_second, opengl_available
 from neumat.testing.slang_parity import slang_available, slang_evals_per_second
 
-VARIANTS = ("full", "no encoder", "1 frame", "zeltner", "zeltner (Eq. 10 loss)", "ggx-mipmap")
+VARIANTS = ("full", "no encoder", "1 frame", "zeltner", "zeltner (Eq. 10 loss)", "ggx-mipmap", "half-difference",
+            "blurred")
 
 
 def open_source(folder, size: int, samples: int, coat: bool):
@@ -159,7 +163,7 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=4096, help="held-out queries of each kind")
     ap.add_argument("--speed", action="store_true", help="evaluations per second only (module docstring)")
     ap.add_argument("--coat", action="store_true", help="layered sources: a smudged clear coat over each set")
-    ap.add_argument("--variants", default=",".join(VARIANTS[:-1]), help=f"comma-separated, of: {', '.join(VARIANTS)}")
+    ap.add_argument("--variants", default=",".join(VARIANTS[:5]), help=f"comma-separated, of: {', '.join(VARIANTS)}")
     args = ap.parse_args()
     chosen = args.variants.split(",")
     unknown = sorted(set(chosen) - set(VARIANTS))
@@ -178,15 +182,18 @@ def main() -> None:
             continue
         data = held_out(open_source(folder, args.size, 256, args.coat), args.queries)
         half = args.steps // 2
-        variants = {"full": ({}, half), "no encoder": ({}, 0), "1 frame": ({"frames": 1}, half)}
-        for variant, (config, encoder_steps) in variants.items():
+        variants = {"full": ({}, half, {}), "no encoder": ({}, 0, {}), "1 frame": ({"frames": 1}, half, {}),
+                    "half-difference": ({}, half, {"directions": "rusinkiewicz"}),
+                    "blurred": ({}, half, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5})}
+        for variant, (config, encoder_steps, options) in variants.items():
             if variant not in chosen:
                 continue
             torch.manual_seed(0)
             model = NeuralAppearance(spatial_size=size, surface_features=train_src.sampling_feature_dim, **config)
             t = time.perf_counter()
             fit_neural_appearance(model, train_src, encoder_steps=encoder_steps,
-                                  latent_steps=args.steps - encoder_steps, batch=args.batch, progress=False)
+                                  latent_steps=args.steps - encoder_steps, batch=args.batch, progress=False,
+                                  **options)
             seconds = time.perf_counter() - t
             rows.append({"set": name, "model": variant, **scores(model, data), "sampler gain": sampler_gain(model),
                          "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds})

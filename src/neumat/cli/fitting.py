@@ -65,7 +65,8 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
 def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed: int | None, quiet: bool,
                            source_options: dict, out: Path) -> None:
     """`neumat fit SOURCE --model neural-appearance`: `fit.neural_appearance.fit_neural_appearance` on the CPU.
-    --set takes the model's config fields and batch_size, lr; spatial_size defaults to the texture's size."""
+    --set takes the model's config fields and batch_size, lr, directions, blur_degrees, blur_samples, blur_until
+    (`fit_neural_appearance`); spatial_size defaults to the texture's size."""
     import torch
 
     from ..fit.neural_appearance import fit_neural_appearance
@@ -73,12 +74,13 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
     from ..io.open_material import open_material
     from ..models.neural_appearance import Config, NeuralAppearance
 
-    known = {f.name for f in fields(Config)} | {"batch_size", "lr"}
+    training = {"batch_size", "lr", "directions", "blur_degrees", "blur_samples", "blur_until"}
+    known = {f.name for f in fields(Config)} | training
     unknown = _unknown_keys(overrides, known)
     if unknown:
         raise InputError(f"--set: unknown key(s) {unknown} for neural-appearance: {', '.join(sorted(known))}")
     src = open_material(source, **source_options)
-    config = {k: v for k, v in overrides.items() if k not in ("batch_size", "lr")}
+    config = {k: v for k, v in overrides.items() if k not in training}
     size = getattr(getattr(src, "textures", None), "size", None) or getattr(src, "texture_size", None)
     if "spatial_size" not in config and size is not None:
         config["spatial_size"] = 1 << (min(size).bit_length() - 1)         # the texture's resolution (paper)
@@ -89,7 +91,11 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
     total = 4000 if steps is None else steps
     result = fit_neural_appearance(model, src, encoder_steps=total // 2, latent_steps=total - total // 2,
                                    batch=int(overrides.get("batch_size", 4096)), lr=float(overrides.get("lr", 3e-3)),
-                                   seed=0 if seed is None else seed, progress=not quiet)
+                                   seed=0 if seed is None else seed, progress=not quiet,
+                                   directions=str(overrides.get("directions", "cosine")),
+                                   blur_degrees=float(overrides.get("blur_degrees", 0.0)),
+                                   blur_samples=int(overrides.get("blur_samples", 4)),
+                                   blur_until=float(overrides.get("blur_until", 0.5)))
     last = result.history[-1] if result.history else {}
     metrics = {"fit_seconds": result.seconds, "final_brdf_loss": last.get("brdf loss"),
                "final_sampler_loss": last.get("sampler loss")}

@@ -1,13 +1,16 @@
 """Two-phase training of `neumat.models.neural_appearance.NeuralAppearance` (Zeltner et al. 2024, Sec. 5).
 
 Phase 1 (encoder): surface parameters k(x) of the source (`source.sampling_features`) are encoded to z and
-decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted, x uniform.
+decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted (or, with
+directions="rusinkiewicz", uniform in half and difference angles as the paper), x uniform.
 Then `model.bake(source)` writes the encoder's latents into every texel of every pyramid level (with
 encoder_steps = 0 there is no encoder phase and no bake: the latents are optimised from their random
 initialisation, the paper's "direct optimisation" ablation).
 Phase 2 (latents): the pyramid texels are optimised directly, with the decoders, on filtered targets
 f(wi, wo | x, Sigma) for the footprints of `neumat.fit.footprint_queries` (fine levels drawn more often, as the
 paper's exponentially distributed filter footprints).
+Optionally (blur_degrees > 0) the targets of the first steps are directionally blurred, a cone around wo that
+shrinks to nothing, so narrow peaks are learned broad first (Sec. 5, `neumat.fit.directional_blur`).
 
 Every step also trains the sampling decoder on the same queries: directions drawn from its current proxy are
 scored against the model's current BRDF (no gradient) by the KL divergence, with the latent detached, so the
@@ -32,9 +35,10 @@ from ..core.errors import InputError
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
 from .adam_steps import adam_steps
+from .directional_blur import blur_angle, blurred_eval
 from .footprint_queries import footprint_queries
 from .losses import LogCosLoss
-from .query_samplers import uniform
+from .query_samplers import QUERY_SAMPLERS, uniform
 
 
 @dataclass
@@ -48,8 +52,14 @@ class NeuralAppearanceFit:
 
 def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps: int = 2000,
                           batch: int = 4096, lr: float = 3e-3, seed: int = 0, log_every: int = 100,
-                          progress: bool = True) -> NeuralAppearanceFit:
-    """Train `model` (a NeuralAppearance) on the spatially varying `source` in place (module docstring)."""
+                          progress: bool = True, directions: str = "cosine", blur_degrees: float = 0.0,
+                          blur_samples: int = 4, blur_until: float = 0.5) -> NeuralAppearanceFit:
+    """Train `model` (a NeuralAppearance) on the spatially varying `source` in place (module docstring).
+
+    directions: "cosine" (cosine-weighted wi and wo) or "rusinkiewicz" (uniform half and difference angles, the
+    paper's; footprints of the latent phase are kept). blur_degrees > 0: directionally blurred targets, a cone of
+    that half-angle around wo at the first step shrinking to 0 at blur_until of all steps, blur_samples directions
+    each (`neumat.fit.directional_blur`)."""
     from ..models.neural_appearance import NeuralAppearance
     from ..models.proxy_sampler import proxy_kl_loss
 
@@ -66,9 +76,24 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
         check_int(v, f"fit_neural_appearance {name}", 0 if name.endswith("steps") else 1)
     if not lr > 0:
         raise InputError(f"fit_neural_appearance lr: expected > 0, got {lr!r}")
+    if directions not in ("cosine", "rusinkiewicz"):
+        raise InputError(f"fit_neural_appearance directions: expected 'cosine' or 'rusinkiewicz', got {directions!r}")
+    if not (0 <= blur_degrees <= 90 and 0 < blur_until <= 1):
+        raise InputError(f"fit_neural_appearance: blur_degrees must lie in [0, 90] and blur_until in (0, 1], got "
+                         f"{blur_degrees!r}, {blur_until!r}")
+    check_int(blur_samples, "fit_neural_appearance blur_samples", 1)
     gen = torch.Generator().manual_seed(seed)
     brdf_loss = LogCosLoss()
     draw_filtered = footprint_queries(source)
+    draw_directions = QUERY_SAMPLERS.get(directions)(source, model)
+    total_steps, done = encoder_steps + latent_steps, [0]
+
+    def target_of(q: Query) -> torch.Tensor:
+        """The source's value, directionally blurred early in training (blur_degrees > 0)."""
+        angle = blur_angle(done[0], total_steps, blur_degrees, blur_until)
+        done[0] += 1
+        with torch.no_grad():
+            return blurred_eval(source, q, angle, blur_samples, gen)
     history, seconds = [], {}
     model.train()
 
@@ -109,19 +134,19 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
         return losses
 
     def encoder_step():
-        u = uniform(batch, 8, gen, "cpu")
-        q = Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=u[:, 4:6])
+        q = draw_directions(batch, gen, "cpu")
+        u = uniform(batch, 2, gen, "cpu")
         with torch.no_grad():
             k = source.sampling_features(q)
-            target = source.eval(q)
-        return losses_at(q, model.encode(k), u[:, 6:8], target)
+        return losses_at(q, model.encode(k), u, target_of(q))
 
     def latent_step():
         q = draw_filtered(batch, gen, "cpu")
+        if directions != "cosine":
+            d = draw_directions(batch, gen, "cpu")
+            q = replace(q, wi=d.wi, wo=d.wo)
         u = uniform(batch, 2, gen, "cpu")
-        with torch.no_grad():
-            target = source.eval(q)
-        return losses_at(q, model.spatial_latent(q), u, target)
+        return losses_at(q, model.spatial_latent(q), u, target_of(q))
 
     decoders = [p for n, p in model.named_parameters() if not n.startswith(("spatial.", "encoder."))]
     phase("encoder", encoder_steps, decoders + list(model.encoder.parameters()), encoder_step)
