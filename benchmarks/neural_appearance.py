@@ -19,9 +19,10 @@ Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 hal
   "ggx-mipmap"    the analytic baseline: diffuse + anisotropic GGX with 12 textured, filtered parameters per
                   texel (`neumat.models.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
                   paper's Fig. 3 compares its neural model with such a textured analytic fit).
---variants picks some of them (default: full, no encoder, 1 frame and the two zeltner rows). --coat puts every texture set under a smudged clear
-coat (`neumat.reflectance.layered`: eta 1.5, GGX alpha 0.03 to 0.3 by a procedural smudge mask), the kind of
-layered material the paper bakes; the encoder then reads 8 + 5 surface parameters.
+--variants picks some of them (default: full, no encoder, 1 frame and the two zeltner rows). --coat puts every
+texture set under a smudged clear coat (`neumat.reflectance.layered`: eta 1.5, GGX alpha 0.03 to 0.3 by a
+procedural smudge mask), the kind of layered material the paper bakes; the encoder then reads 8 + 5 surface
+parameters.
 Scores on held-out queries: "point log_cos" / "point rel L1" at point queries (cosine-weighted wi, wo,
 uniform uv), "filtered log_cos" at Eq. 9 footprints against the SVBRDF's filtered value (256 samples);
 "sampler gain" = rel var of cosine-sampled / model-sampled one-sample albedo estimates at 45 degrees and

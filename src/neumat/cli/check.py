@@ -60,8 +60,8 @@ def check(material: str = typer.Argument(..., help="material file (.binary, .bsd
             rows.append(row)
         recip = reciprocity_check(m, seed=seed)
         ok &= recip.passed
-        summary = {"material": m.describe(), **({"uv": uv} if at else {}), "can_sample": m.can_sample, "reciprocity_max_rel": recip.max_rel,
-                   "reciprocity_passed": recip.passed, "passed": ok}
+        summary = {"material": m.describe(), **({"uv": uv} if at else {}), "can_sample": m.can_sample,
+                   "reciprocity_max_rel": recip.max_rel, "reciprocity_passed": recip.passed, "passed": ok}
         if json:
             print_json({**summary, "angles": rows})
         else:
