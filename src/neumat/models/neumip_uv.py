@@ -1,0 +1,132 @@
+"""NeuMIP on UV textures (Kuznetsov et al. 2021): the texture-space baseline NeuPreSS compares a whole translucent
+object against (TG et al., Sec. 5, Table 2: "To enable a fair comparison with NeuMIP, we render textures in UV space
+to train the networks").
+
+    S_hat(wi; x, wo) = max(MLP([z(uv(x)), wi', wo']), 0)
+
+z: a learned latent texture (`neumat.nn.latent_texture.LatentPyramid`, bilinear at its finest level: the
+object is seen at one scale) over the object's UV space; wi', wo': the object-space light and view directions in
+the local frame at x (normal n, tangent along +phi), so that the network sees them as a BTF does, the light
+possibly from below the local horizon (back-lighting). The MLP is NeuMIP's plain ReLU network, its output linear and
+fitted by L2 to the same path-traced observations as NeuPreSS (`neumat.fit.neumip_uv`).
+
+UV space: the object's meshes carry no texture coordinates here, so uv is the spherical projection about the centre
+c of the object's bounding box (`set_bounds`): u = atan2(y, x) / 2 pi + 1/2, v = acos(z / r) / pi, for
+(x, y, z) = point - c. It is a bijection for star-shaped objects (the benchmark's sphere); concave meshes fold
+into it. Queries need x, wo and n.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from neumat.core.checks import check_int
+from neumat.core.config import resolve_config
+from neumat.core.errors import InputError
+from neumat.core.frames import frame_from_normal_tangent, to_local
+from neumat.core.material import Material
+from neumat.core.query import Query
+from neumat.models.registry import MODELS
+from neumat.nn.codebook import float_bits, storage_bytes
+from neumat.nn.latent_texture import LatentPyramid
+from neumat.nn.mlp import MLP
+
+
+@dataclass
+class Config:
+    """NeuMIP-UV sizes."""
+
+    spatial_size: int = 128
+    """Latent texture texels a side (a power of two)."""
+    spatial_channels: int = 8
+    """Latent channels (NeuMIP: 8)."""
+    hidden: int = 64
+    """Neurons per hidden layer."""
+    hidden_layers: int = 4
+    """Hidden ReLU layers."""
+    init_std: float = 0.1
+    """Standard deviation of the initial latents."""
+
+
+def _check_config(c: Config) -> None:
+    for name in ("spatial_channels", "hidden", "hidden_layers"):
+        check_int(getattr(c, name), f"NeuMIPUV.{name}")
+    if not c.init_std > 0:
+        raise InputError(f"NeuMIPUV.init_std: expected > 0, got {c.init_std!r}")
+
+
+def sphere_uv(p: torch.Tensor) -> torch.Tensor:
+    """uv (N, 2) in [0, 1] of points p (N, 3) relative to a centre: the spherical projection of the docstring."""
+    r = p.norm(dim=-1).clamp(min=1e-12)
+    u = torch.atan2(p[:, 1], p[:, 0]) / (2 * math.pi) + 0.5
+    v = torch.acos((p[:, 2] / r).clamp(-1, 1)) / math.pi
+    return torch.stack([u, v], -1)
+
+
+def local_frame(p: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(t, b, n) at points p relative to the centre with unit normals n (N, 3): t along +phi (-y, x, 0), or +x
+    at the poles, made orthogonal to n."""
+    t = torch.stack([-p[:, 1], p[:, 0], torch.zeros_like(p[:, 0])], -1)
+    pole = t.norm(dim=-1) < 1e-6 * p.norm(dim=-1).clamp(min=1e-12)
+    t = torch.where(pole.unsqueeze(-1), torch.tensor([1.0, 0.0, 0.0], dtype=p.dtype, device=p.device), t)
+    t, b = frame_from_normal_tangent(n, t)
+    return t, b, n
+
+
+@MODELS.register("neumip-uv")
+class NeuMIPUV(nn.Module, Material):
+    """S_hat(wi; x, wo) from a UV latent texture and an MLP (see the module docstring)."""
+
+    name = "neumip-uv"
+    full_sphere = True
+    can_sample = False
+    Config = Config
+
+    def __init__(self, config: Config | None = None, **kwargs) -> None:
+        nn.Module.__init__(self)
+        self.cfg = resolve_config(Config, config, kwargs, "NeuMIPUV")
+        _check_config(self.cfg)
+        c = self.cfg
+        self.spatial = LatentPyramid(c.spatial_channels, c.spatial_size, init_std=c.init_std)
+        self.mlp = MLP(c.spatial_channels + 6, c.hidden, c.hidden_layers, 3, activation="relu")
+        self.register_buffer("centre", torch.zeros(3))
+
+    @property
+    def config(self) -> Config:
+        return self.cfg
+
+    def set_bounds(self, lo: torch.Tensor, hi: torch.Tensor) -> None:
+        """The object's bounding box (3,), (3,): the projection centre is its middle."""
+        if lo.shape != (3,) or hi.shape != (3,) or not bool((hi >= lo).all()):
+            raise InputError(f"NeuMIPUV.set_bounds: expected lo <= hi of shape (3,), got {tuple(lo.shape)}, "
+                             f"{tuple(hi.shape)}")
+        with torch.no_grad():
+            self.centre.copy_((lo + hi) / 2)
+
+    def raw(self, wi: torch.Tensor, x: torch.Tensor, wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+        """The unclamped output (N, 3) for object-space wi, x, wo and the unit normal n at x (what fitting sees)."""
+        p = x - self.centre
+        frame = local_frame(p, n)
+        z = self.spatial(sphere_uv(p))
+        return self.mlp(torch.cat([z, to_local(wi, *frame), to_local(wo, *frame)], -1))
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """S_hat (N, 3), clamped at 0."""
+        q.require("x", "wo", "n", who="NeuMIPUV.eval")
+        dtype = self.centre.dtype
+        return self.raw(q.wi.to(dtype), q.x.to(dtype), q.wo.to(dtype), q.n.to(dtype)).clamp(min=0).to(q.dtype)
+
+    def forward(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
+
+    def size_bytes(self, precision: str = "fp32") -> int:
+        """The latent pyramid and the MLP."""
+        return storage_bytes(sum(p.numel() for p in self.parameters()) * float_bits(precision))
+
+    def flops(self) -> int:
+        """Per query: the MLP's multiply-adds (2 per weight) and a bilinear lookup (4 taps per channel)."""
+        weights = sum(layer.weight.numel() for layer in self.mlp.linears())
+        return 2 * weights + 8 * self.cfg.spatial_channels
