@@ -14,8 +14,11 @@ and "smooth" (G ~ N(0, 0.1^2)), each trained --steps Adam steps of --batch obser
 validation record, every 100 steps), then the light sampler (--sampler-steps). Scores: held-out MSE (linear RGB,
 1/sr) and the same relative to the variance of the held-out values (1 = no better than their mean; the noise
 floor over that variance is the best a perfect model could score).
-Baseline: the dipole BSSRDF of a homogeneous medium (Jensen et al. 2001) over a --dipole-samples surface quadrature,
-its six coefficients fitted to the same observations (--dipole-steps, same validation, first 4096 of it).
+Baselines: the dipole BSSRDF of a homogeneous medium (Jensen et al. 2001) over a --dipole-samples surface quadrature,
+its six coefficients fitted to the same observations (--dipole-steps, same validation, first 4096 of it); NeuMIP on
+UV textures (`neumat.models.neumip_uv`: 128^2 x 8 latents over the spherical UV projection, MLP 4 x 64 of the latent
+and the local light and view directions), fitted like NeuPreSS (--steps, --batch, lr 1e-3, same validation).
+--variants picks NeuPreSS variants (default all three).
 Images: --image-res^2 pixels, subsurface radiance only, under the shared forest map (downsampled to 128 x 64):
 the reference with --ref-spp paths per pixel; path tracing and the models at --render-spp, the models with
 environment ("light") or model ("model") importance sampling; MSE, FLIP and SSIM against the reference and seconds
@@ -29,11 +32,13 @@ import time
 import torch
 from neumat.cli.common import print_table
 from neumat.fit.dipole_bssrdf import dipole_predict, fit_dipole
+from neumat.fit.neumip_uv import fit_neumip_uv, neumip_uv_predict
 from neumat.fit.neupress import fit_neupress, fit_neupress_sampler
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
 from neumat.models.dipole_bssrdf import DipoleBSSRDF
+from neumat.models.neumip_uv import NeuMIPUV
 from neumat.models.neupress import NeuPreSS
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.envmaps import downsample_envmap, read_envmap
@@ -76,7 +81,11 @@ def main() -> None:
     p.add_argument("--dipole-samples", type=int, default=4096, help="surface quadrature of the dipole baseline")
     p.add_argument("--dipole-steps", type=int, default=300)
     p.add_argument("--image-out", default=None, help="write a comparison PNG here")
+    p.add_argument("--variants", default=",".join(VARIANTS), help=f"NeuPreSS variants, of: {', '.join(VARIANTS)}")
     a = p.parse_args()
+    chosen = a.variants.split(",")
+    if set(chosen) - set(VARIANTS):
+        raise SystemExit(f"--variants: unknown {sorted(set(chosen) - set(VARIANTS))} (known: {', '.join(VARIANTS)})")
     torch.manual_seed(0)
     obj = TranslucentObject(TranslucentConfig(), spp=a.spp)
     t = time.perf_counter()
@@ -104,6 +113,8 @@ def main() -> None:
     image_rows = [_image_row("path tracing (Mitsuba volpath)", traced, reference, time.perf_counter() - t)]
     rows = []
     for name, cfg in VARIANTS.items():
+        if name not in chosen:
+            continue
         model = NeuPreSS(**cfg)
         t = time.perf_counter()
         hist = fit_neupress(model, train, steps=a.steps, batch=a.batch, bounds=bounds, validation=validation)
@@ -130,6 +141,7 @@ def main() -> None:
             image_rows.append(_image_row(f"{name}, {strategy} IS", img, reference, time.perf_counter() - t))
             images[f"{name}, {strategy} IS"] = img
     rows.append(_dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows))
+    rows.append(_neumip_uv(obj, bounds, train, validation, test, a, env, camera, reference, images, image_rows))
     print_table(f"NeuPreSS, {len(data)} observations ({a.images} views x {a.spp} spp, 5% of them for validation); "
                 f"held-out {len(test)}", rows, width=250)
     print_table(f"Images {a.image_res}^2 under the forest map at {a.render_spp} spp against a {a.ref_spp}-spp "
@@ -163,6 +175,31 @@ def _dipole(obj, train, validation, test, a, env, camera, reference, images, ima
             "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
             "best step": min(hist, key=lambda r: r["validation_mse"])["step"], "final KL": "-",
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": "0 (6 numbers)"}
+
+
+def _neumip_uv(obj, bounds, train, validation, test, a, env, camera, reference, images, image_rows) -> dict:
+    """The NeuMIP-on-UV-textures baseline fitted to the same observations: its table row; adds its image."""
+    torch.manual_seed(0)
+    model = NeuMIPUV()
+    t = time.perf_counter()
+    hist = fit_neumip_uv(model, train, steps=a.steps, batch=a.batch, bounds=bounds, validation=validation)
+    fit_s = time.perf_counter() - t
+    with torch.no_grad():
+        pred = neumip_uv_predict(model)(test).clamp(min=0)
+        t = time.perf_counter()
+        for _ in range(3):
+            neumip_uv_predict(model)(test)
+        evals = 3 * len(test) / (time.perf_counter() - t)
+    mse = float(((pred - test.value) ** 2).mean())
+    t = time.perf_counter()
+    with torch.no_grad():
+        img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy="light")
+    image_rows.append(_image_row("NeuMIP on UV textures, light IS", img, reference, time.perf_counter() - t))
+    images["NeuMIP-UV, light IS"] = img
+    return {"variant": "NeuMIP on UV textures", "held-out MSE": f"{mse:.4g}",
+            "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
+            "best step": min(hist, key=lambda r: r["validation_mse"])["step"], "final KL": "-",
+            "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024}
 
 
 def _image_row(method: str, image: torch.Tensor, reference: torch.Tensor, seconds: float) -> dict:
