@@ -225,6 +225,9 @@ def test_json_description(tmp_path):
     ({"coats": [{"roughness": {"smudges": {"sizes": 3}, "low": 0.1, "high": 0.2}}]}, "smudges"),
     ({"type": "btf"}, "\"type\": \"layered\""),
     ({"base": "glass:eta=2"}, "unknown material 'glass'"),
+    ({"coats": [{"roughness": 0.1, "eta": "glass"}]}, "eta"),
+    ({"coats": [{"roughness": 0.1, "tint": 0.5}]}, "tint"),
+    ({"max_size": "big"}, "max_size"),
 ])
 def test_bad_json_descriptions_raise(tmp_path, change, message):
     spec = {"type": "layered", "base": "lambert", "coats": [{"roughness": 0.1}]}

@@ -85,6 +85,9 @@ def read_layered(path: str | Path, samples: int | None = None) -> LayeredMateria
     _check_keys(spec, _TOP_KEYS, str(path))
     if "base" not in spec or not isinstance(spec.get("coats"), list) or not spec["coats"]:
         raise InputError(f"{path}: needs a 'base' material and a non-empty 'coats' list")
+    for key in ("max_size", "samples"):
+        if key in spec and (isinstance(spec[key], bool) or not isinstance(spec[key], int) or spec[key] < 1):
+            raise InputError(f"{path}: '{key}' must be a positive integer, got {spec[key]!r}")
     folder = path.parent
     base_name = str(spec["base"])
     base_path = folder / base_name
@@ -103,7 +106,7 @@ def read_layered(path: str | Path, samples: int | None = None) -> LayeredMateria
             raise InputError(f"{where}: needs a 'roughness' (GGX alpha)")
         coats.append(Coat(roughness=_scalar_map(c["roughness"], f"{where} roughness", folder, None, None),
                           weight=_scalar_map(c.get("weight", 1.0), f"{where} weight", folder, 0.0, 1.0),
-                          eta=float(c.get("eta", 1.5)), tint=tuple(c.get("tint", (1.0, 1.0, 1.0))),
+                          eta=c.get("eta", 1.5), tint=c.get("tint", (1.0, 1.0, 1.0)),   # checked by the material
                           normal=None if c.get("normal") is None else _normal_map(c["normal"], where, folder)))
     n = int(samples if samples is not None else spec.get("samples", 256))
     return LayeredMaterial(base, coats, samples=n, name=spec.get("name") or f"layered:{path.stem}")
