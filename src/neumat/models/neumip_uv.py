@@ -10,6 +10,12 @@ the local frame at x (normal n, tangent along +phi), so that the network sees th
 possibly from below the local horizon (back-lighting). The MLP is NeuMIP's plain ReLU network, its output linear and
 fitted by L2 to the same path-traced observations as NeuPreSS (`neumat.fit.neumip_uv`).
 
+"surface-brdf-uv" is the same network read as a spatially varying surface BRDF times the cosine,
+S_hat = softplus(MLP(...)) max(wi'_z, 0): reflection at x only, no light from behind the tangent plane. It stands
+in for the paper's NeRFactor comparison (a relightable surface-reflectance model, "the resulting appearance
+resembles that of a flat texture"): NeRFactor itself recovers geometry and a MERL-prior BRDF from photographs,
+which is not reproduced; what is compared is its representation class, fitted to the same observations.
+
 UV space: the object's meshes carry no texture coordinates here, so uv is the spherical projection about the centre
 c of the object's bounding box (`set_bounds`): u = atan2(y, x) / 2 pi + 1/2, v = acos(z / r) / pi, for
 (x, y, z) = point - c. It is a bijection for star-shaped objects (the benchmark's sphere); concave meshes fold
@@ -49,6 +55,9 @@ class Config:
     """Hidden ReLU layers."""
     init_std: float = 0.1
     """Standard deviation of the initial latents."""
+    surface: bool = False
+    """A surface BRDF instead of transport: softplus(MLP) times max(wi'_z, 0), so nothing reaches x from behind
+    its tangent plane (the registered "surface-brdf-uv" sets it; module docstring)."""
 
 
 def _check_config(c: Config) -> None:
@@ -87,7 +96,7 @@ class NeuMIPUV(nn.Module, Material):
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
-        self.cfg = resolve_config(Config, config, kwargs, "NeuMIPUV")
+        self.cfg = resolve_config(type(self).Config, config, kwargs, type(self).__name__)
         _check_config(self.cfg)
         c = self.cfg
         self.spatial = LatentPyramid(c.spatial_channels, c.spatial_size, init_std=c.init_std)
@@ -111,7 +120,11 @@ class NeuMIPUV(nn.Module, Material):
         p = x - self.centre
         frame = local_frame(p, n)
         z = self.spatial(sphere_uv(p))
-        return self.mlp(torch.cat([z, to_local(wi, *frame), to_local(wo, *frame)], -1))
+        local_wi = to_local(wi, *frame)
+        out = self.mlp(torch.cat([z, local_wi, to_local(wo, *frame)], -1))
+        if self.cfg.surface:
+            return torch.nn.functional.softplus(out) * local_wi[:, 2:].clamp(min=0)
+        return out
 
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat (N, 3), clamped at 0."""
@@ -130,3 +143,18 @@ class NeuMIPUV(nn.Module, Material):
         """Per query: the MLP's multiply-adds (2 per weight) and a bilinear lookup (4 taps per channel)."""
         weights = sum(layer.weight.numel() for layer in self.mlp.linears())
         return 2 * weights + 8 * self.cfg.spatial_channels
+
+
+@dataclass
+class SurfaceConfig(Config):
+    """NeuMIP-UV sizes, read as a surface BRDF."""
+
+    surface: bool = True
+
+
+@MODELS.register("surface-brdf-uv")
+class SurfaceBRDFUV(NeuMIPUV):
+    """softplus(MLP([z(uv(x)), wi', wo'])) max(wi'_z, 0): the surface-reflectance baseline (module docstring)."""
+
+    name = "surface-brdf-uv"
+    Config = SurfaceConfig
