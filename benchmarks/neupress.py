@@ -18,7 +18,9 @@ Baselines: the dipole BSSRDF of a homogeneous medium (Jensen et al. 2001) over a
 its six coefficients fitted to the same observations (--dipole-steps, same validation, first 4096 of it); NeuMIP on
 UV textures (`neumat.models.neumip_uv`: 128^2 x 8 latents over the spherical UV projection, MLP 4 x 64 of the latent
 and the local light and view directions), fitted like NeuPreSS (--steps, --batch, lr 1e-3, same validation).
---variants picks NeuPreSS variants (default all three).
+"surface BRDF on UV textures" (`surface-brdf-uv`, the same network read as a surface BRDF times the cosine) stands
+in for the paper's NeRFactor row. --variants picks NeuPreSS variants (default all three; empty for none),
+--baselines the baselines (default all).
 Images: --image-res^2 pixels, subsurface radiance only, under the shared forest map (downsampled to 128 x 64):
 the reference with --ref-spp paths per pixel; path tracing and the models at --render-spp, the models with
 environment ("light") or model ("model") importance sampling; MSE, FLIP and SSIM against the reference and seconds
@@ -38,7 +40,7 @@ from neumat.fit.translucent_observations import Observations, collect_observatio
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
 from neumat.models.dipole_bssrdf import DipoleBSSRDF
-from neumat.models.neumip_uv import NeuMIPUV
+from neumat.models.registry import build_model
 from neumat.models.neupress import NeuPreSS
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.envmaps import downsample_envmap, read_envmap
@@ -47,6 +49,8 @@ from neumat.render.translucent import orbit_camera, render_translucent, render_t
 
 VARIANTS = {"paper": {}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.3},
             "smooth": {"feature_mean": 0.0, "feature_std": 0.1}}
+BASELINES = {"dipole": "dipole (homogeneous)", "neumip-uv": "NeuMIP on UV textures",
+             "surface-brdf-uv": "surface BRDF on UV textures"}
 
 
 def held_out(obj: TranslucentObject, images: int, res: int, spp: int) -> tuple[Observations, float]:
@@ -82,10 +86,13 @@ def main() -> None:
     p.add_argument("--dipole-steps", type=int, default=300)
     p.add_argument("--image-out", default=None, help="write a comparison PNG here")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"NeuPreSS variants, of: {', '.join(VARIANTS)}")
+    p.add_argument("--baselines", default=",".join(BASELINES), help=f"of: {', '.join(BASELINES)}")
     a = p.parse_args()
-    chosen = a.variants.split(",")
-    if set(chosen) - set(VARIANTS):
-        raise SystemExit(f"--variants: unknown {sorted(set(chosen) - set(VARIANTS))} (known: {', '.join(VARIANTS)})")
+    chosen = [v for v in a.variants.split(",") if v]
+    baselines = [b for b in a.baselines.split(",") if b]
+    for option, names, known in (("--variants", chosen, VARIANTS), ("--baselines", baselines, BASELINES)):
+        if set(names) - set(known):
+            raise SystemExit(f"{option}: unknown {sorted(set(names) - set(known))} (known: {', '.join(known)})")
     torch.manual_seed(0)
     obj = TranslucentObject(TranslucentConfig(), spp=a.spp)
     t = time.perf_counter()
@@ -140,8 +147,12 @@ def main() -> None:
             img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy=strategy)
             image_rows.append(_image_row(f"{name}, {strategy} IS", img, reference, time.perf_counter() - t))
             images[f"{name}, {strategy} IS"] = img
-    rows.append(_dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows))
-    rows.append(_neumip_uv(obj, bounds, train, validation, test, a, env, camera, reference, images, image_rows))
+    if "dipole" in baselines:
+        rows.append(_dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows))
+    for kind in ("neumip-uv", "surface-brdf-uv"):
+        if kind in baselines:
+            rows.append(_uv_baseline(kind, obj, bounds, train, validation, test, a, env, camera, reference, images,
+                                     image_rows))
     print_table(f"NeuPreSS, {len(data)} observations ({a.images} views x {a.spp} spp, 5% of them for validation); "
                 f"held-out {len(test)}", rows, width=250)
     print_table(f"Images {a.image_res}^2 under the forest map at {a.render_spp} spp against a {a.ref_spp}-spp "
@@ -177,10 +188,12 @@ def _dipole(obj, train, validation, test, a, env, camera, reference, images, ima
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": "0 (6 numbers)"}
 
 
-def _neumip_uv(obj, bounds, train, validation, test, a, env, camera, reference, images, image_rows) -> dict:
-    """The NeuMIP-on-UV-textures baseline fitted to the same observations: its table row; adds its image."""
+def _uv_baseline(kind, obj, bounds, train, validation, test, a, env, camera, reference, images, image_rows) -> dict:
+    """A UV-texture baseline (`neumip-uv` or `surface-brdf-uv`) fitted to the same observations: its table row;
+    adds its image."""
     torch.manual_seed(0)
-    model = NeuMIPUV()
+    model = build_model({"type": kind})
+    label = BASELINES[kind]
     t = time.perf_counter()
     hist = fit_neumip_uv(model, train, steps=a.steps, batch=a.batch, bounds=bounds, validation=validation)
     fit_s = time.perf_counter() - t
@@ -194,9 +207,9 @@ def _neumip_uv(obj, bounds, train, validation, test, a, env, camera, reference, 
     t = time.perf_counter()
     with torch.no_grad():
         img = render_translucent(model, obj, env, camera, a.image_res, spp=a.render_spp, strategy="light")
-    image_rows.append(_image_row("NeuMIP on UV textures, light IS", img, reference, time.perf_counter() - t))
-    images["NeuMIP-UV, light IS"] = img
-    return {"variant": "NeuMIP on UV textures", "held-out MSE": f"{mse:.4g}",
+    image_rows.append(_image_row(f"{label}, light IS", img, reference, time.perf_counter() - t))
+    images[f"{kind}, light IS"] = img
+    return {"variant": label, "held-out MSE": f"{mse:.4g}",
             "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
             "best step": min(hist, key=lambda r: r["validation_mse"])["step"], "final KL": "-",
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024}
