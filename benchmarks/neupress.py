@@ -3,6 +3,7 @@ environment-lit images against the Mitsuba 3 reference.
 
     python benchmarks/neupress.py                       # marble/ketchup sphere, defaults below
     python benchmarks/neupress.py --images 3000 --spp 128 --steps 3000 --image-out benchmarks/results/neupress.png
+    python benchmarks/neupress.py --shape ../shared/data/mesh/stanford_bunny_35k.ply --variants smooth
 
 Data (Sec. 4.2 of the paper, scaled down): --images orthographic views of --res^2 jittered rays, each view with
 its own light direction and camera direction, --spp paths per ray; held-out: --test-images views with their own
@@ -85,6 +86,7 @@ def main() -> None:
     p.add_argument("--dipole-samples", type=int, default=4096, help="surface quadrature of the dipole baseline")
     p.add_argument("--dipole-steps", type=int, default=300)
     p.add_argument("--image-out", default=None, help="write a comparison PNG here")
+    p.add_argument("--shape", default="sphere", help="'sphere' or a closed PLY mesh (TranslucentConfig.shape)")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"NeuPreSS variants, of: {', '.join(VARIANTS)}")
     p.add_argument("--baselines", default=",".join(BASELINES), help=f"of: {', '.join(BASELINES)}")
     a = p.parse_args()
@@ -94,7 +96,7 @@ def main() -> None:
         if set(names) - set(known):
             raise SystemExit(f"{option}: unknown {sorted(set(names) - set(known))} (known: {', '.join(known)})")
     torch.manual_seed(0)
-    obj = TranslucentObject(TranslucentConfig(), spp=a.spp)
+    obj = TranslucentObject(TranslucentConfig(shape=a.shape), spp=a.spp)
     t = time.perf_counter()
     data = collect_observations(obj, a.images, a.res, progress=True)
     collect_s = time.perf_counter() - t
