@@ -97,9 +97,9 @@ def test_export_web_writes_the_viewer_page(tmp_path):
 
 
 def test_export_slang_refuses_a_model_it_cannot_export(tmp_path):
-    path = _saved(tmp_path, {"type": "multiscale", "spatial_size": 8})
+    path = _saved(tmp_path, {"type": "nbrdf-uv", "spatial_size": 8})
     result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang"])
-    assert result.exit_code == 2 and "export_slang" in result.output and "MultiScale" in result.output
+    assert result.exit_code == 2 and "export_slang" in result.output and "cartesian" in result.output
     assert not (tmp_path / "out").exists()
 
 

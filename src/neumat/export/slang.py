@@ -1,12 +1,12 @@
-"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance): one shader module per
-neural material implementing a fixed interface, as the runtime of Real-Time Neural Appearance Models
-(Zeltner et al. 2024, Sec. 7) generates for the Slang shading language.
+"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance), the multi-scale models and
+NeuBRDF: one shader module per neural material implementing a fixed interface, as the runtime of Real-Time Neural
+Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading language.
 
 `export_slang(model) -> SlangExport`. The module (`neumat.slang`) defines, with directions in the local frame
 (z up, wi towards the light, wo towards the viewer), uv texture coordinates (wrapping) and footprint the
 pixel filter's covariance in uv^2 (symmetric):
 
-    interface INeumatMaterial {                                  // every neumip-family model
+    interface INeumatMaterial {                                  // every spatially varying model
         float3 eval(float3 wi, float3 wo, float2 uv, float2x2 footprint);   // BRDF value, cosine excluded
         float3 eval_lod(float3 wi, float3 wo, float2 uv, float lod);        // trilinear at a mip level
     }
@@ -17,6 +17,9 @@ pixel filter's covariance in uv^2 (symmetric):
     interface INeumatAlbedo {                                    // neural-appearance with Config.albedo
         float3 albedo(float3 wi, float3 wo, float2 uv, float2x2 footprint); // directional albedo for wo
     }
+    interface INeumatBRDF {                                      // homogeneous models (neubrdf, multiscale
+        float3 eval(float3 wi, float3 wo);                       //   with homogeneous=True)
+    }
     struct NeumatMaterial : <the interfaces the model has> { ... }
 
 plus the free functions `neumat_eval`, `neumat_eval_lod`, ... the methods call, and a compute entry point
@@ -26,8 +29,8 @@ device; its buffers are listed in `manifest.json`). Values are what `model.eval`
 tiling, up to max_probes trilinear probes), learned frames, SiLU MLP with exp output, and proxy sampler with
 its defensive cosine share.
 
-One source of truth for the math: the module is the GLSL export (`neumat.export.glsl_latent_mlp`, itself
-parity-tested) spelled in Slang by `glsl_to_slang`, a token-level rewrite of the GLSL subset those generators
+One source of truth for the math: the module is the model's GLSL export (`neumat.export.glsl.export_glsl`,
+itself parity-tested) spelled in Slang by `glsl_to_slang`, a token-level rewrite of the GLSL subset those generators
 emit (vector / matrix types, lerp, frac, atan2, static const arrays); every texture becomes a
 `StructuredBuffer<float4>` read by index (layer, row, column), so no hardware sampling is involved and the
 module runs on Slang's CPU target. Decoder weights are constants in the source. The Slang-only parts
@@ -56,7 +59,16 @@ RESULT_FLOATS = 4
 #: threads per group of `neumat_batch`
 GROUP_SIZE = 64
 #: the compute entry point's query kinds (`neumat_entry`)
-ENTRY_CODES = {"eval": 0, "eval_lod": 1, "albedo": 2, "sample": 3, "pdf": 4}
+ENTRY_CODES = {"eval": 0, "eval_lod": 1, "albedo": 2, "sample": 3, "pdf": 4, "eval_brdf": 5}
+#: GLSL entry-point signature (`GLSLExport.entry_points`) -> method of NeumatMaterial
+_GLSL_ENTRIES = {
+    "vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)": "eval",
+    "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)": "eval_lod",
+    "vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)": "albedo",
+    "vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)": "sample",
+    "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)": "pdf",
+    "vec3 neumat_eval(vec3 wi, vec3 wo)": "eval_brdf",
+}
 
 _SIGNATURES = {
     "eval": "float3 eval(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
@@ -64,11 +76,13 @@ _SIGNATURES = {
     "albedo": "float3 albedo(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
     "sample": "float3 sample(float3 wi, float2 uv, float2x2 footprint, float2 u)",
     "pdf": "float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
+    "eval_brdf": "float3 eval(float3 wi, float3 wo)",
 }
 #: interface -> (base clause, methods); NeumatMaterial implements those whose methods the model has
 _INTERFACES = {"INeumatMaterial": ("", ("eval", "eval_lod")),
                "INeumatSampler": (" : INeumatMaterial", ("sample", "pdf")),
-               "INeumatAlbedo": ("", ("albedo",))}
+               "INeumatAlbedo": ("", ("albedo",)),
+               "INeumatBRDF": ("", ("eval_brdf",))}
 
 
 @dataclass
@@ -189,7 +203,8 @@ def _material(entries: list[str], interfaces: list[str]) -> str:
     methods = ""
     for e in entries:
         args = re.findall(r"(\w+)(?:,|\))", _SIGNATURES[e])  # parameter names, in order
-        methods += f"    {_SIGNATURES[e]} {{ return neumat_{e}({', '.join(args)}); }}\n"
+        function = "neumat_eval" if e == "eval_brdf" else f"neumat_{e}"
+        methods += f"    {_SIGNATURES[e]} {{ return {function}({', '.join(args)}); }}\n"
     return f"""
 /// The exported material: stateless; its latent pyramid is the global buffer neumat_spatial.
 struct NeumatMaterial : {', '.join(interfaces)} {{
@@ -204,6 +219,7 @@ def _kernel(entries: list[str]) -> str:
         "albedo": "float4(m.albedo(wi, wo, uv, footprint), 1.0)",
         "sample": "float4(m.sample(wi, uv, footprint, u), 1.0)",
         "pdf": "float4(m.pdf(wi, wo, uv, footprint), 0.0, 0.0, 1.0)",
+        "eval_brdf": "float4(m.eval(wi, wo), 1.0)",
     }
     cases = "".join(f"    case {ENTRY_CODES[e]}: r = {calls[e]}; break;\n" for e in entries)
     lay = QUERY_LAYOUT
@@ -245,19 +261,22 @@ neumat_queries[b + {lay['wo'] + 2}]);
 
 
 def export_slang(model) -> SlangExport:
-    """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance; module
+    """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance), a multi-scale
+    model (multiscale, tripleplane and the other configurations `export_glsl` takes) or a NeuBRDF (module
     docstring). Anything else raises InputError naming the model type."""
+    from ..models.multiscale import MultiScale
+    from ..models.neubrdf import NeuBRDF
     from ..models.neumip import NeuMIP
-    from .glsl_latent_mlp import export_latent_mlp
+    from .glsl import export_glsl
 
-    if not isinstance(model, NeuMIP):
-        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), got "
-                         f"{type(model).__name__} ({getattr(model, 'name', '?')})")
-    if model.cfg.directions != "cartesian":
+    if not isinstance(model, (NeuMIP, MultiScale, NeuBRDF)):
+        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), a "
+                         f"multi-scale model or a neubrdf, got {type(model).__name__} ({getattr(model, 'name', '?')})")
+    if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
                          "(cartesian only)")
-    glsl: GLSLExport = export_latent_mlp(model)
-    entries = [e for e in ENTRY_CODES if f"neumat_{e}(" in glsl.source]
+    glsl: GLSLExport = export_glsl(model)
+    entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
     body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures)
     header = (f"// neumat Slang module of a '{model.name}' model (methods: {', '.join(entries)}); see "

@@ -86,8 +86,11 @@ class SlangKernel:
             raise InputError(f"slang_eval entry: expected one of {', '.join(self.export.entries)} for this "
                              f"'{self.export.model}' export, got {entry!r}")
         n = len(q.wi)
-        q.require("uv", *(() if entry == "eval_lod" else ("footprint",)), *(() if entry == "sample" else ("wo",)),
-                  who=f"slang_eval entry {entry!r}")
+        if entry == "eval_brdf":
+            q.require("wo", who="slang_eval entry 'eval_brdf'")
+        else:
+            q.require("uv", *(() if entry == "eval_lod" else ("footprint",)), *(() if entry == "sample" else ("wo",)),
+                      who=f"slang_eval entry {entry!r}")
         if entry == "sample" and (u is None or tuple(u.shape) != (n, 2)):
             raise InputError(f"slang_eval entry 'sample': expected u of shape ({n}, 2), got "
                              f"{None if u is None else tuple(u.shape)}")
@@ -101,12 +104,13 @@ class SlangKernel:
             packed[:, at:at + values.shape[1]] = values
 
         put("wi", q.wi)
-        put("uv", q.uv)
         if entry != "sample":
             put("wo", q.wo)
+        if entry != "eval_brdf":
+            put("uv", q.uv)
         if entry == "eval_lod" and q.lod is not None:
             put("lod", q.lod)
-        if entry != "eval_lod":
+        if entry not in ("eval_lod", "eval_brdf"):
             fp = q.footprint
             put("footprint_xx_xy_yy", torch.stack([fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]], -1))
         if entry == "sample":
@@ -124,10 +128,12 @@ def slang_eval(export: SlangExport | SlangKernel, q: Query, entry: str | None = 
                u: torch.Tensor | None = None) -> torch.Tensor:
     """What the export's method `entry` computes at the queries q, float32 on q's device: (N, 3) for "eval"
     (q.footprint), "eval_lod" (q.lod, 0 when absent), "albedo" and "sample" (wo for u (N, 2); q.wo unused),
-    (N,) for "pdf". Default entry: "eval" when q has a footprint, else "eval_lod". export: a SlangExport
-    (compiled here, on the CPU) or a SlangKernel compiled before."""
+    (N,) for "pdf", (N, 3) for "eval_brdf" (homogeneous models: wi, wo only). Default entry: "eval_brdf" for a
+    homogeneous export, else "eval" when q has a footprint, else "eval_lod". export: a SlangExport (compiled
+    here, on the CPU) or a SlangKernel compiled before."""
     kernel = export if isinstance(export, SlangKernel) else SlangKernel(export)
-    entry = entry or ("eval" if q.footprint is not None else "eval_lod")
+    entries = kernel.export.entries
+    entry = entry or ("eval_brdf" if entries == ["eval_brdf"] else "eval" if q.footprint is not None else "eval_lod")
     out = kernel.run(entry, q, u)
     return (out[:, 0] if entry == "pdf" else out[:, :3]).to(q.wi.device)
 
