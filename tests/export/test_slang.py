@@ -171,6 +171,28 @@ def test_slang_export_of_the_other_families_matches_torch(name):
         assert rel < tol, f"{name} {'footprint' if footprint else 'lod'}: max relative error {rel:.2e}"
 
 
+@needs_slang
+def test_slang_export_of_sparse_btf_matches_torch():
+    """SparseBTF's coefficient-space reconstruction (its GLSL export) through the same rewrite."""
+    from btf_util import synthetic_btf
+    from neumat.models.sparse_btf import SparseBTF
+    from neumat.models.sparse_dictionary import train_dictionary
+
+    dictionary = train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
+                                  patch=4, max_iters=4, seed=0)
+    model = SparseBTF.encode(synthetic_btf(5), dictionary, tau=(24, 8, 8))
+    export = export_slang(model)
+    assert export.interfaces == ["INeumatMaterial"]
+    g = torch.Generator().manual_seed(6)
+    wi = torch.nn.functional.normalize(torch.randn(512, 3, generator=g) + torch.tensor([0, 0, 1.2]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.randn(512, 3, generator=g) + torch.tensor([0, 0, 1.2]), dim=-1)
+    q = Query(wi, wo, uv=torch.rand(512, 2, generator=g) * 4 - 1.5, lod=torch.zeros(512))
+    with torch.no_grad():
+        ref = model.eval(q)
+    rel = _relative(slang_eval(export, q), ref)
+    assert rel < EVAL_TOL, f"sparse-btf: max relative error {rel:.2e}"           # measured 6.2e-7
+
+
 def test_export_slang_refuses_other_models():
     with pytest.raises(InputError, match="NeuPreSS"):
         export_slang(build_model({"type": "neupress"}))

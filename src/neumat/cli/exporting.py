@@ -1,5 +1,5 @@
 """`neumat export`: a fitted model as GLSL source plus textures (`neumat.export.glsl`), and with --slang also as
-a Slang module (`neumat.export.slang`: neumip family, multi-scale models, NeuBRDF) in OUT/slang."""
+a Slang module (`neumat.export.slang`: neumip family, multi-scale models, NeuBRDF, SparseBTF) in OUT/slang."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -22,8 +22,8 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
            web: bool = typer.Option(False, "--web", help="also write OUT/viewer.html: a self-contained WebGL 2 "
                                                          "page showing the material on a sphere or a plane"),
            slang: bool = typer.Option(False, "--slang", help="also write a Slang module (neumat.slang, its buffers, "
-                                                             "manifest.json) to OUT/slang; neumip-family, "
-                                                             "multi-scale and neubrdf models; --check checks it "
+                                                             "manifest.json) to OUT/slang; neumip-family, multi-"
+                                                             "scale, neubrdf, sparse-btf models; --check checks it "
                                                              "too, on slangpy's CPU device")) -> None:
     """Write MODEL as GLSL 3.30 (neumat.glsl), its textures (raw float32) and manifest.json to OUT."""
     def go():

@@ -87,10 +87,15 @@ _SOURCE = """// SparseBTF ({describe}), exported by neumat
 const int SB_H = {h}, SB_W = {w}, SB_P = {p}, SB_PW = {pw}, SB_K = {k}, SB_L = {l}, SB_V = {v};
 const int SB_NB = {nb}, SB_POINTS_W = {points_w};
 const float SB_EPS = {eps:.9e};
-const mat3 SB_YUV_TO_RGB = mat3({yuv});
+// YUV -> RGB, one row per output channel (dot products, not a mat3: no column-major convention to get wrong)
+const vec3 SB_TO_R = vec3({to_r}), SB_TO_G = vec3({to_g}), SB_TO_B = vec3({to_b});
 {light_dirs}
 {view_dirs}
-uniform sampler2DArray sbtf_codes, sbtf_points, sbtf_dict_s, sbtf_dict_a, sbtf_stats;
+uniform sampler2DArray sbtf_codes;
+uniform sampler2DArray sbtf_points;
+uniform sampler2DArray sbtf_dict_s;
+uniform sampler2DArray sbtf_dict_a;
+uniform sampler2DArray sbtf_stats;
 
 // i (a whole number, any sign) modulo n, in [0, n); GLSL's % is undefined for negative operands
 int sb_wrap(float i, int n) {{ int r = int(i - float(n) * floor(i / float(n))); return r >= n ? r - n : r; }}
@@ -173,7 +178,8 @@ vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv) {{
             mean += wab * texelFetch(sbtf_stats, ivec3(vi[b], li[a], 0), 0).xyz;
             std_ += wab * texelFetch(sbtf_stats, ivec3(vi[b], li[a], 1), 0).xyz;
         }}
-    return max(exp(SB_YUV_TO_RGB * (z * std_ + mean)) - SB_EPS, vec3(0.0));
+    vec3 yuv = z * std_ + mean;
+    return max(exp(vec3(dot(SB_TO_R, yuv), dot(SB_TO_G, yuv), dot(SB_TO_B, yuv))) - SB_EPS, vec3(0.0));
 }}
 
 vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{ return neumat_eval(wi, wo, uv); }}
@@ -193,10 +199,10 @@ def export_sparse_btf(model: SparseBTF) -> GLSLExport:
     if nb != min(c.neighbours, c.n_light) or nb != min(c.neighbours, c.n_view):
         raise InputError(f"export_glsl: {c.neighbours} neighbours with {c.n_light} light and {c.n_view} view "
                          "directions: the shader needs the same neighbour count for both")
-    yuv = ", ".join(f"{v:.9e}" for v in YUV_TO_RGB.T.flatten().tolist())          # GLSL mat3 is column-major
+    to_r, to_g, to_b = (", ".join(f"{v:.9e}" for v in row.tolist()) for row in YUV_TO_RGB)
     source = _SOURCE.format(
         describe=model.describe(), h=c.height, w=c.width, p=c.patch, pw=c.width // c.patch,
         k=c.num_dictionaries, l=c.n_light, v=c.n_view, nb=nb, points_w=min(model.counts.shape[1], POINTS_WIDTH),
-        eps=c.log_eps, yuv=yuv, light_dirs=_vec3s("SB_LIGHT", model.light_dirs),
+        eps=c.log_eps, to_r=to_r, to_g=to_g, to_b=to_b, light_dirs=_vec3s("SB_LIGHT", model.light_dirs),
         view_dirs=_vec3s("SB_VIEW", model.view_dirs))
     return GLSLExport(source, _textures(model), spatially_varying=True, entry=ENTRY_POINTS)

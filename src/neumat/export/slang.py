@@ -1,6 +1,6 @@
-"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance), the multi-scale models and
-NeuBRDF: one shader module per neural material implementing a fixed interface, as the runtime of Real-Time Neural
-Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading language.
+"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance), the multi-scale models,
+NeuBRDF and SparseBTF: one shader module per neural material implementing a fixed interface, as the runtime of
+Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading language.
 
 `export_slang(model) -> SlangExport`. The module (`neumat.slang`) defines, with directions in the local frame
 (z up, wi towards the light, wo towards the viewer), uv texture coordinates (wrapping) and footprint the
@@ -160,7 +160,8 @@ def _calls(src: str, name: str, rewrite) -> str:
 
 def glsl_to_slang(source: str, textures: dict[str, np.ndarray]) -> str:
     """Slang spelling of GLSL `source` in the subset the neumat GLSL generators emit: vector / matrix types,
-    mix / fract / two-argument atan / mod, `const T name[n] = T[](...)` arrays, and `sampler2DArray` textures
+    mix / fract / two-argument atan / mod, `const T name[n] = T[](...)` arrays and local `T[](...)` array
+    initialisers, and `sampler2DArray` textures
     (`textures`: name -> (layers, H, W, 4)) read with `texelFetch(name, ivec3(x, y, layer), 0)`, which become
     `StructuredBuffer<float4>` globals read by index. Raises RuntimeError if GLSL spellings remain (a
     generator that emits something this rewrite does not know)."""
@@ -179,6 +180,8 @@ float4 nm_fetch_{name}(int3 p) {{ return {name}[(p.z * {height} + p.y) * {width}
         return f"nm_fetch_{args[0]}({args[1]})"
 
     src = _calls(src, "texelFetch", fetch)
+    # local array initialisers T[](a, b, ...) -> { a, b, ... }
+    src = _calls(src, r"(?:float|int|i?vec[234])\[\]", lambda args: "{ " + ", ".join(args) + " }")
     src = _calls(src, "atan", lambda args: f"{'atan2' if len(args) == 2 else 'atan'}({', '.join(args)})")
     for glsl, slang in _TYPES.items():
         src = re.sub(rf"\b{glsl}\b", slang, src)
@@ -262,16 +265,18 @@ neumat_queries[b + {lay['wo'] + 2}]);
 
 def export_slang(model) -> SlangExport:
     """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance), a multi-scale
-    model (multiscale, tripleplane and the other configurations `export_glsl` takes) or a NeuBRDF (module
-    docstring). Anything else raises InputError naming the model type."""
+    model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF or a SparseBTF
+    (module docstring). Anything else raises InputError naming the model type."""
     from ..models.multiscale import MultiScale
     from ..models.neubrdf import NeuBRDF
     from ..models.neumip import NeuMIP
+    from ..models.sparse_btf import SparseBTF
     from .glsl import export_glsl
 
-    if not isinstance(model, (NeuMIP, MultiScale, NeuBRDF)):
+    if not isinstance(model, (NeuMIP, MultiScale, NeuBRDF, SparseBTF)):
         raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), a "
-                         f"multi-scale model or a neubrdf, got {type(model).__name__} ({getattr(model, 'name', '?')})")
+                         f"multi-scale model, a neubrdf or a sparse-btf, got {type(model).__name__} "
+                         f"({getattr(model, 'name', '?')})")
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
                          "(cartesian only)")
