@@ -77,6 +77,22 @@ def test_export_check_runs_a_neupress(tmp_path):
 
 
 @needs_gl
+@pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device cannot be created")
+def test_export_slang_check_runs_a_neupress(tmp_path):
+    torch.manual_seed(0)
+    model = build_model({"type": "neupress", "features": 7, "width": 12, "layers": 4, "sampler_hidden": [10, 6]})
+    model.set_bounds(torch.tensor([-1.0, -1.0, -1.0]), torch.tensor([1.0, 1.0, 1.0]))
+    path = save_model(model, tmp_path / "n.nmat")
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang", "--check", "200"])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "out" / "slang" / "manifest.json").read_text())
+    assert manifest["interfaces"] == ["INeumatTranslucent"]
+    text = " ".join(result.output.split()).split("Slang module (CPU) vs torch: ")[1]
+    assert float(text.split("S_hat max difference ")[1].split(" ")[0]) < 1e-4
+    assert float(text.split("sigma max relative difference ")[1].split(" ")[0]) < 1e-4
+
+
+@needs_gl
 def test_export_check_runs_a_neubrdf_with_its_texture(tmp_path):
     path = _saved(tmp_path, {"type": "neubrdf", "nside": 8, "feature_dim": 8, "index_bits": 5, "hidden": 16,
                              "texture_height": 8, "texture_width": 8, "texture_channels": 4, "texture_levels": 2})

@@ -1,5 +1,6 @@
 """`neumat export`: a fitted model as GLSL source plus textures (`neumat.export.glsl`), and with --slang also as
-a Slang module (`neumat.export.slang`: neumip family, multi-scale models, NeuBRDF, SparseBTF) in OUT/slang."""
+a Slang module (`neumat.export.slang`: every model `export_glsl` takes but ggx-mipmap-like analytic ones) in
+OUT/slang."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -22,8 +23,8 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
            web: bool = typer.Option(False, "--web", help="also write OUT/viewer.html: a self-contained WebGL 2 "
                                                          "page showing the material on a sphere or a plane"),
            slang: bool = typer.Option(False, "--slang", help="also write a Slang module (neumat.slang, its buffers, "
-                                                             "manifest.json) to OUT/slang; neumip-family, multi-"
-                                                             "scale, neubrdf, sparse-btf models; --check checks it "
+                                                             "manifest.json) to OUT/slang (the models GLSL "
+                                                             "export takes); --check checks it "
                                                              "too, on slangpy's CPU device")) -> None:
     """Write MODEL as GLSL 3.30 (neumat.glsl), its textures (raw float32) and manifest.json to OUT."""
     def go():
@@ -57,6 +58,12 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
             d = neupress_parity(exported, m, check)
             print(f"shader vs torch on {check} random queries: S_hat max difference {d['translucent']:.2e} of its "
                   f"largest value, sigma max relative difference {d['sigma']:.2e}")
+            if slang:
+                from ..testing.slang_parity import neupress_slang_parity
+
+                d = neupress_slang_parity(slang_export, m, check)
+                print(f"Slang module (CPU) vs torch: S_hat max difference {d['translucent']:.2e} of its largest "
+                      f"value, sigma max relative difference {d['sigma']:.2e}")
         elif check:
             from ..fit.footprint_queries import footprint_queries
             from ..testing.parity import glsl_eval

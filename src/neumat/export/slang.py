@@ -1,6 +1,7 @@
 """Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance), the multi-scale models,
-NeuBRDF and SparseBTF: one shader module per neural material implementing a fixed interface, as the runtime of
-Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading language.
+NeuBRDF, SparseBTF and NeuPreSS: one shader module per neural material implementing a fixed interface, as the
+runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading
+language.
 
 `export_slang(model) -> SlangExport`. The module (`neumat.slang`) defines, with directions in the local frame
 (z up, wi towards the light, wo towards the viewer), uv texture coordinates (wrapping) and footprint the
@@ -19,6 +20,12 @@ pixel filter's covariance in uv^2 (symmetric):
     }
     interface INeumatBRDF {                                      // homogeneous models (neubrdf, multiscale
         float3 eval(float3 wi, float3 wo);                       //   with homogeneous=True)
+    }
+    interface INeumatTranslucent {                               // neupress (object space, x on the surface)
+        float3 translucent(float3 wi, float3 x, float3 wo);      // S_hat, 1/sr
+        float sigma(float3 x, float3 wo);                        // light-sampling lobe width, radians
+        float3 sample_incident(float3 x, float3 wo, float3 n, float2 u);
+        float incident_pdf(float3 wi, float3 x, float3 wo, float3 n);
     }
     struct NeumatMaterial : <the interfaces the model has> { ... }
 
@@ -52,14 +59,15 @@ from ..core.errors import InputError
 from .glsl import GLSLExport
 
 #: floats per query in the compute entry point's input buffer `neumat_queries` (offsets in QUERY_LAYOUT)
-QUERY_FLOATS = 16
-QUERY_LAYOUT = {"wi": 0, "wo": 3, "uv": 6, "lod": 8, "footprint_xx_xy_yy": 9, "u": 12}
+QUERY_FLOATS = 20
+QUERY_LAYOUT = {"wi": 0, "wo": 3, "uv": 6, "lod": 8, "footprint_xx_xy_yy": 9, "u": 12, "x": 14, "n": 17}
 #: floats per query in the output buffer `neumat_results`: rgb (eval, eval_lod, albedo), wo (sample), pdf in 0
 RESULT_FLOATS = 4
 #: threads per group of `neumat_batch`
 GROUP_SIZE = 64
 #: the compute entry point's query kinds (`neumat_entry`)
-ENTRY_CODES = {"eval": 0, "eval_lod": 1, "albedo": 2, "sample": 3, "pdf": 4, "eval_brdf": 5}
+ENTRY_CODES = {"eval": 0, "eval_lod": 1, "albedo": 2, "sample": 3, "pdf": 4, "eval_brdf": 5, "translucent": 6,
+               "sigma": 7, "sample_incident": 8, "incident_pdf": 9}
 #: GLSL entry-point signature (`GLSLExport.entry_points`) -> method of NeumatMaterial
 _GLSL_ENTRIES = {
     "vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)": "eval",
@@ -68,6 +76,10 @@ _GLSL_ENTRIES = {
     "vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)": "sample",
     "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)": "pdf",
     "vec3 neumat_eval(vec3 wi, vec3 wo)": "eval_brdf",
+    "vec3 neumat_translucent(vec3 wi, vec3 x, vec3 wo)": "translucent",
+    "float neumat_sigma(vec3 x, vec3 wo)": "sigma",
+    "vec3 neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u)": "sample_incident",
+    "float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)": "incident_pdf",
 }
 
 _SIGNATURES = {
@@ -77,12 +89,17 @@ _SIGNATURES = {
     "sample": "float3 sample(float3 wi, float2 uv, float2x2 footprint, float2 u)",
     "pdf": "float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
     "eval_brdf": "float3 eval(float3 wi, float3 wo)",
+    "translucent": "float3 translucent(float3 wi, float3 x, float3 wo)",
+    "sigma": "float sigma(float3 x, float3 wo)",
+    "sample_incident": "float3 sample_incident(float3 x, float3 wo, float3 n, float2 u)",
+    "incident_pdf": "float incident_pdf(float3 wi, float3 x, float3 wo, float3 n)",
 }
 #: interface -> (base clause, methods); NeumatMaterial implements those whose methods the model has
 _INTERFACES = {"INeumatMaterial": ("", ("eval", "eval_lod")),
                "INeumatSampler": (" : INeumatMaterial", ("sample", "pdf")),
                "INeumatAlbedo": ("", ("albedo",)),
-               "INeumatBRDF": ("", ("eval_brdf",))}
+               "INeumatBRDF": ("", ("eval_brdf",)),
+               "INeumatTranslucent": ("", ("translucent", "sigma", "sample_incident", "incident_pdf"))}
 
 
 @dataclass
@@ -179,6 +196,8 @@ float4 nm_fetch_{name}(int3 p) {{ return {name}[(p.z * {height} + p.y) * {width}
             raise RuntimeError(f"glsl_to_slang: unsupported texelFetch({', '.join(args)})")
         return f"nm_fetch_{args[0]}({args[1]})"
 
+    for name, data in textures.items():  # a layer count used as an opaque loop bound (Mesa compile time)
+        src = src.replace(f"textureSize({name}, 0).z", str(data.shape[0]))
     src = _calls(src, "texelFetch", fetch)
     # local array initialisers T[](a, b, ...) -> { a, b, ... }
     src = _calls(src, r"(?:float|int|i?vec[234])\[\]", lambda args: "{ " + ", ".join(args) + " }")
@@ -223,6 +242,10 @@ def _kernel(entries: list[str]) -> str:
         "sample": "float4(m.sample(wi, uv, footprint, u), 1.0)",
         "pdf": "float4(m.pdf(wi, wo, uv, footprint), 0.0, 0.0, 1.0)",
         "eval_brdf": "float4(m.eval(wi, wo), 1.0)",
+        "translucent": "float4(m.translucent(wi, x, wo), 1.0)",
+        "sigma": "float4(m.sigma(x, wo), 0.0, 0.0, 1.0)",
+        "sample_incident": "float4(m.sample_incident(x, wo, n, u), 1.0)",
+        "incident_pdf": "float4(m.incident_pdf(wi, x, wo, n), 0.0, 0.0, 1.0)",
     }
     cases = "".join(f"    case {ENTRY_CODES[e]}: r = {calls[e]}; break;\n" for e in entries)
     lay = QUERY_LAYOUT
@@ -230,8 +253,10 @@ def _kernel(entries: list[str]) -> str:
     return f"""
 // ---- batch evaluation (tests, examples): {QUERY_FLOATS} floats per query in neumat_queries
 //   wi {lay['wi']}..{lay['wi'] + 2}, wo {lay['wo']}..{lay['wo'] + 2}, uv {lay['uv']}..{lay['uv'] + 1}, \
-lod {lay['lod']}, footprint (xx, xy, yy) {f}..{f + 2}, u {lay['u']}..{lay['u'] + 1}
-// results: {RESULT_FLOATS} floats per query (rgb, wo, or the pdf in the first); neumat_entry picks the method:
+lod {lay['lod']}, footprint (xx, xy, yy) {f}..{f + 2}, u {lay['u']}..{lay['u'] + 1}, x {lay['x']}..{lay['x'] + 2}, \
+n {lay['n']}..{lay['n'] + 2}
+// results: {RESULT_FLOATS} floats per query (rgb, a direction, or the pdf / sigma in the first); neumat_entry picks
+// the method:
 // {', '.join(f'{e} {ENTRY_CODES[e]}' for e in entries)}
 StructuredBuffer<float> neumat_queries;
 RWStructuredBuffer<float> neumat_results;
@@ -253,6 +278,10 @@ neumat_queries[b + {lay['wo'] + 2}]);
     float xx = neumat_queries[b + {f}], xy = neumat_queries[b + {f + 1}], yy = neumat_queries[b + {f + 2}];
     float2x2 footprint = float2x2(xx, xy, xy, yy);
     float2 u = float2(neumat_queries[b + {lay['u']}], neumat_queries[b + {lay['u'] + 1}]);
+    float3 x = float3(neumat_queries[b + {lay['x']}], neumat_queries[b + {lay['x'] + 1}], \
+neumat_queries[b + {lay['x'] + 2}]);
+    float3 n = float3(neumat_queries[b + {lay['n']}], neumat_queries[b + {lay['n'] + 1}], \
+neumat_queries[b + {lay['n'] + 2}]);
     NeumatMaterial m;
     float4 r = float4(0.0);
     switch (neumat_entry) {{
@@ -265,17 +294,18 @@ neumat_queries[b + {lay['wo'] + 2}]);
 
 def export_slang(model) -> SlangExport:
     """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance), a multi-scale
-    model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF or a SparseBTF
-    (module docstring). Anything else raises InputError naming the model type."""
+    model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF, a SparseBTF or
+    a NeuPreSS (module docstring). Anything else raises InputError naming the model type."""
     from ..models.multiscale import MultiScale
     from ..models.neubrdf import NeuBRDF
     from ..models.neumip import NeuMIP
+    from ..models.neupress import NeuPreSS
     from ..models.sparse_btf import SparseBTF
     from .glsl import export_glsl
 
-    if not isinstance(model, (NeuMIP, MultiScale, NeuBRDF, SparseBTF)):
+    if not isinstance(model, (NeuMIP, MultiScale, NeuBRDF, SparseBTF, NeuPreSS)):
         raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), a "
-                         f"multi-scale model, a neubrdf or a sparse-btf, got {type(model).__name__} "
+                         f"multi-scale model, a neubrdf, a sparse-btf or a neupress, got {type(model).__name__} "
                          f"({getattr(model, 'name', '?')})")
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "

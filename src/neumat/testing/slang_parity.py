@@ -58,6 +58,15 @@ def slang_available(device_type: str = "cpu") -> bool:
         return False
 
 
+#: query fields each entry reads (besides wi)
+_REQUIRED = {"eval": ("uv", "footprint", "wo"), "eval_lod": ("uv", "wo"), "albedo": ("uv", "footprint", "wo"),
+             "sample": ("uv", "footprint"), "pdf": ("uv", "footprint", "wo"), "eval_brdf": ("wo",),
+             "translucent": ("x", "wo"), "sigma": ("x", "wo"), "sample_incident": ("x", "wo", "n"),
+             "incident_pdf": ("x", "wo", "n")}
+#: entries whose result is one number (column 0)
+_SCALAR = ("pdf", "sigma", "incident_pdf")
+
+
 class SlangKernel:
     """An export's `neumat_batch` compiled on a slangpy device ("cpu" by default), its buffers uploaded."""
 
@@ -86,13 +95,9 @@ class SlangKernel:
             raise InputError(f"slang_eval entry: expected one of {', '.join(self.export.entries)} for this "
                              f"'{self.export.model}' export, got {entry!r}")
         n = len(q.wi)
-        if entry == "eval_brdf":
-            q.require("wo", who="slang_eval entry 'eval_brdf'")
-        else:
-            q.require("uv", *(() if entry == "eval_lod" else ("footprint",)), *(() if entry == "sample" else ("wo",)),
-                      who=f"slang_eval entry {entry!r}")
-        if entry == "sample" and (u is None or tuple(u.shape) != (n, 2)):
-            raise InputError(f"slang_eval entry 'sample': expected u of shape ({n}, 2), got "
+        q.require(*_REQUIRED[entry], who=f"slang_eval entry {entry!r}")
+        if entry in ("sample", "sample_incident") and (u is None or tuple(u.shape) != (n, 2)):
+            raise InputError(f"slang_eval entry {entry!r}: expected u of shape ({n}, 2), got "
                              f"{None if u is None else tuple(u.shape)}")
         if n == 0:
             return torch.zeros(0, RESULT_FLOATS)
@@ -104,16 +109,13 @@ class SlangKernel:
             packed[:, at:at + values.shape[1]] = values
 
         put("wi", q.wi)
-        if entry != "sample":
-            put("wo", q.wo)
-        if entry != "eval_brdf":
-            put("uv", q.uv)
-        if entry == "eval_lod" and q.lod is not None:
-            put("lod", q.lod)
-        if entry not in ("eval_lod", "eval_brdf"):
+        for key in ("wo", "uv", "lod", "x", "n"):
+            if getattr(q, key) is not None:
+                put(key, getattr(q, key))
+        if q.footprint is not None:
             fp = q.footprint
             put("footprint_xx_xy_yy", torch.stack([fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]], -1))
-        if entry == "sample":
+        if u is not None:
             put("u", u)
         queries = self._buffer(packed.numpy().reshape(-1), 4)
         results = self._buffer(None, 4, n * RESULT_FLOATS)
@@ -128,14 +130,17 @@ def slang_eval(export: SlangExport | SlangKernel, q: Query, entry: str | None = 
                u: torch.Tensor | None = None) -> torch.Tensor:
     """What the export's method `entry` computes at the queries q, float32 on q's device: (N, 3) for "eval"
     (q.footprint), "eval_lod" (q.lod, 0 when absent), "albedo" and "sample" (wo for u (N, 2); q.wo unused),
-    (N,) for "pdf", (N, 3) for "eval_brdf" (homogeneous models: wi, wo only). Default entry: "eval_brdf" for a
-    homogeneous export, else "eval" when q has a footprint, else "eval_lod". export: a SlangExport (compiled
+    (N,) for "pdf", (N, 3) for "eval_brdf" (homogeneous models: wi, wo only); NeuPreSS: (N, 3) for
+    "translucent" (q.x, q.wo) and "sample_incident" (q.x, q.wo, q.n, u), (N,) for "sigma" and "incident_pdf".
+    Default entry: "eval_brdf" for a homogeneous export, "translucent" for NeuPreSS, else "eval" when q has a
+    footprint, else "eval_lod". export: a SlangExport (compiled
     here, on the CPU) or a SlangKernel compiled before."""
     kernel = export if isinstance(export, SlangKernel) else SlangKernel(export)
     entries = kernel.export.entries
-    entry = entry or ("eval_brdf" if entries == ["eval_brdf"] else "eval" if q.footprint is not None else "eval_lod")
+    entry = entry or ("eval_brdf" if entries == ["eval_brdf"] else "translucent" if "translucent" in entries
+                      else "eval" if q.footprint is not None else "eval_lod")
     out = kernel.run(entry, q, u)
-    return (out[:, 0] if entry == "pdf" else out[:, :3]).to(q.wi.device)
+    return (out[:, 0] if entry in _SCALAR else out[:, :3]).to(q.wi.device)
 
 
 def slang_evals_per_second(export: SlangExport | SlangKernel, q: Query) -> float:
@@ -158,3 +163,22 @@ def slang_evals_per_second(export: SlangExport | SlangKernel, q: Query) -> float
 
     marginal = best_of(n) - best_of(n // 8)
     return (n - n // 8) / marginal if marginal > 0 else float("nan")
+
+
+def neupress_slang_parity(export: SlangExport, model, n: int, seed: int = 0) -> dict[str, float]:
+    """`neumat.testing.parity.neupress_parity` for a NeuPreSS Slang module: largest differences on n random queries
+    (x uniform in the model's bounding box, wi, wo uniform on the sphere): "translucent" relative to the largest
+    value, "sigma" relative."""
+    from ..warp.sphere import sample_uniform_sphere
+
+    g = torch.Generator().manual_seed(seed)
+    x = model.box_min + (model.box_max - model.box_min) * torch.rand(n, 3, generator=g)
+    wi, wo = (sample_uniform_sphere(torch.rand(n, 2, generator=g)) for _ in range(2))
+    q = Query(wi=wi, wo=wo, x=x)
+    with torch.no_grad():
+        f = model.eval(q)
+        sigma = model.sigma(x, wo)
+    kernel = SlangKernel(export)
+    s_f, s_sigma = slang_eval(kernel, q, "translucent"), slang_eval(kernel, q, "sigma")
+    return {"translucent": float((s_f - f).abs().max() / f.abs().max().clamp(min=1e-30)),
+            "sigma": float(((s_sigma - sigma) / sigma).abs().max())}
