@@ -270,9 +270,10 @@ class LayeredMaterial(Material):
             wo, base_ok = drawn.wo, drawn.pdf > 0          # the base's failed samples stay failed
         else:
             wo, base_ok = sample_cosine_hemisphere(u2), torch.ones_like(pick, dtype=torch.bool)
+        up = q.wi.new_tensor([0.0, 0.0, 1.0])
         for k, (alpha, frame) in enumerate(coats):
             li = to_local(q.wi, *frame)
-            safe = torch.where((li[:, 2] > 0).unsqueeze(-1), li, torch.tensor([0.0, 0.0, 1.0], dtype=li.dtype))
+            safe = torch.where((li[:, 2] > 0).unsqueeze(-1), li, up)
             lw = to_world(sample_ggx_reflection(safe, u2, alpha, alpha), *frame)
             wo = torch.where((pick == k).unsqueeze(-1), lw, wo)
         wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
@@ -292,11 +293,12 @@ class LayeredMaterial(Material):
         else:
             base = cosine_hemisphere_pdf(q.wo)
         pdf = probs[:, -1] * base
+        up = q.wi.new_tensor([0.0, 0.0, 1.0])
         for k, (alpha, frame) in enumerate(coats):
             li, lo = to_local(q.wi, *frame), to_local(q.wo, *frame)
             ok = (probs[:, k] > 0) & (li[:, 2] > 0) & (lo[:, 2] > 0)
-            safe_i = torch.where(ok.unsqueeze(-1), li, torch.tensor([0.0, 0.0, 1.0], dtype=li.dtype))
-            safe_o = torch.where(ok.unsqueeze(-1), lo, torch.tensor([0.0, 0.0, 1.0], dtype=lo.dtype))
+            safe_i = torch.where(ok.unsqueeze(-1), li, up)
+            safe_o = torch.where(ok.unsqueeze(-1), lo, up)
             lobe = ggx_reflection_pdf(safe_i, safe_o, alpha, alpha)
             pdf = pdf + torch.where(ok, probs[:, k] * lobe, torch.zeros_like(lobe))
         return torch.where((q.wo[:, 2] > 0) & (q.wi[:, 2] > 0), pdf, torch.zeros_like(pdf))
