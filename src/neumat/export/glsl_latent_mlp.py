@@ -99,6 +99,9 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     if cfg.directions != "cartesian":
         raise InputError(f"export_glsl: {model.name} with {cfg.directions!r} directions has no GLSL export "
                          "(cartesian only)")
+    if cfg.level_selection != "trilinear":
+        raise InputError(f"export_glsl: {model.name} with level_selection={cfg.level_selection!r} has no GLSL "
+                         "export yet (the shader reads the trilinear latent; eval's two-level expectation differs)")
     ds, zl = cfg.spatial_channels, -(-cfg.spatial_channels // 4)
     zs = "z[i / 4][i % 4]"
     src, textures = _spatial_reader(model)

@@ -67,6 +67,11 @@ class Config:
     """Standard deviation of the (preconditioned) spatial latents at initialisation."""
     init_log_value: float = -2.0
     """Initial bias of the MLP output (log f), as the gated model."""
+    level_selection: str = "trilinear"
+    """How a fractional mip level is read: "trilinear" (the latents of the two levels blended) or "roulette"
+    (Zeltner et al. 2024 Sec. 4.1: one of the two, the coarser with probability t, its fractional weight).
+    Training draws the level; `eval` returns the expectation (1 - t) f(z_fine) + t f(z_coarse) (two decodes).
+    The sampler reads the trilinear latent in both cases."""
 
 
 def _check_config(c: Config, who: str) -> None:
@@ -75,6 +80,8 @@ def _check_config(c: Config, who: str) -> None:
         check_int(getattr(c, name), f"{who}.{name}", lo)
     if c.spatial_size & (c.spatial_size - 1):
         raise InputError(f"{who}.spatial_size: expected a power of two, got {c.spatial_size}")
+    if c.level_selection not in ("trilinear", "roulette"):
+        raise InputError(f"{who}.level_selection: expected 'trilinear' or 'roulette', got {c.level_selection!r}")
     if c.directions not in DIRECTIONS:
         raise InputError(f"{who}.directions: expected one of {', '.join(DIRECTIONS)}, got {c.directions!r}")
     if c.frames > 1 and (not c.shading_frame or c.directions != "cartesian"):
@@ -123,7 +130,25 @@ class NeuMIP(nn.Module, Material, SpatialLatent):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         q.require("wo", who=f"{self.name}.eval")
-        return self.decode(self.spatial_latent(q), q)
+        return self.filtered_outputs(q)[:, :3]
+
+    def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
+        """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
+        training model draws one level per query (level_u, uniform, unless given)."""
+        if level_u is None and self.training and self.cfg.level_selection == "roulette":
+            level_u = torch.rand(len(q.wi), device=q.wi.device)
+        return super().spatial_latent(q, level_u)
+
+    def filtered_outputs(self, q: Query) -> torch.Tensor:
+        """All decoded outputs (N, `outputs`) at q: of the filtered latent, or with roulette level selection
+        outside training the expectation over the two levels (Config.level_selection)."""
+        if self.training or self.cfg.level_selection != "roulette":
+            return self.decode_outputs(self.spatial_latent(q), q)
+        n = len(q.wi)
+        fine = self.decode_outputs(self.spatial_latent(q, q.wi.new_ones(n)), q)
+        coarse = self.decode_outputs(self.spatial_latent(q, q.wi.new_zeros(n)), q)
+        t = self.spatial.level_fraction(q.footprint, q.lod, n, q.wi.device).to(fine.dtype).unsqueeze(-1)
+        return (1 - t) * fine + t * coarse
 
     def decode(self, z_s: torch.Tensor, q: Query) -> torch.Tensor:
         """BRDF value (N, 3) of latents z_s (N, D_s) at the directions of q (the decoder without the texture)."""

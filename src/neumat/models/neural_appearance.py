@@ -105,7 +105,7 @@ class NeuralAppearance(neumip.NeuMIP):
         if not self.cfg.albedo:
             raise InputError(f"{self.name}.albedo: the model has no albedo output (build it with albedo=True)")
         q.require("wo", who=f"{self.name}.albedo")
-        return self.decode_outputs(self.spatial_latent(q), q)[:, 3:]
+        return self.filtered_outputs(q)[:, 3:]
 
     # ------------------------------------------------------------------------------ sampling
     def lobes(self, q: Query) -> ProxyLobes:
@@ -117,6 +117,8 @@ class NeuralAppearance(neumip.NeuMIP):
         """Draw wo given q.wi (and q.uv) and u (N, 2) in [0, 1)^2 from the proxy with a defensive cosine share
         (`neumat.models.proxy_sampler.DEFENSIVE`); weight = eval cos / pdf."""
         z = self.sampling_features(q)                       # filtered once, for the lobes and the weights
+        if self.cfg.level_selection == "roulette":          # the weights use eval's two-level expectation
+            return draw_sample(self.sampler.lobes(q.wi, z), q, u, lambda wo: self.eval(q.with_wo(wo)))
         return draw_sample(self.sampler.lobes(q.wi, z), q, u, lambda wo: self.decode(z, q.with_wo(wo)))
 
     @torch.no_grad()

@@ -12,11 +12,14 @@ from neumat.nn.latent_texture import check_footprint
 class SpatialLatent:
     """Mixin for spatially varying models with a `LatentPyramid` `self.spatial`."""
 
-    def spatial_latent(self, q: Query) -> torch.Tensor:
-        """z_s (N, D_s) of the query's uv and footprint (or lod)."""
+    def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
+        """z_s (N, D_s) of the query's uv and footprint (or lod); level_u (N,): one level per query by Russian
+        roulette instead of the trilinear blend (`neumat.nn.latent_texture.trilinear_flat`)."""
         q.require("uv", who=f"{self.name} (spatially varying)")
         footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
-        return self.spatial(q.uv, footprint, q.lod)
+        if level_u is None:
+            return self.spatial(q.uv, footprint, q.lod)
+        return self.spatial(q.uv, footprint, q.lod, level_u)
 
     @property
     def sampling_feature_dim(self) -> int:

@@ -118,10 +118,12 @@ def atlas_layout(sizes: tuple[tuple[int, int], ...], device: torch.device) -> di
 
 
 def trilinear_flat(flat: torch.Tensor, sizes: list[tuple[int, int]], uv: torch.Tensor, lod: torch.Tensor,
-                   scale: torch.Tensor | None = None) -> torch.Tensor:
+                   scale: torch.Tensor | None = None, level_u: torch.Tensor | None = None) -> torch.Tensor:
     """Trilinear lookups (N, C) in the levels of sizes [(H_l, W_l)] stored as `flat_levels` (C, T): bilinear
     (wrap tiling) in the two levels around lod (N,) (clamped to the pyramid), blended linearly and multiplied
-    by scale (N,) if given. One `grid_sample` over an atlas of the circularly padded levels."""
+    by scale (N,) if given. With level_u (N,) uniform in [0, 1], one of the two levels instead, the finer unless
+    level_u < the fractional part of lod (Russian roulette, Zeltner et al. 2024 Sec. 4.1). One `grid_sample`
+    over an atlas of the circularly padded levels."""
     layout = atlas_layout(tuple(tuple(int(v) for v in hw) for hw in sizes), flat.device)
     width, height = (int(v) for v in layout["shape"])
     atlas = flat.index_select(1, layout["source"]).view(1, -1, height, width)
@@ -137,6 +139,8 @@ def trilinear_flat(flat: torch.Tensor, sizes: list[tuple[int, int]], uv: torch.T
     # grid rows: the lower and the upper level of every lookup (CPU kernels vectorise along a grid row)
     out = F.grid_sample(atlas, grid.transpose(0, 1).unsqueeze(0), mode="bilinear", padding_mode="border",
                         align_corners=True)[0]  # (C, 2, N)
+    if level_u is not None:
+        t = (level_u.to(t.device) < t).to(flat.dtype)
     blend = torch.stack([1 - t, t])
     if scale is not None:
         blend = blend * scale.to(flat.dtype)
@@ -148,22 +152,35 @@ def trilinear(levels: list[torch.Tensor], uv: torch.Tensor, lod: torch.Tensor) -
     return trilinear_flat(flat_levels(levels), [tex.shape[1:] for tex in levels], uv, lod.to(uv.dtype))
 
 
-def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: torch.Tensor,
-                       max_probes: int = 16, flat: torch.Tensor | None = None) -> torch.Tensor:
-    """Gaussian-footprint filtered lookup of a pyramid (see module docstring).
-
-    levels: mip levels (C, H_l, W_l), level 0 finest, level l about 2^l times coarser; uv (N, 2);
-    footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels. `flat`: the
-    levels' `flat_levels`, when the caller has it already (levels then only give the sizes).
-    """
-    _, h, w = levels[0].shape
-    scale = torch.tensor([w, h], dtype=footprint.dtype, device=footprint.device)
+def _probe_geometry(footprint: torch.Tensor, height: int, width: int, max_probes: int):
+    """Per query (N,): probe count n, per-probe standard deviation sigma (level-0 texels), its lod, the major
+    axis length and direction (N, 2) of footprints (N, 2, 2) on a height x width finest level."""
+    scale = torch.tensor([width, height], dtype=footprint.dtype, device=footprint.device)
     cov_t = footprint * scale.view(1, 2, 1) * scale.view(1, 1, 2)  # in level-0 texels^2
     major, minor, axis = footprint_axes(cov_t)
     minor = minor.clamp(min=1e-12)
     n = torch.ceil(major / minor).clamp(1, max_probes)
     sigma = torch.maximum(minor, major / max_probes)  # per-probe standard deviation (texels)
-    lod = torch.log2((2 * sigma).clamp(min=1e-12))
+    return n, sigma, torch.log2((2 * sigma).clamp(min=1e-12)), major, axis, scale
+
+
+def footprint_lod(footprint: torch.Tensor, height: int, width: int, max_probes: int = 16) -> torch.Tensor:
+    """The (unclamped) mip level (N,) whose trilinear probes `filter_anisotropic` uses for footprints (N, 2, 2)."""
+    return _probe_geometry(footprint, height, width, max_probes)[2]
+
+
+def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: torch.Tensor,
+                       max_probes: int = 16, flat: torch.Tensor | None = None,
+                       level_u: torch.Tensor | None = None) -> torch.Tensor:
+    """Gaussian-footprint filtered lookup of a pyramid (see module docstring).
+
+    levels: mip levels (C, H_l, W_l), level 0 finest, level l about 2^l times coarser; uv (N, 2);
+    footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels. `flat`: the
+    levels' `flat_levels`, when the caller has it already (levels then only give the sizes). level_u (N,): the
+    probes of a query read one level by Russian roulette (`trilinear_flat`).
+    """
+    _, h, w = levels[0].shape
+    n, sigma, lod, major, axis, scale = _probe_geometry(footprint, h, w, max_probes)
     spacing = torch.sqrt((12 * (major ** 2 - sigma ** 2)).clamp(min=0) / (n * n - 1).clamp(min=1))
     k = torch.arange(max_probes, device=uv.device, dtype=uv.dtype)
     offset = (k.unsqueeze(0) - (n.unsqueeze(-1) - 1) / 2) * spacing.unsqueeze(-1)  # (N, P) texels along axis
@@ -172,7 +189,7 @@ def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: 
     rows, probe = used.nonzero(as_tuple=True)
     flat = flat_levels(levels) if flat is None else flat
     values = trilinear_flat(flat, [tex.shape[1:] for tex in levels], uv[rows] + delta[rows, probe], lod[rows],
-                            1 / n[rows])
+                            1 / n[rows], None if level_u is None else level_u[rows])
     return uv.new_zeros(uv.shape[0], flat.shape[0], dtype=flat.dtype).index_add(0, rows, values)
 
 
@@ -217,13 +234,26 @@ class LatentPyramid(nn.Module):
         return flat_levels(self.levels())
 
     def forward(self, uv: torch.Tensor, footprint: torch.Tensor | None = None,
-                lod: torch.Tensor | None = None) -> torch.Tensor:
+                lod: torch.Tensor | None = None, level_u: torch.Tensor | None = None) -> torch.Tensor:
         if footprint is not None:
-            return filter_anisotropic(list(self.raw), uv, footprint, self.max_probes, flat=self.flat())
+            return filter_anisotropic(list(self.raw), uv, footprint, self.max_probes, flat=self.flat(),
+                                      level_u=level_u)
         if lod is not None:
-            return trilinear_flat(self.flat(), [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype))
+            return trilinear_flat(self.flat(), [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
+                                  level_u=level_u)
         finest = self.raw[0] if self.precondition is None else self.precondition(self.raw[0])
         return bilinear(finest, uv)
+
+    def level_fraction(self, footprint: torch.Tensor | None, lod: torch.Tensor | None, n: int,
+                       device=None) -> torch.Tensor:
+        """Weight t (N,) of the coarser of the two levels a footprint or lod reads (0 at the finest level only):
+        the fractional part of the lod clamped to the pyramid."""
+        if footprint is not None:
+            lod = footprint_lod(footprint, self.size, self.size, self.max_probes)
+        if lod is None:
+            return torch.zeros(n, device=device)
+        lod = lod.clamp(0, len(self.raw) - 1)
+        return lod - lod.floor()
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.raw)
