@@ -16,6 +16,8 @@ Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 hal
   "half-difference" as "full", directions uniform in Rusinkiewicz half and difference angles (the paper's);
   "blurred"       as "full", targets directionally blurred early (a 10-degree cone around wo shrinking to 0
                   at half of the steps, 4 directions each; the paper's schedule for narrow peaks);
+  "roulette"      as "full", fractional mip levels read by Russian roulette (one level per query in training,
+                  the two-level expectation in eval; the paper's Sec. 4.1) instead of trilinearly;
   "ggx-mipmap"    the analytic baseline: diffuse + anisotropic GGX with 12 textured, filtered parameters per
                   texel (`neumat.models.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
                   paper's Fig. 3 compares its neural model with such a textured analytic fit).
@@ -65,7 +67,7 @@ from neumat.testing.parity import glsl_evals_per_second, opengl_available
 from neumat.testing.slang_parity import slang_available, slang_evals_per_second
 
 VARIANTS = ("full", "no encoder", "1 frame", "zeltner", "zeltner (Eq. 10 loss)", "ggx-mipmap", "half-difference",
-            "blurred")
+            "blurred", "roulette")
 
 
 def open_source(folder, size: int, samples: int, coat: bool):
@@ -185,7 +187,8 @@ def main() -> None:
         half = args.steps // 2
         variants = {"full": ({}, half, {}), "no encoder": ({}, 0, {}), "1 frame": ({"frames": 1}, half, {}),
                     "half-difference": ({}, half, {"directions": "rusinkiewicz"}),
-                    "blurred": ({}, half, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5})}
+                    "blurred": ({}, half, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5}),
+                    "roulette": ({"level_selection": "roulette"}, half, {})}
         for variant, (config, encoder_steps, options) in variants.items():
             if variant not in chosen:
                 continue
