@@ -8,7 +8,6 @@ import torch
 from neumat.core.errors import InputError, UnknownNameError
 from neumat.core.query import Query
 from neumat.io.open_material import open_material
-from neumat.io.texture_set import TextureSet
 from neumat.reflectance.analytic import Lambert
 from neumat.reflectance.coat_albedo import CoatAlbedo
 from neumat.reflectance.layered import COAT_FEATURES, Coat, LayeredMaterial
@@ -20,21 +19,13 @@ from neumat.testing.chi2 import chi2_material
 from neumat.testing.furnace import white_furnace
 from neumat.testing.reciprocity import reciprocity_check
 from neumat.warp.hemisphere import sample_cosine_hemisphere
+from test_svbrdf import _checker_set  # normal-mapped metal / dielectric checker
 
 
 def _directions(n, seed=0):
     g = torch.Generator().manual_seed(seed)
     wi = sample_cosine_hemisphere(torch.rand(n, 2, generator=g))
     return wi, sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), torch.rand(n, 2, generator=g)
-
-
-def _checker_set(size=8):
-    ij = torch.arange(size)
-    odd = ((ij[:, None] + ij[None, :]) % 2).float()
-    color = torch.stack([0.8 * odd + 0.1, 0.2 + 0 * odd, 0.5 - 0.4 * odd], -1)
-    tilt = torch.stack([0.3 * (2 * odd - 1), 0.1 + 0 * odd, torch.ones_like(odd)], -1)
-    return TextureSet(color=color, normal=tilt / tilt.norm(dim=-1, keepdim=True), roughness=0.15 + 0.6 * odd,
-                      metalness=odd, height=torch.zeros(size, size), name="checker")
 
 
 def _textured(size=16, **coat):
