@@ -177,16 +177,20 @@ void {name}(float r, float phi, out vec4 a[{layers}]) {{
 """
 
 
-def _spatial_reader(model) -> tuple[str, dict[str, np.ndarray]]:
+def _spatial_reader(model, roulette: bool = False) -> tuple[str, dict[str, np.ndarray]]:
     """GLSL of a model's spatial latent pyramid (`model.spatial`), see `pyramid_reader`."""
     with torch.no_grad():
-        return pyramid_reader(model.spatial.levels(), model.spatial.max_probes)
+        return pyramid_reader(model.spatial.levels(), model.spatial.max_probes, roulette)
 
 
-def pyramid_reader(levels: list[torch.Tensor], max_probes: int | None) -> tuple[str, dict[str, np.ndarray]]:
+def pyramid_reader(levels: list[torch.Tensor], max_probes: int | None,
+                   roulette: bool = False) -> tuple[str, dict[str, np.ndarray]]:
     """GLSL of a latent pyramid, levels (C, H_l, W_l), as the texture `neumat_spatial`:
     nm_spatial_lod(uv, lod, out z) (trilinear, `neumat.nn.latent_texture.trilinear`) and, unless max_probes
-    is None, nm_spatial_footprint(uv, cov, out z) (`filter_anisotropic` with up to max_probes probes)."""
+    is None, nm_spatial_footprint(uv, cov, out z) (`filter_anisotropic` with up to max_probes probes). With
+    `roulette`, also the one-level reads of Russian-roulette level selection: nm_spatial_lod_level(uv, lod,
+    which, out z, out t) and nm_spatial_footprint_level(uv, cov, which, out z, out t), which 0 for the finer and
+    1 for the coarser of the two levels, t the coarser level's weight (`trilinear_flat` with level_u)."""
     atlas, sizes, origins = _atlas(levels)
     layers, probes = atlas.shape[0], max_probes
     w0, h0 = sizes[0]
@@ -231,10 +235,45 @@ void nm_spatial_lod(vec2 uv, float lod, out vec4 z[{layers}]) {{
     nm_spatial_trilinear(uv, lod, 1.0, z);
 }}
 """
-    if max_probes is not None:
+    if roulette:
         src += f"""
+// one of the two levels around lod (which 0: the finer, 1: the coarser), weight x bilinear, added to z
+void nm_spatial_level(vec2 uv, float lod, int which, float weight, inout vec4 z[{layers}]) {{
+    lod = clamp(lod, 0.0, float(NM_LEVELS - 1));
+    int l0 = int(floor(lod));
+    nm_spatial_bilinear(which == 0 ? l0 : min(l0 + 1, NM_LEVELS - 1), uv, weight, z);
+}}
+
+float nm_level_fraction(float lod) {{
+    lod = clamp(lod, 0.0, float(NM_LEVELS - 1));
+    return lod - floor(lod);
+}}
+
+void nm_spatial_lod_level(vec2 uv, float lod, int which, out vec4 z[{layers}], out float t) {{
+    for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
+    nm_spatial_level(uv, lod, which, 1.0, z);
+    t = nm_level_fraction(lod);
+}}
+"""
+    if max_probes is not None:
+        variants = [("nm_spatial_footprint", "", "nm_spatial_trilinear(uv + offset * axis / scale, lod, 1.0 / n, z)",
+                     "")]
+        if roulette:
+            variants.append(("nm_spatial_footprint_level", ", int which",
+                             "nm_spatial_level(uv + offset * axis / scale, lod, which, 1.0 / n, z)",
+                             ", out float t"))
+        for name, which, probe, fraction in variants:
+            src += _footprint_reader(name, which, probe, fraction, layers, probes, w0, h0)
+    return src, {"neumat_spatial": atlas}
+
+
+def _footprint_reader(name: str, which: str, probe: str, fraction: str, layers: int, probes: int, w0: int,
+                      h0: int) -> str:
+    """GLSL of `name`(uv, cov[, which], out z[, out t]): the probes of `filter_anisotropic`, each read by `probe`."""
+    t = "\n    t = nm_level_fraction(lod);" if fraction else ""
+    return f"""
 // anisotropic filtering of a Gaussian footprint (covariance in uv^2; neumat.nn.latent_texture)
-void nm_spatial_footprint(vec2 uv, mat2 cov, out vec4 z[{layers}]) {{
+void {name}(vec2 uv, mat2 cov{which}, out vec4 z[{layers}]{fraction}) {{
     for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
     vec2 scale = vec2({w0}.0, {h0}.0);
     float a = cov[0][0] * scale.x * scale.x, b = cov[1][0] * scale.x * scale.y, c = cov[1][1] * scale.y * scale.y;
@@ -244,16 +283,15 @@ void nm_spatial_footprint(vec2 uv, mat2 cov, out vec4 z[{layers}]) {{
     vec2 axis = vec2(cos(theta), sin(theta));
     float n = clamp(ceil(major / minor), 1.0, {probes}.0);
     float sigma = max(minor, major / {probes}.0);
-    float lod = log2(max(2.0 * sigma, 1e-12));
+    float lod = log2(max(2.0 * sigma, 1e-12));{t}
     float spacing = sqrt(max(12.0 * (major * major - sigma * sigma), 0.0) / max(n * n - 1.0, 1.0));
     for (int k = 0; k < {probes}; ++k) {{
         if (float(k) >= n) break;
         float offset = (float(k) - 0.5 * (n - 1.0)) * spacing;
-        nm_spatial_trilinear(uv + offset * axis / scale, lod, 1.0 / n, z);
+        {probe};
     }}
 }}
 """
-    return src, {"neumat_spatial": atlas}
 
 
 def shading_frames(frame, latent_dim: int, source: str) -> tuple[list[str], str]:

@@ -88,6 +88,40 @@ vec3 nm_proxy_sample(NmLobes p, vec3 wi, vec2 u) {
 """
 
 
+_ALBEDO_TRILINEAR = """    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode_albedo(wi, wo, z);"""
+_ALBEDO_ROULETTE = """    vec4 z1[{zl}];
+    float t;
+    nm_spatial_footprint_level(uv, footprint, 0, z, t);
+    nm_spatial_footprint_level(uv, footprint, 1, z1, t);
+    return (1.0 - t) * nm_decode_albedo(wi, wo, z) + t * nm_decode_albedo(wi, wo, z1);"""
+
+
+def _roulette_entry_points(layers: int) -> str:
+    """neumat_eval / neumat_eval_lod of a model with Russian-roulette level selection: the expectation over the
+    two levels, (1 - t) f(z_finer) + t f(z_coarser), as `NeuMIP.filtered_outputs` (a renderer that wants one
+    decode per hit draws the level itself with nm_spatial_footprint_level)."""
+    return f"""
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z0[{layers}], z1[{layers}];
+    float t;
+    nm_spatial_footprint_level(uv, footprint, 0, z0, t);
+    nm_spatial_footprint_level(uv, footprint, 1, z1, t);
+    return (1.0 - t) * nm_decode(wi, wo, z0) + t * nm_decode(wi, wo, z1);
+}}
+
+vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z0[{layers}], z1[{layers}];
+    float t;
+    nm_spatial_lod_level(uv, lod, 0, z0, t);
+    nm_spatial_lod_level(uv, lod, 1, z1, t);
+    return (1.0 - t) * nm_decode(wi, wo, z0) + t * nm_decode(wi, wo, z1);
+}}
+"""
+
+
 def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     """GLSL source and textures of a neumip-family model (module docstring)."""
     from ..models.neural_appearance import NeuralAppearance
@@ -99,12 +133,10 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     if cfg.directions != "cartesian":
         raise InputError(f"export_glsl: {model.name} with {cfg.directions!r} directions has no GLSL export "
                          "(cartesian only)")
-    if cfg.level_selection != "trilinear":
-        raise InputError(f"export_glsl: {model.name} with level_selection={cfg.level_selection!r} has no GLSL "
-                         "export yet (the shader reads the trilinear latent; eval's two-level expectation differs)")
+    roulette = cfg.level_selection == "roulette"
     ds, zl = cfg.spatial_channels, -(-cfg.spatial_channels // 4)
     zs = "z[i / 4][i % 4]"
-    src, textures = _spatial_reader(model)
+    src, textures = _spatial_reader(model, roulette)
     parts, consts = [_COMMON, src], []
     frames = cfg.frames if model.frame is not None else 0
     decode = ""
@@ -135,10 +167,11 @@ vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
     return exp(vec3(o[0], o[1], o[2]));
 }}
 """)
-    parts.append(spatial_entry_points(zl))
+    parts.append(_roulette_entry_points(zl) if roulette else spatial_entry_points(zl))
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
     if outputs > 3:
+        albedo_body = _ALBEDO_ROULETTE.format(zl=zl) if roulette else _ALBEDO_TRILINEAR
         parts.append(f"""vec3 nm_decode_albedo(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
     float o[{outputs}];
     nm_outputs(wi, wo, z, o);
@@ -148,8 +181,7 @@ vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
 vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
     if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
     vec4 z[{zl}];
-    nm_spatial_footprint(uv, footprint, z);
-    return nm_decode_albedo(wi, wo, z);
+{albedo_body}
 }}
 """)
         entry.append("vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)")

@@ -70,8 +70,8 @@ class Config:
     level_selection: str = "trilinear"
     """How a fractional mip level is read: "trilinear" (the latents of the two levels blended) or "roulette"
     (Zeltner et al. 2024 Sec. 4.1: one of the two, the coarser with probability t, its fractional weight).
-    Training draws the level; `eval` returns the expectation (1 - t) f(z_fine) + t f(z_coarse) (two decodes).
-    The sampler reads the trilinear latent in both cases."""
+    Training draws the level; `eval` returns the expectation (1 - t) f(z_fine) + t f(z_coarse) (two decodes),
+    as the GLSL and Slang exports do. The sampler reads the trilinear latent in both cases."""
 
 
 def _check_config(c: Config, who: str) -> None:
