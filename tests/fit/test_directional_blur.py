@@ -1,4 +1,5 @@
-"""Directionally blurred targets (Zeltner et al. Sec. 5) and the training options of fit_neural_appearance."""
+"""Directionally blurred targets (Zeltner et al. Sec. 5) and the training options of fit_neural_appearance
+(half/difference directions, blurring, a separate sampler batch)."""
 import math
 
 import pytest
@@ -68,9 +69,23 @@ def test_training_options_run_and_bad_values_raise():
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=8)
     fit = fit_neural_appearance(model, source, encoder_steps=6, latent_steps=6, batch=64, progress=False,
-                                directions="rusinkiewicz", blur_degrees=5.0, blur_samples=2, log_every=3)
+                                directions="rusinkiewicz", blur_degrees=5.0, blur_samples=2, log_every=3,
+                                sampler_batch="separate")
     assert [h["phase"] for h in fit.history][-1] == "latents" and all(math.isfinite(h["brdf loss"])
                                                                       for h in fit.history)
-    for bad in (dict(directions="uniform"), dict(blur_degrees=-1.0), dict(blur_until=0.0), dict(blur_samples=0)):
+    for bad in (dict(directions="uniform"), dict(blur_degrees=-1.0), dict(blur_until=0.0), dict(blur_samples=0),
+                dict(sampler_batch="twice")):
         with pytest.raises(InputError):
             fit_neural_appearance(model, source, encoder_steps=1, latent_steps=1, batch=8, progress=False, **bad)
+
+
+def test_a_separate_sampler_batch_still_trains_the_sampler():
+    """sampler_batch="separate" (the paper's second batch): the sampler's KL, measured on batches the BRDF never
+    saw, falls during training."""
+    source = SVBRDF(procedural_texture_set("bumps", 8, seed=0), samples=2)
+    torch.manual_seed(0)
+    model = NeuralAppearance(spatial_size=8)
+    fit = fit_neural_appearance(model, source, encoder_steps=100, latent_steps=100, batch=256, progress=False,
+                                log_every=50, sampler_batch="separate")
+    kl = [h["sampler loss"] for h in fit.history]
+    assert kl[-1] < 0.97 * kl[0], kl                   # measured 1.727 -> 1.606 (shared batch: 1.779 -> 1.598)

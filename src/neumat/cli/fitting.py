@@ -65,8 +65,8 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
 def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed: int | None, quiet: bool,
                            source_options: dict, out: Path) -> None:
     """`neumat fit SOURCE --model neural-appearance`: `fit.neural_appearance.fit_neural_appearance` on the CPU.
-    --set takes the model's config fields and batch_size, lr, directions, blur_degrees, blur_samples, blur_until
-    (`fit_neural_appearance`); spatial_size defaults to the texture's size."""
+    --set takes the model's config fields and batch_size, lr, directions, blur_degrees, blur_samples, blur_until,
+    sampler_batch (`fit_neural_appearance`); spatial_size defaults to the texture's size."""
     import torch
 
     from ..fit.neural_appearance import fit_neural_appearance
@@ -74,7 +74,7 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
     from ..io.open_material import open_material
     from ..models.neural_appearance import Config, NeuralAppearance
 
-    training = {"batch_size", "lr", "directions", "blur_degrees", "blur_samples", "blur_until"}
+    training = {"batch_size", "lr", "directions", "blur_degrees", "blur_samples", "blur_until", "sampler_batch"}
     known = {f.name for f in fields(Config)} | training
     unknown = _unknown_keys(overrides, known)
     if unknown:
@@ -95,7 +95,8 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
                                    directions=str(overrides.get("directions", "cosine")),
                                    blur_degrees=float(overrides.get("blur_degrees", 0.0)),
                                    blur_samples=int(overrides.get("blur_samples", 4)),
-                                   blur_until=float(overrides.get("blur_until", 0.5)))
+                                   blur_until=float(overrides.get("blur_until", 0.5)),
+                                   sampler_batch=str(overrides.get("sampler_batch", "shared")))
     last = result.history[-1] if result.history else {}
     metrics = {"fit_seconds": result.seconds, "final_brdf_loss": last.get("brdf loss"),
                "final_sampler_loss": last.get("sampler loss")}

@@ -12,7 +12,8 @@ paper's exponentially distributed filter footprints).
 Optionally (blur_degrees > 0) the targets of the first steps are directionally blurred, a cone around wo that
 shrinks to nothing, so narrow peaks are learned broad first (Sec. 5, `neumat.fit.directional_blur`).
 
-Every step also trains the sampling decoder on the same queries: directions drawn from its current proxy are
+Every step also trains the sampling decoder on the same queries (or, with sampler_batch="separate", on a second
+batch drawn the same way, as the paper): directions drawn from its current proxy are
 scored against the model's current BRDF (no gradient) by the KL divergence, with the latent detached, so the
 sampler does not disturb the BRDF (`neumat.models.proxy_sampler.proxy_kl_loss`). BRDF loss: "log_cos", the
 paper's L1 in log space. Adam; the learning rate halves at 50% and 75% of each phase.
@@ -53,13 +54,15 @@ class NeuralAppearanceFit:
 def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps: int = 2000,
                           batch: int = 4096, lr: float = 3e-3, seed: int = 0, log_every: int = 100,
                           progress: bool = True, directions: str = "cosine", blur_degrees: float = 0.0,
-                          blur_samples: int = 4, blur_until: float = 0.5) -> NeuralAppearanceFit:
+                          blur_samples: int = 4, blur_until: float = 0.5,
+                          sampler_batch: str = "shared") -> NeuralAppearanceFit:
     """Train `model` (a NeuralAppearance) on the spatially varying `source` in place (module docstring).
 
     directions: "cosine" (cosine-weighted wi and wo) or "rusinkiewicz" (uniform half and difference angles, the
     paper's; footprints of the latent phase are kept). blur_degrees > 0: directionally blurred targets, a cone of
     that half-angle around wo at the first step shrinking to 0 at blur_until of all steps, blur_samples directions
-    each (`neumat.fit.directional_blur`)."""
+    each (`neumat.fit.directional_blur`). sampler_batch: "shared" (the sampler's KL on the BRDF's queries) or
+    "separate" (on a second batch drawn the same way, as the paper)."""
     from ..models.neural_appearance import NeuralAppearance
     from ..models.proxy_sampler import proxy_kl_loss
 
@@ -82,6 +85,8 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
         raise InputError(f"fit_neural_appearance: blur_degrees must lie in [0, 90] and blur_until in (0, 1], got "
                          f"{blur_degrees!r}, {blur_until!r}")
     check_int(blur_samples, "fit_neural_appearance blur_samples", 1)
+    if sampler_batch not in ("shared", "separate"):
+        raise InputError(f"fit_neural_appearance sampler_batch: expected 'shared' or 'separate', got {sampler_batch!r}")
     gen = torch.Generator().manual_seed(seed)
     brdf_loss = LogCosLoss()
     draw_filtered = footprint_queries(source)
@@ -124,29 +129,39 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
             p = 0.5 * source.pdf(given_wo.with_wo(w)) + 0.5 * w[:, 2] / math.pi
             return source.eval(replace(q, wi=w)) * (w[:, 2] / p).unsqueeze(-1)
 
-    def losses_at(q: Query, z: torch.Tensor, u: torch.Tensor, target: torch.Tensor):
+    def losses_at(draw):
+        """BRDF (and albedo) losses on a batch from draw() -> (q, z); the sampler's KL on the same batch or on a
+        second one (sampler_batch)."""
+        q, z = draw()
+        u = uniform(batch, 2, gen, "cpu")
+        sq, sz = draw() if sampler_batch == "separate" else (q, z)
+        sz = sz.detach()
         out = model.decode_outputs(z, q)
-        lobes = model.sampler.lobes(q.wi, z.detach())
-        kl = proxy_kl_loss(lobes, q.wi, u, lambda wo: model.decode(z.detach(), q.with_wo(wo)), model.name)
-        losses = (brdf_loss(out[:, :3], target, q), kl)
+        lobes = model.sampler.lobes(sq.wi, sz)
+        kl = proxy_kl_loss(lobes, sq.wi, u, lambda wo: model.decode(sz, sq.with_wo(wo)), model.name)
+        losses = (brdf_loss(out[:, :3], target_of(q), q), kl)
         if albedo:
             losses += (((out[:, 3:] - albedo_estimate(q)) ** 2).mean(),)
         return losses
 
-    def encoder_step():
+    def encoder_batch():
         q = draw_directions(batch, gen, "cpu")
-        u = uniform(batch, 2, gen, "cpu")
         with torch.no_grad():
             k = source.sampling_features(q)
-        return losses_at(q, model.encode(k), u, target_of(q))
+        return q, model.encode(k)
 
-    def latent_step():
+    def latent_batch():
         q = draw_filtered(batch, gen, "cpu")
         if directions != "cosine":
             d = draw_directions(batch, gen, "cpu")
             q = replace(q, wi=d.wi, wo=d.wo)
-        u = uniform(batch, 2, gen, "cpu")
-        return losses_at(q, model.spatial_latent(q), u, target_of(q))
+        return q, model.spatial_latent(q)
+
+    def encoder_step():
+        return losses_at(encoder_batch)
+
+    def latent_step():
+        return losses_at(latent_batch)
 
     decoders = [p for n, p in model.named_parameters() if not n.startswith(("spatial.", "encoder."))]
     phase("encoder", encoder_steps, decoders + list(model.encoder.parameters()), encoder_step)

@@ -18,8 +18,8 @@ with the encoder's output, and the latents are fine-tuned directly on filtered t
 from LEAN-prefiltered parameters (`Config.lean`: normal-map slope spread becomes roughness; the encoder reads one
 normal and one isotropic roughness per layer, so LEAN's anisotropic covariance is reduced to its trace).
 A fractional level is read trilinearly by default; the paper's Russian roulette is Config.level_selection
-("roulette", `neumat.models.neumip`). Difference from the paper: the sampler is trained on the same queries as the
-BRDF (the paper draws a second batch).
+("roulette", `neumat.models.neumip`). The sampler is trained on the BRDF's queries by default; the paper's second
+batch is `fit_neural_appearance(..., sampler_batch="separate")`.
 
 Albedo inference (Sec. 6.4, `Config.albedo`): the BRDF MLP has 3 more outputs, exp(.) of which is the
 directional albedo alpha(x, wo) = int f(x, wi, wo) cos(theta_i) dwi (`albedo(q)`), fitted with an L2 loss against
