@@ -15,6 +15,7 @@ from neumat.core.query import Query
 from neumat.export.slang import export_slang, glsl_to_slang
 from neumat.models.registry import build_model
 from neumat.testing.slang_parity import SlangKernel, slang_available, slang_eval
+from test_glsl_latent_mlp import _model, _queries as glsl_queries
 
 needs_slang = pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device "
                                                                "cannot be created (pip install slangpy)")
@@ -27,32 +28,12 @@ CONFIGS = {
 EVAL_TOL, PDF_TOL, SAMPLE_TOL = 5e-5, 1e-5, 2e-5
 
 
-def _model(spec: dict):
-    torch.manual_seed(1)
-    model = build_model(spec).train(False)
-    with torch.no_grad():  # move pyramid, frames, decoders and sampler away from their initial values
-        for p in model.parameters():
-            p.add_(0.1 * torch.randn_like(p))
-    return model
-
-
 def _queries(n: int, footprint: bool) -> Query:
-    """Directions at least ~0.1 above the horizon but for 1/16 of wi below it (value 0), uv over three tiles,
-    footprints of 2^-8 to 1 uv (anisotropic) or lods from -1 to 4 (past both ends of a 16^2 pyramid)."""
-    g = torch.Generator().manual_seed(2)
-
-    def direction():
-        w = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
-        w[:, 2] = w[:, 2].abs().clamp(min=0.1)
-        return torch.nn.functional.normalize(w, dim=-1)
-
-    wi, wo = direction(), direction()
-    wi[::16, 2] *= -1
-    uv = torch.rand(n, 2, generator=g) * 3 - 1
-    if not footprint:
-        return Query(wi=wi, wo=wo, uv=uv, lod=torch.rand(n, generator=g) * 5 - 1)
-    a = torch.randn(n, 2, 2, generator=g) * torch.exp2(torch.rand(n, 1, 1, generator=g) * -8)
-    return Query(wi=wi, wo=wo, uv=uv, footprint=a @ a.transpose(1, 2) + 1e-8 * torch.eye(2))
+    """The GLSL parity queries (directions at least ~0.1 above the horizon, uv over three tiles, footprints of 2^-8
+    to 1 uv or lods from -1 to 4) with 1/16 of wi turned below the horizon (value 0)."""
+    q = glsl_queries(n, footprint)
+    q.wi[::16, 2] *= -1
+    return q
 
 
 def _relative(got: torch.Tensor, ref: torch.Tensor) -> float:

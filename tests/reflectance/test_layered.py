@@ -18,14 +18,7 @@ from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.chi2 import chi2_material
 from neumat.testing.furnace import white_furnace
 from neumat.testing.reciprocity import reciprocity_check
-from neumat.warp.hemisphere import sample_cosine_hemisphere
-from test_svbrdf import _checker_set  # normal-mapped metal / dielectric checker
-
-
-def _directions(n, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    wi = sample_cosine_hemisphere(torch.rand(n, 2, generator=g))
-    return wi, sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), torch.rand(n, 2, generator=g)
+from test_svbrdf import _checker_set, _directions  # normal-mapped metal / dielectric checker
 
 
 def _textured(size=16, **coat):

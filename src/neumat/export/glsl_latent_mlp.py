@@ -88,36 +88,30 @@ vec3 nm_proxy_sample(NmLobes p, vec3 wi, vec2 u) {
 """
 
 
-_ALBEDO_TRILINEAR = """    nm_spatial_footprint(uv, footprint, z);
-    return nm_decode_albedo(wi, wo, z);"""
-_ALBEDO_ROULETTE = """    vec4 z1[{zl}];
+def _two_level(layers: int, read: str, where: str, decode: str) -> str:
+    """GLSL statements returning the Russian-roulette expectation (1 - t) decode(z_finer) + t decode(z_coarser),
+    the two latents read by `read`(`where`, which, z, t) (`pyramid_reader` with roulette), as
+    `NeuMIP.filtered_outputs`."""
+    return f"""    vec4 z0[{layers}], z1[{layers}];
     float t;
-    nm_spatial_footprint_level(uv, footprint, 0, z, t);
-    nm_spatial_footprint_level(uv, footprint, 1, z1, t);
-    return (1.0 - t) * nm_decode_albedo(wi, wo, z) + t * nm_decode_albedo(wi, wo, z1);"""
+    {read}({where}, 0, z0, t);
+    {read}({where}, 1, z1, t);
+    return (1.0 - t) * {decode}(wi, wo, z0) + t * {decode}(wi, wo, z1);"""
 
 
 def _roulette_entry_points(layers: int) -> str:
-    """neumat_eval / neumat_eval_lod of a model with Russian-roulette level selection: the expectation over the
-    two levels, (1 - t) f(z_finer) + t f(z_coarser), as `NeuMIP.filtered_outputs` (a renderer that wants one
-    decode per hit draws the level itself with nm_spatial_footprint_level)."""
+    """neumat_eval / neumat_eval_lod of a model with Russian-roulette level selection: the two-level expectation
+    (`_two_level`; a renderer that wants one decode per hit draws the level itself with
+    nm_spatial_footprint_level)."""
     return f"""
 vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
     if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z0[{layers}], z1[{layers}];
-    float t;
-    nm_spatial_footprint_level(uv, footprint, 0, z0, t);
-    nm_spatial_footprint_level(uv, footprint, 1, z1, t);
-    return (1.0 - t) * nm_decode(wi, wo, z0) + t * nm_decode(wi, wo, z1);
+{_two_level(layers, "nm_spatial_footprint_level", "uv, footprint", "nm_decode")}
 }}
 
 vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
     if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z0[{layers}], z1[{layers}];
-    float t;
-    nm_spatial_lod_level(uv, lod, 0, z0, t);
-    nm_spatial_lod_level(uv, lod, 1, z1, t);
-    return (1.0 - t) * nm_decode(wi, wo, z0) + t * nm_decode(wi, wo, z1);
+{_two_level(layers, "nm_spatial_lod_level", "uv, lod", "nm_decode")}
 }}
 """
 
@@ -171,7 +165,10 @@ vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
     if outputs > 3:
-        albedo_body = _ALBEDO_ROULETTE.format(zl=zl) if roulette else _ALBEDO_TRILINEAR
+        albedo_body = _two_level(zl, "nm_spatial_footprint_level", "uv, footprint", "nm_decode_albedo") \
+            if roulette else f"""    vec4 z[{zl}];
+    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode_albedo(wi, wo, z);"""
         parts.append(f"""vec3 nm_decode_albedo(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
     float o[{outputs}];
     nm_outputs(wi, wo, z, o);
@@ -180,7 +177,6 @@ vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
 
 vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
     if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-    vec4 z[{zl}];
 {albedo_body}
 }}
 """)
