@@ -26,6 +26,15 @@ def frame_from_normal_tangent(n: torch.Tensor, t: torch.Tensor) -> tuple[torch.T
     return t, torch.cross(n, t, dim=-1)
 
 
+def normal_map_frame(n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(t, b, n): the shading frame of normal-mapped unit normals n (N, 3), the tangent +u (+x) projected onto
+    the perturbed tangent plane (the normal-map convention of `neumat.io.texture_set`)."""
+    tangent = torch.zeros_like(n)
+    tangent[:, 0] = 1
+    t, b = frame_from_normal_tangent(n, tangent)
+    return t, b, n
+
+
 def to_local(v: torch.Tensor, t: torch.Tensor, b: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
     """World vector v (N, 3) expressed in the frame (t, b, n)."""
     return torch.stack([(v * t).sum(-1), (v * b).sum(-1), (v * n).sum(-1)], -1)

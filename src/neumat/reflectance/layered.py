@@ -33,7 +33,7 @@ import torch
 
 from ..core.checks import check_int
 from ..core.errors import InputError
-from ..core.frames import frame_from_normal_tangent, to_local, to_world
+from ..core.frames import normal_map_frame, to_local, to_world
 from ..core.material import Material, sample_weight
 from ..core.query import Query, Sample
 from ..nn.latent_texture import bilinear
@@ -175,10 +175,7 @@ class LayeredMaterial(Material):
         """alpha (N,), weight (N,) and frame (t, b, n) of coat i at uv (N, 2)."""
         p = bilinear(self.maps[i].to(uv.device, uv.dtype), uv)
         n = p[:, 2:5] / p[:, 2:5].norm(dim=-1, keepdim=True).clamp(min=1e-12)
-        tangent = torch.zeros_like(n)
-        tangent[:, 0] = 1
-        t, b = frame_from_normal_tangent(n, tangent)
-        return p[:, 0], p[:, 1], (t, b, n)
+        return p[:, 0], p[:, 1], normal_map_frame(n)
 
     def sampling_features(self, q: Query) -> torch.Tensor:
         """Surface parameters at q.uv (N, K): the base's (an SVBRDF's 8), then per coat alpha, weight, normal."""

@@ -28,7 +28,7 @@ import torch
 
 from ..core.checks import check_int
 from ..core.errors import InputError
-from ..core.frames import frame_from_normal_tangent, to_local, to_world
+from ..core.frames import normal_map_frame, to_local, to_world
 from ..core.material import Material, sample_weight
 from ..core.query import Query, Sample
 from ..io.texture_set import TextureSet, load_texture_set
@@ -113,17 +113,11 @@ class SVBRDF(Material):
         p = self.parameters_at(q.uv)
         return torch.cat([p["base_color"], p["normal"], p["roughness"][:, None], p["metallic"][:, None]], -1)
 
-    def _shading_frame(self, normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        tangent = torch.zeros_like(normal)
-        tangent[:, 0] = 1
-        t, b = frame_from_normal_tangent(normal, tangent)
-        return t, b, normal
-
     def eval_point(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
                    symmetrise: bool = True) -> torch.Tensor:
         """Unfiltered value f(wi, wo | uv) (N, 3) (module docstring), symmetrised unless told not to."""
         p = self.parameters_at(uv)
-        t, b, n = self._shading_frame(p["normal"])
+        t, b, n = normal_map_frame(p["normal"])
         li, lo = to_local(wi, t, b, n), to_local(wo, t, b, n)
         zero = torch.zeros_like(p["roughness"])
         f = principled_eval(li, lo, p["base_color"], p["metallic"], p["roughness"], zero, self.specular)
@@ -151,7 +145,7 @@ class SVBRDF(Material):
 
     def _centre_lobe(self, q: Query):
         p = self.parameters_at(q.uv)
-        t, b, n = self._shading_frame(p["normal"])
+        t, b, n = normal_map_frame(p["normal"])
         zero = torch.zeros_like(p["roughness"])
         return (t, b, n), (p["base_color"], p["metallic"], p["roughness"], zero, self.specular)
 

@@ -90,21 +90,27 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
 
 
 def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "egl") -> float:
-    """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine): the
-    marginal rate between len(q) / 8 and len(q) queries (best of 3 each), so that context creation, compilation
-    and uploads do not count. NaN when the larger batch ran no slower (overheads dominate: use more queries)."""
+    """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine), the
+    `marginal_rate` (context creation, compilation and uploads do not count)."""
+    return marginal_rate(lambda part: glsl_eval(export, part, backend), q, "glsl_evals_per_second")
+
+
+def marginal_rate(run, q: Query, who: str) -> float:
+    """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of 3 each, after a warm-up on
+    64), so that fixed costs do not count. NaN when the larger batch ran no slower (overheads dominate: use more
+    queries)."""
     import time
 
     n = len(q.wi)
     if n < 64:
-        raise InputError(f"glsl_evals_per_second: expected at least 64 queries, got {n}")
-    glsl_eval(export, q[:64], backend)  # driver start-up
+        raise InputError(f"{who}: expected at least 64 queries, got {n}")
+    run(q[:64])  # driver start-up, compilation
 
     def best_of(m: int) -> float:
         times = []
         for _ in range(3):
             start = time.perf_counter()
-            glsl_eval(export, q[:m], backend)
+            run(q[:m])
             times.append(time.perf_counter() - start)
         return min(times)
 
@@ -168,19 +174,31 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         ctx.release()
 
 
-def neupress_parity(export: GLSLExport, model, n: int, seed: int = 0, backend: str | None = "egl") -> dict[str, float]:
-    """Largest differences of a NeuPreSS export from `model` on n random queries (x uniform in its bounding box,
-    wi, wo uniform on the sphere): "translucent" relative to the largest value, "sigma" relative."""
+def neupress_parity_queries(model, n: int, seed: int = 0) -> tuple[Query, torch.Tensor, torch.Tensor]:
+    """n random NeuPreSS queries (x uniform in the model's bounding box, wi, wo uniform on the sphere) and the
+    model's S_hat (N, 3) and lobe width sigma (N,) there."""
     from ..warp.sphere import sample_uniform_sphere
 
     g = torch.Generator().manual_seed(seed)
     x = model.box_min + (model.box_max - model.box_min) * torch.rand(n, 3, generator=g)
     wi, wo = (sample_uniform_sphere(torch.rand(n, 2, generator=g)) for _ in range(2))
+    q = Query(wi=wi, wo=wo, x=x)
     with torch.no_grad():
-        f = model.eval(Query(wi=wi, wo=wo, x=x))
-        sigma = model.sigma(x, wo)
-    inputs = {"wi": wi, "x": x, "wo": wo}
+        return q, model.eval(q), model.sigma(x, wo)
+
+
+def neupress_differences(f: torch.Tensor, sigma: torch.Tensor, got_f: torch.Tensor,
+                         got_sigma: torch.Tensor) -> dict[str, float]:
+    """Largest differences of an export's S_hat (relative to the largest value) and sigma (relative)."""
+    return {"translucent": float((got_f - f).abs().max() / f.abs().max().clamp(min=1e-30)),
+            "sigma": float(((got_sigma - sigma) / sigma).abs().max())}
+
+
+def neupress_parity(export: GLSLExport, model, n: int, seed: int = 0, backend: str | None = "egl") -> dict[str, float]:
+    """Largest differences of a NeuPreSS export from `model` on n random queries (`neupress_parity_queries`):
+    "translucent" relative to the largest value, "sigma" relative."""
+    q, f, sigma = neupress_parity_queries(model, n, seed)
+    inputs = {"wi": q.wi, "x": q.x, "wo": q.wo}
     g_f = glsl_run(export, inputs, "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);", backend)[:, :3]
     g_sigma = glsl_run(export, inputs, "colour = vec4(neumat_sigma(x.xyz, wo.xyz));", backend)[:, 0]
-    return {"translucent": float((g_f - f).abs().max() / f.abs().max().clamp(min=1e-30)),
-            "sigma": float(((g_sigma - sigma) / sigma).abs().max())}
+    return neupress_differences(f, sigma, g_f, g_sigma)

@@ -9,7 +9,6 @@ On the CPU device resources bind only as module-level globals, which is how the 
 from __future__ import annotations
 
 import functools
-import time
 
 import numpy as np
 import torch
@@ -144,41 +143,18 @@ def slang_eval(export: SlangExport | SlangKernel, q: Query, entry: str | None = 
 
 
 def slang_evals_per_second(export: SlangExport | SlangKernel, q: Query) -> float:
-    """Evaluations per second of `slang_eval(export, q)` (eval with q's footprint, else eval_lod): the marginal
-    rate between len(q) / 8 and len(q) queries (best of 3 each), so that compilation and uploads do not count.
-    NaN when the larger batch ran no slower."""
-    n = len(q.wi)
-    if n < 64:
-        raise InputError(f"slang_evals_per_second: expected at least 64 queries, got {n}")
+    """Evaluations per second of `slang_eval(export, q)` (eval with q's footprint, else eval_lod), the
+    `neumat.testing.parity.marginal_rate` (compilation and uploads do not count)."""
+    from .parity import marginal_rate
+
     kernel = export if isinstance(export, SlangKernel) else SlangKernel(export)
-    slang_eval(kernel, q[:64])
-
-    def best_of(m: int) -> float:
-        times = []
-        for _ in range(3):
-            start = time.perf_counter()
-            slang_eval(kernel, q[:m])
-            times.append(time.perf_counter() - start)
-        return min(times)
-
-    marginal = best_of(n) - best_of(n // 8)
-    return (n - n // 8) / marginal if marginal > 0 else float("nan")
+    return marginal_rate(lambda part: slang_eval(kernel, part), q, "slang_evals_per_second")
 
 
 def neupress_slang_parity(export: SlangExport, model, n: int, seed: int = 0) -> dict[str, float]:
-    """`neumat.testing.parity.neupress_parity` for a NeuPreSS Slang module: largest differences on n random queries
-    (x uniform in the model's bounding box, wi, wo uniform on the sphere): "translucent" relative to the largest
-    value, "sigma" relative."""
-    from ..warp.sphere import sample_uniform_sphere
+    """`neumat.testing.parity.neupress_parity` for a NeuPreSS Slang module, on the same queries."""
+    from .parity import neupress_differences, neupress_parity_queries
 
-    g = torch.Generator().manual_seed(seed)
-    x = model.box_min + (model.box_max - model.box_min) * torch.rand(n, 3, generator=g)
-    wi, wo = (sample_uniform_sphere(torch.rand(n, 2, generator=g)) for _ in range(2))
-    q = Query(wi=wi, wo=wo, x=x)
-    with torch.no_grad():
-        f = model.eval(q)
-        sigma = model.sigma(x, wo)
+    q, f, sigma = neupress_parity_queries(model, n, seed)
     kernel = SlangKernel(export)
-    s_f, s_sigma = slang_eval(kernel, q, "translucent"), slang_eval(kernel, q, "sigma")
-    return {"translucent": float((s_f - f).abs().max() / f.abs().max().clamp(min=1e-30)),
-            "sigma": float(((s_sigma - sigma) / sigma).abs().max())}
+    return neupress_differences(f, sigma, slang_eval(kernel, q, "translucent"), slang_eval(kernel, q, "sigma"))
