@@ -275,7 +275,7 @@ class LayeredMaterial(Material):
             wo = torch.where((pick == k).unsqueeze(-1), lw, wo)
         wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         sq = q.with_wo(wo)
-        pdf = self.pdf(sq)
+        pdf = self._mixture_pdf(sq, probs, coats)
         valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & ((pick < len(coats)) | base_ok)
         pdf = torch.where(valid, pdf, torch.zeros_like(pdf))
         return Sample(wo, pdf, sample_weight(self.eval(sq), wo, pdf, valid))
@@ -284,7 +284,10 @@ class LayeredMaterial(Material):
         """Solid-angle density (N,) of `sample`."""
         q.require("wo", who="LayeredMaterial.pdf")
         q.require("uv", who="LayeredMaterial.pdf")
-        probs, coats = self._mixture(q.wi, q.uv)
+        return self._mixture_pdf(q, *self._mixture(q.wi, q.uv))
+
+    def _mixture_pdf(self, q: Query, probs: torch.Tensor, coats: list) -> torch.Tensor:
+        """The density (N,) at q.wo of the mixture `_mixture` gave for q.wi and q.uv."""
         if self.base.can_sample:
             base = self.base.pdf(self._base_query(q.wi, q.uv, q.wo))
         else:
