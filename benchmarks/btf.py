@@ -65,11 +65,8 @@ from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
-from neumat.reflectance.btf_generate import (
-    generate_btf,
-    procedural_texture_set,
-    texture_tile,
-)
+from neumat.reflectance.btf_generate import generate_btf, texture_tile
+from neumat.reflectance.procedural_texture import KINDS, material_name, parse_material, procedural_texture_set
 from neumat.testing.parity import glsl_evals_per_second, opengl_available
 
 
@@ -78,12 +75,9 @@ def table(title, rows):
     print_table(title, rows, width=320)
 
 
-PROCEDURAL = ("bumps", "weave", "bricks", "dents", "ridges")
-
-
 def material_names(spec: str, shared: str) -> list[str]:
-    """Names in a comma-separated `spec`: procedural kinds, texture-set folders under `shared`, or `shared`
-    for all of them."""
+    """Names in a comma-separated `spec`: procedural materials (a class, or 'class~variant'), texture-set
+    folders under `shared`, or `shared` for all of them."""
     folders = sorted(p.name for p in Path(shared).iterdir() if p.is_dir()) if shared and Path(shared).is_dir() else []
     names = []
     for token in filter(None, spec.split(",")):
@@ -91,18 +85,28 @@ def material_names(spec: str, shared: str) -> list[str]:
             if not folders:
                 raise SystemExit(f"'shared' in {spec!r}: no texture sets under --shared {shared!r}")
             names += folders
-        elif token in PROCEDURAL or token in folders:
+        elif is_procedural(token) or token in folders:
             names.append(token)
         else:
-            raise SystemExit(f"unknown material {token!r}: expected one of {PROCEDURAL}, 'shared', or a "
-                             f"texture-set folder under --shared ({shared!r})")
+            raise SystemExit(f"unknown material {token!r}: expected one of {KINDS} (optionally ~<variant>), "
+                             f"'shared', or a texture-set folder under --shared ({shared!r})")
     return names
 
 
-def procedural_btf(kind: str, size: int, seed: int, args, dirs):
-    """The BTF of procedural `kind` (seed, size x size texels, relief 4 x --relief)."""
-    return generate_btf(procedural_texture_set(kind, size, seed=seed), dirs, dirs, relief=args.relief * 4,
-                        spp=args.spp)
+def is_procedural(name: str) -> bool:
+    try:
+        parse_material(name)
+    except InputError:
+        return False
+    return True
+
+
+def procedural_btf(name: str, size: int, seed: int, args, dirs):
+    """The BTF of procedural material `name` ('class' or 'class~variant'; layout seed, size x size texels, relief
+    4 x --relief)."""
+    kind, variant = parse_material(name)
+    return generate_btf(procedural_texture_set(kind, size, seed=seed, variant=variant), dirs, dirs,
+                        relief=args.relief * 4, spp=args.spp)
 
 
 def texture_set_btf(ts, size: int, crop: int, at: int, args, dirs):
@@ -115,7 +119,7 @@ def texture_set_btf(ts, size: int, crop: int, at: int, args, dirs):
 def generate_material(name: str, args, dirs, tile_index: int = 0):
     """The BTF of a procedural kind (seed 1) or of a texture set under --shared (a --crop tile at row = column =
     --crop-at + tile_index x crop, wrapped into the image), at --size texels."""
-    if name in PROCEDURAL:
+    if is_procedural(name):
         return procedural_btf(name, args.size, 1, args, dirs)
     ts = load_texture_set(Path(args.shared) / name)
     crop = min(args.crop or args.size, *ts.size)
@@ -123,17 +127,22 @@ def generate_material(name: str, args, dirs, tile_index: int = 0):
                            args, dirs)
 
 
-def extra_training_btfs(args, dirs, kinds: list[str]) -> dict:
+def extra_training_btfs(args, dirs, kinds: list[str], test: list[str]) -> dict:
     """More training BTFs (args.train_size texels, default args.size): the procedural `kinds` with seeds
-    2..args.train_seeds, tiles 1..args.train_tiles - 1 of the texture sets in `kinds`, and args.tiles tiles of
-    every PBR set in args.train_shared (256-texel crops; relief x args.shared_relief). Test materials stay
-    unseen."""
+    2..args.train_seeds, variants 1..args.train_variants of every procedural class (other materials of the
+    class, layout seed 1) except those in `test`, tiles 1..args.train_tiles - 1 of the texture sets in
+    `kinds`, and args.tiles tiles of every PBR set in args.train_shared (256-texel crops; relief x
+    args.shared_relief). Test materials stay unseen."""
     out, size = {}, args.train_size or args.size
+    for variant in range(1, args.train_variants + 1):
+        for name in (material_name(k, variant) for k in KINDS):
+            if name not in test:
+                out[name] = procedural_btf(name, size, 1, args, dirs)
     for seed in range(2, args.train_seeds + 1):
-        for k in (k for k in kinds if k in PROCEDURAL):
+        for k in (k for k in kinds if is_procedural(k)):
             out[f"{k}#{seed}"] = procedural_btf(k, size, seed, args, dirs)
     for i in range(1, args.train_tiles):
-        for k in (k for k in kinds if k not in PROCEDURAL):
+        for k in (k for k in kinds if not is_procedural(k)):
             out[f"{k}#{i}"] = generate_material(k, args, dirs, tile_index=i)
     for folder in sorted(Path(args.train_shared).iterdir()) if args.train_shared else []:
         ts = load_texture_set(folder)
@@ -144,11 +153,12 @@ def extra_training_btfs(args, dirs, kinds: list[str]) -> dict:
     return out
 
 
-def train_on_materials(train: list[str], args, dirs, tau_l: tuple[int, int, int]) -> BTFDictionary:
+def train_on_materials(train: list[str], test: list[str], args, dirs, tau_l: tuple[int, int, int]
+                       ) -> BTFDictionary:
     """Generate the training BTFs (materials `train` plus the extra ones), train the dictionary, print its cost."""
     t = time.perf_counter()
     btfs = {name: generate_material(name, args, dirs) for name in train}
-    extra = extra_training_btfs(args, dirs, train)
+    extra = extra_training_btfs(args, dirs, train, test)
     btfs.update(extra)
     train = train + list(extra)
     gen_s = time.perf_counter() - t
@@ -348,6 +358,9 @@ def main():
     ap.add_argument("--crop-at", type=int, default=300, help="row and column of the texture-set test tiles")
     ap.add_argument("--train-seeds", type=int, default=1,
                     help="also train on the two training kinds generated with seeds 2..S")
+    ap.add_argument("--train-variants", type=int, default=0,
+                    help="also train on variants 1..N of every procedural class (other materials of the class, as "
+                         "the paper's training set covers UBO2014's classes); test materials stay unseen")
     ap.add_argument("--train-shared", default="", help="also train on tiles of the PBR sets in this folder")
     ap.add_argument("--train-tiles", type=int, default=1, help="tiles of each texture set named in --train")
     ap.add_argument("--tiles", type=int, default=1, help="tiles per PBR set for --train-shared")
@@ -380,7 +393,7 @@ def main():
     tau_l = tuple(int(t) for t in args.tau_train.split(","))
 
     train, test = material_names(args.train, args.shared), material_names(args.test, args.shared)
-    if set(train) & set(test) or (args.train_shared and any(n not in PROCEDURAL for n in test)):
+    if set(train) & set(test) or (args.train_shared and any(not is_procedural(n) for n in test)):
         raise SystemExit(f"the test materials {test} must not be used in training ({train}"
                          f"{', --train-shared ' + args.train_shared if args.train_shared else ''})")
     if args.dictionary:
@@ -393,7 +406,7 @@ def main():
               f"{dic.info.get('points')} data points per channel from {dic.info.get('btfs')}) trained in "
               f"{sum(dic.info.get('seconds', {}).values()):.1f} s; iterations {dic.info.get('iterations')}")
     else:
-        dic = train_on_materials(train, args, dirs, tau_l)
+        dic = train_on_materials(train, test, args, dirs, tau_l)
         if args.save_dictionary:
             print(f"dictionary written to {dic.save(args.save_dictionary)}")
 

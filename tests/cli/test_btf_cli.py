@@ -39,6 +39,25 @@ def test_btf_generate(tmp_path, shared_data):
     assert btf.data.shape == (5, 5, 8, 8, 3) and float(btf.data.max()) > 0
 
 
+def test_btf_generate_procedural_material(tmp_path):
+    """`procedural:<class>~<variant>` generates the same BTF as the library call; an unknown class is refused."""
+    import torch
+
+    from neumat.reflectance.btf import direction_set
+    from neumat.reflectance.btf_generate import generate_btf
+    from neumat.reflectance.procedural_texture import procedural_texture_set
+
+    out = tmp_path / "bricks.nbtf"
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:bricks~2", str(out), "--size", "8",
+                                     "--directions", "5", "--spp", "1"])
+    assert r.exit_code == 0, r.output
+    d = direction_set(5)
+    expected = generate_btf(procedural_texture_set("bricks", 8, seed=1, variant=2), d, d, relief=4.0, spp=1)
+    torch.testing.assert_close(read_btf(out).data.float(), expected.data, rtol=2e-3, atol=1e-4)   # stored fp16
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:velvet", str(tmp_path / "v.nbtf")])
+    assert r.exit_code != 0 and "procedural material 'velvet'" in r.output
+
+
 def test_fit_sparse_btf_with_a_dictionary(tmp_path):
     """`neumat fit BTF --model sparse-btf --dictionary D --tau T`: codes the BTF; the saved model loads and
     evaluates like the coded one."""

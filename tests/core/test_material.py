@@ -40,3 +40,15 @@ def test_every_registered_model_accepts_module_eval(name):
     model.train(True)
     assert model.eval() is model
     assert not any(m.training for m in model.modules())
+
+
+def test_material_device_is_that_of_the_first_module_with_tensors():
+    from neumat.core.material import material_device
+    from neumat.reflectance.analytic import Lambert
+
+    assert material_device(Lambert(0.5)) == torch.device("cpu")              # plain material: CPU
+    meta = Constant().to("meta")
+    assert material_device(Lambert(0.5), meta, Constant()) == torch.device("meta")
+    buffers_only = nn.Module()
+    buffers_only.register_buffer("table", torch.zeros(2, device="meta"))
+    assert material_device(buffers_only) == torch.device("meta")

@@ -11,7 +11,7 @@ from neumat.fit.directional_blur import blur_angle, blurred_eval, sample_cone
 from neumat.fit.neural_appearance import fit_neural_appearance
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX, Lambert
-from neumat.reflectance.btf_generate import procedural_texture_set
+from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
 
 

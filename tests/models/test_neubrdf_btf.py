@@ -15,7 +15,8 @@ from neumat.models.neubrdf import NeuBRDF
 from neumat.models.sparse_btf import mse
 from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.reflectance.btf import direction_set
-from neumat.reflectance.btf_generate import generate_btf, procedural_texture_set
+from neumat.reflectance.btf_generate import generate_btf
+from neumat.reflectance.procedural_texture import procedural_texture_set
 from btf_util import synthetic_btf
 
 

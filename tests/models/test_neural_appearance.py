@@ -13,7 +13,7 @@ from neumat.fit.query_samplers import uniform
 from neumat.io.modelfile import load_model, save_model
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX
-from neumat.reflectance.btf_generate import procedural_texture_set
+from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.lean import lean_pyramid
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.chi2 import chi2_material

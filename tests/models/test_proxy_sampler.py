@@ -13,7 +13,7 @@ from neumat.models.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial
 from neumat.models.zeltner import Zeltner
 from neumat.models.multiscale import MultiScale
 from neumat.reflectance.analytic import GGX, Lambert
-from neumat.reflectance.btf_generate import procedural_texture_set
+from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.chi2 import chi2_material
 from neumat.warp.hemisphere import sample_cosine_hemisphere

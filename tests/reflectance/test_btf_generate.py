@@ -12,8 +12,8 @@ from neumat.reflectance.btf_generate import (
     elevation_groups,
     generate_btf,
     lambert_shader,
-    procedural_texture_set,
 )
+from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.heightfield import HeightField
 
 SIZE = 24
@@ -109,5 +109,3 @@ def test_bad_generator_input():
         generate_btf(ridge_set(), d, d, spp=3)
     with pytest.raises(InputError, match="upper-hemisphere"):
         generate_btf(ridge_set(), -d, d)
-    with pytest.raises(InputError, match="kind"):
-        procedural_texture_set("velvet")

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 import torch
 
-from neumat.reflectance.btf_generate import generate_btf, lambert_shader, procedural_texture_set
+from neumat.reflectance.btf_generate import generate_btf, lambert_shader
+from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.heightfield import HeightField
 from mitsuba_util import mitsuba_or_skip
 

@@ -55,27 +55,34 @@ def register_data(data_app: typer.Typer) -> None:
 
     @data_app.command("btf-generate")
     def btf_generate(
-            textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...)"),
+            textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...), "
+                                            "or procedural:<class>[~<variant>] (bumps, weave, bricks, dents, ridges)"),
             out: Path = typer.Argument(..., help="output .nbtf file"),
             size: int = typer.Option(64, "--size", help="BTF resolution (size x size texels)"),
             crop: int = typer.Option(0, "--crop", help="crop this many source texels first (0: the whole set)"),
             directions: str = typer.Option("hemi151", "--directions",
                                            help="direction set: hemi151, ubo81, rings:<n>x<deg> or a count"),
             spp: int = typer.Option(4, "--spp", help="sub-pixel rays per texel (square number)"),
-            relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from set)"),
+            relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from the "
+                                                                "set; 4 for a procedural material)"),
             device: str = typer.Option("cpu", "--device")) -> None:
-        """Generate a BTF from a PBR texture set by ray marching its displaced height field."""
+        """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
+        field."""
         from ..io.btf import write_btf
         from ..io.texture_set import load_texture_set
         from ..reflectance.btf import direction_set
         from ..reflectance.btf_generate import generate_btf, texture_tile
+        from ..reflectance.procedural_texture import parse_material, procedural_texture_set
 
         def go():
-            ts = load_texture_set(textures)
-            tile, tile_relief = texture_tile(ts, size, crop or None)
+            if str(textures).startswith("procedural:"):
+                kind, variant = parse_material(str(textures).removeprefix("procedural:"))
+                tile, tile_relief = procedural_texture_set(kind, size, seed=1, variant=variant), 4.0
+            else:
+                tile, tile_relief = texture_tile(load_texture_set(textures), size, crop or None)
             d = direction_set(int(directions) if directions.isdigit() else directions)
             btf = generate_btf(tile, d, d, relief=relief or tile_relief, spp=spp, device=device, progress=True,
-                               label=ts.name)
+                               label=tile.name)
             write_btf(out, btf, extra={"source": str(textures), "crop": crop, "relief": relief or tile_relief})
             print(f"wrote {out}: {size}x{size} texels, {d.shape[0]}x{d.shape[0]} directions "
                   f"({out.stat().st_size} bytes)")

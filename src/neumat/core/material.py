@@ -56,6 +56,15 @@ class Material:
         return self.name
 
 
+def material_device(*materials: Material) -> torch.device:
+    """Device of the first parameter or buffer of the first material (nn.Module) that has one, else CPU."""
+    for material in materials:
+        if isinstance(material, nn.Module):
+            for t in (*material.parameters(), *material.buffers()):
+                return t.device
+    return torch.device("cpu")
+
+
 def _keep_module_eval(evaluate):
     """`evaluate(self, q, ...)` that, called with no arguments, is `nn.Module.eval(self)` instead."""
 

@@ -33,7 +33,7 @@ import torch
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
-from ..metrics.hdr import material_device
+from ..core.material import material_device
 from ..render.scenes import import_mitsuba
 from ..warp.hemisphere import sample_cosine_hemisphere
 

@@ -12,7 +12,7 @@ from typing import Callable
 import torch
 
 from ..core.errors import InputError
-from ..core.material import Material
+from ..core.material import Material, material_device
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
 
@@ -77,12 +77,3 @@ def _eval(material: Material, q: Query, name: str) -> torch.Tensor:
         shape = tuple(value.shape) if isinstance(value, torch.Tensor) else type(value).__name__
         raise InputError(f"reflectance_errors: {name}.eval returned {shape}, expected ({len(q)}, 3)")
     return value.to(device=q.device, dtype=torch.float64)
-
-
-def material_device(*materials: Material) -> torch.device:
-    """Device of the first parameter or buffer of the first material (nn.Module) that has one, else CPU."""
-    for material in materials:
-        if isinstance(material, torch.nn.Module):
-            for t in (*material.parameters(), *material.buffers()):
-                return t.device
-    return torch.device("cpu")

@@ -5,7 +5,7 @@ import torch
 
 from ..core.checks import check_int
 from ..core.errors import InputError
-from ..core.material import Material
+from ..core.material import Material, material_device
 from .integrators import check_strategy, shade_direct
 from .lights import Light, make_light
 from .scenes import make_scene
@@ -41,7 +41,7 @@ def render(material: Material, scene: str = "sphere", light: str | Light = "env:
     check_strategy(strategy)
     width, height = _resolution(resolution)
     jitter = bool(scene_options.pop("jitter", True))
-    device = torch.device(device) if device is not None else _material_device(material)
+    device = torch.device(device) if device is not None else material_device(material)
     batch = scene_options.pop("batch_size", CPU_BATCH_SAMPLES if device.type == "cpu" else BATCH_SAMPLES)
     check_int(batch, "batch_size")
 
@@ -92,14 +92,6 @@ def _resolution(resolution) -> tuple[int, int]:
     if width < 1 or height < 1:
         raise InputError(f"resolution: expected positive width and height, got {resolution!r}")
     return width, height
-
-
-def _material_device(material) -> torch.device:
-    params = getattr(material, "parameters", None)
-    if callable(params):
-        for p in params():
-            return p.device
-    return torch.device("cpu")
 
 
 class _progress:

@@ -13,7 +13,7 @@ from ..core.coords import rusinkiewicz_to_io
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
-from ..metrics.hdr import material_device
+from ..core.material import material_device
 from ..metrics.tonemap import LUMINANCE
 
 
