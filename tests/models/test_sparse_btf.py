@@ -16,6 +16,13 @@ from btf_util import N_DIRS, SIZE, synthetic_btf
 PATCH = 4
 
 
+def random_queries(n: int, gen: torch.Generator) -> Query:
+    """n queries with directions mostly above the horizon and uniform uv."""
+    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
+    return Query(wi, wo, uv=torch.rand(n, 2, generator=gen))
+
+
 @pytest.fixture(scope="module")
 def trained() -> BTFDictionary:
     return train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
@@ -179,9 +186,7 @@ def test_merged_taps_equal_eq6_per_element(trained, gen):
 def test_eval_in_batches_equals_one_batch(trained, gen):
     model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
     n = 300
-    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
-    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
-    q = Query(wi, wo, uv=torch.rand(n, 2, generator=gen))
+    q = random_queries(n, gen)
     for angular in ("coefficient", "value"):
         model.cfg.angular = angular
         whole = model.eval(q, batch=n)
@@ -192,12 +197,23 @@ def test_eval_in_batches_equals_one_batch(trained, gen):
         model.eval(q, batch=0)
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA (the batched reconstruction's GPU path)")
+def test_cuda_reconstruction_gives_the_cpu_numbers(trained, gen):
+    model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10))
+    n = 500
+    q = random_queries(n, gen)
+    for angular in ("coefficient", "value"):
+        model.cfg.angular = angular
+        cpu = model.to("cpu").eval(q)
+        gpu = model.to("cuda").eval(q.to("cuda"))
+        assert gpu.device.type == "cuda"
+        torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-6)
+
+
 def test_value_space_eval_equals_the_decoded_table(trained, gen):
     model = SparseBTF.encode(synthetic_btf(11), trained, (40, 10, 10), angular="value")
     n = 64
-    wi = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
-    wo = torch.nn.functional.normalize(torch.rand(n, 3, generator=gen) - torch.tensor([0.5, 0.5, -0.3]), dim=-1)
-    q = Query(wi, wo, uv=torch.rand(n, 2, generator=gen))
+    q = random_queries(n, gen)
     assert torch.allclose(model.eval(q), model.decode().eval(q), rtol=1e-4, atol=1e-5)
     # the coefficient-space path interpolates in model space; at bin directions and texel centres the
     # weights are one-hot and both paths return the decoded table entry
