@@ -31,9 +31,8 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError
-from ..core.material import Material
+from ..core.material import Material, material_device
 from ..core.query import Query
-from ..core.material import material_device
 from ..render.scenes import import_mitsuba
 from ..warp.hemisphere import sample_cosine_hemisphere
 

@@ -11,9 +11,8 @@ import torch
 
 from ..core.coords import rusinkiewicz_to_io
 from ..core.errors import InputError
-from ..core.material import Material
+from ..core.material import Material, material_device
 from ..core.query import Query
-from ..core.material import material_device
 from ..metrics.tonemap import LUMINANCE
 
 
