@@ -149,6 +149,25 @@ def test_sample_weight_is_eval_cos_over_pdf():
     torch.testing.assert_close(s.weight[ok], ref)
 
 
+def test_sample_direction_is_the_sampled_direction_without_an_evaluation(monkeypatch):
+    """SVBRDF and LayeredMaterial draw wo and pdf without evaluating the footprint (the layered sampler asks
+    its base for a direction only); the default (here GGX) returns sample's wo and pdf."""
+    from neumat.reflectance.analytic import GGX
+
+    wi, _, uv = _directions(256, seed=4)
+    q = Query(wi, uv=uv)
+    u = torch.rand(256, 2, generator=torch.Generator().manual_seed(1))
+    for material in (_textured(), SVBRDF(_checker_set()), GGX(0.3)):
+        s = material.sample(q, u)
+        for m in (material, getattr(material, "base", None)):
+            if isinstance(m, (SVBRDF, LayeredMaterial)):
+                monkeypatch.setattr(m, "eval", lambda q: (_ for _ in ()).throw(AssertionError("evaluated")))
+        wo, pdf = material.sample_direction(q, u)
+        monkeypatch.undo()
+        assert torch.equal(wo, s.wo) and torch.equal(pdf, s.pdf)
+        assert float((pdf > 0).float().mean()) > 0.8      # most draws succeed: the comparison is not vacuous
+
+
 def test_filtering_constant_maps_changes_nothing_and_lod_is_the_isotropic_footprint():
     wi, wo, uv = _directions(64, seed=4)
     flat = LayeredMaterial(Lambert(0.4), [Coat(roughness=0.2, tint=(0.8, 0.9, 1.0))], samples=8)

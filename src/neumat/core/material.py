@@ -44,6 +44,13 @@ class Material:
         """Sample wo given q.wi and uniform numbers u (N, 2) in [0, 1)."""
         raise NotImplementedError(f"{type(self).__name__} cannot sample (can_sample = False)")
 
+    def sample_direction(self, q: Query, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """wo (N, 3) and its density (N,) (0: a failed sample) as `sample` draws them, without the weight.
+        For callers that need only the direction (mixtures, query generators); materials whose weight costs
+        an evaluation override it."""
+        s = self.sample(q, u)
+        return s.wo, s.pdf
+
     def pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) with which `sample` produces q.wo given q.wi."""
         raise NotImplementedError(f"{type(self).__name__} has no pdf (can_sample = False)")

@@ -124,7 +124,7 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
             cosine = u[:, 0] < 0.5
             v = torch.stack([torch.where(cosine, 2 * u[:, 0], 2 * u[:, 0] - 1).clamp(max=1 - 1e-7), u[:, 1]], -1)
             given_wo = replace(q, wi=q.wo, wo=None)
-            w = torch.where(cosine.unsqueeze(-1), sample_cosine_hemisphere(v), source.sample(given_wo, v).wo)
+            w = torch.where(cosine.unsqueeze(-1), sample_cosine_hemisphere(v), source.sample_direction(given_wo, v)[0])
             w = torch.where((w[:, 2] > 0).unsqueeze(-1), w, w.new_tensor([0.0, 0.0, 1.0]))  # failed samples
             p = 0.5 * source.pdf(given_wo.with_wo(w)) + 0.5 * w[:, 2] / math.pi
             return source.eval(replace(q, wi=w)) * (w[:, 2] / p).unsqueeze(-1)

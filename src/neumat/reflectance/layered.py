@@ -254,6 +254,11 @@ class LayeredMaterial(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Sample wo from the component mixture at the footprint centre (module docstring)."""
+        wo, pdf = self.sample_direction(q, u)
+        return Sample(wo, pdf, sample_weight(self.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
+
+    def sample_direction(self, q: Query, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """wo (N, 3) and pdf (N,) of `sample` without its weight (which costs a footprint evaluation)."""
         q.require("uv", who="LayeredMaterial.sample")
         probs, coats = self._mixture(q.wi, q.uv)
         cdf = probs.cumsum(-1)
@@ -263,8 +268,8 @@ class LayeredMaterial(Material):
         u0 = ((u[:, 0] - lo) / p.clamp(min=1e-12)).clamp(0, 1 - 1e-7)
         u2 = torch.stack([u0, u[:, 1]], -1)
         if self.base.can_sample:
-            drawn = self.base.sample(self._base_query(q.wi, q.uv), u2)
-            wo, base_ok = drawn.wo, drawn.pdf > 0          # the base's failed samples stay failed
+            wo, base_pdf = self.base.sample_direction(self._base_query(q.wi, q.uv), u2)
+            base_ok = base_pdf > 0                         # the base's failed samples stay failed
         else:
             wo, base_ok = sample_cosine_hemisphere(u2), torch.ones_like(pick, dtype=torch.bool)
         up = q.wi.new_tensor([0.0, 0.0, 1.0])
@@ -274,11 +279,9 @@ class LayeredMaterial(Material):
             lw = to_world(sample_ggx_reflection(safe, u2, alpha, alpha), *frame)
             wo = torch.where((pick == k).unsqueeze(-1), lw, wo)
         wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-        sq = q.with_wo(wo)
-        pdf = self._mixture_pdf(sq, probs, coats)
+        pdf = self._mixture_pdf(q.with_wo(wo), probs, coats)
         valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & ((pick < len(coats)) | base_ok)
-        pdf = torch.where(valid, pdf, torch.zeros_like(pdf))
-        return Sample(wo, pdf, sample_weight(self.eval(sq), wo, pdf, valid))
+        return wo, torch.where(valid, pdf, torch.zeros_like(pdf))
 
     def pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) of `sample`."""

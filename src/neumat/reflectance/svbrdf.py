@@ -151,6 +151,11 @@ class SVBRDF(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Sample wo: principled lobe at the footprint centre, or cosine with DEFENSIVE_PROBABILITY."""
+        wo, pdf = self.sample_direction(q, u)
+        return Sample(wo, pdf, sample_weight(self.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
+
+    def sample_direction(self, q: Query, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """wo (N, 3) and pdf (N,) of `sample` without its weight (which costs a footprint evaluation)."""
         q.require("uv", who="SVBRDF.sample")
         frame, params = self._centre_lobe(q)
         pick_cos = u[:, 0] < DEFENSIVE_PROBABILITY
@@ -160,12 +165,10 @@ class SVBRDF(Material):
         wo_lobe, pdf_lobe = principled_sample(to_local(q.wi, *frame), u2, *params)
         wo = torch.where(pick_cos.unsqueeze(-1), sample_cosine_hemisphere(u2), to_world(wo_lobe, *frame))
         wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-        sq = q.with_wo(wo)
-        pdf = self.pdf(sq)
+        pdf = self.pdf(q.with_wo(wo))
         # a failed lobe sample (pdf 0, e.g. wi below the perturbed horizon) is a failed sample
         valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & (pick_cos | (pdf_lobe > 0))
-        pdf = torch.where(valid, pdf, torch.zeros_like(pdf))
-        return Sample(wo, pdf, sample_weight(self.eval(sq), wo, pdf, valid))
+        return wo, torch.where(valid, pdf, torch.zeros_like(pdf))
 
     def pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) of `sample`."""
