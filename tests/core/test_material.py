@@ -52,3 +52,8 @@ def test_material_device_is_that_of_the_first_module_with_tensors():
     buffers_only = nn.Module()
     buffers_only.register_buffer("table", torch.zeros(2, device="meta"))
     assert material_device(buffers_only) == torch.device("meta")
+
+    class Wrapper(Material):                         # a plain Material holding modules declares its device
+        device = torch.device("meta")
+
+    assert material_device(Wrapper(), Constant()) == torch.device("meta")

@@ -118,6 +118,8 @@ def test_learned_spatially_varying_model_gets_a_sampler(kind):
     s = sampled.sample(q, torch.rand(16, 2, generator=torch.Generator().manual_seed(5)))
     assert torch.allclose(sampled.pdf(q.with_wo(s.wo)), s.pdf) and bool((s.pdf > 0).all())
     assert torch.equal(sampled.eval(q.with_wo(s.wo)), model.eval(q.with_wo(s.wo)))
+    assert sampled.device == torch.device("cpu")                  # renderers and the Mitsuba plugin query there
+    assert SampledMaterial(model.to("meta"), fit.sampler).device.type == "meta"
 
 
 def test_defensive_share_bounds_the_weights_of_a_badly_placed_proxy():

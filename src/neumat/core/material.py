@@ -64,8 +64,12 @@ class Material:
 
 
 def material_device(*materials: Material) -> torch.device:
-    """Device of the first parameter or buffer of the first material (nn.Module) that has one, else CPU."""
+    """Device of the first material that has one, else CPU: a `device` attribute (wrappers that hold modules
+    declare theirs), or an nn.Module's first parameter or buffer."""
     for material in materials:
+        declared = getattr(material, "device", None)
+        if isinstance(declared, torch.device):
+            return declared
         if isinstance(material, nn.Module):
             for t in (*material.parameters(), *material.buffers()):
                 return t.device

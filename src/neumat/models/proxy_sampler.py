@@ -35,7 +35,7 @@ from torch import nn
 from neumat.core.checks import check_finite, check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, check_sample_u, sample_weight
+from neumat.core.material import Material, check_sample_u, material_device, sample_weight
 from neumat.core.query import Query, Sample
 from neumat.fit.adam_steps import adam_steps
 from neumat.metrics.tonemap import LUMINANCE
@@ -123,6 +123,11 @@ class SampledMaterial(Material):
         self.material, self.sampler = material, sampler
         self.name = f"{getattr(material, 'name', 'material')}+proxy-sampler"
         self.spatially_varying = bool(getattr(material, "spatially_varying", False))
+
+    @property
+    def device(self) -> torch.device:
+        """Where the material (else the sampler) keeps its tensors: renderers and plugins query there."""
+        return material_device(self.material, self.sampler)
 
     def eval(self, q: Query) -> torch.Tensor:
         return self.material.eval(q)

@@ -25,7 +25,7 @@ def render(material: Material, scene: str = "sphere", light: str | Light = "env:
     light: "point", "dir", "const:VALUE", "env:PATH" or "env:sky" (`neumat.render.lights`), or a `Light`
     whose tensors live on `device`;
     resolution: (width, height) or one int for a square image; strategy: "mis", "light" or "material";
-    device: torch device (default: the material's parameters' device, else CPU). Results are
+    device: torch device (default: the material's, `core.material.material_device`, else CPU). Results are
     deterministic for a given seed, device and batch size. Keyword options go to the scene, except the
     render options `jitter` (bool, default True: sample positions uniformly over each pixel, a box
     filter; False: every sample through the pixel centre, for materials that filter by the footprint
