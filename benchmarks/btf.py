@@ -100,6 +100,7 @@ def material_names(spec: str, shared: str) -> list[str]:
 
 
 def is_procedural(name: str) -> bool:
+    """Whether `name` is a procedural material ('class' or 'class~variant')."""
     try:
         parse_material(name)
     except InputError:
@@ -381,7 +382,7 @@ def main():
     ap.add_argument("--train-seeds", type=int, default=1,
                     help="also train on the two training kinds generated with seeds 2..S")
     ap.add_argument("--train-variants", type=int, default=0,
-                    help="also train on variants 1..N of every procedural class (other materials of the class, as "
+                    help="also train on variants 1..N of the --variant-classes (other materials of each class, as "
                          "the paper's training set covers UBO2014's classes); test materials stay unseen")
     ap.add_argument("--variant-classes", default=",".join(KINDS), help="the classes --train-variants draws from")
     ap.add_argument("--train-shared", default="", help="also train on tiles of the PBR sets in this folder")
