@@ -100,6 +100,13 @@ def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     return (wi[:, 2] > 0) & (wo[:, 2] > 0)
 
 
+def sample_from_direction(material: Material, q: Query, u: torch.Tensor) -> Sample:
+    """`material.sample` for materials that implement `sample_direction`: the drawn wo and pdf, weighted by one
+    evaluation (failed draws, pdf 0, get weight 0)."""
+    wo, pdf = material.sample_direction(q, u)
+    return Sample(wo, pdf, sample_weight(material.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
+
+
 def sample_weight(f: torch.Tensor, wo: torch.Tensor, pdf: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """weight = f * cos(theta_o) / pdf, zero where `valid` is false or pdf is 0. Shapes (N,3),(N,3),(N,),(N,)."""
     ok = valid & (pdf > 0)

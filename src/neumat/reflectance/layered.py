@@ -34,7 +34,7 @@ import torch
 from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.frames import normal_map_frame, to_local, to_world
-from ..core.material import Material, sample_weight
+from ..core.material import Material, sample_from_direction
 from ..core.query import Query, Sample
 from ..nn.latent_texture import bilinear
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
@@ -254,8 +254,7 @@ class LayeredMaterial(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Sample wo from the component mixture at the footprint centre (module docstring)."""
-        wo, pdf = self.sample_direction(q, u)
-        return Sample(wo, pdf, sample_weight(self.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
+        return sample_from_direction(self, q, u)
 
     def sample_direction(self, q: Query, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """wo (N, 3) and pdf (N,) of `sample` without its weight (which costs a footprint evaluation)."""
