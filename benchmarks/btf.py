@@ -72,7 +72,7 @@ from neumat.models.sparse_btf import SparseBTF, mse
 from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space, train_dictionary
 from neumat.reflectance.btf import direction_set
 from neumat.reflectance.btf_generate import generate_btf, texture_tile
-from neumat.reflectance.procedural_texture import KINDS, material_name, parse_material, procedural_texture_set
+from neumat.reflectance.procedural_texture import KINDS, RELIEF, material_name, parse_material, procedural_texture_set
 from neumat.testing.parity import glsl_evals_per_second, opengl_available
 
 
@@ -113,7 +113,7 @@ def procedural_btf(name: str, size: int, seed: int, args, dirs):
     4 x --relief)."""
     kind, variant = parse_material(name)
     return generate_btf(procedural_texture_set(kind, size, seed=seed, variant=variant), dirs, dirs,
-                        relief=args.relief * 4, spp=args.spp)
+                        relief=args.relief * RELIEF, spp=args.spp)
 
 
 def texture_set_btf(ts, size: int, crop: int, at: int, args, dirs):

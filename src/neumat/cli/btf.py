@@ -72,12 +72,12 @@ def register_data(data_app: typer.Typer) -> None:
         from ..io.texture_set import load_texture_set
         from ..reflectance.btf import direction_set
         from ..reflectance.btf_generate import generate_btf, texture_tile
-        from ..reflectance.procedural_texture import parse_material, procedural_texture_set
+        from ..reflectance.procedural_texture import RELIEF, parse_material, procedural_texture_set
 
         def go():
             if str(textures).startswith("procedural:"):
                 kind, variant = parse_material(str(textures).removeprefix("procedural:"))
-                tile, tile_relief = procedural_texture_set(kind, size, seed=1, variant=variant), 4.0
+                tile, tile_relief = procedural_texture_set(kind, size, seed=1, variant=variant), RELIEF
             else:
                 tile, tile_relief = texture_tile(load_texture_set(textures), size, crop or None)
             d = direction_set(int(directions) if directions.isdigit() else directions)

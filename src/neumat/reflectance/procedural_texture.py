@@ -17,6 +17,8 @@ from ..core.errors import InputError
 from ..io.texture_set import TextureSet, normals_from_height
 
 KINDS = ("bumps", "weave", "bricks", "dents", "ridges")
+#: default relief of a procedural material's BTF: texels of displacement per height unit (CLI, benchmarks)
+RELIEF = 4.0
 
 
 def parse_material(spec: str) -> tuple[str, int]:
