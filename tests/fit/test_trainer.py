@@ -14,6 +14,7 @@ from neumat.core.query import Query
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.recipe import Recipe
 from neumat.fit.trainer import fit
+from neumat.models.base import LearnedMaterial
 from neumat.models.neubrdf import NeuBRDF
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
@@ -32,7 +33,7 @@ class Blinn(Material):
         return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
 
 
-class Constant(nn.Module, Material):
+class Constant(LearnedMaterial):
     """A learnable constant BRDF exp(p) (3 parameters), recording the hook calls it receives."""
 
     name = "constant"

@@ -44,3 +44,9 @@ class EMA:
 
     def load_state_dict(self, state: dict) -> None:
         self.shadow.load_state_dict(state)
+
+    @torch.no_grad()
+    def reset(self, model: nn.Module) -> None:
+        """Restart the average at the current parameters and buffers of `model` (after a phase changed them
+        outside the optimiser, e.g. baked latents)."""
+        self.shadow.load_state_dict(model.state_dict())

@@ -1,14 +1,18 @@
 """A training recipe: optimiser, schedule, batch, loss, query distribution and seed of one fit.
 
-Each model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>`; `recipe_for`
-finds them. Recipes are plain dataclasses, so `config_from_dict(Recipe, ...)` / `config_to_dict` turn
-them into JSON for model files and `--set` overrides.
+Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>` ('-' ->
+'_'); that module may also define `phases(ctx) -> list[Phase]` (`neumat.fit.phase`) when the model trains in
+stages. `recipe_for` / `phases_for` find them, `recipe_names` lists every model that has one. Recipes are
+plain dataclasses, so `config_from_dict(Recipe, ...)` / `config_to_dict` turn them into JSON for model files,
+checkpoints and `--set` overrides.
 """
 from __future__ import annotations
 
 import importlib
 import math
-from dataclasses import dataclass, replace
+import pkgutil
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 from ..core.checks import check_int, check_number
 from ..core.errors import InputError, UnknownNameError
@@ -46,12 +50,19 @@ class Recipe:
     log_every: int = 50
     """Steps between history records and progress-bar loss updates."""
     schedule: str = "step"
-    """Learning-rate schedule: "step" (lr * lr_decay^(step // lr_decay_every)) or "cosine" (from lr down to
-    lr_min at the last step)."""
+    """Learning-rate schedule: "step" (lr * lr_decay^(step // lr_decay_every)), "cosine" (from lr down to
+    lr_min at the last step) or "halves" (lr halved at 50 % and again at 75 % of the steps). In a fit of
+    several phases, each phase runs the schedule over its own steps."""
     lr_min: float = 0.0
     """Final learning rate of the "cosine" schedule."""
     checkpoint_every: int = 1000
     """Steps between checkpoints when `fit(..., checkpoint=path)` is given (one is also written at the end)."""
+    phase_split: tuple[float, ...] = ()
+    """Fractions of `steps` given to each phase of a staged fit, in the order of the recipe module's phases
+    (the last phase takes the rounding rest); empty for a single-phase fit."""
+    options: dict[str, Any] = field(default_factory=dict)
+    """Model-specific training options with their defaults (e.g. neural-appearance's "directions"); `--set`
+    changes them by name, unknown names raise."""
 
 
 def check_recipe(r: Recipe) -> Recipe:
@@ -67,8 +78,14 @@ def check_recipe(r: Recipe) -> Recipe:
         raise InputError(f"Recipe.ema: expected a weight in [0, 1], got {r.ema!r}")
     if len(r.betas) != 2 or not all(0 <= b < 1 for b in r.betas):
         raise InputError(f"Recipe.betas: expected two numbers in [0, 1), got {r.betas!r}")
-    if r.schedule not in ("step", "cosine"):
-        raise InputError(f"Recipe.schedule: expected 'step' or 'cosine', got {r.schedule!r}")
+    if r.schedule not in ("step", "cosine", "halves"):
+        raise InputError(f"Recipe.schedule: expected 'step', 'cosine' or 'halves', got {r.schedule!r}")
+    if not all(isinstance(f, (int, float)) and math.isfinite(f) and 0 <= f <= 1 for f in r.phase_split) \
+            or sum(r.phase_split) > 1 + 1e-9:
+        raise InputError(f"Recipe.phase_split: expected fractions in [0, 1] summing to at most 1, got "
+                         f"{list(r.phase_split)}")
+    if not isinstance(r.options, dict):
+        raise InputError(f"Recipe.options: expected a dict, got {type(r.options).__name__}")
     return r
 
 
@@ -77,21 +94,38 @@ def learning_rate(r: Recipe, step: int, total_steps: int) -> float:
     if r.schedule == "cosine":
         t = step / max(total_steps - 1, 1)
         return r.lr_min + (r.lr - r.lr_min) * 0.5 * (1 + math.cos(math.pi * t))
+    if r.schedule == "halves":
+        return r.lr * 0.5 ** ((step >= total_steps // 2) + (step >= 3 * total_steps // 4))
     if r.lr_decay_every <= 0:
         return r.lr
     return r.lr * r.lr_decay ** (step // r.lr_decay_every)
 
 
-def recipe_for(model_name: str) -> Recipe:
-    """A copy of the default recipe of model `model_name`: `neumat.fit.recipes.<name, '-' -> '_'>.RECIPE`."""
+def _recipe_module(model_name: str):
     module = f"neumat.fit.recipes.{model_name.replace('-', '_')}"
     try:
-        mod = importlib.import_module(module)
+        return importlib.import_module(module)
     except ModuleNotFoundError as e:
         if e.name != module:
             raise
         raise UnknownNameError(f"no training recipe for model {model_name!r} (expected module {module})") from None
+
+
+def recipe_for(model_name: str) -> Recipe:
+    """A copy of the default recipe of model `model_name`: `neumat.fit.recipes.<name, '-' -> '_'>.RECIPE`."""
+    mod = _recipe_module(model_name)
     recipe = getattr(mod, "RECIPE", None)
     if not isinstance(recipe, Recipe):
-        raise InputError(f"{module}.RECIPE: expected a neumat.fit.recipe.Recipe, got {type(recipe).__name__}")
-    return replace(recipe)  # a copy: callers may edit it
+        raise InputError(f"{mod.__name__}.RECIPE: expected a neumat.fit.recipe.Recipe, got {type(recipe).__name__}")
+    return replace(recipe, options=dict(recipe.options))  # a copy: callers may edit it
+
+
+def phases_for(model_name: str) -> Callable | None:
+    """The `phases(ctx)` builder of model `model_name`'s recipe module, or None for a single online phase."""
+    return getattr(_recipe_module(model_name), "phases", None)
+
+
+def recipe_names() -> list[str]:
+    """Registry names of every model with a recipe module ('_' -> '-')."""
+    package = importlib.import_module("neumat.fit.recipes")
+    return sorted(info.name.replace("_", "-") for info in pkgutil.iter_modules(package.__path__))

@@ -1,21 +1,25 @@
-"""Fit any learned model to any source Material with online targets.
+"""The one trainer: fit any learned model to its source, in one or several phases.
 
-Every step draws `batch_size` queries from the recipe's query sampler, evaluates the source on them
-without gradient (targets), evaluates the model, and takes one Adam step on the recipe's loss, with the
-learning rate of the recipe's schedule. Optional: EMA of the parameters (the EMA copy becomes the fitted
-model), gradient-norm clipping, checkpoints (model, optimiser, EMA, loss state, step, history, random
-number generator states) from which `resume=True` continues bit for bit as if never interrupted.
+A fit is a list of phases (`neumat.fit.phase`) from the model's recipe module: one online phase for most
+models (every step draws `batch_size` queries from the recipe's query sampler, evaluates the source on them
+without gradient and takes one optimiser step on the recipe's loss), or the stages a paper trains in
+(encoder then latents, appearance then sampler, dictionary then coding). All phases share one loop: the
+learning-rate schedule (per phase), optional EMA of the parameters (the EMA copy becomes the fitted model),
+gradient-norm clipping, a guard that skips a step whose gradients are not finite and halves the learning
+rate from then on, progress (a bar on a terminal, plain lines otherwise), and checkpoints (model,
+optimiser, EMA, loss state, step, history, random number generator states) from which `resume=True`
+continues bit for bit as if never interrupted, in whichever phase the checkpoint was written.
 
-Models may define `on_step(step, total_steps)` (annealing, freezing); it is called before every step on
-the model and on its EMA copy. They may also define `init_from_targets(target (N, C))`, called once before
-the first step of a fresh fit (not on resume) with the source's values on one batch of queries drawn with
-seed `recipe.seed + 1`, to start the model at the data's scale, and `optimizer(lr, betas, eps)` to bring
-their own optimiser; the schedule's learning rate is multiplied by a param group's "lr_scale" (default 1).
+Model hooks (declared by `neumat.models.base.LearnedMaterial`): `on_step(step, total_steps)` before every
+step (on the model and its EMA copy), `init_from_targets(target)` once on a fresh online fit, and
+`optimizer(lr, betas, eps)` for a model that brings its own optimiser; a param group's "lr_scale"
+(default 1) multiplies the schedule's learning rate.
 """
 from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -25,155 +29,184 @@ import torch
 from torch import nn
 
 from ..core.config import config_to_dict
-from ..core.errors import DataFormatError, InputError
-from ..core.material import Material
+from ..core.errors import DataFormatError, InputError, UnknownNameError
+from ..models.base import LearnedMaterial
 from .ema import EMA
-from .losses import LOSSES
-from .query_samplers import QUERY_SAMPLERS
-from .recipe import Recipe, check_recipe, learning_rate, recipe_for
+from .phase import FitContext, Phase, model_name, online_phase
+from .recipe import Recipe, check_recipe, learning_rate, phases_for, recipe_for
+
+#: steps whose gradients were not finite, in a row, after which a fit gives up
+MAX_SKIPPED_STEPS = 20
 
 
 @dataclass
 class FitResult:
     """model: the fitted model (the EMA weights when the recipe uses an EMA), in eval mode.
-    history: one record {"step", "loss", "lr", "seconds"} per `log_every` steps (loss averaged over them).
-    seconds: training time (summed over resumed runs). steps: steps taken in total."""
+    history: one record {"step", "phase", "loss", <each named loss>, "lr", "seconds"} per `log_every` steps
+    and at the end of each phase (losses averaged over the steps since the last record).
+    seconds: training time (summed over resumed runs). steps: steps taken in total. recipe: the recipe run
+    (with the steps actually taken)."""
 
     model: nn.Module
     history: list[dict]
     seconds: float
     steps: int
+    recipe: Recipe | None = None
 
 
-def _describe(source: Any) -> str:
-    return source.describe() if hasattr(source, "describe") else type(source).__name__
-
-
-def check_source(model: nn.Module, source: Material) -> None:
-    """Raise InputError if `source` cannot supervise `model` (no eval, spatial variation or sphere mismatch)."""
-    if not callable(getattr(source, "eval", None)) or isinstance(source, (str, Path)):
-        raise InputError(f"fit: source must be a Material (with eval(q)), got {type(source).__name__}; "
-                         "open files and specs with neumat.io.open_material.open_material")
-    mname = getattr(model, "name", type(model).__name__)
-    if getattr(source, "spatially_varying", False) and not getattr(model, "spatially_varying", False):
-        raise InputError(f"fit: source {_describe(source)!r} is spatially varying, but model {mname!r} is a "
-                         "plain BRDF (give it a neural texture / latent texture to fit spatial variation)")
-    if getattr(source, "full_sphere", False) != getattr(model, "full_sphere", False):
-        kind = "spans the whole sphere" if getattr(source, "full_sphere", False) else "is an upper-hemisphere BRDF"
-        raise InputError(f"fit: source {_describe(source)!r} {kind}, but model {mname!r} does not match "
-                         f"(model full_sphere = {getattr(model, 'full_sphere', False)})")
-
-
-def fit(model: nn.Module, source: Material, recipe: Recipe | None = None, *, steps: int | None = None,
+def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: int | None = None,
         device: str | torch.device | None = None, progress: bool = True, checkpoint: str | Path | None = None,
         resume: bool = False, callback: Callable[[dict], None] | None = None, loss: str | nn.Module | None = None,
         queries: str | Callable | None = None) -> FitResult:
     """Fit `model` to `source` and return a FitResult; `model` itself is trained in place (and receives the
     EMA weights at the end when the recipe uses an EMA).
 
-    recipe:     defaults to `recipe_for(model.name)`; `steps` overrides recipe.steps.
+    source:     a Material for online fits; what the model's recipe phases read otherwise (translucent
+                observations, a BTF table).
+    recipe:     defaults to `recipe_for(model.name)`; `steps` overrides recipe.steps (split over the phases by
+                recipe.phase_split).
     device:     torch device for the model, the queries and the targets; default: the model's.
-    checkpoint: file written every `recipe.checkpoint_every` steps and at the end; with `resume=True` an
-                existing file is loaded and the fit continues from it (it must have the same recipe).
+    checkpoint: file written every `recipe.checkpoint_every` steps, at the end of every phase and at the end;
+                with `resume=True` an existing file is loaded and the fit continues from it (it must have the
+                same recipe).
     callback:   called with every history record, after the checkpoint of that step.
     loss:       a LOSSES name or a loss module, overriding recipe.loss.
     queries:    a QUERY_SAMPLERS name or a `draw(n, generator, device) -> Query`, overriding recipe.queries.
     """
-    if not isinstance(model, nn.Module) or not isinstance(model, Material):
-        raise InputError(f"fit: model must be a torch nn.Module implementing neumat.Material, "
-                         f"got {type(model).__name__}")
-    recipe = replace(recipe if recipe is not None else recipe_for(getattr(model, "name", type(model).__name__)))
+    if not isinstance(model, LearnedMaterial):
+        raise InputError(f"fit: model must be a neumat.models.base.LearnedMaterial (a torch nn.Module "
+                         f"implementing neumat.Material), got {type(model).__name__}")
+    name = model_name(model)
+    recipe = replace(recipe if recipe is not None else recipe_for(name))
     if steps is not None:
         recipe.steps = steps
     check_recipe(recipe)
-    check_source(model, source)
     if resume and checkpoint is None:
         raise InputError("fit: resume=True needs a checkpoint path")
     dev = torch.device(device) if device is not None else _model_device(model)
     model.to(dev).train()
-    loss_fn = LOSSES.get(loss or recipe.loss)() if loss is None or isinstance(loss, str) else loss
-    if isinstance(loss_fn, nn.Module):
-        loss_fn.to(dev)
-    if queries is None or isinstance(queries, str):
-        draw = QUERY_SAMPLERS.get(queries or recipe.queries)(source, model)
-    else:
-        draw = queries
-    params = [p for p in model.parameters() if p.requires_grad]
-    if not params:
-        raise InputError(f"fit: model {getattr(model, 'name', type(model).__name__)!r} has no trainable parameters")
-    # a model may bring its own optimiser (e.g. NeuBRDF's row-sparse Adam for codebook logits)
-    make_optimizer = getattr(model, "optimizer", None)
-    opt = (make_optimizer(recipe.lr, tuple(recipe.betas), recipe.eps) if callable(make_optimizer)
-           else torch.optim.Adam(params, lr=recipe.lr, betas=tuple(recipe.betas), eps=recipe.eps))
-    resuming = resume and Path(checkpoint).is_file()
-    init = getattr(model, "init_from_targets", None)
-    if callable(init) and not resuming:
-        # a model may set its output scale from the data before the first step (NeuBRDF: see its method)
-        q0 = draw(recipe.batch_size, torch.Generator(device=dev).manual_seed(recipe.seed + 1), dev)
-        with torch.no_grad():
-            init(source.eval(q0).to(dev))
-    ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
     gen = torch.Generator(device=dev).manual_seed(recipe.seed)
-    state = {"step": 0, "history": [], "seconds": 0.0, "running": torch.zeros((), device=dev)}
+    resuming = resume and Path(checkpoint).is_file()
+    ctx = FitContext(model, source, recipe, dev, gen, resuming, loss, queries)
+    try:
+        build = phases_for(name)
+    except UnknownNameError:  # a model without a recipe module, fitted with an explicit recipe
+        build = None
+    phases = build(ctx) if build is not None else [online_phase(ctx)]
+    ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
+    state = {"step": 0, "history": [], "seconds": 0.0, "running": {}, "backoff": 0, "optimizer": None}
     if resuming:
-        state = _load_checkpoint(checkpoint, recipe, model, opt, ema, loss_fn, gen)
-    total = recipe.steps
+        state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen)
+    total = sum(p.steps for p in phases)
     hook = getattr(model, "on_step", None)
     ema_hook = getattr(ema.shadow, "on_step", None) if ema is not None else None
-    running = state["running"].to(dev)  # loss summed since the last history record
     t0 = time.perf_counter() - state["seconds"]
-    with _Progress(progress, total, state["step"], getattr(model, "name", "model")) as bar:
-        for step in range(state["step"], total):
-            lr = learning_rate(recipe, step, total)
-            for group in opt.param_groups:
-                group["lr"] = lr * group.get("lr_scale", 1.0)
-            if hook is not None:
-                hook(step, total)
-                if ema_hook is not None:
-                    ema_hook(step, total)
-            q = draw(recipe.batch_size, gen, dev)
-            with torch.no_grad():
-                target = source.eval(q)
-            if not bool(torch.isfinite(target).all()):
-                raise InputError(f"fit: source {_describe(source)!r} returned non-finite values (NaN or inf) "
-                                 f"at step {step}; fix or clamp the source")
-            pred = model.eval(q)
-            value = loss_fn(pred, target.to(pred.dtype), q)
-            opt.zero_grad(set_to_none=True)
-            value.backward()
-            if recipe.grad_clip > 0:
-                _clip_gradients(params, recipe.grad_clip)
-            opt.step()
-            if ema is not None:
-                ema.update(model)
-            running += value.detach()
-            done = step + 1
-            bar.advance()
-            if done % recipe.log_every == 0 or done == total:
-                n = done - (state["history"][-1]["step"] if state["history"] else 0)
-                record = {"step": done, "loss": running.item() / n, "lr": lr, "seconds": time.perf_counter() - t0}
-                running.zero_()
-                if not math.isfinite(record["loss"]):
-                    raise InputError(f"fit: the loss became non-finite by step {done} (learning rate {lr:g} "
-                                     "too high?)")
-                state["history"].append(record)
-                bar.show_loss(record["loss"])
-            if checkpoint is not None and (done % recipe.checkpoint_every == 0 or done == total):
-                state.update(step=done, seconds=time.perf_counter() - t0, running=running)
-                _save_checkpoint(checkpoint, recipe, model, opt, ema, loss_fn, gen, state)
-            if callback is not None and state["history"] and state["history"][-1]["step"] == done:
-                callback(state["history"][-1])
+    with _Progress(progress, total, state["step"], name) as bar:
+        begin = 0
+        for index, phase in enumerate(phases):
+            end = begin + phase.steps
+            if state["step"] >= end:
+                begin = end
+                continue
+            opt = _optimizer(phase, recipe)
+            if opt is not None and state["optimizer"] is not None:
+                opt.load_state_dict(state["optimizer"])
+            state["optimizer"] = None
+            running: dict[str, torch.Tensor] = {k: v.to(dev) for k, v in state["running"].items()}
+            skipped = 0
+            for step in range(max(state["step"], begin), end):
+                lr = learning_rate(recipe, step - begin, phase.steps) * 0.5 ** state["backoff"]
+                if opt is not None:
+                    for group in opt.param_groups:
+                        group["lr"] = lr * group.get("lr_scale", 1.0)
+                if hook is not None:
+                    hook(step, total)
+                    if ema_hook is not None:
+                        ema_hook(step, total)
+                values = phase.losses(step - begin)
+                finite = True
+                if opt is not None:
+                    opt.zero_grad(set_to_none=True)
+                    sum(values.values()).backward()
+                    norm = _gradient_norm(phase.params)
+                    finite = bool(torch.isfinite(norm))
+                    if finite:
+                        skipped = 0
+                        if recipe.grad_clip > 0:
+                            _scale_gradients(phase.params, norm, recipe.grad_clip)
+                        opt.step()
+                        if ema is not None:
+                            ema.update(model)
+                    else:  # skip the step, halve the learning rate from now on
+                        opt.zero_grad(set_to_none=True)
+                        skipped += 1
+                        state["backoff"] += 1
+                        if skipped > MAX_SKIPPED_STEPS:
+                            raise InputError(f"fit {name}: the loss or its gradients were not finite at {skipped} "
+                                             f"steps in a row up to step {step + 1} (phase {phase.name!r}, learning "
+                                             f"rate backed off to {lr / 2:g}); lower the learning rate or check "
+                                             "the source")
+                if finite:
+                    for k, v in values.items():
+                        running[k] = running.get(k, torch.zeros((), device=dev)) + v.detach()
+                    running["_steps"] = running.get("_steps", torch.zeros((), device=dev)) + 1
+                done = step + 1
+                bar.advance()
+                if done == end and phase.after is not None:
+                    phase.after()
+                    if ema is not None:
+                        ema.reset(model)
+                if done % recipe.log_every == 0 or done == end:
+                    record = _record(running, done, phase.name, lr, time.perf_counter() - t0)
+                    state["history"].append(record)
+                    bar.show(record, total)
+                if checkpoint is not None and (done % recipe.checkpoint_every == 0 or done == end):
+                    state.update(step=done, seconds=time.perf_counter() - t0, running=running,
+                                 optimizer=opt.state_dict() if opt is not None and done < end else None)
+                    _save_checkpoint(checkpoint, recipe, model, ema, phases, gen, state)
+                if callback is not None and state["history"] and state["history"][-1]["step"] == done:
+                    callback(state["history"][-1])
+            state["step"] = end
+            state["running"] = {}
+            begin = end
     seconds = time.perf_counter() - t0
     if ema is not None:
         model.load_state_dict(ema.state_dict())
     model.train(False)
-    return FitResult(model=model, history=state["history"], seconds=seconds, steps=total)
+    return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
+                     recipe=replace(recipe, steps=total))
 
 
-def _clip_gradients(params: list[torch.Tensor], max_norm: float) -> None:
-    """Scale all gradients (dense or sparse) so that their joint 2-norm is at most `max_norm`."""
+def _record(running: dict, done: int, phase: str, lr: float, seconds: float) -> dict:
+    """One history record from the running sums (which it resets): each named loss averaged over the steps
+    taken since the last record, "loss" their sum (NaN when every step since was skipped)."""
+    n = float(running.pop("_steps", torch.zeros(())).item())
+    losses = {k: v.item() / n if n else math.nan for k, v in running.items()}
+    running.clear()
+    extra = {k: v for k, v in losses.items() if k != "loss"}
+    loss = losses["loss"] if "loss" in losses and not extra else sum(losses.values()) if n else math.nan
+    return {"step": done, "phase": phase, "loss": loss, **extra, "lr": lr, "seconds": seconds}
+
+
+def _optimizer(phase: Phase, recipe: Recipe) -> torch.optim.Optimizer | None:
+    if phase.params is None:
+        return None
+    if not phase.params:
+        raise InputError(f"fit: phase {phase.name!r} has no trainable parameters")
+    make = phase.optimizer or (lambda params, lr, betas, eps: torch.optim.Adam(params, lr=lr, betas=betas, eps=eps))
+    return make(phase.params, recipe.lr, tuple(recipe.betas), recipe.eps)
+
+
+def _gradient_norm(params: list[torch.Tensor]) -> torch.Tensor:
+    """Joint 2-norm of all gradients (dense or sparse); 0 when there are none."""
     grads = [p.grad.coalesce().values() if p.grad.is_sparse else p.grad for p in params if p.grad is not None]
-    total = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))
+    if not grads:
+        return torch.zeros(())
+    return torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))
+
+
+def _scale_gradients(params: list[torch.Tensor], total: torch.Tensor, max_norm: float) -> None:
+    """Scale all gradients so that their joint 2-norm `total` becomes at most `max_norm`."""
     scale = (max_norm / (total + 1e-6)).clamp(max=1.0)
     for p in params:
         if p.grad is not None:
@@ -193,22 +226,27 @@ def _rng_states(gen: torch.Generator) -> dict:
     return states
 
 
-def _save_checkpoint(path, recipe, model, opt, ema, loss_fn, gen, state) -> None:
-    blob = {"recipe": config_to_dict(recipe), "model": model.state_dict(), "optimizer": opt.state_dict(),
+def _save_checkpoint(path, recipe, model, ema, phases, gen, state) -> None:
+    blob = {"recipe": config_to_dict(recipe), "model": model.state_dict(),
             "ema": ema.state_dict() if ema is not None else None,
-            "loss": loss_fn.state_dict() if isinstance(loss_fn, nn.Module) else None,
+            "stateful": [[m.state_dict() for m in p.stateful] for p in phases],
             "rng": _rng_states(gen), **state}
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(blob, tmp)
-    os.replace(tmp, path)  # never leave a half-written checkpoint
+    try:
+        torch.save(blob, tmp)
+        os.replace(tmp, path)  # never leave a half-written checkpoint
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
-def _load_checkpoint(path, recipe, model, opt, ema, loss_fn, gen) -> dict:
+def _load_checkpoint(path, recipe, model, ema, phases, gen) -> dict:
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - any unreadable file is reported the same way
         raise DataFormatError(f"checkpoint {str(path)!r}: cannot be read ({e})") from None
+    if not isinstance(blob, dict) or "stateful" not in blob:
+        raise DataFormatError(f"checkpoint {str(path)!r}: not a checkpoint of this neumat version's trainer")
     saved = dict(blob["recipe"])
     now = config_to_dict(recipe)
     if saved != now:
@@ -216,47 +254,71 @@ def _load_checkpoint(path, recipe, model, opt, ema, loss_fn, gen) -> dict:
         raise InputError(f"checkpoint {str(path)!r} was written with a different recipe (fields {', '.join(diff)}); "
                          "resume with the same recipe or start a new checkpoint")
     model.load_state_dict(blob["model"])
-    opt.load_state_dict(blob["optimizer"])
     if ema is not None:
         ema.load_state_dict(blob["ema"])
-    if isinstance(loss_fn, nn.Module) and blob["loss"] is not None:
-        loss_fn.load_state_dict(blob["loss"])
+    for phase, states in zip(phases, blob["stateful"]):
+        for module, st in zip(phase.stateful, states):
+            module.load_state_dict(st)
     rng = blob["rng"]
     gen.set_state(rng["queries"])
     torch.set_rng_state(rng["torch"])
     if "cuda" in rng and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(rng["cuda"])
-    return {"step": blob["step"], "history": blob["history"], "seconds": blob["seconds"],
-            "running": blob["running"]}
+    return {k: blob[k] for k in ("step", "history", "seconds", "running", "backoff", "optimizer")}
+
+
+#: a fit whose estimated time exceeds this many seconds says so after its first steps
+LONG_FIT_SECONDS = 15 * 60
 
 
 class _Progress:
-    """A rich progress bar with the live loss, or nothing when `enabled` is false."""
+    """Progress of a fit on stderr: a rich bar with the live loss on a terminal, a plain line every 30 s (and at
+    the end of each phase) otherwise; nothing when `enabled` is false. Either way, a fit whose estimated time
+    exceeds LONG_FIT_SECONDS says so once, after its first steps, with the estimate."""
 
     def __init__(self, enabled: bool, total: int, start: int, name: str) -> None:
-        self.enabled = enabled
-        if enabled:
+        self.enabled, self.total, self.done, self.name = enabled, total, start, name
+        self.terminal = enabled and sys.stderr.isatty()
+        self.t0 = self.last_line = time.perf_counter()
+        self.start, self.warned = start, False
+        if self.terminal:
             from rich.console import Console
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
                                        TimeRemainingColumn)
             self.bar = Progress(TextColumn(f"fit {name}"), BarColumn(), MofNCompleteColumn(),
-                                TextColumn("loss {task.fields[loss]}"), TimeElapsedColumn(), TimeRemainingColumn(),
-                                console=Console(stderr=True))
-            self.task = self.bar.add_task("fit", total=total, completed=start, loss="-")
+                                TextColumn("{task.fields[phase]} loss {task.fields[loss]}"), TimeElapsedColumn(),
+                                TimeRemainingColumn(), console=Console(stderr=True))
+            self.task = self.bar.add_task("fit", total=total, completed=start, loss="-", phase="")
 
     def __enter__(self) -> "_Progress":
-        if self.enabled:
+        if self.terminal:
             self.bar.__enter__()
         return self
 
     def __exit__(self, *exc) -> None:
-        if self.enabled:
+        if self.terminal:
             self.bar.__exit__(*exc)
 
-    def advance(self) -> None:
-        if self.enabled:
-            self.bar.advance(self.task)
+    def _eta(self) -> float:
+        rate = (time.perf_counter() - self.t0) / max(self.done - self.start, 1)
+        return rate * (self.total - self.done)
 
-    def show_loss(self, loss: float) -> None:
-        if self.enabled:
-            self.bar.update(self.task, loss=f"{loss:.4g}")
+    def advance(self) -> None:
+        self.done += 1
+        if self.terminal:
+            self.bar.advance(self.task)
+        if self.enabled and not self.warned and (self.done - self.start >= 20 or time.perf_counter() - self.t0 > 10):
+            self.warned = True
+            eta = self._eta()
+            if eta > LONG_FIT_SECONDS:
+                print(f"fit {self.name}: about {eta / 60:.0f} minutes to go at this speed ({self.total} steps); "
+                      "pass --steps for a shorter run", file=sys.stderr, flush=True)
+
+    def show(self, record: dict, total: int) -> None:
+        if self.terminal:
+            self.bar.update(self.task, loss=f"{record['loss']:.4g}", phase=record["phase"])
+        elif self.enabled and (time.perf_counter() - self.last_line > 30 or record["step"] == total):
+            self.last_line = time.perf_counter()
+            print(f"fit {self.name}: step {record['step']}/{total} ({record['phase']}) loss {record['loss']:.4g}, "
+                  f"{time.perf_counter() - self.t0:.0f} s, about {self._eta():.0f} s to go", file=sys.stderr,
+                  flush=True)

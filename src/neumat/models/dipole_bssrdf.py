@@ -24,12 +24,11 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.reflectance.microfacet import fresnel_dielectric
@@ -88,10 +87,12 @@ def dipole_total_reflectance(sigma_a: torch.Tensor, sigma_s: torch.Tensor, eta: 
 
 
 @MODELS.register("dipole-bssrdf")
-class DipoleBSSRDF(nn.Module, Material):
+class DipoleBSSRDF(LearnedMaterial):
     """S_hat(wi; x, wo) of a homogeneous object by the dipole (see the module docstring)."""
 
     name = "dipole-bssrdf"
+    paper = "Jensen et al. 2001 dipole BSSRDF: baseline of NeuPreSS (TG et al.)"
+    source_kinds = ("translucent",)
     full_sphere = True
     can_sample = False
     Config = Config
@@ -155,7 +156,7 @@ class DipoleBSSRDF(nn.Module, Material):
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
 
-    def size_bytes(self, precision: str = "fp32") -> int:
+    def size_bytes(self, precision: str = "fp16") -> int:
         """The six coefficients (the quadrature is geometry, not material)."""
         return storage_bytes(6 * float_bits(precision))
 

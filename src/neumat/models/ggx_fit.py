@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_shape
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, sample_weight, upper_hemisphere
+from neumat.core.material import sample_weight, upper_hemisphere
 from neumat.core.query import Query, Sample
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.reflectance.microfacet import fresnel_schlick, microfacet_brdf
@@ -83,10 +83,12 @@ def _logit(p: float) -> float:
 
 
 @MODELS.register("ggx")
-class GGXFit(nn.Module, Material):
+class GGXFit(LearnedMaterial):
     """Diffuse + GGX (Schlick) reflectance with learnable parameters (see module docstring)."""
 
     name = "ggx"
+    paper = "fitted GGX microfacet BRDF (Walter et al. 2007): baseline of NeuBRDF and NBRDF"
+    source_kinds = ("brdf",)
     can_sample = True
     Config = Config
 

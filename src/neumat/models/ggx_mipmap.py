@@ -23,14 +23,14 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 from torch import nn
-
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.frames import frame_from_normal_tangent, to_local
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid, check_footprint
@@ -62,10 +62,12 @@ class Config:
 
 
 @MODELS.register("ggx-mipmap")
-class GGXMipmap(nn.Module, Material):
+class GGXMipmap(LearnedMaterial):
     """Filtered GGX parameters evaluated analytically (see module docstring); eval -> (N, 3)."""
 
     name = "ggx-mipmap"
+    paper = "GGX parameter mip-map: baseline of the multi-scale gated model (Timonen et al. 2025)"
+    source_kinds = ("svbrdf",)
     can_sample = False
     spatially_varying = True
     Config = Config
@@ -127,7 +129,7 @@ class GGXMipmap(nn.Module, Material):
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
 
-    def size_bytes(self, precision: str = "fp32") -> int:
+    def size_bytes(self, precision: str = "fp16") -> int:
         """Stored size: the 12-channel pyramid, all levels."""
         return storage_bytes(self.spatial.num_parameters() * float_bits(precision))
 

@@ -26,13 +26,13 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.models.spatial_latent import SpatialLatent
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
@@ -112,10 +112,12 @@ def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) ->
 
 
 @MODELS.register("multiscale")
-class MultiScale(nn.Module, Material, SpatialLatent):
+class MultiScale(LearnedMaterial, SpatialLatent):
     """The gated multi-scale model (see module docstring). eval(q) -> (N, 3)."""
 
     name = "multiscale"
+    paper = "Timonen, Kemppinen, Lehtinen 2025: multi-scale gated neural SVBRDF"
+    source_kinds = ("svbrdf",)
     can_sample = False
     Config = Config
 
@@ -193,7 +195,7 @@ class MultiScale(nn.Module, Material, SpatialLatent):
 
     # ------------------------------------------------------------------------------ cost and size
 
-    def size_bytes(self, precision: str = "fp32") -> int:
+    def size_bytes(self, precision: str = "fp16") -> int:
         """Stored size: every parameter (spatial pyramid with all levels, angular textures, decoders)."""
         return storage_bytes(sum(p.numel() for p in self.parameters()) * float_bits(precision))
 

@@ -10,11 +10,11 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -38,13 +38,15 @@ def _check_config(c: Config) -> None:
 
 
 @MODELS.register("naive-mlp")
-class NaiveMLP(nn.Module, Material):
+class NaiveMLP(LearnedMaterial):
     """exp(MLP([wi, wo])) (6 inputs, local-frame Cartesian directions), 0 below the horizon.
 
     The exponential keeps the output positive and lets the MLP work in log space (as NeuBRDF).
     """
 
     name = "naive-mlp"
+    paper = "plain MLP on (wi, wo): baseline of NeuBRDF (Dou, Zheng et al. 2024)"
+    source_kinds = ("brdf",)
     can_sample = False
     Config = Config
 

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.coords import io_to_hd
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -54,10 +54,12 @@ def _check_config(c: Config) -> None:
 
 
 @MODELS.register("nbrdf")
-class NBRDF(nn.Module, Material):
+class NBRDF(LearnedMaterial):
     """out(MLP([h, d])) with the Rusinkiewicz half / difference vectors (see module docstring)."""
 
     name = "nbrdf"
+    paper = "NBRDF (Sztrajman et al. 2021): baseline of NeuBRDF"
+    source_kinds = ("brdf",)
     can_sample = False
     Config = Config
 

@@ -25,4 +25,6 @@ class NBRDFUV(neumip.NeuMIP):
     """exp(MLP([z_s, h, d])) (see module docstring)."""
 
     name = "nbrdf-uv"
+    paper = "NBRDF with a latent texture: baseline of the multi-scale gated model (Timonen et al. 2025)"
+    source_kinds = ("svbrdf",)
     Config = Config

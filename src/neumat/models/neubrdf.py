@@ -14,12 +14,12 @@ from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_directions, check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
@@ -105,7 +105,7 @@ class NeuralTexture(nn.Module):
 
 
 @MODELS.register("neubrdf")
-class NeuBRDF(nn.Module, Material):
+class NeuBRDF(LearnedMaterial):
     """NeuBRDF material model (see module docstring).
 
     Output: the MLP predicts log f and the model returns exp(.). Why: BRDF values are positive and span
@@ -119,6 +119,8 @@ class NeuBRDF(nn.Module, Material):
     """
 
     name = "neubrdf"
+    paper = "NeuBRDF (Dou, Zheng et al. CVPR 2024)"
+    source_kinds = ("brdf",)
     can_sample = False
     Config = Config
     coarse_fraction = 0.5

@@ -18,13 +18,13 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.multiscale import preconditioned_noise
 from neumat.models.registry import MODELS
 from neumat.models.spatial_latent import SpatialLatent
@@ -93,10 +93,12 @@ def _check_config(c: Config, who: str) -> None:
 
 
 @MODELS.register("neumip")
-class NeuMIP(nn.Module, Material, SpatialLatent):
+class NeuMIP(LearnedMaterial, SpatialLatent):
     """exp(MLP([z_s, directions])) with z_s from a filtered latent pyramid (module docstring); eval -> (N, 3)."""
 
     name = "neumip"
+    paper = "NeuMIP (Kuznetsov et al. 2021): baseline of the multi-scale gated model (Timonen et al. 2025)"
+    source_kinds = ("svbrdf",)
     can_sample = False
     spatially_varying = True
     Config = Config
@@ -166,7 +168,7 @@ class NeuMIP(nn.Module, Material, SpatialLatent):
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
 
-    def size_bytes(self, precision: str = "fp32") -> int:
+    def size_bytes(self, precision: str = "fp16") -> int:
         """Stored size: spatial pyramid (all levels) and decoders."""
         return storage_bytes(sum(p.numel() for p in self.parameters()) * float_bits(precision))
 

@@ -28,13 +28,12 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.frames import frame_from_normal_tangent, to_local
-from neumat.core.material import Material
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
@@ -86,10 +85,12 @@ def local_frame(p: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.T
 
 
 @MODELS.register("neumip-uv")
-class NeuMIPUV(nn.Module, Material):
+class NeuMIPUV(LearnedMaterial):
     """S_hat(wi; x, wo) from a UV latent texture and an MLP (see the module docstring)."""
 
     name = "neumip-uv"
+    paper = "NeuMIP on the object's UV textures: baseline of NeuPreSS (TG et al.)"
+    source_kinds = ("translucent",)
     full_sphere = True
     can_sample = False
     Config = Config
@@ -135,7 +136,7 @@ class NeuMIPUV(nn.Module, Material):
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
 
-    def size_bytes(self, precision: str = "fp32") -> int:
+    def size_bytes(self, precision: str = "fp16") -> int:
         """The latent pyramid and the MLP."""
         return storage_bytes(sum(p.numel() for p in self.parameters()) * float_bits(precision))
 
@@ -157,4 +158,6 @@ class SurfaceBRDFUV(NeuMIPUV):
     """softplus(MLP([z(uv(x)), wi', wo'])) max(wi'_z, 0): the surface-reflectance baseline (module docstring)."""
 
     name = "surface-brdf-uv"
+    paper = "surface BRDF on UV textures (stand-in for NeRFactor): baseline of NeuPreSS (TG et al.)"
+    source_kinds = ("translucent",)
     Config = SurfaceConfig

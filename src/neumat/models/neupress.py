@@ -21,13 +21,13 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.coords import dir_to_spherical
 from neumat.core.errors import InputError
-from neumat.core.material import Material, check_sample_u
+from neumat.core.material import check_sample_u
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.fourier import FourierFeatures
@@ -71,11 +71,13 @@ def _check_config(c: Config) -> None:
 
 
 @MODELS.register("neupress")
-class NeuPreSS(nn.Module, Material):
+class NeuPreSS(LearnedMaterial):
     """S_hat(wi; x, wo) of one translucent object (see the module docstring). Queries need x, wo (and n to
     sample); directions are object space and span the whole sphere."""
 
     name = "neupress"
+    paper = "NeuPreSS (TG, Frisvad, Ramamoorthi, Jensen): neural precomputed subsurface scattering"
+    source_kinds = ("translucent",)
     full_sphere = True
     can_sample = False  # it samples the light direction wi given (x, wo, n): see `sample_incident`
     Config = Config
@@ -161,7 +163,7 @@ class NeuPreSS(nn.Module, Material):
         return azimuthal_gaussian_pdf(q.wi, q.n, self.sigma(q.x, q.wo).to(q.dtype))
 
     # ---- size ----------------------------------------------------------------------------------------------
-    def size_bytes(self, precision: str = "fp32", sampler: bool = True) -> int:
+    def size_bytes(self, precision: str = "fp16", sampler: bool = True) -> int:
         """Weights of the appearance module (and the sampler) at `precision`, plus the bounding box (6 float32).
         The Fourier matrices are not counted: they are regenerated from the seed."""
         n = self.appearance.num_parameters()

@@ -82,6 +82,8 @@ class NeuralAppearance(neumip.NeuMIP):
     """Latent pyramid + BRDF decoder with 2 learned frames + neural importance sampler (module docstring)."""
 
     name = "neural-appearance"
+    paper = "Real-Time Neural Appearance Models (Zeltner et al. 2024)"
+    source_kinds = ("svbrdf",)
     can_sample = True
     Config = Config
 

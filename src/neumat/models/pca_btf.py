@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.models.sparse_dictionary import model_space_to_rgb, rgb_to_model_space
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
@@ -45,10 +45,12 @@ class Config:
 
 
 @MODELS.register("pca-btf")
-class PCABTF(nn.Module, Material):
+class PCABTF(LearnedMaterial):
     """Truncated PCA of a BTF (module docstring). Build with `PCABTF.fit(btf, ranks)`."""
 
     name = "pca-btf"
+    paper = "per-BTF PCA: baseline of SparseBTF (Kavoosi et al.)"
+    source_kinds = ("btf",)
     can_sample = False
     spatially_varying = True
     Config = Config

@@ -29,6 +29,7 @@ from neumat.core.coords import rusinkiewicz_to_io
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.recipe import Recipe, recipe_for
 from neumat.models.registry import MODELS
@@ -97,7 +98,7 @@ class MaterialQuery(Query):
 
 
 @MODELS.register("shared-neubrdf")
-class SharedNeuBRDF(nn.Module, Material):
+class SharedNeuBRDF(LearnedMaterial):
     """t NeuBRDF materials with one shared MLP and codebook and one index grid each.
 
     `material(i)` is a Material view of material i. `eval(q)` evaluates each row of a `MaterialQuery` on its
@@ -105,6 +106,8 @@ class SharedNeuBRDF(nn.Module, Material):
     """
 
     name = "shared-neubrdf"
+    paper = "NeuBRDF with codebooks shared across materials (Dou, Zheng et al. 2024, Sec. 3.3)"
+    source_kinds = ("brdf-set",)
     can_sample = False
     Config = Config
 

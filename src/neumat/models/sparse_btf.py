@@ -31,12 +31,12 @@ from typing import NamedTuple
 
 import torch
 from torch import nn
-
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.models.sparse_dictionary import (
     BTFDictionary,
@@ -107,10 +107,12 @@ def _check_config(c: Config) -> None:
 
 
 @MODELS.register("sparse-btf")
-class SparseBTF(nn.Module, Material):
+class SparseBTF(LearnedMaterial):
     """A BTF in SparseBTF form (see module docstring). Build with `SparseBTF.encode(btf, dictionary, tau)`."""
 
     name = "sparse-btf"
+    paper = "SparseBTF (Kavoosi et al.): sparse coding of BTFs in a dictionary ensemble"
+    source_kinds = ("btf",)
     can_sample = False
     spatially_varying = True
     Config = Config

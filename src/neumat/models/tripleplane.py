@@ -33,4 +33,6 @@ class TriplePlane(multiscale.MultiScale):
     """Concatenated half / difference / spatial latents decoded by an MLP (see module docstring)."""
 
     name = "tripleplane"
+    paper = "triple-plane latent texture: baseline of the multi-scale gated model (Timonen et al. 2025)"
+    source_kinds = ("svbrdf",)
     Config = Config

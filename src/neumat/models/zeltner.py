@@ -28,4 +28,6 @@ class Zeltner(neumip.NeuMIP):
     """Latent pyramid + learned shading frame + MLP (see module docstring)."""
 
     name = "zeltner"
+    paper = "Zeltner-style latent pyramid + shading frame: baseline of the multi-scale model (Timonen et al. 2025)"
+    source_kinds = ("svbrdf",)
     Config = Config
