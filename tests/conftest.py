@@ -25,3 +25,13 @@ def shared_data() -> Path:
 def gen() -> torch.Generator:
     """A seeded CPU generator."""
     return torch.Generator().manual_seed(1234)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip tests marked `cuda` when torch sees no CUDA GPU."""
+    if torch.cuda.is_available():
+        return
+    skip = pytest.mark.skip(reason="needs a CUDA GPU (torch.cuda.is_available() is False)")
+    for item in items:
+        if "cuda" in item.keywords:
+            item.add_marker(skip)

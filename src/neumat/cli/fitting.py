@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import difflib
 import time
-from dataclasses import fields, replace
+from dataclasses import fields
 from pathlib import Path
 
 import typer
@@ -17,109 +17,90 @@ def register(app: typer.Typer) -> None:
     app.command("eval")(evaluate)
 
 
-def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .nmat) or analytic spec"),
-        model: str = typer.Option("neubrdf", "--model", "-m", help="registered model name"),
-        set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field"),
+def fit(sources: list[str] = typer.Argument(..., help="training source: a material file (.binary, .bsdf, .nmat, "
+                                             ".json), a texture-set folder, a BTF (.nbtf, .btf), translucent "
+                                             "observations (.npz) or an analytic spec; several for models that "
+                                             "fit a set (shared-neubrdf)"),
+        model: str = typer.Option("neubrdf", "--model", "-m", help="registered model name (`neumat list`)"),
+        set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field, "
+                                                           "else a recipe option; lists as a,b"),
         steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
         device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, help="seed of the model initialisation and the queries (default: recipe's)"),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
         source_option: list[str] = typer.Option(None, "--source-option",
                                                 help="key=value passed to the source reader, e.g. max_size=256 "
                                                      "or samples=64 for a texture-set folder"),
-        dictionary: Path = typer.Option(None, help="sparse-btf: the trained dictionary ensemble (.nmat)"),
-        tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V"),
+        dictionary: Path = typer.Option(None, help="sparse-btf: a trained dictionary ensemble (.nmat); the same "
+                                                   "as --set dictionary=PATH"),
+        tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V; "
+                                           "the same as --set tau=..."),
         out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
-    """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file.
-    `--model sparse-btf` codes a BTF (.nbtf) with a dictionary from `neumat fit-dictionary` instead;
-    `--model neural-appearance` trains in two phases (encoder, then latents; half the steps each, default 4000)."""
+    """Fit MODEL to SOURCE through the one trainer, with the model's recipe (the paper's defaults; --set overrides
+    config fields, recipe fields and recipe options), and save it as a .nmat file that records the recipe and the
+    source's name and hash. Models trained in stages (neural-appearance: encoder then latents; neupress:
+    appearance then sampler; sparse-btf: dictionary then coding) run them as phases of the same fit, with
+    --device, --checkpoint and --resume."""
 
     def go():
-        import torch
-
-        from ..io.modelfile import save_model
-        from ..io.open_material import open_material
         from ..fit.trainer import fit as fit_model
+        from ..io.modelfile import save_model
 
         if out.suffix != ".nmat":
             raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
-        if model == "sparse-btf":
-            return _code_sparse_btf(source, dictionary, tau, out)
-        if model == "neural-appearance":
-            return _fit_neural_appearance(source, parse_overrides(set_), steps, seed, quiet,
-                                          parse_overrides(source_option, "--source-option"), out)
-        m, recipe = build_model_and_recipe(model, parse_overrides(set_), seed)
-        src = open_material(source, **parse_overrides(source_option, "--source-option"))
-        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
-        result = fit_model(m, src, recipe, steps=steps, device=dev, progress=not quiet, checkpoint=checkpoint,
-                           resume=resume)
-        metrics = {"final_loss": result.history[-1]["loss"] if result.history else None,
-                   "fit_seconds": result.seconds}
-        save_model(result.model, out, recipe=replace(recipe, steps=result.steps), source=source, metrics=metrics)
-        print(f"wrote {out} ({result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']})")
+        overrides = parse_overrides(set_)
+        if dictionary is not None:
+            overrides["dictionary"] = str(dictionary)
+        if tau is not None:
+            overrides.update(parse_overrides([f"tau={tau}"]))
+        src = open_training_source(model, sources, parse_overrides(source_option, "--source-option"))
+        m, recipe = build_model_and_recipe(model, overrides, seed, source=src)
+        result = fit_model(m, src, recipe, steps=steps, device=resolve_device(device), progress=not quiet,
+                           checkpoint=checkpoint, resume=resume)
+        last = result.history[-1] if result.history else {}
+        metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
+        save_model(result.model, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
+                   metrics=metrics)
+        print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']})")
     run_command(go)
 
 
-def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed: int | None, quiet: bool,
-                           source_options: dict, out: Path) -> None:
-    """`neumat fit SOURCE --model neural-appearance`: `fit.neural_appearance.fit_neural_appearance` on the CPU.
-    --set takes the model's config fields and batch_size, lr, directions, blur_degrees, blur_samples, blur_until,
-    sampler_batch (`fit_neural_appearance`); spatial_size defaults to the texture's size."""
+def resolve_device(device: str | None):
+    """The torch device `device` names (default: cuda if available, else cpu); InputError for a name torch does
+    not know or a CUDA device this machine lacks."""
     import torch
 
-    from ..fit.neural_appearance import fit_neural_appearance
-    from ..io.modelfile import save_model
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise InputError(f"--device: {device!r} is not a torch device (cpu, cuda, cuda:1, mps, ...)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"--device {device}: this machine has no CUDA GPU visible to torch; use --device cpu")
+    return dev
+
+
+def open_training_source(model: str, sources: list[str], options: dict):
+    """What model `model` trains on, from the command line's SOURCE arguments, by the first of its
+    `source_kinds`: one Material (brdf, svbrdf, btf), a list of Materials (brdf-set) or the Observations of a
+    translucent object (translucent)."""
     from ..io.open_material import open_material
-    from ..models.neural_appearance import Config, NeuralAppearance
+    from ..models.registry import model_class
 
-    training = {"batch_size", "lr", "directions", "blur_degrees", "blur_samples", "blur_until", "sampler_batch"}
-    known = {f.name for f in fields(Config)} | training
-    unknown = _unknown_keys(overrides, known)
-    if unknown:
-        raise InputError(f"--set: unknown key(s) {unknown} for neural-appearance: {', '.join(sorted(known))}")
-    src = open_material(source, **source_options)
-    config = {k: v for k, v in overrides.items() if k not in training}
-    size = getattr(getattr(src, "textures", None), "size", None) or getattr(src, "texture_size", None)
-    if "spatial_size" not in config and size is not None:
-        config["spatial_size"] = 1 << (min(size).bit_length() - 1)         # the texture's resolution (paper)
-    if "surface_features" not in config and getattr(src, "sampling_feature_dim", None) is not None:
-        config["surface_features"] = int(src.sampling_feature_dim)       # what the encoder reads: k(x)
-    torch.manual_seed(0 if seed is None else seed)
-    model = NeuralAppearance(**config)
-    total = 4000 if steps is None else steps
-    result = fit_neural_appearance(model, src, encoder_steps=total // 2, latent_steps=total - total // 2,
-                                   batch=int(overrides.get("batch_size", 4096)), lr=float(overrides.get("lr", 3e-3)),
-                                   seed=0 if seed is None else seed, progress=not quiet,
-                                   directions=str(overrides.get("directions", "cosine")),
-                                   blur_degrees=float(overrides.get("blur_degrees", 0.0)),
-                                   blur_samples=int(overrides.get("blur_samples", 4)),
-                                   blur_until=float(overrides.get("blur_until", 0.5)),
-                                   sampler_batch=str(overrides.get("sampler_batch", "shared")))
-    last = result.history[-1] if result.history else {}
-    metrics = {"fit_seconds": result.seconds, "final_brdf_loss": last.get("brdf loss"),
-               "final_sampler_loss": last.get("sampler loss")}
-    save_model(model, out, source=source, metrics=metrics)
-    print(f"wrote {out} (neural-appearance, {model.cfg.spatial_size}^2 latents, {total} steps, "
-          f"{sum(result.seconds.values()):.1f} s, final log_cos {metrics['final_brdf_loss']})")
-
-
-def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out: Path) -> None:
-    """SparseBTF has no gradient training: project the BTF on the dictionary ensemble and save the codes."""
-    from ..io.btf import read_btf
-    from ..io.modelfile import save_model
-    from ..models.sparse_btf import SparseBTF
-    from ..models.sparse_dictionary import BTFDictionary
-    from .btf import parse_tau
-
-    if dictionary is None:
-        raise InputError("--model sparse-btf needs --dictionary (train one with `neumat fit-dictionary`)")
-    t0 = time.perf_counter()
-    model = SparseBTF.encode(read_btf(source), BTFDictionary.load(dictionary), None if tau is None else parse_tau(tau))
-    seconds = time.perf_counter() - t0
-    save_model(model, out, source=source, metrics={"coding_seconds": seconds, "bytes": model.size_bytes()})
-    print(f"wrote {out} ({model.size_bytes()} bytes, coded in {seconds:.1f} s)")
+    kind = model_class(model).source_kinds[0]
+    if kind == "brdf-set":
+        return [open_material(s, **options) for s in sources]
+    if len(sources) != 1:
+        raise InputError(f"model {model!r} fits one source ({kind}), got {len(sources)}: {', '.join(sources)}")
+    if kind == "translucent":
+        from ..fit.translucent_observations import Observations
+        if options:
+            raise InputError(f"--source-option: observation files take no reader options, got {sorted(options)}")
+        return Observations.load(sources[0])
+    return open_material(sources[0], **options)
 
 
 def _unknown_keys(overrides: dict, known: set[str]) -> str:
@@ -128,30 +109,37 @@ def _unknown_keys(overrides: dict, known: set[str]) -> str:
     return "; ".join(f"{k!r}" + (f" (did you mean {', '.join(h)}?)" if h else "") for k, h in hints.items())
 
 
-def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None):
-    """A fresh model `model` and its recipe with `overrides` applied (model config fields first, then recipe
-    fields; unknown keys raise). The model is initialised after seeding torch with the recipe's seed."""
+def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None, source=None):
+    """A fresh model `model` and its recipe with `overrides` applied: model config fields first, then recipe
+    fields, then recipe options (unknown keys raise). With a `source`, the recipe module's
+    `config_for_source(source) -> dict` (if it has one) supplies config defaults that follow the source (e.g. the
+    latent resolution of a texture set); overrides win. The model is initialised after seeding torch with the
+    recipe's seed."""
     import torch
 
     from ..core.config import config_from_dict, config_to_dict
-    from ..fit.recipe import Recipe, check_recipe, recipe_for
-    from ..io.modelfile import model_config_class
+    from ..fit.recipe import Recipe, check_recipe, recipe_config_for_source, recipe_for
     from ..models.registry import model_class
 
     cls = model_class(model)
-    config_cls = model_config_class(cls)
-    config_keys = {f.name for f in fields(config_cls)}
-    recipe_keys = {f.name for f in fields(Recipe)}
-    text = _unknown_keys(overrides, config_keys | recipe_keys)
+    config_keys = {f.name for f in fields(cls.Config)}
+    recipe_keys = {f.name for f in fields(Recipe)} - {"options"}
+    base = recipe_for(model)
+    option_keys = set(base.options)
+    text = _unknown_keys(overrides, config_keys | recipe_keys | option_keys)
     if text:
         raise InputError(f"--set: unknown key(s) {text}: not a field of {model!r}'s config "
-                           f"({', '.join(sorted(config_keys))}) nor of the recipe ({', '.join(sorted(recipe_keys))})")
-    recipe = config_from_dict(Recipe, {**config_to_dict(recipe_for(model)),
-                                       **{k: v for k, v in overrides.items() if k not in config_keys}})
+                         f"({', '.join(sorted(config_keys))}), of the recipe ({', '.join(sorted(recipe_keys))}) "
+                         f"nor a recipe option ({', '.join(sorted(option_keys)) or 'none'})")
+    rest = {k: v for k, v in overrides.items() if k not in config_keys}
+    options = {**base.options, **{k: v for k, v in rest.items() if k in option_keys and k not in recipe_keys}}
+    recipe = config_from_dict(Recipe, {**config_to_dict(base), **{k: v for k, v in rest.items() if k in recipe_keys},
+                                       "options": options})
     if seed is not None:
         recipe.seed = seed
     check_recipe(recipe)
-    cfg = config_from_dict(config_cls, {k: v for k, v in overrides.items() if k in config_keys})
+    derived = recipe_config_for_source(model, source) if source is not None else {}
+    cfg = config_from_dict(cls.Config, {**derived, **{k: v for k, v in overrides.items() if k in config_keys}})
     torch.manual_seed(recipe.seed)
     return cls(config=cfg), recipe
 

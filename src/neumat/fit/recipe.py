@@ -129,3 +129,10 @@ def recipe_names() -> list[str]:
     """Registry names of every model with a recipe module ('_' -> '-')."""
     package = importlib.import_module("neumat.fit.recipes")
     return sorted(info.name.replace("_", "-") for info in pkgutil.iter_modules(package.__path__))
+
+
+def recipe_config_for_source(model_name: str, source: Any) -> dict:
+    """Config defaults of model `model_name` that follow its training source: the recipe module's
+    `config_for_source(source) -> dict` (e.g. a latent resolution from the texture size), or {}."""
+    derive = getattr(_recipe_module(model_name), "config_for_source", None)
+    return dict(derive(source)) if derive is not None else {}

@@ -1,0 +1,220 @@
+"""Conformance of every registered model, looping over the registry: it declares what the trainer and `neumat list`
+use, answers the Material protocol (shape, finiteness, the horizon, the input's dtype), trains two steps through
+the command line's path, round-trips a `.nmat` file bit for bit, and passes the chi-square test where it samples.
+The same checks run on a GPU against the CPU (marker `cuda`). A new model needs a SMALL entry below."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from typer.testing import CliRunner
+
+from btf_util import synthetic_btf
+from neumat.cli.main import app
+from neumat.core.query import Query
+from neumat.fit.recipe import recipe_for, recipe_names
+from neumat.fit.translucent_observations import Observations
+from neumat.io.btf import write_btf
+from neumat.io.modelfile import load_model, save_model
+from neumat.models.base import SOURCE_KINDS, LearnedMaterial
+from neumat.models.registry import load_all
+from neumat.testing.chi2 import chi2_material
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+from neumat.warp.sphere import sample_uniform_sphere
+
+#: small configurations (seconds to build and fit on a CPU); every registered model needs one
+SMALL = {
+    "dipole-bssrdf": dict(samples=4),
+    "ggx": {},
+    "ggx-mipmap": dict(spatial_size=8),
+    "multiscale": dict(spatial_size=8),
+    "naive-mlp": dict(hidden=8),
+    "nbrdf": {},
+    "nbrdf-uv": dict(spatial_size=8),
+    "neubrdf": dict(nside=2, index_bits=2, hidden=4),
+    "neumip": dict(spatial_size=8),
+    "neumip-uv": dict(spatial_size=8),
+    "neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
+    "neural-appearance": dict(spatial_size=8),
+    "pca-btf": {},
+    "shared-neubrdf": dict(num_materials=2, nside=2, index_bits=2, hidden=4),
+    "sparse-btf": {},
+    "surface-brdf-uv": dict(spatial_size=8),
+    "tripleplane": dict(spatial_size=8),
+    "zeltner": dict(spatial_channels=4, spatial_size=8),
+}
+NAMES = load_all().names()
+
+
+def _sphere_quadrature(model) -> None:
+    """The dipole's surface quadrature (set from the observed object in training): 4 points of a sphere of
+    radius 0.5."""
+    x = 0.5 * torch.nn.functional.normalize(torch.tensor([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [-1, -1, -1]]), dim=-1)
+    model.set_surface(x, 2 * x, torch.full((4,), torch.pi / 4))
+
+
+#: what a model needs before it evaluates, beyond its config (what its training sets from the source)
+PREPARE = {"dipole-bssrdf": _sphere_quadrature}
+
+
+def _model(name: str, dtype=torch.float32) -> LearnedMaterial:
+    torch.manual_seed(0)
+    model = load_all().get(name)(**SMALL[name])
+    PREPARE.get(name, lambda m: None)(model)
+    return model.to(dtype)
+
+
+def _queries(model, n: int = 512, dtype=torch.float32, device="cpu") -> Query:
+    """Queries on the model's domain (whole sphere, or the hemisphere with 1/8 below the horizon), uv and x
+    where the model reads them."""
+    g = torch.Generator().manual_seed(7)
+    u = torch.rand(n, 6, generator=g, dtype=torch.float64)
+    if model.full_sphere:
+        wi, wo = sample_uniform_sphere(u[:, :2]), sample_uniform_sphere(u[:, 2:4])
+        x = 0.5 * sample_uniform_sphere(u[:, 4:6])
+    else:
+        wi, wo, x = sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), None
+        wi[: n // 8, 2] *= -1
+    uv = u[:, 4:6] if model.spatially_varying else None
+    n_ = None if x is None else 2 * x  # the normal of the sphere of radius 0.5 at x
+    cast = lambda t: None if t is None else t.to(device, dtype)  # noqa: E731
+    return Query(cast(wi), cast(wo), uv=cast(uv), x=cast(x), n=cast(n_))
+
+
+def test_every_model_has_a_recipe_and_a_small_config():
+    assert set(NAMES) == set(recipe_names()) == set(SMALL)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_model_declares_what_the_trainer_and_list_use(name):
+    cls = load_all().get(name)
+    assert issubclass(cls, LearnedMaterial) and cls.name == name
+    assert cls.paper and set(cls.source_kinds) <= set(SOURCE_KINDS)
+    assert dataclasses.is_dataclass(cls.Config)
+    recipe = recipe_for(name)
+    assert recipe.steps > 0 and recipe.batch_size > 0
+    model = _model(name)
+    assert model.size_bytes() == model.size_bytes("fp16") > 0 and model.flops() >= 0
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_eval_shape_finite_horizon_and_dtype(name, dtype):
+    model = _model(name, dtype)
+    q = _queries(model, dtype=dtype)
+    with torch.no_grad():
+        f = model.eval(q)
+    assert f.shape == (len(q), 3) and f.dtype == dtype
+    assert bool(torch.isfinite(f).all())
+    if not model.full_sphere:
+        below = (q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)
+        assert below.any() and bool((f[below] == 0).all())
+
+
+def _texture_set(folder):
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(folder / "T_Color.png")
+    Image.fromarray(rng.integers(60, 200, (16, 16), dtype=np.uint8)).save(folder / "T_Roughness.png")
+    normal = np.concatenate([rng.integers(100, 156, (16, 16, 2)), np.full((16, 16, 1), 240)], -1)
+    Image.fromarray(normal.astype(np.uint8)).save(folder / "T_NormalGL.png")
+    return folder
+
+
+def _observations(path):
+    g = torch.Generator().manual_seed(3)
+    n = 256
+    x = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    wo = sample_uniform_sphere(torch.rand(n, 2, generator=g))
+    wi = sample_uniform_sphere(torch.rand(n, 2, generator=g))
+    value = 0.1 + 0.05 * torch.rand(n, 3, generator=g)
+    Observations(x=x, n=x.clone(), wo=wo, wi=wi, value=value).save(path)
+    return path
+
+
+def _sources(kind: str, tmp_path) -> list[str]:
+    """Command-line SOURCE arguments of a small source of `kind`."""
+    if kind == "brdf":
+        return ["ggx:roughness=0.3"]
+    if kind == "brdf-set":
+        return ["ggx:roughness=0.3", "lambert"]
+    if kind == "svbrdf":
+        return [str(_texture_set(tmp_path / "set"))]
+    if kind == "btf":
+        return [str(write_btf(tmp_path / "b.nbtf", synthetic_btf(0, size=10)))]
+    if kind == "translucent":
+        return [str(_observations(tmp_path / "obs.npz"))]
+    raise AssertionError(f"no test source for kind {kind!r}")
+
+
+def _set_args(name: str) -> list[str]:
+    args = []
+    for k, v in SMALL[name].items():
+        args += ["--set", f"{k}={','.join(map(str, v)) if isinstance(v, list) else v}"]
+    return args + ["--set", f"batch_size={64}"]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_two_step_fit_through_the_command_line(name, tmp_path):
+    kind = load_all().get(name).source_kinds[0]
+    out = tmp_path / "m.nmat"
+    res = CliRunner().invoke(app, ["fit", *_sources(kind, tmp_path), "--model", name, "--steps", "2", "-q",
+                                   "--device", "cpu", *_set_args(name), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    model = load_model(out)
+    assert model.name == name
+    with torch.no_grad():
+        assert bool(torch.isfinite(model.eval(_queries(model))).all())
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_nmat_round_trip_is_bit_identical(name, tmp_path):
+    model = _model(name)
+    with torch.no_grad():
+        for p in model.parameters():  # not the initial values: they may be constants
+            p.add_(0.01 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+    first = save_model(model, tmp_path / "a.nmat")
+    loaded = load_model(first)
+    state, again = model.state_dict(), loaded.state_dict()
+    assert state.keys() == again.keys() and all(torch.equal(state[k], again[k]) for k in state)
+    assert save_model(loaded, tmp_path / "b.nmat").read_bytes() == first.read_bytes()
+    q = _queries(model)
+    with torch.no_grad():
+        assert torch.equal(model.eval(q), loaded.eval(q))
+
+
+SAMPLERS = [n for n in NAMES if load_all().get(n).can_sample]
+
+
+@pytest.mark.parametrize("name", SAMPLERS)
+def test_sampler_chi_square(name):
+    model = _model(name).eval()
+    wi = torch.nn.functional.normalize(torch.tensor([0.3, -0.2, 0.8]), dim=0)
+    template = _queries(model, n=1)
+    # over the whole sphere: a BRDF sampler may send glossy samples below the horizon (with their pdf)
+    result = chi2_material(model, wi, n_samples=200_000, res=(40, 40), template=template, sphere=True)
+    assert result.passed, result
+
+
+@pytest.mark.cuda
+@pytest.mark.parametrize("name", NAMES)
+def test_cuda_eval_matches_cpu(name):
+    model = _model(name)
+    q = _queries(model)
+    with torch.no_grad():
+        cpu = model.eval(q)
+        gpu = model.to("cuda").eval(q.to("cuda"))
+    assert gpu.device.type == "cuda"
+    torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.cuda
+@pytest.mark.parametrize("name", NAMES)
+def test_cuda_two_step_fit(name, tmp_path):
+    kind = load_all().get(name).source_kinds[0]
+    res = CliRunner().invoke(app, ["fit", *_sources(kind, tmp_path), "--model", name, "--steps", "2", "-q",
+                                   "--device", "cuda", *_set_args(name), "-o", str(tmp_path / "m.nmat")])
+    assert res.exit_code == 0, res.output
