@@ -13,6 +13,19 @@ for module in (rendering, mitsuba, fitting, btf, check, demo, exporting, translu
     module.register(app)
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from .. import __version__
+        print(f"neumat {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                      help="print the neumat version and exit")) -> None:
+    """neumat: compact learned models of material appearance."""
+
+
 @app.command()
 def version() -> None:
     """Print the neumat version."""
