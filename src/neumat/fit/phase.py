@@ -37,6 +37,8 @@ class Phase:
                latents from the encoder or freeze what the phase trained.
     optimizer: `make(params, lr, betas, eps) -> torch.optim.Optimizer`, default Adam.
     stateful:  modules with state of their own (a loss's running statistics), checkpointed with the fit.
+    on_record: called with each history record of this phase before it is stored, checkpointed or shown (it
+               may add fields, e.g. a validation loss); at the phase's last step it runs before `after`.
     """
 
     name: str
@@ -46,6 +48,7 @@ class Phase:
     after: Callable[[], None] | None = None
     optimizer: Callable[..., torch.optim.Optimizer] | None = None
     stateful: list[nn.Module] = field(default_factory=list)
+    on_record: Callable[[dict], None] | None = None
 
 
 @dataclass

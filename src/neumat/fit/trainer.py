@@ -152,12 +152,16 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                     running["_steps"] = running.get("_steps", torch.zeros((), device=dev)) + 1
                 done = step + 1
                 bar.advance()
+                record = None
+                if done % recipe.log_every == 0 or done == end:
+                    record = _record(running, done, phase.name, lr, time.perf_counter() - t0)
+                    if phase.on_record is not None:
+                        phase.on_record(record)
                 if done == end and phase.after is not None:
                     phase.after()
                     if ema is not None:
                         ema.reset(model)
-                if done % recipe.log_every == 0 or done == end:
-                    record = _record(running, done, phase.name, lr, time.perf_counter() - t0)
+                if record is not None:
                     state["history"].append(record)
                     bar.show(record, total)
                 if checkpoint is not None and (done % recipe.checkpoint_every == 0 or done == end):
