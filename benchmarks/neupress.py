@@ -48,7 +48,7 @@ from neumat.render.envmaps import downsample_envmap, read_envmap
 from neumat.render.lights import EnvironmentMap
 from neumat.render.translucent import orbit_camera, render_translucent, render_translucent_reference
 
-VARIANTS = {"paper": {}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.3},
+VARIANTS = {"paper": {"feature_mean": 18.0, "feature_std": 1.0}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.3},
             "smooth": {"feature_mean": 0.0, "feature_std": 0.1}}
 BASELINES = {"dipole": "dipole (homogeneous)", "neumip-uv": "NeuMIP on UV textures",
              "surface-brdf-uv": "surface BRDF on UV textures"}
