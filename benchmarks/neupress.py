@@ -34,9 +34,11 @@ import time
 
 import torch
 from neumat.cli.common import print_table
-from neumat.fit.dipole_bssrdf import dipole_predict, fit_dipole
-from neumat.fit.neumip_uv import fit_neumip_uv, neumip_uv_predict
-from neumat.fit.neupress import fit_neupress, fit_neupress_sampler
+from neumat.fit.dipole_bssrdf import dipole_predict
+from neumat.fit.neumip_uv import neumip_uv_predict
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.fit.translucent_fit import validation_summary
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
@@ -48,7 +50,8 @@ from neumat.render.envmaps import downsample_envmap, read_envmap
 from neumat.render.lights import EnvironmentMap
 from neumat.render.translucent import orbit_camera, render_translucent, render_translucent_reference
 
-VARIANTS = {"paper": {}, "low frequency": {"feature_mean": 0.0, "feature_std": 0.3},
+VARIANTS = {"paper": {"feature_mean": 18.0, "feature_std": 1.0},
+            "low frequency": {"feature_mean": 0.0, "feature_std": 0.3},
             "smooth": {"feature_mean": 0.0, "feature_std": 0.1}}
 BASELINES = {"dipole": "dipole (homogeneous)", "neumip-uv": "NeuMIP on UV textures",
              "surface-brdf-uv": "surface BRDF on UV textures"}
@@ -100,7 +103,6 @@ def main() -> None:
     t = time.perf_counter()
     data = collect_observations(obj, a.images, a.res, progress=True)
     collect_s = time.perf_counter() - t
-    train, validation = data.split(0.05)
     t = time.perf_counter()
     test, floor = held_out(obj, a.test_images, a.res // 2, a.test_spp)
     test_s = time.perf_counter() - t
@@ -125,12 +127,15 @@ def main() -> None:
         if name not in chosen:
             continue
         model = NeuPreSS(**cfg)
-        t = time.perf_counter()
-        hist = fit_neupress(model, train, steps=a.steps, batch=a.batch, bounds=bounds, validation=validation)
-        fit_s = time.perf_counter() - t
-        t = time.perf_counter()
-        kl = fit_neupress_sampler(model, train, steps=a.sampler_steps)
-        sampler_s = time.perf_counter() - t
+        recipe = recipe_for("neupress")
+        recipe.steps = a.steps + a.sampler_steps
+        recipe.phase_split = (a.steps / recipe.steps, a.sampler_steps / recipe.steps)
+        recipe.batch_size = a.batch
+        recipe.options["bounds"] = [b.tolist() for b in bounds]
+        result = fit(model, data, recipe)
+        hist = [r for r in result.history if r["phase"] == "appearance"]
+        kl = [r for r in result.history if r["phase"] == "sampler"]
+        fit_s, sampler_s = hist[-1]["seconds"], kl[-1]["seconds"] - hist[-1]["seconds"]
         with torch.no_grad():
             pred = model.raw(test.wi, test.x, test.wo).clamp(min=0)
             t = time.perf_counter()
@@ -141,7 +146,7 @@ def main() -> None:
         rows.append({"variant": name, "held-out MSE": f"{mse:.4g}",
                      "rel. to variance": f"{mse / float(test.value.var()):.3f}",
                      "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
-                     "best step": min(hist, key=lambda r: r["validation_mse"])["step"],
+                     "best step": validation_summary(model)["best_step"],
                      "final KL": f"{kl[-1]['kl']:.3f}", "fit s": f"{fit_s:.0f}+{sampler_s:.0f}",
                      "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024})
         for strategy in ("light", "model"):
@@ -150,11 +155,10 @@ def main() -> None:
             image_rows.append(_image_row(f"{name}, {strategy} IS", img, reference, time.perf_counter() - t))
             images[f"{name}, {strategy} IS"] = img
     if "dipole" in baselines:
-        rows.append(_dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows))
+        rows.append(_dipole(obj, data, test, a, env, camera, reference, images, image_rows))
     for kind in ("neumip-uv", "surface-brdf-uv"):
         if kind in baselines:
-            rows.append(_uv_baseline(kind, obj, bounds, train, validation, test, a, env, camera, reference, images,
-                                     image_rows))
+            rows.append(_uv_baseline(kind, obj, bounds, data, test, a, env, camera, reference, images, image_rows))
     print_table(f"NeuPreSS, {len(data)} observations ({a.images} views x {a.spp} spp, 5% of them for validation); "
                 f"held-out {len(test)}", rows, width=250)
     print_table(f"Images {a.image_res}^2 under the forest map at {a.render_spp} spp against a {a.ref_spp}-spp "
@@ -164,12 +168,12 @@ def main() -> None:
         _save(images, a.image_out)
 
 
-def _dipole(obj, train, validation, test, a, env, camera, reference, images, image_rows) -> dict:
+def _dipole(obj, data, test, a, env, camera, reference, images, image_rows) -> dict:
     """The homogeneous dipole baseline fitted to the same observations: its table row; adds its image."""
     model = DipoleBSSRDF(samples=a.dipole_samples)
     model.set_surface(*(t.float() for t in obj.surface_samples(a.dipole_samples)))
     t = time.perf_counter()
-    hist = fit_dipole(model, train, steps=a.dipole_steps, validation=validation[:4096])
+    hist = fit(model, data, steps=a.dipole_steps).history  # its recipe: the first 4096 held back validate
     fit_s = time.perf_counter() - t
     with torch.no_grad():
         pred = dipole_predict(model)(test)
@@ -186,18 +190,21 @@ def _dipole(obj, train, validation, test, a, env, camera, reference, images, ima
     print(f"dipole coefficients (1/object unit): sigma_a {sigma_a}; sigma_s' {sigma_s}")
     return {"variant": "dipole (homogeneous)", "held-out MSE": f"{mse:.4g}",
             "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
-            "best step": min(hist, key=lambda r: r["validation_mse"])["step"], "final KL": "-",
+            "best step": validation_summary(model)["best_step"], "final KL": "-",
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": "0 (6 numbers)"}
 
 
-def _uv_baseline(kind, obj, bounds, train, validation, test, a, env, camera, reference, images, image_rows) -> dict:
+def _uv_baseline(kind, obj, bounds, data, test, a, env, camera, reference, images, image_rows) -> dict:
     """A UV-texture baseline (`neumip-uv` or `surface-brdf-uv`) fitted to the same observations: its table row;
     adds its image."""
     torch.manual_seed(0)
     model = build_model({"type": kind})
     label = BASELINES[kind]
     t = time.perf_counter()
-    hist = fit_neumip_uv(model, train, steps=a.steps, batch=a.batch, bounds=bounds, validation=validation)
+    recipe = recipe_for(kind)
+    recipe.batch_size = a.batch
+    recipe.options["bounds"] = [b.tolist() for b in bounds]
+    hist = fit(model, data, recipe, steps=a.steps).history
     fit_s = time.perf_counter() - t
     with torch.no_grad():
         pred = neumip_uv_predict(model)(test).clamp(min=0)
@@ -213,7 +220,7 @@ def _uv_baseline(kind, obj, bounds, train, validation, test, a, env, camera, ref
     images[f"{kind}, light IS"] = img
     return {"variant": label, "held-out MSE": f"{mse:.4g}",
             "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
-            "best step": min(hist, key=lambda r: r["validation_mse"])["step"], "final KL": "-",
+            "best step": validation_summary(model)["best_step"], "final KL": "-",
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024}
 
 

@@ -31,7 +31,9 @@ def test_trace_fit_render(tmp_path):
     data = Observations.load(obs)
     assert len(data) > 0 and Observations.load_source(obs)["object"]["media"] == ["marble", "skin1"]
 
-    r = _run("fit", obs, "-o", model, "--steps", 20, "--batch", 64, "--sampler-steps", 2, "--validation", 0.25)
+    # 22 steps: 20 of the appearance module, 2 of the sampler
+    r = _run("fit", obs, "-o", model, "--steps", 22, "--set", "batch_size=64", "--set", "phase_split=[0.9,0.1]",
+             "--validation", 0.25, "--device", "cpu", "--checkpoint", tmp_path / "fit.ckpt")
     assert r.exit_code == 0, r.output
     m = load_model(model)
     assert isinstance(m, NeuPreSS) and m.cfg.feature_std == 0.3
@@ -71,3 +73,28 @@ def test_errors_name_the_problem(tmp_path):
     save_model(NeuPreSS(features=4, width=4, layers=1, sampler_hidden=(4,)), tmp_path / "n.nmat")
     r = _run("render", tmp_path / "n.nmat", tmp_path / "plain.npz", "-o", tmp_path / "i.png")
     assert r.exit_code == 2 and "objectdescription" in _said(r)
+
+
+def test_fit_takes_recipe_and_config_overrides_and_resumes(tmp_path):
+    """No Mitsuba: synthetic observations; --set reaches the model config, the recipe and its options; a second
+    run with --resume continues from the finished checkpoint to the same model."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.nn.functional.normalize(torch.randn(200, 3, generator=g), dim=-1)
+    wi = torch.nn.functional.normalize(torch.randn(200, 3, generator=g), dim=-1)
+    Observations(x, x.clone(), x.clone(), wi, torch.rand(200, 3, generator=g)).save(tmp_path / "o.npz")
+    args = ["fit", tmp_path / "o.npz", "--steps", 6, "--device", "cpu", "-q", "--checkpoint", tmp_path / "f.ckpt",
+            "--set", "features=8", "--set", "width=8", "--set", "layers=1", "--set", "sampler_hidden=[4]",
+            "--set", "batch_size=16", "--set", "log_every=2", "--set", "sampler_batch=2", "--set", "grid=[4,8]"]
+    r = _run(*args, "-o", tmp_path / "a.nmat")
+    assert r.exit_code == 0, r.output
+    a, header = load_model(tmp_path / "a.nmat"), read_header(tmp_path / "a.nmat")
+    assert a.cfg.features == 8 and a.cfg.feature_std == 0.3 and header["recipe"]["batch_size"] == 16
+    assert header["recipe"]["options"]["grid"] == [4, 8] and header["metrics"]["best_step"] in (2, 4, 5)
+    r = _run(*args, "--resume", "-o", tmp_path / "b.nmat")
+    assert r.exit_code == 0, r.output
+    b = load_model(tmp_path / "b.nmat")
+    assert all(torch.equal(a.state_dict()[k], v) for k, v in b.state_dict().items())
+    r = _run(*args[:-2], "--set", "batch=16", "-o", tmp_path / "c.nmat")
+    assert r.exit_code == 2 and "batch_size" in _said(r)
+    r = _run("fit", tmp_path / "o.npz", "-o", tmp_path / "c.nmat", "--batch", 16)
+    assert r.exit_code == 2

@@ -35,7 +35,7 @@ CASES = {
     "small cartesian": dict(features=7, width=12, layers=4, sampler_hidden=(10, 6), feature_mean=0.0,
                             feature_std=0.3, direction_encoding="cartesian"),
     # the paper's sizes and Fourier scale (arguments up to ~400 rad)
-    "paper": dict(),
+    "paper": dict(feature_mean=18.0, feature_std=1.0),
 }
 
 

@@ -7,7 +7,8 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
-from neumat.fit.dipole_bssrdf import fit_dipole
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.models.dipole_bssrdf import DipoleBSSRDF, dipole_profile, dipole_total_reflectance
 from neumat.models.registry import build_model
@@ -69,7 +70,9 @@ def test_fit_recovers_known_coefficients():
     obs = Observations(x=x, n=x.clone(), wo=wo, wi=wi, value=value)
     m = _sphere_model(samples=1024)  # starts at sigma_a 0.05, sigma_s' 2
     m.set_surface(truth.points, truth.normals, truth.areas)
-    history = fit_dipole(m, obs, steps=300, batch=256, lr=0.05)
+    recipe = recipe_for("dipole-bssrdf")  # 300 steps of 256, lr 0.05
+    recipe.options["validation_fraction"] = 0  # every observation trains
+    history = fit(m, obs, recipe, progress=False).history
     assert history[-1]["mse"] < 1e-3 * history[0]["mse"]
     a, s = m.coefficients()
     ta, ts = truth.coefficients()

@@ -7,7 +7,8 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
-from neumat.fit.neumip_uv import fit_neumip_uv
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.io.modelfile import load_model, save_model
 from neumat.models.neumip_uv import NeuMIPUV, local_frame, sphere_uv
@@ -61,6 +62,14 @@ def _transport(wi, x, wo):
     return pattern * (light * (0.5 + 0.5 * (wo * x).sum(-1).clamp(min=0))).unsqueeze(-1)
 
 
+def _recipe(name, steps):
+    """The model's recipe at `steps` steps of 1024 observations, lr 3e-3, no validation."""
+    r = recipe_for(name)
+    r.steps, r.batch_size, r.lr = steps, 1024, 3e-3
+    r.options["validation_fraction"] = 0
+    return r
+
+
 def test_fit_to_a_known_transport_function():
     g = torch.Generator().manual_seed(3)
     x = sample_uniform_sphere(torch.rand(20000, 2, generator=g))
@@ -70,7 +79,7 @@ def test_fit_to_a_known_transport_function():
     train, test = obs.split(0.1)
     torch.manual_seed(0)
     m = NeuMIPUV(spatial_size=16, hidden=32, hidden_layers=2)
-    history = fit_neumip_uv(m, train, steps=600, batch=1024, lr=3e-3)
+    history = fit(m, train, _recipe("neumip-uv", 600), progress=False).history
     with torch.no_grad():
         err = float(((m.raw(test.wi, test.x, test.wo, test.n) - test.value) ** 2).mean())
     variance = float(test.value.var())
@@ -127,7 +136,7 @@ def test_surface_brdf_variant_receives_no_light_from_behind_and_fits_reflection(
     value = (0.5 + 0.3 * torch.sin(2 * math.pi * uv[:, :1])) * lit[:, None] / math.pi
     train, test = Observations(x=x, n=x.clone(), wo=wo, wi=wi, value=value.expand(-1, 3).contiguous()).split(0.1)
     torch.manual_seed(0)
-    fit_neumip_uv(m, train, steps=400, batch=1024, lr=3e-3)
+    fit(m, train, _recipe("surface-brdf-uv", 400), progress=False)
     with torch.no_grad():
         err = float(((m.raw(test.wi, test.x, test.wo, test.n) - test.value) ** 2).mean())
     assert err < 0.05 * float(test.value.var()), err              # measured: 0.0022 of the variance

@@ -7,8 +7,10 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
-from neumat.fit.neupress import fit_neupress, fit_neupress_sampler, light_grid, neupress_predict, sampler_kl
-from neumat.fit.translucent_fit import observation_mse
+from neumat.fit.neupress import light_grid, neupress_predict, sampler_kl
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.fit.translucent_fit import observation_mse, validation_summary
 from neumat.fit.translucent_observations import Observations
 from neumat.models.neupress import NeuPreSS
 from neumat.models.registry import build_model
@@ -77,11 +79,25 @@ def test_appearance_fit_reaches_a_known_function():
     torch.manual_seed(0)
     train, test = _synthetic(20000), _synthetic(2000, seed=7)
     m = NeuPreSS(features=64, width=64, layers=3, feature_mean=0.0, feature_std=0.5)  # measured: 0.6% of var
-    history = fit_neupress(m, train, steps=400, batch=1024, lr=3e-3)
+    history = fit(m, train, _recipe(400, batch_size=1024, lr=3e-3, validation_fraction=0), progress=False).history
+    assert [r["phase"] for r in history] == ["appearance"] * 4
     with torch.no_grad():
         mse = ((m.raw(test.wi, test.x, test.wo) - test.value) ** 2).mean()
     assert history[-1]["mse"] < history[0]["mse"]
     assert float(mse) < 0.02 * float(test.value.var()), (float(mse), float(test.value.var()))
+
+
+def _recipe(appearance, sampler=0, **changes):
+    """NeuPreSS's recipe with `appearance` + `sampler` steps and `changes` (recipe fields or options)."""
+    r = recipe_for("neupress")
+    r.steps = appearance + sampler
+    r.phase_split = (appearance / r.steps, sampler / r.steps)
+    for k, v in changes.items():
+        if k in r.options:
+            r.options[k] = v
+        else:
+            setattr(r, k, v)
+    return r
 
 
 class _Lobe(NeuPreSS):
@@ -99,7 +115,8 @@ def test_sampler_kl_recovers_the_lobe_width():
     m = _Lobe(**SMALL)
     obs = _synthetic(512)
     grid = light_grid(32, 64)
-    fit_neupress_sampler(m, obs, steps=150, batch=16, lr=3e-3)
+    # the sampler phase alone (no appearance steps; _Lobe's appearance is fixed)
+    fit(m, obs, _recipe(0, 150, sampler_batch=16, lr=3e-3, validation_fraction=0), progress=False)
     with torch.no_grad():
         sigma = m.sigma(obs.x, obs.wo)
         # a per-point network on a flat optimum: the median is tight, single points scatter a few percent
@@ -150,24 +167,35 @@ def test_validation_keeps_the_weights_that_generalise_best():
     g = torch.Generator().manual_seed(5)
     spikes = (torch.rand(len(clean), 1, generator=g) < 0.1).float() * 10.0  # mean 1, relative std 3
     noisy = Observations(clean.x, clean.n, clean.wo, clean.wi, clean.value * spikes)
-    train, validation = noisy.split(0.25, seed=1)
+    train, validation = noisy.split(0.25, seed=1)  # what the validated fit holds back (recipe seed 1)
 
     def clean_mse(model):
         with torch.no_grad():
             return float(((model.raw(test.wi, test.x, test.wo) - test.value) ** 2).mean())
 
     results = {}
-    for name, val in (("plain", None), ("validated", validation)):
+    for name, source, fraction in (("plain", train, 0), ("validated", noisy, 0.25)):
         torch.manual_seed(0)
         m = NeuPreSS(features=64, width=64, layers=3, feature_mean=0.0, feature_std=2.0)
-        history = fit_neupress(m, train, steps=600, batch=512, lr=3e-3, log_every=25, validation=val)
+        recipe = _recipe(600, batch_size=512, lr=3e-3, log_every=25, validation_fraction=fraction, seed=1)
+        fit(m, source, recipe, progress=False)
         results[name] = clean_mse(m)
+    summary = validation_summary(m)  # the validation MSE after every record of the history (every 25 steps)
+    history = [{"step": step, "validation_mse": mse} for step, mse in summary["curve"]]
+    assert [r["step"] for r in history] == list(range(25, 601, 25))
     assert all("validation_mse" in r for r in history)
     best = min(r["validation_mse"] for r in history)
+    assert summary["best_mse"] == best
     assert observation_mse(neupress_predict(m), validation) == pytest.approx(best, rel=1e-6)
     assert history[-1]["validation_mse"] > best  # it did overfit by the end: the restore mattered
     assert results["validated"] < 0.7 * results["plain"], results
     with pytest.raises(InputError, match="validation"):
-        fit_neupress(m, train, steps=1, validation=validation[:0])
+        fit(m, train, _recipe(1, validation_fraction=1.0), progress=False)
     with pytest.raises(InputError, match="diverged"):  # Adam steps of 1e30 overflow float32
-        fit_neupress(m, train, steps=2, lr=1e30, log_every=1, validation=validation)
+        fit(m, train, _recipe(2, lr=1e30, log_every=1, validation_fraction=0.25), progress=False)
+
+
+def test_source_must_be_observations():
+    m = NeuPreSS(**SMALL)
+    with pytest.raises(InputError, match="Observations"):
+        fit(m, build_model({"type": "naive-mlp"}), _recipe(2), progress=False)

@@ -48,44 +48,65 @@ def trace(out: Path = typer.Argument(..., help="observations file to write (.npz
 @app.command()
 def fit(observations: Path = typer.Argument(..., help="observations file from `neumat translucent trace`"),
         out: Path = typer.Option(..., "-o", "--out", help="model file to write (.nmat)"),
-        steps: int = typer.Option(2000, min=1, help="Adam steps of the appearance module"),
-        batch: int = typer.Option(4096, min=1),
-        lr: float = typer.Option(1e-3),
-        feature_mean: float = typer.Option(0.0, help="mean of the Fourier matrix G (the paper: 18)"),
-        feature_std: float = typer.Option(0.3, help="standard deviation of G (the paper: 1); small values "
-                                                    "generalise from few, noisy observations"),
-        validation: float = typer.Option(0.05, help="fraction held back; the fit keeps the best weights on it"),
-        sampler_steps: int = typer.Option(300, min=1, help="Adam steps of the importance-sampling module"),
-        seed: int = typer.Option(0)) -> None:
-    """Fit NeuPreSS (appearance, then light sampler) to traced observations and save it."""
+        set_: list[str] = typer.Option(None, "--set", help="key=value: a NeuPreSS config field (feature_mean=18 "
+                                                          "feature_std=1 for the paper's Fourier scale), a recipe "
+                                                          "field (batch_size, lr, phase_split, ...) or a recipe "
+                                                          "option (sampler_batch, grid, ...)"),
+        steps: int = typer.Option(None, min=0, help="optimiser steps of both phases, split by the recipe's "
+                                                    "phase_split (default: the recipe's, 2000 + 300)"),
+        validation: float = typer.Option(None, help="fraction held back; the fit keeps the best weights on it "
+                                                    "(default: the recipe's, 0.05)"),
+        device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
+        seed: int = typer.Option(None, help="seed of the model, the validation split and the batches "
+                                            "(default: the recipe's)"),
+        checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
+        resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar")) -> None:
+    """Fit NeuPreSS (appearance, then light sampler) to traced observations with its recipe and save it."""
     def go():
+        from dataclasses import replace
+
         import torch
 
-        from ..fit.neupress import fit_neupress, fit_neupress_sampler
+        from ..fit.recipe import recipe_for
+        from ..fit.trainer import fit as fit_model
+        from ..fit.translucent_fit import validation_summary
         from ..fit.translucent_observations import Observations
         from ..io.modelfile import save_model
-        from ..models.neupress import NeuPreSS
+        from .common import parse_overrides
+        from .fitting import build_model_and_recipe
 
         _check_suffix(out, ".nmat", "fit --out")
         data = Observations.load(observations)
         source = Observations.load_source(observations) or {}
-        box = source.get("bbox", [data.x.min(0).values.tolist(), data.x.max(0).values.tolist()])
-        bounds = torch.tensor(box[0]), torch.tensor(box[1])
-        train, held = data.split(validation, seed=seed)
-        torch.manual_seed(seed)
-        model = NeuPreSS(feature_mean=feature_mean, feature_std=feature_std)
-        history = fit_neupress(model, train, steps=steps, batch=batch, lr=lr, bounds=bounds, seed=seed,
-                               progress=True, validation=held)
-        kl = fit_neupress_sampler(model, train, steps=sampler_steps, seed=seed, progress=True)
-        best = min(history, key=lambda r: r["validation_mse"])
-        variance = float(held.value.var())
-        metrics = {"validation_mse": best["validation_mse"], "validation_variance": variance,
-                   "best_step": best["step"], "sampler_kl": kl[-1]["kl"]}
-        save_model(model, out, source=observations, metrics=metrics)
-        print_table(f"wrote {out} ({model.size_bytes() // 1024} KB fp32)", [{
-            "observations": len(data), "validation": len(held), "best step": best["step"],
-            "validation MSE": best["validation_mse"], "relative to its variance": best["validation_mse"] / variance,
-            "sampler KL": kl[-1]["kl"]}])
+        overrides = {k: _value(v) for k, v in parse_overrides(set_, text=True).items()}
+        known = recipe_for("neupress").options
+        options = {k: overrides.pop(k) for k in list(overrides) if k in known}
+        model, recipe = build_model_and_recipe("neupress", overrides, seed)
+        recipe.options.update(options)
+        if validation is not None:
+            recipe.options["validation_fraction"] = validation
+        if "bbox" in source and "bounds" not in options:  # the object's box, written by trace
+            recipe.options["bounds"] = source["bbox"]
+        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        result = fit_model(model, data, recipe, steps=steps, device=dev, progress=not quiet, checkpoint=checkpoint,
+                           resume=resume)
+        kl = [r["kl"] for r in result.history if r["phase"] == "sampler"]
+        metrics = {"sampler_kl": kl[-1] if kl else None, "fit_seconds": result.seconds}
+        row = {"observations": len(data), "steps": result.steps}
+        summary = validation_summary(model)
+        if summary is not None:
+            held = data.split(recipe.options["validation_fraction"], seed=recipe.seed)[1]  # as the recipe splits
+            variance = float(held.value.var())
+            metrics.update(validation_mse=summary["best_mse"], validation_variance=variance,
+                           best_step=summary["best_step"])
+            row.update({"validation": len(held), "best step": summary["best_step"],
+                        "validation MSE": summary["best_mse"],
+                        "relative to its variance": summary["best_mse"] / variance})
+        row["sampler KL"] = metrics["sampler_kl"]
+        save_model(model.cpu(), out, recipe=replace(recipe, steps=result.steps), source=observations,
+                   metrics=metrics)
+        print_table(f"wrote {out} ({model.size_bytes('fp32') // 1024} KB fp32)", [row])
     run_command(go)
 
 
@@ -152,6 +173,20 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
                     [{"method": name, "seconds": seconds, "MSE": scores["mse"], "FLIP": scores["flip"],
                       "SSIM": scores["ssim"]}])
     run_command(go)
+
+
+def _value(text: str):
+    """A --set value: JSON for lists and null (grid=[32,64], phase_split=[0.9,0.1], bounds=null), else as
+    `neumat fit` reads values."""
+    import json
+
+    from ..core.config import parse_value
+    if text.strip().startswith("[") or text.strip() == "null":
+        try:
+            return json.loads(text)
+        except ValueError:
+            pass
+    return parse_value(text)
 
 
 def _check_suffix(path: Path, suffix: str, what: str) -> None:

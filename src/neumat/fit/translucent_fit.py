@@ -1,56 +1,40 @@
-"""L2 fits of translucent-object models to path-traced observations, with optional early stopping on held-back
-observations: the loop shared by NeuPreSS and the dipole baseline."""
+"""Phases of the translucent-object fits (NeuPreSS, the dipole and the UV baselines) for the one trainer
+(`neumat.fit.trainer.fit`): L2 on random minibatches of path-traced observations (`Observations`, from
+`neumat translucent trace`), with early stopping on a held-back fraction of them.
+
+The recipe options these phases read (every translucent recipe lists them, with its defaults):
+  validation_fraction: fraction of the source held back for validation (0: none), drawn with the recipe's
+                       seed (`Observations.split(fraction, seed=recipe.seed)`); the fit trains on the rest.
+  max_validation:      use at most this many of the held-back observations (None: all; the dipole's sum over
+                       its surface quadrature is slow to evaluate).
+  bounds:              the object's bounding box [[lo x, y, z], [hi x, y, z]] for `model.set_bounds`, or None:
+                       that of all observed points (models without set_bounds ignore it).
+
+Early stopping: the validation MSE is measured after every `recipe.log_every` steps and after the phase's last
+step (the weights the trainer's history records describe); the phase ends with the weights of the lowest one.
+That state (best MSE, its step, those weights and the whole validation curve) lives in an `EarlyStopping`
+module listed in the phase's `stateful`, so a resumed fit continues exactly. `validation_summary(model)` gives
+the curve and the best record of the last fit of `model` (the trainer's history has no field for it).
+"""
 from __future__ import annotations
 
 import math
+import weakref
 from typing import Callable, Sequence
 
 import torch
+from torch import nn
 
-from ..core.checks import check_int
 from ..core.errors import InputError
-from .adam_steps import adam_steps
+from .phase import FitContext, Phase, model_name
 from .translucent_observations import Observations
 
 Predict = Callable[[Observations], torch.Tensor]
 
+#: the options every translucent recipe has (see the module docstring)
+OBSERVATION_OPTIONS = ("validation_fraction", "max_validation", "bounds")
 
-def fit_observations(predict: Predict, params: Sequence[torch.nn.Parameter], observations: Observations,
-                     steps: int, batch: int, lr: float, seed: int = 0, progress: bool = False, log_every: int = 100,
-                     validation: Observations | None = None, description: str = "fit") -> list[dict]:
-    """Adam on the mean squared error of predict(obs) (N, 3) against obs.value over random batches (lr halved at
-    50% and 75% of `steps`). With `validation`, every record also holds "validation_mse" and `params` end with
-    the values of the record where that was lowest. Returns the loss history of `adam_steps`."""
-    for name, v in (("steps", steps), ("batch", batch)):
-        check_int(v, f"{description} {name}")
-    gen = torch.Generator().manual_seed(seed)
-    params = list(params)
-
-    def step():
-        idx = torch.randint(len(observations), (batch,), generator=gen)
-        o = observations[idx]
-        return (((predict(o) - o.value) ** 2).mean(),)
-
-    if validation is None:
-        return adam_steps(params, steps, lr, step, ["mse"], description, log_every, progress)
-    if len(validation) == 0:
-        raise InputError(f"{description} validation: expected at least one observation, got none")
-    best = {"mse": math.inf, "weights": None}
-
-    def keep_best(record: dict) -> None:
-        record["validation_mse"] = observation_mse(predict, validation, batch)
-        if record["validation_mse"] < best["mse"]:
-            best["mse"] = record["validation_mse"]
-            best["weights"] = [p.detach().clone() for p in params]
-
-    history = adam_steps(params, steps, lr, step, ["mse"], description, log_every, progress, keep_best)
-    if best["weights"] is None:
-        raise InputError(f"{description}: the validation MSE was never finite ({history[-1]['validation_mse']}); "
-                         f"the fit diverged (lower lr, now {lr})")
-    with torch.no_grad():
-        for p, w in zip(params, best["weights"]):
-            p.copy_(w)
-    return history
+_LAST: "weakref.WeakKeyDictionary[nn.Module, EarlyStopping]" = weakref.WeakKeyDictionary()
 
 
 def observation_mse(predict: Predict, observations: Observations, batch: int = 65536) -> float:
@@ -61,3 +45,137 @@ def observation_mse(predict: Predict, observations: Observations, batch: int = 6
             o = observations[i:i + batch]
             total += float(((predict(o) - o.value) ** 2).sum())
     return total / (len(observations) * observations.value.shape[-1])
+
+
+def observations_source(ctx: FitContext) -> Observations:
+    """ctx.source, checked: InputError naming what was expected for anything but non-empty Observations."""
+    src = ctx.source
+    if not isinstance(src, Observations):
+        raise InputError(f"fit {model_name(ctx.model)}: source must be path-traced observations "
+                         "(neumat.fit.translucent_observations.Observations, e.g. Observations.load of a file "
+                         f"from `neumat translucent trace`), got {type(src).__name__}")
+    if len(src) == 0:
+        raise InputError(f"fit {model_name(ctx.model)}: the observations are empty")
+    return src
+
+
+def split_observations(ctx: FitContext) -> tuple[Observations, Observations | None]:
+    """(training, validation or None) on ctx.device, by the recipe's validation options."""
+    src = observations_source(ctx)
+    fraction = ctx.option("validation_fraction")
+    if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 <= fraction < 1:
+        raise InputError(f"recipe of {model_name(ctx.model)!r}: option validation_fraction: expected a number in "
+                         f"[0, 1) (0: no validation), got {fraction!r}")
+    if fraction == 0:
+        return src.to(ctx.device), None
+    train, held = src.split(fraction, seed=ctx.recipe.seed)
+    limit = ctx.option("max_validation")
+    if limit is not None:
+        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
+            raise InputError(f"recipe of {model_name(ctx.model)!r}: option max_validation: expected a positive "
+                             f"integer or None, got {limit!r}")
+        held = held[:limit]
+    if len(train) == 0:
+        raise InputError(f"fit {model_name(ctx.model)}: validation_fraction {fraction} of {len(src)} observations "
+                         "leaves none to train on")
+    return train.to(ctx.device), held.to(ctx.device)
+
+
+def set_bounds_from(ctx: FitContext) -> None:
+    """model.set_bounds from the recipe's "bounds" option, else the bounding box of all observed points; only
+    on a fresh fit (a resumed one has them from the checkpoint)."""
+    if ctx.resuming or not hasattr(ctx.model, "set_bounds"):
+        return
+    box = ctx.option("bounds")
+    src = observations_source(ctx)
+    if box is None:
+        lo, hi = src.x.min(0).values, src.x.max(0).values
+    else:
+        try:
+            lo, hi = (torch.as_tensor(b, dtype=torch.float32) for b in box)
+        except (TypeError, ValueError):
+            raise InputError(f"recipe of {model_name(ctx.model)!r}: option bounds: expected [[lo x, y, z], "
+                             f"[hi x, y, z]] or None, got {box!r}") from None
+    ctx.model.set_bounds(lo.to(ctx.device), hi.to(ctx.device))
+
+
+class EarlyStopping(nn.Module):
+    """Best validation MSE, its step and the parameters then (buffers), and the validation curve [[step, mse],
+    ...] (extra state): what an appearance phase keeps across steps, checkpointed by the trainer."""
+
+    def __init__(self, params: Sequence[nn.Parameter]) -> None:
+        super().__init__()
+        self.register_buffer("best_mse", torch.tensor(math.inf, dtype=torch.float64))
+        self.register_buffer("best_step", torch.tensor(-1, dtype=torch.int64))
+        for i, p in enumerate(params):
+            self.register_buffer(f"best_{i}", p.detach().clone())
+        self.count = len(params)
+        self.curve: list[list[float]] = []
+
+    def observe(self, step: int, mse: float, params: Sequence[nn.Parameter]) -> None:
+        self.curve.append([step, mse])
+        if mse < float(self.best_mse):  # NaN never wins
+            self.best_mse.fill_(mse)
+            self.best_step.fill_(step)
+            for i, p in enumerate(params):
+                getattr(self, f"best_{i}").copy_(p.detach())
+
+    def restore(self, params: Sequence[nn.Parameter]) -> None:
+        with torch.no_grad():
+            for i, p in enumerate(params):
+                p.copy_(getattr(self, f"best_{i}"))
+
+    def summary(self) -> dict:
+        return {"curve": [list(c) for c in self.curve], "best_mse": float(self.best_mse),
+                "best_step": int(self.best_step)}
+
+    def get_extra_state(self) -> dict:
+        return {"curve": [list(c) for c in self.curve]}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.curve = [list(c) for c in state["curve"]]
+
+
+def validation_summary(model: nn.Module) -> dict | None:
+    """{"curve": [[step, validation MSE], ...], "best_mse", "best_step"} of the last validated fit of `model`
+    in this process (its weights are those of best_step), or None."""
+    stopping = _LAST.get(model)
+    return stopping.summary() if stopping is not None else None
+
+
+def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, params: list[nn.Parameter],
+                      train: Observations, validation: Observations | None) -> Phase:
+    """`steps` steps of the mean squared error of predict(o) against o.value on `recipe.batch_size` observations
+    drawn (with ctx.generator) from `train`; early stopping on `validation` unless it is None (both from
+    `split_observations`)."""
+    recipe = ctx.recipe
+    gen = ctx.generator
+
+    def batch_loss() -> torch.Tensor:
+        idx = torch.randint(len(train), (recipe.batch_size,), generator=gen, device=gen.device)
+        o = train[idx.to(train.x.device)]
+        return ((predict(o) - o.value) ** 2).mean()
+
+    if validation is None:
+        _LAST.pop(ctx.model, None)
+        return Phase(name, steps, lambda step: {"mse": batch_loss()}, params)
+
+    stopping = EarlyStopping(params).to(ctx.device)
+    _LAST[ctx.model] = stopping
+
+    def measure(done: int) -> None:
+        stopping.observe(done, observation_mse(predict, validation, recipe.batch_size), params)
+
+    def losses(step: int) -> dict[str, torch.Tensor]:
+        if step > 0 and step % recipe.log_every == 0:  # the weights after `step` updates: a history record's
+            measure(step)
+        return {"mse": batch_loss()}
+
+    def after() -> None:
+        measure(steps)
+        if int(stopping.best_step) < 0:
+            raise InputError(f"fit {model_name(ctx.model)} ({name}): the validation MSE was never finite "
+                             f"({stopping.curve[-1][1]}); the fit diverged (lower lr, now {recipe.lr})")
+        stopping.restore(params)
+
+    return Phase(name, steps, losses, params, after=after, stateful=[stopping])

@@ -47,6 +47,12 @@ class Observations:
     def __getitem__(self, index) -> "Observations":
         return Observations(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 
+    def to(self, device: str | torch.device) -> "Observations":
+        """The same observations on `device` (self when they are there already)."""
+        if self.x.device == torch.device(device):
+            return self
+        return Observations(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
     def split(self, fraction: float, seed: int = 0) -> tuple["Observations", "Observations"]:
         """(rest, held-out) with a random `fraction` of the observations held out."""
         if not 0 < fraction < 1:
