@@ -38,7 +38,7 @@ from neumat.fit.dipole_bssrdf import dipole_predict
 from neumat.fit.neumip_uv import neumip_uv_predict
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
-from neumat.fit.translucent_fit import validation_summary
+from neumat.fit.translucent_fit import best_validation
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
@@ -146,7 +146,7 @@ def main() -> None:
         rows.append({"variant": name, "held-out MSE": f"{mse:.4g}",
                      "rel. to variance": f"{mse / float(test.value.var()):.3f}",
                      "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
-                     "best step": validation_summary(model)["best_step"],
+                     "best step": best_validation(result.history)["step"],
                      "final KL": f"{kl[-1]['kl']:.3f}", "fit s": f"{fit_s:.0f}+{sampler_s:.0f}",
                      "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024})
         for strategy in ("light", "model"):
@@ -190,7 +190,7 @@ def _dipole(obj, data, test, a, env, camera, reference, images, image_rows) -> d
     print(f"dipole coefficients (1/object unit): sigma_a {sigma_a}; sigma_s' {sigma_s}")
     return {"variant": "dipole (homogeneous)", "held-out MSE": f"{mse:.4g}",
             "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
-            "best step": validation_summary(model)["best_step"], "final KL": "-",
+            "best step": best_validation(hist)["step"], "final KL": "-",
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": "0 (6 numbers)"}
 
 
@@ -220,7 +220,7 @@ def _uv_baseline(kind, obj, bounds, data, test, a, env, camera, reference, image
     images[f"{kind}, light IS"] = img
     return {"variant": label, "held-out MSE": f"{mse:.4g}",
             "rel. to variance": f"{mse / float(test.value.var()):.3f}", "train MSE (noisy)": f"{hist[-1]['mse']:.4g}",
-            "best step": validation_summary(model)["best_step"], "final KL": "-",
+            "best step": best_validation(hist)["step"], "final KL": "-",
             "fit s": f"{fit_s:.0f}", "evals/s": f"{evals:.3g}", "KB fp32": model.size_bytes() // 1024}
 
 

@@ -10,7 +10,7 @@ from neumat.core.query import Query
 from neumat.fit.neupress import light_grid, neupress_predict, sampler_kl
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
-from neumat.fit.translucent_fit import observation_mse, validation_summary
+from neumat.fit.translucent_fit import best_validation, observation_mse
 from neumat.fit.translucent_observations import Observations
 from neumat.models.neupress import NeuPreSS
 from neumat.models.registry import build_model
@@ -178,14 +178,13 @@ def test_validation_keeps_the_weights_that_generalise_best():
         torch.manual_seed(0)
         m = NeuPreSS(features=64, width=64, layers=3, feature_mean=0.0, feature_std=2.0)
         recipe = _recipe(600, batch_size=512, lr=3e-3, log_every=25, validation_fraction=fraction, seed=1)
-        fit(m, source, recipe, progress=False)
+        history = fit(m, source, recipe, progress=False).history
         results[name] = clean_mse(m)
-    summary = validation_summary(m)  # the validation MSE after every record of the history (every 25 steps)
-    history = [{"step": step, "validation_mse": mse} for step, mse in summary["curve"]]
+    # the validation MSE after every record of the history (every 25 steps)
     assert [r["step"] for r in history] == list(range(25, 601, 25))
     assert all("validation_mse" in r for r in history)
     best = min(r["validation_mse"] for r in history)
-    assert summary["best_mse"] == best
+    assert best_validation(history)["validation_mse"] == best
     assert observation_mse(neupress_predict(m), validation) == pytest.approx(best, rel=1e-6)
     assert history[-1]["validation_mse"] > best  # it did overfit by the end: the restore mattered
     assert results["validated"] < 0.7 * results["plain"], results

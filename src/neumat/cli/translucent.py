@@ -70,7 +70,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
 
         from ..fit.recipe import recipe_for
         from ..fit.trainer import fit as fit_model
-        from ..fit.translucent_fit import validation_summary
+        from ..fit.translucent_fit import best_validation
         from ..fit.translucent_observations import Observations
         from ..io.modelfile import save_model
         from .common import parse_overrides
@@ -94,15 +94,14 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
         kl = [r["kl"] for r in result.history if r["phase"] == "sampler"]
         metrics = {"sampler_kl": kl[-1] if kl else None, "fit_seconds": result.seconds}
         row = {"observations": len(data), "steps": result.steps}
-        summary = validation_summary(model)
-        if summary is not None:
+        best = best_validation(result.history)
+        if best is not None:
             held = data.split(recipe.options["validation_fraction"], seed=recipe.seed)[1]  # as the recipe splits
             variance = float(held.value.var())
-            metrics.update(validation_mse=summary["best_mse"], validation_variance=variance,
-                           best_step=summary["best_step"])
-            row.update({"validation": len(held), "best step": summary["best_step"],
-                        "validation MSE": summary["best_mse"],
-                        "relative to its variance": summary["best_mse"] / variance})
+            metrics.update(validation_mse=best["validation_mse"], validation_variance=variance,
+                           best_step=best["step"])
+            row.update({"validation": len(held), "best step": best["step"], "validation MSE": best["validation_mse"],
+                        "relative to its variance": best["validation_mse"] / variance})
         row["sampler KL"] = metrics["sampler_kl"]
         save_model(model.cpu(), out, recipe=replace(recipe, steps=result.steps), source=observations,
                    metrics=metrics)

@@ -10,16 +10,14 @@ The recipe options these phases read (every translucent recipe lists them, with 
   bounds:              the object's bounding box [[lo x, y, z], [hi x, y, z]] for `model.set_bounds`, or None:
                        that of all observed points (models without set_bounds ignore it).
 
-Early stopping: the validation MSE is measured after every `recipe.log_every` steps and after the phase's last
-step (the weights the trainer's history records describe); the phase ends with the weights of the lowest one.
-That state (best MSE, its step, those weights and the whole validation curve) lives in an `EarlyStopping`
-module listed in the phase's `stateful`, so a resumed fit continues exactly. `validation_summary(model)` gives
-the curve and the best record of the last fit of `model` (the trainer's history has no field for it).
+Early stopping: the validation MSE is measured for every history record of the phase (every `recipe.log_every`
+steps and after its last step) and stored in the record as "validation_mse"; the phase ends with the weights of
+the lowest one. That state (best MSE, its step, those weights) lives in an `EarlyStopping` module listed in the
+phase's `stateful`, so a resumed fit continues exactly. `best_validation(history)` reads the best record back.
 """
 from __future__ import annotations
 
 import math
-import weakref
 from typing import Callable, Sequence
 
 import torch
@@ -33,8 +31,6 @@ Predict = Callable[[Observations], torch.Tensor]
 
 #: the options every translucent recipe has (see the module docstring)
 OBSERVATION_OPTIONS = ("validation_fraction", "max_validation", "bounds")
-
-_LAST: "weakref.WeakKeyDictionary[nn.Module, EarlyStopping]" = weakref.WeakKeyDictionary()
 
 
 def observation_mse(predict: Predict, observations: Observations, batch: int = 65536) -> float:
@@ -100,8 +96,8 @@ def set_bounds_from(ctx: FitContext) -> None:
 
 
 class EarlyStopping(nn.Module):
-    """Best validation MSE, its step and the parameters then (buffers), and the validation curve [[step, mse],
-    ...] (extra state): what an appearance phase keeps across steps, checkpointed by the trainer."""
+    """Best validation MSE, its step and the parameters then (buffers): what an appearance phase keeps across
+    steps, checkpointed by the trainer."""
 
     def __init__(self, params: Sequence[nn.Parameter]) -> None:
         super().__init__()
@@ -109,11 +105,8 @@ class EarlyStopping(nn.Module):
         self.register_buffer("best_step", torch.tensor(-1, dtype=torch.int64))
         for i, p in enumerate(params):
             self.register_buffer(f"best_{i}", p.detach().clone())
-        self.count = len(params)
-        self.curve: list[list[float]] = []
 
     def observe(self, step: int, mse: float, params: Sequence[nn.Parameter]) -> None:
-        self.curve.append([step, mse])
         if mse < float(self.best_mse):  # NaN never wins
             self.best_mse.fill_(mse)
             self.best_step.fill_(step)
@@ -125,22 +118,12 @@ class EarlyStopping(nn.Module):
             for i, p in enumerate(params):
                 p.copy_(getattr(self, f"best_{i}"))
 
-    def summary(self) -> dict:
-        return {"curve": [list(c) for c in self.curve], "best_mse": float(self.best_mse),
-                "best_step": int(self.best_step)}
 
-    def get_extra_state(self) -> dict:
-        return {"curve": [list(c) for c in self.curve]}
-
-    def set_extra_state(self, state: dict) -> None:
-        self.curve = [list(c) for c in state["curve"]]
-
-
-def validation_summary(model: nn.Module) -> dict | None:
-    """{"curve": [[step, validation MSE], ...], "best_mse", "best_step"} of the last validated fit of `model`
-    in this process (its weights are those of best_step), or None."""
-    stopping = _LAST.get(model)
-    return stopping.summary() if stopping is not None else None
+def best_validation(history: list[dict]) -> dict | None:
+    """The history record with the lowest "validation_mse" (the weights a validated phase ends with), or None
+    when no record has one."""
+    records = [r for r in history if math.isfinite(r.get("validation_mse", math.nan))]
+    return min(records, key=lambda r: r["validation_mse"]) if records else None
 
 
 def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, params: list[nn.Parameter],
@@ -157,25 +140,19 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
         return ((predict(o) - o.value) ** 2).mean()
 
     if validation is None:
-        _LAST.pop(ctx.model, None)
         return Phase(name, steps, lambda step: {"mse": batch_loss()}, params)
 
     stopping = EarlyStopping(params).to(ctx.device)
-    _LAST[ctx.model] = stopping
 
-    def measure(done: int) -> None:
-        stopping.observe(done, observation_mse(predict, validation, recipe.batch_size), params)
-
-    def losses(step: int) -> dict[str, torch.Tensor]:
-        if step > 0 and step % recipe.log_every == 0:  # the weights after `step` updates: a history record's
-            measure(step)
-        return {"mse": batch_loss()}
+    def on_record(record: dict) -> None:  # the weights after record["step"] updates
+        record["validation_mse"] = observation_mse(predict, validation, recipe.batch_size)
+        stopping.observe(record["step"], record["validation_mse"], params)
 
     def after() -> None:
-        measure(steps)
         if int(stopping.best_step) < 0:
-            raise InputError(f"fit {model_name(ctx.model)} ({name}): the validation MSE was never finite "
-                             f"({stopping.curve[-1][1]}); the fit diverged (lower lr, now {recipe.lr})")
+            raise InputError(f"fit {model_name(ctx.model)} ({name}): the validation MSE was never finite; the fit "
+                             f"diverged (lower lr, now {recipe.lr})")
         stopping.restore(params)
 
-    return Phase(name, steps, losses, params, after=after, stateful=[stopping])
+    return Phase(name, steps, lambda step: {"mse": batch_loss()}, params, after=after, stateful=[stopping],
+                 on_record=on_record)
