@@ -6,7 +6,7 @@ import torch
 
 from neumat import InputError, Query
 from neumat.fit.pca_btf import best_ranks, decompose, fit_pca
-from neumat.models.pca_btf import PCABTF, rank_budget
+from neumat.models.pca_btf import rank_budget
 from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.models.sparse_btf import mse
 from neumat.reflectance.btf import TabulatedBTF

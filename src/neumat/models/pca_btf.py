@@ -21,7 +21,7 @@ from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
-from neumat.models.sparse_dictionary import model_space_to_rgb, rgb_to_model_space
+from neumat.models.sparse_dictionary import model_space_to_rgb
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
 
 
