@@ -65,11 +65,14 @@ from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.io.texture_set import load_texture_set
 from neumat.metrics.tonemap import LUMINANCE
-from neumat.models.btf_table_queries import decode_table, table_samples
+from neumat.fit.measured_samples import table_samples
+from neumat.models.btf_table_queries import decode_table
 from neumat.models.neubrdf import NeuBRDF
-from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
+from neumat.fit.pca_btf import best_ranks, decompose, fit_pca
+from neumat.models.pca_btf import rank_budget
 from neumat.models.sparse_btf import SparseBTF, mse
-from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space, train_dictionary
+from neumat.fit.sparse_dictionary import train_dictionary
+from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space
 from neumat.reflectance.btf import direction_set
 from neumat.reflectance.btf_generate import generate_btf, texture_tile
 from neumat.reflectance.procedural_texture import KINDS, RELIEF, material_name, parse_material, procedural_texture_set
@@ -462,8 +465,8 @@ def main():
             st = sp.storage(statistics_bytes=args.statistics_bytes)
             ranks = best_ranks(dec.eigenvalues, totals[mult])
             paper_ranks = best_ranks(dec.eigenvalues, paper_totals[mult])
-            pca = PCABTF.fit(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
-            pca_paper = PCABTF.fit(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
+            pca = fit_pca(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
+            pca_paper = fit_pca(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
             decoded, pca_decoded = sp.decode(), pca.decode()
             rows.append({"btf": name, "tau_t (Y,U,V)": str(taus[mult]),
                          "coefficients": st["coefficients"],
@@ -508,7 +511,7 @@ def main():
         figure_models = {"reference": btf, "sparse-btf Eq. 6": fig, "sparse-btf table": fig.decode()}
         total = rank_budget(fig.storage(statistics_bytes=args.statistics_bytes)["per_btf"], dirs.shape[0],
                             dirs.shape[0], args.size, args.size)
-        figure_models["pca"] = PCABTF.fit(btf, best_ranks(dec.eigenvalues, total), log_eps=dic.log_eps,
+        figure_models["pca"] = fit_pca(btf, best_ranks(dec.eigenvalues, total), log_eps=dic.log_eps,
                                           decomposition=dec)
         out = Path(__file__).parent / "results"
         table(f"renders of {name} (tau x{fig_mult}, equal per-BTF bytes) under studio_small_03, {args.render_spp} spp, "

@@ -46,7 +46,7 @@ def test_export_refuses_a_model_without_a_shader(tmp_path):
 @needs_gl
 def test_export_check_runs_a_sparse_btf(tmp_path):
     from neumat.models.sparse_btf import SparseBTF
-    from neumat.models.sparse_dictionary import train_dictionary
+    from neumat.fit.sparse_dictionary import train_dictionary
 
     from btf_util import synthetic_btf
 

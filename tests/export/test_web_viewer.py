@@ -113,7 +113,7 @@ def test_page_renders_what_torch_renders(name, tmp_path):
 def test_sparse_btf_page_matches_torch(tmp_path):
     from btf_util import synthetic_btf
     from neumat.models.sparse_btf import SparseBTF
-    from neumat.models.sparse_dictionary import train_dictionary
+    from neumat.fit.sparse_dictionary import train_dictionary
 
     dictionary = train_dictionary([synthetic_btf(s) for s in (1, 2)], num_dictionaries=2, tau_train=(16, 4, 4),
                                   patch=4, max_iters=2)

@@ -10,7 +10,8 @@ import torch
 from neumat import InputError, Material, Query
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.btf_table_queries import decode_table, table_queries, table_samples, texel_centre_uv
+from neumat.fit.measured_samples import table_samples
+from neumat.models.btf_table_queries import decode_table, table_queries, texel_centre_uv
 from neumat.models.neubrdf import NeuBRDF
 from neumat.models.sparse_btf import mse
 from neumat.models.sparse_dictionary import rgb_to_model_space

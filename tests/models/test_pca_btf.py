@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget
+from neumat.fit.pca_btf import best_ranks, decompose, fit_pca
+from neumat.models.pca_btf import rank_budget
 from neumat.models.sparse_dictionary import rgb_to_model_space
 from neumat.models.sparse_btf import mse
 from neumat.reflectance.btf import TabulatedBTF
@@ -15,15 +16,15 @@ from btf_util import N_DIRS, SIZE, synthetic_btf
 
 def test_full_rank_is_exact_and_error_falls_with_rank():
     btf = synthetic_btf(3)
-    full = PCABTF.fit(btf, (N_DIRS ** 2,) * 3)
+    full = fit_pca(btf, (N_DIRS ** 2,) * 3)
     assert mse(btf, full.decode()) < 1e-9
-    errs = [mse(btf, PCABTF.fit(btf, (r, r, r)).decode()) for r in (1, 2, 4, 8, 16)]
+    errs = [mse(btf, fit_pca(btf, (r, r, r)).decode()) for r in (1, 2, 4, 8, 16)]
     assert all(b < a for a, b in zip(errs[:4], errs[1:4]))
     assert errs[3] < 1e-12 and errs[4] <= errs[3]             # the synthetic BTF has rank 7 in log-YUV
 
 
 def test_eval_at_bins_and_texel_centres_matches_decoded_table(gen):
-    model = PCABTF.fit(synthetic_btf(4), (4, 2, 2))
+    model = fit_pca(synthetic_btf(4), (4, 2, 2))
     table = model.decode().data
     n = 40
     li, vi = torch.randint(0, N_DIRS, (2, n), generator=gen)
@@ -37,7 +38,7 @@ def test_rank_budget_fits_the_budget():
     budget = 20000
     total = rank_budget(budget, N_DIRS, N_DIRS, SIZE, SIZE)
     ranks = best_ranks(decompose(synthetic_btf(5)).eigenvalues, total)
-    used = PCABTF.fit(synthetic_btf(5), ranks).storage()["total"]
+    used = fit_pca(synthetic_btf(5), ranks).storage()["total"]
     assert sum(ranks) == total > 0
     assert used <= budget < used + 2 * (N_DIRS ** 2 + SIZE ** 2)
     with pytest.raises(InputError, match="budget"):
@@ -49,7 +50,7 @@ def test_best_ranks_is_the_best_split_by_brute_force():
     ref = rgb_to_model_space(btf.data, 0.01)
 
     def model_space_error(ranks):
-        return float(((rgb_to_model_space(PCABTF.fit(btf, ranks).decode().data, 0.01) - ref) ** 2).sum())
+        return float(((rgb_to_model_space(fit_pca(btf, ranks).decode().data, 0.01) - ref) ** 2).sum())
 
     for total in (1, 3, 7):
         splits = [(a, b, total - a - b) for a in range(total + 1) for b in range(total + 1 - a)]
@@ -74,7 +75,7 @@ def test_both_gram_sides_and_the_randomised_path_give_the_same_components():
     assert angle_side.exact and texel_side.exact and not randomised.exact
     r = 6
     for dec, b in ((angle_side, btf), (texel_side, small), (randomised, btf)):
-        model = PCABTF.fit(b, (r, r, r), decomposition=dec)
+        model = fit_pca(b, (r, r, r), decomposition=dec)
         yuv = rgb_to_model_space(b.data, 0.01)
         err = float(((rgb_to_model_space(model.decode().data, 0.01) - yuv) ** 2).sum())
         tail = sum(float(e[r:].sum()) for e in decompose(b).eigenvalues)   # the Eckart-Young optimum
@@ -86,6 +87,6 @@ def test_both_gram_sides_and_the_randomised_path_give_the_same_components():
 def test_fit_refuses_a_decomposition_of_another_btf_or_too_few_components():
     btf = synthetic_btf(8)
     with pytest.raises(InputError, match="another BTF"):
-        PCABTF.fit(btf, (2, 1, 1), decomposition=decompose(synthetic_btf(8), log_eps=0.1))
+        fit_pca(btf, (2, 1, 1), decomposition=decompose(synthetic_btf(8), log_eps=0.1))
     with pytest.raises(InputError, match="exceed"):
-        PCABTF.fit(btf, (4, 1, 1), decomposition=decompose(btf, max_rank=3))
+        fit_pca(btf, (4, 1, 1), decomposition=decompose(btf, max_rank=3))

@@ -15,8 +15,8 @@ from neumat.fit.recipe import recipe_for
 from neumat.metrics.hdr import reflectance_errors
 from neumat.models.neubrdf import NeuBRDF
 from neumat.models.registry import model_class
-from neumat.models.shared_neubrdf import (Clustering, Config, JointSource, MaterialQuery, SharedNeuBRDF,
-                                          cluster_materials, fit_clusters, fit_shared, sharing_cost)
+from neumat.fit.shared_neubrdf import Clustering, JointSource, cluster_materials, fit_clusters, fit_shared
+from neumat.models.shared_neubrdf import Config, MaterialQuery, SharedNeuBRDF, sharing_cost
 from neumat.nn.conv_autoencoder import ConvAutoencoder, train_autoencoder
 from neumat.reflectance.analytic import GGX, Plastic
 from neumat.warp.hemisphere import sample_cosine_hemisphere

@@ -6,9 +6,10 @@ import torch
 
 from neumat import InputError, Query
 from neumat.models.sparse_btf import SparseBTF, _pairs_of_taps, mse
+from neumat.fit.sparse_dictionary import train_dictionary, train_ensemble
 from neumat.models.sparse_dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
                                              keep_largest, mode_product, model_space_to_rgb, prepare_btf, project,
-                                             rgb_to_model_space, train_dictionary, train_ensemble)
+                                             rgb_to_model_space)
 from neumat.reflectance.btf import angular_weights, direction_set
 
 from btf_util import N_DIRS, SIZE, synthetic_btf

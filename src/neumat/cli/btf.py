@@ -29,20 +29,25 @@ def register(app: typer.Typer) -> None:
     def fit_dictionary(
             btfs: list[Path] = typer.Argument(..., help=".nbtf files of the training set (one direction set)"),
             out: Path = typer.Option(..., "-o", "--out", help="output dictionary file (.nmat)"),
-            dictionaries: int = typer.Option(8, "--dictionaries", "-k", help="K dictionaries per ensemble"),
-            tau: str = typer.Option("256,32,32", "--tau", help="training sparsity tau_l, Y,U,V or one value"),
-            patch: int = typer.Option(10, "--patch", help="spatial patch size of a data point"),
-            fraction: float = typer.Option(1.0, "--fraction", help="random fraction of data points used"),
-            iterations: int = typer.Option(20, "--iterations", help="maximum training iterations"),
-            seed: int = typer.Option(0, "--seed")) -> None:
+            dictionaries: int = typer.Option(None, "--dictionaries", "-k",
+                                             help="K dictionaries per ensemble [default: SparseBTF Config]"),
+            tau: str = typer.Option(None, "--tau", help="training sparsity tau_l, Y,U,V or one value "
+                                                        "[default: SparseBTF Config.tau_train]"),
+            patch: int = typer.Option(None, "--patch", help="spatial patch size of a data point "
+                                                            "[default: SparseBTF Config]"),
+            fraction: float = typer.Option(None, "--fraction", help="random fraction of data points used "
+                                                                    "[default: sparse-btf recipe]"),
+            iterations: int = typer.Option(None, "--iterations", help="maximum training iterations "
+                                                                      "[default: sparse-btf recipe steps - 1]"),
+            seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]")) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
+        from ..fit.sparse_dictionary import train_dictionary
         from ..io.btf import read_btf
-        from ..models.sparse_dictionary import train_dictionary
 
         def go():
             data = [read_btf(p) for p in btfs]
-            d = train_dictionary(data, dictionaries, parse_tau(tau), patch, sample_fraction=fraction,
-                                 max_iters=iterations, seed=seed, progress=True)
+            d = train_dictionary(data, dictionaries, None if tau is None else parse_tau(tau), patch,
+                                 sample_fraction=fraction, max_iters=iterations, seed=seed, progress=True)
             d.save(out)
             rows = [{"channel": ch, "iterations": d.info["iterations"][ch], "seconds": d.info["seconds"][ch],
                      "objective": d.info["objective"][ch][-1]} for ch in "YUV"]

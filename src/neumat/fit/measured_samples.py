@@ -101,3 +101,14 @@ class MeasuredSamples(Material):
 
     def describe(self) -> str:
         return f"{self.name} ({len(self)} measured samples{', spatially varying' if self.spatially_varying else ''})"
+
+
+def table_samples(btf) -> MeasuredSamples:
+    """All entries of a tabulated BTF (`neumat.reflectance.btf.TabulatedBTF`) as measured samples
+    (wi, wo, uv) -> value, float32, in the entry order of `neumat.models.btf_table_queries.table_queries`: a
+    fitting source that the "replay" query sampler draws from exactly (no interpolation between texels or
+    direction bins)."""
+    from ..models.btf_table_queries import table_queries
+
+    q = table_queries(btf)
+    return MeasuredSamples(q.wi, q.wo, btf.data.reshape(-1, 3).to(q.wi), uv=q.uv, name=f"table of {btf.describe()}")

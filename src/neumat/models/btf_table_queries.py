@@ -1,6 +1,7 @@
 """The entries of a tabulated BTF as queries: every texel centre x every (light, view) pair of its direction
-sets, for fitting any spatially varying model to exactly the tabulated values and for decoding such a model
-back into a table of the same layout (to compare it entry by entry with the BTF, like SparseBTF and PCA).
+sets, for fitting any spatially varying model to exactly the tabulated values (`table_samples` of the fit
+package's measured_samples.py) and for decoding such a model back into a table of the same layout (to
+compare it entry by entry with the BTF, like SparseBTF and PCA).
 
 Entry order: the flattened (L, V, H, W) index of `TabulatedBTF.data`; texel (row i, col j) at its centre
 uv = ((j + 0.5) / W, 1 - (i + 0.5) / H) (`neumat.reflectance.btf`).
@@ -12,7 +13,6 @@ import torch
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
-from ..fit.measured_samples import MeasuredSamples
 from ..reflectance.btf import TabulatedBTF
 
 
@@ -39,13 +39,6 @@ def table_queries(btf: TabulatedBTF, start: int = 0, stop: int | None = None) ->
     return Query(btf.light_dirs[light], btf.view_dirs[view], uv=uv)
 
 
-def table_samples(btf: TabulatedBTF) -> MeasuredSamples:
-    """All entries of `btf` as measured samples (wi, wo, uv) -> value, float32: a fitting source that the
-    "replay" query sampler draws from exactly (no interpolation between texels or direction bins)."""
-    q = table_queries(btf)
-    return MeasuredSamples(q.wi, q.wo, btf.data.reshape(-1, 3).to(q.wi), uv=q.uv, name=f"table of {btf.describe()}")
-
-
 @torch.no_grad()
 def decode_table(model: Material, like: TabulatedBTF, batch: int = 1 << 16) -> TabulatedBTF:
     """`model` evaluated at every entry of `like` (texel centres x its direction pairs), as a TabulatedBTF
@@ -59,4 +52,4 @@ def decode_table(model: Material, like: TabulatedBTF, batch: int = 1 << 16) -> T
     return TabulatedBTF(data, like.light_dirs, like.view_dirs, like.neighbours, label=f"decoded {like.label}")
 
 
-__all__ = ["decode_table", "table_queries", "table_samples", "texel_centre_uv"]
+__all__ = ["decode_table", "table_queries", "texel_centre_uv"]

@@ -1,11 +1,12 @@
 """PCA baseline for BTFs (the paper's Table 5): per BTF and YUV channel, a truncated PCA of the matrix whose
 rows are texels and whose columns are the L x V angular samples, in the same model space as SparseBTF
 (log(x + eps), RGB -> YUV). Stored: per channel a mean over texels (L V), r basis vectors (L V x r) and
-r coefficients per texel (H W x r), all float16. `decompose` computes the principal components once per
-BTF (exactly from the smaller Gram matrix, or by randomised subspace iteration when both sides are large, as
-for 151 x 151 directions and 100 x 100 texels); `rank_budget` gives the component count of a storage budget
-and `best_ranks` (of the decomposition's eigenvalues) its least-error split over Y, U, V, so PCA can be
-compared with SparseBTF at equal storage. Lookup: the same wrap-around bilinear and k-nearest angular
+r coefficients per texel (H W x r), all float16. The solve is training code (fit/pca_btf.py:
+`decompose` computes the principal components once per BTF, exactly from the smaller Gram matrix, or by
+randomised subspace iteration when both sides are large, as for 151 x 151 directions and 100 x 100 texels;
+`best_ranks` (of the decomposition's eigenvalues) gives the least-error split over Y, U, V of a component
+count); `rank_budget` gives the component count of a storage budget, so PCA can be compared with SparseBTF at
+equal storage. Lookup: the same wrap-around bilinear and k-nearest angular
 interpolation as `TabulatedBTF`, in linear RGB.
 """
 from __future__ import annotations
@@ -20,7 +21,7 @@ from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
-from neumat.models.sparse_dictionary import model_space_to_rgb, rgb_to_model_space
+from neumat.models.sparse_dictionary import model_space_to_rgb
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
 
 
@@ -46,7 +47,8 @@ class Config:
 
 @MODELS.register("pca-btf")
 class PCABTF(LearnedMaterial):
-    """Truncated PCA of a BTF (module docstring). Build with `PCABTF.fit(btf, ranks)`."""
+    """Truncated PCA of a BTF (module docstring). Build with `fit_pca(btf, ranks)` (fit/pca_btf.py) or
+    `fit(PCABTF.for_btf(btf, ranks=...), btf)`."""
 
     name = "pca-btf"
     paper = "per-BTF PCA: baseline of SparseBTF (Kavoosi et al.)"
@@ -72,30 +74,47 @@ class PCABTF(LearnedMaterial):
         self.register_buffer("coeffs", torch.zeros(3, hw, r))
 
     @classmethod
-    def fit(cls, btf: TabulatedBTF, ranks: tuple[int, int, int], log_eps: float = 0.01,
-            neighbours: int = 3, decomposition: "Decomposition | None" = None) -> "PCABTF":
-        """Truncated PCA of `btf` with `ranks` components for Y, U, V (from `decomposition`, a `decompose` of
-        this BTF with at least max(ranks) components, when given)."""
+    def for_btf(cls, btf: TabulatedBTF, **fields) -> "PCABTF":
+        """A model sized for `btf` (direction counts, texels), other Config fields from `fields`: what
+        the trainer's `fit(model, btf)` solves (recipe fit/recipes/pca_btf.py)."""
         l, v, h, w, _ = btf.data.shape
-        ranks = tuple(int(r) for r in ranks)
-        dec = decomposition if decomposition is not None else decompose(btf, log_eps, max(ranks))
-        if dec.mean.shape[1] != l * v or dec.coeffs.shape[1] != h * w or dec.log_eps != log_eps:
-            raise InputError(f"PCABTF.fit: the decomposition is of another BTF ({dec.mean.shape[1]} angular samples, "
-                             f"{dec.coeffs.shape[1]} texels, log_eps {dec.log_eps}) than this one ({l * v}, {h * w}, "
-                             f"{log_eps})")
-        if any(r > len(e) and len(e) < min(l * v, h * w) for r, e in zip(ranks, dec.eigenvalues)):
-            raise InputError(f"PCABTF.fit: ranks {ranks} exceed the {[len(e) for e in dec.eigenvalues]} components "
-                             "the decomposition kept")
-        cfg = Config(n_light=l, n_view=v, height=h, width=w, ranks=ranks, log_eps=log_eps, neighbours=neighbours)
-        model = cls(cfg).to(btf.data.device)
-        model.light_dirs.copy_(btf.light_dirs)
-        model.view_dirs.copy_(btf.view_dirs)
-        model.mean.copy_(dec.mean)
-        for c in range(3):
-            r = min(ranks[c], len(dec.eigenvalues[c]))
-            model.basis[c, :, :r] = dec.basis[c, :, :r]
-            model.coeffs[c, :, :r] = dec.coeffs[c, :, :r]
-        return model
+        return cls(Config(**{**fields, "n_light": l, "n_view": v, "height": h, "width": w}))
+
+    def check_source(self, btf: TabulatedBTF) -> None:
+        """Raise InputError unless `btf` is a tabulated BTF of this model's size."""
+        data = getattr(btf, "data", None)
+        if not isinstance(data, torch.Tensor) or data.dim() != 5 or not hasattr(btf, "light_dirs"):
+            raise InputError(f"pca-btf: the source must be one tabulated BTF (neumat.io.btf.read_btf), got "
+                             f"{type(btf).__name__}")
+        c = self.cfg
+        if tuple(data.shape[:4]) != (c.n_light, c.n_view, c.height, c.width):
+            raise InputError(f"pca-btf: the BTF has {tuple(data.shape[:4])} (lights, views, height, width) but the "
+                             f"model was built for {(c.n_light, c.n_view, c.height, c.width)}; build it with "
+                             "PCABTF.for_btf(btf, ...)")
+
+    @torch.no_grad()
+    def load_components(self, decomposition, light_dirs: torch.Tensor, view_dirs: torch.Tensor) -> "PCABTF":
+        """Keep the leading cfg.ranks components of `decomposition` (a `Decomposition` of fit/pca_btf.py, of a
+        BTF of this size and log eps: mean (3, LV), eigenvalues, basis (3, LV, R), coeffs (3, HW, R)); returns
+        self."""
+        c = self.cfg
+        dec = decomposition
+        lv, hw = c.n_light * c.n_view, c.height * c.width
+        if dec.mean.shape[1] != lv or dec.coeffs.shape[1] != hw or dec.log_eps != c.log_eps:
+            raise InputError(f"PCABTF: the decomposition is of another BTF ({dec.mean.shape[1]} angular samples, "
+                             f"{dec.coeffs.shape[1]} texels, log_eps {dec.log_eps}) than this one ({lv}, {hw}, "
+                             f"{c.log_eps})")
+        if any(r > len(e) and len(e) < min(lv, hw) for r, e in zip(c.ranks, dec.eigenvalues)):
+            raise InputError(f"PCABTF: ranks {tuple(c.ranks)} exceed the {[len(e) for e in dec.eigenvalues]} "
+                             "components the decomposition kept")
+        self.light_dirs.copy_(light_dirs)
+        self.view_dirs.copy_(view_dirs)
+        self.mean.copy_(dec.mean)
+        for i in range(3):
+            r = min(c.ranks[i], len(dec.eigenvalues[i]))
+            self.basis[i, :, :r] = dec.basis[i, :, :r]
+            self.coeffs[i, :, :r] = dec.coeffs[i, :, :r]
+        return self
 
     def decode(self) -> TabulatedBTF:
         """The reconstructed BTF (L, V, H, W, 3), linear RGB."""
@@ -156,74 +175,3 @@ def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int,
     if free < 0:
         raise InputError(f"rank_budget: a budget of {budget} bytes does not even hold the PCA means")
     return free // ((lv + hw) * value_bytes)
-
-
-@dataclass
-class Decomposition:
-    """Principal components of a BTF's Y, U, V channels in the model space (log(x + eps), YUV), largest first.
-
-    mean (3, LV) over texels; eigenvalues: per channel (R_c,), the squared error each component removes;
-    basis (3, LV, R) orthonormal columns; coeffs (3, HW, R) = centred data @ basis; exact: False when
-    computed by randomised subspace iteration (then only the leading R components are kept)."""
-
-    mean: torch.Tensor
-    eigenvalues: list[torch.Tensor]
-    basis: torch.Tensor
-    coeffs: torch.Tensor
-    log_eps: float
-    exact: bool
-
-
-def decompose(btf: TabulatedBTF, log_eps: float = 0.01, max_rank: int | None = None, exact_limit: int = 4096,
-              oversample: int = 16, power_iterations: int = 6) -> Decomposition:
-    """Principal components of `btf` (all of them, or the leading `max_rank`). Exact (eigendecomposition of
-    the smaller Gram matrix, float64) unless both sides of the texel x angle matrix exceed `exact_limit` and
-    `max_rank` is given: then randomised subspace iteration (`torch.svd_lowrank`, max_rank + `oversample`
-    vectors, `power_iterations` passes, float64), whose leading eigenvalues match the exact ones within
-    1e-4 relative (test)."""
-    l, v, h, w, _ = btf.data.shape
-    lv, hw = l * v, h * w
-    if max_rank is not None and max_rank < 0:
-        raise InputError(f"decompose: expected a non-negative max_rank, got {max_rank!r}")
-    r_max = min(lv, hw) if max_rank is None else min(max_rank, lv, hw)
-    exact = max_rank is None or min(lv, hw) <= exact_limit or r_max + oversample >= min(lv, hw)
-    yuv = rgb_to_model_space(btf.data.float(), log_eps)                            # (L, V, H, W, 3)
-    mean = torch.zeros(3, lv, device=btf.data.device)
-    basis = torch.zeros(3, lv, max(r_max, 1), device=btf.data.device)
-    coeffs = torch.zeros(3, hw, max(r_max, 1), device=btf.data.device)
-    eigenvalues = []
-    for c in range(3):
-        x = yuv[..., c].reshape(lv, hw).T.double()                                  # texels x angles
-        mu = x.mean(0)
-        xc = x - mu
-        mean[c] = mu.float()
-        if exact:
-            if lv <= hw:
-                e, vecs = torch.linalg.eigh(xc.T @ xc)
-                e, b = e.flip(0).clamp_min(0)[:r_max], vecs.flip(-1)[:, :r_max]
-            else:                                 # texel Gram: basis = xc^T u / sqrt(e), for the kept components only
-                e, u = torch.linalg.eigh(xc @ xc.T)
-                e, u = e.flip(0).clamp_min(0)[:r_max], u.flip(-1)[:, :r_max]
-                live = e > e[0] * 1e-12 if len(e) and e[0] > 0 else torch.zeros_like(e, dtype=torch.bool)
-                b = torch.zeros(lv, len(e), dtype=xc.dtype, device=xc.device)
-                b[:, live] = (xc.T @ u[:, live]) / e[live].sqrt()
-        else:
-            with torch.random.fork_rng(devices=[xc.device] if xc.is_cuda else []):
-                torch.manual_seed(0)                      # the random test matrix: same components every run
-                _, sv, b = torch.svd_lowrank(xc, q=r_max + oversample, niter=power_iterations)
-            e, b = sv[:r_max] ** 2, b[:, :r_max]
-        eigenvalues.append(e.float())
-        basis[c, :, :b.shape[1]] = b.float()
-        coeffs[c, :, :b.shape[1]] = (xc @ b).float()
-    return Decomposition(mean, eigenvalues, basis, coeffs, log_eps, exact)
-
-
-def best_ranks(spectra: list[torch.Tensor], total: int) -> tuple[int, int, int]:
-    """The split of `total` principal components over Y, U, V with the least squared error, given the
-    channels' eigenvalues (`Decomposition.eigenvalues`): the `total` largest eigenvalues of the three,
-    counted per channel (every component costs the same, and each channel's eigenvalues fall)."""
-    if total < 0:
-        raise InputError(f"best_ranks: expected a non-negative component count, got {total!r}")
-    channel = torch.cat([torch.full((len(e),), c) for c, e in enumerate(spectra)])
-    order = torch.cat(spectra).argsort(descending=True, stable=True)[:total]
-    return tuple(int((channel[order] == c).sum()) for c in range(3))

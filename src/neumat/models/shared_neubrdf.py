@@ -2,40 +2,32 @@
 
 A cluster of t similar materials shares one MLP and one codebook D (2^b, k); each material keeps only its
 own spherical index grid (2 n b-bit indices). The clusters come from a convolutional autoencoder trained to
-reconstruct tabulated reflectance, then k-means on its bottleneck codes (`cluster_materials`). The shared
-modules and the t index grids are trained jointly (`fit_shared`, `fit_clusters`).
+reconstruct tabulated reflectance, then k-means on its bottleneck codes; the shared modules and the t index
+grids are trained jointly. Both are training code, in the fit package: fit/shared_neubrdf.py (`cluster_materials`,
+`fit_shared`, `fit_clusters`) and the recipe fit/recipes/shared_neubrdf.py.
 
-Joint training runs through the shared trainer `neumat.fit.trainer.fit`: a `MaterialQuery` carries, per
-row, the index of the material it asks; a `JointSource` answers it from the t source materials and the
-model evaluates every row on that material's index grid, so one batch mixes all materials (the "joint"
-query sampler draws an equal share of each batch per material with that material's base sampler).
+A `MaterialQuery` carries, per row, the index of the material it asks; the model evaluates every row on
+that material's index grid, so one training batch mixes all materials (`fit(model, [source_0, ...])`).
 
 Storage: all index grids live in one `VQFeatures` of t * 2n vertices, whose storage formula is exactly
 t 2n b + p k 2^b bits; see `sharing_cost` for the bytes per material with and without sharing.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields, replace
-from typing import Sequence
+from dataclasses import dataclass, fields
 
-import numpy as np
 import torch
 from torch import nn
 
 from neumat.core.checks import check_directions, check_int, check_shape
 from neumat.core.config import resolve_config
-from neumat.core.coords import rusinkiewicz_to_io
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
-from neumat.fit.query_samplers import QUERY_SAMPLERS
-from neumat.fit.recipe import Recipe, recipe_for
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import VQFeatures, float_bits, storage_bytes
-from neumat.nn.conv_autoencoder import ConvAutoencoder, train_autoencoder
 from neumat.nn.mlp import MLP
 
 
@@ -282,152 +274,3 @@ def sharing_cost(cfg: Config, precision: str = "fp16") -> SharingCost:
     t = cfg.num_materials
     return SharingCost(shared_per_material=storage_bytes(t * slots * cfg.index_bits + shared_bits) / t,
                        separate_per_material=storage_bytes(slots * cfg.index_bits + shared_bits))
-
-
-# ----------------------------------------------------------------------------------- clustering
-
-def tabulate_rusinkiewicz(material: Material, resolution: int = 16, device=None) -> torch.Tensor:
-    """log(1 + f) (3, R, R, R) of an isotropic material at cell centres of a Rusinkiewicz grid (phi_h = 0):
-    theta_h = ((i + 0.5) / R)^2 pi / 2 (MERL's warp, dense near the peak), theta_d = (j + 0.5) / R pi / 2,
-    phi_d = (k + 0.5) / R pi; 0 where a direction is below the horizon."""
-    r = resolution
-    kw = dict(dtype=torch.float32, device=device)
-    th = ((torch.arange(r, **kw) + 0.5) / r) ** 2 * (math.pi / 2)
-    td = (torch.arange(r, **kw) + 0.5) / r * (math.pi / 2)
-    pd = (torch.arange(r, **kw) + 0.5) / r * math.pi
-    th, td, pd = (g.reshape(-1) for g in torch.meshgrid(th, td, pd, indexing="ij"))
-    wi, wo = rusinkiewicz_to_io(th, torch.zeros_like(th), td, pd)
-    wi, wo = wi / wi.norm(dim=-1, keepdim=True), wo / wo.norm(dim=-1, keepdim=True)
-    ok = upper_hemisphere(wi, wo)
-    out = torch.zeros(th.shape[0], 3, **kw)
-    with torch.no_grad():
-        out[ok] = torch.log1p(material.eval(Query(wi[ok], wo[ok])).float().clamp(min=0))
-    return out.T.reshape(3, r, r, r)
-
-
-@dataclass
-class Clustering:
-    """Result of `cluster_materials`: labels (M,) cluster of each material, codes (M, code_dim) autoencoder
-    bottleneck codes, reconstruction_mse the autoencoder's final training error (log(1 + f) units)."""
-
-    labels: np.ndarray
-    codes: np.ndarray
-    reconstruction_mse: float
-    groups: list[list[int]] = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.groups = [sorted(np.flatnonzero(self.labels == c).tolist()) for c in np.unique(self.labels)]
-
-
-def cluster_materials(materials: Sequence[Material], k: int, *, resolution: int = 16, code_dim: int = 8,
-                      width: int = 16, steps: int = 500, lr: float = 3e-3, seed: int = 0,
-                      device=None) -> Clustering:
-    """Group `materials` into k clusters (paper Sec. 3.3): tabulate each (`tabulate_rusinkiewicz`), train a
-    convolutional autoencoder (`neumat.nn.conv_autoencoder`) to reconstruct the tables, and run k-means
-    (scikit-learn, 10 restarts, seeded) on the bottleneck codes."""
-    from sklearn.cluster import KMeans
-
-    materials = list(materials)
-    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= len(materials):
-        raise InputError(f"cluster_materials k: expected an integer in [1, {len(materials)}] (the number of "
-                         f"materials), got {k!r}")
-    for m in materials:
-        if not isinstance(m, Material) or m.spatially_varying:
-            raise InputError(f"cluster_materials: expected plain BRDF Materials, got {type(m).__name__}")
-    volumes = torch.stack([tabulate_rusinkiewicz(m, resolution, device) for m in materials])
-    ae = ConvAutoencoder(3, resolution, code_dim, width).to(volumes.device)
-    losses = train_autoencoder(ae, volumes, steps=steps, lr=lr, seed=seed)
-    with torch.no_grad():
-        codes = ae.encode(volumes).cpu().numpy().astype(np.float64)
-    labels = KMeans(n_clusters=k, n_init=10, random_state=seed).fit(codes).labels_
-    return Clustering(labels=np.asarray(labels), codes=codes, reconstruction_mse=losses[-1])
-
-
-# -------------------------------------------------------------------------------- joint training
-
-class JointSource(Material):
-    """The t source materials of a cluster as one Material answering `MaterialQuery`s row by row.
-    `queries` names the base query sampler of each material for the "joint" sampler."""
-
-    def __init__(self, sources: Sequence[Material], queries: str = "cosine") -> None:
-        self.sources = list(sources)
-        if not self.sources:
-            raise InputError("JointSource: expected at least one source material")
-        for s in self.sources:
-            if not callable(getattr(s, "eval", None)) or getattr(s, "spatially_varying", False):
-                raise InputError(f"JointSource: sources must be plain BRDF Materials, got {type(s).__name__}")
-        QUERY_SAMPLERS.get(queries)  # unknown names fail here, with close matches
-        self.queries = queries
-        self.name = f"joint({len(self.sources)})"
-
-    def eval(self, q: Query) -> torch.Tensor:
-        if not isinstance(q, MaterialQuery):
-            raise InputError("JointSource.eval: expected a MaterialQuery (rows tagged with material indices)")
-        out = torch.zeros(q.wi.shape[0], 3, dtype=q.dtype, device=q.device)
-        for i, s in enumerate(self.sources):
-            rows = (q.material == i).nonzero().squeeze(-1)
-            if rows.numel():
-                out[rows] = s.eval(Query(q.wi[rows], q.wo[rows])).to(q.dtype)
-        return out
-
-    def describe(self) -> str:
-        return f"joint source of {len(self.sources)} materials ({', '.join(_describe(s) for s in self.sources)})"
-
-
-def _describe(m) -> str:
-    return m.describe() if hasattr(m, "describe") else type(m).__name__
-
-
-@QUERY_SAMPLERS.register("joint")
-def joint_queries(source: Material, model=None):
-    """Queries for a JointSource: each batch split evenly over the t materials, material i drawn by the
-    source's base sampler for (source i, model.material(i))."""
-    if not isinstance(source, JointSource):
-        raise InputError(f"query sampler 'joint' needs a JointSource, got {type(source).__name__}")
-    t = len(source.sources)
-    views = [model.material(i) if isinstance(model, SharedNeuBRDF) else None for i in range(t)]
-    base = [QUERY_SAMPLERS.get(source.queries)(s, v) for s, v in zip(source.sources, views)]
-
-    def draw(n: int, generator: torch.Generator, device) -> MaterialQuery:
-        counts = [n // t + (i < n % t) for i in range(t)]
-        parts = [(i, base[i](c, generator, device)) for i, c in enumerate(counts) if c]
-        wi = torch.cat([p.wi for _, p in parts])
-        wo = torch.cat([p.wo for _, p in parts])
-        ids = torch.cat([torch.full((p.wi.shape[0],), i, dtype=torch.long, device=p.wi.device) for i, p in parts])
-        return MaterialQuery(wi, wo, material=ids)
-
-    return draw
-
-
-def fit_shared(model: SharedNeuBRDF, sources: Sequence[Material], recipe: Recipe | None = None, *,
-               queries: str | None = None, **fit_kwargs):
-    """Train the shared MLP, codebook and all t index grids of `model` jointly on `sources` (one per material)
-    with the shared trainer. recipe defaults to NeuBRDF's; `queries` (default: the recipe's) is the base
-    sampler per material; other keywords go to `neumat.fit.trainer.fit`. Returns its FitResult."""
-    from neumat.fit.trainer import fit
-
-    if not isinstance(model, SharedNeuBRDF):
-        raise InputError(f"fit_shared: expected a SharedNeuBRDF, got {type(model).__name__}")
-    sources = list(sources)
-    if len(sources) != model.cfg.num_materials:
-        raise InputError(f"fit_shared: the model holds {model.cfg.num_materials} materials, got "
-                         f"{len(sources)} sources")
-    recipe = replace(recipe if recipe is not None else recipe_for("neubrdf"))
-    joint = JointSource(sources, queries or recipe.queries)
-    return fit(model, joint, replace(recipe, queries="joint"), **fit_kwargs)
-
-
-def fit_clusters(materials: Sequence[Material], k: int, config: dict | None = None,
-                 recipe: Recipe | None = None, *, clustering: Clustering | None = None,
-                 cluster_kwargs: dict | None = None, **fit_kwargs) -> list[tuple[list[int], SharedNeuBRDF]]:
-    """The paper's pipeline: cluster `materials` into k groups (or use `clustering`), then fit one
-    SharedNeuBRDF (fields `config`, num_materials set per group) per group with `fit_shared`.
-    Returns [(material indices of the group, fitted model)]."""
-    materials = list(materials)
-    clustering = clustering or cluster_materials(materials, k, **(cluster_kwargs or {}))
-    out = []
-    for group in clustering.groups:
-        model = SharedNeuBRDF(**{**(config or {}), "num_materials": len(group)})
-        fit_shared(model, [materials[i] for i in group], recipe, **fit_kwargs)
-        out.append((group, model))
-    return out

@@ -1,5 +1,6 @@
 """SparseBTF (Kavoosi et al., EGSR 2023): a BTF stored as sparse coefficients of a dictionary ensemble that
-was trained once (`neumat.models.sparse_dictionary`), evaluated as a spatially varying `Material`.
+was trained once (`neumat.models.sparse_dictionary`; its training is in the fit package, fit/sparse_dictionary.py),
+evaluated as a spatially varying `Material`.
 
 Stored per BTF (Sec. 3.3-3.4), per YUV channel c: for every p x p patch (data point) its dictionary index
 (membership), its number of non-zero coefficients (count), and that many values with their 4D index tuples
@@ -108,7 +109,9 @@ def _check_config(c: Config) -> None:
 
 @MODELS.register("sparse-btf")
 class SparseBTF(LearnedMaterial):
-    """A BTF in SparseBTF form (see module docstring). Build with `SparseBTF.encode(btf, dictionary, tau)`."""
+    """A BTF in SparseBTF form (see module docstring). Build with `SparseBTF.encode(btf, dictionary, tau)`, or
+    train dictionary and codes through the trainer: `fit(SparseBTF.for_btf(btf, ...), btf)` (recipe
+    fit/recipes/sparse_btf.py)."""
 
     name = "sparse-btf"
     paper = "SparseBTF (Kavoosi et al.): sparse coding of BTFs in a dictionary ensemble"
@@ -176,6 +179,44 @@ class SparseBTF(LearnedMaterial):
                     getattr(model, f"dict_{n + 1}")[c] = ens.mats[n]
                 model._store_codes(c, code)
         return models
+
+    @classmethod
+    def for_btf(cls, btf: TabulatedBTF, **fields) -> "SparseBTF":
+        """An (uncoded) model sized for `btf` (direction counts, texels); other Config fields from `fields`.
+        What the trainer's `fit(model, btf)` trains (recipe fit/recipes/sparse_btf.py)."""
+        l, v, h, w, _ = btf.data.shape
+        return cls(Config(**{**fields, "n_light": l, "n_view": v, "height": h, "width": w}))
+
+    def check_source(self, btf: TabulatedBTF) -> None:
+        """Raise InputError unless `btf` is a tabulated BTF of this model's size."""
+        data = getattr(btf, "data", None)
+        if not isinstance(data, torch.Tensor) or data.dim() != 5 or not hasattr(btf, "light_dirs"):
+            raise InputError(f"sparse-btf: the source must be one tabulated BTF (neumat.io.btf.read_btf), got "
+                             f"{type(btf).__name__}")
+        c = self.cfg
+        if tuple(data.shape[:4]) != (c.n_light, c.n_view, c.height, c.width):
+            raise InputError(f"sparse-btf: the BTF has {tuple(data.shape[:4])} (lights, views, height, width) but the "
+                             f"model was built for {(c.n_light, c.n_view, c.height, c.width)}; build it with "
+                             "SparseBTF.for_btf(btf, ...)")
+
+    @torch.no_grad()
+    def code(self, btf: TabulatedBTF) -> torch.Tensor:
+        """Sparse codes of `btf` in this model's own dictionary ensemble (`dict_n` buffers), as `encode`:
+        project every data point on every dictionary and keep the cfg.tau largest coefficients (Sec. 3.3).
+        Sets the directions, statistics and codes; returns the mean squared error per element (model space)."""
+        self.check_source(btf)
+        c, dev = self.cfg, self.values.device
+        points, mean, std = prepare_btf(btf.data.to(dev), c.patch, c.log_eps)
+        self.light_dirs.copy_(btf.light_dirs)
+        self.view_dirs.copy_(btf.view_dirs)
+        self.mean.copy_(mean)
+        self.std.copy_(std)
+        errors = []
+        for ch in range(3):
+            codes = code_points_at_rates(points[ch], self.ensemble(ch), [c.tau[ch]], c.error_threshold)[0]
+            self._store_codes(ch, codes)
+            errors.append(codes.error.mean())
+        return torch.stack(errors).mean()
 
     def _store_codes(self, c: int, codes: Codes) -> None:
         t = codes.values.shape[1]

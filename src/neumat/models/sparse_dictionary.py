@@ -1,5 +1,7 @@
-"""SparseBTF building blocks (Kavoosi et al. 2023, Sec. 3.1-3.3): BTF data points and the ensemble of
-orthonormal 4D dictionaries, its training (Eq. 2) and sparse coding (Eq. 3).
+"""SparseBTF building blocks (Kavoosi et al. 2023, Sec. 3.1-3.3): BTF data points, the ensemble of
+orthonormal 4D dictionaries, sparse coding (Eq. 3), reconstruction (Eq. 4) and dictionary files. Training
+the ensemble (Eq. 2) is training code, in the fit package (fit/sparse_dictionary.py, and the "dictionary"
+phase of the sparse-btf recipe).
 
 Data points (Sec. 3.1): a BTF (L, V, H, W, 3) is log transformed (log(x + eps)), converted RGB -> YUV
 (BT.601, as in the authors' code), and every angular image (one light, one view, one channel) is
@@ -9,8 +11,8 @@ channel is the 4D tensor X (m1, m2, m3, m4) = (patch row, patch col, light, view
 (m1, m2 spatial; m3 incoming; m4 outgoing).
 
 Dictionary ensemble (Sec. 3.2): K dictionaries, each four orthonormal matrices U^(n,k) (m_n x m_n).
-Training minimises sum_i ||X_i - S_i x_1 U^(1,m_i) ... x_4 U^(4,m_i)||^2 with ||S_i||_0 <= tau_l (Eq. 2) by
-alternating (a) coding: every point is projected on every dictionary (Eq. 3), the tau_l largest
+Training (fit/sparse_dictionary.py) minimises sum_i ||X_i - S_i x_1 U^(1,m_i) ... x_4 U^(4,m_i)||^2
+with ||S_i||_0 <= tau_l (Eq. 2) by alternating (a) coding: every point is projected on every dictionary (Eq. 3), the tau_l largest
 coefficients kept (optimal for an orthonormal basis), and assigned to the dictionary with the sparsest,
 then lowest-error, representation; (b) update: for each dictionary and mode n, the orthogonal Procrustes
 solution U^(n) = polar(sum_i Z_i(n) S_i(n)^T) with Z_i = X_i x_{m != n} U^(m)T (the other modes fixed),
@@ -21,7 +23,6 @@ is below `tol`. Initialisation: a random partition of the points into K groups a
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -264,107 +265,6 @@ def decode_points(codes: Codes, ensemble: Ensemble) -> torch.Tensor:
     return out
 
 
-# ----------------------------------------------------------------------------------------- training
-def hosvd_bases(x: torch.Tensor) -> list[torch.Tensor]:
-    """Orthonormal bases (m_n, m_n) of the mode-n unfoldings of x (N, m1, ..., m4) (HOSVD factors)."""
-    mats = []
-    for n in range(1, x.dim()):
-        unf = x.movedim(n, 1).reshape(x.shape[0], x.shape[n], -1)
-        gram = torch.einsum("nar,nbr->ab", unf, unf)
-        _, vecs = torch.linalg.eigh(gram.double())
-        mats.append(vecs.flip(-1).to(x.dtype))
-    return mats
-
-
-def procrustes(a: torch.Tensor) -> torch.Tensor:
-    """The orthonormal U maximising tr(U^T a), i.e. the polar factor of a (m, m)."""
-    u, _, vh = torch.linalg.svd(a.double())
-    return (u @ vh).to(a.dtype)
-
-
-@dataclass
-class TrainingLog:
-    """Objective (sum of squared errors) after every iteration, seconds, and iterations run."""
-
-    objective: list[float] = field(default_factory=list)
-    seconds: float = 0.0
-    iterations: int = 0
-
-
-def train_ensemble(x: torch.Tensor, num_dictionaries: int, tau: int, max_iters: int = 20, tol: float = 1e-3,
-                   seed: int = 0, progress: bool = False, description: str = "training dictionaries"
-                   ) -> tuple[Ensemble, TrainingLog]:
-    """Train an ensemble of `num_dictionaries` orthonormal 4D dictionaries on data points x (N, m1..m4) with
-    training sparsity `tau` (tau_l), alternating coding/assignment and Procrustes updates (module docstring)."""
-    if x.dim() != 5:
-        raise InputError(f"train_ensemble x: expected data points (N, m1, m2, m3, m4), got {tuple(x.shape)}")
-    n = x.shape[0]
-    if num_dictionaries < 1 or num_dictionaries > n:
-        raise InputError(f"train_ensemble: need 1 <= K <= number of data points ({n}), got K = {num_dictionaries}")
-    if tau < 1:
-        raise InputError(f"train_ensemble tau: expected >= 1, got {tau}")
-    t0 = time.perf_counter()
-    gen = torch.Generator().manual_seed(seed)
-    groups = torch.randperm(n, generator=gen).to(x.device) % num_dictionaries
-    init = [hosvd_bases(x[groups == k]) for k in range(num_dictionaries)]
-    ens = Ensemble([torch.stack([d[j] for d in init]) for j in range(4)])
-    log = TrainingLog()
-    shape = ens.shape
-    chunk = max(1, (1 << 25) // math.prod(shape))         # points per chunk of the dictionary update (memory)
-    steps = range(max_iters)
-    if progress:
-        from rich.progress import track
-        steps = track(steps, description=description)
-    codes = code_points(x, ens, tau)
-    for _ in steps:
-        for k in range(num_dictionaries):
-            sel = codes.membership == k
-            if not bool(sel.any()):
-                # re-seed an empty dictionary from the worst-represented points
-                worst = codes.error.topk(max(1, n // num_dictionaries)).indices
-                for j, u in enumerate(hosvd_bases(x[worst])):
-                    ens.mats[j][k] = u
-                continue
-            xk, members = x[sel], _subset(codes, sel)
-            for mode in range(1, 5):
-                mats = ens.dictionary(k)
-                cross = torch.zeros(shape[mode - 1], shape[mode - 1], dtype=x.dtype, device=x.device)
-                for lo in range(0, xk.shape[0], chunk):          # sum over members of z_(n) s_(n)^T
-                    part = slice(lo, lo + chunk)
-                    s = dense_coefficients(_subset(members, part), shape)
-                    z = xk[part]
-                    for j, u in enumerate(mats, start=1):
-                        if j != mode:
-                            z = mode_product(z, u.T, j)
-                    zn = z.movedim(mode, 1).reshape(z.shape[0], shape[mode - 1], -1)
-                    sn = s.movedim(mode, 1).reshape(s.shape[0], shape[mode - 1], -1)
-                    cross += torch.einsum("nar,nbr->ab", zn, sn)
-                ens.mats[mode - 1][k] = procrustes(cross)
-                sub = code_points(xk, Ensemble([u[k:k + 1] for u in ens.mats]), tau)
-                _assign(codes, sel, sub, k)
-                members = sub                                    # = _subset(codes, sel) up to membership
-        codes = code_points(x, ens, tau)
-        obj = float(codes.error.sum()) * math.prod(shape)
-        log.objective.append(obj)
-        log.iterations += 1
-        if len(log.objective) > 1 and log.objective[-2] - obj <= tol * abs(log.objective[-2]):
-            break
-    log.seconds = time.perf_counter() - t0
-    return ens, log
-
-
-def _subset(codes: Codes, sel: torch.Tensor) -> Codes:
-    return Codes(codes.membership[sel], codes.values[sel], codes.index[sel], codes.counts[sel], codes.error[sel])
-
-
-def _assign(codes: Codes, sel: torch.Tensor, sub: Codes, k: int) -> None:
-    codes.values[sel] = sub.values
-    codes.index[sel] = sub.index
-    codes.counts[sel] = sub.counts
-    codes.error[sel] = sub.error
-    codes.membership[sel] = k
-
-
 # ----------------------------------------------------------------------------------------- dictionary files
 @dataclass
 class BTFDictionary:
@@ -428,42 +328,3 @@ def prepare_btf(data: torch.Tensor, patch: int, log_eps: float
     mean, std = image_statistics(yuv)
     z = (yuv - mean[:, :, None, None, :]) / std[:, :, None, None, :]
     return to_data_points(z, patch), mean, std
-
-
-def train_dictionary(btfs: list, num_dictionaries: int = 8, tau_train: tuple[int, int, int] = (256, 32, 32),
-                     patch: int = 10, log_eps: float = 0.01, sample_fraction: float = 1.0, max_iters: int = 20,
-                     tol: float = 1e-3, seed: int = 0, progress: bool = False) -> BTFDictionary:
-    """Train the Y, U and V ensembles once on a few BTFs (TabulatedBTF objects of one direction set).
-
-    sample_fraction: the random fraction of data points used (the paper: 10%).
-    """
-    if not btfs:
-        raise InputError("train_dictionary: expected at least one BTF")
-    first = btfs[0]
-    for b in btfs[1:]:
-        if b.light_dirs.shape != first.light_dirs.shape or b.view_dirs.shape != first.view_dirs.shape or \
-                float((b.light_dirs - first.light_dirs).abs().max()) > 1e-4 or \
-                float((b.view_dirs - first.view_dirs).abs().max()) > 1e-4:
-            raise InputError(f"train_dictionary: BTF {b.label!r} has another direction set than {first.label!r}")
-    if not 0 < sample_fraction <= 1:
-        raise InputError(f"train_dictionary sample_fraction: expected (0, 1], got {sample_fraction}")
-    counts = [(b.data.shape[2] // patch) * (b.data.shape[3] // patch) for b in btfs]
-    n = sum(counts)
-    gen = torch.Generator().manual_seed(seed)
-    keep = torch.randperm(n, generator=gen)[:max(num_dictionaries, round(n * sample_fraction))]
-    points = torch.empty(3, len(keep), patch, patch, *first.data.shape[:2], device=first.data.device)
-    start = 0
-    for b, count in zip(btfs, counts):                 # one BTF at a time: only the kept points are held
-        pos = ((keep >= start) & (keep < start + count)).nonzero()[:, 0]
-        prepared = prepare_btf(b.data, patch, log_eps)[0]
-        points[:, pos.to(points.device)] = prepared[:, (keep[pos] - start).to(points.device)]
-        start += count
-    ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": len(keep),
-                           "btfs": [b.label for b in btfs]}
-    for c, ch in enumerate("YUV"):
-        ens, log = train_ensemble(points[c], num_dictionaries, tau_train[c], max_iters, tol,
-                                  seed + c, progress, f"training {ch} dictionaries")
-        ensembles.append(ens)
-        info["objective"][ch], info["seconds"][ch], info["iterations"][ch] = log.objective, log.seconds, log.iterations
-    return BTFDictionary(ensembles, first.light_dirs.clone(), first.view_dirs.clone(), patch, tuple(tau_train),
-                         log_eps, info)

@@ -1,0 +1,38 @@
+"""Training recipe of the PCA-BTF baseline (SparseBTF paper, Table 5): one solver phase of one step, the
+truncated PCA of the source BTF (`neumat.fit.pca_btf.decompose`, then the model keeps its cfg.ranks leading
+components). `fit(PCABTF.for_btf(btf, ranks=...), btf)`; the source is one tabulated BTF
+(`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the truncation.
+
+Options (of the solve, `decompose`): "exact_limit" (4096: the exact eigendecomposition of the smaller Gram
+matrix unless both sides of the texel x angle matrix exceed it), "oversample" (16) and "power_iterations" (6)
+of the randomised subspace iteration used otherwise. steps, batch_size, lr and the schedule are unused.
+"""
+from __future__ import annotations
+
+from ...core.errors import InputError
+from ..phase import FitContext, Phase
+from ..recipe import Recipe
+
+RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
+                options={"exact_limit": 4096, "oversample": 16, "power_iterations": 6})
+
+
+def phases(ctx: FitContext) -> list[Phase]:
+    from ...models.pca_btf import PCABTF
+    from ...reflectance.btf import TabulatedBTF
+    from ..pca_btf import decompose
+
+    model, btf = ctx.model, ctx.source
+    if not isinstance(model, PCABTF):
+        raise InputError(f"pca-btf recipe: expected a PCABTF model, got {type(model).__name__}")
+    model.check_source(btf)
+
+    def solve(step: int) -> dict:
+        data = btf.data.to(ctx.device)
+        table = TabulatedBTF(data, btf.light_dirs, btf.view_dirs, btf.neighbours, label=btf.label)
+        dec = decompose(table, model.cfg.log_eps, max(model.cfg.ranks), ctx.option("exact_limit"),
+                        ctx.option("oversample"), ctx.option("power_iterations"))
+        model.load_components(dec, table.light_dirs, table.view_dirs)
+        return {"mse": dec.residual(model.cfg.ranks)}
+
+    return [Phase("solve", 1, solve)]

@@ -1,0 +1,33 @@
+"""Training recipe of NeuBRDF with codebooks shared across materials (Dou, Zheng et al. 2024, Sec. 3.3).
+
+The joint fit trains the shared MLP, the shared codebook and the t materials' index grids together, with
+NeuBRDF's optimiser, schedule, loss and batch (`neumat.fit.recipes.neubrdf`, where each value's reason is
+given): `fit(SharedNeuBRDF(num_materials=t, ...), [source_0, ..., source_t-1])`. The source is a LIST (or
+tuple) of t plain BRDF Materials; the phase wraps it in a `neumat.fit.shared_neubrdf.JointSource` and draws
+every batch with the "joint" sampler, an equal share per material drawn by the recipe's `queries` sampler
+(the base sampler of each material, "cosine" as NeuBRDF's).
+
+Options: the clustering of `neumat.fit.shared_neubrdf.cluster_materials` (paper: a convolutional autoencoder
+on tabulated reflectance, then k-means on its codes; sizes are ours): "cluster_resolution" (16: R^3 cells of
+the Rusinkiewicz table), "cluster_code_dim" (8), "cluster_width" (16 channels), "cluster_steps" (500 Adam
+steps of the autoencoder), "cluster_lr" (3e-3).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from ..phase import FitContext, Phase, online_phase
+from ..recipe import Recipe
+from .neubrdf import RECIPE as NEUBRDF_RECIPE
+
+RECIPE: Recipe = replace(NEUBRDF_RECIPE, options={"cluster_resolution": 16, "cluster_code_dim": 8,
+                                                  "cluster_width": 16, "cluster_steps": 500, "cluster_lr": 3e-3})
+
+
+def phases(ctx: FitContext) -> list[Phase]:
+    from ..shared_neubrdf import joint_source
+
+    base = ctx.queries if isinstance(ctx.queries, str) else ctx.recipe.queries
+    joint = joint_source(ctx.source, ctx.model.cfg.num_materials, base)
+    draw = ctx.queries if ctx.queries is not None and not isinstance(ctx.queries, str) else "joint"
+    return [online_phase(replace(ctx, source=joint, queries=draw))]

@@ -1,0 +1,143 @@
+"""Training recipe of SparseBTF (Kavoosi et al., EGSR 2023): "dictionary then coding", two solver phases of the
+one trainer. `fit(SparseBTF.for_btf(btf, ...), btf)`; the source is ONE tabulated BTF (`neumat.io.btf.read_btf`).
+
+- "dictionary": one step = one training iteration (sparse coding / assignment, then the Procrustes update of
+  every dictionary and mode; `neumat.fit.sparse_dictionary.ensemble_iteration`) of the Y, U and V ensembles,
+  initialised from the HOSVD bases of a random partition of the data points (drawn with the fit's generator).
+  recipe.steps - 1 iterations (today's `train_dictionary` default: 20); a channel whose objective fell by at
+  most `tol` (relative) in its last iteration has converged and is left as it is (as `train_ensemble`
+  stops). The ensembles being trained are the model's own `dict_n` buffers, and the objective history and
+  convergence flags are buffers of a stateful module, so a checkpoint between iterations resumes bit for bit.
+  K, tau_l (`tau_train`), the patch size and log eps are the model's Config fields (paper: K = 8, tau_l =
+  (256, 32, 32) for Y, U, V, p = 10). With option "dictionary" (the path of a dictionary .nmat from `neumat
+  fit-dictionary`) the phase has zero steps: the given ensemble is used.
+  A dictionary trained on the BTF it then codes does not measure how a dictionary generalises to BTFs it
+  has not seen (the paper trains it once on other BTFs); the fit warns when it does so.
+- "coding": one step: project every data point on every dictionary and keep the cfg.tau largest
+  coefficients (the model's `code`, i.e. what `SparseBTF.encode` does).
+
+Options: "dictionary" (None or a path), "fraction" (random fraction of the BTF's data points the dictionary
+phase trains on: 1.0 as today's `train_dictionary` default; the paper uses 10 % of a large training set),
+"tol" (1e-3, relative objective decrease below which a channel stops). batch_size, lr and the schedule are
+unused (solver phases). The same defaults serve `neumat.fit.sparse_dictionary.train_dictionary` (several
+BTFs, `neumat fit-dictionary`).
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from ...core.errors import InputError
+from ...models.sparse_dictionary import BTFDictionary, code_points
+from ..phase import FitContext, Phase
+from ..recipe import Recipe
+from ..sparse_dictionary import (check_points, ensemble_iteration, has_converged, init_ensemble, keep_count,
+                                 objective)
+
+RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1,
+                options={"dictionary": None, "fraction": 1.0, "tol": 1e-3})
+
+
+class DictionaryState(nn.Module):
+    """What the dictionary phase keeps across its steps besides the ensembles (which are model buffers):
+    objective (3, iterations) per channel and iteration (NaN until run), iterations run and converged flags."""
+
+    def __init__(self, iterations: int) -> None:
+        super().__init__()
+        self.register_buffer("objective", torch.full((3, iterations), float("nan"), dtype=torch.float64))
+        self.register_buffer("iterations", torch.zeros(3, dtype=torch.long))
+        self.register_buffer("converged", torch.zeros(3, dtype=torch.bool))
+
+
+def phases(ctx: FitContext) -> list[Phase]:
+    from ...models.sparse_btf import SparseBTF
+
+    model, btf = ctx.model, ctx.source
+    if not isinstance(model, SparseBTF):
+        raise InputError(f"sparse-btf recipe: expected a SparseBTF model, got {type(model).__name__}")
+    if isinstance(btf, (list, tuple)):
+        raise InputError("sparse-btf: the source is ONE BTF to code; train a dictionary on several BTFs with "
+                         "`neumat fit-dictionary` (neumat.fit.sparse_dictionary.train_dictionary) and give it as "
+                         "option 'dictionary'")
+    model.check_source(btf)
+    cfg, dev = model.cfg, ctx.device
+    path = ctx.option("dictionary")
+    coding = Phase("coding", 1, lambda step: {"mse": model.code(btf)})
+    if path is not None:
+        dictionary = BTFDictionary.load(Path(path), device=dev)
+        _check_dictionary(model, dictionary, btf, path)
+        if not ctx.resuming:
+            with torch.no_grad():
+                for c, ens in enumerate(dictionary.ensembles):
+                    for n in range(4):
+                        getattr(model, f"dict_{n + 1}")[c] = ens.mats[n]
+        return [Phase("dictionary", 0, lambda step: {}), coding]
+
+    warnings.warn(f"sparse-btf: no option 'dictionary' given, so the dictionary is trained on the BTF it then codes "
+                  f"({getattr(btf, 'label', 'source')!r}); the result does not measure how well a dictionary "
+                  "generalises to BTFs it has not seen (train one on other BTFs with `neumat fit-dictionary`)",
+                  stacklevel=2)
+    iterations = max(ctx.recipe.steps - 1, 0)
+    tol = float(ctx.option("tol"))
+    if not tol >= 0:
+        raise InputError(f"sparse-btf option tol: expected a number >= 0, got {tol!r}")
+    points = _training_points(ctx, btf)
+    for c in range(3):
+        check_points(points[c], cfg.num_dictionaries, cfg.tau_train[c])
+    state = DictionaryState(iterations)
+    if not ctx.resuming:
+        with torch.no_grad():
+            for c in range(3):
+                ens = init_ensemble(points[c], cfg.num_dictionaries, ctx.generator)
+                for n in range(4):
+                    getattr(model, f"dict_{n + 1}")[c] = ens.mats[n]
+    codes: dict[int, object] = {}       # codes of the current ensembles: a cache, recomputed after a resume
+
+    @torch.no_grad()
+    def iterate(step: int) -> dict[str, torch.Tensor]:
+        out = {}
+        for c, ch in enumerate("YUV"):
+            done = int(state.iterations[c])
+            if not bool(state.converged[c]):
+                ens, tau = model.ensemble(c), cfg.tau_train[c]
+                start = codes[c] if c in codes else code_points(points[c], ens, tau)
+                codes[c] = ensemble_iteration(points[c], ens, tau, start)
+                state.objective[c, done] = objective(codes[c], ens.shape)
+                if done > 0 and has_converged(float(state.objective[c, done - 1]), float(state.objective[c, done]),
+                                              tol):
+                    state.converged[c] = True
+                state.iterations[c] += 1
+                done += 1
+            out[ch] = state.objective[c, done - 1].clone()
+        return out
+
+    return [Phase("dictionary", iterations, iterate, stateful=[state]), coding]
+
+
+def _training_points(ctx: FitContext, btf) -> torch.Tensor:
+    """Data points (3, N, p, p, L, V) of the source the dictionary trains on: all of them, or a random
+    `fraction` drawn with a generator seeded by recipe.seed + 2 (the same on a resumed fit)."""
+    cfg = ctx.model.cfg
+    from ...models.sparse_dictionary import prepare_btf
+    points = prepare_btf(btf.data.to(ctx.device), cfg.patch, cfg.log_eps)[0]
+    fraction = ctx.option("fraction")
+    n = points.shape[1]
+    keep = keep_count(n, cfg.num_dictionaries, fraction)
+    if keep >= n:
+        return points
+    gen = torch.Generator(device=ctx.device).manual_seed(ctx.recipe.seed + 2)
+    return points[:, torch.randperm(n, generator=gen, device=ctx.device)[:keep]]
+
+
+def _check_dictionary(model, dictionary: BTFDictionary, btf, path) -> None:
+    cfg = model.cfg
+    mine = (cfg.patch, cfg.num_dictionaries, tuple(cfg.tau_train), cfg.log_eps)
+    theirs = (dictionary.patch, dictionary.num_dictionaries, tuple(dictionary.tau_train), dictionary.log_eps)
+    if mine != theirs:
+        raise InputError(f"sparse-btf: dictionary {str(path)!r} has (patch, K, tau_train, log_eps) = {theirs} but "
+                         f"the model {mine}; build the model with those fields (SparseBTF.for_btf(btf, patch=..., "
+                         "num_dictionaries=..., tau_train=..., log_eps=...))")
+    dictionary.check_compatible(btf.light_dirs, btf.view_dirs, f"BTF {getattr(btf, 'label', '')!r}")
