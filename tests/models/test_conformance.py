@@ -41,7 +41,7 @@ SMALL = {
     "neural-appearance": dict(spatial_size=8),
     "pca-btf": {},
     "shared-neubrdf": dict(num_materials=2, nside=2, index_bits=2, hidden=4),
-    "sparse-btf": {},
+    "sparse-btf": dict(patch=5, num_dictionaries=2, tau=[8, 4, 4], tau_train=[8, 4, 4]),
     "surface-brdf-uv": dict(spatial_size=8),
     "tripleplane": dict(spatial_size=8),
     "zeltner": dict(spatial_channels=4, spatial_size=8),

@@ -24,14 +24,17 @@ def run_command(fn: Callable[[], Any]) -> Any:
 
 
 def parse_overrides(items: list[str] | None, option: str = "--set", text: bool = False) -> dict[str, Any]:
-    """`["nside=32", "lr=1e-3"]` -> {"nside": 32, "lr": 0.001}, or with `text` the values as written;
-    `option` names the flag in errors."""
+    """`["nside=32", "lr=1e-3", "betas=0.99,0.999"]` -> {"nside": 32, "lr": 0.001, "betas": [0.99, 0.999]} (a
+    value with commas is a list), or with `text` the values as written; `option` names the flag in errors."""
     out = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise InputError(f"{option} expects key=value, got {item!r}")
-        out[key.strip()] = value if text else parse_value(value)
+        if text:
+            out[key.strip()] = value
+        else:
+            out[key.strip()] = [parse_value(v) for v in value.split(",")] if "," in value else parse_value(value)
     return out
 
 

@@ -138,7 +138,7 @@ def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None,
     if seed is not None:
         recipe.seed = seed
     check_recipe(recipe)
-    derived = recipe_config_for_source(model, source) if source is not None else {}
+    derived = recipe_config_for_source(model, source, recipe.options) if source is not None else {}
     cfg = config_from_dict(cls.Config, {**derived, **{k: v for k, v in overrides.items() if k in config_keys}})
     torch.manual_seed(recipe.seed)
     return cls(config=cfg), recipe

@@ -76,6 +76,11 @@ def _coerce(tp: Any, v: Any, where: str) -> Any:
                 errors.append(str(e))
         raise InputError(errors[0] if errors else f"{where}: bad value {v!r}")
     if origin in (tuple, list):
+        if isinstance(v, (int, float, str)) and not isinstance(v, bool) and args and args[-1] is not Ellipsis \
+                and len(args) > 1:
+            raise InputError(f"{where}: expected a list of {len(args)}, got {v!r}")
+        if isinstance(v, (int, float, str)):  # one value where a list is expected (`--set hidden=8`)
+            v = [v]
         if not isinstance(v, (list, tuple)):
             raise InputError(f"{where}: expected a list, got {v!r}")
         inner = args[0] if args else Any

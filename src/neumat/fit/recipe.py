@@ -131,8 +131,9 @@ def recipe_names() -> list[str]:
     return sorted(info.name.replace("_", "-") for info in pkgutil.iter_modules(package.__path__))
 
 
-def recipe_config_for_source(model_name: str, source: Any) -> dict:
-    """Config defaults of model `model_name` that follow its training source: the recipe module's
-    `config_for_source(source) -> dict` (e.g. a latent resolution from the texture size), or {}."""
+def recipe_config_for_source(model_name: str, source: Any, options: dict) -> dict:
+    """Config defaults of model `model_name` that follow its training source and the recipe's `options`: the
+    recipe module's `config_for_source(source, options) -> dict` (e.g. a latent resolution from the texture
+    size, a BTF's direction counts), or {}."""
     derive = getattr(_recipe_module(model_name), "config_for_source", None)
-    return dict(derive(source)) if derive is not None else {}
+    return dict(derive(source, options)) if derive is not None else {}

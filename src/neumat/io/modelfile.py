@@ -40,7 +40,12 @@ def model_config_class(cls: type) -> type:
 
 def source_info(source: Any) -> dict:
     """{"name", "sha256"} of a training source: a file (hash of its bytes), a spec string (hash of the
-    text) or a Material (hash of its float32 values at 4096 fixed queries)."""
+    text), a Material (hash of its float32 values at 4096 fixed queries) or a list of those (names joined,
+    hash of their hashes)."""
+    if isinstance(source, (list, tuple)):  # a set of sources fitted jointly
+        parts = [source_info(s) for s in source]
+        return {"name": " + ".join(p["name"] for p in parts),
+                "sha256": hashlib.sha256("".join(p["sha256"] for p in parts).encode()).hexdigest()}
     if isinstance(source, (str, Path)):
         path = Path(source)
         if path.is_file():

@@ -3,10 +3,16 @@ coefficients (log sigma_a, log sigma_s') fitted by L2 to path-traced observation
 phase (`neumat.fit.translucent_fit`): Adam lr 0.05 halved at 50 % and 75 %, 300 steps of 256 observations,
 5 % held back for early stopping, of which at most 4096 are used (each evaluation sums over the whole surface
 quadrature: 1.9e3 queries/s in benchmarks/results/neupress.md). The model needs its surface quadrature
-(`DipoleBSSRDF.set_surface`) before the fit.
+(`DipoleBSSRDF.set_surface`, from the object: `TranslucentObject.surface_samples`); a fresh fit of a model
+without one takes `cfg.samples` observed points with their normals, each standing for 1 / samples of the area
+of the observed points' convex hull (exact for convex objects, an underestimate for concave ones).
 """
 from __future__ import annotations
 
+import torch
+from scipy.spatial import ConvexHull
+
+from neumat.core.errors import InputError
 from neumat.fit.dipole_bssrdf import dipole_predict
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.recipe import Recipe
@@ -16,9 +22,22 @@ RECIPE = Recipe(steps=300, batch_size=256, lr=0.05, schedule="halves", loss="l2"
                 options={"validation_fraction": 0.05, "max_validation": 4096, "bounds": None})
 
 
+def observed_quadrature(ctx: FitContext) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """cfg.samples observed points (drawn with the fit's generator), their normals and areas (module docstring)."""
+    obs, k = ctx.source, ctx.model.cfg.samples
+    if len(obs) < max(k, 4):
+        raise InputError(f"dipole-bssrdf: {len(obs)} observations cannot give a surface quadrature of {k} points "
+                         "(Config.samples); set it from the object with DipoleBSSRDF.set_surface")
+    pick = torch.randperm(len(obs), generator=ctx.generator, device=ctx.generator.device)[:k].cpu()
+    area = ConvexHull(obs.x.double().cpu().numpy()).area
+    return obs.x[pick], obs.n[pick], torch.full((k,), area / k, dtype=obs.x.dtype)
+
+
 def phases(ctx: FitContext) -> list[Phase]:
     model = ctx.model
     train, validation = split_observations(ctx)
+    if not ctx.resuming and not bool(model.areas.sum() > 0):
+        model.set_surface(*(t.to(model.areas.device) for t in observed_quadrature(ctx)))
     (steps,) = ctx.split(("fit",))
     return [observation_phase(ctx, "fit", steps, dipole_predict(model), [model.log_sigma_a, model.log_sigma_s],
                               train, validation)]

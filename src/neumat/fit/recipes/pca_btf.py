@@ -12,9 +12,15 @@ from __future__ import annotations
 from ...core.errors import InputError
 from ..phase import FitContext, Phase
 from ..recipe import Recipe
+from .sparse_btf import btf_size
 
 RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
                 options={"exact_limit": 4096, "oversample": 16, "power_iterations": 6})
+
+
+def config_for_source(btf, options: dict) -> dict:
+    """The model's size from the BTF (direction counts, texels)."""
+    return btf_size(btf, "pca-btf")
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -41,6 +41,26 @@ RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1,
                 options={"dictionary": None, "fraction": 1.0, "tol": 1e-3})
 
 
+def config_for_source(btf, options: dict) -> dict:
+    """The model's size from the BTF (direction counts, texels) and, with option "dictionary", the fields the
+    dictionary was trained with (patch, K, tau_train, log eps)."""
+    out = btf_size(btf, "sparse-btf")
+    if options.get("dictionary") is not None:
+        d = BTFDictionary.load(Path(options["dictionary"]))
+        out.update(patch=d.patch, num_dictionaries=d.num_dictionaries, tau_train=list(d.tau_train),
+                   log_eps=d.log_eps)
+    return out
+
+
+def btf_size(btf, who: str) -> dict:
+    """{"n_light", "n_view", "height", "width"} of a tabulated BTF; InputError for anything else."""
+    data = getattr(btf, "data", None)
+    if not isinstance(data, torch.Tensor) or data.dim() != 5:
+        raise InputError(f"{who}: the source must be one tabulated BTF (.nbtf, .btf), got {type(btf).__name__}")
+    n_light, n_view, height, width, _ = data.shape
+    return {"n_light": n_light, "n_view": n_view, "height": height, "width": width}
+
+
 class DictionaryState(nn.Module):
     """What the dictionary phase keeps across its steps besides the ensembles (which are model buffers):
     objective (3, iterations) per channel and iteration (NaN until run), iterations run and converged flags."""
