@@ -11,7 +11,8 @@ from ..core.material import Material
 #: file suffix -> human-readable kind
 MATERIAL_SUFFIXES = {".binary": "MERL measured BRDF", ".bsdf": "RGL measured BRDF (tensor file)",
                      ".nmat": "neumat model", ".nbtf": "neumat BTF table", ".btf": "Bonn / UBO2014 BTF",
-                     ".json": "layered material description"}
+                     ".json": "layered material description",
+                     ".h5": "NBRDF network of Sztrajman et al. (Keras .h5 + .json)"}
 
 
 def open_material(name: str | Path, **kwargs) -> Material:
@@ -40,6 +41,9 @@ def open_material(name: str | Path, **kwargs) -> Material:
         if suffix == ".btf":
             from .ubo2014 import read_ubo2014
             return _read(read_ubo2014, path, kwargs, "UBO2014 BTF file")
+        if suffix == ".h5":  # NBRDF Keras network (issue 32); one call, to move into the registry as is
+            from ..models.nbrdf import nbrdf_from_keras
+            return _read(nbrdf_from_keras, path, kwargs, "NBRDF Keras network")
         if suffix == ".json":
             from .layered_file import read_layered
             return _read(read_layered, path, kwargs, "layered-material description")

@@ -7,6 +7,14 @@ ReLU; output transform of their code: f = max(exp(x) - 1, 0) (their comment: "ad
 max() op as in code in nn.h"), which gives an exact 0 where the network output is negative. Weights
 start uniform in [-0.05, 0.05], biases at 0, as theirs. Their loss and schedule are in
 `neumat.fit.recipes.nbrdf`.
+
+The authors' published networks (`neumat.io.nbrdf_keras`, built by `nbrdf_from_keras`) need two input
+options the defaults do not use. Their training data and their renderer (Mitsuba plugin `nbrdf_npy`) use the
+half vector with phi_h dropped, (sin theta_h, 0, cos theta_h) (`half="theta"`), and d of the light direction
+(here `wi`). Their networks are not reciprocal: d and its mirror (-dx, -dy, dz) (phi_d and phi_d + pi, the
+same pair of directions swapped) differ by 5-16 % on average (their training fed phi_d in [pi, 2 pi) with the
+MERL table's phi_d = pi values). `fold_phi_d=True` evaluates the network only on phi_d in [0, pi), MERL's
+own half range, by mirroring d when dy < 0: reciprocal, and equal to the authors' function on that half.
 """
 from __future__ import annotations
 
@@ -26,6 +34,7 @@ from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
 
 OUTPUTS = ("exp_minus_one", "exp")
+HALF_INPUTS = ("vector", "theta")
 
 
 @dataclass
@@ -42,6 +51,11 @@ class Config:
     """Output transform: "exp_minus_one" (max(exp(x) - 1, 0), the authors' code) or "exp"."""
     init_range: float = 0.05
     """Weights are initialised uniform in [-init_range, init_range], biases at 0 (authors' code)."""
+    half: str = "vector"
+    """Half-vector input: "vector" (hx, hy, hz) or "theta" ((sin theta_h, 0, cos theta_h), phi_h dropped, as
+    the authors' training data and renderer)."""
+    fold_phi_d: bool = False
+    """Mirror d to (-dx, -dy, dz) where dy < 0 (phi_d into [0, pi), MERL's half range): makes eval reciprocal."""
 
 
 def _check_config(c: Config) -> None:
@@ -49,6 +63,10 @@ def _check_config(c: Config) -> None:
         check_int(getattr(c, name), f"NBRDF.{name}", lo)
     if c.output not in OUTPUTS:
         raise InputError(f"NBRDF.output: expected one of {', '.join(OUTPUTS)}, got {c.output!r}")
+    if c.half not in HALF_INPUTS:
+        raise InputError(f"NBRDF.half: expected one of {', '.join(HALF_INPUTS)}, got {c.half!r}")
+    if not isinstance(c.fold_phi_d, bool):
+        raise InputError(f"NBRDF.fold_phi_d: expected a bool, got {c.fold_phi_d!r}")
     if not c.init_range > 0:
         raise InputError(f"NBRDF.init_range: expected a positive number, got {c.init_range!r}")
 
@@ -84,11 +102,47 @@ class NBRDF(LearnedMaterial):
         h, d = io_to_hd(wi, wo)
         return torch.cat([h, d], -1)
 
+    def inputs(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        """Network input (N, 6) under this model's `half` and `fold_phi_d` options (defaults: `encode`)."""
+        h, d = io_to_hd(wi, wo)
+        if self.cfg.half == "theta":
+            h = torch.stack([torch.sqrt(h[:, 0] ** 2 + h[:, 1] ** 2), torch.zeros_like(h[:, 0]), h[:, 2]], -1)
+        if self.cfg.fold_phi_d:
+            d = torch.where((d[:, 1] < 0).unsqueeze(-1), d * d.new_tensor([-1.0, -1.0, 1.0]), d)
+        return torch.cat([h, d], -1)
+
+    @classmethod
+    def from_keras(cls, h5_path, json_path=None, fold_phi_d: bool = True,
+                   dtype: torch.dtype = torch.float64) -> "NBRDF":
+        """The authors' published network (`NAME.h5` + `NAME.json`, see `neumat.io.nbrdf_keras`).
+
+        eval is f = max(exp(W3 relu(W2 relu(W1 x + b1) + b2) + b3) - 1, 0), x = (sin theta_h, 0, cos theta_h,
+        dx, dy, dz), d of wi (towards the light), 0 below the horizon: their renderer's `Net::forward`. Values
+        are BRDF values (MERL's per-channel scale already inside: they trained on scaled MERL values).
+        fold_phi_d: see `Config.fold_phi_d` (True: reciprocal; False: their raw function for every phi_d).
+        dtype: of the weights (float64 default: float32 file values, evaluated without float32 rounding)."""
+        from neumat.io.nbrdf_keras import read_nbrdf_keras
+
+        net = read_nbrdf_keras(h5_path, json_path)
+        hidden = set(net.dims[1:-1])
+        if (net.dims[0], net.dims[-1]) != (6, 3) or len(hidden) != 1 or \
+                net.activations != ["relu"] * (len(net.dims) - 2) + ["linear"] or net.output != "exp_minus_one":
+            from neumat.core.errors import DataFormatError
+            raise DataFormatError(f"{h5_path}: expected an NBRDF network 6-n-..-n-3 (relu, linear, exp(x) - 1), got "
+                                  f"{'-'.join(map(str, net.dims))} {net.activations} output {net.output}")
+        model = cls(hidden=hidden.pop(), hidden_layers=len(net.dims) - 2, activation="relu",
+                    output="exp_minus_one", half="theta", fold_phi_d=fold_phi_d).to(dtype)
+        with torch.no_grad():
+            for lin, k, b in zip(model.mlp.linears(), net.kernels, net.biases):
+                lin.weight.copy_(torch.from_numpy(k.T.copy()))
+                lin.bias.copy_(torch.from_numpy(b))
+        return model
+
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NBRDF.eval")
         dtype = self.mlp.linears()[0].weight.dtype
-        x = self.mlp(self.encode(q.wi.to(dtype), q.wo.to(dtype)))
+        x = self.mlp(self.inputs(q.wi.to(dtype), q.wo.to(dtype)))
         f = torch.relu(torch.exp(x) - 1) if self.cfg.output == "exp_minus_one" else torch.exp(x)
         f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
         return f.to(q.dtype)
@@ -103,3 +157,8 @@ class NBRDF(LearnedMaterial):
     def flops(self) -> int:
         """MLP floating-point operations per evaluation (input encoding and output transform not counted)."""
         return self.mlp.flops()
+
+
+def nbrdf_from_keras(path, json_path=None, fold_phi_d: bool = True) -> NBRDF:
+    """`NBRDF.from_keras`: the authors' published network `path` (.h5) + its `.json` architecture."""
+    return NBRDF.from_keras(path, json_path, fold_phi_d=fold_phi_d)

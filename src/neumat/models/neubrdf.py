@@ -167,23 +167,37 @@ class NeuBRDF(LearnedMaterial):
 
     def _lookup(self, w: torch.Tensor, south: bool) -> torch.Tensor:
         """psi(w) on S+ (wi) or S- (mirrored wo): interpolated features (N, k)."""
+        return self._lookup_both(((w, south),))[0]
+
+    def _lookup_both(self, dirs) -> list[torch.Tensor]:
+        """psi of each (w, south) of `dirs`, (N, k) each, with one feature-grid call for all corners (a VQ
+        grid then runs its straight-through step once, on the unique slots of all lookups together)."""
         n = self.cfg.nside
         if self._pixel_features is not None:
-            return self._pixel_features[int(south)][hpx.vec2pix_unchecked(n, hpx.hemisphere_direction(w, south))]
-        d = hpx.hemisphere_direction(w, south)
-        pix = hpx.vec2pix_unchecked(n, d)
-        if self._pruning is None:
-            level = 0
-        else:
-            level = self._pruning[int(south)][pix]
-            if self._training_steps and self.training and torch.is_grad_enabled():
-                level = self._training_levels(pix, level, self._pruning[2 + int(south)])
-        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
-        feats = self.grid(slots)  # (N, 4, k)
-        if self.cfg.interpolation == "uniform":
-            return feats.mean(1)
-        wts = hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
-        return (wts.unsqueeze(-1) * feats).sum(1)
+            return [self._pixel_features[int(south)][hpx.vec2pix_unchecked(n, hpx.hemisphere_direction(w, south))]
+                    for w, south in dirs]
+        corners = []
+        for w, south in dirs:
+            d = hpx.hemisphere_direction(w, south)
+            pix = hpx.vec2pix_unchecked(n, d)
+            if self._pruning is None:
+                level = 0
+            else:
+                level = self._pruning[int(south)][pix]
+                if self._training_steps and self.training and torch.is_grad_enabled():
+                    level = self._training_levels(pix, level, self._pruning[2 + int(south)])
+            slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
+            corners.append((d, slots, vid))
+        feats = self.grid(torch.cat([slots for _, slots, _ in corners])) if len(corners) > 1 else \
+            self.grid(corners[0][1])  # (sum N, 4, k)
+        out = []
+        for (d, slots, vid), f in zip(corners, feats.split([slots.shape[0] for _, slots, _ in corners])):
+            if self.cfg.interpolation == "uniform":
+                out.append(f.mean(1))
+            else:
+                wts = hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
+                out.append((wts.unsqueeze(-1) * f).sum(1))
+        return out
 
     def _training_levels(self, pix: torch.Tensor, level: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
         """Lookup levels (N,) while training a pruned grid: a direction in a supervised pixel whose ancestors
@@ -208,7 +222,7 @@ class NeuBRDF(LearnedMaterial):
         """MLP input (N, 2 k + c): [psi(wi; S+), psi(mirrored wo; S-)(, T(uv))]."""
         wi = q.wi.to(self.vertex_dirs.dtype)
         wo = q.wo.to(self.vertex_dirs.dtype)
-        parts = [self._lookup(wi, False), self._lookup(wo, True)]
+        parts = self._lookup_both(((wi, False), (wo, True)))
         if self.texture is not None:
             q.require("uv", who="NeuBRDF with a neural texture")
             lod = None if q.lod is None else q.lod.to(wi.dtype)
@@ -316,6 +330,52 @@ class NeuBRDF(LearnedMaterial):
         """Freeze the vertex features to integers (indices or low-bit codes) for export."""
         self.grid.freeze()
         self._drop_runtime()
+
+    @torch.no_grad()
+    def quantize_from_dense(self, index_bits: int | None = None, iterations: int = 25, margin: float = 1.0,
+                            seed: int = 0) -> "NeuBRDF":
+        """End of a dense warm-up: replace dense per-slot features by a VQ grid that starts at them.
+
+        The codebook (2^b, k) is the k-means clustering (Lloyd, `iterations` rounds from a k-means++ start
+        drawn with `seed`) of the features of the slots that some pixel reads (`used_slots`), each
+        slot's index logits start at 0.01 N(0, 1) plus `margin` on its nearest codeword (so the argmax is the
+        nearest codeword), and `Config.features` becomes "vq" (`index_bits` defaults to `Config.index_bits`).
+        Returns self. Build the optimiser again afterwards (`optimizer`): the parameters changed."""
+        if not isinstance(self.grid, DenseFeatures):
+            raise InputError("NeuBRDF.quantize_from_dense: expected a model with features='dense'")
+        bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
+        if bits > 16:
+            raise InputError(f"NeuBRDF.quantize_from_dense index_bits: expected 1 .. 16, got {bits}")
+        feats = self.grid.features.detach()
+        data = feats[self.used_slots()]
+        m = 2 ** bits
+        gen = torch.Generator(device="cpu").manual_seed(seed)
+        # k-means++ start: each next codeword drawn with probability proportional to the squared distance
+        # to the nearest one so far (ties of identical features only cost empty clusters)
+        start = [data[int(torch.randint(data.shape[0], (1,), generator=gen))]]
+        d2 = (data - start[0]).pow(2).sum(-1)
+        for _ in range(m - 1):
+            w = d2.double().cpu()
+            i = int(torch.multinomial(w, 1, generator=gen)) if float(w.sum()) > 0 else \
+                int(torch.randint(data.shape[0], (1,), generator=gen))
+            start.append(data[i])
+            d2 = torch.minimum(d2, (data - data[i]).pow(2).sum(-1))
+        start = torch.stack(start)
+        code = start.clone()
+        for _ in range(iterations):
+            near = torch.cdist(data, code).argmin(-1)
+            sums = torch.zeros_like(code).index_add_(0, near, data)
+            counts = torch.bincount(near, minlength=m).unsqueeze(-1).to(data.dtype)
+            code = torch.where(counts > 0, sums / counts.clamp(min=1), code)  # empty clusters keep their place
+        vq = VQFeatures(self.grid.num_vertices, self.grid.dim, bits).to(feats.device, feats.dtype)
+        vq.codebook.copy_(code)
+        logits = torch.randn(vq.logits.shape, generator=gen).to(vq.logits) * 0.01
+        logits[torch.arange(logits.shape[0]), torch.cdist(feats, code).argmin(-1)] += margin
+        vq.logits.copy_(logits)
+        self.grid = vq
+        self.cfg = replace(self.cfg, features="vq", index_bits=bits)
+        self._drop_runtime()
+        return self
 
     def train(self, mode: bool = True) -> "NeuBRDF":
         """torch train / inference switch; training drops the runtime cache (it would go stale)."""

@@ -44,29 +44,61 @@ def _check_ids(ids: torch.Tensor, n: int) -> None:
         raise InputError(f"ids: vertex ids must lie in [0, {n})")
 
 
+def scratch(store: dict, name: str, rows: int, cols: int, like: torch.Tensor) -> torch.Tensor:
+    """A reusable (rows, cols) buffer `store[name]` with `like`'s dtype and device, grown by 1/4 when short.
+
+    Why: a fresh tensor over glibc's mmap threshold (32 MB) is mapped anew on every allocation, and its
+    page faults cost about as much as a pass of arithmetic over it (~25 ms for 32k x 512 floats on one
+    CPU thread); a training step of a VQ grid at N_side 64 makes several such temporaries. Only for
+    temporaries that do not outlive the call that fills them."""
+    buf = store.get(name)
+    if buf is None or buf.dtype != like.dtype or buf.device != like.device or buf.numel() < rows * cols:
+        buf = store[name] = torch.empty(max(rows * cols, int(rows * cols * 1.25)), dtype=like.dtype,
+                                        device=like.device)
+    return buf[:rows * cols].view(rows, cols)
+
+
 class _StraightThrough(torch.autograd.Function):
-    """out = D[argmax l] (U, k) of logit rows l (U, 2^b); backward: D gets the gradient of the hard lookup,
-    l that of softmax(l) @ D with D held fixed: s * (g D^T - <g, s D>) per row, s = softmax(l)."""
+    """out = D[argmax l] (U, k) of the logit rows l = L[uniq] (U, 2^b) of the logits L (V, 2^b); backward:
+    D gets the gradient of the hard lookup, l that of softmax(l) @ D with D held fixed: s * (g D^T - <g, s D>)
+    per row, s = softmax(l). L gets that row gradient on rows `uniq` (sorted, unique: `torch.unique`), as a
+    sparse, already coalesced gradient when `sparse` (no coalescing or dense V x 2^b gradient), else dense.
+    The rows live in `store` scratch memory, gathered again in the backward pass if another call used it since
+    (the logits themselves are saved: autograd rejects a backward pass after they changed in place)."""
 
     @staticmethod
-    def forward(ctx, rows: torch.Tensor, codebook: torch.Tensor) -> torch.Tensor:
+    def forward(ctx, logits: torch.Tensor, codebook: torch.Tensor, uniq: torch.Tensor, sparse: bool,
+                store: dict) -> torch.Tensor:
+        rows = torch.index_select(logits, 0, uniq, out=scratch(store, "rows", uniq.shape[0], logits.shape[1],
+                                                               logits))
         idx = rows.argmax(-1)
-        ctx.save_for_backward(rows, codebook, idx)
+        ctx.save_for_backward(logits, codebook, uniq, idx)
+        ctx.sparse, ctx.store = sparse, store
+        ctx.token = store["rows_of"] = object()  # the scratch rows are this call's until the next forward
         return codebook[idx]
 
     @staticmethod
     @once_differentiable
     def backward(ctx, g: torch.Tensor):
-        rows, codebook, idx = ctx.saved_tensors
-        grad_rows = grad_code = None
+        logits, codebook, uniq, idx = ctx.saved_tensors
+        grad_logits = grad_code = None
         if ctx.needs_input_grad[0]:
-            s = torch.softmax(rows, -1)
+            rows = scratch(ctx.store, "rows", uniq.shape[0], logits.shape[1], logits)
+            if ctx.store.get("rows_of") is not ctx.token:  # another forward pass used the scratch rows since
+                torch.index_select(logits, 0, uniq, out=rows)
+            ctx.store["rows_of"] = None  # overwritten below
+            s = torch.softmax(rows, -1, out=scratch(ctx.store, "soft", *rows.shape, rows))
             gd = g @ codebook.t()
-            gd.sub_((s * gd).sum(-1, keepdim=True))
-            grad_rows = s.mul_(gd)
+            gd.sub_(torch.mul(s, gd, out=rows).sum(-1, keepdim=True))
+            gd.mul_(s)
+            if ctx.sparse:
+                grad_logits = torch.sparse_coo_tensor(uniq.unsqueeze(0), gd, logits.shape,
+                                                      is_coalesced=True, check_invariants=False)
+            else:
+                grad_logits = torch.zeros_like(logits).index_copy_(0, uniq, gd)
         if ctx.needs_input_grad[1]:
             grad_code = torch.zeros_like(codebook).index_add_(0, idx, g)
-        return grad_rows, grad_code
+        return grad_logits, grad_code, None, None, None
 
 
 class VQFeatures(nn.Module):
@@ -87,6 +119,7 @@ class VQFeatures(nn.Module):
         self.codebook = nn.Parameter(torch.randn(2 ** bits, dim) * init_std)
         self.logits = nn.Parameter(torch.randn(num_vertices, 2 ** bits) * 0.01)
         self.sparse_grad = False
+        self._scratch: dict = {}  # reusable temporaries of the training step (see `scratch`)
 
     @property
     def frozen(self) -> bool:
@@ -111,8 +144,7 @@ class VQFeatures(nn.Module):
         uniq, inv = torch.unique(ids, return_inverse=True)
         if not torch.is_grad_enabled():
             return self.codebook[self.logits[uniq].argmax(-1)][inv]
-        rows = nn.functional.embedding(uniq, self.logits, sparse=self.sparse_grad)
-        return _StraightThrough.apply(rows, self.codebook)[inv]
+        return _StraightThrough.apply(self.logits, self.codebook, uniq, self.sparse_grad, self._scratch)[inv]
 
     def storage_bits(self, float_bits: int) -> int:
         """Index bits plus codebook floats: V b + float_bits k 2^b."""

@@ -5,11 +5,25 @@ import math
 
 import torch
 
+from neumat.nn.codebook import scratch
+
+
+def _coalesced(g: torch.Tensor) -> torch.Tensor:
+    """`g.coalesce()`, without the sort and copy when g is row-sparse with strictly increasing row indices
+    (as the gradients of `VQFeatures`, which autograd's accumulation marks uncoalesced): those are marked
+    coalesced in place."""
+    if not g.is_coalesced() and g.sparse_dim() == 1:
+        rows = g._indices()[0]
+        if rows.numel() < 2 or bool((rows[1:] > rows[:-1]).all()):
+            return g._coalesced_(True)
+    return g.coalesce()
+
 
 class RowAdam(torch.optim.Optimizer):
     """Adam (torch.optim.Adam's update, no weight decay / amsgrad) that also takes sparse gradients: a
     parameter with a sparse row gradient (e.g. `VQFeatures.logits` with `sparse_grad`) is updated lazily,
-    only on the rows present in the gradient, whose moments alone advance (as torch.optim.SparseAdam)."""
+    only on the rows present in the gradient, whose moments alone advance (as torch.optim.SparseAdam). The
+    gathered rows live in reused scratch memory (see `neumat.nn.codebook.scratch`)."""
 
     def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999),
                  eps: float = 1e-8) -> None:
@@ -36,10 +50,13 @@ class RowAdam(torch.optim.Optimizer):
                 step_size, bc2_sqrt = lr / (1 - b1 ** t), math.sqrt(1 - b2 ** t)
                 m, v = state["exp_avg"], state["exp_avg_sq"]
                 if p.grad.is_sparse:
-                    g = p.grad.coalesce()
+                    g = _coalesced(p.grad)
                     rows, vals = g.indices()[0], g.values()
-                    m_r = m.index_select(0, rows).lerp_(vals, 1 - b1)
-                    v_r = v.index_select(0, rows).mul_(b2).addcmul_(vals, vals, value=1 - b2)
+                    work = self.__dict__.setdefault("_scratch", {})
+                    m_r = torch.index_select(m, 0, rows, out=scratch(work, "m", rows.shape[0], vals[0].numel(), m)
+                                             .view_as(vals)).lerp_(vals, 1 - b1)
+                    v_r = torch.index_select(v, 0, rows, out=scratch(work, "v", rows.shape[0], vals[0].numel(), v)
+                                             .view_as(vals)).mul_(b2).addcmul_(vals, vals, value=1 - b2)
                     m.index_copy_(0, rows, m_r)
                     v.index_copy_(0, rows, v_r)
                     # m / (sqrt(v) / c + eps) = c m / (sqrt(v) + c eps), c = bc2_sqrt: one pass fewer
