@@ -64,7 +64,7 @@ def fit_neural_appearance(model, source, encoder_steps: int = 2000, latent_steps
     each (`neumat.fit.directional_blur`). sampler_batch: "shared" (the sampler's KL on the BRDF's queries) or
     "separate" (on a second batch drawn the same way, as the paper)."""
     from ..models.neural_appearance import NeuralAppearance
-    from ..models.proxy_sampler import proxy_kl_loss
+    from .proxy_sampler import proxy_kl_loss
 
     if not isinstance(model, NeuralAppearance):
         raise InputError(f"fit_neural_appearance: expected a NeuralAppearance model, got {type(model).__name__}")
