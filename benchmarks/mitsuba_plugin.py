@@ -35,7 +35,8 @@ from neumat.io.images import write_image_ldr
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
 from neumat.models.neubrdf import NeuBRDF
-from neumat.models.proxy_sampler import SampledMaterial, fit_sampler
+from neumat.fit.proxy_sampler import fit_sampler
+from neumat.models.proxy_sampler import SampledMaterial
 from neumat.reflectance.measured import RglMaterial
 from neumat.viz.compare import compare_image
 

@@ -7,7 +7,8 @@ zeltner baseline, at equal steps and batch.
     python benchmarks/neural_appearance.py --coat --variants full,ggx-mipmap,zeltner   # layered sources (Fig. 3)
 
 Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 halved at 50% / 75%):
-  "full"          encoder phase (half the steps), bake, latent phase (`fit_neural_appearance`), 2 frames;
+  "full"          encoder phase (half the steps), bake, latent phase (`neumat.fit.trainer.fit`, recipe
+                  `neumat.fit.recipes.neural_appearance`), 2 frames;
   "no encoder"    the latents optimised from random values for all the steps (the paper's Fig. 8 ablation);
   "1 frame"       as "full" with one learned shading frame;
   "zeltner"       the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
@@ -51,7 +52,7 @@ from neumat.export.glsl import export_glsl
 from neumat.export.slang import export_slang
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LogCosLoss
-from neumat.fit.neural_appearance import fit_neural_appearance
+from neumat.fit.recipes.neural_appearance import config_for_source
 from neumat.fit.query_samplers import uniform
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
@@ -184,20 +185,21 @@ def main() -> None:
             rows += speed_rows(name, train_src, size, 1 << 16)
             continue
         data = held_out(open_source(folder, args.size, 256, args.coat), args.queries)
-        half = args.steps // 2
-        variants = {"full": ({}, half, {}), "no encoder": ({}, 0, {}), "1 frame": ({"frames": 1}, half, {}),
+        half = (0.5, 0.5)
+        variants = {"full": ({}, half, {}), "no encoder": ({}, (0.0, 1.0), {}), "1 frame": ({"frames": 1}, half, {}),
                     "half-difference": ({}, half, {"directions": "rusinkiewicz"}),
                     "blurred": ({}, half, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5}),
                     "roulette": ({"level_selection": "roulette"}, half, {})}
-        for variant, (config, encoder_steps, options) in variants.items():
+        for variant, (config, split, options) in variants.items():
             if variant not in chosen:
                 continue
             torch.manual_seed(0)
-            model = NeuralAppearance(spatial_size=size, surface_features=train_src.sampling_feature_dim, **config)
+            model = NeuralAppearance(**{**config_for_source(train_src), **config})
+            na_recipe = recipe_for("neural-appearance")
+            na_recipe = replace(na_recipe, batch_size=args.batch, phase_split=split,
+                                options={**na_recipe.options, **options})
             t = time.perf_counter()
-            fit_neural_appearance(model, train_src, encoder_steps=encoder_steps,
-                                  latent_steps=args.steps - encoder_steps, batch=args.batch, progress=False,
-                                  **options)
+            fit(model, train_src, na_recipe, steps=args.steps, progress=False)
             seconds = time.perf_counter() - t
             rows.append({"set": name, "model": variant, **scores(model, data), "sampler gain": sampler_gain(model),
                          "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds})

@@ -1,6 +1,7 @@
-"""Directionally blurred targets (Zeltner et al. Sec. 5) and the training options of fit_neural_appearance
-(half/difference directions, blurring, a separate sampler batch)."""
+"""Directionally blurred targets (Zeltner et al. Sec. 5) and the training options of the neural-appearance
+recipe (half/difference directions, blurring, a separate sampler batch)."""
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -8,11 +9,18 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.directional_blur import blur_angle, blurred_eval, sample_cone
-from neumat.fit.neural_appearance import fit_neural_appearance
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX, Lambert
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
+
+
+def _fit(model, source, options=(), **changes):
+    """The trainer with neural-appearance's recipe, `changes` to its fields and `options` to its options."""
+    recipe = recipe_for("neural-appearance")
+    return fit(model, source, replace(recipe, options={**recipe.options, **dict(options)}, **changes), progress=False)
 
 
 def test_cone_directions_are_uniform_on_the_cap():
@@ -68,15 +76,14 @@ def test_training_options_run_and_bad_values_raise():
     source = SVBRDF(procedural_texture_set("bumps", 8, seed=0), samples=2)
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=8)
-    fit = fit_neural_appearance(model, source, encoder_steps=6, latent_steps=6, batch=64, progress=False,
-                                directions="rusinkiewicz", blur_degrees=5.0, blur_samples=2, log_every=3,
-                                sampler_batch="separate")
+    fit = _fit(model, source, dict(directions="rusinkiewicz", blur_degrees=5.0, blur_samples=2,
+                                   sampler_batch="separate"), steps=12, batch_size=64, log_every=3)
     assert [h["phase"] for h in fit.history][-1] == "latents" and all(math.isfinite(h["brdf loss"])
                                                                       for h in fit.history)
     for bad in (dict(directions="uniform"), dict(blur_degrees=-1.0), dict(blur_until=0.0), dict(blur_samples=0),
-                dict(sampler_batch="twice")):
-        with pytest.raises(InputError):
-            fit_neural_appearance(model, source, encoder_steps=1, latent_steps=1, batch=8, progress=False, **bad)
+                dict(sampler_batch="twice"), dict(blur_degree=1.0)):
+        with pytest.raises(InputError, match=next(iter(bad))):
+            _fit(model, source, bad, steps=2, batch_size=8)
 
 
 def test_a_separate_sampler_batch_still_trains_the_sampler():
@@ -85,7 +92,6 @@ def test_a_separate_sampler_batch_still_trains_the_sampler():
     source = SVBRDF(procedural_texture_set("bumps", 8, seed=0), samples=2)
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=8)
-    fit = fit_neural_appearance(model, source, encoder_steps=100, latent_steps=100, batch=256, progress=False,
-                                log_every=50, sampler_batch="separate")
+    fit = _fit(model, source, dict(sampler_batch="separate"), steps=200, batch_size=256, log_every=50)
     kl = [h["sampler loss"] for h in fit.history]
     assert kl[-1] < 0.97 * kl[0], kl                   # measured 1.727 -> 1.606 (shared batch: 1.779 -> 1.598)

@@ -2,14 +2,18 @@
 SVBRDF, the importance sampler (chi-square, weights), model files, bad input."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 import torch.nn.functional as F
 import pytest
 
 from neumat import InputError, Query
 from neumat.fit.losses import LogCosLoss
-from neumat.fit.neural_appearance import fit_neural_appearance
 from neumat.fit.query_samplers import uniform
+from neumat.fit.recipe import recipe_for
+from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.fit.trainer import fit
 from neumat.io.modelfile import load_model, save_model
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX
@@ -22,6 +26,12 @@ from neumat.warp.hemisphere import sample_cosine_hemisphere
 SIZE = 16
 
 
+def _fit(model, source, **changes):
+    """The trainer with neural-appearance's recipe, `changes` to its fields (steps split half and half unless
+    phase_split is given)."""
+    return fit(model, source, replace(recipe_for("neural-appearance"), **changes), progress=False)
+
+
 @pytest.fixture(scope="module")
 def bumps() -> SVBRDF:
     return SVBRDF(procedural_texture_set("bumps", SIZE, seed=0), samples=4)
@@ -31,8 +41,7 @@ def bumps() -> SVBRDF:
 def trained(bumps):
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=SIZE)
-    result = fit_neural_appearance(model, bumps, encoder_steps=200, latent_steps=200, batch=512, progress=False,
-                                   log_every=50)
+    result = _fit(model, bumps, steps=400, batch_size=512, log_every=50)
     return model, result
 
 
@@ -70,7 +79,7 @@ def test_no_encoder_phase_means_no_bake(bumps):
     torch.manual_seed(2)
     model = NeuralAppearance(spatial_size=SIZE)
     before = [t.detach().clone() for t in model.spatial.raw]
-    fit_neural_appearance(model, bumps, encoder_steps=0, latent_steps=1, batch=64, progress=False)
+    _fit(model, bumps, steps=1, phase_split=(0.0, 1.0), batch_size=64)
     change = max(float((a - b.detach()).abs().max()) for a, b in zip(before, model.spatial.raw))
     assert 0 < change < 0.01                                           # one Adam step of lr 3e-3
 
@@ -128,13 +137,13 @@ def test_storage_leaves_out_the_encoder():
 def test_bad_input_is_refused(bumps):
     model = NeuralAppearance(spatial_size=SIZE)
     with pytest.raises(InputError, match="sampling_features"):
-        fit_neural_appearance(model, GGX(0.3), encoder_steps=1, latent_steps=1, progress=False)
+        _fit(model, GGX(0.3), steps=2)
     with pytest.raises(InputError, match="surface parameters"):
-        fit_neural_appearance(NeuralAppearance(spatial_size=SIZE, surface_features=5), bumps, progress=False)
+        _fit(NeuralAppearance(spatial_size=SIZE, surface_features=5), bumps)
     with pytest.raises(InputError, match="surface parameters"):
         model.encode(torch.zeros(4, 3))
-    with pytest.raises(InputError, match="latent_steps"):
-        fit_neural_appearance(model, bumps, latent_steps=-1, progress=False)
+    with pytest.raises(InputError, match="steps"):
+        _fit(model, bumps, steps=-1)
     with pytest.raises(InputError, match="frames"):
         NeuralAppearance(spatial_size=SIZE, shading_frame=False)
 
@@ -153,8 +162,7 @@ def test_albedo_output_learns_the_directional_albedo(bumps):
     (4096-sample Monte Carlo per point) and forgets its wi input."""
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=SIZE, albedo=True)
-    result = fit_neural_appearance(model, bumps, encoder_steps=200, latent_steps=200, batch=512, progress=False,
-                                   log_every=50)
+    result = _fit(model, bumps, steps=400, batch_size=512, log_every=50)
     assert "albedo loss" in result.history[-1]
     g = torch.Generator().manual_seed(5)
     u = uniform(64, 4, g, "cpu")
@@ -194,6 +202,6 @@ def test_training_fits_a_layered_material(bumps):
     coated = LayeredMaterial(bumps, [Coat(roughness=0.05 + 0.3 * smudge_map(SIZE, seed=1), eta=1.5)], samples=4)
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=SIZE, surface_features=coated.sampling_feature_dim)
-    fit_neural_appearance(model, coated, encoder_steps=200, latent_steps=200, batch=512, progress=False)
+    _fit(model, coated, steps=400, batch_size=512)
     err, mean_model = _log_cos_and_mean(model, coated)
     assert err < mean_model / 2, (err, mean_model)                  # measured: 0.0168 vs 0.0511

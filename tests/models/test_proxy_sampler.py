@@ -9,7 +9,8 @@ import torch
 
 from neumat import InputError, Query
 from neumat.metrics.tonemap import LUMINANCE
-from neumat.models.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial, fit_sampler
+from neumat.fit.proxy_sampler import fit_sampler
+from neumat.models.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial
 from neumat.models.zeltner import Zeltner
 from neumat.models.multiscale import MultiScale
 from neumat.reflectance.analytic import GGX, Lambert

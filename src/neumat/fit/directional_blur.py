@@ -49,7 +49,7 @@ def blurred_eval(source, q: Query, half_angle: float, samples: int, generator: t
     if not (isinstance(samples, int) and samples >= 1):
         raise InputError(f"blurred_eval samples: expected a positive integer, got {samples!r}")
     n = len(q)
-    u = torch.rand(n, samples, 2, generator=generator).to(q.wi)
+    u = torch.rand(n, samples, 2, generator=generator, device=generator.device).to(q.wi)
     w = sample_cone(q.wo, half_angle, u).reshape(n * samples, 3)
     rep = {name: getattr(q, name).repeat_interleave(samples, 0) for name in ("wi", "uv", "footprint", "lod", "x", "n")
            if getattr(q, name) is not None}

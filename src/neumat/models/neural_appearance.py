@@ -11,7 +11,7 @@ frames, SiLU, exponential output (`decode`); the sampler is a `neumat.models.pro
 (3 x 32) fed the detached latent. Defaults: BRDF decoder 2 x 32 (the paper's middle configuration; it also
 reports 2 x 16 and 3 x 64), no frequency preconditioner (that is Timonen et al.'s).
 
-Training (Sec. 5, `neumat.fit.neural_appearance.fit_neural_appearance`): an encoder MLP maps the
+Training (Sec. 5, `neumat.fit.trainer.fit` with the recipe `neumat.fit.recipes.neural_appearance`): an encoder MLP maps the
 source's surface parameters k(x) (`source.sampling_features`, e.g. an SVBRDF's base colour, normal, roughness,
 metalness) to z, trained end to end with both decoders; `bake` then fills every texel of every pyramid level
 with the encoder's output, and the latents are fine-tuned directly on filtered targets. Coarse levels are baked
@@ -19,7 +19,7 @@ from LEAN-prefiltered parameters (`Config.lean`: normal-map slope spread becomes
 normal and one isotropic roughness per layer, so LEAN's anisotropic covariance is reduced to its trace).
 A fractional level is read trilinearly by default; the paper's Russian roulette is Config.level_selection
 ("roulette", `neumat.models.neumip`). The sampler is trained on the BRDF's queries by default; the paper's second
-batch is `fit_neural_appearance(..., sampler_batch="separate")`.
+batch is the recipe option sampler_batch="separate".
 
 Albedo inference (Sec. 6.4, `Config.albedo`): the BRDF MLP has 3 more outputs, exp(.) of which is the
 directional albedo alpha(x, wo) = int f(x, wi, wo) cos(theta_i) dwi (`albedo(q)`), fitted with an L2 loss against
@@ -144,8 +144,9 @@ class NeuralAppearance(neumip.NeuMIP):
         centres (finest level), LEAN-prefiltered (`Config.lean`) or box-filtered for the coarser levels (Sec. 5.1
         step 2)."""
         size = self.cfg.spatial_size
-        uv = texel_centre_uv(size, size)
-        wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(len(uv), 3)
+        device = self.spatial.raw[0].device
+        uv = texel_centre_uv(size, size, device=device)
+        wi = torch.tensor([[0.0, 0.0, 1.0]], device=device).expand(len(uv), 3)
         k = source.sampling_features(Query(wi, uv=uv)).float()
         if k.shape != (len(uv), self.cfg.surface_features):
             raise InputError(f"{self.name}.bake: the source gives surface parameters of shape {tuple(k.shape)}, "

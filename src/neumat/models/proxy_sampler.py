@@ -5,19 +5,17 @@ varying materials, a per-point feature vector) to the 9 parameters of the analyt
 
 - `ProxySampler`: MLP [wi (N, 3), features (N, F)] -> raw (N, 9) -> `ProxyLobes`; starts at w_d = 0.5,
   alpha = 0.5, no tilt.
-- `fit_sampler(material, sampler)`: trains it against the material's f cos(theta_o) as the paper trains its
-  sampler against the learned BRDF: directions drawn from the current proxy are scored with the KL divergence
-  KL(f cos / a || p), through its score-function gradient -E_p[(f cos / p) grad log p] (Mueller et al. 2019);
-  f is the luminance of the material's value, wi uniform over the upper hemisphere and uv uniform over the
-  texture. One sample per query, so the per-query normaliser a(wi, uv) is replaced by the batch mean of
-  f cos / p: queries with a higher albedo weigh more.
 - `SampledMaterial(material, sampler)`: the material with the sampler attached (`can_sample = True`): eval is
   the material's, `sample` / `pdf` the proxy's mixed with cosine sampling of the geometric hemisphere with
   probability DEFENSIVE (`sample_defensive` / `defensive_pdf`), weight = f cos / p. The proxy alone can put
   next to no density where f > 0 (a tilted cosine lobe leaves part of the hemisphere to the tail of the
   specular lobe): its weights are then heavy-tailed, and on the RGL paper_white at 60 degrees its albedo
   estimate came out 5 standard errors low at 200k samples. The defensive share bounds every weight by
-  pi f / DEFENSIVE.
+  pi f / DEFENSIVE. It is a `LearnedMaterial` named "proxy-sampler" whose training state is the sampler's
+  alone (the material is a fixed target): `neumat.fit.proxy_sampler.fit_sampler(material)` trains the sampler
+  through the one trainer (`neumat.fit.trainer.fit`, recipe `neumat.fit.recipes.proxy_sampler`) against the
+  material's f cos(theta_o), as the paper trains its sampler against the learned BRDF (KL divergence through
+  its score-function gradient, `neumat.fit.proxy_sampler.proxy_kl_loss`).
 
 Spatially varying materials provide the features through `sampling_features(q) -> (N, F)` (no gradient) and
 `sampling_feature_dim`: the paper feeds its latent code z(x), as the multiscale model does with its spatial
@@ -25,7 +23,6 @@ latent z_s; a reference SVBRDF gives its texture parameters at uv (the paper's e
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -37,10 +34,9 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, check_sample_u, material_device, sample_weight
 from neumat.core.query import Query, Sample
-from neumat.fit.adam_steps import adam_steps
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.models.base import LearnedMaterial
 from neumat.nn.mlp import MLP
-from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere
+from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from neumat.warp.microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, sample_proxy
 
 #: probability of drawing a cosine-weighted direction instead of the proxy's (defensive mixture)
@@ -111,23 +107,37 @@ class ProxySampler(nn.Module):
         return self.mlp.flops()
 
 
-class SampledMaterial(Material):
-    """`material` with `sampler` for importance sampling (module docstring)."""
+class SampledMaterial(LearnedMaterial):
+    """`material` with `sampler` for importance sampling (module docstring). An nn.Module: `to(device)` moves
+    the sampler (and the material when it is a module); `train(mode)` switches the sampler alone, the material
+    keeps its mode (it is the fixed target of the sampler's fit)."""
 
+    name = "proxy-sampler"
+    paper = "Real-Time Neural Appearance Models (Zeltner et al. 2024), Sec. 4.3: the importance-sampling decoder"
+    source_kinds = ("brdf", "svbrdf")
+    Config = Config
     can_sample = True
 
     def __init__(self, material: Material, sampler: ProxySampler) -> None:
+        super().__init__()
         if feature_dim(material, "SampledMaterial") != sampler.cfg.features:
             raise InputError(f"SampledMaterial: the sampler takes {sampler.cfg.features} features, "
                              f"{type(material).__name__} gives {feature_dim(material, 'SampledMaterial')}")
         self.material, self.sampler = material, sampler
-        self.name = f"{getattr(material, 'name', 'material')}+proxy-sampler"
         self.spatially_varying = bool(getattr(material, "spatially_varying", False))
 
     @property
     def device(self) -> torch.device:
         """Where the material (else the sampler) keeps its tensors: renderers and plugins query there."""
         return material_device(self.material, self.sampler)
+
+    def train(self, mode: bool = True) -> "SampledMaterial":
+        self.training = mode
+        self.sampler.train(mode)
+        return self
+
+    def forward(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
 
     def eval(self, q: Query) -> torch.Tensor:
         return self.material.eval(q)
@@ -147,15 +157,9 @@ class SampledMaterial(Material):
     def describe(self) -> str:
         return f"{self.material.describe()} + proxy sampler"
 
-
-@dataclass
-class SamplerFit:
-    """sampler: the trained sampler (eval mode); history: {"step", "loss"} every `log_every` steps;
-    seconds: training time."""
-
-    sampler: ProxySampler
-    history: list[dict]
-    seconds: float
+    def flops(self) -> int:
+        """The sampler's MLP per query (the material's evaluation not counted)."""
+        return self.sampler.flops()
 
 
 def feature_dim(material, who: str) -> int:
@@ -179,48 +183,3 @@ def features_of(material, q: Query) -> torch.Tensor | None:
     q.require("uv", who=f"{type(material).__name__} sampling features")
     with torch.no_grad():
         return material.sampling_features(q).detach()
-
-
-def proxy_kl_loss(lobes: ProxyLobes, wi: torch.Tensor, u: torch.Tensor, brdf, who: str) -> torch.Tensor:
-    """KL(f cos / a || p) through its score-function gradient (module docstring): wo (N, 3) drawn from the
-    detached `lobes` with u (N, 2), scored against brdf(wo) -> (N, 3), evaluated without gradient."""
-    with torch.no_grad():
-        wo = sample_proxy(ProxyLobes(*(t.detach() for t in lobes)), wi, u, check=False)
-        wo = wo / wo.norm(dim=-1, keepdim=True)
-        target = (brdf(wo).float() @ torch.tensor(LUMINANCE, device=wo.device)).clamp(min=0) * wo[:, 2].clamp(min=0)
-        if not bool(torch.isfinite(target).all()):
-            raise InputError(f"proxy sampler fit: {who} returned non-finite values")
-    pdf = proxy_pdf(lobes, wi, wo, check=False)
-    ratio = target / pdf.detach().clamp(min=1e-12)
-    return -(ratio * pdf.clamp(min=1e-12).log()).mean() / ratio.mean().clamp(min=1e-12)
-
-
-def fit_sampler(material: Material, sampler: ProxySampler | None = None, steps: int = 2000, batch: int = 4096,
-                lr: float = 3e-3, seed: int = 0, log_every: int = 100, progress: bool = True) -> SamplerFit:
-    """Train `sampler` (default a new `ProxySampler` with the material's feature count) on `material` (module
-    docstring): `steps` Adam steps of `batch` (wi, uv, wo) queries, learning rate `lr` halved at 50% and 75%
-    of the steps."""
-    features = feature_dim(material, "fit_sampler")
-    for name, v in (("steps", steps), ("batch", batch), ("log_every", log_every)):
-        check_int(v, f"fit_sampler {name}")
-    if not lr > 0:
-        raise InputError(f"fit_sampler lr: expected > 0, got {lr!r}")
-    sampler = sampler if sampler is not None else ProxySampler(features=features)
-    if sampler.cfg.features != features:
-        raise InputError(f"fit_sampler: the sampler takes {sampler.cfg.features} features, "
-                         f"{type(material).__name__} gives {features}")
-    sampler.train()
-    gen = torch.Generator().manual_seed(seed)
-
-    def step():
-        u = torch.rand(batch, 6, generator=gen)
-        wi = sample_uniform_hemisphere(u[:, :2])
-        q = Query(wi, uv=u[:, 4:] if features else None)
-        lobes = sampler.lobes(wi, features_of(material, q))
-        return (proxy_kl_loss(lobes, wi, u[:, 2:4], lambda wo: material.eval(q.with_wo(wo)), material.describe()),)
-
-    start = time.perf_counter()
-    history = adam_steps(sampler.parameters(), steps, lr, step, ("loss",), "fitting the proxy sampler", log_every,
-                         progress)
-    sampler.eval()
-    return SamplerFit(sampler, history, time.perf_counter() - start)

@@ -1,0 +1,180 @@
+"""Training recipe of `neumat.models.neural_appearance.NeuralAppearance` (Zeltner et al. 2024, Sec. 5): two
+phases through the one trainer (`neumat.fit.trainer.fit`).
+
+Phase "encoder": surface parameters k(x) of the source (`source.sampling_features`) are encoded to z and
+decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted (or, with
+option directions="rusinkiewicz", uniform in half and difference angles as the paper), x uniform. Trains the
+decoders and the encoder. After its last step, `model.bake(source)` writes the encoder's latents into every
+texel of every pyramid level (with phase_split (0, 1) there is no encoder phase and no bake: the latents are
+optimised from their random initialisation, the paper's "direct optimisation" ablation).
+Phase "latents": the pyramid texels are optimised directly, with the decoders, on filtered targets
+f(wi, wo | x, Sigma) for the footprints of `neumat.fit.footprint_queries` (fine levels drawn more often, as the
+paper's exponentially distributed filter footprints).
+Optionally (blur_degrees > 0) the targets of the first steps are directionally blurred, a cone around wo that
+shrinks to nothing at blur_until of all steps (counted over both phases), blur_samples directions each, so
+narrow peaks are learned broad first (Sec. 5, `neumat.fit.directional_blur`).
+
+Every step also trains the sampling decoder on the same queries (or, with sampler_batch="separate", on a second
+batch drawn the same way, as the paper): directions drawn from its current proxy are scored against the model's
+current BRDF (no gradient) by the KL divergence, with the latent detached, so the sampler does not disturb the
+BRDF (`neumat.fit.proxy_sampler.proxy_kl_loss`). BRDF loss: the recipe's ("log_cos", the paper's L1 in log
+space). Adam; the learning rate halves at 50 % and 75 % of each phase ("halves").
+
+With `Config.albedo` every step also fits the decoder's albedo output with an L2 loss against one-sample
+estimates of the source's directional albedo at the same (x, wo) (and footprint): f(w', wo | x) cos / p(w')
+with w' from an even mixture of the source's own sampler given wo and the cosine density, or pi f(w', wo | x) for
+a cosine-distributed w' when the source cannot sample (Sec. 6.4; unbiased, so the L2 optimum is the albedo).
+
+History records carry "brdf loss", "sampler loss" (and "albedo loss"); "loss" is their sum.
+`config_for_source(source)` gives the model Config fields that follow from the source (spatial_size,
+surface_features).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import torch
+from torch import nn
+
+from neumat.core.checks import check_int
+from neumat.core.errors import InputError
+from neumat.core.query import Query
+from neumat.fit.directional_blur import blur_angle, blurred_eval
+from neumat.fit.footprint_queries import footprint_queries
+from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
+from neumat.fit.proxy_sampler import proxy_kl_loss
+from neumat.fit.query_samplers import uniform
+from neumat.fit.recipe import Recipe
+from neumat.fit.source_rng import SourceGenerator
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+
+RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="log_cos", phase_split=(0.5, 0.5),
+                log_every=100,
+                options={"directions": "cosine", "blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
+                         "sampler_batch": "shared"})
+
+#: the phases, in order
+PHASES = ("encoder", "latents")
+
+
+def config_for_source(source) -> dict:
+    """NeuralAppearance Config fields that follow from the source: spatial_size = the texture's resolution (the
+    largest power of two not above its smaller side; the paper's), surface_features = the number of surface
+    parameters the source gives (`source.sampling_feature_dim`, what the encoder reads). A field the source
+    cannot tell is left out (the Config default applies); explicit settings override these."""
+    config = {}
+    size = getattr(getattr(source, "textures", None), "size", None) or getattr(source, "texture_size", None)
+    if size is not None:
+        config["spatial_size"] = 1 << (min(size).bit_length() - 1)
+    if getattr(source, "sampling_feature_dim", None) is not None:
+        config["surface_features"] = int(source.sampling_feature_dim)
+    return config
+
+
+def _options(ctx: FitContext) -> dict:
+    """The recipe's options, validated (InputError naming the bad one)."""
+    unknown = sorted(set(ctx.recipe.options) - set(RECIPE.options))
+    if unknown:
+        raise InputError(f"neural-appearance recipe: unknown option(s) {', '.join(unknown)} "
+                         f"(known: {', '.join(sorted(RECIPE.options))})")
+    o = {name: ctx.option(name) if name in ctx.recipe.options else default for name, default in RECIPE.options.items()}
+    if o["directions"] not in ("cosine", "rusinkiewicz"):
+        raise InputError(f"neural-appearance option directions: expected 'cosine' or 'rusinkiewicz', got "
+                         f"{o['directions']!r}")
+    for name, lo, hi in (("blur_degrees", 0, 90), ("blur_until", 0, 1)):
+        v = o[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi or (name == "blur_until"
+                                                                                          and v == 0):
+            bounds = "[0, 90]" if name == "blur_degrees" else "(0, 1]"
+            raise InputError(f"neural-appearance option {name}: expected a number in {bounds}, got {v!r}")
+    check_int(o["blur_samples"], "neural-appearance option blur_samples", 1)
+    if o["sampler_batch"] not in ("shared", "separate"):
+        raise InputError(f"neural-appearance option sampler_batch: expected 'shared' or 'separate', got "
+                         f"{o['sampler_batch']!r}")
+    return o
+
+
+def _check(model, source) -> None:
+    from neumat.models.neural_appearance import NeuralAppearance
+
+    if not isinstance(model, NeuralAppearance):
+        raise InputError(f"neural-appearance fit: expected a NeuralAppearance model, got {type(model).__name__}")
+    if not getattr(source, "spatially_varying", False) or not callable(getattr(source, "sampling_features", None)):
+        raise InputError(f"neural-appearance fit: the source {type(source).__name__} must be spatially varying and "
+                         "give its surface parameters through sampling_features(q) (e.g. an SVBRDF)")
+    if int(source.sampling_feature_dim) != model.cfg.surface_features:
+        raise InputError(f"neural-appearance fit: the source gives {source.sampling_feature_dim} surface parameters, "
+                         f"the model's encoder reads {model.cfg.surface_features} (Config.surface_features; "
+                         "config_for_source(source) sets it)")
+
+
+def phases(ctx: FitContext) -> list[Phase]:
+    model, source, dev, gen, batch = ctx.model, ctx.source, ctx.device, ctx.generator, ctx.recipe.batch_size
+    _check(model, source)
+    o = _options(ctx)
+    encoder_steps, latent_steps = ctx.split(PHASES)
+    total_steps = encoder_steps + latent_steps
+    brdf_loss = loss_module(ctx)
+    draw_filtered = footprint_queries(source)
+    draw_directions = query_draw(ctx, o["directions"])
+    albedo = model.cfg.albedo
+
+    def target_of(q: Query, step: int) -> torch.Tensor:
+        """The source's value, directionally blurred early in training (blur_degrees > 0); step counts over
+        both phases."""
+        angle = blur_angle(step, total_steps, o["blur_degrees"], o["blur_until"])
+        with torch.no_grad():
+            return blurred_eval(source, q, angle, o["blur_samples"], gen)
+
+    def albedo_estimate(q: Query) -> torch.Tensor:
+        """One-sample estimates (N, 3) of the source's albedo at q's x and wo: f(w', wo) cos(theta') / p(w'), w'
+        from an even mixture of the source's sampler given wo and the cosine density (defensive: the estimate stays
+        below 2 pi f even where the sampler misses f), or cosine-distributed when the source cannot sample."""
+        u = uniform(len(q), 2, gen, dev)
+        with torch.no_grad():
+            if not getattr(source, "can_sample", False):
+                return math.pi * source.eval(replace(q, wi=sample_cosine_hemisphere(u)))
+            cosine = u[:, 0] < 0.5
+            v = torch.stack([torch.where(cosine, 2 * u[:, 0], 2 * u[:, 0] - 1).clamp(max=1 - 1e-7), u[:, 1]], -1)
+            given_wo = replace(q, wi=q.wo, wo=None)
+            w = torch.where(cosine.unsqueeze(-1), sample_cosine_hemisphere(v), source.sample_direction(given_wo, v)[0])
+            w = torch.where((w[:, 2] > 0).unsqueeze(-1), w, w.new_tensor([0.0, 0.0, 1.0]))  # failed samples
+            p = 0.5 * source.pdf(given_wo.with_wo(w)) + 0.5 * w[:, 2] / math.pi
+            return source.eval(replace(q, wi=w)) * (w[:, 2] / p).unsqueeze(-1)
+
+    def losses_at(draw, step: int) -> dict[str, torch.Tensor]:
+        """BRDF (and albedo) losses on a batch from draw() -> (q, z); the sampler's KL on the same batch or on a
+        second one (sampler_batch). `step`: the fit's step (over both phases), for the blur schedule."""
+        q, z = draw()
+        u = uniform(batch, 2, gen, dev)
+        sq, sz = draw() if o["sampler_batch"] == "separate" else (q, z)
+        sz = sz.detach()
+        out = model.decode_outputs(z, q)
+        lobes = model.sampler.lobes(sq.wi, sz)
+        kl = proxy_kl_loss(lobes, sq.wi, u, lambda wo: model.decode(sz, sq.with_wo(wo)), model.name)
+        losses = {"brdf loss": brdf_loss(out[:, :3], target_of(q, step), q), "sampler loss": kl}
+        if albedo:
+            losses["albedo loss"] = ((out[:, 3:] - albedo_estimate(q)) ** 2).mean()
+        return losses
+
+    def encoder_batch():
+        q = draw_directions(batch, gen, dev)
+        with torch.no_grad():
+            k = source.sampling_features(q)
+        return q, model.encode(k)
+
+    def latent_batch():
+        q = draw_filtered(batch, gen, dev)
+        if o["directions"] != "cosine":
+            d = draw_directions(batch, gen, dev)
+            q = replace(q, wi=d.wi, wo=d.wo)
+        return q, model.spatial_latent(q)
+
+    decoders = [p for n, p in model.named_parameters() if not n.startswith(("spatial.", "encoder."))]
+    # checkpointed with the fit: the loss's state (if any) and the source's own generator (footprint samples)
+    stateful = ([brdf_loss] if isinstance(brdf_loss, nn.Module) else []) + [SourceGenerator(source)]
+    return [Phase("encoder", encoder_steps, lambda step: losses_at(encoder_batch, step),
+                  decoders + list(model.encoder.parameters()), after=lambda: model.bake(source), stateful=stateful),
+            Phase("latents", latent_steps, lambda step: losses_at(latent_batch, encoder_steps + step),
+                  decoders + list(model.spatial.parameters()))]
