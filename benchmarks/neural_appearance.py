@@ -187,7 +187,7 @@ def main() -> None:
         data = held_out(open_source(folder, args.size, 256, args.coat), args.queries)
         half = (0.5, 0.5)
         variants = {"full": ({}, half, {}), "no encoder": ({}, (0.0, 1.0), {}), "1 frame": ({"frames": 1}, half, {}),
-                    "half-difference": ({}, half, {"directions": "rusinkiewicz"}),
+                    "half-difference": ({}, half, {"queries": "rusinkiewicz"}),
                     "blurred": ({}, half, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5}),
                     "roulette": ({"level_selection": "roulette"}, half, {})}
         for variant, (config, split, options) in variants.items():
@@ -196,8 +196,9 @@ def main() -> None:
             torch.manual_seed(0)
             model = NeuralAppearance(**{**config_for_source(train_src), **config})
             na_recipe = recipe_for("neural-appearance")
-            na_recipe = replace(na_recipe, batch_size=args.batch, phase_split=split,
-                                options={**na_recipe.options, **options})
+            fields = {k: options[k] for k in options if k == "queries"}  # a recipe field, not an option
+            na_recipe = replace(na_recipe, batch_size=args.batch, phase_split=split, **fields,
+                                options={**na_recipe.options, **{k: v for k, v in options.items() if k not in fields}})
             t = time.perf_counter()
             fit(model, train_src, na_recipe, steps=args.steps, progress=False)
             seconds = time.perf_counter() - t

@@ -58,7 +58,7 @@ def test_fit_neural_appearance_on_a_layered_description(tmp_path):
     out = tmp_path / "coated.nmat"
     result = CliRunner().invoke(app, ["fit", str(tmp_path / "coated.json"), "--model", "neural-appearance", "-o",
                                       str(out), "--steps", "4", "--quiet", "--set", "batch_size=64", "--set",
-                                      "directions=rusinkiewicz", "--set", "blur_degrees=5"])
+                                      "queries=rusinkiewicz", "--set", "blur_degrees=5"])
     assert result.exit_code == 0, result.output
     model = load_model(out)
     assert model.cfg.spatial_size == 16 and model.cfg.surface_features == 5

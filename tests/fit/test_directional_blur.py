@@ -76,11 +76,13 @@ def test_training_options_run_and_bad_values_raise():
     source = SVBRDF(procedural_texture_set("bumps", 8, seed=0), samples=2)
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=8)
-    fit = _fit(model, source, dict(directions="rusinkiewicz", blur_degrees=5.0, blur_samples=2,
-                                   sampler_batch="separate"), steps=12, batch_size=64, log_every=3)
+    fit = _fit(model, source, dict(blur_degrees=5.0, blur_samples=2, sampler_batch="separate"),
+               queries="rusinkiewicz", steps=12, batch_size=64, log_every=3)
     assert [h["phase"] for h in fit.history][-1] == "latents" and all(math.isfinite(h["brdf loss"])
                                                                       for h in fit.history)
-    for bad in (dict(directions="uniform"), dict(blur_degrees=-1.0), dict(blur_until=0.0), dict(blur_samples=0),
+    with pytest.raises(InputError, match="queries"):
+        _fit(model, source, queries="uniform", steps=2, batch_size=8)
+    for bad in (dict(blur_degrees=-1.0), dict(blur_until=0.0), dict(blur_samples=0),
                 dict(sampler_batch="twice"), dict(blur_degree=1.0)):
         with pytest.raises(InputError, match=next(iter(bad))):
             _fit(model, source, bad, steps=2, batch_size=8)

@@ -85,7 +85,9 @@ def _queries(model, n: int = 512, dtype=torch.float32, device="cpu") -> Query:
 
 
 def test_every_model_has_a_recipe_and_a_small_config():
-    assert set(NAMES) == set(recipe_names()) == set(SMALL)
+    assert set(NAMES) == set(SMALL)
+    # every model has a recipe; the one more is the proxy sampler attached to any material (not a saved model)
+    assert set(recipe_names()) - set(NAMES) == {"proxy-sampler"} and set(NAMES) <= set(recipe_names())
 
 
 @pytest.mark.parametrize("name", NAMES)

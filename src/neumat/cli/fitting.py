@@ -112,7 +112,7 @@ def _unknown_keys(overrides: dict, known: set[str]) -> str:
 def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None, source=None):
     """A fresh model `model` and its recipe with `overrides` applied: model config fields first, then recipe
     fields, then recipe options (unknown keys raise). With a `source`, the recipe module's
-    `config_for_source(source) -> dict` (if it has one) supplies config defaults that follow the source (e.g. the
+    `config_for_source(source, options) -> dict` (if it has one) supplies config defaults that follow the source (e.g. the
     latent resolution of a texture set); overrides win. The model is initialised after seeding torch with the
     recipe's seed."""
     import torch

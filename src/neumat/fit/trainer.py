@@ -7,8 +7,9 @@ without gradient and takes one optimiser step on the recipe's loss), or the stag
 learning-rate schedule (per phase), optional EMA of the parameters (the EMA copy becomes the fitted model),
 gradient-norm clipping, a guard that skips a step whose gradients are not finite and halves the learning
 rate from then on, progress (a bar on a terminal, plain lines otherwise), and checkpoints (model,
-optimiser, EMA, loss state, step, history, random number generator states) from which `resume=True`
-continues bit for bit as if never interrupted, in whichever phase the checkpoint was written.
+optimiser, EMA, loss state, step, history, random number generator states, a source's own generator
+included) from which `resume=True` continues bit for bit as if never interrupted, in whichever phase the
+checkpoint was written.
 
 Model hooks (declared by `neumat.models.base.LearnedMaterial`): `on_step(step, total_steps)` before every
 step (on the model and its EMA copy), `init_from_targets(target)` once on a fresh online fit, and
@@ -96,7 +97,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
     state = {"step": 0, "history": [], "seconds": 0.0, "running": {}, "backoff": 0, "optimizer": None}
     if resuming:
-        state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen)
+        state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen, source)
     total = sum(p.steps for p in phases)
     hook = getattr(model, "on_step", None)
     ema_hook = getattr(ema.shadow, "on_step", None) if ema is not None else None
@@ -167,7 +168,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                 if checkpoint is not None and (done % recipe.checkpoint_every == 0 or done == end):
                     state.update(step=done, seconds=time.perf_counter() - t0, running=running,
                                  optimizer=opt.state_dict() if opt is not None and done < end else None)
-                    _save_checkpoint(checkpoint, recipe, model, ema, phases, gen, state)
+                    _save_checkpoint(checkpoint, recipe, model, ema, phases, gen, source, state)
                 if callback is not None and state["history"] and state["history"][-1]["step"] == done:
                     callback(state["history"][-1])
             state["step"] = end
@@ -223,18 +224,26 @@ def _model_device(model: nn.Module) -> torch.device:
     return torch.device("cpu")
 
 
-def _rng_states(gen: torch.Generator) -> dict:
-    states = {"queries": gen.get_state(), "torch": torch.get_rng_state()}
+def _source_generators(source: Any) -> list[torch.Generator]:
+    """The generators a source draws from for itself (an SVBRDF's footprint samples: `source.generator`), for
+    every source of a set: state the checkpoint must hold for a resumed fit to be exact."""
+    sources = source if isinstance(source, (list, tuple)) else [source]
+    return [s.generator for s in sources if isinstance(getattr(s, "generator", None), torch.Generator)]
+
+
+def _rng_states(gen: torch.Generator, source: Any) -> dict:
+    states = {"queries": gen.get_state(), "torch": torch.get_rng_state(),
+              "sources": [g.get_state() for g in _source_generators(source)]}
     if torch.cuda.is_available():
         states["cuda"] = torch.cuda.get_rng_state_all()
     return states
 
 
-def _save_checkpoint(path, recipe, model, ema, phases, gen, state) -> None:
+def _save_checkpoint(path, recipe, model, ema, phases, gen, source, state) -> None:
     blob = {"recipe": config_to_dict(recipe), "model": model.state_dict(),
             "ema": ema.state_dict() if ema is not None else None,
             "stateful": [[m.state_dict() for m in p.stateful] for p in phases],
-            "rng": _rng_states(gen), **state}
+            "rng": _rng_states(gen, source), **state}
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     try:
@@ -244,7 +253,7 @@ def _save_checkpoint(path, recipe, model, ema, phases, gen, state) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def _load_checkpoint(path, recipe, model, ema, phases, gen) -> dict:
+def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - any unreadable file is reported the same way
@@ -266,6 +275,8 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen) -> dict:
     rng = blob["rng"]
     gen.set_state(rng["queries"])
     torch.set_rng_state(rng["torch"])
+    for g, st in zip(_source_generators(source), rng["sources"]):
+        g.set_state(st)
     if "cuda" in rng and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(rng["cuda"])
     return {k: blob[k] for k in ("step", "history", "seconds", "running", "backoff", "optimizer")}

@@ -3,7 +3,7 @@ phases through the one trainer (`neumat.fit.trainer.fit`).
 
 Phase "encoder": surface parameters k(x) of the source (`source.sampling_features`) are encoded to z and
 decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted (or, with
-option directions="rusinkiewicz", uniform in half and difference angles as the paper), x uniform. Trains the
+recipe queries="rusinkiewicz", uniform in half and difference angles as the paper), x uniform. Trains the
 decoders and the encoder. After its last step, `model.bake(source)` writes the encoder's latents into every
 texel of every pyramid level (with phase_split (0, 1) there is no encoder phase and no bake: the latents are
 optimised from their random initialisation, the paper's "direct optimisation" ablation).
@@ -46,19 +46,23 @@ from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.fit.proxy_sampler import proxy_kl_loss
 from neumat.fit.query_samplers import uniform
 from neumat.fit.recipe import Recipe
-from neumat.fit.source_rng import SourceGenerator
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="log_cos", phase_split=(0.5, 0.5),
                 log_every=100,
-                options={"directions": "cosine", "blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
+                options={"blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
                          "sampler_batch": "shared"})
 
 #: the phases, in order
 PHASES = ("encoder", "latents")
 
 
-def config_for_source(source) -> dict:
+def directions_of(ctx: FitContext) -> str:
+    """The query sampler of the directions: the fit's override, else recipe.queries."""
+    return ctx.queries if isinstance(ctx.queries, str) else ctx.recipe.queries
+
+
+def config_for_source(source, options: dict | None = None) -> dict:
     """NeuralAppearance Config fields that follow from the source: spatial_size = the texture's resolution (the
     largest power of two not above its smaller side; the paper's), surface_features = the number of surface
     parameters the source gives (`source.sampling_feature_dim`, what the encoder reads). A field the source
@@ -79,9 +83,9 @@ def _options(ctx: FitContext) -> dict:
         raise InputError(f"neural-appearance recipe: unknown option(s) {', '.join(unknown)} "
                          f"(known: {', '.join(sorted(RECIPE.options))})")
     o = {name: ctx.option(name) if name in ctx.recipe.options else default for name, default in RECIPE.options.items()}
-    if o["directions"] not in ("cosine", "rusinkiewicz"):
-        raise InputError(f"neural-appearance option directions: expected 'cosine' or 'rusinkiewicz', got "
-                         f"{o['directions']!r}")
+    if directions_of(ctx) not in ("cosine", "rusinkiewicz"):
+        raise InputError(f"neural-appearance recipe queries: expected 'cosine' or 'rusinkiewicz', got "
+                         f"{directions_of(ctx)!r}")
     for name, lo, hi in (("blur_degrees", 0, 90), ("blur_until", 0, 1)):
         v = o[name]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi or (name == "blur_until"
@@ -117,7 +121,7 @@ def phases(ctx: FitContext) -> list[Phase]:
     total_steps = encoder_steps + latent_steps
     brdf_loss = loss_module(ctx)
     draw_filtered = footprint_queries(source)
-    draw_directions = query_draw(ctx, o["directions"])
+    draw_directions = query_draw(ctx)
     albedo = model.cfg.albedo
 
     def target_of(q: Query, step: int) -> torch.Tensor:
@@ -166,14 +170,14 @@ def phases(ctx: FitContext) -> list[Phase]:
 
     def latent_batch():
         q = draw_filtered(batch, gen, dev)
-        if o["directions"] != "cosine":
+        if directions_of(ctx) != "cosine":
             d = draw_directions(batch, gen, dev)
             q = replace(q, wi=d.wi, wo=d.wo)
         return q, model.spatial_latent(q)
 
     decoders = [p for n, p in model.named_parameters() if not n.startswith(("spatial.", "encoder."))]
     # checkpointed with the fit: the loss's state (if any) and the source's own generator (footprint samples)
-    stateful = ([brdf_loss] if isinstance(brdf_loss, nn.Module) else []) + [SourceGenerator(source)]
+    stateful = [brdf_loss] if isinstance(brdf_loss, nn.Module) else []
     return [Phase("encoder", encoder_steps, lambda step: losses_at(encoder_batch, step),
                   decoders + list(model.encoder.parameters()), after=lambda: model.bake(source), stateful=stateful),
             Phase("latents", latent_steps, lambda step: losses_at(latent_batch, encoder_steps + step),

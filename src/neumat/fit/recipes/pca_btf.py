@@ -18,7 +18,7 @@ RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
                 options={"exact_limit": 4096, "oversample": 16, "power_iterations": 6})
 
 
-def config_for_source(btf, options: dict) -> dict:
+def config_for_source(btf, options: dict | None = None) -> dict:
     """The model's size from the BTF (direction counts, texels)."""
     return btf_size(btf, "pca-btf")
 

@@ -14,7 +14,6 @@ from neumat.core.query import Query
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.proxy_sampler import proxy_kl_loss
 from neumat.fit.recipe import Recipe
-from neumat.fit.source_rng import SourceGenerator
 from neumat.models.proxy_sampler import SampledMaterial, features_of
 from neumat.warp.hemisphere import sample_uniform_hemisphere
 
@@ -41,5 +40,4 @@ def phases(ctx: FitContext) -> list[Phase]:
         lobes = model.sampler.lobes(wi, features_of(material, q))
         return {"loss": proxy_kl_loss(lobes, wi, u[:, 2:4], lambda wo: material.eval(q.with_wo(wo)), who)}
 
-    return [Phase("sampler", ctx.recipe.steps, losses, [p for p in model.sampler.parameters() if p.requires_grad],
-                  stateful=[SourceGenerator(material)])]
+    return [Phase("sampler", ctx.recipe.steps, losses, [p for p in model.sampler.parameters() if p.requires_grad])]

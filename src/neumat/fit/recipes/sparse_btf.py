@@ -41,11 +41,11 @@ RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1,
                 options={"dictionary": None, "fraction": 1.0, "tol": 1e-3})
 
 
-def config_for_source(btf, options: dict) -> dict:
+def config_for_source(btf, options: dict | None = None) -> dict:
     """The model's size from the BTF (direction counts, texels) and, with option "dictionary", the fields the
     dictionary was trained with (patch, K, tau_train, log eps)."""
     out = btf_size(btf, "sparse-btf")
-    if options.get("dictionary") is not None:
+    if (options or {}).get("dictionary") is not None:
         d = BTFDictionary.load(Path(options["dictionary"]))
         out.update(patch=d.patch, num_dictionaries=d.num_dictionaries, tau_train=list(d.tau_train),
                    log_eps=d.log_eps)
