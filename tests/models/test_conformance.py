@@ -5,6 +5,7 @@ The same checks run on a GPU against the CPU (marker `cuda`). A new model needs 
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,10 +16,12 @@ from typer.testing import CliRunner
 from btf_util import synthetic_btf
 from neumat.cli.main import app
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for, recipe_names
+from neumat.fit.recipe import recipe_config_for_source, recipe_for, recipe_names
+from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.io.btf import write_btf
 from neumat.io.modelfile import load_model, save_model
+from neumat.io.open_material import open_material
 from neumat.models.base import SOURCE_KINDS, LearnedMaterial
 from neumat.models.registry import load_all
 from neumat.testing.chi2 import chi2_material
@@ -186,6 +189,55 @@ def test_nmat_round_trip_is_bit_identical(name, tmp_path):
     q = _queries(model)
     with torch.no_grad():
         assert torch.equal(model.eval(q), loaded.eval(q))
+
+
+def _python_source(kind: str, args: list[str]):
+    """The in-process source of `kind` that the command-line arguments `args` (from `_sources`) name."""
+    if kind == "translucent":
+        return Observations.load(args[0])
+    opened = [open_material(a) for a in args]
+    return opened if kind == "brdf-set" else opened[0]
+
+
+class Interrupt(Exception):
+    pass
+
+
+#: sparse-btf without a given dictionary trains one on the BTF it codes, and says so
+pytestmark = pytest.mark.filterwarnings("ignore:sparse-btf. no option 'dictionary' given")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_checkpoint_written_mid_run_resumes_to_the_uninterrupted_result(name, tmp_path):
+    """Every model, multi-phase ones included (neural-appearance, neupress, sparse-btf: a checkpoint inside the
+    first phase): 4 steps uninterrupted, against 2 steps, a checkpoint, and a resumed run (a one-step solver:
+    its finished checkpoint resumes without changing the model)."""
+    kind = load_all().get(name).source_kinds[0]
+    args = _sources(kind, tmp_path)
+    recipe = replace(recipe_for(name), steps=4, batch_size=64, log_every=1, checkpoint_every=1)
+    derived = recipe_config_for_source(name, _python_source(kind, args), recipe.options)
+
+    def run(**kw):
+        torch.manual_seed(0)
+        model = load_all().get(name)(**{**derived, **SMALL[name]})
+        return model, fit(model, _python_source(kind, args), recipe, progress=False, device="cpu", **kw)
+
+    ref_model, ref = run()
+    ckpt = tmp_path / "fit.ckpt"
+    if ref.steps > 2:
+        def stop(record):
+            if record["step"] == 2:
+                raise Interrupt
+
+        with pytest.raises(Interrupt):
+            run(checkpoint=ckpt, callback=stop)
+    else:
+        run(checkpoint=ckpt)
+    model, res = run(checkpoint=ckpt, resume=True)
+    ref_state, state = ref_model.state_dict(), model.state_dict()
+    assert ref_state.keys() == state.keys() and all(torch.equal(ref_state[k], state[k]) for k in ref_state)
+    strip = lambda h: [{k: v for k, v in r.items() if k != "seconds"} for r in h]  # noqa: E731
+    assert strip(res.history) == strip(ref.history)
 
 
 SAMPLERS = [n for n in NAMES if load_all().get(n).can_sample]
