@@ -5,7 +5,7 @@ from pathlib import Path
 
 import typer
 
-from .common import print_table, run_command
+from .common import SEED_RANGE, device_option, output_option, print_table, run_command
 
 
 def parse_tau(text: str) -> tuple[int, int, int]:
@@ -28,13 +28,14 @@ def register(app: typer.Typer) -> None:
     @app.command("fit-dictionary")
     def fit_dictionary(
             btfs: list[Path] = typer.Argument(..., help=".nbtf files of the training set (one direction set)"),
-            out: Path = typer.Option(..., "-o", "--out", help="output dictionary file (.nmat)"),
+            out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
+                                     help="output dictionary file (.nmat)"),
             dictionaries: int = typer.Option(8, "--dictionaries", "-k", help="K dictionaries per ensemble"),
             tau: str = typer.Option("256,32,32", "--tau", help="training sparsity tau_l, Y,U,V or one value"),
             patch: int = typer.Option(10, "--patch", help="spatial patch size of a data point"),
             fraction: float = typer.Option(1.0, "--fraction", help="random fraction of data points used"),
             iterations: int = typer.Option(20, "--iterations", help="maximum training iterations"),
-            seed: int = typer.Option(0, "--seed")) -> None:
+            seed: int = typer.Option(0, "--seed", **SEED_RANGE)) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
         from ..io.btf import read_btf
         from ..models.sparse_dictionary import train_dictionary
@@ -57,7 +58,7 @@ def register_data(data_app: typer.Typer) -> None:
     def btf_generate(
             textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...), "
                                             "or procedural:<class>[~<variant>] (bumps, weave, bricks, dents, ridges)"),
-            out: Path = typer.Argument(..., help="output .nbtf file"),
+            out: Path = typer.Argument(..., callback=output_option(".nbtf"), help="output .nbtf file"),
             size: int = typer.Option(64, "--size", help="BTF resolution (size x size texels)"),
             crop: int = typer.Option(0, "--crop", help="crop this many source texels first (0: the whole set)"),
             directions: str = typer.Option("hemi151", "--directions",
@@ -65,7 +66,7 @@ def register_data(data_app: typer.Typer) -> None:
             spp: int = typer.Option(4, "--spp", help="sub-pixel rays per texel (square number)"),
             relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from the "
                                                                 "set; 4 for a procedural material)"),
-            device: str = typer.Option("cpu", "--device")) -> None:
+            device: str = typer.Option("cpu", "--device", callback=device_option)) -> None:
         """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
         field."""
         from ..io.btf import write_btf

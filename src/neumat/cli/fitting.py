@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import parse_overrides, print_json, print_table, run_command
+from .common import SEED_RANGE, device_option, output_option, parse_overrides, print_json, print_table, run_command
 
 
 def register(app: typer.Typer) -> None:
@@ -21,8 +21,10 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
         model: str = typer.Option("neubrdf", "--model", "-m", help="registered model name"),
         set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field"),
         steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
-        device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
-        seed: int = typer.Option(None, help="seed of the model initialisation and the queries (default: recipe's)"),
+        device: str = typer.Option(None, callback=device_option,
+                                  help="torch device (default: cuda if available, else cpu)"),
+        seed: int = typer.Option(None, **SEED_RANGE, 
+                                help="seed of the model initialisation and the queries (default: recipe's)"),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
@@ -31,7 +33,8 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
                                                      "or samples=64 for a texture-set folder"),
         dictionary: Path = typer.Option(None, help="sparse-btf: the trained dictionary ensemble (.nmat)"),
         tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V"),
-        out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
+        out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
+                                 help="output model file (.nmat)")) -> None:
     """Fit MODEL to SOURCE with the model's recipe (overridable with --set) and save it as a .nmat file.
     `--model sparse-btf` codes a BTF (.nbtf) with a dictionary from `neumat fit-dictionary` instead;
     `--model neural-appearance` trains in two phases (encoder, then latents; half the steps each, default 4000)."""
@@ -162,8 +165,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              image: bool = typer.Option(True, "--image/--no-image", help="also compare sphere renderings"),
              spp: int = typer.Option(64, min=1, help="samples per pixel of the renderings"),
              resolution: int = typer.Option(256, min=8, help="rendering width and height"),
-             device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
-             seed: int = typer.Option(0),
+             device: str = typer.Option(None, callback=device_option,
+                                       help="torch device (default: cuda if available, else cpu)"),
+             seed: int = typer.Option(0, **SEED_RANGE),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
     """Compare MODEL with a reference: reflectance errors, rendered-image metrics, size and speed."""
     def go():

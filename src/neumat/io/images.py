@@ -127,7 +127,7 @@ def _read_ldr(path: Path) -> np.ndarray:
                 grey = np.asarray(im, dtype=np.float32) / 65535.0
                 return np.repeat(grey[:, :, None], 3, axis=2)
             return np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-    except (UnidentifiedImageError, OSError, SyntaxError) as e:
+    except (UnidentifiedImageError, OSError, SyntaxError, Image.DecompressionBombError) as e:
         raise DataFormatError(f"image {path}: cannot decode ({e})") from e
 
 
@@ -193,6 +193,10 @@ def _read_hdr(path: Path) -> np.ndarray:
                               "expected '-Y <height> +X <width>'")
     height, width = int(parts[1]), int(parts[3])
     raw = np.frombuffer(data, dtype=np.uint8, offset=eol + 1)
+    least = height * min(4 * width, 4 + 8 * -(-width // 127))  # bytes of the most compressed scanlines
+    if not (height > 0 and width > 0) or least > len(raw):
+        raise DataFormatError(f"Radiance file {path}: declares {width} x {height} pixels, which need at least "
+                              f"{least} bytes of data; it holds {len(raw)} (truncated or corrupt header?)")
     rgbe = np.empty((height, width, 4), dtype=np.uint8)
     pos = 0
     for y in range(height):
