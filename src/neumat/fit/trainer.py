@@ -15,7 +15,6 @@ their own optimiser; the schedule's learning rate is multiplied by a param group
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -27,6 +26,7 @@ from torch import nn
 from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError
 from ..core.material import Material
+from ..io.atomic import atomic_write
 from .ema import EMA
 from .losses import LOSSES
 from .query_samplers import QUERY_SAMPLERS
@@ -199,9 +199,7 @@ def _save_checkpoint(path, recipe, model, opt, ema, loss_fn, gen, state) -> None
             "loss": loss_fn.state_dict() if isinstance(loss_fn, nn.Module) else None,
             "rng": _rng_states(gen), **state}
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(blob, tmp)
-    os.replace(tmp, path)  # never leave a half-written checkpoint
+    atomic_write(path, lambda tmp: torch.save(blob, tmp))  # never leave a half-written checkpoint nor its tmp
 
 
 def _load_checkpoint(path, recipe, model, opt, ema, loss_fn, gen) -> dict:

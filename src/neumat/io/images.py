@@ -193,10 +193,10 @@ def _read_hdr(path: Path) -> np.ndarray:
                               "expected '-Y <height> +X <width>'")
     height, width = int(parts[1]), int(parts[3])
     raw = np.frombuffer(data, dtype=np.uint8, offset=eol + 1)
-    least = height * min(4 * width, 4 + 8 * -(-width // 127))  # bytes of the most compressed scanlines
-    if not (height > 0 and width > 0) or least > len(raw):
-        raise DataFormatError(f"Radiance file {path}: declares {width} x {height} pixels, which need at least "
-                              f"{least} bytes of data; it holds {len(raw)} (truncated or corrupt header?)")
+    # run-length coding stores at most 127 pixels of a channel in 2 bytes: fewer bytes cannot hold the pixels
+    if not (height > 0 and width > 0) or height * width * 4 > 64 * len(raw):
+        raise DataFormatError(f"Radiance file {path}: declares {width} x {height} pixels, more than its "
+                              f"{len(raw)} bytes of data can hold (truncated or corrupt header?)")
     rgbe = np.empty((height, width, 4), dtype=np.uint8)
     pos = 0
     for y in range(height):
