@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import math
+import numbers
 from pathlib import Path
 from typing import Any, Callable
 
@@ -99,8 +101,19 @@ def print_table(title: str, rows: list[dict[str, Any]], width: int | None = None
 
 
 def print_json(obj: Any) -> None:
-    """Print one JSON object on stdout."""
-    print(json.dumps(obj, indent=2, default=float))
+    """Print one JSON object on stdout; NaN and infinite numbers (which JSON lacks) print as null."""
+    print(json.dumps(_finite_or_none(obj), indent=2, default=float, allow_nan=False))
+
+
+def _finite_or_none(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    if isinstance(obj, numbers.Integral) or not hasattr(obj, "__float__"):
+        return obj
+    v = float(obj)
+    return v if math.isfinite(v) else None
 
 
 def _fmt(v: Any) -> str:
