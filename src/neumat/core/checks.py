@@ -26,8 +26,10 @@ def check_finite(t: torch.Tensor, name: str) -> torch.Tensor:
 
 
 def check_directions(t: torch.Tensor, name: str, tol: float = 1e-3) -> torch.Tensor:
-    """Check a (N, 3) tensor of finite unit vectors."""
+    """Check a (N, 3) floating-point tensor of finite unit vectors."""
     check_shape(t, name, (-1, 3))
+    if not t.is_floating_point():
+        raise InputError(f"{name}: expected floating-point directions, got dtype {t.dtype}")
     check_finite(t, name)
     if t.numel():
         err = (t.norm(dim=-1) - 1).abs().max().item()
