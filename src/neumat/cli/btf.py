@@ -30,11 +30,11 @@ def register(app: typer.Typer) -> None:
             btfs: list[Path] = typer.Argument(..., help=".nbtf files of the training set (one direction set)"),
             out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
                                      help="output dictionary file (.nmat)"),
-            dictionaries: int = typer.Option(8, "--dictionaries", "-k", help="K dictionaries per ensemble"),
+            dictionaries: int = typer.Option(8, "--dictionaries", "-k", min=1, help="K dictionaries per ensemble"),
             tau: str = typer.Option("256,32,32", "--tau", help="training sparsity tau_l, Y,U,V or one value"),
-            patch: int = typer.Option(10, "--patch", help="spatial patch size of a data point"),
+            patch: int = typer.Option(10, "--patch", min=1, help="spatial patch size of a data point"),
             fraction: float = typer.Option(1.0, "--fraction", help="random fraction of data points used"),
-            iterations: int = typer.Option(20, "--iterations", help="maximum training iterations"),
+            iterations: int = typer.Option(20, "--iterations", min=1, help="maximum training iterations"),
             seed: int = typer.Option(0, "--seed", **SEED_RANGE)) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
         from ..io.btf import read_btf
@@ -59,11 +59,11 @@ def register_data(data_app: typer.Typer) -> None:
             textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...), "
                                             "or procedural:<class>[~<variant>] (bumps, weave, bricks, dents, ridges)"),
             out: Path = typer.Argument(..., callback=output_option(".nbtf"), help="output .nbtf file"),
-            size: int = typer.Option(64, "--size", help="BTF resolution (size x size texels)"),
-            crop: int = typer.Option(0, "--crop", help="crop this many source texels first (0: the whole set)"),
+            size: int = typer.Option(64, "--size", min=1, help="BTF resolution (size x size texels)"),
+            crop: int = typer.Option(0, "--crop", min=0, help="crop this many source texels first (0: the whole set)"),
             directions: str = typer.Option("hemi151", "--directions",
                                            help="direction set: hemi151, ubo81, rings:<n>x<deg> or a count"),
-            spp: int = typer.Option(4, "--spp", help="sub-pixel rays per texel (square number)"),
+            spp: int = typer.Option(4, "--spp", min=1, help="sub-pixel rays per texel (square number)"),
             relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from the "
                                                                 "set; 4 for a procedural material)"),
             device: str = typer.Option("cpu", "--device", callback=device_option)) -> None:
