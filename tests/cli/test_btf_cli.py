@@ -1,6 +1,8 @@
 """`neumat data btf-generate` and `neumat fit-dictionary`."""
 from __future__ import annotations
 
+import pytest
+
 import typer
 from typer.testing import CliRunner
 
@@ -80,5 +82,13 @@ def test_fit_sparse_btf_with_a_dictionary(tmp_path):
     btf = read_btf(paths[2])
     q = Query(btf.light_dirs[:4], btf.view_dirs[:4], uv=torch.full((4, 2), 0.3))
     assert torch.isfinite(model.eval(q)).all() and (model.eval(q) > 0).all()
+    # without a dictionary the fit's first phase trains one on the BTF itself (and says that measures nothing
+    # about generalisation); the patch must then split the BTF's texels
     r = CliRunner().invoke(app, ["fit", str(paths[2]), "--model", "sparse-btf", "-o", str(out)])
-    assert r.exit_code == 2 and "--dictionary" in r.output
+    assert r.exit_code == 2 and "patches" in r.output
+    with pytest.warns(UserWarning, match="trained on the BTF it then codes"):
+        r = CliRunner().invoke(app, ["fit", str(paths[2]), "--model", "sparse-btf", "--set", "patch=4", "--set",
+                                     "num_dictionaries=2", "--set", "tau_train=16,4,4", "--tau", "16,4,4",
+                                     "--steps", "3", "-q", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert load(out).cfg.patch == 4

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import typer
 
-from .common import print_table, run_command
+from .common import SEED_RANGE, device_option, output_option, print_table, run_command
 
 
 def parse_tau(text: str) -> tuple[int, int, int]:
@@ -28,18 +28,19 @@ def register(app: typer.Typer) -> None:
     @app.command("fit-dictionary")
     def fit_dictionary(
             btfs: list[Path] = typer.Argument(..., help=".nbtf files of the training set (one direction set)"),
-            out: Path = typer.Option(..., "-o", "--out", help="output dictionary file (.nmat)"),
-            dictionaries: int = typer.Option(None, "--dictionaries", "-k",
+            out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
+                                     help="output dictionary file (.nmat)"),
+            dictionaries: int = typer.Option(None, "--dictionaries", "-k", min=1,
                                              help="K dictionaries per ensemble [default: SparseBTF Config]"),
             tau: str = typer.Option(None, "--tau", help="training sparsity tau_l, Y,U,V or one value "
                                                         "[default: SparseBTF Config.tau_train]"),
-            patch: int = typer.Option(None, "--patch", help="spatial patch size of a data point "
+            patch: int = typer.Option(None, "--patch", min=1, help="spatial patch size of a data point "
                                                             "[default: SparseBTF Config]"),
             fraction: float = typer.Option(None, "--fraction", help="random fraction of data points used "
                                                                     "[default: sparse-btf recipe]"),
-            iterations: int = typer.Option(None, "--iterations", help="maximum training iterations "
+            iterations: int = typer.Option(None, "--iterations", min=1, help="maximum training iterations "
                                                                       "[default: sparse-btf recipe steps - 1]"),
-            seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]")) -> None:
+            seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]", **SEED_RANGE)) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
         from ..fit.sparse_dictionary import train_dictionary
         from ..io.btf import read_btf
@@ -62,15 +63,15 @@ def register_data(data_app: typer.Typer) -> None:
     def btf_generate(
             textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...), "
                                             "or procedural:<class>[~<variant>] (bumps, weave, bricks, dents, ridges)"),
-            out: Path = typer.Argument(..., help="output .nbtf file"),
-            size: int = typer.Option(64, "--size", help="BTF resolution (size x size texels)"),
-            crop: int = typer.Option(0, "--crop", help="crop this many source texels first (0: the whole set)"),
+            out: Path = typer.Argument(..., callback=output_option(".nbtf"), help="output .nbtf file"),
+            size: int = typer.Option(64, "--size", min=1, help="BTF resolution (size x size texels)"),
+            crop: int = typer.Option(0, "--crop", min=0, help="crop this many source texels first (0: the whole set)"),
             directions: str = typer.Option("hemi151", "--directions",
                                            help="direction set: hemi151, ubo81, rings:<n>x<deg> or a count"),
-            spp: int = typer.Option(4, "--spp", help="sub-pixel rays per texel (square number)"),
+            spp: int = typer.Option(4, "--spp", min=1, help="sub-pixel rays per texel (square number)"),
             relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from the "
                                                                 "set; 4 for a procedural material)"),
-            device: str = typer.Option("cpu", "--device")) -> None:
+            device: str = typer.Option("cpu", "--device", callback=device_option)) -> None:
         """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
         field."""
         from ..io.btf import write_btf

@@ -5,7 +5,7 @@ import math
 
 import typer
 
-from .common import print_json, print_table, run_command
+from .common import SEED_RANGE, print_json, print_table, run_command
 
 
 def register(app: typer.Typer) -> None:
@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
 def check(material: str = typer.Argument(..., help="material file (.binary, .bsdf, .nmat) or analytic spec"),
           angles: str = typer.Option("0,30,60,80", help="incident zenith angles in degrees, comma separated"),
           samples: int = typer.Option(1 << 18, min=1000, help="samples per chi-square test and furnace estimate"),
-          seed: int = typer.Option(0),
+          seed: int = typer.Option(0, **SEED_RANGE),
           uv: str = typer.Option("0.5,0.5", help="texture coordinates u,v at which a spatially varying material "
                                                  "(texture set, layered .json, BTF, textured model) is tested"),
           json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:

@@ -2,12 +2,17 @@
 from __future__ import annotations
 
 import json
+import math
+import numbers
+from pathlib import Path
 from typing import Any, Callable
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
+from ..core.checks import check_device
 from ..core.config import parse_value
 from ..core.errors import InputError, NeumatError
 
@@ -15,12 +20,60 @@ console = Console(stderr=True)
 
 
 def run_command(fn: Callable[[], Any]) -> Any:
-    """Run `fn`, turning neumat errors and missing files into a one-line message and exit code 2."""
+    """Run `fn`, turning bad input into a one-line message and exit code 2: neumat errors, files that are
+    missing, unreadable, folders or in the way (OSError), and requests larger than the memory."""
     try:
         return fn()
     except (NeumatError, FileNotFoundError) as e:
-        console.print(f"[bold red]error:[/] {e}")
-        raise typer.Exit(2) from None
+        _fail(str(e))
+    except OSError as e:
+        _fail(f"{e.strerror or e}: {e.filename!r}" if e.filename else str(e))
+    except MemoryError:
+        _fail("not enough memory for the requested sizes; choose smaller ones")
+    except RuntimeError as e:  # torch's allocator reports failures as RuntimeError
+        if "can't allocate memory" not in str(e) and "out of memory" not in str(e):
+            raise
+        _fail(f"not enough memory for the requested sizes; choose smaller ones ({str(e).splitlines()[-1][:200]})")
+
+
+def _fail(message: str) -> None:
+    console.print("[bold red]error:[/] " + escape(message))
+    raise typer.Exit(2)
+
+
+def device_option(value: str | None) -> str | None:
+    """Typer callback of --device options: refuse a device that does not exist here before any work."""
+    if value is not None:
+        try:
+            check_device(value, "device")
+        except InputError as e:
+            raise typer.BadParameter(str(e).removeprefix("device: ")) from None
+    return value
+
+
+def output_option(*suffixes: str) -> Callable[[Path | None], Path | None]:
+    """Typer callback of an output file option: refuse, before any work, a path that is a folder, lies under a
+    file, or does not end in one of `suffixes` (".png", ...)."""
+    def check(value: Path | None) -> Path | None:
+        if value is None:
+            return value
+        if value.is_dir():
+            raise typer.BadParameter(f"{str(value)!r} is a folder; expected a {'/'.join(suffixes)} file path")
+        if value.suffix.lower() not in suffixes:
+            raise typer.BadParameter(f"{str(value)!r}: expected a file name ending in {', '.join(suffixes)}")
+        blocking = next((p for p in value.parents if p.exists() and not p.is_dir()), None)
+        if blocking is not None:
+            raise typer.BadParameter(f"{str(value)!r}: {str(blocking)!r} is a file, not a folder")
+        return value
+    return check
+
+
+#: image suffixes writable by `io.images.write_image`
+IMAGE_OUT = (".png", ".jpg", ".jpeg", ".exr", ".hdr")
+
+
+#: the range torch.manual_seed and numpy accept, for --seed options (`typer.Option(0, **SEED_RANGE)`)
+SEED_RANGE = {"min": 0, "max": 2 ** 63 - 1}
 
 
 def parse_overrides(items: list[str] | None, option: str = "--set", text: bool = False) -> dict[str, Any]:
@@ -51,8 +104,19 @@ def print_table(title: str, rows: list[dict[str, Any]], width: int | None = None
 
 
 def print_json(obj: Any) -> None:
-    """Print one JSON object on stdout."""
-    print(json.dumps(obj, indent=2, default=float))
+    """Print one JSON object on stdout; NaN and infinite numbers (which JSON lacks) print as null."""
+    print(json.dumps(_finite_or_none(obj), indent=2, default=float, allow_nan=False))
+
+
+def _finite_or_none(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    if isinstance(obj, numbers.Integral) or not hasattr(obj, "__float__"):
+        return obj
+    v = float(obj)
+    return v if math.isfinite(v) else None
 
 
 def _fmt(v: Any) -> str:

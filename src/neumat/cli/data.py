@@ -6,7 +6,7 @@ from pathlib import Path
 import typer
 
 from . import btf
-from .common import print_json, print_table, run_command
+from .common import output_option, print_json, print_table, run_command
 
 app = typer.Typer(help="Inspect and convert material data.", no_args_is_help=True)
 
@@ -25,7 +25,8 @@ def info(file: str = typer.Argument(..., help="material file (.binary, .bsdf, .n
 
 @app.command()
 def convert(source: str = typer.Argument(..., help="RGL .bsdf, .nmat or analytic spec"),
-            out: Path = typer.Argument(..., help="output MERL .binary file")) -> None:
+            out: Path = typer.Argument(..., callback=output_option(".binary"),
+                                       help="output MERL .binary file")) -> None:
     """Tabulate any BRDF to the MERL layout and write it as .binary."""
     from ..io.merl import write_merl
     from ..io.open_material import open_material

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from .common import console, print_table, run_command
+from .common import SEED_RANGE, console, device_option, print_table, run_command
 
 #: RGL material fitted by default when the reference data is present
 DEFAULT_RGL = "rgl/paper_white_rgb.bsdf"
@@ -29,8 +29,9 @@ def demo(out: Path = typer.Option(Path("out/demo"), "-o", "--out", help="output 
          nside: int = typer.Option(16, min=1, help="HEALPix N_side of the NeuBRDF grids"),
          spp: int = typer.Option(32, min=1, help="samples per pixel of the renders"),
          resolution: int = typer.Option(256, min=16),
-         device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
-         seed: int = typer.Option(0)) -> None:
+         device: str = typer.Option(None, callback=device_option,
+                                   help="torch device (default: cuda if available, else cpu)"),
+         seed: int = typer.Option(0, **SEED_RANGE)) -> None:
     """Fit NeuBRDF to a measured material, render reference | model | FLIP, write OUT/report.html."""
     run_command(lambda: run_demo(out, source, steps, nside, spp, resolution, device, seed))
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import parse_overrides, print_json, print_table, run_command
+from .common import SEED_RANGE, device_option, output_option, parse_overrides, print_json, print_table, run_command
 
 
 def register(app: typer.Typer) -> None:
@@ -25,8 +25,10 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field, "
                                                            "else a recipe option; lists as a,b"),
         steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
-        device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
-        seed: int = typer.Option(None, help="seed of the model initialisation and the queries (default: recipe's)"),
+        device: str = typer.Option(None, callback=device_option,
+                                  help="torch device (default: cuda if available, else cpu)"),
+        seed: int = typer.Option(None, **SEED_RANGE, 
+                                help="seed of the model initialisation and the queries (default: recipe's)"),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
@@ -37,7 +39,8 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                                                    "as --set dictionary=PATH"),
         tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V; "
                                            "the same as --set tau=..."),
-        out: Path = typer.Option(..., "-o", "--out", help="output model file (.nmat)")) -> None:
+        out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
+                                 help="output model file (.nmat)")) -> None:
     """Fit MODEL to SOURCE through the one trainer, with the model's recipe (the paper's defaults; --set overrides
     config fields, recipe fields and recipe options), and save it as a .nmat file that records the recipe and the
     source's name and hash. Models trained in stages (neural-appearance: encoder then latents; neupress:
@@ -150,8 +153,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              image: bool = typer.Option(True, "--image/--no-image", help="also compare sphere renderings"),
              spp: int = typer.Option(64, min=1, help="samples per pixel of the renderings"),
              resolution: int = typer.Option(256, min=8, help="rendering width and height"),
-             device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
-             seed: int = typer.Option(0),
+             device: str = typer.Option(None, callback=device_option,
+                                       help="torch device (default: cuda if available, else cpu)"),
+             seed: int = typer.Option(0, **SEED_RANGE),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
     """Compare MODEL with a reference: reflectance errors, rendered-image metrics, size and speed."""
     def go():

@@ -6,7 +6,7 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import parse_overrides, run_command
+from .common import IMAGE_OUT, SEED_RANGE, output_option, parse_overrides, run_command
 
 
 def register(app: typer.Typer) -> None:
@@ -17,8 +17,9 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
                    define: list[str] = typer.Option(None, "-D", "--define",
                                                     help="scene parameter NAME=VALUE (the XML's $NAME), repeatable"),
                    spp: int = typer.Option(None, min=1, help="samples per pixel (default: the scene's sampler)"),
-                   seed: int = typer.Option(0),
-                   out: Path = typer.Option(..., "-o", "--out", help="output image (.png, .exr, .hdr)")) -> None:
+                   seed: int = typer.Option(0, **SEED_RANGE),
+                   out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
+                                            help="output image (.png, .exr, .hdr)")) -> None:
     """Render SCENE with Mitsuba's integrator; `<bsdf type="neumat"><string name="material" value="..."/></bsdf>`
     puts any neumat material (model file, measured file, texture-set folder, analytic spec) in it."""
     from ..integrations import mitsuba as plugin

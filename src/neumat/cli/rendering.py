@@ -5,7 +5,7 @@ from pathlib import Path
 
 import typer
 
-from .common import print_json, print_table, run_command
+from .common import IMAGE_OUT, SEED_RANGE, device_option, output_option, print_json, print_table, run_command
 
 SCENE_HELP = "sphere | plane | mesh:PATH"
 LIGHT_HELP = "point[:x/y/z] | dir[:x/y/z] | const:VALUE | env:PATH | env:sky"
@@ -22,9 +22,10 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
            spp: int = typer.Option(64, min=1, help="samples per pixel"),
            resolution: int = typer.Option(256, min=8, help="image width and height in pixels"),
            strategy: str = typer.Option("mis", help="mis | light | material"),
-           device: str = typer.Option(None, help="torch device, e.g. cuda"),
-           seed: int = typer.Option(0),
-           out: Path = typer.Option(..., "-o", "--out", help="output image (.png, .exr, .hdr)")) -> None:
+           device: str = typer.Option(None, callback=device_option, help="torch device, e.g. cuda"),
+           seed: int = typer.Option(0, **SEED_RANGE),
+           out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
+                                    help="output image (.png, .exr, .hdr)")) -> None:
     """Render MATERIAL on a scene under a light and write the image."""
     from ..io.images import write_image
     from ..io.open_material import open_material
@@ -45,10 +46,11 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             spp: int = typer.Option(64, min=1),
             resolution: int = typer.Option(256, min=8),
             n_configs: int = typer.Option(2 ** 18, help="random (wi, wo) configurations for reflectance errors"),
-            device: str = typer.Option(None),
-            seed: int = typer.Option(0),
+            device: str = typer.Option(None, callback=device_option),
+            seed: int = typer.Option(0, **SEED_RANGE),
             json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table"),
-            out: Path = typer.Option(None, "-o", "--out", help="comparison picture (.png)")) -> None:
+            out: Path = typer.Option(None, "-o", "--out", callback=output_option(".png", ".jpg", ".jpeg"),
+                                    help="comparison picture (.png)")) -> None:
     """Render the reference and every other material identically; print image and reflectance metrics."""
     from ..core.errors import InputError
     from ..io.open_material import open_material

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import typer
 
-from .common import print_table, run_command
+from .common import IMAGE_OUT, SEED_RANGE, output_option, print_table, run_command
 
 app = typer.Typer(help="Translucent objects (NeuPreSS): trace observations with Mitsuba 3, fit, render.",
                   no_args_is_help=True)
@@ -17,7 +17,7 @@ def register(main: typer.Typer) -> None:
 
 
 @app.command()
-def trace(out: Path = typer.Argument(..., help="observations file to write (.npz)"),
+def trace(out: Path = typer.Argument(..., callback=output_option(".npz"), help="observations file to write (.npz)"),
           shape: str = typer.Option("sphere", help="'sphere' or a closed PLY triangle mesh"),
           media: str = typer.Option("marble,ketchup", help="the two Jensen et al. media the noise mixes, A,B"),
           size_mm: float = typer.Option(4.0, help="millimetres across the bounding-box diagonal (smaller: more "
@@ -27,7 +27,7 @@ def trace(out: Path = typer.Argument(..., help="observations file to write (.npz
           resolution: int = typer.Option(32, min=1, help="rays per side of each view"),
           spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: "
                                                   "32 is ~1.7x the time of 8)"),
-          seed: int = typer.Option(0)) -> None:
+          seed: int = typer.Option(0, **SEED_RANGE)) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
     def go():
         from ..core.config import config_to_dict
@@ -47,7 +47,8 @@ def trace(out: Path = typer.Argument(..., help="observations file to write (.npz
 
 @app.command()
 def fit(observations: Path = typer.Argument(..., help="observations file from `neumat translucent trace`"),
-        out: Path = typer.Option(..., "-o", "--out", help="model file to write (.nmat)"),
+        out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
+                                 help="model file to write (.nmat)"),
         set_: list[str] = typer.Option(None, "--set", help="key=value: a NeuPreSS config field (feature_mean=18 "
                                                           "feature_std=1 for the paper's Fourier scale), a recipe "
                                                           "field (batch_size, lr, phase_split, ...) or a recipe "
@@ -58,7 +59,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
                                                     "(default: the recipe's, 0.05)"),
         device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, help="seed of the model, the validation split and the batches "
-                                            "(default: the recipe's)"),
+                                            "(default: the recipe's)", **SEED_RANGE),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar")) -> None:
@@ -112,7 +113,8 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
 @app.command()
 def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
            observations: Path = typer.Argument(..., help="its observations file (names the object it shows)"),
-           out: Path = typer.Option(..., "-o", "--out", help="image (.png, .exr, .hdr); with --reference-spp a "
+           out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
+                                    help="image (.png, .exr, .hdr); with --reference-spp a "
                                                             "comparison picture (.png)"),
            envmap: str = typer.Option("sky", help="'sky' or an equirectangular .hdr / .exr map"),
            env_width: int = typer.Option(128, help="box-filter the map to this width first"),
@@ -124,7 +126,7 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
                                                            "compare"),
            azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
            elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
-           seed: int = typer.Option(0)) -> None:
+           seed: int = typer.Option(0, **SEED_RANGE)) -> None:
     """Render MODEL on the geometry of its object under an environment map (Eq. 5)."""
     def go():
         import time

@@ -26,8 +26,10 @@ def check_finite(t: torch.Tensor, name: str) -> torch.Tensor:
 
 
 def check_directions(t: torch.Tensor, name: str, tol: float = 1e-3) -> torch.Tensor:
-    """Check a (N, 3) tensor of finite unit vectors."""
+    """Check a (N, 3) floating-point tensor of finite unit vectors."""
     check_shape(t, name, (-1, 3))
+    if not t.is_floating_point():
+        raise InputError(f"{name}: expected floating-point directions, got dtype {t.dtype}")
     check_finite(t, name)
     if t.numel():
         err = (t.norm(dim=-1) - 1).abs().max().item()
@@ -59,6 +61,39 @@ def check_number(v, name: str, lo: float | None = None, strict: bool = False) ->
             or (lo is not None and (v <= lo if strict else v < lo))):
         raise InputError(f"{name}: expected a finite number{bound}, got {v!r}")
     return v
+
+
+def check_device(device, name: str = "device") -> torch.device:
+    """`device` (a torch.device or a string such as "cpu", "cuda:0") as a torch.device that exists here."""
+    try:
+        d = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise InputError(f"{name}: expected a torch device such as 'cpu' or 'cuda', got {device!r}") from None
+    if d.type == "cuda" and (not torch.cuda.is_available() or (d.index or 0) >= torch.cuda.device_count()):
+        raise InputError(f"{name}: {device!r} asks for a CUDA GPU, but this machine has "
+                         f"{torch.cuda.device_count() if torch.cuda.is_available() else 'none'}; use 'cpu'")
+    if d.type not in ("cpu", "cuda", "mps") or (d.type == "mps" and not torch.backends.mps.is_available()):
+        raise InputError(f"{name}: device {device!r} is not available here; use 'cpu' or 'cuda'")
+    return d
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (MemAvailable plus free swap), or a large number where
+    the system does not say."""
+    try:
+        info = dict(line.split(":", 1) for line in open("/proc/meminfo").read().splitlines() if ":" in line)
+        return 1024 * (int(info["MemAvailable"].split()[0]) + int(info.get("SwapFree", "0 kB").split()[0]))
+    except (OSError, KeyError, ValueError):
+        return 1 << 62
+
+
+def check_memory(nbytes: int, what: str) -> None:
+    """Raise InputError before allocating when `nbytes` exceeds the available memory; `what` names the
+    request (for example "render --resolution 100000: 1e10 pixels")."""
+    free = available_memory()
+    if nbytes > free:
+        raise InputError(f"{what} needs about {nbytes / 2 ** 30:.3g} GiB of memory, "
+                         f"{free / 2 ** 30:.3g} GiB are available; choose a smaller size")
 
 
 def _fmt(shape: tuple) -> str:

@@ -89,9 +89,15 @@ def _keep_module_eval(evaluate):
 
 
 def check_sample_u(q: Query, u) -> torch.Tensor:
-    """The uniform numbers u of `Material.sample(q, u)`: a tensor of shape (len(q), 2), else InputError."""
+    """The uniform numbers u of `Material.sample(q, u)`: a floating-point tensor of shape (len(q), 2) with values
+    in [0, 1), else InputError."""
     if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
         raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
+    if not u.is_floating_point():
+        raise InputError(f"u: expected floating-point numbers in [0, 1), got dtype {u.dtype}")
+    if u.numel() and not bool(((u >= 0) & (u < 1)).all()):
+        raise InputError(f"u: expected values in [0, 1), got [{u.min().item():.4g}, {u.max().item():.4g}]"
+                         f"{' and NaN' if bool(u.isnan().any()) else ''}")
     return u
 
 

@@ -44,6 +44,9 @@ class Query:
             if t is not None:
                 check_shape(t, f"Query.{name}", shape)
                 check_finite(t, f"Query.{name}")
+                if t.dtype != self.wi.dtype:
+                    raise InputError(f"Query.{name} is {t.dtype} but Query.wi is {self.wi.dtype}: give every field "
+                                     "of a query one floating-point dtype")
 
     @classmethod
     def trusted(cls, wi: torch.Tensor, wo: torch.Tensor | None = None, uv: torch.Tensor | None = None,

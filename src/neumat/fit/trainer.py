@@ -19,7 +19,6 @@ step (on the model and its EMA copy), `init_from_targets(target)` once on a fres
 from __future__ import annotations
 
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -31,6 +30,7 @@ from torch import nn
 
 from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError, UnknownNameError
+from ..io.atomic import atomic_write
 from ..models.base import LearnedMaterial
 from .ema import EMA
 from .phase import FitContext, Phase, model_name, online_phase
@@ -245,12 +245,7 @@ def _save_checkpoint(path, recipe, model, ema, phases, gen, source, state) -> No
             "stateful": [[m.state_dict() for m in p.stateful] for p in phases],
             "rng": _rng_states(gen, source), **state}
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        torch.save(blob, tmp)
-        os.replace(tmp, path)  # never leave a half-written checkpoint
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write(path, lambda tmp: torch.save(blob, tmp))  # never leave a half-written checkpoint nor its tmp
 
 
 def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:

@@ -20,6 +20,7 @@ import torch
 
 from ..core.errors import DataFormatError, InputError
 from ..reflectance.btf import TabulatedBTF, check_btf_arrays
+from .atomic import atomic_write
 
 FORMAT = "neumat-btf"
 VERSION = 1
@@ -53,8 +54,7 @@ def write_btf(path: str | Path, btf: TabulatedBTF, dtype: str = "float16", extra
               "quantity": "apparent BRDF: radiance / (perpendicular irradiance * cos theta_light), linear RGB",
               "uv": "texel (row i, col j) centre at uv = ((j + 0.5) / W, 1 - (i + 0.5) / H)",
               "label": btf.label, "clamped": clamped, "extra": extra or {}}
-    save_file(tensors, str(path), metadata={"neumat_btf": json.dumps(header)})
-    return path
+    return atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={"neumat_btf": json.dumps(header)}))
 
 
 def read_btf_header(path: str | Path) -> dict:

@@ -127,7 +127,7 @@ def _read_ldr(path: Path) -> np.ndarray:
                 grey = np.asarray(im, dtype=np.float32) / 65535.0
                 return np.repeat(grey[:, :, None], 3, axis=2)
             return np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-    except (UnidentifiedImageError, OSError, SyntaxError) as e:
+    except (UnidentifiedImageError, OSError, SyntaxError, Image.DecompressionBombError) as e:
         raise DataFormatError(f"image {path}: cannot decode ({e})") from e
 
 
@@ -193,6 +193,10 @@ def _read_hdr(path: Path) -> np.ndarray:
                               "expected '-Y <height> +X <width>'")
     height, width = int(parts[1]), int(parts[3])
     raw = np.frombuffer(data, dtype=np.uint8, offset=eol + 1)
+    # run-length coding stores at most 127 pixels of a channel in 2 bytes: fewer bytes cannot hold the pixels
+    if not (height > 0 and width > 0) or height * width * 4 > 64 * len(raw):
+        raise DataFormatError(f"Radiance file {path}: declares {width} x {height} pixels, more than its "
+                              f"{len(raw)} bytes of data can hold (truncated or corrupt header?)")
     rgbe = np.empty((height, width, 4), dtype=np.uint8)
     pos = 0
     for y in range(height):

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import DataFormatError, InputError
+from .atomic import atomic_write
 
 #: table resolution (theta_half, theta_diff, phi_diff)
 MERL_DIMS = (90, 90, 180)
@@ -63,9 +64,12 @@ def write_merl(path: str | Path, table: np.ndarray) -> None:
         raise InputError(f"write_merl table: expected shape (3, 90, 90, 180), got {table.shape}")
     if not np.issubdtype(table.dtype, np.floating):
         raise InputError(f"write_merl table: expected a floating-point array, got {table.dtype}")
-    with open(path, "wb") as f:
-        f.write(np.asarray(MERL_DIMS, dtype="<i4").tobytes())
-        f.write(np.ascontiguousarray(table, dtype="<f8").tobytes())
+    bad = int((~np.isfinite(table)).sum())
+    if bad:
+        raise InputError(f"write_merl table: {bad} of {table.size} values are NaN or infinite (a broken source "
+                         "material?); expected finite values")
+    data = np.asarray(MERL_DIMS, dtype="<i4").tobytes() + np.ascontiguousarray(table, dtype="<f8").tobytes()
+    atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def identify_merl(path: str | Path, hash_list: str | Path = MERL_HASH_LIST) -> str | None:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import warnings
 from pathlib import Path
 from typing import Any
@@ -23,6 +22,7 @@ import torch
 
 from ..core.config import config_from_dict, config_to_dict
 from ..core.errors import DataFormatError, InputError, NeumatError
+from .atomic import atomic_write
 
 FORMAT = "neumat-model"
 FORMAT_VERSION = 1
@@ -98,10 +98,7 @@ def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: di
         raise InputError(f"save_model: metrics must be JSON-serialisable finite numbers ({e})") from None
     from safetensors.torch import save_file
     tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
-    tmp = path.with_name(path.name + ".tmp")
-    save_file(tensors, str(tmp), metadata={HEADER_KEY: text})
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={HEADER_KEY: text}))
 
 
 def read_header(path: str | Path) -> dict:

@@ -28,7 +28,7 @@ def open_material(name: str | Path, **kwargs) -> Material:
         return _read(SVBRDF.from_folder, path, kwargs, "texture-set folder")
     if suffix in MATERIAL_SUFFIXES:
         if not path.is_file():
-            raise InputError(f"material file {text!r} does not exist")
+            raise InputError(f"material file {text!r} does not exist or is not a regular file")
         if suffix == ".binary":
             from ..reflectance.measured import MerlMaterial
             return _read(MerlMaterial.from_file, path, kwargs, "MERL file")

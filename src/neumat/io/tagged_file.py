@@ -8,6 +8,7 @@ from pathlib import Path
 import torch
 
 from ..core.errors import DataFormatError, InputError
+from .atomic import atomic_write
 
 #: metadata key of the JSON header
 HEADER_KEY = "neumat"
@@ -17,9 +18,8 @@ def write_tagged(path: str | Path, tensors: dict[str, torch.Tensor], header: dic
     """Write copies of `tensors` (on the CPU) and `header` (a JSON object with a "type") to `path`."""
     from safetensors.torch import save_file
 
-    save_file({k: v.detach().cpu().contiguous().clone() for k, v in tensors.items()}, str(path),  # no shared storage
-              metadata={HEADER_KEY: json.dumps(header)})
-    return Path(path)
+    copies = {k: v.detach().cpu().contiguous().clone() for k, v in tensors.items()}  # no shared storage
+    return atomic_write(path, lambda tmp: save_file(copies, tmp, metadata={HEADER_KEY: json.dumps(header)}))
 
 
 def read_tagged(path: str | Path, file_type: str, what: str) -> tuple[dict, dict[str, torch.Tensor]]:

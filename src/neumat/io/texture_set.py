@@ -109,10 +109,15 @@ def find_maps(folder: Path) -> dict[str, Path]:
         kind = MAP_TOKENS.get(path.stem.rsplit("_", 1)[-1].lower())
         if kind is None:
             continue
+        if not path.is_file():  # a FIFO or device would block or never end
+            raise DataFormatError(f"texture set {folder}: {path.name} is not a regular file")
         if kind in found:
             raise DataFormatError(f"texture set {folder}: two {kind} maps, {found[kind].name} and {path.name}")
         found[kind] = path
     return found
+
+
+_DIRECT_MODES = ("L", "LA", "RGB", "RGBA", "I", "I;16", "I;16B", "I;16L", "F")
 
 
 def _read(path: Path) -> np.ndarray:
@@ -121,9 +126,12 @@ def _read(path: Path) -> np.ndarray:
 
     try:
         with Image.open(path) as im:
+            if im.mode not in _DIRECT_MODES:  # palette, CMYK, YCbCr, LAB, 1-bit: decode to RGB(A)
+                im = im.convert("RGBA" if im.mode in ("PA", "P") and "transparency" in im.info
+                                or im.mode == "PA" else "RGB")
             mode = im.mode
             a = np.asarray(im)
-    except OSError as e:
+    except (OSError, SyntaxError, Image.DecompressionBombError) as e:
         raise DataFormatError(f"{path}: cannot read image ({e})") from e
     if mode in ("I;16", "I;16B", "I;16L", "I"):
         a = a.astype(np.float32) / 65535.0

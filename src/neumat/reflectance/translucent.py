@@ -29,6 +29,7 @@ from ..core.checks import check_directions, check_finite, check_int, check_numbe
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
+from ..io.ply import check_ply
 from ..render.scenes import import_mitsuba
 
 #: reduced scattering sigma_s' and absorption sigma_a in 1/mm (RGB), Jensen et al. 2001, Table 1
@@ -262,6 +263,7 @@ def _check_config(c: TranslucentConfig) -> None:
         path = Path(c.shape)
         if not path.is_file() or path.suffix.lower() != ".ply":
             raise InputError(f"translucent shape: expected 'sphere' or an existing .ply file, got {c.shape!r}")
+        check_ply(path)
     for key in ("size_mm", "roughness", "noise_frequency"):
         check_number(getattr(c, key), f"translucent {key}", 0.0, strict=True)
     if not (isinstance(c.ior, (int, float)) and c.ior > 1):

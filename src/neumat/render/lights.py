@@ -150,6 +150,9 @@ class EnvironmentMap(Light):
             raise InputError(f"{name}: expected an (H, W, 3) image, got shape {tuple(img.shape)}")
         if not bool(torch.isfinite(img).all()):
             raise InputError(f"{name}: image holds NaN or infinite values")
+        if bool((img < 0).any()):
+            raise InputError(f"{name}: {int((img < 0).sum())} negative value(s) (min {float(img.min()):.4g}); "
+                             "radiance must be >= 0")
         self.image = img.clamp(min=0) * float(scale)
         self.height, self.width = img.shape[:2]
         edges = torch.cos(torch.arange(self.height + 1, device=img.device, dtype=torch.float64) * math.pi
@@ -210,6 +213,15 @@ _SKY_OPTIONS = {**_ENV_OPTIONS, "sun_elevation": "degrees (default 35)", "sun_az
                 "sun_irradiance": "default 3", "sky_irradiance": "default 1", "width": "map width (default 512)"}
 
 
+def _vector(value, who: str, nonnegative: bool = False) -> tuple[float, ...]:
+    """`as_vector(value, who)`, checked finite (and >= 0 when `nonnegative`)."""
+    v = as_vector(value, who)
+    if not all(math.isfinite(x) and (x >= 0 or not nonnegative) for x in v):
+        raise InputError(f"{who}: expected finite{' non-negative' if nonnegative else ''} numbers, got "
+                         f"{'/'.join(map(str, v))}")
+    return v
+
+
 def make_light(spec: str, device=None) -> Light:
     """Build a light from a spec string (see the module docstring) on `device`."""
     s = parse_spec(spec, "light")
@@ -217,21 +229,25 @@ def make_light(spec: str, device=None) -> Light:
     arg = None if s.arg is None else parse_option_value(s.arg)
     if s.name == "point":
         check_options(opts, _POINT_OPTIONS, f"light {spec!r}")
-        pos = as_vector(opts.get("position", (2.0, 2.0, 2.0) if arg is None else arg), f"light {spec!r}: position")
+        pos = _vector(opts.get("position", (2.0, 2.0, 2.0) if arg is None else arg), f"light {spec!r}: position")
         default = math.pi * sum(x * x for x in pos)
-        return PointLight(pos, as_vector(opts.get("intensity", default), f"light {spec!r}: intensity"), device)
+        return PointLight(pos, _vector(opts.get("intensity", default), f"light {spec!r}: intensity", True), device)
     if s.name == "dir":
         check_options(opts, _DIR_OPTIONS, f"light {spec!r}")
-        d = as_vector(opts.get("direction", (1.0, 1.0, 1.0) if arg is None else arg), f"light {spec!r}: direction")
-        return DirectionalLight(d, as_vector(opts.get("irradiance", math.pi), f"light {spec!r}: irradiance"), device)
+        d = _vector(opts.get("direction", (1.0, 1.0, 1.0) if arg is None else arg), f"light {spec!r}: direction")
+        return DirectionalLight(d, _vector(opts.get("irradiance", math.pi), f"light {spec!r}: irradiance", True),
+                                device)
     if s.name == "const":
         check_options(opts, {}, f"light {spec!r}")
-        return ConstantEnvironment(as_vector(1.0 if arg is None else arg, f"light {spec!r}: value"), device)
+        return ConstantEnvironment(_vector(1.0 if arg is None else arg, f"light {spec!r}: value", True), device)
     if s.name == "env":
         if not s.arg:
             raise InputError(f"light {spec!r}: expected env:PATH (a .hdr or .exr map) or env:sky")
-        scale = as_float(opts.pop("scale", 1.0), f"light {spec!r}: scale")
+        scale = _vector(as_float(opts.pop("scale", 1.0), f"light {spec!r}: scale"), f"light {spec!r}: scale",
+                        True)[0]
         rotation = as_float(opts.pop("rotation", 0.0), f"light {spec!r}: rotation")
+        if not math.isfinite(rotation):
+            raise InputError(f"light {spec!r}: rotation: expected a finite number of degrees, got {rotation}")
         if s.arg.lower() == "sky":
             check_options(opts, _SKY_OPTIONS, f"light {spec!r}")
             sky = {k: (v if k == "width" else as_float(v, f"light {spec!r}: {k}")) for k, v in opts.items()}

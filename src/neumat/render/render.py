@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import torch
 
-from ..core.checks import check_int
+from ..core.checks import check_device, check_int, check_memory
 from ..core.errors import InputError
 from ..core.material import Material, material_device
 from .integrators import check_strategy, shade_direct
@@ -41,7 +41,8 @@ def render(material: Material, scene: str = "sphere", light: str | Light = "env:
     check_strategy(strategy)
     width, height = _resolution(resolution)
     jitter = bool(scene_options.pop("jitter", True))
-    device = torch.device(device) if device is not None else material_device(material)
+    device = check_device(device) if device is not None else material_device(material)
+    check_memory(width * height * 3 * 4 * 4, f"a {width} x {height} image")
     batch = scene_options.pop("batch_size", CPU_BATCH_SAMPLES if device.type == "cpu" else BATCH_SAMPLES)
     check_int(batch, "batch_size")
 

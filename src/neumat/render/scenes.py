@@ -13,7 +13,6 @@ filter of standard deviation s pixels would give s^2 J J^T instead.
 from __future__ import annotations
 
 import math
-import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,13 +22,13 @@ import torch
 
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal, frame_from_normal_tangent
+from ..io.ply import check_ply
 from .camera import Camera, Rays, make_camera
 from .spec import as_float, check_options, parse_spec, unknown_name
 
 SCENE_FORMS = ["sphere", "plane", "mesh:PATH"]
 #: variance of a box pixel filter of width 1 along each axis
 BOX_FILTER_VARIANCE = 1.0 / 12.0
-_LIBLLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 _MITSUBA_VARIANT = "llvm_ad_rgb"
 
 
@@ -206,12 +205,13 @@ class MeshScene(Scene):
         azimuth, elevation = as_float(azimuth, "mesh scene: azimuth"), as_float(elevation, "mesh scene: elevation")
         if zoom <= 0:
             raise InputError(f"mesh scene: zoom must be > 0, got {zoom}")
-        self.mi = import_mitsuba()
         path = Path(path)
         if not path.is_file():
             raise InputError(f"mesh scene: PLY file {path} does not exist")
         if path.suffix.lower() != ".ply":
             raise InputError(f"mesh scene: expected a .ply triangle mesh, got {path}")
+        check_ply(path)
+        self.mi = import_mitsuba()
         try:
             self.scene = self.mi.load_dict({"type": "scene", "mesh": {"type": "ply", "filename": str(path)}})
         except Exception as e:  # Mitsuba raises RuntimeError with the parser's message
@@ -270,17 +270,20 @@ class MeshScene(Scene):
 
 
 def import_mitsuba():
-    """The `mitsuba` module with the llvm_ad_rgb variant set; DRJIT_LIBLLVM_PATH is pointed at the system
-    LLVM when that file exists and the variable is unset. Raises InputError when Mitsuba is unusable."""
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and _LIBLLVM.is_file():
-        os.environ["DRJIT_LIBLLVM_PATH"] = str(_LIBLLVM)
+    """The `mitsuba` module with the llvm_ad_rgb variant set, after `integrations.llvm.configure_llvm` found an
+    LLVM its kernels compile with. Raises InputError when Mitsuba or such an LLVM is missing."""
+    from ..integrations.llvm import configure_llvm
     try:
         import mitsuba as mi
+    except ImportError as e:
+        raise InputError(f"mesh scenes need Mitsuba 3 (pip install mitsuba): {e}") from e
+    configure_llvm()
+    try:
         if mi.variant() != _MITSUBA_VARIANT:
             mi.set_variant(_MITSUBA_VARIANT)
-    except Exception as e:  # ImportError, or the variant / LLVM failing to load
-        raise InputError(f"mesh scenes need Mitsuba 3 with the {_MITSUBA_VARIANT} variant "
-                         f"(pip install mitsuba, and an LLVM library): {type(e).__name__}: {e}") from e
+    except Exception as e:  # the variant failing to load
+        raise InputError(f"mesh scenes need Mitsuba 3 with the {_MITSUBA_VARIANT} variant: "
+                         f"{type(e).__name__}: {e}") from e
     return mi
 
 

@@ -1,0 +1,222 @@
+"""Hostile inputs to every reader and command: each must end in one clear error (exit code 1 or 2), with no
+traceback, no signal, no hang, nothing left behind and any previous output untouched (issue 26).
+
+In-process (typer's CliRunner) wherever the failure cannot kill or block the test process; in a subprocess
+with a timeout where the old failure was a signal (Mitsuba on a bad mesh) or a hang (a FIFO). Add a case here
+with every new reader or command.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from neumat.cli.main import app
+
+SRC = str(Path(__file__).resolve().parents[2] / "src")
+PREVIOUS = b"previous output, must survive"
+
+TRIANGLE = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 {}\n")
+
+
+def png_declaring(width: int, height: int) -> bytes:
+    """A PNG whose header declares width x height RGB pixels, with one byte of image data."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0")) + chunk(b"IEND", b"")
+
+
+def write_texture_set(folder: Path, roughness: Path | None = None) -> Path:
+    """A valid 4 x 4 texture set (color, normal; roughness unless given) in `folder`."""
+    from PIL import Image
+    folder.mkdir()
+    Image.new("RGB", (4, 4), (200, 30, 30)).save(folder / "x_Color.png")
+    Image.new("RGB", (4, 4), (128, 128, 255)).save(folder / "x_NormalGL.png")
+    if roughness is None:
+        Image.new("L", (4, 4), 128).save(folder / "x_Roughness.png")
+    return folder
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else b"<dir>")
+            for p in sorted(folder.rglob("*")) if not p.is_fifo()}
+
+
+def _bad_cases(t: Path) -> dict[str, list[str]]:
+    """name -> command line; inputs are made under `t`; `t/out.png` and `t/out.nbtf` hold previous outputs."""
+    (t / "bad.ply").write_text(TRIANGLE.format(99999))
+    (t / "folder.png").mkdir()
+    (t / "huge.png").write_bytes(png_declaring(100000, 100000))
+    (t / "huge.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1000000000 +X 1000000000\n" + bytes(64))
+    (t / "neg.hdr").write_bytes(b"")
+    (t / "empty.binary").write_bytes(b"")
+    (t / "truncated.nmat").write_bytes(b"\x10\x00\x00")
+    (t / "self.json").write_text('{"type": "layered", "base": "self.json", "coat": "ggx"}')
+    (t / "notes.txt").write_text("not a material")
+    out, nbtf = str(t / "out.png"), str(t / "out.nbtf")
+    return {
+        "device-unknown": ["render", "lambert", "--device", "foo", "-o", out],
+        "device-cuda-missing": ["render", "lambert", "--device", "cuda:7", "-o", out],
+        "seed-overflow": ["render", "lambert", "--seed", str(2 ** 70), "-o", out],
+        "seed-negative": ["render", "lambert", "--seed", "-1", "-o", out],
+        "resolution-huge": ["render", "lambert", "--resolution", "100000", "-o", out],
+        "out-is-folder": ["render", "lambert", "--resolution", "8", "-o", str(t / "folder.png")],
+        "out-under-a-file": ["render", "lambert", "--resolution", "8", "-o", str(t / "notes.txt" / "x.png")],
+        "out-wrong-suffix": ["render", "lambert", "--resolution", "8", "-o", str(t / "x.txt")],
+        "light-nan": ["render", "lambert", "--light", "point:nan/0/0", "--resolution", "8", "-o", out],
+        "light-inf": ["render", "lambert", "--light", "point:inf/0/0", "--resolution", "8", "-o", out],
+        "light-negative": ["render", "lambert", "--light", "const:-1", "--resolution", "8", "-o", out],
+        "light-dir-inf": ["render", "lambert", "--light", "dir:inf/0/0", "--resolution", "8", "-o", out],
+        "env-huge-png": ["render", "lambert", "--light", f"env:{t / 'huge.png'}", "--resolution", "8", "-o", out],
+        "env-huge-hdr": ["render", "lambert", "--light", f"env:{t / 'huge.hdr'}", "--resolution", "8", "-o", out],
+        "env-empty-hdr": ["render", "lambert", "--light", f"env:{t / 'neg.hdr'}", "--resolution", "8", "-o", out],
+        "mesh-bad-index": ["render", "lambert", "--scene", f"mesh:{t / 'bad.ply'}", "--resolution", "8", "-o", out],
+        "material-empty-merl": ["render", str(t / "empty.binary"), "--resolution", "8", "-o", out],
+        "material-truncated-nmat": ["render", str(t / "truncated.nmat"), "--resolution", "8", "-o", out],
+        "material-folder-not-set": ["render", str(t / "folder.png"), "--resolution", "8", "-o", out],
+        "material-layered-self": ["render", str(t / "self.json"), "--resolution", "8", "-o", out],
+        "material-unknown-suffix": ["render", str(t / "notes.txt"), "--resolution", "8", "-o", out],
+        "compare-one": ["compare", "lambert", "--resolution", "8"],
+        "btf-wrong-suffix": ["data", "btf-generate", "procedural:bumps", str(t / "b.png"), "--size", "8"],
+        "btf-size-huge": ["data", "btf-generate", "procedural:bumps", nbtf, "--size", "100000"],
+        "btf-size-zero": ["data", "btf-generate", "procedural:bumps", nbtf, "--size", "0"],
+        "btf-device": ["data", "btf-generate", "procedural:bumps", nbtf, "--size", "8", "--device", "foo"],
+        "convert-to-folder": ["data", "convert", "lambert", str(t / "folder.png")],
+        "info-missing": ["data", "info", str(t / "none.binary")],
+        "dictionary-patch-zero": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat"), "--patch", "0"],
+        "dictionary-iterations-zero": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat"), "--iterations", "0"],
+        "dictionary-not-a-btf": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat")],
+    }
+
+
+@pytest.fixture
+def workdir(tmp_path):
+    (tmp_path / "out.png").write_bytes(PREVIOUS)
+    (tmp_path / "out.nbtf").write_bytes(PREVIOUS)
+    return tmp_path
+
+
+def test_every_bad_command_line_is_a_clean_error(workdir):
+    runner = CliRunner()
+    failures = []
+    for name, args in _bad_cases(workdir).items():
+        before = _files(workdir)
+        r = runner.invoke(app, args)
+        said = " ".join(r.output.split())
+        problems = []
+        if r.exit_code not in (1, 2):
+            problems.append(f"exit code {r.exit_code}")
+        if r.exception is not None and not isinstance(r.exception, SystemExit):
+            problems.append(f"raised {type(r.exception).__name__}: {r.exception}")
+        if "Traceback" in r.output:
+            problems.append("printed a traceback")
+        after = _files(workdir)
+        if after != before:
+            problems.append(f"files changed: {sorted(set(after.items()) ^ set(before.items()))[:3]}")
+        if problems:
+            failures.append(f"{name} ({' '.join(args)}): {'; '.join(problems)}; said: {said[:300]}")
+    assert not failures, "\n".join(failures)
+
+
+def _neumat(args: list[str], timeout: float = 120) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": SRC}
+    return subprocess.run([sys.executable, "-m", "neumat.cli.main", *args], env=env, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_bad_mesh_face_index_is_refused_not_a_crash(tmp_path):
+    """A face pointing at vertex 99999 of 3 used to crash Mitsuba (SIGSEGV) or render garbage."""
+    (tmp_path / "bad.ply").write_text(TRIANGLE.format(99999))
+    for args in (["render", "lambert", "--scene", f"mesh:{tmp_path / 'bad.ply'}", "--resolution", "8",
+                  "-o", str(tmp_path / "x.png")],
+                 ["translucent", "trace", str(tmp_path / "o.npz"), "--shape", str(tmp_path / "bad.ply")]):
+        r = _neumat(args)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert "vertex 99999" in " ".join(r.stderr.split())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.ply"]
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_fifo_in_a_texture_set_is_refused_not_a_hang(tmp_path):
+    folder = write_texture_set(tmp_path / "set", roughness=tmp_path)
+    os.mkfifo(folder / "x_Roughness.png")
+    r = _neumat(["render", str(folder), "--resolution", "8", "-o", str(tmp_path / "x.png")], timeout=60)
+    assert r.returncode == 2 and "x_Roughness.png is not a regular file" in " ".join(r.stderr.split()), r.stderr
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_failed_writes_leave_nothing_and_outputs_are_0644(tmp_path):
+    from neumat.io.atomic import atomic_write
+    from neumat.core.errors import InputError
+    r = CliRunner().invoke(app, ["data", "btf-generate", "procedural:bumps", str(tmp_path / "b.nbtf"), "--size", "4",
+                                 "--directions", "4", "--spp", "1"])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "b.nbtf").stat().st_mode & 0o777 == 0o644 & ~_umask()
+    (tmp_path / "dir.nmat").mkdir()
+    with pytest.raises(InputError, match="is a folder"):
+        atomic_write(tmp_path / "dir.nmat", lambda tmp: Path(tmp).write_bytes(b"x"))
+    (tmp_path / "old.nmat").write_bytes(PREVIOUS)
+
+    def broken(tmp):
+        Path(tmp).write_bytes(b"half")
+        raise OSError("disk full")
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write(tmp_path / "old.nmat", broken)
+    assert (tmp_path / "old.nmat").read_bytes() == PREVIOUS
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.nbtf", "dir.nmat", "old.nmat"]
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def test_texture_set_palette_and_cmyk_red_load_as_red(tmp_path):
+    """Palette PNGs loaded as black and CMYK JPEGs as cyan: texture sets now decode every mode to RGB."""
+    from PIL import Image
+    from neumat.io.texture_set import load_texture_set
+    for kind, save in (("palette", lambda im, p: im.convert("P").save(p.with_suffix(".png"))),
+                       ("cmyk", lambda im, p: im.convert("CMYK").save(p.with_suffix(".jpg"), quality=100))):
+        folder = write_texture_set(tmp_path / kind)
+        (folder / "x_Color.png").unlink()
+        save(Image.new("RGB", (4, 4), (255, 0, 0)), folder / "x_Color")
+        color = load_texture_set(folder).color
+        assert color[..., 0].min() > 0.9 and color[..., 1:].max() < 0.05, (kind, color[0, 0])
+
+
+def test_nan_merl_table_is_not_written(tmp_path):
+    from neumat.core.errors import InputError
+    from neumat.io.merl import write_merl
+    table = np.zeros((3, 90, 90, 180))
+    table[0, 0, 0, :5] = np.nan
+    with pytest.raises(InputError, match="5 of .* NaN or infinite"):
+        write_merl(tmp_path / "x.binary", table)
+    assert not list(tmp_path.iterdir())
+
+
+def test_json_output_has_no_nan_or_infinity(tmp_path):
+    r = CliRunner().invoke(app, ["compare", "lambert", "lambert", "--resolution", "8", "--spp", "1",
+                                 "--n-configs", "64", "--json"])
+    assert r.exit_code == 0, r.output
+    assert "Infinity" not in r.stdout and "NaN" not in r.stdout
+    assert '"psnr": null' in r.stdout
+
+
+def test_out_of_range_seed_and_missing_gpu_fail_before_work():
+    for args in (["render", "lambert", "--seed", str(2 ** 70), "-o", "x.png"],
+                 ["render", "lambert", "--device", "nonsense", "-o", "x.png"]):
+        r = CliRunner().invoke(app, args)
+        assert r.exit_code == 2 and not isinstance(r.exception, (ValueError, RuntimeError)), r.output
+    if not torch.cuda.is_available():
+        r = CliRunner().invoke(app, ["render", "lambert", "--device", "cuda", "-o", "x.png"])
+        assert r.exit_code == 2 and "CUDA GPU" in " ".join(r.output.split()), r.output
