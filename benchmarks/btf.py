@@ -64,7 +64,7 @@ from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.io.texture_set import load_texture_set
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.models.btf_table_queries import decode_table, table_samples
 from neumat.models.neubrdf import NeuBRDF
 from neumat.models.pca_btf import PCABTF, best_ranks, decompose, rank_budget

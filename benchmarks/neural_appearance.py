@@ -52,11 +52,11 @@ from neumat.export.slang import export_slang
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LogCosLoss
 from neumat.fit.neural_appearance import fit_neural_appearance
-from neumat.fit.query_samplers import uniform
+from neumat.warp.uniform import uniform
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.models.ggx_mipmap import GGXMipmap
 from neumat.models.zeltner import Zeltner

@@ -32,7 +32,7 @@ from neumat.core.material import Material
 from neumat.core.query import Query
 from neumat.io.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.models.proxy_sampler import SampledMaterial, fit_sampler
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.models.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial, fit_sampler
 from neumat.models.zeltner import Zeltner
 from neumat.models.multiscale import MultiScale

@@ -12,7 +12,8 @@ from neumat.reflectance.analytic import Lambert
 from neumat.reflectance.coat_albedo import CoatAlbedo
 from neumat.reflectance.layered import COAT_FEATURES, Coat, LayeredMaterial
 from neumat.reflectance.lean import NormalGroup
-from neumat.reflectance.microfacet import fresnel_dielectric, ggx_ndf, smith_g1
+from neumat.reflectance.microfacet import fresnel_dielectric
+from neumat.warp.ggx_distribution import ggx_ndf, smith_g1
 from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.chi2 import chi2_material

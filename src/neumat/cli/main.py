@@ -16,7 +16,7 @@ for module in (rendering, mitsuba, fitting, btf, check, demo, exporting, translu
 @app.command()
 def version() -> None:
     """Print the neumat version."""
-    from .. import __version__
+    from ..core.version import __version__
     run_command(lambda: print(__version__))
 
 

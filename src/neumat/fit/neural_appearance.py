@@ -35,11 +35,12 @@ from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
+from ..warp.uniform import uniform
 from .adam_steps import adam_steps
 from .directional_blur import blur_angle, blurred_eval
 from .footprint_queries import footprint_queries
 from .losses import LogCosLoss
-from .query_samplers import QUERY_SAMPLERS, uniform
+from .query_samplers import QUERY_SAMPLERS
 
 
 @dataclass

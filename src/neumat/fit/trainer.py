@@ -27,6 +27,7 @@ from torch import nn
 from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError
 from ..core.material import Material
+from . import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
 from .ema import EMA
 from .losses import LOSSES
 from .query_samplers import QUERY_SAMPLERS

@@ -52,7 +52,7 @@ def source_info(source: Any) -> dict:
         return {"name": str(source), "sha256": hashlib.sha256(str(source).encode()).hexdigest()}
     if not callable(getattr(source, "eval", None)):
         raise InputError(f"save_model source: expected a file path, a spec or a Material, got {type(source).__name__}")
-    from ..fit.query_samplers import uniform
+    from ..warp.uniform import uniform
     from ..core.query import Query
     from ..warp.hemisphere import sample_cosine_hemisphere
     from ..warp.sphere import sample_uniform_sphere
@@ -68,7 +68,7 @@ def source_info(source: Any) -> dict:
 def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: dict | None = None) -> Path:
     """Write `model` to `path` (.nmat). recipe: the Recipe it was trained with; source: the training source
     (file path, spec string or Material); metrics: JSON-serialisable numbers measured at save time."""
-    from .. import __version__
+    from ..core.version import __version__
     from ..models.registry import model_class
 
     path = Path(path)
@@ -157,7 +157,7 @@ def _read(path: str | Path, weights: bool) -> tuple[dict, dict]:
 
 
 def _check_header(header: Any, where: str) -> None:
-    from .. import __version__
+    from ..core.version import __version__
 
     if not isinstance(header, dict):
         raise DataFormatError(f"{where}: the header must be a JSON object")

@@ -38,7 +38,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, check_sample_u, material_device, sample_weight
 from neumat.core.query import Query, Sample
 from neumat.fit.adam_steps import adam_steps
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.nn.mlp import MLP
 from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere, sample_uniform_hemisphere
 from neumat.warp.microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, sample_proxy

@@ -26,9 +26,10 @@ from ..core.errors import InputError, UnknownNameError
 from ..core.material import Material, check_sample_u, sample_weight
 from ..core.query import Query, Sample
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
+from ..warp.ggx_distribution import ggx_ndf, smith_g1
 from ..warp.hemisphere import sample_cosine_hemisphere
 from .microfacet import (_dot, _half_vector, _microfacet_brdf, fresnel_conductor, fresnel_dielectric, fresnel_schlick,
-                         ggx_ndf, principled_eval, principled_pdf, principled_sample, smith_g1)
+                         principled_eval, principled_pdf, principled_sample)
 
 #: RGB complex refractive indices (eta, k) of conductors, as Mitsuba 3 (rgb variants) derives them from its spectra
 CONDUCTORS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
