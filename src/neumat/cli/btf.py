@@ -36,8 +36,8 @@ def register(app: typer.Typer) -> None:
             iterations: int = typer.Option(20, "--iterations", help="maximum training iterations"),
             seed: int = typer.Option(0, "--seed")) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
-        from ..io.btf import read_btf
         from ..models.sparse_dictionary import train_dictionary
+        from ..reflectance.btf import read_btf
 
         def go():
             data = [read_btf(p) for p in btfs]

@@ -107,9 +107,9 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
 
 def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out: Path) -> None:
     """SparseBTF has no gradient training: project the BTF on the dictionary ensemble and save the codes."""
-    from ..io.btf import read_btf
     from ..io.modelfile import save_model
     from ..models.sparse_btf import SparseBTF
+    from ..reflectance.btf import read_btf
     from ..models.sparse_dictionary import BTFDictionary
     from .btf import parse_tau
 

@@ -35,10 +35,10 @@ def open_material(name: str | Path, **kwargs) -> Material:
             from ..reflectance.measured import RglMaterial
             return _read(RglMaterial.from_file, path, kwargs, "RGL file")
         if suffix == ".nbtf":
-            from .btf import read_btf
+            from ..reflectance.btf import read_btf
             return _read(read_btf, path, kwargs, "BTF file")
         if suffix == ".btf":
-            from .ubo2014 import read_ubo2014
+            from ..reflectance.btf import read_ubo2014
             return _read(read_ubo2014, path, kwargs, "UBO2014 BTF file")
         if suffix == ".json":
             from .layered_file import read_layered
