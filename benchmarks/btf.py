@@ -274,7 +274,7 @@ def shared_file(relative: str) -> Path:
 
 def bunny_with_uv(path: Path) -> Path:
     """The 453-vertex Stanford bunny with spherical texture coordinates (the shared mesh has none), as PLY."""
-    from neumat.render.scenes import import_mitsuba
+    from neumat.core.mitsuba import import_mitsuba
     mi = import_mitsuba()
     src = mi.load_dict({"type": "ply", "filename": str(shared_file("mesh/stanford_bunny_res4_453v.ply"))})
     params = mi.traverse(src)

@@ -32,8 +32,8 @@ import torch
 
 from ..core.errors import InputError
 from ..core.material import Material, material_device
+from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
-from ..render.scenes import import_mitsuba
 from ..warp.hemisphere import sample_cosine_hemisphere
 
 #: the plugin name registered with Mitsuba

@@ -13,7 +13,6 @@ filter of standard deviation s pixels would give s^2 J J^T instead.
 from __future__ import annotations
 
 import math
-import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,14 +22,13 @@ import torch
 
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal, frame_from_normal_tangent
+from ..core.mitsuba import import_mitsuba
 from .camera import Camera, Rays, make_camera
 from .spec import as_float, check_options, parse_spec, unknown_name
 
 SCENE_FORMS = ["sphere", "plane", "mesh:PATH"]
 #: variance of a box pixel filter of width 1 along each axis
 BOX_FILTER_VARIANCE = 1.0 / 12.0
-_LIBLLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
-_MITSUBA_VARIANT = "llvm_ad_rgb"
 
 
 @dataclass
@@ -267,21 +265,6 @@ class MeshScene(Scene):
         maxt = torch.where(torch.isfinite(dist), dist * (1 - 1e-4) - eps, torch.full_like(dist, float("inf")))
         blocked = self.scene.ray_test(self._ray(origin, wi, maxt))
         return _from_np(blocked, p.device, torch.bool)
-
-
-def import_mitsuba():
-    """The `mitsuba` module with the llvm_ad_rgb variant set; DRJIT_LIBLLVM_PATH is pointed at the system
-    LLVM when that file exists and the variable is unset. Raises InputError when Mitsuba is unusable."""
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and _LIBLLVM.is_file():
-        os.environ["DRJIT_LIBLLVM_PATH"] = str(_LIBLLVM)
-    try:
-        import mitsuba as mi
-        if mi.variant() != _MITSUBA_VARIANT:
-            mi.set_variant(_MITSUBA_VARIANT)
-    except Exception as e:  # ImportError, or the variant / LLVM failing to load
-        raise InputError(f"mesh scenes need Mitsuba 3 with the {_MITSUBA_VARIANT} variant "
-                         f"(pip install mitsuba, and an LLVM library): {type(e).__name__}: {e}") from e
-    return mi
 
 
 def make_scene(spec: str, resolution: tuple[int, int], **options) -> Scene:
