@@ -5,7 +5,7 @@ import torch
 from typer.testing import CliRunner
 
 from neumat.cli.main import app
-from neumat.io.modelfile import save_model
+from neumat.catalog.modelfile import save_model
 from neumat.models.registry import build_model
 
 from neumat.testing.parity import opengl_available

@@ -9,7 +9,7 @@ from neumat import InputError
 from neumat.core.query import Query
 from neumat.fit.neumip_uv import fit_neumip_uv
 from neumat.fit.translucent_observations import Observations
-from neumat.io.modelfile import load_model, save_model
+from neumat.catalog.modelfile import load_model, save_model
 from neumat.models.neumip_uv import NeuMIPUV, local_frame, sphere_uv
 from neumat.models.registry import build_model
 from neumat.warp import sample_uniform_sphere

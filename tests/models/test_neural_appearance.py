@@ -10,7 +10,7 @@ from neumat import InputError, Query
 from neumat.fit.losses import LogCosLoss
 from neumat.fit.neural_appearance import fit_neural_appearance
 from neumat.warp.uniform import uniform
-from neumat.io.modelfile import load_model, save_model
+from neumat.catalog.modelfile import load_model, save_model
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX
 from neumat.reflectance.procedural_texture import procedural_texture_set

@@ -7,7 +7,7 @@ import torch
 
 from neumat.core.errors import InputError, UnknownNameError
 from neumat.core.query import Query
-from neumat.io.open_material import open_material
+from neumat.catalog.open_material import open_material
 from neumat.reflectance.analytic import Lambert
 from neumat.reflectance.coat_albedo import CoatAlbedo
 from neumat.reflectance.layered import COAT_FEATURES, Coat, LayeredMaterial

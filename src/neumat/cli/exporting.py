@@ -31,7 +31,7 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
         import torch
 
         from ..export.glsl import export_glsl
-        from ..io.modelfile import load_model
+        from ..catalog.modelfile import load_model
 
         m = load_model(model, device="cpu")
         if slang:

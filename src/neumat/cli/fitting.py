@@ -39,8 +39,8 @@ def fit(source: str = typer.Argument(..., help="material file (.binary, .bsdf, .
     def go():
         import torch
 
-        from ..io.modelfile import save_model
-        from ..io.open_material import open_material
+        from ..catalog.modelfile import save_model
+        from ..catalog.open_material import open_material
         from ..fit.trainer import fit as fit_model
 
         if out.suffix != ".nmat":
@@ -70,8 +70,8 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
     import torch
 
     from ..fit.neural_appearance import fit_neural_appearance
-    from ..io.modelfile import save_model
-    from ..io.open_material import open_material
+    from ..catalog.modelfile import save_model
+    from ..catalog.open_material import open_material
     from ..models.neural_appearance import Config, NeuralAppearance
 
     training = {"batch_size", "lr", "directions", "blur_degrees", "blur_samples", "blur_until", "sampler_batch"}
@@ -107,7 +107,7 @@ def _fit_neural_appearance(source: str, overrides: dict, steps: int | None, seed
 
 def _code_sparse_btf(source: str, dictionary: Path | None, tau: str | None, out: Path) -> None:
     """SparseBTF has no gradient training: project the BTF on the dictionary ensemble and save the codes."""
-    from ..io.modelfile import save_model
+    from ..catalog.modelfile import save_model
     from ..models.sparse_btf import SparseBTF
     from ..reflectance.btf import read_btf
     from ..models.sparse_dictionary import BTFDictionary
@@ -135,7 +135,7 @@ def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None)
 
     from ..core.config import config_from_dict, config_to_dict
     from ..fit.recipe import Recipe, check_recipe, recipe_for
-    from ..io.modelfile import model_config_class
+    from ..catalog.modelfile import model_config_class
     from ..models.registry import model_class
 
     cls = model_class(model)
@@ -169,8 +169,8 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
     def go():
         import torch
 
-        from ..io.modelfile import load_model
-        from ..io.open_material import open_material
+        from ..catalog.modelfile import load_model
+        from ..catalog.open_material import open_material
         from ..metrics.hdr import reflectance_errors
 
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")

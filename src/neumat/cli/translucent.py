@@ -63,7 +63,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
 
         from ..fit.neupress import fit_neupress, fit_neupress_sampler
         from ..fit.translucent_observations import Observations
-        from ..io.modelfile import save_model
+        from ..catalog.modelfile import save_model
         from ..models.neupress import NeuPreSS
 
         _check_suffix(out, ".nmat", "fit --out")
@@ -113,7 +113,7 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         from ..core.errors import InputError
         from ..fit.translucent_observations import Observations
         from ..io.images import write_image, write_image_ldr
-        from ..io.modelfile import load_model
+        from ..catalog.modelfile import load_model
         from ..metrics.image import image_metrics
         from ..models.neupress import NeuPreSS
         from ..reflectance.translucent import TranslucentConfig, TranslucentObject

@@ -54,7 +54,7 @@ def check_source(model: nn.Module, source: Material) -> None:
     """Raise InputError if `source` cannot supervise `model` (no eval, spatial variation or sphere mismatch)."""
     if not callable(getattr(source, "eval", None)) or isinstance(source, (str, Path)):
         raise InputError(f"fit: source must be a Material (with eval(q)), got {type(source).__name__}; "
-                         "open files and specs with neumat.io.open_material.open_material")
+                         "open files and specs with neumat.catalog.open_material.open_material")
     mname = getattr(model, "name", type(model).__name__)
     if getattr(source, "spatially_varying", False) and not getattr(model, "spatially_varying", False):
         raise InputError(f"fit: source {_describe(source)!r} is spatially varying, but model {mname!r} is a "

@@ -249,7 +249,7 @@ def _open(material) -> Material:
                              "not surface BSDFs; the Mitsuba plugin takes reflectance materials")
         return material
     if isinstance(material, (str, Path)):
-        from ..io.open_material import open_material
+        from ..catalog.open_material import open_material
         return _open(open_material(material))
     raise InputError(f"material: expected a neumat Material, a file path or a spec string, "
                      f"got {type(material).__name__}")

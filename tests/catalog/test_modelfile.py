@@ -11,8 +11,9 @@ from safetensors.torch import save_file
 from neumat.core.errors import DataFormatError, InputError
 from neumat.core.query import Query
 from neumat.fit.recipe import Recipe
-from neumat.io.modelfile import load_model, read_header, save_model, source_info
-from neumat.io.open_material import open_material
+from neumat.catalog.modelfile import load_model, save_model, source_info
+from neumat.catalog.open_material import open_material
+from neumat.io.modelfile import read_header
 from neumat.models.neubrdf import NeuBRDF
 
 
