@@ -125,6 +125,19 @@ def test_strict_loading_raises(edit, match, tmp_path, gen):
         load_model(bad)
 
 
+def test_model_files_of_the_renamed_zeltner_model_load_as_neumip_frame(tmp_path):
+    """Files written when neumip-frame was registered as "zeltner" load as neumip-frame, with the same weights."""
+    from neumat.models.neumip_frame import NeuMIPFrame
+
+    m = NeuMIPFrame(spatial_size=8, spatial_channels=4, hidden=8, hidden_layers=1)
+    old = _rewrite(save_model(m, tmp_path / "m.nmat"), tmp_path / "old.nmat", header_change=_set("type", "zeltner"))
+    assert read_header(old)["type"] == "zeltner"
+    loaded = load_model(old)
+    assert isinstance(loaded, NeuMIPFrame) and loaded.name == "neumip-frame"
+    for k, v in m.state_dict().items():
+        assert torch.equal(loaded.state_dict()[k], v)
+
+
 def test_truncated_garbage_and_foreign_files_raise(tmp_path, gen):
     path = save_model(_trained_like("vq", gen), tmp_path / "m.nmat")
     data = path.read_bytes()

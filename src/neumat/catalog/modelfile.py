@@ -23,6 +23,9 @@ from ..warp.hemisphere import sample_cosine_hemisphere
 from ..warp.sphere import sample_uniform_sphere
 from ..warp.uniform import uniform
 
+#: old registry name (still found in the "type" of older .nmat files) -> the model's current name
+RENAMED_MODELS = {"zeltner": "neumip-frame"}  # the Zeltner-style baseline of Timonen et al. 2025, renamed
+
 
 def model_config_class(cls: type) -> type:
     """The Config dataclass of model class `cls` (its `Config` attribute, else the type of a default
@@ -83,7 +86,7 @@ def load_model(path: str | Path, device: str | torch.device | None = None):
     header, tensors = read_model_file(path)
     where = f"model file {str(path)!r}"
     try:
-        cls = model_class(header["type"])
+        cls = model_class(RENAMED_MODELS.get(header["type"], header["type"]))
     except NeumatError as e:
         raise DataFormatError(f"{where}: {e}") from None
     try:

@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
 
 
 def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale, neumip-family "
-                                        "(neumip, zeltner, neural-appearance), neubrdf, sparse-btf or neupress model"),
+                                        "(neumip, neumip-frame, neural-appearance), neubrdf, sparse-btf or neupress model"),
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run the shader on N random queries (headless OpenGL) and print "

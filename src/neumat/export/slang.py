@@ -1,4 +1,4 @@
-"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance), the multi-scale models,
+"""Slang export of the latent-pyramid + MLP models (neumip, neumip-frame, neural-appearance), the multi-scale models,
 NeuBRDF, SparseBTF and NeuPreSS: one shader module per neural material implementing a fixed interface, as the
 runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading
 language.
@@ -294,14 +294,14 @@ neumat_queries[b + {lay['n'] + 2}]);
 
 
 def export_slang(model) -> SlangExport:
-    """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance), a multi-scale
+    """Slang module and buffers of a neumip-family model (neumip, neumip-frame, neural-appearance), a multi-scale
     model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF, a SparseBTF or
     a NeuPreSS (module docstring). Anything else raises InputError naming the model type."""
     from ..models.neumip import NeuMIP
 
     name = getattr(model, "name", None)
     if not isinstance(name, str) or name not in load_generators():
-        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), a "
+        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, neumip-frame, neural-appearance), a "
                          f"multi-scale model, a neubrdf, a sparse-btf or a neupress, got {type(model).__name__} "
                          f"({getattr(model, 'name', '?')})")
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
