@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib
 import json
-import math
 import pkgutil
 from dataclasses import dataclass, field
 from pathlib import Path
