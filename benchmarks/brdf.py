@@ -39,7 +39,7 @@ from neumat.fit.measured_samples import MeasuredSamples
 from neumat.fit.recipe import recipe_for
 from neumat.fit.recipes.multiscale import HOMOGENEOUS_RECIPE
 from neumat.fit.trainer import fit
-from neumat.io.open_material import open_material
+from neumat.catalog.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.flops import model_flops
 from neumat.metrics.hdr import cosine_queries, reflectance_errors

@@ -64,7 +64,7 @@ from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.io.texture_set import load_texture_set
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.fit.measured_samples import table_samples
 from neumat.models.btf_table_queries import decode_table
 from neumat.models.neubrdf import NeuBRDF
@@ -277,7 +277,7 @@ def shared_file(relative: str) -> Path:
 
 def bunny_with_uv(path: Path) -> Path:
     """The 453-vertex Stanford bunny with spherical texture coordinates (the shared mesh has none), as PLY."""
-    from neumat.render.scenes import import_mitsuba
+    from neumat.core.mitsuba import import_mitsuba
     mi = import_mitsuba()
     src = mi.load_dict({"type": "ply", "filename": str(shared_file("mesh/stanford_bunny_res4_453v.ply"))})
     params = mi.traverse(src)

@@ -1,19 +1,19 @@
 """Real-Time Neural Appearance Models on SVBRDF texture sets: the full model against its ablations and the
-zeltner baseline, at equal steps and batch.
+neumip-frame baseline, at equal steps and batch.
 
     python benchmarks/neural_appearance.py                           # three shared texture sets at 64^2
     python benchmarks/neural_appearance.py --sets Metal027_1K --size 128 --steps 4000
     python benchmarks/neural_appearance.py --speed                   # evaluations / samples per second only
-    python benchmarks/neural_appearance.py --coat --variants full,ggx-mipmap,zeltner   # layered sources (Fig. 3)
+    python benchmarks/neural_appearance.py --coat --variants full,ggx-mipmap,neumip-frame   # layered sources (Fig. 3)
 
 Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 halved at 50% / 75%):
   "full"          encoder phase (half the steps), bake, latent phase (`neumat.fit.trainer.fit`, recipe
                   `neumat.fit.recipes.neural_appearance`), 2 frames;
   "no encoder"    the latents optimised from random values for all the steps (the paper's Fig. 8 ablation);
   "1 frame"       as "full" with one learned shading frame;
-  "zeltner"       the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
+  "neumip-frame"  the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
                   the shared trainer (its recipe: EMA, Adam betas 0.99) on the same loss, queries (Eq. 9
-                  footprints), steps and batch; "zeltner (Eq. 10 loss)" with its recipe's own loss;
+                  footprints), steps and batch; "neumip-frame (Eq. 10 loss)" with its recipe's own loss;
   "half-difference" as "full", directions uniform in Rusinkiewicz half and difference angles (the paper's);
   "blurred"       as "full", targets directionally blurred early (a 10-degree cone around wo shrinking to 0
                   at half of the steps, 4 directions each; the paper's schedule for narrow peaks);
@@ -22,7 +22,7 @@ Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 hal
   "ggx-mipmap"    the analytic baseline: diffuse + anisotropic GGX with 12 textured, filtered parameters per
                   texel (`neumat.models.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
                   paper's Fig. 3 compares its neural model with such a textured analytic fit).
---variants picks some of them (default: full, no encoder, 1 frame and the two zeltner rows). --coat puts every
+--variants picks some of them (default: full, no encoder, 1 frame and the two neumip-frame rows). --coat puts every
 texture set under a smudged clear coat (`neumat.reflectance.layered`: eta 1.5, GGX alpha 0.03 to 0.3 by a
 procedural smudge mask), the kind of layered material the paper bakes; the encoder then reads 8 + 5 surface
 parameters.
@@ -53,22 +53,22 @@ from neumat.export.slang import export_slang
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LogCosLoss
 from neumat.fit.recipes.neural_appearance import config_for_source
-from neumat.fit.query_samplers import uniform
+from neumat.warp.uniform import uniform
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.models.ggx_mipmap import GGXMipmap
-from neumat.models.zeltner import Zeltner
+from neumat.models.neumip_frame import NeuMIPFrame
 from neumat.reflectance.layered import Coat, LayeredMaterial
 from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.parity import glsl_evals_per_second, opengl_available
 from neumat.testing.slang_parity import slang_available, slang_evals_per_second
 
-VARIANTS = ("full", "no encoder", "1 frame", "zeltner", "zeltner (Eq. 10 loss)", "ggx-mipmap", "half-difference",
-            "blurred", "roulette")
+VARIANTS = ("full", "no encoder", "1 frame", "neumip-frame", "neumip-frame (Eq. 10 loss)", "ggx-mipmap",
+            "half-difference", "blurred", "roulette")
 
 
 def open_source(folder, size: int, samples: int, coat: bool):
@@ -137,7 +137,7 @@ def speed_rows(name: str, source, size: int, n: int) -> list[dict]:
     u = uniform(n, 6, g, "cpu")
     point = Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=u[:, 4:6])
     filtered = footprint_queries(source)(n, g, "cpu")
-    models = {"neural-appearance": NeuralAppearance(spatial_size=size), "zeltner": Zeltner(spatial_size=size)}
+    models = {"neural-appearance": NeuralAppearance(spatial_size=size), "neumip-frame": NeuMIPFrame(spatial_size=size)}
     rows = []
     for label, m in models.items():
         m.eval()
@@ -205,7 +205,7 @@ def main() -> None:
             rows.append({"set": name, "model": variant, **scores(model, data), "sampler gain": sampler_gain(model),
                          "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds})
             print(rows[-1], flush=True)
-        baselines = (("zeltner", Zeltner, "log_cos"), ("zeltner (Eq. 10 loss)", Zeltner, None),
+        baselines = (("neumip-frame", NeuMIPFrame, "log_cos"), ("neumip-frame (Eq. 10 loss)", NeuMIPFrame, None),
                      ("ggx-mipmap", GGXMipmap, "log_cos"))
         for variant, kind, loss in baselines:
             if variant not in chosen:

@@ -30,9 +30,9 @@ import torch
 from neumat.cli.common import print_table
 from neumat.core.material import Material
 from neumat.core.query import Query
-from neumat.io.open_material import open_material
+from neumat.catalog.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.fit.proxy_sampler import fit_sampler
 from neumat.models.proxy_sampler import SampledMaterial
 from neumat.warp.hemisphere import sample_cosine_hemisphere

@@ -17,7 +17,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from neumat import open_material
 from neumat.io.shared_data import shared_data_dir
-from neumat.metrics.tonemap import to_ldr
+from neumat.color.tonemap import to_ldr
 from neumat.render.render import render
 
 HERE = Path(__file__).resolve().parent

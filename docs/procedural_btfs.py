@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from PIL import Image, ImageDraw, ImageFont
 
-from neumat.metrics.tonemap import to_ldr
+from neumat.color.tonemap import to_ldr
 from neumat.reflectance.btf_generate import generate_btf
 from neumat.reflectance.procedural_texture import KINDS, material_name, procedural_texture_set
 

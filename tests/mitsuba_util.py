@@ -1,6 +1,6 @@
 """Detect a usable Mitsuba 3 (LLVM backend) without risking the test process, and import it.
 
-A broken LLVM can abort the interpreter at its first kernel, so `neumat.integrations.llvm` probes each
+A broken LLVM can abort the interpreter at its first kernel, so `neumat.core.llvm` probes each
 candidate library in a subprocess. Use `mitsuba_or_skip()` inside a test (it skips with the reason, which
 names the fix) and mark the test `@pytest.mark.mitsuba`.
 """
@@ -11,7 +11,7 @@ import functools
 import pytest
 
 from neumat.core.errors import InputError
-from neumat.integrations.llvm import VARIANT, configure_llvm
+from neumat.core.llvm import VARIANT, configure_llvm
 
 
 @functools.lru_cache(maxsize=1)

@@ -1,11 +1,10 @@
 """neumat: compact learned models of complex material appearance."""
+from .catalog.modelfile import load_model as load
+from .catalog.open_material import open_material
 from .core.errors import DataFormatError, InputError, NeumatError, UnknownNameError
 from .core.material import Material
 from .core.query import Query, Sample
-from .io.modelfile import load_model as load
-from .io.open_material import open_material
-
-__version__ = "0.1.0"
+from .core.version import __version__
 
 __all__ = ["Material", "Query", "Sample", "NeumatError", "InputError", "DataFormatError",
            "UnknownNameError", "load", "open_material", "__version__"]

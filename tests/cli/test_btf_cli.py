@@ -6,7 +6,8 @@ import typer
 from typer.testing import CliRunner
 
 from neumat.cli import btf as btf_cli
-from neumat.io.btf import read_btf, write_btf
+from neumat.io.btf import write_btf
+from neumat.reflectance.btf import read_btf
 from neumat.models.sparse_dictionary import BTFDictionary
 from btf_util import synthetic_btf
 

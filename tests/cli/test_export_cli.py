@@ -5,7 +5,7 @@ import torch
 from typer.testing import CliRunner
 
 from neumat.cli.main import app
-from neumat.io.modelfile import save_model
+from neumat.catalog.modelfile import save_model
 from neumat.models.registry import build_model
 
 from neumat.testing.parity import opengl_available
@@ -122,7 +122,7 @@ def test_export_slang_refuses_a_model_it_cannot_export(tmp_path):
 @needs_gl
 @pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device cannot be created")
 def test_export_slang_writes_and_checks_the_module(tmp_path):
-    path = _saved(tmp_path, {"type": "zeltner", "spatial_size": 8, "hidden": 8, "hidden_layers": 1})
+    path = _saved(tmp_path, {"type": "neumip-frame", "spatial_size": 8, "hidden": 8, "hidden_layers": 1})
     result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang", "--check", "300"])
     assert result.exit_code == 0, result.output
     manifest = json.loads((tmp_path / "out" / "slang" / "manifest.json").read_text())

@@ -10,7 +10,8 @@ import typer
 from typer.testing import CliRunner
 
 from neumat.cli import fitting
-from neumat.io.modelfile import load_model, read_header, save_model
+from neumat.catalog.modelfile import load_model, save_model
+from neumat.io.modelfile import read_header
 from neumat.models.neubrdf import NeuBRDF
 
 SMALL = ["--set", "nside=2", "--set", "index_bits=3", "--set", "hidden=8", "--set", "batch_size=256",

@@ -1,7 +1,7 @@
 from typer.testing import CliRunner
 
 from neumat.cli.main import app
-from neumat.io.modelfile import load_model
+from neumat.catalog.modelfile import load_model
 
 
 def test_fit_multiscale_on_a_texture_set_folder(shared_data, tmp_path):

@@ -8,7 +8,8 @@ from typer.testing import CliRunner
 from neumat.cli.main import app
 from neumat.fit.translucent_observations import Observations
 from neumat.io.images import read_image
-from neumat.io.modelfile import load_model, read_header
+from neumat.catalog.modelfile import load_model
+from neumat.io.modelfile import read_header
 from neumat.models.neupress import NeuPreSS
 from tests.mitsuba_util import mitsuba_or_skip
 
@@ -65,7 +66,7 @@ def test_errors_name_the_problem(tmp_path):
     Observations(x, x, x, x, x).save(tmp_path / "plain.npz")
     r = _run("fit", tmp_path / "plain.npz", "-o", tmp_path / "m.pt")
     assert r.exit_code == 2 and ".nmat" in _said(r)
-    from neumat.io.modelfile import save_model
+    from neumat.catalog.modelfile import save_model
     from neumat.models.registry import build_model
     other = save_model(build_model({"type": "naive-mlp"}), tmp_path / "other.nmat")
     r = _run("render", other, tmp_path / "plain.npz", "-o", tmp_path / "i.png")

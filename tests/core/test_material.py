@@ -7,7 +7,7 @@ from neumat.core.material import Material
 from neumat.core.query import Query
 from neumat.models.registry import build_model, load_all
 
-SMALL = {"multiscale": {"spatial_size": 8}, "tripleplane": {"spatial_size": 8}, "zeltner": {"spatial_size": 8},
+SMALL = {"multiscale": {"spatial_size": 8}, "tripleplane": {"spatial_size": 8}, "neumip-frame": {"spatial_size": 8},
          "neumip": {"spatial_size": 8}, "nbrdf-uv": {"spatial_size": 8}, "ggx-mipmap": {"spatial_size": 8}}
 
 

@@ -1,4 +1,4 @@
-"""Parity of the GLSL export of the latent-pyramid MLP models (neumip, zeltner, neural-appearance with its
+"""Parity of the GLSL export of the latent-pyramid MLP models (neumip, neumip-frame, neural-appearance with its
 importance sampler) with the torch models (EGL / llvmpipe)."""
 import pytest
 import torch
@@ -13,7 +13,7 @@ needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no 
 
 CONFIGS = {
     "neumip": {"type": "neumip", "spatial_size": 16},
-    "zeltner": {"type": "zeltner", "spatial_size": 16, "spatial_channels": 6},
+    "neumip-frame": {"type": "neumip-frame", "spatial_size": 16, "spatial_channels": 6},
     "neural-appearance": {"type": "neural-appearance", "spatial_size": 16},
 }
 
@@ -95,6 +95,6 @@ def test_glsl_albedo_output_matches_torch():
 def test_export_lists_the_sampler_entry_points_and_refuses_what_it_cannot_export():
     export = export_glsl(_model(CONFIGS["neural-appearance"]))
     assert "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)" in export.entry
-    assert "neumat_sample" not in export_glsl(_model(CONFIGS["zeltner"])).source
+    assert "neumat_sample" not in export_glsl(_model(CONFIGS["neumip-frame"])).source
     with pytest.raises(InputError, match="cartesian"):
         export_glsl(build_model({"type": "nbrdf-uv", "spatial_size": 16}))

@@ -1,4 +1,4 @@
-"""Parity of the Slang export of the latent-pyramid MLP models (neumip, zeltner, neural-appearance with its
+"""Parity of the Slang export of the latent-pyramid MLP models (neumip, neumip-frame, neural-appearance with its
 sampler and albedo output) with the torch models, on slangpy's CPU device; the module's files; bad inputs.
 
 Thresholds (float32 on both sides): eval, eval_lod and albedo within 5e-5 relative (torch float32 itself is
@@ -22,7 +22,7 @@ needs_slang = pytest.mark.skipif(not slang_available(), reason="slangpy is not i
 
 CONFIGS = {
     "neumip": {"type": "neumip", "spatial_size": 16},
-    "zeltner": {"type": "zeltner", "spatial_size": 16, "spatial_channels": 6},
+    "neumip-frame": {"type": "neumip-frame", "spatial_size": 16, "spatial_channels": 6},
     "neural-appearance": {"type": "neural-appearance", "spatial_size": 16, "albedo": True},
 }
 EVAL_TOL, PDF_TOL, SAMPLE_TOL = 5e-5, 1e-5, 2e-5
@@ -86,7 +86,7 @@ def test_slang_sampler_pdf_and_albedo_match_torch(compiled):
 
 @needs_slang
 def test_slang_kernel_refuses_an_entry_the_export_lacks(compiled):
-    _, kernel = compiled("zeltner")
+    _, kernel = compiled("neumip-frame")
     q = _queries(4, True)
     with pytest.raises(InputError, match="pdf"):
         slang_eval(kernel, q, "pdf")
@@ -99,7 +99,7 @@ def test_slang_module_interfaces_and_files(tmp_path):
     assert plain.interfaces == ["INeumatMaterial", "INeumatSampler"]
     assert "struct NeumatMaterial : INeumatMaterial, INeumatSampler {" in plain.source
     assert "float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint)" in plain.entry_points()
-    export = export_slang(_model(CONFIGS["zeltner"]))
+    export = export_slang(_model(CONFIGS["neumip-frame"]))
     assert export.entries == ["eval", "eval_lod"] and "neumat_sample" not in export.source
     for glsl in ("vec3", "mix(", "fract(", "texelFetch", "sampler2DArray", "mat2"):
         assert glsl not in export.source

@@ -9,7 +9,7 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.material import Material
 from neumat.core.query import Query
-from neumat.io.modelfile import save_model
+from neumat.catalog.modelfile import save_model
 from neumat.io.texture_set import TextureSet
 from neumat.models.neural_appearance import NeuralAppearance
 from neumat.reflectance.analytic import GGX, Lambert

@@ -9,7 +9,7 @@ import torch
 from mitsuba_util import mitsuba_or_skip
 from neumat.core.errors import DataFormatError, InputError
 from neumat.io.images import image_to_numpy, read_image, write_image, write_image_ldr
-from neumat.metrics.tonemap import srgb_encode
+from neumat.color.tonemap import srgb_encode
 
 
 def hdr_image(h=9, w=13, seed=0) -> np.ndarray:

@@ -6,7 +6,8 @@ import torch
 from PIL import Image
 
 from neumat.core.errors import DataFormatError, InputError
-from neumat.io.texture_set import load_texture_set, normals_from_height, srgb_to_linear
+from neumat.color.tonemap import srgb_to_linear
+from neumat.io.texture_set import load_texture_set, normals_from_height
 
 
 def _write(folder, name, array):

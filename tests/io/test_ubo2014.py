@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from neumat.core.errors import DataFormatError, InputError
-from neumat.io.open_material import open_material
-from neumat.io.ubo2014 import read_ubo2014, read_ubo2014_header
+from neumat.catalog.open_material import open_material
+from neumat.io.ubo2014 import read_ubo2014_header
+from neumat.reflectance.btf import read_ubo2014
 from neumat.reflectance.btf import TabulatedBTF
 
 H, W = 4, 3                     # texture height (rows) and width (columns)

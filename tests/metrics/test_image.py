@@ -10,7 +10,7 @@ import torch
 from neumat.core.errors import InputError, UnknownNameError
 from neumat.metrics import image as image_module
 from neumat.metrics.image import flip_map, hdr_flip, image_metrics
-from neumat.metrics.tonemap import srgb_decode, srgb_encode, to_ldr
+from neumat.color.tonemap import srgb_decode, srgb_encode, to_ldr
 
 
 def srgb_reference(x: float) -> float:

@@ -20,8 +20,8 @@ from neumat.fit.recipe import recipe_config_for_source, recipe_for, recipe_names
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.io.btf import write_btf
-from neumat.io.modelfile import load_model, save_model
-from neumat.io.open_material import open_material
+from neumat.catalog.modelfile import load_model, save_model
+from neumat.catalog.open_material import open_material
 from neumat.models.base import SOURCE_KINDS, LearnedMaterial
 from neumat.models.registry import load_all
 from neumat.testing.chi2 import chi2_material
@@ -39,6 +39,7 @@ SMALL = {
     "nbrdf-uv": dict(spatial_size=8),
     "neubrdf": dict(nside=2, index_bits=2, hidden=4),
     "neumip": dict(spatial_size=8),
+    "neumip-frame": dict(spatial_channels=4, spatial_size=8),
     "neumip-uv": dict(spatial_size=8),
     "neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
     "neural-appearance": dict(spatial_size=8),
@@ -47,7 +48,6 @@ SMALL = {
     "sparse-btf": dict(patch=5, num_dictionaries=2, tau=[8, 4, 4], tau_train=[8, 4, 4]),
     "surface-brdf-uv": dict(spatial_size=8),
     "tripleplane": dict(spatial_size=8),
-    "zeltner": dict(spatial_channels=4, spatial_size=8),
 }
 NAMES = load_all().names()
 

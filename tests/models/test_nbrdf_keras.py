@@ -111,7 +111,7 @@ def test_reader_arrays_and_errors(fits, tmp_path):
     (tmp_path / "cut.json").write_text((fits / "chrome.json").read_text())
     with pytest.raises(DataFormatError, match="cut.h5"):
         read_nbrdf_keras(tmp_path / "cut.h5")
-    from neumat.io.open_material import open_material
+    from neumat.catalog.open_material import open_material
     with pytest.raises(DataFormatError, match="cut.h5"):
         open_material(tmp_path / "cut.h5")
 
@@ -127,7 +127,7 @@ def test_reader_arrays_and_errors(fits, tmp_path):
 def test_convert_to_merl_and_open(fits, tmp_path):
     from neumat.cli.main import app
     from neumat.io.merl import MERL_SCALE, read_merl
-    from neumat.io.open_material import open_material
+    from neumat.catalog.open_material import open_material
 
     out = tmp_path / "chrome.binary"
     r = CliRunner().invoke(app, ["data", "convert", str(fits / "chrome.h5"), str(out)])

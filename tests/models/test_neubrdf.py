@@ -298,7 +298,7 @@ def test_fit_does_not_collapse_on_a_dark_coated_material():
 
     from neumat.fit.recipe import recipe_for
     from neumat.fit.trainer import fit
-    from neumat.io.open_material import open_material
+    from neumat.catalog.open_material import open_material
     from neumat.metrics.hdr import cosine_queries
 
     src = open_material("plastic:diffuse=0.03/0.011/0.003,roughness=0.03")

@@ -19,7 +19,7 @@ def _queries(n, seed=0):
     return Query(wi, wo, uv=torch.rand(n, 2, generator=g), footprint=cov)
 
 
-@pytest.mark.parametrize("name", ["neumip", "zeltner", "nbrdf-uv"])
+@pytest.mark.parametrize("name", ["neumip", "neumip-frame", "nbrdf-uv"])
 def test_registered_roundtrip_and_recipe(name):
     torch.manual_seed(0)
     m = build_model({"type": name, **SMALL})
@@ -35,20 +35,20 @@ def test_registered_roundtrip_and_recipe(name):
 
 
 def test_mlp_reads_latent_and_directions():
-    """neumip: MLP([z_s, wi, wo]); nbrdf-uv: MLP([z_s, h, d]); zeltner: a frame, identity at initialisation."""
+    """neumip: MLP([z_s, wi, wo]); nbrdf-uv: MLP([z_s, h, d]); neumip-frame: a frame, identity at initialisation."""
     torch.manual_seed(1)
     q = _queries(32)
     for name, dirs in (("neumip", torch.cat([q.wi, q.wo], -1)), ("nbrdf-uv", torch.cat(half_difference(q.wi, q.wo), -1)),
-                       ("zeltner", torch.cat([q.wi, q.wo], -1))):
+                       ("neumip-frame", torch.cat([q.wi, q.wo], -1))):
         m = build_model({"type": name, **SMALL})
         z = m.spatial(q.uv, q.footprint)
         torch.testing.assert_close(m.eval(q), torch.exp(m.mlp(torch.cat([z, dirs], -1))), rtol=1e-5, atol=1e-6)
-    assert build_model({"type": "zeltner", **SMALL}).frame is not None
+    assert build_model({"type": "neumip-frame", **SMALL}).frame is not None
 
 
 def test_default_flops_are_matched_to_the_gated_model():
     gated = build_model({"type": "multiscale", "spatial_size": 16}).flops()
-    for name in ("neumip", "zeltner", "nbrdf-uv", "tripleplane"):
+    for name in ("neumip", "neumip-frame", "nbrdf-uv", "tripleplane"):
         assert abs(build_model({"type": name, "spatial_size": 16}).flops() - gated) < 0.1 * gated, name
 
 
@@ -56,7 +56,7 @@ def test_bad_config_raises():
     with pytest.raises(InputError, match="directions"):
         build_model({"type": "neumip", "directions": "polar"})
     with pytest.raises(InputError, match="power of two"):
-        build_model({"type": "zeltner", "spatial_size": 12})
+        build_model({"type": "neumip-frame", "spatial_size": 12})
     with pytest.raises(InputError, match="frame_weight_scale"):
-        build_model({"type": "zeltner", "frame_weight_scale": float("nan")})
-    assert build_model({"type": "zeltner", "spatial_size": 8, "frame_weight_scale": 1.0}).frame.weight_scale == 1.0
+        build_model({"type": "neumip-frame", "frame_weight_scale": float("nan")})
+    assert build_model({"type": "neumip-frame", "spatial_size": 8, "frame_weight_scale": 1.0}).frame.weight_scale == 1.0

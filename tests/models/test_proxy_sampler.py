@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.metrics.tonemap import LUMINANCE
+from neumat.color.tonemap import LUMINANCE
 from neumat.fit.proxy_sampler import fit_sampler
+from neumat.models.neumip_frame import NeuMIPFrame
 from neumat.models.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial
-from neumat.models.zeltner import Zeltner
 from neumat.models.multiscale import MultiScale
 from neumat.reflectance.analytic import GGX, Lambert
 from neumat.reflectance.procedural_texture import procedural_texture_set
@@ -106,12 +106,12 @@ def test_conditioned_sampler_and_density_agree(dents_sampled):
     assert r, r.message
 
 
-@pytest.mark.parametrize("kind", ["multiscale", "zeltner"])
+@pytest.mark.parametrize("kind", ["multiscale", "neumip-frame"])
 def test_learned_spatially_varying_model_gets_a_sampler(kind):
     """Conditioned on the model's spatial latent z_s, as Zeltner et al. feed their sampler the latent code."""
     torch.manual_seed(0)
     model = (MultiScale(spatial_channels=4, spatial_size=8, angular_radial=4, angular_phi=8, half_channels=4,
-                        diff_channels=4) if kind == "multiscale" else Zeltner(spatial_channels=4, spatial_size=8))
+                        diff_channels=4) if kind == "multiscale" else NeuMIPFrame(spatial_channels=4, spatial_size=8))
     fit = fit_sampler(model, steps=3, batch=64, progress=False)
     assert fit.sampler.cfg.features == 4
     sampled = SampledMaterial(model, fit.sampler)

@@ -8,11 +8,12 @@ import torch
 
 from neumat import InputError, Query, UnknownNameError
 from neumat.reflectance.analytic import CONDUCTORS, GGX, Lambert, Plastic, Principled, diffuse_fresnel_reflectance
-from neumat.reflectance.microfacet import (fresnel_conductor, fresnel_dielectric, fresnel_schlick, ggx_ndf,
-                                           microfacet_brdf, principled_eval, principled_params_to_alpha,
-                                           principled_pdf, principled_sample, smith_g1)
+from neumat.reflectance.microfacet import (fresnel_conductor, fresnel_dielectric, fresnel_schlick, microfacet_brdf,
+                                           principled_eval, principled_params_to_alpha, principled_pdf,
+                                           principled_sample)
 from neumat.testing.chi2 import chi2_material
 from neumat.warp import sample_uniform_hemisphere
+from neumat.warp.ggx_distribution import ggx_ndf, smith_g1
 
 F64 = torch.float64
 

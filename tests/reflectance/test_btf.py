@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from neumat import DataFormatError, InputError, Query
-from neumat.io.btf import read_btf, read_btf_header, write_btf
-from neumat.reflectance.btf import TabulatedBTF, angular_weights, direction_set
+from neumat.io.btf import read_btf_header, write_btf
+from neumat.reflectance.btf import TabulatedBTF, angular_weights, direction_set, read_btf
 
 
 def _uv_of(rows, cols, h, w):

@@ -7,12 +7,13 @@ import torch
 
 from neumat.core.errors import InputError, UnknownNameError
 from neumat.core.query import Query
-from neumat.io.open_material import open_material
+from neumat.catalog.open_material import open_material
 from neumat.reflectance.analytic import Lambert
 from neumat.reflectance.coat_albedo import CoatAlbedo
 from neumat.reflectance.layered import COAT_FEATURES, Coat, LayeredMaterial
 from neumat.reflectance.lean import NormalGroup
-from neumat.reflectance.microfacet import fresnel_dielectric, ggx_ndf, smith_g1
+from neumat.reflectance.microfacet import fresnel_dielectric
+from neumat.warp.ggx_distribution import ggx_ndf, smith_g1
 from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.testing.chi2 import chi2_material

@@ -110,7 +110,7 @@ def test_merl_dtype_and_bad_input(merl_table, gen):
 
 def test_merl_from_file(tmp_path, merl_table, gen):
     from neumat.io.merl import write_merl
-    from neumat.io.open_material import open_material
+    from neumat.catalog.open_material import open_material
     write_merl(tmp_path / "x.binary", merl_table)
     m = open_material(tmp_path / "x.binary")
     q = Query(_hemisphere(100, gen), _hemisphere(100, gen))

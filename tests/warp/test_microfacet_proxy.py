@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from neumat import InputError
-from neumat.reflectance.microfacet import ggx_ndf
+from neumat.warp.ggx_distribution import ggx_ndf
 from neumat.testing.chi2 import chi2_directions
 from neumat.warp.microfacet_proxy import (MAX_RHO, MIN_ALPHA, ProxyLobes, proxy_from_raw, proxy_pdf, sample_proxy,
                                           soft_sinh, soft_tanh)

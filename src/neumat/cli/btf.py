@@ -43,7 +43,7 @@ def register(app: typer.Typer) -> None:
             seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]", **SEED_RANGE)) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
         from ..fit.sparse_dictionary import train_dictionary
-        from ..io.btf import read_btf
+        from ..reflectance.btf import read_btf
 
         def go():
             data = [read_btf(p) for p in btfs]

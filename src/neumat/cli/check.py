@@ -25,7 +25,7 @@ def check(material: str = typer.Argument(..., help="material file (.binary, .bsd
 
     from ..core.errors import InputError
     from ..core.query import Query
-    from ..io.open_material import open_material
+    from ..catalog.open_material import open_material
     from ..testing.chi2 import chi2_material
     from ..testing.furnace import white_furnace
     from ..testing.reciprocity import reciprocity_check

@@ -15,7 +15,7 @@ app = typer.Typer(help="Inspect and convert material data.", no_args_is_help=Tru
 def info(file: str = typer.Argument(..., help="material file (.binary, .bsdf, .nmat), image or analytic spec"),
          json: bool = typer.Option(False, "--json", help="print one JSON object")) -> None:
     """Kind, resolution, value range, validity and size on disk of FILE."""
-    from ..io.inspect import describe
+    from ..catalog.describe import describe
 
     def go():
         d = describe(file)
@@ -29,7 +29,7 @@ def convert(source: str = typer.Argument(..., help="RGL .bsdf, .nmat or analytic
                                        help="output MERL .binary file")) -> None:
     """Tabulate any BRDF to the MERL layout and write it as .binary."""
     from ..io.merl import write_merl
-    from ..io.open_material import open_material
+    from ..catalog.open_material import open_material
     from ..reflectance.tabulate import tabulate_merl
 
     def go():

@@ -47,7 +47,7 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
     from ..fit.recipe import recipe_for
     from ..fit.trainer import fit
     from ..io.images import write_image, write_image_ldr
-    from ..io.modelfile import save_model
+    from ..catalog.modelfile import save_model
     from ..io.shared_data import shared_data_dir
     from ..export.web.viewer import write_viewer
     from ..metrics.hdr import cosine_queries, reflectance_errors
@@ -116,7 +116,7 @@ def run_demo(out: Path, source: str | None, steps: int, nside: int, spp: int, re
 def _reference(source: str | None, data: Path | None, out: Path):
     """(Material, display name): the user's source, a shared RGL file, or a MERL tabulation of a plastic."""
     from ..io.merl import write_merl
-    from ..io.open_material import open_material
+    from ..catalog.open_material import open_material
     from ..reflectance.tabulate import tabulate_merl
 
     if source is not None:

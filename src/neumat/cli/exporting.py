@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
 
 
 def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale, neumip-family "
-                                        "(neumip, zeltner, neural-appearance), neubrdf, sparse-btf or neupress model"),
+                                        "(neumip, neumip-frame, neural-appearance), neubrdf, sparse-btf or neupress model"),
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run the shader on N random queries (headless OpenGL) and print "
@@ -30,15 +30,14 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
     def go():
         import torch
 
-        from ..export.glsl import export_glsl
-        from ..io.modelfile import load_model
+        from ..catalog.modelfile import load_model
+        from ..export.registry import load_formats
 
+        formats = load_formats()
         m = load_model(model, device="cpu")
         if slang:
-            from ..export.slang import export_slang
-
-            slang_export = export_slang(m)  # refuses other models before anything is written
-        exported = export_glsl(m)
+            slang_export = formats.get("slang").export(m)  # refuses other models before anything is written
+        exported = formats.get("glsl").export(m)
         folder = exported.write(out)
         size = sum(t.nbytes for t in exported.textures.values())
         print(f"wrote {folder / 'neumat.glsl'} ({len(exported.source)} characters) and "
@@ -48,9 +47,8 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
             print(f"wrote {slang_folder / 'neumat.slang'} ({len(slang_export.source)} characters), "
                   f"{len(slang_export.buffers)} buffer(s) and manifest.json to {slang_folder}")
         if web:
-            from ..export.web.viewer import write_viewer
-
-            page = write_viewer(exported, folder / "viewer.html", title=f"{getattr(m, 'name', 'model')} ({model.name})")
+            page = formats.get("web").export(exported, folder / "viewer.html",
+                                             title=f"{getattr(m, 'name', 'model')} ({model.name})")
             print(f"wrote {page} ({page.stat().st_size / 1e6:.2f} MB): open it in a browser with WebGL 2")
         if check and getattr(m, "name", None) == "neupress":
             from ..testing.parity import neupress_parity

@@ -49,7 +49,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
 
     def go():
         from ..fit.trainer import fit as fit_model
-        from ..io.modelfile import save_model
+        from ..catalog.modelfile import save_model
 
         if out.suffix != ".nmat":
             raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
@@ -90,7 +90,7 @@ def open_training_source(model: str, sources: list[str], options: dict):
     """What model `model` trains on, from the command line's SOURCE arguments, by the first of its
     `source_kinds`: one Material (brdf, svbrdf, btf), a list of Materials (brdf-set) or the Observations of a
     translucent object (translucent)."""
-    from ..io.open_material import open_material
+    from ..catalog.open_material import open_material
     from ..models.registry import model_class
 
     kind = model_class(model).source_kinds[0]
@@ -161,8 +161,8 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
     def go():
         import torch
 
-        from ..io.modelfile import load_model
-        from ..io.open_material import open_material
+        from ..catalog.modelfile import load_model
+        from ..catalog.open_material import open_material
         from ..metrics.hdr import reflectance_errors
 
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")

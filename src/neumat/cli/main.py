@@ -29,7 +29,7 @@ def main(version: bool = typer.Option(False, "--version", callback=_print_versio
 @app.command()
 def version() -> None:
     """Print the neumat version."""
-    from .. import __version__
+    from ..core.version import __version__
     run_command(lambda: print(__version__))
 
 

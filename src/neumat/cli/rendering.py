@@ -28,7 +28,7 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
                                     help="output image (.png, .exr, .hdr)")) -> None:
     """Render MATERIAL on a scene under a light and write the image."""
     from ..io.images import write_image
-    from ..io.open_material import open_material
+    from ..catalog.open_material import open_material
     from ..render.render import render as render_image
 
     def go():
@@ -53,7 +53,7 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
                                     help="comparison picture (.png)")) -> None:
     """Render the reference and every other material identically; print image and reflectance metrics."""
     from ..core.errors import InputError
-    from ..io.open_material import open_material
+    from ..catalog.open_material import open_material
     from ..metrics.hdr import reflectance_errors
     from ..metrics.image import image_metrics
     from ..render.render import render as render_image

@@ -73,7 +73,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
         from ..fit.trainer import fit as fit_model
         from ..fit.translucent_fit import best_validation
         from ..fit.translucent_observations import Observations
-        from ..io.modelfile import save_model
+        from ..catalog.modelfile import save_model
         from .common import parse_overrides
         from .fitting import build_model_and_recipe
 
@@ -135,7 +135,7 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         from ..core.errors import InputError
         from ..fit.translucent_observations import Observations
         from ..io.images import write_image, write_image_ldr
-        from ..io.modelfile import load_model
+        from ..catalog.modelfile import load_model
         from ..metrics.image import image_metrics
         from ..models.neupress import NeuPreSS
         from ..reflectance.translucent import TranslucentConfig, TranslucentObject

@@ -1,4 +1,4 @@
-"""GLSL export of the latent-pyramid + MLP models (`neumat.models.neumip` family: neumip, zeltner,
+"""GLSL export of the latent-pyramid + MLP models (`neumat.models.neumip` family: neumip, neumip-frame,
 neural-appearance), the shader runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7).
 
 Entry points (directions in the local frame, z up; uv texture coordinates; footprint a uv^2 covariance):
@@ -26,7 +26,8 @@ import math
 from ..core.errors import InputError
 from ..models.neumip import NeuMIP
 from ..warp.microfacet_proxy import MAX_RHO, MIN_ALPHA
-from .glsl import _COMMON, GLSLExport, _spatial_reader, mlp_chain, shading_frames, spatial_entry_points
+from .glsl_common import (_COMMON, GLSL_GENERATORS, GLSLExport, _spatial_reader, mlp_chain, shading_frames,
+                          spatial_entry_points)
 
 
 _SAMPLING = """
@@ -116,6 +117,10 @@ vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
 """
 
 
+@GLSL_GENERATORS.register("neumip")
+@GLSL_GENERATORS.register("nbrdf-uv")
+@GLSL_GENERATORS.register("neumip-frame")
+@GLSL_GENERATORS.register("neural-appearance")
 def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     """GLSL source and textures of a neumip-family model (module docstring)."""
     from ..models.neural_appearance import NeuralAppearance

@@ -33,7 +33,7 @@ from ..core.errors import InputError
 from ..models.neubrdf import NeuBRDF
 from ..nn import healpix as hpx
 from ..nn.codebook import VQFeatures
-from .glsl import _COMMON, GLSLExport, mlp_chain, pyramid_reader
+from .glsl_common import _COMMON, GLSL_GENERATORS, GLSLExport, mlp_chain, pyramid_reader
 
 TABLE_WIDTH = 1024
 """Texels per row of the lookup tables."""
@@ -175,6 +175,7 @@ float {name}_at(int m) {{
 """
 
 
+@GLSL_GENERATORS.register("neubrdf")
 def export_neubrdf(model: NeuBRDF) -> GLSLExport:
     """GLSL source and tables of a NeuBRDF model (module docstring)."""
     if not isinstance(model, NeuBRDF):

@@ -26,7 +26,7 @@ import torch
 
 from ..core.errors import InputError
 from ..models.neupress import SIGMA_MAX, SIGMA_MIN, NeuPreSS
-from .glsl import _COMMON, GLSLExport
+from .glsl_common import _COMMON, GLSL_GENERATORS, GLSLExport
 
 #: texels per row of the weight texture
 WIDTH = 1024
@@ -69,6 +69,7 @@ vec3 nm_lobe_sample(vec2 u, vec3 axis, float sigma) {
 """
 
 
+@GLSL_GENERATORS.register("neupress")
 def export_neupress(model: NeuPreSS) -> GLSLExport:
     """GLSL source and the weight texture of a NeuPreSS model (module docstring)."""
     if not isinstance(model, NeuPreSS):

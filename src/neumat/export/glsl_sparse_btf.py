@@ -30,7 +30,7 @@ import torch
 from ..core.errors import InputError
 from ..models.sparse_btf import SparseBTF
 from ..models.sparse_dictionary import YUV_TO_RGB
-from .glsl import GLSLExport
+from .glsl_common import GLSL_GENERATORS, GLSLExport
 
 #: the largest texture side the export relies on (OpenGL 3.3 guarantees 1024; desktop GPUs give 16384)
 MAX_SIDE = 16384
@@ -187,6 +187,7 @@ vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{ return neumat_eval
 """
 
 
+@GLSL_GENERATORS.register("sparse-btf")
 def export_sparse_btf(model: SparseBTF) -> GLSLExport:
     """GLSL source and textures computing `model.eval` with coefficient-space angular interpolation (module
     docstring). A model set to `angular = "value"` is exported with the coefficient-space path (the paper's

@@ -1,4 +1,4 @@
-"""Slang export of the latent-pyramid + MLP models (neumip, zeltner, neural-appearance), the multi-scale models,
+"""Slang export of the latent-pyramid + MLP models (neumip, neumip-frame, neural-appearance), the multi-scale models,
 NeuBRDF, SparseBTF and NeuPreSS: one shader module per neural material implementing a fixed interface, as the
 runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading
 language.
@@ -56,7 +56,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from .glsl import GLSLExport
+from .glsl_common import GLSLExport, load_generators
+from .registry import EXPORT_FORMATS, ExportFormat, load_formats
 
 #: floats per query in the compute entry point's input buffer `neumat_queries` (offsets in QUERY_LAYOUT)
 QUERY_FLOATS = 20
@@ -293,24 +294,20 @@ neumat_queries[b + {lay['n'] + 2}]);
 
 
 def export_slang(model) -> SlangExport:
-    """Slang module and buffers of a neumip-family model (neumip, zeltner, neural-appearance), a multi-scale
+    """Slang module and buffers of a neumip-family model (neumip, neumip-frame, neural-appearance), a multi-scale
     model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF, a SparseBTF or
     a NeuPreSS (module docstring). Anything else raises InputError naming the model type."""
-    from ..models.multiscale import MultiScale
-    from ..models.neubrdf import NeuBRDF
     from ..models.neumip import NeuMIP
-    from ..models.neupress import NeuPreSS
-    from ..models.sparse_btf import SparseBTF
-    from .glsl import export_glsl
 
-    if not isinstance(model, (NeuMIP, MultiScale, NeuBRDF, SparseBTF, NeuPreSS)):
-        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, zeltner, neural-appearance), a "
+    name = getattr(model, "name", None)
+    if not isinstance(name, str) or name not in load_generators():
+        raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, neumip-frame, neural-appearance), a "
                          f"multi-scale model, a neubrdf, a sparse-btf or a neupress, got {type(model).__name__} "
                          f"({getattr(model, 'name', '?')})")
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
                          "(cartesian only)")
-    glsl: GLSLExport = export_glsl(model)
+    glsl: GLSLExport = load_formats().get("glsl").export(model)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
     body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures)
@@ -318,3 +315,6 @@ def export_slang(model) -> SlangExport:
               "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json.\n")
     source = header + body + "\n" + _interfaces() + _material(entries, interfaces) + _kernel(entries)
     return SlangExport(source, dict(glsl.textures), entries, interfaces, model.name)
+
+
+EXPORT_FORMATS.register("slang")(ExportFormat("Slang module, its buffers and manifest.json", export_slang))

@@ -23,7 +23,8 @@ from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
-from .query_samplers import QUERY_SAMPLERS, QueryDraw, uniform
+from ..warp.uniform import uniform
+from .query_samplers import QUERY_SAMPLERS, QueryDraw
 
 #: paper values: log2 of the footprint scale (uv units) spans [L_MIN, L_MAX]
 L_MIN, L_MAX = -13.0, 1.0

@@ -13,6 +13,9 @@ Built-ins (means over the N queries and 3 channels):
   "l2":       (f_hat - f)^2.
   "relative": (f_hat - f)^2 / (sg(f_hat)^2 + eps), eps = 0.01, the prediction-relative L2 of Noise2Noise
               (Lehtinen et al. 2018) used by Timonen et al. 2025 (sg = stop gradient).
+  "relative_l2_mix": per query over the RGB vector, averaged over the batch (Timonen et al. 2025, Eq. 10):
+              lambda |f - f_hat|^2 / |sg(f_hat) + eps|^2 + (1 - lambda) |f - f_hat|^2, lambda = 0.9999,
+              eps = 1e-6; the loss of `neumat.fit.recipes.multiscale`.
 """
 from __future__ import annotations
 
@@ -64,3 +67,17 @@ class RelativeL2Loss(nn.Module):
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
         return ((pred - target).square() / (pred.detach().square() + self.eps)).mean()
+
+
+@LOSSES.register("relative_l2_mix")
+class RelativeL2MixLoss(nn.Module):
+    """Eq. 10: prediction-relative L2 mixed with plain L2 (stop-gradient on the denominator)."""
+
+    def __init__(self, weight: float = 0.9999, eps: float = 1e-6) -> None:
+        super().__init__()
+        self.weight, self.eps = weight, eps
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        sq = (pred - target).square().sum(-1)
+        rel = sq / (pred.detach() + self.eps).square().sum(-1)
+        return (self.weight * rel + (1 - self.weight) * sq).mean()

@@ -26,16 +26,12 @@ from ..core.material import Material
 from ..core.query import Query
 from ..core.registry import Registry
 from ..warp.hemisphere import sample_cosine_hemisphere
+from ..warp.uniform import uniform
 from .measured_samples import MeasuredSamples
 
 QueryDraw = Callable[[int, torch.Generator, torch.device], Query]
 
 QUERY_SAMPLERS: Registry = Registry("query sampler")
-
-
-def uniform(n: int, d: int, generator: torch.Generator, device) -> torch.Tensor:
-    """(n, d) uniform numbers in [0, 1) from `generator`, on `device` (float32)."""
-    return torch.rand(n, d, generator=generator, device=generator.device).to(device)
 
 
 def _needs_uv(source: Material, model) -> bool:

@@ -32,6 +32,7 @@ from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError, UnknownNameError
 from ..io.atomic import atomic_write
 from ..models.base import LearnedMaterial
+from . import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
 from .ema import EMA
 from .phase import FitContext, Phase, model_name, online_phase
 from .recipe import Recipe, check_recipe, learning_rate, phases_for, recipe_for

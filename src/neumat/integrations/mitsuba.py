@@ -32,8 +32,8 @@ import torch
 
 from ..core.errors import InputError
 from ..core.material import Material, material_device
+from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
-from ..render.scenes import import_mitsuba
 from ..warp.hemisphere import sample_cosine_hemisphere
 
 #: the plugin name registered with Mitsuba
@@ -249,7 +249,7 @@ def _open(material) -> Material:
                              "not surface BSDFs; the Mitsuba plugin takes reflectance materials")
         return material
     if isinstance(material, (str, Path)):
-        from ..io.open_material import open_material
+        from ..catalog.open_material import open_material
         return _open(open_material(material))
     raise InputError(f"material: expected a neumat Material, a file path or a spec string, "
                      f"got {type(material).__name__}")

@@ -9,17 +9,18 @@
 - tensors ``light_dirs (L, 3)`` and ``view_dirs (V, 3)`` float32 unit vectors (z = macro normal);
 - one chunk per light direction, ``light_00000 ... light_{L-1}``, each ``(V, H, W, 3)`` in ``dtype``.
 
-Chunks are read lazily, so `read_btf(path, lights=[...])` loads a subset of light directions.
+Chunks are read lazily, so `read_btf_table(path, lights=[...])` loads a subset of light directions. The readers
+return a plain `BTFTable`; `neumat.reflectance.btf.read_btf` builds the `TabulatedBTF` material from it.
 """
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from ..core.errors import DataFormatError, InputError
-from ..reflectance.btf import TabulatedBTF, check_btf_arrays
 from .atomic import atomic_write
 
 FORMAT = "neumat-btf"
@@ -27,12 +28,24 @@ VERSION = 1
 FP16_MAX = 65504.0
 
 
+@dataclass
+class BTFTable:
+    """A BTF table as read from a file: data (L, V, H, W, 3) apparent BRDF values (linear RGB, cosine excluded),
+    light_dirs (L, 3) and view_dirs (V, 3) unit vectors (z = macro normal), and a label."""
+
+    data: torch.Tensor
+    light_dirs: torch.Tensor
+    view_dirs: torch.Tensor
+    label: str
+
+
 def _chunk(i: int) -> str:
     return f"light_{i:05d}"
 
 
-def write_btf(path: str | Path, btf: TabulatedBTF, dtype: str = "float16", extra: dict | None = None) -> Path:
-    """Write `btf` as a `.nbtf` file; values beyond the float16 range are clamped (and counted)."""
+def write_btf(path: str | Path, btf, dtype: str = "float16", extra: dict | None = None) -> Path:
+    """Write `btf` (a `BTFTable` or anything with its fields, e.g. a `TabulatedBTF`) as a `.nbtf` file; values
+    beyond the float16 range are clamped (and counted)."""
     from safetensors.torch import save_file
 
     if dtype not in ("float16", "float32"):
@@ -71,8 +84,8 @@ def read_btf_header(path: str | Path) -> dict:
     return _validate_header(path, meta, keys)
 
 
-def read_btf(path: str | Path, device=None, lights: list[int] | None = None, neighbours: int = 3) -> TabulatedBTF:
-    """Read a `.nbtf` file as a float32 `TabulatedBTF` on `device` (optionally only some light slices)."""
+def read_btf_table(path: str | Path, device=None, lights: list[int] | None = None) -> BTFTable:
+    """Read a `.nbtf` file as a float32 `BTFTable` on `device` (optionally only some light slices)."""
     from safetensors import safe_open
 
     header = read_btf_header(path)
@@ -96,11 +109,7 @@ def read_btf(path: str | Path, device=None, lights: list[int] | None = None, nei
             raise DataFormatError(f"{path}: chunk {_chunk(i)} has shape {tuple(c.shape)}, expected {(n_v, h, w, 3)} "
                                   "from the header")
     data = torch.stack(chunks).to(device=device, dtype=torch.float32)
-    try:
-        return TabulatedBTF(data, light_dirs[sel].to(device), view_dirs.to(device), neighbours=neighbours,
-                            label=header.get("label", Path(path).stem))
-    except InputError as e:
-        raise DataFormatError(f"{path}: {e}") from None
+    return BTFTable(data, light_dirs[sel].to(device), view_dirs.to(device), label=header.get("label", Path(path).stem))
 
 
 def _existing(path: str | Path) -> Path:
@@ -135,4 +144,4 @@ def _validate_header(path: Path, meta: dict, keys: set[str]) -> dict:
     return header
 
 
-__all__ = ["write_btf", "read_btf", "read_btf_header", "check_btf_arrays"]
+__all__ = ["BTFTable", "write_btf", "read_btf_table", "read_btf_header"]

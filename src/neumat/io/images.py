@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from ..core.errors import DataFormatError, InputError
-from ..metrics.tonemap import srgb_decode, to_ldr
+from ..color.tonemap import srgb_decode, to_ldr
 
 LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 HDR_SUFFIXES = (".exr", ".hdr")

@@ -1,4 +1,5 @@
-"""Layered material descriptions (`.json` with "type": "layered"), read into `neumat.reflectance.layered`.
+"""Layered material descriptions (`.json` with "type": "layered"): parsing and checking. The material
+(`neumat.reflectance.layered.LayeredMaterial`) is built by `neumat.catalog.layered_file.read_layered`.
 
     {"type": "layered",
      "base": "Tiles074_1K",                      # any material `open_material` opens; paths relative to this file
@@ -11,22 +12,47 @@
 A coat's `roughness` (GGX alpha) and `weight` are numbers or maps: {"smudges": {smudge_map arguments}} or
 {"image": path} (grey values in [0, 1], linear), mapped to [low, high] (roughness: no default; weight: 0 and 1).
 `normal` is an optional OpenGL-convention normal-map image. Unknown keys raise.
+
+`read_description(path)` checks the top level and returns a `LayeredDescription`; `read_coat(...)` reads one
+coat into a `CoatDescription` (maps as tensors), generating smudge masks with the function it is given.
 """
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
 
 from ..core.errors import InputError
-from ..reflectance.layered import Coat, LayeredMaterial
-from ..reflectance.smudge_map import smudge_map
 from .images import read_image
 
 _TOP_KEYS = {"type", "base", "max_size", "coats", "samples", "name"}
 _COAT_KEYS = {"eta", "roughness", "weight", "tint", "normal"}
+
+
+@dataclass
+class LayeredDescription:
+    """The checked top level of a description: `spec` is the parsed JSON object, `folder` the directory its
+    relative paths start from."""
+
+    path: Path
+    spec: dict
+    folder: Path
+
+
+@dataclass
+class CoatDescription:
+    """One coat: roughness and weight are floats or (H, W) maps; tint as written (the material checks it);
+    normal (H, W, 3) unit vectors or None."""
+
+    roughness: float | torch.Tensor
+    weight: float | torch.Tensor
+    eta: float
+    tint: tuple
+    normal: torch.Tensor | None
 
 
 def _check_keys(d: dict, known: set, where: str) -> None:
@@ -35,7 +61,8 @@ def _check_keys(d: dict, known: set, where: str) -> None:
         raise InputError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
 
 
-def _scalar_map(value, where: str, folder: Path, low: float | None, high: float | None):
+def _scalar_map(value, where: str, folder: Path, low: float | None, high: float | None,
+                smudges: Callable[..., torch.Tensor]):
     """A number, or a map from {"smudges": {...}} / {"image": path} scaled to [low, high]."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
@@ -52,7 +79,7 @@ def _scalar_map(value, where: str, folder: Path, low: float | None, high: float 
         if not isinstance(args, dict):
             raise InputError(f"{where} smudges: expected an object of smudge_map arguments, got {args!r}")
         try:
-            mask = smudge_map(**args)
+            mask = smudges(**args)
         except TypeError as e:
             raise InputError(f"{where} smudges: {e}") from None
     else:
@@ -70,11 +97,8 @@ def _normal_map(path, where: str, folder: Path) -> torch.Tensor:
     return n / n.norm(dim=-1, keepdim=True).clamp(min=1e-6)
 
 
-def read_layered(path: str | Path, samples: int | None = None) -> LayeredMaterial:
-    """The LayeredMaterial a description file defines (module docstring); `samples` overrides its footprint
-    sample count."""
-    from .open_material import open_material
-
+def read_description(path: str | Path) -> LayeredDescription:
+    """The parsed and checked top level of a description file (module docstring); coats are read by `read_coat`."""
     path = Path(path)
     try:
         spec = json.loads(path.read_text())
@@ -88,25 +112,18 @@ def read_layered(path: str | Path, samples: int | None = None) -> LayeredMateria
     for key in ("max_size", "samples"):
         if key in spec and (isinstance(spec[key], bool) or not isinstance(spec[key], int) or spec[key] < 1):
             raise InputError(f"{path}: '{key}' must be a positive integer, got {spec[key]!r}")
-    folder = path.parent
-    base_name = str(spec["base"])
-    base_path = folder / base_name
-    if base_path.exists():
-        options = {"max_size": int(spec["max_size"])} if "max_size" in spec and base_path.is_dir() else {}
-        base = open_material(base_path, **options)
-    else:
-        base = open_material(base_name)
-    coats = []
-    for i, c in enumerate(spec["coats"]):
-        where = f"{path} coat {i}"
-        if not isinstance(c, dict):
-            raise InputError(f"{where}: expected an object, got {c!r}")
-        _check_keys(c, _COAT_KEYS, where)
-        if "roughness" not in c:
-            raise InputError(f"{where}: needs a 'roughness' (GGX alpha)")
-        coats.append(Coat(roughness=_scalar_map(c["roughness"], f"{where} roughness", folder, None, None),
-                          weight=_scalar_map(c.get("weight", 1.0), f"{where} weight", folder, 0.0, 1.0),
-                          eta=c.get("eta", 1.5), tint=c.get("tint", (1.0, 1.0, 1.0)),   # checked by the material
-                          normal=None if c.get("normal") is None else _normal_map(c["normal"], where, folder)))
-    n = int(samples if samples is not None else spec.get("samples", 256))
-    return LayeredMaterial(base, coats, samples=n, name=spec.get("name") or f"layered:{path.stem}")
+    return LayeredDescription(path, spec, path.parent)
+
+
+def read_coat(c, where: str, folder: Path, smudges: Callable[..., torch.Tensor]) -> CoatDescription:
+    """Coat object `c` of a description (`where` names it in errors); smudge masks come from
+    `smudges(**arguments)` (`neumat.reflectance.smudge_map.smudge_map`)."""
+    if not isinstance(c, dict):
+        raise InputError(f"{where}: expected an object, got {c!r}")
+    _check_keys(c, _COAT_KEYS, where)
+    if "roughness" not in c:
+        raise InputError(f"{where}: needs a 'roughness' (GGX alpha)")
+    return CoatDescription(roughness=_scalar_map(c["roughness"], f"{where} roughness", folder, None, None, smudges),
+                           weight=_scalar_map(c.get("weight", 1.0), f"{where} weight", folder, 0.0, 1.0, smudges),
+                           eta=c.get("eta", 1.5), tint=c.get("tint", (1.0, 1.0, 1.0)),
+                           normal=None if c.get("normal") is None else _normal_map(c["normal"], where, folder))

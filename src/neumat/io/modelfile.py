@@ -1,4 +1,5 @@
-"""`.nmat` model files: safetensors weights plus a JSON header.
+"""`.nmat` model files: safetensors weights plus a JSON header (the format; building models from it is
+`neumat.catalog.modelfile`).
 
 The header is stored as the safetensors metadata entry "neumat":
   format "neumat-model", format_version (int; a reader refuses newer versions), type (registry name),
@@ -7,12 +8,11 @@ The header is stored as the safetensors metadata entry "neumat":
   null), size_bytes ({"fp16", "fp32"}), flops, neumat_version (informational: a warning when it differs).
 The weights are the model's full `state_dict` (buffers included, e.g. pruning levels, frozen indices).
 
-Loading is strict: an unknown type, unknown config or header keys, missing or unexpected weights, a wrong
-shape, a newer format version or a truncated file raise DataFormatError naming the file.
+Reading is strict: unknown header keys, a newer format version or a truncated file raise DataFormatError
+naming the file; `neumat.catalog.modelfile.load_model` adds the checks of type, config and weights.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
 from pathlib import Path
@@ -20,8 +20,8 @@ from typing import Any
 
 import torch
 
-from ..core.config import config_from_dict, config_to_dict
-from ..core.errors import DataFormatError, InputError, NeumatError
+from ..core.errors import DataFormatError, InputError
+from ..core.version import __version__
 from .atomic import atomic_write
 
 FORMAT = "neumat-model"
@@ -31,73 +31,16 @@ HEADER_FIELDS = ("format", "format_version", "type", "config", "runtime", "recip
                  "size_bytes", "flops", "neumat_version")
 
 
-def model_config_class(cls: type) -> type:
-    """The Config dataclass of model class `cls` (its `Config` attribute, else the type of a default
-    instance's `cfg`)."""
-    config = getattr(cls, "Config", None)
-    return config if config is not None else type(cls().cfg)
-
-
-def source_info(source: Any) -> dict:
-    """{"name", "sha256"} of a training source: a file (hash of its bytes), a spec string (hash of the
-    text), a Material (hash of its float32 values at 4096 fixed queries) or a list of those (names joined,
-    hash of their hashes)."""
-    if isinstance(source, (list, tuple)):  # a set of sources fitted jointly
-        parts = [source_info(s) for s in source]
-        return {"name": " + ".join(p["name"] for p in parts),
-                "sha256": hashlib.sha256("".join(p["sha256"] for p in parts).encode()).hexdigest()}
-    if isinstance(source, (str, Path)):
-        path = Path(source)
-        if path.is_file():
-            h = hashlib.sha256()
-            with open(path, "rb") as f:
-                for block in iter(lambda: f.read(1 << 20), b""):
-                    h.update(block)
-            return {"name": path.name, "sha256": h.hexdigest()}
-        return {"name": str(source), "sha256": hashlib.sha256(str(source).encode()).hexdigest()}
-    if not callable(getattr(source, "eval", None)):
-        raise InputError(f"save_model source: expected a file path, a spec or a Material, got {type(source).__name__}")
-    from ..fit.query_samplers import uniform
-    from ..core.query import Query
-    from ..warp.hemisphere import sample_cosine_hemisphere
-    from ..warp.sphere import sample_uniform_sphere
-    gen = torch.Generator().manual_seed(0)
-    u = uniform(4096, 6, gen, "cpu")
-    warp = sample_uniform_sphere if getattr(source, "full_sphere", False) else sample_cosine_hemisphere
-    q = Query(warp(u[:, :2]), warp(u[:, 2:4]), uv=u[:, 4:6] if getattr(source, "spatially_varying", False) else None)
-    with torch.no_grad():
-        values = source.eval(q).detach().to("cpu", torch.float32).contiguous()
-    return {"name": source.describe(), "sha256": hashlib.sha256(values.numpy().tobytes()).hexdigest()}
-
-
-def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: dict | None = None) -> Path:
-    """Write `model` to `path` (.nmat). recipe: the Recipe it was trained with; source: the training source
-    (file path, spec string or Material); metrics: JSON-serialisable numbers measured at save time."""
-    from .. import __version__
-    from ..models.registry import model_class
-
+def write_model_file(path: str | Path, header: dict, tensors: dict[str, torch.Tensor]) -> Path:
+    """Write `header` (a JSON-serialisable dict, see the module docstring) and `tensors` to `path` (.nmat) through a
+    temporary file, so that a crash leaves no half-written model. InputError if the header is not JSON (e.g.
+    non-finite metrics)."""
     path = Path(path)
-    if path.suffix != ".nmat":
-        raise InputError(f"save_model: model files end in .nmat, got {str(path)!r}")
-    name = getattr(model, "name", None)
-    if not isinstance(name, str) or not hasattr(model, "cfg") or not hasattr(model, "state_dict"):
-        raise InputError(f"save_model: expected a registered neumat model (with name, cfg, state_dict), "
-                         f"got {type(model).__name__}")
-    if not isinstance(model, model_class(name)):
-        raise InputError(f"save_model: model {name!r} is a {type(model).__name__}, not the registered "
-                         f"{model_class(name).__name__}")
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "type": name, "config": config_to_dict(model.cfg),
-              "runtime": bool(getattr(model, "is_runtime", False)),
-              "recipe": config_to_dict(recipe) if recipe is not None else None,
-              "source": source_info(source) if source is not None else None, "metrics": metrics,
-              "size_bytes": {p: int(model.size_bytes(p)) for p in ("fp16", "fp32")}, "flops": int(model.flops()),
-              "neumat_version": __version__}
     try:
         text = json.dumps(header, allow_nan=False)
     except (TypeError, ValueError) as e:
         raise InputError(f"save_model: metrics must be JSON-serialisable finite numbers ({e})") from None
     from safetensors.torch import save_file
-    tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
     return atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={HEADER_KEY: text}))
 
 
@@ -106,33 +49,9 @@ def read_header(path: str | Path) -> dict:
     return _read(path, weights=False)[0]
 
 
-def load_model(path: str | Path, device: str | torch.device | None = None):
-    """The model stored in `path`, on `device` (default CPU), in eval mode (and in runtime mode if it was
-    saved so)."""
-    from ..models.registry import model_class
-
-    header, tensors = _read(path, weights=True)
-    where = f"model file {str(path)!r}"
-    try:
-        cls = model_class(header["type"])
-    except NeumatError as e:
-        raise DataFormatError(f"{where}: {e}") from None
-    try:
-        cfg = config_from_dict(model_config_class(cls), header["config"])
-        model = cls(config=cfg)
-    except InputError as e:
-        raise DataFormatError(f"{where}: bad config for model {header['type']!r}: {e}") from None
-    try:
-        model.load_state_dict(tensors, strict=True)
-    except RuntimeError as e:
-        raise DataFormatError(f"{where}: weights do not match model {header['type']!r}: {e}") from None
-    model.to(torch.device(device) if device is not None else "cpu")
-    if header["runtime"]:
-        if not callable(getattr(model, "runtime", None)):
-            raise DataFormatError(f"{where}: saved in runtime mode, but model {header['type']!r} has no runtime()")
-        model.runtime()
-    model.train(False)
-    return model
+def read_model_file(path: str | Path) -> tuple[dict, dict[str, torch.Tensor]]:
+    """The checked JSON header and the weights (name -> CPU tensor) of a .nmat file."""
+    return _read(path, weights=True)
 
 
 def _read(path: str | Path, weights: bool) -> tuple[dict, dict]:
@@ -159,8 +78,6 @@ def _read(path: str | Path, weights: bool) -> tuple[dict, dict]:
 
 
 def _check_header(header: Any, where: str) -> None:
-    from .. import __version__
-
     if not isinstance(header, dict):
         raise DataFormatError(f"{where}: the header must be a JSON object")
     unknown = sorted(set(header) - set(HEADER_FIELDS))

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..color.tonemap import srgb_to_linear
 from ..core.errors import DataFormatError, InputError
 
 #: file-name token (lowercase) -> map kind
@@ -93,11 +94,6 @@ class TextureSet:
         """The same set with every map on `device`."""
         return replace(self, **{k: getattr(self, k).to(device)
                                 for k in ("color", "normal", "roughness", "metalness", "height")})
-
-
-def srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    """sRGB transfer function inverse (IEC 61966-2-1) of values in [0, 1]."""
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
 def find_maps(folder: Path) -> dict[str, Path]:

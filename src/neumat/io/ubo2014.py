@@ -33,7 +33,7 @@ little-endian; matrices are stored row-major.
    eps = 1e-5); FMF with dynamic-range reduction: x = exp(x) - 1e-5; with the cosine flag: divide by
    cos theta_light. The file ends right after the last matrix (checked, as the C++ reader does).
 
-Conventions of the result (`TabulatedBTF`, linear RGB apparent BRDF, cosine excluded):
+Conventions of the result (`BTFTable`, linear RGB apparent BRDF, cosine excluded):
 - Directions: a file's (theta, phi) is the polar angle from the macro normal and the azimuth from the
   texture's x axis towards its y axis, both pointing away from the surface: the light list becomes
   `light_dirs` = wi (towards the light) and the view list `view_dirs` = wo (towards the camera), as
@@ -58,7 +58,7 @@ import numpy as np
 import torch
 
 from ..core.errors import DataFormatError, InputError
-from ..reflectance.btf import TabulatedBTF
+from .btf import BTFTable
 
 #: signature -> (variant, has the FMF extended header); the trailing "R" announces the rotation block
 SIGNATURES = {b"!DFMF08FCR": ("DFMF", False), b"!FMF12FCER": ("FMF", True),
@@ -155,10 +155,10 @@ def read_ubo2014_header(path: str | Path) -> Ubo2014Header:
         return _HeaderParser(path, f, path.stat().st_size).parse()
 
 
-def read_ubo2014(path: str | Path, texels: tuple[int, int, int, int] | None = None, step: int = 1,
-                 max_components: int | None = None, device=None, neighbours: int = 3,
-                 max_gib: float = 8.0) -> TabulatedBTF:
-    """A `TabulatedBTF` (L, V, h, w, 3) decoded from a Bonn `.btf` file (UBO2014 archive: DFMF).
+def read_ubo2014_table(path: str | Path, texels: tuple[int, int, int, int] | None = None, step: int = 1,
+                       max_components: int | None = None, device=None, max_gib: float = 8.0) -> BTFTable:
+    """A `BTFTable` (L, V, h, w, 3) decoded from a Bonn `.btf` file (UBO2014 archive: DFMF); the material is
+    `neumat.reflectance.btf.read_ubo2014`.
 
     texels: (row0, col0, height, width) crop in our texel convention (row 0 at the top); default: all.
     step: keep every step-th row and column of the crop (plain decimation, no prefilter).
@@ -192,11 +192,7 @@ def read_ubo2014(path: str | Path, texels: tuple[int, int, int, int] | None = No
         if header.cosine_flag:
             rgb = rgb / light_dirs[:, 2, None, None]
         data[:, v] = rgb.reshape(n_l, len(rows), len(cols), 3)
-    try:
-        return TabulatedBTF(data.to(device), light_dirs.to(device), header.view_dirs().to(device),
-                            neighbours=neighbours, label=header.path.stem)
-    except InputError as e:
-        raise DataFormatError(f"{header.path}: decoded table rejected: {e}") from None
+    return BTFTable(data.to(device), light_dirs.to(device), header.view_dirs().to(device), label=header.path.stem)
 
 
 def decode_colors(values: torch.Tensor, header: Ubo2014Header) -> torch.Tensor:
@@ -419,5 +415,5 @@ class _HeaderParser:
         return tuple(channels), scalar_size
 
 
-__all__ = ["COLOR_MODELS", "SIGNATURES", "Ubo2014Header", "angles_to_directions", "decode_colors", "read_ubo2014",
+__all__ = ["COLOR_MODELS", "SIGNATURES", "Ubo2014Header", "angles_to_directions", "decode_colors", "read_ubo2014_table",
            "read_ubo2014_header"]

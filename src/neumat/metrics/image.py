@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..io.images import image_to_numpy
-from .tonemap import to_ldr
+from ..color.tonemap import to_ldr
 
 #: smallest image side SSIM accepts (its 7 x 7 window)
 SSIM_MIN_SIDE = 7

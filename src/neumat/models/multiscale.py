@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
+
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError

@@ -9,7 +9,7 @@ heavy mesostructure, and the issue asks for the variant without it. SiLU, expone
 model of the paper's common codebase.
 
 Defaults are FLOP-matched to the gated model (2484 FLOPs): 8 latent channels, MLP 14 -> 20 -> 20 -> 20 -> 3,
-2343 FLOPs. Subclasses add a learned shading frame (`neumat.models.zeltner`) or Rusinkiewicz inputs
+2343 FLOPs. Subclasses add a learned shading frame (`neumat.models.neumip_frame`) or Rusinkiewicz inputs
 (`neumat.models.nbrdf_uv`).
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-import neumat.fit.recipes.multiscale  # noqa: F401  (registers the "footprint" queries and the Eq. 10 loss)
+
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError

@@ -410,7 +410,7 @@ class SHPRT:
     # ---- files -----------------------------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """Write a safetensors file (coefficients, points, normals float32; the config in the JSON metadata)."""
-        from neumat import __version__
+        from neumat.core.version import __version__
         tensors = {"coefficients": self.coefficients.float(), "points": self.points.float(),
                    "normals": self.normals.float()}
         return write_tagged(path, tensors, {"type": FILE_TYPE, "config": asdict(self.config),

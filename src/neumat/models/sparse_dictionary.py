@@ -299,7 +299,7 @@ class BTFDictionary:
 
     def save(self, path: str | Path) -> Path:
         """Write a `.nmat`-style file: safetensors tensors plus a JSON header (type "btf-dictionary")."""
-        from .. import __version__
+        from ..core.version import __version__
         tensors = {"light_dirs": self.light_dirs.float(), "view_dirs": self.view_dirs.float()}
         for c, ens in enumerate(self.ensembles):
             for j, u in enumerate(ens.mats):

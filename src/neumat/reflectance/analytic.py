@@ -26,9 +26,11 @@ from ..core.errors import InputError, UnknownNameError
 from ..core.material import Material, check_sample_u, sample_weight
 from ..core.query import Query, Sample
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
+from ..warp.ggx_distribution import ggx_ndf, smith_g1
 from ..warp.hemisphere import sample_cosine_hemisphere
 from .microfacet import (_dot, _half_vector, _microfacet_brdf, fresnel_conductor, fresnel_dielectric, fresnel_schlick,
-                         ggx_ndf, principled_eval, principled_pdf, principled_sample, smith_g1)
+                         principled_eval, principled_pdf, principled_sample)
+from .spec_registry import register_spec
 
 #: RGB complex refractive indices (eta, k) of conductors, as Mitsuba 3 (rgb variants) derives them from its spectra
 CONDUCTORS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -152,6 +154,7 @@ class AnalyticMaterial(Material):
         return (wi[:, 2] > 0) & (wo[:, 2] > 0)
 
 
+@register_spec("lambert")
 class Lambert(AnalyticMaterial):
     """Ideal diffuse reflector f = albedo / pi; albedo in [0, 1] (number or RGB). Cosine-weighted sampling."""
 
@@ -192,6 +195,7 @@ def _unknown(kind: str, name: str, known) -> UnknownNameError:
     return UnknownNameError(f"unknown {kind} {name!r}{hint} (known: {', '.join(known)})")
 
 
+@register_spec("ggx")
 class GGX(AnalyticMaterial):
     """GGX microfacet reflector f = D G1(wi) G1(wo) F(wi.h) / (4 cos_i cos_o), sampled by visible normals.
 
@@ -294,6 +298,7 @@ def diffuse_fresnel_reflectance(eta: float, n_nodes: int = 64) -> float:
     return float(np.sum(w / 2 * f * 2 * mu.numpy()))
 
 
+@register_spec("plastic")
 class Plastic(AnalyticMaterial):
     """Diffuse base under a rough dielectric GGX coat (energy model in the module docstring).
 
@@ -344,6 +349,7 @@ class Plastic(AnalyticMaterial):
         return {"diffuse": self.diffuse, "roughness": self.roughness, "eta": self.eta}
 
 
+@register_spec("principled")
 class Principled(AnalyticMaterial):
     """Metallic-roughness material as PBR texture sets use it (model in `neumat.reflectance.microfacet`).
 

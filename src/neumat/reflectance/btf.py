@@ -18,13 +18,16 @@ Directions at or below the horizon return 0.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import torch
 
 from ..core.checks import check_directions, check_finite
-from ..core.errors import InputError
+from ..core.errors import DataFormatError, InputError
 from ..core.material import Material, upper_hemisphere
 from ..core.query import Query
+from ..io.btf import BTFTable, read_btf_table
+from ..io.ubo2014 import read_ubo2014_table
 
 #: polar angles (degrees) and azimuth counts of the 151-direction hemispherical set used by default
 #: (rings every 15 degrees, counts proportional to sin(theta); the same size as the UBO2014 set)
@@ -147,6 +150,11 @@ class TabulatedBTF(Material):
         self.neighbours = neighbours
         self.label = label
 
+    @classmethod
+    def from_table(cls, table: BTFTable, neighbours: int = 3) -> "TabulatedBTF":
+        """The material of a `BTFTable` read by `neumat.io.btf` or `neumat.io.ubo2014`."""
+        return cls(table.data, table.light_dirs, table.view_dirs, neighbours=neighbours, label=table.label)
+
     @property
     def shape(self) -> tuple[int, int, int, int]:
         """(L, V, H, W)."""
@@ -191,3 +199,26 @@ def check_btf_arrays(data: torch.Tensor, light_dirs: torch.Tensor, view_dirs: to
     if bool((light_dirs[:, 2] <= 0).any()) or bool((view_dirs[:, 2] <= 0).any()):
         raise InputError(f"{where}: light and view directions must lie in the upper hemisphere (z > 0)")
     check_finite(data, f"{where} data")
+
+
+def read_btf(path: str | Path, device=None, lights: list[int] | None = None, neighbours: int = 3) -> TabulatedBTF:
+    """Read a `.nbtf` file (`neumat.io.btf`) as a float32 `TabulatedBTF` on `device` (optionally only some light
+    slices)."""
+    table = read_btf_table(path, device=device, lights=lights)
+    try:
+        return TabulatedBTF.from_table(table, neighbours=neighbours)
+    except InputError as e:
+        raise DataFormatError(f"{path}: {e}") from None
+
+
+def read_ubo2014(path: str | Path, texels: tuple[int, int, int, int] | None = None, step: int = 1,
+                 max_components: int | None = None, device=None, neighbours: int = 3,
+                 max_gib: float = 8.0) -> TabulatedBTF:
+    """A `TabulatedBTF` (L, V, h, w, 3) decoded from a Bonn `.btf` file (UBO2014 archive: DFMF), read by
+    `neumat.io.ubo2014.read_ubo2014_table` (same texels, step, max_components, max_gib)."""
+    table = read_ubo2014_table(path, texels=texels, step=step, max_components=max_components, device=device,
+                               max_gib=max_gib)
+    try:
+        return TabulatedBTF.from_table(table, neighbours=neighbours)
+    except InputError as e:
+        raise DataFormatError(f"{Path(path)}: decoded table rejected: {e}") from None

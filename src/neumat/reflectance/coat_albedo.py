@@ -22,7 +22,8 @@ import torch
 
 from ..core.errors import InputError
 from ..warp.ggx import sample_ggx_vndf
-from .microfacet import fresnel_dielectric, smith_g1
+from ..warp.ggx_distribution import smith_g1
+from .microfacet import fresnel_dielectric
 
 #: smallest alpha tabulated (lookups clamp to it)
 ALPHA_MIN = 1e-3

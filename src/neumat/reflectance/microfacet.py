@@ -21,17 +21,12 @@ from typing import Callable
 import torch
 
 from ..core.checks import check_directions, check_shape
+from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
+from ..warp.ggx_distribution import ggx_ndf, per_query as _per_query, smith_g1
+from ..warp.hemisphere import sample_cosine_hemisphere
 
 #: smallest GGX alpha the principled parameterisation produces (Burley 2012 clamps at the same value)
 PRINCIPLED_MIN_ALPHA = 1e-3
-
-
-def _per_query(x, n: int, ref: torch.Tensor, name: str) -> torch.Tensor:
-    """A float or (N,) tensor as an (N,) tensor on the device / dtype of `ref`."""
-    t = torch.as_tensor(x, dtype=ref.dtype, device=ref.device)
-    if t.dim() == 0:
-        t = t.expand(n)
-    return check_shape(t, name, (n,))
 
 
 def _per_query_rgb(x, n: int, ref: torch.Tensor, name: str) -> torch.Tensor:
@@ -43,33 +38,10 @@ def _per_query_rgb(x, n: int, ref: torch.Tensor, name: str) -> torch.Tensor:
     return check_shape(t, name, (n, 3))
 
 
-def _alpha(x, n: int, ref: torch.Tensor, name: str):
-    """A roughness argument as a Python float (cheap scalar arithmetic) or an (N,) tensor."""
-    if isinstance(x, (int, float)) and not isinstance(x, bool):
-        return float(x)
-    return _per_query(x, n, ref, name)
-
-
 def _rgb_broadcastable(x, n: int, ref: torch.Tensor, name: str) -> torch.Tensor:
     """A (3,) or (N, 3) value as a tensor on the device / dtype of `ref` that broadcasts against (N, 3)."""
     t = torch.as_tensor(x, dtype=ref.dtype, device=ref.device)
     return check_shape(t, name, (3,) if t.dim() == 1 else (n, 3))
-
-
-def ggx_ndf(m: torch.Tensor, alpha_x, alpha_y) -> torch.Tensor:
-    """GGX normal distribution D(m) (N,) per steradian for unit m (N, 3); 0 where m_z <= 0."""
-    ax, ay = _alpha(alpha_x, m.shape[0], m, "alpha_x"), _alpha(alpha_y, m.shape[0], m, "alpha_y")
-    q = (m[:, 0] / ax) ** 2 + (m[:, 1] / ay) ** 2 + m[:, 2] ** 2
-    d = 1 / (math.pi * ax * ay * q * q)
-    return torch.where(m[:, 2] > 0, d, torch.zeros_like(d))
-
-
-def smith_g1(w: torch.Tensor, alpha_x, alpha_y) -> torch.Tensor:
-    """Smith masking G1(w) = 2 w_z / (w_z + sqrt(w_z^2 + ax^2 w_x^2 + ay^2 w_y^2)) (N,); 0 where w_z <= 0."""
-    ax, ay = _alpha(alpha_x, w.shape[0], w, "alpha_x"), _alpha(alpha_y, w.shape[0], w, "alpha_y")
-    z = w[:, 2].clamp(min=0)  # 0 below the horizon, where G1 = 0 / root = 0
-    root = (w[:, 2] ** 2 + (ax * w[:, 0]) ** 2 + (ay * w[:, 1]) ** 2).sqrt()
-    return 2 * z / (z + root).clamp(min=torch.finfo(w.dtype).tiny)
 
 
 def fresnel_conductor(cos_theta: torch.Tensor, eta, k) -> torch.Tensor:
@@ -224,8 +196,6 @@ def principled_eval(wi: torch.Tensor, wo: torch.Tensor, base_color, metallic, ro
 
 
 def _principled_pdf(p: _Principled, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-    from ..warp.ggx import ggx_reflection_pdf
-
     p_spec = p.specular_probability(wi)
     up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
     pdf = (1 - p_spec) * wo[:, 2].clamp(min=0) / math.pi + p_spec * ggx_reflection_pdf(wi, wo, p.ax, p.ay)
@@ -246,9 +216,6 @@ def principled_sample(wi: torch.Tensor, u: torch.Tensor, base_color, metallic, r
 
     u[:, 0] first picks the lobe (GGX with `specular_probability`, else cosine) and is then rescaled.
     """
-    from ..warp.ggx import sample_ggx_reflection
-    from ..warp.hemisphere import sample_cosine_hemisphere
-
     check_directions(wi, "wi")
     check_shape(u, "u", (wi.shape[0], 2))
     p = _Principled(wi, base_color, metallic, roughness, anisotropy, specular)

@@ -1,6 +1,7 @@
 """Analytic materials from one-line spec strings: "name" or "name:key=value,key=value".
 
-Values are numbers ("0.2"), RGB triples ("0.8/0.5/0.2") or names ("dielectric", "gold"). Keys are the keyword
+Names are looked up in `neumat.reflectance.spec_registry.SPEC_MATERIALS`, where each material class registers
+its name (`@register_spec`). Values are numbers ("0.2"), RGB triples ("0.8/0.5/0.2") or names ("dielectric", "gold"). Keys are the keyword
 arguments of the material's constructor (`neumat.reflectance.analytic`), for example
 
     lambert:albedo=0.8/0.5/0.2
@@ -18,11 +19,11 @@ import inspect
 
 from ..core.errors import InputError, UnknownNameError
 from ..core.material import Material
-from .analytic import GGX, Lambert, Plastic, Principled
+from . import analytic  # noqa: F401  (its materials register their spec names)
+from .spec_registry import SPEC_MATERIALS
 
-_MATERIALS = {"lambert": Lambert, "ggx": GGX, "plastic": Plastic, "principled": Principled}
-#: names accepted by `parse_spec`
-SPEC_NAMES: tuple[str, ...] = tuple(_MATERIALS)
+#: names accepted by `parse_spec` (the analytic materials'; `SPEC_MATERIALS` holds any registered later too)
+SPEC_NAMES: tuple[str, ...] = tuple(SPEC_MATERIALS)
 
 
 def _close(word: str, known) -> str:
@@ -53,10 +54,10 @@ def parse_spec(spec: str) -> Material:
         raise InputError(f"spec: expected a non-empty string such as 'ggx:roughness=0.2', got {spec!r}")
     name, _, body = spec.strip().partition(":")
     name = name.strip().lower()
-    if name not in _MATERIALS:
-        raise UnknownNameError(f"spec {spec!r}: unknown material {name!r}; {_close(name, _MATERIALS)}"
-                               f"(known: {', '.join(SPEC_NAMES)})")
-    cls = _MATERIALS[name]
+    if name not in SPEC_MATERIALS:
+        raise UnknownNameError(f"spec {spec!r}: unknown material {name!r}; {_close(name, SPEC_MATERIALS)}"
+                               f"(known: {', '.join(SPEC_MATERIALS)})")
+    cls = SPEC_MATERIALS[name]
     keys = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
     kwargs: dict = {}
     for item in filter(None, (s.strip() for s in body.split(","))):

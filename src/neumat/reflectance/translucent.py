@@ -28,9 +28,9 @@ import torch
 from ..core.checks import check_directions, check_finite, check_int, check_number, check_shape
 from ..core.errors import InputError
 from ..core.material import Material
+from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
 from ..io.ply import check_ply
-from ..render.scenes import import_mitsuba
 
 #: reduced scattering sigma_s' and absorption sigma_a in 1/mm (RGB), Jensen et al. 2001, Table 1
 JENSEN_MEDIA = {

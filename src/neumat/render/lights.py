@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 
 from ..core.errors import InputError
-from ..metrics.tonemap import LUMINANCE
+from ..color.tonemap import LUMINANCE
 from ..warp.sphere import sample_uniform_sphere
 from ..warp.alias import AliasTable
 from .envmaps import read_envmap, sky_envmap

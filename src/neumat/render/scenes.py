@@ -22,6 +22,7 @@ import torch
 
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal, frame_from_normal_tangent
+from ..core.mitsuba import import_mitsuba
 from ..io.ply import check_ply
 from .camera import Camera, Rays, make_camera
 from .spec import as_float, check_options, parse_spec, unknown_name
@@ -29,7 +30,6 @@ from .spec import as_float, check_options, parse_spec, unknown_name
 SCENE_FORMS = ["sphere", "plane", "mesh:PATH"]
 #: variance of a box pixel filter of width 1 along each axis
 BOX_FILTER_VARIANCE = 1.0 / 12.0
-_MITSUBA_VARIANT = "llvm_ad_rgb"
 
 
 @dataclass
@@ -267,24 +267,6 @@ class MeshScene(Scene):
         maxt = torch.where(torch.isfinite(dist), dist * (1 - 1e-4) - eps, torch.full_like(dist, float("inf")))
         blocked = self.scene.ray_test(self._ray(origin, wi, maxt))
         return _from_np(blocked, p.device, torch.bool)
-
-
-def import_mitsuba():
-    """The `mitsuba` module with the llvm_ad_rgb variant set, after `integrations.llvm.configure_llvm` found an
-    LLVM its kernels compile with. Raises InputError when Mitsuba or such an LLVM is missing."""
-    from ..integrations.llvm import configure_llvm
-    try:
-        import mitsuba as mi
-    except ImportError as e:
-        raise InputError(f"mesh scenes need Mitsuba 3 (pip install mitsuba): {e}") from e
-    configure_llvm()
-    try:
-        if mi.variant() != _MITSUBA_VARIANT:
-            mi.set_variant(_MITSUBA_VARIANT)
-    except Exception as e:  # the variant failing to load
-        raise InputError(f"mesh scenes need Mitsuba 3 with the {_MITSUBA_VARIANT} variant: "
-                         f"{type(e).__name__}: {e}") from e
-    return mi
 
 
 def make_scene(spec: str, resolution: tuple[int, int], **options) -> Scene:

@@ -13,7 +13,7 @@ import torch
 
 from ..core.errors import InputError
 from ..core.query import Query
-from ..export.glsl import GLSL_VERSION, GLSLExport
+from ..export.glsl_common import GLSL_VERSION, GLSLExport
 
 _VERTEX = GLSL_VERSION + """
 in vec2 position;

@@ -10,7 +10,7 @@ from PIL import Image, ImageDraw, ImageFont
 from ..core.errors import InputError
 from ..io.images import image_to_numpy
 from ..metrics.image import flip_map
-from ..metrics.tonemap import to_ldr
+from ..color.tonemap import to_ldr
 
 #: panels narrower than this many pixels are enlarged by an integer factor (nearest neighbour)
 MIN_PANEL_WIDTH = 160

@@ -13,7 +13,7 @@ from ..core.coords import rusinkiewicz_to_io
 from ..core.errors import InputError
 from ..core.material import Material, material_device
 from ..core.query import Query
-from ..metrics.tonemap import LUMINANCE
+from ..color.tonemap import LUMINANCE
 
 
 def brdf_slice_image(material: Material, resolution: int = 90, channels: str = "rgb", decades: float = 5.0,

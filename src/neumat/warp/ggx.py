@@ -16,8 +16,8 @@ import torch
 
 from ..core.checks import check_directions, check_finite, check_shape
 from ..core.errors import InputError
-from ..reflectance.microfacet import ggx_ndf, smith_g1
 from ._checks import check_u
+from .ggx_distribution import ggx_ndf, smith_g1
 
 
 def _alphas(n: int, alpha_x, alpha_y, ref: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -19,7 +19,9 @@ import json
 from pathlib import Path
 
 from ...core.errors import InputError
-from ..glsl import GLSLExport, export_glsl
+from ..glsl import export_glsl
+from ..glsl_common import GLSLExport
+from ..registry import EXPORT_FORMATS, ExportFormat
 
 TEMPLATE = Path(__file__).with_name("viewer.html")
 SPATIAL = "vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)"
@@ -68,3 +70,6 @@ def write_viewer(model_or_export, path: str | Path, title: str | None = None) ->
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(viewer_html(shader, title))
     return path
+
+
+EXPORT_FORMATS.register("web")(ExportFormat("self-contained WebGL 2 viewer page (viewer.html)", write_viewer))

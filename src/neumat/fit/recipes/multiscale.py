@@ -10,32 +10,12 @@ Loss (Eq. 10), per query over the RGB vector, averaged over the batch:
 
     L = lambda |f - f_hat|^2 / |sg(f_hat) + eps|^2 + (1 - lambda) |f - f_hat|^2,   lambda = 0.9999, eps = 1e-6
 
-registered as "relative_l2_mix" in `neumat.fit.losses.LOSSES`.
+registered as "relative_l2_mix" in `neumat.fit.losses` (`LOSSES`).
 """
 from __future__ import annotations
 
-import torch
-from torch import nn
-
 import neumat.fit.footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
-from neumat.core.query import Query
-from neumat.fit.losses import LOSSES
 from neumat.fit.recipe import Recipe
-
-
-@LOSSES.register("relative_l2_mix")
-class RelativeL2MixLoss(nn.Module):
-    """Eq. 10: prediction-relative L2 mixed with plain L2 (stop-gradient on the denominator)."""
-
-    def __init__(self, weight: float = 0.9999, eps: float = 1e-6) -> None:
-        super().__init__()
-        self.weight, self.eps = weight, eps
-
-    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
-        sq = (pred - target).square().sum(-1)
-        rel = sq / (pred.detach() + self.eps).square().sum(-1)
-        return (self.weight * rel + (1 - self.weight) * sq).mean()
-
 
 RECIPE = Recipe(steps=500_000, batch_size=1 << 16, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
                 lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint")

@@ -1,6 +1,9 @@
-"""Zeltner et al. 2024 style decoder, as a baseline of Timonen et al. 2025 (Sec. 5.2): latent pyramid,
-learned shading frame decoded from the latent, and an MLP on the concatenated latent and the directions
-expressed in that frame (no angular tabulation, no gating).
+"""NeuMIP with a learned shading frame ("neumip-frame"): the Zeltner et al. 2024 style decoder that Timonen et al.
+2025 (Sec. 5.2) use as a baseline: latent pyramid, learned shading frame decoded from the latent, and an MLP on the
+concatenated latent and the directions expressed in that frame (no angular tabulation, no gating).
+
+Not the model of Zeltner et al. 2024 itself, which is `neumat.models.neural_appearance` ("neural-appearance": an
+encoder, two frames, an importance sampler). Registered as "zeltner" before; such model files still load.
 
     log f = MLP(z_s, F(z_s) wi, F(z_s) wo)
 
@@ -23,11 +26,11 @@ class Config(neumip.Config):
     shading_frame: bool = True
 
 
-@MODELS.register("zeltner")
-class Zeltner(neumip.NeuMIP):
+@MODELS.register("neumip-frame")
+class NeuMIPFrame(neumip.NeuMIP):
     """Latent pyramid + learned shading frame + MLP (see module docstring)."""
 
-    name = "zeltner"
-    paper = "Zeltner-style latent pyramid + shading frame: baseline of the multi-scale model (Timonen et al. 2025)"
+    name = "neumip-frame"
+    paper = "NeuMIP with a learned shading frame (Zeltner-style): baseline of the multi-scale model (Timonen et al. 2025)"
     source_kinds = ("svbrdf",)
     Config = Config

@@ -11,8 +11,9 @@ from safetensors.torch import save_file
 from neumat.core.errors import DataFormatError, InputError
 from neumat.core.query import Query
 from neumat.fit.recipe import Recipe
-from neumat.io.modelfile import load_model, read_header, save_model, source_info
-from neumat.io.open_material import open_material
+from neumat.catalog.modelfile import load_model, save_model, source_info
+from neumat.catalog.open_material import open_material
+from neumat.io.modelfile import read_header
 from neumat.models.neubrdf import NeuBRDF
 
 
@@ -122,6 +123,19 @@ def test_strict_loading_raises(edit, match, tmp_path, gen):
     bad = _rewrite(path, tmp_path / "bad.nmat", **edit)
     with pytest.raises(DataFormatError, match=match):
         load_model(bad)
+
+
+def test_model_files_of_the_renamed_zeltner_model_load_as_neumip_frame(tmp_path):
+    """Files written when neumip-frame was registered as "zeltner" load as neumip-frame, with the same weights."""
+    from neumat.models.neumip_frame import NeuMIPFrame
+
+    m = NeuMIPFrame(spatial_size=8, spatial_channels=4, hidden=8, hidden_layers=1)
+    old = _rewrite(save_model(m, tmp_path / "m.nmat"), tmp_path / "old.nmat", header_change=_set("type", "zeltner"))
+    assert read_header(old)["type"] == "zeltner"
+    loaded = load_model(old)
+    assert isinstance(loaded, NeuMIPFrame) and loaded.name == "neumip-frame"
+    for k, v in m.state_dict().items():
+        assert torch.equal(loaded.state_dict()[k], v)
 
 
 def test_truncated_garbage_and_foreign_files_raise(tmp_path, gen):

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from neumat.core.errors import InputError
-from neumat.integrations import llvm
+from neumat.core import llvm
 
 LLVM15 = Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
 SRC = str(Path(__file__).resolve().parents[2] / "src")

@@ -14,6 +14,7 @@ import torch
 
 from ..core.errors import InputError
 from ..core.query import Query
+from .open_material import open_material
 
 #: image suffixes `describe` reports on
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".hdr")
@@ -33,7 +34,6 @@ def describe(name: str | Path) -> dict[str, Any]:
         return _describe_model(path)
     if suffix in IMAGE_SUFFIXES:
         return _describe_image(path)
-    from .open_material import open_material
     material = open_material(str(name))  # analytic spec, or a clear error
     return {"kind": "analytic material", "material": material.describe(), "can_sample": material.can_sample,
             **_sampled_range(material)}
@@ -44,7 +44,7 @@ def _on_disk(path: Path) -> dict[str, Any]:
 
 
 def _describe_merl(path: Path) -> dict[str, Any]:
-    from .merl import MERL_SCALE, identify_merl, read_merl
+    from ..io.merl import MERL_SCALE, identify_merl, read_merl
 
     table = read_merl(path).table
     scaled = table * np.asarray(MERL_SCALE).reshape(3, 1, 1, 1)
@@ -61,12 +61,12 @@ def _describe_merl(path: Path) -> dict[str, Any]:
 
 
 def _hash_list_present() -> bool:
-    from .merl import MERL_HASH_LIST
+    from ..io.merl import MERL_HASH_LIST
     return MERL_HASH_LIST.is_file()
 
 
 def _describe_rgl(path: Path) -> dict[str, Any]:
-    from .rgl import read_rgl
+    from ..io.rgl import read_rgl
 
     data = read_rgl(path)
     f = data.fields
@@ -83,7 +83,7 @@ def _describe_rgl(path: Path) -> dict[str, Any]:
 
 
 def _describe_model(path: Path) -> dict[str, Any]:
-    from .modelfile import read_header
+    from ..io.modelfile import read_header
 
     header = read_header(path)
     out = {"kind": f"neumat model ({header.get('type', '?')})", **_on_disk(path),
@@ -97,7 +97,7 @@ def _describe_model(path: Path) -> dict[str, Any]:
 
 
 def _describe_image(path: Path) -> dict[str, Any]:
-    from .images import read_image
+    from ..io.images import read_image
 
     img = read_image(path)
     finite = np.isfinite(img)

@@ -33,6 +33,11 @@ def srgb_decode(encoded):
     return _xp(x).where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """sRGB transfer function inverse (IEC 61966-2-1) of values in [0, 1], without `srgb_decode`'s clamp."""
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
 def _clip(x):
     return x.clip(0.0, 1.0)
 

@@ -21,7 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..core.errors import InputError
+from .errors import InputError
 
 #: the oldest LLVM major version Dr.Jit's kernels compile with
 MIN_LLVM = 16

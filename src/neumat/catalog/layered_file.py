@@ -1,0 +1,33 @@
+"""Layered material descriptions (`.json`, format in `neumat.io.layered_file`) opened as a
+`neumat.reflectance.layered.LayeredMaterial`; registered as the ".json" source of `open_material`."""
+from __future__ import annotations
+
+from dataclasses import fields
+from pathlib import Path
+
+from ..io.layered_file import read_coat, read_description
+from ..reflectance.layered import Coat, LayeredMaterial
+from ..reflectance.smudge_map import smudge_map
+from .open_material import open_material
+from .sources import register_source
+
+
+@register_source(".json", "layered material description", "layered-material description")
+def read_layered(path: str | Path, samples: int | None = None) -> LayeredMaterial:
+    """The LayeredMaterial a description file defines (`neumat.io.layered_file`); `samples` overrides its
+    footprint sample count. The base is any material `open_material` opens, paths relative to the file."""
+    desc = read_description(path)
+    path, spec, folder = desc.path, desc.spec, desc.folder
+    base_name = str(spec["base"])
+    base_path = folder / base_name
+    if base_path.exists():
+        options = {"max_size": int(spec["max_size"])} if "max_size" in spec and base_path.is_dir() else {}
+        base = open_material(base_path, **options)
+    else:
+        base = open_material(base_name)
+    coats = []
+    for i, c in enumerate(spec["coats"]):
+        coat = read_coat(c, f"{path} coat {i}", folder, smudge_map)
+        coats.append(Coat(**{f.name: getattr(coat, f.name) for f in fields(coat)}))
+    n = int(samples if samples is not None else spec.get("samples", 256))
+    return LayeredMaterial(base, coats, samples=n, name=spec.get("name") or f"layered:{path.stem}")

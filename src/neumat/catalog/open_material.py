@@ -1,0 +1,49 @@
+"""Open any material a user can name: a file the package reads, or an analytic spec string."""
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+from ..core.errors import InputError
+from ..core.material import Material
+from .sources import FOLDER, SPEC, Source, file_suffixes, load_sources
+
+
+def open_material(name: str | Path, **kwargs) -> Material:
+    """A Material from a `.binary` (MERL), `.bsdf` (RGL), `.nbtf` (BTF table), `.btf` (Bonn / UBO2014) or
+    `.nmat` file, a layered-material description (`.json`, `neumat.catalog.layered_file`), a PBR texture-set
+    folder (an SVBRDF), or an analytic spec such as
+    ``ggx:roughness=0.2,fresnel=dielectric,eta=1.5``; any source of `neumat.catalog.sources.SOURCES`.
+    Keyword arguments go to the reader."""
+    sources = load_sources()
+    text = str(name)
+    path = Path(text)
+    suffix = path.suffix.lower()
+    if path.is_dir():
+        return _read(sources[FOLDER], path, kwargs)
+    suffixes = file_suffixes()
+    if suffix in suffixes:
+        if not path.is_file():
+            raise InputError(f"material file {text!r} does not exist or is not a regular file")
+        return _read(sources[suffix], path, kwargs)
+    if path.exists():
+        raise InputError(f"{text!r}: unsupported material file (known: {', '.join(suffixes)})")
+    if ":" not in text and "/" in text:
+        raise InputError(f"material file {text!r} does not exist")
+    if kwargs:
+        raise InputError(f"{text!r}: reader options {sorted(kwargs)} only apply to files and folders; "
+                         "write analytic parameters into the spec string")
+    return sources[SPEC].reader(text)
+
+
+def _read(source: Source, path: Path, kwargs: dict) -> Material:
+    """source.reader(path, **kwargs), with unknown option names reported instead of a TypeError."""
+    reader = source.reader
+    params = inspect.signature(reader).parameters
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        known = [n for n, p in params.items() if p.kind is not inspect.Parameter.VAR_POSITIONAL][1:]
+        unknown = sorted(set(kwargs) - set(known))
+        if unknown:
+            raise InputError(f"{path}: unknown reader option(s) {', '.join(unknown)} for a {source.noun} "
+                             f"(known: {', '.join(known) or 'none'})")
+    return reader(path, **kwargs)

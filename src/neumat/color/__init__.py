@@ -1,0 +1,1 @@
+"""Colour: sRGB transfer functions, luminance weights and tone curves (below io and metrics)."""

@@ -1,0 +1,360 @@
+"""Shared pieces of the GLSL exporters: `GLSLExport`, the common GLSL functions, texture packing, latent-pyramid
+readers, shading frames, MLP chains, and the registry of per-model GLSL generators.
+
+A generator module (`neumat.export.glsl_*`) registers `generator(model) -> GLSLExport` under the registry names
+of the models it exports with `@GLSL_GENERATORS.register(name)`; `load_generators()` imports every such module
+(pkgutil discovery, as `neumat.models.registry.load_all` does), so `neumat.export.glsl.export_glsl` is a lookup.
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import pkgutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..core.errors import InputError
+from ..core.registry import Registry
+
+GLSL_VERSION = "#version 330 core"
+
+
+@dataclass
+class GLSLExport:
+    """GLSL source (without a #version line) and its textures: name -> float32 array (layers, H, W, 4)."""
+
+    source: str
+    textures: dict[str, np.ndarray] = field(default_factory=dict)
+    spatially_varying: bool = True
+    entry: list[str] | None = None
+    """The entry points the source defines (manifest.json); default those of `spatially_varying`."""
+
+    def entry_points(self) -> list[str]:
+        """GLSL signatures of the entry points the source defines."""
+        if self.entry:
+            return list(self.entry)
+        if self.spatially_varying:
+            return ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+                    "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
+        return ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
+
+    def write(self, folder: str | Path) -> Path:
+        """Write neumat.glsl, <texture>.f32 files and manifest.json into `folder` (created); returns it."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "neumat.glsl").write_text(self.source)
+        manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "textures": {},
+                    "entry": self.entry_points()}
+        for name, data in self.textures.items():
+            layers, height, width, _ = data.shape
+            data.astype("<f4").tofile(folder / f"{name}.f32")
+            manifest["textures"][name] = {"file": f"{name}.f32", "target": "sampler2DArray", "format": "RGBA32F",
+                                          "width": width, "height": height, "layers": layers}
+        (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        return folder
+
+
+def _floats(name: str, values: torch.Tensor) -> str:
+    """`const float name[n] = float[](...);` of a tensor's values (row-major)."""
+    flat = values.detach().double().flatten().cpu().numpy()
+    if not np.isfinite(flat).all():
+        raise InputError(f"export_glsl: parameter {name} has non-finite values; the model cannot be exported")
+    body = ", ".join(f"{v:.9e}" for v in flat)
+    return f"const float {name}[{len(flat)}] = float[]({body});"
+
+
+def _layers(tex: torch.Tensor) -> np.ndarray:
+    """(C, H, W) -> float32 (ceil(C / 4), H, W, 4), channel c in layer c // 4, component c % 4."""
+    c, h, w = tex.shape
+    layers = -(-c // 4)
+    out = torch.zeros(layers * 4, h, w, dtype=torch.float64)
+    out[:c] = tex.detach().double().cpu()
+    out = out.view(layers, 4, h, w).permute(0, 2, 3, 1)
+    if not torch.isfinite(out).all():
+        raise InputError("export_glsl: a texture has non-finite values; the model cannot be exported")
+    return out.float().contiguous().numpy()
+
+
+def _atlas(levels: list[torch.Tensor]) -> tuple[np.ndarray, list[tuple[int, int]], list[tuple[int, int]]]:
+    """Pyramid levels (C, h, w) -> atlas texture, level sizes (w, h) and origins (x, y)."""
+    c, h0, w0 = levels[0].shape
+    origins, top = [(0, 0)], 0
+    for tex in levels[1:]:
+        origins.append((w0, top))
+        top += tex.shape[1]
+    width = w0 + (max(t.shape[2] for t in levels[1:]) if len(levels) > 1 else 0)
+    atlas = torch.zeros(c, max(h0, top), width, dtype=torch.float64)
+    for tex, (x, y) in zip(levels, origins):
+        atlas[:, y:y + tex.shape[1], x:x + tex.shape[2]] = tex.detach().double()
+    return _layers(atlas), [(t.shape[2], t.shape[1]) for t in levels], origins
+
+
+def _ivec2s(name: str, pairs: list[tuple[int, int]]) -> str:
+    body = ", ".join(f"ivec2({a}, {b})" for a, b in pairs)
+    return f"const ivec2 {name}[{len(pairs)}] = ivec2[]({body});"
+
+
+_COMMON = """
+float nm_softplus(float x) { return x > 20.0 ? x : (x < -15.0 ? exp(x) : log(1.0 + exp(x))); }
+float nm_silu(float x) { return x / (1.0 + exp(-x)); }
+
+// i modulo n for i in [-n, 2n) (GLSL leaves % of negative operands undefined)
+int nm_wrap(int i, int n) { return i < 0 ? i + n : (i >= n ? i - n : i); }
+
+vec3 nm_lift(vec3 w) { return vec3(w.xy, sqrt(max(1.0 - dot(w.xy, w.xy), 1e-10))); }
+
+// Rusinkiewicz half and difference vectors (neumat.nn.angular_texture.half_difference)
+void nm_half_difference(vec3 wi, vec3 wo, out vec3 h, out vec3 d) {
+    h = wi + wo;
+    h = h / max(length(h), 1e-12);
+    float s2 = h.x * h.x + h.y * h.y;
+    bool pole = s2 < 1e-14;
+    float s = sqrt(pole ? 1.0 : s2);
+    float cp = pole ? 1.0 : h.x / s, sp = pole ? 0.0 : h.y / s, st = pole ? 0.0 : s, ct = h.z;
+    float x = cp * wi.x + sp * wi.y, y = -sp * wi.x + cp * wi.y;
+    d = vec3(ct * x - st * wi.z, y, st * x + ct * wi.z);
+}
+
+// Duff et al. 2017 (neumat.core.frames.frame_from_normal)
+void nm_basis(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z), c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+// (r, phi) of the disk projection, phi in [0, period)
+vec2 nm_disk_polar(vec3 w, float period) {
+    float r2 = w.x * w.x + w.y * w.y;
+    if (r2 < 1e-14) return vec2(0.0, 0.0);
+    return vec2(min(sqrt(r2), 1.0), mod(atan(w.y, w.x), period));
+}
+"""
+
+
+def _angular_reader(name: str, sampler: str, channels: int, radial: int, azimuths: int, period: float) -> str:
+    """GLSL `void name(float r, float phi, out vec4 a[L])`: bilinear polar read (neumat.nn.angular_texture)."""
+    layers = -(-channels // 4)
+    return f"""
+void {name}(float r, float phi, out vec4 a[{layers}]) {{
+    float c = mod(phi, {period:.9e}) * {azimuths / period:.9e} - 0.5;
+    float y = clamp(r, 0.0, 1.0) * {radial - 1}.0;
+    float c0f = floor(c), r0f = floor(y);
+    float fc = c - c0f, fr = y - r0f;
+    int c0 = int(c0f), r0 = min(int(r0f), {radial - 1}), r1 = min(r0 + 1, {radial - 1});
+    int c1 = nm_wrap(c0 + 1, {azimuths});
+    c0 = nm_wrap(c0, {azimuths});
+    int a0 = r0 == 0 ? 0 : c0, b0 = r0 == 0 ? 0 : c1;  // the pole row is texel (0, 0) for every azimuth
+    for (int l = 0; l < {layers}; ++l) {{
+        vec4 t00 = texelFetch({sampler}, ivec3(a0, r0, l), 0), t01 = texelFetch({sampler}, ivec3(b0, r0, l), 0);
+        vec4 t10 = texelFetch({sampler}, ivec3(c0, r1, l), 0), t11 = texelFetch({sampler}, ivec3(c1, r1, l), 0);
+        a[l] = mix(mix(t00, t01, fc), mix(t10, t11, fc), fr);
+    }}
+}}
+"""
+
+
+def _spatial_reader(model, roulette: bool = False) -> tuple[str, dict[str, np.ndarray]]:
+    """GLSL of a model's spatial latent pyramid (`model.spatial`), see `pyramid_reader`."""
+    with torch.no_grad():
+        return pyramid_reader(model.spatial.levels(), model.spatial.max_probes, roulette)
+
+
+def pyramid_reader(levels: list[torch.Tensor], max_probes: int | None,
+                   roulette: bool = False) -> tuple[str, dict[str, np.ndarray]]:
+    """GLSL of a latent pyramid, levels (C, H_l, W_l), as the texture `neumat_spatial`:
+    nm_spatial_lod(uv, lod, out z) (trilinear, `neumat.nn.latent_texture.trilinear`) and, unless max_probes
+    is None, nm_spatial_footprint(uv, cov, out z) (`filter_anisotropic` with up to max_probes probes). With
+    `roulette`, also the one-level reads of Russian-roulette level selection: nm_spatial_lod_level(uv, lod,
+    which, out z, out t) and nm_spatial_footprint_level(uv, cov, which, out z, out t), which 0 for the finer and
+    1 for the coarser of the two levels, t the coarser level's weight (`trilinear_flat` with level_u)."""
+    atlas, sizes, origins = _atlas(levels)
+    layers, probes = atlas.shape[0], max_probes
+    w0, h0 = sizes[0]
+    src = f"""
+uniform sampler2DArray neumat_spatial;
+const int NM_LEVELS = {len(sizes)};
+{_ivec2s("NM_LEVEL_SIZE", sizes)}
+{_ivec2s("NM_LEVEL_ORIGIN", origins)}
+
+vec4 nm_spatial_texel(int level, int x, int y, int layer) {{
+    ivec2 s = NM_LEVEL_SIZE[level];
+    ivec2 t = ivec2(nm_wrap(x, s.x), nm_wrap(y, s.y));
+    return texelFetch(neumat_spatial, ivec3(NM_LEVEL_ORIGIN[level] + t, layer), 0);
+}}
+
+// weight x bilinear lookup (wrap tiling) of one level, added to z
+void nm_spatial_bilinear(int level, vec2 uv, float weight, inout vec4 z[{layers}]) {{
+    vec2 p = fract(uv);
+    ivec2 s = NM_LEVEL_SIZE[level];
+    float x = p.x * float(s.x) - 0.5, y = (1.0 - p.y) * float(s.y) - 0.5;
+    float x0f = floor(x), y0f = floor(y);
+    float fx = x - x0f, fy = y - y0f;
+    int x0 = int(x0f), y0 = int(y0f);
+    for (int l = 0; l < {layers}; ++l) {{
+        vec4 top = mix(nm_spatial_texel(level, x0, y0, l), nm_spatial_texel(level, x0 + 1, y0, l), fx);
+        vec4 bottom = mix(nm_spatial_texel(level, x0, y0 + 1, l), nm_spatial_texel(level, x0 + 1, y0 + 1, l), fx);
+        z[l] += weight * mix(top, bottom, fy);
+    }}
+}}
+
+void nm_spatial_trilinear(vec2 uv, float lod, float weight, inout vec4 z[{layers}]) {{
+    lod = clamp(lod, 0.0, float(NM_LEVELS - 1));
+    float lo = floor(lod);
+    float t = lod - lo;
+    int l0 = int(lo), l1 = min(int(lo) + 1, NM_LEVELS - 1);
+    nm_spatial_bilinear(l0, uv, weight * (1.0 - t), z);
+    nm_spatial_bilinear(l1, uv, weight * t, z);
+}}
+
+void nm_spatial_lod(vec2 uv, float lod, out vec4 z[{layers}]) {{
+    for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
+    nm_spatial_trilinear(uv, lod, 1.0, z);
+}}
+"""
+    if roulette:
+        src += f"""
+// one of the two levels around lod (which 0: the finer, 1: the coarser), weight x bilinear, added to z
+void nm_spatial_level(vec2 uv, float lod, int which, float weight, inout vec4 z[{layers}]) {{
+    lod = clamp(lod, 0.0, float(NM_LEVELS - 1));
+    int l0 = int(floor(lod));
+    nm_spatial_bilinear(which == 0 ? l0 : min(l0 + 1, NM_LEVELS - 1), uv, weight, z);
+}}
+
+float nm_level_fraction(float lod) {{
+    lod = clamp(lod, 0.0, float(NM_LEVELS - 1));
+    return lod - floor(lod);
+}}
+
+void nm_spatial_lod_level(vec2 uv, float lod, int which, out vec4 z[{layers}], out float t) {{
+    for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
+    nm_spatial_level(uv, lod, which, 1.0, z);
+    t = nm_level_fraction(lod);
+}}
+"""
+    if max_probes is not None:
+        variants = [("nm_spatial_footprint", "", "nm_spatial_trilinear(uv + offset * axis / scale, lod, 1.0 / n, z)",
+                     "")]
+        if roulette:
+            variants.append(("nm_spatial_footprint_level", ", int which",
+                             "nm_spatial_level(uv + offset * axis / scale, lod, which, 1.0 / n, z)",
+                             ", out float t"))
+        for name, which, probe, fraction in variants:
+            src += _footprint_reader(name, which, probe, fraction, layers, probes, w0, h0)
+    return src, {"neumat_spatial": atlas}
+
+
+def _footprint_reader(name: str, which: str, probe: str, fraction: str, layers: int, probes: int, w0: int,
+                      h0: int) -> str:
+    """GLSL of `name`(uv, cov[, which], out z[, out t]): the probes of `filter_anisotropic`, each read by `probe`."""
+    t = "\n    t = nm_level_fraction(lod);" if fraction else ""
+    return f"""
+// anisotropic filtering of a Gaussian footprint (covariance in uv^2; neumat.nn.latent_texture)
+void {name}(vec2 uv, mat2 cov{which}, out vec4 z[{layers}]{fraction}) {{
+    for (int l = 0; l < {layers}; ++l) z[l] = vec4(0.0);
+    vec2 scale = vec2({w0}.0, {h0}.0);
+    float a = cov[0][0] * scale.x * scale.x, b = cov[1][0] * scale.x * scale.y, c = cov[1][1] * scale.y * scale.y;
+    float mean = 0.5 * (a + c), half_gap = sqrt(0.25 * (a - c) * (a - c) + b * b);
+    float theta = (b == 0.0 && a == c) ? 0.0 : 0.5 * atan(2.0 * b, a - c);
+    float major = sqrt(max(mean + half_gap, 0.0)), minor = max(sqrt(max(mean - half_gap, 0.0)), 1e-12);
+    vec2 axis = vec2(cos(theta), sin(theta));
+    float n = clamp(ceil(major / minor), 1.0, {probes}.0);
+    float sigma = max(minor, major / {probes}.0);
+    float lod = log2(max(2.0 * sigma, 1e-12));{t}
+    float spacing = sqrt(max(12.0 * (major * major - sigma * sigma), 0.0) / max(n * n - 1.0, 1.0));
+    for (int k = 0; k < {probes}; ++k) {{
+        if (float(k) >= n) break;
+        float offset = (float(k) - 0.5 * (n - 1.0)) * spacing;
+        {probe};
+    }}
+}}
+"""
+
+
+def shading_frames(frame, latent_dim: int, source: str) -> tuple[list[str], str]:
+    """Constants and statements of a `neumat.nn.shading_frames.ShadingFrame` decoded from the latent `source`
+    (an expression in i): wi and wo in every learned frame, lifted, as vec3 arrays di[frames], dw[frames]."""
+    k = frame.frames
+    consts = [_floats("NM_FRAME_W", frame.decode.weight * frame.weight_scale),
+              _floats("NM_FRAME_B", frame.decode.bias)]
+    code = f"    float v[{6 * k}];\n" + _linear("NM_FRAME", 6 * k, latent_dim, source, "v")
+    code += f"""    vec3 di[{k}], dw[{k}];
+    for (int k = 0; k < {k}; ++k) {{
+        vec3 n = vec3(v[6 * k], v[6 * k + 1], v[6 * k + 2]);
+        n = n / max(length(n), 1e-12);
+        vec3 t = vec3(v[6 * k + 3], v[6 * k + 4], v[6 * k + 5]);
+        t = t - dot(t, n) * n;
+        t = t / max(length(t), 1e-12);
+        vec3 bt = cross(n, t);
+        di[k] = nm_lift(vec3(dot(wi, t), dot(wi, bt), dot(wi, n)));
+        dw[k] = nm_lift(vec3(dot(wo, t), dot(wo, bt), dot(wo, n)));
+    }}
+"""
+    return consts, code
+
+
+def spatial_entry_points(layers: int) -> str:
+    """GLSL of neumat_eval (footprint) and neumat_eval_lod around `nm_decode(wi, wo, z)`, z: `layers` vec4s of
+    the filtered spatial latent; 0 below the horizon."""
+    return f"""
+vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{layers}];
+    nm_spatial_footprint(uv, footprint, z);
+    return nm_decode(wi, wo, z);
+}}
+
+vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
+    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    vec4 z[{layers}];
+    nm_spatial_lod(uv, lod, z);
+    return nm_decode(wi, wo, z);
+}}
+"""
+
+
+def mlp_chain(prefix: str, mlp, source: str, activation: str) -> tuple[list[str], str, str]:
+    """Constants (`<prefix><layer>_W / _B`), statements and the name of the output array of an MLP (neumat.nn.mlp)
+    whose input is `source` (an expression in i), `activation` (a GLSL function) after every hidden layer."""
+    consts, body, previous = [], "", source
+    layers = mlp.linears()
+    for i, layer in enumerate(layers):
+        name, array = f"{prefix}{i}", f"{prefix.lower()}{i}"
+        consts += [_floats(f"{name}_W", layer.weight), _floats(f"{name}_B", layer.bias)]
+        body += f"    float {array}[{layer.out_features}];\n" + _linear(name, layer.out_features, layer.in_features,
+                                                                           previous, array)
+        if i < len(layers) - 1:
+            body += f"    for (int o = 0; o < {layer.out_features}; ++o) {array}[o] = {activation}({array}[o]);\n"
+        previous = f"{array}[i]"
+    return consts, body, f"{prefix.lower()}{len(layers) - 1}"
+
+
+def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> str:
+    """GLSL statements `target[o] = B[o] + sum_i W[o * in + i] * source(i)` (source: an expression in i)."""
+    return f"""    for (int o = 0; o < {out_dim}; ++o) {{
+        float acc = {name}_B[o];
+        for (int i = 0; i < {in_dim}; ++i) acc += {name}_W[o * {in_dim} + i] * {source};
+        {target}[o] = acc;
+    }}
+"""
+
+
+#: model registry name -> generator(model) -> GLSLExport
+GLSL_GENERATORS: Registry = Registry("GLSL generator")
+
+_loaded = False
+
+
+def load_generators() -> Registry:
+    """Import every `neumat.export.glsl_*` module (each registers its generators) and return the registry."""
+    global _loaded
+    if not _loaded:
+        package = importlib.import_module("neumat.export")
+        for info in pkgutil.iter_modules(package.__path__):
+            if info.name.startswith("glsl_") and info.name != "glsl_common":
+                importlib.import_module(f"neumat.export.{info.name}")
+        _loaded = True
+    return GLSL_GENERATORS
