@@ -15,13 +15,6 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "neumat"
 LAYERS = ["core", "color", "warp", "nn", "io", "metrics", "reflectance", "render", "models", "fit", "catalog",
           "export", "testing", "viz", "integrations", "cli"]
 
-#: (importing module, imported subpackage) edges tolerated for now. The training code of these three models still
-#: lives next to them; it moves to `fit/` in another branch, which empties this list.
-ALLOWED_UPWARD = {
-    ("neumat.models.proxy_sampler", "fit"),       # fit.adam_steps
-    ("neumat.models.shared_neubrdf", "fit"),      # fit.recipe, fit.trainer, fit.query_samplers
-    ("neumat.models.btf_table_queries", "fit"),   # fit.measured_samples
-}
 
 
 def _module_name(path: Path) -> str:
@@ -106,12 +99,12 @@ def _cycles(nodes: set[str], edges: dict[str, set[str]]) -> list[list[str]]:
 
 
 def _subpackage_edges(edges: dict[str, set[str]]) -> dict[tuple[str, str], list[str]]:
-    """(from subpackage, to subpackage) -> the module edges behind it, without the ALLOWED_UPWARD ones."""
+    """(from subpackage, to subpackage) -> the module edges behind it."""
     out: dict[tuple[str, str], list[str]] = collections.defaultdict(list)
     for a, targets in edges.items():
         for b in targets:
             sa, sb = _subpackage(a), _subpackage(b)
-            if sa is None or sb is None or sa == sb or (a, sb) in ALLOWED_UPWARD:
+            if sa is None or sb is None or sa == sb:
                 continue
             out[(sa, sb)].append(f"{a} -> {b}")
     return out

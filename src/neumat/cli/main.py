@@ -15,7 +15,7 @@ for module in (rendering, mitsuba, fitting, btf, check, demo, exporting, translu
 
 def _print_version(value: bool) -> None:
     if value:
-        from .. import __version__
+        from ..core.version import __version__
         print(f"neumat {__version__}")
         raise typer.Exit()
 
