@@ -23,7 +23,7 @@ import torch
 from ..core.checks import check_int
 from ..core.errors import InputError
 from ..core.material import Material
-from ..metrics.tonemap import LUMINANCE
+from ..color.tonemap import LUMINANCE
 from ..models.proxy_sampler import ProxySampler, SampledMaterial, feature_dim
 from ..warp.microfacet_proxy import ProxyLobes, proxy_pdf, sample_proxy
 

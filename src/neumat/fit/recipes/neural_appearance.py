@@ -44,7 +44,7 @@ from neumat.fit.directional_blur import blur_angle, blurred_eval
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.fit.proxy_sampler import proxy_kl_loss
-from neumat.fit.query_samplers import uniform
+from neumat.warp.uniform import uniform
 from neumat.fit.recipe import Recipe
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
