@@ -61,7 +61,7 @@ def shade_direct(material: Material, light: Light, scene: Scene, hits: Hits, vie
         radiance.append(ls.radiance)
         valids.append(ok)
     if use_material:
-        wi_m, p_m = _sample_material(material, wo, hits, u[:, 2:4].to(wo.dtype))
+        wi_m, p_m = _sample_material(material, wo, hits, below_one(u[:, 2:4].to(wo.dtype)))
         ok = front & (p_m > 0) & (wi_m[:, 2] > 0)
         wi_m = torch.where(ok[:, None], wi_m, _up(wi_m))
         world = to_world(wi_m, *frame)
@@ -88,6 +88,11 @@ def shade_direct(material: Material, light: Light, scene: Scene, hits: Hits, vie
         contrib = contrib * torch.cat([w_light, w_mat])[:, None]
     contrib = torch.where(valid[:, None], contrib, torch.zeros_like(contrib))
     return contrib.reshape(k, n, 3).sum(0)
+
+
+def below_one(u: torch.Tensor) -> torch.Tensor:
+    """u with values that rounding to a narrower dtype carried up to 1 set to the largest value below 1."""
+    return u.clamp(max=1.0 - torch.finfo(u.dtype).eps / 2)
 
 
 def _sample_material(material: Material, wo: torch.Tensor, hits: Hits, u: torch.Tensor):
