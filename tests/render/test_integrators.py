@@ -1,3 +1,7 @@
+"""The direct-lighting integrator's helpers."""
+from __future__ import annotations
+
+import torch
 
 
 def test_below_one_keeps_rounded_up_numbers_inside_the_unit_interval():
