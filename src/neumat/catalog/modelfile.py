@@ -15,6 +15,7 @@ import torch
 
 from ..core.config import config_from_dict, config_to_dict
 from ..core.errors import DataFormatError, InputError, NeumatError
+from ..core.material import material_device
 from ..core.query import Query
 from ..core.version import __version__
 from ..io.modelfile import FORMAT, FORMAT_VERSION, read_model_file, write_model_file
@@ -54,7 +55,7 @@ def source_info(source: Any) -> dict:
     if not callable(getattr(source, "eval", None)):
         raise InputError(f"save_model source: expected a file path, a spec or a Material, got {type(source).__name__}")
     gen = torch.Generator().manual_seed(0)
-    u = uniform(4096, 6, gen, "cpu")
+    u = uniform(4096, 6, gen, material_device(source))  # the same numbers on any device
     warp = sample_uniform_sphere if getattr(source, "full_sphere", False) else sample_cosine_hemisphere
     q = Query(warp(u[:, :2]), warp(u[:, 2:4]), uv=u[:, 4:6] if getattr(source, "spatially_varying", False) else None)
     with torch.no_grad():
