@@ -100,12 +100,10 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     if resuming:
         state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen, source)
     total = sum(p.steps for p in phases)
-    hook = getattr(model, "on_step", None)
-    ema_hook = getattr(ema.shadow, "on_step", None) if ema is not None else None
     t0 = time.perf_counter() - state["seconds"]
     with _Progress(progress, total, state["step"], name) as bar:
         begin = 0
-        for index, phase in enumerate(phases):
+        for phase in phases:
             end = begin + phase.steps
             if state["step"] >= end:
                 begin = end
@@ -121,10 +119,9 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                 if opt is not None:
                     for group in opt.param_groups:
                         group["lr"] = lr * group.get("lr_scale", 1.0)
-                if hook is not None:
-                    hook(step, total)
-                    if ema_hook is not None:
-                        ema_hook(step, total)
+                model.on_step(step, total)
+                if ema is not None:
+                    ema.shadow.on_step(step, total)
                 values = phase.losses(step - begin)
                 finite = True
                 if opt is not None:
