@@ -28,13 +28,6 @@ from ..warp.uniform import uniform
 RENAMED_MODELS = {"zeltner": "neumip-frame"}  # the Zeltner-style baseline of Timonen et al. 2025, renamed
 
 
-def model_config_class(cls: type) -> type:
-    """The Config dataclass of model class `cls` (its `Config` attribute, else the type of a default
-    instance's `cfg`)."""
-    config = getattr(cls, "Config", None)
-    return config if config is not None else type(cls().cfg)
-
-
 def source_info(source: Any) -> dict:
     """{"name", "sha256"} of a training source: a file (hash of its bytes), a spec string (hash of the
     text), a Material (hash of its float32 values at 4096 fixed queries) or a list of those (names joined,
@@ -96,7 +89,7 @@ def load_model(path: str | Path, device: str | torch.device | None = None):
     except NeumatError as e:
         raise DataFormatError(f"{where}: {e}") from None
     try:
-        cfg = config_from_dict(model_config_class(cls), header["config"])
+        cfg = config_from_dict(cls.Config, header["config"])
         model = cls(config=cfg)
     except InputError as e:
         raise DataFormatError(f"{where}: bad config for model {header['type']!r}: {e}") from None
