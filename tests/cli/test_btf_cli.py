@@ -34,7 +34,7 @@ def test_fit_dictionary_and_errors(tmp_path):
 
 def test_btf_generate(tmp_path, shared_data):
     out = tmp_path / "wood.nbtf"
-    r = CliRunner().invoke(_apps(), ["data", "btf-generate", str(shared_data / "svbrdf" / "Wood092_1K"), str(out),
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", str(shared_data / "svbrdf" / "Wood092_1K"), "-o", str(out),
                                      "--size", "8", "--crop", "64", "--directions", "5", "--spp", "1"])
     assert r.exit_code == 0, r.output
     btf = read_btf(out)
@@ -50,13 +50,13 @@ def test_btf_generate_procedural_material(tmp_path):
     from neumat.reflectance.procedural_texture import procedural_texture_set
 
     out = tmp_path / "bricks.nbtf"
-    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:bricks~2", str(out), "--size", "8",
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:bricks~2", "-o", str(out), "--size", "8",
                                      "--directions", "5", "--spp", "1"])
     assert r.exit_code == 0, r.output
     d = direction_set(5)
     expected = generate_btf(procedural_texture_set("bricks", 8, seed=1, variant=2), d, d, relief=4.0, spp=1)
     torch.testing.assert_close(read_btf(out).data.float(), expected.data, rtol=2e-3, atol=1e-4)   # stored fp16
-    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:velvet", str(tmp_path / "v.nbtf")])
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:velvet", "-o", str(tmp_path / "v.nbtf")])
     assert r.exit_code != 0 and "procedural material 'velvet'" in r.output
 
 

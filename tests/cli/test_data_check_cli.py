@@ -54,13 +54,13 @@ def test_info_spec_and_errors(tmp_path):
 
 def test_convert_analytic_to_merl(tmp_path):
     out = tmp_path / "lam.binary"
-    r = runner.invoke(app, ["data", "convert", "lambert:albedo=0.3/0.6/0.9", str(out)])
+    r = runner.invoke(app, ["data", "convert", "lambert:albedo=0.3/0.6/0.9", "-o", str(out)])
     assert r.exit_code == 0, r.output
     t = read_merl(out).table
     valid = t[0] >= 0
     for c, a in enumerate((0.3, 0.6, 0.9)):
         np.testing.assert_allclose(t[c][valid] * MERL_SCALE[c], a / np.pi, rtol=1e-6)
-    r = runner.invoke(app, ["data", "convert", "lambert", str(tmp_path / "x.png")])
+    r = runner.invoke(app, ["data", "convert", "lambert", "-o", str(tmp_path / "x.png")])
     assert r.exit_code == 2 and ".binary" in r.output
 
 

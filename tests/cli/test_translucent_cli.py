@@ -27,7 +27,7 @@ def _said(result) -> str:
 def test_trace_fit_render(tmp_path):
     mitsuba_or_skip()
     obs, model, image, picture = (tmp_path / n for n in ("o.npz", "m.nmat", "img.exr", "cmp.png"))
-    r = _run("trace", obs, "--images", 4, "--resolution", 8, "--spp", 2, "--media", "marble,skin1")
+    r = _run("trace", "-o", obs, "--images", 4, "--resolution", 8, "--spp", 2, "--media", "marble,skin1")
     assert r.exit_code == 0, r.output
     data = Observations.load(obs)
     assert len(data) > 0 and Observations.load_source(obs)["object"]["media"] == ["marble", "skin1"]
@@ -58,8 +58,10 @@ def test_trace_fit_render(tmp_path):
 
 
 def test_errors_name_the_problem(tmp_path):
-    r = _run("trace", tmp_path / "o.txt")
+    r = _run("trace", "-o", tmp_path / "o.txt")
     assert r.exit_code == 2 and ".npz" in _said(r)
+    r = _run("trace", "-o", tmp_path / "o.npz", "--scene", "cube")
+    assert r.exit_code == 2 and "mesh:PATH" in _said(r)
     r = _run("fit", tmp_path / "missing.npz", "-o", tmp_path / "m.nmat")
     assert r.exit_code == 2 and "doesnotexist" in _said(r)
     x = torch.zeros(4, 3)
@@ -74,6 +76,8 @@ def test_errors_name_the_problem(tmp_path):
     save_model(NeuPreSS(features=4, width=4, layers=1, sampler_hidden=(4,)), tmp_path / "n.nmat")
     r = _run("render", tmp_path / "n.nmat", tmp_path / "plain.npz", "-o", tmp_path / "i.png")
     assert r.exit_code == 2 and "objectdescription" in _said(r)
+    r = _run("render", tmp_path / "n.nmat", tmp_path / "plain.npz", "-o", tmp_path / "i.png", "--light", "point:0/0/1")
+    assert r.exit_code == 2 and "env:sky" in _said(r)
 
 
 def test_fit_takes_recipe_and_config_overrides_and_resumes(tmp_path):

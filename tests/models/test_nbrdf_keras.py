@@ -130,7 +130,7 @@ def test_convert_to_merl_and_open(fits, tmp_path):
     from neumat.catalog.open_material import open_material
 
     out = tmp_path / "chrome.binary"
-    r = CliRunner().invoke(app, ["data", "convert", str(fits / "chrome.h5"), str(out)])
+    r = CliRunner().invoke(app, ["data", "convert", str(fits / "chrome.h5"), "-o", str(out)])
     assert r.exit_code == 0, r.output
     table = read_merl(out).table
     r_ = np.random.default_rng(1)

@@ -86,11 +86,11 @@ def _bad_cases(t: Path) -> dict[str, list[str]]:
         "material-layered-self": ["render", str(t / "self.json"), "--resolution", "8", "-o", out],
         "material-unknown-suffix": ["render", str(t / "notes.txt"), "--resolution", "8", "-o", out],
         "compare-one": ["compare", "lambert", "--resolution", "8"],
-        "btf-wrong-suffix": ["data", "btf-generate", "procedural:bumps", str(t / "b.png"), "--size", "8"],
-        "btf-size-huge": ["data", "btf-generate", "procedural:bumps", nbtf, "--size", "100000"],
-        "btf-size-zero": ["data", "btf-generate", "procedural:bumps", nbtf, "--size", "0"],
-        "btf-device": ["data", "btf-generate", "procedural:bumps", nbtf, "--size", "8", "--device", "foo"],
-        "convert-to-folder": ["data", "convert", "lambert", str(t / "folder.png")],
+        "btf-wrong-suffix": ["data", "btf-generate", "procedural:bumps", "-o", str(t / "b.png"), "--size", "8"],
+        "btf-size-huge": ["data", "btf-generate", "procedural:bumps", "-o", nbtf, "--size", "100000"],
+        "btf-size-zero": ["data", "btf-generate", "procedural:bumps", "-o", nbtf, "--size", "0"],
+        "btf-device": ["data", "btf-generate", "procedural:bumps", "-o", nbtf, "--size", "8", "--device", "foo"],
+        "convert-to-folder": ["data", "convert", "lambert", "-o", str(t / "folder.png")],
         "info-missing": ["data", "info", str(t / "none.binary")],
         "dictionary-patch-zero": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat"), "--patch", "0"],
         "dictionary-iterations-zero": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat"), "--iterations", "0"],
@@ -138,7 +138,7 @@ def test_bad_mesh_face_index_is_refused_not_a_crash(tmp_path):
     (tmp_path / "bad.ply").write_text(TRIANGLE.format(99999))
     for args in (["render", "lambert", "--scene", f"mesh:{tmp_path / 'bad.ply'}", "--resolution", "8",
                   "-o", str(tmp_path / "x.png")],
-                 ["translucent", "trace", str(tmp_path / "o.npz"), "--shape", str(tmp_path / "bad.ply")]):
+                 ["translucent", "trace", "-o", str(tmp_path / "o.npz"), "--scene", f"mesh:{tmp_path / 'bad.ply'}"]):
         r = _neumat(args)
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert "vertex 99999" in " ".join(r.stderr.split())
@@ -157,7 +157,7 @@ def test_fifo_in_a_texture_set_is_refused_not_a_hang(tmp_path):
 def test_failed_writes_leave_nothing_and_outputs_are_0644(tmp_path):
     from neumat.io.atomic import atomic_write
     from neumat.core.errors import InputError
-    r = CliRunner().invoke(app, ["data", "btf-generate", "procedural:bumps", str(tmp_path / "b.nbtf"), "--size", "4",
+    r = CliRunner().invoke(app, ["data", "btf-generate", "procedural:bumps", "-o", str(tmp_path / "b.nbtf"), "--size", "4",
                                  "--directions", "4", "--spp", "1"])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "b.nbtf").stat().st_mode & 0o777 == 0o644 & ~_umask()

@@ -40,15 +40,17 @@ def register(app: typer.Typer) -> None:
                                                                     "[default: sparse-btf recipe]"),
             iterations: int = typer.Option(None, "--iterations", min=1, help="maximum training iterations "
                                                                       "[default: sparse-btf recipe steps - 1]"),
-            seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]", **SEED_RANGE)) -> None:
+            seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]", **SEED_RANGE),
+            device: str = typer.Option("cpu", "--device", callback=device_option),
+            quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs."""
         from ..fit.sparse_dictionary import train_dictionary
         from ..reflectance.btf import read_btf
 
         def go():
-            data = [read_btf(p) for p in btfs]
+            data = [read_btf(p, device=device) for p in btfs]
             d = train_dictionary(data, dictionaries, None if tau is None else parse_tau(tau), patch,
-                                 sample_fraction=fraction, max_iters=iterations, seed=seed, progress=True)
+                                 sample_fraction=fraction, max_iters=iterations, seed=seed, progress=not quiet)
             d.save(out)
             rows = [{"channel": ch, "iterations": d.info["iterations"][ch], "seconds": d.info["seconds"][ch],
                      "objective": d.info["objective"][ch][-1]} for ch in "YUV"]
@@ -63,7 +65,7 @@ def register_data(data_app: typer.Typer) -> None:
     def btf_generate(
             textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...), "
                                             "or procedural:<class>[~<variant>] (bumps, weave, bricks, dents, ridges)"),
-            out: Path = typer.Argument(..., callback=output_option(".nbtf"), help="output .nbtf file"),
+            out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nbtf"), help="output .nbtf file"),
             size: int = typer.Option(64, "--size", min=1, help="BTF resolution (size x size texels)"),
             crop: int = typer.Option(0, "--crop", min=0, help="crop this many source texels first (0: the whole set)"),
             directions: str = typer.Option("hemi151", "--directions",
@@ -71,7 +73,8 @@ def register_data(data_app: typer.Typer) -> None:
             spp: int = typer.Option(4, "--spp", min=1, help="sub-pixel rays per texel (square number)"),
             relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from the "
                                                                 "set; 4 for a procedural material)"),
-            device: str = typer.Option("cpu", "--device", callback=device_option)) -> None:
+            device: str = typer.Option("cpu", "--device", callback=device_option),
+            quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
         field."""
         from ..io.btf import write_btf
@@ -87,7 +90,7 @@ def register_data(data_app: typer.Typer) -> None:
             else:
                 tile, tile_relief = texture_tile(load_texture_set(textures), size, crop or None)
             d = direction_set(int(directions) if directions.isdigit() else directions)
-            btf = generate_btf(tile, d, d, relief=relief or tile_relief, spp=spp, device=device, progress=True,
+            btf = generate_btf(tile, d, d, relief=relief or tile_relief, spp=spp, device=device, progress=not quiet,
                                label=tile.name)
             write_btf(out, btf, extra={"source": str(textures), "crop": crop, "relief": relief or tile_relief})
             print(f"wrote {out}: {size}x{size} texels, {d.shape[0]}x{d.shape[0]} directions "

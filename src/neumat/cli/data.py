@@ -24,9 +24,10 @@ def info(file: str = typer.Argument(..., help="material file (.binary, .bsdf, .n
 
 
 @app.command()
-def convert(source: str = typer.Argument(..., help="RGL .bsdf, .nmat or analytic spec"),
-            out: Path = typer.Argument(..., callback=output_option(".binary"),
-                                       help="output MERL .binary file")) -> None:
+def convert(source: str = typer.Argument(..., help="any BRDF: RGL .bsdf, NBRDF .h5, .nmat or analytic spec"),
+            out: Path = typer.Option(..., "-o", "--out", callback=output_option(".binary"),
+                                     help="output MERL .binary file"),
+            quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
     """Tabulate any BRDF to the MERL layout and write it as .binary."""
     from ..io.merl import write_merl
     from ..catalog.open_material import open_material
@@ -36,7 +37,7 @@ def convert(source: str = typer.Argument(..., help="RGL .bsdf, .nmat or analytic
         if out.suffix.lower() != ".binary":
             from ..core.errors import InputError
             raise InputError(f"output {out}: only MERL .binary output is supported")
-        table = tabulate_merl(open_material(source), progress=True)
+        table = tabulate_merl(open_material(source), progress=not quiet)
         write_merl(out, table)
         print(f"wrote {out} ({out.stat().st_size} bytes)")
     run_command(go)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import typer
 
-from .common import IMAGE_OUT, SEED_RANGE, output_option, print_table, run_command
+from .common import IMAGE_OUT, SEED_RANGE, device_option, output_option, print_table, run_command
 
 app = typer.Typer(help="Translucent objects (NeuPreSS): trace observations with Mitsuba 3, fit, render.",
                   no_args_is_help=True)
@@ -16,9 +16,29 @@ def register(main: typer.Typer) -> None:
     main.add_typer(app, name="translucent")
 
 
+def object_shape(scene: str) -> str:
+    """TranslucentConfig.shape of a --scene value: 'sphere', or the path of `mesh:PATH`."""
+    if scene == "sphere":
+        return scene
+    if scene.startswith("mesh:") and scene[5:]:
+        return scene[5:]
+    from ..core.errors import InputError
+    raise InputError(f"--scene: expected 'sphere' or mesh:PATH (a closed PLY mesh), got {scene!r}")
+
+
+def environment_map(light: str) -> str:
+    """'sky' or the map's path, from a --light value env:sky / env:PATH."""
+    if light.startswith("env:") and light[4:]:
+        return light[4:]
+    from ..core.errors import InputError
+    raise InputError(f"--light: translucent renders take an environment, env:sky or env:PATH (.hdr / .exr), "
+                     f"got {light!r}")
+
+
 @app.command()
-def trace(out: Path = typer.Argument(..., callback=output_option(".npz"), help="observations file to write (.npz)"),
-          shape: str = typer.Option("sphere", help="'sphere' or a closed PLY triangle mesh"),
+def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".npz"),
+                               help="observations file to write (.npz)"),
+          scene: str = typer.Option("sphere", help="the object: 'sphere' or mesh:PATH (a closed PLY triangle mesh)"),
           media: str = typer.Option("marble,ketchup", help="the two Jensen et al. media the noise mixes, A,B"),
           size_mm: float = typer.Option(4.0, help="millimetres across the bounding-box diagonal (smaller: more "
                                                    "translucent)"),
@@ -27,7 +47,8 @@ def trace(out: Path = typer.Argument(..., callback=output_option(".npz"), help="
           resolution: int = typer.Option(32, min=1, help="rays per side of each view"),
           spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: "
                                                   "32 is ~1.7x the time of 8)"),
-          seed: int = typer.Option(0, **SEED_RANGE)) -> None:
+          seed: int = typer.Option(0, **SEED_RANGE),
+          quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
     def go():
         from ..core.config import config_to_dict
@@ -35,10 +56,10 @@ def trace(out: Path = typer.Argument(..., callback=output_option(".npz"), help="
         from ..reflectance.translucent import TranslucentConfig, TranslucentObject
 
         _check_suffix(out, ".npz", "trace OUT")
-        cfg = TranslucentConfig(shape=shape, media=tuple(m.strip() for m in media.split(",")), size_mm=size_mm,
+        cfg = TranslucentConfig(shape=object_shape(scene), media=tuple(m.strip() for m in media.split(",")), size_mm=size_mm,
                                 roughness=roughness)
         obj = TranslucentObject(cfg, spp=spp, seed=seed)
-        obs = collect_observations(obj, images, resolution, seed=seed, progress=True)
+        obs = collect_observations(obj, images, resolution, seed=seed, progress=not quiet)
         obs.save(out, source={"object": config_to_dict(cfg), "spp": spp, "seed": seed,
                               "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]})
         print(f"wrote {out}: {len(obs)} observations x {spp} paths ({obj.describe()})")
@@ -116,7 +137,8 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
            out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
                                     help="image (.png, .exr, .hdr); with --reference-spp a "
                                                             "comparison picture (.png)"),
-           envmap: str = typer.Option("sky", help="'sky' or an equirectangular .hdr / .exr map"),
+           light: str = typer.Option("env:sky", help="the environment: env:sky or env:PATH (equirectangular .hdr / "
+                                                     ".exr), as `neumat render --light`"),
            env_width: int = typer.Option(128, help="box-filter the map to this width first"),
            resolution: int = typer.Option(64, min=8, help="image width and height"),
            spp: int = typer.Option(64, min=1, help="samples per pixel"),
@@ -126,7 +148,9 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
                                                            "compare"),
            azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
            elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
-           seed: int = typer.Option(0, **SEED_RANGE)) -> None:
+           seed: int = typer.Option(0, **SEED_RANGE),
+           device: str = typer.Option("cpu", "--device", callback=device_option,
+                                      help="torch device the model is evaluated on")) -> None:
     """Render MODEL on the geometry of its object under an environment map (Eq. 5)."""
     def go():
         import time
@@ -144,7 +168,8 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         from ..render.translucent import orbit_camera, render_translucent, render_translucent_reference
         from ..viz.compare import compare_image
 
-        m = load_model(model)
+        envmap = environment_map(light)
+        m = load_model(model, device=device)
         if not isinstance(m, NeuPreSS):
             raise InputError(f"{model}: expected a NeuPreSS model, got {type(m).__name__}")
         source = Observations.load_source(observations)

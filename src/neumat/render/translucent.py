@@ -14,6 +14,7 @@ import torch
 
 from ..core.checks import check_int
 from ..core.errors import InputError
+from ..core.material import material_device
 from ..core.query import Query
 from ..reflectance.translucent import TranslucentObject
 from .camera import Camera, make_camera
@@ -45,12 +46,14 @@ def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camer
                        spp: int = 16, strategy: str = "light", seed: int = 0, batch: int = 1 << 15) -> torch.Tensor:
     """(resolution, resolution, 3) float32 subsurface radiance of `model` (a Material with full_sphere,
     queried with x, wo, wi and the normal n; with strategy "model" it must have `sample_incident`) on the geometry of
-    `obj`, lit by `env`, `spp` samples per pixel (jittered over the pixel)."""
+    `obj`, lit by `env`, `spp` samples per pixel (jittered over the pixel). The model is queried on its own
+    device; the image is on the CPU."""
     if strategy not in STRATEGIES:
         raise InputError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
     if strategy == "model" and not hasattr(model, "sample_incident"):
         raise InputError(f"strategy 'model': {type(model).__name__} has no sample_incident")
     check_int(spp, "spp")
+    dev = material_device(model)
     gen = torch.Generator().manual_seed(seed)
     o, d = _pixel_rays(camera, resolution, spp, gen)
     hit, x, n = obj.first_hits(o, d)
@@ -64,10 +67,10 @@ def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camer
                 ls = env.sample(x[sl], u)
                 wi, pdf, radiance = ls.wi, ls.pdf, ls.radiance
             else:
-                q = Query(wi=n[sl], wo=wo[sl], x=x[sl], n=n[sl])
-                wi, pdf = model.sample_incident(q, u.float())
+                q = Query(wi=n[sl], wo=wo[sl], x=x[sl], n=n[sl]).to(dev)
+                wi, pdf = (t.cpu() for t in model.sample_incident(q, u.float().to(dev)))
                 radiance = env.eval(wi)
-            f = model.eval(Query(wi=wi, wo=wo[sl], x=x[sl], n=n[sl]))
+            f = model.eval(Query(wi=wi, wo=wo[sl], x=x[sl], n=n[sl]).to(dev)).cpu()
             ok = (pdf > 0).unsqueeze(-1)
             values[sl] = torch.where(ok, f * radiance / pdf.clamp(min=1e-30).unsqueeze(-1), torch.zeros_like(f))
     image = torch.zeros(o.shape[0], 3)
