@@ -53,7 +53,7 @@ the trainer must call to get these numbers),
 loaded cores ran 3 - 10x slower than one).
 
 CPU_RECIPE, what `neumat fit` runs on a CPU unless told otherwise: the paper's model (N_side 64) for about
-10 minutes on one core (benchmarks/results/cpu_recipes.md): 1500 steps of 2^13 (half the batch: twice the
+10 minutes on one core (0.33 CPU s per step, 8 minutes; benchmarks/results/cpu_recipes.md): 1500 steps of 2^13 (half the batch: twice the
 steps for the same time, more optimiser updates help a short fit more than larger batches), the same four
 halvings of the learning rate spread over the shorter run (every 375 steps), and the same EMA (a window of
 ~100 steps, short enough for 1500). For a better CPU fit in the same time at a smaller size, use
@@ -71,4 +71,4 @@ RECIPE = Recipe(steps=20000, batch_size=2 ** 14, lr=1e-2, betas=(0.9, 0.999), ep
 CPU_RECIPE = Recipe(steps=1500, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
                     lr_decay_every=375, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
                     log_every=50, schedule="step", checkpoint_every=250)
-CPU_MINUTES = 10
+CPU_MINUTES = 8
