@@ -116,3 +116,104 @@ def test_eval_with_image_table(app, teacher):
 def test_eval_missing_model(app, tmp_path):
     res = CliRunner().invoke(app, ["eval", str(tmp_path / "none.nmat"), "--against", "lambert", "--no-image"])
     assert res.exit_code == 2 and "does not exist" in _text(res)
+
+
+def test_fit_neubrdf_at_defaults_writes_the_small_runtime_form(app, tmp_path):
+    """The file is the shipped form (packed 9-bit indices, fp16 codebook and MLP: under 200 KB at the paper's
+    N_side 64, within 2x of the reported bytes), not the 102 MB of training logits, which only the checkpoint
+    keeps; it evaluates bit for bit like the runtime form of the fitted (EMA) weights; eval scores it."""
+    from neumat.core.query import Query
+
+    out, ckpt = tmp_path / "m.nmat", tmp_path / "fit.ckpt"
+    res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", "--steps", "2", "--device", "cpu", "--quiet",
+                                   "--checkpoint", str(ckpt), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    h = read_header(out)
+    assert h["runtime"] and h["config"]["nside"] == 64 and h["config"]["index_bits"] == 9
+    size = out.stat().st_size
+    assert size < 200_000 and size < 2 * h["size_bytes"]["fp16"] and ckpt.stat().st_size > 100e6
+    reference = NeuBRDF()
+    reference.load_state_dict(torch.load(ckpt, weights_only=False)["ema"])  # the fitted weights, training form
+    reference.runtime()
+    gen = torch.Generator().manual_seed(0)
+    wi, wo = (torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1).abs() for _ in range(2))
+    with torch.no_grad():
+        assert torch.equal(load_model(out).eval(Query(wi, wo)), reference.eval(Query(wi, wo)))
+    res = CliRunner().invoke(app, ["eval", str(out), "--against", "plastic:roughness=0.3", "--json", "--n", "4096",
+                                   "--no-image"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["bytes_fp16"] == h["size_bytes"]["fp16"]
+
+
+def test_fit_on_cpu_picks_the_cpu_recipe_and_says_so(app, teacher, tmp_path):
+    """Without --steps on a CPU the CPU-sized recipe runs and one line names it and the paper's; --recipe paper
+    picks the paper's (here with --set steps to keep the test short: --set fields still apply)."""
+    from neumat.fit.recipe import recipe_for
+
+    cpu, paper = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
+    assert cpu.steps * cpu.batch_size < paper.steps * paper.batch_size
+    args = ["fit", teacher, *SMALL, "--device", "cpu"]
+    res = CliRunner().invoke(app, [*args, "--set", "steps=3", "--recipe", "cpu", "-o", str(tmp_path / "c.nmat")])
+    assert res.exit_code == 0, res.output
+    h = read_header(tmp_path / "c.nmat")
+    assert h["recipe"]["steps"] == 3 and h["recipe"]["lr_decay_every"] == cpu.lr_decay_every
+    res = CliRunner().invoke(app, [*args, "--set", "steps=3", "--recipe", "paper", "-o", str(tmp_path / "p.nmat")])
+    assert res.exit_code == 0, res.output
+    assert read_header(tmp_path / "p.nmat")["recipe"]["lr_decay_every"] == paper.lr_decay_every
+    assert "CPU-sized" not in res.output
+    res = CliRunner().invoke(app, [*args, "--recipe", "gpu", "-o", str(tmp_path / "x.nmat")])
+    assert res.exit_code == 2 and "--recipe" in _text(res)
+
+
+def test_cpu_recipe_is_the_default_on_a_cpu(monkeypatch):
+    """The choice itself (a full CPU-recipe fit takes minutes): cpu on a CPU device without a step budget,
+    paper with --steps / --set steps or on a GPU, --recipe wins; the announcement names both recipes."""
+    from neumat.fit.recipe import recipe_for
+
+    cpu, gpu = torch.device("cpu"), torch.device("cuda")
+    assert fitting.choose_recipe(None, cpu, False) == "cpu"
+    assert fitting.choose_recipe(None, cpu, True) == "paper"
+    assert fitting.choose_recipe(None, gpu, False) == "paper"
+    assert fitting.choose_recipe("paper", cpu, False) == "paper" and fitting.choose_recipe("cpu", gpu, True) == "cpu"
+    note = fitting.cpu_recipe_note("neubrdf", recipe_for("neubrdf", "cpu"))
+    c, p = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
+    assert note.startswith(f"using the CPU-sized recipe of neubrdf ({c.steps} steps x {c.batch_size}, about ")
+    assert note.endswith(f"the paper's is {p.steps} steps x {p.batch_size} (--recipe paper)")
+
+
+def test_fit_without_steps_on_a_cpu_announces_the_cpu_recipe(app, teacher, tmp_path, monkeypatch):
+    """Through the command: no --steps on a CPU -> the CPU recipe, announced (its steps shortened by patching the
+    recipe module, so that the test stays fast)."""
+    from dataclasses import replace
+
+    import neumat.fit.recipes.neubrdf as module
+
+    monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=2))
+    res = CliRunner().invoke(app, ["fit", teacher, *SMALL, "--device", "cpu", "-o", str(tmp_path / "c.nmat")])
+    assert res.exit_code == 0, res.output
+    assert "using the CPU-sized recipe of neubrdf (2 steps x 256" in _text(res)
+    assert read_header(tmp_path / "c.nmat")["recipe"]["lr_decay_every"] == module.CPU_RECIPE.lr_decay_every
+
+
+def test_eval_and_compare_take_source_options(app, teacher, monkeypatch):
+    """--source-option reaches the reader of the reference, as fit's does (an analytic spec takes none: the
+    error says so); compare passes them to its first material only."""
+    import neumat.catalog.open_material as opener
+    from neumat.cli import rendering
+
+    res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--source-option", "max_size=64",
+                                   "--no-image", "--n", "256"])
+    assert res.exit_code == 2 and "max_size" in _text(res)
+    seen = []
+    real = opener.open_material
+    monkeypatch.setattr(opener, "open_material", lambda name, **kw: seen.append((name, kw)) or real(name))
+    res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--source-option", "max_size=64",
+                                   "--no-image", "--n", "256", "--json"])
+    assert res.exit_code == 0, res.output
+    assert seen == [("lambert", {"max_size": 64})]
+    rendering.register(app)
+    seen.clear()
+    res = CliRunner().invoke(app, ["compare", "lambert", teacher, "--source-option", "max_size=64", "--spp", "1",
+                                   "--resolution", "8", "--n-configs", "256", "--json"])
+    assert res.exit_code == 0, res.output
+    assert seen == [("lambert", {"max_size": 64}), (teacher, {})]

@@ -47,3 +47,39 @@ def test_recipe_for_neubrdf_is_a_valid_copy_and_round_trips():
 def test_recipe_for_unknown_model_raises():
     with pytest.raises(UnknownNameError, match="no training recipe for model 'nope'"):
         recipe_for("nope")
+
+
+def test_every_model_has_a_cpu_recipe_no_larger_than_the_papers():
+    """recipe_for(name, "cpu") is the module's CPU_RECIPE: valid, with the paper's options, never a larger budget
+    (steps x batch) than RECIPE; "gpu" is the paper's; an unknown machine is refused."""
+    from neumat.fit.recipe import cpu_minutes, recipe_names
+
+    for name in recipe_names():
+        cpu, paper = recipe_for(name, "cpu"), recipe_for(name, "paper")
+        check_recipe(cpu)
+        assert cpu.options == paper.options and recipe_for(name, "gpu") == paper, name
+        assert cpu.steps * cpu.batch_size <= paper.steps * paper.batch_size, name
+        assert cpu_minutes(name) is None or 0 < cpu_minutes(name) <= 15, name
+    cpu, paper = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
+    assert cpu.steps < paper.steps and cpu.steps // cpu.lr_decay_every == paper.steps // paper.lr_decay_every
+    with pytest.raises(InputError, match="machine"):
+        recipe_for("neubrdf", "tpu")
+
+
+def test_latent_pyramids_follow_the_source():
+    """The latent-pyramid models size their spatial latents from the texture set (the largest power of two not
+    above its smaller side), none for a source without textures; an explicit --set wins in the CLI."""
+    from types import SimpleNamespace
+
+    from neumat.cli.fitting import build_model_and_recipe
+    from neumat.fit.recipe import recipe_config_for_source
+
+    source = SimpleNamespace(textures=SimpleNamespace(size=(38, 64)))
+    for name in ("multiscale", "neumip", "neumip-frame", "nbrdf-uv", "tripleplane", "ggx-mipmap",
+                 "neural-appearance"):
+        assert recipe_config_for_source(name, source, {})["spatial_size"] == 32, name
+        assert "spatial_size" not in recipe_config_for_source(name, SimpleNamespace(), {}), name
+    model, _ = build_model_and_recipe("neumip", {}, source=source)
+    assert model.cfg.spatial_size == 32
+    model, _ = build_model_and_recipe("neumip", {"spatial_size": 64}, source=source)
+    assert model.cfg.spatial_size == 64

@@ -25,6 +25,9 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field, "
                                                            "else a recipe option; lists as a,b"),
         steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
+        recipe_name: str = typer.Option(None, "--recipe", help="paper | cpu: the model's paper recipe (sized for a "
+                                        "GPU) or its CPU-sized one (about 10 min on 2 cores); default: cpu on a CPU "
+                                        "device when neither --steps nor --set steps=N is given, else paper"),
         device: str = typer.Option(None, callback=device_option,
                                   help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, **SEED_RANGE, 
@@ -41,9 +44,10 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                                            "the same as --set tau=..."),
         out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
                                  help="output model file (.nmat)")) -> None:
-    """Fit MODEL to SOURCE through the one trainer, with the model's recipe (the paper's defaults; --set overrides
-    config fields, recipe fields and recipe options), and save it as a .nmat file that records the recipe and the
-    source's name and hash. Models trained in stages (neural-appearance: encoder then latents; neupress:
+    """Fit MODEL to SOURCE through the one trainer, with the model's recipe (the paper's on a GPU, the CPU-sized
+    one on a CPU unless --steps or --recipe paper; --set overrides config fields, recipe fields and recipe
+    options), and save the model in its shipped (runtime) form as a .nmat file that records the recipe and the
+    source's name and hash; training state lives only in --checkpoint. Models trained in stages (neural-appearance: encoder then latents; neupress:
     appearance then sampler; sparse-btf: dictionary then coding) run them as phases of the same fit, with
     --device, --checkpoint and --resume."""
 
@@ -58,16 +62,43 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
             overrides["dictionary"] = str(dictionary)
         if tau is not None:
             overrides.update(parse_overrides([f"tau={tau}"]))
+        dev = resolve_device(device)
+        machine = choose_recipe(recipe_name, dev, steps is not None or "steps" in overrides)
         src = open_training_source(model, sources, parse_overrides(source_option, "--source-option"))
-        m, recipe = build_model_and_recipe(model, overrides, seed, source=src)
-        result = fit_model(m, src, recipe, steps=steps, device=resolve_device(device), progress=not quiet,
+        m, recipe = build_model_and_recipe(model, overrides, seed, source=src, machine=machine)
+        if machine == "cpu" and recipe_name is None and not quiet:
+            print(cpu_recipe_note(model, recipe))
+        result = fit_model(m, src, recipe, steps=steps, device=dev, progress=not quiet,
                            checkpoint=checkpoint, resume=resume)
         last = result.history[-1] if result.history else {}
         metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
-        save_model(result.model, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
+        shipped = result.model.runtime()
+        save_model(shipped, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
                    metrics=metrics)
-        print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']})")
+        print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']}; "
+              f"{out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} bytes stored at fp16)")
     run_command(go)
+
+
+def choose_recipe(recipe_name: str | None, device, budget_given: bool) -> str:
+    """Which of the model's recipes a fit runs: `recipe_name` ("paper" or "cpu") when given, else "cpu" on a CPU
+    device when the command line names no step budget, else "paper"."""
+    if recipe_name is not None:
+        if recipe_name not in ("paper", "cpu"):
+            raise InputError(f"--recipe: expected 'paper' or 'cpu', got {recipe_name!r}")
+        return recipe_name
+    return "cpu" if device.type == "cpu" and not budget_given else "paper"
+
+
+def cpu_recipe_note(model: str, recipe) -> str:
+    """The line `neumat fit` prints when it picks the CPU-sized recipe on its own: its budget, its expected time
+    and the paper's recipe, with how to ask for it."""
+    from ..fit.recipe import cpu_minutes, recipe_for
+
+    paper, minutes = recipe_for(model, "paper"), cpu_minutes(model)
+    time = "its time follows the source" if minutes is None else f"about {minutes:g} min"
+    return (f"using the CPU-sized recipe of {model} ({recipe.steps} steps x {recipe.batch_size}, {time}); the "
+            f"paper's is {paper.steps} steps x {paper.batch_size} (--recipe paper)")
 
 
 def resolve_device(device: str | None):
@@ -112,9 +143,10 @@ def _unknown_keys(overrides: dict, known: set[str]) -> str:
     return "; ".join(f"{k!r}" + (f" (did you mean {', '.join(h)}?)" if h else "") for k, h in hints.items())
 
 
-def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None, source=None):
-    """A fresh model `model` and its recipe with `overrides` applied: model config fields first, then recipe
-    fields, then recipe options (unknown keys raise). With a `source`, the recipe module's
+def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None, source=None,
+                           machine: str = "paper"):
+    """A fresh model `model` and its recipe for `machine` ("paper" or "cpu", see `recipe_for`) with `overrides`
+    applied: model config fields first, then recipe fields, then recipe options (unknown keys raise). With a `source`, the recipe module's
     `config_for_source(source, options) -> dict` (if it has one) supplies config defaults that follow the source (e.g. the
     latent resolution of a texture set); overrides win. The model is initialised after seeding torch with the
     recipe's seed."""
@@ -127,7 +159,7 @@ def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None,
     cls = model_class(model)
     config_keys = {f.name for f in fields(cls.Config)}
     recipe_keys = {f.name for f in fields(Recipe)} - {"options"}
-    base = recipe_for(model)
+    base = recipe_for(model, machine)
     option_keys = set(base.options)
     text = _unknown_keys(overrides, config_keys | recipe_keys | option_keys)
     if text:
@@ -149,15 +181,20 @@ def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None,
 
 def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              against: str = typer.Option(..., "--against", help="reference: material file or analytic spec"),
-             n: int = typer.Option(2 ** 20, "--n", min=1, help="random (wi, wo) configurations"),
+             source_option: list[str] = typer.Option(None, "--source-option",
+                                                     help="key=value passed to the reader of the reference, as "
+                                                          "`neumat fit` takes them, e.g. max_size=64"),
+             n: int = typer.Option(2 ** 18, "--n", min=1, help="random (wi, wo) configurations"),
              image: bool = typer.Option(True, "--image/--no-image", help="also compare sphere renderings"),
-             spp: int = typer.Option(64, min=1, help="samples per pixel of the renderings"),
-             resolution: int = typer.Option(256, min=8, help="rendering width and height"),
+             spp: int = typer.Option(16, min=1, help="samples per pixel of the renderings"),
+             resolution: int = typer.Option(128, min=8, help="rendering width and height"),
              device: str = typer.Option(None, callback=device_option,
                                        help="torch device (default: cuda if available, else cpu)"),
              seed: int = typer.Option(0, **SEED_RANGE),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
-    """Compare MODEL with a reference: reflectance errors, rendered-image metrics, size and speed."""
+    """Compare MODEL, as stored in its file, with a reference: reflectance errors, rendered-image metrics, size
+    and speed. The defaults take about a minute on a CPU for a small model; raise --n, --spp and --resolution
+    for final numbers."""
     def go():
         import torch
 
@@ -167,7 +204,7 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
 
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
         m = load_model(model, device=dev)
-        ref = open_material(against)
+        ref = open_material(against, **parse_overrides(source_option, "--source-option"))
         row = {"model": str(model), "against": against}
         row.update(reflectance_errors(m, ref, n=n, seed=seed, device=dev))
         if image:

@@ -5,7 +5,8 @@ from pathlib import Path
 
 import typer
 
-from .common import IMAGE_OUT, SEED_RANGE, device_option, output_option, print_json, print_table, run_command
+from .common import (IMAGE_OUT, SEED_RANGE, device_option, output_option, parse_overrides, print_json, print_table,
+                     run_command)
 
 SCENE_HELP = "sphere | plane | mesh:PATH"
 LIGHT_HELP = "point[:x/y/z] | dir[:x/y/z] | const:VALUE | env:PATH | env:sky"
@@ -46,6 +47,10 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             spp: int = typer.Option(64, min=1),
             resolution: int = typer.Option(256, min=8),
             n_configs: int = typer.Option(2 ** 18, help="random (wi, wo) configurations for reflectance errors"),
+            source_option: list[str] = typer.Option(None, "--source-option",
+                                                    help="key=value passed to the reader of the reference (the "
+                                                         "first material), as `neumat fit` takes them, e.g. "
+                                                         "max_size=64"),
             device: str = typer.Option(None, callback=device_option),
             seed: int = typer.Option(0, **SEED_RANGE),
             json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table"),
@@ -61,7 +66,8 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
     def go():
         if len(materials) < 2:
             raise InputError("compare needs a reference and at least one other material")
-        mats = {name: open_material(name) for name in materials}
+        options = parse_overrides(source_option, "--source-option")
+        mats = {name: open_material(name, **(options if i == 0 else {})) for i, name in enumerate(materials)}
         imgs = {name: render_image(m, scene=scene, light=light, spp=spp, resolution=(resolution, resolution),
                                    seed=seed, device=device, progress=not json) for name, m in mats.items()}
         ref_name = materials[0]

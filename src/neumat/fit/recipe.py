@@ -1,8 +1,11 @@
 """A training recipe: optimiser, schedule, batch, loss, query distribution and seed of one fit.
 
 Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>` ('-' ->
-'_'); that module may also define `phases(ctx) -> list[Phase]` (`neumat.fit.phase`) when the model trains in
-stages. `recipe_for` / `phases_for` find them, `recipe_names` lists every model that has one. Recipes are
+'_'), and a CPU-sized recipe as `CPU_RECIPE` (the paper's architecture, a budget that finishes in about 10
+minutes on 2 CPU cores for a typical source; benchmarks/results/cpu_recipes.md); that module may also define
+`phases(ctx) -> list[Phase]` (`neumat.fit.phase`) when the model trains in stages and
+`config_for_source(source, options)` for config fields that follow the source. `recipe_for(name, machine)` /
+`phases_for` find them, `recipe_names` lists every model that has one. Recipes are
 plain dataclasses, so `config_from_dict(Recipe, ...)` / `config_to_dict` turn them into JSON for model files,
 checkpoints and `--set` overrides.
 """
@@ -111,13 +114,37 @@ def _recipe_module(model_name: str):
         raise UnknownNameError(f"no training recipe for model {model_name!r} (expected module {module})") from None
 
 
-def recipe_for(model_name: str) -> Recipe:
-    """A copy of the default recipe of model `model_name`: `neumat.fit.recipes.<name, '-' -> '_'>.RECIPE`."""
+#: machine -> the recipe-module attribute sized for it: "paper" (= "gpu") the paper's recipe, "cpu" the CPU-sized one
+MACHINE_RECIPES = {"paper": "RECIPE", "gpu": "RECIPE", "cpu": "CPU_RECIPE"}
+
+
+def recipe_for(model_name: str, machine: str = "paper") -> Recipe:
+    """A copy of a recipe of model `model_name` from `neumat.fit.recipes.<name, '-' -> '_'>`: its `RECIPE`
+    (the paper's, sized for a GPU) for machine "paper" or "gpu", its `CPU_RECIPE` for "cpu"."""
+    if machine not in MACHINE_RECIPES:
+        raise InputError(f"recipe machine: expected one of {', '.join(MACHINE_RECIPES)}, got {machine!r}")
     mod = _recipe_module(model_name)
-    recipe = getattr(mod, "RECIPE", None)
+    attr = MACHINE_RECIPES[machine]
+    recipe = getattr(mod, attr, None)
     if not isinstance(recipe, Recipe):
-        raise InputError(f"{mod.__name__}.RECIPE: expected a neumat.fit.recipe.Recipe, got {type(recipe).__name__}")
+        raise InputError(f"{mod.__name__}.{attr}: expected a neumat.fit.recipe.Recipe, got {type(recipe).__name__}")
     return replace(recipe, options=dict(recipe.options))  # a copy: callers may edit it
+
+
+def cpu_minutes(model_name: str) -> float | None:
+    """Minutes the CPU recipe of `model_name` takes on a CPU for a typical source, as measured (its recipe
+    module's `CPU_MINUTES`; benchmarks/results/cpu_recipes.md), or None when its time follows the source
+    rather than a step budget (the BTF solvers)."""
+    minutes = getattr(_recipe_module(model_name), "CPU_MINUTES", None)
+    return None if minutes is None else float(minutes)
+
+
+def latent_size_for_source(source: Any) -> int | None:
+    """The latent-texture resolution that follows a spatially varying source: the largest power of two not above
+    the smaller side of its textures (`source.textures.size` or `source.texture_size`, (height, width)), or None
+    when the source has no textures (a homogeneous material)."""
+    size = getattr(getattr(source, "textures", None), "size", None) or getattr(source, "texture_size", None)
+    return None if size is None else 1 << (min(size).bit_length() - 1)
 
 
 def phases_for(model_name: str) -> Callable | None:

@@ -25,6 +25,7 @@ from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
 from neumat.nn.latent_texture import bilinear, trilinear
 from neumat.nn.mlp import MLP
+from neumat.nn.packing import pack_bits, unpack_bits
 from neumat.nn.row_adam import RowAdam
 
 
@@ -113,9 +114,12 @@ class NeuBRDF(LearnedMaterial):
     with a smooth gradient and lets the tiny MLP work in log space, where such data is close to
     piecewise smooth. Values below the horizon (wi_z <= 0 or wo_z <= 0) are 0.
 
-    Runtime: `runtime()` freezes the indices, switches to 1/4 weights and caches, per pixel, the average
-    of the 4 corner features and its product with the first MLP layer (an exact refactoring of the same
-    function: a pixel lookup and one gather per direction replace the first layer).
+    Runtime: `runtime()` freezes the indices, rounds the floats (codebook, MLP, texture) to fp16, switches to
+    1/4 weights and caches, per pixel, the average of the 4 corner features and its product with the first
+    MLP layer (an exact refactoring of the same function: a pixel lookup and one gather per direction replace
+    the first layer). Its `state_dict` is the shipped form: b-bit indices packed (`neumat.nn.packing`), floats
+    as fp16, pruning levels packed to `level_bits` bits; the training form holds 2n x 2^b float logits
+    (102 MB at the defaults), which only checkpoints keep.
     """
 
     name = "neubrdf"
@@ -153,6 +157,8 @@ class NeuBRDF(LearnedMaterial):
         self._pruning: tuple[torch.Tensor, ...] | None = None
         self._training_steps = False  # set by `on_step` (the trainer), cleared by `train`
         self.register_load_state_dict_post_hook(lambda module, keys: module._update_pruning())
+        self.register_state_dict_post_hook(shipped_state)
+        self.register_load_state_dict_pre_hook(unpack_levels)
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
         # runtime caches (see `runtime`): per-pixel mean corner features and first-layer pre-activations
@@ -396,7 +402,9 @@ class NeuBRDF(LearnedMaterial):
 
     @torch.no_grad()
     def runtime(self) -> "NeuBRDF":
-        """Switch to the paper's runtime mode: frozen indices, 1/4 weights, per-pixel caches.
+        """Switch to the paper's runtime mode: frozen indices, floats rounded to fp16 (what the model file
+        stores, see `shipped_state`: a saved and loaded runtime model evaluates bit for bit like this one),
+        1/4 weights, per-pixel caches.
 
         Caches, for every ring pixel p of each grid: the mean F(p) of its 4 (ancestor) corner features, and
         the first-layer pre-activations W_i F_i(p) + b and W_o F_o(p) (W = [W_i, W_o] the first MLP layer),
@@ -404,6 +412,8 @@ class NeuBRDF(LearnedMaterial):
         Evaluation is then two pixel lookups, two gathers, an add and the rest of the MLP: the same function as
         `interpolation="uniform"`."""
         self.freeze()
+        for p in self.parameters():
+            p.copy_(p.half())
         self.cfg = replace(self.cfg, interpolation="uniform")
         n, k = self.cfg.nside, self.cfg.feature_dim
         pix = torch.arange(12 * n * n, device=self.level_i.device)
@@ -428,13 +438,53 @@ class NeuBRDF(LearnedMaterial):
         (vq; the paper's formula 2 n b + p k 2^b bits), or the dense / low-bit features."""
         return storage_bytes(self.grid.storage_bits(float_bits(precision)))
 
+    @property
+    def level_bits(self) -> int:
+        """Bits of a stored pruning level (levels run from 0 to log2 N_side)."""
+        return max(1, (self.cfg.nside.bit_length() - 1).bit_length())
+
+    @property
+    def pruned(self) -> bool:
+        """Whether `prune` made some pixel look up an ancestor level."""
+        return self._pruning is not None
+
     def size_bytes(self, precision: str = "fp16") -> int:
         """Stored size: grid (see `grid_size_bytes`) + MLP weights and biases + neural texture, floats at
-        `precision`. The pruning levels are not counted (the paper counts the full grid)."""
+        `precision`, + the pruning levels of a pruned grid (`level_bits` per pixel of both grids; an
+        unpruned grid needs none, as in the paper's count). The runtime model file holds this plus its
+        header and, unpruned, the all-zero levels packed (2 x 12 N_side^2 x `level_bits` bits, 36 KB at
+        N_side 64)."""
         fb = float_bits(precision)
         floats = self.mlp.num_parameters() + (self.texture.num_parameters() if self.texture is not None else 0)
-        return storage_bytes(self.grid.storage_bits(fb) + floats * fb)
+        levels = 2 * 12 * self.cfg.nside ** 2 * self.level_bits if self.pruned else 0
+        return storage_bytes(self.grid.storage_bits(fb) + floats * fb + levels)
 
     def flops(self) -> int:
         """MLP floating-point operations per evaluation (feature lookups not counted)."""
         return self.mlp.flops()
+
+
+def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None:
+    """State-dict hook of NeuBRDF-like models (NeuBRDF, SharedNeuBRDF): in runtime mode the state is the
+    shipped form, floats as fp16 (exact: `runtime` rounded them) and the pruning levels `level_i` /
+    `level_o` packed to `module.level_bits` bits as "packed_level_i" / "packed_level_o" (the grid packs its
+    own indices); training and frozen models keep their float32 state."""
+    if not module.is_runtime:
+        return
+    for key, value in state_dict.items():
+        if key.startswith(prefix) and value.is_floating_point():
+            state_dict[key] = value.half()
+    for name in ("level_i", "level_o"):
+        state_dict[prefix + "packed_" + name] = pack_bits(state_dict.pop(prefix + name).flatten().long(),
+                                                          module.level_bits)
+
+
+def unpack_levels(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys, unexpected_keys,
+                  error_msgs) -> None:
+    """Load-state-dict pre-hook inverting `shipped_state`: packed pruning levels back to int8 pixel levels."""
+    for name in ("level_i", "level_o"):
+        key = prefix + "packed_" + name
+        if key in state_dict:
+            shape = getattr(module, name).shape
+            state_dict[prefix + name] = unpack_bits(state_dict.pop(key), module.level_bits, shape.numel(),
+                                                    key).to(torch.int8).view(shape)

@@ -25,6 +25,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
+from neumat.models.neubrdf import shipped_state, unpack_levels
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import VQFeatures, float_bits, storage_bytes
@@ -117,6 +118,9 @@ class SharedNeuBRDF(LearnedMaterial):
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
         self.active = 0
+        self._runtime = False
+        self.register_state_dict_post_hook(shipped_state)
+        self.register_load_state_dict_pre_hook(unpack_levels)
 
     @property
     def config(self) -> Config:
@@ -206,10 +210,39 @@ class SharedNeuBRDF(LearnedMaterial):
         """Freeze every material's vertex indices to integers (export / runtime)."""
         self.grid.freeze()
 
+    @property
+    def is_runtime(self) -> bool:
+        """Whether `runtime()` is in effect (model files record it and re-enter it on load)."""
+        return self._runtime
+
+    @torch.no_grad()
+    def runtime(self) -> "SharedNeuBRDF":
+        """The shipped form: frozen indices and floats rounded to fp16; its `state_dict` stores them packed
+        and as fp16, and the pruning levels packed (`neumat.models.neubrdf.shipped_state`), instead of the
+        t x 2n x 2^b float logits of training. The corner weights stay as configured (`interpolation`).
+        Returns self, in eval mode."""
+        self.freeze()
+        for p in self.parameters():
+            p.copy_(p.half())
+        self._runtime = True
+        return self.train(False)
+
+    def train(self, mode: bool = True) -> "SharedNeuBRDF":
+        """torch train / inference switch; training leaves runtime mode (the indices stay frozen)."""
+        if mode:
+            self._runtime = False
+        return super().train(mode)
+
+    @property
+    def level_bits(self) -> int:
+        """Bits of a stored pruning level (levels run from 0 to log2 N_side)."""
+        return max(1, (self.cfg.nside.bit_length() - 1).bit_length())
+
     # ------------------------------------------------------------------------------------ storage
 
     def size_bytes(self, precision: str = "fp16") -> int:
-        """All t index grids (t 2n b bits) + the shared codebook and MLP (floats at `precision`)."""
+        """All t index grids (t 2n b bits) + the shared codebook and MLP (floats at `precision`). The runtime
+        model file also holds the pruning levels, packed (t x 2 x 12 N_side^2 x `level_bits` bits)."""
         fb = float_bits(precision)
         return storage_bytes(self.grid.storage_bits(fb) + self.mlp.num_parameters() * fb)
 

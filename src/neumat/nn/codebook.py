@@ -26,6 +26,7 @@ from torch.autograd.function import once_differentiable
 
 from neumat.core.checks import check_int
 from neumat.core.errors import InputError
+from neumat.nn.packing import pack_bits, unpack_bits
 
 FLOAT_BITS = {"fp16": 16, "fp32": 32}
 
@@ -120,6 +121,7 @@ class VQFeatures(nn.Module):
         self.logits = nn.Parameter(torch.randn(num_vertices, 2 ** bits) * 0.01)
         self.sparse_grad = False
         self._scratch: dict = {}  # reusable temporaries of the training step (see `scratch`)
+        self.register_state_dict_post_hook(_pack_index)
 
     @property
     def frozen(self) -> bool:
@@ -130,7 +132,8 @@ class VQFeatures(nn.Module):
         return self.index if self.frozen else self.logits.detach().argmax(-1)
 
     def freeze(self) -> None:
-        """Replace the logits by int32 indices (export / runtime). Irreversible."""
+        """Replace the logits by int32 indices (export / runtime; `state_dict` stores them packed to `bits`
+        bits each). Irreversible."""
         if self.frozen:
             return
         idx = self.logits.detach().argmax(-1).to(torch.int32)
@@ -151,10 +154,21 @@ class VQFeatures(nn.Module):
         return self.num_vertices * self.bits + float_bits * self.dim * 2 ** self.bits
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        if prefix + "packed_index" in state_dict:  # the frozen form of `state_dict` (`_pack_index`)
+            packed = state_dict.pop(prefix + "packed_index")
+            state_dict[prefix + "index"] = unpack_bits(packed, self.bits, self.num_vertices,
+                                                       f"{prefix}packed_index").to(torch.int32)
         if prefix + "index" in state_dict and not self.frozen:  # loading an exported (frozen) model
             self.logits = None
             self.register_buffer("index", torch.zeros(self.num_vertices, dtype=torch.int32))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def _pack_index(module: VQFeatures, state_dict: dict, prefix: str, local_metadata) -> None:
+    """State-dict hook: a frozen grid stores its indices packed, `bits` bits each (`pack_bits`), as
+    "packed_index"; loading unpacks them (older files with an int32 "index" load too)."""
+    if module.frozen:
+        state_dict[prefix + "packed_index"] = pack_bits(state_dict.pop(prefix + "index"), module.bits)
 
 class DenseFeatures(nn.Module):
     """Features stored directly, (num_vertices, dim) floats (the 'w/o quantization' ablation)."""

@@ -6,6 +6,9 @@ quadrature: 1.9e3 queries/s in benchmarks/results/neupress.md). The model needs 
 (`DipoleBSSRDF.set_surface`, from the object: `TranslucentObject.surface_samples`); a fresh fit of a model
 without one takes `cfg.samples` observed points with their normals, each standing for 1 / samples of the area
 of the observed points' convex hull (exact for convex objects, an underestimate for concave ones).
+
+CPU_RECIPE: RECIPE itself, which is CPU-sized: the dipole fit of benchmarks/results/neupress.md took 47 s on 2 CPU
+cores, within the 10-minute CPU budget.
 """
 from __future__ import annotations
 
@@ -20,6 +23,10 @@ from neumat.fit.translucent_fit import observation_phase, split_observations
 
 RECIPE = Recipe(steps=300, batch_size=256, lr=0.05, schedule="halves", loss="l2", log_every=20,
                 options={"validation_fraction": 0.05, "max_validation": 4096, "bounds": None})
+
+#: RECIPE already fits the CPU budget (module docstring)
+CPU_RECIPE = RECIPE
+CPU_MINUTES = 1
 
 
 def observed_quadrature(ctx: FitContext) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -11,15 +11,36 @@ Loss (Eq. 10), per query over the RGB vector, averaged over the batch:
     L = lambda |f - f_hat|^2 / |sg(f_hat) + eps|^2 + (1 - lambda) |f - f_hat|^2,   lambda = 0.9999, eps = 1e-6
 
 registered as "relative_l2_mix" in `neumat.fit.losses` (`LOSSES`).
+
+CPU_RECIPE (the gated model and every baseline sharing this recipe): RECIPE is 4-5 GPU hours; on a CPU a
+step of 2^16 footprint queries takes seconds (each target filters the texture set over its footprint), so
+the CPU recipe takes 2^12 queries per step for 1000 steps, about 10 minutes on one core for a 1K texture set (0.59 - 0.65 CPU s per step)
+(benchmarks/results/cpu_recipes.md), with the same total learning-rate decay (x 0.9 fifty times: every 20
+steps instead of every 10k) and the same EMA weight (a window of ~200 steps). Expect a rough fit: the paper's
+quality needs RECIPE on a GPU. The latent resolution follows the source (`config_for_source`).
 """
 from __future__ import annotations
 
 import neumat.fit.footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
-from neumat.fit.recipe import Recipe
+from neumat.fit.recipe import Recipe, latent_size_for_source
 
 RECIPE = Recipe(steps=500_000, batch_size=1 << 16, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
                 lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint")
 
+#: RECIPE sized for about 10 minutes on one CPU core (module docstring)
+CPU_RECIPE = Recipe(steps=1000, batch_size=1 << 12, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
+                    lr_decay_every=20, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200)
+CPU_MINUTES = 11
+
 HOMOGENEOUS_RECIPE = Recipe(steps=100_000, batch_size=1 << 18, lr=3e-3, betas=(0.99, 0.999), eps=1e-15,
                             lr_decay=0.9, lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix",
                             queries="cosine")
+
+
+def config_for_source(source, options: dict | None = None) -> dict:
+    """Config fields that follow the source, for the gated model and the baselines that share this recipe:
+    spatial_size = the texture resolution (`latent_size_for_source`: the paper's 1024 for its 1K texture sets,
+    32 for a 64 x 38 set, not a 1024^2 pyramid); {} for a source without textures. `--set spatial_size=N`
+    overrides it."""
+    size = latent_size_for_source(source)
+    return {} if size is None else {"spatial_size": size}

@@ -48,10 +48,16 @@ CPU budget (benchmarks/neubrdf_speed.py; one thread, batch 8192, k 16, b 9, MLP 
 step on a shared, loaded 2-core machine): "vq" 0.054 / 0.12 / 0.43 s at N_side 16 / 32 / 64 (0.43 s was
 1.07 s before the unique-slot straight-through and the lazy row-wise Adam of `NeuBRDF.optimizer`, which
 the trainer must call to get these numbers),
-"dense" 0.03 - 0.045 s, "lowbit" 0.05 - 0.07 s. The full recipe (20000 steps of 2^14) is meant for a GPU.
-On a CPU fit N_side 32 with vq (`--set nside=32 --steps 2000`: 2000 steps of 2^14, ~8 min on one
-thread; quality at that budget not yet measured); on a busy machine use one torch thread (two threads on
-two loaded cores ran 3 - 10x slower than one).
+"dense" 0.03 - 0.045 s, "lowbit" 0.05 - 0.07 s. The full recipe (20000 steps of 2^14) is meant for a GPU
+(about 7 hours on one CPU core at N_side 64). On a busy machine use one torch thread (two threads on two
+loaded cores ran 3 - 10x slower than one).
+
+CPU_RECIPE, what `neumat fit` runs on a CPU unless told otherwise: the paper's model (N_side 64) for about
+10 minutes on one core (0.33 CPU s per step, 8 minutes; benchmarks/results/cpu_recipes.md): 1500 steps of 2^13 (half the batch: twice the
+steps for the same time, more optimiser updates help a short fit more than larger batches), the same four
+halvings of the learning rate spread over the shorter run (every 375 steps), and the same EMA (a window of
+~100 steps, short enough for 1500). For a better CPU fit in the same time at a smaller size, use
+`--set nside=32` (0.12 s per step of 8192: about 3x the steps).
 """
 from __future__ import annotations
 
@@ -60,3 +66,9 @@ from ..recipe import Recipe
 RECIPE = Recipe(steps=20000, batch_size=2 ** 14, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
                 lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
                 log_every=100, schedule="step", checkpoint_every=2000)
+
+#: the paper's model for about 10 minutes on one CPU core (module docstring)
+CPU_RECIPE = Recipe(steps=1500, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
+                    lr_decay_every=375, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
+                    log_every=50, schedule="step", checkpoint_every=250)
+CPU_MINUTES = 8

@@ -4,6 +4,9 @@ texture and MLP) fitted by L2 to path-traced observations exactly as NeuPreSS's 
 4096, 5 % held back for early stopping, 2000 steps (the budget of benchmarks/results/neupress.md, where it
 scores 0.435 of the held-out variance). The projection centre is the middle of the option "bounds" (default:
 the bounding box of the observed points).
+
+CPU_RECIPE: RECIPE itself, which is CPU-sized: its fit, as NeuPreSS's appearance phase (79 s in
+benchmarks/results/neupress.md), takes 1-2 minutes on 2 CPU cores, within the 10-minute CPU budget.
 """
 from __future__ import annotations
 
@@ -14,6 +17,10 @@ from neumat.fit.translucent_fit import observation_phase, set_bounds_from, split
 
 RECIPE = Recipe(steps=2000, batch_size=4096, lr=1e-3, schedule="halves", loss="l2", log_every=100,
                 options={"validation_fraction": 0.05, "max_validation": None, "bounds": None})
+
+#: RECIPE already fits the CPU budget (module docstring)
+CPU_RECIPE = RECIPE
+CPU_MINUTES = 2
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -28,6 +28,9 @@ a cosine-distributed w' when the source cannot sample (Sec. 6.4; unbiased, so th
 History records carry "brdf loss", "sampler loss" (and "albedo loss"); "loss" is their sum.
 `config_for_source(source)` gives the model Config fields that follow from the source (spatial_size,
 surface_features).
+
+CPU_RECIPE: RECIPE itself: 2000 steps of 2048 took 45-62 s on one core for 64^2 texture sets
+(benchmarks/results/neural_appearance.md), so RECIPE's 4000 of 4096 take about 4 minutes there.
 """
 from __future__ import annotations
 
@@ -45,13 +48,17 @@ from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.fit.proxy_sampler import proxy_kl_loss
 from neumat.warp.uniform import uniform
-from neumat.fit.recipe import Recipe
+from neumat.fit.recipe import Recipe, latent_size_for_source
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="log_cos", phase_split=(0.5, 0.5),
                 log_every=100,
                 options={"blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
                          "sampler_batch": "shared"})
+
+#: RECIPE already fits the CPU budget (module docstring)
+CPU_RECIPE = RECIPE
+CPU_MINUTES = 4
 
 #: the phases, in order
 PHASES = ("encoder", "latents")
@@ -68,9 +75,9 @@ def config_for_source(source, options: dict | None = None) -> dict:
     parameters the source gives (`source.sampling_feature_dim`, what the encoder reads). A field the source
     cannot tell is left out (the Config default applies); explicit settings override these."""
     config = {}
-    size = getattr(getattr(source, "textures", None), "size", None) or getattr(source, "texture_size", None)
+    size = latent_size_for_source(source)
     if size is not None:
-        config["spatial_size"] = 1 << (min(size).bit_length() - 1)
+        config["spatial_size"] = size
     if getattr(source, "sampling_feature_dim", None) is not None:
         config["surface_features"] = int(source.sampling_feature_dim)
     return config

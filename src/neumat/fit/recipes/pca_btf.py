@@ -6,6 +6,9 @@ components). `fit(PCABTF.for_btf(btf, ranks=...), btf)`; the source is one tabul
 Options (of the solve, `decompose`): "exact_limit" (4096: the exact eigendecomposition of the smaller Gram
 matrix unless both sides of the texel x angle matrix exceed it), "oversample" (16) and "power_iterations" (6)
 of the randomised subspace iteration used otherwise. steps, batch_size, lr and the schedule are unused.
+
+CPU_RECIPE: RECIPE itself: its one step is the PCA of the BTF, no optimiser budget to size; its time follows the
+BTF's size (`CPU_MINUTES` None: `neumat fit` says so instead of a time).
 """
 from __future__ import annotations
 
@@ -16,6 +19,10 @@ from .sparse_btf import btf_size
 
 RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
                 options={"exact_limit": 4096, "oversample": 16, "power_iterations": 6})
+
+#: RECIPE itself (module docstring)
+CPU_RECIPE = RECIPE
+CPU_MINUTES = None
 
 
 def config_for_source(btf, options: dict | None = None) -> dict:

@@ -4,7 +4,11 @@ step draws `batch_size` queries (wi uniform over the upper hemisphere, uv unifor
 and takes an Adam step on the sampler's parameters alone against `neumat.fit.proxy_sampler.proxy_kl_loss`
 (Zeltner et al. 2024, Sec. 5.2); the learning rate halves at 50 % and 75 % of the steps. Call it through
 `neumat.fit.proxy_sampler.fit_sampler(material)` or `neumat.fit.trainer.fit(SampledMaterial(material, sampler),
-material)`."""
+material)`.
+
+CPU_RECIPE: RECIPE itself: 2000 steps of 4096 sampler queries, sized for a CPU already (its time follows the
+material's evaluation; `CPU_MINUTES` None).
+"""
 from __future__ import annotations
 
 import torch
@@ -18,6 +22,10 @@ from neumat.models.proxy_sampler import SampledMaterial, features_of
 from neumat.warp.hemisphere import sample_uniform_hemisphere
 
 RECIPE = Recipe(steps=2000, batch_size=4096, lr=3e-3, schedule="halves", log_every=100)
+
+#: RECIPE itself (module docstring)
+CPU_RECIPE = RECIPE
+CPU_MINUTES = None
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -11,6 +11,10 @@ Options: the clustering of `neumat.fit.shared_neubrdf.cluster_materials` (paper:
 on tabulated reflectance, then k-means on its codes; sizes are ours): "cluster_resolution" (16: R^3 cells of
 the Rusinkiewicz table), "cluster_code_dim" (8), "cluster_width" (16 channels), "cluster_steps" (500 Adam
 steps of the autoencoder), "cluster_lr" (3e-3).
+
+CPU_RECIPE: NeuBRDF's CPU recipe (1500 steps of 2^13, see `neumat.fit.recipes.neubrdf`) with these options: a
+joint step costs about what a NeuBRDF step of the same batch costs (the batch is split over the materials), so
+about 10 minutes on one core for two materials at N_side 64.
 """
 from __future__ import annotations
 
@@ -18,10 +22,14 @@ from dataclasses import replace
 
 from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
+from .neubrdf import CPU_RECIPE as NEUBRDF_CPU_RECIPE
 from .neubrdf import RECIPE as NEUBRDF_RECIPE
 
 RECIPE: Recipe = replace(NEUBRDF_RECIPE, options={"cluster_resolution": 16, "cluster_code_dim": 8,
                                                   "cluster_width": 16, "cluster_steps": 500, "cluster_lr": 3e-3})
+#: NeuBRDF's CPU recipe with the same options (module docstring)
+CPU_RECIPE: Recipe = replace(NEUBRDF_CPU_RECIPE, options=dict(RECIPE.options))
+CPU_MINUTES = 10
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -21,6 +21,9 @@ phase trains on: 1.0 as today's `train_dictionary` default; the paper uses 10 % 
 "tol" (1e-3, relative objective decrease below which a channel stops). batch_size, lr and the schedule are
 unused (solver phases). The same defaults serve `neumat.fit.sparse_dictionary.train_dictionary` (several
 BTFs, `neumat fit-dictionary`).
+
+CPU_RECIPE: RECIPE itself: its steps are solver passes over the BTF (dictionary learning, then sparse coding),
+no optimiser budget to size; their time follows the BTF and the dictionary (`CPU_MINUTES` None).
 """
 from __future__ import annotations
 
@@ -39,6 +42,10 @@ from ..sparse_dictionary import (check_points, ensemble_iteration, has_converged
 
 RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1,
                 options={"dictionary": None, "fraction": 1.0, "tol": 1e-3})
+
+#: RECIPE itself (module docstring)
+CPU_RECIPE = RECIPE
+CPU_MINUTES = None
 
 
 def config_for_source(btf, options: dict | None = None) -> dict:
