@@ -49,15 +49,18 @@ class GLSLExport:
                     "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
         return ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
 
-    def storage_bytes(self) -> dict[str, int]:
-        """Bytes of the textures and of the weights in the source at this precision (4 per float, 2 per half),
-        and their sum: {"textures", "weights", "total"}."""
+    def storage_bytes(self, precision: str | None = None) -> dict[str, int]:
+        """Bytes of the textures and of the weights in the source, and their sum ({"textures", "weights",
+        "total"}), at this export's precision or at `precision` ("fp16": 2 per value but for the `exact` textures,
+        "fp32": 4 per value)."""
+        precision = precision or self.precision
         weights = self.weight_values
         if weights is None:
             weights = sum(int(n) for n in re.findall(r"^const float \w+\[(\d+)\] = ", self.source, re.M))
-        textures = sum(int(t.nbytes) for t in self.textures.values())
-        weights *= 2 if self.precision == "fp16" else 4
-        return {"textures": textures, "weights": weights, "total": textures + weights}
+        textures = sum(t.size * (2 if precision == "fp16" and name not in self.exact else 4)
+                       for name, t in self.textures.items())
+        weights *= 2 if precision == "fp16" else 4
+        return {"textures": int(textures), "weights": int(weights), "total": int(textures + weights)}
 
     def write(self, folder: str | Path) -> Path:
         """Write neumat.glsl, one raw little-endian file per texture (<name>.f32, or <name>.f16 for a float16

@@ -197,11 +197,11 @@ vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
         entry.append("vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)")
     if isinstance(model, NeuralAppearance):
         # the BRDF from the hit's latent (trilinear level selection: eval's latent is the sampler's)
-        lobes_eval = "" if roulette else f"""
-vec3 neumat_eval(NeumatLobes l, vec3 wo) {{
+        lobes_eval = "" if roulette else """
+vec3 neumat_eval(NeumatLobes l, vec3 wo) {
     if (l.wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
     return nm_decode(l.wi, wo, l.z);
-}}
+}
 """
         sampler_input = "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])"           # [wi, z] as ProxySampler
         s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, sampler_input, "nm_relu")
