@@ -96,7 +96,8 @@ def test_export_slang_check_runs_a_neupress(tmp_path):
 def test_export_check_runs_a_neubrdf_with_its_texture(tmp_path):
     path = _saved(tmp_path, {"type": "neubrdf", "nside": 8, "feature_dim": 8, "index_bits": 5, "hidden": 16,
                              "texture_height": 8, "texture_width": 8, "texture_channels": 4, "texture_levels": 2})
-    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "500"])
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "500",
+                                      "--precision", "fp32"])
     assert result.exit_code == 0, result.output
     manifest = json.loads((tmp_path / "glsl" / "manifest.json").read_text())
     assert sorted(manifest["textures"]) == ["nbrdf_features", "nbrdf_index", "nbrdf_vertices", "neumat_spatial"]
@@ -123,7 +124,8 @@ def test_export_slang_refuses_a_model_it_cannot_export(tmp_path):
 @pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device cannot be created")
 def test_export_slang_writes_and_checks_the_module(tmp_path):
     path = _saved(tmp_path, {"type": "neumip-frame", "spatial_size": 8, "hidden": 8, "hidden_layers": 1})
-    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang", "--check", "300"])
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang", "--check", "300",
+                                      "--precision", "fp32"])
     assert result.exit_code == 0, result.output
     manifest = json.loads((tmp_path / "out" / "slang" / "manifest.json").read_text())
     assert manifest["interfaces"] == ["INeumatMaterial"] and "neumat_spatial" in manifest["buffers"]
@@ -131,3 +133,24 @@ def test_export_slang_writes_and_checks_the_module(tmp_path):
     text = " ".join(result.output.split())
     assert float(text.split("Slang module (CPU) vs torch on the same queries: max relative difference ")[1]
                  .split(",")[0]) < 1e-4
+
+
+@needs_gl
+@pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device cannot be created")
+def test_export_defaults_to_fp16_and_reports_bytes_and_both_references(tmp_path):
+    """The default precision: half files, half the bytes of fp32 in the summary, and --check against the torch
+    model (within 2e-3) and against half_rounded(model) (float32 noise, 5e-5), for GLSL and Slang."""
+    path = _saved(tmp_path, {"type": "neural-appearance", "spatial_size": 8})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang", "--check", "300"])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["precision"] == "fp16" and manifest["textures"]["neumat_spatial"]["file"] == "neumat_spatial.f16"
+    text = " ".join(result.output.split())
+    assert "(fp16 / fp32 = 0.500); written: fp16" in text
+    fp16 = int(text.split("stored bytes: fp16 ")[1].split(" = ")[1].split(";")[0])
+    assert fp16 == manifest["bytes"]["total"]
+    for run in ("shader", "Slang module (CPU)"):
+        torch_rel = float(text.split(f"{run} vs torch on ")[1].split("max relative difference ")[1].split(",")[0])
+        half_rel = float(text.split(f"{run} vs torch with the halves stored (half_rounded): max relative "
+                                    "difference ")[1].split(",")[0])
+        assert torch_rel < 2e-3 and half_rel < 5e-5, (run, torch_rel, half_rel)

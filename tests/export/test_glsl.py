@@ -53,7 +53,7 @@ def _queries(n: int, min_cos: float, spatial: bool, footprint: bool) -> Query:
 def _relative_error(model, q):
     with torch.no_grad():
         ref = model.eval(q)
-    out = glsl_eval(export_glsl(model), q)
+    out = glsl_eval(export_glsl(model, "fp32"), q)
     return ((out - ref).abs() / ref.abs().clamp(min=1e-6)).max(-1).values
 
 
@@ -83,7 +83,7 @@ def test_glsl_is_zero_below_the_horizon():
 
 def test_write_files_and_manifest(tmp_path):
     model = _model(CONFIGS["gated"])
-    export = export_glsl(model)
+    export = export_glsl(model, "fp32")
     export.write(tmp_path / "out")
     manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
     assert (tmp_path / "out" / "neumat.glsl").read_text() == export.source

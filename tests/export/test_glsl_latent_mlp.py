@@ -51,7 +51,7 @@ def test_glsl_eval_matches_torch(name, footprint):
     q = _queries(2048, footprint)
     with torch.no_grad():
         ref = model.eval(q)
-    out = glsl_eval(export_glsl(model), q)
+    out = glsl_eval(export_glsl(model, "fp32"), q)
     rel = ((out - ref).abs() / ref.abs().clamp(min=1e-6)).max(-1).values
     assert float(rel.max()) < 1e-4, f"{name}: max relative error {float(rel.max()):.2e}"
 
@@ -60,7 +60,7 @@ def test_glsl_eval_matches_torch(name, footprint):
 def test_glsl_sampler_matches_torch():
     model = _model(CONFIGS["neural-appearance"])
     q = _queries(4096, True)
-    export = export_glsl(model)
+    export = export_glsl(model, "fp32")
     u = torch.rand(len(q), 2, generator=torch.Generator().manual_seed(3))
     with torch.no_grad():
         s = model.sample(q, u)
@@ -82,7 +82,7 @@ def test_glsl_albedo_output_matches_torch():
     with torch.no_grad():
         reference = model.albedo(q)
         brdf = model.eval(q)
-    export = export_glsl(model)
+    export = export_glsl(model, "fp32")
     assert "vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)" in export.entry
     fp = q.footprint
     inputs = {"wi": q.wi, "wo": q.wo, "uv": q.uv, "f": torch.stack([fp[:, 0, 0], fp[:, 0, 1], fp[:, 1, 1]], -1)}

@@ -39,7 +39,8 @@ def _near_boundary(nside: int, w: torch.Tensor, g: torch.Generator, eps: float =
 
 def _export_with_nside(nside: int):
     """An export whose HEALPix functions run at `nside` (the model itself stays small)."""
-    shader = export_glsl(NeuBRDF(nside=8, feature_dim=4, index_bits=2, hidden=4, hidden_layers=1).train(False))
+    shader = export_glsl(NeuBRDF(nside=8, feature_dim=4, index_bits=2, hidden=4, hidden_layers=1).train(False),
+                         "fp32")
     shader.source = shader.source.replace("const int NM_NSIDE = 8;", f"const int NM_NSIDE = {nside};")
     return shader
 
@@ -91,7 +92,7 @@ def _parity(model: NeuBRDF, n: int = 4096, lod: bool = False, seed: int = 2) -> 
     q = Query(wi=wi, wo=wo, uv=uv, lod=torch.rand(n, generator=g) * 5 - 1 if lod else None)
     with torch.no_grad():
         reference = model.eval(q)
-    out = glsl_eval(export_glsl(model), q)
+    out = glsl_eval(export_glsl(model, "fp32"), q)
     nside = model.cfg.nside
     keep = ~(_near_boundary(nside, wi, g) | _near_boundary(nside, wo * torch.tensor([1.0, 1.0, -1.0]), g))
     assert int(keep.sum()) > 0.9 * n
@@ -146,7 +147,7 @@ def test_paper_sizes_runtime_match_torch():
 
 def test_tables_are_compact_and_written(tmp_path):
     model = _model(SMALL)
-    shader = export_glsl(model)
+    shader = export_glsl(model, "fp32")
     slots = 2 * hpx.hemisphere_size(8)
     assert set(shader.textures) == {"nbrdf_index", "nbrdf_features", "nbrdf_vertices"}
     index = torch.from_numpy(shader.textures["nbrdf_index"]).flatten()

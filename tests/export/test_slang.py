@@ -48,7 +48,7 @@ def compiled():
     def get(name):
         if name not in out:
             model = _model(CONFIGS[name])
-            out[name] = model, SlangKernel(export_slang(model))
+            out[name] = model, SlangKernel(export_slang(model, "fp32"))
         return out[name]
     return get
 
@@ -99,7 +99,7 @@ def test_slang_module_interfaces_and_files(tmp_path):
     assert plain.interfaces == ["INeumatMaterial", "INeumatSampler"]
     assert "struct NeumatMaterial : INeumatMaterial, INeumatSampler {" in plain.source
     assert "float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint)" in plain.entry_points()
-    export = export_slang(_model(CONFIGS["neumip-frame"]))
+    export = export_slang(_model(CONFIGS["neumip-frame"]), "fp32")
     assert export.entries == ["eval", "eval_lod"] and "neumat_sample" not in export.source
     for glsl in ("vec3", "mix(", "fract(", "texelFetch", "sampler2DArray", "mat2"):
         assert glsl not in export.source
@@ -131,7 +131,7 @@ def test_slang_export_of_the_other_families_matches_torch(name):
     here 5.7e-5, its GLSL export 1.5e-3 on these queries); measured for the others 2e-7 to 3.4e-6."""
     tol = 1e-4 if name == "multiscale" else EVAL_TOL
     model = _model(OTHER_FAMILIES[name])
-    export = export_slang(model)
+    export = export_slang(model, "fp32")
     kernel = SlangKernel(export)
     if export.entries == ["eval_brdf"]:
         assert export.interfaces == ["INeumatBRDF"]
@@ -162,7 +162,7 @@ def test_slang_export_of_sparse_btf_matches_torch():
     dictionary = train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
                                   patch=4, max_iters=4, seed=0)
     model = SparseBTF.encode(synthetic_btf(5), dictionary, tau=(24, 8, 8))
-    export = export_slang(model)
+    export = export_slang(model, "fp32")
     assert export.interfaces == ["INeumatMaterial"]
     g = torch.Generator().manual_seed(6)
     wi = torch.nn.functional.normalize(torch.randn(512, 3, generator=g) + torch.tensor([0, 0, 1.2]), dim=-1)

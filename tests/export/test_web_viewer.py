@@ -13,6 +13,7 @@ from neumat.export.glsl import export_glsl
 from neumat.export.web.headless import chromium, viewer_pixels, viewer_screenshot
 from neumat.export.web.scene import View, viewer_image, viewer_queries
 from neumat.export.web.viewer import viewer_html, write_viewer
+from neumat.models.half_precision import half_rounded
 from neumat.models.neubrdf import NeuBRDF
 from neumat.models.registry import build_model
 
@@ -99,9 +100,9 @@ SCENES = {
 def test_page_renders_what_torch_renders(name, tmp_path):
     make, view = SCENES[name]
     model = make()
-    page = write_viewer(model, tmp_path / "viewer.html")
+    page = write_viewer(model, tmp_path / "viewer.html")  # the default fp16 export: torch with halves stored
     pixels = viewer_pixels(page, view, 40, 32)
-    reference = viewer_image(model, view, 40, 32)
+    reference = viewer_image(half_rounded(model), view, 40, 32)
     covered = reference.amax(-1) > 0
     assert covered.float().mean() > 0.1  # the object is in the picture
     assert torch.isfinite(pixels).all()
@@ -134,7 +135,7 @@ def test_filtered_export_compiles_and_renders_near_its_finest_level(tmp_path):
     model = _perturbed(build_model({"type": "neural-appearance", "spatial_size": 8}))
     view = View(shape="plane")
     page = write_viewer(model, tmp_path / "na.html")
-    pixels, reference = viewer_pixels(page, view, 96, 96)[..., :3], viewer_image(model, view, 96, 96)
+    pixels, reference = viewer_pixels(page, view, 96, 96)[..., :3], viewer_image(half_rounded(model), view, 96, 96)
     covered = reference.amax(-1) > 0
     error = (pixels - reference).abs()[covered] / reference[covered].abs().clamp(min=1e-6)
     assert float(error.median()) < 1e-3, f"median relative difference {float(error.median()):.2e}"

@@ -108,7 +108,7 @@ def _relative(got, ref):
 @pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
 def test_glsl_export_computes_the_two_level_expectation():
     model, footprint, lod = _exported_model()
-    export = export_glsl(model)
+    export = export_glsl(model, "fp32")
     with torch.no_grad():
         assert _relative(glsl_eval(export, footprint), model.eval(footprint)) < 1e-5
         assert _relative(glsl_eval(export, lod), model.eval(lod)) < 1e-5
@@ -117,7 +117,7 @@ def test_glsl_export_computes_the_two_level_expectation():
 @pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device cannot be created")
 def test_slang_export_computes_the_two_level_expectation():
     model, footprint, lod = _exported_model()
-    kernel = SlangKernel(export_slang(model))
+    kernel = SlangKernel(export_slang(model, "fp32"))
     with torch.no_grad():
         assert _relative(slang_eval(kernel, footprint), model.eval(footprint)) < 1e-5
         assert _relative(slang_eval(kernel, lod), model.eval(lod)) < 1e-5

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import json
 import pkgutil
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,13 +25,20 @@ GLSL_VERSION = "#version 330 core"
 
 @dataclass
 class GLSLExport:
-    """GLSL source (without a #version line) and its textures: name -> float32 array (layers, H, W, 4)."""
+    """GLSL source (without a #version line) and its textures: name -> array (layers, H, W, 4), float32, or
+    float16 in an fp16 export (`neumat.export.half_precision.to_half`)."""
 
     source: str
     textures: dict[str, np.ndarray] = field(default_factory=dict)
     spatially_varying: bool = True
     entry: list[str] | None = None
     """The entry points the source defines (manifest.json); default those of `spatially_varying`."""
+    precision: str = "fp32"
+    """"fp32" (float textures, float constants) or "fp16" (half textures, weights packed as halves)."""
+    exact: tuple[str, ...] = ()
+    """Textures stored as float32 at every precision (index tables, fixed Fourier matrices, geometry)."""
+    weight_values: int | None = None
+    """Decoder weights in the source (set by `to_half`; an fp32 export counts its `const float` arrays)."""
 
     def entry_points(self) -> list[str]:
         """GLSL signatures of the entry points the source defines."""
@@ -41,17 +49,35 @@ class GLSLExport:
                     "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
         return ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
 
+    def storage_bytes(self, precision: str | None = None) -> dict[str, int]:
+        """Bytes of the textures and of the weights in the source, and their sum ({"textures", "weights",
+        "total"}), at this export's precision or at `precision` ("fp16": 2 per value but for the `exact` textures,
+        "fp32": 4 per value)."""
+        precision = precision or self.precision
+        weights = self.weight_values
+        if weights is None:
+            weights = sum(int(n) for n in re.findall(r"^const float \w+\[(\d+)\] = ", self.source, re.M))
+        textures = sum(t.size * (2 if precision == "fp16" and name not in self.exact else 4)
+                       for name, t in self.textures.items())
+        weights *= 2 if precision == "fp16" else 4
+        return {"textures": int(textures), "weights": int(weights), "total": int(textures + weights)}
+
     def write(self, folder: str | Path) -> Path:
-        """Write neumat.glsl, <texture>.f32 files and manifest.json into `folder` (created); returns it."""
+        """Write neumat.glsl, one raw little-endian file per texture (<name>.f32, or <name>.f16 for a float16
+        texture) and manifest.json (precision, bytes, textures and their formats) into `folder` (created);
+        returns it."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "neumat.glsl").write_text(self.source)
-        manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "textures": {},
-                    "entry": self.entry_points()}
+        manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "precision": self.precision,
+                    "bytes": self.storage_bytes(), "textures": {}, "entry": self.entry_points()}
         for name, data in self.textures.items():
             layers, height, width, _ = data.shape
-            data.astype("<f4").tofile(folder / f"{name}.f32")
-            manifest["textures"][name] = {"file": f"{name}.f32", "target": "sampler2DArray", "format": "RGBA32F",
+            half = data.dtype == np.float16
+            file = f"{name}.{'f16' if half else 'f32'}"
+            data.astype("<f2" if half else "<f4").tofile(folder / file)
+            manifest["textures"][name] = {"file": file, "target": "sampler2DArray",
+                                          "format": "RGBA16F" if half else "RGBA32F",
                                           "width": width, "height": height, "layers": layers}
         (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
         return folder

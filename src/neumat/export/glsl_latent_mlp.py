@@ -7,16 +7,25 @@ Entry points (directions in the local frame, z up; uv texture coordinates; footp
     vec3  neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)
     // neural-appearance with Config.albedo: the directional albedo for the viewer direction wo (Sec. 6.4)
     vec3  neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
-    // neural-appearance only: its importance sampler (proxy + defensive cosine share)
-    vec3  neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)    // wo for u in [0, 1)^2
-    float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)      // its solid-angle density
+    // neural-appearance only: its importance sampler (proxy + defensive cosine share). Per hit, the latent is
+    // filtered and the sampler MLP run once; sample, pdf and eval reuse them:
+    NeumatLobes neumat_lobes(vec3 wi, vec2 uv, mat2 footprint)
+    vec3  neumat_sample(NeumatLobes l, vec2 u)                       // wo for u in [0, 1)^2
+    float neumat_pdf(NeumatLobes l, vec3 wo)                         // its solid-angle density
+    vec3  neumat_eval(NeumatLobes l, vec3 wo)                        // = neumat_eval(wi, wo, uv, footprint);
+                                                                     //   trilinear level selection only
+    // the same, each filtering and running the sampler itself (thin wrappers of the above)
+    vec3  neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)
+    float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
 
 computing what `model.eval`, `model.sample(q, u).wo` and `model.pdf` compute: the latent z from the same
 anisotropic filtering of the pyramid as the multi-scale export (`neumat.export.glsl`), the learned frames, the
 SiLU MLP with exponential output, and the sampler MLP (ReLU) with the proxy's activations, closed-form sampling
 and density (`neumat.warp.microfacet_proxy`). Decoders are constants in the source; the pyramid is one
-RGBA32F `sampler2DArray` atlas (`neumat_spatial`). `neumat.export.slang` spells this source in Slang (a
-shader module with interfaces and a compute entry point), so both dialects compute the same function.
+`sampler2DArray` atlas (`neumat_spatial`), RGBA16F with packed half weights at precision "fp16" (the
+default, `neumat.export.half_precision`), RGBA32F with float constants at "fp32". `neumat.export.slang` spells
+this source in Slang (a shader module with interfaces and a compute entry point), so both dialects compute the
+same function.
 """
 from __future__ import annotations
 
@@ -187,6 +196,13 @@ vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
 """)
         entry.append("vec3 neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)")
     if isinstance(model, NeuralAppearance):
+        # the BRDF from the hit's latent (trilinear level selection: eval's latent is the sampler's)
+        lobes_eval = "" if roulette else """
+vec3 neumat_eval(NeumatLobes l, vec3 wo) {
+    if (l.wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
+    return nm_decode(l.wi, wo, l.z);
+}
+"""
         sampler_input = "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])"           # [wi, z] as ProxySampler
         s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, sampler_input, "nm_relu")
         parts.append(_SAMPLING + "\n".join(s_consts))
@@ -205,24 +221,42 @@ NmLobes nm_lobes(vec3 wi, vec4 z[{zl}]) {{
     return p;
 }}
 
-vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u) {{
-    vec4 z[{zl}];
-    nm_spatial_footprint(uv, footprint, z);
+// one hit's filtered latent and sampler lobes: the sampler MLP runs once, sample / pdf / eval reuse it
+struct NeumatLobes {{ vec3 wi; vec4 z[{zl}]; NmLobes p; }};
+
+NeumatLobes neumat_lobes(vec3 wi, vec2 uv, mat2 footprint) {{
+    NeumatLobes l;
+    l.wi = wi;
+    nm_spatial_footprint(uv, footprint, l.z);
+    l.p = nm_lobes(wi, l.z);
+    return l;
+}}
+
+vec3 neumat_sample(NeumatLobes l, vec2 u) {{
     bool cosine = u.x < {DEFENSIVE:.9e};
     float u0 = cosine ? u.x / {DEFENSIVE:.9e} : (u.x - {DEFENSIVE:.9e}) / {1 - DEFENSIVE:.9e};
     vec2 v = vec2(clamp(u0, 0.0, 1.0 - 1e-7), u.y);
-    vec3 wo = cosine ? nm_cosine(v) : nm_proxy_sample(nm_lobes(wi, z), wi, v);
+    vec3 wo = cosine ? nm_cosine(v) : nm_proxy_sample(l.p, l.wi, v);
     return normalize(wo);
 }}
 
+float neumat_pdf(NeumatLobes l, vec3 wo) {{
+    return {1 - DEFENSIVE:.9e} * nm_proxy_pdf(l.p, l.wi, wo) + {DEFENSIVE:.9e} * max(wo.z, 0.0) / {math.pi:.9e};
+}}
+{lobes_eval}
+vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u) {{
+    return neumat_sample(neumat_lobes(wi, uv, footprint), u);
+}}
+
 float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
-    vec4 z[{zl}];
-    nm_spatial_footprint(uv, footprint, z);
-    return {1 - DEFENSIVE:.9e} * nm_proxy_pdf(nm_lobes(wi, z), wi, wo)
-        + {DEFENSIVE:.9e} * max(wo.z, 0.0) / {math.pi:.9e};
+    return neumat_pdf(neumat_lobes(wi, uv, footprint), wo);
 }}
 """)
         entry += ["vec3 neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)",
-                  "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)"]
+                  "float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
+                  "NeumatLobes neumat_lobes(vec3 wi, vec2 uv, mat2 footprint)",
+                  "vec3 neumat_sample(NeumatLobes l, vec2 u)", "float neumat_pdf(NeumatLobes l, vec3 wo)"]
+        if not roulette:
+            entry.append("vec3 neumat_eval(NeumatLobes l, vec3 wo)")
     header = f"// neumat GLSL export of a '{model.name}' model; see neumat.export.glsl_latent_mlp.\n"
     return GLSLExport(header + "\n".join(parts), textures, True, entry)

@@ -279,4 +279,5 @@ vec3 neumat_eval(vec3 wi, vec3 wo) {
     header = (f"// neumat GLSL export of a 'neubrdf' model (N_side {n}, k {k}, {cfg.features} features, "
               f"{'inverse-distance' if idw else 'uniform'} corner weights{', pruned' if pruned else ''}"
               f"{', neural texture' if textured else ''}); see neumat.export.glsl_neubrdf.\n")
-    return GLSLExport(header + "\n".join(parts), textures, textured, entry)
+    exact = tuple(name for name in ("nbrdf_index", "nbrdf_levels", "nbrdf_vertices") if name in textures)
+    return GLSLExport(header + "\n".join(parts), textures, textured, entry, exact=exact)

@@ -124,7 +124,9 @@ float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n) {{
     entry = ["vec3 neumat_translucent(vec3 wi, vec3 x, vec3 wo)", "float neumat_sigma(vec3 x, vec3 wo)",
              "vec3 neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u)",
              "float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)"]
-    return GLSLExport(source, {"neumat_weights": packer.texture()}, spatially_varying=False, entry=entry)
+    # float32 at every precision: the texture holds the Fourier matrices too, whose phases reach ~400 rad
+    return GLSLExport(source, {"neumat_weights": packer.texture()}, spatially_varying=False, entry=entry,
+                      exact=("neumat_weights",))
 
 
 # Y = B + W X for vec4 arrays X (IN4 long) and Y (OUT4 long); W has 4 OUT4 rows of IN4 texels (zero-padded), the

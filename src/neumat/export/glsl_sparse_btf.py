@@ -206,4 +206,5 @@ def export_sparse_btf(model: SparseBTF) -> GLSLExport:
         k=c.num_dictionaries, l=c.n_light, v=c.n_view, nb=nb, points_w=min(model.counts.shape[1], POINTS_WIDTH),
         eps=c.log_eps, to_r=to_r, to_g=to_g, to_b=to_b, light_dirs=_vec3s("SB_LIGHT", model.light_dirs),
         view_dirs=_vec3s("SB_VIEW", model.view_dirs))
-    return GLSLExport(source, _textures(model), spatially_varying=True, entry=ENTRY_POINTS)
+    textures = _textures(model)  # float32 at every precision: coefficients share texels with their indices
+    return GLSLExport(source, textures, spatially_varying=True, entry=ENTRY_POINTS, exact=tuple(textures))

@@ -39,12 +39,13 @@ its defensive cosine share.
 One source of truth for the math: the module is the model's GLSL export (`neumat.export.glsl.export_glsl`,
 itself parity-tested) spelled in Slang by `glsl_to_slang`, a token-level rewrite of the GLSL subset those generators
 emit (vector / matrix types, lerp, frac, atan2, static const arrays); every texture becomes a
-`StructuredBuffer<float4>` read by index (layer, row, column), so no hardware sampling is involved and the
-module runs on Slang's CPU target. Decoder weights are constants in the source. The Slang-only parts
+`StructuredBuffer<float4>` (`StructuredBuffer<uint2>` of packed halves for an fp16 export's textures) read by index
+(layer, row, column), so no hardware sampling is involved and the module runs on Slang's CPU target. Decoder weights
+are constants in the source (packed halves at precision "fp16", `neumat.export.half_precision`). The Slang-only parts
 (interfaces, struct, compute entry point) are written here.
 
-`SlangExport.write(folder)` writes `neumat.slang`, one raw little-endian float32 file per buffer
-(layers x height x width x 4, i.e. float4 elements in buffer order) and `manifest.json`.
+`SlangExport.write(folder)` writes `neumat.slang`, one raw little-endian float16 (.f16) or float32 (.f32) file per
+buffer (layers x height x width x 4, in buffer order) and `manifest.json`.
 """
 from __future__ import annotations
 
@@ -105,27 +106,32 @@ _INTERFACES = {"INeumatMaterial": ("", ("eval", "eval_lod")),
 
 @dataclass
 class SlangExport:
-    """Slang module source and its buffers: name -> float32 array (layers, H, W, 4), bound as
-    `StructuredBuffer<float4>` of layers * H * W elements. entries: the methods of `NeumatMaterial`
-    (keys of ENTRY_CODES)."""
+    """Slang module source and its buffers: name -> array (layers, H, W, 4), float32 bound as
+    `StructuredBuffer<float4>` or float16 (an fp16 export) bound as `StructuredBuffer<uint2>` (the four halves of
+    a texel in two words), of layers * H * W elements. entries: the methods of `NeumatMaterial` (keys of
+    ENTRY_CODES). bytes: `GLSLExport.storage_bytes` of the export it spells."""
 
     source: str
     buffers: dict[str, np.ndarray] = field(default_factory=dict)
     entries: list[str] = field(default_factory=list)
     interfaces: list[str] = field(default_factory=list)
     model: str = ""
+    precision: str = "fp32"
+    bytes: dict[str, int] = field(default_factory=dict)
 
     def entry_points(self) -> list[str]:
         """Slang signatures of the methods of `NeumatMaterial`."""
         return [_SIGNATURES[e] for e in self.entries]
 
     def write(self, folder: str | Path) -> Path:
-        """Write neumat.slang, <buffer>.f32 files and manifest.json into `folder` (created); returns it."""
+        """Write neumat.slang, one raw little-endian file per buffer (<buffer>.f16 for float16, <buffer>.f32 for
+        float32) and manifest.json into `folder` (created); returns it."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "neumat.slang").write_text(self.source)
         manifest = {
             "source": "neumat.slang", "language": "slang", "model": self.model, "struct": "NeumatMaterial",
+            "precision": self.precision, "bytes": self.bytes,
             "interfaces": self.interfaces, "entry": self.entry_points(), "buffers": {},
             "compute": {"entry": "neumat_batch", "numthreads": [GROUP_SIZE, 1, 1],
                         "queries": "neumat_queries", "results": "neumat_results", "count": "neumat_count",
@@ -134,8 +140,11 @@ class SlangExport:
         }
         for name, data in self.buffers.items():
             layers, height, width, _ = data.shape
-            data.astype("<f4").tofile(folder / f"{name}.f32")
-            manifest["buffers"][name] = {"file": f"{name}.f32", "type": "StructuredBuffer<float4>",
+            half = data.dtype == np.float16
+            file = f"{name}.{'f16' if half else 'f32'}"
+            data.astype("<f2" if half else "<f4").tofile(folder / file)
+            manifest["buffers"][name] = {"file": file,
+                                         "type": "StructuredBuffer<uint2>" if half else "StructuredBuffer<float4>",
                                          "elements": layers * height * width, "width": width, "height": height,
                                          "layers": layers, "order": "layer, row, column"}
         (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
@@ -145,7 +154,8 @@ class SlangExport:
 # ------------------------------------------------------------------------------ GLSL -> Slang
 _TYPES = {"vec2": "float2", "vec3": "float3", "vec4": "float4", "ivec2": "int2", "ivec3": "int3", "ivec4": "int4",
           "mat2": "float2x2"}
-_FUNCTIONS = {"mix": "lerp", "fract": "frac", "mod": "nm_mod"}  # GLSL mod floors; Slang's fmod truncates
+# GLSL mod floors; Slang's fmod truncates
+_FUNCTIONS = {"mix": "lerp", "fract": "frac", "mod": "nm_mod", "uintBitsToFloat": "asfloat"}
 _LEFTOVER = re.compile(r"\b(i?vec[234]|mat[234]|texelFetch|texture\w*|sampler\w*|uniform|dFd[xy]|inversesqrt)\b"
                        r"|\b(mix|fract|mod)\s*\(|\w\[\]\(")
 
@@ -188,9 +198,18 @@ def glsl_to_slang(source: str, textures: dict[str, np.ndarray]) -> str:
     src = re.sub(r"^const ", "static const ", src, flags=re.M)
     for name, data in textures.items():
         layers, height, width, _ = data.shape
-        src = src.replace(f"uniform sampler2DArray {name};", f"""StructuredBuffer<float4> {name};  // {layers} layers \
-x {height} rows x {width} columns
-float4 nm_fetch_{name}(int3 p) {{ return {name}[(p.z * {height} + p.y) * {width} + p.x]; }}""")
+        at = f"(p.z * {height} + p.y) * {width} + p.x"
+        if data.dtype == np.float16:  # four halves in two words (x in the low bits of the first)
+            declaration = f"""StructuredBuffer<uint2> {name};  // {layers} layers x {height} rows x {width} columns, \
+RGBA halves
+float4 nm_fetch_{name}(int3 p) {{
+    uint2 h = {name}[{at}];
+    return float4(nm_half(h.x & 65535u), nm_half(h.x >> 16u), nm_half(h.y & 65535u), nm_half(h.y >> 16u));
+}}"""
+        else:
+            declaration = f"""StructuredBuffer<float4> {name};  // {layers} layers x {height} rows x {width} columns
+float4 nm_fetch_{name}(int3 p) {{ return {name}[{at}]; }}"""
+        src = src.replace(f"uniform sampler2DArray {name};", declaration)
 
     def fetch(args: list[str]) -> str:
         if len(args) != 3 or args[0] not in textures or args[2] != "0":
@@ -293,10 +312,11 @@ neumat_queries[b + {lay['n'] + 2}]);
 """
 
 
-def export_slang(model) -> SlangExport:
+def export_slang(model, precision: str = "fp16") -> SlangExport:
     """Slang module and buffers of a neumip-family model (neumip, neumip-frame, neural-appearance), a multi-scale
     model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF, a SparseBTF or
-    a NeuPreSS (module docstring). Anything else raises InputError naming the model type."""
+    a NeuPreSS (module docstring). Anything else raises InputError naming the model type. precision: that of
+    the GLSL export it spells ("fp16": half buffers and weights, float32 arithmetic; or "fp32")."""
     from ..models.neumip import NeuMIP
 
     name = getattr(model, "name", None)
@@ -307,14 +327,15 @@ def export_slang(model) -> SlangExport:
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
                          "(cartesian only)")
-    glsl: GLSLExport = load_formats().get("glsl").export(model)
+    glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
     body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures)
     header = (f"// neumat Slang module of a '{model.name}' model (methods: {', '.join(entries)}); see "
               "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json.\n")
     source = header + body + "\n" + _interfaces() + _material(entries, interfaces) + _kernel(entries)
-    return SlangExport(source, dict(glsl.textures), entries, interfaces, model.name)
+    return SlangExport(source, dict(glsl.textures), entries, interfaces, model.name, glsl.precision,
+                       glsl.storage_bytes())
 
 
 EXPORT_FORMATS.register("slang")(ExportFormat("Slang module, its buffers and manifest.json", export_slang))

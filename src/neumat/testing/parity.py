@@ -121,8 +121,9 @@ def marginal_rate(run, q: Query, who: str) -> float:
 def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, backend: str | None = "egl",
              width: int = 256) -> torch.Tensor:
     """Run `call` (GLSL statements that set `vec4 colour`) once per row of the inputs, with the export's source
-    and textures; each input (N, k <= 4) is a vec4 variable of its name (zero-padded). Returns colour (N, 4)
-    float32 on the CPU. One fragment per row of an RGBA32F framebuffer `width` wide."""
+    and textures (float16 ones uploaded as RGBA16F); each input (N, k <= 4) is a vec4 variable of its name
+    (zero-padded). Returns colour (N, 4) float32 on the CPU. One fragment per row of an RGBA32F framebuffer
+    `width` wide."""
     n = len(next(iter(inputs.values())))
     if any(v.shape[0] != n or v.dim() != 2 or v.shape[1] > 4 for v in inputs.values()):
         raise InputError(f"glsl_run inputs: expected (N, k <= 4) tensors with one N, got "
@@ -155,8 +156,10 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
             if name not in program:
                 continue
             layers, height, width_, _ = data.shape
-            tex = ctx.texture_array((width_, height, layers), 4, np.ascontiguousarray(data, np.float32).tobytes(),
-                                    dtype="f4")
+            half = data.dtype == np.float16  # RGBA16F (an fp16 export), else RGBA32F
+            tex = ctx.texture_array((width_, height, layers), 4,
+                                    np.ascontiguousarray(data, np.float16 if half else np.float32).tobytes(),
+                                    dtype="f2" if half else "f4")
             tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             tex.use(unit)
             keep.append(tex)

@@ -76,8 +76,10 @@ class SlangKernel:
         module = session.load_module_from_source("neumat", export.source)
         program = session.link_program([module], [module.entry_point("neumat_batch")])
         self.kernel = device.create_compute_kernel(program)  # compiled (C++ on the CPU) at the first dispatch
-        self.buffers = {name: self._buffer(np.ascontiguousarray(data, np.float32).reshape(-1, 4), 16)
-                        for name, data in export.buffers.items()}
+        self.buffers = {name: self._buffer(np.ascontiguousarray(data, np.float16).reshape(-1, 4).view(np.uint32), 8)
+                        if data.dtype == np.float16 else
+                        self._buffer(np.ascontiguousarray(data, np.float32).reshape(-1, 4), 16)
+                        for name, data in export.buffers.items()}  # float16: uint2 of four halves
 
     def _buffer(self, data: np.ndarray | None, stride: int, count: int = 0):
         usage = self.spy.BufferUsage

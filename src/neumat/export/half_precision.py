@@ -1,0 +1,95 @@
+"""The fp16 form of a GLSL export (`neumat.export.glsl.export_glsl(model, precision="fp16")`, the default): the
+latent textures and decoder weights stored in half precision, computed in float32, as the runtime of Real-Time
+Neural Appearance Models (Zeltner et al. 2024, Sec. 7) infers in FP16.
+
+`to_half(export)` rewrites an fp32 export (what every generator in `GLSL_GENERATORS` emits):
+
+- every texture but those the generator lists in `GLSLExport.exact` (index tables, fixed Fourier matrices,
+  geometry) becomes float16 (RGBA16F, `.f16` files); `texelFetch` returns the half values as floats;
+- every `const float NAME[n]` array of the source (decoder weights and biases, frame decoders, warp parameters:
+  the only float arrays the generators emit) becomes `const uint NAME_F16[ceil(n / 2)]`, two IEEE halves per
+  word (element 2k in the low 16 bits), read by the function `float NAME_AT(int k)`; `nm_half(uint)` converts
+  a half's bits to float exactly (GLSL 3.30 has no unpackHalf2x16).
+
+Values are rounded to the nearest half (ties to even); a value beyond the half range raises InputError naming
+the array or texture. The torch reference is `neumat.models.half_precision.half_rounded(model)` (the same
+rounded values, float32 arithmetic).
+"""
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..models.half_precision import HALF_MAX
+from .glsl_common import GLSLExport
+
+#: GLSL of nm_half(h): the float value of the IEEE half whose bits are the low 16 bits of h (finite halves only)
+HALF_GLSL = """
+// the IEEE half in the low 16 bits of h as a float, exact for every finite half (subnormals included)
+float nm_half(uint h) {
+    uint e = (h >> 10u) & 31u, m = h & 1023u;
+    float v = e == 0u ? float(m) * 5.9604644775390625e-8 : uintBitsToFloat(((e + 112u) << 23u) | (m << 13u));
+    return (h & 32768u) != 0u ? -v : v;
+}
+"""
+
+_ARRAY = re.compile(r"^const float (\w+)\[(\d+)\] = float\[\]\((.*)\);$", re.M)
+
+
+def half_values(values: np.ndarray, what: str) -> np.ndarray:
+    """float16 of `values`, rounded to nearest; InputError naming `what` if any is not finite or out of range."""
+    with np.errstate(over="ignore"):
+        half = np.asarray(values, np.float32).astype(np.float16)
+    if not np.isfinite(half).all():
+        raise InputError(f"export precision fp16: {what} has values that are not finite or exceed the float16 "
+                         f"range (|x| <= {HALF_MAX:g}); export it with precision='fp32'")
+    return half
+
+
+def pack_halves(values: np.ndarray) -> np.ndarray:
+    """uint32 words of float16 `values` (n,), two per word, element 2k in the low half; odd n padded with 0."""
+    bits = np.zeros(len(values) + len(values) % 2, np.uint32)
+    bits[:len(values)] = values.view(np.uint16)
+    return bits[0::2] | (bits[1::2] << 16)
+
+
+def _index_calls(source: str, name: str, accessor: str) -> str:
+    """`source` with every `name[expr]` replaced by `accessor(expr)` (brackets matched)."""
+    out, pos = [], 0
+    pattern = re.compile(rf"\b{name}\[")
+    while (m := pattern.search(source, pos)) is not None:
+        depth, i = 1, m.end()
+        while depth:
+            depth += {"[": 1, "]": -1}.get(source[i], 0)
+            i += 1
+        out += [source[pos:m.start()], f"{accessor}(", source[m.end():i - 1], ")"]
+        pos = i
+    return "".join(out) + source[pos:]
+
+
+def to_half(export: GLSLExport) -> GLSLExport:
+    """The fp16 form of an fp32 `export` (module docstring); `export` is left unchanged."""
+    if export.precision != "fp32":
+        raise InputError(f"to_half: expected an fp32 export, got precision {export.precision!r}")
+    header, body = export.source.split("\n", 1) if export.source.startswith("//") else ("", export.source)
+    arrays = _ARRAY.findall(body)
+    weights = 0
+    for name, n, values in arrays:
+        flat = np.array([float(v) for v in values.split(",")], np.float64)
+        if len(flat) != int(n):
+            raise InputError(f"to_half: array {name} declares {n} values and has {len(flat)}")
+        weights += len(flat)
+        words = pack_halves(half_values(flat, f"parameter {name}"))
+        packed = (f"const uint {name}_F16[{len(words)}] = uint[]({', '.join(f'0x{w:08x}u' for w in words)});\n"
+                  f"float {name}_AT(int k) {{ uint w = {name}_F16[k >> 1]; "
+                  f"return nm_half((k & 1) == 0 ? w & 65535u : w >> 16u); }}")
+        body = body.replace(f"const float {name}[{n}] = float[]({values});", packed, 1)
+        body = _index_calls(body, name, f"{name}_AT")
+    body = HALF_GLSL + body  # also read by the Slang spelling of half textures (`neumat.export.slang`)
+    textures = {name: data if name in export.exact else half_values(data, f"texture {name}")
+                for name, data in export.textures.items()}
+    source = (header + "\n" if header else "") + body
+    return dataclasses.replace(export, source=source, textures=textures, precision="fp16", weight_values=weights)
