@@ -94,7 +94,7 @@ def test_fit_non_brdf_source_and_bad_output(app, tmp_path):
 
 def test_eval_json(app, teacher, tmp_path):
     pytest.importorskip("neumat.metrics.hdr")
-    res = CliRunner().invoke(app, ["eval", teacher, "--against", teacher, "--json", "--n", "4096", "--no-image"])
+    res = CliRunner().invoke(app, ["eval", teacher, "--against", teacher, "--json", "--n-configs", "4096", "--no-image"])
     assert res.exit_code == 0, res.output
     row = json.loads(res.stdout)
     assert row["rmse_hdr"] == 0.0 and row["rel_err"] == 0.0  # a model against itself
@@ -106,7 +106,7 @@ def test_eval_json(app, teacher, tmp_path):
 def test_eval_with_image_table(app, teacher):
     pytest.importorskip("neumat.render.render")
     pytest.importorskip("neumat.metrics.image")
-    res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--n", "2048", "--spp", "2",
+    res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--n-configs", "2048", "--spp", "2",
                                    "--resolution", "8"])
     assert res.exit_code == 0, res.output
     for key in ("rmse_hdr", "psnr", "flip", "bytes_fp16", "evals_per_second"):
@@ -139,7 +139,7 @@ def test_fit_neubrdf_at_defaults_writes_the_small_runtime_form(app, tmp_path):
     wi, wo = (torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1).abs() for _ in range(2))
     with torch.no_grad():
         assert torch.equal(load_model(out).eval(Query(wi, wo)), reference.eval(Query(wi, wo)))
-    res = CliRunner().invoke(app, ["eval", str(out), "--against", "plastic:roughness=0.3", "--json", "--n", "4096",
+    res = CliRunner().invoke(app, ["eval", str(out), "--against", "plastic:roughness=0.3", "--json", "--n-configs", "4096",
                                    "--no-image"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["bytes_fp16"] == h["size_bytes"]["fp16"]
@@ -202,13 +202,13 @@ def test_eval_and_compare_take_source_options(app, teacher, monkeypatch):
     from neumat.cli import rendering
 
     res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--source-option", "max_size=64",
-                                   "--no-image", "--n", "256"])
+                                   "--no-image", "--n-configs", "256"])
     assert res.exit_code == 2 and "max_size" in _text(res)
     seen = []
     real = opener.open_material
     monkeypatch.setattr(opener, "open_material", lambda name, **kw: seen.append((name, kw)) or real(name))
     res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--source-option", "max_size=64",
-                                   "--no-image", "--n", "256", "--json"])
+                                   "--no-image", "--n-configs", "256", "--json"])
     assert res.exit_code == 0, res.output
     assert seen == [("lambert", {"max_size": 64})]
     rendering.register(app)

@@ -184,7 +184,7 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              source_option: list[str] = typer.Option(None, "--source-option",
                                                      help="key=value passed to the reader of the reference, as "
                                                           "`neumat fit` takes them, e.g. max_size=64"),
-             n: int = typer.Option(2 ** 18, "--n", min=1, help="random (wi, wo) configurations"),
+             n_configs: int = typer.Option(2 ** 18, "--n-configs", min=1, help="random (wi, wo) configurations"),
              image: bool = typer.Option(True, "--image/--no-image", help="also compare sphere renderings"),
              spp: int = typer.Option(16, min=1, help="samples per pixel of the renderings"),
              resolution: int = typer.Option(128, min=8, help="rendering width and height"),
@@ -206,7 +206,7 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
         m = load_model(model, device=dev)
         ref = open_material(against, **parse_overrides(source_option, "--source-option"))
         row = {"model": str(model), "against": against}
-        row.update(reflectance_errors(m, ref, n=n, seed=seed, device=dev))
+        row.update(reflectance_errors(m, ref, n=n_configs, seed=seed, device=dev))
         if image:
             from ..metrics.image import image_metrics
             from ..render.render import render

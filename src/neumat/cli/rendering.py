@@ -25,6 +25,7 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
            strategy: str = typer.Option("mis", help="mis | light | material"),
            device: str = typer.Option(None, callback=device_option, help="torch device, e.g. cuda"),
            seed: int = typer.Option(0, **SEED_RANGE),
+           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
            out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
                                     help="output image (.png, .exr, .hdr)")) -> None:
     """Render MATERIAL on a scene under a light and write the image."""
@@ -35,7 +36,7 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
     def go():
         m = open_material(material)
         img = render_image(m, scene=scene, light=light, spp=spp, resolution=(resolution, resolution),
-                           strategy=strategy, seed=seed, device=device, progress=True)
+                           strategy=strategy, seed=seed, device=device, progress=not quiet)
         write_image(out, img)
         print(f"wrote {out}")
     run_command(go)
@@ -54,6 +55,7 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             device: str = typer.Option(None, callback=device_option),
             seed: int = typer.Option(0, **SEED_RANGE),
             json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table"),
+            quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
             out: Path = typer.Option(None, "-o", "--out", callback=output_option(".png", ".jpg", ".jpeg"),
                                     help="comparison picture (.png)")) -> None:
     """Render the reference and every other material identically; print image and reflectance metrics."""
@@ -69,7 +71,7 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
         options = parse_overrides(source_option, "--source-option")
         mats = {name: open_material(name, **(options if i == 0 else {})) for i, name in enumerate(materials)}
         imgs = {name: render_image(m, scene=scene, light=light, spp=spp, resolution=(resolution, resolution),
-                                   seed=seed, device=device, progress=not json) for name, m in mats.items()}
+                                   seed=seed, device=device, progress=not (json or quiet)) for name, m in mats.items()}
         ref_name = materials[0]
         rows = []
         for name in materials[1:]:
@@ -83,6 +85,7 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             write_image_ldr(out, compare_image(imgs[ref_name], {n: imgs[n] for n in materials[1:]}, values))
         if json:
             print_json({"reference": ref_name, "results": rows})
-        else:
-            print_table(f"against {ref_name}", rows)
+        else:  # one row per metric, one column per material: readable at 80 columns
+            print_table(f"against {ref_name}", [{"metric": k, **{r["material"]: r[k] for r in rows}}
+                                                for k in rows[0] if k != "material"])
     run_command(go)
