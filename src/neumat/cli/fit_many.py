@@ -27,7 +27,8 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                                                   "one source a line, or analytic specs"),
              model: list[str] = typer.Option(..., "--model", "-m", help="registered model; repeat for several "
                                                                        "(one row per source and model)"),
-             set_: list[str] = typer.Option(None, "--set", help="key=value for every fit, as `neumat fit --set`"),
+             set_: list[str] = typer.Option(None, "--set", help="key=value for every fit, as `neumat fit --set`; "
+                                                               "MODEL:key=value for that model's fits only"),
              steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
              seed: int = typer.Option(None, **SEED_RANGE, help="seed of every fit (default: the recipe's)"),
              device: str = typer.Option(None, callback=device_option,
@@ -74,11 +75,13 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         if out.exists() and not out.is_dir():
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
         out.mkdir(parents=True, exist_ok=True)
-        common = dict(out_dir=str(out), overrides=parse_overrides(set_), steps=steps, seed=seed, device=device,
+        overrides = model_overrides(parse_overrides(set_), model)
+        common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
                       image_spp=image_spp, image_resolution=image_resolution)
         named = source_names(expand_sources(sources))
-        jobs = [FitJob(source=s, name=n, model=m, **common) for s, n in named.items() for m in model]
+        jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], **common) for s, n in named.items()
+                for m in model]
         results = out / "results.json"
         previous = {(r["source"], r["model"]): r for r in read_rows(results)}
         rows, todo = {}, []
@@ -126,6 +129,16 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
 
     if not run_command(go):
         raise typer.Exit(1)
+
+
+def model_overrides(overrides: dict, models: list[str]) -> dict[str, dict]:
+    """model -> its --set values: the plain keys, and "MODEL:key" for that model only (which wins)."""
+    scoped = {k: k.partition(":")[0] for k in overrides if ":" in k}
+    unknown = sorted({m for m in scoped.values() if m not in models})
+    if unknown:
+        raise InputError(f"--set: {', '.join(unknown)} is not one of the --model values ({', '.join(models)})")
+    plain = {k: v for k, v in overrides.items() if k not in scoped}
+    return {m: plain | {k.partition(":")[2]: v for k, v in overrides.items() if scoped.get(k) == m} for m in models}
 
 
 def expand_sources(items: list[str]) -> list[str]:
