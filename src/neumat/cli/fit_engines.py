@@ -10,7 +10,7 @@ from typing import Callable, Iterator
 from rich.console import Console
 
 from ..core.errors import InputError
-from .fit_job import FitJob, error_row
+from .fit_job import error_row
 
 RAY_HINT = "pip install 'neumat[ray]' (or pip install ray)"
 #: the local Ray instance's object store (rows and jobs are small; Ray's default takes 30 % of the memory)
@@ -52,7 +52,7 @@ class RunProgress:
         self.console.print(f"{self.status()} {row['name']} ({row['model']}): {what}", highlight=False, soft_wrap=True)
 
 
-def run_local(jobs: list[FitJob], task: Callable[[FitJob], dict], progress: RunProgress) -> Iterator[dict]:
+def run_local(jobs: list, task: Callable[[object], dict], progress: RunProgress) -> Iterator[dict]:
     """Run the jobs one after another in this process."""
     for job in jobs:
         row = task(job)
@@ -60,13 +60,14 @@ def run_local(jobs: list[FitJob], task: Callable[[FitJob], dict], progress: RunP
         yield row
 
 
-def run_ray(jobs: list[FitJob], task: Callable[[FitJob], dict], progress: RunProgress, *, workers: int | None,
+def run_ray(jobs: list, task: Callable[[object], dict], progress: RunProgress, *, workers: int | None,
             address: str | None, gpus_per_task: float, retries: int, log: Callable[[str], None],
-            poll_seconds: float = 30.0) -> Iterator[dict]:
+            lost: Callable[[object, BaseException], dict] = error_row, poll_seconds: float = 30.0) -> Iterator[dict]:
     """Run every job as a Ray task (1 CPU and `gpus_per_task` GPUs each) on the cluster at `address` (or
     $RAY_ADDRESS), else on a local Ray instance of `workers` CPUs (default: all of this machine's), started for
     this run and stopped after it. A task whose worker dies is retried up to `retries` times; a task lost for
-    good (worker killed every time, Ray's out-of-memory killer) yields its error row."""
+    good (worker killed every time, Ray's out-of-memory killer) yields `lost(job, error)`. Rows are dicts with at
+    least status ("ok" or "error"), name, model, seconds, worker and error (as `task` and `lost` return them)."""
     import ray
 
     address = address or os.environ.get("RAY_ADDRESS") or None
@@ -86,9 +87,9 @@ def run_ray(jobs: list[FitJob], task: Callable[[FitJob], dict], progress: RunPro
         log(f"Ray: {where}; {len(ray.nodes())} node(s), {cpus} CPU(s), {gpus:g} GPU(s); "
             f"{len(jobs)} task(s) of 1 CPU{f' + {gpus_per_task:g} GPU' if gpus_per_task else ''}")
         progress.slots = int(gpus // gpus_per_task) if gpus_per_task else cpus
-        remote = ray.remote(task).options(num_cpus=1, num_gpus=gpus_per_task, max_retries=retries,
+        remote = ray.remote(_run_task).options(num_cpus=1, num_gpus=gpus_per_task, max_retries=retries,
                                           retry_exceptions=False)
-        pending = {remote.remote(job): job for job in jobs}
+        pending = {remote.remote(task, job): job for job in jobs}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=poll_seconds)
             if not ready:
@@ -98,12 +99,17 @@ def run_ray(jobs: list[FitJob], task: Callable[[FitJob], dict], progress: RunPro
             try:
                 row = ray.get(ready[0])
             except ray.exceptions.RayError as e:  # the task's worker died (every retry) or Ray killed it
-                row = error_row(job, e)
+                row = lost(job, e)
             progress.finished(row)
             yield row
     finally:
         if started:
             ray.shutdown()
+
+
+def _run_task(task: Callable[[object], dict], job) -> dict:
+    """The Ray task: `task(job)` (a function, or any picklable callable object)."""
+    return task(job)
 
 
 def _duration(seconds: float) -> str:
