@@ -16,7 +16,13 @@ averages, image metrics following NBRDF), and writes them as Markdown (`--out`).
 "-t4" models (naive MLP, NBRDF, tripleplane, the gated model) on the shared RGL materials, with the paper's
 numbers beside ours (written to benchmarks/results/brdf_table4_rgl.md).
 
+Every (material, model) pair is one job (`fit_pair`; it renders its own reference image): one after another
+in this process, or with `--engine ray` as Ray tasks (`neumat.cli.fit_engines`, as `neumat fit-many`) on a
+local instance (`--workers N`) or a cluster (`--address` / $RAY_ADDRESS). A pair that fails is left out of the
+tables and named in the Markdown's settings; the others finish.
+
     python benchmarks/brdf.py --quick
+    python benchmarks/brdf.py --quick --engine ray --workers 2
     python benchmarks/brdf.py --models neubrdf,nbrdf --materials paper_white_rgb,plastic --steps 5000
     python benchmarks/brdf.py --table4 --pool 262144 --batch-cap 8192 --steps 6000,nbrdf-t4=20000
 """
@@ -24,6 +30,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import socket
 import sys
 import time
 from dataclasses import replace
@@ -40,6 +48,7 @@ from neumat.fit.recipe import recipe_for
 from neumat.fit.recipes.multiscale import HOMOGENEOUS_RECIPE
 from neumat.fit.trainer import fit
 from neumat.catalog.open_material import open_material
+from neumat.cli.fit_engines import RunProgress, run_local, run_ray
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.flops import model_flops
 from neumat.metrics.hdr import cosine_queries, reflectance_errors
@@ -199,39 +208,70 @@ def run(args) -> tuple[list[dict], dict]:
     envmap = Path(args.envmap) if args.envmap else (data / "envmap" / "studio_small_03_1k.hdr" if data else None)
     light = f"env:{envmap}" if envmap is not None and envmap.is_file() else "env:sky"
     settings.update(materials=names, device=str(device), light=light)
+    jobs = [{"material": m, "spec": known[m], "model": mn, "settings": settings, "progress": not args.no_progress}
+            for m in names for mn in models]
     console = Console(stderr=True)
-    rows = []
-    for mat_name in names:
-        source = open_material(known[mat_name])
-        train_source, queries = source, None
-        if settings.get("pool", DEFAULT_POOL):
-            pool = cosine_queries(settings["pool"], torch.Generator().manual_seed(1), torch.device("cpu"))
-            train_source, queries = MeasuredSamples.from_material(source, pool, name=mat_name), "replay"
-        ref_img = sphere_image(source, light, settings, device)
-        exposure = -math.log2(max(float(np.percentile(ref_img, 99)), 1e-6))
-        for model_name in models:
-            torch.manual_seed(0)
-            model, registry = build_model(model_name, settings["nside"])
-            recipe = replace(RECIPES[model_name]) if model_name in RECIPES else recipe_for(registry)
-            if settings["batch_cap"]:
-                recipe = replace(recipe, batch_size=min(recipe.batch_size, settings["batch_cap"]))
-            if settings["no_ema"]:  # an EMA of weight 0.01 would still hold ~20 % of the initial weights
-                recipe = replace(recipe, ema=0.0)
-            steps = model_steps.get(model_name, settings["steps"] or recipe.steps)
-            console.print(f"[bold]{model_name}[/] on {mat_name}: {steps} steps of {recipe.batch_size}")
-            result = fit(model, train_source, recipe, steps=steps, device=device, progress=not args.no_progress,
-                         queries=queries)
-            if hasattr(model, "runtime"):  # NeuBRDF is measured in the paper's runtime form (frozen indices)
-                model = model.runtime()
-            hdr = reflectance_errors(model, source, n=settings["hdr_n"], device=device)
-            img = image_metrics(ref_img, sphere_image(model, light, settings, device), exposure=exposure)
-            rows.append({"model": model_name, "material": mat_name, "rmse_hdr": hdr["rmse_hdr"],
-                         "mae_hdr": hdr["mae_hdr"], "img_mae": img["mae"], "img_rmse": img["rmse"],
-                         "img_ssim": img["ssim"], "img_flip": img["flip"], "flops": model_flops(model),
-                         "bytes_fp16": model.size_bytes("fp16"), "bytes_fp32": model.size_bytes("fp32"),
-                         "fit_s": result.seconds, "evals_per_s": evals_per_second(model, device), "steps": steps,
-                         "batch": recipe.batch_size})
-    return rows, settings
+    progress = RunProgress(len(jobs), console)
+    if args.engine == "ray":  # every (material, model) is a Ray task: the table can come from a cluster
+        stream = run_ray(jobs, fit_pair, progress, workers=args.workers, address=args.address,
+                         gpus_per_task=1.0 if device.type == "cuda" else 0.0, retries=2, log=console.print,
+                         lost=lost_pair)
+    else:
+        stream = run_local(jobs, fit_pair, progress)
+    done = {(r["material"], r["model"]): r for r in stream}
+    rows = [done[j["material"], j["model"]] for j in jobs]
+    failed = [r for r in rows if r["status"] != "ok"]
+    if failed:
+        settings["failed"] = "; ".join(f"{r['model']} on {r['material']}: {r['error']}" for r in failed)
+    return [r for r in rows if r["status"] == "ok"], settings
+
+
+def fit_pair(job: dict) -> dict:
+    """Fit and measure one (material, model) pair of `run`: its row, with status "ok", or "error" and the error."""
+    t0 = time.perf_counter()
+    row = {"name": job["material"], "material": job["material"], "model": job["model"], "status": "ok",
+           "error": None, "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    try:
+        row.update(measure_pair(job["material"], job["spec"], job["model"], job["settings"], job["progress"]))
+    except Exception as e:  # noqa: BLE001 - one failing pair must not stop the table
+        row.update(status="error", error=f"{type(e).__name__}: {e}")
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def lost_pair(job: dict, error: BaseException) -> dict:
+    """The row of a pair whose Ray task was lost (its worker died on every try)."""
+    return {"name": job["material"], "material": job["material"], "model": job["model"], "status": "error",
+            "error": f"{type(error).__name__}: {error}", "worker": None, "seconds": 0.0}
+
+
+def measure_pair(mat_name: str, spec: str, model_name: str, settings: dict, progress: bool) -> dict:
+    """Fit `model_name` to material `spec` with the benchmark's settings and measure it (the COLUMNS)."""
+    device = torch.device(settings["device"])
+    source = open_material(spec)
+    train_source, queries = source, None
+    if settings.get("pool", DEFAULT_POOL):
+        pool = cosine_queries(settings["pool"], torch.Generator().manual_seed(1), torch.device("cpu"))
+        train_source, queries = MeasuredSamples.from_material(source, pool, name=mat_name), "replay"
+    ref_img = sphere_image(source, settings["light"], settings, device)
+    exposure = -math.log2(max(float(np.percentile(ref_img, 99)), 1e-6))
+    torch.manual_seed(0)
+    model, registry = build_model(model_name, settings["nside"])
+    recipe = replace(RECIPES[model_name]) if model_name in RECIPES else recipe_for(registry)
+    if settings["batch_cap"]:
+        recipe = replace(recipe, batch_size=min(recipe.batch_size, settings["batch_cap"]))
+    if settings["no_ema"]:  # an EMA of weight 0.01 would still hold ~20 % of the initial weights
+        recipe = replace(recipe, ema=0.0)
+    steps = settings.get("model_steps", {}).get(model_name, settings["steps"] or recipe.steps)
+    result = fit(model, train_source, recipe, steps=steps, device=device, progress=progress, queries=queries)
+    if hasattr(model, "runtime"):  # NeuBRDF is measured in the paper's runtime form (frozen indices)
+        model = model.runtime()
+    hdr = reflectance_errors(model, source, n=settings["hdr_n"], device=device)
+    img = image_metrics(ref_img, sphere_image(model, settings["light"], settings, device), exposure=exposure)
+    return {"rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"], "img_mae": img["mae"], "img_rmse": img["rmse"],
+            "img_ssim": img["ssim"], "img_flip": img["flip"], "flops": model_flops(model),
+            "bytes_fp16": model.size_bytes("fp16"), "bytes_fp32": model.size_bytes("fp32"), "fit_s": result.seconds,
+            "evals_per_s": evals_per_second(model, device), "steps": steps, "batch": recipe.batch_size}
 
 
 def averages(rows: list[dict]) -> list[dict]:
@@ -322,6 +362,11 @@ def main(argv=None) -> None:
     p.add_argument("--device", default=None, help="torch device (default: cuda if available)")
     p.add_argument("--envmap", default=None, help="environment map (default: shared studio_small_03_1k.hdr)")
     p.add_argument("--no-progress", action="store_true", help="hide the fit progress bars")
+    p.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local: the pairs one after another here; ray: each (material, model) a Ray task")
+    p.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
+    p.add_argument("--address", default=None, help="--engine ray: Ray cluster address (default $RAY_ADDRESS, "
+                                                    "else a local instance)")
     args = p.parse_args(argv)
     rows, settings = run(args)
     console = Console(width=None if sys.stdout.isatty() else 220)  # full columns in logs and pipes

@@ -28,4 +28,5 @@ def test_licence_typing_marker_and_extras():
     extras = meta["optional-dependencies"]
     assert {d.split(">")[0] for d in extras["export"]} == {"moderngl", "slangpy"}
     assert any(d.startswith("mitsuba") for d in extras["mitsuba"])
+    assert [d.split(">")[0] for d in extras["ray"]] == ["ray"] and "ray" in {d.split(">")[0] for d in extras["dev"]}
     assert "OpenEXR>=3.3" in meta["dependencies"]  # the code uses OpenEXR.File, added in 3.3

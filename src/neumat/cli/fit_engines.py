@@ -1,0 +1,118 @@
+"""Where `neumat fit-many`'s jobs run: as Ray tasks (a local Ray instance, or a cluster by address), or one
+after another in this process. Both yield each job's row as it finishes, so the caller can save the results
+after every row, and report the run's progress (done / failed / running, ETA)."""
+from __future__ import annotations
+
+import os
+import time
+from typing import Callable, Iterator
+
+from rich.console import Console
+
+from ..core.errors import InputError
+from .fit_job import error_row
+
+RAY_HINT = "pip install 'neumat[ray]' (or pip install ray)"
+#: the local Ray instance's object store (rows and jobs are small; Ray's default takes 30 % of the memory)
+OBJECT_STORE_BYTES = 200 * 2 ** 20
+
+
+def ray_available() -> bool:
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+class RunProgress:
+    """Prints one line per finished job and, at most every `every` seconds while jobs run, a status line:
+    done / failed / running of the total and the ETA (elapsed time per finished job x jobs left)."""
+
+    def __init__(self, total: int, console: Console, slots: int = 1):
+        self.total, self.console, self.slots = total, console, slots
+        self.done = self.failed = 0
+        self.t0 = time.perf_counter()
+
+    def status(self) -> str:
+        finished = self.done + self.failed
+        running = min(self.slots, self.total - finished)
+        elapsed = time.perf_counter() - self.t0
+        eta = f", ETA {_duration(elapsed / finished * (self.total - finished))}" if 0 < finished < self.total else ""
+        return (f"[{finished}/{self.total}: {self.done} done, {self.failed} failed, {running} running, "
+                f"{_duration(elapsed)} elapsed{eta}]")
+
+    def finished(self, row: dict) -> None:
+        if row["status"] == "ok":
+            self.done += 1
+            what = f"ok in {row['seconds']:.1f} s on {row['worker']}"
+        else:
+            self.failed += 1
+            what = f"[red]failed[/]: {row['error']}"
+        self.console.print(f"{self.status()} {row['name']} ({row['model']}): {what}", highlight=False, soft_wrap=True)
+
+
+def run_local(jobs: list, task: Callable[[object], dict], progress: RunProgress) -> Iterator[dict]:
+    """Run the jobs one after another in this process."""
+    for job in jobs:
+        row = task(job)
+        progress.finished(row)
+        yield row
+
+
+def run_ray(jobs: list, task: Callable[[object], dict], progress: RunProgress, *, workers: int | None,
+            address: str | None, gpus_per_task: float, retries: int, log: Callable[[str], None],
+            lost: Callable[[object, BaseException], dict] = error_row, poll_seconds: float = 30.0) -> Iterator[dict]:
+    """Run every job as a Ray task (1 CPU and `gpus_per_task` GPUs each) on the cluster at `address` (or
+    $RAY_ADDRESS), else on a local Ray instance of `workers` CPUs (default: all of this machine's), started for
+    this run and stopped after it. A task whose worker dies is retried up to `retries` times; a task lost for
+    good (worker killed every time, Ray's out-of-memory killer) yields `lost(job, error)`. Rows are dicts with at
+    least status ("ok" or "error"), name, model, seconds, worker and error (as `task` and `lost` return them)."""
+    import ray
+
+    address = address or os.environ.get("RAY_ADDRESS") or None
+    started = not ray.is_initialized()
+    if started:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers or os.cpu_count(), include_dashboard=False, log_to_driver=False,
+                     object_store_memory=OBJECT_STORE_BYTES)
+    try:
+        resources = ray.cluster_resources()
+        cpus, gpus = int(resources.get("CPU", 0)), resources.get("GPU", 0)
+        if gpus_per_task > gpus:
+            raise InputError(f"--device cuda: the Ray cluster ({address or 'local'}) has no GPU")
+        where = address or f"a local Ray instance started for this run ({ray.get_runtime_context().gcs_address})"
+        log(f"Ray: {where}; {len(ray.nodes())} node(s), {cpus} CPU(s), {gpus:g} GPU(s); "
+            f"{len(jobs)} task(s) of 1 CPU{f' + {gpus_per_task:g} GPU' if gpus_per_task else ''}")
+        progress.slots = int(gpus // gpus_per_task) if gpus_per_task else cpus
+        remote = ray.remote(_run_task).options(num_cpus=1, num_gpus=gpus_per_task, max_retries=retries,
+                                          retry_exceptions=False)
+        pending = {remote.remote(task, job): job for job in jobs}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=poll_seconds)
+            if not ready:
+                progress.console.print(progress.status(), highlight=False, soft_wrap=True)
+                continue
+            job = pending.pop(ready[0])
+            try:
+                row = ray.get(ready[0])
+            except ray.exceptions.RayError as e:  # the task's worker died (every retry) or Ray killed it
+                row = lost(job, e)
+            progress.finished(row)
+            yield row
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _run_task(task: Callable[[object], dict], job) -> dict:
+    """The Ray task: `task(job)` (a function, or any picklable callable object)."""
+    return task(job)
+
+
+def _duration(seconds: float) -> str:
+    m, s = divmod(int(round(seconds)), 60)
+    return f"{m // 60}h{m % 60:02d}m" if m >= 60 else f"{m}m{s:02d}s"
+

@@ -1,0 +1,129 @@
+"""One unit of `neumat fit-many`: fit one model to one source, save it, evaluate it against the source with
+`neumat eval`'s metrics, and return its results row. Never raises: whatever stops the job (an unreadable file,
+a non-finite fit, memory) becomes the row's "error", so one bad source cannot stop a database run."""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import socket
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from ..core.errors import DataFormatError
+
+#: the row keys, in the order results.json and results.md show them
+ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "nmat", "nmat_sha256", "recipe",
+            "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker", "error")
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """What to fit and how. source: a file path or spec (as `neumat fit` takes it); name: the source's short
+    name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
+    errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics)."""
+
+    source: str
+    name: str
+    model: str
+    out_dir: str
+    overrides: dict = field(default_factory=dict)
+    steps: int | None = None
+    seed: int | None = None
+    device: str | None = None
+    source_options: dict = field(default_factory=dict)
+    eval_n: int = 2 ** 16
+    image_spp: int = 16
+    image_resolution: int = 64
+
+    @property
+    def out(self) -> Path:
+        return Path(self.out_dir) / f"{self.name}.{self.model}.nmat"
+
+    def options_sha256(self) -> str:
+        """Hash of everything that changes the fitted model or its metrics (not the device nor the output)."""
+        keys = ("model", "overrides", "steps", "seed", "source_options", "eval_n", "image_spp", "image_resolution")
+        text = json.dumps({k: asdict(self)[k] for k in keys}, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def source_sha256(source: str) -> str:
+    """The hash `save_model` records for a source given as text: of the file's bytes, else of the spec."""
+    from ..catalog.modelfile import source_info
+    return source_info(source)["sha256"]
+
+
+def run_fit_job(job: FitJob) -> dict:
+    """Fit, save, reload and evaluate `job`; its row (ROW_KEYS) with status "ok", or "error" and the error
+    (the .nmat of a failed job is removed)."""
+    t0 = time.perf_counter()
+    try:
+        row = error_row(job, None) | {"source_sha256": source_sha256(job.source)}
+        row |= _fit_and_evaluate(job) | {"status": "ok"}
+    except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
+        job.out.unlink(missing_ok=True)
+        row = error_row(job, e)
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def error_row(job: FitJob, error: BaseException | None) -> dict:
+    """The row of `job` before (error None) or instead of its results: status "error" and the error's type and
+    last line (e.g. a Ray task lost with its worker), run by this process."""
+    text = str(error).strip().splitlines() if error is not None else []
+    message = f"{type(error).__name__}: {text[-1][:500] if text else ''}".rstrip(": ") if error is not None else None
+    return {k: None for k in ROW_KEYS} | {"name": job.name, "model": job.model, "source": job.source,
+                                          "status": "error", "error": message, "options_sha256": job.options_sha256(),
+                                          "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def _fit_and_evaluate(job: FitJob) -> dict:
+    from ..catalog.modelfile import load_model, save_model
+    from ..core.config import config_to_dict
+    from ..fit.trainer import fit
+    from .fitting import build_model_and_recipe, open_training_source, resolve_device
+
+    device = resolve_device(job.device)
+    src = open_training_source(job.model, [job.source], job.source_options)
+    model, recipe = build_model_and_recipe(job.model, job.overrides, job.seed, source=src)
+    result = fit(model, src, recipe, steps=job.steps, device=device, progress=False)
+    loss = result.history[-1]["loss"] if result.history else None
+    if loss is not None and not math.isfinite(loss):
+        raise DataFormatError(f"fit of {job.model!r} to {job.source!r} ended with a non-finite loss ({loss})")
+    save_model(result.model, job.out, recipe=result.recipe, source=job.source,
+               metrics={"final_loss": loss, "fit_seconds": result.seconds})
+    fitted = load_model(job.out, device=device)
+    metrics = evaluate_against(fitted, src, job, device)
+    bad = sorted(k for k, v in metrics.items() if math.isnan(v))
+    if bad:
+        raise DataFormatError(f"model fitted to {job.source!r} has NaN metrics: {', '.join(bad)}")
+    return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
+            "recipe": config_to_dict(result.recipe), "metrics": metrics, "steps": result.steps,
+            "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device)}
+
+
+def evaluate_against(model, reference, job: FitJob, device) -> dict[str, float]:
+    """`neumat eval`'s quality metrics of `model` against `reference`: reflectance errors over `job.eval_n`
+    cosine-weighted queries and, with `job.image_spp` > 0, image metrics of sphere renderings (img_*)."""
+    from ..metrics.hdr import reflectance_errors
+
+    out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
+    if job.image_spp > 0:
+        from ..metrics.image import image_metrics
+        from ..render.render import render
+
+        opts = dict(scene="sphere", spp=job.image_spp, resolution=job.image_resolution, seed=0, device=device)
+        img = image_metrics(render(reference, **opts), render(model, **opts))
+        out.update({f"img_{k}": float(v) for k, v in img.items()})
+    return out

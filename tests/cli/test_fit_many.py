@@ -1,0 +1,159 @@
+"""`neumat fit-many`: fault isolation, resume and worker loss, on a local Ray instance of 2 CPUs (started once for
+the module) and one after another in the process (--engine local)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+import typer
+from rich.console import Console
+from typer.testing import CliRunner
+
+from neumat.catalog.modelfile import save_model
+from neumat.cli import fit_many
+from neumat.cli.fit_engines import RunProgress, run_ray
+from neumat.cli.fit_job import FitJob, run_fit_job
+from neumat.models.ggx_fit import GGXFit
+
+FAST = ["-m", "ggx", "--steps", "10", "--set", "batch_size=256", "--eval-n", "2048", "--image-spp", "1",
+        "--image-resolution", "8", "--device", "cpu"]
+
+
+@pytest.fixture
+def app() -> typer.Typer:
+    app = typer.Typer(pretty_exceptions_enable=False, add_completion=False)
+    fit_many.register(app)
+    return app
+
+
+@pytest.fixture(scope="module")
+def ray_2cpu():
+    """A local Ray instance of 2 CPUs for the module's tests; fit-many runs on it and leaves it running."""
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200 * 2 ** 20, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def _teachers(folder: Path, n: int) -> list[str]:
+    """`n` different GGX materials saved as .nmat: small file sources."""
+    folder.mkdir(exist_ok=True)
+    out = []
+    for i in range(n):
+        torch.manual_seed(i)
+        out.append(str(save_model(GGXFit(init_alpha=0.1 + 0.2 * i), folder / f"teacher{i}.nmat")))
+    return out
+
+
+def _rows(out: Path) -> dict[str, dict]:
+    return {r["name"]: r for r in json.loads((out / "results.json").read_text())["rows"]}
+
+
+def test_three_good_sources_and_a_corrupt_one_on_ray_then_a_rerun_fits_only_the_failed(app, ray_2cpu, tmp_path):
+    sources = _teachers(tmp_path / "src", 3)
+    (tmp_path / "src" / "corrupt.binary").write_bytes(b"\x00\x01 not a MERL table" * 100)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, [str(tmp_path / "src"), *FAST, "-o", str(out)])
+    assert res.exit_code == 1, res.output  # some job failed
+    rows = _rows(out)
+    assert sorted(rows) == ["corrupt", "teacher0", "teacher1", "teacher2"]
+    for name in ("teacher0", "teacher1", "teacher2"):
+        r = rows[name]
+        assert r["status"] == "ok" and r["error"] is None and r["model"] == "ggx", r
+        assert 0 <= r["metrics"]["rmse_hdr"] < 1 and "img_flip" in r["metrics"] and r["bytes_fp16"] > 0
+        assert Path(r["nmat"]).is_file() and r["source"] in sources and len(r["source_sha256"]) == 64
+        assert r["worker"] and r["device"] == "cpu" and r["fit_seconds"] > 0 and r["recipe"]["steps"] == 10
+    assert rows["corrupt"]["status"] == "error" and "DataFormatError" in rows["corrupt"]["error"]
+    assert not (out / "corrupt.ggx.nmat").exists()
+    assert "corrupt" in (out / "results.md").read_text() and "| ggx | 3 | 1 |" in (out / "results.md").read_text()
+
+    mtimes = {n: Path(r["nmat"]).stat().st_mtime_ns for n, r in rows.items() if r["status"] == "ok"}
+    res = CliRunner().invoke(app, [str(tmp_path / "src"), *FAST, "-o", str(out)])
+    assert res.exit_code == 1 and "3 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
+    again = _rows(out)
+    assert {n: Path(again[n]["nmat"]).stat().st_mtime_ns for n in mtimes} == mtimes
+    assert again["corrupt"]["status"] == "error"
+
+
+def test_changed_source_or_options_are_fitted_again(app, tmp_path):
+    src = _teachers(tmp_path / "src", 2)
+    out = tmp_path / "out"
+    args = [*src, *FAST, "--engine", "local", "-o", str(out)]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    save_model(GGXFit(init_alpha=0.9), src[1])  # the source changes: its hash no longer matches
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0 and "1 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
+    res = CliRunner().invoke(app, [*args, "--steps", "11"])  # other options: everything again
+    assert "0 already done (kept), 2 to fit" in " ".join(res.output.split()), res.output
+    assert all(r["steps"] == 11 for r in _rows(out).values())
+
+
+class KillFirstAttempt:
+    """A fit-many task that kills its own worker process (SIGKILL) the first time it runs `victim`; it logs
+    every call's source to `log`."""
+
+    def __init__(self, victim: str, log: Path):
+        self.victim, self.log = victim, log
+
+    def __call__(self, job: FitJob) -> dict:
+        with open(self.log, "a") as f:
+            f.write(job.source + "\n")
+        marker = self.log.with_suffix(".killed")
+        if job.source == self.victim and not marker.exists():
+            marker.touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+        return run_fit_job(job)
+
+
+def test_a_killed_worker_loses_only_its_task_which_is_retried(ray_2cpu, tmp_path):
+    ray_2cpu.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the task class lives in this test
+    sources = _teachers(tmp_path / "src", 3)
+    jobs = [FitJob(source=s, name=Path(s).stem, model="ggx", out_dir=str(tmp_path), overrides={"batch_size": 256},
+                   steps=10, device="cpu", eval_n=2048, image_spp=0) for s in sources]
+    log = tmp_path / "calls.log"
+    progress = RunProgress(len(jobs), Console(file=open(os.devnull, "w")))
+    rows = list(run_ray(jobs, KillFirstAttempt(sources[1], log), progress, workers=None, address=None,
+                        gpus_per_task=0.0, retries=1, log=lambda text: None))
+    assert sorted(r["name"] for r in rows) == ["teacher0", "teacher1", "teacher2"]
+    assert all(r["status"] == "ok" for r in rows), rows
+    calls = log.read_text().split()
+    assert calls.count(sources[1]) == 2 and calls.count(sources[0]) == calls.count(sources[2]) == 1
+    assert progress.done == 3 and progress.failed == 0
+
+
+def test_a_task_killed_every_time_gets_an_error_row(ray_2cpu, tmp_path):
+    ray_2cpu.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    source = _teachers(tmp_path / "src", 1)[0]
+    job = FitJob(source=source, name="teacher0", model="ggx", out_dir=str(tmp_path), steps=1, image_spp=0)
+    progress = RunProgress(1, Console(file=open(os.devnull, "w")))
+    rows = list(run_ray([job], KillFirstAttempt(source, tmp_path / "calls.log"), progress, workers=None,
+                        address=None, gpus_per_task=0.0, retries=0, log=lambda text: None))
+    assert rows[0]["status"] == "error" and "Worker" in rows[0]["error"] and progress.failed == 1
+
+
+def test_sources_expand_from_folders_and_lists(tmp_path):
+    (tmp_path / "a.h5").write_bytes(b"")
+    (tmp_path / "a.json").write_text("{}")           # the architecture of the NBRDF network a.h5: not a source
+    (tmp_path / "b.json").write_text("{}")           # a layered material: a source
+    (tmp_path / "notes.md").write_text("")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "a.binary").write_bytes(b"")
+    (tmp_path / "list.txt").write_text("# database\nsub/a.binary\n\nplastic:roughness=0.3  # a spec\n")
+    got = fit_many.expand_sources([str(tmp_path), str(tmp_path / "list.txt"), str(tmp_path / "a.h5")])
+    assert got == [str(tmp_path / "a.h5"), str(tmp_path / "b.json"), str(tmp_path / "sub" / "a.binary"),
+                   "plastic:roughness=0.3"]
+    names = fit_many.source_names(got)
+    assert list(names.values()) == ["a.h5", "b", "a.binary", "plastic_roughness_0.3"]
+
+
+def test_model_scoped_overrides():
+    got = fit_many.model_overrides({"steps": 5, "nbrdf:hidden": 8, "neubrdf:nside": 4, "neubrdf:steps": 6},
+                                   ["nbrdf", "neubrdf"])
+    assert got == {"nbrdf": {"steps": 5, "hidden": 8}, "neubrdf": {"steps": 6, "nside": 4}}
+    with pytest.raises(Exception, match="ggx is not one of the --model values"):
+        fit_many.model_overrides({"ggx:x": 1}, ["nbrdf"])
