@@ -54,3 +54,13 @@ def test_losses_are_zero_at_the_target_and_unknown_names_raise():
         assert LOSSES.get(name)()(TARGET, TARGET, Q).item() == 0.0
     with pytest.raises(UnknownNameError, match="log_cos"):
         LOSSES.get("logcos")
+
+
+def test_log_cos_of_negative_targets_is_finite_and_treats_them_as_zero():
+    """Measured tables hold negative values (RGL cc_ibiza_sunset: 12 %); below -1 / cos_i their log was NaN."""
+    wi = torch.tensor([[0.0, 0.0, 1.0]]).expand(4, 3)
+    q = Query(wi, wi)
+    pred = torch.full((4, 3), 0.5)
+    loss = LOSSES.get("log_cos")()
+    value = loss(pred, torch.full((4, 3), -3.0), q)
+    assert torch.isfinite(value) and value == loss(pred, torch.zeros(4, 3), q)

@@ -5,7 +5,9 @@ Losses are `nn.Module`s, so a loss that keeps state (running statistics) keeps i
 trainer checkpoints. Models and recipe modules may register their own at import time.
 
 Built-ins (means over the N queries and 3 channels):
-  "log_cos":  |log(1 + f_hat cos_i) - log(1 + f cos_i)|, cos_i = max(wi_z, 0). The L1 (absolute) form,
+  "log_cos":  |log(1 + f_hat cos_i) - log(1 + f cos_i)|, cos_i = max(wi_z, 0), f clamped at 0 (measured tables
+              hold small negative values, e.g. 12 % of RGL cc_ibiza_sunset's, whose log would be NaN below
+              -1 / cos_i; a BRDF is non-negative). The L1 (absolute) form,
               as NBRDF (Sztrajman et al. 2021; their code's `mean_absolute_logarithmic_error` on
               cosine-weighted values) and Neural Appearance Models (Zeltner et al. 2024, "L1 loss in log
               space"); NeuBRDF leaves its loss to the supplement, and follows NBRDF in evaluation.
@@ -38,7 +40,7 @@ class LogCosLoss(nn.Module):
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
         c = _cos_i(q, pred)
-        return (torch.log1p(pred * c) - torch.log1p(target * c)).abs().mean()
+        return (torch.log1p(pred * c) - torch.log1p(target.clamp(min=0) * c)).abs().mean()
 
 
 @LOSSES.register("l1")
