@@ -123,7 +123,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
             metrics.update(validation_mse=best["validation_mse"], validation_variance=variance,
                            best_step=best["step"])
             row.update({"validation": len(held), "best step": best["step"], "validation MSE": best["validation_mse"],
-                        "relative to its variance": best["validation_mse"] / variance})
+                        "relative to its variance": best["validation_mse"] / variance if variance > 0 else None})
         row["sampler KL"] = metrics["sampler_kl"]
         save_model(model.cpu(), out, recipe=replace(recipe, steps=result.steps), source=observations,
                    metrics=metrics)
