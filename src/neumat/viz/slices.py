@@ -81,7 +81,8 @@ def _slice_values(material: Material, resolution: int, uv, device) -> np.ndarray
 
 def polar_plot(materials: dict[str, Material], theta_i_deg=(15, 45, 75), resolution: int = 181,
                decades: int = 4, uv: tuple[float, float] = (0.5, 0.5), device=None) -> np.ndarray:
-    """Image (H, W, 3) uint8 of in-plane BRDF luminance curves, one polar panel per incident angle.
+    """Image (H, W, 3) uint8 of in-plane BRDF luminance curves, one polar panel per incident angle (two
+    panels a row, each a half disc about 5 inches across at 100 dpi).
 
     wi lies in the x-z plane at -theta_i (phi = 180 deg); wo sweeps the same plane, theta_o from -90 to
     90 deg (mirror direction at +theta_i). Radius: log10 of the luminance over `decades` decades, from
@@ -104,28 +105,32 @@ def polar_plot(materials: dict[str, Material], theta_i_deg=(15, 45, 75), resolut
             curves[t, name] = _evaluate(material, wi, wo, uv, device) @ LUMINANCE
     top = max((np.nanmax(c, initial=0.0) for c in curves.values()), default=0.0)
     floor = math.ceil(np.log10(top)) - decades if top > 0 else -decades
-    fig, canvas = _figure(4.2 * len(theta_i_deg), 3.0)
+    columns = min(len(theta_i_deg), 2)
+    rows = math.ceil(len(theta_i_deg) / columns)
+    # a half-disc polar axes reserves its full square: square cells, the blank lower halves trimmed afterwards
+    fig, canvas = _figure(6.0 * columns, 6.0 * rows + 0.6)
     for k, t in enumerate(theta_i_deg):
-        ax = fig.add_subplot(1, len(theta_i_deg), k + 1, projection="polar")
+        ax = fig.add_subplot(rows, columns, k + 1, projection="polar")
         ax.set_theta_zero_location("N")
         ax.set_theta_direction(-1)
         ax.set_thetamin(-90)
         ax.set_thetamax(90)
         for name in materials:
             r = np.log10(np.maximum(curves[t, name], 1e-300)) - floor
-            ax.plot(theta_o.numpy(), np.maximum(r, 0.0), label=str(name))
+            ax.plot(theta_o.numpy(), np.maximum(r, 0.0), label=str(name), linewidth=1.6)
         ax.axvline(math.radians(-t), color="grey", linestyle="--", linewidth=0.8)
         ax.set_ylim(0, decades)
         ax.set_yticks(range(decades + 1))
         ax.set_yticklabels([])
+        ax.tick_params(labelsize=10)
         for d in range(1, decades + 1):
-            ax.text(math.radians(2), d, f"1e{floor + d}", fontsize=7, color="dimgrey", va="bottom")
-        ax.set_title(f"theta_i = {t} deg (dashed: wi)", fontsize=9)
-    fig.suptitle("in-plane BRDF luminance, log scale")
-    fig.tight_layout(rect=(0, 0.1, 1, 1))
+            ax.text(math.radians(2), d, f"1e{floor + d}", fontsize=9, color="dimgrey", va="bottom")
+        ax.set_title(f"theta_i = {t} deg (dashed: wi)", fontsize=12)
+    fig.suptitle("in-plane BRDF luminance, log scale", fontsize=13)
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
     fig.legend(*fig.axes[0].get_legend_handles_labels(), loc="lower center", ncol=min(len(materials), 6),
-               fontsize=8, frameon=False)
-    return _to_array(fig, canvas)
+               fontsize=11, frameon=False)
+    return _trim_blank_rows(_to_array(fig, canvas))
 
 
 def _evaluate(material: Material, wi: torch.Tensor, wo: torch.Tensor, uv, device) -> np.ndarray:
@@ -155,6 +160,17 @@ def _figure(width: float, height: float):
 
     fig = Figure(figsize=(width, height), dpi=100)
     return fig, FigureCanvasAgg(fig)
+
+
+def _trim_blank_rows(img: np.ndarray, keep: int = 24) -> np.ndarray:
+    """img (H, W, 3) with every run of more than `keep` all-white rows shortened to `keep` rows."""
+    blank = (img == 255).all(axis=(1, 2))
+    rows, run = [], 0
+    for y, b in enumerate(blank):
+        run = run + 1 if b else 0
+        if run <= keep:
+            rows.append(y)
+    return img[rows]
 
 
 def _to_array(fig, canvas) -> np.ndarray:
