@@ -198,8 +198,8 @@ def _make_bsdf_class(mi) -> type:
         # --- torch side ---------------------------------------------------------------------------
 
         def _eval_pdf(self, ctx, si, wo, active, want_value=True, want_pdf=True):
-            n = dr.width((si.wi, wo))
             if _symbolic(dr):
+                n = dr.width((si.wi, wo))
                 return _poison(mi, dr, active, n), dr.zeros(mi.Float, n)
             n = dr.width((si.wi, wo, active))
             viewer, other = _vec(si.wi, n), _vec(wo, n)
