@@ -14,9 +14,8 @@ material, the bunny's BSDF is
     (NeuBRDF has no sampler) and with the neural proxy sampler of Zeltner et al. fitted to it (--sampler-steps).
 Columns: seconds per image (the same scene and spp, side by side in one run, all in the evaluated mode the plugin
 needs), their ratio to the built-in in that mode and in Mitsuba's default symbolic mode (what a Mitsuba user gets
-without the plugin), and MSE / FLIP against the reference. Mitsuba's `measured` feeds the camera direction into
-the table's incident slot, neumat's RGL reader the light direction (neumat's convention), so that row also shows
-the table's non-reciprocity.
+without the plugin), MSE / FLIP against the reference, and each image's maximum and mean (fireflies show in the
+maximum; the plugin feeds the table as Mitsuba's `measured` does, so the RGL reader's row should match Mitsuba's).
 """
 from __future__ import annotations
 
@@ -142,12 +141,14 @@ def main() -> None:
             rows.append({"material": material, "BSDF": name, "s / image": f"{seconds:.2f}",
                          "x built-in": f"{seconds / base_seconds:.1f}",
                          "x built-in symbolic": f"{seconds / symbolic_seconds:.1f}", "MSE vs ref": f"{mse:.3g}",
-                         "FLIP vs ref": f"{m['flip']:.4f}"})
+                         "FLIP vs ref": f"{m['flip']:.4f}", "max": f"{float(image.max()):.4g}",
+                         "mean": f"{float(image.mean()):.4g}"})
             if material == args.rgl:
                 panels[name], metrics[name] = image, {"MSE": mse, "FLIP": m["flip"], "s": seconds}
         rows.append({"material": material, "BSDF": f"reference ({args.ref_spp} spp)", "s / image": f"{ref_seconds:.2f}",
                      "x built-in": "", "x built-in symbolic": f"(built-in symbolic: {symbolic_seconds:.3f} s)",
-                     "MSE vs ref": "", "FLIP vs ref": ""})
+                     "MSE vs ref": "", "FLIP vs ref": "", "max": f"{float(reference.max()):.4g}",
+                     "mean": f"{float(reference.mean()):.4g}"})
         if material == args.rgl:
             reference_for_picture = reference
     print_table(f"{args.res}^2 pixels, {args.spp} spp, path max_depth {args.depth}; NeuBRDF fit {fit_seconds:.0f} s "

@@ -15,6 +15,7 @@ from neumat import Material
 from neumat.core.errors import InputError
 from neumat.io.images import read_image, write_image_ldr
 from neumat.viz import brdf_slice_image, compare_image, polar_plot, write_report
+from neumat.viz.slices import brdf_slice_range
 from neumat.viz.compare import MIN_PANEL_WIDTH, PAD
 
 
@@ -27,6 +28,13 @@ class Phong(Material):
         r = torch.stack([-q.wi[:, 0], -q.wi[:, 1], q.wi[:, 2]], -1)
         lobe = (r * q.wo).sum(-1).clamp(min=0) ** 20 * 22 / (2 * math.pi)
         return torch.tensor([0.2, 0.4, 0.6]).to(q.wi) / math.pi + lobe[:, None]
+
+
+class DimPhong(Phong):
+    """Phong at a tenth of the value (test only); the same name, so the same plot title."""
+
+    def eval(self, q):
+        return super().eval(q) * 0.1
 
 
 class Checker(Material):
@@ -98,6 +106,21 @@ def test_brdf_slice_image():
         brdf_slice_image(Phong(), channels="xyz")
     with pytest.raises(InputError, match="resolution"):
         brdf_slice_image(Phong(), resolution=1)
+
+
+def test_brdf_slices_on_one_shared_scale():
+    # each slice on its own scale: a material and a tenth of it differ only in the colour bars' labels; on one
+    # scale the slices themselves differ
+    def changed(a, b):
+        return float((np.abs(a.astype(int) - b) > 30).any(-1).mean())
+    own = changed(brdf_slice_image(Phong(), resolution=20), brdf_slice_image(DimPhong(), resolution=20))
+    vmin, vmax = brdf_slice_range([Phong(), DimPhong()], decades=3, resolution=20)
+    assert vmin == pytest.approx(vmax * 1e-3)
+    bright = brdf_slice_image(Phong(), resolution=20, value_range=(vmin, vmax))
+    dim = brdf_slice_image(DimPhong(), resolution=20, value_range=(vmin, vmax))
+    assert own < 0.01 and changed(bright, dim) > 0.2, (own, changed(bright, dim))
+    with pytest.raises(InputError, match="value_range"):
+        brdf_slice_image(Phong(), value_range=(1.0, 0.5))
 
 
 def test_polar_plot():

@@ -8,19 +8,22 @@
 `material` is anything `neumat.open_material` reads (a `.nmat` model, a MERL / RGL / BTF file, a texture-set
 folder or an analytic spec such as "ggx:roughness=0.2"); `bsdf(material)` wraps a Material object instead.
 
-Conventions. Mitsuba's local frame is neumat's (z the shading normal, x the tangent dp/du). In radiance
-transport `si.wi` points to the viewer and the evaluated `wo` to the light, so `eval` returns
-f(wi=wo_mitsuba, wo=si.wi) cos(theta_wo) (the neumat renderer's argument order); in importance transport the
-roles swap. `sample` draws the light direction with `material.sample(Query(wi=viewer), u)` (cosine-weighted
-where the material cannot sample) and weights it by eval / pdf, so sample, eval and pdf agree for
-non-reciprocal models too. Spatially varying materials get uv = si.uv modulo 1 (tiling) and no footprint:
-Mitsuba's path tracer carries no ray differentials, so they are evaluated at their finest level.
-The surface is one-sided, as Mitsuba's own BSDFs; wrap it in a `twosided` BSDF for two-sided use.
+Conventions. Mitsuba's local frame is neumat's (z the shading normal, x the tangent dp/du). The material's
+incident slot `wi` gets Mitsuba's `si.wi` (in radiance transport the direction to the viewer) and `wo` the
+evaluated or sampled direction, as Mitsuba's own `measured` plugin feeds its tables, so `eval` returns
+f(wi=si.wi, wo=wo) cos(theta_wo) and `sample` draws wo with `material.sample(Query(wi=si.wi), u)`, the material's
+own importance sampling of exactly that function (cosine-weighted where the material cannot sample): the weights
+f cos / pdf stay bounded, also for non-reciprocal tables. In importance transport (light tracing) the roles of
+si.wi and wo swap in `eval`, so both transport modes see the same function. For a reciprocal material the order
+does not matter. Spatially varying materials get uv = si.uv modulo 1 (tiling) and no footprint: Mitsuba's path
+tracer carries no ray differentials, so they are evaluated at their finest level. The surface is one-sided, as
+Mitsuba's own BSDFs; wrap it in a `twosided` BSDF for two-sided use.
 
 The plugin runs torch on concrete arrays, so Dr.Jit must trace the integrator's loops and virtual calls in
-evaluated mode (`evaluated_mode()`, used by `render`); a call in a symbolic scope raises InputError. Mitsuba's
-symbolic virtual calls trace every live BSDF instance, so while a neumat BSDF object exists, render every scene
-(also those without one) in evaluated mode.
+evaluated mode (`evaluated_mode()`, used by `render`). Mitsuba's symbolic virtual calls (plain `mi.render`)
+trace every live BSDF instance, also while rendering scenes without a neumat BSDF; there the plugin returns
+placeholder values that Mitsuba never uses, so such scenes render unaffected. A neumat surface that is actually
+hit in symbolic mode gets NaN values (its pixels come out NaN), never a plausible-looking wrong image.
 """
 from __future__ import annotations
 
@@ -156,7 +159,11 @@ def _make_bsdf_class(mi) -> type:
             return self._eval_pdf(ctx, si, wo, active)
 
         def sample(self, ctx, si, sample1, sample2, active=True):
-            _require_evaluated(dr)
+            if _symbolic(dr):
+                n = dr.width((si.wi, sample2))
+                bs = dr.zeros(mi.BSDFSample3f, n)
+                bs.wo = mi.Vector3f(0, 0, 1)
+                return bs, _poison(mi, dr, active, n)
             n = dr.width((si.wi, sample2, active))
             bs = dr.zeros(mi.BSDFSample3f, n)
             viewer = _vec(si.wi, n)
@@ -172,8 +179,8 @@ def _make_bsdf_class(mi) -> type:
                 w_s, p_s = self._sample(viewer[rows], u, uv)
                 good = (p_s > 0) & (w_s[:, 2] > 0) & torch.isfinite(w_s).all(-1) & torch.isfinite(p_s)
                 w_s = torch.where(good[:, None], w_s, wo[rows])
-                light, view = (viewer[rows], w_s) if _importance(ctx, mi) else (w_s, viewer[rows])
-                f = self._call(self.material.eval, light, view, uv)
+                first, second = (w_s, viewer[rows]) if _importance(ctx, mi) else (viewer[rows], w_s)
+                f = self._call(self.material.eval, first, second, uv)
                 ratio = f * w_s[:, 2:3] / torch.where(good, p_s, torch.ones_like(p_s))[:, None]
                 weight[rows] = torch.where(good[:, None] & torch.isfinite(ratio), ratio, torch.zeros_like(ratio))
                 pdf[rows] = torch.where(good, p_s, torch.zeros_like(p_s))
@@ -191,7 +198,9 @@ def _make_bsdf_class(mi) -> type:
         # --- torch side ---------------------------------------------------------------------------
 
         def _eval_pdf(self, ctx, si, wo, active, want_value=True, want_pdf=True):
-            _require_evaluated(dr)
+            if _symbolic(dr):
+                n = dr.width((si.wi, wo))
+                return _poison(mi, dr, active, n), dr.zeros(mi.Float, n)
             n = dr.width((si.wi, wo, active))
             viewer, other = _vec(si.wi, n), _vec(wo, n)
             ok = _mask(active, n) & (viewer[:, 2] > 0) & (other[:, 2] > 0) & _enabled(ctx, mi)
@@ -202,8 +211,8 @@ def _make_bsdf_class(mi) -> type:
                 uv = self._uv(si, rows, n)
                 v, o = viewer[rows], other[rows]
                 if want_value:
-                    light, view = (v, o) if _importance(ctx, mi) else (o, v)
-                    f = self._call(self.material.eval, light, view, uv)
+                    first, second = (o, v) if _importance(ctx, mi) else (v, o)
+                    f = self._call(self.material.eval, first, second, uv)
                     value[rows] = f * o[:, 2:3]
                 if want_pdf:
                     pdf[rows] = self._pdf(v, o, uv)
@@ -215,7 +224,7 @@ def _make_bsdf_class(mi) -> type:
             return torch.remainder(_vec(si.uv, n)[rows], 1.0)
 
         def _sample(self, viewer, u, uv):
-            """Light directions (M, 3) drawn given the viewer directions, and their densities (M,)."""
+            """Directions wo (M, 3) drawn given si.wi (M, 3), and their densities (M,)."""
             if not self.material.can_sample:
                 w = sample_cosine_hemisphere(u)
                 return w, w[:, 2].clamp(min=0) / np.pi
@@ -255,12 +264,18 @@ def _open(material) -> Material:
                      f"got {type(material).__name__}")
 
 
-def _require_evaluated(dr) -> None:
-    if dr.flag(dr.JitFlag.SymbolicScope):
-        raise InputError("neumat BSDF: called while Dr.Jit records symbolically; render with "
-                         "neumat.integrations.mitsuba.render(scene) or inside `with evaluated_mode():`. "
-                         "Mitsuba's symbolic virtual calls trace every live BSDF, so this applies to every "
-                         "scene rendered while a neumat BSDF object exists")
+def _symbolic(dr) -> bool:
+    """Whether Dr.Jit is recording symbolically (then the inputs hold no values torch could read)."""
+    return bool(dr.flag(dr.JitFlag.SymbolicScope))
+
+
+def _poison(mi, dr, active, n: int):
+    """Color3f of n lanes: NaN on the active lanes, 0 elsewhere. What a symbolic trace gets: Mitsuba traces
+    every live BSDF, so for scenes without this BSDF no lane is active and the value is never used; a lane
+    that does reach it in symbolic mode makes its pixel NaN instead of a plausible wrong value."""
+    mask = dr.zeros(mi.Bool, n) | mi.Bool(active)
+    nan = dr.select(mask, mi.Float(float("nan")), mi.Float(0.0))
+    return mi.Color3f(nan, nan, nan)
 
 
 def _vec(v, n: int) -> torch.Tensor:

@@ -19,8 +19,9 @@ h2 { margin-top: 2em; border-bottom: 1px solid #bbb; }
 figure { display: inline-block; margin: 0.5em 1em 0.5em 0; vertical-align: top; }
 figure img { max-width: 100%; image-rendering: pixelated; }
 figcaption { font-size: 0.9em; color: #555; }
-table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
-th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; display: block; max-width: 100%;
+        overflow-x: auto; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; overflow-wrap: anywhere; }
 th { background: #eee; }
 td:first-child, th:first-child { text-align: left; }
 """
