@@ -39,6 +39,11 @@ EXTRA: dict[tuple[str, ...], list[str]] = {
     ("translucent", "fit"): ["--set", "batch_size=256"],
     ("mitsuba-render",): ["-D", "res=16"],
 }
+#: options added to `neumat fit --model M` when absent: the dipole's surface quadrature from the few observations
+#: of a quick trace
+MODEL_EXTRA = {"dipole-bssrdf": ["--set", "samples=16"]}
+#: fit-many runs its jobs in this process (Ray is tested in tests/cli/test_fit_many.py)
+EXTRA[("fit-many",)] = ["--engine", "local"]
 #: commands that need Mitsuba 3's LLVM backend
 MITSUBA = {("mitsuba-render",), ("translucent", "trace"), ("translucent", "render")}
 
@@ -69,10 +74,11 @@ def quick(command: str, cwd: Path) -> list[str]:
             words[i] = str(min(float(words[i]), float(cap))).removesuffix(".0")
         else:
             words += [option, cap]
-    extra = EXTRA.get(key, [])
+    model = words[words.index("--model") + 1] if "--model" in words else None
+    extra = EXTRA.get(key, []) + MODEL_EXTRA.get(model, [])
     for flag, value in zip(extra[::2], extra[1::2]):
         name = value.split("=")[0]
-        if not any(w.startswith(name + "=") for w in words):
+        if name not in words and not any(w.startswith(name + "=") for w in words):
             if name == "max_size" and not (cwd / words[2]).is_dir():
                 continue  # reader options only apply to texture-set folders
             words += [flag, value]
@@ -115,3 +121,28 @@ def test_every_docs_command_is_run():
             if lang not in ("bash", "sh", "shell"):
                 lines = [ln for ln in block.splitlines() if ln.strip().startswith("neumat ")]
                 assert not lines, f"{md.name}: commands in a ```{lang} block are not run by the docs test: {lines}"
+
+
+def _inline_commands() -> list:
+    """`neumat ...` code spans in the prose of the docs (usage lines, commands quoted in text)."""
+    out = []
+    for md in DOCS:
+        text = re.sub(r"```.*?```", "", md.read_text(), flags=re.S)
+        for span in re.findall(r"`(neumat [^`]+)`", text):
+            out.append(pytest.param(span, id=f"{md.name}:{span[:40]}"))
+    return out
+
+
+@pytest.mark.parametrize("span", _inline_commands())
+def test_inline_commands_name_options_that_exist(span):
+    """Every --option a command quoted in the prose names is an option of that command (usage lines cannot rot
+    either)."""
+    import typer.main
+
+    command = typer.main.get_command(app)
+    words = span.replace("\\|", "|").split()[1:]
+    while words and hasattr(command, "commands") and words[0] in command.commands:
+        command = command.commands[words.pop(0)]
+    known = {opt for p in command.params for opt in (*p.opts, *p.secondary_opts)}
+    named = {w.split("=")[0].strip("[]()") for w in words if w.lstrip("[").startswith("--")}
+    assert named <= known, f"`{span}`: {sorted(named - known)} are not options of `{command.name}`"
