@@ -116,8 +116,7 @@ class SharedNeuBRDF(LearnedMaterial):
         self.mlp = MLP(2 * k, cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
         self.register_buffer("level_i", torch.zeros(t, 12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(t, 12 * n * n, dtype=torch.int8))
-        self.register_load_state_dict_post_hook(lambda module, keys: [
-            hpx.check_levels(getattr(module, k), n, f"SharedNeuBRDF.{k}") for k in ("level_i", "level_o")])
+        self.register_load_state_dict_post_hook(lambda module, keys: module._check_levels())
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
         self.active = 0
@@ -125,6 +124,11 @@ class SharedNeuBRDF(LearnedMaterial):
     @property
     def config(self) -> Config:
         return self.cfg
+
+    def _check_levels(self) -> None:
+        """Refuse loaded pruning levels outside the hierarchy (`hpx.check_levels`)."""
+        for name in ("level_i", "level_o"):
+            hpx.check_levels(getattr(self, name), self.cfg.nside, f"SharedNeuBRDF.{name}")
 
     def _check_index(self, i: int) -> int:
         t = self.cfg.num_materials
