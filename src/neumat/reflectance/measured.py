@@ -23,7 +23,7 @@ import torch
 
 from ..core.coords import io_to_rusinkiewicz
 from ..core.errors import InputError
-from ..core.material import Material, sample_weight, upper_hemisphere
+from ..core.material import Material, check_sample_u, sample_weight, upper_hemisphere
 from ..core.query import Query, Sample
 from ..io.merl import MERL_DIMS, MERL_SCALE, read_merl
 from ..io.rgl import RglData, read_rgl
@@ -366,6 +366,7 @@ class RglMaterial(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Sample wo given q.wi and u (N, 2) in [0, 1)^2."""
+        u = check_sample_u(q, u)
         (wi,), signs = self._reduce(q.wi)
         theta_i = _elevation(wi)
         phi_i = torch.atan2(wi[:, 1], wi[:, 0])
