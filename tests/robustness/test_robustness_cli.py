@@ -135,6 +135,7 @@ def write_broken_data(t: Path) -> None:
     (t / "cycle_a.json").write_text(layered.format("cycle_b.json"))
     (t / "cycle_b.json").write_text(layered.format("cycle_a.json"))
     (t / "cycle_self.json").write_text(layered.format("cycle_self.json"))
+    (t / "bomb.png").write_bytes(png_declaring(100000, 100000))
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -216,6 +217,7 @@ def _checked_cases(t: Path) -> dict[str, tuple[list[str], str]]:
         "convert-nmat-nan": (["data", "convert", str(t / "nan.nmat"), str(t / "x.binary")], "NaN or infinite"),
         "eval-against-nan": (["eval", str(t / "good.nmat"), "--against", str(t / "nan.nmat"), "--no-image",
                               "--n", "64"], "nan.nmat"),
+        "info-png-huge": (["data", "info", str(t / "bomb.png")], "exceeds limit of 178956970 pixels"),
         "env-negative-pixel": (["render", "lambert", "--light", f"env:{t / 'negative.exr'}", "--resolution", "8",
                                 "-o", out], "negative value"),
         "layered-cycle": (["render", str(t / "cycle_a.json"), "--resolution", "8", "-o", out],
@@ -318,6 +320,15 @@ def test_failed_writes_leave_nothing_and_outputs_are_0644(tmp_path):
         atomic_write(tmp_path / "old.nmat", broken)
     assert (tmp_path / "old.nmat").read_bytes() == PREVIOUS
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.nbtf", "dir.nmat", "old.nmat"]
+
+
+def test_outputs_into_missing_folders_are_written(tmp_path):
+    """`fit -o missing/dir/x.nmat` failed after training (safetensors: 'No such file or directory'): outputs
+    create their folder, as image outputs do."""
+    from neumat.catalog.modelfile import load_model, save_model
+    from neumat.models.registry import load_all
+    save_model(load_all().get("ggx")(), tmp_path / "missing" / "dir" / "x.nmat")
+    assert load_model(tmp_path / "missing" / "dir" / "x.nmat").name == "ggx"
 
 
 def _umask() -> int:
