@@ -89,6 +89,34 @@ def test_check_tests_a_spatially_varying_material_at_a_texel(tmp_path):
     assert r.exit_code != 0 and "--uv" in r.output
 
 
+def test_check_passes_a_neural_sampler_that_leaves_the_hemisphere(tmp_path):
+    """A neural-appearance model's sampler sends specular samples below the horizon with their pdf: `check`
+    tests over the whole sphere, where it passes (over the hemisphere it reported p = 0 for every model)."""
+    import torch
+    from neumat.catalog.modelfile import save_model
+    from neumat.models.registry import load_all
+    torch.manual_seed(0)
+    save_model(load_all().get("neural-appearance")(spatial_size=8), tmp_path / "na.nmat")
+    r = runner.invoke(app, ["check", str(tmp_path / "na.nmat"), "--angles", "60", "--samples", "50000", "--json"])
+    d = json.loads(r.stdout)  # exit code 1: an untrained model is not reciprocal (reciprocity_passed false)
+    assert r.exit_code == (0 if d["passed"] else 1) and d["angles"][0]["chi2_passed"] is True, d
+
+
+def test_data_info_loads_models_and_names_btfs(tmp_path):
+    import torch
+    from neumat.catalog.modelfile import save_model
+    from neumat.io.btf import BTFTable, write_btf
+    from neumat.models.registry import load_all
+    save_model(load_all().get("ggx")(), tmp_path / "g.nmat")
+    d = _json(runner.invoke(app, ["data", "info", str(tmp_path / "g.nmat"), "--json"]))
+    assert d["kind"] == "neumat model (ggx)" and d["valid"] is True and d["sampled_value_max"] > 0
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    write_btf(tmp_path / "b.nbtf", BTFTable(torch.full((2, 2, 4, 4, 3), 0.25), dirs, dirs, "flat"))
+    d = _json(runner.invoke(app, ["data", "info", str(tmp_path / "b.nbtf"), "--json"]))
+    assert d["kind"] == "neumat BTF (.nbtf)" and d["resolution"].startswith("4 x 4 texels, 2 light x 2 view")
+    assert d["value_min"] == d["value_max"] == 0.25 and d["valid"] is True
+
+
 def test_check_rejects_bad_angles():
     r = runner.invoke(app, ["check", "lambert", "--angles", "95"])
     assert r.exit_code == 2 and "--angles" in r.output

@@ -64,7 +64,7 @@ def test_errors_name_the_problem(tmp_path):
     assert r.exit_code == 2 and "mesh:PATH" in _said(r)
     r = _run("fit", tmp_path / "missing.npz", "-o", tmp_path / "m.nmat")
     assert r.exit_code == 2 and "doesnotexist" in _said(r)
-    x = torch.zeros(4, 3)
+    x = torch.tensor([[0.0, 0.0, 1.0]]).repeat(4, 1)  # unit vectors: Observations refuses others
     Observations(x, x, x, x, x).save(tmp_path / "plain.npz")
     r = _run("fit", tmp_path / "plain.npz", "-o", tmp_path / "m.pt")
     assert r.exit_code == 2 and ".nmat" in _said(r)

@@ -169,7 +169,7 @@ def test_ggx_sampling_chi2(anisotropic, wi):
         model.raw_alpha.copy_(torch.tensor([-1.5, 0.3][: model.raw_alpha.numel()]))
         model.raw_diffuse.copy_(torch.tensor([-1.0, -1.5, -2.0]))
     wi = torch.tensor(wi, dtype=torch.float64)
-    result = chi2_material(model, wi / wi.norm(), n_samples=200_000, res=(20, 40))
+    result = chi2_material(model, wi / wi.norm(), n_samples=200_000, res=(40, 40))
     assert result, result.message
     # weight = f cos / pdf on the sampled directions
     q = Query(wi.expand(1000, 3) / wi.norm())

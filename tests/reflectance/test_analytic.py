@@ -230,7 +230,7 @@ ANGLES = (0.2, 0.9, 1.4)
 @pytest.mark.parametrize("key", sorted(MATERIALS))
 def test_material_chi2(key, theta):
     wi = _dirs(theta, 0.3, torch.float32)
-    r = chi2_material(MATERIALS[key], wi, n_samples=200_000, res=(20, 40), quad=16,
+    r = chi2_material(MATERIALS[key], wi, n_samples=200_000, res=(40, 40), quad=16,
                       n_tests=len(MATERIALS) * len(ANGLES))
     assert r.passed, r.message
 
@@ -240,7 +240,7 @@ def test_material_chi2(key, theta):
 @pytest.mark.parametrize("key", sorted(MATERIALS))
 def test_material_chi2_large(key, theta):
     wi = _dirs(theta, -1.1, torch.float32)
-    r = chi2_material(MATERIALS[key], wi, n_samples=4_000_000, res=(40, 80), quad=16,
+    r = chi2_material(MATERIALS[key], wi, n_samples=4_000_000, res=(80, 80), quad=16,
                       n_tests=len(MATERIALS) * 5)
     assert r.passed, r.message
 

@@ -135,7 +135,7 @@ def test_textured_coat_is_reciprocal():
 def test_sampling_matches_pdf(wi, uv):
     wi = torch.tensor(wi)
     wi = wi / wi.norm()
-    result = chi2_material(_textured(), wi, n_samples=100_000, res=(20, 40),
+    result = chi2_material(_textured(), wi, n_samples=100_000, res=(40, 40),
                            template=Query(wi[None], uv=torch.tensor([uv])))
     assert result, result.message
 

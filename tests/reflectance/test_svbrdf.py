@@ -122,7 +122,7 @@ def test_sampling_matches_pdf(wi, uv):
     wi = torch.tensor(wi)
     wi = wi / wi.norm()
     m = SVBRDF(_checker_set())
-    result = chi2_material(m, wi, n_samples=100_000, res=(20, 40), template=Query(wi[None], uv=torch.tensor([uv])))
+    result = chi2_material(m, wi, n_samples=100_000, res=(40, 40), template=Query(wi[None], uv=torch.tensor([uv])))
     assert result, result.message
 
 

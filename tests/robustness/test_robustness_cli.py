@@ -46,6 +46,98 @@ def write_texture_set(folder: Path, roughness: Path | None = None) -> Path:
     return folder
 
 
+def rgl_fields(**override) -> dict:
+    """The fields of a small valid isotropic RGL file, some replaced by `override`."""
+    rng = np.random.default_rng(0)
+    fields = {"description": "test", "phi_i": np.zeros(1, np.float32),
+              "theta_i": np.linspace(0, np.pi / 2, 3, dtype=np.float32),
+              "ndf": rng.random((2, 8), dtype=np.float32) + 0.1, "sigma": rng.random((2, 8), dtype=np.float32) + 0.5,
+              "vndf": rng.random((1, 3, 8, 8), dtype=np.float32) + 0.1,
+              "luminance": rng.random((1, 3, 4, 4), dtype=np.float32) + 0.1,
+              "rgb": rng.random((1, 3, 3, 4, 4), dtype=np.float32), "jacobian": np.ones(1, np.uint8)}
+    return {**fields, **override}
+
+
+def write_models(t: Path) -> None:
+    """Broken `.nmat` files under `t`, each from a valid small model: NaN, integer, missing and mis-shaped
+    weights, NeuBRDF pruning levels outside the hierarchy, and a NeuBRDF config of nside 2^20."""
+    from neumat.catalog.modelfile import save_model
+    from neumat.io.modelfile import read_model_file, write_model_file
+    from neumat.models.registry import load_all
+
+    torch.manual_seed(0)
+    save_model(load_all().get("ggx")(), t / "good.nmat")
+    save_model(load_all().get("neubrdf")(nside=2, index_bits=2, hidden=4), t / "neubrdf.nmat")
+    header, weights = read_model_file(t / "good.nmat")
+    name = next(k for k, v in weights.items() if v.is_floating_point())
+    variants = {"nan": {**weights, name: torch.full_like(weights[name], float("nan"))},
+                "int": {**weights, name: weights[name].long()},
+                "missing": {k: v for k, v in weights.items() if k != name},
+                "misshaped": {**weights, name: torch.zeros(7, 7)}}
+    for kind, tensors in variants.items():
+        write_model_file(t / f"{kind}.nmat", header, tensors)
+    header, weights = read_model_file(t / "neubrdf.nmat")
+    write_model_file(t / "levels.nmat", header, {**weights, "level_i": torch.full_like(weights["level_i"], 9)})
+    write_model_file(t / "huge.nmat", {**header, "config": {**header["config"], "nside": 2 ** 20}}, weights)
+
+
+def write_observations(t: Path) -> None:
+    """Translucent observation files under `t`: empty, truncated, with 0 and 1 observations, non-unit normals."""
+    from neumat.fit.translucent_observations import Observations
+
+    up = torch.tensor([[0.0, 0.0, 1.0]]).repeat(8, 1)
+    Observations(up, up, up, up, up).save(t / "obs.npz")
+    (t / "empty.npz").write_bytes(b"")
+    (t / "truncated.npz").write_bytes((t / "obs.npz").read_bytes()[:200])
+    for n in (0, 1):
+        Observations(up[:n], up[:n], up[:n], up[:n], up[:n]).save(t / f"obs{n}.npz")
+    np.savez(t / "nonunit.npz", x=up.numpy(), n=2 * up.numpy(), wo=up.numpy(), wi=up.numpy(), value=up.numpy())
+    (t / "obs.npz").unlink()
+
+
+def write_btfs(t: Path) -> None:
+    """`.nbtf` files under `t` with a chunk dtype that differs from the header, and with negative values."""
+    from safetensors.torch import load_file, save_file
+    from safetensors import safe_open
+    from neumat.io.btf import BTFTable, write_btf
+
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    write_btf(t / "ok.nbtf", BTFTable(torch.rand(2, 2, 4, 4, 3), dirs, dirs, "ok"))
+    with safe_open(str(t / "ok.nbtf"), "pt") as f:
+        meta = f.metadata()
+    tensors = load_file(t / "ok.nbtf")
+    save_file({**tensors, "light_00001": tensors["light_00001"].float()}, t / "dtype.nbtf", metadata=meta)
+    save_file({**tensors, "light_00001": -tensors["light_00001"]}, t / "negative.nbtf", metadata=meta)
+    (t / "ok.nbtf").unlink()
+
+
+def write_broken_data(t: Path) -> None:
+    """Measured files under `t` that read but hold values no material can use."""
+    from neumat.io.images import write_image
+    from neumat.io.merl import MERL_DIMS
+    from neumat.io.rgl import write_tensor_file
+
+    f = rgl_fields()
+    write_tensor_file(t / "zero_vndf.bsdf", rgl_fields(vndf=np.zeros_like(f["vndf"])))
+    write_tensor_file(t / "nan_theta.bsdf", rgl_fields(theta_i=np.array([0, np.nan, 1.5], np.float32)))
+    write_tensor_file(t / "descending.bsdf", rgl_fields(theta_i=f["theta_i"][::-1].copy()))
+    write_tensor_file(t / "negative.bsdf", rgl_fields(rgb=-f["rgb"] - 0.1))
+    write_tensor_file(t / "overflow.bsdf", {"x": np.zeros(1, np.float32)})  # its shape is patched below
+    raw = bytearray((t / "overflow.bsdf").read_bytes())  # magic, version, count, name "x", ndim 1, dtype, offset
+    raw[32:40] = (2 ** 63 - 1).to_bytes(8, "little")
+    (t / "overflow.bsdf").write_bytes(bytes(raw))
+    (t / "missing.binary").write_bytes(np.asarray(MERL_DIMS, "<i4").tobytes()
+                                       + np.full(3 * 90 * 90 * 180, -1.0, "<f8").tobytes())
+    image = np.ones((4, 8, 3), np.float32)
+    image[1, 2, 0] = -1e6
+    write_image(t / "negative.exr", image)
+    layered = '{{"type": "layered", "base": "{}", "coats": [{{"roughness": 0.1}}]}}'
+    (t / "cycle_a.json").write_text(layered.format("cycle_b.json"))
+    (t / "cycle_b.json").write_text(layered.format("cycle_a.json"))
+    (t / "cycle_self.json").write_text(layered.format("cycle_self.json"))
+    (t / "bomb.png").write_bytes(png_declaring(100000, 100000))
+
+
 def _files(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else b"<dir>")
             for p in sorted(folder.rglob("*")) if not p.is_fifo()}
@@ -60,7 +152,7 @@ def _bad_cases(t: Path) -> dict[str, list[str]]:
     (t / "neg.hdr").write_bytes(b"")
     (t / "empty.binary").write_bytes(b"")
     (t / "truncated.nmat").write_bytes(b"\x10\x00\x00")
-    (t / "self.json").write_text('{"type": "layered", "base": "self.json", "coat": "ggx"}')
+    (t / "self.json").write_text('{"type": "layered", "base": "self.json", "coats": [{"roughness": 0.1}]}')
     (t / "notes.txt").write_text("not a material")
     out, nbtf = str(t / "out.png"), str(t / "out.nbtf")
     return {
@@ -95,7 +187,62 @@ def _bad_cases(t: Path) -> dict[str, list[str]]:
         "dictionary-patch-zero": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat"), "--patch", "0"],
         "dictionary-iterations-zero": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat"), "--iterations", "0"],
         "dictionary-not-a-btf": ["fit-dictionary", nbtf, "-o", str(t / "d.nmat")],
+        **{name: args for name, (args, _) in _checked_cases(t).items()},
     }
+
+
+def _checked_cases(t: Path) -> dict[str, tuple[list[str], str]]:
+    """name -> (command line, what its one-line error must say), on the files `write_*` make under `t`."""
+    write_models(t)
+    write_observations(t)
+    write_btfs(t)
+    write_broken_data(t)
+    out = str(t / "out.png")
+    fit = ["fit", "-m", "dipole-bssrdf", "--steps", "1", "-o", str(t / "m.nmat")]
+    return {
+        "info-rgl-zero-vndf": (["data", "info", str(t / "zero_vndf.bsdf")], "'vndf' is zero everywhere"),
+        "info-rgl-nan-theta": (["data", "info", str(t / "nan_theta.bsdf")], "'theta_i' has 1 NaN"),
+        "info-rgl-descending-theta": (["data", "info", str(t / "descending.bsdf")], "strictly ascending"),
+        "info-rgl-all-negative": (["data", "info", str(t / "negative.bsdf")], "'rgb' has no positive value"),
+        "info-rgl-shape-overflow": (["data", "info", str(t / "overflow.bsdf")], "(truncated)"),
+        "info-merl-all-missing": (["data", "info", str(t / "missing.binary")], "every value is negative (missing)"),
+        "info-nmat-nan": (["data", "info", str(t / "nan.nmat")], "NaN or infinite value(s)"),
+        "info-nmat-int": (["data", "info", str(t / "int.nmat")], "is stored as torch.int64, expected torch.float32"),
+        "info-nmat-missing": (["data", "info", str(t / "missing.nmat")], "Missing key(s)"),
+        "info-nmat-misshaped": (["data", "info", str(t / "misshaped.nmat")], "size mismatch"),
+        "info-nmat-levels": (["data", "info", str(t / "levels.nmat")], "pruning levels in [0, 1]"),
+        "info-nmat-nside-huge": (["data", "info", str(t / "huge.nmat")], "GiB of memory"),
+        "info-nbtf-dtype": (["data", "info", str(t / "dtype.nbtf")], "is float32, but the header says dtype"),
+        "info-nbtf-negative": (["data", "info", str(t / "negative.nbtf")], "are negative"),
+        "convert-nmat-nan": (["data", "convert", str(t / "nan.nmat"), str(t / "x.binary")], "NaN or infinite"),
+        "eval-against-nan": (["eval", str(t / "good.nmat"), "--against", str(t / "nan.nmat"), "--no-image",
+                              "--n", "64"], "nan.nmat"),
+        "info-png-huge": (["data", "info", str(t / "bomb.png")], "exceeds limit of 178956970 pixels"),
+        "env-negative-pixel": (["render", "lambert", "--light", f"env:{t / 'negative.exr'}", "--resolution", "8",
+                                "-o", out], "negative value"),
+        "layered-cycle": (["render", str(t / "cycle_a.json"), "--resolution", "8", "-o", out],
+                          "cycle_b.json -> "),
+        "layered-self": (["data", "info", str(t / "cycle_self.json")], "its base leads back to itself"),
+        "btf-png-suffix": (["data", "btf-generate", "procedural:bumps", str(t / "b.png"), "--size", "8"], ".nbtf"),
+        "fit-lr-nan": (["fit", "lambert", "-m", "ggx", "--set", "lr=nan", "-o", str(t / "m.nmat")], "Recipe.lr"),
+        "fit-obs-empty": ([*fit, str(t / "empty.npz")], "empty.npz: not a neumat observations file"),
+        "fit-obs-truncated": ([*fit, str(t / "truncated.npz")], "truncated.npz: not a neumat observations file"),
+        "fit-obs-zero": ([*fit, str(t / "obs0.npz")], "observations are empty"),
+        "fit-obs-one": ([*fit, str(t / "obs1.npz")], "leaves none to train on"),
+        "fit-obs-non-unit": ([*fit, str(t / "nonunit.npz")], "Observations.n: expected unit vectors"),
+    }
+
+
+def test_bad_files_and_settings_are_named_in_one_line(workdir):
+    """Each case of `_checked_cases` fails with exit code 2 and an error line that says what was wrong."""
+    runner = CliRunner()
+    failures = []
+    for name, (args, expected) in _checked_cases(workdir).items():
+        r = runner.invoke(app, args)
+        said = " ".join(r.output.split())
+        if r.exit_code != 2 or expected not in said or "Traceback" in r.output:
+            failures.append(f"{name}: exit code {r.exit_code}, expected {expected!r} in: {said[:400]}")
+    assert not failures, "\n".join(failures)
 
 
 @pytest.fixture
@@ -173,6 +320,15 @@ def test_failed_writes_leave_nothing_and_outputs_are_0644(tmp_path):
         atomic_write(tmp_path / "old.nmat", broken)
     assert (tmp_path / "old.nmat").read_bytes() == PREVIOUS
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.nbtf", "dir.nmat", "old.nmat"]
+
+
+def test_outputs_into_missing_folders_are_written(tmp_path):
+    """`fit -o missing/dir/x.nmat` failed after training (safetensors: 'No such file or directory'): outputs
+    create their folder, as image outputs do."""
+    from neumat.catalog.modelfile import load_model, save_model
+    from neumat.models.registry import load_all
+    save_model(load_all().get("ggx")(), tmp_path / "missing" / "dir" / "x.nmat")
+    assert load_model(tmp_path / "missing" / "dir" / "x.nmat").name == "ggx"
 
 
 def _umask() -> int:

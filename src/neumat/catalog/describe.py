@@ -1,7 +1,9 @@
 """`describe(name)`: what a material file or spec holds — kind, resolution, value range, validity, size.
 
-Used by `neumat data info`. Every reader raises `DataFormatError` on a broken file, so a file that
-`describe` accepts is also one the package can evaluate.
+Used by `neumat data info`. Every reader raises `DataFormatError` on a broken file (a truncated file, NaN
+values, a VNDF without mass, a model whose weights are missing, mis-shaped or NaN, ...), and `describe` reads
+each file whole (a model file is loaded, weights and all), so a file that `describe` accepts is also one the
+package can evaluate.
 """
 from __future__ import annotations
 
@@ -32,10 +34,13 @@ def describe(name: str | Path) -> dict[str, Any]:
         return _describe_rgl(path)
     if suffix == ".nmat":
         return _describe_model(path)
+    if suffix == ".nbtf":
+        return _describe_btf(path)
     if suffix in IMAGE_SUFFIXES:
         return _describe_image(path)
-    material = open_material(str(name))  # analytic spec, or a clear error
-    return {"kind": "analytic material", "material": material.describe(), "can_sample": material.can_sample,
+    material = open_material(str(name))  # analytic spec, other material file, or a clear error
+    kind = f"material file ({suffix or 'folder'})" if path.exists() else "analytic material"
+    return {"kind": kind, "material": material.describe(), "can_sample": material.can_sample,
             **_sampled_range(material)}
 
 
@@ -56,8 +61,8 @@ def _describe_merl(path: Path) -> dict[str, Any]:
             "identified_as": identify_merl(path) if _hash_list_present() else "unknown (hash list absent)",
             "value_min": float(scaled[valid].min()) if valid.any() else math.nan,
             "value_max": float(scaled[valid].max()) if valid.any() else math.nan,
-            "missing_entries": int(missing.sum()), "non_finite_entries": int((~finite).sum()),
-            "valid": bool(finite.all())}
+            "missing_entries": int(missing.sum()), "missing_fraction": round(float(missing.mean()), 6),
+            "non_finite_entries": int((~finite).sum()), "valid": bool(finite.all()) and bool(valid.any())}
 
 
 def _hash_list_present() -> bool:
@@ -84,16 +89,30 @@ def _describe_rgl(path: Path) -> dict[str, Any]:
 
 def _describe_model(path: Path) -> dict[str, Any]:
     from ..io.modelfile import read_header
+    from .modelfile import load_model
 
     header = read_header(path)
+    model = load_model(path)  # checks the weights: present, of the right shape and kind, finite
     out = {"kind": f"neumat model ({header.get('type', '?')})", **_on_disk(path),
-           "neumat_version": header.get("neumat_version", "?")}
+           "neumat_version": header.get("neumat_version", "?"), "material": model.describe(),
+           "parameters": sum(p.numel() for p in model.parameters())}
     source = header.get("source") or {}
     if source:
         out["source"] = source.get("name", "?")
     for key, value in (header.get("metrics") or {}).items():
         out[f"metric_{key}"] = value
-    return out
+    sampled = _sampled_range(model)  # a BRDF model's value range (finite: valid)
+    return {**out, **sampled, "valid": sampled.get("valid", True)}
+
+
+def _describe_btf(path: Path) -> dict[str, Any]:
+    from ..io.btf import read_btf_table
+
+    btf = read_btf_table(path)  # checks shapes, dtypes, directions and values
+    n_l, n_v, h, w, _ = btf.data.shape
+    return {"kind": "neumat BTF (.nbtf)", **_on_disk(path), "label": btf.label,
+            "resolution": f"{w} x {h} texels, {n_l} light x {n_v} view directions, RGB",
+            "value_min": float(btf.data.min()), "value_max": float(btf.data.max()), "valid": True}
 
 
 def _describe_image(path: Path) -> dict[str, Any]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import fields
 from pathlib import Path
 
+from ..core.errors import InputError
 from ..io.layered_file import read_coat, read_description
 from ..reflectance.layered import Coat, LayeredMaterial
 from ..reflectance.smudge_map import smudge_map
@@ -12,10 +13,28 @@ from .open_material import open_material
 from .sources import register_source
 
 
+#: description files being opened, outermost first (a base that leads back to one of them is a cycle)
+_opening: list[Path] = []
+
+
 @register_source(".json", "layered material description", "layered-material description")
 def read_layered(path: str | Path, samples: int | None = None) -> LayeredMaterial:
     """The LayeredMaterial a description file defines (`neumat.io.layered_file`); `samples` overrides its
-    footprint sample count. The base is any material `open_material` opens, paths relative to the file."""
+    footprint sample count. The base is any material `open_material` opens, paths relative to the file; a base
+    that leads back to a file being opened (a cycle) raises InputError naming the chain."""
+    key = Path(path).resolve()
+    if key in _opening:
+        chain = " -> ".join(str(p) for p in [*_opening[_opening.index(key):], key])
+        raise InputError(f"layered material {str(path)!r}: its base leads back to itself ({chain}); expected a "
+                         "chain of bases that ends in a material")
+    _opening.append(key)
+    try:
+        return _read_layered(path, samples)
+    finally:
+        _opening.pop()
+
+
+def _read_layered(path: str | Path, samples: int | None) -> LayeredMaterial:
     desc = read_description(path)
     path, spec, folder = desc.path, desc.spec, desc.folder
     base_name = str(spec["base"])

@@ -79,6 +79,21 @@ def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: di
     return write_model_file(path, header, tensors)
 
 
+def _check_weights(expected: dict[str, torch.Tensor], stored: dict[str, torch.Tensor], where: str) -> None:
+    """Refuse stored weights of the wrong kind (integers where the model holds floats, or the reverse; torch
+    would cast them silently) or with NaN / infinite values. Missing, unexpected and mis-shaped weights are
+    left to `load_state_dict`."""
+    for name, t in stored.items():
+        ref = expected.get(name)
+        if ref is None:
+            continue
+        if t.is_floating_point() != ref.is_floating_point() or (t.dtype == torch.bool) != (ref.dtype == torch.bool):
+            raise DataFormatError(f"{where}: weight {name!r} is stored as {t.dtype}, expected {ref.dtype}")
+        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            raise DataFormatError(f"{where}: weight {name!r} has {int((~torch.isfinite(t)).sum())} NaN or infinite "
+                                  "value(s) (a diverged training?); expected finite numbers")
+
+
 def load_model(path: str | Path, device: str | torch.device | None = None):
     """The model stored in `path`, on `device` (default CPU), in eval mode (and in runtime mode if it was
     saved so)."""
@@ -93,10 +108,13 @@ def load_model(path: str | Path, device: str | torch.device | None = None):
         model = cls(config=cfg)
     except InputError as e:
         raise DataFormatError(f"{where}: bad config for model {header['type']!r}: {e}") from None
+    _check_weights(model.state_dict(), tensors, where)
     try:
         model.load_state_dict(tensors, strict=True)
     except RuntimeError as e:
         raise DataFormatError(f"{where}: weights do not match model {header['type']!r}: {e}") from None
+    except InputError as e:  # a model's own check of what it loaded (e.g. NeuBRDF pruning levels)
+        raise DataFormatError(f"{where}: {e}") from None
     model.to(torch.device(device) if device is not None else "cpu")
     if header["runtime"]:
         if not callable(getattr(model, "runtime", None)):

@@ -33,7 +33,7 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
         try:
             loaded = mi.load_file(str(scene), **params)
         except RuntimeError as e:  # Mitsuba's parser: the message names the file, line and problem
-            raise InputError(f"Mitsuba could not load {str(scene)!r}: {e}") from e
+            raise InputError(f"Mitsuba could not load {str(scene)!r}: {plugin.unwrap_error(e) or e}") from None
         image = plugin.render(loaded, spp=spp, seed=seed)
         write_image(out, image[..., :3])
         print(f"wrote {out}")

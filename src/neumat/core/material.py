@@ -108,8 +108,8 @@ def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
 
 def sample_from_direction(material: Material, q: Query, u: torch.Tensor) -> Sample:
     """`material.sample` for materials that implement `sample_direction`: the drawn wo and pdf, weighted by one
-    evaluation (failed draws, pdf 0, get weight 0)."""
-    wo, pdf = material.sample_direction(q, u)
+    evaluation (failed draws, pdf 0, get weight 0). u is checked (`check_sample_u`)."""
+    wo, pdf = material.sample_direction(q, check_sample_u(q, u))
     return Sample(wo, pdf, sample_weight(material.eval(q.with_wo(wo)), wo, pdf, pdf > 0))
 
 

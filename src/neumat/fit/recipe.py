@@ -89,6 +89,10 @@ def check_recipe(r: Recipe) -> Recipe:
                          f"{list(r.phase_split)}")
     if not isinstance(r.options, dict):
         raise InputError(f"Recipe.options: expected a dict, got {type(r.options).__name__}")
+    for key, value in r.options.items():
+        for v in value if isinstance(value, (list, tuple)) else (value,):
+            if isinstance(v, float) and not math.isfinite(v):
+                raise InputError(f"Recipe.options[{key!r}]: expected finite numbers, got {value!r}")
     return r
 
 

@@ -7,6 +7,7 @@ bounding sphere from a direction uniform on the sphere, with jittered pixel posi
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -22,8 +23,9 @@ from ..warp.sphere import sample_uniform_sphere
 
 @dataclass
 class Observations:
-    """N observations, all (N, 3) float32 object space: surface point x, outward normal n, view direction
-    wo (towards the camera), light direction wi (towards the light) and the observed S_hat (RGB, 1/sr)."""
+    """N observations, all (N, 3) float32 object space: surface point x, outward unit normal n, unit view
+    direction wo (towards the camera), unit light direction wi (towards the light) and the observed S_hat
+    (RGB, 1/sr, >= 0). Anything else raises InputError."""
 
     x: torch.Tensor
     n: torch.Tensor
@@ -40,6 +42,14 @@ class Observations:
                                  f"got {getattr(t, 'shape', type(t))}")
             if not bool(torch.isfinite(t).all()):
                 raise InputError(f"Observations.{f.name} has non-finite values")
+        for name in ("n", "wo", "wi"):
+            err = (getattr(self, name).double().norm(dim=-1) - 1).abs()
+            if n and float(err.max()) > 1e-3:
+                raise InputError(f"Observations.{name}: expected unit vectors, {int((err > 1e-3).sum())} of {n} are "
+                                 f"not (max |norm - 1| = {float(err.max()):.3g})")
+        if n and float(self.value.min()) < 0:
+            raise InputError(f"Observations.value: expected values >= 0 (S_hat), got a minimum of "
+                             f"{float(self.value.min()):.4g}")
 
     def __len__(self) -> int:
         return self.x.shape[0]
@@ -69,16 +79,21 @@ class Observations:
 
     @classmethod
     def load(cls, path: str | Path) -> "Observations":
-        """Read what `save` wrote; missing files or arrays raise."""
+        """Read what `save` wrote; a missing, empty or truncated file, missing arrays or values that
+        `Observations` refuses raise errors naming the file."""
         path = Path(path)
         if not path.is_file():
             raise InputError(f"observations file {path} does not exist")
         try:
-            data = np.load(path)
-            arrays = {f.name: torch.from_numpy(np.asarray(data[f.name], dtype=np.float32)) for f in fields(cls)}
-        except (KeyError, ValueError, OSError) as e:
-            raise DataFormatError(f"{path}: not a neumat observations file ({e})") from e
-        return cls(**arrays)
+            with np.load(path) as data:
+                arrays = {f.name: torch.from_numpy(np.asarray(data[f.name], dtype=np.float32)) for f in fields(cls)}
+        except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            raise DataFormatError(f"{path}: not a neumat observations file (.npz of x, n, wo, wi, value; "
+                                  f"empty or truncated?): {e}") from None
+        try:
+            return cls(**arrays)
+        except InputError as e:
+            raise DataFormatError(f"{path}: {e}") from None
 
     @staticmethod
     def load_source(path: str | Path) -> dict | None:

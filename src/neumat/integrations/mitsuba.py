@@ -28,12 +28,13 @@ hit in symbolic mode gets NaN values (its pixels come out NaN), never a plausibl
 from __future__ import annotations
 
 import contextlib
+import re
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..core.errors import InputError
+from ..core.errors import InputError, NeumatError
 from ..core.material import Material, material_device
 from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
@@ -91,8 +92,28 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0) -> tor
     if not isinstance(scene, mi.Scene):
         raise InputError(f"scene: expected a mitsuba Scene (mi.load_dict / mi.load_file), got {type(scene).__name__}")
     with evaluated_mode():
-        image = mi.render(scene, spp=0 if spp is None else spp, seed=seed, sensor=sensor)
+        try:
+            image = mi.render(scene, spp=0 if spp is None else spp, seed=seed, sensor=sensor)
+        except RuntimeError as e:  # Dr.Jit wraps an error of the plugin in its own
+            raise unwrap_error(e) or e from None
     return torch.from_numpy(np.array(image, dtype=np.float32))
+
+
+def unwrap_error(error: BaseException) -> NeumatError | None:
+    """The neumat error that Mitsuba or Dr.Jit wrapped in `error`: one in its cause chain (errors raised while
+    rendering), or one quoted with its traceback in the message (errors raised while a scene loads, then
+    prefixed by Mitsuba's location, e.g. 'At dictionary node "s.bsdf"'); None when there is none."""
+    seen, chain = error, 0
+    while seen is not None and chain < 32:
+        if isinstance(seen, NeumatError):
+            return seen
+        seen, chain = seen.__cause__ or seen.__context__, chain + 1
+    head, sep, tail = str(error).partition("Traceback (most recent call last):")
+    quoted = re.search(r"^(\w+): (.*)\Z", tail, re.M | re.S) if sep else None
+    if quoted is None or quoted.group(1) not in ("InputError", "DataFormatError", "UnknownNameError"):
+        return None
+    where = re.sub(r"^\[[\w.]+:\d+\]\s*", "", head).rstrip(": \n")
+    return InputError(f"{where}: {quoted.group(2).strip()}" if where else quoted.group(2).strip())
 
 
 def _set_variant(variant: str):

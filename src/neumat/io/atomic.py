@@ -11,11 +11,13 @@ from ..core.errors import InputError
 
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
     """Call `write(tmp)` to write the file's content to `tmp` (a path string in `path`'s folder), then move
-    it to `path` with the usual permissions (0666 less the umask, 0644 by default). Raises InputError when
-    `path` is a folder; any error of `write` is re-raised after the temporary file is removed."""
+    it to `path` with the usual permissions (0666 less the umask, 0644 by default); missing parent folders are
+    created (as image outputs create them). Raises InputError when `path` is a folder; any error of `write`
+    is re-raised after the temporary file is removed."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"output {str(path)!r} is a folder; expected a file path")
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         write(str(tmp))

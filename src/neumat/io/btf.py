@@ -45,13 +45,15 @@ def _chunk(i: int) -> str:
 
 def write_btf(path: str | Path, btf, dtype: str = "float16", extra: dict | None = None) -> Path:
     """Write `btf` (a `BTFTable` or anything with its fields, e.g. a `TabulatedBTF`) as a `.nbtf` file; values
-    beyond the float16 range are clamped (and counted)."""
+    beyond the float16 range are clamped (and counted). InputError for NaN, infinite or negative values (a BTF
+    value is a ratio of radiance to irradiance: readers refuse them too)."""
     from safetensors.torch import save_file
 
     if dtype not in ("float16", "float32"):
         raise InputError(f"write_btf dtype: expected 'float16' or 'float32', got {dtype!r}")
     path = Path(path)
     data = btf.data.detach().cpu()
+    _check_values(data, f"write_btf {str(path)!r}", InputError)
     l, v, h, w, _ = data.shape
     clamped = 0
     tensors = {"light_dirs": btf.light_dirs.detach().cpu().float().clone(),
@@ -85,7 +87,9 @@ def read_btf_header(path: str | Path) -> dict:
 
 
 def read_btf_table(path: str | Path, device=None, lights: list[int] | None = None) -> BTFTable:
-    """Read a `.nbtf` file as a float32 `BTFTable` on `device` (optionally only some light slices)."""
+    """Read a `.nbtf` file as a float32 `BTFTable` on `device` (optionally only some light slices).
+    DataFormatError when a chunk's shape or dtype differs from the header, a value is NaN, infinite or
+    negative, or a direction is not a finite unit vector."""
     from safetensors import safe_open
 
     header = read_btf_header(path)
@@ -104,12 +108,32 @@ def read_btf_table(path: str | Path, device=None, lights: list[int] | None = Non
     if tuple(light_dirs.shape) != (n_l, 3) or tuple(view_dirs.shape) != (n_v, 3):
         raise DataFormatError(f"{path}: header says {n_l} light and {n_v} view directions, but the direction lists "
                               f"have shapes {tuple(light_dirs.shape)} and {tuple(view_dirs.shape)}")
+    for name, dirs in (("light_dirs", light_dirs), ("view_dirs", view_dirs)):
+        norm = dirs.double().norm(dim=-1)
+        if not dirs.is_floating_point() or not bool(((norm - 1).abs() <= 1e-3).all()):  # NaN fails too
+            raise DataFormatError(f"{path}: {name} must hold finite float unit vectors, got {dirs.dtype} ones with "
+                                  f"norms in [{float(norm.min()):.4g}, {float(norm.max()):.4g}]")
     for i, c in zip(sel, chunks):
         if tuple(c.shape) != (n_v, h, w, 3):
             raise DataFormatError(f"{path}: chunk {_chunk(i)} has shape {tuple(c.shape)}, expected {(n_v, h, w, 3)} "
                                   "from the header")
+        if str(c.dtype).removeprefix("torch.") != header.get("dtype"):
+            raise DataFormatError(f"{path}: chunk {_chunk(i)} is {str(c.dtype).removeprefix('torch.')}, but the "
+                                  f"header says dtype {header.get('dtype')!r}")
     data = torch.stack(chunks).to(device=device, dtype=torch.float32)
+    _check_values(data, str(path), DataFormatError)
     return BTFTable(data, light_dirs[sel].to(device), view_dirs.to(device), label=header.get("label", Path(path).stem))
+
+
+def _check_values(data: torch.Tensor, where: str, error: type) -> None:
+    """Raise `error` naming `where` when `data` holds NaN, infinite or negative values."""
+    bad = int((~torch.isfinite(data)).sum())
+    if bad:
+        raise error(f"{where}: {bad} BTF value(s) are NaN or infinite; expected finite values >= 0")
+    negative = int((data < 0).sum())
+    if negative:
+        raise error(f"{where}: {negative} BTF value(s) are negative (min {float(data.min()):.4g}); expected "
+                    "values >= 0 (radiance / irradiance)")
 
 
 def _existing(path: str | Path) -> Path:
@@ -133,6 +157,8 @@ def _validate_header(path: Path, meta: dict, keys: set[str]) -> dict:
     for k in ("height", "width", "n_light", "n_view"):
         if not isinstance(header.get(k), int) or header[k] < 1:
             raise DataFormatError(f"{path}: header field {k!r} must be a positive integer, got {header.get(k)!r}")
+    if header.get("dtype") not in ("float16", "float32"):
+        raise DataFormatError(f"{path}: header dtype {header.get('dtype')!r}, expected 'float16' or 'float32'")
     chunks = {k for k in keys if k.startswith("light_") and k != "light_dirs"}
     expected = {_chunk(i) for i in range(header["n_light"])}
     if chunks != expected:

@@ -40,7 +40,8 @@ class MerlData:
 
 
 def read_merl(path: str | Path) -> MerlData:
-    """Read a MERL `.binary` file; DataFormatError when truncated or its header is not 90 90 180."""
+    """Read a MERL `.binary` file; DataFormatError when truncated, its header is not 90 90 180, a value is NaN or
+    infinite, or every value is missing (negative)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"MERL file {path}: does not exist")
@@ -54,6 +55,12 @@ def read_merl(path: str | Path) -> MerlData:
         raise DataFormatError(f"MERL file {path}: {len(raw)} bytes, expected {MERL_FILE_SIZE} "
                               f"(12-byte header + 3 x 90 x 90 x 180 float64)")
     table = np.frombuffer(raw, dtype="<f8", offset=12).reshape(3, *MERL_DIMS).astype(np.float64)
+    bad = int((~np.isfinite(table)).sum())
+    if bad:
+        raise DataFormatError(f"MERL file {path}: {bad} of {table.size} values are NaN or infinite; expected finite "
+                              "values (negative ones mark missing measurements)")
+    if not (table >= 0).any():
+        raise DataFormatError(f"MERL file {path}: every value is negative (missing); expected measured values >= 0")
     return MerlData(table=table, dims=dims)
 
 

@@ -6,6 +6,7 @@ ndim x uint64 shape; the data of each field is a C-order array at its offset.
 """
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,10 @@ MAGIC = b"tensor_file\0"
 #: Mitsuba `Struct` type codes used by tensor files
 DTYPES = {1: np.uint8, 2: np.int8, 3: np.uint16, 4: np.int16, 5: np.uint32, 6: np.int32,
           7: np.uint64, 8: np.int64, 9: np.float16, 10: np.float32, 11: np.float64}
+#: most negative rgb value accepted, relative to the table's maximum: the RGL database stores small negative
+#: values (measurement noise, down to -1.4 % of the maximum in the shared files), kept as Mitsuba keeps them;
+#: a table beyond this is refused as broken
+NEGATIVE_RGB_LIMIT = 0.1
 #: fields the `measured` BSDF needs in an RGB file
 RGL_FIELDS = ("theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "rgb", "description", "jacobian")
 
@@ -77,7 +82,7 @@ def read_tensor_file(path: str | Path) -> dict[str, np.ndarray]:
         headers.append((name, np.dtype(DTYPES[code]).newbyteorder("<"), offset, tuple(int(s) for s in shape)))
     fields = {}
     for name, dtype, offset, shape in headers:
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        nbytes = math.prod(shape) * dtype.itemsize  # Python ints: a huge declared shape cannot overflow
         if offset + nbytes > len(raw):
             raise DataFormatError(f"tensor file {path}: field {name!r} needs bytes {offset}..{offset + nbytes}, "
                                   f"but the file has {len(raw)} (truncated)")
@@ -141,5 +146,45 @@ def read_rgl(path: str | Path) -> RglData:
         if not ok:
             raise DataFormatError(f"RGL file {path}: field {name!r} is {f[name].dtype} {f[name].shape}, "
                                   f"expected {expected}")
+    _check_values(path, f)
     desc = f["description"].tobytes().decode("utf8", errors="replace").rstrip("\0")
     return RglData(fields=fields, description=desc)
+
+
+def _check_values(path, f: dict[str, np.ndarray]) -> None:
+    """Refuse values the `measured` BSDF cannot use: non-finite numbers, incident angles out of order or range,
+    negative or all-zero densities (a VNDF or luminance slice with no mass cannot be sampled), sigma <= 0 (a
+    divisor), an rgb table with no positive value or negative values beyond NEGATIVE_RGB_LIMIT."""
+    def fail(name: str, problem: str):
+        raise DataFormatError(f"RGL file {path}: field {name!r} {problem}")
+
+    for name in ("theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "rgb"):
+        bad = int((~np.isfinite(f[name])).sum())
+        if bad:
+            fail(name, f"has {bad} NaN or infinite value(s); expected finite numbers")
+    theta, phi = f["theta_i"], f["phi_i"]
+    if (np.diff(theta) <= 0).any() or theta[0] < 0 or theta[-1] > np.float32(math.pi / 2):
+        fail("theta_i", f"is {np.array2string(theta, precision=4, threshold=8)}; expected strictly ascending "
+                        "incident elevations in [0, pi/2]")
+    if (np.diff(phi) <= 0).any():
+        fail("phi_i", f"is {np.array2string(phi, precision=4, threshold=8)}; expected strictly ascending azimuths")
+    for name in ("ndf", "vndf", "luminance"):
+        if (f[name] < 0).any():
+            fail(name, f"has negative values (min {f[name].min():.4g}); expected a density >= 0")
+    for name in ("vndf", "luminance"):
+        empty = np.argwhere(f[name].sum(axis=(2, 3)) <= 0)
+        if len(empty):
+            p, t = empty[0]
+            fail(name, f"is zero everywhere for incident direction (phi_i[{p}], theta_i[{t}]) "
+                       f"({len(empty)} such slice(s)); expected a density with positive mass")
+    if not (f["ndf"] > 0).any():
+        fail("ndf", "is zero everywhere; expected a density with positive mass")
+    if (f["sigma"] <= 0).any():
+        fail("sigma", f"has values <= 0 (min {f['sigma'].min():.4g}); expected positive projected areas")
+    rgb = f["rgb"]
+    top, low = float(rgb.max()), float(rgb.min())
+    if top <= 0:
+        fail("rgb", f"has no positive value (max {top:.4g}); expected reflectance values > 0")
+    if low < -NEGATIVE_RGB_LIMIT * top:
+        fail("rgb", f"has values down to {low:.4g}, beyond -{NEGATIVE_RGB_LIMIT:g} x its maximum {top:.4g}; "
+                    "expected non-negative reflectance (small negative noise is kept)")

@@ -71,9 +71,13 @@ def reflectance_errors(model: Material, reference: Material, n: int = 2 ** 20, s
 
 
 def _eval(material: Material, q: Query, name: str) -> torch.Tensor:
-    """material.eval(q) as float64, checked to be (N, 3)."""
+    """material.eval(q) as float64, checked to be (N, 3) and finite (a NaN would make every error NaN)."""
     value = material.eval(q)
     if not isinstance(value, torch.Tensor) or tuple(value.shape) != (len(q), 3):
         shape = tuple(value.shape) if isinstance(value, torch.Tensor) else type(value).__name__
         raise InputError(f"reflectance_errors: {name}.eval returned {shape}, expected ({len(q)}, 3)")
+    bad = int((~torch.isfinite(value)).sum())
+    if bad:
+        raise InputError(f"reflectance_errors: the {name} ({material.describe()}) returned {bad} NaN or infinite "
+                         f"value(s) on {len(q)} queries; expected finite values")
     return value.to(device=q.device, dtype=torch.float64)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
-from neumat.core.checks import check_directions, check_int
+from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
@@ -84,6 +84,10 @@ def _check_config(c: Config) -> None:
     if c.texture_channels and min(c.texture_height, c.texture_width) >> (c.texture_levels - 1) < 1:
         raise InputError(f"NeuBRDF.texture_levels: {c.texture_levels} levels need a texture of at least "
                          f"{2 ** (c.texture_levels - 1)} texels a side")
+    slot = 4 * (2 ** c.index_bits if c.features == "vq" else c.feature_dim)  # float32 index logits / features
+    texture = 4 * c.texture_channels * c.texture_height * c.texture_width * 4 // 3
+    check_memory(hpx.grid_bytes(c.nside, 1, slot) + texture,
+                 f"NeuBRDF nside={c.nside}, index_bits={c.index_bits}, texture {c.texture_height}x{c.texture_width}")
 
 
 class NeuralTexture(nn.Module):
@@ -307,6 +311,8 @@ class NeuBRDF(LearnedMaterial):
     def _update_pruning(self) -> None:
         """Lookup levels of the pruned grids: `level_i` / `level_o` capped where the ancestor's corners
         would leave the hemisphere grid (`hpx.grid_level_cap`), and the ancestor levels to train."""
+        for name in ("level_i", "level_o"):
+            hpx.check_levels(getattr(self, name), self.cfg.nside, f"NeuBRDF.{name}")
         if bool((self.level_i == 0).all()) and bool((self.level_o == 0).all()):
             self._pruning = None
             return

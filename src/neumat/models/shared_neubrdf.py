@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 import torch
 from torch import nn
 
-from neumat.core.checks import check_directions, check_int, check_shape
+from neumat.core.checks import check_directions, check_int, check_memory, check_shape
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
@@ -63,6 +63,8 @@ def _check_config(c: Config) -> None:
         raise InputError(f"SharedNeuBRDF.index_bits: expected 1 .. 16, got {c.index_bits}")
     if c.interpolation not in ("idw", "uniform"):
         raise InputError(f"SharedNeuBRDF.interpolation: expected 'idw' or 'uniform', got {c.interpolation!r}")
+    check_memory(hpx.grid_bytes(c.nside, c.num_materials, 4 * 2 ** c.index_bits),
+                 f"SharedNeuBRDF nside={c.nside}, index_bits={c.index_bits}, {c.num_materials} materials")
 
 
 @dataclass
@@ -115,6 +117,7 @@ class SharedNeuBRDF(LearnedMaterial):
         self.mlp = MLP(2 * k, cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
         self.register_buffer("level_i", torch.zeros(t, 12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(t, 12 * n * n, dtype=torch.int8))
+        self.register_load_state_dict_post_hook(lambda module, keys: module._check_levels())
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
         self.active = 0
@@ -125,6 +128,11 @@ class SharedNeuBRDF(LearnedMaterial):
     @property
     def config(self) -> Config:
         return self.cfg
+
+    def _check_levels(self) -> None:
+        """Refuse loaded pruning levels outside the hierarchy (`hpx.check_levels`)."""
+        for name in ("level_i", "level_o"):
+            hpx.check_levels(getattr(self, name), self.cfg.nside, f"SharedNeuBRDF.{name}")
 
     def _check_index(self, i: int) -> int:
         t = self.cfg.num_materials

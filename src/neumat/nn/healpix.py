@@ -68,6 +68,13 @@ def hemisphere_size(nside: int) -> int:
     return 6 * nside * nside + 6 * nside + 1
 
 
+def grid_bytes(nside: int, grids: int, slot_bytes: int) -> int:
+    """Bytes a model of `grids` pairs of NeuBRDF hemisphere grids takes at `nside`: `slot_bytes` per grid vertex,
+    two int8 pruning levels per ring pixel, and the float32 vertex directions (for memory checks before
+    allocating)."""
+    return grids * (2 * hemisphere_size(nside) * slot_bytes + 2 * 12 * nside * nside) + 12 * nvertices(nside)
+
+
 # --------------------------------------------------------------------------------- angles and pixels
 
 def _isqrt(x: torch.Tensor) -> torch.Tensor:
@@ -501,6 +508,15 @@ def shared_ancestor_levels(nside: int, levels: torch.Tensor) -> torch.Tensor:
 
 
 @functools.lru_cache(maxsize=16)
+def check_levels(levels: torch.Tensor, nside: int, name: str) -> torch.Tensor:
+    """Check pruning levels (any shape, integer) against the hierarchy of `nside`: 0 .. log2 nside."""
+    top = nside.bit_length() - 1
+    if levels.is_floating_point() or (levels.numel() and (int(levels.min()) < 0 or int(levels.max()) > top)):
+        got = f"dtype {levels.dtype}" if levels.is_floating_point() else f"[{int(levels.min())}, {int(levels.max())}]"
+        raise InputError(f"{name}: expected integer pruning levels in [0, {top}] (log2 nside = {top}), got {got}")
+    return levels
+
+
 def grid_level_cap(nside: int, south: bool) -> torch.Tensor:
     """Largest hierarchy level (12 nside^2,) int64 at which each ring pixel's ancestor still has all 4
     corners on the S+ grid (vertex rings 0 .. 2 nside + 1; `south` False) or on S- (rings 2 nside - 1 ..

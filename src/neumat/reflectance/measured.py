@@ -23,7 +23,7 @@ import torch
 
 from ..core.coords import io_to_rusinkiewicz
 from ..core.errors import InputError
-from ..core.material import Material, sample_weight, upper_hemisphere
+from ..core.material import Material, check_sample_u, sample_weight, upper_hemisphere
 from ..core.query import Query, Sample
 from ..io.merl import MERL_DIMS, MERL_SCALE, read_merl
 from ..io.rgl import RglData, read_rgl
@@ -171,6 +171,7 @@ class Marginal2D:
 
     def _corners(self, pos, sl, wts, tabs):
         """Patch (ix, iy), position inside it (fx, fy) and the four corner values of points pos (N, 2)."""
+        pos = torch.nan_to_num(pos, nan=0.0)  # a NaN position would become a wild index
         x = pos[:, 0].clamp(0, 1) * (self.w - 1)
         y = pos[:, 1].clamp(0, 1) * (self.h - 1)
         ix = x.long().clamp(max=self.w - 2)
@@ -252,6 +253,15 @@ def _sample_segment(s: torch.Tensor, inv_width: float, v0: torch.Tensor, v1: tor
     return torch.where(div != 0, s / torch.where(div != 0, div, torch.ones_like(div)), s)
 
 
+def _above(wi: torch.Tensor, wo: torch.Tensor, active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """wi, wo (N, 3) with the pairs that are not `active` (a direction below the horizon, whose value is 0)
+    replaced by the normal, so that no table is looked up outside its domain."""
+    normal = torch.zeros_like(wi)
+    normal[:, 2] = 1
+    keep = active[:, None]
+    return torch.where(keep, wi, normal), torch.where(keep, wo, normal)
+
+
 def _elevation(d: torch.Tensor) -> torch.Tensor:
     """theta of unit vectors (N, 3), computed stably as 2 asin(|d - z| / 2) (as Mitsuba)."""
     dist = torch.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2 + (d[:, 2] - 1) ** 2)
@@ -325,7 +335,7 @@ class RglMaterial(Material):
         """The plugin's value BRDF * cos(theta_o), (N, 3)."""
         q.require("wo", who="RglMaterial")
         active = upper_hemisphere(q.wi, q.wo)
-        (wi, wo), _ = self._reduce(q.wi, q.wo)
+        (wi, wo), _ = self._reduce(*_above(q.wi, q.wo, active))
         m = wi + wo
         m = m / m.norm(dim=-1, keepdim=True).clamp(min=1e-30)
         params, u_m, u_wi = self._angles(wi, m)
@@ -343,7 +353,7 @@ class RglMaterial(Material):
         """Solid-angle density (N,) of `sample` (luminance warp, then VNDF warp, then reflection)."""
         q.require("wo", who="RglMaterial")
         active = upper_hemisphere(q.wi, q.wo)
-        (wi, wo), _ = self._reduce(q.wi, q.wo)
+        (wi, wo), _ = self._reduce(*_above(q.wi, q.wo, active))
         m = wi + wo
         m = m / m.norm(dim=-1, keepdim=True).clamp(min=1e-30)
         params, u_m, _ = self._angles(wi, m)
@@ -356,6 +366,7 @@ class RglMaterial(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Sample wo given q.wi and u (N, 2) in [0, 1)^2."""
+        u = check_sample_u(q, u)
         (wi,), signs = self._reduce(q.wi)
         theta_i = _elevation(wi)
         phi_i = torch.atan2(wi[:, 1], wi[:, 0])

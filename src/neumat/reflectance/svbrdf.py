@@ -94,8 +94,9 @@ class SVBRDF(Material):
     # ------------------------------------------------------------------------------ point value
 
     def parameters_at(self, uv: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Bilinear map values at uv (N, 2): base_color (N, 3), normal (N, 3) unit, roughness, metallic (N,)."""
-        m = bilinear(self.maps.to(uv.device), uv)
+        """Bilinear map values at uv (N, 2): base_color (N, 3), normal (N, 3) unit, roughness, metallic (N,), in
+        the dtype of uv (the query's: a float64 query on float32 maps is answered in float64)."""
+        m = bilinear(self.maps.to(uv.device, uv.dtype), uv)
         n = m[:, 3:6]
         n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return {"base_color": m[:, 0:3], "normal": n, "roughness": m[:, 6], "metallic": m[:, 7]}

@@ -114,8 +114,11 @@ def chi2_material(material, wi: torch.Tensor, n_samples: int = 1_000_000, templa
 
     template: optional one-row Query whose other fields (uv, footprint, lod, x) are repeated for every
     sample (spatially varying materials). Samples with pdf 0 count as invalid. Other keywords go to
-    `chi2_directions`; `sphere` defaults to `material.full_sphere`. The test also fails when the pdf that
-    `sample` returns differs from `pdf(wo)` by more than `pdf_rtol` (relative) on a check batch.
+    `chi2_directions`; the domain is the whole sphere (`sphere=True`, `res` = (80, 80) cells, 40 per
+    hemisphere in cos theta) unless `sphere=False` is given: a BRDF sampler may send glossy samples below the
+    horizon with their pdf, and one that does not puts no mass there, so the sphere tests every sampler. The
+    test also fails when the pdf that `sample` returns differs from `pdf(wo)` by more than `pdf_rtol`
+    (relative) on a check batch.
     """
     if not getattr(material, "can_sample", False):
         raise InputError(f"material: {type(material).__name__} cannot sample (can_sample = False)")
@@ -123,7 +126,8 @@ def chi2_material(material, wi: torch.Tensor, n_samples: int = 1_000_000, templa
         raise InputError(f"wi: expected a torch.Tensor of shape (3,), got {getattr(wi, 'shape', type(wi))}")
     if template is not None and len(template) != 1:
         raise InputError(f"template: expected a one-row Query, got {len(template)} rows")
-    kw.setdefault("sphere", bool(getattr(material, "full_sphere", False)))
+    kw.setdefault("sphere", True)
+    kw.setdefault("res", (80, 80) if kw["sphere"] else (40, 80))
     kw.setdefault("dtype", wi.dtype)
     kw.setdefault("device", wi.device)
 
