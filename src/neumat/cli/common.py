@@ -37,7 +37,7 @@ def run_command(fn: Callable[[], Any]) -> Any:
 
 
 def _fail(message: str) -> None:
-    console.print("[bold red]error:[/] " + escape(message))
+    console.print("[bold red]error:[/] " + escape(message), soft_wrap=True)  # one line: paths stay whole
     raise typer.Exit(2)
 
 
