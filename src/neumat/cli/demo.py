@@ -41,13 +41,14 @@ def demo(out: Path = typer.Option(Path("out/demo"), "-o", "--out", help="output 
          resolution: int = typer.Option(256, min=16),
          device: str = typer.Option(None, callback=device_option,
                                    help="torch device (default: cuda if available, else cpu)"),
-         seed: int = typer.Option(0, **SEED_RANGE)) -> None:
+         seed: int = typer.Option(0, **SEED_RANGE),
+         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output (the last line stays)")) -> None:
     """Fit NeuBRDF to a material, render reference | model | FLIP, write OUT/report.html and OUT/metrics.json."""
-    run_command(lambda: run_demo(out, source, steps, batch, nside, features, spp, resolution, device, seed))
+    run_command(lambda: run_demo(out, source, steps, batch, nside, features, spp, resolution, device, seed, quiet))
 
 
 def run_demo(out: Path, source: str, steps: int, batch: int, nside: int, features: str, spp: int,
-             resolution: int, device: str | None, seed: int) -> Path:
+             resolution: int, device: str | None, seed: int, quiet: bool = False) -> Path:
     """The demo job; returns the report path."""
     import time
     from dataclasses import replace
@@ -73,7 +74,8 @@ def run_demo(out: Path, source: str, steps: int, batch: int, nside: int, feature
     dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
     reference = open_material(source)
     out.mkdir(parents=True, exist_ok=True)
-    console.print(f"[bold]neumat demo[/]: fitting NeuBRDF (N_side {nside}, {features}) to {source} on {dev}")
+    say = (lambda text: None) if quiet else console.print
+    say(f"[bold]neumat demo[/]: fitting NeuBRDF (N_side {nside}, {features}) to {source} on {dev}")
 
     # analytic sources are cheap and exact: fresh targets every step; measured ones are evaluated once on a pool
     # of cosine-distributed queries that the fit replays
@@ -90,14 +92,14 @@ def run_demo(out: Path, source: str, steps: int, batch: int, nside: int, feature
     # (its codebook indices need far more steps to settle; the renders are blotchy)
     recipe = replace(recipe_for("neubrdf"), batch_size=batch, lr=1e-2, schedule="cosine", lr_min=5e-4, ema=0.02,
                      seed=seed, checkpoint_every=steps)
-    result = fit(model, samples, recipe, steps=steps, device=dev, progress=True, queries=queries)
+    result = fit(model, samples, recipe, steps=steps, device=dev, progress=not quiet, queries=queries)
     model = result.model.eval()  # the training form: inverse-distance corner weights, no per-pixel facets
     errors = reflectance_errors(model, reference, n=2 ** 18, seed=seed, device=dev)
     model_path = save_model(model, out / "neubrdf.nmat", recipe=recipe, source=source,
                             metrics={**errors, "fit_seconds": result.seconds})
     viewer = write_viewer(model, out / "viewer.html", title=f"NeuBRDF fitted to {source}")
 
-    console.print(f"rendering reference (twice, for the noise floor) and model ({resolution}x{resolution}, {spp} spp)")
+    say(f"rendering reference (twice, for the noise floor) and model ({resolution}x{resolution}, {spp} spp)")
     images, times = {}, {}
     for name, material, s in (("reference", reference, seed), ("reference, seed + 1", reference, seed + 1),
                               ("NeuBRDF", model, seed + 2)):

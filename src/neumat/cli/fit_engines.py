@@ -29,8 +29,8 @@ class RunProgress:
     """Prints one line per finished job and, at most every `every` seconds while jobs run, a status line:
     done / failed / running of the total and the ETA (elapsed time per finished job x jobs left)."""
 
-    def __init__(self, total: int, console: Console, slots: int = 1):
-        self.total, self.console, self.slots = total, console, slots
+    def __init__(self, total: int, console: Console, slots: int = 1, quiet: bool = False):
+        self.total, self.console, self.slots, self.quiet = total, console, slots, quiet
         self.done = self.failed = 0
         self.t0 = time.perf_counter()
 
@@ -49,7 +49,9 @@ class RunProgress:
         else:
             self.failed += 1
             what = f"[red]failed[/]: {row['error']}"
-        self.console.print(f"{self.status()} {row['name']} ({row['model']}): {what}", highlight=False, soft_wrap=True)
+        if not self.quiet:
+                self.console.print(f"{self.status()} {row['name']} ({row['model']}): {what}", highlight=False,
+                               soft_wrap=True)
 
 
 def run_local(jobs: list, task: Callable[[object], dict], progress: RunProgress) -> Iterator[dict]:
@@ -93,7 +95,8 @@ def run_ray(jobs: list, task: Callable[[object], dict], progress: RunProgress, *
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1, timeout=poll_seconds)
             if not ready:
-                progress.console.print(progress.status(), highlight=False, soft_wrap=True)
+                if not progress.quiet:
+                    progress.console.print(progress.status(), highlight=False, soft_wrap=True)
                 continue
             job = pending.pop(ready[0])
             try:

@@ -46,6 +46,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
              address: str = typer.Option(None, help="Ray cluster to run on (ray://host:10001, auto; default: "
                                                     "$RAY_ADDRESS, else a local instance)"),
              retries: int = typer.Option(2, min=0, help="times a task whose Ray worker died is run again"),
+             quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per job (the summary stays)"),
              out: Path = typer.Option(..., "-o", "--out", help="output folder: <source>.<model>.nmat, "
                                                                "results.json, results.md")) -> None:
     """Fit every MODEL to every source as independent jobs (Ray tasks), evaluate each fitted model against its
@@ -100,7 +101,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                       f"({'Ray' if use_ray else 'one after another in this process'})", highlight=False, soft_wrap=True)
         run = {"command": "neumat fit-many " + shlex.join(sys.argv[2:] if "fit-many" in sys.argv[1:2] else []),
                "engine": "ray" if use_ray else "local", "jobs": len(jobs), "fitted": len(todo)}
-        progress = RunProgress(len(todo), console)
+        progress = RunProgress(len(todo), console, quiet=quiet)
         t0 = time.perf_counter()
         stream = (run_ray(todo, run_fit_job, progress, workers=workers, address=address, retries=retries,
                           gpus_per_task=1.0 if device and device.startswith("cuda") else 0.0,
