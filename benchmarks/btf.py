@@ -175,7 +175,7 @@ def train_on_materials(train: list[str], test: list[str], args, dirs, tau_l: tup
     gen_s = time.perf_counter() - t
     t = time.perf_counter()
     dic = train_dictionary([btfs[k] for k in train], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                           sample_fraction=args.sample_fraction, progress=True)
+                           sample_fraction=args.sample_fraction, progress=True, statistics=args.statistics)
     train_s = time.perf_counter() - t
     print(f"{len(train)} training BTFs ({args.train_size or args.size}x{args.train_size or args.size} texels) x "
           f"{dirs.shape[0]}x{dirs.shape[0]} directions generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, "
@@ -404,8 +404,8 @@ def main():
     ap.add_argument("--statistics-bytes", type=int, choices=(2, 4), default=4,
                     help="bytes charged per stored per-image mean / std: 4 as the authors' files, 2 (float16)")
     ap.add_argument("--statistics", choices=("image", "btf"), default="image",
-                    help="standardisation statistics per angular image (the paper) or per BTF (6 numbers; the "
-                         "dictionary is still trained per image)")
+                    help="standardisation statistics per angular image (the paper) or per BTF (6 numbers), for "
+                         "coding and for training the dictionary")
     ap.add_argument("--oracle", action="store_true",
                     help="also code every test BTF with a dictionary trained on that BTF alone (same K, tau_l, "
                          "iterations): how much of the gap to PCA a better training set could close")
@@ -456,7 +456,7 @@ def main():
         if args.oracle:
             t = time.perf_counter()
             own = train_dictionary([btf], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                                   sample_fraction=args.sample_fraction, progress=True)
+                                   sample_fraction=args.sample_fraction, progress=True, statistics=args.statistics)
             oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, list(taus.values()), statistics=args.statistics)))
             print(f"oracle dictionary of {name} trained and used in {time.perf_counter() - t:.1f} s")
         budgets = {m: sp.storage(statistics_bytes=args.statistics_bytes)["per_btf"] for m, sp in coded.items()}

@@ -296,6 +296,12 @@ def test_per_btf_statistics(trained, gen):
     assert torch.equal(again.eval(q), model.eval(q))
     with pytest.raises(InputError, match="statistics"):
         SparseBTF.encode(btf, trained, statistics="texel")
+    # a dictionary trained on points standardised the same way records it
+    own = train_dictionary([btf], num_dictionaries=1, tau_train=(24, 8, 8), patch=PATCH, max_iters=2,
+                           statistics="btf")
+    assert own.info["statistics"] == "btf"
+    assert mse(btf, SparseBTF.encode(btf, own, (40, 10, 10), statistics="btf").decode()) < mse(
+        btf, SparseBTF.encode(btf, trained, (40, 10, 10), statistics="btf").decode())
 
 
 def test_state_dict_round_trip(trained, gen):

@@ -210,10 +210,11 @@ def train_dictionary(btfs: list, num_dictionaries: int | None = None,
                      tau_train: tuple[int, int, int] | None = None, patch: int | None = None,
                      log_eps: float | None = None, sample_fraction: float | None = None,
                      max_iters: int | None = None, tol: float | None = None, seed: int | None = None,
-                     progress: bool = False) -> BTFDictionary:
+                     progress: bool = False, statistics: str = "image") -> BTFDictionary:
     """Train the Y, U and V ensembles once on a few BTFs (TabulatedBTF objects of one direction set).
 
-    sample_fraction: the random fraction of data points used (the paper: 10%). Warns when the kept points are
+    sample_fraction: the random fraction of data points used (the paper: 10%). statistics: the standardisation
+    of the training points (SparseBTF Config.statistics; recorded in info["statistics"]). Warns when the kept points are
     too few for K (`training_size_warning`); refuses BTFs whose texels do not split into patches. Defaults: num_dictionaries,
     tau_train, patch, log_eps from `neumat.models.sparse_btf.Config`; sample_fraction, max_iters, tol, seed
     from the sparse-btf recipe.
@@ -254,11 +255,11 @@ def train_dictionary(btfs: list, num_dictionaries: int | None = None,
     start = 0
     for b, count in zip(btfs, counts):                 # one BTF at a time: only the kept points are held
         pos = ((keep >= start) & (keep < start + count)).nonzero()[:, 0]
-        prepared = prepare_btf(b.data, patch, log_eps)[0]
+        prepared = prepare_btf(b.data, patch, log_eps, statistics)[0]
         points[:, pos.to(points.device)] = prepared[:, (keep[pos] - start).to(points.device)]
         start += count
     ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": len(keep),
-                           "btfs": [b.label for b in btfs]}
+                           "btfs": [b.label for b in btfs], "statistics": statistics}
     for c, ch in enumerate("YUV"):
         ens, log = train_ensemble(points[c], num_dictionaries, tau_train[c], max_iters, tol,
                                   seed + c, progress, f"training {ch} dictionaries")
