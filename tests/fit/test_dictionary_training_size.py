@@ -23,7 +23,8 @@ def test_rule_flags_the_issue_set_and_passes_the_papers():
     assert training_size_warning(8 * PAPER_POINTS_PER_DICTIONARY - 1, 8, (32, 8, 8), (10, 10, 17, 17)) is not None
     # below the Procrustes floor: 151 / 32 -> 5 members per dictionary at least
     msg = training_size_warning(32, 8, (256, 32, 32), (10, 10, 151, 151))
-    assert "floor of 5" in msg and "K <= 1" in msg
+    assert "floor of 5" in msg and "fewer dictionaries" not in msg
+    assert "K <= 2" in training_size_warning(1000, 8, (32, 8, 8), (10, 10, 17, 17))
 
 
 def test_train_dictionary_warns_and_names_sizes():

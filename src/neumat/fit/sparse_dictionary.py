@@ -187,16 +187,17 @@ def training_size_warning(n_points: int, num_dictionaries: int, tau_train: tuple
     per = n_points / num_dictionaries
     tau = min(tau_train)
     floor = math.ceil(max(m / min(tau, m) for m in shape))
-    if per >= max(floor, PAPER_POINTS_PER_DICTIONARY):
+    least = max(floor, PAPER_POINTS_PER_DICTIONARY)
+    if per >= least:
         return None
-    need = num_dictionaries * max(floor, PAPER_POINTS_PER_DICTIONARY)
     why = (f"below the floor of {floor} (max_n m_n / min(tau_l, m_n) for data points {tuple(shape)}, tau_l "
            f"{tau}): some basis directions get no training coefficient" if per < floor else
            f"below the paper's {PAPER_POINTS_PER_DICTIONARY} (2880 points for K = 8)")
+    fewer = f" or fewer dictionaries (K <= {n_points // least})" if n_points >= least else ""
     return (f"{n_points} training data points for K = {num_dictionaries} dictionaries is {per:.0f} per dictionary, "
-            f"{why}; SparseBTF's quality is untested there (docs/btf.md, 'Training-set size'). Use about "
-            f"{need} points (more or larger BTFs, a larger --fraction) or fewer dictionaries "
-            f"(K <= {max(1, n_points // max(floor, PAPER_POINTS_PER_DICTIONARY))})")
+            f"{why}. Use about {num_dictionaries * least} points (more or larger BTFs, a larger --fraction){fewer}. "
+            "Measured at 17 x 17 directions, 120 x 120 texels: 75 points coded unseen BTFs about as well as "
+            "2880 (docs/btf.md, 'Training-set size'); untested at larger direction sets")
 
 
 def keep_count(n: int, num_dictionaries: int, fraction: float) -> int:

@@ -321,7 +321,9 @@ class BTFDictionary:
 
     @classmethod
     def load(cls, path: str | Path, device=None) -> "BTFDictionary":
-        """Read a file written by `save`."""
+        """Read a file written by `save`, or a dictionary shipped with the package by its name
+        (`SHIPPED_DICTIONARIES`, e.g. "default")."""
+        path = shipped_dictionary(path) or path
         meta, tensors = read_tagged(path, "btf-dictionary", "dictionary")
         try:
             ens = [Ensemble([tensors[f"U{j + 1}_{ch}"].to(device) for j in range(4)]) for ch in "YUV"]
@@ -329,6 +331,17 @@ class BTFDictionary:
             raise DataFormatError(f"{path}: missing dictionary tensor {e}") from None
         return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device), int(meta["patch"]),
                    tuple(meta["tau_train"]), float(meta["log_eps"]), meta.get("info", {}))
+
+
+#: dictionaries shipped with the package: name -> file under neumat/models/data (docs/btf.md, "Shipped dictionary")
+SHIPPED_DICTIONARIES = {"default": "sparse_btf_rings3x30.nmat"}
+
+
+def shipped_dictionary(name: str | Path) -> Path | None:
+    """The file of a shipped dictionary called `name`, or None when `name` names none (then it is a path)."""
+    if str(name) not in SHIPPED_DICTIONARIES:
+        return None
+    return Path(__file__).parent / "data" / SHIPPED_DICTIONARIES[str(name)]
 
 
 def prepare_btf(data: torch.Tensor, patch: int, log_eps: float, statistics: str = "image"
