@@ -45,3 +45,9 @@ def test_fit_with_the_default_dictionary(tmp_path):
                              d.light_dirs, d.view_dirs, d.patch, d.tau_train, d.log_eps, {})
     untrained = SparseBTF.encode(ref, identity, (32, 8, 8))
     assert mse(ref, model.decode()) < 0.8 * mse(ref, untrained.decode())
+    # per-BTF statistics through the CLI: six stored numbers
+    r = CliRunner().invoke(app, ["fit", str(src), "--model", "sparse-btf", "--set", "dictionary=default",
+                                 "--set", "statistics=btf", "--tau", "32,8,8", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    model = load(out)
+    assert model.cfg.statistics == "btf" and model.storage()["statistics"] == 2 * 3 * 4
