@@ -34,7 +34,8 @@ Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pc
 itself alone, a bound on what a better training set could give. "coding s (all rates)" codes a test BTF at
 every --mults rate with one projection of its data points (`SparseBTF.encode_rates`). "statistics share" is
 the part of SparseBTF's per-BTF bytes taken by its per-image means and deviations: float32 as in the authors'
-files, or float16 with --statistics-bytes 2 (rounding them, the values and the dictionaries to float16 changed
+files, or float16 with --statistics-bytes 2; --statistics btf codes with one mean and deviation per channel
+instead (SparseBTF Config.statistics) (rounding them, the values and the dictionaries to float16 changed
 the MSEs of bricks, dents and ridges by at most 0.1% at the default sizes; a test checks it on synthetic BTFs).
 
 --neubrdf: for every test BTF and tau row, a NeuBRDF with its neural-texture plug-in (texture at the BTF's
@@ -174,7 +175,7 @@ def train_on_materials(train: list[str], test: list[str], args, dirs, tau_l: tup
     gen_s = time.perf_counter() - t
     t = time.perf_counter()
     dic = train_dictionary([btfs[k] for k in train], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                           sample_fraction=args.sample_fraction, progress=True)
+                           sample_fraction=args.sample_fraction, progress=True, statistics=args.statistics)
     train_s = time.perf_counter() - t
     print(f"{len(train)} training BTFs ({args.train_size or args.size}x{args.train_size or args.size} texels) x "
           f"{dirs.shape[0]}x{dirs.shape[0]} directions generated in {gen_s:.1f} s; dictionary (K={args.dictionaries}, "
@@ -402,6 +403,9 @@ def main():
     ap.add_argument("--mults", default="1,2,4,8,16", help="tau_t = tau_l times these")
     ap.add_argument("--statistics-bytes", type=int, choices=(2, 4), default=4,
                     help="bytes charged per stored per-image mean / std: 4 as the authors' files, 2 (float16)")
+    ap.add_argument("--statistics", choices=("image", "btf"), default="image",
+                    help="standardisation statistics per angular image (the paper) or per BTF (6 numbers), for "
+                         "coding and for training the dictionary")
     ap.add_argument("--oracle", action="store_true",
                     help="also code every test BTF with a dictionary trained on that BTF alone (same K, tau_l, "
                          "iterations): how much of the gap to PCA a better training set could close")
@@ -447,13 +451,13 @@ def main():
         btf = generate_material(name, args, dirs)
         print(f"test BTF {name} ({args.size}x{args.size} texels) generated in {time.perf_counter() - t:.1f} s")
         t = time.perf_counter()
-        coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, list(taus.values()))))
+        coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, list(taus.values()), statistics=args.statistics)))
         code_s = time.perf_counter() - t
         if args.oracle:
             t = time.perf_counter()
             own = train_dictionary([btf], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                                   sample_fraction=args.sample_fraction, progress=True)
-            oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, list(taus.values()))))
+                                   sample_fraction=args.sample_fraction, progress=True, statistics=args.statistics)
+            oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, list(taus.values()), statistics=args.statistics)))
             print(f"oracle dictionary of {name} trained and used in {time.perf_counter() - t:.1f} s")
         budgets = {m: sp.storage(statistics_bytes=args.statistics_bytes)["per_btf"] for m, sp in coded.items()}
         totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}

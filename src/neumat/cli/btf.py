@@ -43,7 +43,9 @@ def register(app: typer.Typer) -> None:
             seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]", **SEED_RANGE),
             device: str = typer.Option("cpu", "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
-        """Train the SparseBTF dictionary ensemble once on a few BTFs."""
+        """Train the SparseBTF dictionary ensemble once on a few BTFs. Warns when the data points are too few for K
+        (fewer than the paper's 360 per dictionary: neumat.fit.sparse_dictionary.training_size_warning); the BTFs'
+        texels must split into --patch x --patch patches (btf-generate's default --size does)."""
         from ..fit.sparse_dictionary import train_dictionary
         from ..reflectance.btf import read_btf
 
@@ -59,14 +61,19 @@ def register(app: typer.Typer) -> None:
 
 
 def register_data(data_app: typer.Typer) -> None:
-    """Add `btf-generate` to the `neumat data` sub-app."""
+    """Add `btf-generate` to the `neumat data` sub-app. Its default --size is a multiple of SparseBTF's
+    Config.patch, so that `neumat fit-dictionary` takes its output with its own defaults."""
+    from ..models.sparse_btf import Config
+    patch = Config.patch
 
     @data_app.command("btf-generate")
     def btf_generate(
             textures: Path = typer.Argument(..., help="PBR texture-set folder (color, roughness, displacement, ...), "
                                             "or procedural:<class>[~<variant>] (bumps, weave, bricks, dents, ridges)"),
             out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nbtf"), help="output .nbtf file"),
-            size: int = typer.Option(64, "--size", min=1, help="BTF resolution (size x size texels)"),
+            size: int = typer.Option(6 * patch, "--size", min=1,
+                                     help=f"BTF resolution (size x size texels; a multiple of SparseBTF's patch "
+                                          f"{patch} for fit-dictionary's defaults)"),
             crop: int = typer.Option(0, "--crop", min=0, help="crop this many source texels first (0: the whole set)"),
             directions: str = typer.Option("hemi151", "--directions",
                                            help="direction set: hemi151, ubo81, rings:<n>x<deg> or a count"),
@@ -95,4 +102,8 @@ def register_data(data_app: typer.Typer) -> None:
             write_btf(out, btf, extra={"source": str(textures), "crop": crop, "relief": relief or tile_relief})
             print(f"wrote {out}: {size}x{size} texels, {d.shape[0]}x{d.shape[0]} directions "
                   f"({out.stat().st_size} bytes)")
+            if size % patch:
+                print(f"note: {size} texels do not split into SparseBTF's {patch} x {patch} patches (Config.patch): "
+                      f"`neumat fit-dictionary` will need --patch dividing {size}, or generate with --size "
+                      f"{max(patch, size // patch * patch)} or {(size // patch + 1) * patch}")
         run_command(go)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import torch
@@ -166,6 +167,39 @@ def _assign(codes: Codes, sel: torch.Tensor, sub: Codes, k: int) -> None:
     codes.membership[sel] = k
 
 
+#: data points per dictionary in the paper's training set (2880 points for K = 8, Sec. 4)
+PAPER_POINTS_PER_DICTIONARY = 360
+
+
+def training_size_warning(n_points: int, num_dictionaries: int, tau_train: tuple[int, ...],
+                          shape: tuple[int, int, int, int]) -> str | None:
+    """Why `n_points` data points of shape (p, p, L, V) are too few to train `num_dictionaries` (K) dictionaries
+    at training sparsities `tau_train` (tau_l per channel), or None when they are not.
+
+    Rule, per dictionary (a random partition gives each about n_points / K members):
+    - floor: a member's sparse coefficients give the mode-n Procrustes update at most min(tau_l, m_n) directions,
+      so fewer than max_n m_n / min(tau_l, m_n) members leave basis directions no training point constrains
+      (the smallest tau_l counts);
+    - the paper's ratio: at least `PAPER_POINTS_PER_DICTIONARY` (360) members, the training set the paper's
+      results come from (benchmarks/results/btf_vs_pca.md, section 14, measures the SparseBTF / PCA ratio from
+      75 to 2880 points at 17 x 17 directions).
+    """
+    per = n_points / num_dictionaries
+    tau = min(tau_train)
+    floor = math.ceil(max(m / min(tau, m) for m in shape))
+    least = max(floor, PAPER_POINTS_PER_DICTIONARY)
+    if per >= least:
+        return None
+    why = (f"below the floor of {floor} (max_n m_n / min(tau_l, m_n) for data points {tuple(shape)}, tau_l "
+           f"{tau}): some basis directions get no training coefficient" if per < floor else
+           f"below the paper's {PAPER_POINTS_PER_DICTIONARY} (2880 points for K = 8)")
+    fewer = f" or fewer dictionaries (K <= {n_points // least})" if n_points >= least else ""
+    return (f"{n_points} training data points for K = {num_dictionaries} dictionaries is {per:.0f} per dictionary, "
+            f"{why}. Use about {num_dictionaries * least} points (more or larger BTFs, a larger --fraction){fewer}. "
+            "Measured at 17 x 17 directions, 120 x 120 texels: 75 points coded unseen BTFs about as well as "
+            "2880 (docs/btf.md, 'Training-set size'); untested at larger direction sets")
+
+
 def keep_count(n: int, num_dictionaries: int, fraction: float) -> int:
     """Data points kept of n by a sample `fraction` (at least one per dictionary)."""
     if not 0 < fraction <= 1:
@@ -177,10 +211,12 @@ def train_dictionary(btfs: list, num_dictionaries: int | None = None,
                      tau_train: tuple[int, int, int] | None = None, patch: int | None = None,
                      log_eps: float | None = None, sample_fraction: float | None = None,
                      max_iters: int | None = None, tol: float | None = None, seed: int | None = None,
-                     progress: bool = False) -> BTFDictionary:
+                     progress: bool = False, statistics: str = "image") -> BTFDictionary:
     """Train the Y, U and V ensembles once on a few BTFs (TabulatedBTF objects of one direction set).
 
-    sample_fraction: the random fraction of data points used (the paper: 10%). Defaults: num_dictionaries,
+    sample_fraction: the random fraction of data points used (the paper: 10%). statistics: the standardisation
+    of the training points (SparseBTF Config.statistics; recorded in info["statistics"]). Warns when the kept points are
+    too few for K (`training_size_warning`); refuses BTFs whose texels do not split into patches. Defaults: num_dictionaries,
     tau_train, patch, log_eps from `neumat.models.sparse_btf.Config`; sample_fraction, max_iters, tol, seed
     from the sparse-btf recipe.
     """
@@ -202,19 +238,29 @@ def train_dictionary(btfs: list, num_dictionaries: int | None = None,
             raise InputError(f"train_dictionary: BTF {b.label!r} has another direction set than {first.label!r}")
     if not 0 < sample_fraction <= 1:
         raise InputError(f"train_dictionary sample_fraction: expected (0, 1], got {sample_fraction}")
+    for b in btfs:
+        h, w = b.data.shape[2:4]
+        if h % patch or w % patch:
+            raise InputError(f"train_dictionary: BTF {b.label!r} has {h} x {w} texels, which do not split into the "
+                             f"dictionary's {patch} x {patch} patches; generate it at a multiple of {patch} texels "
+                             f"(`neumat data btf-generate --size {max(patch, h // patch * patch)}`) or a patch "
+                             f"size (--patch) dividing {h} and {w}")
     counts = [(b.data.shape[2] // patch) * (b.data.shape[3] // patch) for b in btfs]
     n = sum(counts)
     gen = torch.Generator().manual_seed(seed)
     keep = torch.randperm(n, generator=gen)[:keep_count(n, num_dictionaries, sample_fraction)]
+    too_few = training_size_warning(len(keep), num_dictionaries, tau_train, (patch, patch, *first.data.shape[:2]))
+    if too_few:
+        warnings.warn(f"train_dictionary: {too_few}", stacklevel=2)
     points = torch.empty(3, len(keep), patch, patch, *first.data.shape[:2], device=first.data.device)
     start = 0
     for b, count in zip(btfs, counts):                 # one BTF at a time: only the kept points are held
         pos = ((keep >= start) & (keep < start + count)).nonzero()[:, 0]
-        prepared = prepare_btf(b.data, patch, log_eps)[0]
+        prepared = prepare_btf(b.data, patch, log_eps, statistics)[0]
         points[:, pos.to(points.device)] = prepared[:, (keep[pos] - start).to(points.device)]
         start += count
     ensembles, info = [], {"objective": {}, "seconds": {}, "iterations": {}, "points": len(keep),
-                           "btfs": [b.label for b in btfs]}
+                           "btfs": [b.label for b in btfs], "statistics": statistics}
     for c, ch in enumerate("YUV"):
         ens, log = train_ensemble(points[c], num_dictionaries, tau_train[c], max_iters, tol,
                                   seed + c, progress, f"training {ch} dictionaries")

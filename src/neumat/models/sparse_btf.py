@@ -23,7 +23,8 @@ The shared ensemble is kept as buffers (`dict_n`, (3, K, m_n, m_n)).
 
 Storage (`storage`) follows the authors' released coefficient files: per non-zero coefficient a float16
 value and four uint16 indices; per data point and channel a uint16 membership and a uint16 count; the
-ensemble in float16; the standardisation statistics as float32 (or float16: `storage(statistics_bytes=2)`).
+ensemble in float16; the standardisation statistics as float32 (or float16: `storage(statistics_bytes=2)`), per
+angular image (or, with Config.statistics "btf", one mean and deviation per channel).
 """
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.models.registry import MODELS
 from neumat.models.sparse_dictionary import (
+    STATISTICS,
     BTFDictionary,
     Codes,
     Ensemble,
@@ -87,6 +89,9 @@ class Config:
     """k nearest direction bins of the angular interpolation (light and view separately)."""
     angular: str = "coefficient"
     """Angular interpolation in "coefficient" space (Eq. 6) or in "value" space (linear RGB)."""
+    statistics: str = "image"
+    """Standardisation statistics per angular "image" and channel (the paper: 2 L V 3 stored numbers) or per
+    "btf" and channel (6 numbers; docs/btf.md, "Statistics overhead")."""
 
 
 def _check_config(c: Config) -> None:
@@ -101,6 +106,8 @@ def _check_config(c: Config) -> None:
     if low:
         raise InputError(f"SparseBTF.tau {tuple(c.tau)} is smaller than the training sparsity tau_train "
                          f"{tuple(c.tau_train)} for channel(s) {', '.join(low)}; the paper requires tau_t >= tau_l")
+    if c.statistics not in STATISTICS:
+        raise InputError(f"SparseBTF.statistics: expected one of {STATISTICS}, got {c.statistics!r}")
     if c.angular not in ("coefficient", "value"):
         raise InputError(f"SparseBTF.angular: expected 'coefficient' or 'value', got {c.angular!r}")
     if not c.log_eps > 0 or c.error_threshold < 0:
@@ -142,15 +149,17 @@ class SparseBTF(LearnedMaterial):
     # ------------------------------------------------------------------------------------ building
     @classmethod
     def encode(cls, btf: TabulatedBTF, dictionary: BTFDictionary, tau: int | tuple[int, int, int] | None = None,
-               error_threshold: float = 0.0, neighbours: int = 3, angular: str = "coefficient") -> "SparseBTF":
+               error_threshold: float = 0.0, neighbours: int = 3, angular: str = "coefficient",
+               statistics: str = "image") -> "SparseBTF":
         """Sparse representation of `btf` with a trained `dictionary` (Sec. 3.3). tau: tau_t for Y, U, V (one
-        int for all); default the dictionary's tau_train."""
-        return cls.encode_rates(btf, dictionary, [tau], error_threshold, neighbours, angular)[0]
+        int for all); default the dictionary's tau_train. statistics: Config.statistics."""
+        return cls.encode_rates(btf, dictionary, [tau], error_threshold, neighbours, angular, statistics)[0]
 
     @classmethod
     def encode_rates(cls, btf: TabulatedBTF, dictionary: BTFDictionary,
                      taus: list[int | tuple[int, int, int] | None], error_threshold: float = 0.0,
-                     neighbours: int = 3, angular: str = "coefficient") -> list["SparseBTF"]:
+                     neighbours: int = 3, angular: str = "coefficient", statistics: str = "image"
+                     ) -> list["SparseBTF"]:
         """`encode` at every tau of `taus` (same results), projecting the BTF's data points on the dictionaries
         once for all of them."""
         if not taus:
@@ -160,12 +169,12 @@ class SparseBTF(LearnedMaterial):
         cfgs = [Config(patch=dictionary.patch, num_dictionaries=dictionary.num_dictionaries, n_light=l, n_view=v,
                        height=h, width=w, tau=tuple(int(t) for t in tau), tau_train=tuple(dictionary.tau_train),
                        log_eps=dictionary.log_eps, error_threshold=error_threshold, neighbours=neighbours,
-                       angular=angular) for tau in taus]
+                       angular=angular, statistics=statistics) for tau in taus]
         for cfg in cfgs:
             _check_config(cfg)
         dictionary.check_compatible(btf.light_dirs, btf.view_dirs, f"BTF {btf.label!r}")
         models = [cls(cfg).to(btf.data.device) for cfg in cfgs]
-        points, mean, std = prepare_btf(btf.data, dictionary.patch, dictionary.log_eps)
+        points, mean, std = prepare_btf(btf.data, dictionary.patch, dictionary.log_eps, statistics)
         for model in models:
             model.light_dirs.copy_(btf.light_dirs)
             model.view_dirs.copy_(btf.view_dirs)
@@ -206,7 +215,7 @@ class SparseBTF(LearnedMaterial):
         Sets the directions, statistics and codes; returns the mean squared error per element (model space)."""
         self.check_source(btf)
         c, dev = self.cfg, self.values.device
-        points, mean, std = prepare_btf(btf.data.to(dev), c.patch, c.log_eps)
+        points, mean, std = prepare_btf(btf.data.to(dev), c.patch, c.log_eps, c.statistics)
         self.light_dirs.copy_(btf.light_dirs)
         self.view_dirs.copy_(btf.view_dirs)
         self.mean.copy_(mean)
@@ -422,7 +431,7 @@ class SparseBTF(LearnedMaterial):
             "indices": nnz * 4 * index_bytes,
             "membership": n_points * index_bytes,
             "counts": n_points * index_bytes,
-            "statistics": 2 * c.n_light * c.n_view * 3 * statistics_bytes,
+            "statistics": 2 * (c.n_light * c.n_view if c.statistics == "image" else 1) * 3 * statistics_bytes,
             "dictionary": 3 * c.num_dictionaries * (2 * c.patch ** 2 + c.n_light ** 2 + c.n_view ** 2) * value_bytes,
         }
         d["per_btf"] = d["values"] + d["indices"] + d["membership"] + d["counts"] + d["statistics"]

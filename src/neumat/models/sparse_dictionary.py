@@ -54,11 +54,21 @@ def model_space_to_rgb(yuv: torch.Tensor, eps: float) -> torch.Tensor:
     return (torch.exp(yuv @ YUV_TO_RGB.to(yuv).T) - eps).clamp(min=0)
 
 
-def image_statistics(yuv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per angular image and channel mean and std (L, V, 3) of yuv (L, V, H, W, 3)."""
-    mean = yuv.mean(dim=(2, 3))
-    std = yuv.std(dim=(2, 3), unbiased=False)
-    return mean, torch.where(std > MIN_STD, std, torch.ones_like(std))
+#: what the standardisation statistics are taken over: every angular image (the paper) or the whole BTF
+STATISTICS = ("image", "btf")
+
+
+def image_statistics(yuv: torch.Tensor, statistics: str = "image") -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and std (L, V, 3) of yuv (L, V, H, W, 3) per angular image and channel (statistics "image", Sec.
+    3.1), or per channel over the whole BTF, repeated over the images ("btf": 6 numbers to store)."""
+    if statistics not in STATISTICS:
+        raise InputError(f"SparseBTF statistics: expected one of {STATISTICS}, got {statistics!r}")
+    dims = (2, 3) if statistics == "image" else (0, 1, 2, 3)
+    mean = yuv.mean(dim=dims, keepdim=True)
+    std = yuv.std(dim=dims, unbiased=False, keepdim=True)
+    std = torch.where(std > MIN_STD, std, torch.ones_like(std))
+    shape = (yuv.shape[0], yuv.shape[1], yuv.shape[-1])
+    return mean.reshape(-1, mean.shape[1], 3).expand(shape).clone(), std.reshape(-1, std.shape[1], 3).expand(shape).clone()
 
 
 def to_data_points(z: torch.Tensor, patch: int) -> torch.Tensor:
@@ -311,7 +321,9 @@ class BTFDictionary:
 
     @classmethod
     def load(cls, path: str | Path, device=None) -> "BTFDictionary":
-        """Read a file written by `save`."""
+        """Read a file written by `save`, or a dictionary shipped with the package by its name
+        (`SHIPPED_DICTIONARIES`, e.g. "default")."""
+        path = shipped_dictionary(path) or path
         meta, tensors = read_tagged(path, "btf-dictionary", "dictionary")
         try:
             ens = [Ensemble([tensors[f"U{j + 1}_{ch}"].to(device) for j in range(4)]) for ch in "YUV"]
@@ -321,10 +333,22 @@ class BTFDictionary:
                    tuple(meta["tau_train"]), float(meta["log_eps"]), meta.get("info", {}))
 
 
-def prepare_btf(data: torch.Tensor, patch: int, log_eps: float
+#: dictionaries shipped with the package: name -> file under neumat/models/data (docs/btf.md, "Shipped dictionary")
+SHIPPED_DICTIONARIES = {"default": "sparse_btf_rings3x30.nmat"}
+
+
+def shipped_dictionary(name: str | Path) -> Path | None:
+    """The file of a shipped dictionary called `name`, or None when `name` names none (then it is a path)."""
+    if str(name) not in SHIPPED_DICTIONARIES:
+        return None
+    return Path(__file__).parent / "data" / SHIPPED_DICTIONARIES[str(name)]
+
+
+def prepare_btf(data: torch.Tensor, patch: int, log_eps: float, statistics: str = "image"
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """BTF data (L, V, H, W, 3) -> data points (3, P, p, p, L, V), mean and std (L, V, 3) (Sec. 3.1)."""
+    """BTF data (L, V, H, W, 3) -> data points (3, P, p, p, L, V), mean and std (L, V, 3) (Sec. 3.1;
+    `image_statistics` for `statistics`)."""
     yuv = rgb_to_model_space(data.float(), log_eps)
-    mean, std = image_statistics(yuv)
+    mean, std = image_statistics(yuv, statistics)
     z = (yuv - mean[:, :, None, None, :]) / std[:, :, None, None, :]
     return to_data_points(z, patch), mean, std

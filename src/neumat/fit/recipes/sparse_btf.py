@@ -149,7 +149,7 @@ def _training_points(ctx: FitContext, btf) -> torch.Tensor:
     `fraction` drawn with a generator seeded by recipe.seed + 2 (the same on a resumed fit)."""
     cfg = ctx.model.cfg
     from ...models.sparse_dictionary import prepare_btf
-    points = prepare_btf(btf.data.to(ctx.device), cfg.patch, cfg.log_eps)[0]
+    points = prepare_btf(btf.data.to(ctx.device), cfg.patch, cfg.log_eps, cfg.statistics)[0]
     fraction = ctx.option("fraction")
     n = points.shape[1]
     keep = keep_count(n, cfg.num_dictionaries, fraction)
