@@ -7,14 +7,22 @@
      "coats": [                                  # bottom to top
        {"eta": 1.5, "roughness": 0.03, "tint": [0.9, 0.95, 1.0]},
        {"eta": 1.5, "roughness": {"smudges": {"seed": 1, "size": 256}, "low": 0.05, "high": 0.4},
-        "weight": {"image": "mask.png"}, "normal": "coat_normal.png"}]}
+        "weight": {"image": "mask.png"}, "normal": "coat_normal.png"}],
+     "sheen": {"color": [1, 0.9, 0.8], "roughness": 0.3, "weight": 0.5}}   # optional, on top of the coats
 
+The base may also be a textured conductor (`neumat.reflectance.conductor_base`):
+{"conductor": "gold"} (a preset) or {"eta": [r, g, b], "k": [r, g, b]}, with "roughness" (GGX alpha; a number
+or a map, default 0.2) and an optional "normal" image, e.g.
+    "base": {"conductor": "copper", "roughness": {"smudges": {"seed": 3, "size": 128}, "low": 0.05, "high": 0.3}}
+"coats" may be empty when there is a sheen.
 A coat's `roughness` (GGX alpha) and `weight` are numbers or maps: {"smudges": {smudge_map arguments}} or
 {"image": path} (grey values in [0, 1], linear), mapped to [low, high] (roughness: no default; weight: 0 and 1).
-`normal` is an optional OpenGL-convention normal-map image. Unknown keys raise.
+`normal` is an optional OpenGL-convention normal-map image. The sheen's roughness (Charlie alpha, default 0.3) and
+weight are numbers or maps alike; its colour is RGB in [0, 1] (default white). Unknown keys raise.
 
 `read_description(path)` checks the top level and returns a `LayeredDescription`; `read_coat(...)` reads one
-coat into a `CoatDescription` (maps as tensors), generating smudge masks with the function it is given.
+coat into a `CoatDescription` (maps as tensors), generating smudge masks with the function it is given;
+`read_sheen` and `read_conductor` read the sheen and a conductor base alike.
 """
 from __future__ import annotations
 
@@ -29,8 +37,10 @@ import torch
 from ..core.errors import InputError
 from .images import read_image
 
-_TOP_KEYS = {"type", "base", "max_size", "coats", "samples", "name"}
+_TOP_KEYS = {"type", "base", "max_size", "coats", "samples", "name", "sheen"}
 _COAT_KEYS = {"eta", "roughness", "weight", "tint", "normal"}
+_SHEEN_KEYS = {"color", "roughness", "weight"}
+_CONDUCTOR_KEYS = {"conductor", "eta", "k", "roughness", "normal"}
 
 
 @dataclass
@@ -107,8 +117,9 @@ def read_description(path: str | Path) -> LayeredDescription:
     if not isinstance(spec, dict) or spec.get("type") != "layered":
         raise InputError(f"{path}: expected a JSON object with \"type\": \"layered\"")
     _check_keys(spec, _TOP_KEYS, str(path))
-    if "base" not in spec or not isinstance(spec.get("coats"), list) or not spec["coats"]:
-        raise InputError(f"{path}: needs a 'base' material and a non-empty 'coats' list")
+    if "base" not in spec or not isinstance(spec.get("coats", []), list) or \
+            (not spec.get("coats") and "sheen" not in spec):
+        raise InputError(f"{path}: needs a 'base' material and a non-empty 'coats' list (or a 'sheen')")
     for key in ("max_size", "samples"):
         if key in spec and (isinstance(spec[key], bool) or not isinstance(spec[key], int) or spec[key] < 1):
             raise InputError(f"{path}: '{key}' must be a positive integer, got {spec[key]!r}")
@@ -127,3 +138,46 @@ def read_coat(c, where: str, folder: Path, smudges: Callable[..., torch.Tensor])
                            weight=_scalar_map(c.get("weight", 1.0), f"{where} weight", folder, 0.0, 1.0, smudges),
                            eta=c.get("eta", 1.5), tint=c.get("tint", (1.0, 1.0, 1.0)),
                            normal=None if c.get("normal") is None else _normal_map(c["normal"], where, folder))
+
+
+@dataclass
+class SheenDescription:
+    """The sheen: colour as written (the material checks it); roughness and weight floats or (H, W) maps."""
+
+    color: tuple
+    roughness: float | torch.Tensor
+    weight: float | torch.Tensor
+
+
+def read_sheen(c, where: str, folder: Path, smudges: Callable[..., torch.Tensor]) -> SheenDescription:
+    """The "sheen" object `c` of a description (module docstring)."""
+    if not isinstance(c, dict):
+        raise InputError(f"{where}: expected an object, got {c!r}")
+    _check_keys(c, _SHEEN_KEYS, where)
+    return SheenDescription(color=tuple(c.get("color", (1.0, 1.0, 1.0))),
+                            roughness=_scalar_map(c.get("roughness", 0.3), f"{where} roughness", folder, None, None,
+                                                  smudges),
+                            weight=_scalar_map(c.get("weight", 1.0), f"{where} weight", folder, 0.0, 1.0, smudges))
+
+
+@dataclass
+class ConductorDescription:
+    """A conductor base: a preset name or eta and k as written; roughness a float or (H, W) map; normal
+    (H, W, 3) or None."""
+
+    material: str | None
+    eta: object
+    k: object
+    roughness: float | torch.Tensor
+    normal: torch.Tensor | None
+
+
+def read_conductor(c: dict, where: str, folder: Path, smudges: Callable[..., torch.Tensor]) -> ConductorDescription:
+    """A base object with "conductor" or "eta" and "k" (module docstring)."""
+    _check_keys(c, _CONDUCTOR_KEYS, where)
+    if ("conductor" in c) == ("eta" in c or "k" in c):
+        raise InputError(f"{where}: give either 'conductor' (a preset name) or both 'eta' and 'k'")
+    return ConductorDescription(material=c.get("conductor"), eta=c.get("eta"), k=c.get("k"),
+                                roughness=_scalar_map(c.get("roughness", 0.2), f"{where} roughness", folder, None,
+                                                      None, smudges),
+                                normal=None if c.get("normal") is None else _normal_map(c["normal"], where, folder))

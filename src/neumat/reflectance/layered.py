@@ -1,8 +1,9 @@
-"""Layered reference materials: textured rough dielectric coats over a base material.
+"""Layered reference materials: textured rough dielectric coats and a sheen layer over a base material.
 
 Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 8) bake layered material graphs whose shading is
 "a weighted combination of standard BRDF models". This material is such a graph: a base (an SVBRDF from a PBR
-texture set, or any homogeneous material) under coats listed bottom to top. At a point uv, coat by coat,
+texture set, a textured conductor (`neumat.reflectance.conductor_base`), or any homogeneous material) under coats
+listed bottom to top, and optionally a sheen layer on top of them all. At a point uv, coat by coat,
 
     f <- (1 - w) f + w [ f_coat + A T f ]                     (w: the coat's weight, its presence in [0, 1])
 
@@ -18,11 +19,19 @@ E_avg its cosine-weighted average (`neumat.reflectance.coat_albedo`). The cosine
 no light through that coat (its share is 0). Every factor is symmetric in wi and wo, so f is reciprocal; over a
 white Lambertian base, a flat colourless coat conserves energy exactly (up to the albedo table's error).
 
+The sheen layer (fuzz of cloth or dust, `neumat.reflectance.sheen`) is the same albedo-scaled form in the
+geometric frame, with c = max(colour):
+
+    f <- (1 - w) f + w [ colour f_sheen + (1 - c E_s(mu_i)) (1 - c E_s(mu_o)) / (1 - c E_s_avg) f ]
+
+so a white sheen over a white Lambertian base conserves energy and a coloured one stays below 1.
+
 Filtering, as the SVBRDF: with a footprint (or a lod), `eval` averages the point value over Gaussian positions.
-Sampling, per query at the footprint centre: a one-sample mixture over the components, top coat first, coat k
-chosen with probability R_k w_k E_k(mu_i) (R_k: the mass the coats above leave, prod (1 - w E)), the base with the
-remainder; coats sample GGX visible normals in their frames, the base uses its own sampler (cosine if it has
-none); the pdf is the mixture's density.
+Sampling, per query at the footprint centre: a one-sample mixture over the components, the sheen first (with
+probability w c E_s(mu_i), cosine-distributed directions), then the top coat, coat k chosen with probability
+R_k w_k E_k(mu_i) (R_k: the mass the layers above leave, prod (1 - w E)), the base with the remainder; coats
+sample GGX visible normals in their frames, the base uses its own sampler (cosine if it has none); the pdf is the
+mixture's density.
 """
 from __future__ import annotations
 
@@ -43,9 +52,12 @@ from .coat_albedo import ALPHA_MIN, CoatAlbedo
 from .footprint_filter import filtered_eval, query_footprint
 from .lean import NormalGroup
 from .microfacet import _microfacet_brdf, fresnel_dielectric
+from .sheen import SHEEN_ALPHA_MIN, SheenAlbedo
 
 #: surface parameters one coat adds to `sampling_features`: alpha, weight, unit normal (3)
 COAT_FEATURES = 5
+#: surface parameters the sheen layer adds to `sampling_features` (after the coats'): alpha, weight
+SHEEN_FEATURES = 2
 
 
 @dataclass
@@ -59,6 +71,16 @@ class Coat:
     eta: float = 1.5
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     normal: torch.Tensor | None = None
+
+
+@dataclass
+class Sheen:
+    """The sheen layer on top (module docstring). colour: RGB in [0, 1]; roughness: Charlie alpha in
+    [SHEEN_ALPHA_MIN, 1]; weight: presence in [0, 1] (both numbers or (H, W) maps)."""
+
+    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    roughness: float | torch.Tensor = 0.3
+    weight: float | torch.Tensor = 1.0
 
 
 def _map(value, name: str, lo: float, hi: float) -> torch.Tensor:
@@ -103,11 +125,19 @@ def coat_albedo(eta: float) -> CoatAlbedo:
     return CoatAlbedo(eta)
 
 
-class LayeredMaterial(Material):
-    """Coats (bottom to top) over `base` (module docstring).
+@functools.lru_cache(maxsize=1)
+def sheen_albedo() -> SheenAlbedo:
+    """The sheen lobe and its albedo table, computed once per process (about 2 s)."""
+    return SheenAlbedo()
 
-    base:     an SVBRDF (spatially varying: needs `eval_point` and `sampling_features`) or a homogeneous material.
-    coats:    a list of `Coat`, bottom to top.
+
+class LayeredMaterial(Material):
+    """Coats (bottom to top) and an optional sheen over `base` (module docstring).
+
+    base:     an SVBRDF or a textured conductor (spatially varying: needs `eval_point`, `sampling_features` and
+              `texture_size` or `textures`) or a homogeneous material.
+    coats:    a list of `Coat`, bottom to top (may be empty when there is a sheen).
+    sheen:    an optional `Sheen` on top.
     samples, seed, chunk: footprint filtering as `neumat.reflectance.svbrdf.SVBRDF`.
     """
 
@@ -115,7 +145,7 @@ class LayeredMaterial(Material):
     spatially_varying = True
 
     def __init__(self, base: Material, coats: list[Coat], samples: int = 256, seed: int = 0,
-                 chunk: int = 1 << 20, name: str | None = None) -> None:
+                 chunk: int = 1 << 20, name: str | None = None, sheen: Sheen | None = None) -> None:
         if not isinstance(base, Material):
             raise InputError(f"LayeredMaterial base: expected a Material, got {type(base).__name__}")
         if getattr(base, "full_sphere", False):
@@ -124,8 +154,11 @@ class LayeredMaterial(Material):
                                               for a in ("eval_point", "sampling_features")):
             raise InputError(f"LayeredMaterial base: the spatially varying {type(base).__name__} must give point "
                              "values (eval_point) and surface parameters (sampling_features), as an SVBRDF does")
-        if not isinstance(coats, (list, tuple)) or not coats or not all(isinstance(c, Coat) for c in coats):
-            raise InputError("LayeredMaterial coats: expected a non-empty list of Coat")
+        if sheen is not None and not isinstance(sheen, Sheen):
+            raise InputError(f"LayeredMaterial sheen: expected a Sheen or None, got {type(sheen).__name__}")
+        if not isinstance(coats, (list, tuple)) or not all(isinstance(c, Coat) for c in coats) \
+                or (not coats and sheen is None):
+            raise InputError("LayeredMaterial coats: expected a non-empty list of Coat (empty only under a sheen)")
         for key, v in (("samples", samples), ("chunk", chunk)):
             check_int(v, f"LayeredMaterial.{key}")
         self.base, self.coats = base, list(coats)
@@ -141,19 +174,35 @@ class LayeredMaterial(Material):
             if isinstance(c.eta, bool) or not isinstance(c.eta, (int, float)):
                 raise InputError(f"coat {i} eta: expected a number in [1, 4], got {c.eta!r}")
             self.albedos.append(coat_albedo(float(c.eta)))  # checks the range
+        self.sheen, self.sheen_maps = sheen, None
+        if sheen is not None:
+            try:
+                color = torch.as_tensor(sheen.color, dtype=torch.float32)
+            except (TypeError, ValueError, RuntimeError):
+                color = torch.zeros(0)
+            if color.shape != (3,) or not bool(((color >= 0) & (color <= 1)).all()):
+                raise InputError(f"sheen color: expected 3 values in [0, 1], got {sheen.color!r}")
+            self.sheen_color = color
+            self.sheen_maps = _coat_maps(Coat(roughness=sheen.roughness, weight=sheen.weight), "sheen")[:2]
+            if float(self.sheen_maps[0].min()) < SHEEN_ALPHA_MIN:
+                raise InputError(f"sheen roughness: values must lie in [{SHEEN_ALPHA_MIN}, 1], got minimum "
+                                 f"{float(self.sheen_maps[0].min()):.4g}")
+            self.sheen_albedo = sheen_albedo()
         self.samples, self.chunk = samples, chunk
         self.generator = torch.Generator().manual_seed(seed)
         self.name = name or f"layered:{getattr(base, 'name', type(base).__name__)}+{len(self.coats)} coat(s)"
 
     def describe(self) -> str:
-        coats = ", ".join(f"eta {c.eta:g}" for c in self.coats)
-        return f"{self.name} (coats bottom to top: {coats}; {self.samples} footprint samples)"
+        coats = ", ".join(f"eta {c.eta:g}" for c in self.coats) or "none"
+        sheen = "; sheen on top" if self.sheen is not None else ""
+        return f"{self.name} (coats bottom to top: {coats}{sheen}; {self.samples} footprint samples)"
 
     @property
     def texture_size(self) -> tuple[int, int]:
         """(height, width) in texels of the finest texture, the base's or a coat map's (what a lod refers to)."""
-        sizes = [tuple(self.base.textures.size)] if self.base.spatially_varying else []
-        sizes += [tuple(m.shape[1:]) for m in self.maps]
+        sizes = [tuple(getattr(self.base, "texture_size", None) or self.base.textures.size)] \
+            if self.base.spatially_varying else []
+        sizes += [tuple(m.shape[1:]) for m in self.maps + ([self.sheen_maps] if self.sheen is not None else [])]
         return max(s[0] for s in sizes), max(s[1] for s in sizes)
 
     # ------------------------------------------------------------------------------ parameters
@@ -161,13 +210,13 @@ class LayeredMaterial(Material):
     @property
     def sampling_feature_dim(self) -> int:
         base = int(self.base.sampling_feature_dim) if self.base.spatially_varying else 0
-        return base + COAT_FEATURES * len(self.coats)
+        return base + COAT_FEATURES * len(self.coats) + (SHEEN_FEATURES if self.sheen is not None else 0)
 
     @property
     def surface_normal_groups(self) -> tuple[NormalGroup, ...]:
         """Normal and roughness channels of every layer in `sampling_features` (LEAN prefiltering)."""
         groups = tuple(getattr(self.base, "surface_normal_groups", ())) if self.base.spatially_varying else ()
-        start = self.sampling_feature_dim - COAT_FEATURES * len(self.coats)
+        start = int(self.base.sampling_feature_dim) if self.base.spatially_varying else 0
         return groups + tuple(NormalGroup(normal=start + COAT_FEATURES * i + 2, roughness=start + COAT_FEATURES * i,
                                           alpha_power=1.0) for i in range(len(self.coats)))
 
@@ -178,13 +227,21 @@ class LayeredMaterial(Material):
         return p[:, 0], p[:, 1], normal_map_frame(n)
 
     def sampling_features(self, q: Query) -> torch.Tensor:
-        """Surface parameters at q.uv (N, K): the base's (an SVBRDF's 8), then per coat alpha, weight, normal."""
+        """Surface parameters at q.uv (N, K): the base's (an SVBRDF's 8), then per coat alpha, weight, normal, then
+        the sheen's alpha and weight."""
         q.require("uv", who="LayeredMaterial.sampling_features")
         parts = [self.base.sampling_features(q)] if self.base.spatially_varying else []
         for i in range(len(self.coats)):
             alpha, weight, (_, _, n) = self._coat_at(i, q.uv)
             parts.append(torch.cat([alpha[:, None], weight[:, None], n], -1))
+        if self.sheen is not None:
+            parts.append(torch.stack(self._sheen_at(q.uv), -1))
         return torch.cat(parts, -1)
+
+    def _sheen_at(self, uv: torch.Tensor):
+        """Sheen alpha (N,) and weight (N,) at uv (N, 2)."""
+        p = bilinear(self.sheen_maps.to(uv.device, uv.dtype), uv)
+        return p[:, 0], p[:, 1]
 
     # ------------------------------------------------------------------------------ point value
 
@@ -210,7 +267,20 @@ class LayeredMaterial(Material):
             top = top + scale.unsqueeze(-1) * self._transmittance(coat, mu_i, mu_o) * f
             covered = torch.where(ok.unsqueeze(-1), top, torch.zeros_like(top))
             f = (1 - weight).unsqueeze(-1) * f + weight.unsqueeze(-1) * covered
+        if self.sheen is not None:
+            f = self._sheen_over(f, wi, wo, uv)
         return torch.where(up.unsqueeze(-1), f, torch.zeros_like(f))
+
+    def _sheen_over(self, f: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+        """f (N, 3) under the sheen layer (module docstring)."""
+        alpha, weight = self._sheen_at(uv)
+        color = self.sheen_color.to(f.device, f.dtype)
+        c = float(color.max())
+        table = self.sheen_albedo
+        mu_i, mu_o = wi[:, 2].clamp(0, 1), wo[:, 2].clamp(0, 1)
+        scale = (1 - c * table(mu_i, alpha)) * (1 - c * table(mu_o, alpha)) / (1 - c * table.averaged(alpha))
+        top = table.brdf(wi, wo, alpha).unsqueeze(-1) * color + scale.unsqueeze(-1) * f
+        return (1 - weight).unsqueeze(-1) * f + weight.unsqueeze(-1) * top
 
     @staticmethod
     def _transmittance(coat: Coat, mu_i: torch.Tensor, mu_o: torch.Tensor) -> torch.Tensor:
@@ -236,9 +306,15 @@ class LayeredMaterial(Material):
     # ---------------------------------------------------------------------------------- sampling
 
     def _mixture(self, wi: torch.Tensor, uv: torch.Tensor):
-        """Component probabilities (N, C + 1) (coats top to bottom, then the base), coat alphas and frames."""
+        """Component probabilities (N, S + C + 1) (the sheen if any, coats top to bottom, then the base), coat
+        alphas and frames."""
         coats, probs = [], []
         remaining = torch.ones_like(wi[:, 0])
+        if self.sheen is not None:
+            alpha, weight = self._sheen_at(uv)
+            c = float(self.sheen_color.max())
+            probs.append(weight * c * self.sheen_albedo(wi[:, 2].clamp(0, 1), alpha) * (wi[:, 2] > 0))
+            remaining = remaining * (1 - probs[-1])
         for i in reversed(range(len(self.coats))):
             alpha, weight, frame = self._coat_at(i, uv)
             mu = to_local(wi, *frame)[:, 2]
@@ -248,6 +324,11 @@ class LayeredMaterial(Material):
             coats.append((alpha.clamp(min=ALPHA_MIN), frame))
         probs.append(remaining)
         return torch.stack(probs, -1), coats
+
+    @property
+    def _first_coat(self) -> int:
+        """Index of the top coat among the mixture's components (after the sheen, if any)."""
+        return 0 if self.sheen is None else 1
 
     def _base_query(self, wi: torch.Tensor, uv: torch.Tensor, wo: torch.Tensor | None = None) -> Query:
         return Query(wi, wo, uv=uv) if self.base.spatially_varying else Query(wi, wo)
@@ -272,14 +353,17 @@ class LayeredMaterial(Material):
         else:
             wo, base_ok = sample_cosine_hemisphere(u2), torch.ones_like(pick, dtype=torch.bool)
         up = q.wi.new_tensor([0.0, 0.0, 1.0])
+        first = self._first_coat
+        if self.sheen is not None:
+            wo = torch.where((pick == 0).unsqueeze(-1), sample_cosine_hemisphere(u2), wo)
         for k, (alpha, frame) in enumerate(coats):
             li = to_local(q.wi, *frame)
             safe = torch.where((li[:, 2] > 0).unsqueeze(-1), li, up)
             lw = to_world(sample_ggx_reflection(safe, u2, alpha, alpha), *frame)
-            wo = torch.where((pick == k).unsqueeze(-1), lw, wo)
+            wo = torch.where((pick == first + k).unsqueeze(-1), lw, wo)
         wo = wo / wo.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         pdf = self._mixture_pdf(q.with_wo(wo), probs, coats)
-        valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & ((pick < len(coats)) | base_ok)
+        valid = (wo[:, 2] > 0) & (q.wi[:, 2] > 0) & ((pick < first + len(coats)) | base_ok)
         return wo, torch.where(valid, pdf, torch.zeros_like(pdf))
 
     def pdf(self, q: Query) -> torch.Tensor:
@@ -295,12 +379,15 @@ class LayeredMaterial(Material):
         else:
             base = cosine_hemisphere_pdf(q.wo)
         pdf = probs[:, -1] * base
+        if self.sheen is not None:
+            pdf = pdf + probs[:, 0] * cosine_hemisphere_pdf(q.wo)
         up = q.wi.new_tensor([0.0, 0.0, 1.0])
         for k, (alpha, frame) in enumerate(coats):
+            p = probs[:, self._first_coat + k]
             li, lo = to_local(q.wi, *frame), to_local(q.wo, *frame)
-            ok = (probs[:, k] > 0) & (li[:, 2] > 0) & (lo[:, 2] > 0)
+            ok = (p > 0) & (li[:, 2] > 0) & (lo[:, 2] > 0)
             safe_i = torch.where(ok.unsqueeze(-1), li, up)
             safe_o = torch.where(ok.unsqueeze(-1), lo, up)
             lobe = ggx_reflection_pdf(safe_i, safe_o, alpha, alpha)
-            pdf = pdf + torch.where(ok, probs[:, k] * lobe, torch.zeros_like(lobe))
+            pdf = pdf + torch.where(ok, p * lobe, torch.zeros_like(lobe))
         return torch.where((q.wo[:, 2] > 0) & (q.wi[:, 2] > 0), pdf, torch.zeros_like(pdf))
