@@ -30,6 +30,10 @@ charged for its bases and means ("PCA"); "PCA paper" is charged only its per-tex
 compression ratios of the paper's Table 5 imply (PCA (64) at half of SparseBTF (32)'s 2122: 22801 x 3 / 64).
 Both PCAs split their components over Y, U, V to minimise the log-YUV error (`pca_btf.best_ranks`) of one
 `pca_btf.decompose` per test BTF ("PCA decomposition s"). Test BTFs are generated one at a time.
+After the shared dictionary is trained (or loaded), every test BTF is one job (`code_test_btf`): one after
+another in this process, or with `--engine ray` as Ray tasks (`neumat.cli.fit_engines`, as `neumat fit-many`)
+on a local instance (`--workers N`) or a cluster (`--address` / $RAY_ADDRESS). A test BTF that fails is left
+out of the tables and named above them; the others finish.
 --oracle adds "oracle sparse MSE" / "oracle sparse log MSE": the test BTF coded with a dictionary trained on
 itself alone, a bound on what a better training set could give. "coding s (all rates)" codes a test BTF at
 every --mults rate with one projection of its data points (`SparseBTF.encode_rates`). "statistics share" is
@@ -51,13 +55,17 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import socket
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import torch
+from rich.console import Console
 
 from neumat.cli.common import print_table
+from neumat.cli.fit_engines import RunProgress, run_local, run_ray
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
@@ -364,6 +372,86 @@ def throughput(model, n, device, reps=3):
     return n * reps / (time.perf_counter() - t)
 
 
+def code_test_btf(job: dict) -> dict:
+    """One test BTF of the benchmark (the shared dictionary trained before): generate it, code it at every rate,
+    fit the PCAs (and --oracle / --neubrdf), score them. Its row: {"name", "model", "status" ("ok" or "error"),
+    "error", "worker", "seconds", "rows" (the table's, one per rate), "neu_rows", "models" ({mult: SparseBTF}),
+    and with job["keep_btf"] "btf_and_decomposition" (for --render)}."""
+    t0 = time.perf_counter()
+    out = {"name": job["name"], "model": "sparse-btf", "status": "ok", "error": None,
+           "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    try:
+        out.update(score_test_btf(job))
+    except Exception as e:  # noqa: BLE001 - one failing test BTF must not stop the tables
+        out.update(status="error", error=f"{type(e).__name__}: {e}")
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def lost_test_btf(job: dict, error: BaseException) -> dict:
+    """The row of a test BTF whose Ray task was lost (its worker died on every try)."""
+    return {"name": job["name"], "model": "sparse-btf", "status": "error", "error": f"{type(error).__name__}: {error}",
+            "worker": None, "seconds": 0.0}
+
+
+def score_test_btf(job: dict) -> dict:
+    """The measurements of `code_test_btf` (without the status keys)."""
+    name, args, dirs, dic, tau_l, mults = (job[k] for k in ("name", "args", "dirs", "dic", "tau_l", "mults"))
+    taus = {m: tuple(t * m for t in tau_l) for m in mults}                 # tau_t per rate
+    rows, models, rows_by, neu_rows = [], {}, {}, []
+    t = time.perf_counter()
+    btf = generate_material(name, args, dirs)
+    print(f"test BTF {name} ({args.size}x{args.size} texels) generated in {time.perf_counter() - t:.1f} s")
+    t = time.perf_counter()
+    coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, list(taus.values()), statistics=args.statistics)))
+    code_s = time.perf_counter() - t
+    if args.oracle:
+        t = time.perf_counter()
+        own = train_dictionary([btf], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
+                               sample_fraction=args.sample_fraction, progress=True, statistics=args.statistics)
+        oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, list(taus.values()), statistics=args.statistics)))
+        print(f"oracle dictionary of {name} trained and used in {time.perf_counter() - t:.1f} s")
+    budgets = {m: sp.storage(statistics_bytes=args.statistics_bytes)["per_btf"] for m, sp in coded.items()}
+    totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}
+    paper_totals = {m: b // (2 * args.size * args.size) for m, b in budgets.items()}   # fp16 per texel
+    t = time.perf_counter()
+    dec = decompose(btf, dic.log_eps, max(*totals.values(), *paper_totals.values()))
+    pca_s = time.perf_counter() - t
+    for mult, sp in coded.items():
+        st = sp.storage(statistics_bytes=args.statistics_bytes)
+        ranks = best_ranks(dec.eigenvalues, totals[mult])
+        paper_ranks = best_ranks(dec.eigenvalues, paper_totals[mult])
+        pca = fit_pca(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
+        pca_paper = fit_pca(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
+        decoded, pca_decoded = sp.decode(), pca.decode()
+        rows.append({"btf": name, "tau_t (Y,U,V)": str(taus[mult]),
+                     "coefficients": st["coefficients"],
+                     "sparse MSE": mse(btf, decoded), "PCA ranks": str(ranks),
+                     "PCA MSE": mse(btf, pca_decoded),
+                     "sparse log MSE": log_mse(btf, decoded, dic.log_eps),
+                     "PCA log MSE": log_mse(btf, pca_decoded, dic.log_eps),
+                     "PCA paper ranks": str(paper_ranks),
+                     "PCA paper MSE": mse(btf, pca_paper.decode()), "per-BTF bytes": st["per_btf"],
+                     "statistics share": st["statistics"] / st["per_btf"],
+                     "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
+                     "compression": st["compression_ratio"], "coding s (all rates)": code_s,
+                     "PCA decomposition s": pca_s})
+        if args.oracle:
+            own_decoded = oracle[mult].decode()
+            rows[-1] |= {"oracle sparse MSE": mse(btf, own_decoded),
+                         "oracle sparse log MSE": log_mse(btf, own_decoded, dic.log_eps)}
+            del own_decoded
+        del decoded, pca_decoded
+        models[mult] = sp
+        rows_by[(name, mult)] = rows[-1]
+    if args.neubrdf:
+        neu_rows = neubrdf_rows(name, btf, mults, rows_by, dic.log_eps, args)
+    out = {"rows": rows, "neu_rows": neu_rows, "models": models}
+    if job["keep_btf"]:
+        out["btf_and_decomposition"] = (btf, dec)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=40)
@@ -416,6 +504,11 @@ def main():
     ap.add_argument("--neubrdf-batch", type=int, default=4096)
     ap.add_argument("--neubrdf-nside", type=int, default=4)
     ap.add_argument("--neubrdf-hidden", type=int, default=32)
+    ap.add_argument("--engine", choices=("local", "ray"), default="local",
+                    help="local: the test BTFs one after another here; ray: each test BTF a Ray task")
+    ap.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
+    ap.add_argument("--address", default=None,
+                    help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
     ap.add_argument("--render", action="store_true", help="render a plane and the bunny (benchmarks/results/)")
     ap.add_argument("--render-spp", type=int, default=16)
     ap.add_argument("--render-size", type=int, default=128)
@@ -443,60 +536,29 @@ def main():
         if args.save_dictionary:
             print(f"dictionary written to {dic.save(args.save_dictionary)}")
 
-    rows, models, rows_by, neu_rows, first = [], {}, {}, [], None
     mults = [int(m) for m in args.mults.split(",")]
+    jobs = [{"name": name, "args": args, "dirs": dirs, "dic": dic, "tau_l": tau_l, "mults": mults,
+             "keep_btf": args.render and i == 0} for i, name in enumerate(test)]
+    console = Console(stderr=True)
+    progress = RunProgress(len(jobs), console)
+    if args.engine == "ray":  # every test BTF is a Ray task: the tables can come from a cluster
+        stream = run_ray(jobs, code_test_btf, progress, workers=args.workers, address=args.address,
+                         gpus_per_task=0.0, retries=2, log=console.print, lost=lost_test_btf)
+    else:
+        stream = run_local(jobs, code_test_btf, progress)
+    done = {r["name"]: r for r in stream}
+    results = [done[name] for name in test]
+    ok = [r for r in results if r["status"] == "ok"]
+    failed = [f"{r['name']}: {r['error']}" for r in results if r["status"] != "ok"]
+    rows = [row for r in ok for row in r["rows"]]
+    neu_rows = [row for r in ok for row in r["neu_rows"]]
+    models = {(r["name"], mult): sp for r in ok for mult, sp in r["models"].items()}
     taus = {m: tuple(t * m for t in tau_l) for m in mults}                 # tau_t per rate
-    for name in test:
-        t = time.perf_counter()
-        btf = generate_material(name, args, dirs)
-        print(f"test BTF {name} ({args.size}x{args.size} texels) generated in {time.perf_counter() - t:.1f} s")
-        t = time.perf_counter()
-        coded = dict(zip(mults, SparseBTF.encode_rates(btf, dic, list(taus.values()), statistics=args.statistics)))
-        code_s = time.perf_counter() - t
-        if args.oracle:
-            t = time.perf_counter()
-            own = train_dictionary([btf], args.dictionaries, tau_l, args.patch, max_iters=args.iterations,
-                                   sample_fraction=args.sample_fraction, progress=True, statistics=args.statistics)
-            oracle = dict(zip(mults, SparseBTF.encode_rates(btf, own, list(taus.values()), statistics=args.statistics)))
-            print(f"oracle dictionary of {name} trained and used in {time.perf_counter() - t:.1f} s")
-        budgets = {m: sp.storage(statistics_bytes=args.statistics_bytes)["per_btf"] for m, sp in coded.items()}
-        totals = {m: rank_budget(b, dirs.shape[0], dirs.shape[0], args.size, args.size) for m, b in budgets.items()}
-        paper_totals = {m: b // (2 * args.size * args.size) for m, b in budgets.items()}   # fp16 per texel
-        t = time.perf_counter()
-        dec = decompose(btf, dic.log_eps, max(*totals.values(), *paper_totals.values()))
-        pca_s = time.perf_counter() - t
-        for mult, sp in coded.items():
-            st = sp.storage(statistics_bytes=args.statistics_bytes)
-            ranks = best_ranks(dec.eigenvalues, totals[mult])
-            paper_ranks = best_ranks(dec.eigenvalues, paper_totals[mult])
-            pca = fit_pca(btf, ranks, log_eps=dic.log_eps, decomposition=dec)
-            pca_paper = fit_pca(btf, paper_ranks, log_eps=dic.log_eps, decomposition=dec)
-            decoded, pca_decoded = sp.decode(), pca.decode()
-            rows.append({"btf": name, "tau_t (Y,U,V)": str(taus[mult]),
-                         "coefficients": st["coefficients"],
-                         "sparse MSE": mse(btf, decoded), "PCA ranks": str(ranks),
-                         "PCA MSE": mse(btf, pca_decoded),
-                         "sparse log MSE": log_mse(btf, decoded, dic.log_eps),
-                         "PCA log MSE": log_mse(btf, pca_decoded, dic.log_eps),
-                         "PCA paper ranks": str(paper_ranks),
-                         "PCA paper MSE": mse(btf, pca_paper.decode()), "per-BTF bytes": st["per_btf"],
-                         "statistics share": st["statistics"] / st["per_btf"],
-                         "PCA bytes": pca.storage()["total"], "total bytes (+dict)": st["total"],
-                         "compression": st["compression_ratio"], "coding s (all rates)": code_s,
-                         "PCA decomposition s": pca_s})
-            if args.oracle:
-                own_decoded = oracle[mult].decode()
-                rows[-1] |= {"oracle sparse MSE": mse(btf, own_decoded),
-                             "oracle sparse log MSE": log_mse(btf, own_decoded, dic.log_eps)}
-                del own_decoded
-            del decoded, pca_decoded
-            models[(name, mult)] = sp
-            rows_by[(name, mult)] = rows[-1]
-        if args.neubrdf:
-            neu_rows += neubrdf_rows(name, btf, mults, rows_by, dic.log_eps, args)
-        if first is None and args.render:
-            first = btf, dec
-        del btf, dec
+    first = results[0].get("btf_and_decomposition")
+    if failed:
+        print("failed test BTFs (not in the tables): " + "; ".join(failed))
+    if not ok:
+        raise SystemExit("no test BTF was coded")
     table("SparseBTF vs PCA at equal per-BTF storage (MSE on linear RGB apparent BRDF and in log-YUV)", rows)
     table("summary per rate: test BTFs where SparseBTF's MSE is below PCA's in both spaces, in one, in neither; "
           "geometric means of PCA MSE / sparse MSE (> 1: SparseBTF better)", win_summary(rows, mults, taus))
@@ -505,7 +567,9 @@ def main():
         table(f"NeuBRDF + neural texture at SparseBTF's per-BTF bytes (N_side {args.neubrdf_nside}, k 8, b 6, MLP 2 x "
               f"{args.neubrdf_hidden}; {args.neubrdf_steps} steps of {args.neubrdf_batch} table entries)", neu_rows)
 
-    if args.render:
+    if args.render and first is None:
+        print(f"--render: skipped, test BTF {test[0]} failed")
+    elif args.render:
         name = test[0]
         # the SparseBTF is rendered through its coefficient-space eval (Eq. 6, the paper's runtime path: angular
         # interpolation in log space) and through its decoded table (linear interpolation, as the reference)
@@ -522,7 +586,8 @@ def main():
               f"written to {out}", render_figures(figure_models, out, args.render_spp, args.render_size))
 
     speed_mult = 2 if 2 in mults else mults[0]
-    sp = models[(test[0], speed_mult)]
+    speed_btf = ok[0]["name"]
+    sp = models[(speed_btf, speed_mult)]
     dev_rows = []
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     for device in devices:
@@ -540,7 +605,7 @@ def main():
     if opengl_available():
         dev_rows.append({"device": "OpenGL (EGL)", "angular interpolation": "exported GLSL (coefficient)",
                          "evals / s": glsl_throughput(sp, args.queries)})
-    table(f"reconstruction throughput ({test[0]}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)",
+    table(f"reconstruction throughput ({speed_btf}, tau x{speed_mult}, 4 texels x 3x3 direction bins per query)",
           dev_rows)
 
 

@@ -15,9 +15,14 @@ Models are registry names, optionally with config overrides for ablations, e.g.
 (default benchmarks/results/multiscale.md) and the per-scale FLIP chart (the paper's Fig. 4) beside it
 (<stem>_flip.png).
 A long run can be split across processes by --models, each with `--save part.json`, then reported together
-with `--merge a.json b.json --markdown`.
+with `--merge a.json b.json --markdown`. Every (texture set, model) pair is one job (`fit_pair`, from fresh
+seeded sources, so its scores do not depend on the other pairs): one after another in this process, or with
+`--engine ray` as Ray tasks (`neumat.cli.fit_engines`, as `neumat fit-many`) on a local instance (`--workers N`)
+or a cluster (`--address` / $RAY_ADDRESS). A pair that fails is left out of the means and named under the
+tables; the others finish.
 
     python benchmarks/multiscale.py --quick
+    python benchmarks/multiscale.py --quick --engine ray --workers 2
     python benchmarks/multiscale.py --device cuda --steps 100000 --batch 65536 --max-size 1024
 """
 from __future__ import annotations
@@ -25,6 +30,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import socket
 import sys
 import time
 from dataclasses import replace
@@ -32,7 +39,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from rich.console import Console
 
+from neumat.cli.fit_engines import RunProgress, run_local, run_ray
 from neumat.core.material import Material
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.recipe import recipe_for
@@ -116,50 +125,104 @@ def plot_per_scale(curves: dict[str, np.ndarray], path: Path) -> None:
 
 
 def fit_and_score(args, folders: list[Path], device) -> dict:
-    """Fit every model of args.models to every texture set and score it. Returns {"materials": [names],
-    "models": [specs], "per_scale": {model: [per-scale FLIP (scales,) per material]}, "rows": {model: [metrics
-    per material]}, "settings": the budget}."""
+    """Fit every model of args.models to every texture set and score it, each (texture set, model) pair one job
+    (`fit_pair`) run by `args.engine`. Returns {"materials": [names], "models": [specs], "per_scale": {model:
+    [per-scale FLIP (scales,) per material, None where the pair failed]}, "rows": {model: [metrics per material,
+    or None]}, "settings": the budget, "failed": ["model on material: error"]}."""
     lights, tilts = (LIGHTS[:2], TILTS[1:2]) if args.quick else (LIGHTS, TILTS)
-    per_scale: dict[str, list[list[float]]] = {m: [] for m in args.models}
-    rows: dict[str, list[dict]] = {m: [] for m in args.models}
-    materials, pyramids = [], []
-    for folder in folders:
-        textures = load_texture_set(folder, max_size=args.max_size).to(device)
-        materials.append(textures.name)
-        source = SVBRDF(textures, samples=args.samples)
-        reference = SVBRDF(textures, samples=args.ref_samples, seed=1)
-        size = 1 << int(math.floor(math.log2(max(textures.size))))
-        pyramids.append(size)
-        scales = plane_scales(args.scales, args.resolution, max(textures.size))
-        print(f"\n== {textures.name} ({textures.size[1]}x{textures.size[0]}), model pyramids {size}^2, "
-              f"{args.steps} steps x {args.batch} queries, {args.samples}-sample targets")
-        t = time.perf_counter()
-        ref_images = render_set(reference, scales, lights, tilts, args.resolution, device)
-        print(f"reference: {len(ref_images)} images in {time.perf_counter() - t:.0f} s")
-        for name in args.models:
-            torch.manual_seed(0)
-            model = build_model(model_spec(name, size)).to(device)
-            recipe = replace(recipe_for(model.name), steps=args.steps, batch_size=args.batch)
-            if args.short_run_optimiser:
-                recipe = replace(recipe, lr=1e-2, betas=(0.9, 0.999), ema=0.02, lr_decay_every=0)
-            result = fit(model, source, recipe, device=device, progress=True)
-            images = render_set(result.model, scales, lights, tilts, args.resolution, device)
-            metrics = [image_metrics(r, m) for r, m in zip(ref_images, images)]
-            per_img = len(lights) * len(tilts)
-            per_scale[name].append([float(np.mean([m["flip"] for m in metrics[i * per_img:(i + 1) * per_img]]))
-                                    for i in range(len(scales))])
-            hdr = reflectance_errors(result.model, reference, n=args.hdr_queries, device=device,
-                                     query_sampler=footprint_queries(reference, model))
-            rows[name].append({**{k: float(np.mean([m[k] for m in metrics])) for k in ("ssim", "flip", "rmse", "mae")},
-                               "rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"],
-                               "steps_per_s": result.steps / result.seconds})
-            print(f"{name}: FLIP {rows[name][-1]['flip']:.4f}, fit {result.seconds:.0f} s")
     settings = {"steps": args.steps, "batch": args.batch, "samples": args.samples, "ref_samples": args.ref_samples,
                 "max_size": args.max_size, "resolution": args.resolution, "scales": args.scales,
                 "hdr_queries": args.hdr_queries, "short_run_optimiser": args.short_run_optimiser,
                 "lights": len(lights), "cameras": len(tilts), "device": device.type}
+    jobs = [{"folder": str(folder), "model": name, "settings": settings, "lights": lights, "tilts": tilts,
+             "device": str(device)} for folder in folders for name in args.models]
+    console = Console(stderr=True)
+    progress = RunProgress(len(jobs), console)
+    if args.engine == "ray":  # every (texture set, model) is a Ray task: the tables can come from a cluster
+        stream = run_ray(jobs, fit_pair, progress, workers=args.workers, address=args.address,
+                         gpus_per_task=1.0 if device.type == "cuda" else 0.0, retries=2, log=console.print,
+                         lost=lost_pair)
+    else:
+        stream = run_local(jobs, fit_pair, progress)
+    done = {(r["folder"], r["model"]): r for r in stream}
+    materials, pyramids, failed = [], [], []
+    per_scale: dict[str, list] = {m: [] for m in args.models}
+    rows: dict[str, list] = {m: [] for m in args.models}
+    for folder in folders:
+        mine = [done[str(folder), name] for name in args.models]
+        ok = [r for r in mine if r["status"] == "ok"]
+        materials.append(ok[0]["material"] if ok else folder.name)
+        pyramids.extend(r["pyramid"] for r in ok[:1])
+        for r in mine:
+            per_scale[r["model"]].append(r["per_scale"] if r["status"] == "ok" else None)
+            rows[r["model"]].append(r["metrics"] if r["status"] == "ok" else None)
+            if r["status"] != "ok":
+                failed.append(f"{r['model']} on {r['name']}: {r['error']}")
     return {"materials": materials, "pyramids": pyramids, "models": list(args.models), "per_scale": per_scale,
-            "rows": rows, "settings": settings}
+            "rows": rows, "settings": settings, "failed": failed}
+
+
+def fit_pair(job: dict) -> dict:
+    """Fit and score one (texture set, model) pair of `fit_and_score`: its row, with status "ok" (per_scale,
+    metrics, pyramid, material), or "error" and the error."""
+    t0 = time.perf_counter()
+    folder = Path(job["folder"])
+    row = {"name": folder.name, "folder": job["folder"], "model": job["model"], "status": "ok", "error": None,
+           "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    try:
+        row.update(score_pair(folder, job["model"], job["settings"], job["lights"], job["tilts"],
+                              torch.device(job["device"])))
+    except Exception as e:  # noqa: BLE001 - one failing pair must not stop the tables
+        row.update(status="error", error=f"{type(e).__name__}: {e}")
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def lost_pair(job: dict, error: BaseException) -> dict:
+    """The row of a pair whose Ray task was lost (its worker died on every try)."""
+    return {"name": Path(job["folder"]).name, "folder": job["folder"], "model": job["model"], "status": "error",
+            "error": f"{type(error).__name__}: {error}", "worker": None, "seconds": 0.0}
+
+
+#: (texture set, settings) -> reference images and the reference's generator state after rendering them, so that
+#: the pairs of one texture set run in one process render them once and every pair scores the same
+_REFERENCES: dict = {}
+
+
+def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list[float], device) -> dict:
+    """Fit model spec `name` to the texture set in `folder` with the budget `st` and score it: per-scale FLIP
+    (scales,), the Table-6 metrics, the model's pyramid size and the material's name."""
+    textures = load_texture_set(folder, max_size=st["max_size"]).to(device)
+    source = SVBRDF(textures, samples=st["samples"])
+    reference = SVBRDF(textures, samples=st["ref_samples"], seed=1)
+    size = 1 << int(math.floor(math.log2(max(textures.size))))
+    scales = plane_scales(st["scales"], st["resolution"], max(textures.size))
+    key = (str(folder), json.dumps(st, sort_keys=True), tuple(lights), tuple(tilts), str(device))
+    if key not in _REFERENCES:
+        t = time.perf_counter()
+        _REFERENCES.clear()  # one texture set's images at a time
+        images = render_set(reference, scales, lights, tilts, st["resolution"], device)
+        _REFERENCES[key] = (images, reference.generator.get_state())
+        print(f"{textures.name}: reference {len(images)} images in {time.perf_counter() - t:.0f} s")
+    ref_images, state = _REFERENCES[key]
+    reference.generator.set_state(state)
+    torch.manual_seed(0)
+    model = build_model(model_spec(name, size)).to(device)
+    recipe = replace(recipe_for(model.name), steps=st["steps"], batch_size=st["batch"])
+    if st["short_run_optimiser"]:
+        recipe = replace(recipe, lr=1e-2, betas=(0.9, 0.999), ema=0.02, lr_decay_every=0)
+    result = fit(model, source, recipe, device=device, progress=True)
+    images = render_set(result.model, scales, lights, tilts, st["resolution"], device)
+    metrics = [image_metrics(r, m) for r, m in zip(ref_images, images)]
+    per_img = len(lights) * len(tilts)
+    per_scale = [float(np.mean([m["flip"] for m in metrics[i * per_img:(i + 1) * per_img]]))
+                 for i in range(len(scales))]
+    hdr = reflectance_errors(result.model, reference, n=st["hdr_queries"], device=device,
+                             query_sampler=footprint_queries(reference, model))
+    scores = {**{k: float(np.mean([m[k] for m in metrics])) for k in ("ssim", "flip", "rmse", "mae")},
+              "rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"], "steps_per_s": result.steps / result.seconds}
+    print(f"{textures.name} / {name}: FLIP {scores['flip']:.4f}, fit {result.seconds:.0f} s")
+    return {"per_scale": per_scale, "metrics": scores, "pyramid": size, "material": textures.name}
 
 
 def merge_results(paths: list[Path]) -> dict:
@@ -172,7 +235,8 @@ def merge_results(paths: list[Path]) -> dict:
                 raise SystemExit(f"--merge: {path} has other {key} than {paths[0]}: {part[key]} vs {first[key]}")
     merged = {"materials": first["materials"], "settings": first["settings"], "models": [], "per_scale": {},
               "pyramids": first.get("pyramids"),
-              "rows": {}, "commands": [c for part in parts for c in part.get("commands", [])]}
+              "rows": {}, "commands": [c for part in parts for c in part.get("commands", [])],
+              "failed": [f for part in parts for f in part.get("failed", [])]}
     for part in parts:
         for name in part["models"]:
             if name in merged["per_scale"]:
@@ -186,18 +250,21 @@ def merge_results(paths: list[Path]) -> dict:
 def report(results: dict, device, markdown: Path | None) -> None:
     """Print the per-scale FLIP, per-material FLIP and Table-6-style tables; with `markdown` (a .md path), also
     write them there and the per-scale chart beside it (<stem>_flip.png)."""
-    st, models, materials = results["settings"], results["models"], results["materials"]
+    st, materials = results["settings"], results["materials"]
+    # a failed pair is None in per_scale / rows: means over the model's other materials; no pair left: no row
+    models = [m for m in results["models"] if any(r is not None for r in results["rows"][m])]
     lines = [f"Per-scale FLIP (mean over {len(materials)} material(s), {st['lights']} lights, {st['cameras']} "
              "cameras; scale 0 = finest)", "", "| model | " + " | ".join(str(i) for i in range(st["scales"])) + " |",
              "|---" * (st["scales"] + 1) + "|"]
     for name in models:
-        curve = np.mean(results["per_scale"][name], 0)
+        curve = np.mean([c for c in results["per_scale"][name] if c is not None], 0)
         lines.append(f"| {name} | " + " | ".join(f"{v:.4f}" for v in curve) + " |")
     if len(materials) > 1:
         lines += ["", "Mean FLIP per material", "", "| model | " + " | ".join(materials) + " |",
                   "|---" * (len(materials) + 1) + "|"]
         for name in models:
-            lines.append(f"| {name} | " + " | ".join(f"{r['flip']:.4f}" for r in results["rows"][name]) + " |")
+            lines.append(f"| {name} | " + " | ".join("failed" if r is None else f"{r['flip']:.4f}"
+                                                     for r in results["rows"][name]) + " |")
     print("\n" + "\n".join(lines))
 
     n = 1 << 16
@@ -210,6 +277,7 @@ def report(results: dict, device, markdown: Path | None) -> None:
               torch.zeros(n, device=device))
     with torch.no_grad():
         ggx_rate = evals_per_second(lambda: principled_eval(q.wi, q.wo, *params), n, device)
+    table6 = len(lines)
     lines += ["", f"Table 6 style ({st['steps']} steps of {st['batch']} queries per model, {st['samples']}-sample "
               "targets; paper: ~500k steps of 65536)", "",
               "| model | SSIM | FLIP | RMSE | MAE | RMSE-HDR | MAE-HDR | kB fp32 | FLOPs | steps/s | eval/s | x GGX |",
@@ -218,14 +286,16 @@ def report(results: dict, device, markdown: Path | None) -> None:
         model = build_model(model_spec(name, size)).to(device)
         with torch.no_grad():
             rate = evals_per_second(lambda: model.eval(q), n, device)
-        rows = results["rows"][name]
+        rows = [row for row in results["rows"][name] if row is not None]
         r = {k: float(np.mean([row[k] for row in rows])) for k in rows[0]}
         lines.append(f"| {name} | {r['ssim']:.4f} | {r['flip']:.4f} | {r['rmse']:.4f} | {r['mae']:.4f} | "
                      f"{r['rmse_hdr']:.4f} | {r['mae_hdr']:.4f} | {model.size_bytes('fp32') / 1e3:.1f} | "
                      f"{model_flops(model)} | {r['steps_per_s']:.2f} | {rate:.3g} | {ggx_rate / rate:.1f} |")
     lines += ["", f"principled GGX point evaluation: {ggx_rate:.3g} eval/s; \"x GGX\" = GGX evaluations per second "
               f"/ the model's (same batch of 65536 queries; models with {size}^2 pyramids)."]
-    print("\n".join(lines[-len(models) - 6:]))
+    if results.get("failed"):
+        lines += ["", "Failed pairs (left out of the means): " + "; ".join(results["failed"])]
+    print("\n".join(lines[table6:]))
     if markdown:
         chart = markdown.with_name(markdown.stem + "_flip.png")
         header = [f"# Multi-scale SVBRDF benchmark ({', '.join(materials)})", "",
@@ -260,6 +330,11 @@ def main() -> None:
     ap.add_argument("--save", type=Path, default=None, help="also write the fitted models' scores to this JSON file")
     ap.add_argument("--merge", type=Path, nargs="+", default=None,
                     help="fit nothing: report the scores of several --save files (e.g. runs split by --models)")
+    ap.add_argument("--engine", choices=("local", "ray"), default="local",
+                    help="local: the (texture set, model) pairs one after another here; ray: each pair a Ray task")
+    ap.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
+    ap.add_argument("--address", default=None,
+                    help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
     ap.add_argument("--markdown", type=Path, nargs="?", const=RESULTS / "multiscale.md", default=None,
                     help="write the tables to this .md file (default benchmarks/results/multiscale.md) and the "
                          "per-scale chart beside it (<stem>_flip.png)")

@@ -30,6 +30,10 @@ Scores on held-out queries: "point log_cos" / "point rel L1" at point queries (c
 uniform uv), "filtered log_cos" at Eq. 9 footprints against the SVBRDF's filtered value (256 samples);
 "sampler gain" = rel var of cosine-sampled / model-sampled one-sample albedo estimates at 45 degrees and
 uniform uv (neural-appearance variants). The texture set is read at --size texels (`max_size`).
+Every (texture set, variant) pair is one job (`fit_pair`, from fresh seeded sources, so its scores do not depend
+on the other pairs): one after another in this process, or with `--engine ray` as Ray tasks
+(`neumat.cli.fit_engines`, as `neumat fit-many`) on a local instance (`--workers N`) or a cluster (`--address` /
+$RAY_ADDRESS). A pair that fails is left out of the table and named under it; the others finish.
 
 --speed: evaluations per second on the CPU instead (no training; speed does not depend on the weights):
 model.eval, model.sample and the SVBRDF reference's point value (`eval_point`) on the same 2^16 point
@@ -42,10 +46,16 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import socket
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import torch
+from rich.console import Console
+
+from neumat.cli.fit_engines import RunProgress, run_local, run_ray
 from neumat.cli.common import print_table
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
@@ -157,6 +167,67 @@ def speed_rows(name: str, source, size: int, n: int) -> list[dict]:
     return rows
 
 
+#: the neural-appearance variants: config fields, phase split (encoder, latent) and recipe options
+HALF = (0.5, 0.5)
+NA_VARIANTS = {"full": ({}, HALF, {}), "no encoder": ({}, (0.0, 1.0), {}), "1 frame": ({"frames": 1}, HALF, {}),
+               "half-difference": ({}, HALF, {"queries": "rusinkiewicz"}),
+               "blurred": ({}, HALF, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5}),
+               "roulette": ({"level_selection": "roulette"}, HALF, {})}
+#: the baselines: model class and loss (None: the recipe's own)
+BASELINES = {"neumip-frame": (NeuMIPFrame, "log_cos"), "neumip-frame (Eq. 10 loss)": (NeuMIPFrame, None),
+             "ggx-mipmap": (GGXMipmap, "log_cos")}
+
+
+def fit_pair(job: dict) -> dict:
+    """One (texture set, variant) pair of the table: {"name": set, "model": variant, "status": "ok" with "row"
+    (the table's row), or "error" and the error, "worker", "seconds"}."""
+    t0 = time.perf_counter()
+    out = {"name": job["set"], "model": job["variant"], "status": "ok", "error": None,
+           "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    try:
+        out["row"] = score_variant(job)
+    except Exception as e:  # noqa: BLE001 - one failing pair must not stop the table
+        out.update(status="error", error=f"{type(e).__name__}: {e}")
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def lost_pair(job: dict, error: BaseException) -> dict:
+    """The row of a pair whose Ray task was lost (its worker died on every try)."""
+    return {"name": job["set"], "model": job["variant"], "status": "error",
+            "error": f"{type(error).__name__}: {error}", "worker": None, "seconds": 0.0}
+
+
+def score_variant(job: dict) -> dict:
+    """Fit `job["variant"]` to texture set `job["set"]` (fresh seeded sources) and score it on held-out queries."""
+    folder = Path(job["data_dir"]) / "svbrdf" / job["set"]
+    train_src = open_source(folder, job["size"], job["train_samples"], job["coat"])
+    size = 1 << (min(train_src.texture_size if job["coat"] else train_src.textures.size).bit_length() - 1)
+    data = held_out(open_source(folder, job["size"], 256, job["coat"]), job["queries"])
+    variant = job["variant"]
+    torch.manual_seed(0)
+    if variant in NA_VARIANTS:
+        config, split, options = NA_VARIANTS[variant]
+        model = NeuralAppearance(**{**config_for_source(train_src), **config})
+        recipe = recipe_for("neural-appearance")
+        fields = {k: options[k] for k in options if k == "queries"}  # a recipe field, not an option
+        recipe = replace(recipe, batch_size=job["batch"], phase_split=split, **fields,
+                         options={**recipe.options, **{k: v for k, v in options.items() if k not in fields}})
+    else:
+        kind, loss = BASELINES[variant]
+        model = kind(spatial_size=size)
+        recipe = replace(recipe_for(kind.name), batch_size=job["batch"], lr_decay_every=0)
+        recipe.loss = loss or recipe.loss
+    t = time.perf_counter()
+    fit(model, train_src, recipe, steps=job["steps"], progress=False)
+    seconds = time.perf_counter() - t
+    gain = sampler_gain(model) if variant in NA_VARIANTS else float("nan")
+    row = {"set": job["set"], "model": variant, **scores(model, data), "sampler gain": gain,
+           "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds}
+    print(row, flush=True)
+    return row
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sets", default="Metal027_1K,Leather05_1K_partial,Wood092_1K")
@@ -168,6 +239,11 @@ def main() -> None:
     ap.add_argument("--speed", action="store_true", help="evaluations per second only (module docstring)")
     ap.add_argument("--coat", action="store_true", help="layered sources: a smudged clear coat over each set")
     ap.add_argument("--variants", default=",".join(VARIANTS[:5]), help=f"comma-separated, of: {', '.join(VARIANTS)}")
+    ap.add_argument("--engine", choices=("local", "ray"), default="local",
+                    help="local: the (set, variant) pairs one after another here; ray: each pair a Ray task")
+    ap.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
+    ap.add_argument("--address", default=None,
+                    help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
     args = ap.parse_args()
     chosen = args.variants.split(",")
     unknown = sorted(set(chosen) - set(VARIANTS))
@@ -176,54 +252,35 @@ def main() -> None:
     data_dir = shared_data_dir()
     if data_dir is None:
         raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
-    rows = []
-    for name in args.sets.split(","):
-        folder = data_dir / "svbrdf" / name
-        train_src = open_source(folder, args.size, args.train_samples, args.coat)
-        size = 1 << (min(train_src.texture_size if args.coat else train_src.textures.size).bit_length() - 1)
-        if args.speed:
+    rows, failed = [], []
+    if args.speed:
+        for name in args.sets.split(","):
+            train_src = open_source(data_dir / "svbrdf" / name, args.size, args.train_samples, args.coat)
+            size = 1 << (min(train_src.texture_size if args.coat else train_src.textures.size).bit_length() - 1)
             rows += speed_rows(name, train_src, size, 1 << 16)
-            continue
-        data = held_out(open_source(folder, args.size, 256, args.coat), args.queries)
-        half = (0.5, 0.5)
-        variants = {"full": ({}, half, {}), "no encoder": ({}, (0.0, 1.0), {}), "1 frame": ({"frames": 1}, half, {}),
-                    "half-difference": ({}, half, {"queries": "rusinkiewicz"}),
-                    "blurred": ({}, half, {"blur_degrees": 10.0, "blur_samples": 4, "blur_until": 0.5}),
-                    "roulette": ({"level_selection": "roulette"}, half, {})}
-        for variant, (config, split, options) in variants.items():
-            if variant not in chosen:
-                continue
-            torch.manual_seed(0)
-            model = NeuralAppearance(**{**config_for_source(train_src), **config})
-            na_recipe = recipe_for("neural-appearance")
-            fields = {k: options[k] for k in options if k == "queries"}  # a recipe field, not an option
-            na_recipe = replace(na_recipe, batch_size=args.batch, phase_split=split, **fields,
-                                options={**na_recipe.options, **{k: v for k, v in options.items() if k not in fields}})
-            t = time.perf_counter()
-            fit(model, train_src, na_recipe, steps=args.steps, progress=False)
-            seconds = time.perf_counter() - t
-            rows.append({"set": name, "model": variant, **scores(model, data), "sampler gain": sampler_gain(model),
-                         "bytes (fp16)": model.size_bytes("fp16"), "FLOPs": model.flops(), "fit s": seconds})
-            print(rows[-1], flush=True)
-        baselines = (("neumip-frame", NeuMIPFrame, "log_cos"), ("neumip-frame (Eq. 10 loss)", NeuMIPFrame, None),
-                     ("ggx-mipmap", GGXMipmap, "log_cos"))
-        for variant, kind, loss in baselines:
-            if variant not in chosen:
-                continue
-            torch.manual_seed(0)
-            baseline = kind(spatial_size=size)
-            recipe = replace(recipe_for(kind.name), batch_size=args.batch, lr_decay_every=0)
-            recipe.loss = loss or recipe.loss
-            t = time.perf_counter()
-            fit(baseline, train_src, recipe, steps=args.steps, progress=False)
-            seconds = time.perf_counter() - t
-            rows.append({"set": name, "model": variant, **scores(baseline, data), "sampler gain": float("nan"),
-                         "bytes (fp16)": baseline.size_bytes("fp16"), "FLOPs": baseline.flops(), "fit s": seconds})
-            print(rows[-1], flush=True)
+    else:
+        order = [v for v in VARIANTS if v in chosen]  # the table's order: neural-appearance variants, baselines
+        order = [v for v in order if v in NA_VARIANTS] + [v for v in order if v in BASELINES]
+        jobs = [{"set": name, "variant": v, "data_dir": str(data_dir), "size": args.size, "steps": args.steps,
+                 "batch": args.batch, "train_samples": args.train_samples, "queries": args.queries,
+                 "coat": args.coat} for name in args.sets.split(",") for v in order]
+        console = Console(stderr=True)
+        progress = RunProgress(len(jobs), console)
+        if args.engine == "ray":  # every (set, variant) is a Ray task: the table can come from a cluster
+            stream = run_ray(jobs, fit_pair, progress, workers=args.workers, address=args.address, gpus_per_task=0.0,
+                             retries=2, log=console.print, lost=lost_pair)
+        else:
+            stream = run_local(jobs, fit_pair, progress)
+        done = {(r["name"], r["model"]): r for r in stream}
+        results = [done[j["set"], j["variant"]] for j in jobs]
+        rows = [r["row"] for r in results if r["status"] == "ok"]
+        failed = [f"{r['model']} on {r['name']}: {r['error']}" for r in results if r["status"] != "ok"]
     what = "speed" if args.speed else f"{args.steps} steps x {args.batch}"
     sets = "texture sets under a smudged coat" if args.coat else "texture sets"
     print_table(f"neural-appearance on {args.size}^2 {sets}, {what} ({torch.get_num_threads()} threads)", rows,
                 width=200)
+    if failed:
+        print("failed (not in the table): " + "; ".join(failed))
 
 
 if __name__ == "__main__":
