@@ -29,9 +29,6 @@ from .translucent_observations import Observations
 
 Predict = Callable[[Observations], torch.Tensor]
 
-#: the options every translucent recipe has (see the module docstring)
-OBSERVATION_OPTIONS = ("validation_fraction", "max_validation", "bounds")
-
 
 def observation_mse(predict: Predict, observations: Observations, batch: int = 65536) -> float:
     """Mean squared error of predict on `observations` (per channel), without gradients."""
