@@ -30,7 +30,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                                         "device when neither --steps nor --set steps=N is given, else paper"),
         device: str = typer.Option(None, callback=device_option,
                                   help="torch device (default: cuda if available, else cpu)"),
-        seed: int = typer.Option(None, **SEED_RANGE, 
+        seed: int = typer.Option(None, **SEED_RANGE,
                                 help="seed of the model initialisation and the queries (default: recipe's)"),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
@@ -47,9 +47,9 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     """Fit MODEL to SOURCE through the one trainer, with the model's recipe (the paper's on a GPU, the CPU-sized
     one on a CPU unless --steps or --recipe paper; --set overrides config fields, recipe fields and recipe
     options), and save the model in its shipped (runtime) form as a .nmat file that records the recipe and the
-    source's name and hash; training state lives only in --checkpoint. Models trained in stages (neural-appearance: encoder then latents; neupress:
-    appearance then sampler; sparse-btf: dictionary then coding) run them as phases of the same fit, with
-    --device, --checkpoint and --resume."""
+    source's name and hash; training state lives only in --checkpoint. Models trained in stages
+    (neural-appearance: encoder then latents; neupress: appearance then sampler; sparse-btf: dictionary then
+    coding) run them as phases of the same fit, with --device, --checkpoint and --resume."""
 
     def go():
         from ..fit.trainer import fit as fit_model
@@ -75,8 +75,9 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         shipped = result.model.runtime()
         save_model(shipped, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
                    metrics=metrics)
-        print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss {metrics['final_loss']}; "
-              f"{out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} bytes stored at fp16)")
+        print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss "
+              f"{metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} bytes "
+              "stored at fp16)")
     run_command(go)
 
 
