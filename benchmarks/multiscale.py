@@ -5,9 +5,16 @@ For each texture set and model: fit with the model's recipe (steps / batch / foo
 full-size runs belong on a GPU), then render the plane (one sample through each pixel centre, the material
 filters by the pixel footprint, light sampling of a directional light) for `--scales` texture scales
 (geometric, from 1/8 texel to the whole texture per pixel) x 4 lights x 3 camera tilts, against the
-reference SVBRDF with `--ref-samples` footprint samples. Prints per-scale FLIP, a Table-6-style table
+reference SVBRDF with `--ref-samples` footprint samples. Texture sets are downscaled to `--max-size`, or with
+`--crop N` cut to their top-left N x N texels at full resolution (native texel density: normal and roughness
+detail of the full-size set). Training footprints follow the paper's Eq. 9 distribution in texels of the
+trained texture (`--footprints texel`, the default: the "footprint" sampler's range shifted by log2(1024 / S))
+or, with `--footprints uv`, the paper's uv range whatever the size (most footprints below a texel on small sets).
+Prints per-scale FLIP, a Table-6-style table
 (SSIM, FLIP, RMSE, MAE on tone-mapped images, RMSE/MAE-HDR over random Sec. 4.2 queries), bytes (fp32)
-and FLOPs, training steps/s, and evaluations/s of each model against the principled GGX point evaluation
+and FLOPs (the models' analytic count, 2 per multiply-add, and the paper's, `neumat.metrics.flops.paper_flops`:
+1 per multiply-add, 3 per SiLU), the regime statistics of each set (mean normal tilt, roughness spread), training
+steps/s, and evaluations/s of each model against the principled GGX point evaluation
 on the same batch.
 
 Models are registry names, optionally with config overrides for ablations, e.g.
@@ -47,7 +54,7 @@ from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.texture_set import load_texture_set
-from neumat.metrics.flops import model_flops
+from neumat.metrics.flops import model_flops, paper_flops
 from neumat.metrics.hdr import reflectance_errors
 from neumat.metrics.image import image_metrics
 from neumat.models.registry import build_model
@@ -131,9 +138,10 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
     or None]}, "settings": the budget, "failed": ["model on material: error"]}."""
     lights, tilts = (LIGHTS[:2], TILTS[1:2]) if args.quick else (LIGHTS, TILTS)
     settings = {"steps": args.steps, "batch": args.batch, "samples": args.samples, "ref_samples": args.ref_samples,
-                "max_size": args.max_size, "resolution": args.resolution, "scales": args.scales,
+                "max_size": args.max_size, "crop": args.crop, "footprints": args.footprints,
+                "resolution": args.resolution, "scales": args.scales,
                 "hdr_queries": args.hdr_queries, "short_run_optimiser": args.short_run_optimiser,
-                "lights": len(lights), "cameras": len(tilts), "device": device.type}
+                "lights": len(lights), "cameras": len(tilts), "device": device.type, "seed": args.seed}
     jobs = [{"folder": str(folder), "model": name, "settings": settings, "lights": lights, "tilts": tilts,
              "device": str(device)} for folder in folders for name in args.models]
     console = Console(stderr=True)
@@ -145,7 +153,7 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
     else:
         stream = run_local(jobs, fit_pair, progress)
     done = {(r["folder"], r["model"]): r for r in stream}
-    materials, pyramids, failed = [], [], []
+    materials, pyramids, failed, regimes = [], [], [], []
     per_scale: dict[str, list] = {m: [] for m in args.models}
     rows: dict[str, list] = {m: [] for m in args.models}
     for folder in folders:
@@ -153,12 +161,14 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
         ok = [r for r in mine if r["status"] == "ok"]
         materials.append(ok[0]["material"] if ok else folder.name)
         pyramids.extend(r["pyramid"] for r in ok[:1])
+        regimes.extend(r["regime"] for r in ok[:1])
         for r in mine:
             per_scale[r["model"]].append(r["per_scale"] if r["status"] == "ok" else None)
             rows[r["model"]].append(r["metrics"] if r["status"] == "ok" else None)
             if r["status"] != "ok":
                 failed.append(f"{r['model']} on {r['name']}: {r['error']}")
-    return {"materials": materials, "pyramids": pyramids, "models": list(args.models), "per_scale": per_scale,
+    return {"materials": materials, "pyramids": pyramids, "regimes": regimes, "models": list(args.models),
+            "per_scale": per_scale,
             "rows": rows, "settings": settings, "failed": failed}
 
 
@@ -192,8 +202,10 @@ _REFERENCES: dict = {}
 def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list[float], device) -> dict:
     """Fit model spec `name` to the texture set in `folder` with the budget `st` and score it: per-scale FLIP
     (scales,), the Table-6 metrics, the model's pyramid size and the material's name."""
-    textures = load_texture_set(folder, max_size=st["max_size"]).to(device)
-    source = SVBRDF(textures, samples=st["samples"])
+    crop = st.get("crop")
+    textures = load_texture_set(folder, max_size=None if crop else st["max_size"], crop=crop).to(device)
+    texel_relative = st.get("footprints", "uv") == "texel"
+    source = SVBRDF(textures, samples=st["samples"], seed=st.get("seed", 0))
     reference = SVBRDF(textures, samples=st["ref_samples"], seed=1)
     size = 1 << int(math.floor(math.log2(max(textures.size))))
     scales = plane_scales(st["scales"], st["resolution"], max(textures.size))
@@ -206,23 +218,35 @@ def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list
         print(f"{textures.name}: reference {len(images)} images in {time.perf_counter() - t:.0f} s")
     ref_images, state = _REFERENCES[key]
     reference.generator.set_state(state)
-    torch.manual_seed(0)
+    torch.manual_seed(st.get("seed", 0))
     model = build_model(model_spec(name, size)).to(device)
-    recipe = replace(recipe_for(model.name), steps=st["steps"], batch_size=st["batch"])
+    recipe = replace(recipe_for(model.name), steps=st["steps"], batch_size=st["batch"], seed=st.get("seed", 0))
     if st["short_run_optimiser"]:
         recipe = replace(recipe, lr=1e-2, betas=(0.9, 0.999), ema=0.02, lr_decay_every=0)
-    result = fit(model, source, recipe, device=device, progress=True)
+    result = fit(model, source, recipe, device=device, progress=True,
+                 queries="footprint" if texel_relative else "footprint-uv")
     images = render_set(result.model, scales, lights, tilts, st["resolution"], device)
     metrics = [image_metrics(r, m) for r, m in zip(ref_images, images)]
     per_img = len(lights) * len(tilts)
     per_scale = [float(np.mean([m["flip"] for m in metrics[i * per_img:(i + 1) * per_img]]))
                  for i in range(len(scales))]
     hdr = reflectance_errors(result.model, reference, n=st["hdr_queries"], device=device,
-                             query_sampler=footprint_queries(reference, model))
+                             query_sampler=footprint_queries(reference, model, texel_relative=texel_relative))
     scores = {**{k: float(np.mean([m[k] for m in metrics])) for k in ("ssim", "flip", "rmse", "mae")},
               "rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"], "steps_per_s": result.steps / result.seconds}
     print(f"{textures.name} / {name}: FLIP {scores['flip']:.4f}, fit {result.seconds:.0f} s")
-    return {"per_scale": per_scale, "metrics": scores, "pyramid": size, "material": textures.name}
+    return {"per_scale": per_scale, "metrics": scores, "pyramid": size, "material": textures.name,
+            "regime": regime_statistics(textures)}
+
+
+def regime_statistics(textures) -> dict:
+    """Mean normal tilt (degrees from the geometric normal) and roughness spread (standard deviation, and the
+    5-95 % range) of a texture set: how much detail a fit has to represent."""
+    n, r = textures.normal.float(), textures.roughness.float().flatten()
+    q = torch.quantile(r, torch.tensor([0.05, 0.95], device=r.device))
+    return {"size": list(textures.size), "tilt_deg": float(torch.rad2deg(torch.acos(n[..., 2].clamp(-1, 1))).mean()),
+            "roughness_mean": float(r.mean()), "roughness_std": float(r.std()),
+            "roughness_p5_p95": [float(q[0]), float(q[1])]}
 
 
 def merge_results(paths: list[Path]) -> dict:
@@ -234,7 +258,7 @@ def merge_results(paths: list[Path]) -> dict:
             if part[key] != first[key]:
                 raise SystemExit(f"--merge: {path} has other {key} than {paths[0]}: {part[key]} vs {first[key]}")
     merged = {"materials": first["materials"], "settings": first["settings"], "models": [], "per_scale": {},
-              "pyramids": first.get("pyramids"),
+              "pyramids": first.get("pyramids"), "regimes": first.get("regimes"),
               "rows": {}, "commands": [c for part in parts for c in part.get("commands", [])],
               "failed": [f for part in parts for f in part.get("failed", [])]}
     for part in parts:
@@ -270,7 +294,7 @@ def report(results: dict, device, markdown: Path | None) -> None:
     n = 1 << 16
     g = torch.Generator().manual_seed(0)
     # the speed models get the largest pyramid the fits used (files saved before "pyramids" existed: --max-size)
-    size = max(results.get("pyramids") or [1 << int(math.floor(math.log2(st["max_size"])))])
+    size = max(results.get("pyramids") or [1 << int(math.floor(math.log2(st.get("crop") or st["max_size"])))])
     # Sec. 4.2 queries with footprints; the draw only asks its source whether it is a surface (any Material is)
     q = footprint_queries(Material())(n, g, "cpu").to(device)
     params = (torch.rand(n, 3, device=device), torch.rand(n, device=device), torch.rand(n, device=device),
@@ -280,27 +304,43 @@ def report(results: dict, device, markdown: Path | None) -> None:
     table6 = len(lines)
     lines += ["", f"Table 6 style ({st['steps']} steps of {st['batch']} queries per model, {st['samples']}-sample "
               "targets; paper: ~500k steps of 65536)", "",
-              "| model | SSIM | FLIP | RMSE | MAE | RMSE-HDR | MAE-HDR | kB fp32 | FLOPs | steps/s | eval/s | x GGX |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| model | SSIM | FLIP | RMSE | MAE | RMSE-HDR | MAE-HDR | kB fp32 | FLOPs | FLOPs (paper) | steps/s | "
+              "eval/s | x GGX |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in models:
         model = build_model(model_spec(name, size)).to(device)
         with torch.no_grad():
             rate = evals_per_second(lambda: model.eval(q), n, device)
+        counted = paper_flops(model, q[:4096])
         rows = [row for row in results["rows"][name] if row is not None]
         r = {k: float(np.mean([row[k] for row in rows])) for k in rows[0]}
         lines.append(f"| {name} | {r['ssim']:.4f} | {r['flip']:.4f} | {r['rmse']:.4f} | {r['mae']:.4f} | "
                      f"{r['rmse_hdr']:.4f} | {r['mae_hdr']:.4f} | {model.size_bytes('fp32') / 1e3:.1f} | "
-                     f"{model_flops(model)} | {r['steps_per_s']:.2f} | {rate:.3g} | {ggx_rate / rate:.1f} |")
+                     f"{model_flops(model)} | {counted:.0f} | {r['steps_per_s']:.2f} | {rate:.3g} | "
+                     f"{ggx_rate / rate:.1f} |")
     lines += ["", f"principled GGX point evaluation: {ggx_rate:.3g} eval/s; \"x GGX\" = GGX evaluations per second "
-              f"/ the model's (same batch of 65536 queries; models with {size}^2 pyramids)."]
+              f"/ the model's (same batch of 65536 queries; models with {size}^2 pyramids). FLOPs: the models' "
+              "analytic count (2 per multiply-add, 9 per texture-read channel); FLOPs (paper): counted as the paper "
+              "does (EDM2's prices: 1 per multiply-add, 3 per SiLU, 4 per bilinear-read channel; no spatial fetch)."]
+    if results.get("regimes"):
+        lines += ["", "Regime of the trained texture sets", "",
+                  "| material | texels | mean normal tilt (deg) | roughness mean | roughness std | roughness 5-95 % |",
+                  "|---|---|---|---|---|---|"]
+        for name, g in zip(materials, results["regimes"]):
+            lines.append(f"| {name} | {g['size'][1]}x{g['size'][0]} | {g['tilt_deg']:.2f} | {g['roughness_mean']:.3f} "
+                         f"| {g['roughness_std']:.3f} | {g['roughness_p5_p95'][0]:.3f}-"
+                         f"{g['roughness_p5_p95'][1]:.3f} |")
     if results.get("failed"):
         lines += ["", "Failed pairs (left out of the means): " + "; ".join(results["failed"])]
     print("\n".join(lines[table6:]))
     if markdown:
         chart = markdown.with_name(markdown.stem + "_flip.png")
+        sets = f"cropped to {st['crop']}^2 at full resolution" if st.get("crop") else f"at most {st['max_size']}^2"
+        footprints = ("texels of the trained texture (the paper's 1024^2 distribution)"
+                      if st.get("footprints") == "texel" else "uv units (the paper's range)")
         header = [f"# Multi-scale SVBRDF benchmark ({', '.join(materials)})", "",
                   "Commands: " + "; ".join(f"`{c}`" for c in results["commands"])
-                  + f" on {st['device']}; texture sets at most {st['max_size']}^2, model pyramids {size}^2, "
+                  + f" on {st['device']}; texture sets {sets}, training footprints in {footprints}, model "
+                  f"pyramids {size}^2, "
                   f"{st['scales']} scales x {st['lights']} lights x {st['cameras']} cameras at "
                   f"{st['resolution']} px, references with {st['ref_samples']} footprint samples; HDR errors over "
                   f"{st['hdr_queries']} Sec. 4.2 queries. Training budget: {st['steps']} steps x {st['batch']} queries"
@@ -320,10 +360,16 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=16, help="footprint samples of the training targets")
     ap.add_argument("--ref-samples", type=int, default=256, help="footprint samples of the reference images")
     ap.add_argument("--max-size", type=int, default=256, help="downscale the texture sets to this size")
+    ap.add_argument("--crop", type=int, default=None,
+                    help="instead of --max-size: the top-left N x N texels of each set at full resolution")
+    ap.add_argument("--footprints", choices=("texel", "uv"), default="texel",
+                    help="training footprints: the paper's distribution in texels of the trained texture (texel), "
+                         "or its range in uv units (uv)")
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--scales", type=int, default=21)
     ap.add_argument("--hdr-queries", type=int, default=2 ** 16)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the model's initialisation and training targets")
     ap.add_argument("--short-run-optimiser", action="store_true",
                     help="Adam (0.9, 0.999), lr 1e-2, EMA 0.02 instead of the paper's long-run settings")
     ap.add_argument("--quick", action="store_true", help="smoke run: 1 material, 200 steps, 5 scales, 32 px")
@@ -342,7 +388,8 @@ def main() -> None:
     if args.quick:
         args.materials = args.materials or [str(DATA / "Wood092_1K")]
         args.steps, args.batch, args.samples, args.ref_samples = 200, 1024, 4, 32
-        args.max_size, args.resolution, args.scales, args.hdr_queries = 64, 32, 5, 4096
+        args.max_size = args.max_size if args.crop else 64
+        args.resolution, args.scales, args.hdr_queries = 32, 5, 4096
         args.short_run_optimiser = True
     device = torch.device(args.device)
     command = "python benchmarks/multiscale.py " + " ".join(sys.argv[1:])

@@ -117,3 +117,26 @@ def test_cc0textures_partial_set(shared_data):
     torch.testing.assert_close(ts.normal.norm(dim=-1), torch.ones(ts.size))
     crop = ts.crop(10, 5, 32, 16)
     assert crop.size == (32, 16) and torch.equal(crop.normal, ts.normal[10:42, 5:21])
+
+
+def test_crop_keeps_full_resolution_texels(tmp_path):
+    """crop=N is the top-left N x N of the full-resolution maps, texel for texel (no resampling), normals
+    derived from height on the whole set."""
+    folder = _synthetic_set(tmp_path, size=(8, 12), normal=False)
+    full = load_texture_set(folder)
+    ts = load_texture_set(folder, crop=5)
+    assert ts.size == (5, 5)
+    for name in ("color", "normal", "roughness", "metalness", "height"):
+        assert torch.equal(getattr(ts, name), getattr(full, name)[:5, :5]), name
+    assert not torch.equal(ts.color, load_texture_set(folder, max_size=5).color[:5, :5])
+    with pytest.raises(InputError, match="crop"):
+        load_texture_set(folder, crop=9)
+    with pytest.raises(InputError, match="not both"):
+        load_texture_set(folder, crop=4, max_size=4)
+
+
+def test_crop_of_shared_set_matches_full_image(shared_data):
+    folder = shared_data / "svbrdf" / "Wood092_1K"
+    full, ts = load_texture_set(folder), load_texture_set(folder, crop=64)
+    assert ts.size == (64, 64) and torch.equal(ts.roughness, full.roughness[:64, :64])
+    assert torch.equal(ts.normal, full.normal[:64, :64])

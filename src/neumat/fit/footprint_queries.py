@@ -11,7 +11,14 @@ drawn more often), z2 ~ N(0, 0.2^2), u3 ~ U(0, 2 pi), and theta_o the angle betw
 the viewing direction wo. Two guards the paper leaves implicit: 1 + z2 is clamped to at least 0.2 (4
 standard deviations) and cos theta_o to at least `min_cos`, bounding the elongation.
 
-Registered as the "footprint" query sampler (`neumat.fit.query_samplers.QUERY_SAMPLERS`).
+The paper's [l_min, l_max] = [-13, 1] is in uv units for its 1024^2 textures. On a source of another size the
+same range would put the footprints elsewhere in texels (at 64^2, 3/4 of them below 1/8 texel), so by
+default (`texel_relative=True`) the range is shifted by log2(1024 / S) for a source with S x S texels (S =
+max(H, W) of its `textures`), keeping the distribution in texels the paper's; sources without a known size
+keep the uv range.
+
+Registered as the "footprint" query sampler (`neumat.fit.query_samplers.QUERY_SAMPLERS`), and as
+"footprint-uv" with the paper's range in uv units whatever the source's size.
 """
 from __future__ import annotations
 
@@ -28,6 +35,8 @@ from .query_samplers import QUERY_SAMPLERS, QueryDraw
 
 #: paper values: log2 of the footprint scale (uv units) spans [L_MIN, L_MAX]
 L_MIN, L_MAX = -13.0, 1.0
+#: texture size (texels) at which the paper's range holds
+PAPER_TEXELS = 1024
 #: exponent of the fine-level bias e2 = (exp(B e3) - 1) / (exp(B) - 1)
 FINE_BIAS = 5.0
 #: standard deviation of z2 in the elongation (1 + z2) / cos theta_o
@@ -59,15 +68,32 @@ def sample_footprints(cos_view: torch.Tensor, u: torch.Tensor, z2: torch.Tensor,
     return footprint_covariance(scale, elongation, 2 * math.pi * u[:, 1])
 
 
+def source_texels(source: Material) -> int | None:
+    """max(H, W) of the source's texture maps (`source.textures.size`), or None when it has none."""
+    size = getattr(getattr(source, "textures", None), "size", None)
+    return None if size is None else int(max(size))
+
+
+def texel_shift(source: Material) -> float:
+    """log2(PAPER_TEXELS / S) for a source of S x S texels (0 when its size is unknown): added to l_min and
+    l_max it keeps the paper's footprint distribution in texels."""
+    texels = source_texels(source)
+    return 0.0 if texels is None else math.log2(PAPER_TEXELS / texels)
+
+
 @QUERY_SAMPLERS.register("footprint")
 def footprint_queries(source: Material, model=None, min_cos: float = 0.01, l_min: float = L_MIN,
-                      l_max: float = L_MAX) -> QueryDraw:
-    """draw(n, generator, device) -> Query with cosine-weighted wi, wo, uniform uv and Eq. 9 footprints."""
+                      l_max: float = L_MAX, texel_relative: bool = True) -> QueryDraw:
+    """draw(n, generator, device) -> Query with cosine-weighted wi, wo, uniform uv and Eq. 9 footprints;
+    with `texel_relative`, [l_min, l_max] is shifted by `texel_shift(source)` (see the module docstring)."""
     if getattr(source, "full_sphere", False):
         raise InputError("query sampler 'footprint' draws surface queries, but the source spans the whole sphere")
     if not (0 < min_cos <= 1) or not (l_min < l_max):
         raise InputError(f"footprint_queries: expected 0 < min_cos <= 1 and l_min < l_max, got min_cos={min_cos}, "
                          f"l_min={l_min}, l_max={l_max}")
+    if texel_relative:
+        shift = texel_shift(source)
+        l_min, l_max = l_min + shift, l_max + shift
 
     def draw(n: int, generator: torch.Generator, device) -> Query:
         u = uniform(n, 8, generator, device)
@@ -78,3 +104,9 @@ def footprint_queries(source: Material, model=None, min_cos: float = 0.01, l_min
         return Query(wi, wo, uv=u[:, 4:6], footprint=cov)
 
     return draw
+
+
+@QUERY_SAMPLERS.register("footprint-uv")
+def footprint_uv_queries(source: Material, model=None) -> QueryDraw:
+    """The "footprint" sampler with the paper's log2-scale range in uv units, whatever the source's size."""
+    return footprint_queries(source, model, texel_relative=False)

@@ -170,12 +170,13 @@ def normals_from_height(height: torch.Tensor, height_scale: float) -> torch.Tens
 
 
 def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SCALE,
-                     max_size: int | None = None) -> TextureSet:
+                     max_size: int | None = None, crop: int | None = None) -> TextureSet:
     """Read a PBR texture set folder (see the module docstring for names and conventions).
 
     Needs a color and a roughness map, and a normal map or a displacement map (normals are then derived
     from height). `max_size` downscales (antialiased) so that max(H, W) <= max_size before normals are
-    derived. Raises InputError for a bad folder or argument, DataFormatError for missing, unreadable or
+    derived. `crop` instead keeps the top-left crop x crop texels at full resolution (no resampling; normals
+    from height are derived on the whole map first, so the crop's are those of the full set). Raises InputError for a bad folder or argument, DataFormatError for missing, unreadable or
     mismatched maps.
     """
     folder = Path(folder)
@@ -185,6 +186,10 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
         raise InputError(f"load_texture_set height_scale: expected a positive number, got {height_scale!r}")
     if max_size is not None and (isinstance(max_size, bool) or not isinstance(max_size, int) or max_size < 1):
         raise InputError(f"load_texture_set max_size: expected a positive integer or None, got {max_size!r}")
+    if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or crop < 1):
+        raise InputError(f"load_texture_set crop: expected a positive integer or None, got {crop!r}")
+    if crop is not None and max_size is not None:
+        raise InputError(f"load_texture_set: give max_size or crop, not both (got max_size={max_size}, crop={crop})")
     files = find_maps(folder)
     missing = [k for k in ("color", "roughness") if k not in files]
     if not any(k in files for k in ("normal_gl", "normal_dx", "height")):
@@ -221,6 +226,8 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
         size = (max(1, round(h * s)), max(1, round(w * s)))
         maps = {k: _resize(v, size) for k, v in maps.items()}
         h, w = size
+    if crop is not None and (crop > h or crop > w):
+        raise InputError(f"load_texture_set crop: {crop} is larger than the {w}x{h} maps of {folder}")
     zeros = torch.zeros(h, w)
     height = maps["height"][..., 0] if "height" in maps else zeros
     if "normal" in maps:
@@ -229,8 +236,9 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
         normal = n / n.norm(dim=-1, keepdim=True)
     else:
         normal = normals_from_height(height, float(height_scale))
-    return TextureSet(color=maps["color"].contiguous(), normal=normal.contiguous(),
+    full = TextureSet(color=maps["color"].contiguous(), normal=normal.contiguous(),
                       roughness=maps["roughness"][..., 0].clamp(0, 1).contiguous(),
                       metalness=(maps["metalness"][..., 0].clamp(0, 1) if "metalness" in maps else zeros).contiguous(),
                       height=height.contiguous(), name=folder.name, normal_from_height=normal_kind is None,
                       height_scale=float(height_scale))
+    return full if crop is None else full.crop(0, 0, crop, crop)
