@@ -127,7 +127,8 @@ def phases(ctx: FitContext) -> list[Phase]:
     encoder_steps, latent_steps = ctx.split(PHASES)
     total_steps = encoder_steps + latent_steps
     brdf_loss = loss_module(ctx)
-    draw_filtered = footprint_queries(source)
+    # footprints in uv as before (the texel-relative range is the multi-scale paper's protocol, issue 28)
+    draw_filtered = footprint_queries(source, texel_relative=False)
     draw_directions = query_draw(ctx)
     albedo = model.cfg.albedo
 
