@@ -3,8 +3,8 @@ dense_warmup) vs dense features only (Table 4's "w/o quantization"), on RGL mate
 
 Each arm fits by replaying 2^18 cosine-weighted measurements of the material (batch 8192, lr 1e-2 halved
 four times over the run, EMA 0.01, one torch thread); its step count is the wall budget divided by the
-seconds per step measured for that arm (dense and VQ steps timed on 20 steps each, the warm-up arm's as the
-mix). Reported: held-out log_cos error (`reflectance_errors` log_err, 2^18 fresh cosine queries against the
+seconds per step measured for that arm (dense and VQ steps timed on steps 10 - 40 of a fit, the warm-up
+arm's as the mix; the "fit s" column shows how equal the times came out on a loaded machine). Reported: held-out log_cos error (`reflectance_errors` log_err, 2^18 fresh cosine queries against the
 measured material) and the stored size (fp16 floats).
 
     PYTHONPATH=src python benchmarks/neubrdf_warmup.py [--seconds 60] [--warmup 0.5] [--out FILE]
@@ -31,14 +31,22 @@ DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rgl"
 MATERIALS = ("vch_golden_yellow_rgb", "cc_iris_purple_gem_rgb")
 
 
-def run(source, nside: int, features: str, warmup: float, steps: int) -> tuple[NeuBRDF, float]:
+def run(source, nside: int, features: str, warmup: float, steps: int, log_every: int = 0):
+    """(fitted model, FitResult) of `steps` steps of arm (features, warmup)."""
     r = recipe_for("neubrdf")
-    recipe = replace(r, steps=steps, batch_size=8192, lr_decay_every=max(steps // 4, 1), log_every=max(steps, 1),
-                     queries="replay", options={**r.options, "dense_warmup": warmup})
+    recipe = replace(r, steps=steps, batch_size=8192, lr_decay_every=max(steps // 4, 1),
+                     log_every=log_every or max(steps, 1), queries="replay",
+                     options={**r.options, "dense_warmup": warmup})
     torch.manual_seed(0)
     model = NeuBRDF(nside=nside, features=features)
     res = fit(model, source, recipe, progress=False, device="cpu")
-    return res.model, res.seconds
+    return res.model, res
+
+
+def seconds_per_step(source, nside: int, features: str) -> float:
+    """Wall seconds per training step, from steps 10 to 40 of a fit (start-up and first steps excluded)."""
+    h = run(source, nside, features, 0.0, 40, log_every=10)[1].history
+    return (h[-1]["seconds"] - h[0]["seconds"]) / 30
 
 
 def main() -> None:
@@ -54,14 +62,15 @@ def main() -> None:
         pool = cosine_queries(2 ** 18, torch.Generator().manual_seed(1), torch.device("cpu"))
         source = MeasuredSamples.from_material(ref, pool, name=name)
         for nside in (16, 32):
-            per_step = {f: run(source, nside, f, 0.0, 20)[1] / 20 for f in ("dense", "vq")}
+            per_step = {f: seconds_per_step(source, nside, f) for f in ("dense", "vq")}
             arms = [("end-to-end VQ", "vq", 0.0, per_step["vq"]),
                     (f"dense warm-up {a.warmup:g} then VQ", "dense", a.warmup,
                      a.warmup * per_step["dense"] + (1 - a.warmup) * per_step["vq"]),
                     ("dense only", "dense", 0.0, per_step["dense"])]
             for label, features, warmup, sps in arms:
                 steps = max(int(a.seconds / sps), 2)
-                model, seconds = run(source, nside, features, warmup, steps)
+                model, res = run(source, nside, features, warmup, steps)
+                seconds = res.seconds
                 err = reflectance_errors(model, ref, n=2 ** 18, seed=7)["log_err"]
                 rows.append((name, nside, label, steps, seconds, err, model.size_bytes()))
                 print(*rows[-1], flush=True)
