@@ -32,7 +32,9 @@ LossStep = Callable[[int], dict[str, torch.Tensor]]
 class Phase:
     """`steps` steps of `losses(step_in_phase) -> {name: scalar tensor}`.
 
-    params:    parameters the optimiser updates in this phase (None: a solver phase, no optimiser).
+    params:    parameters the optimiser updates in this phase (None: a solver phase, no optimiser), or a
+               callable returning them when the phase starts, for parameters that an earlier phase's `after`
+               creates (NeuBRDF's dense warm-up replaces the feature grid by a codebook).
     after:     called once when the phase has run its last step (before that step's checkpoint), e.g. to bake
                latents from the encoder or freeze what the phase trained.
     optimizer: `make(params, lr, betas, eps) -> torch.optim.Optimizer`, default Adam.
@@ -44,7 +46,7 @@ class Phase:
     name: str
     steps: int
     losses: LossStep
-    params: list[nn.Parameter] | None = None
+    params: list[nn.Parameter] | Callable[[], list[nn.Parameter]] | None = None
     after: Callable[[], None] | None = None
     optimizer: Callable[..., torch.optim.Optimizer] | None = None
     stateful: list[nn.Module] = field(default_factory=list)

@@ -108,7 +108,8 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
             if state["step"] >= end:
                 begin = end
                 continue
-            opt = _optimizer(phase, recipe)
+            params = phase.params() if callable(phase.params) else phase.params
+            opt = _optimizer(phase, params, recipe)
             if opt is not None and state["optimizer"] is not None:
                 opt.load_state_dict(state["optimizer"])
             state["optimizer"] = None
@@ -127,12 +128,12 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                 if opt is not None:
                     opt.zero_grad(set_to_none=True)
                     sum(values.values()).backward()
-                    norm = _gradient_norm(phase.params)
+                    norm = _gradient_norm(params)
                     finite = bool(torch.isfinite(norm))
                     if finite:
                         skipped = 0
                         if recipe.grad_clip > 0:
-                            _scale_gradients(phase.params, norm, recipe.grad_clip)
+                            _scale_gradients(params, norm, recipe.grad_clip)
                         opt.step()
                         if ema is not None:
                             ema.update(model)
@@ -191,13 +192,14 @@ def _record(running: dict, done: int, phase: str, lr: float, seconds: float) -> 
     return {"step": done, "phase": phase, "loss": loss, **extra, "lr": lr, "seconds": seconds}
 
 
-def _optimizer(phase: Phase, recipe: Recipe) -> torch.optim.Optimizer | None:
-    if phase.params is None:
+def _optimizer(phase: Phase, params: list[nn.Parameter] | None, recipe: Recipe) -> torch.optim.Optimizer | None:
+    """The optimiser of `phase` on `params` (the phase's, resolved when it starts); None for a solver phase."""
+    if params is None:
         return None
-    if not phase.params:
+    if not params:
         raise InputError(f"fit: phase {phase.name!r} has no trainable parameters")
     make = phase.optimizer or (lambda params, lr, betas, eps: torch.optim.Adam(params, lr=lr, betas=betas, eps=eps))
-    return make(phase.params, recipe.lr, tuple(recipe.betas), recipe.eps)
+    return make(params, recipe.lr, tuple(recipe.betas), recipe.eps)
 
 
 def _gradient_norm(params: list[torch.Tensor]) -> torch.Tensor:

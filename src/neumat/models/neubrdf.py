@@ -163,6 +163,7 @@ class NeuBRDF(LearnedMaterial):
         self.register_load_state_dict_post_hook(lambda module, keys: module._update_pruning())
         self.register_state_dict_post_hook(shipped_state)
         self.register_load_state_dict_pre_hook(unpack_levels)
+        self.register_load_state_dict_pre_hook(quantized_state)
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
         # runtime caches (see `runtime`): per-pixel mean corner features and first-layer pre-activations
@@ -483,6 +484,21 @@ def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None
     for name in ("level_i", "level_o"):
         state_dict[prefix + "packed_" + name] = pack_bits(state_dict.pop(prefix + name).flatten().long(),
                                                           module.level_bits)
+
+
+def quantized_state(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
+                    unexpected_keys, error_msgs) -> None:
+    """Load-state-dict pre-hook: a dense model given the training state of a VQ grid (a checkpoint written
+    after `quantize_from_dense`, e.g. resuming a fit with a dense warm-up past the switch) becomes a VQ model
+    of the state's index bits first, as `quantize_from_dense` made it, so that the state loads."""
+    if not isinstance(module.grid, DenseFeatures) or prefix + "grid.logits" not in state_dict:
+        return
+    bits = int(state_dict[prefix + "grid.codebook"].shape[0]).bit_length() - 1
+    dense = module.grid.features
+    module.grid = VQFeatures(module.grid.num_vertices, module.grid.dim, bits).to(dense.device, dense.dtype)
+    module.grid.requires_grad_(dense.requires_grad)
+    module.cfg = replace(module.cfg, features="vq", index_bits=bits)
+    module._drop_runtime()
 
 
 def unpack_levels(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys, unexpected_keys,

@@ -61,14 +61,59 @@ halvings of the learning rate spread over the shorter run (every 375 steps), and
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
+from ...core.errors import InputError
+from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
+
+OPTIONS = {"dense_warmup": 0.0}
+"""dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
+quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
+the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
+when the option is > 0; an explicit features setting wins)."""
 
 RECIPE = Recipe(steps=20000, batch_size=2 ** 14, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
                 lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
-                log_every=100, schedule="step", checkpoint_every=2000)
+                log_every=100, schedule="step", checkpoint_every=2000, options=dict(OPTIONS))
 
 #: the paper's model for about 10 minutes on one CPU core (module docstring)
 CPU_RECIPE = Recipe(steps=1500, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
                     lr_decay_every=375, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
-                    log_every=50, schedule="step", checkpoint_every=250)
+                    log_every=50, schedule="step", checkpoint_every=250, options=dict(OPTIONS))
 CPU_MINUTES = 8
+
+
+def config_for_source(source, options: dict | None = None) -> dict:
+    """Config defaults from the recipe options: dense features for a dense warm-up (`OPTIONS`)."""
+    return {"features": "dense"} if _warmup(options or {}) > 0 else {}
+
+
+def phases(ctx: FitContext) -> list[Phase]:
+    """One online phase, or with option dense_warmup = f > 0 two: "dense" (round(f steps) steps, at least
+    one, on the dense model; at its end `quantize_from_dense`) then "vq" (the rest, on the parameters that
+    exist after the switch, with the model's row-sparse optimiser). Each phase runs the learning-rate
+    schedule over its own steps. A checkpoint written after the switch holds the VQ state, which a freshly
+    built dense model loads (`neumat.models.neubrdf.quantized_state`), so resuming is exact either side."""
+    frac = _warmup(ctx.recipe.options)
+    if frac == 0:
+        return [online_phase(ctx)]
+    features = getattr(getattr(ctx.model, "cfg", None), "features", None)
+    if features != "dense":
+        raise InputError(f"neubrdf recipe option dense_warmup={frac}: needs a model built with "
+                         f"features='dense' (it is quantised into the codebook after the warm-up), got "
+                         f"features={features!r}")
+    dense_steps = min(max(int(round(frac * ctx.recipe.steps)), 1), ctx.recipe.steps)
+    model = ctx.model
+    dense = online_phase(ctx, "dense", dense_steps)
+    dense.after = model.quantize_from_dense
+    vq = online_phase(replace(ctx, resuming=True), "vq", ctx.recipe.steps - dense_steps)  # no second init
+    vq.params = lambda: [p for p in model.parameters() if p.requires_grad]
+    return [dense, vq]
+
+
+def _warmup(options: dict) -> float:
+    frac = options.get("dense_warmup", 0.0)
+    if not isinstance(frac, (int, float)) or isinstance(frac, bool) or not 0 <= frac < 1:
+        raise InputError(f"neubrdf recipe option dense_warmup: expected a fraction in [0, 1), got {frac!r}")
+    return float(frac)

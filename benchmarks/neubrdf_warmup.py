@@ -1,0 +1,96 @@
+"""NeuBRDF at equal CPU wall time: end-to-end VQ (the paper) vs a dense warm-up then VQ (recipe option
+dense_warmup) vs dense features only (Table 4's "w/o quantization"), on RGL materials at N_side 16 and 32.
+
+Each arm fits by replaying 2^18 cosine-weighted measurements of the material (batch 8192, lr 1e-2 halved
+four times over the run, EMA 0.01, one torch thread); its step count is the wall budget divided by the
+seconds per step measured for that arm (dense and VQ steps timed on steps 10 - 40 of a fit, the warm-up
+arm's as the mix; the "fit s" column shows how equal the times came out on a loaded machine). Reported: held-out log_cos error (`reflectance_errors` log_err, 2^18 fresh cosine queries against the
+measured material) and the stored size (fp16 floats).
+
+    PYTHONPATH=src python benchmarks/neubrdf_warmup.py [--seconds 60] [--warmup 0.5] [--out FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import platform
+import subprocess
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from neumat.catalog.open_material import open_material
+from neumat.fit.measured_samples import MeasuredSamples
+from neumat.fit.recipe import recipe_for
+from neumat.fit.trainer import fit
+from neumat.metrics.hdr import cosine_queries, reflectance_errors
+from neumat.models.neubrdf import NeuBRDF
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rgl"
+MATERIALS = ("vch_golden_yellow_rgb", "cc_iris_purple_gem_rgb")
+
+
+def run(source, nside: int, features: str, warmup: float, steps: int, log_every: int = 0):
+    """(fitted model, FitResult) of `steps` steps of arm (features, warmup)."""
+    r = recipe_for("neubrdf")
+    recipe = replace(r, steps=steps, batch_size=8192, lr_decay_every=max(steps // 4, 1),
+                     log_every=log_every or max(steps, 1), queries="replay",
+                     options={**r.options, "dense_warmup": warmup})
+    torch.manual_seed(0)
+    model = NeuBRDF(nside=nside, features=features)
+    res = fit(model, source, recipe, progress=False, device="cpu")
+    return res.model, res
+
+
+def seconds_per_step(source, nside: int, features: str) -> float:
+    """Wall seconds per training step, from steps 10 to 40 of a fit (start-up and first steps excluded)."""
+    h = run(source, nside, features, 0.0, 40, log_every=10)[1].history
+    return (h[-1]["seconds"] - h[0]["seconds"]) / 30
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--seconds", type=float, default=60.0, help="wall seconds of training per arm")
+    p.add_argument("--warmup", type=float, default=0.5, help="dense_warmup fraction of the warm-up arm")
+    p.add_argument("--out", default="benchmarks/results/neubrdf_warmup.md")
+    a = p.parse_args()
+    torch.set_num_threads(1)
+    rows = []
+    for name in MATERIALS:
+        ref = open_material(str(DATA / f"{name}.bsdf"))
+        pool = cosine_queries(2 ** 18, torch.Generator().manual_seed(1), torch.device("cpu"))
+        source = MeasuredSamples.from_material(ref, pool, name=name)
+        for nside in (16, 32):
+            per_step = {f: seconds_per_step(source, nside, f) for f in ("dense", "vq")}
+            arms = [("end-to-end VQ", "vq", 0.0, per_step["vq"]),
+                    (f"dense warm-up {a.warmup:g} then VQ", "dense", a.warmup,
+                     a.warmup * per_step["dense"] + (1 - a.warmup) * per_step["vq"]),
+                    ("dense only", "dense", 0.0, per_step["dense"])]
+            for label, features, warmup, sps in arms:
+                steps = max(int(a.seconds / sps), 2)
+                model, res = run(source, nside, features, warmup, steps)
+                seconds = res.seconds
+                err = reflectance_errors(model, ref, n=2 ** 18, seed=7)["log_err"]
+                rows.append((name, nside, label, steps, seconds, err, model.size_bytes()))
+                print(*rows[-1], flush=True)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    lines = ["# NeuBRDF: dense warm-up vs end-to-end VQ vs dense, equal CPU wall time", "",
+             f"Command: `PYTHONPATH=src python benchmarks/neubrdf_warmup.py --seconds {a.seconds:g} "
+             f"--warmup {a.warmup:g}`; commit {commit}; {platform.machine()} {platform.processor() or ''}, "
+             "one torch thread on a shared, loaded 2-core machine (wall times are noisy).", "",
+             "Replay of 2^18 cosine-weighted measurements, batch 8192, lr 1e-2 halved every steps/4, EMA 0.01, "
+             "k 16, b 9, MLP 2 x 64. log_err: held-out cosine-weighted log error (2^18 fresh queries, "
+             "`neumat.metrics.hdr.reflectance_errors`); bytes: `NeuBRDF.size_bytes()` (fp16).", "",
+             "| material | N_side | arm | steps | fit s | log_err | bytes | log_err / dense |",
+             "|---|---|---|---|---|---|---|---|"]
+    dense = {(r[0], r[1]): r[5] for r in rows if r[2] == "dense only"}
+    for name, nside, label, steps, seconds, err, size in rows:
+        lines.append(f"| {name} | {nside} | {label} | {steps} | {seconds:.0f} | {err:.4f} | {size:,} | "
+                     f"{err / dense[(name, nside)]:.2f} |")
+    Path(a.out).write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
