@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
+
 from neumat.core.checks import check_shape
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError

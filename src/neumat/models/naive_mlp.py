@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
+
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.material import upper_hemisphere

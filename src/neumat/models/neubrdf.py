@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
+
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
