@@ -15,11 +15,13 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
+
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
+from neumat.models.btf_size import btf_table_size, check_btf_table_size
 from neumat.models.registry import MODELS
 from neumat.models.sparse_dictionary import model_space_to_rgb
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
@@ -77,20 +79,11 @@ class PCABTF(LearnedMaterial):
     def for_btf(cls, btf: TabulatedBTF, **fields) -> "PCABTF":
         """A model sized for `btf` (direction counts, texels), other Config fields from `fields`: what
         the trainer's `fit(model, btf)` solves (recipe fit/recipes/pca_btf.py)."""
-        l, v, h, w, _ = btf.data.shape
-        return cls(Config(**{**fields, "n_light": l, "n_view": v, "height": h, "width": w}))
+        return cls(Config(**{**fields, **btf_table_size(btf, "pca-btf")}))
 
     def check_source(self, btf: TabulatedBTF) -> None:
         """Raise InputError unless `btf` is a tabulated BTF of this model's size."""
-        data = getattr(btf, "data", None)
-        if not isinstance(data, torch.Tensor) or data.dim() != 5 or not hasattr(btf, "light_dirs"):
-            raise InputError(f"pca-btf: the source must be one tabulated BTF (neumat.io.btf.read_btf), got "
-                             f"{type(btf).__name__}")
-        c = self.cfg
-        if tuple(data.shape[:4]) != (c.n_light, c.n_view, c.height, c.width):
-            raise InputError(f"pca-btf: the BTF has {tuple(data.shape[:4])} (lights, views, height, width) but the "
-                             f"model was built for {(c.n_light, c.n_view, c.height, c.width)}; build it with "
-                             "PCABTF.for_btf(btf, ...)")
+        check_btf_table_size(btf, self.cfg, "pca-btf", "PCABTF.for_btf")
 
     @torch.no_grad()
     def load_components(self, decomposition, light_dirs: torch.Tensor, view_dirs: torch.Tensor) -> "PCABTF":

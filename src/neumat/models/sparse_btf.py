@@ -33,12 +33,14 @@ from typing import NamedTuple
 
 import torch
 from torch import nn
+
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
+from neumat.models.btf_size import btf_table_size, check_btf_table_size
 from neumat.models.registry import MODELS
 from neumat.models.sparse_dictionary import (
     STATISTICS,
@@ -193,20 +195,11 @@ class SparseBTF(LearnedMaterial):
     def for_btf(cls, btf: TabulatedBTF, **fields) -> "SparseBTF":
         """An (uncoded) model sized for `btf` (direction counts, texels); other Config fields from `fields`.
         What the trainer's `fit(model, btf)` trains (recipe fit/recipes/sparse_btf.py)."""
-        l, v, h, w, _ = btf.data.shape
-        return cls(Config(**{**fields, "n_light": l, "n_view": v, "height": h, "width": w}))
+        return cls(Config(**{**fields, **btf_table_size(btf, "sparse-btf")}))
 
     def check_source(self, btf: TabulatedBTF) -> None:
         """Raise InputError unless `btf` is a tabulated BTF of this model's size."""
-        data = getattr(btf, "data", None)
-        if not isinstance(data, torch.Tensor) or data.dim() != 5 or not hasattr(btf, "light_dirs"):
-            raise InputError(f"sparse-btf: the source must be one tabulated BTF (neumat.io.btf.read_btf), got "
-                             f"{type(btf).__name__}")
-        c = self.cfg
-        if tuple(data.shape[:4]) != (c.n_light, c.n_view, c.height, c.width):
-            raise InputError(f"sparse-btf: the BTF has {tuple(data.shape[:4])} (lights, views, height, width) but the "
-                             f"model was built for {(c.n_light, c.n_view, c.height, c.width)}; build it with "
-                             "SparseBTF.for_btf(btf, ...)")
+        check_btf_table_size(btf, self.cfg, "sparse-btf", "SparseBTF.for_btf")
 
     @torch.no_grad()
     def code(self, btf: TabulatedBTF) -> torch.Tensor:

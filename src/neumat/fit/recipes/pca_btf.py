@@ -13,9 +13,9 @@ BTF's size (`CPU_MINUTES` None: `neumat fit` says so instead of a time).
 from __future__ import annotations
 
 from ...core.errors import InputError
+from ...models.btf_size import btf_table_size
 from ..phase import FitContext, Phase
 from ..recipe import Recipe
-from .sparse_btf import btf_size
 
 RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
                 options={"exact_limit": 4096, "oversample": 16, "power_iterations": 6})
@@ -27,7 +27,7 @@ CPU_MINUTES = None
 
 def config_for_source(btf, options: dict | None = None) -> dict:
     """The model's size from the BTF (direction counts, texels)."""
-    return btf_size(btf, "pca-btf")
+    return btf_table_size(btf, "pca-btf")
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from ...core.errors import InputError
+from ...models.btf_size import btf_table_size
 from ...models.sparse_dictionary import BTFDictionary, code_points
 from ..phase import FitContext, Phase
 from ..recipe import Recipe
@@ -51,21 +52,12 @@ CPU_MINUTES = None
 def config_for_source(btf, options: dict | None = None) -> dict:
     """The model's size from the BTF (direction counts, texels) and, with option "dictionary", the fields the
     dictionary was trained with (patch, K, tau_train, log eps)."""
-    out = btf_size(btf, "sparse-btf")
+    out = btf_table_size(btf, "sparse-btf")
     if (options or {}).get("dictionary") is not None:
         d = BTFDictionary.load(Path(options["dictionary"]))
         out.update(patch=d.patch, num_dictionaries=d.num_dictionaries, tau_train=list(d.tau_train),
                    log_eps=d.log_eps)
     return out
-
-
-def btf_size(btf, who: str) -> dict:
-    """{"n_light", "n_view", "height", "width"} of a tabulated BTF; InputError for anything else."""
-    data = getattr(btf, "data", None)
-    if not isinstance(data, torch.Tensor) or data.dim() != 5:
-        raise InputError(f"{who}: the source must be one tabulated BTF (.nbtf, .btf), got {type(btf).__name__}")
-    n_light, n_view, height, width, _ = data.shape
-    return {"n_light": n_light, "n_view": n_view, "height": height, "width": width}
 
 
 class DictionaryState(nn.Module):
