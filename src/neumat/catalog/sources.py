@@ -1,20 +1,19 @@
 """The material sources `open_material` knows: a registry keyed by file suffix, plus "folder" and "spec".
 
-Each entry is a `Source`: a human-readable `kind`, the `reader(path, **options)` that builds the Material and
-the `noun` error messages name one by. Keys are lowercase file suffixes (".binary", ".bsdf", ...), "folder"
-(a PBR texture-set folder) and "spec" (an analytic spec string such as ``ggx:roughness=0.2``; its reader takes
-the string). A module of `neumat.catalog` may register more with `register_source`; `load_sources()` imports
-them all (discovered with pkgutil, as `neumat.models.registry.load_all` does), so no entry is listed twice.
-"""
+Each entry is a `Source`: a human-readable `kind`, the `reader(path, **options)` that builds the Material and the
+`noun` error messages name one by. Keys are lowercase file suffixes (".binary", ".bsdf", ...), "folder" (a PBR
+texture-set folder) and "spec" (an analytic spec string such as ``ggx:roughness=0.2``; its reader takes the
+string). A module of `neumat.catalog` may register more with `register_source`; `load_sources()` imports them all
+(discovered with pkgutil, `neumat.core.registry.import_package_modules`, as the model registry), so no entry is
+listed twice."""
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from dataclasses import dataclass
 from typing import Callable
 
 from ..core.errors import InputError
 from ..core.material import Material
+from ..core.registry import import_package_modules
 from ..models.nbrdf import nbrdf_from_keras
 from ..reflectance.btf import read_btf, read_ubo2014
 from ..reflectance.measured import MerlMaterial, RglMaterial
@@ -69,15 +68,7 @@ register_source(".btf", "Bonn / UBO2014 BTF", "UBO2014 BTF file")(read_ubo2014)
 register_source(".h5", "NBRDF network of Sztrajman et al. (Keras .h5 + .json)", "NBRDF Keras network")(nbrdf_from_keras)
 register_source(SPEC, "analytic spec string", "analytic spec")(parse_spec)
 
-_loaded = False
-
-
 def load_sources() -> dict[str, Source]:
     """Import every module of `neumat.catalog` (some register sources, e.g. ".json") and return `SOURCES`."""
-    global _loaded
-    if not _loaded:
-        package = importlib.import_module("neumat.catalog")
-        for info in pkgutil.iter_modules(package.__path__):
-            importlib.import_module(f"neumat.catalog.{info.name}")
-        _loaded = True
+    import_package_modules("neumat.catalog")
     return SOURCES

@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import difflib
+import functools
+import importlib
+import pkgutil
 from typing import Callable, Generic, Iterator, TypeVar
 
 from .errors import InputError, UnknownNameError
@@ -54,3 +57,14 @@ class Registry(Generic[T]):
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())
+
+
+@functools.cache
+def import_package_modules(package: str, prefix: str = "", recursive: bool = False) -> None:
+    """Import, once, every module of `package` whose name starts with `prefix` (with `recursive`, its
+    subpackages' too): the modules register themselves, so a registry is complete after this call."""
+    path = importlib.import_module(package).__path__
+    infos = pkgutil.walk_packages(path, f"{package}.") if recursive else pkgutil.iter_modules(path, f"{package}.")
+    for info in infos:
+        if info.name.rsplit(".", 1)[-1].startswith(prefix):
+            importlib.import_module(info.name)

@@ -1,15 +1,13 @@
 """Shared pieces of the GLSL exporters: `GLSLExport`, the common GLSL functions, texture packing, latent-pyramid
 readers, shading frames, MLP chains, and the registry of per-model GLSL generators.
 
-A generator module (`neumat.export.glsl_*`) registers `generator(model) -> GLSLExport` under the registry names
-of the models it exports with `@GLSL_GENERATORS.register(name)`; `load_generators()` imports every such module
-(pkgutil discovery, as `neumat.models.registry.load_all` does), so `neumat.export.glsl.export_glsl` is a lookup.
-"""
+A generator module (`neumat.export.glsl_*`) registers `generator(model) -> GLSLExport` under the registry names of
+the models it exports with `@GLSL_GENERATORS.register(name)`; `load_generators()` imports every such module
+(pkgutil discovery, `neumat.core.registry.import_package_modules`, as the model registry), so
+`neumat.export.glsl.export_glsl` is a lookup."""
 from __future__ import annotations
 
-import importlib
 import json
-import pkgutil
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +16,7 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError
-from ..core.registry import Registry
+from ..core.registry import Registry, import_package_modules
 
 GLSL_VERSION = "#version 330 core"
 
@@ -371,16 +369,7 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
 #: model registry name -> generator(model) -> GLSLExport
 GLSL_GENERATORS: Registry = Registry("GLSL generator")
 
-_loaded = False
-
-
 def load_generators() -> Registry:
     """Import every `neumat.export.glsl_*` module (each registers its generators) and return the registry."""
-    global _loaded
-    if not _loaded:
-        package = importlib.import_module("neumat.export")
-        for info in pkgutil.iter_modules(package.__path__):
-            if info.name.startswith("glsl_") and info.name != "glsl_common":
-                importlib.import_module(f"neumat.export.{info.name}")
-        _loaded = True
+    import_package_modules("neumat.export", prefix="glsl_")
     return GLSL_GENERATORS

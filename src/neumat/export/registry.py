@@ -1,17 +1,15 @@
 """The export formats: name ("glsl", "slang", "web") -> `ExportFormat` (what it writes, and its function).
 
 Each format module registers itself (`EXPORT_FORMATS.register(name)(ExportFormat(...))`); `load_formats()` imports
-every module of `neumat.export` (pkgutil discovery, as `neumat.models.registry.load_all` does), so the command
-line (`neumat.cli.exporting`) and the Slang exporter look formats up instead of importing them.
-"""
+every module of `neumat.export` (pkgutil discovery, `neumat.core.registry.import_package_modules`, as the model
+registry), so the command line (`neumat.cli.exporting`) and the Slang exporter look formats up instead of importing
+them."""
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from dataclasses import dataclass
 from typing import Callable
 
-from ..core.registry import Registry
+from ..core.registry import Registry, import_package_modules
 
 
 @dataclass(frozen=True)
@@ -26,16 +24,8 @@ class ExportFormat:
 #: format name -> ExportFormat
 EXPORT_FORMATS: Registry = Registry("export format")
 
-_loaded = False
-
-
 def load_formats() -> Registry:
     """Import every module of `neumat.export` and its subpackages (the format modules register themselves) and
     return `EXPORT_FORMATS`."""
-    global _loaded
-    if not _loaded:
-        package = importlib.import_module("neumat.export")
-        for info in pkgutil.walk_packages(package.__path__, "neumat.export."):
-            importlib.import_module(info.name)
-        _loaded = True
+    import_package_modules("neumat.export", recursive=True)
     return EXPORT_FORMATS

@@ -5,25 +5,13 @@ modules are imported on first use, so registering a new model needs no edit outs
 """
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
-from ..core.registry import Registry
+from ..core.registry import Registry, import_package_modules
 
 MODELS: Registry = Registry("model")
 
-_loaded = False
-
-
 def load_all() -> Registry:
     """Import every module of `neumat.models` (each registers its models) and return the registry."""
-    global _loaded
-    if not _loaded:
-        package = importlib.import_module("neumat.models")
-        for info in pkgutil.iter_modules(package.__path__):
-            if info.name != "registry":
-                importlib.import_module(f"neumat.models.{info.name}")
-        _loaded = True
+    import_package_modules("neumat.models")
     return MODELS
 
 
