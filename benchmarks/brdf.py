@@ -48,7 +48,7 @@ from neumat.fit.recipe import recipe_for
 from neumat.fit.recipes.multiscale import HOMOGENEOUS_RECIPE
 from neumat.fit.trainer import fit
 from neumat.catalog.open_material import open_material
-from neumat.cli.fit_engines import RunProgress, run_local, run_ray
+from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.flops import model_flops
 from neumat.metrics.hdr import cosine_queries, reflectance_errors
@@ -212,12 +212,8 @@ def run(args) -> tuple[list[dict], dict]:
             for m in names for mn in models]
     console = Console(stderr=True)
     progress = RunProgress(len(jobs), console)
-    if args.engine == "ray":  # every (material, model) is a Ray task: the table can come from a cluster
-        stream = run_ray(jobs, fit_pair, progress, workers=args.workers, address=args.address,
-                         gpus_per_task=1.0 if device.type == "cuda" else 0.0, retries=2, log=console.print,
-                         lost=lost_pair)
-    else:
-        stream = run_local(jobs, fit_pair, progress)
+    stream = run_jobs(args, jobs, fit_pair, progress, gpus_per_task=1.0 if device.type == "cuda" else 0.0,
+                      lost=lost_pair, log=console.print)
     done = {(r["material"], r["model"]): r for r in stream}
     rows = [done[j["material"], j["model"]] for j in jobs]
     failed = [r for r in rows if r["status"] != "ok"]
@@ -362,11 +358,7 @@ def main(argv=None) -> None:
     p.add_argument("--device", default=None, help="torch device (default: cuda if available)")
     p.add_argument("--envmap", default=None, help="environment map (default: shared studio_small_03_1k.hdr)")
     p.add_argument("--no-progress", action="store_true", help="hide the fit progress bars")
-    p.add_argument("--engine", choices=("local", "ray"), default="local",
-                   help="local: the pairs one after another here; ray: each (material, model) a Ray task")
-    p.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
-    p.add_argument("--address", default=None, help="--engine ray: Ray cluster address (default $RAY_ADDRESS, "
-                                                    "else a local instance)")
+    add_engine_arguments(p, "(material, model) pair")
     args = p.parse_args(argv)
     rows, settings = run(args)
     console = Console(width=None if sys.stdout.isatty() else 220)  # full columns in logs and pipes

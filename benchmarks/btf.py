@@ -65,7 +65,7 @@ import torch
 from rich.console import Console
 
 from neumat.cli.common import print_table
-from neumat.cli.fit_engines import RunProgress, run_local, run_ray
+from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
@@ -504,11 +504,7 @@ def main():
     ap.add_argument("--neubrdf-batch", type=int, default=4096)
     ap.add_argument("--neubrdf-nside", type=int, default=4)
     ap.add_argument("--neubrdf-hidden", type=int, default=32)
-    ap.add_argument("--engine", choices=("local", "ray"), default="local",
-                    help="local: the test BTFs one after another here; ray: each test BTF a Ray task")
-    ap.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
-    ap.add_argument("--address", default=None,
-                    help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
+    add_engine_arguments(ap, "test BTF")
     ap.add_argument("--render", action="store_true", help="render a plane and the bunny (benchmarks/results/)")
     ap.add_argument("--render-spp", type=int, default=16)
     ap.add_argument("--render-size", type=int, default=128)
@@ -541,11 +537,7 @@ def main():
              "keep_btf": args.render and i == 0} for i, name in enumerate(test)]
     console = Console(stderr=True)
     progress = RunProgress(len(jobs), console)
-    if args.engine == "ray":  # every test BTF is a Ray task: the tables can come from a cluster
-        stream = run_ray(jobs, code_test_btf, progress, workers=args.workers, address=args.address,
-                         gpus_per_task=0.0, retries=2, log=console.print, lost=lost_test_btf)
-    else:
-        stream = run_local(jobs, code_test_btf, progress)
+    stream = run_jobs(args, jobs, code_test_btf, progress, gpus_per_task=0.0, lost=lost_test_btf, log=console.print)
     done = {r["name"]: r for r in stream}
     results = [done[name] for name in test]
     ok = [r for r in results if r["status"] == "ok"]

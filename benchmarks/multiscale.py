@@ -48,7 +48,7 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from neumat.cli.fit_engines import RunProgress, run_local, run_ray
+from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs
 from neumat.core.material import Material
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.recipe import recipe_for
@@ -146,12 +146,8 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
              "device": str(device)} for folder in folders for name in args.models]
     console = Console(stderr=True)
     progress = RunProgress(len(jobs), console)
-    if args.engine == "ray":  # every (texture set, model) is a Ray task: the tables can come from a cluster
-        stream = run_ray(jobs, fit_pair, progress, workers=args.workers, address=args.address,
-                         gpus_per_task=1.0 if device.type == "cuda" else 0.0, retries=2, log=console.print,
-                         lost=lost_pair)
-    else:
-        stream = run_local(jobs, fit_pair, progress)
+    stream = run_jobs(args, jobs, fit_pair, progress, gpus_per_task=1.0 if device.type == "cuda" else 0.0,
+                      lost=lost_pair, log=console.print)
     done = {(r["folder"], r["model"]): r for r in stream}
     materials, pyramids, failed, regimes = [], [], [], []
     per_scale: dict[str, list] = {m: [] for m in args.models}
@@ -376,11 +372,7 @@ def main() -> None:
     ap.add_argument("--save", type=Path, default=None, help="also write the fitted models' scores to this JSON file")
     ap.add_argument("--merge", type=Path, nargs="+", default=None,
                     help="fit nothing: report the scores of several --save files (e.g. runs split by --models)")
-    ap.add_argument("--engine", choices=("local", "ray"), default="local",
-                    help="local: the (texture set, model) pairs one after another here; ray: each pair a Ray task")
-    ap.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
-    ap.add_argument("--address", default=None,
-                    help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
+    add_engine_arguments(ap, "(texture set, model) pair")
     ap.add_argument("--markdown", type=Path, nargs="?", const=RESULTS / "multiscale.md", default=None,
                     help="write the tables to this .md file (default benchmarks/results/multiscale.md) and the "
                          "per-scale chart beside it (<stem>_flip.png)")

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import platform
 import subprocess
-import time
 from dataclasses import replace
 from pathlib import Path
 

@@ -55,7 +55,7 @@ from pathlib import Path
 import torch
 from rich.console import Console
 
-from neumat.cli.fit_engines import RunProgress, run_local, run_ray
+from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs
 from neumat.cli.common import print_table
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
@@ -239,11 +239,7 @@ def main() -> None:
     ap.add_argument("--speed", action="store_true", help="evaluations per second only (module docstring)")
     ap.add_argument("--coat", action="store_true", help="layered sources: a smudged clear coat over each set")
     ap.add_argument("--variants", default=",".join(VARIANTS[:5]), help=f"comma-separated, of: {', '.join(VARIANTS)}")
-    ap.add_argument("--engine", choices=("local", "ray"), default="local",
-                    help="local: the (set, variant) pairs one after another here; ray: each pair a Ray task")
-    ap.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
-    ap.add_argument("--address", default=None,
-                    help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
+    add_engine_arguments(ap, "(set, variant) pair")
     args = ap.parse_args()
     chosen = args.variants.split(",")
     unknown = sorted(set(chosen) - set(VARIANTS))
@@ -266,11 +262,7 @@ def main() -> None:
                  "coat": args.coat} for name in args.sets.split(",") for v in order]
         console = Console(stderr=True)
         progress = RunProgress(len(jobs), console)
-        if args.engine == "ray":  # every (set, variant) is a Ray task: the table can come from a cluster
-            stream = run_ray(jobs, fit_pair, progress, workers=args.workers, address=args.address, gpus_per_task=0.0,
-                             retries=2, log=console.print, lost=lost_pair)
-        else:
-            stream = run_local(jobs, fit_pair, progress)
+        stream = run_jobs(args, jobs, fit_pair, progress, gpus_per_task=0.0, lost=lost_pair, log=console.print)
         done = {(r["name"], r["model"]): r for r in stream}
         results = [done[j["set"], j["variant"]] for j in jobs]
         rows = [r["row"] for r in results if r["status"] == "ok"]

@@ -119,3 +119,22 @@ def _duration(seconds: float) -> str:
     m, s = divmod(int(round(seconds)), 60)
     return f"{m // 60}h{m % 60:02d}m" if m >= 60 else f"{m}m{s:02d}s"
 
+
+
+def add_engine_arguments(parser, unit: str) -> None:
+    """The --engine / --workers / --address options of a benchmark whose `unit` (e.g. "(material, model) pair")
+    is one job."""
+    parser.add_argument("--engine", choices=("local", "ray"), default="local",
+                        help=f"local: one {unit} after another here; ray: each {unit} a Ray task")
+    parser.add_argument("--workers", type=int, default=None, help="--engine ray: CPUs of the local Ray instance")
+    parser.add_argument("--address", default=None,
+                        help="--engine ray: Ray cluster address (default $RAY_ADDRESS, else a local instance)")
+
+
+def run_jobs(args, jobs: list, task: Callable[[object], dict], progress: RunProgress, *, gpus_per_task: float,
+             lost: Callable[[object, BaseException], dict], log: Callable[[str], None]) -> Iterator[dict]:
+    """The rows of `jobs` run by `task` on the engine the benchmark's arguments (`add_engine_arguments`) chose."""
+    if args.engine == "ray":  # every job a Ray task: the tables can come from a cluster
+        return run_ray(jobs, task, progress, workers=args.workers, address=args.address,
+                       gpus_per_task=gpus_per_task, retries=2, log=log, lost=lost)
+    return run_local(jobs, task, progress)
