@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from safetensors import safe_open
+from safetensors.torch import load_file, save_file
 
-from neumat import InputError, Query
+from neumat import DataFormatError, InputError, Query
+from neumat.catalog.modelfile import load_model, save_model
+from neumat.io.modelfile import read_model_file
 from neumat.models.sparse_btf import SparseBTF, _pairs_of_taps, mse
 from neumat.fit.sparse_dictionary import train_dictionary, train_ensemble
 from neumat.models.sparse_dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
@@ -337,3 +341,29 @@ def test_renders_a_btf_textured_plane(trained):
     img = render(model, scene="plane", light="env:sky", spp=4, resolution=16)
     assert img.shape == (16, 16, 3)
     assert bool(torch.isfinite(img).all()) and float(img.mean()) > 1e-3
+
+
+def test_runtime_file_holds_the_counted_bytes_and_evaluates_alike(trained, gen, tmp_path):
+    model = SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10), error_threshold=1e-3).runtime()
+    assert int(model.counts.sum()) < model.counts.numel() * 40  # the threshold leaves capacity unused
+    path = save_model(model, tmp_path / "s.nmat")
+    tensors = read_model_file(path)[1]
+    stored = sum(t.numel() * t.element_size() for t in tensors.values())
+    directions = sum(t.numel() * 4 for k, t in tensors.items() if k.endswith("_dirs"))
+    assert stored - directions == model.size_bytes("fp16")  # exactly what `storage` counts
+    loaded = load_model(path)
+    assert loaded.is_runtime
+    q = Query(wi=torch.tensor([[0.0, 0.0, 1.0]] * 5), wo=torch.tensor([[0.0, 0.6, 0.8]] * 5),
+              uv=torch.rand(5, 2, generator=gen))
+    assert torch.equal(model.eval(q), loaded.eval(q))
+
+
+def test_stored_codes_that_disagree_with_their_counts_are_refused(trained, tmp_path):
+    path = save_model(SparseBTF.encode(synthetic_btf(10), trained, (40, 10, 10)), tmp_path / "s.nmat")
+    with safe_open(str(path), "pt") as f:
+        metadata = f.metadata()
+    tensors = load_file(str(path))
+    tensors["values"] = tensors["values"][:-1]
+    save_file(tensors, str(path), metadata=metadata)
+    with pytest.raises(DataFormatError, match="counts add up to"):
+        load_model(path)

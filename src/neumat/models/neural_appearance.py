@@ -95,6 +95,20 @@ class NeuralAppearance(neumip.NeuMIP):
         self.encoder = MLP(c.surface_features, c.encoder_hidden, c.encoder_layers, c.spatial_channels, "silu")
         self.sampler = ProxySampler(features=c.spatial_channels, hidden=c.sampler_hidden,
                                     hidden_layers=c.sampler_layers)
+        self._runtime = False
+        self.register_state_dict_post_hook(_without_encoder)
+        self.register_load_state_dict_pre_hook(_own_encoder)
+
+    @property
+    def is_runtime(self) -> bool:
+        """Whether `runtime()` is in effect (model files record it and re-enter it on load)."""
+        return self._runtime
+
+    def runtime(self) -> "NeuralAppearance":
+        """The shipped form: what `size_bytes` counts, without the encoder (training only; a model file written in
+        this mode does not store it, and `encode` then refuses). Returns self."""
+        self._runtime = True
+        return self
 
     @property
     def outputs(self) -> int:
@@ -133,6 +147,9 @@ class NeuralAppearance(neumip.NeuMIP):
     # ------------------------------------------------------------------------------ encoder
     def encode(self, k: torch.Tensor) -> torch.Tensor:
         """Latents z (N, D_s) of surface parameters k (N, K) (training phase 1)."""
+        if self._runtime:
+            raise InputError(f"{self.name}.encode: a runtime model (`runtime()`, or a model file that `neumat fit` "
+                             "wrote) has no encoder; train from a checkpoint or a fresh model")
         if k.shape[-1] != self.cfg.surface_features:
             raise InputError(f"{self.name}.encode: expected {self.cfg.surface_features} surface parameters per "
                              f"point, got shape {tuple(k.shape)}")
@@ -167,3 +184,21 @@ class NeuralAppearance(neumip.NeuMIP):
         """Stored for rendering: latent pyramid, BRDF decoder (frames, MLP) and sampler; not the encoder."""
         params = sum(p.numel() for name, p in self.named_parameters() if not name.startswith("encoder."))
         return storage_bytes(params * float_bits(precision))
+
+
+def _without_encoder(module: NeuralAppearance, state_dict: dict, prefix: str, local_metadata) -> None:
+    """State-dict hook: a runtime model's state leaves out the encoder (training only)."""
+    if module.is_runtime:
+        for key in [k for k in state_dict if k.startswith(prefix + "encoder.")]:
+            del state_dict[key]
+
+
+def _own_encoder(module: NeuralAppearance, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
+                 unexpected_keys, error_msgs) -> None:
+    """Load-state-dict pre-hook: a state without the encoder (a runtime model file) keeps the module's own, unused
+    encoder, and the module enters runtime mode."""
+    if any(k.startswith(prefix + "encoder.") for k in state_dict):
+        return
+    for key, value in module.encoder.state_dict(prefix=prefix + "encoder.").items():
+        state_dict[key] = value
+    module._runtime = True

@@ -17,7 +17,7 @@ import torch
 from torch import nn
 
 from neumat.core.config import resolve_config
-from neumat.core.errors import InputError
+from neumat.core.errors import DataFormatError, InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
@@ -74,6 +74,9 @@ class PCABTF(LearnedMaterial):
         self.register_buffer("mean", torch.zeros(3, lv))
         self.register_buffer("basis", torch.zeros(3, lv, r))
         self.register_buffer("coeffs", torch.zeros(3, hw, r))
+        self._runtime = False
+        self.register_state_dict_post_hook(stored_components)
+        self.register_load_state_dict_pre_hook(unpack_components)
 
     @classmethod
     def for_btf(cls, btf: TabulatedBTF, **fields) -> "PCABTF":
@@ -135,6 +138,20 @@ class PCABTF(LearnedMaterial):
         f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, torch.zeros_like(f))
         return f.to(q.wi.device, q.wi.dtype)
 
+    @property
+    def is_runtime(self) -> bool:
+        """Whether `runtime()` is in effect (model files record it and re-enter it on load)."""
+        return self._runtime
+
+    @torch.no_grad()
+    def runtime(self) -> "PCABTF":
+        """Round mean, basis and coefficients to fp16, as `storage` counts them; the model file then stores them
+        as fp16 (`stored_components`). Returns self."""
+        for t in (self.mean, self.basis, self.coeffs):
+            t.copy_(t.half())
+        self._runtime = True
+        return self
+
     def storage(self, value_bytes: int = 2) -> dict:
         """Bytes: per channel mean (L V), basis (L V x r) and coefficients (H W x r)."""
         c = self.cfg
@@ -158,6 +175,42 @@ class PCABTF(LearnedMaterial):
     def describe(self) -> str:
         c = self.cfg
         return f"pca-btf ({c.height}x{c.width} texels, {c.n_light}x{c.n_view} directions, ranks {tuple(c.ranks)})"
+
+
+def stored_components(module: PCABTF, state_dict: dict, prefix: str, local_metadata) -> None:
+    """State-dict hook: basis and coefficients as `storage` counts them, each channel's first ranks[c] columns
+    side by side ("basis" (L V, sum ranks), "coeffs" (H W, sum ranks)) instead of padded to the largest rank;
+    fp16 with the mean in runtime mode. `unpack_components` inverts it (the padding is zero)."""
+    ranks = module.cfg.ranks
+    for name in ("basis", "coeffs"):
+        t = state_dict[prefix + name]
+        state_dict[prefix + name] = torch.cat([t[c, :, :r] for c, r in enumerate(ranks)], -1)
+    if module.is_runtime:
+        for name in ("mean", "basis", "coeffs"):
+            state_dict[prefix + name] = state_dict[prefix + name].half()
+
+
+def unpack_components(module: PCABTF, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
+                      unexpected_keys, error_msgs) -> None:
+    """Load-state-dict pre-hook inverting `stored_components` (DataFormatError when a stored matrix does not have
+    the config's sum of ranks columns)."""
+    ranks = module.cfg.ranks
+    for name in ("basis", "coeffs"):
+        key = prefix + name
+        if key not in state_dict or state_dict[key].ndim != 2:
+            continue
+        t, full = state_dict[key], getattr(module, name)
+        if t.shape != (full.shape[1], sum(ranks)):
+            raise DataFormatError(f"pca-btf {name}: expected ({full.shape[1]}, {sum(ranks)}) (rows, sum of the ranks "
+                                  f"{tuple(ranks)}), got {tuple(t.shape)}")
+        padded = torch.zeros(full.shape, dtype=torch.float32)
+        start = 0
+        for c, r in enumerate(ranks):
+            padded[c, :, :r] = t[:, start:start + r].float()
+            start += r
+        state_dict[key] = padded
+    if prefix + "mean" in state_dict:
+        state_dict[prefix + "mean"] = state_dict[prefix + "mean"].float()
 
 
 def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int, value_bytes: int = 2) -> int:

@@ -36,7 +36,7 @@ from torch import nn
 
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
-from neumat.core.errors import InputError
+from neumat.core.errors import DataFormatError, InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
@@ -147,6 +147,9 @@ class SparseBTF(LearnedMaterial):
         self.register_buffer("counts", torch.zeros(3, n_patches, dtype=torch.int32))
         self.register_buffer("values", torch.zeros(3, n_patches, t))
         self.register_buffer("index", torch.zeros(3, n_patches, t, 4, dtype=torch.int32))
+        self._runtime = False
+        self.register_state_dict_post_hook(stored_codes)
+        self.register_load_state_dict_pre_hook(unpack_codes)
 
     # ------------------------------------------------------------------------------------ building
     @classmethod
@@ -411,6 +414,21 @@ class SparseBTF(LearnedMaterial):
             out._store_codes(c, Codes(ca.membership, vals, unravel(idx, shape), counts, err))
         return out
 
+    # ------------------------------------------------------------------------------------ runtime form
+    @property
+    def is_runtime(self) -> bool:
+        """Whether `runtime()` is in effect (model files record it and re-enter it on load)."""
+        return self._runtime
+
+    @torch.no_grad()
+    def runtime(self) -> "SparseBTF":
+        """Round the coefficient values and the dictionaries to fp16, as `storage` counts them (the statistics
+        stay float32); the model file then stores them as fp16 (`stored_codes`). Returns self."""
+        for t in (self.values, *(getattr(self, f"dict_{n}") for n in range(1, 5))):
+            t.copy_(t.half())
+        self._runtime = True
+        return self
+
     # ------------------------------------------------------------------------------------ accounting
     def storage(self, value_bytes: int = 2, index_bytes: int = 2, statistics_bytes: int = 4) -> dict:
         """Bytes of the representation (module docstring): per-BTF parts, the shared ensemble, totals.
@@ -460,6 +478,51 @@ class TapPairs(NamedTuple):
     """(M,): the query of every pair."""
     patch: torch.Tensor
     """(M,): the data point of every pair."""
+
+
+def stored_codes(module: SparseBTF, state_dict: dict, prefix: str, local_metadata) -> None:
+    """State-dict hook: the codes as `storage` counts them, without the capacity padding: "values" (nnz,) and
+    "index" (nnz, 4) int16 hold only the first count[c, p] coefficients of every data point (channel-major),
+    "membership" and "counts" are int16; in runtime mode values and dictionaries are fp16. `unpack_codes`
+    inverts it exactly (the padding is zero)."""
+    counts = state_dict[prefix + "counts"].long()
+    live = torch.arange(module.values.shape[-1], device=counts.device) < counts.unsqueeze(-1)   # (3, P, T)
+    state_dict[prefix + "values"] = state_dict[prefix + "values"][live]
+    state_dict[prefix + "index"] = state_dict[prefix + "index"][live].to(torch.int16)
+    for name in ("membership", "counts"):
+        state_dict[prefix + name] = state_dict[prefix + name].to(torch.int16)
+    if module.is_runtime:
+        for name in ("values", *(f"dict_{n}" for n in range(1, 5))):
+            state_dict[prefix + name] = state_dict[prefix + name].half()
+
+
+def unpack_codes(module: SparseBTF, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
+                 unexpected_keys, error_msgs) -> None:
+    """Load-state-dict pre-hook inverting `stored_codes`: the compact codes back to the padded (3, P, T) layout
+    (DataFormatError when the counts do not match the stored coefficients)."""
+    key = prefix + "counts"
+    if key not in state_dict or state_dict[prefix + "values"].ndim != 1:
+        return
+    counts = state_dict[key].long()
+    t = module.values.shape[-1]
+    if counts.shape != module.counts.shape or (counts.numel() and not (0 <= int(counts.min()) <= int(counts.max()) <= t)):
+        raise DataFormatError(f"sparse-btf counts: expected {tuple(module.counts.shape)} integers in [0, {t}], got "
+                              f"{tuple(counts.shape)}")
+    values, index = state_dict[prefix + "values"], state_dict[prefix + "index"]
+    nnz = int(counts.sum())
+    if values.shape != (nnz,) or index.shape != (nnz, 4):
+        raise DataFormatError(f"sparse-btf codes: the counts add up to {nnz} coefficients, but {tuple(values.shape)} "
+                              f"values and {tuple(index.shape)} index tuples are stored")
+    live = torch.arange(t) < counts.unsqueeze(-1)
+    full_values = torch.zeros(module.values.shape, dtype=torch.float32)
+    full_index = torch.zeros(module.index.shape, dtype=torch.int32)
+    full_values[live] = values.float()
+    full_index[live] = index.to(torch.int32)
+    state_dict[prefix + "values"], state_dict[prefix + "index"] = full_values, full_index
+    for name in ("membership", "counts"):
+        state_dict[prefix + name] = state_dict[prefix + name].to(torch.int32)
+    for n in range(1, 5):
+        state_dict[prefix + f"dict_{n}"] = state_dict[prefix + f"dict_{n}"].float()
 
 
 def _pairs_of_taps(patch: torch.Tensor) -> TapPairs:
