@@ -57,7 +57,7 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
           roughness_range: str = typer.Option("0.05,0.5", help="alpha at roughness-texture values 0 and 1, LO,HI"),
           albedo_texture: Path = typer.Option(None, help="RGB image multiplying the medium's albedo "
                                                          "(latitude-longitude projection from the box centre)"),
-          noise_check: int = typer.Option(256, min=0, help="observations traced twice more to estimate the data's "
+          noise_check: int = typer.Option(2048, min=0, help="observations traced twice more to estimate the data's "
                                                            "Monte Carlo noise (0: skip)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
@@ -78,33 +78,37 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
                   "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]}
         if noise_check:
             source["noise"] = noise = observation_noise(obj, obs, noise_check, seed)
-            print(f"noise floor: an observation's Monte Carlo variance at {spp} spp is {noise['variance']:.3g}, "
-                  f"{noise['relative']:.3g} of the values' variance (the least held-out MSE / variance a fit can "
-                  f"show; {noise['observations']} observations traced twice)")
+            share = ("" if noise["relative"] is None else
+                     f", {noise['relative']:.3g} +- {noise['relative_se']:.2g} of the values' variance (the least "
+                     "held-out MSE / variance a fit can show)")
+            print(f"noise floor: an observation's Monte Carlo variance at {spp} spp is {noise['variance']:.3g}{share}; "
+                  f"{noise['observations']} observations traced twice")
         obs.save(out, source=source)
         print(f"wrote {out}: {len(obs)} observations x {spp} paths ({obj.describe()})")
     run_command(go)
 
 
 def observation_noise(obj, obs, count: int, seed: int) -> dict:
-    """The Monte Carlo noise of traced observations: up to `count` of them, from 8 views spread over the data,
+    """The Monte Carlo noise of traced observations: up to `count` of them, from 32 views spread over the data,
     traced twice more (`TranslucentObject.noise_variance`); their mean variance, absolute and relative to the
-    variance of all observed values (what `fit` reports its held-out MSE against)."""
+    variance of all observed values (what `fit` reports its held-out MSE against), with the standard error of the
+    relative value (the estimator is heavy-tailed: few observations underestimate it)."""
     import torch
 
     from ..core.query import Query
 
     starts = torch.cat([torch.tensor([0]), (obs.wi[1:] != obs.wi[:-1]).any(-1).nonzero().squeeze(1) + 1,
                         torch.tensor([len(obs)])])  # views: runs of one light direction
-    views = torch.linspace(0, len(starts) - 2, min(8, len(starts) - 1)).round().long().unique()
+    views = torch.linspace(0, len(starts) - 2, min(32, len(starts) - 1)).round().long().unique()
     gen = torch.Generator().manual_seed(int(seed))
     per_view = max(1, count // len(views))
     idx = torch.cat([starts[v] + torch.randperm(int(starts[v + 1] - starts[v]), generator=gen)[:per_view]
                      for v in views.tolist()])
     variance = obj.noise_variance(Query(wi=obs.wi[idx], wo=obs.wo[idx], x=obs.x[idx]))
     values = float(obs.value.double().var())
-    noise = float(variance.mean())
-    return {"observations": int(idx.numel()), "variance": noise, "relative": noise / values if values > 0 else None}
+    noise, se = float(variance.mean()), float(variance.mean(-1).std() / idx.numel() ** 0.5)
+    return {"observations": int(idx.numel()), "variance": noise,
+            "relative": noise / values if values > 0 else None, "relative_se": se / values if values > 0 else None}
 
 
 def _inner_shapes(text: str | None) -> list:

@@ -23,8 +23,11 @@ texture on the outer surface and an albedo texture on the medium. Both textures 
 width, v = acos(z) / pi down its height (row 0 looks along +z), bilinear with wrap-around (Mitsuba's `bitmap`
 filter; on the unit sphere this is Mitsuba's own sphere uv).
 
-Path length: `max_depth` 5000 is the paper's. On the default sphere (40 views of 16^2 rays, 32 spp, one
-thread) it changes nothing measurable against 1000 and costs the same time: see docs/neupress.md.
+Path length: `max_depth` 5000 is the paper's. Against 1000 it changes nothing here: Mitsuba's volpath plays
+Russian roulette from depth 5 with a survival probability of at most 0.95, so a path reaches 1000 events with
+probability below 1e-22. Measured (40 views of 16^2 rays at 32 spp, one thread): S_hat bit for bit the same
+(mean (0.0449, 0.0204, 0.0161) on the default sphere; also at size_mm 40 and 200) and the same time (4.4 vs
+4.7 s); paths are cut by the roulette, not the limit (depth 10 -> 100 changes the mean, 100 -> 1000 by 1e-9).
 """
 from __future__ import annotations
 
