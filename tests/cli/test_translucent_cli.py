@@ -103,3 +103,42 @@ def test_fit_takes_recipe_and_config_overrides_and_resumes(tmp_path):
     assert r.exit_code == 2 and "batch_size" in _said(r)
     r = _run("fit", tmp_path / "o.npz", "-o", tmp_path / "c.nmat", "--batch", 16)
     assert r.exit_code == 2
+
+
+@pytest.mark.mitsuba
+def test_trace_scene_options_and_noise_floor(tmp_path):
+    """--max-depth, --inner (a .json file), the textures and --roughness-range reach the saved object config; the
+    noise estimate is printed and saved, and --noise-check 0 skips it."""
+    mitsuba_or_skip()
+    import json
+
+    import numpy as np
+
+    from neumat.io.images import write_image
+    write_image(tmp_path / "r.exr", np.full((4, 8, 3), 0.5, np.float32))
+    (tmp_path / "inner.json").write_text(json.dumps([{"medium": "skin1", "scale": 0.4, "ior": 1.4}]))
+    r = _run("trace", "-o", tmp_path / "o.npz", "--images", 3, "--resolution", 8, "--spp", 2, "-q",
+             "--max-depth", 100, "--inner", tmp_path / "inner.json", "--roughness-texture", tmp_path / "r.exr",
+             "--roughness-range", "0.1,0.2", "--albedo-texture", tmp_path / "r.exr", "--noise-check", 16)
+    assert r.exit_code == 0, r.output
+    source = Observations.load_source(tmp_path / "o.npz")
+    cfg = source["object"]
+    assert cfg["max_depth"] == 100 and cfg["inner"][0]["medium"] == "skin1" and cfg["roughness_range"] == [0.1, 0.2]
+    assert cfg["roughness_texture"] == cfg["albedo_texture"] == str(tmp_path / "r.exr")
+    noise = source["noise"]
+    assert 0 < noise["observations"] <= 16 and noise["variance"] > 0 and noise["relative"] > 0
+    assert "noisefloor" in _said(r)
+    r = _run("trace", "-o", tmp_path / "p.npz", "--images", 1, "--resolution", 4, "--spp", 1, "-q",
+             "--inner", '[{"scale": 0.3, "albedo": [0, 0, 0]}]', "--noise-check", 0)
+    assert r.exit_code == 0, r.output
+    source = Observations.load_source(tmp_path / "p.npz")
+    assert "noise" not in source and source["object"]["inner"][0]["albedo"] == [0, 0, 0]
+
+
+def test_trace_scene_option_errors(tmp_path):
+    r = _run("trace", "-o", tmp_path / "o.npz", "--inner", "[{oops")
+    assert r.exit_code == 2 and "--inner" in _said(r)
+    r = _run("trace", "-o", tmp_path / "o.npz", "--inner", '{"scale": 0.3}')
+    assert r.exit_code == 2 and "alistofobjects" in _said(r)
+    r = _run("trace", "-o", tmp_path / "o.npz", "--roughness-range", "0.1")
+    assert r.exit_code == 2 and "LO,HI" in _said(r)

@@ -48,6 +48,17 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
           spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: "
                                                   "32 is ~1.7x the time of 8)"),
           seed: int = typer.Option(0, **SEED_RANGE),
+          max_depth: int = typer.Option(5000, min=2, help="longest path (the paper's 5000)"),
+          inner: str = typer.Option(None, help="shapes inside the volume: a .json file or inline JSON, a list of "
+                                               "InnerShape fields, e.g. '[{\"medium\": \"skin1\", \"scale\": 0.4}]' "
+                                               "(docs/neupress.md)"),
+          roughness_texture: Path = typer.Option(None, help="image whose first channel maps to GGX alpha in "
+                                                            "--roughness-range (latitude-longitude projection)"),
+          roughness_range: str = typer.Option("0.05,0.5", help="alpha at roughness-texture values 0 and 1, LO,HI"),
+          albedo_texture: Path = typer.Option(None, help="RGB image multiplying the medium's albedo "
+                                                         "(latitude-longitude projection from the box centre)"),
+          noise_check: int = typer.Option(2048, min=0, help="observations traced twice more to estimate the data's "
+                                                           "Monte Carlo noise (0: skip)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
     def go():
@@ -57,13 +68,74 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
 
         _check_suffix(out, ".npz", "trace OUT")
         cfg = TranslucentConfig(shape=object_shape(scene), media=tuple(m.strip() for m in media.split(",")), size_mm=size_mm,
-                                roughness=roughness)
+                                roughness=roughness, max_depth=max_depth, inner=_inner_shapes(inner),
+                                roughness_texture=None if roughness_texture is None else str(roughness_texture),
+                                roughness_range=_pair(roughness_range, "--roughness-range"),
+                                albedo_texture=None if albedo_texture is None else str(albedo_texture))
         obj = TranslucentObject(cfg, spp=spp, seed=seed)
         obs = collect_observations(obj, images, resolution, seed=seed, progress=not quiet)
-        obs.save(out, source={"object": config_to_dict(cfg), "spp": spp, "seed": seed,
-                              "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]})
+        source = {"object": config_to_dict(cfg), "spp": spp, "seed": seed,
+                  "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]}
+        if noise_check:
+            source["noise"] = noise = observation_noise(obj, obs, noise_check, seed)
+            share = ("" if noise["relative"] is None else
+                     f", {noise['relative']:.3g} +- {noise['relative_se']:.2g} of the values' variance (the least "
+                     "held-out MSE / variance a fit can show)")
+            print(f"noise floor: an observation's Monte Carlo variance at {spp} spp is {noise['variance']:.3g}{share}; "
+                  f"{noise['observations']} observations traced twice")
+        obs.save(out, source=source)
         print(f"wrote {out}: {len(obs)} observations x {spp} paths ({obj.describe()})")
     run_command(go)
+
+
+def observation_noise(obj, obs, count: int, seed: int) -> dict:
+    """The Monte Carlo noise of traced observations: up to `count` of them, from 32 views spread over the data,
+    traced twice more (`TranslucentObject.noise_variance`); their mean variance, absolute and relative to the
+    variance of all observed values (what `fit` reports its held-out MSE against), with the standard error of the
+    relative value (the estimator is heavy-tailed: few observations underestimate it)."""
+    import torch
+
+    from ..core.query import Query
+
+    starts = torch.cat([torch.tensor([0]), (obs.wi[1:] != obs.wi[:-1]).any(-1).nonzero().squeeze(1) + 1,
+                        torch.tensor([len(obs)])])  # views: runs of one light direction
+    views = torch.linspace(0, len(starts) - 2, min(32, len(starts) - 1)).round().long().unique()
+    gen = torch.Generator().manual_seed(int(seed))
+    per_view = max(1, count // len(views))
+    idx = torch.cat([starts[v] + torch.randperm(int(starts[v + 1] - starts[v]), generator=gen)[:per_view]
+                     for v in views.tolist()])
+    variance = obj.noise_variance(Query(wi=obs.wi[idx], wo=obs.wo[idx], x=obs.x[idx]))
+    values = float(obs.value.double().var())
+    noise, se = float(variance.mean()), float(variance.mean(-1).std() / idx.numel() ** 0.5)
+    return {"observations": int(idx.numel()), "variance": noise,
+            "relative": noise / values if values > 0 else None, "relative_se": se / values if values > 0 else None}
+
+
+def _inner_shapes(text: str | None) -> list:
+    """--inner: None, the path of a .json file or inline JSON, holding a list of InnerShape field dicts."""
+    import json
+
+    from ..core.errors import InputError
+    if text is None:
+        return []
+    source = Path(text).read_text() if text.strip().endswith(".json") and Path(text).is_file() else text
+    try:
+        shapes = json.loads(source)
+    except ValueError as e:
+        raise InputError(f"--inner: expected a .json file or inline JSON (a list of inner shapes), got {text!r}: "
+                         f"{e}") from None
+    if not isinstance(shapes, list) or not all(isinstance(s, dict) for s in shapes):
+        raise InputError(f"--inner: expected a list of objects (InnerShape fields), got {shapes!r}")
+    return shapes
+
+
+def _pair(text: str, what: str) -> tuple[float, float]:
+    from ..core.errors import InputError
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"{what}: expected two numbers LO,HI, got {text!r}") from None
+    return lo, hi
 
 
 @app.command()
