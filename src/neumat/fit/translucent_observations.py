@@ -25,7 +25,8 @@ from ..warp.sphere import sample_uniform_sphere
 class Observations:
     """N observations, all (N, 3) float32 object space: surface point x, outward unit normal n, unit view
     direction wo (towards the camera), unit light direction wi (towards the light) and the observed S_hat
-    (RGB, 1/sr, >= 0). Anything else raises InputError."""
+    (RGB, 1/sr; a Monte Carlo estimate, so a value may be slightly negative: `TranslucentObject.trace` subtracts
+    two traces and does not clamp, which would bias it). Anything else raises InputError."""
 
     x: torch.Tensor
     n: torch.Tensor
@@ -47,9 +48,6 @@ class Observations:
             if n and float(err.max()) > 1e-3:
                 raise InputError(f"Observations.{name}: expected unit vectors, {int((err > 1e-3).sum())} of {n} are "
                                  f"not (max |norm - 1| = {float(err.max()):.3g})")
-        if n and float(self.value.min()) < 0:
-            raise InputError(f"Observations.value: expected values >= 0 (S_hat), got a minimum of "
-                             f"{float(self.value.min()):.4g}")
 
     def __len__(self) -> int:
         return self.x.shape[0]

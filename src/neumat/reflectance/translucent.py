@@ -250,7 +250,9 @@ class TranslucentObject(Material):
             seed = self._next_seed()
             diff = self._radiance("medium", oo, dd, seed) - self._radiance("black", oo, dd, seed)
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
-        return out.clamp_min(0)  # the subtraction's float32 rounding can leave -1e-7 where S_hat is ~0
+        # not clamped: the difference is unbiased but one ray's mean can be negative (on a concave object a path
+        # that reflects off the surface and meets it again diverges between the two traces); clamping would bias it
+        return out
 
     def noise_variance(self, q: Query) -> torch.Tensor:
         """Variance (N, 3) float64 of `eval(q)`'s Monte Carlo estimate (`spp` paths), unbiased: each query is
