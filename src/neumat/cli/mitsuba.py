@@ -1,4 +1,5 @@
-"""`neumat mitsuba-render`: render a Mitsuba 3 scene file whose BSDFs may be neumat materials."""
+"""`neumat mitsuba-render`: render a Mitsuba 3 scene file whose BSDFs may be neumat materials and whose integrator
+may be `neumat_translucent` (a NeuPreSS object in the scene)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -21,15 +22,17 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
                    out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
                                             help="output image (.png, .exr, .hdr)")) -> None:
     """Render SCENE with Mitsuba's integrator; `<bsdf type="neumat"><string name="material" value="..."/></bsdf>`
-    puts any neumat material (model file, measured file, texture-set folder, analytic spec) in it."""
+    puts any neumat material (model file, measured file, texture-set folder, analytic spec) in it, and
+    `<integrator type="neumat_translucent">` a translucent NeuPreSS object (docs/mitsuba.md)."""
     from ..integrations import mitsuba as plugin
+    from ..integrations import mitsuba_translucent
     from ..io.images import write_image
 
     def go():
         if not scene.is_file():
             raise InputError(f"scene file {str(scene)!r} does not exist")
         params = parse_overrides(define, "-D", text=True)  # Mitsuba substitutes the text as written
-        mi = plugin.register()
+        mi = mitsuba_translucent.register()  # the neumat BSDF and the translucent integrator
         try:
             loaded = mi.load_file(str(scene), **params)
         except RuntimeError as e:  # Mitsuba's parser: the message names the file, line and problem

@@ -7,8 +7,21 @@ Entry points (object space, unit directions; x on the object's surface, n its ou
     float neumat_sigma(vec3 x, vec3 wo)                          // the sampling lobe's width in radians
     vec3  neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u)   // a light direction wi for u in [0, 1)^2
     float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)    // its solid-angle density
+    vec3  neumat_translucent_shade(vec3 x, vec3 n, vec3 wo, float alpha, float ior, int samples)
+    float neumat_rough_dielectric_reflection(vec3 n, vec3 wo, vec3 wi, float alpha, float ior)
 
-computing what `model.eval`, `model.sigma`, `model.sample_incident` and `model.incident_pdf` compute. The two
+computing what `model.eval`, `model.sigma`, `model.sample_incident` and `model.incident_pdf` compute.
+
+`neumat_translucent_shade` shades a fragment of the object for a rasteriser (TG et al., Eq. 3 and 5): the outer
+surface reflection of the environment (a GGX rough dielectric of roughness alpha and index ior, Walter et al.
+2007, sampled by the GGX distribution of normals) plus the subsurface term (samples drawn from the model's lobe,
+S_hat * L_env / pdf), both over the same `samples` points of a Hammersley set (u = ((k + 0.5) / samples,
+radical inverse of k to 24 bits)), so a CPU reference computes the same sum. The environment is the
+equirectangular `uniform sampler2DArray neumat_env` (one layer, RGB radiance, the mapping of
+`neumat.render.envmaps`, nearest texel as `EnvironmentMap`). `neumat_rough_dielectric_reflection` is the surface
+term's f_r cos(theta_i) (Mitsuba's `roughdielectric` reflection). The environment is not occluded (the object
+alone); x, n, wo are object space, and the map is looked up with object-space directions. These two functions
+are GLSL only (the Slang export leaves them out). The two
 networks (7 x 128 and 512-128-32 by default) are too large for constants in the source, so every matrix,
 bias and Fourier matrix lies in one RGBA32F texture `neumat_weights` (1 layer, 1024 texels wide, read with
 `texelFetch`): a matrix of `out x in` as 4 ceil(out / 4) rows of ceil(in / 4) texels, zero-padded, a bias as
@@ -120,14 +133,95 @@ vec3 neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u) {{
 float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n) {{
     return nm_lobe_pdf(wi, n, neumat_sigma(x, wo));
 }}
-"""])
+""", _SHADE])
     entry = ["vec3 neumat_translucent(vec3 wi, vec3 x, vec3 wo)", "float neumat_sigma(vec3 x, vec3 wo)",
              "vec3 neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u)",
-             "float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)"]
+             "float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)",
+             "vec3 neumat_translucent_shade(vec3 x, vec3 n, vec3 wo, float alpha, float ior, int samples)",
+             "float neumat_rough_dielectric_reflection(vec3 n, vec3 wo, vec3 wi, float alpha, float ior)"]
     # float32 at every precision: the texture holds the Fourier matrices too, whose phases reach ~400 rad
     return GLSLExport(source, {"neumat_weights": packer.texture()}, spatially_varying=False, entry=entry,
                       exact=("neumat_weights",))
 
+
+_SHADE = """
+// ---- shading a fragment (GLSL only: export_slang strips from here to the end marker)
+uniform sampler2DArray neumat_env;
+
+vec3 nm_env(vec3 d) {
+    ivec3 size = textureSize(neumat_env, 0);
+    float u = mod(atan(d.x, -d.z) / 6.283185307, 1.0);
+    float v = atan(length(d.xz), d.y) / 3.141592654;
+    int i = clamp(int(v * float(size.y)), 0, size.y - 1);
+    int j = clamp(int(u * float(size.x)), 0, size.x - 1);
+    return texelFetch(neumat_env, ivec3(j, i, 0), 0).rgb;
+}
+
+vec2 nm_hammersley(int k, int count) {
+    uint b = uint(k);
+    b = (b << 16u) | (b >> 16u);
+    b = ((b & 0x55555555u) << 1u) | ((b & 0xAAAAAAAAu) >> 1u);
+    b = ((b & 0x33333333u) << 2u) | ((b & 0xCCCCCCCCu) >> 2u);
+    b = ((b & 0x0F0F0F0Fu) << 4u) | ((b & 0xF0F0F0F0u) >> 4u);
+    b = ((b & 0x00FF00FFu) << 8u) | ((b & 0xFF00FF00u) >> 8u);
+    return vec2((float(k) + 0.5) / float(count), float(b >> 8u) * 5.9604645e-08);
+}
+
+float nm_fresnel(float cos_i, float eta) {
+    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if (sin2_t >= 1.0) return 1.0;
+    float cos_t = sqrt(1.0 - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+float nm_ggx_d(float cos_h, float alpha) {
+    float a2 = alpha * alpha, t = cos_h * cos_h * (a2 - 1.0) + 1.0;
+    return a2 / (3.141592654 * t * t);
+}
+
+float nm_ggx_g1(vec3 v, vec3 h, vec3 n, float alpha) {
+    float c = dot(v, n);
+    if (dot(v, h) * c <= 0.0) return 0.0;
+    float tan2 = max(1.0 - c * c, 0.0) / (c * c);
+    return 2.0 / (1.0 + sqrt(1.0 + alpha * alpha * tan2));
+}
+
+float neumat_rough_dielectric_reflection(vec3 n, vec3 wo, vec3 wi, float alpha, float ior) {
+    float co = dot(n, wo), ci = dot(n, wi);
+    if (co <= 0.0 || ci <= 0.0) return 0.0;
+    vec3 h = normalize(wo + wi);
+    return nm_fresnel(dot(wo, h), ior) * nm_ggx_d(dot(n, h), alpha) * nm_ggx_g1(wo, h, n, alpha)
+        * nm_ggx_g1(wi, h, n, alpha) / (4.0 * co);
+}
+
+vec3 neumat_translucent_shade(vec3 x, vec3 n, vec3 wo, float alpha, float ior, int samples) {
+    float sigma = neumat_sigma(x, wo);
+    float co = dot(n, wo);
+    vec3 t, b;
+    nm_basis(n, t, b);
+    vec3 sum = vec3(0.0);
+    for (int k = 0; k < samples; ++k) {
+        vec2 u = nm_hammersley(k, samples);
+        // surface: a GGX normal h (density D(h) cos theta_h), the mirror direction, weight F G (wo.h) / (co cos_h)
+        float cos2 = 1.0 / (1.0 + alpha * alpha * u.x / (1.0 - u.x));
+        float cos_h = sqrt(cos2), sin_h = sqrt(max(1.0 - cos2, 0.0)), phi = 6.283185307 * u.y;
+        vec3 h = sin_h * cos(phi) * t + sin_h * sin(phi) * b + cos_h * n;
+        float oh = dot(wo, h);
+        vec3 wr = 2.0 * oh * h - wo;
+        if (co > 0.0 && dot(n, wr) > 0.0 && oh > 0.0)
+            sum += nm_fresnel(oh, ior) * nm_ggx_g1(wo, h, n, alpha) * nm_ggx_g1(wr, h, n, alpha) * oh
+                   / (co * cos_h) * nm_env(wr);
+        // subsurface: the model's lobe
+        vec3 wi = normalize(nm_lobe_sample(u, n, sigma));
+        float pdf = nm_lobe_pdf(wi, n, sigma);
+        if (pdf > 0.0) sum += neumat_translucent(wi, x, wo) * nm_env(wi) / pdf;
+    }
+    return sum / float(samples);
+}
+// ---- end of shading
+"""
 
 # Y = B + W X for vec4 arrays X (IN4 long) and Y (OUT4 long); W has 4 OUT4 rows of IN4 texels (zero-padded), the
 # bias OUT4 texels

@@ -330,7 +330,9 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
     glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
-    body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures)
+    # the GLSL-only fragment shading of a neupress export (an environment texture bound by the rasteriser)
+    glsl_source = re.sub(r"// ---- shading a fragment.*?// ---- end of shading\n", "", glsl.source, flags=re.S)
+    body = glsl_to_slang(glsl_source.split("\n", 1)[1], glsl.textures)
     header = (f"// neumat Slang module of a '{model.name}' model (methods: {', '.join(entries)}); see "
               "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json.\n")
     source = header + body + "\n" + _interfaces() + _material(entries, interfaces) + _kernel(entries)
