@@ -66,3 +66,18 @@ def test_mesh_intersector_returns_the_hit_triangle_and_its_weights():
     assert bool((bary >= 0).all()) and bool((t > 0).all())
     with pytest.raises(InputError, match="faces"):
         MeshIntersector(v, f + len(v))
+
+
+@pytest.mark.mitsuba
+def test_object_mesh_drops_vertices_on_no_triangle(tmp_path):
+    mitsuba_or_skip()
+    from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
+    from neumat.render.mesh import object_mesh
+    lines = ["ply", "format ascii 1.0", "element vertex 5", "property float x", "property float y",
+             "property float z", "element face 4", "property list uchar int vertex_indices", "end_header",
+             "0 0 0", "5 5 5", "1 0 0", "0 1 0", "0 0 1", "3 0 3 2", "3 0 2 4", "3 0 4 3", "3 2 3 4"]
+    (tmp_path / "t.ply").write_text("\n".join(lines) + "\n")  # vertex 1 (5, 5, 5) is on no face
+    v, f = object_mesh(TranslucentObject(TranslucentConfig(shape=str(tmp_path / "t.ply")), spp=1))
+    assert v.shape == (4, 3) and f.shape == (4, 3)
+    assert sorted(map(tuple, v.tolist())) == [(0, 0, 0), (0, 0, 1), (0, 1, 0), (1, 0, 0)]
+    assert bool(((vertex_normals(v, f) * (v - 0.25)).sum(-1) > 0).all())  # the faces still point outwards

@@ -62,7 +62,8 @@ def vertex_normals(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
 
 def object_mesh(obj: TranslucentObject, subdivisions: int = 4) -> tuple[torch.Tensor, torch.Tensor]:
     """(vertices, faces) of a translucent object's surface: the triangles Mitsuba loaded from its PLY (quads
-    split), or for the analytic unit sphere an icosphere with `subdivisions`."""
+    split; vertices on no triangle dropped, as scanned meshes like the Stanford bunny have some), or for the
+    analytic unit sphere an icosphere with `subdivisions`."""
     if obj.config.shape == "sphere":
         return icosphere(subdivisions)
     mi = obj.mi
@@ -70,7 +71,8 @@ def object_mesh(obj: TranslucentObject, subdivisions: int = 4) -> tuple[torch.Te
     params = mi.traverse(shape)
     v = np.array(params["vertex_positions"], dtype=np.float64).reshape(-1, 3)
     f = np.array(params["faces"], dtype=np.int64).reshape(-1, 3)
-    return torch.from_numpy(v), torch.from_numpy(f)
+    used, f = np.unique(f, return_inverse=True)
+    return torch.from_numpy(v[used]), torch.from_numpy(f.reshape(-1, 3))
 
 
 class MeshIntersector:
