@@ -32,6 +32,9 @@ QUICK: dict[tuple[str, ...], dict[str, str]] = {
     ("translucent", "trace"): {"--images": "3", "--resolution": "8", "--spp": "2"},
     ("translucent", "fit"): {"--steps": "4"},
     ("translucent", "render"): {"--spp": "2", "--resolution": "8", "--reference-spp": "2", "--env-width": "16"},
+    ("translucent", "prt"): {"--light-samples": "16", "--subdivisions": "1"},
+    ("translucent", "prt-render"): {"--spp": "1", "--resolution": "8", "--model-spp": "2", "--reference-spp": "2",
+                                    "--env-width": "16"},
 }
 #: options added to commands of these words when absent (not caps): small batches, small texture sets
 EXTRA: dict[tuple[str, ...], list[str]] = {
@@ -45,7 +48,8 @@ MODEL_EXTRA = {"dipole-bssrdf": ["--set", "samples=16"]}
 #: fit-many runs its jobs in this process (Ray is tested in tests/cli/test_fit_many.py)
 EXTRA[("fit-many",)] = ["--engine", "local"]
 #: commands that need Mitsuba 3's LLVM backend
-MITSUBA = {("mitsuba-render",), ("translucent", "trace"), ("translucent", "render")}
+MITSUBA = {("mitsuba-render",), ("translucent", "trace"), ("translucent", "render"), ("translucent", "prt"),
+           ("translucent", "prt-render")}
 
 
 def _commands(md: Path) -> list[str]:

@@ -316,3 +316,52 @@ def test_bad_inputs_raise_input_error():
                        (lambda: prt.size_bytes("fp8"), "precision")]:
         with pytest.raises(InputError, match=name):
             call()
+
+
+# ---- 6. the batched precomputation ------------------------------------------------------------------------------
+class _ThroughQueries:
+    """A NeuPreSS model seen as a plain material: from_material evaluates it through eval(Query)."""
+
+    full_sphere = True
+
+    def __init__(self, model):
+        self.model = model
+
+    def eval(self, q):
+        return self.model.eval(q)
+
+
+@pytest.mark.parametrize("fourier", [dict(), dict(feature_mean=18.0, feature_std=1.0)])
+def test_batched_precompute_matches_a_float64_brute_force_sum(fourier):
+    """Both evaluation paths (NeuPreSS's separable features; any material's queries) against Eq. 10 summed per
+    vertex and view in float64, with the paper's Fourier scale (angles up to ~100 rad) and ours."""
+    torch.manual_seed(0)
+    model = NeuPreSS(features=32, width=32, layers=3, sampler_hidden=(8,), **fourier)
+    model.set_bounds(-torch.ones(3), torch.ones(3))
+    points, normals = _vertices(3, seed=4)
+    cfg = PRTConfig(view_theta=2, view_phi=3, light_samples=50, batch_size=200)  # chunks split vertices
+    d, w = sphere_quadrature(50)
+    basis_w = real_sh(d, 2) * w[:, None]
+    wo = _bin_centres(normals, 2, 3).double()  # (V, T, P, 3)
+    m64 = NeuPreSS(features=32, width=32, layers=3, sampler_hidden=(8,), **fourier).double()
+    m64.load_state_dict(model.state_dict())
+    expected = torch.stack([torch.stack([
+        basis_w.T @ m64.eval(Query(wi=d, wo=o[None].expand(len(d), 3), x=points[v].double().expand(len(d), 3)))
+        for o in wo[v].reshape(-1, 3)]) for v in range(3)]).reshape(3, 2, 3, 9, 3)
+    scale = expected.abs().max()
+    for material in (model, _ThroughQueries(model)):
+        prt = SHPRT.from_material(material, points, normals, cfg)
+        assert (prt.coefficients.double() - expected).abs().max() < 1e-4 * scale
+
+
+def test_faces_are_kept_saved_and_checked(tmp_path):
+    points, normals = _vertices(4)
+    faces = torch.tensor([[0, 1, 2], [0, 2, 3]])
+    cfg = PRTConfig(degree=1, view_theta=1, view_phi=2, light_samples=8)
+    prt = SHPRT.from_material(PolyTransport(degree=1), points, normals, cfg, faces=faces)
+    back = SHPRT.load(prt.save(tmp_path / "f.prt"))
+    assert torch.equal(back.faces, faces) and torch.equal(back.to("cpu").faces, faces)
+    assert SHPRT.load(SHPRT(prt.coefficients, points, normals, cfg).save(tmp_path / "n.prt")).faces is None
+    for bad in (torch.tensor([[0, 1, 4]]), torch.tensor([[0.0, 1.0, 2.0]]), torch.tensor([0, 1, 2])):
+        with pytest.raises(InputError, match="faces"):
+            SHPRT(prt.coefficients, points, normals, cfg, faces=bad)

@@ -291,3 +291,176 @@ def _check_suffix(path: Path, suffix: str, what: str) -> None:
     from ..core.errors import InputError
     if path.suffix.lower() != suffix:
         raise InputError(f"{what}: expected a {suffix} file, got {str(path)!r}")
+
+
+@app.command("prt")
+def prt(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
+        observations: Path = typer.Argument(..., help="its observations file (names the object and so the mesh)"),
+        out: Path = typer.Option(..., "-o", "--out", callback=output_option(".prt"),
+                                 help="SH PRT table to write (.prt)"),
+        view_bins: str = typer.Option(None, help="view bins per vertex, THETAxPHI (default: "
+                                                 "neumat.models.neupress_prt.FAST_VIEW_BINS, 8x16; the paper 16x64)"),
+        light_samples: int = typer.Option(None, min=1, help="light directions of the Gauss rule per view bin "
+                                                            "(default: FAST_LIGHT_SAMPLES, 64; the paper 1024)"),
+        degree: int = typer.Option(2, min=0, help="SH degree in the light direction (the paper: 2)"),
+        subdivisions: int = typer.Option(4, min=0, max=7, help="for the analytic sphere: icosphere subdivisions "
+                                                               "(10 4^s + 2 vertices)"),
+        batch_size: int = typer.Option(16384, min=1, help="network evaluations per batch"),
+        device: str = typer.Option("cpu", "--device", callback=device_option,
+                                   help="torch device the model is evaluated on"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar")) -> None:
+    """Precompute the SH PRT table of MODEL (NeuPreSS Sec. 4.3) at every vertex of its object's mesh."""
+    def go():
+        import time
+
+        from ..models.neupress_prt import FAST_LIGHT_SAMPLES, FAST_VIEW_BINS, SHPRT, PRTConfig
+        from ..render.mesh import object_mesh, vertex_normals
+
+        _check_suffix(out, ".prt", "prt --out")
+        m = _neupress(model, device)
+        obj = _translucent_object(observations)
+        vt, vp = _view_bins(view_bins) if view_bins else FAST_VIEW_BINS
+        cfg = PRTConfig(degree=degree, view_theta=vt, view_phi=vp, batch_size=batch_size,
+                        light_samples=light_samples or FAST_LIGHT_SAMPLES)
+        vertices, faces = object_mesh(obj, subdivisions)
+        normals = vertex_normals(vertices, faces)
+        t = time.perf_counter()
+        table = SHPRT.from_material(m, vertices.float(), normals.float(), cfg, progress=not quiet, device=device,
+                                    faces=faces)
+        seconds = time.perf_counter() - t
+        table.to("cpu").save(out)
+        size = table.size_bytes("fp16")
+        print_table(f"wrote {out}", [{"vertices": table.num_vertices, "view bins": f"{vt}x{vp}",
+                                      "light directions": _light_count(cfg), "seconds": round(seconds, 1),
+                                      "fp16 bytes": size, "bytes per vertex": size // table.num_vertices}])
+    run_command(go)
+
+
+@app.command("prt-render")
+def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat translucent prt` (.prt)"),
+               observations: Path = typer.Argument(..., help="the observations file of its object (for the camera "
+                                                             "and the reference)"),
+               out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
+                                        help="image (.png, .exr, .hdr); with --model or --reference-spp a "
+                                             "comparison picture (.png)"),
+               light: str = typer.Option("env:sky", help="the environment: env:sky or env:PATH (.hdr / .exr)"),
+               env_width: int = typer.Option(128, help="box-filter the map to this width first"),
+               resolution: int = typer.Option(64, min=8, help="image width and height"),
+               spp: int = typer.Option(4, min=1, help="samples per pixel of the table's image (anti-aliasing)"),
+               model: Path = typer.Option(None, help="also render this NeuPreSS model (Eq. 5, `translucent render`) "
+                                                     "and compare"),
+               model_spp: int = typer.Option(64, min=1, help="samples per pixel of the model's image"),
+               reference_spp: int = typer.Option(0, min=0, help="also path-trace the reference at this many spp "
+                                                               "and compare"),
+               azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
+               elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
+               seed: int = typer.Option(0, **SEED_RANGE),
+               device: str = typer.Option("cpu", "--device", callback=device_option,
+                                          help="torch device of the table and the model")) -> None:
+    """Render an SH PRT table (Eq. 11) under an environment map, optionally against the network and the
+    path-traced reference (subsurface light only, as `translucent render`)."""
+    def go():
+        import time
+
+        from ..core.errors import InputError
+        from ..io.images import write_image, write_image_ldr
+        from ..metrics.image import image_metrics
+        from ..models.neupress_prt import SHPRT
+        from ..render.translucent import orbit_camera, render_translucent, render_translucent_reference
+        from ..render.translucent_prt import render_prt
+        from ..viz.compare import compare_image
+
+        _check_suffix(table, ".prt", "prt-render TABLE")
+        if (model is not None or reference_spp) and out.suffix.lower() != ".png":
+            raise InputError(f"--out {out}: the comparison picture of --model / --reference-spp is a .png")
+        prt_table = SHPRT.load(table, device=device)
+        net = _neupress(model, device) if model is not None else None
+        obj = _translucent_object(observations, seed)
+        env = _environment(light, env_width)
+        camera = orbit_camera(obj, resolution, azimuth, elevation)
+        t = time.perf_counter()
+        images = {"SH PRT": render_prt(prt_table, env, camera, resolution, spp=spp, seed=seed)}
+        seconds = {"SH PRT": time.perf_counter() - t}
+        if net is None and not reference_spp:
+            write_image(out, images["SH PRT"], tonemap="aces")
+            print(f"wrote {out} ({seconds['SH PRT']:.1f} s)")
+            return
+        if net is not None:
+            t = time.perf_counter()
+            images["network"] = render_translucent(net, obj, env, camera, resolution, spp=model_spp, seed=seed)
+            seconds["network"] = time.perf_counter() - t
+        if reference_spp:
+            t = time.perf_counter()
+            images["reference"] = render_translucent_reference(obj, env, camera, resolution, spp=reference_spp,
+                                                               seed=seed + 1)
+            seconds["reference"] = time.perf_counter() - t
+        rows, panels, scores = [], {}, {}
+        pairs = [("SH PRT", "network"), ("SH PRT", "reference"), ("network", "reference")]
+        for test, ref in pairs:
+            if test in images and ref in images:
+                s = image_metrics(images[ref].numpy(), images[test].numpy(), tonemap="aces")
+                s["mse"] = float(((images[test] - images[ref]) ** 2).mean())
+                name = f"{test} vs {ref}"
+                rows.append({"image": test, "against": ref, "seconds": round(seconds[test], 2), "MSE": s["mse"],
+                             "FLIP": s["flip"], "SSIM": s["ssim"]})
+                if ref == ("reference" if reference_spp else "network"):
+                    panels[name], scores[name] = images[test], s
+        base = images["reference" if reference_spp else "network"]
+        write_image_ldr(out, compare_image(base, panels, scores, tonemap="aces"))
+        print_table(f"wrote {out}", rows)
+    run_command(go)
+
+
+def _neupress(path: Path, device: str):
+    """The NeuPreSS model in `path` on `device` (InputError for another kind of model)."""
+    from ..catalog.modelfile import load_model
+    from ..core.errors import InputError
+    from ..models.neupress import NeuPreSS
+
+    _check_suffix(path, ".nmat", "MODEL")
+    m = load_model(path, device=device)
+    if not isinstance(m, NeuPreSS):
+        raise InputError(f"{path}: expected a NeuPreSS model, got {type(m).__name__}")
+    return m
+
+
+def _translucent_object(observations: Path, seed: int = 0):
+    """The TranslucentObject an observations file of `translucent trace` names."""
+    from ..core.config import config_from_dict
+    from ..core.errors import InputError
+    from ..fit.translucent_observations import Observations
+    from ..reflectance.translucent import TranslucentConfig, TranslucentObject
+
+    _check_suffix(observations, ".npz", "OBSERVATIONS")
+    source = Observations.load_source(observations)
+    if source is None or "object" not in source:
+        raise InputError(f"{observations}: no object description (write it with `neumat translucent trace`)")
+    return TranslucentObject(config_from_dict(TranslucentConfig, source["object"]), spp=1, seed=seed)
+
+
+def _environment(light: str, env_width: int):
+    """The EnvironmentMap of a --light value, box-filtered to `env_width`, as `translucent render` builds it."""
+    from ..render.envmaps import downsample_envmap, read_envmap, sky_envmap
+    from ..render.lights import EnvironmentMap
+
+    envmap = environment_map(light)
+    image = sky_envmap(width=env_width) if envmap == "sky" else read_envmap(envmap)
+    return EnvironmentMap(downsample_envmap(image, env_width))
+
+
+def _view_bins(text: str) -> tuple[int, int]:
+    """(theta, phi) bins of a --view-bins value THETAxPHI."""
+    from ..core.errors import InputError
+    try:
+        theta, phi = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        theta = phi = 0
+    if theta < 1 or phi < 1:
+        raise InputError(f"--view-bins: expected THETAxPHI with positive integers (e.g. 8x16), got {text!r}")
+    return theta, phi
+
+
+def _light_count(cfg) -> int:
+    """Directions of the light quadrature `cfg` asks for (the Gauss rule rounds to rings x points)."""
+    from ..models.neupress_prt import sphere_quadrature
+    return sphere_quadrature(cfg.light_samples, cfg.light_rule)[1].shape[0]

@@ -59,6 +59,11 @@ if TYPE_CHECKING:
 
 LIGHT_RULES = ("gauss", "fibonacci")
 FILE_TYPE = "sh-prt"
+#: view bins (theta, phi) and light directions of `neumat translucent prt` (the paper's 16 x 64 x 1024 are the
+#: PRTConfig defaults): 16x fewer evaluations per vertex, for meshes of tens of thousands of vertices in minutes;
+#: the error this costs against the paper's counts is measured in benchmarks/results/neupress_prt.md
+FAST_VIEW_BINS = (8, 16)
+FAST_LIGHT_SAMPLES = 64
 
 
 @dataclass
@@ -231,11 +236,12 @@ class SHPRT:
     """Per-vertex, per-view-bin SH transport coefficients a_lm (Eq. 10) and their use (Eq. 11).
 
     coefficients: (V, view_theta, view_phi, C, 3) float32, C = (degree + 1)^2; points, normals: (V, 3) object-
-    space vertex positions and unit normals (the normals define the view bins). Build with `from_material`.
+    space vertex positions and unit normals (the normals define the view bins); faces: optional (F, 3) long
+    vertex indices of the mesh's triangles (for rendering). Build with `from_material`.
     """
 
     def __init__(self, coefficients: torch.Tensor, points: torch.Tensor, normals: torch.Tensor,
-                 config: PRTConfig | None = None) -> None:
+                 config: PRTConfig | None = None, faces: torch.Tensor | None = None) -> None:
         cfg = _check_config(PRTConfig() if config is None else config)
         _check_vertices(points, normals)
         v = points.shape[0]
@@ -248,6 +254,7 @@ class SHPRT:
         device = self.coefficients.device
         self.points = points.float().to(device)
         self.normals = normals.float().to(device)
+        self.faces = None if faces is None else _check_faces(faces, v).to(device)
 
     # ---- properties ------------------------------------------------------------------------------------------
     @property
@@ -268,7 +275,8 @@ class SHPRT:
 
     def to(self, device) -> "SHPRT":
         """The same table on `device`."""
-        return SHPRT(self.coefficients.to(device), self.points.to(device), self.normals.to(device), self.config)
+        return SHPRT(self.coefficients.to(device), self.points.to(device), self.normals.to(device), self.config,
+                     self.faces)
 
     def size_bytes(self, precision: str = "fp16") -> int:
         """Storage of the coefficients at `precision` ("fp16" or "fp32"). Vertex positions and normals are
@@ -278,12 +286,15 @@ class SHPRT:
     # ---- precomputation (Eq. 10) -----------------------------------------------------------------------------
     @classmethod
     def from_material(cls, material, points: torch.Tensor, normals: torch.Tensor, config: PRTConfig | None = None,
-                      progress: bool = False, device=None) -> "SHPRT":
+                      progress: bool = False, device=None, faces: torch.Tensor | None = None) -> "SHPRT":
         """Project `material`'s S_hat onto SH in wi at every vertex and view-bin centre.
 
         material: a full-sphere material (`full_sphere = True`, e.g. NeuPreSS) whose `eval(Query(wi, wo, x, n))`
-        gives S_hat (N, 3); points, normals (V, 3): object-space vertices and unit normals. Queries are float32
-        on `device` (default: the device of `points`); sums are accumulated in float64.
+        gives S_hat (N, 3); points, normals (V, 3): object-space vertices and unit normals; faces: optional
+        (F, 3) triangles, kept with the table. Evaluation is float32 on `device` (default: the device of
+        `points`), in chunks of about `config.batch_size` evaluations (whole light sets of (vertex, view) pairs),
+        each chunk projected by one float32 matrix product. A NeuPreSS model is evaluated through
+        `_SeparableNeuPreSS` (no per-query Fourier features); other materials through `eval(Query)`.
         """
         cfg = _check_config(PRTConfig() if config is None else config)
         if not callable(getattr(material, "eval", None)):
@@ -298,41 +309,30 @@ class SHPRT:
         t, b = frame_from_normal(nrm)
 
         wi, weights = sphere_quadrature(cfg.light_samples, cfg.light_rule, device=device)
-        basis_w = real_sh(wi, cfg.degree) * weights[:, None]  # (M, C) float64
-        wi = wi.float()
+        basis_w = (real_sh(wi, cfg.degree) * weights[:, None]).float()  # (M, C)
+        transport = _transport(material, wi.float())
         m, c = wi.shape[0], basis_w.shape[1]
         local = view_bin_directions(cfg.view_theta, cfg.view_phi, device=device).reshape(-1, 3)  # (B, 3)
         n_bins, n_vert = local.shape[0], pts.shape[0]
         n_pairs = n_vert * n_bins
         pair_chunk = max(1, cfg.batch_size // m)
-        light_chunk = min(m, cfg.batch_size)
         out = torch.empty(n_pairs, c, 3, dtype=torch.float32, device=device)
 
         chunks = range(0, n_pairs, pair_chunk)
         if progress:
             from rich.progress import track
-            chunks = track(chunks, description=f"SH PRT ({n_vert} vertices x {n_bins} views)")
+            chunks = track(chunks, description=f"SH PRT ({n_vert} vertices x {n_bins} views x {m} lights)")
         with torch.no_grad():
             for p0 in chunks:
                 p = torch.arange(p0, min(p0 + pair_chunk, n_pairs), device=device)
                 v, k = p // n_bins, p % n_bins
                 wo = to_world(local[k], t[v], b[v], nrm[v])
-                wo = wo / wo.norm(dim=-1, keepdim=True)
-                acc = torch.zeros(len(p), c, 3, dtype=torch.float64, device=device)
-                for l0 in range(0, m, light_chunk):
-                    l1 = min(l0 + light_chunk, m)
-                    nl = l1 - l0
-                    q = Query.trusted(wi=wi[l0:l1].repeat(len(p), 1), wo=wo.repeat_interleave(nl, 0),
-                                      x=pts[v].repeat_interleave(nl, 0), n=nrm[v].repeat_interleave(nl, 0))
-                    val = material.eval(q)
-                    if not isinstance(val, torch.Tensor) or tuple(val.shape) != (len(p) * nl, 3):
-                        raise InputError(f"material.eval: expected a ({len(p) * nl}, 3) tensor, got "
-                                         f"{tuple(getattr(val, 'shape', ()))}")
-                    acc += torch.einsum("pmk,mc->pck", val.reshape(len(p), nl, 3).double(), basis_w[l0:l1])
-                out[p0:p0 + len(p)] = acc.float()
+                val = transport(pts[v], nrm[v], wo / wo.norm(dim=-1, keepdim=True))  # (P, M, 3)
+                # Eq. 10 for the whole chunk as one GEMM, float32 sums of M terms (relative error ~1e-6)
+                out[p0:p0 + len(p)] = torch.matmul(val.transpose(1, 2), basis_w).transpose(1, 2)
         check_finite(out, "material.eval projections")
         coeffs = out.reshape(n_vert, cfg.view_theta, cfg.view_phi, c, 3)
-        return cls(coeffs, pts, nrm, cfg)
+        return cls(coeffs, pts, nrm, cfg, faces=faces)
 
     # ---- lighting and rendering (Eqs. 9, 11) -------------------------------------------------------------------
     def light_coefficients(self, env: EnvironmentMap | Light | Callable[[torch.Tensor], torch.Tensor],
@@ -409,10 +409,13 @@ class SHPRT:
 
     # ---- files -----------------------------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
-        """Write a safetensors file (coefficients, points, normals float32; the config in the JSON metadata)."""
+        """Write a safetensors file (coefficients, points, normals float32, faces int64 if any; the config in the
+        JSON metadata)."""
         from neumat.core.version import __version__
         tensors = {"coefficients": self.coefficients.float(), "points": self.points.float(),
                    "normals": self.normals.float()}
+        if self.faces is not None:
+            tensors["faces"] = self.faces.long()
         return write_tagged(path, tensors, {"type": FILE_TYPE, "config": asdict(self.config),
                                             "neumat_version": __version__})
 
@@ -423,8 +426,9 @@ class SHPRT:
         try:
             known = {f.name for f in fields(PRTConfig)}
             cfg = PRTConfig(**{k: v for k, v in meta["config"].items() if k in known})
+            faces = tensors.get("faces")
             return cls(tensors["coefficients"].to(device), tensors["points"].to(device),
-                       tensors["normals"].to(device), cfg)
+                       tensors["normals"].to(device), cfg, None if faces is None else faces.to(device))
         except KeyError as e:
             raise DataFormatError(f"{path}: missing field {e}") from None
         except (InputError, TypeError, AttributeError) as e:
@@ -442,3 +446,68 @@ def _check_vertices(points, normals) -> None:
     if not normals.is_floating_point():
         raise InputError(f"normals: expected a floating-point tensor, got {normals.dtype}")
     check_directions(normals, "normals")
+
+
+def _check_faces(faces, n_vertices: int) -> torch.Tensor:
+    check_shape(faces, "faces", (-1, 3))
+    if faces.is_floating_point() or faces.is_complex() or faces.dtype == torch.bool:
+        raise InputError(f"faces: expected an integer tensor of vertex indices, got {faces.dtype}")
+    if faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= n_vertices):
+        raise InputError(f"faces: vertex indices must lie in [0, {n_vertices}), got "
+                         f"[{int(faces.min())}, {int(faces.max())}]")
+    return faces.long()
+
+
+# ---- S_hat for every (vertex, view) pair and every light direction ---------------------------------------------
+def _transport(material, wi: torch.Tensor) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
+    """A function (x, n, wo) (P, 3) each -> S_hat (P, M, 3) float32 at the M light directions wi (M, 3)."""
+    from neumat.models.neupress import NeuPreSS
+    if isinstance(material, NeuPreSS):
+        return _SeparableNeuPreSS(material, wi)
+    return _QueryTransport(material, wi)
+
+
+class _QueryTransport:
+    """Any material: one `eval(Query)` of P M queries."""
+
+    def __init__(self, material, wi: torch.Tensor) -> None:
+        self.material, self.wi = material, wi
+
+    def __call__(self, x: torch.Tensor, n: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        p, m = x.shape[0], self.wi.shape[0]
+        q = Query.trusted(wi=self.wi.repeat(p, 1), wo=wo.repeat_interleave(m, 0), x=x.repeat_interleave(m, 0),
+                          n=n.repeat_interleave(m, 0))
+        val = self.material.eval(q)
+        if not isinstance(val, torch.Tensor) or tuple(val.shape) != (p * m, 3):
+            raise InputError(f"material.eval: expected a ({p * m}, 3) tensor, got {tuple(getattr(val, 'shape', ()))}")
+        return val.float().reshape(p, m, 3)
+
+
+class _SeparableNeuPreSS:
+    """NeuPreSS's S_hat = relu(MLP(F(v))) with the Fourier features F(v) = [cos a, sin a], a = 2 pi G v, built
+    without per-query encodings or transcendentals: v = (enc(wi), enc(wo), pos(x)) and G v is linear, so
+    a = a_light(wi) + a_pair(wo, x), and cos a, sin a follow from the cosines and sines of the two parts (computed
+    once per light direction and once per (vertex, view) pair) by the angle-addition formulas. Equal to
+    `NeuPreSS.eval` up to float32 rounding (tests/models/test_neupress_prt.py)."""
+
+    def __init__(self, model, wi: torch.Tensor) -> None:
+        self.model = model
+        g = model.appearance_features.G  # (F, 2 d + 3)
+        self.d = (g.shape[1] - 3) // 2
+        self.g_wo, self.g_x = g[:, self.d:2 * self.d].T, g[:, 2 * self.d:].T
+        dtype = model.box_min.dtype
+        a = (2 * math.pi) * (model._direction(wi.to(g.device, dtype)) @ g[:, :self.d].T)  # (M, F)
+        self.cos_l, self.sin_l = torch.cos(a)[None], torch.sin(a)[None]
+
+    def __call__(self, x: torch.Tensor, n: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        model, dtype = self.model, self.model.box_min.dtype
+        a = (2 * math.pi) * (model._direction(wo.to(dtype)) @ self.g_wo + model._position(x.to(dtype)) @ self.g_x)
+        cos_p, sin_p = torch.cos(a)[:, None], torch.sin(a)[:, None]  # (P, 1, F)
+        p, m, f = a.shape[0], self.cos_l.shape[1], a.shape[1]
+        feat = torch.empty(p, m, 2 * f, dtype=a.dtype, device=a.device)
+        c, s = feat[..., :f], feat[..., f:]
+        torch.mul(cos_p, self.cos_l, out=c)  # cos(a_p + a_l) = cos a_p cos a_l - sin a_p sin a_l
+        c.sub_(sin_p * self.sin_l)
+        torch.mul(sin_p, self.cos_l, out=s)  # sin(a_p + a_l) = sin a_p cos a_l + cos a_p sin a_l
+        s.add_(cos_p * self.sin_l)
+        return torch.relu(model.appearance(feat.reshape(p * m, 2 * f))).float().reshape(p, m, 3)
