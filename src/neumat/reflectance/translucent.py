@@ -43,6 +43,8 @@ JENSEN_MEDIA = {
 }
 #: paths traced per Mitsuba call (bounds memory)
 WAVEFRONT = 1 << 20
+#: what `TranslucentObject.trace_environment` returns: subsurface only, everything, the surface reflection only
+TRACE_PARTS = ("subsurface", "full", "reflection")
 
 
 @dataclass
@@ -114,6 +116,18 @@ class TranslucentObject(Material):
         n = torch.from_numpy(np.array(si.n, dtype=np.float64).T.copy())[hit]
         return hit, x, n / n.norm(dim=-1, keepdim=True)
 
+    def shading_normals(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """Outward unit shading normals (M, 3) float64 at the first surface points of the rays o + t d (N, 3) that
+        hit (those of `first_hits`): the normals Mitsuba's BSDF uses (interpolated vertex normals on meshes)."""
+        si = self.scenes["black"].ray_intersect(self._ray(o, d))
+        hit = torch.from_numpy(np.array(si.is_valid(), dtype=bool))
+        n = torch.from_numpy(np.array(si.sh_frame.n, dtype=np.float64).T.copy())[hit]
+        return n / n.norm(dim=-1, keepdim=True)
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: whether the rays o + t d (N, 3), t > 0, hit the object (Mitsuba's ray_test)."""
+        return torch.from_numpy(np.array(self.scenes["black"].ray_test(self._ray(o, d)), dtype=bool))
+
     def surface(self, x: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(visible (N,) bool, n (N, 3) outward normal) at surface points x (N, 3) seen from directions wo.
 
@@ -145,6 +159,11 @@ class TranslucentObject(Material):
         pdf = np.broadcast_to(np.array(ps.pdf, dtype=np.float64).reshape(-1), (n,))  # uniform shapes give one value
         area = torch.from_numpy(1.0 / pdf / n)
         return x, normal / normal.norm(dim=-1, keepdim=True), area
+
+    def surface_roughness(self, x: torch.Tensor) -> torch.Tensor:
+        """GGX alpha (N,) float64 of the dielectric surface at surface points x (N, 3): config.roughness."""
+        check_shape(x, "x", (x.shape[0], 3))
+        return torch.full((x.shape[0],), float(self.config.roughness), dtype=torch.float64)
 
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat(q.wi; q.x, q.wo), (N, 3) linear RGB per steradian (Monte Carlo, `spp` paths each)."""
@@ -184,10 +203,16 @@ class TranslucentObject(Material):
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
         return out
 
-    def trace_environment(self, o: torch.Tensor, d: torch.Tensor, image: np.ndarray, seed: int = 0) -> torch.Tensor:
-        """Subsurface radiance (N, 3) float64 along rays o + t d (N, 3), one path each, under the equirectangular
+    def trace_environment(self, o: torch.Tensor, d: torch.Tensor, image: np.ndarray, seed: int = 0,
+                          part: str = "subsurface") -> torch.Tensor:
+        """Radiance (N, 3) float64 (its `part`, below) along rays o + t d (N, 3), one path each, under the equirectangular
         environment `image` (H, W, 3) (the mapping of `neumat.render.envmaps`, nearest-texel radiance as
-        `EnvironmentMap` looks it up: each texel is repeated 4 x 4 before Mitsuba's bilinear lookup)."""
+        `EnvironmentMap` looks it up: each texel is repeated 4 x 4 before Mitsuba's bilinear lookup).
+
+        part: "subsurface" (real minus black interior), "full" (the real interior alone: surface reflection plus
+        subsurface, and the environment along rays that miss) or "reflection" (the black interior alone)."""
+        if part not in TRACE_PARTS:
+            raise InputError(f"trace_environment part: expected one of {TRACE_PARTS}, got {part!r}")
         image = np.asarray(image, dtype=np.float32)
         if image.ndim != 3 or image.shape[2] != 3 or not np.isfinite(image).all():
             raise InputError(f"environment image: expected a finite (H, W, 3) array, got shape {image.shape}")
@@ -201,8 +226,11 @@ class TranslucentObject(Material):
         for start in range(0, o.shape[0], WAVEFRONT):
             sl = slice(start, start + WAVEFRONT)
             call_seed = self._next_seed() + seed
-            out[sl] = (self._radiance("medium", o[sl], d[sl], call_seed, scenes)
-                       - self._radiance("black", o[sl], d[sl], call_seed, scenes))
+            if part == "subsurface":
+                out[sl] = (self._radiance("medium", o[sl], d[sl], call_seed, scenes)
+                           - self._radiance("black", o[sl], d[sl], call_seed, scenes))
+            else:
+                out[sl] = self._radiance("medium" if part == "full" else "black", o[sl], d[sl], call_seed, scenes)
         return out
 
     def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int, scenes=None) -> torch.Tensor:
