@@ -48,6 +48,13 @@ def orbit_camera(obj: TranslucentObject, resolution: int, azimuth: float = 30.0,
                        (0.0, 1.0, 0.0), fov=fov)
 
 
+def object_mask(obj: TranslucentObject, camera: Camera, resolution: int) -> torch.Tensor:
+    """(resolution, resolution) bool: the pixels whose centre ray hits the object."""
+    pix = torch.arange(resolution * resolution)
+    rays = camera.rays(torch.stack([pix % resolution, pix // resolution], -1).float() + 0.5)
+    return obj.first_hits(rays.o.double(), rays.d.double())[0].reshape(resolution, resolution)
+
+
 def _pixel_rays(camera: Camera, resolution: int, spp: int, gen: torch.Generator):
     pix = torch.arange(resolution * resolution)
     xy = torch.stack([pix % resolution, pix // resolution], -1).repeat_interleave(spp, 0).float()
