@@ -110,7 +110,10 @@ def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camer
     image[hit] = values
     if appearance == "full":
         image[~hit] = env.eval(d[~hit]).float()
-        image[hit] += surface_reflection(obj, env, o[hit], d[hit], gen).float()
+        rows = hit.nonzero().squeeze(1)
+        for s in range(0, rows.shape[0], batch):
+            r = rows[s:s + batch]
+            image[r] += surface_reflection(obj, env, o[r], d[r], gen).float()
     return image.reshape(resolution * resolution, spp, 3).mean(1).reshape(resolution, resolution, 3)
 
 
