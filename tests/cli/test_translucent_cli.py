@@ -45,13 +45,26 @@ def test_trace_fit_render(tmp_path):
 
     r = _run("render", model, obs, "-o", image, "--resolution", 8, "--spp", 2, "--env-width", 16)
     assert r.exit_code == 0, r.output
+    img = read_image(image)  # full appearance by default: the corners show the environment
+    assert img.shape == (8, 8, 3) and float(img.min()) >= 0 and float(img[0, 0].min()) > 0
+    r = _run("render", model, obs, "-o", image, "--resolution", 8, "--spp", 2, "--env-width", 16,
+             "--appearance", "subsurface", "--strategy", "light")
+    assert r.exit_code == 0, r.output
     img = read_image(image)
-    assert img.shape == (8, 8, 3) and float(img.max()) > 0 and float(img.min()) >= 0
+    assert float(img.max()) > 0 and float(img[0, 0].max()) == 0  # the learned term alone, on black
 
     r = _run("render", model, obs, "-o", picture, "--resolution", 8, "--spp", 2, "--env-width", 16,
              "--strategy", "model", "--reference-spp", 2)
     assert r.exit_code == 0, r.output
-    assert "FLIP" in _said(r) and read_image(picture).ndim == 3
+    said = _said(r)
+    # two rows: the model, and a second reference against the first (the noise floor); FLIP also on the object
+    assert "noisefloor" in said and "FLIP,object" in said and "reference,another" in said, r.output
+    assert read_image(picture).ndim == 3
+
+    r = _run("render", model, obs, "-o", image, "--strategy", "bsdf")
+    assert r.exit_code == 2 and "light|model|mis" in _said(r)
+    r = _run("render", model, obs, "-o", image, "--appearance", "surface")
+    assert r.exit_code == 2 and "full|subsurface" in _said(r)
 
     r = _run("render", model, obs, "-o", tmp_path / "x.exr", "--reference-spp", 2)
     assert r.exit_code == 2 and ".png" in _said(r)

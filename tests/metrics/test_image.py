@@ -9,7 +9,7 @@ import torch
 
 from neumat.core.errors import InputError, UnknownNameError
 from neumat.metrics import image as image_module
-from neumat.metrics.image import flip_map, hdr_flip, image_metrics
+from neumat.metrics.image import flip_map, hdr_flip, image_metrics, masked_flip
 from neumat.color.tonemap import srgb_decode, srgb_encode, to_ldr
 
 
@@ -88,6 +88,21 @@ def test_flip_map_shape_and_mean():
     assert fm.shape == ref.shape[:2] and fm.dtype == np.float32
     assert 0 <= fm.min() and fm.max() <= 1
     assert float(fm.mean(dtype=np.float64)) == pytest.approx(image_metrics(ref, test)["flip"], rel=1e-6)
+
+
+def test_masked_flip_averages_the_flip_map_over_the_mask():
+    ref = smooth_image()
+    test = ref.copy()
+    test[:, 20:] *= 1.5  # only the right half differs
+    left, right = np.zeros(ref.shape[:2], bool), np.zeros(ref.shape[:2], bool)
+    left[:, :20], right[:, 20:] = True, True
+    fm = flip_map(ref, test)
+    assert masked_flip(ref, test, right) == pytest.approx(float(fm[:, 20:].mean(dtype=np.float64)), rel=1e-6)
+    # FLIP filters spatially, so some error spreads into the left half, but most of it is on the right
+    assert masked_flip(ref, test, right) > image_metrics(ref, test)["flip"] > masked_flip(ref, test, left)
+    assert math.isnan(masked_flip(ref, test, np.zeros(ref.shape[:2], bool)))
+    with pytest.raises(InputError, match="mask"):
+        masked_flip(ref, test, left[:4])
 
 
 def test_hdr_flip_on_black_references_does_not_abort():

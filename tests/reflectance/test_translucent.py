@@ -134,3 +134,14 @@ def test_medium_grids_mix_the_two_media():
     pure_a = np.isclose(sigma_t, bounds[0], rtol=1e-5).all(-1).mean()
     pure_b = np.isclose(sigma_t, bounds[1], rtol=1e-5).all(-1).mean()
     assert pure_a > 0.05 and pure_b > 0.05  # both media occupy part of the volume
+
+
+def test_roughness_shading_normals_and_occlusion():
+    obj = _object(roughness=0.2)
+    x = torch.nn.functional.normalize(torch.tensor([[0.3, 0.2, 1.0], [-1.0, 0.5, 0.1]], dtype=torch.float64), dim=-1)
+    assert torch.equal(obj.surface_roughness(x), torch.full((2,), 0.2, dtype=torch.float64))
+    o, d = 3 * x, -x
+    assert torch.allclose(obj.shading_normals(o, d), x, atol=1e-5)  # the sphere's normals are radial
+    outside = x * 1.001
+    assert obj.occluded(outside, -x).tolist() == [True, True]  # towards the sphere
+    assert obj.occluded(outside, x).tolist() == [False, False]  # away from it

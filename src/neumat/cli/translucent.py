@@ -214,10 +214,14 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
            env_width: int = typer.Option(128, help="box-filter the map to this width first"),
            resolution: int = typer.Option(64, min=8, help="image width and height"),
            spp: int = typer.Option(64, min=1, help="samples per pixel"),
-           strategy: str = typer.Option("light", help="light (environment importance sampling) | model (the "
-                                                      "learned Gaussian lobe)"),
-           reference_spp: int = typer.Option(0, min=0, help="also path-trace the reference at this many spp and "
-                                                           "compare"),
+           strategy: str = typer.Option("mis", help="light (environment importance sampling) | model (the "
+                                                    "learned Gaussian lobe) | mis (their mixture, balance "
+                                                    "heuristic)"),
+           appearance: str = typer.Option("full", help="full (surface reflection + subsurface, over the "
+                                                       "environment) | subsurface (the learned term on black)"),
+           reference_spp: int = typer.Option(0, min=0, help="also path-trace the reference of the same appearance "
+                                                           "at this many spp (twice: the second, another seed, "
+                                                           "gives the noise floor) and compare"),
            azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
            elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
            seed: int = typer.Option(0, **SEED_RANGE),
@@ -232,15 +236,19 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         from ..fit.translucent_observations import Observations
         from ..io.images import write_image, write_image_ldr
         from ..catalog.modelfile import load_model
-        from ..metrics.image import image_metrics
+        from ..metrics.image import image_metrics, masked_flip
         from ..models.neupress import NeuPreSS
         from ..reflectance.translucent import TranslucentConfig, TranslucentObject
         from ..render.envmaps import downsample_envmap, read_envmap, sky_envmap
         from ..render.lights import EnvironmentMap
-        from ..render.translucent import orbit_camera, render_translucent, render_translucent_reference
+        from ..render.translucent import (APPEARANCES, STRATEGIES, object_mask, orbit_camera, render_translucent,
+                                          render_translucent_reference)
         from ..viz.compare import compare_image
 
         envmap = environment_map(light)
+        for option, value, known in (("--strategy", strategy, STRATEGIES), ("--appearance", appearance, APPEARANCES)):
+            if value not in known:
+                raise InputError(f"{option}: expected one of {'|'.join(known)}, got {value!r}")
         m = load_model(model, device=device)
         if not isinstance(m, NeuPreSS):
             raise InputError(f"{model}: expected a NeuPreSS model, got {type(m).__name__}")
@@ -254,22 +262,36 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         env = EnvironmentMap(downsample_envmap(image, env_width))
         camera = orbit_camera(obj, resolution, azimuth, elevation)
         t = time.perf_counter()
-        img = render_translucent(m, obj, env, camera, resolution, spp=spp, strategy=strategy, seed=seed)
+        img = render_translucent(m, obj, env, camera, resolution, spp=spp, strategy=strategy, seed=seed,
+                                 appearance=appearance)
         seconds = time.perf_counter() - t
         if not reference_spp:
             write_image(out, img, tonemap="aces")
             print(f"wrote {out} ({seconds:.1f} s)")
             return
         t = time.perf_counter()
-        reference = render_translucent_reference(obj, env, camera, resolution, spp=reference_spp, seed=seed + 1)
-        ref_seconds = time.perf_counter() - t
-        scores = image_metrics(reference.numpy(), img.numpy(), tonemap="aces")
-        scores["mse"] = float(((img - reference) ** 2).mean())
-        name = f"NeuPreSS, {strategy} IS, {spp} spp"
-        write_image_ldr(out, compare_image(reference, {name: img}, {name: scores}, tonemap="aces"))
-        print_table(f"wrote {out}: against a {reference_spp}-spp path-traced reference ({ref_seconds:.0f} s)",
-                    [{"method": name, "seconds": seconds, "MSE": scores["mse"], "FLIP": scores["flip"],
-                      "SSIM": scores["ssim"]}])
+        references = [render_translucent_reference(obj, env, camera, resolution, spp=reference_spp, seed=seed + k,
+                                                   appearance=appearance) for k in (1, 2)]
+        ref_seconds = (time.perf_counter() - t) / 2
+        reference = references[0]
+        mask = object_mask(obj, camera, resolution).numpy()
+
+        def scores_of(test):
+            scores = image_metrics(reference.numpy(), test.numpy(), tonemap="aces")
+            scores["mse"] = float(((test - reference) ** 2).mean())
+            scores["object_flip"] = masked_flip(reference.numpy(), test.numpy(), mask, tonemap="aces")
+            return scores
+
+        name = f"NeuPreSS, {appearance}, {strategy}, {spp} spp"
+        floor = f"reference, another seed ({reference_spp} spp)"
+        scores = {name: scores_of(img), floor: scores_of(references[1])}
+        shown = {k: {"flip": v["flip"], "object_flip": v["object_flip"], "mse": v["mse"]} for k, v in scores.items()}
+        write_image_ldr(out, compare_image(reference, {name: img, floor: references[1]}, shown, tonemap="aces"))
+        print_table(f"wrote {out}: against a {reference_spp}-spp path-traced reference ({ref_seconds:.0f} s); the "
+                    "second row is the reference's own noise floor", [
+                        {"method": k, "seconds": seconds if k == name else ref_seconds, "MSE": v["mse"],
+                         "FLIP": v["flip"], "FLIP, object": v["object_flip"], "SSIM": v["ssim"]}
+                        for k, v in scores.items()])
     run_command(go)
 
 

@@ -49,6 +49,15 @@ def flip_map(ref, test, tonemap: str = "clip", exposure: float = 0.0) -> np.ndar
                      to_ldr(test, exposure=exposure, tonemap=tonemap))
 
 
+def masked_flip(ref, test, mask, tonemap: str = "clip", exposure: float = 0.0) -> float:
+    """Mean LDR-FLIP (as `image_metrics`) over the pixels where the (H, W) bool `mask` is true (nan if none)."""
+    mask = np.asarray(mask, dtype=bool)
+    errors = flip_map(ref, test, tonemap=tonemap, exposure=exposure)
+    if mask.shape != errors.shape:
+        raise InputError(f"masked_flip: mask has shape {mask.shape}, expected the images' {errors.shape}")
+    return float(errors[mask].mean(dtype=np.float64)) if mask.any() else math.nan
+
+
 def hdr_flip(ref, test) -> float:
     """Mean HDR-FLIP between linear images (H, W, 3); negatives are clamped to 0.
 

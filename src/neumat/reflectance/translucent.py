@@ -58,6 +58,8 @@ JENSEN_MEDIA = {
 }
 #: paths traced per Mitsuba call (bounds memory)
 WAVEFRONT = 1 << 20
+#: what `TranslucentObject.trace_environment` returns: subsurface only, everything, the surface reflection only
+TRACE_PARTS = ("subsurface", "full", "reflection")
 
 
 @dataclass
@@ -182,6 +184,18 @@ class TranslucentObject(Material):
         n = torch.from_numpy(np.array(si.n, dtype=np.float64).T.copy())[hit]
         return hit, x, n / n.norm(dim=-1, keepdim=True)
 
+    def shading_normals(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """Outward unit shading normals (M, 3) float64 at the first surface points of the rays o + t d (N, 3) that
+        hit (those of `first_hits`): the normals Mitsuba's BSDF uses (interpolated vertex normals on meshes)."""
+        si = self.scenes["black"].ray_intersect(self._ray(o, d))
+        hit = torch.from_numpy(np.array(si.is_valid(), dtype=bool))
+        n = torch.from_numpy(np.array(si.sh_frame.n, dtype=np.float64).T.copy())[hit]
+        return n / n.norm(dim=-1, keepdim=True)
+
+    def occluded(self, o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: whether the rays o + t d (N, 3), t > 0, hit the object (Mitsuba's ray_test)."""
+        return torch.from_numpy(np.array(self.scenes["black"].ray_test(self._ray(o, d)), dtype=bool))
+
     def surface(self, x: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(visible (N,) bool, n (N, 3) outward normal) at surface points x (N, 3) seen from directions wo.
 
@@ -260,10 +274,16 @@ class TranslucentObject(Material):
         a, b = self.eval(q).double(), self.eval(q).double()
         return (a - b) ** 2 / 2
 
-    def trace_environment(self, o: torch.Tensor, d: torch.Tensor, image: np.ndarray, seed: int = 0) -> torch.Tensor:
-        """Subsurface radiance (N, 3) float64 along rays o + t d (N, 3), one path each, under the equirectangular
+    def trace_environment(self, o: torch.Tensor, d: torch.Tensor, image: np.ndarray, seed: int = 0,
+                          part: str = "subsurface") -> torch.Tensor:
+        """Radiance (N, 3) float64 (its `part`, below) along rays o + t d (N, 3), one path each, under the equirectangular
         environment `image` (H, W, 3) (the mapping of `neumat.render.envmaps`, nearest-texel radiance as
-        `EnvironmentMap` looks it up: each texel is repeated 4 x 4 before Mitsuba's bilinear lookup)."""
+        `EnvironmentMap` looks it up: each texel is repeated 4 x 4 before Mitsuba's bilinear lookup).
+
+        part: "subsurface" (real minus black interior), "full" (the real interior alone: surface reflection plus
+        subsurface, and the environment along rays that miss) or "reflection" (the black interior alone)."""
+        if part not in TRACE_PARTS:
+            raise InputError(f"trace_environment part: expected one of {TRACE_PARTS}, got {part!r}")
         image = np.asarray(image, dtype=np.float32)
         if image.ndim != 3 or image.shape[2] != 3 or not np.isfinite(image).all():
             raise InputError(f"environment image: expected a finite (H, W, 3) array, got shape {image.shape}")
@@ -277,8 +297,11 @@ class TranslucentObject(Material):
         for start in range(0, o.shape[0], WAVEFRONT):
             sl = slice(start, start + WAVEFRONT)
             call_seed = self._next_seed() + seed
-            out[sl] = (self._radiance("medium", o[sl], d[sl], call_seed, scenes)
-                       - self._radiance("black", o[sl], d[sl], call_seed, scenes))
+            if part == "subsurface":
+                out[sl] = (self._radiance("medium", o[sl], d[sl], call_seed, scenes)
+                           - self._radiance("black", o[sl], d[sl], call_seed, scenes))
+            else:
+                out[sl] = self._radiance("medium" if part == "full" else "black", o[sl], d[sl], call_seed, scenes)
         return out
 
     def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int, scenes=None) -> torch.Tensor:
