@@ -65,7 +65,8 @@ def held_out(obj: TranslucentObject, images: int, res: int, spp: int) -> tuple[O
     second = torch.zeros_like(a.value, dtype=torch.float64)
     for light in torch.unique(a.wi, dim=0):
         m = (a.wi == light).all(-1)
-        second[m] = obj.trace(o[m], -a.wo[m].double(), light.double(), spp=spp)  # fresh random numbers
+        # fresh random numbers; the reflection subtraction's rounding negatives clamped, as collect_observations does
+        second[m] = obj.trace(o[m], -a.wo[m].double(), light.double(), spp=spp).clamp(min=0)
     floor = float(((a.value.double() - second) ** 2).mean() / 4)  # variance of the mean of two traces
     return Observations(a.x, a.n, a.wo, a.wi, ((a.value.double() + second) / 2).float()), floor
 

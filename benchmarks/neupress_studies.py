@@ -208,6 +208,7 @@ def main(argv: list[str] | None = None) -> None:
             setup = traced_setup(a, size)
             print(f"size {size:g} mm: {describe(setup)}")
             rows += [{"size mm": size, **r} for r in baselines_study(setup, a)]
+            print_table(f"size {size:g} mm", [_fmt(r) for r in rows[-len(a.models):]], width=200)  # as it goes
         title = "translucency sweep (sphere, marble / ketchup)"
     else:
         setup = traced_setup(a)
