@@ -10,15 +10,16 @@ its own light direction and camera direction, --spp paths per ray; held-out: --t
 lights at --test-spp paths per ray, traced twice with different seeds so that the noise of the reference itself
 is known ("noise floor": half the mean squared difference of the two traces).
 Variants: "paper" (Fourier G ~ N(18, 1), 7 layers of 128, spherical angles), "low frequency" (G ~ N(0, 0.3^2))
-and "smooth" (G ~ N(0, 0.1^2)), each trained --steps Adam steps of --batch observations (lr 1e-3 halved at 50% /
-75%) with 5% of the training observations held back for validation (the fit keeps the weights of the best
-validation record, every 100 steps), then the light sampler (--sampler-steps). Scores: held-out MSE (linear RGB,
+and "smooth" (G ~ N(0, 0.1^2)), each fitted by its recipe (`fit/recipes/neupress.py`: the appearance phase on
+random batches with a fraction held back for validation, keeping the weights of the best validation record, then the
+light sampler); --steps, --sampler-steps and --batch override the recipe's steps of the two phases and batch size,
+and every default not set here is the recipe's or `NeuPreSS.Config`'s. Scores: held-out MSE (linear RGB,
 1/sr) and the same relative to the variance of the held-out values (1 = no better than their mean; the noise
 floor over that variance is the best a perfect model could score).
 Baselines: the dipole BSSRDF of a homogeneous medium (Jensen et al. 2001) over a --dipole-samples surface quadrature,
-its six coefficients fitted to the same observations (--dipole-steps, same validation, first 4096 of it); NeuMIP on
+its six coefficients fitted to the same observations by its recipe (--dipole-steps overrides its steps); NeuMIP on
 UV textures (`neumat.models.neumip_uv`: 128^2 x 8 latents over the spherical UV projection, MLP 4 x 64 of the latent
-and the local light and view directions), fitted like NeuPreSS (--steps, --batch, lr 1e-3, same validation).
+and the local light and view directions), fitted by its recipe (--steps and --batch override it).
 "surface BRDF on UV textures" (`surface-brdf-uv`, the same network read as a surface BRDF times the cosine) stands
 in for the paper's NeRFactor row. --variants picks NeuPreSS variants (default all three; empty for none),
 --baselines the baselines (default all).
@@ -64,7 +65,8 @@ def held_out(obj: TranslucentObject, images: int, res: int, spp: int) -> tuple[O
     second = torch.zeros_like(a.value, dtype=torch.float64)
     for light in torch.unique(a.wi, dim=0):
         m = (a.wi == light).all(-1)
-        second[m] = obj.trace(o[m], -a.wo[m].double(), light.double(), spp=spp)  # fresh random numbers
+        # fresh random numbers
+        second[m] = obj.trace(o[m], -a.wo[m].double(), light.double(), spp=spp)
     floor = float(((a.value.double() - second) ** 2).mean() / 4)  # variance of the mean of two traces
     return Observations(a.x, a.n, a.wo, a.wi, ((a.value.double() + second) / 2).float()), floor
 
@@ -80,14 +82,16 @@ def main() -> None:
     p.add_argument("--spp", type=int, default=64)
     p.add_argument("--test-images", type=int, default=12)
     p.add_argument("--test-spp", type=int, default=8192)
-    p.add_argument("--steps", type=int, default=2000)
-    p.add_argument("--batch", type=int, default=4096)
-    p.add_argument("--sampler-steps", type=int, default=300)
+    p.add_argument("--steps", type=int, default=None, help="appearance steps of NeuPreSS and steps of the UV "
+                                                           "baselines (default: their recipes')")
+    p.add_argument("--batch", type=int, default=None, help="batch size of NeuPreSS and the UV baselines (default: "
+                                                           "their recipes')")
+    p.add_argument("--sampler-steps", type=int, default=None, help="NeuPreSS sampler steps (default: its recipe's)")
     p.add_argument("--image-res", type=int, default=64)
     p.add_argument("--ref-spp", type=int, default=8192)
     p.add_argument("--render-spp", type=int, default=32)
     p.add_argument("--dipole-samples", type=int, default=4096, help="surface quadrature of the dipole baseline")
-    p.add_argument("--dipole-steps", type=int, default=300)
+    p.add_argument("--dipole-steps", type=int, default=None, help="dipole steps (default: its recipe's)")
     p.add_argument("--image-out", default=None, help="write a comparison PNG here")
     p.add_argument("--shape", default="sphere", help="'sphere' or a closed PLY mesh (TranslucentConfig.shape)")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"NeuPreSS variants, of: {', '.join(VARIANTS)}")
@@ -128,9 +132,13 @@ def main() -> None:
             continue
         model = NeuPreSS(**cfg)
         recipe = recipe_for("neupress")
-        recipe.steps = a.steps + a.sampler_steps
-        recipe.phase_split = (a.steps / recipe.steps, a.sampler_steps / recipe.steps)
-        recipe.batch_size = a.batch
+        appearance = round(recipe.steps * recipe.phase_split[0])
+        appearance, sampler = (a.steps if a.steps is not None else appearance,
+                               a.sampler_steps if a.sampler_steps is not None else recipe.steps - appearance)
+        recipe.steps = appearance + sampler
+        recipe.phase_split = (appearance / recipe.steps, sampler / recipe.steps)
+        if a.batch is not None:
+            recipe.batch_size = a.batch
         recipe.options["bounds"] = [b.tolist() for b in bounds]
         result = fit(model, data, recipe)
         hist = [r for r in result.history if r["phase"] == "appearance"]
@@ -202,7 +210,8 @@ def _uv_baseline(kind, obj, bounds, data, test, a, env, camera, reference, image
     label = BASELINES[kind]
     t = time.perf_counter()
     recipe = recipe_for(kind)
-    recipe.batch_size = a.batch
+    if a.batch is not None:
+        recipe.batch_size = a.batch
     recipe.options["bounds"] = [b.tolist() for b in bounds]
     hist = fit(model, data, recipe, steps=a.steps).history
     fit_s = time.perf_counter() - t

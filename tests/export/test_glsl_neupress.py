@@ -34,6 +34,9 @@ CASES = {
     # first layer, one skip pair, one plain layer; odd feature count pads the arrays
     "small cartesian": dict(features=7, width=12, layers=4, sampler_hidden=(10, 6), feature_mean=0.0,
                             feature_std=0.3, direction_encoding="cartesian"),
+    # the same without skip connections (the paper's Fig. 7 ablation)
+    "no skips": dict(features=7, width=12, layers=5, sampler_hidden=(10, 6), feature_mean=0.0,
+                     feature_std=0.3, skips=False),
     # the paper's sizes and Fourier scale (arguments up to ~400 rad)
     "paper": dict(feature_mean=18.0, feature_std=1.0),
 }

@@ -31,7 +31,7 @@ from neumat.warp.sphere import sample_uniform_sphere
 
 #: small configurations (seconds to build and fit on a CPU); every registered model needs one
 SMALL = {
-    "dipole-bssrdf": dict(samples=4),
+    "dipole-bssrdf": dict(samples=4, texture_resolution=2),  # the textured dipole (the homogeneous: its tests)
     "ggx": {},
     "ggx-mipmap": dict(spatial_size=8),
     "multiscale": dict(spatial_size=8),

@@ -48,6 +48,23 @@ def test_skip_mlp_adds_the_input_of_every_pair():
     assert net.flops() == 2 * (4 * 6 + 3 * 36 + 6 * 2) + 6
 
 
+def test_skip_mlp_without_skips_is_the_plain_mlp_of_the_same_layers():
+    net = SkipMLP(4, 6, 4, 2, skips=False)
+    v = torch.randn(7, 4)
+    h = torch.relu(net.first(v))
+    h = torch.relu(net.hidden[1](torch.relu(net.hidden[0](h))))
+    h = torch.relu(net.hidden[2](h))
+    assert torch.allclose(net(v), net.out(h))
+    with_skips = SkipMLP(4, 6, 4, 2)
+    with_skips.load_state_dict(net.state_dict())  # the same parameters: only the additions differ
+    assert not torch.allclose(with_skips(v), net(v))
+    assert net.flops() == 2 * (4 * 6 + 3 * 36 + 6 * 2) and net.num_parameters() == with_skips.num_parameters()
+    m = NeuPreSS(features=8, width=8, layers=3, skips=False)
+    assert m.appearance.skips is False
+    with pytest.raises(InputError, match="skips"):
+        NeuPreSS(skips="no")
+
+
 def test_registered_eval_shapes_and_checks():
     m = build_model({"type": "neupress", **SMALL})
     assert isinstance(m, NeuPreSS) and m.full_sphere and not m.can_sample

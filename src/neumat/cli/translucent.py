@@ -147,9 +147,9 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
                                                           "field (batch_size, lr, phase_split, ...) or a recipe "
                                                           "option (sampler_batch, grid, ...)"),
         steps: int = typer.Option(None, min=0, help="optimiser steps of both phases, split by the recipe's "
-                                                    "phase_split (default: the recipe's, 2000 + 300)"),
+                                                    "phase_split (default: the recipe's, fit/recipes/neupress.py)"),
         validation: float = typer.Option(None, help="fraction held back; the fit keeps the best weights on it "
-                                                    "(default: the recipe's, 0.05)"),
+                                                    "(default: the recipe's validation_fraction)"),
         device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, help="seed of the model, the validation split and the batches "
                                             "(default: the recipe's)", **SEED_RANGE),

@@ -288,7 +288,8 @@ class _Packer:
                 f"    }}\n")
 
     def skip_mlp(self, name: str, net) -> str:
-        """Statements of `neumat.nn.skip_mlp.SkipMLP` on f, ending in the vec4 array h_out."""
+        """Statements of `neumat.nn.skip_mlp.SkipMLP` (with or without skips) on f, ending in the vec4 array
+        h_out."""
         code = self.linear(f"{name}0", net.first, "f", "h", relu=True)
         width4 = -(-net.width // 4)
         code += f"    vec4 t[{width4}];\n    vec4 t2[{width4}];\n"
@@ -296,7 +297,8 @@ class _Packer:
         for k in range(len(hidden) // 2):
             code += self.linear(f"{name}{2 * k + 1}", hidden[2 * k], "h", "t", relu=True, declare=False)
             code += self.linear(f"{name}{2 * k + 2}", hidden[2 * k + 1], "t", "t2", relu=False, declare=False)
-            code += f"    for (int o = 0; o < {width4}; ++o) h[o] = max(h[o] + t2[o], vec4(0.0));\n"
+            skip = "h[o] + " if net.skips else ""
+            code += f"    for (int o = 0; o < {width4}; ++o) h[o] = max({skip}t2[o], vec4(0.0));\n"
         if len(hidden) % 2:
             code += self.linear(f"{name}{len(hidden)}", hidden[-1], "h", "t", relu=True, declare=False)
             code += f"    for (int o = 0; o < {width4}; ++o) h[o] = t[o];\n"

@@ -124,10 +124,11 @@ def best_validation(history: list[dict]) -> dict | None:
 
 
 def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, params: list[nn.Parameter],
-                      train: Observations, validation: Observations | None) -> Phase:
+                      train: Observations, validation: Observations | None,
+                      penalty: Callable[[], dict[str, torch.Tensor]] | None = None) -> Phase:
     """`steps` steps of the mean squared error of predict(o) against o.value on `recipe.batch_size` observations
-    drawn (with ctx.generator) from `train`; early stopping on `validation` unless it is None (both from
-    `split_observations`)."""
+    drawn (with ctx.generator) from `train`, plus the losses `penalty()` returns (a regulariser) if given; early
+    stopping on the validation MSE of `validation` unless it is None (both from `split_observations`)."""
     recipe = ctx.recipe
     gen = ctx.generator
 
@@ -136,8 +137,11 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
         o = train[idx.to(train.x.device)]
         return ((predict(o) - o.value) ** 2).mean()
 
+    def losses(step: int) -> dict[str, torch.Tensor]:
+        return {"mse": batch_loss(), **(penalty() if penalty is not None else {})}
+
     if validation is None:
-        return Phase(name, steps, lambda step: {"mse": batch_loss()}, params)
+        return Phase(name, steps, losses, params)
 
     stopping = EarlyStopping(params).to(ctx.device)
 
@@ -151,5 +155,4 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
                              f"diverged (lower lr, now {recipe.lr})")
         stopping.restore(params)
 
-    return Phase(name, steps, lambda step: {"mse": batch_loss()}, params, after=after, stateful=[stopping],
-                 on_record=on_record)
+    return Phase(name, steps, losses, params, after=after, stateful=[stopping], on_record=on_record)

@@ -1,6 +1,7 @@
-"""The dipole BSSRDF of a homogeneous translucent object (Jensen, Marschner, Levoy, Hanrahan 2001): the analytic
-baseline NeuPreSS compares against, here fitted to the same path-traced observations by gradient descent (as Deng
-et al. 2022 fit it by differentiable rendering).
+"""The dipole BSSRDF of a translucent object (Jensen, Marschner, Levoy, Hanrahan 2001), homogeneous or with
+textured coefficients: the analytic baselines NeuPreSS compares against, here fitted to the same path-traced
+observations by gradient descent (as Deng et al. 2022 fit the textured one by differentiable rendering: the
+paper's "Diff." row).
 
 S_d(x_i, wi; x_o, wo) = Ft(eta, wi) R_d(|x_i - x_o|) Ft(eta, wo) / pi with the dipole profile
 
@@ -14,8 +15,20 @@ per RGB channel. Under a directional light of unit irradiance from wi, the light
     S_hat(wi; x_o, wo) = Ft(eta, n_o . wo) / pi * sum_k R_d(|x_k - x_o|) Ft(eta, n_k . wi) max(n_k . wi, 0) A_k
 
 over a fixed quadrature of surface points x_k with normals n_k and areas A_k (`set_surface`; exact visibility for
-convex objects, self-shadowing of concave ones is ignored, as in the dipole model). The six learned parameters
-are log s_a and log s_s' per channel, in 1 / object unit; eta is fixed. Queries need x, wo and n (the normal at x).
+convex objects, self-shadowing of concave ones is ignored, as in the dipole model). eta is fixed. Queries need x,
+wo and n (the normal at x).
+
+Homogeneous (`texture_resolution` 1, the default): six learned parameters, log s_a and log s_s' per channel, in
+1 / object unit. Textured (`texture_resolution` R > 1): the coefficients vary over the object as
+
+    log s(x) = log s_base + T(x),
+
+T a trilinear R^3 x 6 grid of offsets (log s_a and log s_s' per channel) over the object's bounding box
+(`set_bounds`; position-based, so any mesh works; points outside are clamped to the box), zero at the start (the
+homogeneous model). R_d between an incidence point x_k and the exit point x_o uses the coefficients at x_o: every
+query then has one profile, and the observed value at x_o constrains the texture there (the mean of both ends
+would be reciprocal but blurs the texture with the sum's reach). Fitting may penalise the texture's roughness
+(`smoothness`, the recipe's option of that name).
 """
 from __future__ import annotations
 
@@ -24,6 +37,8 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
+
+import torch.nn.functional as F
 
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
@@ -47,11 +62,15 @@ class Config:
     """Initial reduced scattering coefficient, 1 / object unit, all channels."""
     batch: int = 1024
     """Queries per chunk of the (queries x samples) sum."""
+    texture_resolution: int = 1
+    """Texels per side of the coefficient texture over the bounding box (1: homogeneous, six numbers; R > 1: an
+    R^3 x 6 grid of log-coefficient offsets, trilinear)."""
 
 
 def _check_config(c: Config) -> None:
     check_int(c.samples, "DipoleBSSRDF.samples")
     check_int(c.batch, "DipoleBSSRDF.batch")
+    check_int(c.texture_resolution, "DipoleBSSRDF.texture_resolution")
     for name in ("ior", "init_sigma_a", "init_sigma_s"):
         check_number(getattr(c, name), f"DipoleBSSRDF.{name}", 0, strict=True)
 
@@ -89,7 +108,7 @@ def dipole_total_reflectance(sigma_a: torch.Tensor, sigma_s: torch.Tensor, eta: 
 
 @MODELS.register("dipole-bssrdf")
 class DipoleBSSRDF(LearnedMaterial):
-    """S_hat(wi; x, wo) of a homogeneous object by the dipole (see the module docstring)."""
+    """S_hat(wi; x, wo) of an object by the dipole, homogeneous or textured (see the module docstring)."""
 
     name = "dipole-bssrdf"
     paper = "Jensen et al. 2001 dipole BSSRDF: baseline of NeuPreSS (TG et al.)"
@@ -108,6 +127,15 @@ class DipoleBSSRDF(LearnedMaterial):
         self.register_buffer("points", torch.zeros(n, 3))
         self.register_buffer("normals", torch.zeros(n, 3))
         self.register_buffer("areas", torch.zeros(n))
+        r = self.cfg.texture_resolution
+        if r > 1:  # the homogeneous model keeps its six numbers (and the files written before the texture)
+            self.texture = nn.Parameter(torch.zeros(6, r, r, r))  # log sigma_a, log sigma_s' offsets; (x, y, z)
+            self.register_buffer("box_min", torch.zeros(3))
+            self.register_buffer("box_max", torch.ones(3))
+
+    @property
+    def textured(self) -> bool:
+        return self.cfg.texture_resolution > 1
 
     @property
     def config(self) -> Config:
@@ -126,15 +154,48 @@ class DipoleBSSRDF(LearnedMaterial):
             self.normals.copy_(normals / normals.norm(dim=-1, keepdim=True))
             self.areas.copy_(areas)
 
-    def coefficients(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(sigma_a, sigma_s') (3,) each, 1 / object unit."""
-        return self.log_sigma_a.exp(), self.log_sigma_s.exp()
+    def set_bounds(self, lo: torch.Tensor, hi: torch.Tensor) -> None:
+        """Object-space bounding box (3,), (3,) that the texture spans (the homogeneous model has none: ignored)."""
+        lo, hi = torch.as_tensor(lo, dtype=torch.float32), torch.as_tensor(hi, dtype=torch.float32)
+        if lo.shape != (3,) or hi.shape != (3,) or not bool((hi > lo).all()):
+            raise InputError(f"DipoleBSSRDF.set_bounds: expected lo < hi of shape (3,), got {lo.tolist()}, "
+                             f"{hi.tolist()}")
+        if self.textured:
+            self.box_min.copy_(lo)
+            self.box_max.copy_(hi)
+
+    def coefficients(self, x: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(sigma_a, sigma_s') in 1 / object unit: the base values (3,) each, or with x (N, 3) those at the
+        points x, (N, 3) each (trilinear in the texture; the base values everywhere when homogeneous)."""
+        log_a, log_s = self.log_sigma_a, self.log_sigma_s
+        if x is None:
+            return log_a.exp(), log_s.exp()
+        if not self.textured:
+            return log_a.exp().expand(x.shape[0], 3), log_s.exp().expand(x.shape[0], 3)
+        offset = self.texture_at(x)
+        return (log_a + offset[:, :3]).exp(), (log_s + offset[:, 3:]).exp()
+
+    def texture_at(self, x: torch.Tensor) -> torch.Tensor:
+        """Trilinear offsets (N, 6) of (log sigma_a, log sigma_s') at points x (N, 3), clamped to the box."""
+        u = (x - self.box_min) / (self.box_max - self.box_min) * 2 - 1  # [-1, 1] over the box
+        # the texture is (6, x, y, z), grid_sample's (C, D, H, W); its grid's last axis indexes (W, H, D)
+        grid = u.to(self.texture.dtype)[None, :, None, None, [2, 1, 0]]
+        out = F.grid_sample(self.texture[None], grid, mode="bilinear", padding_mode="border", align_corners=True)
+        return out[0, :, :, 0, 0].T
+
+    def smoothness(self) -> torch.Tensor:
+        """Mean squared difference of neighbouring texels of the texture (0 for the homogeneous model)."""
+        if not self.textured:
+            return self.log_sigma_a.new_zeros(())
+        t = self.texture
+        return sum(((t.diff(dim=d)) ** 2).mean() for d in (1, 2, 3)) / 3
 
     def raw(self, wi: torch.Tensor, x: torch.Tensor, wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
         """S_hat (N, 3) for object-space wi, x, wo and the normal n at x, all (N, 3) (what fitting compares)."""
         if not bool(self.areas.sum() > 0):
             raise InputError("DipoleBSSRDF: no surface quadrature yet; call set_surface (points of the object)")
-        sigma_a, sigma_s = self.coefficients()
+        textured = self.textured
+        sigma_a, sigma_s = self.coefficients(x if textured else None)  # at the exit points (module docstring)
         eta = float(self.cfg.ior)
         cos_o = (n * wo).sum(-1)
         out_factor = (1 - fresnel_dielectric(cos_o.clamp(min=0), eta)) * (cos_o > 0) / math.pi
@@ -146,7 +207,9 @@ class DipoleBSSRDF(LearnedMaterial):
             ft = 1 - fresnel_dielectric(lit.reshape(-1), eta).reshape(lit.shape)
             weight = ft * lit * self.areas  # (B, K)
             r = torch.cdist(x[sl], self.points)
-            chunks.append(torch.einsum("bk,bkc->bc", weight, dipole_profile(r, sigma_a, sigma_s, eta)))
+            a, s_ = (sigma_a[sl, None], sigma_s[sl, None]) if textured else (sigma_a, sigma_s)  # (B, 1, 3) or (3,)
+            profile = dipole_profile(r, a, s_, eta)  # (B, K, 3)
+            chunks.append(torch.einsum("bk,bkc->bc", weight, profile))
         return torch.cat(chunks, 0) * out_factor[:, None]
 
     def eval(self, q: Query) -> torch.Tensor:
@@ -158,9 +221,13 @@ class DipoleBSSRDF(LearnedMaterial):
         return self.eval(q)
 
     def size_bytes(self, precision: str = "fp16") -> int:
-        """The six coefficients (the quadrature is geometry, not material)."""
-        return storage_bytes(6 * float_bits(precision))
+        """The six base coefficients, and the texture (6 R^3 values) with its box (6 float32) when textured (the
+        quadrature is geometry, not material)."""
+        if not self.textured:
+            return storage_bytes(6 * float_bits(precision))
+        return storage_bytes((6 + self.texture.numel()) * float_bits(precision) + 6 * 32)
 
     def flops(self) -> int:
-        """Per query: a distance, the profile (~40 operations) and the weight for each surface point."""
-        return 60 * self.cfg.samples
+        """Per query: a distance, the profile (~40 operations) and the weight for each surface point, plus the
+        trilinear texture lookup (8 corners x 6 values, 2 operations each) when textured."""
+        return 60 * self.cfg.samples + (96 if self.textured else 0)

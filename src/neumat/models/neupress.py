@@ -61,6 +61,9 @@ class Config:
     """Neurons per layer of the appearance module."""
     layers: int = 7
     """Layers of the appearance module (the paper: 5 to 11; 7 in its ablation reference)."""
+    skips: bool = True
+    """Skip connections between alternate layers of the appearance module (the paper's; False for its Fig. 7
+    ablation: the same layers without the additions)."""
     sampler_hidden: tuple[int, ...] = (512, 128, 32)
     """Hidden layers of the importance sampling module."""
     direction_encoding: str = "spherical"
@@ -72,6 +75,8 @@ class Config:
 def _check_config(c: Config) -> None:
     for name in ("features", "width", "layers"):
         check_int(getattr(c, name), f"NeuPreSS.{name}")
+    if not isinstance(c.skips, bool):
+        raise InputError(f"NeuPreSS.skips: expected True or False, got {c.skips!r}")
     if not c.sampler_hidden or any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in c.sampler_hidden):
         raise InputError(f"NeuPreSS.sampler_hidden: expected positive integers, got {c.sampler_hidden!r}")
     if c.direction_encoding not in DIRECTION_ENCODINGS:
@@ -101,7 +106,7 @@ class NeuPreSS(LearnedMaterial):
         d = 2 if cfg.direction_encoding == "spherical" else 3
         self.appearance_features = FourierFeatures(2 * d + 3, cfg.features, cfg.feature_mean, cfg.feature_std,
                                                    seed=cfg.seed)
-        self.appearance = SkipMLP(self.appearance_features.out_dim, cfg.width, cfg.layers, 3)
+        self.appearance = SkipMLP(self.appearance_features.out_dim, cfg.width, cfg.layers, 3, skips=cfg.skips)
         self.sampler_features = FourierFeatures(d + 3, cfg.features, cfg.feature_mean, cfg.feature_std,
                                                 seed=cfg.seed + 1)
         dims = [self.sampler_features.out_dim, *cfg.sampler_hidden]

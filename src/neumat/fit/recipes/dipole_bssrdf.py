@@ -1,11 +1,17 @@
-"""Training recipe of the dipole baseline of NeuPreSS (Jensen et al. 2001 over a surface quadrature): its six
-coefficients (log sigma_a, log sigma_s') fitted by L2 to path-traced observations, as NeuPreSS's appearance
-phase (`neumat.fit.translucent_fit`): Adam lr 0.05 halved at 50 % and 75 %, 300 steps of 256 observations,
+"""Training recipe of the dipole baselines of NeuPreSS (Jensen et al. 2001 over a surface quadrature): its six
+coefficients (log sigma_a, log sigma_s'), and with `texture_resolution` > 1 their texture of offsets, fitted by L2
+to path-traced observations (differentiable rendering of the observations, Deng et al. 2022), as NeuPreSS's
+appearance phase (`neumat.fit.translucent_fit`): Adam lr 0.05 halved at 50 % and 75 %, 300 steps of 256 observations,
 5 % held back for early stopping, of which at most 4096 are used (each evaluation sums over the whole surface
 quadrature: 1.9e3 queries/s in benchmarks/results/neupress.md). The model needs its surface quadrature
 (`DipoleBSSRDF.set_surface`, from the object: `TranslucentObject.surface_samples`); a fresh fit of a model
 without one takes `cfg.samples` observed points with their normals, each standing for 1 / samples of the area
 of the observed points' convex hull (exact for convex objects, an underestimate for concave ones).
+
+Textured: the texture spans the object's bounding box (option "bounds", else that of the observed points) and the
+loss adds `smoothness` x (mean squared training value) x `DipoleBSSRDF.smoothness()` (mean squared difference of
+neighbouring texels of the log-coefficient offsets): scaled by the data's power, so the weight is unitless; it
+fills texels no observation reaches and damps texels few observations reach.
 
 CPU_RECIPE: RECIPE itself, which is CPU-sized: the dipole fit of benchmarks/results/neupress.md took 47 s on 2 CPU
 cores, within the 10-minute CPU budget.
@@ -15,14 +21,16 @@ from __future__ import annotations
 import torch
 from scipy.spatial import ConvexHull
 
+from neumat.core.checks import check_number
 from neumat.core.errors import InputError
 from neumat.fit.dipole_bssrdf import dipole_predict
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.recipe import Recipe
-from neumat.fit.translucent_fit import observation_phase, split_observations
+from neumat.fit.translucent_fit import observation_phase, set_bounds_from, split_observations
 
 RECIPE = Recipe(steps=300, batch_size=256, lr=0.05, schedule="halves", loss="l2", log_every=20,
-                options={"validation_fraction": 0.05, "max_validation": 4096, "bounds": None})
+                options={"validation_fraction": 0.05, "max_validation": 4096, "bounds": None,
+                         "smoothness": 0.01})
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -46,5 +54,14 @@ def phases(ctx: FitContext) -> list[Phase]:
     if not ctx.resuming and not bool(model.areas.sum() > 0):
         model.set_surface(*(t.to(model.areas.device) for t in observed_quadrature(ctx)))
     (steps,) = ctx.split(("fit",))
-    return [observation_phase(ctx, "fit", steps, dipole_predict(model), [model.log_sigma_a, model.log_sigma_s],
-                              train, validation)]
+    params, penalty = [model.log_sigma_a, model.log_sigma_s], None
+    if model.textured:
+        set_bounds_from(ctx)
+        weight = ctx.option("smoothness")
+        check_number(weight, "recipe of 'dipole-bssrdf': option smoothness", 0)
+        scale = weight * float((train.value ** 2).mean())
+        params.append(model.texture)
+
+        def penalty() -> dict[str, torch.Tensor]:
+            return {"smoothness": scale * model.smoothness()}
+    return [observation_phase(ctx, "fit", steps, dipole_predict(model), params, train, validation, penalty)]
