@@ -20,8 +20,8 @@ radical inverse of k to 24 bits)), so a CPU reference computes the same sum. The
 equirectangular `uniform sampler2DArray neumat_env` (one layer, RGB radiance, the mapping of
 `neumat.render.envmaps`, nearest texel as `EnvironmentMap`). `neumat_rough_dielectric_reflection` is the surface
 term's f_r cos(theta_i) (Mitsuba's `roughdielectric` reflection). The environment is not occluded (the object
-alone); x, n, wo are object space, and the map is looked up with object-space directions. These two functions
-are GLSL only (the Slang export leaves them out). The two
+alone); x, n, wo are object space, and the map is looked up with object-space directions. The Slang export
+(`neumat.export.slang`) spells them too, the environment a buffer bound with its size at run time. The two
 networks (7 x 128 and 512-128-32 by default) are too large for constants in the source, so every matrix,
 bias and Fourier matrix lies in one RGBA32F texture `neumat_weights` (1 layer, 1024 texels wide, read with
 `texelFetch`): a matrix of `out x in` as 4 ceil(out / 4) rows of ceil(in / 4) texels, zero-padded, a bias as
@@ -145,7 +145,7 @@ float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n) {{
 
 
 _SHADE = """
-// ---- shading a fragment (GLSL only: export_slang strips from here to the end marker)
+// ---- shading a fragment (neumat_env: equirectangular radiance bound by the renderer)
 uniform sampler2DArray neumat_env;
 
 vec3 nm_env(vec3 d) {
@@ -220,7 +220,6 @@ vec3 neumat_translucent_shade(vec3 x, vec3 n, vec3 wo, float alpha, float ior, i
     }
     return sum / float(samples);
 }
-// ---- end of shading
 """
 
 # Y = B + W X for vec4 arrays X (IN4 long) and Y (OUT4 long); W has 4 OUT4 rows of IN4 texels (zero-padded), the

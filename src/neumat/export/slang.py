@@ -27,6 +27,10 @@ pixel filter's covariance in uv^2 (symmetric):
         float3 sample_incident(float3 x, float3 wo, float3 n, float2 u);
         float incident_pdf(float3 wi, float3 x, float3 wo, float3 n);
     }
+    interface INeumatTranslucentShade : INeumatTranslucent {     // neupress: a fragment in a rasteriser
+        float3 shade(float3 x, float3 n, float3 wo, float alpha, float ior, int samples);  // radiance to wo
+        float rough_dielectric_reflection(float3 n, float3 wo, float3 wi, float alpha, float ior);
+    }
     struct NeumatMaterial : <the interfaces the model has> { ... }
 
 plus the free functions `neumat_eval`, `neumat_eval_lod`, ... the methods call, and a compute entry point
@@ -34,13 +38,20 @@ plus the free functions `neumat_eval`, `neumat_eval_lod`, ... the methods call, 
 device; its buffers are listed in `manifest.json`). Values are what `model.eval`, `model.albedo`,
 `model.sample(q, u).wo` and `model.pdf` compute: the same anisotropic filtering of the latent pyramid (wrap
 tiling, up to max_probes trilinear probes), learned frames, SiLU MLP with exp output, and proxy sampler with
-its defensive cosine share.
+its defensive cosine share. `shade` and `rough_dielectric_reflection` are the GLSL export's
+`neumat_translucent_shade` and `neumat_rough_dielectric_reflection` (`neumat.export.glsl_neupress`: the rough
+dielectric's reflection of the environment plus the learned subsurface term, over one Hammersley set); they read
+the environment, which the export does not carry: the renderer binds `StructuredBuffer<float4> neumat_env`
+(equirectangular linear RGB, rows x columns, the mapping of `neumat.render.envmaps`) and its size
+`uniform int neumat_env_width, neumat_env_height` (`environment_bindings(radiance)` gives all three; listed
+under "runtime_buffers" in `manifest.json`), so one module shades under any environment.
 
 One source of truth for the math: the module is the model's GLSL export (`neumat.export.glsl.export_glsl`,
 itself parity-tested) spelled in Slang by `glsl_to_slang`, a token-level rewrite of the GLSL subset those generators
 emit (vector / matrix types, lerp, frac, atan2, static const arrays); every texture becomes a
 `StructuredBuffer<float4>` (`StructuredBuffer<uint2>` of packed halves for an fp16 export's textures) read by index
-(layer, row, column), so no hardware sampling is involved and the module runs on Slang's CPU target. Decoder weights
+(layer, row, column) (a texture the export declares but does not carry, the environment, with its size as
+uniforms), so no hardware sampling is involved and the module runs on Slang's CPU target. Decoder weights
 are constants in the source (packed halves at precision "fp16", `neumat.export.half_precision`). The Slang-only parts
 (interfaces, struct, compute entry point) are written here.
 
@@ -61,15 +72,16 @@ from .glsl_common import GLSLExport, load_generators
 from .registry import EXPORT_FORMATS, ExportFormat, load_formats
 
 #: floats per query in the compute entry point's input buffer `neumat_queries` (offsets in QUERY_LAYOUT)
-QUERY_FLOATS = 20
-QUERY_LAYOUT = {"wi": 0, "wo": 3, "uv": 6, "lod": 8, "footprint_xx_xy_yy": 9, "u": 12, "x": 14, "n": 17}
+QUERY_FLOATS = 23
+QUERY_LAYOUT = {"wi": 0, "wo": 3, "uv": 6, "lod": 8, "footprint_xx_xy_yy": 9, "u": 12, "x": 14, "n": 17, "alpha": 20,
+                "ior": 21, "samples": 22}
 #: floats per query in the output buffer `neumat_results`: rgb (eval, eval_lod, albedo), wo (sample), pdf in 0
 RESULT_FLOATS = 4
 #: threads per group of `neumat_batch`
 GROUP_SIZE = 64
 #: the compute entry point's query kinds (`neumat_entry`)
 ENTRY_CODES = {"eval": 0, "eval_lod": 1, "albedo": 2, "sample": 3, "pdf": 4, "eval_brdf": 5, "translucent": 6,
-               "sigma": 7, "sample_incident": 8, "incident_pdf": 9}
+               "sigma": 7, "sample_incident": 8, "incident_pdf": 9, "shade": 10, "rough_dielectric_reflection": 11}
 #: GLSL entry-point signature (`GLSLExport.entry_points`) -> method of NeumatMaterial
 _GLSL_ENTRIES = {
     "vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)": "eval",
@@ -82,7 +94,12 @@ _GLSL_ENTRIES = {
     "float neumat_sigma(vec3 x, vec3 wo)": "sigma",
     "vec3 neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u)": "sample_incident",
     "float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)": "incident_pdf",
+    "vec3 neumat_translucent_shade(vec3 x, vec3 n, vec3 wo, float alpha, float ior, int samples)": "shade",
+    "float neumat_rough_dielectric_reflection(vec3 n, vec3 wo, vec3 wi, float alpha, float ior)":
+        "rough_dielectric_reflection",
 }
+#: method of NeumatMaterial -> the module's free function it calls, where not neumat_<method>
+_FREE_FUNCTIONS = {"eval_brdf": "neumat_eval", "shade": "neumat_translucent_shade"}
 
 _SIGNATURES = {
     "eval": "float3 eval(float3 wi, float3 wo, float2 uv, float2x2 footprint)",
@@ -95,13 +112,17 @@ _SIGNATURES = {
     "sigma": "float sigma(float3 x, float3 wo)",
     "sample_incident": "float3 sample_incident(float3 x, float3 wo, float3 n, float2 u)",
     "incident_pdf": "float incident_pdf(float3 wi, float3 x, float3 wo, float3 n)",
+    "shade": "float3 shade(float3 x, float3 n, float3 wo, float alpha, float ior, int samples)",
+    "rough_dielectric_reflection": "float rough_dielectric_reflection(float3 n, float3 wo, float3 wi, float alpha, "
+                                   "float ior)",
 }
 #: interface -> (base clause, methods); NeumatMaterial implements those whose methods the model has
 _INTERFACES = {"INeumatMaterial": ("", ("eval", "eval_lod")),
                "INeumatSampler": (" : INeumatMaterial", ("sample", "pdf")),
                "INeumatAlbedo": ("", ("albedo",)),
                "INeumatBRDF": ("", ("eval_brdf",)),
-               "INeumatTranslucent": ("", ("translucent", "sigma", "sample_incident", "incident_pdf"))}
+               "INeumatTranslucent": ("", ("translucent", "sigma", "sample_incident", "incident_pdf")),
+               "INeumatTranslucentShade": (" : INeumatTranslucent", ("shade", "rough_dielectric_reflection"))}
 
 
 @dataclass
@@ -109,7 +130,9 @@ class SlangExport:
     """Slang module source and its buffers: name -> array (layers, H, W, 4), float32 bound as
     `StructuredBuffer<float4>` or float16 (an fp16 export) bound as `StructuredBuffer<uint2>` (the four halves of
     a texel in two words), of layers * H * W elements. entries: the methods of `NeumatMaterial` (keys of
-    ENTRY_CODES). bytes: `GLSLExport.storage_bytes` of the export it spells."""
+    ENTRY_CODES). bytes: `GLSLExport.storage_bytes` of the export it spells. runtime_buffers: buffers the caller
+    binds with their `<name>_width`, `<name>_height` (a neupress export's environment `neumat_env`;
+    `environment_bindings`)."""
 
     source: str
     buffers: dict[str, np.ndarray] = field(default_factory=dict)
@@ -118,6 +141,7 @@ class SlangExport:
     model: str = ""
     precision: str = "fp32"
     bytes: dict[str, int] = field(default_factory=dict)
+    runtime_buffers: list[str] = field(default_factory=list)
 
     def entry_points(self) -> list[str]:
         """Slang signatures of the methods of `NeumatMaterial`."""
@@ -133,6 +157,10 @@ class SlangExport:
             "source": "neumat.slang", "language": "slang", "model": self.model, "struct": "NeumatMaterial",
             "precision": self.precision, "bytes": self.bytes,
             "interfaces": self.interfaces, "entry": self.entry_points(), "buffers": {},
+            "runtime_buffers": {name: {"type": "StructuredBuffer<float4>", "width": f"{name}_width",
+                                       "height": f"{name}_height", "order": "row, column",
+                                       "content": "equirectangular linear RGB radiance (neumat.render.envmaps)"}
+                                for name in self.runtime_buffers},
             "compute": {"entry": "neumat_batch", "numthreads": [GROUP_SIZE, 1, 1],
                         "queries": "neumat_queries", "results": "neumat_results", "count": "neumat_count",
                         "kind": "neumat_entry", "kinds": {e: ENTRY_CODES[e] for e in self.entries},
@@ -149,6 +177,22 @@ class SlangExport:
                                          "layers": layers, "order": "layer, row, column"}
         (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
         return folder
+
+
+def environment_bindings(radiance: np.ndarray) -> dict:
+    """The globals a neupress module's `shade` reads, for an equirectangular environment `radiance` (H, W, 3) or
+    (H, W, 4) linear RGB (the mapping of `neumat.render.envmaps`, row 0 at +y): {"neumat_env": (H * W, 4)
+    float32 (rows, then columns; the data of its StructuredBuffer<float4>), "neumat_env_width": W,
+    "neumat_env_height": H}."""
+    radiance = np.asarray(radiance)
+    if radiance.ndim != 3 or radiance.shape[2] not in (3, 4) or radiance.shape[0] < 1 or radiance.shape[1] < 1:
+        raise InputError(f"environment_bindings radiance: expected an (H, W, 3) or (H, W, 4) array, got shape "
+                         f"{radiance.shape}")
+    height, width = radiance.shape[:2]
+    texels = np.zeros((height * width, 4), np.float32)
+    texels[:, :3] = radiance[..., :3].reshape(-1, 3)
+    texels[:, 3] = 1.0
+    return {"neumat_env": texels, "neumat_env_width": width, "neumat_env_height": height}
 
 
 # ------------------------------------------------------------------------------ GLSL -> Slang
@@ -186,13 +230,15 @@ def _calls(src: str, name: str, rewrite) -> str:
     return "".join(out) + src[pos:]
 
 
-def glsl_to_slang(source: str, textures: dict[str, np.ndarray]) -> str:
+def glsl_to_slang(source: str, textures: dict[str, np.ndarray], runtime: tuple[str, ...] = ()) -> str:
     """Slang spelling of GLSL `source` in the subset the neumat GLSL generators emit: vector / matrix types,
     mix / fract / two-argument atan / mod, `const T name[n] = T[](...)` arrays and local `T[](...)` array
     initialisers, and `sampler2DArray` textures
     (`textures`: name -> (layers, H, W, 4)) read with `texelFetch(name, ivec3(x, y, layer), 0)`, which become
-    `StructuredBuffer<float4>` globals read by index. Raises RuntimeError if GLSL spellings remain (a
-    generator that emits something this rewrite does not know)."""
+    `StructuredBuffer<float4>` globals read by index. `runtime`: names of one-layer float textures whose size is
+    known only at run time (the environment of a neupress export): each becomes a `StructuredBuffer<float4>`
+    (rows x columns) with `uniform int <name>_width, <name>_height`, which `textureSize(name, 0)` reads. Raises
+    RuntimeError if GLSL spellings remain (a generator that emits something this rewrite does not know)."""
     src = re.sub(r"^const (\w+) (\w+)\[(\d+)\] = \1\[\]\((.*)\);$", r"static const \1 \2[\3] = { \4 };", source,
                  flags=re.M)
     src = re.sub(r"^const ", "static const ", src, flags=re.M)
@@ -210,9 +256,16 @@ float4 nm_fetch_{name}(int3 p) {{
             declaration = f"""StructuredBuffer<float4> {name};  // {layers} layers x {height} rows x {width} columns
 float4 nm_fetch_{name}(int3 p) {{ return {name}[{at}]; }}"""
         src = src.replace(f"uniform sampler2DArray {name};", declaration)
+    for name in runtime:
+        src = src.replace(f"uniform sampler2DArray {name};", f"""StructuredBuffer<float4> {name};  // rows x columns, \
+bound at run time
+uniform int {name}_width;
+uniform int {name}_height;
+float4 nm_fetch_{name}(int3 p) {{ return {name}[p.y * {name}_width + p.x]; }}""")
+        src = src.replace(f"textureSize({name}, 0)", f"int3({name}_width, {name}_height, 1)")
 
     def fetch(args: list[str]) -> str:
-        if len(args) != 3 or args[0] not in textures or args[2] != "0":
+        if len(args) != 3 or (args[0] not in textures and args[0] not in runtime) or args[2] != "0":
             raise RuntimeError(f"glsl_to_slang: unsupported texelFetch({', '.join(args)})")
         return f"nm_fetch_{args[0]}({args[1]})"
 
@@ -227,6 +280,8 @@ float4 nm_fetch_{name}(int3 p) {{ return {name}[{at}]; }}"""
     for glsl, slang in _FUNCTIONS.items():
         src = re.sub(rf"\b{glsl}(?=\s*\()", slang, src)
     code = re.sub(r"//[^\n]*", "", src)
+    for name in runtime:  # the size uniforms written above
+        code = re.sub(rf"^uniform int {name}_(width|height);$", "", code, flags=re.M)
     if (m := _LEFTOVER.search(code)) is not None:
         raise RuntimeError(f"glsl_to_slang: GLSL spelling {m.group(0)!r} left in the Slang source")
     return _PRELUDE + src
@@ -245,7 +300,7 @@ def _material(entries: list[str], interfaces: list[str]) -> str:
     methods = ""
     for e in entries:
         args = re.findall(r"(\w+)(?:,|\))", _SIGNATURES[e])  # parameter names, in order
-        function = "neumat_eval" if e == "eval_brdf" else f"neumat_{e}"
+        function = _FREE_FUNCTIONS.get(e, f"neumat_{e}")
         methods += f"    {_SIGNATURES[e]} {{ return {function}({', '.join(args)}); }}\n"
     return f"""
 /// The exported material: stateless; its latent pyramid is the global buffer neumat_spatial.
@@ -266,6 +321,8 @@ def _kernel(entries: list[str]) -> str:
         "sigma": "float4(m.sigma(x, wo), 0.0, 0.0, 1.0)",
         "sample_incident": "float4(m.sample_incident(x, wo, n, u), 1.0)",
         "incident_pdf": "float4(m.incident_pdf(wi, x, wo, n), 0.0, 0.0, 1.0)",
+        "shade": "float4(m.shade(x, n, wo, alpha, ior, samples), 1.0)",
+        "rough_dielectric_reflection": "float4(m.rough_dielectric_reflection(n, wo, wi, alpha, ior), 0.0, 0.0, 1.0)",
     }
     cases = "".join(f"    case {ENTRY_CODES[e]}: r = {calls[e]}; break;\n" for e in entries)
     lay = QUERY_LAYOUT
@@ -274,7 +331,7 @@ def _kernel(entries: list[str]) -> str:
 // ---- batch evaluation (tests, examples): {QUERY_FLOATS} floats per query in neumat_queries
 //   wi {lay['wi']}..{lay['wi'] + 2}, wo {lay['wo']}..{lay['wo'] + 2}, uv {lay['uv']}..{lay['uv'] + 1}, \
 lod {lay['lod']}, footprint (xx, xy, yy) {f}..{f + 2}, u {lay['u']}..{lay['u'] + 1}, x {lay['x']}..{lay['x'] + 2}, \
-n {lay['n']}..{lay['n'] + 2}
+n {lay['n']}..{lay['n'] + 2}, alpha {lay['alpha']}, ior {lay['ior']}, samples {lay['samples']}
 // results: {RESULT_FLOATS} floats per query (rgb, a direction, or the pdf / sigma in the first); neumat_entry picks
 // the method:
 // {', '.join(f'{e} {ENTRY_CODES[e]}' for e in entries)}
@@ -302,6 +359,8 @@ neumat_queries[b + {lay['wo'] + 2}]);
 neumat_queries[b + {lay['x'] + 2}]);
     float3 n = float3(neumat_queries[b + {lay['n']}], neumat_queries[b + {lay['n'] + 1}], \
 neumat_queries[b + {lay['n'] + 2}]);
+    float alpha = neumat_queries[b + {lay['alpha']}], ior = neumat_queries[b + {lay['ior']}];
+    int samples = int(neumat_queries[b + {lay['samples']}]);
     NeumatMaterial m;
     float4 r = float4(0.0);
     switch (neumat_entry) {{
@@ -330,14 +389,16 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
     glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
-    # the GLSL-only fragment shading of a neupress export (an environment texture bound by the rasteriser)
-    glsl_source = re.sub(r"// ---- shading a fragment.*?// ---- end of shading\n", "", glsl.source, flags=re.S)
-    body = glsl_to_slang(glsl_source.split("\n", 1)[1], glsl.textures)
+    # textures the export declares but does not carry (a neupress export's environment) are bound at run time
+    runtime = tuple(t for t in re.findall(r"^uniform sampler2DArray (\w+);", glsl.source, flags=re.M)
+                    if t not in glsl.textures)
+    body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures, runtime)
     header = (f"// neumat Slang module of a '{model.name}' model (methods: {', '.join(entries)}); see "
-              "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json.\n")
+              "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json"
+              + "".join(f", and {t} with {t}_width, {t}_height at run time" for t in runtime) + ".\n")
     source = header + body + "\n" + _interfaces() + _material(entries, interfaces) + _kernel(entries)
     return SlangExport(source, dict(glsl.textures), entries, interfaces, model.name, glsl.precision,
-                       glsl.storage_bytes())
+                       glsl.storage_bytes(), list(runtime))
 
 
 EXPORT_FORMATS.register("slang")(ExportFormat("Slang module, its buffers and manifest.json", export_slang))
