@@ -39,22 +39,24 @@ def environment_map(light: str) -> str:
 def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".npz"),
                                help="observations file to write (.npz)"),
           scene: str = typer.Option("sphere", help="the object: 'sphere' or mesh:PATH (a closed PLY triangle mesh)"),
-          media: str = typer.Option("marble,ketchup", help="the two Jensen et al. media the noise mixes, A,B"),
-          size_mm: float = typer.Option(4.0, help="millimetres across the bounding-box diagonal (smaller: more "
-                                                   "translucent)"),
-          roughness: float = typer.Option(0.3, help="GGX alpha of the dielectric surface"),
+          media: str = typer.Option(None, help="the two Jensen et al. media the noise mixes, A,B (default: "
+                                               "TranslucentConfig's, as every unset object option)"),
+          size_mm: float = typer.Option(None, help="millimetres across the bounding-box diagonal (smaller: more "
+                                                    "translucent)"),
+          roughness: float = typer.Option(None, help="GGX alpha of the dielectric surface"),
           images: int = typer.Option(1500, min=1, help="views, each with its own light direction"),
-          resolution: int = typer.Option(32, min=1, help="rays per side of each view"),
+          resolution: int = typer.Option(None, min=1, help="rays per side of each view (default: "
+                                                           "collect_observations')"),
           spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: "
                                                   "32 is ~1.7x the time of 8)"),
           seed: int = typer.Option(0, **SEED_RANGE),
-          max_depth: int = typer.Option(5000, min=2, help="longest path (the paper's 5000)"),
+          max_depth: int = typer.Option(None, min=2, help="longest path (default: TranslucentConfig's, the paper's)"),
           inner: str = typer.Option(None, help="shapes inside the volume: a .json file or inline JSON, a list of "
                                                "InnerShape fields, e.g. '[{\"medium\": \"skin1\", \"scale\": 0.4}]' "
                                                "(docs/neupress.md)"),
           roughness_texture: Path = typer.Option(None, help="image whose first channel maps to GGX alpha in "
                                                             "--roughness-range (latitude-longitude projection)"),
-          roughness_range: str = typer.Option("0.05,0.5", help="alpha at roughness-texture values 0 and 1, LO,HI"),
+          roughness_range: str = typer.Option(None, help="alpha at roughness-texture values 0 and 1, LO,HI"),
           albedo_texture: Path = typer.Option(None, help="RGB image multiplying the medium's albedo "
                                                          "(latitude-longitude projection from the box centre)"),
           noise_check: int = typer.Option(2048, min=0, help="observations traced twice more to estimate the data's "
@@ -67,13 +69,16 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
         from ..reflectance.translucent import TranslucentConfig, TranslucentObject
 
         _check_suffix(out, ".npz", "trace OUT")
-        cfg = TranslucentConfig(shape=object_shape(scene), media=tuple(m.strip() for m in media.split(",")), size_mm=size_mm,
-                                roughness=roughness, max_depth=max_depth, inner=_inner_shapes(inner),
-                                roughness_texture=None if roughness_texture is None else str(roughness_texture),
-                                roughness_range=_pair(roughness_range, "--roughness-range"),
-                                albedo_texture=None if albedo_texture is None else str(albedo_texture))
+        given = {"media": None if media is None else tuple(m.strip() for m in media.split(",")),
+                 "size_mm": size_mm, "roughness": roughness, "max_depth": max_depth,
+                 "roughness_texture": None if roughness_texture is None else str(roughness_texture),
+                 "roughness_range": None if roughness_range is None else _pair(roughness_range, "--roughness-range"),
+                 "albedo_texture": None if albedo_texture is None else str(albedo_texture)}
+        cfg = TranslucentConfig(shape=object_shape(scene), inner=_inner_shapes(inner),
+                                **{k: v for k, v in given.items() if v is not None})
         obj = TranslucentObject(cfg, spp=spp, seed=seed)
-        obs = collect_observations(obj, images, resolution, seed=seed, progress=not quiet)
+        sizes = {} if resolution is None else {"resolution": resolution}
+        obs = collect_observations(obj, images, seed=seed, progress=not quiet, **sizes)
         source = {"object": config_to_dict(cfg), "spp": spp, "seed": seed,
                   "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]}
         if noise_check:
@@ -127,6 +132,13 @@ def _inner_shapes(text: str | None) -> list:
     if not isinstance(shapes, list) or not all(isinstance(s, dict) for s in shapes):
         raise InputError(f"--inner: expected a list of objects (InnerShape fields), got {shapes!r}")
     return shapes
+
+
+def _orbit(obj, resolution: int, azimuth: float | None, elevation: float | None):
+    """`orbit_camera` with its own defaults for the angles not given."""
+    from ..render.translucent import orbit_camera
+    angles = {k: v for k, v in (("azimuth", azimuth), ("elevation", elevation)) if v is not None}
+    return orbit_camera(obj, resolution, **angles)
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -222,8 +234,8 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
            reference_spp: int = typer.Option(0, min=0, help="also path-trace the reference of the same appearance "
                                                            "at this many spp (twice: the second, another seed, "
                                                            "gives the noise floor) and compare"),
-           azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
-           elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
+           azimuth: float = typer.Option(None, help="camera azimuth in degrees (default: orbit_camera's)"),
+           elevation: float = typer.Option(None, help="camera elevation in degrees (default: orbit_camera's)"),
            seed: int = typer.Option(0, **SEED_RANGE),
            device: str = typer.Option("cpu", "--device", callback=device_option,
                                       help="torch device the model is evaluated on")) -> None:
@@ -241,7 +253,7 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         from ..reflectance.translucent import TranslucentConfig, TranslucentObject
         from ..render.envmaps import downsample_envmap, read_envmap, sky_envmap
         from ..render.lights import EnvironmentMap
-        from ..render.translucent import (APPEARANCES, STRATEGIES, object_mask, orbit_camera, render_translucent,
+        from ..render.translucent import (APPEARANCES, STRATEGIES, object_mask, render_translucent,
                                           render_translucent_reference)
         from ..viz.compare import compare_image
 
@@ -260,7 +272,7 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         obj = TranslucentObject(config_from_dict(TranslucentConfig, source["object"]), spp=1, seed=seed)
         image = sky_envmap(width=env_width) if envmap == "sky" else read_envmap(envmap)
         env = EnvironmentMap(downsample_envmap(image, env_width))
-        camera = orbit_camera(obj, resolution, azimuth, elevation)
+        camera = _orbit(obj, resolution, azimuth, elevation)
         t = time.perf_counter()
         img = render_translucent(m, obj, env, camera, resolution, spp=spp, strategy=strategy, seed=seed,
                                  appearance=appearance)
@@ -374,8 +386,8 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
                model_spp: int = typer.Option(64, min=1, help="samples per pixel of the model's image"),
                reference_spp: int = typer.Option(0, min=0, help="also path-trace the reference at this many spp "
                                                                "and compare"),
-               azimuth: float = typer.Option(30.0, help="camera azimuth in degrees"),
-               elevation: float = typer.Option(20.0, help="camera elevation in degrees"),
+               azimuth: float = typer.Option(None, help="camera azimuth in degrees (default: orbit_camera's)"),
+               elevation: float = typer.Option(None, help="camera elevation in degrees (default: orbit_camera's)"),
                seed: int = typer.Option(0, **SEED_RANGE),
                device: str = typer.Option("cpu", "--device", callback=device_option,
                                           help="torch device of the table and the model")) -> None:
@@ -388,7 +400,7 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
         from ..io.images import write_image, write_image_ldr
         from ..metrics.image import image_metrics
         from ..models.neupress_prt import SHPRT
-        from ..render.translucent import orbit_camera, render_translucent, render_translucent_reference
+        from ..render.translucent import render_translucent, render_translucent_reference
         from ..render.translucent_prt import render_prt
         from ..viz.compare import compare_image
 
@@ -399,7 +411,7 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
         net = _neupress(model, device) if model is not None else None
         obj = _translucent_object(observations, seed)
         env = _environment(light, env_width)
-        camera = orbit_camera(obj, resolution, azimuth, elevation)
+        camera = _orbit(obj, resolution, azimuth, elevation)
         t = time.perf_counter()
         images = {"SH PRT": render_prt(prt_table, env, camera, resolution, spp=spp, seed=seed)}
         seconds = {"SH PRT": time.perf_counter() - t}
