@@ -243,35 +243,22 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
     def go():
         import time
 
-        from ..core.config import config_from_dict
         from ..core.errors import InputError
-        from ..fit.translucent_observations import Observations
         from ..io.images import write_image, write_image_ldr
-        from ..catalog.modelfile import load_model
         from ..metrics.image import image_metrics, masked_flip
-        from ..models.neupress import NeuPreSS
-        from ..reflectance.translucent import TranslucentConfig, TranslucentObject
-        from ..render.envmaps import downsample_envmap, read_envmap, sky_envmap
-        from ..render.lights import EnvironmentMap
         from ..render.translucent import (APPEARANCES, STRATEGIES, object_mask, render_translucent,
                                           render_translucent_reference)
         from ..viz.compare import compare_image
 
-        envmap = environment_map(light)
+        environment_map(light)  # a bad --light is reported before anything is loaded
         for option, value, known in (("--strategy", strategy, STRATEGIES), ("--appearance", appearance, APPEARANCES)):
             if value not in known:
                 raise InputError(f"{option}: expected one of {'|'.join(known)}, got {value!r}")
-        m = load_model(model, device=device)
-        if not isinstance(m, NeuPreSS):
-            raise InputError(f"{model}: expected a NeuPreSS model, got {type(m).__name__}")
-        source = Observations.load_source(observations)
-        if source is None or "object" not in source:
-            raise InputError(f"{observations}: no object description (write it with `neumat translucent trace`)")
+        m = _neupress(model, device)
+        obj = _translucent_object(observations, seed)
         if reference_spp and out.suffix.lower() != ".png":
             raise InputError(f"--out {out}: the comparison picture of --reference-spp is a .png")
-        obj = TranslucentObject(config_from_dict(TranslucentConfig, source["object"]), spp=1, seed=seed)
-        image = sky_envmap(width=env_width) if envmap == "sky" else read_envmap(envmap)
-        env = EnvironmentMap(downsample_envmap(image, env_width))
+        env = _environment(light, env_width)
         camera = _orbit(obj, resolution, azimuth, elevation)
         t = time.perf_counter()
         img = render_translucent(m, obj, env, camera, resolution, spp=spp, strategy=strategy, seed=seed,

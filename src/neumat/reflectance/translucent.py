@@ -414,15 +414,20 @@ def _check_inner(c: TranslucentConfig, lo: np.ndarray, hi: np.ndarray) -> None:
         boxes.append(box)
 
 
+def _check_shape(shape: str, who: str) -> None:
+    """InputError naming `who` unless `shape` is "sphere" or an existing, readable .ply file."""
+    if shape != "sphere":
+        path = Path(shape)
+        if not path.is_file() or path.suffix.lower() != ".ply":
+            raise InputError(f"{who}: expected 'sphere' or an existing .ply file, got {shape!r}")
+        check_ply(path)
+
+
 def _check_inner_fields(k: int, s) -> None:
     who = f"translucent inner[{k}]"
     if not isinstance(s, InnerShape):
         raise InputError(f"{who}: expected an InnerShape or a dict of its fields, got {s!r}")
-    if s.shape != "sphere":
-        path = Path(s.shape)
-        if not path.is_file() or path.suffix.lower() != ".ply":
-            raise InputError(f"{who} shape: expected 'sphere' or an existing .ply file, got {s.shape!r}")
-        check_ply(path)
+    _check_shape(s.shape, f"{who} shape")
     check_number(s.scale, f"{who} scale", 0.0, strict=True)
     if len(s.center) != 3:
         raise InputError(f"{who} center: expected 3 numbers, got {s.center!r}")
@@ -450,11 +455,7 @@ def _check_config(c: TranslucentConfig) -> None:
             raise InputError(f"translucent media: unknown medium {name!r}; known: {sorted(JENSEN_MEDIA)}")
     if len(c.media) != 2:
         raise InputError(f"translucent media: expected two medium names, got {c.media!r}")
-    if c.shape != "sphere":
-        path = Path(c.shape)
-        if not path.is_file() or path.suffix.lower() != ".ply":
-            raise InputError(f"translucent shape: expected 'sphere' or an existing .ply file, got {c.shape!r}")
-        check_ply(path)
+    _check_shape(c.shape, "translucent shape")
     for key in ("size_mm", "roughness", "noise_frequency"):
         check_number(getattr(c, key), f"translucent {key}", 0.0, strict=True)
     if not (isinstance(c.ior, (int, float)) and c.ior > 1):
