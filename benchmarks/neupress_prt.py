@@ -8,7 +8,7 @@ and the path-traced reference.
    queries, as before) and the separable NeuPreSS path (Fourier features by angle addition), with the share of
    each stage (pair encoding, feature combination, MLP, projection) on --profile-pairs (vertex, view) pairs.
 2. Bin counts, on --subset random vertices: tables at the paper's 16 x 64 view bins x 1024 light directions and at
-   cheaper counts (the CLI's default FAST_VIEW_BINS x FAST_LIGHT_SAMPLES among them). Errors against the paper's
+   cheaper counts and bfloat16 (the CLI's default FAST_VIEW_BINS x FAST_LIGHT_SAMPLES in FAST_PRECISION among them). Errors against the paper's
    table, relative RMS over the subset: of a_lm (interpolated over the view bins at --directions random view
    directions above each vertex's horizon), and of the radiance under the environment (Eq. 11) at the same
    directions and at the camera's view direction of each vertex (what an image shows there). The paper's table
@@ -42,8 +42,8 @@ from neumat.fit.translucent_observations import Observations
 from neumat.io.images import write_image_ldr
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
-from neumat.models.neupress_prt import (FAST_LIGHT_SAMPLES, FAST_VIEW_BINS, PRTConfig, SHPRT, _QueryTransport,
-                                        _SeparableNeuPreSS, sphere_quadrature)
+from neumat.models.neupress_prt import (FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, PRTConfig, SHPRT,
+                                        _QueryTransport, _SeparableNeuPreSS, sphere_quadrature)
 from neumat.nn.spherical_harmonics import real_sh
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.envmaps import downsample_envmap, read_envmap
@@ -53,8 +53,16 @@ from neumat.render.translucent import _pixel_rays, orbit_camera, render_transluc
 from neumat.render.translucent_prt import render_prt
 from neumat.viz.compare import compare_image
 
-PAPER = (16, 64, 1024)
-CHEAPER = [(*FAST_VIEW_BINS, FAST_LIGHT_SAMPLES), (8, 16, 32), (4, 8, 32), (16, 32, 64), (8, 16, 256)]
+PAPER = (16, 64, 1024, "fp32")
+FAST = (*FAST_VIEW_BINS, FAST_LIGHT_SAMPLES, FAST_PRECISION)
+CHEAPER = [FAST, (8, 16, 32, "fp32"), (8, 16, 64, "bf16"), (8, 16, 64, "fp32"), (4, 8, 32, "bf16"),
+           (16, 32, 64, "bf16"), (8, 16, 256, "bf16")]
+
+
+def _config(counts: tuple, batch_size: int = 16384) -> PRTConfig:
+    """PRTConfig of (view_theta, view_phi, light_samples, precision)."""
+    return PRTConfig(view_theta=counts[0], view_phi=counts[1], light_samples=counts[2], precision=counts[3],
+                     batch_size=batch_size)
 
 
 def _best(fn, repeats: int = 3) -> float:
@@ -145,9 +153,8 @@ def bin_study(model, points, normals, env, camera_origin, subset: int, direction
     vi = torch.arange(subset).repeat_interleave(directions)
     tables, seconds, rows = {}, {}, []
     for counts in [paper, *CHEAPER]:
-        cfg = PRTConfig(view_theta=counts[0], view_phi=counts[1], light_samples=counts[2], batch_size=16384)
         t0 = time.perf_counter()
-        tables[counts] = SHPRT.from_material(model, pts, nrm, cfg)
+        tables[counts] = SHPRT.from_material(model, pts, nrm, _config(counts))
         seconds[counts] = time.perf_counter() - t0
     light = tables[paper].light_coefficients(env)
     ref = tables[paper]
@@ -156,7 +163,7 @@ def bin_study(model, points, normals, env, camera_origin, subset: int, direction
     truth = radiance_env(model, pts, cam, env)
     for counts, tab in tables.items():
         lights = sphere_quadrature(counts[2])[1].shape[0]
-        rows.append({"view bins x lights": f"{counts[0]}x{counts[1]} x {lights}",
+        rows.append({"view bins x lights": f"{counts[0]}x{counts[1]} x {lights} {counts[3]}",
                      "evaluations per vertex": counts[0] * counts[1] * lights,
                      "seconds per vertex": round(seconds[counts] / subset, 4),
                      "fp16 bytes per vertex": tab.size_bytes() // subset,
@@ -175,8 +182,7 @@ def visible_table(model, points, normals, faces, camera, resolution: int, spp: i
     o, d = _pixel_rays(camera, resolution, spp, torch.Generator().manual_seed(0))
     hit, face, _ = MeshIntersector(points, faces).intersect(o, d)
     needed = faces[face].unique()
-    cfg = PRTConfig(view_theta=FAST_VIEW_BINS[0], view_phi=FAST_VIEW_BINS[1], light_samples=FAST_LIGHT_SAMPLES,
-                    batch_size=16384)
+    cfg = _config(FAST)
     t = time.perf_counter()
     part = SHPRT.from_material(model, points[needed], normals[needed], cfg, progress=True)
     seconds = time.perf_counter() - t
@@ -237,20 +243,20 @@ def main() -> None:
         record("profile", rows)
     if "bins" in stages:
         eye = camera.rays(torch.tensor([[a.resolution / 2, a.resolution / 2]])).o[0]
-        paper = tuple(int(v) for v in a.paper.split("x"))
+        paper = (*(int(v) for v in a.paper.split("x")), "fp32")
         rows = bin_study(model, points, normals, env, eye, a.subset, a.directions, paper)
         print_table(f"Bin counts on {a.subset} vertices, errors against {a.paper}", rows,
                     width=220)
         record("bins", rows)
     if "full" in stages:
-        cfg = PRTConfig(view_theta=FAST_VIEW_BINS[0], view_phi=FAST_VIEW_BINS[1], light_samples=FAST_LIGHT_SAMPLES,
-                        batch_size=16384)
+        cfg = _config(FAST)
         t = time.perf_counter()
         table = SHPRT.from_material(model, points, normals, cfg, progress=True, faces=faces)
         seconds = time.perf_counter() - t
         table.save(a.table)
         row = {"vertices": table.num_vertices, "view bins": f"{cfg.view_theta}x{cfg.view_phi}",
-               "light directions": sphere_quadrature(cfg.light_samples)[1].shape[0], "seconds": round(seconds, 1),
+               "light directions": sphere_quadrature(cfg.light_samples)[1].shape[0], "precision": cfg.precision,
+               "seconds": round(seconds, 1),
                "fp16 MB": round(table.size_bytes() / 1e6, 2), "fp16 bytes per vertex": table.size_bytes() //
                table.num_vertices}
         print_table("Full precompute", [row], width=200)

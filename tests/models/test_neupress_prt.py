@@ -2,6 +2,7 @@
 bilinear view interpolation (wrap in phi, clamp in theta, 0 below the horizon), lighting coefficients of
 constant / tabulated / directional lights, convergence in the degree for a narrow lobe, files and checks."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -287,6 +288,7 @@ def test_bad_inputs_raise_input_error():
            (dict(config=PRTConfig(view_theta=0)), "view_theta"), (dict(config=PRTConfig(view_phi=1.5)), "view_phi"),
            (dict(config=PRTConfig(light_samples=0)), "light_samples"),
            (dict(config=PRTConfig(light_rule="mc")), "light_rule"),
+           (dict(config=PRTConfig(precision="fp16")), "precision"),
            (dict(material=object()), "material")]
     for kw, name in bad:
         args = dict(material=mat, points=points, normals=normals, config=small) | kw
@@ -352,6 +354,13 @@ def test_batched_precompute_matches_a_float64_brute_force_sum(fourier):
     for material in (model, _ThroughQueries(model)):
         prt = SHPRT.from_material(material, points, normals, cfg)
         assert (prt.coefficients.double() - expected).abs().max() < 1e-4 * scale
+    # bfloat16 (8-bit mantissa) network: within a few rounding units of the float64 sum even for angles of ~100
+    # rad (they stay float32), and not the float32 path; refused where the features cannot be kept apart
+    fast = SHPRT.from_material(model, points, normals, replace(cfg, precision="bf16"))
+    error = (fast.coefficients.double() - expected).abs().max()
+    assert 1e-5 * scale < error < 2e-2 * scale
+    with pytest.raises(InputError, match="precision.*NeuPreSS"):
+        SHPRT.from_material(_ThroughQueries(model), points, normals, replace(cfg, precision="bf16"))
 
 
 def test_faces_are_kept_saved_and_checked(tmp_path):

@@ -37,6 +37,7 @@ does not depend on a seed and is exact for band-limited transport:
 """
 from __future__ import annotations
 
+import copy
 import math
 import operator
 from dataclasses import asdict, dataclass, fields
@@ -58,12 +59,15 @@ if TYPE_CHECKING:
     from neumat.render.lights import EnvironmentMap, Light
 
 LIGHT_RULES = ("gauss", "fibonacci")
+PRECISIONS = ("fp32", "bf16")
 FILE_TYPE = "sh-prt"
-#: view bins (theta, phi) and light directions of `neumat translucent prt` (the paper's 16 x 64 x 1024 are the
-#: PRTConfig defaults): 16x fewer evaluations per vertex, for meshes of tens of thousands of vertices in minutes;
-#: the error this costs against the paper's counts is measured in benchmarks/results/neupress_prt.md
+#: view bins (theta, phi), light directions and arithmetic of `neumat translucent prt` (the paper's 16 x 64 x 1024
+#: in float32 are the PRTConfig defaults): 8 x 16 x 32 is 253x fewer evaluations per vertex, bfloat16 about 3x
+#: faster each, for meshes of tens of thousands of vertices in minutes; what this costs against the paper's
+#: counts and float32 is measured in benchmarks/results/neupress_prt.md
 FAST_VIEW_BINS = (8, 16)
-FAST_LIGHT_SAMPLES = 64
+FAST_LIGHT_SAMPLES = 32
+FAST_PRECISION = "bf16"
 
 
 @dataclass
@@ -80,6 +84,10 @@ class PRTConfig:
     """Quadrature directions wi over the sphere for Eq. 10 (about this many for the "gauss" rule)."""
     light_rule: str = "gauss"
     """Quadrature rule for wi: "gauss" (Gauss-Legendre x uniform phi) or "fibonacci" (see the module doc)."""
+    precision: str = "fp32"
+    """Arithmetic of the material's evaluations: "fp32", or "bf16" for NeuPreSS models (Fourier angles in float32,
+    their cosines and the MLP in bfloat16, projection in float32: 2-3x faster on CPUs with AVX-512 BF16, a_lm
+    within ~1% of float32; benchmarks/results/neupress_prt.md)."""
     batch_size: int = 65536
     """Material evaluations per batch."""
 
@@ -102,6 +110,8 @@ def _check_config(c: PRTConfig) -> PRTConfig:
         _positive_int(getattr(c, name), f"PRTConfig.{name}")
     if c.light_rule not in LIGHT_RULES:
         raise InputError(f"PRTConfig.light_rule: expected one of {LIGHT_RULES}, got {c.light_rule!r}")
+    if c.precision not in PRECISIONS:
+        raise InputError(f"PRTConfig.precision: expected one of {PRECISIONS}, got {c.precision!r}")
     return c
 
 
@@ -291,8 +301,8 @@ class SHPRT:
 
         material: a full-sphere material (`full_sphere = True`, e.g. NeuPreSS) whose `eval(Query(wi, wo, x, n))`
         gives S_hat (N, 3); points, normals (V, 3): object-space vertices and unit normals; faces: optional
-        (F, 3) triangles, kept with the table. Evaluation is float32 on `device` (default: the device of
-        `points`), in chunks of about `config.batch_size` evaluations (whole light sets of (vertex, view) pairs),
+        (F, 3) triangles, kept with the table. Evaluation is in `config.precision` on `device` (default: the
+        device of `points`), in chunks of about `config.batch_size` evaluations (whole light sets of (vertex, view) pairs),
         each chunk projected by one float32 matrix product. A NeuPreSS model is evaluated through
         `_SeparableNeuPreSS` (no per-query Fourier features); other materials through `eval(Query)`.
         """
@@ -310,7 +320,7 @@ class SHPRT:
 
         wi, weights = sphere_quadrature(cfg.light_samples, cfg.light_rule, device=device)
         basis_w = (real_sh(wi, cfg.degree) * weights[:, None]).float()  # (M, C)
-        transport = _transport(material, wi.float())
+        transport = _transport(material, wi.float(), cfg.precision)
         m, c = wi.shape[0], basis_w.shape[1]
         local = view_bin_directions(cfg.view_theta, cfg.view_phi, device=device).reshape(-1, 3)  # (B, 3)
         n_bins, n_vert = local.shape[0], pts.shape[0]
@@ -459,11 +469,17 @@ def _check_faces(faces, n_vertices: int) -> torch.Tensor:
 
 
 # ---- S_hat for every (vertex, view) pair and every light direction ---------------------------------------------
-def _transport(material, wi: torch.Tensor) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
-    """A function (x, n, wo) (P, 3) each -> S_hat (P, M, 3) float32 at the M light directions wi (M, 3)."""
+def _transport(material, wi: torch.Tensor, precision: str = "fp32"
+               ) -> Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]:
+    """A function (x, n, wo) (P, 3) each -> S_hat (P, M, 3) float32 at the M light directions wi (M, 3), evaluated
+    in `precision` ("fp32", or "bf16" for NeuPreSS only)."""
     from neumat.models.neupress import NeuPreSS
     if isinstance(material, NeuPreSS):
-        return _SeparableNeuPreSS(material, wi)
+        return _SeparableNeuPreSS(material, wi, precision)
+    if precision != "fp32":
+        # autocast would round inputs such as Fourier-feature angles (up to ~100 rad) to 8 bits: wrong, not fast
+        raise InputError(f"PRTConfig.precision: {precision!r} is for NeuPreSS models (their features are built in "
+                         f"float32 before the bfloat16 network); {type(material).__name__} needs \"fp32\"")
     return _QueryTransport(material, wi)
 
 
@@ -488,26 +504,29 @@ class _SeparableNeuPreSS:
     without per-query encodings or transcendentals: v = (enc(wi), enc(wo), pos(x)) and G v is linear, so
     a = a_light(wi) + a_pair(wo, x), and cos a, sin a follow from the cosines and sines of the two parts (computed
     once per light direction and once per (vertex, view) pair) by the angle-addition formulas. Equal to
-    `NeuPreSS.eval` up to float32 rounding (tests/models/test_neupress_prt.py)."""
+    `NeuPreSS.eval` up to float32 rounding (tests/models/test_neupress_prt.py). For "bf16" the angle addition
+    and the MLP (a bfloat16 copy of its weights) run in bfloat16."""
 
-    def __init__(self, model, wi: torch.Tensor) -> None:
+    def __init__(self, model, wi: torch.Tensor, precision: str = "fp32") -> None:
         self.model = model
+        self.mlp_dtype = torch.bfloat16 if precision == "bf16" else model.box_min.dtype
+        self.mlp = copy.deepcopy(model.appearance).to(self.mlp_dtype) if precision == "bf16" else model.appearance
         g = model.appearance_features.G  # (F, 2 d + 3)
         self.d = (g.shape[1] - 3) // 2
         self.g_wo, self.g_x = g[:, self.d:2 * self.d].T, g[:, 2 * self.d:].T
         dtype = model.box_min.dtype
         a = (2 * math.pi) * (model._direction(wi.to(g.device, dtype)) @ g[:, :self.d].T)  # (M, F)
-        self.cos_l, self.sin_l = torch.cos(a)[None], torch.sin(a)[None]
+        self.cos_l, self.sin_l = torch.cos(a)[None].to(self.mlp_dtype), torch.sin(a)[None].to(self.mlp_dtype)
 
     def __call__(self, x: torch.Tensor, n: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         model, dtype = self.model, self.model.box_min.dtype
         a = (2 * math.pi) * (model._direction(wo.to(dtype)) @ self.g_wo + model._position(x.to(dtype)) @ self.g_x)
-        cos_p, sin_p = torch.cos(a)[:, None], torch.sin(a)[:, None]  # (P, 1, F)
+        cos_p, sin_p = torch.cos(a)[:, None].to(self.mlp_dtype), torch.sin(a)[:, None].to(self.mlp_dtype)  # (P, 1, F)
         p, m, f = a.shape[0], self.cos_l.shape[1], a.shape[1]
-        feat = torch.empty(p, m, 2 * f, dtype=a.dtype, device=a.device)
+        feat = torch.empty(p, m, 2 * f, dtype=self.mlp_dtype, device=a.device)
         c, s = feat[..., :f], feat[..., f:]
         torch.mul(cos_p, self.cos_l, out=c)  # cos(a_p + a_l) = cos a_p cos a_l - sin a_p sin a_l
         c.sub_(sin_p * self.sin_l)
         torch.mul(sin_p, self.cos_l, out=s)  # sin(a_p + a_l) = sin a_p cos a_l + cos a_p sin a_l
         s.add_(cos_p * self.sin_l)
-        return torch.relu(model.appearance(feat.reshape(p * m, 2 * f))).float().reshape(p, m, 3)
+        return torch.relu(self.mlp(feat.reshape(p * m, 2 * f))).float().reshape(p, m, 3)
