@@ -12,7 +12,7 @@ from neumat.core.config import config_to_dict
 from neumat.fit.translucent_observations import Observations
 from neumat.io.images import read_image
 from neumat.models.neupress import NeuPreSS
-from neumat.models.neupress_prt import PRTConfig, SHPRT
+from neumat.models.neupress_prt import FAST_PRECISION, PRTConfig, SHPRT
 from neumat.reflectance.translucent import TranslucentConfig
 from neumat.render.mesh import icosphere, vertex_normals
 from tests.mitsuba_util import mitsuba_or_skip
@@ -49,10 +49,11 @@ def test_prt_and_prt_render_on_a_small_sphere(tmp_path):
     assert r.exit_code == 0, r.output
     said = _said(r)
     assert "42" in said and "2x4" in said and str(42 * 8 * 9 * 3 * 2) in said  # vertices, bins, fp16 bytes
+    assert FAST_PRECISION in said
     prt = SHPRT.load(table)
     v, f = icosphere(1)
-    assert torch.equal(prt.faces, f) and prt.config.view_phi == 4
-    cfg = PRTConfig(view_theta=2, view_phi=4, light_samples=16)
+    assert torch.equal(prt.faces, f) and prt.config.view_phi == 4 and prt.config.precision == FAST_PRECISION
+    cfg = PRTConfig(view_theta=2, view_phi=4, light_samples=16, precision=FAST_PRECISION)
     direct = SHPRT.from_material(load_model(model), v.float(), vertex_normals(v, f).float(), cfg)
     torch.testing.assert_close(prt.coefficients, direct.coefficients, rtol=1e-5, atol=1e-7)
 
@@ -86,6 +87,8 @@ def test_prt_errors_name_the_problem(tmp_path):
     for bins in ("8by16", "0x4", "8x"):
         r = _run("prt", model, obs, "-o", tmp_path / "t.prt", "--view-bins", bins)
         assert r.exit_code == 2 and "THETAxPHI" in _said(r), bins
+    r = _run("prt", model, obs, "-o", tmp_path / "t.prt", "--precision", "fp16")
+    assert r.exit_code == 2 and "precision" in _said(r) and "bf16" in _said(r)
     r = _run("prt-render", model, obs, "-o", tmp_path / "i.png")
     assert r.exit_code == 2 and ".prt" in _said(r)
     (tmp_path / "junk.prt").write_bytes(b"not a table")
