@@ -27,7 +27,7 @@ from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .analytic import CONDUCTORS
 from .coat_albedo import ALPHA_MIN
 from .footprint_filter import filtered_eval, query_footprint
-from .layered import Coat, _coat_maps
+from .layered import Coat, coat_maps
 from .lean import NormalGroup
 from .microfacet import _microfacet_brdf, fresnel_conductor
 from .svbrdf import DEFENSIVE_PROBABILITY
@@ -71,7 +71,7 @@ class TexturedConductor(Material):
         for key, v in (("samples", samples), ("chunk", chunk)):
             check_int(v, f"TexturedConductor.{key}")
         self.eta, self.k = _rgb(eta, "eta", True), _rgb(k, "k", False)
-        maps = _coat_maps(Coat(roughness=roughness, normal=normal), "conductor")
+        maps = coat_maps(Coat(roughness=roughness, normal=normal), "conductor")
         self.maps = torch.cat([maps[:1], maps[2:]])              # (4, H, W): alpha, normal
         self.samples, self.chunk = samples, chunk
         self.generator = torch.Generator().manual_seed(seed)

@@ -98,8 +98,9 @@ def _map(value, name: str, lo: float, hi: float) -> torch.Tensor:
     return t[None]
 
 
-def _coat_maps(coat: Coat, who: str) -> torch.Tensor:
-    """(5, H, W): alpha, weight, normal; maps of different sizes are resampled to the largest."""
+def coat_maps(coat: Coat, who: str) -> torch.Tensor:
+    """(5, H, W) maps of a layer's alpha, weight and normal (a coat's, or the same fields of a conductor base or
+    sheen layer); maps of different sizes are resampled to the largest; `who` names the layer in errors."""
     alpha = _map(coat.roughness, f"{who} roughness", ALPHA_MIN, 1.0)
     weight = _map(coat.weight, f"{who} weight", 0.0, 1.0)
     if coat.normal is None:
@@ -162,7 +163,7 @@ class LayeredMaterial(Material):
         for key, v in (("samples", samples), ("chunk", chunk)):
             check_int(v, f"LayeredMaterial.{key}")
         self.base, self.coats = base, list(coats)
-        self.maps = [_coat_maps(c, f"coat {i}") for i, c in enumerate(self.coats)]
+        self.maps = [coat_maps(c, f"coat {i}") for i, c in enumerate(self.coats)]
         self.albedos = []
         for i, c in enumerate(self.coats):
             try:
@@ -183,7 +184,7 @@ class LayeredMaterial(Material):
             if color.shape != (3,) or not bool(((color >= 0) & (color <= 1)).all()):
                 raise InputError(f"sheen color: expected 3 values in [0, 1], got {sheen.color!r}")
             self.sheen_color = color
-            self.sheen_maps = _coat_maps(Coat(roughness=sheen.roughness, weight=sheen.weight), "sheen")[:2]
+            self.sheen_maps = coat_maps(Coat(roughness=sheen.roughness, weight=sheen.weight), "sheen")[:2]
             if float(self.sheen_maps[0].min()) < SHEEN_ALPHA_MIN:
                 raise InputError(f"sheen roughness: values must lie in [{SHEEN_ALPHA_MIN}, 1], got minimum "
                                  f"{float(self.sheen_maps[0].min()):.4g}")
