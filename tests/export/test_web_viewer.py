@@ -32,9 +32,11 @@ def _embedded(page: str) -> dict:
     return json.loads(re.search(r"const DATA = (\{.*?\});\n", page, re.S).group(1))
 
 
-def test_page_embeds_source_and_textures_exactly():
+@pytest.mark.parametrize("precision", ["fp16", "fp32"])
+def test_page_embeds_source_and_textures_exactly(precision):
+    """Every texture embedded bit for bit at the export's precision (an fp16 export's halves stay halves)."""
     model = build_model({"type": "multiscale", "spatial_size": 8}).train(False)
-    shader = export_glsl(model)
+    shader = export_glsl(model, precision=precision)
     page = viewer_html(shader, "gated <test>")
     assert "<title>neumat viewer: gated &lt;test&gt;</title>" in page
     assert shader.source in page and "nm_viewer_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)" in page
@@ -43,7 +45,10 @@ def test_page_embeds_source_and_textures_exactly():
     for name, data in shader.textures.items():
         entry = textures[name]
         assert (entry["layers"], entry["height"], entry["width"]) == data.shape[:3]
-        decoded = np.frombuffer(base64.b64decode(entry["data"]), "<f4").reshape(data.shape)
+        half = precision == "fp16" and name not in shader.exact
+        assert entry["format"] == ("RGBA16F" if half else "RGBA32F") and data.dtype == (np.float16 if half else
+                                                                                          np.float32)
+        decoded = np.frombuffer(base64.b64decode(entry["data"]), "<f2" if half else "<f4").reshape(data.shape)
         assert np.array_equal(decoded, data)
 
 

@@ -1,7 +1,8 @@
 """A self-contained HTML page that shows a material's GLSL export on a sphere or a plane (WebGL 2).
 
 `write_viewer(model_or_export, path)` embeds the export's source (GLSL 3.30 turned into GLSL ES 3.00 by the
-page's prelude) and its textures (base64 float32, uploaded as RGBA32F texture arrays) into `viewer.html`, the
+page's prelude) and its textures (base64 little-endian, at the export's precision: float16 uploaded as RGBA16F,
+float32 as RGBA32F texture arrays) into `viewer.html`, the
 template next to this file. The page renders `neumat.export.web.scene`'s scene: an orthographic camera, a
 unit sphere or a square, a directional light; drag rotates the object, shift-drag moves the light; sliders set
 the exposure and the uv tiling. Opening `path#test={json}` renders one view into a float framebuffer and
@@ -17,6 +18,8 @@ import base64
 import html
 import json
 from pathlib import Path
+
+import numpy as np
 
 from ...core.errors import InputError
 from ..glsl import export_glsl
@@ -48,8 +51,10 @@ def viewer_html(shader: GLSLExport, title: str) -> str:
         layers, height, width, channels = data.shape
         if channels != 4:
             raise InputError(f"write_viewer: texture {name} has {channels} channels, expected RGBA (4)")
+        half = data.dtype == np.float16
         textures[name] = {"width": width, "height": height, "layers": layers,
-                          "data": base64.b64encode(data.astype("<f4").tobytes()).decode("ascii")}
+                          "format": "RGBA16F" if half else "RGBA32F",
+                          "data": base64.b64encode(data.astype("<f2" if half else "<f4").tobytes()).decode("ascii")}
     source = shader.source + _adapter(shader)
     if "</script" in source.lower():
         raise InputError("write_viewer: the shader source contains '</script'")
