@@ -40,3 +40,18 @@ def test_trusted_query_skips_validation_but_behaves_like_a_query():
     Query.trusted(bad)  # no check: the caller vouches for its tensors
     with pytest.raises(InputError, match="unit length"):
         Query(bad)
+
+
+def test_with_wo_checks_the_new_directions_and_keeps_the_rest():
+    wi = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    uv = torch.rand(2, 2)
+    q = Query(wi, uv=uv).with_wo(wi.flip(0))
+    assert isinstance(q, Query) and torch.equal(q.wo, wi.flip(0)) and q.uv is uv and q.wi is wi
+    with pytest.raises(InputError, match="unit length"):
+        Query(wi).with_wo(torch.ones(2, 3))
+    with pytest.raises(InputError, match="non-finite"):
+        Query(wi).with_wo(torch.tensor([[float("nan"), 0.0, 1.0]] * 2))
+    with pytest.raises(InputError, match=r"Query.wo: expected shape \(2, 3\)"):
+        Query(wi).with_wo(wi[:1])
+    with pytest.raises(InputError, match="float64"):
+        Query(wi).with_wo(wi.double())

@@ -79,8 +79,16 @@ class Query:
                 raise InputError(f"{who} needs Query.{name}, but the query has none")
 
     def with_wo(self, wo: torch.Tensor) -> "Query":
-        """The same query with outgoing directions `wo` (N, 3)."""
-        return replace(self, wo=wo)
+        """The same query with outgoing directions `wo` (N, 3): only `wo` is checked (the other fields were when
+        this query was built), which keeps the samplers' per-call overhead down."""
+        check_directions(wo, "Query.wo")
+        check_shape(wo, "Query.wo", (len(self), 3))
+        if wo.dtype != self.wi.dtype:
+            raise InputError(f"Query.wo is {wo.dtype} but Query.wi is {self.wi.dtype}: give every field of a query "
+                             "one floating-point dtype")
+        q = object.__new__(type(self))
+        q.__dict__.update(self.__dict__, wo=wo)
+        return q
 
     def swapped(self) -> "Query":
         """The query with wi and wo exchanged (for reciprocity)."""
