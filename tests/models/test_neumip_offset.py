@@ -167,6 +167,16 @@ def test_bad_config_names_the_field(field, value):
         build_model({"type": "neumip-offset", field: value})
 
 
+def test_sampler_features_are_the_unshifted_latent():
+    """A learned sampler's query has no wo: its features are z_s at uv without the offset."""
+    model = _perturbed(_offset_model())
+    _set_depth(model, 3.0)
+    q = _queries(32)
+    with torch.no_grad():
+        expected = model.spatial(q.uv, q.footprint)
+        assert torch.equal(model.sampling_features(Query(q.wi, uv=q.uv, footprint=q.footprint)), expected)
+
+
 def test_sampling_model_refuses_the_offset():
     with pytest.raises(InputError, match="offset"):
         build_model({"type": "neural-appearance", "spatial_size": 8, "offset": True})

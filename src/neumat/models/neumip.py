@@ -191,6 +191,14 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
             return self.spatial(uv, footprint, q.lod)
         return self.spatial(uv, footprint, q.lod, level_u)
 
+    def sampling_features(self, q: Query) -> torch.Tensor:
+        """z_s (N, D_s) without gradient for a learned sampler; with the offset module, at q.uv unshifted (a
+        sampler's query has no wo)."""
+        if self.offset_mlp is None:
+            return super().sampling_features(q)
+        with torch.no_grad():
+            return SpatialLatent.spatial_latent(self, q)
+
     def offset_uv(self, q: Query, footprint: torch.Tensor | None) -> torch.Tensor:
         """The offset module's lookup point uv' (N, 2) of q (module docstring): the offset latent filtered at the
         (checked) footprint or q.lod, its depth h = MLP_o(z_o, wo) / spatial_size (uv units), and
