@@ -67,7 +67,9 @@ RESULTS = Path(__file__).resolve().parent / "results"
 LIGHTS = ["dir:0.3/1/0.2", "dir:-0.8/0.6/0.3", "dir:0.5/0.4/-0.9", "dir:0/0.35/1"]
 TILTS = [0.0, 35.0, 65.0]
 DISTANCE, FOV = 3.0, 40.0
-ALL_MODELS = ["multiscale", "tripleplane", "neumip-frame", "neumip", "nbrdf-uv", "ggx-mipmap"]
+#: the paper's models: its NeuMIP baseline is "neumip-offset" (with the offset module, as Sec. 5.2 implements it);
+#: "neumip" (without it) stays as a reference
+ALL_MODELS = ["multiscale", "tripleplane", "neumip-frame", "neumip-offset", "neumip", "nbrdf-uv", "ggx-mipmap"]
 
 
 def model_spec(text: str, size: int) -> dict:

@@ -41,6 +41,7 @@ SMALL = {
     "neubrdf": dict(nside=2, index_bits=2, hidden=4),
     "neumip": dict(spatial_size=8),
     "neumip-frame": dict(spatial_channels=4, spatial_size=8),
+    "neumip-offset": dict(spatial_size=8),
     "neumip-uv": dict(spatial_size=8),
     "neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
     "neural-appearance": dict(spatial_size=8),

@@ -1,5 +1,6 @@
 """GLSL export of the latent-pyramid + MLP models (`neumat.models.neumip` family: neumip, neumip-frame,
-neural-appearance), the shader runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7).
+neural-appearance; not yet NeuMIP's neural offset module, Config.offset, which raises InputError), the shader
+runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7).
 
 Entry points (directions in the local frame, z up; uv texture coordinates; footprint a uv^2 covariance):
 
@@ -127,6 +128,7 @@ vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
 
 
 @GLSL_GENERATORS.register("neumip")
+@GLSL_GENERATORS.register("neumip-offset")
 @GLSL_GENERATORS.register("nbrdf-uv")
 @GLSL_GENERATORS.register("neumip-frame")
 @GLSL_GENERATORS.register("neural-appearance")
@@ -141,6 +143,9 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     if cfg.directions != "cartesian":
         raise InputError(f"export_glsl: {model.name} with {cfg.directions!r} directions has no GLSL export "
                          "(cartesian only)")
+    if cfg.offset:
+        raise InputError(f"export_glsl: {model.name} with the neural offset module (Config.offset) has no GLSL "
+                         "export (the offset pyramid and its MLP are not written yet)")
     roulette = cfg.level_selection == "roulette"
     ds, zl = cfg.spatial_channels, -(-cfg.spatial_channels // 4)
     zs = "z[i / 4][i % 4]"

@@ -386,6 +386,9 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
                          "(cartesian only)")
+    if isinstance(model, NeuMIP) and model.cfg.offset:
+        raise InputError(f"export_slang: {model.name} with the neural offset module (Config.offset) has no Slang "
+                         "export (it spells the GLSL export, which has none yet)")
     glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
