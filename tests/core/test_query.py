@@ -47,6 +47,7 @@ def test_with_wo_checks_the_new_directions_and_keeps_the_rest():
     uv = torch.rand(2, 2)
     q = Query(wi, uv=uv).with_wo(wi.flip(0))
     assert isinstance(q, Query) and torch.equal(q.wo, wi.flip(0)) and q.uv is uv and q.wi is wi
+    assert q.with_wo(None).wo is None and q.wo is not None
     with pytest.raises(InputError, match="unit length"):
         Query(wi).with_wo(torch.ones(2, 3))
     with pytest.raises(InputError, match="non-finite"):

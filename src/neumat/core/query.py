@@ -78,12 +78,13 @@ class Query:
             if getattr(self, name) is None:
                 raise InputError(f"{who} needs Query.{name}, but the query has none")
 
-    def with_wo(self, wo: torch.Tensor) -> "Query":
-        """The same query with outgoing directions `wo` (N, 3): only `wo` is checked (the other fields were when
-        this query was built), which keeps the samplers' per-call overhead down."""
-        check_directions(wo, "Query.wo")
-        check_shape(wo, "Query.wo", (len(self), 3))
-        if wo.dtype != self.wi.dtype:
+    def with_wo(self, wo: torch.Tensor | None) -> "Query":
+        """The same query with outgoing directions `wo` (N, 3), or without them (None): only `wo` is checked (the
+        other fields were when this query was built), which keeps the samplers' per-call overhead down."""
+        if wo is not None:
+            check_directions(wo, "Query.wo")
+            check_shape(wo, "Query.wo", (len(self), 3))
+        if wo is not None and wo.dtype != self.wi.dtype:
             raise InputError(f"Query.wo is {wo.dtype} but Query.wi is {self.wi.dtype}: give every field of a query "
                              "one floating-point dtype")
         q = object.__new__(type(self))
