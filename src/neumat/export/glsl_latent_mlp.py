@@ -141,6 +141,9 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     if cfg.directions != "cartesian":
         raise InputError(f"export_glsl: {model.name} with {cfg.directions!r} directions has no GLSL export "
                          "(cartesian only)")
+    if getattr(cfg, "sampler_lobes", "anisotropic") != "anisotropic":
+        raise InputError(f"export_glsl: {model.name} with sampler_lobes={cfg.sampler_lobes!r} (an ablation) has no "
+                         "GLSL export (the shader decodes the paper's 9 lobe parameters)")
     roulette = cfg.level_selection == "roulette"
     ds, zl = cfg.spatial_channels, -(-cfg.spatial_channels // 4)
     zs = "z[i / 4][i % 4]"
