@@ -5,7 +5,9 @@ neural importance sampler against cosine sampling, the isotropic-lobe ablation a
     python benchmarks/neural_appearance_sampler.py --sources Wood092_1K --steps 300 --batch 256 --points 8 --samples 256
 
 Sources as `benchmarks/neural_appearance_images.py` (`open_source`: SET, coated:SET, smudged:SET at --size texels,
-16 footprint samples). Per source, at --steps x --batch (its recipe otherwise):
+16 footprint samples), "procedural:KIND", a `procedural_texture_set` of --size texels (e.g. "ridges": parallel
+grooves whose filtered normals spread along one axis, the anisotropic case of Fig. 11), and "glossy:KIND", the
+same with half its roughness and metalness 1 (a glossy metal, whose narrow lobes the normal map moves). Per source, at --steps x --batch (its recipe otherwise):
   "ours"       neural-appearance with the paper's sampler (elliptical, non-centred GGX + tilted cosine lobe);
   "isotropic"  neural-appearance with sampler_lobes="isotropic" (two outputs: diffuse weight and one roughness;
                centred isotropic GGX + untilted cosine lobe; the paper's ablation, after Sztrajman et al. 2021 and
@@ -64,6 +66,8 @@ from neumat.fit.recipe import recipe_for  # noqa: E402
 from neumat.fit.recipes.neural_appearance import config_for_source  # noqa: E402
 from neumat.fit.trainer import fit  # noqa: E402
 from neumat.io.shared_data import shared_data_dir  # noqa: E402
+from neumat.reflectance.procedural_texture import procedural_texture_set  # noqa: E402
+from neumat.reflectance.svbrdf import SVBRDF  # noqa: E402
 from neumat.models.neural_appearance import NeuralAppearance  # noqa: E402
 from neumat.models.proxy_sampler import ProxySampler, SampledMaterial, defensive_pdf, sample_defensive  # noqa: E402
 from neumat.warp.hemisphere import sample_cosine_hemisphere  # noqa: E402
@@ -87,6 +91,18 @@ class TextureConditioned(Material):
 
     def sampling_features(self, q: Query) -> torch.Tensor:
         return self.source.sampling_features(q)
+
+
+def source_of(spec: str, data: Path, size: int):
+    """`open_source(spec)` with 16 footprint samples, or the procedural texture set of "procedural:KIND"."""
+    kind, _, name = spec.partition(":")
+    if kind in ("procedural", "glossy"):
+        textures = procedural_texture_set(name, size, seed=0)
+        if kind == "glossy":
+            textures = replace(textures, roughness=0.5 * textures.roughness,
+                               metalness=torch.ones_like(textures.metalness))
+        return SVBRDF(textures, samples=16)
+    return open_source(spec, data, size, 16)
 
 
 def queries(theta: float, uv: torch.Tensor, samples: int, footprint: float | None, texels: int) -> Query:
@@ -165,7 +181,7 @@ def main() -> None:
     levels = {"fine": None, "coarse": args.coarse, "far": args.far}
     rows, timing = [], []
     for spec in args.sources.split(","):
-        source = open_source(spec, data, args.size, 16)
+        source = source_of(spec, data, args.size)
         texels = NeuralAppearance(**config_for_source(source)).cfg.spatial_size
         ours, ours_s = train(source, args.steps, args.batch, "anisotropic")
         iso, iso_s = train(source, args.steps, args.batch, "isotropic")
