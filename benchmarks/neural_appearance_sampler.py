@@ -36,6 +36,10 @@ level, "f change" = mean |f(level) - f(fine)| / mean f(fine) of ours on cosine-d
 the filtered BRDF differs from the finest one. "rel var" = Var / mean^2 per texture
 point (the pixel-wise variance of Fig. 11), averaged over the points where no sampler's estimates are all 0; "gain X" = rel var cosine / rel var X;
 "z" the largest |mean X - mean cosine| / standard error over the samplers (unbiased: within a few).
+--figure PATH: for the first source, a picture like Fig. 11: per-pixel standard deviation of a 4-sample albedo
+estimate (ours' f, wi at 30 degrees, from 64 samples per pixel) over a 48 x 48 grid of texture points, one panel
+per sampler (columns) and level (rows: fine, far), magma colour map on one scale (0 to the 99th percentile of
+all panels), the mean in each title.
 Timing (one thread, 2^15 queries, best of three): microseconds per sample of the whole estimator (lobes,
 sample, pdf, and f of ours at the sampled direction; `model.sample` for ours and isotropic, one latent fetch),
 and TTUV = mean rel var over the elevations x seconds per sample (the paper's time to unit variance, Fig. 12).
@@ -150,6 +154,36 @@ def statistics(est: dict[str, torch.Tensor], points: int) -> dict:
     return {"rel": rel, "albedo": means["cosine"], "z": z}
 
 
+def figure(path: str, brdf: Material, models: dict, levels: dict, texels: int, grid: int = 48,
+           samples: int = 64) -> None:
+    """The --figure picture (module docstring)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = (torch.arange(grid) + 0.5) / grid
+    uv = torch.stack(torch.meshgrid(c, c, indexing="xy"), -1).reshape(-1, 2)
+    maps = {}
+    for level, footprint in levels.items():
+        q = queries(30.0, uv, samples, footprint, texels)
+        u = torch.rand(len(q), 2, generator=torch.Generator().manual_seed(17))
+        for k in SAMPLERS:
+            est = estimates(brdf, None if k == "cosine" else models[k].lobes, q, u).view(grid, grid, samples)
+            maps[level, k] = (est.std(-1) / 2).numpy()                          # 4 samples: std / sqrt(4)
+    top = float(torch.quantile(torch.cat([torch.from_numpy(m).flatten() for m in maps.values()]), 0.99))
+    fig, axes = plt.subplots(len(levels), len(SAMPLERS), figsize=(2.2 * len(SAMPLERS), 2.8 * len(levels)))
+    for i, level in enumerate(levels):
+        for j, k in enumerate(SAMPLERS):
+            ax = axes[i][j]
+            ax.imshow(maps[level, k], cmap="magma", vmin=0, vmax=top)
+            ax.set_title(f"{level} {k}\nmean {maps[level, k].mean():.3g}", fontsize=8)
+            ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    print(f"written {path}", flush=True)
+
+
 def train(source, steps: int, batch: int, lobes: str) -> tuple[NeuralAppearance, float]:
     torch.manual_seed(0)
     model = NeuralAppearance(**config_for_source(source), sampler_lobes=lobes)
@@ -171,6 +205,7 @@ def main() -> None:
     ap.add_argument("--coarse", type=float, default=4.0, help="footprint std of the coarse level, texels")
     ap.add_argument("--far", type=float, default=16.0, help="footprint std of the far level, texels")
     ap.add_argument("--no-reference", action="store_true", help="model rows only")
+    ap.add_argument("--figure", default=None, help="write a Fig. 11-like picture of the first source (docstring)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     data = shared_data_dir()
@@ -209,6 +244,8 @@ def main() -> None:
         print(f"{spec}: fit s ours {ours_s:.0f}, isotropic {iso_s:.0f}, alone {alone_s:.0f}; isotropic model's f vs "
               f"ours: largest difference {brdf_diff:.2e} of the largest value", flush=True)
         models = {"ours": ours, "isotropic": iso, "alone": alone, "iso refit": iso_refit, "ours refit": ours_refit}
+        if args.figure and spec == args.sources.split(",")[0]:
+            figure(args.figure, ours, models, {"fine": None, "far": args.far}, texels)
         with torch.no_grad():
             for name in ("isotropic", "iso refit", "ours"):
                 lobes = models[name].lobes(check)
