@@ -146,6 +146,9 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     if cfg.offset:
         raise InputError(f"export_glsl: {model.name} with the neural offset module (Config.offset) has no GLSL "
                          "export (the offset pyramid and its MLP are not written yet)")
+    if getattr(cfg, "sampler_lobes", "anisotropic") != "anisotropic":
+        raise InputError(f"export_glsl: {model.name} with sampler_lobes={cfg.sampler_lobes!r} (an ablation) has no "
+                         "GLSL export (the shader decodes the paper's 9 lobe parameters)")
     roulette = cfg.level_selection == "roulette"
     ds, zl = cfg.spatial_channels, -(-cfg.spatial_channels // 4)
     zs = "z[i / 4][i % 4]"

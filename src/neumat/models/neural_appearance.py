@@ -37,7 +37,7 @@ from neumat.core.errors import InputError
 from neumat.core.query import Query, Sample
 from neumat.models import neumip
 from neumat.models.btf_table_queries import texel_centre_uv
-from neumat.models.proxy_sampler import ProxySampler, defensive_pdf, draw_sample
+from neumat.models.proxy_sampler import ProxySampler, check_lobe_family, defensive_pdf, draw_sample
 from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -68,6 +68,10 @@ class Config(neumip.Config):
     """Neurons per hidden layer of the sampling decoder (paper: 32)."""
     sampler_layers: int = 3
     """Hidden layers of the sampling decoder (paper: 3)."""
+    sampler_lobes: str = "anisotropic"
+    """The sampler's lobes (`neumat.models.proxy_sampler.Config.lobes`): "anisotropic", the paper's (elliptical,
+    non-centred GGX and tilted cosine lobe), or "isotropic", its ablation (Sec. 6.3, Fig. 11: a diffuse weight and
+    one roughness; centred isotropic GGX, untilted cosine lobe; no GLSL / Slang export)."""
     lean: bool = True
     """`bake` fills coarse levels from LEAN-prefiltered surface parameters (Sec. 5.1; `neumat.reflectance.lean`)
     where the source names its normal and roughness channels (`surface_normal_groups`); else, or when False,
@@ -92,9 +96,10 @@ class NeuralAppearance(neumip.NeuMIP):
         c = self.cfg
         for name in ("surface_features", "encoder_hidden", "encoder_layers", "sampler_hidden", "sampler_layers"):
             check_int(getattr(c, name), f"{self.name}.{name}", 0 if name.endswith("layers") else 1)
+        check_lobe_family(c.sampler_lobes, f"{self.name}.sampler_lobes")
         self.encoder = MLP(c.surface_features, c.encoder_hidden, c.encoder_layers, c.spatial_channels, "silu")
         self.sampler = ProxySampler(features=c.spatial_channels, hidden=c.sampler_hidden,
-                                    hidden_layers=c.sampler_layers)
+                                    hidden_layers=c.sampler_layers, lobes=c.sampler_lobes)
         self._runtime = False
         self.register_state_dict_post_hook(_without_encoder)
         self.register_load_state_dict_pre_hook(_own_encoder)

@@ -4,7 +4,9 @@ varying materials, a per-point feature vector) to the 9 parameters of the analyt
 (`neumat.warp.microfacet_proxy`), sampled and evaluated in closed form, so density and sampler agree exactly.
 
 - `ProxySampler`: MLP [wi (N, 3), features (N, F)] -> raw (N, 9) -> `ProxyLobes`; starts at w_d = 0.5,
-  alpha = 0.5, no tilt.
+  alpha = 0.5, no tilt. `Config.lobes = "isotropic"` is the paper's ablation (Sec. 6.3, Fig. 11, after
+  Sztrajman et al. 2021 / Fan et al. 2022): the MLP has 2 outputs, the diffuse weight and one roughness, and the
+  lobes are a centred isotropic GGX and an untilted cosine lobe (`isotropic_raw`).
 - `SampledMaterial(material, sampler)`: the material with the sampler attached (`can_sample = True`): eval is
   the material's, `sample` / `pdf` the proxy's mixed with cosine sampling of the geometric hemisphere with
   probability DEFENSIVE (`sample_defensive` / `defensive_pdf`), weight = f cos / p. The proxy alone can put
@@ -38,6 +40,10 @@ from neumat.models.base import LearnedMaterial
 from neumat.nn.mlp import MLP
 from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from neumat.warp.microfacet_proxy import ProxyLobes, proxy_from_raw, proxy_pdf, sample_proxy
+
+#: raw outputs of the sampler MLP per lobe family (Config.lobes): the paper's elliptical, non-centred GGX and tilted
+#: cosine lobe (9), and the ablation's centred isotropic GGX and untilted cosine lobe (2: w_d, alpha)
+LOBE_OUTPUTS = {"anisotropic": 9, "isotropic": 2}
 
 #: probability of drawing a cosine-weighted direction instead of the proxy's (defensive mixture)
 DEFENSIVE = 0.05
@@ -78,6 +84,22 @@ class Config:
     """Neurons per hidden layer."""
     hidden_layers: int = 3
     """Hidden layers."""
+    lobes: str = "anisotropic"
+    """The lobe family (`LOBE_OUTPUTS`): "anisotropic" (the paper's 9 parameters) or "isotropic" (its ablation:
+    diffuse weight and one roughness; centred GGX, untilted cosine lobe)."""
+
+
+def check_lobe_family(value, name: str) -> None:
+    """InputError naming `name` unless value is a key of `LOBE_OUTPUTS`."""
+    if not isinstance(value, str) or value not in LOBE_OUTPUTS:
+        raise InputError(f"{name}: expected one of {', '.join(map(repr, LOBE_OUTPUTS))}, got {value!r}")
+
+
+def isotropic_raw(raw: torch.Tensor) -> torch.Tensor:
+    """The 9 raw proxy parameters (N, 9) of `proxy_from_raw` from the isotropic sampler's (N, 2) [w_d logit,
+    alpha]: w_s logit, tilt, mean slopes and rho 0 (centred, untilted, uncorrelated), alpha_x = alpha_y."""
+    padded = torch.cat([raw, raw.new_zeros(len(raw), 1)], -1)
+    return padded[:, [0, 2, 2, 2, 1, 1, 2, 2, 2]]
 
 
 class ProxySampler(nn.Module):
@@ -87,8 +109,10 @@ class ProxySampler(nn.Module):
         super().__init__()
         self.cfg = resolve_config(Config, config, kwargs, "ProxySampler")
         check_int(self.cfg.features, "ProxySampler features", 0)
-        self.mlp = MLP(3 + self.cfg.features, self.cfg.hidden, self.cfg.hidden_layers, 9)
-        self.mlp.start_constant(torch.zeros(9))
+        check_lobe_family(self.cfg.lobes, "ProxySampler lobes")
+        outputs = LOBE_OUTPUTS[self.cfg.lobes]
+        self.mlp = MLP(3 + self.cfg.features, self.cfg.hidden, self.cfg.hidden_layers, outputs)
+        self.mlp.start_constant(torch.zeros(outputs))
 
     def lobes(self, wi: torch.Tensor, features: torch.Tensor | None = None) -> ProxyLobes:
         """Proxy parameters for wi (N, 3) and, when the sampler has F > 0 features, features (N, F)."""
@@ -100,7 +124,9 @@ class ProxySampler(nn.Module):
             raise InputError(f"ProxySampler: expected features of shape ({len(wi)}, {f}), got {got}")
         dtype = self.mlp.linears()[0].weight.dtype
         x = wi.to(dtype) if features is None else torch.cat([wi.to(dtype), features.to(dtype)], -1)
-        return ProxyLobes(*(t.to(wi.dtype) for t in proxy_from_raw(self.mlp(x))))
+        raw = self.mlp(x)
+        raw = isotropic_raw(raw) if self.cfg.lobes == "isotropic" else raw
+        return ProxyLobes(*(t.to(wi.dtype) for t in proxy_from_raw(raw)))
 
     def flops(self) -> int:
         """MLP operations per query (activations and the proxy's closed forms not counted)."""
