@@ -39,6 +39,7 @@ from neumat.models.sparse_btf import SparseBTF, mse                    # noqa: E
 from neumat.models.sparse_dictionary import BTFDictionary              # noqa: E402
 from neumat.reflectance.btf import direction_set, read_btf             # noqa: E402
 from neumat.reflectance.btf_generate import generate_btf, texture_tile  # noqa: E402
+from neumat.reflectance.procedural_texture import RELIEF, parse_material, procedural_texture_set  # noqa: E402
 
 
 def test_names(args) -> list[str]:
@@ -50,18 +51,27 @@ def test_names(args) -> list[str]:
 
 
 def test_btf(name: str, args, dirs):
-    """The BTF of `<set>#<tile>` at --dirs (read from --cache when generated before)."""
-    folder, tile = name.rsplit("#", 1)
-    at = args.crop_at + int(tile) * args.size
+    """The BTF of `<set>#<tile>` or `procedural:<class>[~<variant>]` (layout seed 1, relief 4, a control) at --dirs
+    (read from --cache when generated before)."""
+    if name.startswith("procedural:"):
+        folder, tile, at = name.removeprefix("procedural:").replace("~", "v"), 0, 0
+    else:
+        folder, tile = name.rsplit("#", 1)
+        at = args.crop_at + int(tile) * args.size
     path = Path(args.cache) / f"{folder}_{tile}_{args.size}_{at}_r{args.relief:g}{f'_n{args.noise:g}' if args.noise else ''}_{args.dirs.replace(':', '')}.nbtf"
     if path.is_file():
         return read_btf(path), 0.0
     t = time.perf_counter()
-    ts = load_texture_set(Path(args.shared) / folder)
-    if at + args.size > min(ts.size):
-        raise SystemExit(f"{name}: tile at {at} + {args.size} texels leaves the {ts.size} texture set")
-    crop, relief = texture_tile(ts, args.size, crop=args.size, row=at, col=at)
-    btf = generate_btf(crop, dirs, dirs, relief=relief * args.relief, spp=args.spp, noise=args.noise)
+    if name.startswith("procedural:"):
+        kind, variant = parse_material(name.removeprefix("procedural:"))
+        crop, relief = procedural_texture_set(kind, args.size, seed=1, variant=variant), RELIEF   # as btf.py
+    else:
+        ts = load_texture_set(Path(args.shared) / folder)
+        if at + args.size > min(ts.size):
+            raise SystemExit(f"{name}: tile at {at} + {args.size} texels leaves the {ts.size} texture set")
+        crop, relief = texture_tile(ts, args.size, crop=args.size, row=at, col=at)
+        relief *= args.relief
+    btf = generate_btf(crop, dirs, dirs, relief=relief, spp=args.spp, noise=args.noise)
     seconds = time.perf_counter() - t
     path.parent.mkdir(parents=True, exist_ok=True)
     write_btf(path, btf, dtype="float32", extra={"source": folder, "row": at, "col": at, "relief": relief})
@@ -81,6 +91,9 @@ def score(name: str, btf, dic: BTFDictionary, mults: list[int], args) -> list[di
     t = time.perf_counter()
     dec = decompose(btf, dic.log_eps, max(ranks_total.values()))
     pca_s = time.perf_counter() - t
+    y = dec.eigenvalues[0].double()
+    y_total = float(dec.total[0]) if dec.total is not None else float(y.sum())
+    residual = {k: 1 - float(y[:k].sum()) / y_total for k in (1, 3)}   # near-separable BTFs: small
     rows = []
     for mult, tau, sp in zip(mults, taus, coded):
         decoded = sp.decode()
@@ -96,6 +109,7 @@ def score(name: str, btf, dic: BTFDictionary, mults: list[int], args) -> list[di
                          "statistics share": st["statistics"] / st["per_btf"], "sparse MSE": s_lin,
                          "PCA ranks": str(ranks), "PCA MSE": p_lin, "sparse / PCA MSE": s_lin / p_lin,
                          "sparse log MSE": s_log, "PCA log MSE": p_log, "sparse / PCA log MSE": s_log / p_log,
+                         "Y residual after 1 PC": residual[1], "after 3 PCs": residual[3],
                          "coding s (all rates)": code_s, "PCA decomposition s": pca_s})
     return rows
 
@@ -186,7 +200,8 @@ def main():
         return
     dic = BTFDictionary.load(args.dictionary)
     trained_on = [str(b) for b in dic.info.get("btfs", [])]
-    if any(n.split("#")[0] in t for n in names for t in trained_on):
+    if any(n.split("#")[0].removeprefix("procedural:") in (t, Path(t).stem) or n.split("#")[0] in t
+           for n in names for t in trained_on):
         raise SystemExit(f"{args.dictionary} was trained on a test set: {trained_on}")
     print(f"dictionary {args.dictionary}: K={dic.num_dictionaries}, tau_l={dic.tau_train}, patch {dic.patch}, "
           f"{dic.info.get('points')} data points per channel from {trained_on}, iterations {dic.info.get('iterations')}")
