@@ -50,6 +50,11 @@ def test_names(args) -> list[str]:
     return [f"{s}#{t}" for s in sets for t in range(args.tiles)]
 
 
+def source_texels(args) -> int:
+    """Texture-set texels per tile side: --size / --scale (1:1 by default)."""
+    return round(args.size / args.scale)
+
+
 def test_btf(name: str, args, dirs):
     """The BTF of `<set>#<tile>` or `procedural:<class>[~<variant>]` (layout seed 1, relief 4, a control) at --dirs
     (read from --cache when generated before)."""
@@ -57,8 +62,9 @@ def test_btf(name: str, args, dirs):
         folder, tile, at = name.removeprefix("procedural:").replace("~", "v"), 0, 0
     else:
         folder, tile = name.rsplit("#", 1)
-        at = args.crop_at + int(tile) * args.size
-    path = Path(args.cache) / f"{folder}_{tile}_{args.size}_{at}_r{args.relief:g}{f'_n{args.noise:g}' if args.noise else ''}_{args.dirs.replace(':', '')}.nbtf"
+        at = args.crop_at + int(tile) * source_texels(args)
+    path = Path(args.cache) / (f"{folder}_{tile}_{args.size}_{at}_r{args.relief:g}{f'_n{args.noise:g}' if args.noise else ''}"
+                               f"{f'_s{args.scale:g}' if args.scale != 1 else ''}_{args.dirs.replace(':', '')}.nbtf")
     if path.is_file():
         return read_btf(path), 0.0
     t = time.perf_counter()
@@ -67,9 +73,9 @@ def test_btf(name: str, args, dirs):
         crop, relief = procedural_texture_set(kind, args.size, seed=1, variant=variant), RELIEF   # as btf.py
     else:
         ts = load_texture_set(Path(args.shared) / folder)
-        if at + args.size > min(ts.size):
-            raise SystemExit(f"{name}: tile at {at} + {args.size} texels leaves the {ts.size} texture set")
-        crop, relief = texture_tile(ts, args.size, crop=args.size, row=at, col=at)
+        if at + source_texels(args) > min(ts.size):
+            raise SystemExit(f"{name}: tile at {at} + {source_texels(args)} texels leaves the {ts.size} texture set")
+        crop, relief = texture_tile(ts, args.size, crop=source_texels(args), row=at, col=at)
         relief *= args.relief
     btf = generate_btf(crop, dirs, dirs, relief=relief, spp=args.spp, noise=args.noise)
     seconds = time.perf_counter() - t
@@ -175,6 +181,9 @@ def main():
     ap.add_argument("--tiles", type=int, default=2, help="disjoint tiles per texture set")
     ap.add_argument("--size", type=int, default=50, help="texels per tile side (crop, 1:1)")
     ap.add_argument("--crop-at", type=int, default=300, help="row = column of tile 0")
+    ap.add_argument("--scale", type=float, default=1.0,
+                    help="BTF texels per texture-set texel (a factor experiment: 2 magnifies each crop of "
+                         "size / 2 texels 2x, so its features span 2x more texels; default 1: crop, never resample)")
     ap.add_argument("--relief", type=float, default=4.0, help="relief x the set's height scale")
     ap.add_argument("--spp", type=int, default=1)
     ap.add_argument("--noise", type=float, default=0.0, help="relative sensor noise of the test BTFs (generate_btf)")
