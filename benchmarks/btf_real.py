@@ -141,7 +141,11 @@ def summary(rows: list[dict]) -> list[dict]:
 
 def factor(a_path: str, b_path: str) -> None:
     """Per BTF, rate and accounting: the SparseBTF / PCA ratios of run A and run B and B's over A's."""
-    a, b = (json.loads(Path(p).read_text()) for p in (a_path, b_path))
+    def load(paths: str) -> dict:                                       # "x.json" or "x.json,y.json" (runs in parts)
+        parts = [json.loads(Path(p).read_text()) for p in paths.split(",")]
+        return {"command": " ; ".join(p["command"] for p in parts), "rows": [r for p in parts for r in p["rows"]]}
+
+    a, b = load(a_path), load(b_path)
     key = lambda r: (r["btf"], r["tau x"], r["statistics bytes"])          # noqa: E731
     by_b = {key(r): r for r in b["rows"]}
     rows = []
@@ -192,7 +196,8 @@ def main():
     ap.add_argument("--cache", default="../btfreal_cache", help="folder of the generated test BTFs")
     ap.add_argument("--json", default="", help="also write the rows here (for --factor)")
     ap.add_argument("--generate-only", action="store_true", help="generate the test BTFs into --cache and exit")
-    ap.add_argument("--factor", nargs=2, metavar=("A.json", "B.json"), help="compare two runs' ratios and exit")
+    ap.add_argument("--factor", nargs=2, metavar=("A.json", "B.json"),
+                    help="compare two runs' ratios and exit (a comma-separated list of JSON files for a run in parts)")
     args = ap.parse_args()
     if args.factor:
         factor(*args.factor)
@@ -221,10 +226,10 @@ def main():
         print(f"{name}: generated in {gen_s:.1f} s" if gen_s else f"{name}: from {args.cache}", flush=True)
         rows += score(name, btf, dic, mults, args)
         del btf
+        if args.json:                                                   # after every BTF: a cut run keeps its rows
+            Path(args.json).write_text(json.dumps({"command": command, "rows": rows}, indent=1))
     table(f"SparseBTF vs PCA at equal per-BTF bytes ({command})", rows)
     table("summary (sparse / PCA < 1: SparseBTF better)", summary(rows))
-    if args.json:
-        Path(args.json).write_text(json.dumps({"command": command, "rows": rows}, indent=1))
 
 
 if __name__ == "__main__":
