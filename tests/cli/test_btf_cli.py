@@ -60,6 +60,25 @@ def test_btf_generate_procedural_material(tmp_path):
     assert r.exit_code != 0 and "procedural material 'velvet'" in r.output
 
 
+def test_btf_generate_noise_is_the_library_noise(tmp_path):
+    """`--noise` adds `generate_btf(..., noise=...)`'s seeded sensor noise."""
+    import torch
+
+    from neumat.reflectance.btf import direction_set
+    from neumat.reflectance.btf_generate import generate_btf
+    from neumat.reflectance.procedural_texture import procedural_texture_set
+
+    out = tmp_path / "bumps.nbtf"
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:bumps", "-o", str(out), "--size", "8",
+                                     "--directions", "5", "--spp", "1", "--noise", "0.1", "-q"])
+    assert r.exit_code == 0, r.output
+    d = direction_set(5)
+    clean = generate_btf(procedural_texture_set("bumps", 8, seed=1), d, d, relief=4.0, spp=1)
+    expected = generate_btf(procedural_texture_set("bumps", 8, seed=1), d, d, relief=4.0, spp=1, noise=0.1)
+    torch.testing.assert_close(read_btf(out).data.float(), expected.data, rtol=2e-3, atol=1e-4)   # stored fp16
+    assert float((read_btf(out).data.float() - clean.data).abs().max()) > 1e-2
+
+
 def test_fit_sparse_btf_with_a_dictionary(tmp_path):
     """`neumat fit BTF --model sparse-btf --dictionary D --tau T`: codes the BTF; the saved model loads and
     evaluates like the coded one."""

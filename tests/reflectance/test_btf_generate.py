@@ -12,6 +12,7 @@ from neumat.reflectance.btf_generate import (
     elevation_groups,
     generate_btf,
     lambert_shader,
+    sensor_noise,
 )
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.heightfield import HeightField
@@ -103,8 +104,23 @@ def test_elevation_groups_cover_every_direction_once_by_ring():
     assert len(elevation_groups(d, per_direction=100)) == 6                 # one group per ring
 
 
+def test_sensor_noise_is_relative_seeded_and_off_by_default():
+    from neumat.reflectance.btf import direction_set
+    d = direction_set(5)
+    clean = generate_btf(procedural_texture_set("bumps", 8), d, d, relief=2.0, spp=1)
+    noisy = generate_btf(procedural_texture_set("bumps", 8), d, d, relief=2.0, spp=1, noise=0.05, noise_seed=3)
+    lit = clean.data > 1e-3
+    rel = (noisy.data[lit] / clean.data[lit] - 1)
+    assert abs(float(rel.std()) - 0.05) < 0.005 and abs(float(rel.mean())) < 0.005
+    again = sensor_noise(clean.data, 0.05, seed=3)
+    assert torch.equal(again, noisy.data) and not torch.equal(sensor_noise(clean.data, 0.05, seed=4), again)
+    assert float(sensor_noise(torch.full((1000,), 0.01), 2.0).min()) == 0          # clamped, never negative
+
+
 def test_bad_generator_input():
     d = _dir(0.0)
+    with pytest.raises(InputError, match="noise"):
+        generate_btf(ridge_set(), d, d, noise=-0.1)
     with pytest.raises(InputError, match="square"):
         generate_btf(ridge_set(), d, d, spp=3)
     with pytest.raises(InputError, match="upper-hemisphere"):

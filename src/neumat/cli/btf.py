@@ -80,6 +80,8 @@ def register_data(data_app: typer.Typer) -> None:
             spp: int = typer.Option(4, "--spp", min=1, help="sub-pixel rays per texel (square number)"),
             relief: float = typer.Option(0.0, "--relief", help="texels of displacement per height unit (0: from the "
                                                                 "set; 4 for a procedural material)"),
+            noise: float = typer.Option(0.0, "--noise", min=0.0,
+                                        help="relative std of measurement-like sensor noise (0: none)"),
             device: str = typer.Option("cpu", "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
@@ -98,7 +100,7 @@ def register_data(data_app: typer.Typer) -> None:
                 tile, tile_relief = texture_tile(load_texture_set(textures), size, crop or None)
             d = direction_set(int(directions) if directions.isdigit() else directions)
             btf = generate_btf(tile, d, d, relief=relief or tile_relief, spp=spp, device=device, progress=not quiet,
-                               label=tile.name)
+                               label=tile.name, noise=noise)
             write_btf(out, btf, extra={"source": str(textures), "crop": crop, "relief": relief or tile_relief})
             print(f"wrote {out}: {size}x{size} texels, {d.shape[0]}x{d.shape[0]} directions "
                   f"({out.stat().st_size} bytes)")

@@ -51,16 +51,19 @@ def _frame(n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def generate_btf(textures: TextureSet, light_dirs: torch.Tensor, view_dirs: torch.Tensor,
                  relief: float | None = None, spp: int = 4, shadows: bool = True, normals: str = "height",
                  shader: Shader = principled_shader, step: float = 0.25, device=None, progress: bool = False,
-                 label: str | None = None) -> TabulatedBTF:
+                 label: str | None = None, noise: float = 0.0, noise_seed: int = 0) -> TabulatedBTF:
     """BTF (L, V, H, W, 3) of `textures` (H x W texels) seen from `view_dirs` under `light_dirs`.
 
     relief: displacement in texels of a height-map value of 1 (default: textures.height_scale * W, the
     set's own scale when the set is a whole texture). spp: sub-pixel rays per texel (a square number,
     stratified). shadows: cast shadows on (False gives the height field without light occlusion).
     normals: "height" (normals of the displaced height field) or "map" (the set's normal map).
+    noise: relative std of measurement-like sensor noise (`sensor_noise`; 0: none), drawn with `noise_seed`.
     """
     if normals not in ("height", "map"):
         raise InputError(f"generate_btf normals: expected 'height' or 'map', got {normals!r}")
+    if not noise >= 0:
+        raise InputError(f"generate_btf noise: expected a relative std >= 0, got {noise}")
     root = int(round(math.sqrt(spp)))
     if spp < 1 or root * root != spp:
         raise InputError(f"generate_btf spp: expected a square number >= 1, got {spp}")
@@ -109,7 +112,17 @@ def generate_btf(textures: TextureSet, light_dirs: torch.Tensor, view_dirs: torc
                 radiance = radiance * field.visible(p.repeat(k, 1), wi).to(radiance.dtype)[:, None]
             radiance = radiance.reshape(k, h * w, spp, 3).mean(2) / ld[group, 2][:, None, None]
             out[group, v] = radiance.reshape(k, h, w, 3)
+    if noise > 0:
+        out = sensor_noise(out, noise, noise_seed)
     return TabulatedBTF(out, ld, vd, label=label or tex.name)
+
+
+def sensor_noise(data: torch.Tensor, relative: float, seed: int = 0) -> torch.Tensor:
+    """`data` (any shape, >= 0) with independent Gaussian noise of std `relative` x value per entry, clamped at 0:
+    the noise of an HDR-merged camera measurement, whose exposures keep each entry's noise about a fixed
+    fraction of its value (the UBO2014 captures). Same seed, same noise."""
+    g = torch.Generator(device=data.device).manual_seed(seed)
+    return (data * (1 + relative * torch.randn(data.shape, generator=g, device=data.device))).clamp(min=0)
 
 
 def elevation_groups(dirs: torch.Tensor, per_direction: int, max_points: int = 1 << 20) -> list[torch.Tensor]:
