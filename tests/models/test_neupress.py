@@ -175,6 +175,24 @@ def test_sample_incident_chi2_and_pdf_agree():
     assert result.passed, result
 
 
+def test_incident_lobe_is_what_sample_incident_and_incident_pdf_use():
+    torch.manual_seed(2)
+    m = NeuPreSS(**SMALL)
+    g = torch.Generator().manual_seed(0)
+    x = torch.nn.functional.normalize(torch.randn(64, 3, generator=g), dim=-1)
+    wo = torch.nn.functional.normalize(torch.randn(64, 3, generator=g), dim=-1)
+    u = torch.rand(64, 2, generator=g)
+    q = Query(wi=x, wo=wo, x=x, n=x)
+    with torch.no_grad():
+        lobe = m.incident_lobe(q)
+        wi, pdf = m.sample_incident(q, u)
+        assert torch.equal(lobe.sigma, m.sigma(x, wo)) and torch.equal(lobe.axis, x)
+        assert torch.equal(lobe.sample(u)[0], wi) and torch.equal(lobe.sample(u)[1], pdf)
+        assert torch.equal(lobe.pdf(wi), m.incident_pdf(Query(wi=wi, wo=wo, x=x, n=x)))
+    with pytest.raises(InputError, match="needs Query.n"):
+        m.incident_lobe(Query(wi=x, wo=wo, x=x))
+
+
 def test_validation_keeps_the_weights_that_generalise_best():
     """Heavy-tailed noise (a few samples carry most of the value, as in path-traced targets) on 3000 points:
     without a validation set the network learns the noise by heart; with one it ends at the record of

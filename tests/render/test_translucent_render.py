@@ -10,6 +10,7 @@ from neumat import InputError
 from neumat.render.envmaps import equirect_to_dir
 from neumat.render.lights import EnvironmentMap
 from neumat.warp import azimuthal_gaussian_pdf, sample_azimuthal_gaussian, sample_uniform_sphere
+from neumat.warp.azimuthal_gaussian import AzimuthalGaussianLobe
 from tests.mitsuba_util import mitsuba_or_skip
 
 pytestmark = pytest.mark.mitsuba
@@ -124,6 +125,23 @@ class _Lobe:
         return azimuthal_gaussian_pdf(q.wi, q.n, torch.full((len(q),), 0.7, dtype=q.n.dtype))
 
 
+class _LobeOnce(_Lobe):
+    """_Lobe through `incident_lobe` only: one lobe per batch for both sampling and densities."""
+
+    def __init__(self):
+        self.lobes = 0
+
+    def incident_lobe(self, q):
+        self.lobes += 1
+        return AzimuthalGaussianLobe(q.n, torch.full((len(q),), 0.7, dtype=q.n.dtype))
+
+    def sample_incident(self, q, u):
+        raise AssertionError("mis with incident_lobe must not call sample_incident")
+
+    def incident_pdf(self, q):
+        raise AssertionError("mis with incident_lobe must not call incident_pdf")
+
+
 class _Uniform(_Lobe):
     """The same S_hat sampled uniformly over the sphere: a brute-force estimator."""
 
@@ -187,6 +205,20 @@ def test_strategies_are_unbiased(strategy):
     subsurface = float(render_translucent(_Lobe(), obj, env, camera, 16, spp=64, strategy=strategy).mean())
     assert ratio < 2 and abs(diff) < 4 * se and 4 * se < 0.05 * subsurface, (ratio, diff, se, subsurface)
     assert default_strategy(_Lobe()) == "mis" and default_strategy(_Constant((1, 1, 1))) == "light"
+
+
+def test_mis_through_one_lobe_per_batch_equals_mis_through_sample_and_pdf():
+    """A model with incident_lobe is sampled and its densities taken from one lobe per batch (its sampler network
+    runs once): the image equals that of the same lobe through sample_incident and incident_pdf."""
+    from neumat.render.translucent import _pixel_rays, render_translucent
+    obj, camera = _setup(8)
+    env = _smooth_environment()
+    once = _LobeOnce()
+    hits = int(obj.first_hits(*_pixel_rays(camera, 8, 16, torch.Generator().manual_seed(3)))[0].sum())
+    got = render_translucent(once, obj, env, camera, 8, spp=16, strategy="mis", seed=3, batch=256)
+    want = render_translucent(_Lobe(), obj, env, camera, 8, spp=16, strategy="mis", seed=3, batch=256)
+    torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-9)
+    assert hits > 256 and once.lobes == -(-hits // 256)  # one lobe per batch
 
 
 def test_background_pixels_are_the_environment():

@@ -295,6 +295,11 @@ def _make_integrator_class(mi) -> type:
             model, dev = self.model, self._device()
             it = dr.zeros(mi.Interaction3f, rows.numel())
             it.p = mi.Point3f(*(mi.Float(float(c)) for c in centre))
+            lobe = None  # the model's sampling lobe at every row, its network run once for sampling and densities
+            if self.strategy in ("mis", "model") and hasattr(model, "incident_lobe"):
+                with torch.no_grad():
+                    lobe = model.incident_lobe(Query(wi=n_o.float(), wo=wo_o.float(), x=x_o.float(),
+                                                     n=n_o.float()).to(dev))
             if self.strategy in ("mis", "light"):
                 u = bsdf_plugin._vec(u_light, n)[rows]
                 ds, weight = scene.sample_emitter_direction(it, mi.Point2f(*_columns(mi, u)), False, True)
@@ -306,15 +311,23 @@ def _make_integrator_class(mi) -> type:
                 delta = _scalars(mi.has_flag(ds.emitter.flags(), mi.EmitterFlags.Delta), rows.numel()).bool()
                 if self.strategy == "mis":
                     p_light = _scalars(ds.pdf, rows.numel()).float()
-                    p_model = _pdf(model, dev, wi_o, x_o, wo_o, n_o)
+                    if lobe is not None:
+                        with torch.no_grad():
+                            p_model = lobe.pdf(wi_o.to(dev, torch.float32)).to("cpu", _DTYPE)
+                    else:
+                        p_model = _pdf(model, dev, wi_o, x_o, wo_o, n_o)
                     mis = torch.where(delta, torch.ones_like(p_light), p_light / (p_light + p_model).clamp(min=1e-30))
                     weight = weight * mis[:, None]
                 out += torch.where(torch.isfinite(f * weight), f * weight, torch.zeros_like(f))
             if self.strategy in ("mis", "model"):
                 u = bsdf_plugin._vec(u_model, n)[rows]
                 with torch.no_grad():
-                    q = Query(wi=n_o.float(), wo=wo_o.float(), x=x_o.float(), n=n_o.float()).to(dev)
-                    wi_o, p_model = (v.to("cpu", torch.float64) for v in model.sample_incident(q, u.to(dev)))
+                    if lobe is not None:
+                        drawn = lobe.sample(u.to(dev, torch.float32))
+                    else:
+                        q = Query(wi=n_o.float(), wo=wo_o.float(), x=x_o.float(), n=n_o.float()).to(dev)
+                        drawn = model.sample_incident(q, u.to(dev))
+                    wi_o, p_model = (v.to("cpu", torch.float64) for v in drawn)
                 wi_w = _unit(wi_o @ r.T)
                 radiance, p_light = self._incident(scene, shape, it, wi_w)
                 f = _eval(model, dev, wi_o, x_o, wo_o)

@@ -33,7 +33,7 @@ from neumat.models.registry import MODELS
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.fourier import FourierFeatures
 from neumat.nn.skip_mlp import SkipMLP
-from neumat.warp.azimuthal_gaussian import azimuthal_gaussian_pdf, sample_azimuthal_gaussian
+from neumat.warp.azimuthal_gaussian import AzimuthalGaussianLobe
 
 SIGMA_MIN, SIGMA_MAX = 0.02, 20.0
 DIRECTION_ENCODINGS = ("spherical", "cartesian")
@@ -161,20 +161,24 @@ class NeuPreSS(LearnedMaterial):
         log_sigma = self.sampler(self.sampler_features(v)).squeeze(-1)
         return torch.exp(log_sigma.clamp(math.log(SIGMA_MIN), math.log(SIGMA_MAX)))
 
+    def incident_lobe(self, q: Query) -> AzimuthalGaussianLobe:
+        """The Gaussian sampling lobe around q.n (sigma from the sampler network, evaluated once), for drawing light
+        directions and for their densities. q needs x, wo and n; q.wi is ignored."""
+        q.require("x", "wo", "n", who="NeuPreSS.incident_lobe")
+        return AzimuthalGaussianLobe(q.n, self.sigma(q.x, q.wo).to(q.dtype))
+
     def sample_incident(self, q: Query, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Light directions wi (N, 3) drawn from the Gaussian lobe around q.n, and their solid-angle pdf (N,).
 
         q needs x, wo and n; u (N, 2) uniform in [0, 1). q.wi is ignored."""
         q.require("x", "wo", "n", who="NeuPreSS.sample_incident")
         u = check_sample_u(q, u)
-        sigma = self.sigma(q.x, q.wo).to(q.dtype)
-        wi = sample_azimuthal_gaussian(u.to(q.dtype), q.n, sigma)
-        return wi, azimuthal_gaussian_pdf(wi, q.n, sigma)
+        return self.incident_lobe(q).sample(u.to(q.dtype))
 
     def incident_pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) with which `sample_incident` draws q.wi."""
         q.require("x", "wo", "n", who="NeuPreSS.incident_pdf")
-        return azimuthal_gaussian_pdf(q.wi, q.n, self.sigma(q.x, q.wo).to(q.dtype))
+        return self.incident_lobe(q).pdf(q.wi)
 
     # ---- size ----------------------------------------------------------------------------------------------
     def size_bytes(self, precision: str = "fp16", sampler: bool = True) -> int:

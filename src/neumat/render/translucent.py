@@ -71,7 +71,8 @@ def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camer
                        spp: int = 16, strategy: str | None = None, seed: int = 0, batch: int = 1 << 15,
                        appearance: str = "subsurface") -> torch.Tensor:
     """(resolution, resolution, 3) float32 radiance of `model` (a Material with full_sphere, queried with x, wo,
-    wi and the normal n; strategy "model" needs `sample_incident`, "mis" also `incident_pdf`; default
+    wi and the normal n; strategy "model" needs `sample_incident`, "mis" also `incident_pdf` (and uses
+    `incident_lobe(q)`, a lobe with sample(u) / pdf(w), when the model has one: its sampler runs once); default
     `default_strategy(model)`) on the geometry of `obj`, lit by `env`, `spp` samples per pixel (jittered over the
     pixel). appearance "subsurface": the learned term on black; "full": plus the surface reflection and the
     background (see the module docstring). The model is queried on its own device; the image is on the CPU."""
@@ -122,10 +123,13 @@ def _mixture_sample(model, env: EnvironmentMap, x, n, wo, u, gen: torch.Generato
     picks the technique), their mixture pdf (M,) and the radiance (M, 3) along them."""
     pick_env = torch.rand(x.shape[0], generator=gen) < 0.5
     q = Query(wi=n, wo=wo, x=x, n=n).to(dev)
-    from_model = model.sample_incident(q, u.float().to(dev))[0].cpu().to(x.dtype)
-    wi = torch.where(pick_env.unsqueeze(-1), env.sample(x, u).wi, from_model)
+    lobe = model.incident_lobe(q) if hasattr(model, "incident_lobe") else None  # its network once, for both
+    um = u.float().to(dev)
+    from_model = (lobe.sample(um.to(q.dtype)) if lobe is not None else model.sample_incident(q, um))[0]
+    wi = torch.where(pick_env.unsqueeze(-1), env.sample(x, u).wi, from_model.cpu().to(x.dtype))
     radiance, env_pdf = env.eval_pdf(wi)
-    model_pdf = model.incident_pdf(Query(wi=wi, wo=wo, x=x, n=n).to(dev)).cpu().to(x.dtype)
+    model_pdf = (lobe.pdf(wi.to(dev, q.dtype)) if lobe is not None
+                 else model.incident_pdf(Query(wi=wi, wo=wo, x=x, n=n).to(dev))).cpu().to(x.dtype)
     return wi, 0.5 * (env_pdf + model_pdf), radiance
 
 

@@ -17,6 +17,7 @@ differentiable with respect to sigma.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 
@@ -89,3 +90,21 @@ def invert_azimuthal_gaussian(w: torch.Tensor, axis, sigma) -> torch.Tensor:
     local = to_local(w, t, b, axis)
     u1 = torch.remainder(torch.atan2(local[:, 1], local[:, 0]) / (2 * math.pi), 1.0)
     return torch.stack([u0.clamp(0, 1), u1], -1)
+
+
+@dataclass
+class AzimuthalGaussianLobe:
+    """One lobe per query, axis (N, 3) unit and sigma (N,) radians, built once (e.g. by a network) and used for
+    both sampling and densities, so that one-sample MIS evaluates the network that predicts sigma only once."""
+
+    axis: torch.Tensor
+    sigma: torch.Tensor
+
+    def sample(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Directions w (N, 3) for u (N, 2) in [0, 1)^2 and their solid-angle pdf (N,)."""
+        w = sample_azimuthal_gaussian(u, self.axis, self.sigma)
+        return w, azimuthal_gaussian_pdf(w, self.axis, self.sigma)
+
+    def pdf(self, w: torch.Tensor) -> torch.Tensor:
+        """Solid-angle density (N,) at unit directions w (N, 3)."""
+        return azimuthal_gaussian_pdf(w, self.axis, self.sigma)
