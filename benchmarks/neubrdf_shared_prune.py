@@ -18,7 +18,7 @@ grid each) at the same steps; the joint batch is t times the per-material one, s
 same number of queries. Each member is scored with `neumat eval shared.nmat --member i`.
 
     PYTHONPATH=src python benchmarks/neubrdf_shared_prune.py --part prune [--nside 16 --steps 1000]
-    PYTHONPATH=src python benchmarks/neubrdf_shared_prune.py --part shared [--nside 16 --steps 1000]
+    PYTHONPATH=src python benchmarks/neubrdf_shared_prune.py --part shared [--cluster paints --nside 16 --steps 1000]
 """
 from __future__ import annotations
 
@@ -35,7 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = Path("..") / "shared" / "data"  # relative to ROOT, where the commands run
 RGL = ("cc_ibiza_sunset_rgb", "cc_iris_purple_gem_rgb", "colodur_napoli_4f_rgb", "paper_white_rgb",
        "vch_golden_yellow_rgb")
-PAINTS = ("gold-paint", "light-red-paint", "silver-paint", "white-paint")
+CLUSTERS = {"paints": ("gold-paint", "light-red-paint", "silver-paint", "white-paint"),
+            "plastics": ("green-plastic", "red-specular-plastic", "yellow-plastic", "specular-green-phenolic"),
+            "metals": ("alum-bronze", "nickel", "steel", "two-layer-silver")}
 ENV = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -103,7 +105,7 @@ def at_measurements(model: Path, path: str, azimuths: int, n: int) -> float:
 def part_prune(a) -> list[dict]:
     rows = []
     sets = [f"nside={a.nside}", f"batch_size={a.batch}", f"lr_decay_every={max(a.steps // 4, 1)}"]
-    for name in RGL:
+    for name in a.materials.split(",") if a.materials else RGL:
         path = str(DATA / "rgl" / f"{name}.bsdf")
         arms = [(None, False)] + [(az, prune) for az in (1, 64) for prune in (False, True)]
         for az, prune in arms:
@@ -127,8 +129,9 @@ def part_prune(a) -> list[dict]:
 def part_shared(a) -> list[dict]:
     rows = []
     base = [f"nside={a.nside}", f"lr_decay_every={max(a.steps // 4, 1)}"]
-    paths = [str(DATA / "merl" / "nbrdf_fits" / f"{m}.h5") for m in PAINTS]
-    for name, path in zip(PAINTS, paths):
+    names = CLUSTERS[a.cluster]
+    paths = [str(DATA / "merl" / "nbrdf_fits" / f"{m}.h5") for m in names]
+    for name, path in zip(names, paths):
         out = Path(a.work) / f"{name}.neubrdf.nmat"
         cmd, seconds = fit([path], out, base + [f"batch_size={a.batch}"], a.steps)
         e = evaluate(out, path, a.n_configs)
@@ -137,10 +140,10 @@ def part_shared(a) -> list[dict]:
                      "mae_hdr": round(e["mae_hdr"], 5), "fit s": round(seconds, 1), "command": cmd})
         print(json.dumps(rows[-1]), flush=True)
     t = len(paths)
-    out = Path(a.work) / "paints.shared.nmat"
+    out = Path(a.work) / f"{a.cluster}.shared.nmat"
     cmd, seconds = fit(paths, out, base + [f"batch_size={a.batch * t}", f"num_materials={t}"], a.steps,
                        model="shared-neubrdf")
-    for i, (name, path) in enumerate(zip(PAINTS, paths)):
+    for i, (name, path) in enumerate(zip(names, paths)):
         e = evaluate(out, path, a.n_configs, member=i)
         rows.append({"material": name, "model": f"shared-neubrdf (1 of {t})", "bytes/material": e["bytes_fp16"],
                      "log_err": round(e["log_err"], 5), "rmse_hdr": round(e["rmse_hdr"], 4),
@@ -157,6 +160,8 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=1000)
     p.add_argument("--batch", type=int, default=4096, help="queries per step (per material)")
     p.add_argument("--n-configs", type=int, default=2 ** 17, help="held-out queries of each evaluation")
+    p.add_argument("--materials", help="prune: comma-separated RGL names (default: all five shared files)")
+    p.add_argument("--cluster", choices=sorted(CLUSTERS), default="paints", help="shared: the MERL-like cluster")
     p.add_argument("--work", default="/tmp/neubrdf_shared_prune", help="folder for the fitted models")
     p.add_argument("--json", help="also write the rows here")
     a = p.parse_args()
@@ -164,7 +169,7 @@ def main() -> None:
     rows = part_prune(a) if a.part == "prune" else part_shared(a)
     from neumat.cli.common import print_table
 
-    print_table(f"NeuBRDF {a.part}: N_side {a.nside}, {a.steps} steps of {a.batch}",
+    print_table(f"NeuBRDF {a.part}{' ' + a.cluster if a.part == 'shared' else ''}: N_side {a.nside}, {a.steps} steps of {a.batch}",
                 [{k: v for k, v in r.items() if k != "command"} for r in rows], width=200)
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
