@@ -155,3 +155,44 @@ def test_eval_member_of_a_shared_fit(app, tmp_path):
     assert rows[1]["bytes_fp16"] == int(model.size_bytes_per_material())
     res = runner.invoke(app, ["eval", str(out), "--against", specs[0], "--member", "2", "--no-image"])
     assert res.exit_code != 0 and "expected an integer in [0, 2)" in _text(res)
+
+
+class Interrupt(Exception):
+    pass
+
+
+def test_pruned_fit_resumes_to_the_uninterrupted_one(tmp_path):
+    """A fit with option prune interrupted after step 2 and resumed from its checkpoint ends as the
+    uninterrupted fit (the recipe prunes again, deterministically; the checkpoint holds the levels)."""
+    from dataclasses import replace
+
+    from neumat.fit.measured_samples import MeasuredSamples
+    from neumat.fit.recipe import recipe_for
+    from neumat.fit.trainer import fit
+
+    gen = torch.Generator().manual_seed(0)
+    wi = torch.nn.functional.normalize(torch.rand(40, 3, generator=gen) * torch.tensor([0.3, 0.3, 1.0]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.rand(40, 3, generator=gen) + torch.tensor([0, 0, 0.5]), dim=-1)
+    samples = MeasuredSamples.from_material(open_material("ggx:roughness=0.3"), Query(wi, wo))
+    r = recipe_for("neubrdf")
+    recipe = replace(r, steps=4, batch_size=64, log_every=1, checkpoint_every=1, lr_decay_every=2,
+                     queries="replay", options={**r.options, "prune": True})
+
+    def run(**kw):
+        torch.manual_seed(0)
+        model = NeuBRDF(nside=4, index_bits=3, hidden=8)
+        return model, fit(model, samples, recipe, progress=False, device="cpu", **kw)
+
+    ref_model, _ = run()
+    assert ref_model.pruned
+    ckpt = tmp_path / "fit.ckpt"
+
+    def stop(record):
+        if record["step"] == 2:
+            raise Interrupt
+
+    with pytest.raises(Interrupt):
+        run(checkpoint=ckpt, callback=stop)
+    model, _ = run(checkpoint=ckpt, resume=True)
+    ref_state, state = ref_model.state_dict(), model.state_dict()
+    assert ref_state.keys() == state.keys() and all(torch.equal(ref_state[k], state[k]) for k in ref_state)
