@@ -131,15 +131,19 @@ def part_shared(a) -> list[dict]:
     base = [f"nside={a.nside}", f"lr_decay_every={max(a.steps // 4, 1)}"]
     names = CLUSTERS[a.cluster]
     paths = [str(DATA / "merl" / "nbrdf_fits" / f"{m}.h5") for m in names]
+    own = a.own_set or []
     for name, path in zip(names, paths):
-        out = Path(a.work) / f"{name}.neubrdf.nmat"
-        cmd, seconds = fit([path], out, base + [f"batch_size={a.batch}"], a.steps)
+        out = Path(a.work) / f"{name}.neubrdf{'.' + '.'.join(own) if own else ''}.nmat"
+        cmd, seconds = fit([path], out, base + [f"batch_size={a.batch}"] + own, a.steps)
         e = evaluate(out, path, a.n_configs)
-        rows.append({"material": name, "model": "neubrdf (own)", "bytes/material": e["bytes_fp16"],
+        label = f"neubrdf (own{', ' + ', '.join(own) if own else ''})"
+        rows.append({"material": name, "model": label, "bytes/material": e["bytes_fp16"],
                      "log_err": round(e["log_err"], 5), "rmse_hdr": round(e["rmse_hdr"], 4),
                      "mae_hdr": round(e["mae_hdr"], 5), "fit s": round(seconds, 1), "command": cmd})
         print(json.dumps(rows[-1]), flush=True)
     t = len(paths)
+    if a.no_shared:
+        return rows
     out = Path(a.work) / f"{a.cluster}.shared.nmat"
     cmd, seconds = fit(paths, out, base + [f"batch_size={a.batch * t}", f"num_materials={t}"], a.steps,
                        model="shared-neubrdf")
@@ -162,6 +166,8 @@ def main() -> None:
     p.add_argument("--n-configs", type=int, default=2 ** 17, help="held-out queries of each evaluation")
     p.add_argument("--materials", help="prune: comma-separated RGL names (default: all five shared files)")
     p.add_argument("--cluster", choices=sorted(CLUSTERS), default="paints", help="shared: the MERL-like cluster")
+    p.add_argument("--own-set", action="append", help="shared: an extra --set of the own fits (e.g. index_bits=7)")
+    p.add_argument("--no-shared", action="store_true", help="shared: the own fits only")
     p.add_argument("--work", default="/tmp/neubrdf_shared_prune", help="folder for the fitted models")
     p.add_argument("--json", help="also write the rows here")
     a = p.parse_args()
