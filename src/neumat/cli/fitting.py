@@ -192,6 +192,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              device: str = typer.Option(None, callback=device_option,
                                        help="torch device (default: cuda if available, else cpu)"),
              seed: int = typer.Option(0, **SEED_RANGE),
+             member: int = typer.Option(None, "--member", min=0,
+                                        help="shared-neubrdf: evaluate material i of the set (its bytes: "
+                                             "its own index grid plus its share of the codebook and MLP)"),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
     """Compare MODEL, as stored in its file, with a reference: reflectance errors, rendered-image metrics, size
     and speed. The defaults take about a minute on a CPU for a small model; raise --n, --spp and --resolution
@@ -205,6 +208,11 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
 
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
         m = load_model(model, device=dev)
+        if member is not None:
+            if not callable(getattr(m, "material", None)):
+                raise InputError(f"--member {member}: {model} holds one material ({m.name}), not a set "
+                                 "(shared-neubrdf)")
+            m = m.material(member)
         ref = open_material(against, **parse_overrides(source_option, "--source-option"))
         row = {"model": str(model), "against": against}
         row.update(reflectance_errors(m, ref, n=n_configs, seed=seed, device=dev))

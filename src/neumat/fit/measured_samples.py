@@ -112,3 +112,55 @@ def table_samples(btf) -> MeasuredSamples:
 
     q = table_queries(btf)
     return MeasuredSamples(q.wi, q.wo, btf.data.reshape(-1, 3).to(q.wi), uv=q.uv, name=f"table of {btf.describe()}")
+
+
+def rgl_samples(material, azimuths: int = 64, min_cos: float = 1e-3) -> MeasuredSamples:
+    """The measurement directions of an RGL BRDF (`neumat.reflectance.measured.RglMaterial`) as samples.
+
+    An RGL file stores, for each measured incident direction (its phi_i x theta_i grid, 1 x 8 in the shared
+    files), an R x R table (32 x 32) of values at the nodes of its warped domain: node (x, y) = (j, i) / (R - 1)
+    is the outgoing direction that the file's VNDF warp maps it to (as `RglMaterial.sample` does). These
+    P T R^2 (wi, wo) pairs are what was measured; their values are the material's own (its interpolant
+    at a node is the node's value). An isotropic file measures one incident azimuth: every pair is also
+    rotated about the normal to `azimuths` equally spaced azimuths (the same values, by isotropy), so the
+    samples cover wi on T rings and are still sparse in theta_i. Pairs with cos theta_i or cos theta_o
+    below `min_cos` (the grazing theta_i = 90 degrees row) are left out. Returns N = azimuths x (kept pairs)
+    samples (1 azimuth for an anisotropic file)."""
+    from ..reflectance.measured import RglMaterial
+
+    if not isinstance(material, RglMaterial):
+        raise InputError(f"rgl_samples: expected an RGL material (a *_rgb.bsdf file), got {type(material).__name__}")
+    if isinstance(azimuths, bool) or not isinstance(azimuths, int) or azimuths < 1:
+        raise InputError(f"rgl_samples azimuths: expected a positive integer, got {azimuths!r}")
+    rgb = material.rgb
+    phi, theta = (p.float() for p in rgb.param_values)
+    r_h, r_w = rgb.h, rgb.w
+    y, x = torch.meshgrid(torch.arange(r_h) / (r_h - 1), torch.arange(r_w) / (r_w - 1), indexing="ij")
+    node = torch.stack([x.reshape(-1), y.reshape(-1)], -1)                       # (R^2, 2)
+    p_i, t_i = (g.reshape(-1) for g in torch.meshgrid(phi, theta, indexing="ij"))  # (P T,)
+    m_in = node.shape[0]
+    s = node.repeat(p_i.shape[0], 1)
+    params = [p_i.repeat_interleave(m_in), t_i.repeat_interleave(m_in)]
+    u_m, _ = material.vndf.sample(s, params)
+    phi_m = (2 * u_m[:, 1] - 1) * torch.pi + (params[0] if material.isotropic else 0)
+    theta_m = u_m[:, 0] ** 2 * (torch.pi / 2)
+    m = torch.stack([torch.cos(phi_m) * torch.sin(theta_m), torch.sin(phi_m) * torch.sin(theta_m),
+                     torch.cos(theta_m)], -1)
+    wi = torch.stack([torch.cos(params[0]) * torch.sin(params[1]), torch.sin(params[0]) * torch.sin(params[1]),
+                      torch.cos(params[1])], -1)
+    wo = 2 * (wi * m).sum(-1, keepdim=True) * m - wi
+    wo = wo / wo.norm(dim=-1, keepdim=True)
+    keep = (wi[:, 2] > min_cos) & (wo[:, 2] > min_cos)
+    wi, wo = wi[keep], wo[keep]
+    with torch.no_grad():
+        value = material.eval(Query(wi, wo)).float()
+    if material.isotropic and azimuths > 1:
+        a = torch.arange(azimuths, dtype=torch.float32) * (2 * torch.pi / azimuths)
+        c, s_ = torch.cos(a)[:, None], torch.sin(a)[:, None]
+
+        def rotate(v: torch.Tensor) -> torch.Tensor:  # (N, 3) -> (azimuths N, 3)
+            return torch.stack([c * v[:, 0] - s_ * v[:, 1], s_ * v[:, 0] + c * v[:, 1],
+                                v[:, 2].expand(azimuths, -1)], -1).reshape(-1, 3)
+
+        wi, wo, value = rotate(wi), rotate(wo), value.repeat(azimuths, 1)
+    return MeasuredSamples(wi, wo, value, name=f"measurements of {material.name}")

@@ -318,22 +318,14 @@ class NeuBRDF(LearnedMaterial):
         if bool((self.level_i == 0).all()) and bool((self.level_o == 0).all()):
             self._pruning = None
             return
-        n, dev = self.cfg.nside, self.level_i.device
-        levels = [torch.minimum(level.long(), hpx.grid_level_cap(n, south).clamp(min=0).to(dev))
-                  for south, level in ((False, self.level_i), (True, self.level_o))]
+        n = self.cfg.nside
+        levels = [capped_levels(n, level, south) for south, level in ((False, self.level_i), (True, self.level_o))]
         self._pruning = (*levels, *(hpx.shared_ancestor_levels(n, level) for level in levels))
 
     def used_slots(self) -> torch.Tensor:
         """Mask (2 n,) of grid slots referenced by some pixel of the (pruned) grids."""
-        n = self.cfg.nside
-        mask = torch.zeros(2 * hpx.hemisphere_size(n), dtype=torch.bool, device=self.level_i.device)
-        pix = torch.arange(12 * n * n, device=mask.device)
-        z = hpx.pix2vec(n, pix)[:, 2].to(mask.device)
-        for south, keep in ((False, z >= -1e-12), (True, z <= 1e-12)):
-            p = pix[keep]
-            vid = hpx.ancestor_corner_vertices(n, p, 0 if self._pruning is None else self._pruning[int(south)][p])
-            mask[vid + hpx.south_grid_offset(n) if south else vid] = True
-        return mask
+        return used_slot_mask(self.cfg.nside, None if self._pruning is None else self._pruning[:2],
+                              self.level_i.device)
 
     @property
     def is_runtime(self) -> bool:
@@ -459,13 +451,21 @@ class NeuBRDF(LearnedMaterial):
     def size_bytes(self, precision: str = "fp16") -> int:
         """Stored size: grid (see `grid_size_bytes`) + MLP weights and biases + neural texture, floats at
         `precision`, + the pruning levels of a pruned grid (`level_bits` per pixel of both grids; an
-        unpruned grid needs none, as in the paper's count). The runtime model file holds this plus its
-        header and, unpruned, the all-zero levels packed (2 x 12 N_side^2 x `level_bits` bits, 36 KB at
-        N_side 64)."""
+        unpruned grid needs none, as in the paper's count). A pruned VQ grid stores the indices of the
+        slots some pixel reads only (`used_slots`; the paper's 2 n b with n the used slots): the others
+        follow from the levels. Levels that `prune` made are stored as the 1-bit mask of supervised pixels
+        they follow from (`levels_from_mask`), others at `level_bits` each. The runtime model file holds
+        this plus its header and, unpruned, the all-zero levels as such a mask (2 x 12 N_side^2 bits, 12 KB
+        at N_side 64)."""
         fb = float_bits(precision)
         floats = self.mlp.num_parameters() + (self.texture.num_parameters() if self.texture is not None else 0)
-        levels = 2 * 12 * self.cfg.nside ** 2 * self.level_bits if self.pruned else 0
-        return storage_bytes(self.grid.storage_bits(fb) + floats * fb + levels)
+        per_pixel = 1 if all(levels_from_mask(self.cfg.nside, lv) for lv in (self.level_i, self.level_o)) \
+            else self.level_bits
+        levels = 2 * 12 * self.cfg.nside ** 2 * per_pixel if self.pruned else 0
+        grid = self.grid.storage_bits(fb)
+        if self.pruned and isinstance(self.grid, VQFeatures):  # only the slots some pixel reads are stored
+            grid -= int((~self.used_slots()).sum()) * self.grid.bits
+        return storage_bytes(grid + floats * fb + levels)
 
     def flops(self) -> int:
         """MLP floating-point operations per evaluation (feature lookups not counted)."""
@@ -475,16 +475,28 @@ class NeuBRDF(LearnedMaterial):
 def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None:
     """State-dict hook of NeuBRDF-like models (NeuBRDF, SharedNeuBRDF): in runtime mode the state is the
     shipped form, floats as fp16 (exact: `runtime` rounded them) and the pruning levels `level_i` /
-    `level_o` packed to `module.level_bits` bits as "packed_level_i" / "packed_level_o" (the grid packs its
-    own indices); training and frozen models keep their float32 state."""
+    `level_o` packed to `module.level_bits` bits as "packed_level_i" / "packed_level_o", or for a NeuBRDF
+    whose levels follow from their supervised pixels (`levels_from_mask`: all that `prune` makes) as that
+    1-bit mask, "supervised_level_i" / "supervised_level_o" (the grid packs its own indices; a pruned VQ
+    grid stores those of the used slots only, "packed_used_index"); training and frozen models keep their
+    float32 state."""
     if not module.is_runtime:
         return
     for key, value in state_dict.items():
         if key.startswith(prefix) and value.is_floating_point():
             state_dict[key] = value.half()
     for name in ("level_i", "level_o"):
-        state_dict[prefix + "packed_" + name] = pack_bits(state_dict.pop(prefix + name).flatten().long(),
-                                                          module.level_bits)
+        level = state_dict.pop(prefix + name)
+        if isinstance(module, NeuBRDF) and levels_from_mask(module.cfg.nside, level):
+            state_dict[prefix + "supervised_" + name] = pack_bits((level == 0).flatten().long(), 1)
+        else:
+            state_dict[prefix + "packed_" + name] = pack_bits(level.flatten().long(), module.level_bits)
+    key = prefix + "grid.packed_index"
+    if isinstance(module, NeuBRDF) and module.pruned and key in state_dict:  # pruned VQ grid: used slots only
+        grid = module.grid
+        used = module.used_slots()
+        index = unpack_bits(state_dict.pop(key), grid.bits, grid.num_vertices, key)
+        state_dict[prefix + "packed_used_index"] = pack_bits(index[used.to(index.device)], grid.bits)
 
 
 def quantized_state(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
@@ -507,7 +519,49 @@ def unpack_levels(module, state_dict: dict, prefix: str, local_metadata, strict,
     """Load-state-dict pre-hook inverting `shipped_state`: packed pruning levels back to int8 pixel levels."""
     for name in ("level_i", "level_o"):
         key = prefix + "packed_" + name
+        shape = getattr(module, name).shape
         if key in state_dict:
-            shape = getattr(module, name).shape
             state_dict[prefix + name] = unpack_bits(state_dict.pop(key), module.level_bits, shape.numel(),
                                                     key).to(torch.int8).view(shape)
+        key = prefix + "supervised_" + name
+        if key in state_dict:
+            mask = unpack_bits(state_dict.pop(key), 1, shape.numel(), key).bool()
+            state_dict[prefix + name] = hpx.pruned_levels(module.cfg.nside, mask).to(torch.int8).view(shape)
+    key = prefix + "packed_used_index"
+    if key in state_dict and isinstance(module, NeuBRDF) and isinstance(module.grid, VQFeatures):  # pruned grid
+        n, grid = module.cfg.nside, module.grid
+        levels = [capped_levels(n, state_dict[prefix + name].long(), south)
+                  for south, name in ((False, "level_i"), (True, "level_o"))]
+        used = used_slot_mask(n, levels, levels[0].device)
+        index = torch.zeros(grid.num_vertices, dtype=torch.long)
+        index[used.cpu()] = unpack_bits(state_dict.pop(key), grid.bits, int(used.sum()), key)
+        state_dict[prefix + "grid.packed_index"] = pack_bits(index, grid.bits)
+
+
+def levels_from_mask(nside: int, level: torch.Tensor) -> bool:
+    """Whether pruning levels (12 nside^2,) are those of `hpx.pruned_levels` of their supervised pixels
+    (level 0), so that storing that 1-bit mask restores them (true of every grid `prune` made and of an
+    unpruned one; nside a power of two)."""
+    if nside & (nside - 1) or level.ndim != 1:
+        return False
+    return torch.equal(hpx.pruned_levels(nside, level == 0), level.long())
+
+
+def capped_levels(nside: int, level: torch.Tensor, south: bool) -> torch.Tensor:
+    """Lookup levels (12 nside^2,) int64 of a pruned grid: `level` capped where the ancestor's corners would
+    leave the hemisphere grid (`hpx.grid_level_cap`)."""
+    return torch.minimum(level.long(), hpx.grid_level_cap(nside, south).clamp(min=0).to(level.device))
+
+
+def used_slot_mask(nside: int, levels, device=None) -> torch.Tensor:
+    """Mask (2 n,) of the grid slots some hemisphere pixel reads, for lookup levels (S+, S-) from
+    `capped_levels` (None: unpruned)."""
+    n = nside
+    mask = torch.zeros(2 * hpx.hemisphere_size(n), dtype=torch.bool, device=device)
+    pix = torch.arange(12 * n * n, device=mask.device)
+    z = hpx.pix2vec(n, pix)[:, 2].to(mask.device)
+    for south, keep in ((False, z >= -1e-12), (True, z <= 1e-12)):
+        p = pix[keep]
+        vid = hpx.ancestor_corner_vertices(n, p, 0 if levels is None else levels[int(south)][p])
+        mask[vid + hpx.south_grid_offset(n) if south else vid] = True
+    return mask

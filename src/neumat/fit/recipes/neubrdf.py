@@ -67,11 +67,19 @@ from ...core.errors import InputError
 from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
 
-OPTIONS = {"dense_warmup": 0.0}
+OPTIONS = {"dense_warmup": 0.0, "prune": False, "measured_azimuths": 64}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
-when the option is > 0; an explicit features setting wins)."""
+when the option is > 0; an explicit features setting wins).
+
+prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
+measured directions that the fit replays, so that pixels holding no measurement read their nearest
+supervised ancestor's corners and the slots no pixel reads are not stored. Needs queries="replay".
+
+measured_azimuths: with queries="replay" on an RGL file (`*_rgb.bsdf`), its measurement directions
+(`neumat.fit.measured_samples.rgl_samples`) are the replayed samples; an isotropic file's single measured
+incident azimuth is rotated to this many equally spaced azimuths."""
 
 RECIPE = Recipe(steps=20000, batch_size=2 ** 14, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
                 lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
@@ -90,11 +98,13 @@ def config_for_source(source, options: dict | None = None) -> dict:
 
 
 def phases(ctx: FitContext) -> list[Phase]:
-    """One online phase, or with option dense_warmup = f > 0 two: "dense" (round(f steps) steps, at least
+    """One online phase, or with option dense_warmup = f > 0 two (both on the measured samples of the source
+    and with a pruned model under options queries="replay" / prune, see `_measured`): "dense" (round(f steps) steps, at least
     one, on the dense model; at its end `quantize_from_dense`) then "vq" (the rest, on the parameters that
     exist after the switch, with the model's row-sparse optimiser). Each phase runs the learning-rate
     schedule over its own steps. A checkpoint written after the switch holds the VQ state, which a freshly
     built dense model loads (`neumat.models.neubrdf.quantized_state`), so resuming is exact either side."""
+    ctx = _measured(ctx)
     frac = _warmup(ctx.recipe.options)
     if frac == 0:
         return [online_phase(ctx)]
@@ -117,3 +127,34 @@ def _warmup(options: dict) -> float:
     if not isinstance(frac, (int, float)) or isinstance(frac, bool) or not 0 <= frac < 1:
         raise InputError(f"neubrdf recipe option dense_warmup: expected a fraction in [0, 1), got {frac!r}")
     return float(frac)
+
+
+def _measured(ctx: FitContext) -> FitContext:
+    """The fit's context for sparse measurements: with queries "replay" the source must hold measurement
+    samples (a `MeasuredSamples`, or an RGL file whose measurement directions `rgl_samples` gives, then the
+    source of the fit); with option prune the model is pruned to their directions first (`NeuBRDF.prune`,
+    deterministic, so a resumed fit prunes the same way). InputError for prune without replay queries and
+    for replay on a source without measurement samples."""
+    from ...reflectance.measured import RglMaterial
+    from ..measured_samples import MeasuredSamples, rgl_samples
+
+    prune = ctx.recipe.options.get("prune", False)
+    if not isinstance(prune, bool):
+        raise InputError(f"neubrdf recipe option prune: expected true or false, got {prune!r}")
+    queries = ctx.queries if ctx.queries is not None else ctx.recipe.queries
+    if queries != "replay":
+        if prune:
+            raise InputError(f"neubrdf recipe option prune=true: needs queries=replay (the model is pruned to the "
+                             f"measured directions and must train on them), got queries={queries!r}")
+        return ctx
+    source = ctx.source
+    if isinstance(source, RglMaterial):
+        source = rgl_samples(source, ctx.recipe.options.get("measured_azimuths", 64))
+    elif not isinstance(source, MeasuredSamples):
+        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        raise InputError(f"neubrdf with queries=replay{' and prune=true' if prune else ''}: the source "
+                         f"{name!r} holds no measurement samples; give an RGL *_rgb.bsdf file or "
+                         f"neumat.fit.measured_samples.MeasuredSamples")
+    if prune:
+        ctx.model.prune(source.wi.to(ctx.device), source.wo.to(ctx.device))
+    return replace(ctx, source=source)

@@ -39,3 +39,8 @@ def phases(ctx: FitContext) -> list[Phase]:
     joint = joint_source(ctx.source, ctx.model.cfg.num_materials, base)
     draw = ctx.queries if ctx.queries is not None and not isinstance(ctx.queries, str) else "joint"
     return [online_phase(replace(ctx, source=joint, queries=draw))]
+
+
+def config_for_source(source, options: dict | None = None) -> dict:
+    """Config defaults from the source: num_materials = the number of source materials (a list / tuple)."""
+    return {"num_materials": len(source)} if isinstance(source, (list, tuple)) else {}
