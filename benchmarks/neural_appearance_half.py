@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import copy
 import platform
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -42,7 +41,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from neural_appearance_images import open_source  # noqa: E402
+from neural_appearance_images import open_source, start_run  # noqa: E402
 
 from neumat.catalog.modelfile import load_model, save_model  # noqa: E402
 from neumat.cli.common import print_table  # noqa: E402
@@ -53,7 +52,6 @@ from neumat.fit.footprint_queries import footprint_queries  # noqa: E402
 from neumat.fit.recipe import recipe_for  # noqa: E402
 from neumat.fit.recipes.neural_appearance import config_for_source  # noqa: E402
 from neumat.fit.trainer import fit  # noqa: E402
-from neumat.io.shared_data import shared_data_dir  # noqa: E402
 from neumat.models.half_precision import half_rounded, round_to_half  # noqa: E402
 from neumat.models.neural_appearance import NeuralAppearance  # noqa: E402
 from neumat.testing.parity import glsl_eval, opengl_available  # noqa: E402
@@ -175,11 +173,7 @@ def main() -> None:
     ap.add_argument("--compensated", action="store_true", help="also the GPTQ-rounded model (docstring)")
     ap.add_argument("--breakdown", action="store_true", help="one parameter group rounded at a time (docstring)")
     args = ap.parse_args()
-    torch.set_num_threads(1)
-    data = shared_data_dir()
-    if data is None:
-        raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    data, commit = start_run()
     print(f"# commit {commit}, {platform.node()}, 1 thread; {args.steps} steps x {args.batch}, {args.size}^2, "
           f"{args.queries} queries per set", flush=True)
     rows = []

@@ -96,6 +96,17 @@ def per_scale(ref: list, test: list, n_scales: int) -> list[dict]:
             for i in range(n_scales)]
 
 
+def start_run() -> tuple[Path, str]:
+    """The set-up every neural-appearance benchmark shares: one torch thread, the shared data folder (exit with
+    a message when it is missing) and the short commit hash for the results header."""
+    torch.set_num_threads(1)
+    data = shared_data_dir()
+    if data is None:
+        raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    return data, commit
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sources", default="Wood092_1K,Metal027_1K,Paper001_1K,coated:Wood092_1K,smudged:Metal027_1K")
@@ -107,11 +118,7 @@ def main() -> None:
     ap.add_argument("--ref-samples", type=int, default=64)
     ap.add_argument("--models", default="neural-appearance,ggx-mipmap")
     args = ap.parse_args()
-    torch.set_num_threads(1)
-    data = shared_data_dir()
-    if data is None:
-        raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    data, commit = start_run()
     print(f"# commit {commit}, {platform.node()}, {platform.processor() or platform.machine()}, 1 thread; "
           f"{args.steps} steps x {args.batch}, {args.size}^2, {args.resolution}^2 px, {args.ref_samples} ref samples",
           flush=True)

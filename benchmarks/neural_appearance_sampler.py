@@ -49,7 +49,6 @@ from __future__ import annotations
 import argparse
 import math
 import platform
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -59,7 +58,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from neural_appearance import rate  # noqa: E402
-from neural_appearance_images import open_source  # noqa: E402
+from neural_appearance_images import open_source, start_run  # noqa: E402
 
 from neumat.cli.common import print_table  # noqa: E402
 from neumat.color.tonemap import LUMINANCE  # noqa: E402
@@ -69,7 +68,6 @@ from neumat.fit.proxy_sampler import fit_sampler  # noqa: E402
 from neumat.fit.recipe import recipe_for  # noqa: E402
 from neumat.fit.recipes.neural_appearance import config_for_source  # noqa: E402
 from neumat.fit.trainer import fit  # noqa: E402
-from neumat.io.shared_data import shared_data_dir  # noqa: E402
 from neumat.reflectance.procedural_texture import procedural_texture_set  # noqa: E402
 from neumat.reflectance.svbrdf import SVBRDF  # noqa: E402
 from neumat.models.neural_appearance import NeuralAppearance  # noqa: E402
@@ -207,11 +205,7 @@ def main() -> None:
     ap.add_argument("--no-reference", action="store_true", help="model rows only")
     ap.add_argument("--figure", default=None, help="write a Fig. 11-like picture of the first source (docstring)")
     args = ap.parse_args()
-    torch.set_num_threads(1)
-    data = shared_data_dir()
-    if data is None:
-        raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    data, commit = start_run()
     print(f"# commit {commit}, {platform.node()}, 1 thread; {args.steps} steps x {args.batch}, {args.size}^2; "
           f"{args.points} points x {args.samples} samples per cell", flush=True)
     thetas = [float(t) for t in args.thetas.split(",")]

@@ -40,7 +40,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -49,12 +48,11 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from neural_appearance_images import open_source  # noqa: E402
+from neural_appearance_images import open_source, start_run  # noqa: E402
 
 from neumat.cli.common import print_table  # noqa: E402
 from neumat.core.query import Query  # noqa: E402
 from neumat.export.glsl import export_glsl  # noqa: E402
-from neumat.io.shared_data import shared_data_dir  # noqa: E402
 from neumat.models.neural_appearance import NeuralAppearance  # noqa: E402
 from neumat.reflectance.analytic import Lambert  # noqa: E402
 from neumat.reflectance.conductor_base import TexturedConductor  # noqa: E402
@@ -230,11 +228,7 @@ def main() -> None:
     ap.add_argument("--arrival-points", type=int, default=2048, help="points of the arrival-order runs (slow)")
     ap.add_argument("--materials", type=lambda s: [int(x) for x in s.split(",")], default=[1, 2, 4, 8, 16])
     args = ap.parse_args()
-    torch.set_num_threads(1)
-    data = shared_data_dir()
-    if data is None:
-        raise SystemExit("needs shared/data/svbrdf (set NEUMAT_SHARED_DATA or put shared/ beside the checkout)")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    data, commit = start_run()
     print(f"# commit {commit}, {platform.node()}, {platform.processor() or platform.machine()}, 1 thread, load "
           f"{os.getloadavg()[0]:.2f}; {args.points} points per call, best of {args.repeats}", flush=True)
     parts = args.parts.split(",")
