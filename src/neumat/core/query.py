@@ -42,11 +42,16 @@ class Query:
         for name, shape in shapes.items():
             t = getattr(self, name)
             if t is not None:
-                check_shape(t, f"Query.{name}", shape)
-                check_finite(t, f"Query.{name}")
-                if t.dtype != self.wi.dtype:
-                    raise InputError(f"Query.{name} is {t.dtype} but Query.wi is {self.wi.dtype}: give every field "
-                                     "of a query one floating-point dtype")
+                self._check_field(name, t, shape)
+
+    def _check_field(self, name: str, t: torch.Tensor, shape: tuple) -> None:
+        """Shape, finiteness and wi's dtype of the field `name` (its unit length, if a direction, is checked by
+        the caller)."""
+        check_shape(t, f"Query.{name}", shape)
+        check_finite(t, f"Query.{name}")
+        if t.dtype != self.wi.dtype:
+            raise InputError(f"Query.{name} is {t.dtype} but Query.wi is {self.wi.dtype}: give every field of a "
+                             "query one floating-point dtype")
 
     @classmethod
     def trusted(cls, wi: torch.Tensor, wo: torch.Tensor | None = None, uv: torch.Tensor | None = None,
@@ -83,10 +88,7 @@ class Query:
         other fields were when this query was built), which keeps the samplers' per-call overhead down."""
         if wo is not None:
             check_directions(wo, "Query.wo")
-            check_shape(wo, "Query.wo", (len(self), 3))
-        if wo is not None and wo.dtype != self.wi.dtype:
-            raise InputError(f"Query.wo is {wo.dtype} but Query.wi is {self.wi.dtype}: give every field of a query "
-                             "one floating-point dtype")
+            self._check_field("wo", wo, (len(self), 3))
         q = object.__new__(type(self))
         q.__dict__.update(self.__dict__, wo=wo)
         return q
