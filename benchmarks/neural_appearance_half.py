@@ -3,6 +3,7 @@ the half-precision runtime against the fp32 model, and which stored parameters' 
 
     python benchmarks/neural_appearance_half.py                               # 3 sets, 1500 steps of 1024, 64^2
     python benchmarks/neural_appearance_half.py --sources Wood092_1K --steps 300 --no-shaders   # a smoke run
+    python benchmarks/neural_appearance_half.py --half-finish 0      # models trained in FP32 to the end (the paper)
 
 Each source (`benchmarks/neural_appearance_images.open_source`: a texture set, "coated:SET", "smudged:SET") is fitted
 with the recipe at --steps x --batch (cached in --cache as .nmat, keyed by source, steps, batch and seed). Runtimes:
@@ -11,6 +12,12 @@ arithmetic; what the fp16 exports store), the fp16 GLSL export on this OpenGL (l
 on slangpy's CPU device. Queries (--queries of each, seed 5): "eval" at `footprint_queries` (cosine-weighted wi,
 wo, uniform uv, Eq. 9 footprints); "pdf (sampled wo)" at directions the fp32 model samples (what a path tracer asks
 after sampling); "pdf (cosine wo)" at cosine-distributed wo (what MIS asks for a light sample).
+
+--half-finish sets the recipe's half_finish (default: the recipe's 0.1; `neumat.fit.recipes.neural_appearance`):
+the last fraction of the latents phase trains half-aware and the fit ends on a model whose parameters are what the
+fp16 exports store; 0 trains in FP32 to the end. "model vs source" is the fitted fp32 model's own error, to see
+what half-aware training costs: relative L1 sum |f - f_src| / sum |f_src| at the eval queries, the source's
+filtered value from 64 footprint samples (seed 6).
 
 Relative error per query: max over RGB of |x16 - x32| / max(|x32|, 1e-6) for eval, |p16 - p32| / max(p32, 1e-6) for
 the pdf; the table gives its median, 99th percentile and maximum over the queries (no query is dropped; the model's
@@ -52,7 +59,7 @@ from neumat.fit.footprint_queries import footprint_queries  # noqa: E402
 from neumat.fit.recipe import recipe_for  # noqa: E402
 from neumat.fit.recipes.neural_appearance import config_for_source  # noqa: E402
 from neumat.fit.trainer import fit  # noqa: E402
-from neumat.models.half_precision import half_rounded, round_to_half  # noqa: E402
+from neumat.models.half_precision import half_rounded, is_half_exact, round_to_half  # noqa: E402
 from neumat.models.neural_appearance import NeuralAppearance  # noqa: E402
 from neumat.testing.parity import glsl_eval, opengl_available  # noqa: E402
 from neumat.testing.slang_parity import SlangKernel, slang_available, slang_eval  # noqa: E402
@@ -71,14 +78,17 @@ def relative(got: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
 
 def trained(spec: str, data: Path, args) -> NeuralAppearance:
     """The model of `spec`, from the cache or fitted now (module docstring)."""
-    path = Path(args.cache) / f"{spec.replace(':', '-')}_{args.size}_{args.steps}x{args.batch}_s{args.seed}.nmat"
+    path = Path(args.cache) / (f"{spec.replace(':', '-')}_{args.size}_{args.steps}x{args.batch}_s{args.seed}"
+                               f"_hf{args.half_finish:g}.nmat")
     if path.exists():
         return load_model(path)
     source = open_source(spec, data, args.size, 16)
     torch.manual_seed(args.seed)
     model = NeuralAppearance(**config_for_source(source))
     t = time.perf_counter()
-    fit(model, source, replace(recipe_for(model.name), batch_size=args.batch), steps=args.steps, progress=False)
+    recipe = recipe_for(model.name)
+    recipe = replace(recipe, batch_size=args.batch, options={**recipe.options, "half_finish": args.half_finish})
+    fit(model, source, recipe, steps=args.steps, progress=False)
     print(f"# {spec}: fitted in {time.perf_counter() - t:.0f} s", flush=True)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model.runtime(), path)
@@ -168,6 +178,8 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=1024)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--queries", type=int, default=1 << 14)
+    ap.add_argument("--half-finish", type=float, default=recipe_for("neural-appearance").options["half_finish"],
+                    help="the recipe's half_finish (docstring)")
     ap.add_argument("--cache", default="/tmp/neumat_half_models")
     ap.add_argument("--no-shaders", action="store_true", help="torch half_rounded only")
     ap.add_argument("--compensated", action="store_true", help="also the GPTQ-rounded model (docstring)")
@@ -175,13 +187,16 @@ def main() -> None:
     args = ap.parse_args()
     data, commit = start_run()
     print(f"# commit {commit}, {platform.node()}, 1 thread; {args.steps} steps x {args.batch}, {args.size}^2, "
-          f"{args.queries} queries per set", flush=True)
+          f"half_finish {args.half_finish:g}, {args.queries} queries per set", flush=True)
     rows = []
     for spec in args.sources.split(","):
         model = trained(spec, data, args)
         sets = query_sets(model, spec, data, args)
         with torch.no_grad():
             ref = {"eval": model.eval(sets["eval"])} | {k: model.pdf(q) for k, q in sets.items() if k != "eval"}
+            target = open_source(spec, data, args.size, 64, seed=6).eval(sets["eval"])
+        own = f"{float((ref['eval'] - target).abs().sum() / target.abs().sum()):.4f}"
+        print(f"# {spec}: half-exact {is_half_exact(model)}, model vs source (rel L1) {own}", flush=True)
         variants = runtimes(model, not args.no_shaders)
         if args.compensated:
             g = torch.Generator().manual_seed(9)
@@ -193,7 +208,7 @@ def main() -> None:
                 variants[f"torch: {group} rounded only"] = (m.eval, m.pdf)
         for name, (ev, pdf) in variants.items():
             with torch.no_grad():
-                row = {"source": spec, "runtime": name,
+                row = {"source": spec, "runtime": name, "model vs source": own,
                        "eval rel err (median / p99 / max)": stats(relative(ev(sets["eval"]), ref["eval"]))}
                 for key in ("pdf (sampled wo)", "pdf (cosine wo)"):
                     err = relative(pdf(sets[key]), ref[key])
@@ -202,7 +217,8 @@ def main() -> None:
                         row["L1(p16, p32)"] = f"{float(err.mean()):.1e}"
             rows.append(row)
             print(row, flush=True)
-    print_table(f"fp16 runtimes against the fp32 model ({args.steps} steps x {args.batch})", rows, width=240)
+    print_table(f"fp16 runtimes against the fp32 model ({args.steps} steps x {args.batch}, half_finish "
+                f"{args.half_finish:g})", rows, width=260)
 
 
 if __name__ == "__main__":

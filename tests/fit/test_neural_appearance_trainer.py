@@ -1,6 +1,6 @@
 """Neural-appearance and the proxy sampler through the one trainer: a fit interrupted in the encoder phase or in
-the latents phase resumes from its checkpoint bit for bit (fresh source and model, as in a new process), the
-device follows the argument, the source-derived config."""
+the half-aware part of the latents phase resumes from its checkpoint bit for bit (fresh source and model, as in a
+new process), the device follows the argument, the source-derived config."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -20,7 +20,7 @@ from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
 
 SIZE = 8
-STEPS = 20             # 10 encoder steps, bake, 10 latent steps
+STEPS = 20             # 10 encoder steps, bake, 10 latent steps (the last 5 half-aware)
 
 
 class Interrupt(Exception):
@@ -39,7 +39,8 @@ def _na_fit(checkpoint=None, resume=False, stop_at=None, device=None):
     model = NeuralAppearance(**config_for_source(source), albedo=True)
     recipe = recipe_for("neural-appearance")
     recipe = replace(recipe, steps=STEPS, batch_size=32, log_every=1, checkpoint_every=3,
-                     options={**recipe.options, "blur_degrees": 10.0, "blur_samples": 2, "blur_until": 1.0})
+                     options={**recipe.options, "blur_degrees": 10.0, "blur_samples": 2, "blur_until": 1.0,
+                              "half_finish": 0.5})
 
     def callback(record):
         if record["step"] == stop_at:

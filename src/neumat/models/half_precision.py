@@ -10,10 +10,18 @@ frames' weight scale is folded into their decoder weights (as the exports store 
 are frozen (their logits replaced by the indices the exports store), and then every
 floating-point parameter is rounded to the nearest float16 (ties to even) and kept as float32. Buffers (index
 tables, fixed Fourier matrices) are left as they are: the exports store them exactly.
+
+Half-aware training (`with_half_parameters`, `snap_to_half_`) lets a fit end on a model whose parameters are
+exactly what an fp16 export stores, so that the export equals the trained model up to float32 arithmetic: for
+its last steps every parameter enters the forward pass rounded as the export rounds it, with a straight-through
+gradient to the float32 parameter (quantisation-aware training), and at the end the parameters are rounded in
+place. It supports models whose exports store each parameter as a constant multiple of itself (plain parameters;
+the shading frames' scaled weights); preconditioned textures and vector-quantised features are refused.
 """
 from __future__ import annotations
 
 import copy
+from typing import Any, Callable
 
 import torch
 from torch import nn
@@ -22,6 +30,7 @@ from ..core.errors import InputError
 from ..nn.angular_texture import AngularTexture
 from ..nn.codebook import VQFeatures
 from ..nn.latent_texture import LatentPyramid
+from ..nn.preconditioner import FrequencyPreconditioner
 from ..nn.shading_frames import ShadingFrame
 
 #: the largest finite float16
@@ -62,3 +71,68 @@ def half_rounded(model: nn.Module) -> nn.Module:
         if parameter.is_floating_point():
             parameter.copy_(round_to_half(parameter, name))
     return out
+
+
+def _stored_scales(model: nn.Module) -> dict[str, float]:
+    """name -> s for each parameter whose export stores s * value (a shading frame's weight scale; every other
+    floating-point parameter is stored as itself, s = 1). InputError for modules whose exports store something
+    that is not a multiple of one parameter (module docstring)."""
+    scales = {}
+    for prefix, module in model.named_modules():
+        precondition = getattr(module, "precondition", None) if isinstance(module, (LatentPyramid,
+                                                                                       AngularTexture)) else None
+        identity = isinstance(precondition, FrequencyPreconditioner) and precondition.strength == 0
+        refused = (precondition is not None and not identity) or isinstance(module, VQFeatures)
+        if refused:
+            raise InputError(f"half-aware training: {type(module).__name__} {prefix or '(model)'!r} stores "
+                             "preconditioned or vector-quantised values, which an fp16 export rounds in another "
+                             "form than its parameters; half-aware training supports plain parameters only")
+        if isinstance(module, ShadingFrame) and module.weight_scale != 1.0:
+            scales[f"{prefix}.decode.weight" if prefix else "decode.weight"] = module.weight_scale
+    return scales
+
+
+def _stored_rounding(p: torch.Tensor, scale: float, name: str) -> torch.Tensor:
+    """round_to_half(scale * p) / scale, detached: the value of p that an fp16 export stores, in p's units."""
+    return round_to_half(p.detach() * scale, name) / scale if scale != 1.0 else round_to_half(p, name)
+
+
+class _Call(nn.Module):
+    """Runs fn() with `model` as a submodule, so that torch.func.functional_call can swap its parameters."""
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, fn: Callable[[], Any]) -> Any:
+        return fn()
+
+
+def with_half_parameters(model: nn.Module, fn: Callable[[], Any]) -> Any:
+    """fn() computed with every floating-point parameter of `model` replaced by the value an fp16 export stores
+    (`half_rounded`'s values, in the model's own parametrisation) and a straight-through gradient: the forward
+    sees round(p), the backward passes the gradient at round(p) to p unchanged. `model` is left as it was."""
+    scales = _stored_scales(model)
+    rounded = {f"model.{name}": p + (_stored_rounding(p, scales.get(name, 1.0), name) - p.detach())
+               for name, p in model.named_parameters() if p.is_floating_point()}
+    return torch.func.functional_call(_Call(model), rounded, (fn,))
+
+
+@torch.no_grad()
+def snap_to_half_(model: nn.Module) -> nn.Module:
+    """Round every floating-point parameter of `model` in place to the value an fp16 export stores (so that
+    `half_rounded(model)` computes what `model` computes, to float32 arithmetic); returns `model`."""
+    scales = _stored_scales(model)
+    for name, p in model.named_parameters():
+        if p.is_floating_point():
+            p.copy_(_stored_rounding(p, scales.get(name, 1.0), name))
+    return model
+
+
+@torch.no_grad()
+def is_half_exact(model: nn.Module) -> bool:
+    """True when every floating-point parameter of `model` is already what an fp16 export stores (a
+    half-aware fit's result): `snap_to_half_` would change nothing."""
+    scales = _stored_scales(model)
+    return all(torch.equal(p, _stored_rounding(p, scales.get(name, 1.0), name))
+               for name, p in model.named_parameters() if p.is_floating_point())

@@ -10,6 +10,12 @@ optimised from their random initialisation, the paper's "direct optimisation" ab
 Phase "latents": the pyramid texels are optimised directly, with the decoders, on filtered targets
 f(wi, wo | x, Sigma) for the footprints of `neumat.fit.footprint_queries` (fine levels drawn more often, as the
 paper's exponentially distributed filter footprints).
+The last half_finish of the latents phase's steps (default 10 %) train half-aware (a deviation from the paper,
+which trains in FP32 and infers in FP16): every parameter enters the forward rounded as the fp16 exports store it,
+with a straight-through gradient, and the phase ends by rounding the parameters in place
+(`neumat.models.half_precision`), so the fitted model is exactly what its fp16 export stores
+(benchmarks/results/neural_appearance_timing.md: rounding a model trained in FP32 moves eval by up to 5e-3 and the
+pdf by up to 3e-3, relative). half_finish=0 trains in FP32 to the end, as the paper.
 Optionally (blur_degrees > 0) the targets of the first steps are directionally blurred, a cone around wo that
 shrinks to nothing at blur_until of all steps (counted over both phases), blur_samples directions each, so
 narrow peaks are learned broad first (Sec. 5, `neumat.fit.directional_blur`).
@@ -47,6 +53,7 @@ from neumat.fit.directional_blur import blur_angle, blurred_eval
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.fit.proxy_sampler import proxy_kl_loss
+from neumat.models.half_precision import snap_to_half_, with_half_parameters
 from neumat.warp.uniform import uniform
 from neumat.fit.recipe import Recipe, latent_size_for_source
 from neumat.warp.hemisphere import sample_cosine_hemisphere
@@ -54,7 +61,7 @@ from neumat.warp.hemisphere import sample_cosine_hemisphere
 RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="log_cos", phase_split=(0.5, 0.5),
                 log_every=100,
                 options={"blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
-                         "sampler_batch": "shared"})
+                         "sampler_batch": "shared", "half_finish": 0.1})
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -93,11 +100,11 @@ def _options(ctx: FitContext) -> dict:
     if directions_of(ctx) not in ("cosine", "rusinkiewicz"):
         raise InputError(f"neural-appearance recipe queries: expected 'cosine' or 'rusinkiewicz', got "
                          f"{directions_of(ctx)!r}")
-    for name, lo, hi in (("blur_degrees", 0, 90), ("blur_until", 0, 1)):
+    for name, lo, hi in (("blur_degrees", 0, 90), ("blur_until", 0, 1), ("half_finish", 0, 1)):
         v = o[name]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi or (name == "blur_until"
                                                                                           and v == 0):
-            bounds = "[0, 90]" if name == "blur_degrees" else "(0, 1]"
+            bounds = {"blur_degrees": "[0, 90]", "blur_until": "(0, 1]", "half_finish": "[0, 1]"}[name]
             raise InputError(f"neural-appearance option {name}: expected a number in {bounds}, got {v!r}")
     check_int(o["blur_samples"], "neural-appearance option blur_samples", 1)
     if o["sampler_batch"] not in ("shared", "separate"):
@@ -176,6 +183,14 @@ def phases(ctx: FitContext) -> list[Phase]:
             k = source.sampling_features(q)
         return q, model.encode(k)
 
+    half_from = latent_steps - int(round(o["half_finish"] * latent_steps))  # first half-aware latents step
+
+    def latent_losses(step: int) -> dict[str, torch.Tensor]:
+        """The latents phase's losses at its step `step`; half-aware from half_from on (module docstring)."""
+        if step < half_from:
+            return losses_at(latent_batch, encoder_steps + step)
+        return with_half_parameters(model, lambda: losses_at(latent_batch, encoder_steps + step))
+
     def latent_batch():
         q = draw_filtered(batch, gen, dev)
         if directions_of(ctx) != "cosine":
@@ -188,5 +203,5 @@ def phases(ctx: FitContext) -> list[Phase]:
     stateful = [brdf_loss] if isinstance(brdf_loss, nn.Module) else []
     return [Phase("encoder", encoder_steps, lambda step: losses_at(encoder_batch, step),
                   decoders + list(model.encoder.parameters()), after=lambda: model.bake(source), stateful=stateful),
-            Phase("latents", latent_steps, lambda step: losses_at(latent_batch, encoder_steps + step),
-                  decoders + list(model.spatial.parameters()))]
+            Phase("latents", latent_steps, latent_losses, decoders + list(model.spatial.parameters()),
+                  after=(lambda: snap_to_half_(model)) if half_from < latent_steps else None)]
