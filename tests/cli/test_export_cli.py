@@ -154,3 +154,23 @@ def test_export_defaults_to_fp16_and_reports_bytes_and_both_references(tmp_path)
         half_rel = float(text.split(f"{run} vs torch with the halves stored (half_rounded): max relative "
                                     "difference ")[1].split(",")[0])
         assert torch_rel < 2e-3 and half_rel < 5e-5, (run, torch_rel, half_rel)
+
+
+def test_export_says_whether_a_neural_appearance_model_is_its_own_fp16_export(tmp_path):
+    """A model trained in fp32 to its end is rounded on export (said so, with the recipe option that avoids it);
+    a half-aware fit's (here: snapped) model is exactly what the fp16 export stores."""
+    from neumat.models.half_precision import snap_to_half_
+
+    torch.manual_seed(0)
+    model = build_model({"type": "neural-appearance", "spatial_size": 8})
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(torch.randn_like(p) * 0.1)
+    for name in ("plain", "snapped"):
+        path = save_model(model if name == "plain" else snap_to_half_(model), tmp_path / f"{name}.nmat")
+        result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / name)])
+        assert result.exit_code == 0, result.output
+        text = " ".join(result.output.split())
+        rounded, exact = "rounded to the nearest half on export" in text, "are the stored halves" in text
+        assert (rounded, exact) == ((True, False) if name == "plain" else (False, True)), text
+        assert ("half_finish" in text) == (name == "plain")

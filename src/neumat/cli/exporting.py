@@ -50,6 +50,13 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi
                                           for p, b in sizes.items())
               + f" (fp16 / fp32 = {sizes['fp16']['total'] / sizes['fp32']['total']:.3f}); written: {precision}"
               + (f", float32 at both: {', '.join(exported.exact)}" if exported.exact else ""))
+        if precision == "fp16" and getattr(m, "name", None) == "neural-appearance":
+            from ..models.half_precision import is_half_exact
+
+            print("fp16: the model's parameters are the stored halves (a half-aware fit): the export computes what "
+                  "the model computes" if is_half_exact(m) else "fp16: the parameters are rounded to the nearest "
+                  "half on export (the model trained in fp32 to its end; the recipe option half_finish ends a fit on "
+                  "its fp16 values)")
         if slang:
             slang_folder = slang_export.write(folder / "slang")
             print(f"wrote {slang_folder / 'neumat.slang'} ({len(slang_export.source)} characters), "
