@@ -182,17 +182,6 @@ def test_sampling_model_refuses_the_offset():
         build_model({"type": "neural-appearance", "spatial_size": 8, "offset": True})
 
 
-def test_exporters_refuse_the_offset_module():
-    from neumat.export.glsl import export_glsl
-    from neumat.export.slang import export_slang
-
-    for model in (_offset_model(), build_model({"type": "neumip", "offset": True, **SMALL})):
-        with pytest.raises(InputError, match="export_glsl: .*neural offset module"):
-            export_glsl(model)
-        with pytest.raises(InputError, match="export_slang: .*neural offset module"):
-            export_slang(model)
-
-
 def test_short_fit_lowers_the_error():
     """200 steps on a small random texture set (rough dielectric): the error on fixed queries against 32-sample
     targets falls below 75 % of the untrained model's (measured 0.257 -> 0.146; smoke test, not a benchmark)."""

@@ -187,14 +187,16 @@ def _spatial_reader(model, roulette: bool = False) -> tuple[str, dict[str, np.nd
         return pyramid_reader(model.spatial.levels(), model.spatial.max_probes, roulette)
 
 
-def pyramid_reader(levels: list[torch.Tensor], max_probes: int | None,
-                   roulette: bool = False) -> tuple[str, dict[str, np.ndarray]]:
+def pyramid_reader(levels: list[torch.Tensor], max_probes: int | None, roulette: bool = False,
+                   name: str = "spatial") -> tuple[str, dict[str, np.ndarray]]:
     """GLSL of a latent pyramid, levels (C, H_l, W_l), as the texture `neumat_spatial`:
     nm_spatial_lod(uv, lod, out z) (trilinear, `neumat.nn.latent_texture.trilinear`) and, unless max_probes
     is None, nm_spatial_footprint(uv, cov, out z) (`filter_anisotropic` with up to max_probes probes). With
     `roulette`, also the one-level reads of Russian-roulette level selection: nm_spatial_lod_level(uv, lod,
     which, out z, out t) and nm_spatial_footprint_level(uv, cov, which, out z, out t), which 0 for the finer and
-    1 for the coarser of the two levels, t the coarser level's weight (`trilinear_flat` with level_u)."""
+    1 for the coarser of the two levels, t the coarser level's weight (`trilinear_flat` with level_u). A `name`
+    other than "spatial" names a second pyramid beside it: the texture neumat_<name>, the functions nm_<name>_*
+    and the constants NM_<NAME>_LEVEL* (NeuMIP's offset pyramid: nm_offset_lod, nm_offset_footprint)."""
     atlas, sizes, origins = _atlas(levels)
     layers, probes = atlas.shape[0], max_probes
     w0, h0 = sizes[0]
@@ -266,9 +268,14 @@ void nm_spatial_lod_level(vec2 uv, float lod, int which, out vec4 z[{layers}], o
             variants.append(("nm_spatial_footprint_level", ", int which",
                              "nm_spatial_level(uv + offset * axis / scale, lod, which, 1.0 / n, z)",
                              ", out float t"))
-        for name, which, probe, fraction in variants:
-            src += _footprint_reader(name, which, probe, fraction, layers, probes, w0, h0)
-    return src, {"neumat_spatial": atlas}
+        for function, which, probe, fraction in variants:
+            src += _footprint_reader(function, which, probe, fraction, layers, probes, w0, h0)
+    if name != "spatial":
+        src = re.sub(r"\bneumat_spatial\b", f"neumat_{name}", src)
+        src = re.sub(r"\bnm_spatial_", f"nm_{name}_", src)
+        src = re.sub(r"\bnm_level_fraction\b", f"nm_{name}_level_fraction", src)
+        src = re.sub(r"\bNM_LEVEL", f"NM_{name.upper()}_LEVEL", src)
+    return src, {f"neumat_{name}": atlas}
 
 
 def _footprint_reader(name: str, which: str, probe: str, fraction: str, layers: int, probes: int, w0: int,

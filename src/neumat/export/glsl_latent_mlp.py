@@ -1,6 +1,6 @@
-"""GLSL export of the latent-pyramid + MLP models (`neumat.models.neumip` family: neumip, neumip-frame,
-neural-appearance; not yet NeuMIP's neural offset module, Config.offset, which raises InputError), the shader
-runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7).
+"""GLSL export of the latent-pyramid + MLP models (`neumat.models.neumip` family: neumip, neumip-offset,
+neumip-frame, neural-appearance), the shader runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024,
+Sec. 7).
 
 Entry points (directions in the local frame, z up; uv texture coordinates; footprint a uv^2 covariance):
 
@@ -24,7 +24,9 @@ anisotropic filtering of the pyramid as the multi-scale export (`neumat.export.g
 SiLU MLP with exponential output, and the sampler MLP (ReLU) with the proxy's activations, closed-form sampling
 and density (`neumat.warp.microfacet_proxy`). Decoders are constants in the source; the pyramid is one
 `sampler2DArray` atlas (`neumat_spatial`), RGBA16F with packed half weights at precision "fp16" (the
-default, `neumat.export.half_precision`), RGBA32F with float constants at "fp32". `neumat.export.slang` spells
+default, `neumat.export.half_precision`), RGBA32F with float constants at "fp32". With NeuMIP's neural offset
+module (Config.offset) the offset pyramid is a second atlas of the same layout (`neumat_offset`), and z is read at
+the parallax-shifted uv' of `NeuMIP.offset_uv` (`_parallax`). `neumat.export.slang` spells
 this source in Slang (a shader module with interfaces and a compute entry point), so both dialects compute the
 same function.
 """
@@ -32,12 +34,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+import torch
 
 from ..core.errors import InputError
 from ..models.neumip import NeuMIP
 from ..warp.microfacet_proxy import MAX_RHO, MIN_ALPHA
-from .glsl_common import (_COMMON, GLSL_GENERATORS, GLSLExport, _spatial_reader, mlp_chain, shading_frames,
-                          spatial_entry_points)
+from .glsl_common import (_COMMON, GLSL_GENERATORS, GLSLExport, _spatial_reader, mlp_chain, pyramid_reader,
+                          shading_frames, spatial_entry_points)
 
 
 _SAMPLING = """
@@ -110,21 +114,66 @@ def _two_level(layers: int, read: str, where: str, decode: str) -> str:
     return (1.0 - t) * {decode}(wi, wo, z0) + t * {decode}(wi, wo, z1);"""
 
 
-def _roulette_entry_points(layers: int) -> str:
-    """neumat_eval / neumat_eval_lod of a model with Russian-roulette level selection: the two-level expectation
-    (`_two_level`; a renderer that wants one decode per hit draws the level itself with
+def _entry_points(layers: int, roulette: bool, parallax: bool) -> str:
+    """neumat_eval / neumat_eval_lod: decode the latent filtered at uv (`spatial_entry_points`), or with
+    `parallax` at the offset module's uv' = nm_parallax(wo, uv, footprint or lod) (`_parallax`); with `roulette`
+    the two-level expectation (`_two_level`; a renderer that wants one decode per hit draws the level itself with
     nm_spatial_footprint_level)."""
-    return f"""
-vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint) {{
+    if not roulette and not parallax:
+        return spatial_entry_points(layers)
+    out = ""
+    for signature, where, read in (("vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)", "footprint",
+                                    "nm_spatial_footprint"),
+                                   ("vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)", "lod",
+                                    "nm_spatial_lod")):
+        shift = f"    uv = nm_parallax(wo, uv, {where});\n" if parallax else ""
+        decode = _two_level(layers, f"{read}_level", f"uv, {where}", "nm_decode") if roulette else f"""\
+    vec4 z[{layers}];
+    {read}(uv, {where}, z);
+    return nm_decode(wi, wo, z);"""
+        out += f"""
+{signature} {{
     if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-{_two_level(layers, "nm_spatial_footprint_level", "uv, footprint", "nm_decode")}
-}}
-
-vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
-    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);
-{_two_level(layers, "nm_spatial_lod_level", "uv, lod", "nm_decode")}
+{shift}{decode}
 }}
 """
+    return out
+
+
+def _parallax(model: NeuMIP) -> tuple[str, dict[str, np.ndarray]]:
+    """GLSL and texture of NeuMIP's neural offset module (`NeuMIP.offset_uv`): the offset pyramid
+    (`pyramid_reader` named "offset", same atlas layout as the spatial one), the offset MLP (SiLU, linear output)
+    of its latent and wo, and `vec2 nm_parallax(vec3 wo, vec2 uv, mat2 footprint)` / `(..., float lod)`:
+    uv' = uv + h wo.xy / max(wo.z, offset_min_cos), h = MLP_o(z_o, wo) / spatial_size (uv units), z_o the
+    offset latent filtered at the footprint (or lod) at uv."""
+    cfg = model.cfg
+    with torch.no_grad():
+        src, textures = pyramid_reader(model.offset_texture.levels(), model.offset_texture.max_probes,
+                                       name="offset")
+    channels, layers = cfg.offset_channels, -(-cfg.offset_channels // 4)
+    inputs = f"(i < {channels} ? zo[i / 4][i % 4] : wo[i - {channels}])"  # [z_o, wo] as NeuMIP.offset_uv
+    consts, body, out = mlp_chain("NM_O", model.offset_mlp, inputs, "nm_silu")
+    src += "\n".join(consts) + f"""
+
+// the offset module's lookup point uv' of the offset latent zo at uv (neumat.models.neumip NeuMIP.offset_uv)
+vec2 nm_parallax_shift(vec3 wo, vec2 uv, vec4 zo[{layers}]) {{
+{body}    float h = {out}[0] / {cfg.spatial_size}.0;
+    return uv + h * wo.xy / max(wo.z, {cfg.offset_min_cos:.9e});
+}}
+
+vec2 nm_parallax(vec3 wo, vec2 uv, mat2 footprint) {{
+    vec4 zo[{layers}];
+    nm_offset_footprint(uv, footprint, zo);
+    return nm_parallax_shift(wo, uv, zo);
+}}
+
+vec2 nm_parallax(vec3 wo, vec2 uv, float lod) {{
+    vec4 zo[{layers}];
+    nm_offset_lod(uv, lod, zo);
+    return nm_parallax_shift(wo, uv, zo);
+}}
+"""
+    return src, textures
 
 
 @GLSL_GENERATORS.register("neumip")
@@ -143,9 +192,6 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     if cfg.directions != "cartesian":
         raise InputError(f"export_glsl: {model.name} with {cfg.directions!r} directions has no GLSL export "
                          "(cartesian only)")
-    if cfg.offset:
-        raise InputError(f"export_glsl: {model.name} with the neural offset module (Config.offset) has no GLSL "
-                         "export (the offset pyramid and its MLP are not written yet)")
     if getattr(cfg, "sampler_lobes", "anisotropic") != "anisotropic":
         raise InputError(f"export_glsl: {model.name} with sampler_lobes={cfg.sampler_lobes!r} (an ablation) has no "
                          "GLSL export (the shader decodes the paper's 9 lobe parameters)")
@@ -154,6 +200,10 @@ def export_latent_mlp(model: NeuMIP) -> GLSLExport:
     zs = "z[i / 4][i % 4]"
     src, textures = _spatial_reader(model, roulette)
     parts, consts = [_COMMON, src], []
+    if cfg.offset:
+        offset_src, offset_textures = _parallax(model)
+        parts.append(offset_src)
+        textures.update(offset_textures)
     frames = cfg.frames if model.frame is not None else 0
     decode = ""
     if frames:
@@ -183,7 +233,7 @@ vec3 nm_decode(vec3 wi, vec3 wo, vec4 z[{zl}]) {{
     return exp(vec3(o[0], o[1], o[2]));
 }}
 """)
-    parts.append(_roulette_entry_points(zl) if roulette else spatial_entry_points(zl))
+    parts.append(_entry_points(zl, roulette, cfg.offset))
     entry = ["vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)",
              "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)"]
     if outputs > 3:

@@ -1,7 +1,7 @@
-"""Slang export of the latent-pyramid + MLP models (neumip, neumip-frame, neural-appearance), the multi-scale models,
-NeuBRDF, SparseBTF and NeuPreSS: one shader module per neural material implementing a fixed interface, as the
-runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the Slang shading
-language.
+"""Slang export of the latent-pyramid + MLP models (neumip, neumip-offset, neumip-frame, neural-appearance), the
+multi-scale models, NeuBRDF, SparseBTF and NeuPreSS: one shader module per neural material implementing a fixed
+interface, as the runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the
+Slang shading language.
 
 `export_slang(model) -> SlangExport`. The module (`neumat.slang`) defines, with directions in the local frame
 (z up, wi towards the light, wo towards the viewer), uv texture coordinates (wrapping) and footprint the
@@ -386,9 +386,6 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
     if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
                          "(cartesian only)")
-    if isinstance(model, NeuMIP) and model.cfg.offset:
-        raise InputError(f"export_slang: {model.name} with the neural offset module (Config.offset) has no Slang "
-                         "export (it spells the GLSL export, which has none yet)")
     glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
     interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
