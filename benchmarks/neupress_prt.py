@@ -51,6 +51,7 @@ from neumat.render.lights import EnvironmentMap
 from neumat.render.mesh import MeshIntersector, object_mesh, vertex_normals
 from neumat.render.translucent import _pixel_rays, orbit_camera, render_translucent, render_translucent_reference
 from neumat.render.translucent_prt import render_prt
+from neumat.testing.timing import best_time
 from neumat.viz.compare import compare_image
 
 PAPER = (16, 64, 1024, "fp32")
@@ -63,17 +64,6 @@ def _config(counts: tuple, batch_size: int = 16384) -> PRTConfig:
     """PRTConfig of (view_theta, view_phi, light_samples, precision)."""
     return PRTConfig(view_theta=counts[0], view_phi=counts[1], light_samples=counts[2], precision=counts[3],
                      batch_size=batch_size)
-
-
-def _best(fn, repeats: int = 3) -> float:
-    """The shortest of `repeats` timed calls of fn (after one warm-up call)."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def profile(model, pairs: int, lights: int) -> list[dict]:
@@ -91,8 +81,8 @@ def profile(model, pairs: int, lights: int) -> list[dict]:
         for name, tr in (("eval(Query) of repeated queries", _QueryTransport(model, wi)),
                          ("separable NeuPreSS (angle addition)", _SeparableNeuPreSS(model, wi))):
             val = tr(x, wo, wo)
-            total = _best(lambda: torch.matmul(tr(x, wo, wo).transpose(1, 2), basis))
-            proj = _best(lambda: torch.matmul(val.transpose(1, 2), basis))
+            total = best_time(lambda: torch.matmul(tr(x, wo, wo).transpose(1, 2), basis))
+            proj = best_time(lambda: torch.matmul(val.transpose(1, 2), basis))
             if isinstance(tr, _QueryTransport):
                 q = Query(wi=wi.repeat(pairs, 1), wo=wo.repeat_interleave(m, 0), x=x.repeat_interleave(m, 0))
                 feats = lambda: model.appearance_features(torch.cat(  # noqa: E731
@@ -109,8 +99,8 @@ def profile(model, pairs: int, lights: int) -> list[dict]:
                     out[..., f:].add_(cp * tr.sin_l)
                     return out.reshape(-1, 2 * f)
             feature = feats()
-            t_feat = _best(feats)
-            t_mlp = _best(lambda: model.appearance(feature))
+            t_feat = best_time(feats)
+            t_mlp = best_time(lambda: model.appearance(feature))
             rows.append({"path": name, "evaluations/s": round(pairs * m / total),
                          "features share": round(t_feat / total, 3), "MLP share": round(t_mlp / total, 3),
                          "projection share": round(proj / total, 3),

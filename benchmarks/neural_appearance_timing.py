@@ -41,7 +41,6 @@ import argparse
 import os
 import platform
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -59,6 +58,7 @@ from neumat.reflectance.conductor_base import TexturedConductor  # noqa: E402
 from neumat.reflectance.layered import Coat, LayeredMaterial, Sheen  # noqa: E402
 from neumat.reflectance.smudge_map import smudge_map  # noqa: E402
 from neumat.testing.parity import glsl_run, marginal_rate, opengl_available  # noqa: E402
+from neumat.testing.timing import best_time  # noqa: E402
 from neumat.warp.hemisphere import sample_cosine_hemisphere  # noqa: E402
 
 #: the paper's decoder sizes (hidden neurons, hidden layers); the sampler is 3 x 32 for all
@@ -76,18 +76,6 @@ NEURAL_GLSL = """
     NeumatLobes l = neumat_lobes(wi.xyz, uv.xy, mat2(f.x, f.y, f.y, f.z));
     vec3 wo = neumat_sample(l, u.xy);
     colour = vec4(neumat_eval(l, wo), neumat_pdf(l, wo));"""
-
-
-def best_time(fn, repeats: int) -> float:
-    """Seconds of the fastest of `repeats` calls of fn() (after one warm-up), without gradients."""
-    with torch.no_grad():
-        fn()
-        times = []
-        for _ in range(repeats):
-            t = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def queries(n: int, seed: int = 3) -> tuple[Query, Query, torch.Tensor]:

@@ -14,6 +14,7 @@ import torch
 from ..core.errors import InputError
 from ..core.query import Query
 from ..export.glsl_common import GLSL_VERSION, GLSLExport
+from .timing import best_time
 
 _VERTEX = GLSL_VERSION + """
 in vec2 position;
@@ -99,20 +100,13 @@ def marginal_rate(run, q: Query, who: str) -> float:
     """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of 3 each, after a warm-up on
     64), so that fixed costs do not count. NaN when the larger batch ran no slower (overheads dominate: use more
     queries)."""
-    import time
-
     n = len(q.wi)
     if n < 64:
         raise InputError(f"{who}: expected at least 64 queries, got {n}")
     run(q[:64])  # driver start-up, compilation
 
     def best_of(m: int) -> float:
-        times = []
-        for _ in range(3):
-            start = time.perf_counter()
-            run(q[:m])
-            times.append(time.perf_counter() - start)
-        return min(times)
+        return best_time(lambda: run(q[:m]), 3, warmup=False)
 
     marginal = best_of(n) - best_of(n // 8)
     return (n - n // 8) / marginal if marginal > 0 else float("nan")

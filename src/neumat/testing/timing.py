@@ -1,0 +1,24 @@
+"""Wall-clock timing for benchmarks and throughput checks: the best of a few calls."""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import torch
+
+from ..core.checks import check_int
+
+
+def best_time(fn: Callable[[], object], repeats: int = 3, warmup: bool = True) -> float:
+    """Seconds of the fastest of `repeats` calls of fn() (after one untimed warm-up call unless `warmup` is
+    False), without gradients: the least disturbed run on a shared machine."""
+    check_int(repeats, "best_time repeats", 1)
+    with torch.no_grad():
+        if warmup:
+            fn()
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - start)
+    return min(times)
