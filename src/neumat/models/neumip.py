@@ -48,7 +48,7 @@ from neumat.models.registry import MODELS
 from neumat.models.spatial_latent import SpatialLatent
 from neumat.nn.angular_texture import half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
-from neumat.nn.latent_texture import LatentPyramid, check_footprint
+from neumat.nn.latent_texture import LatentPyramid
 from neumat.nn.mlp import MLP
 from neumat.nn.preconditioner import FrequencyPreconditioner
 from neumat.nn.shading_frames import ShadingFrame
@@ -186,14 +186,11 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         training model draws one level per query (level_u, uniform, unless given)."""
         if level_u is None and self.training and self.cfg.level_selection == "roulette":
             level_u = torch.rand(len(q.wi), device=q.wi.device)
-        if self.offset_mlp is None:
-            return super().spatial_latent(q, level_u)
-        q.require("uv", who=f"{self.name} (spatially varying)")
-        footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
-        uv = self.offset_uv(q, footprint)
-        if level_u is None:
-            return self.spatial(uv, footprint, q.lod)
-        return self.spatial(uv, footprint, q.lod, level_u)
+        return super().spatial_latent(q, level_u)
+
+    def latent_uv(self, q: Query, footprint: torch.Tensor | None) -> torch.Tensor:
+        """q.uv, or with the offset module `offset_uv`."""
+        return q.uv if self.offset_mlp is None else self.offset_uv(q, footprint)
 
     def sampling_features(self, q: Query) -> torch.Tensor:
         """z_s (N, D_s) without gradient for a learned sampler; with the offset module, at q.uv unshifted (a
@@ -201,7 +198,7 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         if self.offset_mlp is None:
             return super().sampling_features(q)
         with torch.no_grad():
-            return SpatialLatent.spatial_latent(self, q)
+            return self.read_latent(q, shifted=False)
 
     def offset_uv(self, q: Query, footprint: torch.Tensor | None) -> torch.Tensor:
         """The offset module's lookup point uv' (N, 2) of q (module docstring): the offset latent filtered at the

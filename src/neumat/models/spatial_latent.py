@@ -13,13 +13,23 @@ class SpatialLatent:
     """Mixin for spatially varying models with a `LatentPyramid` `self.spatial`."""
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
-        """z_s (N, D_s) of the query's uv and footprint (or lod); level_u (N,): one level per query by Russian
-        roulette instead of the trilinear blend (`neumat.nn.latent_texture.trilinear_flat`)."""
+        """z_s (N, D_s) at `latent_uv` of the query and its footprint (or lod); level_u (N,): one level per query
+        by Russian roulette instead of the trilinear blend (`neumat.nn.latent_texture.trilinear_flat`)."""
+        return self.read_latent(q, level_u)
+
+    def read_latent(self, q: Query, level_u: torch.Tensor | None = None, shifted: bool = True) -> torch.Tensor:
+        """z_s (N, D_s) read at `latent_uv(q, footprint)` (shifted) or at q.uv itself; level_u as in
+        `spatial_latent`."""
         q.require("uv", who=f"{self.name} (spatially varying)")
         footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
+        uv = self.latent_uv(q, footprint) if shifted else q.uv
         if level_u is None:
-            return self.spatial(q.uv, footprint, q.lod)
-        return self.spatial(q.uv, footprint, q.lod, level_u)
+            return self.spatial(uv, footprint, q.lod)
+        return self.spatial(uv, footprint, q.lod, level_u)
+
+    def latent_uv(self, q: Query, footprint: torch.Tensor | None) -> torch.Tensor:
+        """Where z_s is read (N, 2): q.uv; a model with a parallax offset module moves it."""
+        return q.uv
 
     @property
     def sampling_feature_dim(self) -> int:
