@@ -28,6 +28,7 @@ hit in symbolic mode gets NaN values (its pixels come out NaN), never a plausibl
 from __future__ import annotations
 
 import contextlib
+import functools
 import re
 from pathlib import Path
 
@@ -46,8 +47,6 @@ PLUGIN_NAME = "neumat"
 CHUNK = 1 << 18
 #: the precision of the torch side (Mitsuba's RGB variants are single precision)
 _DTYPE = torch.float32
-
-_classes: dict[str, type] = {}
 
 
 def register(variant: str | None = None):
@@ -140,11 +139,16 @@ def _current_mitsuba():
 
 
 def _bsdf_class(mi) -> type:
-    """The plugin class for the current variant (Mitsuba's base classes differ per variant)."""
-    variant = mi.variant()
-    if variant not in _classes:
-        _classes[variant] = _make_bsdf_class(mi)
-    return _classes[variant]
+    """The plugin class for mi's current variant, built once per variant (Mitsuba's base classes differ per
+    variant)."""
+    return _bsdf_class_of(mi.variant())
+
+
+@functools.cache
+def _bsdf_class_of(variant: str) -> type:
+    import mitsuba as mi
+
+    return _make_bsdf_class(mi)
 
 
 def _make_bsdf_class(mi) -> type:

@@ -37,6 +37,7 @@ render with `render` (evaluated mode).
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +58,6 @@ PLACEMENT_TOLERANCE = 1e-4
 #: most passes through the object's own surface when tracing from its centre
 SELF_PASSES = 16
 _DTYPE = torch.float32
-_classes: dict[str, type] = {}
 
 
 def register(variant: str | None = None):
@@ -130,10 +130,16 @@ def similarity(matrix: np.ndarray, what: str) -> tuple[np.ndarray, float, np.nda
 
 
 def _integrator_class(mi) -> type:
-    variant = mi.variant()
-    if variant not in _classes:
-        _classes[variant] = _make_integrator_class(mi)
-    return _classes[variant]
+    """The plugin class for mi's current variant, built once per variant (Mitsuba's base classes differ per
+    variant)."""
+    return _integrator_class_of(mi.variant())
+
+
+@functools.cache
+def _integrator_class_of(variant: str) -> type:
+    import mitsuba as mi
+
+    return _make_integrator_class(mi)
 
 
 def _make_integrator_class(mi) -> type:
