@@ -9,25 +9,20 @@ import torch
 import typer
 from typer.testing import CliRunner
 
-from neumat.cli import fitting
 from neumat.catalog.modelfile import load_model, save_model
+from neumat.cli import fitting
 from neumat.io.modelfile import read_header
 from neumat.models.neubrdf import NeuBRDF
+
+from cli_util import fitting_app, output_text
 
 SMALL = ["--set", "nside=2", "--set", "index_bits=3", "--set", "hidden=8", "--set", "batch_size=256",
          "--set", "log_every=5"]
 
 
-def _text(res) -> str:
-    """The command's output with rich's line wrapping undone."""
-    return " ".join(res.output.split())
-
-
 @pytest.fixture
 def app() -> typer.Typer:
-    app = typer.Typer(pretty_exceptions_enable=False, add_completion=False)
-    fitting.register(app)
-    return app
+    return fitting_app()
 
 
 @pytest.fixture
@@ -80,16 +75,16 @@ def test_fit_analytic_spec(app, tmp_path):
 def test_fit_bad_arguments(app, teacher, tmp_path, args, match):
     res = CliRunner().invoke(app, ["fit", teacher, *args, "--steps", "1", "--quiet", "-o", str(tmp_path / "x.nmat")])
     assert res.exit_code == 2
-    assert re.search(match, _text(res)), res.output
+    assert re.search(match, output_text(res)), res.output
 
 
 def test_fit_non_brdf_source_and_bad_output(app, tmp_path):
     textured = save_model(NeuBRDF(nside=2, index_bits=3, hidden=8, texture_height=2, texture_width=2,
                                   texture_channels=2), tmp_path / "textured.nmat")
     res = CliRunner().invoke(app, ["fit", str(textured), *SMALL, "--steps", "1", "-o", str(tmp_path / "x.nmat")])
-    assert res.exit_code == 2 and "spatially varying" in _text(res)
+    assert res.exit_code == 2 and "spatially varying" in output_text(res)
     res = CliRunner().invoke(app, ["fit", str(textured), "-o", str(tmp_path / "x.pt")])
-    assert res.exit_code == 2 and ".nmat" in _text(res)
+    assert res.exit_code == 2 and ".nmat" in output_text(res)
 
 
 def test_eval_json(app, teacher, tmp_path):
@@ -115,7 +110,7 @@ def test_eval_with_image_table(app, teacher):
 
 def test_eval_missing_model(app, tmp_path):
     res = CliRunner().invoke(app, ["eval", str(tmp_path / "none.nmat"), "--against", "lambert", "--no-image"])
-    assert res.exit_code == 2 and "does not exist" in _text(res)
+    assert res.exit_code == 2 and "does not exist" in output_text(res)
 
 
 def test_fit_neubrdf_at_defaults_writes_the_small_runtime_form(app, tmp_path):
@@ -162,7 +157,7 @@ def test_fit_on_cpu_picks_the_cpu_recipe_and_says_so(app, teacher, tmp_path):
     assert read_header(tmp_path / "p.nmat")["recipe"]["lr_decay_every"] == paper.lr_decay_every
     assert "CPU-sized" not in res.output
     res = CliRunner().invoke(app, [*args, "--recipe", "gpu", "-o", str(tmp_path / "x.nmat")])
-    assert res.exit_code == 2 and "--recipe" in _text(res)
+    assert res.exit_code == 2 and "--recipe" in output_text(res)
 
 
 def test_cpu_recipe_is_the_default_on_a_cpu(monkeypatch):
@@ -191,7 +186,7 @@ def test_fit_without_steps_on_a_cpu_announces_the_cpu_recipe(app, teacher, tmp_p
     monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=2))
     res = CliRunner().invoke(app, ["fit", teacher, *SMALL, "--device", "cpu", "-o", str(tmp_path / "c.nmat")])
     assert res.exit_code == 0, res.output
-    assert "using the CPU-sized recipe of neubrdf (2 steps x 256" in _text(res)
+    assert "using the CPU-sized recipe of neubrdf (2 steps x 256" in output_text(res)
     assert read_header(tmp_path / "c.nmat")["recipe"]["lr_decay_every"] == module.CPU_RECIPE.lr_decay_every
 
 
@@ -203,7 +198,7 @@ def test_eval_and_compare_take_source_options(app, teacher, monkeypatch):
 
     res = CliRunner().invoke(app, ["eval", teacher, "--against", "lambert", "--source-option", "max_size=64",
                                    "--no-image", "--n-configs", "256"])
-    assert res.exit_code == 2 and "max_size" in _text(res)
+    assert res.exit_code == 2 and "max_size" in output_text(res)
     seen = []
     real = opener.open_material
     monkeypatch.setattr(opener, "open_material", lambda name, **kw: seen.append((name, kw)) or real(name))

@@ -15,24 +15,19 @@ from neumat.catalog.modelfile import load_model, save_model
 from neumat.catalog.open_material import open_material
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.cli import fitting
 from neumat.fit.measured_samples import rgl_samples
 from neumat.models.neubrdf import NeuBRDF
 from neumat.nn import healpix as hpx
+
+from cli_util import fitting_app, output_text
 
 SMALL = ["--set", "nside=8", "--set", "index_bits=4", "--set", "hidden=8", "--set", "batch_size=256",
          "--steps", "4", "--device", "cpu", "--quiet"]
 
 
-def _text(res) -> str:
-    return " ".join(res.output.split())
-
-
 @pytest.fixture
 def app() -> typer.Typer:
-    app = typer.Typer(pretty_exceptions_enable=False, add_completion=False)
-    fitting.register(app)
-    return app
+    return fitting_app()
 
 
 @pytest.fixture
@@ -117,7 +112,7 @@ def test_cli_pruning_bad_combinations(app, rgl, tmp_path, source, sets, match):
     res = CliRunner().invoke(app, ["fit", src, *SMALL, *[a for s in sets for a in ("--set", s)],
                                    "-o", str(tmp_path / "x.nmat")])
     assert res.exit_code != 0
-    assert re.search(match, _text(res)), res.output
+    assert re.search(match, output_text(res)), res.output
 
 
 def test_pruned_levels_of_other_origin_are_stored_as_levels(tmp_path):
@@ -154,7 +149,7 @@ def test_eval_member_of_a_shared_fit(app, tmp_path):
     assert rows[0]["rmse_hdr"] != rows[1]["rmse_hdr"]  # two different materials
     assert rows[1]["bytes_fp16"] == int(model.size_bytes_per_material())
     res = runner.invoke(app, ["eval", str(out), "--against", specs[0], "--member", "2", "--no-image"])
-    assert res.exit_code != 0 and "expected an integer in [0, 2)" in _text(res)
+    assert res.exit_code != 0 and "expected an integer in [0, 2)" in output_text(res)
 
 
 class Interrupt(Exception):
