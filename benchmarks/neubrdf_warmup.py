@@ -8,6 +8,10 @@ arm's as the mix; the "fit s" column shows how equal the times came out on a loa
 measured material) and the stored size (fp16 floats).
 
     PYTHONPATH=src python benchmarks/neubrdf_warmup.py [--seconds 60] [--warmup 0.5] [--out FILE]
+    PYTHONPATH=src python benchmarks/neubrdf_warmup.py --materials /work/merl_tables/gold-paint.binary   # any file
+
+--materials: RGL names (in ../shared/data/rgl) or material files (a MERL-like table from `neumat data convert
+NAME.h5 NAME.binary`, an .nmat, ...); --nsides the grid sizes.
 """
 from __future__ import annotations
 
@@ -53,14 +57,18 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="wall seconds of training per arm")
     p.add_argument("--warmup", type=float, default=0.5, help="dense_warmup fraction of the warm-up arm")
     p.add_argument("--out", default="benchmarks/results/neubrdf_warmup.md")
+    p.add_argument("--materials", nargs="+", default=list(MATERIALS), help="RGL names or material files")
+    p.add_argument("--nsides", nargs="+", type=int, default=[16, 32])
     a = p.parse_args()
     torch.set_num_threads(1)
     rows = []
-    for name in MATERIALS:
-        ref = open_material(str(DATA / f"{name}.bsdf"))
+    for spec in a.materials:
+        path = Path(spec) if Path(spec).is_file() else DATA / f"{spec}.bsdf"
+        name = path.stem
+        ref = open_material(str(path))
         pool = cosine_queries(2 ** 18, torch.Generator().manual_seed(1), torch.device("cpu"))
         source = MeasuredSamples.from_material(ref, pool, name=name)
-        for nside in (16, 32):
+        for nside in a.nsides:
             per_step = {f: seconds_per_step(source, nside, f) for f in ("dense", "vq")}
             arms = [("end-to-end VQ", "vq", 0.0, per_step["vq"]),
                     (f"dense warm-up {a.warmup:g} then VQ", "dense", a.warmup,
@@ -76,7 +84,8 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     lines = ["# NeuBRDF: dense warm-up vs end-to-end VQ vs dense, equal CPU wall time", "",
              f"Command: `PYTHONPATH=src python benchmarks/neubrdf_warmup.py --seconds {a.seconds:g} "
-             f"--warmup {a.warmup:g}`; commit {commit}; {platform.machine()} {platform.processor() or ''}, "
+             f"--warmup {a.warmup:g} --materials {' '.join(a.materials)} --nsides {' '.join(map(str, a.nsides))}`; "
+             f"commit {commit}; {platform.machine()} {platform.processor() or ''}, "
              "one torch thread on a shared, loaded 2-core machine (wall times are noisy).", "",
              "Replay of 2^18 cosine-weighted measurements, batch 8192, lr 1e-2 halved every steps/4, EMA 0.01, "
              "k 16, b 9, MLP 2 x 64. log_err: held-out cosine-weighted log error (2^18 fresh queries, "
