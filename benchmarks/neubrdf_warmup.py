@@ -11,7 +11,8 @@ measured material) and the stored size (fp16 floats).
     PYTHONPATH=src python benchmarks/neubrdf_warmup.py --materials /work/merl_tables/gold-paint.binary   # any file
 
 --materials: RGL names (in ../shared/data/rgl) or material files (a MERL-like table from `neumat data convert
-NAME.h5 NAME.binary`, an .nmat, ...); --nsides the grid sizes.
+NAME.h5 NAME.binary`, an .nmat, ...); --nsides the grid sizes; --steps N[,M...] gives every arm the same step
+counts instead of the same wall time (a budget series: does the codebook close on the dense grid with training?).
 """
 from __future__ import annotations
 
@@ -59,6 +60,7 @@ def main() -> None:
     p.add_argument("--out", default="benchmarks/results/neubrdf_warmup.md")
     p.add_argument("--materials", nargs="+", default=list(MATERIALS), help="RGL names or material files")
     p.add_argument("--nsides", nargs="+", type=int, default=[16, 32])
+    p.add_argument("--steps", default=None, help="N[,M...]: equal steps per arm instead of --seconds")
     a = p.parse_args()
     torch.set_num_threads(1)
     rows = []
@@ -69,21 +71,27 @@ def main() -> None:
         pool = cosine_queries(2 ** 18, torch.Generator().manual_seed(1), torch.device("cpu"))
         source = MeasuredSamples.from_material(ref, pool, name=name)
         for nside in a.nsides:
-            per_step = {f: seconds_per_step(source, nside, f) for f in ("dense", "vq")}
-            arms = [("end-to-end VQ", "vq", 0.0, per_step["vq"]),
-                    (f"dense warm-up {a.warmup:g} then VQ", "dense", a.warmup,
-                     a.warmup * per_step["dense"] + (1 - a.warmup) * per_step["vq"]),
-                    ("dense only", "dense", 0.0, per_step["dense"])]
-            for label, features, warmup, sps in arms:
-                steps = max(int(a.seconds / sps), 2)
-                model, res = run(source, nside, features, warmup, steps)
-                seconds = res.seconds
-                err = reflectance_errors(model, ref, n=2 ** 18, seed=7)["log_err"]
-                rows.append((name, nside, label, steps, seconds, err, model.size_bytes()))
-                print(*rows[-1], flush=True)
+            budgets = [int(n) for n in a.steps.split(",")] if a.steps else [None]
+            per_step = {} if a.steps else {f: seconds_per_step(source, nside, f) for f in ("dense", "vq")}
+            for budget in budgets:
+                arms = [("end-to-end VQ", "vq", 0.0), (f"dense warm-up {a.warmup:g} then VQ", "dense", a.warmup),
+                        ("dense only", "dense", 0.0)]
+                for label, features, warmup in arms:
+                    if budget is None:
+                        sps = (per_step["dense"] * warmup + per_step["vq"] * (1 - warmup) if label != "dense only"
+                               else per_step["dense"])
+                        steps = max(int(a.seconds / sps), 2)
+                    else:
+                        steps = budget
+                    model, res = run(source, nside, features, warmup, steps)
+                    err = reflectance_errors(model, ref, n=2 ** 18, seed=7)["log_err"]
+                    rows.append((name, nside, label, steps, res.seconds, err, model.size_bytes(), budget))
+                    print(*rows[-1], flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    lines = ["# NeuBRDF: dense warm-up vs end-to-end VQ vs dense, equal CPU wall time", "",
-             f"Command: `PYTHONPATH=src python benchmarks/neubrdf_warmup.py --seconds {a.seconds:g} "
+    budget = f"--steps {a.steps}" if a.steps else f"--seconds {a.seconds:g}"
+    lines = [f"# NeuBRDF: dense warm-up vs end-to-end VQ vs dense, equal {'steps' if a.steps else 'CPU wall time'}",
+             "",
+             f"Command: `PYTHONPATH=src python benchmarks/neubrdf_warmup.py {budget} "
              f"--warmup {a.warmup:g} --materials {' '.join(a.materials)} --nsides {' '.join(map(str, a.nsides))}`; "
              f"commit {commit}; {platform.machine()} {platform.processor() or ''}, "
              "one torch thread on a shared, loaded 2-core machine (wall times are noisy).", "",
@@ -92,10 +100,10 @@ def main() -> None:
              "`neumat.metrics.hdr.reflectance_errors`); bytes: `NeuBRDF.size_bytes()` (fp16).", "",
              "| material | N_side | arm | steps | fit s | log_err | bytes | log_err / dense |",
              "|---|---|---|---|---|---|---|---|"]
-    dense = {(r[0], r[1]): r[5] for r in rows if r[2] == "dense only"}
-    for name, nside, label, steps, seconds, err, size in rows:
+    dense = {(r[0], r[1], r[7]): r[5] for r in rows if r[2] == "dense only"}
+    for name, nside, label, steps, seconds, err, size, budget in rows:
         lines.append(f"| {name} | {nside} | {label} | {steps} | {seconds:.0f} | {err:.4f} | {size:,} | "
-                     f"{err / dense[(name, nside)]:.2f} |")
+                     f"{err / dense[(name, nside, budget)]:.2f} |")
     Path(a.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
