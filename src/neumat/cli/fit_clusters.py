@@ -53,7 +53,9 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
     log(1 + f) Rusinkiewicz table, k-means on its codes) and fit one shared-neubrdf (one MLP and codebook, an
     index grid per member) per cluster through the one trainer. Each fit draws --set batch_size queries per
     member per step, so every material sees as many queries as in a `neumat fit` of its own, whatever its
-    cluster's size. Writes OUT/cluster<c>.nmat (member i of it: `neumat eval OUT/cluster<c>.nmat --member i`)
+    cluster's size. Clusters are numbered in the order of their first source (the first source is member 0 of
+    cluster 0); members keep the order of the sources. Writes OUT/cluster<c>.nmat (member i of it: `neumat eval
+    OUT/cluster<c>.nmat --member i`)
     and OUT/clusters.json: per source its cluster, member index, autoencoder code and reconstruction error, its
     reflectance errors against the source and bytes; per cluster its members, bytes and fit time."""
 
@@ -89,11 +91,13 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
               f"{settings['steps']} steps, then k-means", flush=True)
         clustering = cluster_materials(materials, k, device=dev, **settings)
         out.mkdir(parents=True, exist_ok=True)
-        rows = {p: {"name": names[p], "cluster": int(clustering.labels[j]), "code": clustering.codes[j].tolist(),
+        groups = sorted(clustering.groups, key=min)  # cluster c: the c-th in the order of their first source
+        label_of = {j: c for c, group in enumerate(groups) for j in group}
+        rows = {p: {"name": names[p], "cluster": label_of[j], "code": clustering.codes[j].tolist(),
                     "reconstruction_mse": float(clustering.errors[j])} for j, p in enumerate(paths)}
         clusters = []
-        for group in clustering.groups:
-            label, members = int(clustering.labels[group[0]]), [paths[j] for j in group]
+        for label, group in enumerate(groups):
+            members = [paths[j] for j in group]
             nmat = out / f"cluster{label}.nmat"
             print(f"cluster {label}: {len(members)} material(s): {', '.join(names[p] for p in members)}", flush=True)
             model, base = build_model_and_recipe(MODEL, overrides, seed, source=[materials[j] for j in group],
