@@ -54,10 +54,10 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
     index grid per member) per cluster through the one trainer. Each fit draws --set batch_size queries per
     member per step, so every material sees as many queries as in a `neumat fit` of its own, whatever its
     cluster's size. Clusters are numbered in the order of their first source (the first source is member 0 of
-    cluster 0); members keep the order of the sources. Writes OUT/cluster<c>.nmat (member i of it: `neumat eval
-    OUT/cluster<c>.nmat --member i`)
-    and OUT/clusters.json: per source its cluster, member index, autoencoder code and reconstruction error, its
-    reflectance errors against the source and bytes; per cluster its members, bytes and fit time."""
+    cluster 0); members keep the order of the sources. Writes OUT/cluster<c>.nmat (its member i: `neumat eval
+    OUT/cluster<c>.nmat --member i`) and OUT/clusters.json: per source its cluster, member index, autoencoder
+    code and reconstruction error, its reflectance errors against the source and bytes; per cluster its
+    members, bytes and fit time."""
 
     def go():
         from ..catalog.modelfile import load_model, save_model
