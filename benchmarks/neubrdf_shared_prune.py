@@ -17,8 +17,16 @@ the measured samples themselves (training error, 2^16 draws).
 grid each) at the same steps; the joint batch is t times the per-material one, so every material sees the
 same number of queries. Each member is scored with `neumat eval shared.nmat --member i`.
 
+--part clusters: the paper's clustering through the CLI: the 25 MERL-like tables (`neumat data convert
+NAME.h5 NAME.binary`, cached in --tables) and the five RGL files in one `neumat fit-clusters ... -k K`
+(autoencoder + k-means, one shared-neubrdf per cluster, each member scored against its source), then each
+material fitted alone (`--model neubrdf`) at about its shared bytes (the largest index_bits / hidden whose
+NeuBRDF is no larger than the material's share of its cluster's model) with the same steps and batch, and
+scored with `neumat eval --no-image --json` on the same held-out queries.
+
     PYTHONPATH=src python benchmarks/neubrdf_shared_prune.py --part prune [--nside 16 --steps 1000]
     PYTHONPATH=src python benchmarks/neubrdf_shared_prune.py --part shared [--cluster paints --nside 16 --steps 1000]
+    PYTHONPATH=src python benchmarks/neubrdf_shared_prune.py --part clusters [--k 6 --nside 16 --steps 500]
 """
 from __future__ import annotations
 
@@ -157,9 +165,63 @@ def part_shared(a) -> list[dict]:
     return rows
 
 
+def merl_tables(folder: Path) -> list[str]:
+    """The 25 MERL-like tables as .binary files in `folder`, converted from the NBRDF networks where missing."""
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for h5 in sorted((ROOT / DATA / "merl" / "nbrdf_fits").glob("*.h5")):
+        table = folder / f"{h5.stem}.binary"
+        if not table.is_file():
+            neumat("data", "convert", str(h5), "-o", str(table))
+        out.append(str(table))
+    return out
+
+
+def equal_bytes_config(nside: int, budget: float) -> dict:
+    """The NeuBRDF (index_bits 5 - 9, hidden 16 - 64) with the most fp16 bytes not above `budget` (the
+    smallest of them when none fits): {"index_bits", "hidden", "bytes"}."""
+    from neumat.models.neubrdf import NeuBRDF
+
+    options = [{"index_bits": b, "hidden": h, "bytes": NeuBRDF(nside=nside, index_bits=b, hidden=h).size_bytes("fp16")}
+               for b in range(5, 10) for h in (16, 24, 32, 48, 64)]
+    fitting = [o for o in options if o["bytes"] <= budget]
+    return max(fitting, key=lambda o: o["bytes"]) if fitting else min(options, key=lambda o: o["bytes"])
+
+
+def part_clusters(a) -> list[dict]:
+    sources = merl_tables(Path(a.tables)) + [str(DATA / "rgl" / f"{n}.bsdf") for n in RGL]
+    out = Path(a.work) / f"clusters_k{a.k}"
+    sets = [f"nside={a.nside}", f"batch_size={a.batch}", f"lr_decay_every={max(a.steps // 4, 1)}"]
+    cmd, _ = neumat("fit-clusters", *sources, "-k", str(a.k), *[x for s in sets for x in ("--set", s)],
+                    "--steps", str(a.steps), "--eval-n", str(a.n_configs), "--device", "cpu", "-q", "-o", str(out))
+    print(cmd, flush=True)
+    summary = json.loads((out / "clusters.json").read_text())
+    sizes = {c["cluster"]: len(c["members"]) for c in summary["clusters"]}
+    rows = []
+    for path, m in summary["materials"].items():
+        own = equal_bytes_config(a.nside, m["bytes_fp16"])
+        nmat = Path(a.work) / f"{m['name']}.own_b{own['index_bits']}_h{own['hidden']}.nmat"
+        own_cmd, seconds = fit([path], nmat, sets + [f"index_bits={own['index_bits']}", f"hidden={own['hidden']}"],
+                               a.steps)
+        e = evaluate(nmat, path, a.n_configs)
+        rows.append({"material": m["name"], "cluster": m["cluster"], "member": f"{m['member']} of {sizes[m['cluster']]}",
+                     "ae mse": round(m["reconstruction_mse"], 5), "shared bytes": round(m["bytes_fp16"]),
+                     "shared log_err": round(m["metrics"]["log_err"], 5),
+                     "shared rmse_hdr": round(m["metrics"]["rmse_hdr"], 4),
+                     "own b/h": f"{own['index_bits']}/{own['hidden']}", "own bytes": e["bytes_fp16"],
+                     "own log_err": round(e["log_err"], 5), "own rmse_hdr": round(e["rmse_hdr"], 4),
+                     "own fit s": round(seconds, 1), "command": own_cmd})
+        print(json.dumps(rows[-1]), flush=True)
+    rows.sort(key=lambda r: (r["cluster"], r["material"]))
+    for c in summary["clusters"]:
+        print(f"cluster {c['cluster']}: {', '.join(c['members'])}: {c['bytes_fp16']} bytes, fit {c['fit_seconds']:.1f} s",
+              flush=True)
+    return rows
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
-    p.add_argument("--part", choices=("prune", "shared"), required=True)
+    p.add_argument("--part", choices=("prune", "shared", "clusters"), required=True)
     p.add_argument("--nside", type=int, default=16)
     p.add_argument("--steps", type=int, default=1000)
     p.add_argument("--batch", type=int, default=4096, help="queries per step (per material)")
@@ -168,11 +230,13 @@ def main() -> None:
     p.add_argument("--cluster", choices=sorted(CLUSTERS), default="paints", help="shared: the MERL-like cluster")
     p.add_argument("--own-set", action="append", help="shared: an extra --set of the own fits (e.g. index_bits=7)")
     p.add_argument("--no-shared", action="store_true", help="shared: the own fits only")
+    p.add_argument("--k", type=int, default=6, help="clusters: number of clusters")
+    p.add_argument("--tables", default="/work/merl_tables", help="clusters: folder of the MERL-like .binary tables")
     p.add_argument("--work", default="/tmp/neubrdf_shared_prune", help="folder for the fitted models")
     p.add_argument("--json", help="also write the rows here")
     a = p.parse_args()
     Path(a.work).mkdir(parents=True, exist_ok=True)
-    rows = part_prune(a) if a.part == "prune" else part_shared(a)
+    rows = {"prune": part_prune, "shared": part_shared, "clusters": part_clusters}[a.part](a)
     from neumat.cli.common import print_table
 
     print_table(f"NeuBRDF {a.part}{' ' + a.cluster if a.part == 'shared' else ''}: N_side {a.nside}, {a.steps} steps of {a.batch}",

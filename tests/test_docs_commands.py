@@ -28,6 +28,7 @@ QUICK: dict[tuple[str, ...], dict[str, str]] = {
     ("export",): {"--check": "64"},
     ("fit-dictionary",): {"--iterations": "2"},
     ("fit-many",): {"--steps": "3", "--image-spp": "1"},
+    ("fit-clusters",): {"--steps": "3", "--eval-n": "4096"},
     ("data", "btf-generate"): {"--size": "20", "--spp": "1"},
     ("translucent", "trace"): {"--images": "3", "--resolution": "8", "--spp": "2"},
     ("translucent", "fit"): {"--steps": "4"},

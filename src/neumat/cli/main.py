@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import typer
 
-from . import btf, check, data, demo, exporting, fit_many, fitting, listing, mitsuba, rendering, translucent
+from . import btf, check, data, demo, exporting, fit_clusters, fit_many, fitting, listing, mitsuba, rendering, translucent
 from .common import run_command
 
 app = typer.Typer(help="neumat: compact learned models of material appearance.", no_args_is_help=True,
                   pretty_exceptions_enable=False, add_completion=False)
 app.add_typer(data.app, name="data")
-for module in (rendering, mitsuba, fitting, fit_many, btf, check, demo, exporting, translucent, listing):
+for module in (rendering, mitsuba, fitting, fit_many, fit_clusters, btf, check, demo, exporting, translucent, listing):
     module.register(app)
 
 

@@ -50,11 +50,13 @@ def tabulate_rusinkiewicz(material: Material, resolution: int, device=None) -> t
 @dataclass
 class Clustering:
     """Result of `cluster_materials`: labels (M,) cluster of each material, codes (M, code_dim) autoencoder
-    bottleneck codes, reconstruction_mse the autoencoder's final training error (log(1 + f) units)."""
+    bottleneck codes, reconstruction_mse the autoencoder's final training error (log(1 + f) units), errors (M,)
+    each material's reconstruction MSE by the trained autoencoder (same units; None when not computed)."""
 
     labels: np.ndarray
     codes: np.ndarray
     reconstruction_mse: float
+    errors: np.ndarray | None = None
     groups: list[list[int]] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -91,8 +93,9 @@ def cluster_materials(materials: Sequence[Material], k: int, *, resolution: int 
     losses = train_autoencoder(ae, volumes, steps=steps, lr=lr, seed=seed)
     with torch.no_grad():
         codes = ae.encode(volumes).cpu().numpy().astype(np.float64)
+        errors = (ae(volumes) - volumes).square().mean(dim=(1, 2, 3, 4)).cpu().numpy().astype(np.float64)
     labels = KMeans(n_clusters=k, n_init=10, random_state=seed).fit(codes).labels_
-    return Clustering(labels=np.asarray(labels), codes=codes, reconstruction_mse=losses[-1])
+    return Clustering(labels=np.asarray(labels), codes=codes, reconstruction_mse=losses[-1], errors=errors)
 
 
 # -------------------------------------------------------------------------------- joint training
