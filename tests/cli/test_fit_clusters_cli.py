@@ -16,6 +16,8 @@ from neumat.cli import fit_clusters, fitting
 from neumat.fit.shared_neubrdf import cluster_materials
 from neumat.models.shared_neubrdf import SharedNeuBRDF
 
+from cli_util import output_text
+
 #: two diffuse-dominated plastics and two coloured metals (sharp GGX): separable families
 PLASTICS = ["plastic:diffuse=0.6/0.3/0.15,roughness=0.4", "plastic:diffuse=0.3/0.5/0.4,roughness=0.5"]
 METALS = ["ggx:roughness=0.15,fresnel=schlick,f0=0.95/0.8/0.5", "ggx:roughness=0.2,fresnel=schlick,f0=0.9/0.9/0.9"]
@@ -32,10 +34,6 @@ def app() -> typer.Typer:
     fit_clusters.register(app)
     fitting.register(app)
     return app
-
-
-def _text(res) -> str:
-    return " ".join(res.output.split())
 
 
 def test_fit_clusters_writes_one_model_per_cluster_as_cluster_materials_groups(app, tmp_path):
@@ -68,7 +66,7 @@ def test_fit_clusters_writes_one_model_per_cluster_as_cluster_materials_groups(a
         assert c["sources"] == members and sorted(rows[s]["member"] for s in members) == [0, 1]
         assert c["bytes_fp16"] == model.size_bytes("fp16") and c["steps"] == 4
         assert all(rows[s]["bytes_fp16"] == model.size_bytes("fp16") / 2 for s in members)
-    assert "cluster" in res.stdout and "wrote 2 model(s)" in _text(res)
+    assert "cluster" in res.stdout and "wrote 2 model(s)" in output_text(res)
 
     # `neumat eval --member` on a written member gives the errors clusters.json recorded for it
     row = rows[METALS[1]]
@@ -80,13 +78,19 @@ def test_fit_clusters_writes_one_model_per_cluster_as_cluster_materials_groups(a
         assert scored[key] == pytest.approx(row["metrics"][key], rel=1e-9)
 
 
-def test_every_source_a_cluster_of_its_own(app, tmp_path):
+def test_every_source_a_cluster_of_its_own_and_a_rerun_with_fewer_clusters_removes_the_stale_model(app, tmp_path):
     res = CliRunner().invoke(app, ["fit-clusters", PLASTICS[0], METALS[0], "-k", "2", *SMALL, "--steps", "2",
                                    "--eval-n", "0", "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
     summary = json.loads((tmp_path / "run" / "clusters.json").read_text())
     assert sorted(len(c["members"]) for c in summary["clusters"]) == [1, 1]
     assert all(r["member"] == 0 and r["metrics"] == {} for r in summary["materials"].values())
+    (tmp_path / "run" / "notes.txt").write_text("kept")
+    res = CliRunner().invoke(app, ["fit-clusters", PLASTICS[0], METALS[0], "-k", "1", *SMALL, "--steps", "2",
+                                   "--eval-n", "0", "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["cluster0.nmat", "clusters.json", "notes.txt"]
+    assert "removed 1 model(s) of an earlier run with more clusters: cluster1.nmat" in output_text(res)
 
 
 def _texture_set(folder):
@@ -118,7 +122,7 @@ def test_bad_input_is_one_clear_error(app, tmp_path, case):
     res = CliRunner().invoke(app, ["fit-clusters", *sources, "-k", k, *SMALL, *extra, "--steps", "2",
                                    "-o", str(out)])
     assert res.exit_code == 2, res.output
-    assert "error:" in res.output and expected in _text(res)
+    assert "error:" in res.output and expected in output_text(res)
     if case == "svbrdf":
-        assert "fabric" in _text(res)
+        assert "fabric" in output_text(res)
     assert case == "out_is_file" or not out.exists()  # refused before any file is written

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shlex
 import sys
 from dataclasses import replace
@@ -57,7 +58,7 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
     cluster 0); members keep the order of the sources. Writes OUT/cluster<c>.nmat (its member i: `neumat eval
     OUT/cluster<c>.nmat --member i`) and OUT/clusters.json: per source its cluster, member index, autoencoder
     code and reconstruction error, its reflectance errors against the source and bytes; per cluster its
-    members, bytes and fit time."""
+    members, bytes and fit time. An earlier run's cluster<c>.nmat beyond this run's clusters are removed."""
 
     def go():
         from ..catalog.modelfile import load_model, save_model
@@ -126,6 +127,13 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
                    "materials": rows, "clusters": clusters}
         text = json.dumps(_finite_or_none(summary), indent=1, allow_nan=False)
         atomic_write(out / "clusters.json", lambda tmp: Path(tmp).write_text(text + "\n"))
+        stale = sorted(p for p in out.glob("cluster*.nmat")
+                       if re.fullmatch(r"cluster(\d+)\.nmat", p.name) and int(p.name[7:-5]) >= len(clusters))
+        for path in stale:  # a former run's clusters beyond this run's: clusters.json no longer lists them
+            path.unlink()
+        if stale:
+            print(f"removed {len(stale)} model(s) of an earlier run with more clusters: "
+                  f"{', '.join(p.name for p in stale)}")
         print_table(f"fit-clusters: {len(paths)} materials in {len(clusters)} clusters",
                     [{"cluster": c["cluster"], "members": ", ".join(c["members"]), "bytes_fp16": c["bytes_fp16"],
                       "bytes/material": round(c["bytes_fp16"] / len(c["members"])),
