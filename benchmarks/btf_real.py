@@ -65,11 +65,10 @@ def test_btf(name: str, args, dirs):
     else:
         folder, tile = name.rsplit("#", 1)
         at = args.crop_at + int(tile) * source_texels(args)
+    effects = (f"{f'_ir{args.interreflection}' if args.interreflection else ''}"
+               + (f"_f{args.fibres:g}" + args.fibre_direction.replace(":", "") if args.fibres else ""))
     path = Path(args.cache) / (f"{folder}_{tile}_{args.size}_{at}_r{args.relief:g}{f'_n{args.noise:g}' if args.noise else ''}"
-                               f"{f'_s{args.scale:g}' if args.scale != 1 else ''}"
-                               f"{f'_ir{args.interreflection}' if args.interreflection else ''}"
-                               f"{f'_f{args.fibres:g}{args.fibre_direction.replace(':', '')}' if args.fibres else ''}"
-                               f"_{args.dirs.replace(':', '')}.nbtf")
+                               f"{f'_s{args.scale:g}' if args.scale != 1 else ''}{effects}_{args.dirs.replace(':', '')}.nbtf")
     if path.is_file():
         return read_btf(path), 0.0
     t = time.perf_counter()
