@@ -27,6 +27,7 @@ import torch
 
 from ..core.errors import InputError
 from ..io.texture_set import TextureSet
+from ..warp.hemisphere import sample_cosine_hemisphere
 from .btf import TabulatedBTF
 from .fibre_field import fibre_field, fibre_tangents
 from .heightfield import HeightField
@@ -77,7 +78,6 @@ def _surface(field: HeightField, maps: torch.Tensor, p: torch.Tensor, fibres: bo
 def _hemisphere(n: int, samples: int, generator: torch.Generator, device) -> torch.Tensor:
     """Cosine-weighted directions (n, samples, 3) in the local frame: `samples` (a square) strata of the unit
     square, jittered independently per point, mapped by Malley's method."""
-    from ..warp.hemisphere import sample_cosine_hemisphere
     root = int(round(math.sqrt(samples)))
     j, i = torch.meshgrid(torch.arange(root), torch.arange(root), indexing="ij")
     cells = torch.stack([i.reshape(-1), j.reshape(-1)], -1).float()
@@ -99,7 +99,8 @@ def generate_btf(textures: TextureSet, light_dirs: torch.Tensor, view_dirs: torc
     normals: "height" (normals of the displaced height field) or "map" (the set's normal map).
     noise: relative std of measurement-like sensor noise (`sensor_noise`; 0: none), drawn with `noise_seed`.
     interreflection: hemisphere directions per ray hit (a square number) for one bounce of inter-reflection
-    (0: direct light only), jittered with `interreflection_seed`; about (1 + interreflection) x the time.
+    (0: direct light only), jittered with `interreflection_seed`; at most about (1 + interreflection) x the
+    direct-only time (7x measured at 16 on a 50 x 50 real-set crop: most bounce rays escape).
     fibres: anisotropy in [0, 1] of the principled shader's GGX lobe along the fibre field `fibre_direction`
     of the displaced height map (`fibre_field` kinds: "grain", "weave:<p>", "angle:<deg>"); 0: isotropic.
     """
