@@ -4,6 +4,8 @@
     python benchmarks/btf_real.py --dirs ubo151 --dictionary d151.nmat --json r151.json
     python benchmarks/btf_real.py --test Wood092_1K#1 ...          # one row's BTF only
     python benchmarks/btf_real.py --factor r17.json r151.json       # per-BTF ratio at one set vs the other
+    python benchmarks/btf_real.py --interreflection 16 --json r17_ir.json   # measured-like effects of the generator
+    python benchmarks/btf_real.py --fibres 0.8 --fibre-direction grain --json r17_fib.json
 
 Test BTFs: every texture set under --shared at --tiles disjoint size x size crops, one texture texel per BTF
 texel (crop, never resample: the patch counts texels), tile t at row = column = --crop-at + t x size, relief
@@ -63,8 +65,10 @@ def test_btf(name: str, args, dirs):
     else:
         folder, tile = name.rsplit("#", 1)
         at = args.crop_at + int(tile) * source_texels(args)
+    effects = (f"{f'_ir{args.interreflection}' if args.interreflection else ''}"
+               + (f"_f{args.fibres:g}" + args.fibre_direction.replace(":", "") if args.fibres else ""))
     path = Path(args.cache) / (f"{folder}_{tile}_{args.size}_{at}_r{args.relief:g}{f'_n{args.noise:g}' if args.noise else ''}"
-                               f"{f'_s{args.scale:g}' if args.scale != 1 else ''}_{args.dirs.replace(':', '')}.nbtf")
+                               f"{f'_s{args.scale:g}' if args.scale != 1 else ''}{effects}_{args.dirs.replace(':', '')}.nbtf")
     if path.is_file():
         return read_btf(path), 0.0
     t = time.perf_counter()
@@ -77,7 +81,8 @@ def test_btf(name: str, args, dirs):
             raise SystemExit(f"{name}: tile at {at} + {source_texels(args)} texels leaves the {ts.size} texture set")
         crop, relief = texture_tile(ts, args.size, crop=source_texels(args), row=at, col=at)
         relief *= args.relief
-    btf = generate_btf(crop, dirs, dirs, relief=relief, spp=args.spp, noise=args.noise)
+    btf = generate_btf(crop, dirs, dirs, relief=relief, spp=args.spp, noise=args.noise,
+                       interreflection=args.interreflection, fibres=args.fibres, fibre_direction=args.fibre_direction)
     seconds = time.perf_counter() - t
     path.parent.mkdir(parents=True, exist_ok=True)
     write_btf(path, btf, dtype="float32", extra={"source": folder, "row": at, "col": at, "relief": relief})
@@ -191,6 +196,10 @@ def main():
     ap.add_argument("--relief", type=float, default=4.0, help="relief x the set's height scale")
     ap.add_argument("--spp", type=int, default=1)
     ap.add_argument("--noise", type=float, default=0.0, help="relative sensor noise of the test BTFs (generate_btf)")
+    ap.add_argument("--interreflection", type=int, default=0,
+                    help="hemisphere directions per hit for one bounce of inter-reflection (generate_btf; 0: none)")
+    ap.add_argument("--fibres", type=float, default=0.0, help="fibre anisotropy in [0, 1] (generate_btf; 0: none)")
+    ap.add_argument("--fibre-direction", default="grain", help="fibre field: grain, weave:<p>, angle:<deg>")
     ap.add_argument("--mults", default="1,4", help="tau_t = the dictionary's tau_l x these")
     ap.add_argument("--statistics-bytes", default="4,2", help="accountings of the per-image statistics (4, 2)")
     ap.add_argument("--cache", default="../btfreal_cache", help="folder of the generated test BTFs")

@@ -79,6 +79,30 @@ def test_btf_generate_noise_is_the_library_noise(tmp_path):
     assert float((read_btf(out).data.float() - clean.data).abs().max()) > 1e-2
 
 
+def test_btf_generate_interreflection_and_fibres_are_the_library_options(tmp_path):
+    """`--interreflection` and `--fibres` / `--fibre-direction` pass through to `generate_btf`."""
+    import torch
+
+    from neumat.reflectance.btf import direction_set
+    from neumat.reflectance.btf_generate import generate_btf
+    from neumat.reflectance.procedural_texture import procedural_texture_set
+
+    out = tmp_path / "weave.nbtf"
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:weave", "-o", str(out), "--size", "8",
+                                     "--directions", "5", "--spp", "1", "--interreflection", "4", "--fibres", "0.7",
+                                     "--fibre-direction", "weave:2", "-q"])
+    assert r.exit_code == 0, r.output
+    d = direction_set(5)
+    ts = procedural_texture_set("weave", 8, seed=1)
+    expected = generate_btf(ts, d, d, relief=4.0, spp=1, interreflection=4, fibres=0.7, fibre_direction="weave:2")
+    plain = generate_btf(ts, d, d, relief=4.0, spp=1)
+    torch.testing.assert_close(read_btf(out).data.float(), expected.data, rtol=2e-3, atol=1e-4)   # stored fp16
+    assert float((expected.data - plain.data).abs().max()) > 1e-2
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:weave", "-o", str(out), "--size", "8",
+                                     "--directions", "5", "--spp", "1", "--interreflection", "3", "-q"])
+    assert r.exit_code != 0 and "square number" in r.output
+
+
 def test_fit_sparse_btf_with_a_dictionary(tmp_path):
     """`neumat fit BTF --model sparse-btf --dictionary D --tau T`: codes the BTF; the saved model loads and
     evaluates like the coded one."""

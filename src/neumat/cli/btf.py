@@ -82,6 +82,14 @@ def register_data(data_app: typer.Typer) -> None:
                                                                 "set; 4 for a procedural material)"),
             noise: float = typer.Option(0.0, "--noise", min=0.0,
                                         help="relative std of measurement-like sensor noise (0: none)"),
+            interreflection: int = typer.Option(0, "--interreflection", min=0,
+                                                help="one bounce of inter-reflection with this many hemisphere "
+                                                     "directions per ray hit (a square number; 0: direct light only)"),
+            fibres: float = typer.Option(0.0, "--fibres", min=0.0, max=1.0,
+                                         help="anisotropy in [0, 1] of the GGX lobe along fibres (0: isotropic)"),
+            fibre_direction: str = typer.Option("grain", "--fibre-direction",
+                                                help="fibre field: grain (along the height map's ridges), "
+                                                     "weave:<p> (p x p-texel plain weave), angle:<deg>"),
             device: str = typer.Option("cpu", "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
@@ -100,7 +108,8 @@ def register_data(data_app: typer.Typer) -> None:
                 tile, tile_relief = texture_tile(load_texture_set(textures), size, crop or None)
             d = direction_set(int(directions) if directions.isdigit() else directions)
             btf = generate_btf(tile, d, d, relief=relief or tile_relief, spp=spp, device=device, progress=not quiet,
-                               label=tile.name, noise=noise)
+                               label=tile.name, noise=noise, interreflection=interreflection, fibres=fibres,
+                               fibre_direction=fibre_direction)
             write_btf(out, btf, extra={"source": str(textures), "crop": crop, "relief": relief or tile_relief})
             print(f"wrote {out}: {size}x{size} texels, {d.shape[0]}x{d.shape[0]} directions "
                   f"({out.stat().st_size} bytes)")

@@ -7,6 +7,8 @@ in s and t); directions (x, y, z) of the local frame move (s, t, z) by (x, y, z)
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ..core.errors import InputError
@@ -101,3 +103,40 @@ class HeightField:
             if bool(above_top.all()):
                 break
         return lit
+
+    def trace(self, p: torch.Tensor, d: torch.Tensor, offset: float = 1e-3, max_distance: float | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """First hit (N, 3) of the rays from surface points p (N, 3) along unit directions d (N, 3) (any z), and
+        whether they hit (N,) bool. The march starts `offset` above p and steps `step` texels horizontally (at
+        most a quarter of the relief vertically), each ray until it hits; it escapes (False) when it rises above
+        z_max or has not hit within `max_distance` horizontal texels (default: four periods, 4 max(H, W)). The
+        hit returned for an escaping ray is its start."""
+        max_distance = 4.0 * max(self.height, self.width) if max_distance is None else float(max_distance)
+        start = p + torch.tensor([0.0, 0.0, offset], device=p.device, dtype=p.dtype)
+        dz = d[:, 2]
+        horizontal = d[:, :2].norm(dim=-1).clamp(min=1e-9)
+        dt = torch.minimum(self.step / horizontal, max(self.z_max - self.z_min, 1e-3) / 4 / dz.abs().clamp(min=1e-9))
+        t_exit = torch.where(dz > 0, (self.z_max - start[:, 2]) / dz.clamp(min=1e-9),
+                             torch.full_like(dz, float("inf")))     # downward rays always meet the surface
+        t_max = torch.minimum(t_exit.clamp(min=0), max_distance / horizontal)
+        lo = torch.zeros_like(dz)                                   # last parameter known above the surface
+        hit = torch.zeros_like(dz, dtype=torch.bool)
+        active = torch.arange(p.shape[0], device=p.device)          # rays still marching
+        i = 0
+        while active.numel():
+            i += 1
+            r = i * dt[active]
+            q = start[active] + d[active] * r[:, None]
+            below = q[:, 2] <= self.height_at(q[:, 0], q[:, 1])
+            hit[active[below]] = True
+            lo[active[~below]] = r[~below]
+            active = active[~below & (r < t_max[active])]
+        hi = torch.where(hit, lo + dt, lo)
+        for _ in range(self.refine):
+            mid = (lo + hi) / 2
+            q = start + d * mid[:, None]
+            below = q[:, 2] <= self.height_at(q[:, 0], q[:, 1])
+            hi = torch.where(hit & below, mid, hi)
+            lo = torch.where(hit & ~below, mid, lo)
+        q = start + d * torch.where(hit, hi, torch.zeros_like(hi))[:, None]
+        return torch.stack([q[:, 0], q[:, 1], self.height_at(q[:, 0], q[:, 1])], -1), hit
