@@ -12,7 +12,8 @@ measured material) and the stored size (fp16 floats).
 
 --materials: RGL names (in ../shared/data/rgl) or material files (a MERL-like table from `neumat data convert
 NAME.h5 NAME.binary`, an .nmat, ...); --nsides the grid sizes; --steps N[,M...] gives every arm the same step
-counts instead of the same wall time (a budget series: does the codebook close on the dense grid with training?).
+counts instead of the same wall time (a budget series: does the codebook close on the dense grid with training?);
+--index-bits b: the codebook's size 2^b (paper: 9), for a capacity series.
 """
 from __future__ import annotations
 
@@ -35,14 +36,14 @@ DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rgl"
 MATERIALS = ("vch_golden_yellow_rgb", "cc_iris_purple_gem_rgb")
 
 
-def run(source, nside: int, features: str, warmup: float, steps: int, log_every: int = 0):
-    """(fitted model, FitResult) of `steps` steps of arm (features, warmup)."""
+def run(source, nside: int, features: str, warmup: float, steps: int, log_every: int = 0, index_bits: int = 9):
+    """(fitted model, FitResult) of `steps` steps of arm (features, warmup); index_bits b (2^b codewords)."""
     r = recipe_for("neubrdf")
     recipe = replace(r, steps=steps, batch_size=8192, lr_decay_every=max(steps // 4, 1),
                      log_every=log_every or max(steps, 1), queries="replay",
                      options={**r.options, "dense_warmup": warmup})
     torch.manual_seed(0)
-    model = NeuBRDF(nside=nside, features=features)
+    model = NeuBRDF(nside=nside, features=features, index_bits=index_bits)
     res = fit(model, source, recipe, progress=False, device="cpu")
     return res.model, res
 
@@ -61,6 +62,7 @@ def main() -> None:
     p.add_argument("--materials", nargs="+", default=list(MATERIALS), help="RGL names or material files")
     p.add_argument("--nsides", nargs="+", type=int, default=[16, 32])
     p.add_argument("--steps", default=None, help="N[,M...]: equal steps per arm instead of --seconds")
+    p.add_argument("--index-bits", type=int, default=9, help="codebook size 2^b of the VQ arms (paper: 9)")
     a = p.parse_args()
     torch.set_num_threads(1)
     rows = []
@@ -83,7 +85,7 @@ def main() -> None:
                         steps = max(int(a.seconds / sps), 2)
                     else:
                         steps = budget
-                    model, res = run(source, nside, features, warmup, steps)
+                    model, res = run(source, nside, features, warmup, steps, index_bits=a.index_bits)
                     err = reflectance_errors(model, ref, n=2 ** 18, seed=7)["log_err"]
                     rows.append((name, nside, label, steps, res.seconds, err, model.size_bytes(), budget))
                     print(*rows[-1], flush=True)
@@ -92,11 +94,11 @@ def main() -> None:
     lines = [f"# NeuBRDF: dense warm-up vs end-to-end VQ vs dense, equal {'steps' if a.steps else 'CPU wall time'}",
              "",
              f"Command: `PYTHONPATH=src python benchmarks/neubrdf_warmup.py {budget} "
-             f"--warmup {a.warmup:g} --materials {' '.join(a.materials)} --nsides {' '.join(map(str, a.nsides))}`; "
+             f"--warmup {a.warmup:g} --index-bits {a.index_bits} --materials {' '.join(a.materials)} --nsides {' '.join(map(str, a.nsides))}`; "
              f"commit {commit}; {platform.machine()} {platform.processor() or ''}, "
              "one torch thread on a shared, loaded 2-core machine (wall times are noisy).", "",
              "Replay of 2^18 cosine-weighted measurements, batch 8192, lr 1e-2 halved every steps/4, EMA 0.01, "
-             "k 16, b 9, MLP 2 x 64. log_err: held-out cosine-weighted log error (2^18 fresh queries, "
+             f"k 16, b {a.index_bits}, MLP 2 x 64. log_err: held-out cosine-weighted log error (2^18 fresh queries, "
              "`neumat.metrics.hdr.reflectance_errors`); bytes: `NeuBRDF.size_bytes()` (fp16).", "",
              "| material | N_side | arm | steps | fit s | log_err | bytes | log_err / dense |",
              "|---|---|---|---|---|---|---|---|"]
