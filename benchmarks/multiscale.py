@@ -6,8 +6,8 @@ full-size runs belong on a GPU), then render the plane (one sample through each 
 filters by the pixel footprint, light sampling of a directional light) for `--scales` texture scales
 (geometric, from 1/8 texel to the whole texture per pixel) x 4 lights x 3 camera tilts, against the
 reference SVBRDF with `--ref-samples` footprint samples. Texture sets are downscaled to `--max-size`, or with
-`--crop N` cut to their top-left N x N texels at full resolution (native texel density: normal and roughness
-detail of the full-size set). Training footprints follow the paper's Eq. 9 distribution in texels of the
+`--crop N` cut to N x N texels at full resolution (native texel density: normal and roughness detail of the
+full-size set), at the top-left corner or, with `--crop-at detail`, where the set has the most detail. Training footprints follow the paper's Eq. 9 distribution in texels of the
 trained texture (`--footprints texel`, the default: the "footprint" sampler's range shifted by log2(1024 / S))
 or, with `--footprints uv`, the paper's uv range whatever the size (most footprints below a texel on small sets).
 Prints per-scale FLIP, a Table-6-style table
@@ -140,7 +140,7 @@ def fit_and_score(args, folders: list[Path], device) -> dict:
     or None]}, "settings": the budget, "failed": ["model on material: error"]}."""
     lights, tilts = (LIGHTS[:2], TILTS[1:2]) if args.quick else (LIGHTS, TILTS)
     settings = {"steps": args.steps, "batch": args.batch, "samples": args.samples, "ref_samples": args.ref_samples,
-                "max_size": args.max_size, "crop": args.crop, "footprints": args.footprints,
+                "max_size": args.max_size, "crop": args.crop, "crop_at": args.crop_at, "footprints": args.footprints,
                 "resolution": args.resolution, "scales": args.scales,
                 "hdr_queries": args.hdr_queries, "short_run_optimiser": args.short_run_optimiser,
                 "lights": len(lights), "cameras": len(tilts), "device": device.type, "seed": args.seed}
@@ -200,8 +200,13 @@ _REFERENCES: dict = {}
 def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list[float], device) -> dict:
     """Fit model spec `name` to the texture set in `folder` with the budget `st` and score it: per-scale FLIP
     (scales,), the Table-6 metrics, the model's pyramid size and the material's name."""
-    crop = st.get("crop")
-    textures = load_texture_set(folder, max_size=None if crop else st["max_size"], crop=crop).to(device)
+    crop, origin = st.get("crop"), (0, 0)
+    if crop and st.get("crop_at", "top-left") == "detail":
+        full = load_texture_set(folder)
+        origin = detail_origin(full, crop)
+        textures = full.crop(*origin, crop, crop).to(device)
+    else:
+        textures = load_texture_set(folder, max_size=None if crop else st["max_size"], crop=crop).to(device)
     texel_relative = st.get("footprints", "uv") == "texel"
     source = SVBRDF(textures, samples=st["samples"], seed=st.get("seed", 0))
     reference = SVBRDF(textures, samples=st["ref_samples"], seed=1)
@@ -234,7 +239,21 @@ def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list
               "rmse_hdr": hdr["rmse_hdr"], "mae_hdr": hdr["mae_hdr"], "steps_per_s": result.steps / result.seconds}
     print(f"{textures.name} / {name}: FLIP {scores['flip']:.4f}, fit {result.seconds:.0f} s")
     return {"per_scale": per_scale, "metrics": scores, "pyramid": size, "material": textures.name,
-            "regime": regime_statistics(textures)}
+            "regime": {**regime_statistics(textures), "origin": list(origin)}}
+
+
+def detail_origin(textures, n: int, stride: int = 32) -> tuple[int, int]:
+    """(row, col) of the n x n window, on a grid of `stride` texels, with the most normal and roughness detail:
+    the largest mean normal tilt / its largest value over the windows + roughness standard deviation / its
+    largest value (the two `regime_statistics` a crop has to represent)."""
+    tilt = torch.rad2deg(torch.acos(textures.normal[..., 2].float().clamp(-1, 1)))[None, None]
+    r = textures.roughness.float()[None, None]
+    mean_tilt = torch.nn.functional.avg_pool2d(tilt, n, stride)[0, 0]
+    mean_r = torch.nn.functional.avg_pool2d(r, n, stride)[0, 0]
+    std_r = (torch.nn.functional.avg_pool2d(r * r, n, stride)[0, 0] - mean_r ** 2).clamp(min=0).sqrt()
+    score = mean_tilt / mean_tilt.max().clamp(min=1e-12) + std_r / std_r.max().clamp(min=1e-12)
+    row, col = divmod(int(score.argmax()), score.shape[1])
+    return row * stride, col * stride
 
 
 def regime_statistics(textures) -> dict:
@@ -320,11 +339,11 @@ def report(results: dict, device, markdown: Path | None) -> None:
               "analytic count (2 per multiply-add, 9 per texture-read channel); FLOPs (paper): counted as the paper "
               "does (EDM2's prices: 1 per multiply-add, 3 per SiLU, 4 per bilinear-read channel; no spatial fetch)."]
     if results.get("regimes"):
-        lines += ["", "Regime of the trained texture sets", "",
-                  "| material | texels | mean normal tilt (deg) | roughness mean | roughness std | roughness 5-95 % |",
-                  "|---|---|---|---|---|---|"]
+        lines += ["", "Regime of the trained texture sets (origin: the crop's first row, column)", "",
+                  "| material | texels | origin | mean normal tilt (deg) | roughness mean | roughness std | roughness 5-95 % |",
+                  "|---|---|---|---|---|---|---|"]
         for name, g in zip(materials, results["regimes"]):
-            lines.append(f"| {name} | {g['size'][1]}x{g['size'][0]} | {g['tilt_deg']:.2f} | {g['roughness_mean']:.3f} "
+            lines.append(f"| {name} | {g['size'][1]}x{g['size'][0]} | {tuple(g.get('origin', (0, 0)))} | {g['tilt_deg']:.2f} | {g['roughness_mean']:.3f} "
                          f"| {g['roughness_std']:.3f} | {g['roughness_p5_p95'][0]:.3f}-"
                          f"{g['roughness_p5_p95'][1]:.3f} |")
     if results.get("failed"):
@@ -359,7 +378,10 @@ def main() -> None:
     ap.add_argument("--ref-samples", type=int, default=256, help="footprint samples of the reference images")
     ap.add_argument("--max-size", type=int, default=256, help="downscale the texture sets to this size")
     ap.add_argument("--crop", type=int, default=None,
-                    help="instead of --max-size: the top-left N x N texels of each set at full resolution")
+                    help="instead of --max-size: N x N texels of each set at full resolution (see --crop-at)")
+    ap.add_argument("--crop-at", choices=("top-left", "detail"), default="top-left",
+                    help="where --crop cuts: the top-left corner, or the window (on a 32-texel grid) with the most "
+                         "normal-tilt and roughness detail (detail_origin)")
     ap.add_argument("--footprints", choices=("texel", "uv"), default="texel",
                     help="training footprints: the paper's distribution in texels of the trained texture (texel), "
                          "or its range in uv units (uv)")
