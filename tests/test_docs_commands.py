@@ -30,6 +30,8 @@ QUICK: dict[tuple[str, ...], dict[str, str]] = {
     ("fit-many",): {"--steps": "3", "--image-spp": "1"},
     ("fit-clusters",): {"--steps": "3", "--eval-n": "4096"},
     ("data", "btf-generate"): {"--size": "20", "--spp": "1"},
+    ("data", "texture-set"): {"--size": "32"},
+    ("data", "texture-stats"): {"--samples": "2", "--crop": "16"},
     ("translucent", "trace"): {"--images": "3", "--resolution": "8", "--spp": "2"},
     ("translucent", "fit"): {"--steps": "4"},
     ("translucent", "render"): {"--spp": "2", "--resolution": "8", "--reference-spp": "2", "--env-width": "16"},

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..color.tonemap import srgb_to_linear
+from ..color.tonemap import srgb_encode, srgb_to_linear
 from ..core.errors import DataFormatError, InputError
 
 #: file-name token (lowercase) -> map kind
@@ -242,3 +242,30 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
                       height=height.contiguous(), name=folder.name, normal_from_height=normal_kind is None,
                       height_scale=float(height_scale))
     return full if crop is None else full.crop(0, 0, crop, crop)
+
+
+def write_texture_set(textures: TextureSet, folder: str | Path) -> Path:
+    """Write `textures` as a texture-set folder that `load_texture_set` reads: <name>_Color.png (8-bit sRGB),
+    <name>_NormalGL.png (8-bit, OpenGL convention), and 16-bit <name>_Roughness.png, <name>_Metalness.png,
+    <name>_Displacement.png. The displacement's scale (textures.height_scale) is not stored: a reader derives
+    nothing from it, since the normal map is written. Returns the folder (created)."""
+    from PIL import Image
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"write_texture_set: {folder} is a file; expected a folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    name = textures.name
+
+    def unit8(a: torch.Tensor) -> np.ndarray:
+        return np.round(a.detach().cpu().clamp(0, 1).numpy() * 255).astype(np.uint8)
+
+    def unit16(a: torch.Tensor) -> np.ndarray:
+        return np.round(a.detach().cpu().clamp(0, 1).numpy() * 65535).astype(np.uint16)
+
+    Image.fromarray(unit8(srgb_encode(textures.color.float()))).save(folder / f"{name}_Color.png")
+    Image.fromarray(unit8(textures.normal.float() * 0.5 + 0.5)).save(folder / f"{name}_NormalGL.png")
+    for kind, values in (("Roughness", textures.roughness), ("Metalness", textures.metalness),
+                         ("Displacement", textures.height)):
+        Image.fromarray(unit16(values.float())).save(folder / f"{name}_{kind}.png")
+    return folder
