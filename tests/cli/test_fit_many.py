@@ -93,6 +93,36 @@ def test_changed_source_or_options_are_fitted_again(app, tmp_path):
     assert all(r["steps"] == 11 for r in _rows(out).values())
 
 
+def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tmp_path):
+    """--recipe cpu: each model's CPU-sized recipe (neubrdf: 2^13 queries a step, not the paper's 2^14); a rerun
+    with the paper's recipe fits again; a paper-recipe row's options hash does not mention the recipe (results
+    written before the option existed stay resumable)."""
+    from neumat.fit.recipe import recipe_for
+
+    out = tmp_path / "out"
+    args = ["ggx:roughness=0.3", "-m", "neubrdf", "--steps", "2", "--set", "nside=2", "--set", "index_bits=3",
+            "--set", "hidden=8", "--eval-n", "2048", "--image-spp", "0", "--device", "cpu", "--engine", "local",
+            "-o", str(out)]
+    res = CliRunner().invoke(app, [*args, "--recipe", "cpu"])
+    assert res.exit_code == 0, res.output
+    (row,) = _rows(out).values()
+    assert row["recipe"]["batch_size"] == recipe_for("neubrdf", "cpu").batch_size != recipe_for("neubrdf").batch_size
+    res = CliRunner().invoke(app, args)
+    assert "0 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
+    (row,) = _rows(out).values()
+    assert row["recipe"]["batch_size"] == recipe_for("neubrdf").batch_size
+    import hashlib
+    from dataclasses import asdict
+
+    job = FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path))
+    before = {k: v for k, v in asdict(job).items() if k not in ("source", "name", "out_dir", "device", "recipe")}
+    assert job.options_sha256() == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
+    assert job.options_sha256() != FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path),
+                                          recipe="cpu").options_sha256()
+    bad = CliRunner().invoke(app, [*args, "--recipe", "gpu"])
+    assert bad.exit_code == 2 and "--recipe: expected 'paper' or 'cpu'" in " ".join(bad.output.split())
+
+
 class KillFirstAttempt:
     """A fit-many task that kills its own worker process (SIGKILL) the first time it runs `victim`; it logs
     every call's source to `log`."""

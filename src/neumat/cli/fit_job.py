@@ -23,7 +23,8 @@ ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha25
 class FitJob:
     """What to fit and how. source: a file path or spec (as `neumat fit` takes it); name: the source's short
     name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
-    errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics)."""
+    errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
+    recipe: "paper" or "cpu", the model's recipe (`neumat.fit.recipe.recipe_for`)."""
 
     source: str
     name: str
@@ -37,6 +38,7 @@ class FitJob:
     eval_n: int = 2 ** 16
     image_spp: int = 16
     image_resolution: int = 64
+    recipe: str = "paper"
 
     @property
     def out(self) -> Path:
@@ -45,7 +47,10 @@ class FitJob:
     def options_sha256(self) -> str:
         """Hash of everything that changes the fitted model or its metrics (not the device nor the output)."""
         keys = ("model", "overrides", "steps", "seed", "source_options", "eval_n", "image_spp", "image_resolution")
-        text = json.dumps({k: asdict(self)[k] for k in keys}, sort_keys=True, default=str)
+        options = {k: asdict(self)[k] for k in keys}
+        if self.recipe != "paper":  # results written before the option existed (paper recipes) still match
+            options["recipe"] = self.recipe
+        text = json.dumps(options, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -96,7 +101,7 @@ def _fit_and_evaluate(job: FitJob) -> dict:
 
     device = resolve_device(job.device)
     src = open_training_source(job.model, [job.source], job.source_options)
-    model, recipe = build_model_and_recipe(job.model, job.overrides, job.seed, source=src)
+    model, recipe = build_model_and_recipe(job.model, job.overrides, job.seed, source=src, machine=job.recipe)
     result = fit(model, src, recipe, steps=job.steps, device=device, progress=False)
     loss = result.history[-1]["loss"] if result.history else None
     if loss is not None and not math.isfinite(loss):

@@ -30,6 +30,8 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
              set_: list[str] = typer.Option(None, "--set", help="key=value for every fit, as `neumat fit --set`; "
                                                                "MODEL:key=value for that model's fits only"),
              steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
+             recipe_name: str = typer.Option("paper", "--recipe", help="paper | cpu: each model's paper recipe or "
+                                             "its CPU-sized one (about 10 min per fit on a core)"),
              seed: int = typer.Option(None, **SEED_RANGE, help="seed of every fit (default: the recipe's)"),
              device: str = typer.Option(None, callback=device_option,
                                        help="torch device of every fit (default: cuda if available, else cpu); "
@@ -77,7 +79,9 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
         out.mkdir(parents=True, exist_ok=True)
         overrides = model_overrides(parse_overrides(set_), model)
-        common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
+        if recipe_name not in ("paper", "cpu"):
+            raise InputError(f"--recipe: expected 'paper' or 'cpu', got {recipe_name!r}")
+        common = dict(out_dir=str(out), steps=steps, seed=seed, device=device, recipe=recipe_name,
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
                       image_spp=image_spp, image_resolution=image_resolution)
         named = source_names(expand_sources(sources))
