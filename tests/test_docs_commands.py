@@ -84,8 +84,8 @@ def quick(command: str, cwd: Path) -> list[str]:
     for flag, value in zip(extra[::2], extra[1::2]):
         name = value.split("=")[0]
         if name not in words and not any(w.startswith(name + "=") for w in words):
-            if name == "max_size" and not (cwd / words[2]).is_dir():
-                continue  # reader options only apply to texture-set folders
+            if name == "max_size" and (not (cwd / words[2]).is_dir() or "crop=" in " ".join(words)):
+                continue  # reader options only apply to texture-set folders; a crop replaces max_size
             words += [flag, value]
     if "--device" in words and words[words.index("--device") + 1].startswith("cuda"):
         import torch
