@@ -1,5 +1,4 @@
 import pytest
-import torch
 
 from neumat.core.errors import InputError
 from neumat.reflectance.procedural_texture import procedural_texture_set
@@ -21,7 +20,6 @@ def test_plane_scales_span_an_eighth_texel_to_two_textures_per_pixel():
 def test_scale_series_scores_a_wrong_material_above_the_reference_noise_floor():
     """A second, better-sampled copy of the reference scores near the reference's own noise floor; a flat grey
     Lambertian is far above it at every scale; lists have one entry per scale."""
-    torch.manual_seed(0)
     textures = procedural_texture_set("bumps", size=16)
     reference = SVBRDF(textures, samples=8, seed=1)
     opts = dict(n_scales=2, resolution=8, lights=["dir:0.3/1/0.2"], tilts=[35.0])

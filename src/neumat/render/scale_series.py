@@ -6,8 +6,8 @@ light sampling of one directional light. Scale i sets the plane's `uv_scale` so 
 head-on image covers `texels_per_pixel[i]` texels, geometrically from 1/8 texel to 2 whole textures per pixel;
 the tilted cameras see larger and more elongated footprints towards the horizon. A reference with Monte Carlo
 footprint filtering (an SVBRDF) has noise of its own: `score_scale_series` renders it twice and reports the FLIP
-between the two renders as the noise floor, the score a model equal to the reference's expectation would get
-within a factor of about 1 / sqrt(2).
+between the two renders as the noise floor. A model equal to the reference's expectation scores below it (it
+adds no noise of its own), so differences between models well above the floor are not Monte Carlo noise.
 """
 from __future__ import annotations
 
