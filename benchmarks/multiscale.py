@@ -7,7 +7,8 @@ filters by the pixel footprint, light sampling of a directional light) for `--sc
 (geometric, from 1/8 texel to the whole texture per pixel) x 4 lights x 3 camera tilts, against the
 reference SVBRDF with `--ref-samples` footprint samples. Texture sets are downscaled to `--max-size`, or with
 `--crop N` cut to N x N texels at full resolution (native texel density: normal and roughness detail of the
-full-size set), at the top-left corner or, with `--crop-at detail`, where the set has the most detail. Training footprints follow the paper's Eq. 9 distribution in texels of the
+full-size set), at the top-left corner, with `--crop-at detail` where the set has the most detail, or with `--crop-at ROW,COL`
+at that texel. Training footprints follow the paper's Eq. 9 distribution in texels of the
 trained texture (`--footprints texel`, the default: the "footprint" sampler's range shifted by log2(1024 / S))
 or, with `--footprints uv`, the paper's uv range whatever the size (most footprints below a texel on small sets).
 Prints per-scale FLIP, a Table-6-style table
@@ -60,13 +61,10 @@ from neumat.metrics.image import image_metrics
 from neumat.models.registry import build_model
 from neumat.reflectance.microfacet import principled_eval
 from neumat.reflectance.svbrdf import SVBRDF
-from neumat.render.render import render
+from neumat.render.scale_series import LIGHTS, TILTS, plane_scales, render_scale_series
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf"
 RESULTS = Path(__file__).resolve().parent / "results"
-LIGHTS = ["dir:0.3/1/0.2", "dir:-0.8/0.6/0.3", "dir:0.5/0.4/-0.9", "dir:0/0.35/1"]
-TILTS = [0.0, 35.0, 65.0]
-DISTANCE, FOV = 3.0, 40.0
 #: the paper's models: its NeuMIP baseline is "neumip-offset" (with the offset module, as Sec. 5.2 implements it);
 #: "neumip" (without it) stays as a reference
 ALL_MODELS = ["multiscale", "tripleplane", "neumip-frame", "neumip-offset", "neumip", "nbrdf-uv", "ggx-mipmap"]
@@ -80,25 +78,6 @@ def model_spec(text: str, size: int) -> dict:
         key, _, value = option.partition("=")
         spec[key] = json.loads(value)
     return spec
-
-
-def plane_scales(n: int, resolution: int, texels: int) -> list[float]:
-    """uv_scale values from ~1/8 texel to ~2 textures per pixel at the image centre (head-on camera)."""
-    visible = 2 * DISTANCE * math.tan(math.radians(FOV) / 2)  # world units across the image
-    lo = resolution / (8 * visible * texels)
-    hi = 2 * resolution / visible
-    return list(np.geomspace(lo, hi, n))
-
-
-def render_set(material, scales, lights, tilts, resolution, device) -> list[torch.Tensor]:
-    images = []
-    for s in scales:
-        for light in lights:
-            for tilt in tilts:
-                images.append(render(material, scene="plane", light=light, spp=1, resolution=resolution,
-                                     strategy="light", jitter=False, device=device, tilt=tilt, distance=DISTANCE,
-                                     fov=FOV, uv_scale=float(s)).cpu())
-    return images
 
 
 def evals_per_second(fn, n: int, device, repeats: int = 5) -> float:
@@ -201,9 +180,10 @@ def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list
     """Fit model spec `name` to the texture set in `folder` with the budget `st` and score it: per-scale FLIP
     (scales,), the Table-6 metrics, the model's pyramid size and the material's name."""
     crop, origin = st.get("crop"), (0, 0)
-    if crop and st.get("crop_at", "top-left") == "detail":
+    crop_at = st.get("crop_at", "top-left")
+    if crop and crop_at != "top-left":
         full = load_texture_set(folder)
-        origin = detail_origin(full, crop)
+        origin = detail_origin(full, crop) if crop_at == "detail" else tuple(int(v) for v in crop_at.split(","))
         textures = full.crop(*origin, crop, crop).to(device)
     else:
         textures = load_texture_set(folder, max_size=None if crop else st["max_size"], crop=crop).to(device)
@@ -216,7 +196,7 @@ def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list
     if key not in _REFERENCES:
         t = time.perf_counter()
         _REFERENCES.clear()  # one texture set's images at a time
-        images = render_set(reference, scales, lights, tilts, st["resolution"], device)
+        images = render_scale_series(reference, scales, lights, tilts, st["resolution"], device)
         _REFERENCES[key] = (images, reference.generator.get_state())
         print(f"{textures.name}: reference {len(images)} images in {time.perf_counter() - t:.0f} s")
     ref_images, state = _REFERENCES[key]
@@ -228,7 +208,7 @@ def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list
         recipe = replace(recipe, lr=1e-2, betas=(0.9, 0.999), ema=0.02, lr_decay_every=0)
     result = fit(model, source, recipe, device=device, progress=True,
                  queries="footprint" if texel_relative else "footprint-uv")
-    images = render_set(result.model, scales, lights, tilts, st["resolution"], device)
+    images = render_scale_series(result.model, scales, lights, tilts, st["resolution"], device)
     metrics = [image_metrics(r, m) for r, m in zip(ref_images, images)]
     per_img = len(lights) * len(tilts)
     per_scale = [float(np.mean([m["flip"] for m in metrics[i * per_img:(i + 1) * per_img]]))
@@ -240,6 +220,14 @@ def score_pair(folder: Path, name: str, st: dict, lights: list[str], tilts: list
     print(f"{textures.name} / {name}: FLIP {scores['flip']:.4f}, fit {result.seconds:.0f} s")
     return {"per_scale": per_scale, "metrics": scores, "pyramid": size, "material": textures.name,
             "regime": {**regime_statistics(textures), "origin": list(origin)}}
+
+
+def crop_position(text: str) -> str:
+    """--crop-at: "top-left", "detail" or "ROW,COL" (two integers >= 0)."""
+    parts = text.split(",")
+    if text in ("top-left", "detail") or (len(parts) == 2 and all(p.strip().isdigit() for p in parts)):
+        return text
+    raise argparse.ArgumentTypeError(f"expected top-left, detail or ROW,COL, got {text!r}")
 
 
 def detail_origin(textures, n: int, stride: int = 32) -> tuple[int, int]:
@@ -379,9 +367,9 @@ def main() -> None:
     ap.add_argument("--max-size", type=int, default=256, help="downscale the texture sets to this size")
     ap.add_argument("--crop", type=int, default=None,
                     help="instead of --max-size: N x N texels of each set at full resolution (see --crop-at)")
-    ap.add_argument("--crop-at", choices=("top-left", "detail"), default="top-left",
-                    help="where --crop cuts: the top-left corner, or the window (on a 32-texel grid) with the most "
-                         "normal-tilt and roughness detail (detail_origin)")
+    ap.add_argument("--crop-at", type=crop_position, default="top-left",
+                    help="where --crop cuts: top-left, detail (the window on a 32-texel grid with the most "
+                         "normal-tilt and roughness detail, detail_origin) or ROW,COL (that texel)")
     ap.add_argument("--footprints", choices=("texel", "uv"), default="texel",
                     help="training footprints: the paper's distribution in texels of the trained texture (texel), "
                          "or its range in uv units (uv)")

@@ -39,6 +39,8 @@ QUICK: dict[tuple[str, ...], dict[str, str]] = {
     ("translucent", "prt-render"): {"--spp": "1", "--resolution": "8", "--model-spp": "2", "--reference-spp": "2",
                                     "--env-width": "16"},
 }
+#: (command words, option) -> the largest value a docs run uses, only where the line has the option
+CAP_ONLY: dict[tuple[str, ...], dict[str, str]] = {("eval",): {"--scales": "2"}}
 #: options added to commands of these words when absent (not caps): small batches, small texture sets
 EXTRA: dict[tuple[str, ...], list[str]] = {
     ("fit",): ["--set", "batch_size=256", "--source-option", "max_size=32"],
@@ -81,13 +83,17 @@ def quick(command: str, cwd: Path) -> list[str]:
             words[i] = str(min(float(words[i]), float(cap))).removesuffix(".0")
         else:
             words += [option, cap]
+    for option, cap in CAP_ONLY.get(key, {}).items():
+        if option in words:
+            i = words.index(option) + 1
+            words[i] = str(min(int(words[i]), int(cap)))
     model = words[words.index("--model") + 1] if "--model" in words else None
     extra = EXTRA.get(key, []) + MODEL_EXTRA.get(model, [])
     for flag, value in zip(extra[::2], extra[1::2]):
         name = value.split("=")[0]
         if name not in words and not any(w.startswith(name + "=") for w in words):
-            if name == "max_size" and not (cwd / words[2]).is_dir():
-                continue  # reader options only apply to texture-set folders
+            if name == "max_size" and (not (cwd / words[2]).is_dir() or "crop=" in " ".join(words)):
+                continue  # reader options only apply to texture-set folders; a crop replaces max_size
             words += [flag, value]
     if "--device" in words and words[words.index("--device") + 1].startswith("cuda"):
         import torch

@@ -62,3 +62,34 @@ def test_fit_neural_appearance_on_a_layered_description(tmp_path):
     assert result.exit_code == 0, result.output
     model = load_model(out)
     assert model.cfg.spatial_size == 16 and model.cfg.surface_features == 5
+
+
+def test_eval_scales_scores_a_texture_set_fit_across_texture_scales(shared_data, tmp_path):
+    """`neumat fit` on a crop at a given origin, then `neumat eval --scales N` with the same source options: per-scale
+    FLIP, its mean and the reference's noise floor, scale 0 at 1/8 texel per pixel; in a table too. A reference
+    without textures is refused with a message naming what the scale series needs."""
+    import json
+
+    import pytest
+
+    out = tmp_path / "wood.nmat"
+    folder = str(shared_data / "svbrdf" / "Wood092_1K")
+    crop = ["--source-option", "crop=16", "--source-option", "crop_origin=300,500"]
+    fit = CliRunner().invoke(app, ["fit", folder, "--model", "tripleplane", "-o", str(out), "--steps", "2", "--quiet",
+                                   "--set", "batch_size=64", *crop, "--source-option", "samples=2"])
+    assert fit.exit_code == 0, fit.output
+    assert load_model(out).cfg.spatial_size == 16
+    args = ["eval", str(out), "--against", folder, *crop, "--source-option", "samples=4", "--resolution", "8",
+            "--no-image", "--n-configs", "256", "--device", "cpu"]
+    res = CliRunner().invoke(app, [*args, "--scales", "2", "--json"])
+    assert res.exit_code == 0, res.output
+    row = json.loads(res.stdout)
+    s = row["scales"]
+    assert len(s["flip"]) == len(s["floor"]) == 2 and s["texels_per_pixel"] == pytest.approx([1 / 8, 32])
+    assert row["flip_scales_mean"] == pytest.approx(sum(s["flip"]) / 2) == s["flip_mean"]
+    assert row["flip_scales_floor"] == s["floor_mean"] > 0
+    table = CliRunner().invoke(app, [*args, "--scales", "1"])
+    assert table.exit_code == 0 and "FLIP per texture scale" in table.output, table.output
+    bad = CliRunner().invoke(app, ["eval", str(out), "--against", "lambert:albedo=0.5", "--scales", "2",
+                                   "--resolution", "8", "--no-image", "--n-configs", "256"])
+    assert bad.exit_code != 0 and "textured reference" in bad.output

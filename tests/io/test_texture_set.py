@@ -140,3 +140,19 @@ def test_crop_of_shared_set_matches_full_image(shared_data):
     full, ts = load_texture_set(folder), load_texture_set(folder, crop=64)
     assert ts.size == (64, 64) and torch.equal(ts.roughness, full.roughness[:64, :64])
     assert torch.equal(ts.normal, full.normal[:64, :64])
+
+
+def test_crop_origin_cuts_the_window_at_row_col(tmp_path):
+    """crop=N with crop_origin=(row, col) is the N x N window starting there, texel for texel; a window past the
+    edge, a bad origin or an origin without crop raise."""
+    folder = _synthetic_set(tmp_path, size=(8, 12), normal=False)
+    full = load_texture_set(folder)
+    ts = load_texture_set(folder, crop=4, crop_origin=[3, 7])    # a list, as `--source-option crop_origin=3,7`
+    for name in ("color", "normal", "roughness", "height"):
+        assert torch.equal(getattr(ts, name), getattr(full, name)[3:7, 7:11]), name
+    with pytest.raises(InputError, match="not inside"):
+        load_texture_set(folder, crop=4, crop_origin=(5, 0))
+    for bad in ({"crop_origin": (1, 1)}, {"crop": 4, "crop_origin": (1,)}, {"crop": 4, "crop_origin": (-1, 0)},
+                {"crop": 4, "crop_origin": (1.5, 0)}):
+        with pytest.raises(InputError, match="crop_origin"):
+            load_texture_set(folder, **bad)

@@ -102,6 +102,20 @@ def test_gating_multiplies_angular_matrices_by_the_spatial_latent():
     torch.testing.assert_close(m.latents(q), 2 * a, rtol=1e-4, atol=1e-5)
 
 
+def test_cpu_recipe_is_the_papers_first_steps():
+    """The CPU recipe of the multi-scale family is RECIPE's first 1000 steps at a smaller batch: same optimiser, EMA
+    and learning rate at every step (constant: the paper's first decay is at 10k steps), not a compressed decay."""
+    from neumat.fit.recipe import learning_rate
+
+    cpu, paper = recipe_for("multiscale", "cpu"), recipe_for("multiscale")
+    assert replace(cpu, steps=paper.steps, batch_size=paper.batch_size,
+                   checkpoint_every=paper.checkpoint_every) == paper
+    assert [learning_rate(cpu, s, cpu.steps) for s in range(cpu.steps)] == \
+        [learning_rate(paper, s, paper.steps) for s in range(cpu.steps)]
+    for name in ("tripleplane", "neumip", "neumip-frame", "nbrdf-uv"):
+        assert recipe_for(name, "cpu") == cpu, name
+
+
 def test_recipe_and_loss_follow_the_paper():
     r = recipe_for("multiscale")
     assert (r.lr, tuple(r.betas), r.eps, r.lr_decay, r.lr_decay_every, r.ema) == (3e-3, (0.99, 0.999), 1e-15, 0.9,

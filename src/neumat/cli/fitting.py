@@ -189,6 +189,11 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              image: bool = typer.Option(True, "--image/--no-image", help="also compare sphere renderings"),
              spp: int = typer.Option(16, min=1, help="samples per pixel of the renderings"),
              resolution: int = typer.Option(128, min=8, help="rendering width and height"),
+             scales: int = typer.Option(0, "--scales", min=0,
+                                        help="also score a spatially varying model on the benchmark's plane scene "
+                                             "at N texture scales (1/8 texel to 2 textures per pixel) x 4 lights "
+                                             "x 3 cameras: per-scale and mean FLIP, and the reference's own noise "
+                                             "floor (render/scale_series.py); 0 = off"),
              device: str = typer.Option(None, callback=device_option,
                                        help="torch device (default: cuda if available, else cpu)"),
              seed: int = typer.Option(0, **SEED_RANGE),
@@ -198,7 +203,8 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
     """Compare MODEL, as stored in its file, with a reference: reflectance errors, rendered-image metrics, size
     and speed. The defaults take about a minute on a CPU for a small model; raise --n, --spp and --resolution
-    for final numbers."""
+    for final numbers. The sphere shows the texture at about one scale; --scales N scores filtering across
+    scales (Timonen et al. 2025, Fig. 4 / Table 6) on the plane scene at --resolution."""
     def go():
         import torch
 
@@ -222,12 +228,22 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
 
             opts = dict(scene="sphere", spp=spp, resolution=(resolution, resolution), seed=seed, device=dev)
             row.update(image_metrics(render(ref, **opts), render(m, **opts)))
+        series = None
+        if scales:
+            from ..render.scale_series import score_scale_series
+
+            series = score_scale_series(m, ref, n_scales=scales, resolution=resolution, device=dev)
+            row.update(flip_scales_mean=series["flip_mean"], flip_scales_floor=series["floor_mean"])
         row["bytes_fp16"] = int(m.size_bytes("fp16"))
         row["evals_per_second"] = evals_per_second(m, dev)
         if json:
-            print_json(row)
+            print_json(row if series is None else {**row, "scales": series})
         else:
             print_table(f"{model} against {against}", [{"metric": k, "value": v} for k, v in row.items()])
+            if series is not None:
+                print_table("FLIP per texture scale (plane scene; floor: the reference against itself)",
+                            [{"scale": i, "texels per pixel": t, "flip": f, "floor": g} for i, (t, f, g)
+                             in enumerate(zip(series["texels_per_pixel"], series["flip"], series["floor"]))])
     run_command(go)
 
 

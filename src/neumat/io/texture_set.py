@@ -170,13 +170,15 @@ def normals_from_height(height: torch.Tensor, height_scale: float) -> torch.Tens
 
 
 def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SCALE,
-                     max_size: int | None = None, crop: int | None = None) -> TextureSet:
+                     max_size: int | None = None, crop: int | None = None,
+                     crop_origin: tuple[int, int] | list[int] | None = None) -> TextureSet:
     """Read a PBR texture set folder (see the module docstring for names and conventions).
 
     Needs a color and a roughness map, and a normal map or a displacement map (normals are then derived
     from height). `max_size` downscales (antialiased) so that max(H, W) <= max_size before normals are
-    derived. `crop` instead keeps the top-left crop x crop texels at full resolution (no resampling; normals
-    from height are derived on the whole map first, so the crop's are those of the full set). Raises InputError for a bad folder or argument, DataFormatError for missing, unreadable or
+    derived. `crop` instead keeps crop x crop texels at full resolution (no resampling; normals
+    from height are derived on the whole map first, so the crop's are those of the full set), from the top-left
+    corner or from `crop_origin` = (row, col). Raises InputError for a bad folder or argument, DataFormatError for missing, unreadable or
     mismatched maps.
     """
     folder = Path(folder)
@@ -188,6 +190,12 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
         raise InputError(f"load_texture_set max_size: expected a positive integer or None, got {max_size!r}")
     if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or crop < 1):
         raise InputError(f"load_texture_set crop: expected a positive integer or None, got {crop!r}")
+    if crop_origin is not None and (crop is None or not isinstance(crop_origin, (tuple, list))
+                                    or len(crop_origin) != 2
+                                    or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                                               for v in crop_origin)):
+        raise InputError(f"load_texture_set crop_origin: expected (row, col), two integers >= 0, with crop, got "
+                         f"crop_origin={crop_origin!r}, crop={crop!r}")
     if crop is not None and max_size is not None:
         raise InputError(f"load_texture_set: give max_size or crop, not both (got max_size={max_size}, crop={crop})")
     files = find_maps(folder)
@@ -241,7 +249,7 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
                       metalness=(maps["metalness"][..., 0].clamp(0, 1) if "metalness" in maps else zeros).contiguous(),
                       height=height.contiguous(), name=folder.name, normal_from_height=normal_kind is None,
                       height_scale=float(height_scale))
-    return full if crop is None else full.crop(0, 0, crop, crop)
+    return full if crop is None else full.crop(*(crop_origin or (0, 0)), crop, crop)
 
 
 def write_texture_set(textures: TextureSet, folder: str | Path) -> Path:

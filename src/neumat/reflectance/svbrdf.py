@@ -74,12 +74,13 @@ class SVBRDF(Material):
 
     @classmethod
     def from_folder(cls, folder, height_scale: float | None = None, max_size: int | None = None,
-                    crop: int | None = None, samples: int = 256, seed: int = 0, chunk: int = 1 << 20,
+                    crop: int | None = None, crop_origin: tuple[int, int] | None = None, samples: int = 256, seed: int = 0, chunk: int = 1 << 20,
                     specular: float = 0.5) -> "SVBRDF":
         """Read a texture-set folder (`neumat.io.texture_set.load_texture_set`) and wrap it; the other
         arguments are those of the constructor."""
         extra = {} if height_scale is None else {"height_scale": height_scale}
-        return cls(load_texture_set(folder, max_size=max_size, crop=crop, **extra), samples=samples, seed=seed,
+        return cls(load_texture_set(folder, max_size=max_size, crop=crop, crop_origin=crop_origin, **extra),
+                   samples=samples, seed=seed,
                    chunk=chunk, specular=specular)
 
     def to(self, device) -> "SVBRDF":

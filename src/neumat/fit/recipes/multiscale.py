@@ -15,9 +15,14 @@ registered as "relative_l2_mix" in `neumat.fit.losses` (`LOSSES`).
 CPU_RECIPE (the gated model and every baseline sharing this recipe): RECIPE is 4-5 GPU hours; on a CPU a
 step of 2^16 footprint queries takes seconds (each target filters the texture set over its footprint), so
 the CPU recipe takes 2^12 queries per step for 1000 steps, about 10 minutes on one core for a 1K texture set (0.59 - 0.65 CPU s per step)
-(benchmarks/results/cpu_recipes.md), with the same total learning-rate decay (x 0.9 fifty times: every 20
-steps instead of every 10k) and the same EMA weight (a window of ~200 steps). Expect a rough fit: the paper's
-quality needs RECIPE on a GPU. The latent resolution follows the source (`config_for_source`).
+(benchmarks/results/cpu_recipes.md); on a 64^2 crop with `--source-option samples=8` about 2 minutes. Otherwise it
+is RECIPE: the same optimiser, EMA weight and schedule, i.e. the paper's first 1000 steps, whose learning rate is
+still constant (its first decay is at 10k steps). An earlier CPU recipe compressed the paper's 50 decays into the
+1000 steps (x 0.9 every 20, to 1.5e-5 at the end): on a 64^2 Plaster001 crop both models ended far worse (mean
+FLIP over 9 scales 0.159 / 0.148 gated / tripleplane against 0.112 / 0.123 at the constant rate) and the gated
+model, which needs more steps at full rate, fell behind tripleplane (benchmarks/results/multiscale_protocol.md, CLI
+section). Expect a rough fit: the paper's quality needs RECIPE on a GPU. The latent resolution follows the source
+(`config_for_source`).
 """
 from __future__ import annotations
 
@@ -27,9 +32,9 @@ from neumat.fit.recipe import Recipe, latent_size_for_source
 RECIPE = Recipe(steps=500_000, batch_size=1 << 16, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
                 lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint")
 
-#: RECIPE sized for about 10 minutes on one CPU core (module docstring)
+#: RECIPE's first 1000 steps at 2^12 queries: about 10 minutes on one CPU core for a 1K set (module docstring)
 CPU_RECIPE = Recipe(steps=1000, batch_size=1 << 12, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
-                    lr_decay_every=20, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200)
+                    lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200)
 CPU_MINUTES = 11
 
 HOMOGENEOUS_RECIPE = Recipe(steps=100_000, batch_size=1 << 18, lr=3e-3, betas=(0.99, 0.999), eps=1e-15,
