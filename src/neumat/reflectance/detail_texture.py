@@ -3,8 +3,8 @@ appearance the multi-scale paper selects its materials for (Timonen et al. 2025 
 filtered look is not a simple average of albedos), made with the package's own code so that a benchmark is
 not limited to the few shared sets.
 
-Kinds (all metals but chainmail's gaps; `size` texels a side, `seed` the random layout; the sets tile when `size`
-is a multiple of 16):
+Kinds (all metals but chainmail's gaps; `size` texels a side, `seed` the random layout; scratches, brushed and
+chainmail tile when `size` is a multiple of 16, foil when it is a multiple of 24, the period of its noise):
   "scratches": a polished metal plate with a few hundred random straight scratches (grooves 1-2 texels wide,
                rougher than the plate) over a faint noise;
   "brushed":   brushed metal: fine grooves along u (streaks of random depth, long along u, a texel or two
