@@ -61,6 +61,7 @@ from neumat.metrics.image import image_metrics
 from neumat.models.registry import build_model
 from neumat.reflectance.microfacet import principled_eval
 from neumat.reflectance.svbrdf import SVBRDF
+from neumat.reflectance.texture_statistics import texture_statistics
 from neumat.render.scale_series import LIGHTS, TILTS, plane_scales, render_scale_series
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "svbrdf"
@@ -246,12 +247,10 @@ def detail_origin(textures, n: int, stride: int = 32) -> tuple[int, int]:
 
 def regime_statistics(textures) -> dict:
     """Mean normal tilt (degrees from the geometric normal) and roughness spread (standard deviation, and the
-    5-95 % range) of a texture set: how much detail a fit has to represent."""
-    n, r = textures.normal.float(), textures.roughness.float().flatten()
-    q = torch.quantile(r, torch.tensor([0.05, 0.95], device=r.device))
-    return {"size": list(textures.size), "tilt_deg": float(torch.rad2deg(torch.acos(n[..., 2].clamp(-1, 1))).mean()),
-            "roughness_mean": float(r.mean()), "roughness_std": float(r.std()),
-            "roughness_p5_p95": [float(q[0]), float(q[1])]}
+    5-95 % range) of a texture set (`neumat.reflectance.texture_statistics`, without the separability rank): how
+    much detail a fit has to represent."""
+    stats = texture_statistics(textures, footprints=())
+    return {k: stats[k] for k in ("size", "tilt_deg", "roughness_mean", "roughness_std", "roughness_p5_p95")}
 
 
 def merge_results(paths: list[Path]) -> dict:

@@ -78,7 +78,7 @@ def texture_statistics(textures: TextureSet, footprints: tuple[float, ...] = (1,
     at each footprint in texels (module docstring; footprints larger than the set are left out)."""
     n, r = textures.normal.float(), textures.roughness.float().flatten()
     tilt = torch.rad2deg(torch.acos(n[..., 2].clamp(-1, 1))).flatten()
-    q = torch.quantile(r, torch.tensor([0.05, 0.95]))
+    q = torch.quantile(r, torch.tensor([0.05, 0.95], device=r.device))
     size = max(textures.size)
     return {"name": textures.name, "size": list(textures.size), "tilt_deg": float(tilt.mean()),
             "tilt_p95_deg": float(torch.quantile(tilt, 0.95)), "roughness_mean": float(r.mean()),
