@@ -17,13 +17,11 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
-from PIL import Image, ImageDraw, ImageFont
 
-from neumat.color.tonemap import to_ldr
 from neumat.io.texture_set import load_texture_set
 from neumat.reflectance.btf_generate import generate_btf, texture_tile
+from picture_tiles import labelled_tile, save_grid
 
 HERE = Path(__file__).resolve().parent
 SETS = ("Leather05_1K_partial", "Plaster001_1K", "Fabric02_1K_partial")
@@ -38,7 +36,6 @@ def main() -> None:
     elevation = math.radians(40)
     light = torch.tensor([[-math.cos(elevation), 0.0, math.sin(elevation)]])
     view = torch.tensor([[math.cos(elevation), 0.0, math.sin(elevation)]])
-    font = ImageFont.load_default(size=13)
     t0, rows = time.perf_counter(), []
     for name in SETS:
         crop, relief = texture_tile(load_texture_set(Path(args.shared) / name), args.size, crop=args.size,
@@ -51,16 +48,9 @@ def main() -> None:
         images = {"direct": images["direct"], "+ bounce": images["+ bounce"],
                   "bounce x 8": 8 * (images["+ bounce"] - images["direct"]).clamp(min=0),
                   "+ fibres": images["+ fibres"]}
-        tiles = []
-        for label, radiance in images.items():
-            tile = Image.fromarray(np.round(to_ldr(radiance.numpy(), exposure=1.0) * 255).astype(np.uint8))
-            tile = tile.resize((2 * args.size, 2 * args.size), Image.NEAREST)
-            ImageDraw.Draw(tile).text((3, 2), f"{name.split('_')[0]} {label}", fill=(255, 255, 0), font=font)
-            tiles.append(np.asarray(tile))
-        rows.append(np.concatenate(tiles, axis=1))
-    out = HERE / "images" / "btf_effects.png"
-    Image.fromarray(np.concatenate(rows, axis=0)).save(out)
-    print(f"wrote {out} in {time.perf_counter() - t0:.0f} s")
+        rows.append([labelled_tile(radiance, f"{name.split('_')[0]} {label}", exposure=1.0, magnify=2)
+                     for label, radiance in images.items()])
+    save_grid(rows, "btf_effects", t0)
 
 
 if __name__ == "__main__":

@@ -16,13 +16,11 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
-from PIL import Image, ImageDraw, ImageFont
 
-from neumat.color.tonemap import to_ldr
 from neumat.io.texture_set import load_texture_set
 from neumat.reflectance.btf_generate import generate_btf, texture_tile
+from picture_tiles import labelled_tile, save_grid
 
 HERE = Path(__file__).resolve().parent
 SETS = ("Fabric02_1K_partial", "Leather05_1K_partial", "Metal027_1K", "Paper001_1K", "Plaster001_1K", "Wood092_1K")
@@ -41,7 +39,6 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=100)
     parser.add_argument("--shared", default=str(HERE.parent.parent / "shared" / "data" / "svbrdf"))
     args = parser.parse_args()
-    font = ImageFont.load_default(size=13)
     t0, rows = time.perf_counter(), []
     for name in SETS:
         crop, relief = texture_tile(load_texture_set(Path(args.shared) / name), args.size, crop=args.size,
@@ -51,14 +48,9 @@ def main() -> None:
             light, view = direction(*light_angles), direction(*view_angles)
             btf = generate_btf(crop, light, view, relief=4 * relief, spp=4)
             radiance = btf.data[0, 0] * light[0, 2]          # apparent BRDF x cos(light)
-            tile = Image.fromarray(np.round(to_ldr(radiance.numpy(), exposure=1.0) * 255).astype(np.uint8))
-            tile = tile.resize((2 * args.size, 2 * args.size), Image.NEAREST)
-            ImageDraw.Draw(tile).text((3, 2), f"{name.split('_')[0]}, {figure}", fill=(255, 255, 0), font=font)
-            tiles.append(np.asarray(tile))
-        rows.append(np.concatenate(tiles, axis=1))
-    out = HERE / "images" / "btf_paper_angles.png"
-    Image.fromarray(np.concatenate(rows, axis=0)).save(out)
-    print(f"wrote {out} in {time.perf_counter() - t0:.0f} s")
+            tiles.append(labelled_tile(radiance, f"{name.split('_')[0]}, {figure}", exposure=1.0, magnify=2))
+        rows.append(tiles)
+    save_grid(rows, "btf_paper_angles", t0)
 
 
 if __name__ == "__main__":

@@ -11,18 +11,12 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
-import numpy as np
 import torch
-from PIL import Image, ImageDraw, ImageFont
 
-from neumat.color.tonemap import to_ldr
 from neumat.reflectance.btf_generate import generate_btf
 from neumat.reflectance.procedural_texture import KINDS, material_name, procedural_texture_set
-
-HERE = Path(__file__).resolve().parent
-
+from picture_tiles import labelled_tile, save_grid
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -32,7 +26,6 @@ def main() -> None:
     elevation = math.radians(60)
     light = torch.tensor([[-math.cos(elevation), 0.0, math.sin(elevation)]])
     view = torch.tensor([[0.0, 0.0, 1.0]])
-    font = ImageFont.load_default(size=13)
     t0, rows = time.perf_counter(), []
     for kind in KINDS:
         tiles = []
@@ -40,13 +33,9 @@ def main() -> None:
             ts = procedural_texture_set(kind, args.size, seed=1, variant=variant)
             btf = generate_btf(ts, light, view, relief=4.0 * args.size / 40, spp=4)
             radiance = btf.data[0, 0] * light[0, 2]                        # apparent BRDF x cos(light)
-            tile = Image.fromarray(np.round(to_ldr(radiance.numpy()) * 255).astype(np.uint8))
-            ImageDraw.Draw(tile).text((3, 2), material_name(kind, variant), fill=(255, 255, 0), font=font)
-            tiles.append(np.asarray(tile))
-        rows.append(np.concatenate(tiles, axis=1))
-    out = HERE / "images" / "procedural_btfs.png"
-    Image.fromarray(np.concatenate(rows, axis=0)).save(out)
-    print(f"wrote {out} in {time.perf_counter() - t0:.0f} s")
+            tiles.append(labelled_tile(radiance, material_name(kind, variant)))
+        rows.append(tiles)
+    save_grid(rows, "procedural_btfs", t0)
 
 
 if __name__ == "__main__":
