@@ -14,6 +14,7 @@ from .common import SEED_RANGE, console, device_option, parse_overrides, run_com
 from .fit_engines import RAY_HINT, RunProgress, ray_available, run_local, run_ray
 from .fit_job import FitJob, run_fit_job, source_sha256
 from .fit_results import is_done, markdown, read_rows, write_rows
+from .fitting import checked_recipe_name
 
 #: source kinds fit-many fits (one Material per source)
 KINDS = ("brdf", "svbrdf", "btf")
@@ -79,9 +80,8 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
         out.mkdir(parents=True, exist_ok=True)
         overrides = model_overrides(parse_overrides(set_), model)
-        if recipe_name not in ("paper", "cpu"):
-            raise InputError(f"--recipe: expected 'paper' or 'cpu', got {recipe_name!r}")
-        common = dict(out_dir=str(out), steps=steps, seed=seed, device=device, recipe=recipe_name,
+        common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
+                      recipe=checked_recipe_name(recipe_name),
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
                       image_spp=image_spp, image_resolution=image_resolution)
         named = source_names(expand_sources(sources))

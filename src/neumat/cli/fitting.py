@@ -81,13 +81,18 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     run_command(go)
 
 
+def checked_recipe_name(recipe_name: str) -> str:
+    """`recipe_name` if it is "paper" or "cpu" (a --recipe value), else InputError."""
+    if recipe_name not in ("paper", "cpu"):
+        raise InputError(f"--recipe: expected 'paper' or 'cpu', got {recipe_name!r}")
+    return recipe_name
+
+
 def choose_recipe(recipe_name: str | None, device, budget_given: bool) -> str:
     """Which of the model's recipes a fit runs: `recipe_name` ("paper" or "cpu") when given, else "cpu" on a CPU
     device when the command line names no step budget, else "paper"."""
     if recipe_name is not None:
-        if recipe_name not in ("paper", "cpu"):
-            raise InputError(f"--recipe: expected 'paper' or 'cpu', got {recipe_name!r}")
-        return recipe_name
+        return checked_recipe_name(recipe_name)
     return "cpu" if device.type == "cpu" and not budget_given else "paper"
 
 
