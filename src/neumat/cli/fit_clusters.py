@@ -128,7 +128,7 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         text = json.dumps(_finite_or_none(summary), indent=1, allow_nan=False)
         atomic_write(out / "clusters.json", lambda tmp: Path(tmp).write_text(text + "\n"))
         stale = sorted(p for p in out.glob("cluster*.nmat")
-                       if re.fullmatch(r"cluster(\d+)\.nmat", p.name) and int(p.name[7:-5]) >= len(clusters))
+                       if (m := re.fullmatch(r"cluster(\d+)\.nmat", p.name)) and int(m.group(1)) >= len(clusters))
         for path in stale:  # a former run's clusters beyond this run's: clusters.json no longer lists them
             path.unlink()
         if stale:
