@@ -93,10 +93,39 @@ def test_changed_source_or_options_are_fitted_again(app, tmp_path):
     assert all(r["steps"] == 11 for r in _rows(out).values())
 
 
+def test_changed_evaluation_options_evaluate_the_saved_models_again_without_refitting(app, tmp_path):
+    """--image-spp changed: the saved models are evaluated again (same .nmat, fit seconds and recipe kept, new
+    image metrics with the reference's noise floor); a row written before fit_sha256 existed (only its options
+    hash of that time) is recognised as fitted too."""
+    src = _teachers(tmp_path / "src", 1)
+    out = tmp_path / "out"
+    args = [*src, *FAST, "--engine", "local", "-o", str(out)]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    (first,) = _rows(out).values()
+    res = CliRunner().invoke(app, [*args, "--image-spp", "2"])
+    text = " ".join(res.output.split())
+    assert res.exit_code == 0 and "1 to fit (1 of them fitted before: evaluated again)" in text, res.output
+    (again,) = _rows(out).values()
+    assert again["nmat_sha256"] == first["nmat_sha256"] and again["fit_seconds"] == first["fit_seconds"]
+    assert again["recipe"] == first["recipe"] and again["steps"] == first["steps"]
+    assert again["metrics"]["img_mae"] != first["metrics"]["img_mae"] and "img_floor_mae" in again["metrics"]
+    assert again["metrics"]["log_err"] == first["metrics"]["log_err"]  # same model, same queries
+
+    job = FitJob(source=src[0], name="teacher0", model="ggx", out_dir=str(out), steps=10,
+                 overrides={"batch_size": 256}, device="cpu", eval_n=2048, image_spp=2, image_resolution=8)
+    assert job.fit_sha256() == again["fit_sha256"] and job.options_sha256() == again["options_sha256"]
+    legacy = {k: v for k, v in again.items() if k != "fit_sha256"} | {"options_sha256": job.legacy_options_sha256()}
+    results = json.loads((out / "results.json").read_text())
+    (out / "results.json").write_text(json.dumps(results | {"rows": [legacy]}))
+    res = CliRunner().invoke(app, [*args, "--image-spp", "2"])
+    assert "(1 of them fitted before: evaluated again)" in " ".join(res.output.split()), res.output
+    assert _rows(out)["teacher0"]["nmat_sha256"] == first["nmat_sha256"]
+
+
 def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tmp_path):
     """--recipe cpu: each model's CPU-sized recipe (neubrdf: 2^13 queries a step, not the paper's 2^14); a rerun
-    with the paper's recipe fits again; a paper-recipe row's options hash does not mention the recipe (results
-    written before the option existed stay resumable)."""
+    with the paper's recipe fits again; a paper-recipe row's options hash of before the image protocol was
+    hashed does not mention the recipe (results written before the option existed are recognised)."""
     from neumat.fit.recipe import recipe_for
 
     out = tmp_path / "out"
@@ -115,8 +144,9 @@ def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
     from dataclasses import asdict
 
     job = FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path))
-    before = {k: v for k, v in asdict(job).items() if k not in ("source", "name", "out_dir", "device", "recipe")}
-    assert job.options_sha256() == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
+    before = {k: v for k, v in asdict(job).items()
+              if k not in ("source", "name", "out_dir", "device", "recipe", "evaluate_only")}
+    assert job.legacy_options_sha256() == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
     assert job.options_sha256() != FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path),
                                           recipe="cpu").options_sha256()
     bad = CliRunner().invoke(app, [*args, "--recipe", "gpu"])

@@ -15,8 +15,14 @@ from pathlib import Path
 from ..core.errors import DataFormatError
 
 #: the row keys, in the order results.json and results.md show them
-ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "nmat", "nmat_sha256", "recipe",
-            "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker", "error")
+ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "nmat", "nmat_sha256",
+            "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker",
+            "error")
+#: the row keys an evaluation of an already fitted model takes over from the fit's row
+FIT_KEYS = ("recipe", "steps", "fit_seconds")
+#: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
+#: evaluated under an older protocol are evaluated again
+IMAGE_PROTOCOL = "sphere/sky, mis-lobes, sobol, floor at seed + 1"
 
 
 @dataclass(frozen=True)
@@ -24,7 +30,8 @@ class FitJob:
     """What to fit and how. source: a file path or spec (as `neumat fit` takes it); name: the source's short
     name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
     errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
-    recipe: "paper" or "cpu", the model's recipe (`neumat.fit.recipe.recipe_for`)."""
+    recipe: "paper" or "cpu", the model's recipe (`neumat.fit.recipe.recipe_for`); evaluate_only: the model
+    at `out` was fitted with these fit options before: only evaluate it (not part of the hashes)."""
 
     source: str
     name: str
@@ -39,19 +46,36 @@ class FitJob:
     image_spp: int = 16
     image_resolution: int = 64
     recipe: str = "paper"
+    evaluate_only: bool = False
 
     @property
     def out(self) -> Path:
         return Path(self.out_dir) / f"{self.name}.{self.model}.nmat"
 
+    def fit_sha256(self) -> str:
+        """Hash of everything that changes the fitted model (not its evaluation, the device nor the output)."""
+        return _sha256(self._fit_options())
+
     def options_sha256(self) -> str:
-        """Hash of everything that changes the fitted model or its metrics (not the device nor the output)."""
-        keys = ("model", "overrides", "steps", "seed", "source_options", "eval_n", "image_spp", "image_resolution")
-        options = {k: asdict(self)[k] for k in keys}
-        if self.recipe != "paper":  # results written before the option existed (paper recipes) still match
+        """Hash of everything that changes the fitted model or its metrics."""
+        options = self._fit_options() | {k: getattr(self, k) for k in ("eval_n", "image_spp", "image_resolution")}
+        if self.image_spp:
+            options["image_protocol"] = IMAGE_PROTOCOL
+        return _sha256(options)
+
+    def legacy_options_sha256(self) -> str:
+        """`options_sha256` as rows written before the image protocol was hashed (and before fit_sha256) hold."""
+        return _sha256(self._fit_options() | {k: getattr(self, k) for k in ("eval_n", "image_spp", "image_resolution")})
+
+    def _fit_options(self) -> dict:
+        options = {k: asdict(self)[k] for k in ("model", "overrides", "steps", "seed", "source_options")}
+        if self.recipe != "paper":
             options["recipe"] = self.recipe
-        text = json.dumps(options, sort_keys=True, default=str)
-        return hashlib.sha256(text.encode()).hexdigest()
+        return options
+
+
+def _sha256(options: dict) -> str:
+    return hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode()).hexdigest()
 
 
 def file_sha256(path: str | Path) -> str:
@@ -77,7 +101,8 @@ def run_fit_job(job: FitJob) -> dict:
         row = error_row(job, None) | {"source_sha256": source_sha256(job.source)}
         row |= _fit_and_evaluate(job) | {"status": "ok"}
     except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
-        job.out.unlink(missing_ok=True)
+        if not job.evaluate_only:  # an evaluation that failed keeps the model it could not evaluate
+            job.out.unlink(missing_ok=True)
         row = error_row(job, e)
     row["seconds"] = time.perf_counter() - t0
     return row
@@ -90,6 +115,7 @@ def error_row(job: FitJob, error: BaseException | None) -> dict:
     message = f"{type(error).__name__}: {text[-1][:500] if text else ''}".rstrip(": ") if error is not None else None
     return {k: None for k in ROW_KEYS} | {"name": job.name, "model": job.model, "source": job.source,
                                           "status": "error", "error": message, "options_sha256": job.options_sha256(),
+                                          "fit_sha256": job.fit_sha256(),
                                           "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
 
@@ -101,6 +127,11 @@ def _fit_and_evaluate(job: FitJob) -> dict:
 
     device = resolve_device(job.device)
     src = open_training_source(job.model, [job.source], job.source_options)
+    if job.evaluate_only:
+        fitted = load_model(job.out, device=device)
+        return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
+                "metrics": _checked(evaluate_against(fitted, src, job, device), job),
+                "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
     model, recipe = build_model_and_recipe(job.model, job.overrides, job.seed, source=src, machine=job.recipe)
     result = fit(model, src, recipe, steps=job.steps, device=device, progress=False)
     loss = result.history[-1]["loss"] if result.history else None
@@ -109,26 +140,29 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     save_model(result.model, job.out, recipe=result.recipe, source=job.source,
                metrics={"final_loss": loss, "fit_seconds": result.seconds})
     fitted = load_model(job.out, device=device)
-    metrics = evaluate_against(fitted, src, job, device)
-    bad = sorted(k for k, v in metrics.items() if math.isnan(v))
-    if bad:
-        raise DataFormatError(f"model fitted to {job.source!r} has NaN metrics: {', '.join(bad)}")
+    metrics = _checked(evaluate_against(fitted, src, job, device), job)
     return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
             "recipe": config_to_dict(result.recipe), "metrics": metrics, "steps": result.steps,
             "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device)}
 
 
+def _checked(metrics: dict[str, float], job: FitJob) -> dict[str, float]:
+    bad = sorted(k for k, v in metrics.items() if math.isnan(v))
+    if bad:
+        raise DataFormatError(f"model fitted to {job.source!r} has NaN metrics: {', '.join(bad)}")
+    return metrics
+
+
 def evaluate_against(model, reference, job: FitJob, device) -> dict[str, float]:
     """`neumat eval`'s quality metrics of `model` against `reference`: reflectance errors over `job.eval_n`
-    cosine-weighted queries and, with `job.image_spp` > 0, image metrics of sphere renderings (img_*)."""
+    cosine-weighted queries and, with `job.image_spp` > 0, image metrics of sphere renderings (img_*) with the
+    reference's noise floor (img_floor_*, `neumat.render.comparison`)."""
     from ..metrics.hdr import reflectance_errors
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
     if job.image_spp > 0:
-        from ..metrics.image import image_metrics
-        from ..render.render import render
+        from ..render.comparison import image_comparison
 
-        opts = dict(scene="sphere", spp=job.image_spp, resolution=job.image_resolution, seed=0, device=device)
-        img = image_metrics(render(reference, **opts), render(model, **opts))
+        img = image_comparison(model, reference, job.image_spp, job.image_resolution, seed=0, device=device)
         out.update({f"img_{k}": float(v) for k, v in img.items()})
     return out

@@ -5,6 +5,7 @@ from __future__ import annotations
 import shlex
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -12,8 +13,8 @@ import typer
 from ..core.errors import InputError
 from .common import SEED_RANGE, console, device_option, parse_overrides, run_command
 from .fit_engines import RAY_HINT, RunProgress, ray_available, run_local, run_ray
-from .fit_job import FitJob, run_fit_job, source_sha256
-from .fit_results import is_done, markdown, read_rows, write_rows
+from .fit_job import FIT_KEYS, FitJob, run_fit_job, source_sha256
+from .fit_results import is_done, is_fitted, markdown, read_rows, write_rows
 from .fitting import checked_recipe_name
 
 #: source kinds fit-many fits (one Material per source)
@@ -57,9 +58,10 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
     OUT/<source>.<model>.nmat, OUT/results.json (one row per source and model: source and its hash, model,
     recipe, metrics, bytes, fit seconds, device, worker, or the error that stopped it) and OUT/results.md. A
     failing source gets its error row and the others go on. Run the same command again to resume: rows whose
-    .nmat, source hash and options match are kept, the others (failed, new, changed) are fitted. Without Ray
-    installed, --engine auto runs the jobs one after another here (install Ray: pip install 'neumat[ray]').
-    Exit code 1 when some job failed."""
+    .nmat, source hash and options match are kept, those whose evaluation options alone changed (--eval-n,
+    --image-spp, --image-resolution) are evaluated again without refitting, the others (failed, new, changed) are
+    fitted. Without Ray installed, --engine auto runs the jobs one after another here (install Ray: pip install
+    'neumat[ray]'). Exit code 1 when some job failed."""
 
     def go() -> bool:
         from ..models.registry import model_class
@@ -93,18 +95,22 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         for job in jobs:
             key = (job.source, job.model)
             try:
-                done = is_done(previous.get(key), job, source_sha256(job.source))
+                sha = source_sha256(job.source)
+                done, fitted = is_done(previous.get(key), job, sha), is_fitted(previous.get(key), job, sha)
             except OSError:
-                done = False  # an unreadable source: its job reports the error
+                done = fitted = False  # an unreadable source: its job reports the error
             if done:
                 rows[key] = previous[key]
             else:
-                todo.append(job)
+                todo.append(replace(job, evaluate_only=fitted))
         console.print(f"fit-many: {len(named)} source(s) x {len(model)} model(s) = {len(jobs)} job(s); "
-                      f"{len(jobs) - len(todo)} already done (kept), {len(todo)} to fit "
+                      f"{len(jobs) - len(todo)} already done (kept), {len(todo)} to fit"
+                      + (f" ({sum(j.evaluate_only for j in todo)} of them fitted before: evaluated again)"
+                         if any(j.evaluate_only for j in todo) else "") + " "
                       f"({'Ray' if use_ray else 'one after another in this process'})", highlight=False, soft_wrap=True)
         run = {"command": "neumat fit-many " + shlex.join(sys.argv[2:] if "fit-many" in sys.argv[1:2] else []),
-               "engine": "ray" if use_ray else "local", "jobs": len(jobs), "fitted": len(todo)}
+               "engine": "ray" if use_ray else "local", "jobs": len(jobs), "fitted": len(todo),
+               "evaluated_again": sum(j.evaluate_only for j in todo)}
         progress = RunProgress(len(todo), console, quiet=quiet)
         t0 = time.perf_counter()
         stream = (run_ray(todo, run_fit_job, progress, workers=workers, address=address, retries=retries,
@@ -113,7 +119,10 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                   if use_ray else run_local(todo, run_fit_job, progress))
         ordered = []
         for row in stream:
-            rows[(row["source"], row["model"])] = row
+            key = (row["source"], row["model"])
+            if row["status"] == "ok" and key in previous and row["fit_sha256"] == previous[key].get("fit_sha256"):
+                row |= {k: previous[key][k] for k in FIT_KEYS if row.get(k) is None}  # evaluated again, not refitted
+            rows[key] = row
             ordered = [rows[(j.source, j.model)] for j in jobs if (j.source, j.model) in rows]
             write_rows(results, ordered, run | {"wall_seconds": time.perf_counter() - t0})
         run["wall_seconds"] = time.perf_counter() - t0
@@ -121,9 +130,10 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         write_rows(results, ordered, run)
         failed = [r for r in ordered if r["status"] != "ok"]
         notes = [f"`{run['command']}`", "",
-                 f"{len(jobs)} job(s), {len(todo)} fitted in this run ({run['engine']}, wall time "
+                 f"{len(jobs)} job(s), {len(todo)} fitted or evaluated in this run ({run['engine']}, wall time "
                  f"{run['wall_seconds']:.1f} s), {len(failed)} failed. Metrics: reflectance errors over {eval_n} "
-                 f"cosine-weighted (wi, wo)" + (f"; img_*: {image_resolution}^2 sphere renderings at {image_spp} spp"
+                 f"cosine-weighted (wi, wo)" + (f"; img_*: {image_resolution}^2 sphere renderings at {image_spp} spp (img_floor_*: the "
+                                                  f"reference against itself at the next seed)"
                                                if image_spp else "") + "; bytes at fp16; fit_s: training seconds."]
         (out / "results.md").write_text(markdown(ordered, f"fit-many: {len(named)} sources x {', '.join(model)}", notes))
         console.print(f"wrote {out}/results.json and results.md: {len(ordered) - len(failed)} ok, {len(failed)} "

@@ -12,7 +12,8 @@ from ..io.atomic import atomic_write
 from .fit_job import FitJob, file_sha256
 
 #: metrics shown in results.md, in this order, where some row has them
-TABLE_METRICS = ("rmse_hdr", "mae_hdr", "rel_err", "log_err", "img_mae", "img_rmse", "img_ssim", "img_flip")
+TABLE_METRICS = ("rmse_hdr", "mae_hdr", "rel_err", "log_err", "img_mae", "img_rmse", "img_ssim", "img_flip",
+                 "img_floor_mae", "img_floor_ssim")
 
 
 def read_rows(path: Path) -> list[dict]:
@@ -35,9 +36,18 @@ def write_rows(path: Path, rows: list[dict], run: dict) -> None:
 
 
 def is_done(row: dict | None, job: FitJob, source_sha256: str) -> bool:
-    """Whether `row` (from a previous run) already holds `job`: fitted without error with the same options to a
-    source of the same hash, and its .nmat is still the file it wrote."""
-    if not row or row.get("status") != "ok" or row.get("options_sha256") != job.options_sha256():
+    """Whether `row` (from a previous run) already holds `job`: fitted and evaluated without error with the same
+    options to a source of the same hash, and its .nmat is still the file it wrote."""
+    return is_fitted(row, job, source_sha256) and row.get("options_sha256") == job.options_sha256()
+
+
+def is_fitted(row: dict | None, job: FitJob, source_sha256: str) -> bool:
+    """Whether `row` holds a model of `job` fitted with the same fit options (its evaluation may differ) to a
+    source of the same hash, whose .nmat is still the file it wrote: then only its evaluation needs redoing. Rows
+    written before fit_sha256 existed are recognised by their options hash of that time."""
+    if not row or row.get("status") != "ok":
+        return False
+    if row.get("fit_sha256") != job.fit_sha256() and row.get("options_sha256") != job.legacy_options_sha256():
         return False
     if row.get("source_sha256") != source_sha256 or not job.out.is_file():
         return False

@@ -22,7 +22,9 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
            light: str = typer.Option("env:sky", help=LIGHT_HELP),
            spp: int = typer.Option(64, min=1, help="samples per pixel"),
            resolution: int = typer.Option(256, min=8, help="image width and height in pixels"),
-           strategy: str = typer.Option("mis", help="mis | light | material"),
+           strategy: str = typer.Option("mis", help="mis | light | material | mis-lobes (a fixed lobe mixture "
+                                                    "instead of the material's sampler)"),
+           sampler: str = typer.Option("random", help="random | sobol (shifted quasi-random points per pixel)"),
            device: str = typer.Option(None, callback=device_option, help="torch device, e.g. cuda"),
            seed: int = typer.Option(0, **SEED_RANGE),
            quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
@@ -36,7 +38,7 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
     def go():
         m = open_material(material)
         img = render_image(m, scene=scene, light=light, spp=spp, resolution=(resolution, resolution),
-                           strategy=strategy, seed=seed, device=device, progress=not quiet)
+                           strategy=strategy, sampler=sampler, seed=seed, device=device, progress=not quiet)
         write_image(out, img)
         print(f"wrote {out}")
     run_command(go)
@@ -58,11 +60,14 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
             out: Path = typer.Option(None, "-o", "--out", callback=output_option(".png", ".jpg", ".jpeg"),
                                     help="comparison picture (.png)")) -> None:
-    """Render the reference and every other material identically; print image and reflectance metrics."""
+    """Render the reference and every other material identically (the same directions: a fixed lobe mixture and
+    light sampling, quasi-random points); print image and reflectance metrics, and the reference against itself
+    rendered with the next seed (its noise floor: image errors near it are noise)."""
     from ..core.errors import InputError
     from ..catalog.open_material import open_material
     from ..metrics.hdr import reflectance_errors
     from ..metrics.image import image_metrics
+    from ..render.comparison import COMPARISON_SAMPLING, FLOOR_NAME
     from ..render.render import render as render_image
 
     def go():
@@ -70,9 +75,11 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             raise InputError("compare needs a reference and at least one other material")
         options = parse_overrides(source_option, "--source-option")
         mats = {name: open_material(name, **(options if i == 0 else {})) for i, name in enumerate(materials)}
-        imgs = {name: render_image(m, scene=scene, light=light, spp=spp, resolution=(resolution, resolution),
-                                   seed=seed, device=device, progress=not (json or quiet)) for name, m in mats.items()}
+        opts = dict(scene=scene, light=light, spp=spp, resolution=(resolution, resolution), device=device,
+                    progress=not (json or quiet), **COMPARISON_SAMPLING)
+        imgs = {name: render_image(m, seed=seed, **opts) for name, m in mats.items()}
         ref_name = materials[0]
+        floor = image_metrics(imgs[ref_name], render_image(mats[ref_name], seed=seed + 1, **opts))
         rows = []
         for name in materials[1:]:
             row = {"material": name, **image_metrics(imgs[ref_name], imgs[name])}
@@ -84,8 +91,8 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             values = {r["material"]: {k: v for k, v in r.items() if k != "material"} for r in rows}
             write_image_ldr(out, compare_image(imgs[ref_name], {n: imgs[n] for n in materials[1:]}, values))
         if json:
-            print_json({"reference": ref_name, "results": rows})
-        else:  # one row per metric, one column per material: readable at 80 columns
-            print_table(f"against {ref_name}", [{"metric": k, **{r["material"]: r[k] for r in rows}}
-                                                for k in rows[0] if k != "material"])
+            print_json({"reference": ref_name, "results": rows, "floor": floor})
+        else:  # one row per metric, one column per material and the floor: readable at 80 columns
+            print_table(f"against {ref_name}", [{"metric": k, **{r["material"]: r[k] for r in rows},
+                                                 FLOOR_NAME: floor.get(k, "")} for k in rows[0] if k != "material"])
     run_command(go)

@@ -4,6 +4,10 @@ Per shading point one light sample and one material sample are drawn:
   "light":     L = f Li cos / p_light
   "material":  L = f Li cos / p_mat      (delta lights cannot be hit: they fall back to "light")
   "mis":       both, weighted by p^2 / (p_light^2 + p_mat^2)
+  "mis-lobes": "mis" with the material sample drawn from a fixed, material-independent mixture of a cosine
+               lobe and GGX lobes from chrome-like to rough (`neumat.warp.lobe_mixture`): renders of two
+               materials with the same seed then use the same directions and differ by the materials only,
+               which is what image comparisons of a model with its reference need
 f is always `material.eval(Query(wi=light direction, wo=viewer direction))`. The material strategy draws
 the light direction with `material.sample(Query(wi=viewer), u)` (the sampled `wo` slot is the light
 direction) and its density `material.pdf(Query(wi=viewer, wo=light))`; materials with can_sample = False
@@ -21,10 +25,11 @@ from ..core.frames import to_local, to_world
 from ..core.material import Material
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
+from ..warp.lobe_mixture import lobe_mixture_pdf, sample_lobe_mixture
 from .lights import Light
 from .scenes import Hits, Scene
 
-STRATEGIES = ("mis", "light", "material")
+STRATEGIES = ("mis", "light", "material", "mis-lobes")
 
 
 def check_strategy(strategy: str) -> str:
@@ -46,9 +51,10 @@ def shade_direct(material: Material, light: Light, scene: Scene, hits: Hits, vie
     wo = _unit(to_local(view, *frame))
     front = wo[:, 2] > 0
     wo = torch.where(front[:, None], wo, _up(wo))
-    use_light = light.is_delta or strategy in ("mis", "light")
-    use_material = not light.is_delta and strategy in ("mis", "material")
-    mis = strategy == "mis" and not light.is_delta
+    use_light = light.is_delta or strategy != "material"
+    use_material = not light.is_delta and strategy != "light"
+    mis = strategy in ("mis", "mis-lobes") and not light.is_delta
+    fixed = strategy == "mis-lobes"
 
     dirs, pdfs, radiance, valids = [], [], [], []
     if use_light:
@@ -61,7 +67,7 @@ def shade_direct(material: Material, light: Light, scene: Scene, hits: Hits, vie
         radiance.append(ls.radiance)
         valids.append(ok)
     if use_material:
-        wi_m, p_m = _sample_material(material, wo, hits, below_one(u[:, 2:4].to(wo.dtype)))
+        wi_m, p_m = _sample_material(material, wo, hits, below_one(u[:, 2:4].to(wo.dtype)), fixed)
         ok = front & (p_m > 0) & (wi_m[:, 2] > 0)
         wi_m = torch.where(ok[:, None], wi_m, _up(wi_m))
         world = to_world(wi_m, *frame)
@@ -82,7 +88,7 @@ def shade_direct(material: Material, light: Light, scene: Scene, hits: Hits, vie
     contrib = f * torch.cat(radiance) * cos / torch.where(valid, pdf, torch.ones_like(pdf))[:, None]
     if mis:
         p_light, p_mat = pdfs
-        p_mat_of_light = _material_pdf(material, wo, wi_all[:n], hits)
+        p_mat_of_light = _material_pdf(material, wo, wi_all[:n], hits, fixed)
         w_light = _power(p_light, p_mat_of_light)
         w_mat = _power(p_mat, p_light_of_mat)
         contrib = contrib * torch.cat([w_light, w_mat])[:, None]
@@ -95,8 +101,12 @@ def below_one(u: torch.Tensor) -> torch.Tensor:
     return u.clamp(max=1.0 - torch.finfo(u.dtype).eps / 2)
 
 
-def _sample_material(material: Material, wo: torch.Tensor, hits: Hits, u: torch.Tensor):
-    """Light directions (M, 3) drawn from the material given the viewer direction, and their densities."""
+def _sample_material(material: Material, wo: torch.Tensor, hits: Hits, u: torch.Tensor, fixed: bool):
+    """Light directions (M, 3) drawn from the material (fixed: from the lobe mixture) given the viewer
+    direction, and their densities."""
+    if fixed:
+        wi = sample_lobe_mixture(wo, u)
+        return wi, lobe_mixture_pdf(wo, wi)
     if not material.can_sample:
         wi = sample_cosine_hemisphere(u)
         return wi, wi[:, 2].clamp(min=0) / math.pi
@@ -107,8 +117,10 @@ def _sample_material(material: Material, wo: torch.Tensor, hits: Hits, u: torch.
     return _unit(wi), torch.where(good, s.pdf, torch.zeros_like(s.pdf))
 
 
-def _material_pdf(material: Material, wo: torch.Tensor, wi: torch.Tensor, hits: Hits) -> torch.Tensor:
+def _material_pdf(material: Material, wo: torch.Tensor, wi: torch.Tensor, hits: Hits, fixed: bool) -> torch.Tensor:
     """Density (M,) with which `_sample_material` draws the light directions wi (M, 3)."""
+    if fixed:
+        return lobe_mixture_pdf(wo, wi)
     if not material.can_sample:
         return wi[:, 2].clamp(min=0) / math.pi
     p = material.pdf(_query(wo, wi, hits, 1))

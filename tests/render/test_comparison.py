@@ -1,0 +1,44 @@
+"""Comparison renderings: the "mis-lobes" strategy and the "sobol" sampler are unbiased (a Lambertian under a
+constant sky reflects albedo x radiance), both materials of a comparison see the same directions, and the noise
+floor falls with the sample count."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from neumat import InputError
+from neumat.catalog.open_material import open_material
+from neumat.render.comparison import image_comparison
+from neumat.render.render import render
+
+
+@pytest.mark.parametrize("strategy, sampler, tol", [("mis-lobes", "random", 0.02), ("mis-lobes", "sobol", 0.002),
+                                                    ("mis", "sobol", 0.002)])
+def test_lambertian_under_a_constant_sky_reflects_albedo_times_radiance(strategy, sampler, tol):
+    """The mean of 36 pixels at 512 spp; tol about 6 standard deviations (measured at 4096 spp: per-pixel
+    standard deviation 0.0066 for independent numbers, 1e-4 for Sobol points)."""
+    img = render(open_material("lambert:albedo=0.5"), light="const:1", spp=512, resolution=16, strategy=strategy,
+                 sampler=sampler, jitter=False)
+    centre = img[5:11, 5:11]  # on the sphere: radiance 0.5 exactly, the rest is estimator noise
+    assert abs(centre.mean().item() - 0.5) < tol
+
+
+def test_sobol_points_converge_faster_than_independent_ones():
+    """The sphere under the sky, one pixel's error over spp: quasi-random points beat independent ones."""
+    m = open_material("ggx:roughness=0.2")
+    ref = render(m, spp=2048, resolution=16, strategy="mis-lobes", sampler="sobol", seed=9)
+    err = {s: (render(m, spp=64, resolution=16, strategy="mis-lobes", sampler=s) - ref).abs().mean().item()
+           for s in ("random", "sobol")}
+    assert err["sobol"] < 0.8 * err["random"], err
+
+
+def test_same_material_same_seed_is_exact_and_the_floor_falls_with_spp():
+    m = open_material("ggx:roughness=0.1")
+    same = image_comparison(m, m, spp=4, resolution=16)
+    assert same["mae"] == 0 and same["floor_mae"] > 0
+    assert image_comparison(m, m, spp=64, resolution=16)["floor_mae"] < 0.5 * same["floor_mae"]
+
+
+def test_unknown_sampler_is_refused():
+    with pytest.raises(InputError, match="sampler: expected one of random, sobol"):
+        render(open_material("lambert"), spp=1, resolution=8, sampler="halton")
