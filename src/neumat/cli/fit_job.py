@@ -161,8 +161,19 @@ def evaluate_against(model, reference, job: FitJob, device) -> dict[str, float]:
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
     if job.image_spp > 0:
-        from ..render.comparison import image_comparison
+        from ..render.comparison import image_comparison, reference_renders
 
-        img = image_comparison(model, reference, job.image_spp, job.image_resolution, seed=0, device=device)
+        key = (job.source, source_sha256(job.source), job.source_options and json.dumps(job.source_options,
+               sort_keys=True), job.image_spp, job.image_resolution, str(device))
+        if _REFERENCE_RENDERS.get("key") != key:  # the models of one source follow each other: render it once
+            _REFERENCE_RENDERS.clear()
+            _REFERENCE_RENDERS.update(key=key, renders=reference_renders(reference, job.image_spp,
+                                                                         job.image_resolution, 0, device))
+        img = image_comparison(model, reference, job.image_spp, job.image_resolution, seed=0, device=device,
+                               renders=_REFERENCE_RENDERS["renders"])
         out.update({f"img_{k}": float(v) for k, v in img.items()})
     return out
+
+
+#: the last source's reference renderings in this process (key: source, its hash and options, spp, size, device)
+_REFERENCE_RENDERS: dict = {}

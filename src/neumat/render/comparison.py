@@ -31,13 +31,21 @@ def comparison_images(materials: dict[str, Material], spp: int, resolution: int,
                          progress=progress, **COMPARISON_OPTIONS) for name, m in materials.items()}
 
 
+def reference_renders(reference: Material, spp: int, resolution: int, seed: int = 0, device=None) -> tuple:
+    """The reference rendered with `seed` and with seed + 1 (the second one measures the noise floor)."""
+    return tuple(comparison_images({"ref": reference}, spp, resolution, s, device)["ref"] for s in (seed, seed + 1))
+
+
 def image_comparison(material: Material, reference: Material, spp: int, resolution: int, seed: int = 0,
-                     device=None, floor: bool = True) -> dict[str, float]:
+                     device=None, floor: bool = True, renders: tuple | None = None) -> dict[str, float]:
     """`image_metrics` keys of `material` against `reference`, and with `floor` the same keys prefixed
-    "floor_" for the reference against itself at seed + 1 (one more rendering of the reference)."""
-    imgs = comparison_images({"ref": reference, "test": material}, spp, resolution, seed, device)
-    out = image_metrics(imgs["ref"], imgs["test"])
+    "floor_" for the reference against itself at seed + 1. renders: `reference_renders` of the same settings,
+    when several materials are compared with one reference (else rendered here)."""
+    if renders is None:
+        renders = reference_renders(reference, spp, resolution, seed, device) if floor else \
+            (comparison_images({"ref": reference}, spp, resolution, seed, device)["ref"],)
+    test = comparison_images({"test": material}, spp, resolution, seed, device)["test"]
+    out = image_metrics(renders[0], test)
     if floor:
-        again = comparison_images({"ref": reference}, spp, resolution, seed + 1, device)["ref"]
-        out.update({f"floor_{k}": v for k, v in image_metrics(imgs["ref"], again).items()})
+        out.update({f"floor_{k}": v for k, v in image_metrics(renders[0], renders[1]).items()})
     return out
