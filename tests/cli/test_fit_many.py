@@ -136,6 +136,9 @@ def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
     assert res.exit_code == 0, res.output
     (row,) = _rows(out).values()
     assert row["recipe"]["batch_size"] == recipe_for("neubrdf", "cpu").batch_size != recipe_for("neubrdf").batch_size
+    from neumat.catalog.modelfile import load_model
+    saved = load_model(row["nmat"])
+    assert saved.is_runtime and saved.cfg.interpolation == "uniform"  # the shipped form, as `neumat fit` writes
     res = CliRunner().invoke(app, args)
     assert "0 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
     (row,) = _rows(out).values()

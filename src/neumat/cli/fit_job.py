@@ -128,7 +128,7 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     device = resolve_device(job.device)
     src = open_training_source(job.model, [job.source], job.source_options)
     if job.evaluate_only:
-        fitted = load_model(job.out, device=device)
+        fitted = load_model(job.out, device=device).runtime()  # files of older versions hold the training form
         return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
                 "metrics": _checked(evaluate_against(fitted, src, job, device), job),
                 "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
@@ -137,8 +137,8 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     loss = result.history[-1]["loss"] if result.history else None
     if loss is not None and not math.isfinite(loss):
         raise DataFormatError(f"fit of {job.model!r} to {job.source!r} ended with a non-finite loss ({loss})")
-    save_model(result.model, job.out, recipe=result.recipe, source=job.source,
-               metrics={"final_loss": loss, "fit_seconds": result.seconds})
+    save_model(result.model.runtime(), job.out, recipe=result.recipe, source=job.source,
+               metrics={"final_loss": loss, "fit_seconds": result.seconds})  # the shipped form, as `neumat fit`
     fitted = load_model(job.out, device=device)
     metrics = _checked(evaluate_against(fitted, src, job, device), job)
     return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
