@@ -1,32 +1,73 @@
-"""NeuBRDF VQ training step at N_side 16 and 64, steps alternated in one process (one torch thread): medians
-of per-step wall and CPU seconds and their ratio 64 / 16. Batch 8192, paper sizes (k 16, b 9, MLP 2 x 64).
+"""NeuBRDF training step at N_side 16 and 64, steps of both alternated in one process (one torch thread):
+medians of per-step wall and CPU seconds and their ratio 64 / 16. Batch 8192, paper sizes (k 16, b 9, MLP
+2 x 64), the model's own optimiser (`NeuBRDF.optimizer`).
 
-    PYTHONPATH=src python benchmarks/neubrdf_step_ratio.py [rounds]
+Arms (`--arms`): "vq" (the paper's end-to-end straight-through over all 2^b codewords), "dense" (features
+per slot: the dense warm-up's steps), "vq-K" (after `quantize_from_dense(candidates=K)`: the VQ phase of a
+dense warm-up with K candidate codewords per slot, recipe option vq_candidates).
+
+    PYTHONPATH=src python benchmarks/neubrdf_step_ratio.py [--rounds 8] [--arms vq dense vq-32]
 """
-import sys, time, torch
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
-from neubrdf_speed import cosine_dirs, target, make_optimizer
-from neumat.models.neubrdf import NeuBRDF
-from neumat.core.query import Query
-torch.set_num_threads(1)
-batch, rounds = 8192, int(sys.argv[1]) if len(sys.argv) > 1 else 6
-setups = {}
-for n in (16, 64):
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from neubrdf_speed import cosine_dirs, make_optimizer, target  # noqa: E402
+
+from neumat.core.query import Query  # noqa: E402
+from neumat.models.neubrdf import NeuBRDF  # noqa: E402
+
+
+def build(arm: str, nside: int) -> NeuBRDF:
+    """The model of `arm` at `nside` (a restricted VQ grid starts from the k-means of random dense features)."""
     torch.manual_seed(0)
-    m = NeuBRDF(nside=n); setups[n] = (m, make_optimizer(m), torch.Generator().manual_seed(0), [], [])
-def step(n):
-    m, opt, gen, tw, tc = setups[n]
-    wi, wo = cosine_dirs(batch, gen), cosine_dirs(batch, gen)
-    q, y = Query(wi, wo), target(wi, wo)
-    t0, c0 = time.perf_counter(), time.process_time()
-    pred = m.eval(q); cos = wi[:, 2:3]
-    loss = (torch.log1p(pred * cos) - torch.log1p(y * cos)).abs().mean()
-    opt.zero_grad(set_to_none=True); loss.backward(); opt.step()
-    return time.perf_counter() - t0, time.process_time() - c0
-for r in range(rounds + 2):
-    for n in (16, 64):
-        w, c = step(n)
-        if r >= 2: setups[n][3].append(w); setups[n][4].append(c)
-med = lambda x: sorted(x)[len(x) // 2]
-for n in (16, 64): print(n, f"wall {med(setups[n][3]):.3f} cpu {med(setups[n][4]):.3f}")
-print(f"ratio wall {med(setups[64][3]) / med(setups[16][3]):.2f} cpu {med(setups[64][4]) / med(setups[16][4]):.2f}")
+    if arm in ("vq", "dense"):
+        return NeuBRDF(nside=nside, features=arm)
+    k = int(arm.removeprefix("vq-"))
+    return NeuBRDF(nside=nside, features="dense").quantize_from_dense(iterations=2, candidates=k)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--rounds", type=int, default=6)
+    p.add_argument("--arms", nargs="+", default=["vq", "dense", "vq-32"])
+    p.add_argument("--batch", type=int, default=8192)
+    a = p.parse_args()
+    torch.set_num_threads(1)
+    for arm in a.arms:
+        setups = {}
+        for n in (16, 64):
+            m = build(arm, n)
+            setups[n] = (m, make_optimizer(m), torch.Generator().manual_seed(0), [], [])
+
+        def step(n):
+            m, opt, gen, tw, tc = setups[n]
+            wi, wo = cosine_dirs(a.batch, gen), cosine_dirs(a.batch, gen)
+            q, y = Query(wi, wo), target(wi, wo)
+            t0, c0 = time.perf_counter(), time.process_time()
+            pred = m.eval(q)
+            cos = wi[:, 2:3]
+            loss = (torch.log1p(pred * cos) - torch.log1p(y * cos)).abs().mean()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            return time.perf_counter() - t0, time.process_time() - c0
+
+        for r in range(a.rounds + 2):
+            for n in (16, 64):
+                w, c = step(n)
+                if r >= 2:
+                    setups[n][3].append(w)
+                    setups[n][4].append(c)
+        med = lambda x: sorted(x)[len(x) // 2]  # noqa: E731
+        w16, c16, w64, c64 = med(setups[16][3]), med(setups[16][4]), med(setups[64][3]), med(setups[64][4])
+        print(f"| {arm} | {w16:.3f} ({c16:.3f}) | {w64:.3f} ({c64:.3f}) | {w64 / w16:.2f} ({c64 / c16:.2f}) |",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()

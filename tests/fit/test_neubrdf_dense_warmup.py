@@ -19,10 +19,10 @@ class Interrupt(Exception):
     pass
 
 
-def _recipe(warmup: float, steps: int = 6):
+def _recipe(warmup: float, steps: int = 6, candidates: int = 0):
     r = recipe_for("neubrdf")
     return replace(r, steps=steps, batch_size=64, log_every=1, checkpoint_every=1, lr_decay_every=2,
-                   options={**r.options, "dense_warmup": warmup})
+                   options={**r.options, "dense_warmup": warmup, "vq_candidates": candidates})
 
 
 def _run(recipe, **kw):
@@ -44,11 +44,22 @@ def test_dense_warmup_trains_dense_then_the_quantised_model():
     assert all(torch.isfinite(torch.tensor(r["loss"])) for r in res.history)
 
 
-@pytest.mark.parametrize("stop_at", [2, 3, 4])
-def test_dense_warmup_resumes_bit_for_bit_either_side_of_the_switch(stop_at, tmp_path):
+def test_vq_candidates_restrict_the_quantised_model_to_its_nearest_codewords():
+    model, res = _run(_recipe(0.5, candidates=2))
+    grid = model.grid
+    assert model.cfg.features == "vq" and grid.logits.shape == (grid.num_vertices, 2)
+    assert grid.candidates.shape == (grid.num_vertices, 2)
+    assert [r["phase"] for r in res.history] == ["dense"] * 3 + ["vq"] * 3
+    assert all(torch.isfinite(torch.tensor(r["loss"])) for r in res.history)
+    index = grid.indices()
+    assert bool((grid.candidates == index.unsqueeze(-1)).any(-1).all())  # every index is one of its candidates
+
+
+@pytest.mark.parametrize("stop_at, candidates", [(2, 0), (3, 0), (4, 0), (3, 2), (4, 2)])
+def test_dense_warmup_resumes_bit_for_bit_either_side_of_the_switch(stop_at, candidates, tmp_path):
     """A checkpoint inside the dense phase (2), at the switch (3: written after quantisation) and inside the
-    VQ phase (4) resumes to the uninterrupted fit: same state and history."""
-    recipe = _recipe(0.5)
+    VQ phase (4) resumes to the uninterrupted fit: same state and history (also with vq_candidates)."""
+    recipe = _recipe(0.5, candidates=candidates)
     ref_model, ref = _run(recipe)
     ckpt = tmp_path / "fit.ckpt"
 
@@ -72,4 +83,8 @@ def test_dense_warmup_needs_a_dense_model_and_a_fraction():
         fit(NeuBRDF(features="vq", **SMALL), source, _recipe(0.5), progress=False)
     with pytest.raises(InputError, match="dense_warmup"):
         fit(NeuBRDF(features="dense", **SMALL), source, _recipe(1.0), progress=False)
+    with pytest.raises(InputError, match="vq_candidates: needs dense_warmup"):
+        fit(NeuBRDF(features="vq", **SMALL), source, _recipe(0.0, candidates=2), progress=False)
+    with pytest.raises(InputError, match=r"vq_candidates: expected 0 \(all codewords\) or 1 .. 4"):
+        fit(NeuBRDF(features="dense", **SMALL), source, _recipe(0.5, candidates=5), progress=False)
     assert recipe_config_for_source("neubrdf", source, {"dense_warmup": 0.0}) == {}

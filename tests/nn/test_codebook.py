@@ -145,3 +145,85 @@ def test_vq_sparse_gradient_equals_dense(gen):
     (vq(ids) * g).sum().backward()
     assert vq.logits.grad.is_sparse
     torch.testing.assert_close(vq.logits.grad.to_dense(), dense_grad)
+
+
+def _restricted_pair(candidates: torch.Tensor, seed: int = 0):
+    """A VQ grid and a copy of it restricted to `candidates`, in float64."""
+    torch.manual_seed(seed)
+    full = VQFeatures(12, 3, 3).double()
+    part = VQFeatures(12, 3, 3).double()
+    part.load_state_dict(full.state_dict())
+    part.restrict(candidates)
+    return full, part
+
+
+def test_restricting_to_every_codeword_is_the_full_estimator(gen):
+    # all 8 codewords in a different order per vertex: a permutation of the logits, so the same forward pass
+    # and the same gradients (permuted) as the full straight-through estimator
+    perm = torch.stack([torch.randperm(8, generator=gen) for _ in range(12)])
+    full, part = _restricted_pair(perm)
+    ids = torch.tensor([[0, 5, 7, 11], [3, 3, 1, 0]])
+    g = torch.randn(2, 4, 3, generator=gen, dtype=torch.float64)
+    (full(ids) * g).sum().backward()
+    out = part(ids)
+    (out * g).sum().backward()
+    torch.testing.assert_close(out, full(ids).detach(), rtol=0, atol=0)
+    torch.testing.assert_close(part.logits.grad, full.logits.grad.gather(1, perm), rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(part.codebook.grad, full.codebook.grad, rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(part.indices(), full.indices(), rtol=0, atol=0)
+
+
+def test_restricted_straight_through_matches_a_masked_softmax(gen):
+    # K = 3 candidates: the reference is the full estimator with every other codeword's logit at -inf
+    cand = torch.stack([torch.randperm(8, generator=gen)[:3] for _ in range(12)])
+    full, part = _restricted_pair(cand, seed=1)
+    masked = torch.full_like(full.logits, -torch.inf).scatter(1, cand, full.logits.detach().gather(1, cand))
+    lg = masked.clone().requires_grad_()
+    ids = torch.tensor([2, 2, 9, 4, 11, 0])
+    g = torch.randn(6, 3, generator=gen, dtype=torch.float64)
+    cb = full.codebook.detach().clone().requires_grad_()
+    hard = cb[lg.argmax(-1)[ids]]
+    soft = torch.softmax(lg[ids], -1) @ cb.detach()
+    ((hard + soft - soft.detach()) * g).sum().backward()
+    out = part(ids)
+    (out * g).sum().backward()
+    torch.testing.assert_close(out, hard.detach(), rtol=0, atol=0)
+    torch.testing.assert_close(part.logits.grad, lg.grad.gather(1, cand), rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(part.codebook.grad, cb.grad, rtol=1e-12, atol=1e-14)
+    # no gradient without grad, sparse rows with sparse_grad, and the frozen indices are the chosen candidates
+    with torch.no_grad():
+        torch.testing.assert_close(part(ids), out.detach(), rtol=0, atol=0)
+    part.zero_grad()
+    part.sparse_grad = True
+    (part(ids) * g).sum().backward()
+    torch.testing.assert_close(part.logits.grad.to_dense(), lg.grad.gather(1, cand), rtol=1e-12, atol=1e-14)
+    chosen = cand.gather(1, part.logits.detach().argmax(-1, keepdim=True)).squeeze(-1)
+    part.freeze()
+    torch.testing.assert_close(part.index.long(), chosen, rtol=0, atol=0)
+    assert part.candidates is None
+
+
+def test_restricted_state_round_trips_into_a_fresh_grid(gen):
+    cand = torch.stack([torch.randperm(8, generator=gen)[:2] for _ in range(12)])
+    _, part = _restricted_pair(cand, seed=2)
+    fresh = VQFeatures(12, 3, 3).double()
+    fresh.load_state_dict(part.state_dict())
+    torch.testing.assert_close(fresh.candidates, cand, rtol=0, atol=0)
+    ids = torch.arange(12)
+    torch.testing.assert_close(fresh(ids), part(ids), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (torch.zeros(11, 2, dtype=torch.long), r"expected integer candidates \(12, K\)"),
+    (torch.zeros(12, 9, dtype=torch.long), "1 <= K <= 8"),
+    (torch.full((12, 2), 8), r"must lie in \[0, 8\)"),
+    (torch.zeros(12, 2, dtype=torch.long), "same candidate codeword twice"),
+    (torch.zeros(12, 2), "expected integer candidates"),
+])
+def test_restrict_refuses_bad_candidates(bad, match):
+    with pytest.raises(InputError, match=match):
+        VQFeatures(12, 3, 3).restrict(bad)
+    vq = VQFeatures(12, 3, 3)
+    vq.restrict(torch.arange(2).repeat(12, 1))
+    with pytest.raises(InputError, match="already restricted"):
+        vq.restrict(torch.arange(2).repeat(12, 1))

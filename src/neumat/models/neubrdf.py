@@ -339,19 +339,24 @@ class NeuBRDF(LearnedMaterial):
 
     @torch.no_grad()
     def quantize_from_dense(self, index_bits: int | None = None, iterations: int = 25, margin: float = 1.0,
-                            seed: int = 0) -> "NeuBRDF":
+                            seed: int = 0, candidates: int = 0) -> "NeuBRDF":
         """End of a dense warm-up: replace dense per-slot features by a VQ grid that starts at them.
 
         The codebook (2^b, k) is the k-means clustering (Lloyd, `iterations` rounds from a k-means++ start
         drawn with `seed`) of the features of the slots that some pixel reads (`used_slots`), each
         slot's index logits start at 0.01 N(0, 1) plus `margin` on its nearest codeword (so the argmax is the
         nearest codeword), and `Config.features` becomes "vq" (`index_bits` defaults to `Config.index_bits`).
+        `candidates` K in [1, 2^b): each slot keeps the logits of its K nearest codewords only
+        (`VQFeatures.restrict`: steps cost O(K) per slot instead of O(2^b)); 0 keeps all 2^b.
         Returns self. Build the optimiser again afterwards (`optimizer`): the parameters changed."""
         if not isinstance(self.grid, DenseFeatures):
             raise InputError("NeuBRDF.quantize_from_dense: expected a model with features='dense'")
         bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
         if bits > 16:
             raise InputError(f"NeuBRDF.quantize_from_dense index_bits: expected 1 .. 16, got {bits}")
+        if isinstance(candidates, bool) or not isinstance(candidates, int) or not 0 <= candidates <= 2 ** bits:
+            raise InputError(f"NeuBRDF.quantize_from_dense candidates: expected 0 (all) or 1 .. {2 ** bits}, "
+                             f"got {candidates!r}")
         feats = self.grid.features.detach()
         data = feats[self.used_slots()]
         m = 2 ** bits
@@ -376,8 +381,11 @@ class NeuBRDF(LearnedMaterial):
         vq = VQFeatures(self.grid.num_vertices, self.grid.dim, bits).to(feats.device, feats.dtype)
         vq.codebook.copy_(code)
         logits = torch.randn(vq.logits.shape, generator=gen).to(vq.logits) * 0.01
-        logits[torch.arange(logits.shape[0]), torch.cdist(feats, code).argmin(-1)] += margin
+        distance = torch.cdist(feats, code)
+        logits[torch.arange(logits.shape[0]), distance.argmin(-1)] += margin
         vq.logits.copy_(logits)
+        if candidates:
+            vq.restrict(distance.topk(candidates, -1, largest=False).indices)
         self.grid = vq
         self.cfg = replace(self.cfg, features="vq", index_bits=bits)
         self._drop_runtime()

@@ -67,11 +67,15 @@ from ...core.errors import InputError
 from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
 
-OPTIONS = {"dense_warmup": 0.0, "prune": False, "measured_azimuths": 64}
+OPTIONS = {"dense_warmup": 0.0, "vq_candidates": 0, "prune": False, "measured_azimuths": 64}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
 when the option is > 0; an explicit features setting wins).
+
+vq_candidates: with a dense warm-up, the VQ phase keeps per grid slot the logits of its K nearest codewords
+only (`VQFeatures.restrict`), so its steps cost O(K) per slot instead of O(2^b); 0 (default) keeps all 2^b,
+the paper's estimator. 1 fixes every index at its k-means codeword (codebook and MLP still train).
 
 prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
 measured directions that the fit replays, so that pixels holding no measurement read their nearest
@@ -107,6 +111,9 @@ def phases(ctx: FitContext) -> list[Phase]:
     ctx = _measured(ctx)
     frac = _warmup(ctx.recipe.options)
     if frac == 0:
+        if ctx.recipe.options.get("vq_candidates", 0):
+            raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
+                             "each slot's nearest codewords after the warm-up's k-means)")
         return [online_phase(ctx)]
     features = getattr(getattr(ctx.model, "cfg", None), "features", None)
     if features != "dense":
@@ -115,11 +122,21 @@ def phases(ctx: FitContext) -> list[Phase]:
                          f"features={features!r}")
     dense_steps = min(max(int(round(frac * ctx.recipe.steps)), 1), ctx.recipe.steps)
     model = ctx.model
+    candidates = _candidates(ctx.recipe.options, model)
     dense = online_phase(ctx, "dense", dense_steps)
-    dense.after = model.quantize_from_dense
+    dense.after = lambda: model.quantize_from_dense(candidates=candidates)
     vq = online_phase(replace(ctx, resuming=True), "vq", ctx.recipe.steps - dense_steps)  # no second init
     vq.params = lambda: [p for p in model.parameters() if p.requires_grad]
     return [dense, vq]
+
+
+def _candidates(options: dict, model) -> int:
+    k = options.get("vq_candidates", 0)
+    most = 2 ** model.cfg.index_bits
+    if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k <= most:
+        raise InputError(f"neubrdf recipe option vq_candidates: expected 0 (all codewords) or 1 .. {most} "
+                         f"(2^index_bits), got {k!r}")
+    return k
 
 
 def _warmup(options: dict) -> float:
