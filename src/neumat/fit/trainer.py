@@ -5,11 +5,12 @@ models (every step draws `batch_size` queries from the recipe's query sampler, e
 without gradient and takes one optimiser step on the recipe's loss), or the stages a paper trains in
 (encoder then latents, appearance then sampler, dictionary then coding). All phases share one loop: the
 learning-rate schedule (per phase), optional EMA of the parameters (the EMA copy becomes the fitted model),
-gradient-norm clipping, a guard that skips a step whose gradients are not finite and halves the learning
-rate from then on, progress (a bar on a terminal, plain lines otherwise), and checkpoints (model,
-optimiser, EMA, loss state, step, history, random number generator states, a source's own generator
-included) from which `resume=True` continues bit for bit as if never interrupted, in whichever phase the
-checkpoint was written.
+gradient-norm clipping, a guard against non-finite values (`neumat.fit.rollback`: a step whose gradients
+are not finite is skipped and the learning rate halved from then on; after a few such steps in a row, or at
+non-finite parameters, the fit returns to an in-memory snapshot of its last good state), progress (a bar on a
+terminal, plain lines otherwise), and checkpoints (model, optimiser, EMA, loss state, step, history, the
+guard's state, random number generator states, a source's own generator included) from which `resume=True`
+continues bit for bit as if never interrupted, in whichever phase the checkpoint was written.
 
 Model hooks (declared by `neumat.models.base.LearnedMaterial`): `on_step(step, total_steps)` before every
 step (on the model and its EMA copy), `init_from_targets(target)` once on a fresh online fit, and
@@ -36,16 +37,15 @@ from . import footprint_queries  # noqa: F401  (registers the "footprint" query 
 from .ema import EMA
 from .phase import FitContext, Phase, model_name, online_phase
 from .recipe import Recipe, check_recipe, learning_rate, phases_for, recipe_for
-
-#: steps whose gradients were not finite, in a row, after which a fit gives up
-MAX_SKIPPED_STEPS = 20
+from .rollback import CHECKPOINT_KEYS, NonFiniteGuard
 
 
 @dataclass
 class FitResult:
     """model: the fitted model (the EMA weights when the recipe uses an EMA), in eval mode.
     history: one record {"step", "phase", "loss", <each named loss>, "lr", "seconds"} per `log_every` steps
-    and at the end of each phase (losses averaged over the steps since the last record).
+    and at the end of each phase (losses averaged over the steps since the last record), with "rollback": the
+    step whose state was restored, when the fit rolled back since the last record (`neumat.fit.rollback`).
     seconds: training time (summed over resumed runs). steps: steps taken in total. recipe: the recipe run
     (with the steps actually taken)."""
 
@@ -96,12 +96,13 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
         build = None
     phases = build(ctx) if build is not None else [online_phase(ctx)]
     ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
-    state = {"step": 0, "history": [], "seconds": 0.0, "running": {}, "backoff": 0, "optimizer": None}
+    state = {"step": 0, "history": [], "seconds": 0.0, "running": {}, "optimizer": None, "guard": {}}
     if resuming:
         state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen, source)
     total = sum(p.steps for p in phases)
     t0 = time.perf_counter() - state["seconds"]
     with _Progress(progress, total, state["step"], name) as bar:
+        guard = NonFiniteGuard(model, ema, name, state.pop("guard"), report=bar.note)
         begin = 0
         for phase in phases:
             end = begin + phase.steps
@@ -113,10 +114,11 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
             if opt is not None and state["optimizer"] is not None:
                 opt.load_state_dict(state["optimizer"])
             state["optimizer"] = None
+            guard.start_phase(opt, max(state["step"], begin), resumed=state["step"] > begin)
             running: dict[str, torch.Tensor] = {k: v.to(dev) for k, v in state["running"].items()}
-            skipped = 0
             for step in range(max(state["step"], begin), end):
-                lr = learning_rate(recipe, step - begin, phase.steps) * 0.5 ** state["backoff"]
+                scheduled_lr = learning_rate(recipe, step - begin, phase.steps)
+                lr = scheduled_lr * guard.lr_factor
                 if opt is not None:
                     for group in opt.param_groups:
                         group["lr"] = lr * group.get("lr_scale", 1.0)
@@ -131,43 +133,41 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                     norm = _gradient_norm(params)
                     finite = bool(torch.isfinite(norm))
                     if finite:
-                        skipped = 0
                         if recipe.grad_clip > 0:
                             _scale_gradients(params, norm, recipe.grad_clip)
                         opt.step()
                         if ema is not None:
                             ema.update(model)
-                    else:  # skip the step, halve the learning rate from now on
+                    else:  # skip the step (the guard halves the learning rate, or rolls back)
                         opt.zero_grad(set_to_none=True)
-                        skipped += 1
-                        state["backoff"] += 1
-                        if skipped > MAX_SKIPPED_STEPS:
-                            raise InputError(f"fit {name}: the loss or its gradients were not finite at {skipped} "
-                                             f"steps in a row up to step {step + 1} (phase {phase.name!r}, learning "
-                                             f"rate backed off to {lr / 2:g}); lower the learning rate or check "
-                                             "the source")
+                    guard.after_step(finite, step + 1, phase.name, scheduled_lr)
                 if finite:
                     for k, v in values.items():
                         running[k] = running.get(k, torch.zeros((), device=dev)) + v.detach()
                     running["_steps"] = running.get("_steps", torch.zeros((), device=dev)) + 1
                 done = step + 1
                 bar.advance()
+                if done % recipe.log_every == 0 or done % recipe.checkpoint_every == 0 or done == end:
+                    guard.check(done, phase.name, scheduled_lr, snapshot=done < end)
                 record = None
                 if done % recipe.log_every == 0 or done == end:
-                    record = _record(running, done, phase.name, lr, time.perf_counter() - t0)
+                    record = _record(running, done, phase.name, lr, time.perf_counter() - t0) | guard.pop_rollback()
                     if phase.on_record is not None:
                         phase.on_record(record)
-                if done == end and phase.after is not None:
-                    phase.after()
-                    if ema is not None:
-                        ema.reset(model)
+                if done == end:
+                    guard.end_phase()
+                    if phase.after is not None:
+                        phase.after()
+                        if ema is not None:
+                            ema.reset(model)
                 if record is not None:
                     state["history"].append(record)
                     bar.show(record, total)
                 if checkpoint is not None and (done % recipe.checkpoint_every == 0 or done == end):
                     state.update(step=done, seconds=time.perf_counter() - t0, running=running,
                                  optimizer=opt.state_dict() if opt is not None and done < end else None)
-                    _save_checkpoint(checkpoint, recipe, model, ema, phases, gen, source, state)
+                    _save_checkpoint(checkpoint, recipe, model, ema, phases, gen, source,
+                                     state | guard.checkpoint_state(done))
                 if callback is not None and state["history"] and state["history"][-1]["step"] == done:
                     callback(state["history"][-1])
             state["step"] = end
@@ -274,7 +274,8 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
         g.set_state(st)
     if "cuda" in rng and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(rng["cuda"])
-    return {k: blob[k] for k in ("step", "history", "seconds", "running", "backoff", "optimizer")}
+    state = {k: blob[k] for k in ("step", "history", "seconds", "running", "optimizer")}
+    return state | {"guard": {k: blob[k] for k in CHECKPOINT_KEYS if k in blob}}
 
 
 #: a fit whose estimated time exceeds this many seconds says so after its first steps
@@ -323,6 +324,14 @@ class _Progress:
             if eta > LONG_FIT_SECONDS:
                 print(f"fit {self.name}: about {eta / 60:.0f} minutes to go at this speed ({self.total} steps); "
                       "pass --steps for a shorter run", file=sys.stderr, flush=True)
+
+    def note(self, message: str) -> None:
+        """Say `message` (an event of the fit, e.g. a rollback) on a line of its own, above the bar on a terminal;
+        nothing when progress is off."""
+        if self.terminal:
+            self.bar.console.print(message, markup=False, highlight=False)
+        elif self.enabled:
+            print(message, file=sys.stderr, flush=True)
 
     def show(self, record: dict, total: int) -> None:
         if self.terminal:
