@@ -13,16 +13,19 @@ from neumat.fit.trainer import fit
 from neumat.models.neubrdf import NeuBRDF
 
 SMALL = dict(nside=2, index_bits=2, hidden=4)
+#: grid slots of a NeuBRDF at N_side 1 and 2 (2 (6 N^2 + 6 N + 1))
+SLOTS = {1: 26, 2: 74}
 
 
 class Interrupt(Exception):
     pass
 
 
-def _recipe(warmup: float, steps: int = 6, candidates: int = 0):
+def _recipe(warmup: float, steps: int = 6, candidates: int = 0, coarse: float = 0.0):
     r = recipe_for("neubrdf")
     return replace(r, steps=steps, batch_size=64, log_every=1, checkpoint_every=1, lr_decay_every=2,
-                   options={**r.options, "dense_warmup": warmup, "vq_candidates": candidates})
+                   options={**r.options, "dense_warmup": warmup, "vq_candidates": candidates,
+                            "coarse_fraction": coarse, "coarse_nside": 1})
 
 
 def _run(recipe, **kw):
@@ -55,11 +58,47 @@ def test_vq_candidates_restrict_the_quantised_model_to_its_nearest_codewords():
     assert bool((grid.candidates == index.unsqueeze(-1)).any(-1).all())  # every index is one of its candidates
 
 
-@pytest.mark.parametrize("stop_at, candidates", [(2, 0), (3, 0), (4, 0), (3, 2), (4, 2)])
-def test_dense_warmup_resumes_bit_for_bit_either_side_of_the_switch(stop_at, candidates, tmp_path):
+def test_coarse_to_fine_trains_a_coarse_grid_then_the_models_own():
+    recipe = _recipe(0.7, steps=10, candidates=2, coarse=0.3)
+    torch.manual_seed(0)
+    source = open_material("ggx:roughness=0.3")
+    model = NeuBRDF(**{**recipe_config_for_source("neubrdf", source, recipe.options), **SMALL})
+    rows = []  # (phase, grid slots, N_side) at every record
+    res = fit(model, source, recipe, progress=False, device="cpu",
+              callback=lambda r: rows.append((r["phase"], model.grid.num_vertices, model.cfg.nside)))
+    # the coarse phase's last record comes after its switch back to the model's grid
+    assert rows == [("coarse", SLOTS[1], 1)] * 2 + [("coarse", SLOTS[2], 2)] + [("dense", SLOTS[2], 2)] * 4 \
+        + [("vq", SLOTS[2], 2)] * 3
+    assert model.cfg.features == "vq" and model.grid.candidates.shape == (SLOTS[2], 2)
+    assert all(torch.isfinite(torch.tensor(r["loss"])) for r in res.history)
+
+
+def test_coarse_to_fine_of_a_dense_model_and_the_options_checks():
+    recipe = _recipe(0.0, steps=4, coarse=0.5)
+    torch.manual_seed(0)
+    source = open_material("ggx:roughness=0.3")
+    model = NeuBRDF(features="dense", **SMALL)
+    res = fit(model, source, recipe, progress=False, device="cpu")
+    assert [r["phase"] for r in res.history] == ["coarse"] * 2 + ["fine"] * 2
+    assert model.cfg.nside == 2 and model.cfg.features == "dense"
+    with pytest.raises(InputError, match="coarse_fraction=0.5: needs a model built with features='dense'"):
+        fit(NeuBRDF(features="vq", **SMALL), source, recipe, progress=False)
+    with pytest.raises(InputError, match="at most dense_warmup=0.3"):
+        fit(NeuBRDF(features="dense", **SMALL), source, _recipe(0.3, coarse=0.5), progress=False)
+    bad = replace(recipe, options={**recipe.options, "coarse_nside": 2})
+    with pytest.raises(InputError, match="coarse_nside: expected a power of two below the model's N_side 2"):
+        fit(NeuBRDF(features="dense", **SMALL), source, bad, progress=False)
+    with pytest.raises(InputError, match="vq_candidates: needs dense_warmup"):
+        fit(NeuBRDF(features="dense", **SMALL), source, _recipe(0.0, coarse=0.5, candidates=2), progress=False)
+
+
+@pytest.mark.parametrize("stop_at, candidates, coarse", [(2, 0, 0.0), (3, 0, 0.0), (4, 0, 0.0), (3, 2, 0.0),
+                                                           (4, 2, 0.0), (1, 2, 0.3), (2, 2, 0.3), (4, 2, 0.3)])
+def test_dense_warmup_resumes_bit_for_bit_either_side_of_the_switch(stop_at, candidates, coarse, tmp_path):
     """A checkpoint inside the dense phase (2), at the switch (3: written after quantisation) and inside the
-    VQ phase (4) resumes to the uninterrupted fit: same state and history (also with vq_candidates)."""
-    recipe = _recipe(0.5, candidates=candidates)
+    VQ phase (4) resumes to the uninterrupted fit: same state and history (also with vq_candidates, and with a
+    coarse phase: 1 inside it, 2 at the switch to the model's grid)."""
+    recipe = _recipe(0.5, candidates=candidates, coarse=coarse)
     ref_model, ref = _run(recipe)
     ckpt = tmp_path / "fit.ckpt"
 

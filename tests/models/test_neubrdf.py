@@ -315,3 +315,83 @@ def test_fit_does_not_collapse_on_a_dark_coated_material():
     zero = torch.log1p(t * c).mean().item()
     assert err < 0.8 * zero, (err, zero)
     assert bool((f.mean(0) > 0.5 * t.median(0).values).all())  # no channel collapsed to 0
+
+
+def _smooth_dense_model(nside: int) -> NeuBRDF:
+    """A dense model whose slot features are a smooth function of the slot's lookup direction."""
+    torch.manual_seed(0)
+    model = NeuBRDF(nside=nside, features="dense", feature_dim=4, hidden=8).double()
+    slots = grid_vertex_ids(nside)
+    d = vertex2vec(nside, slots)
+    h = hpx.hemisphere_size(nside)
+    d[h:, 2] = -d[h:, 2]
+    feats = torch.stack([d[:, 0] + d[:, 2], torch.sin(2 * d[:, 1]), d[:, 2] ** 2, d[:, 0] * d[:, 1]], -1)
+    with torch.no_grad():
+        model.grid.features.copy_(feats)
+    return model
+
+
+def _random_dirs(n: int, seed: int) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=torch.float64).abs() + 0.05, dim=-1)
+
+
+def test_regrid_to_the_same_nside_keeps_every_hemisphere_slot():
+    model = _smooth_dense_model(8)
+    before = model.grid.features.detach().clone()
+    model.regrid(8)
+    d = vertex2vec(8, grid_vertex_ids(8))
+    h = hpx.hemisphere_size(8)
+    inside = torch.cat([d[:h, 2] >= 0, d[h:, 2] <= 0])  # slots past the equator take psi at the equator
+    kept = ((model.grid.features - before).abs().max(-1).values < 1e-5)
+    # psi at a slot's own direction is its feature (inverse-distance weights), except at some vertices of the
+    # cap / belt boundary (z = 2/3), which the pixel holding them does not list as a corner
+    assert kept[inside].float().mean() > 0.95
+    assert not kept[inside & (d[:, 2].abs() < 0.6)].logical_not().any()
+    assert not kept[~inside].all()
+
+
+def test_regrid_carries_the_function_from_coarse_to_fine_and_back():
+    coarse = _smooth_dense_model(4)
+    wi, wo = _random_dirs(500, 1), _random_dirs(500, 2)
+    q = Query(wi, wo)
+    with torch.no_grad():
+        f0 = coarse.eval(q)
+        coarse.regrid(16)
+        assert coarse.cfg.nside == 16 and coarse.grid.num_vertices == 2 * hpx.hemisphere_size(16)
+        assert coarse.level_i.shape == (12 * 16 * 16,) and coarse.vertex_dirs.shape == (12 * 16 * 16 + 2, 3)
+        f1 = coarse.eval(q)
+        other = _smooth_dense_model(4)
+        other.grid.features.mul_(-1)
+        spread = (other.eval(q) - f0).abs().mean()
+    # re-sampling the coarse interpolant on a finer grid changes the function by a small part of what another
+    # model differs by (the fine grid interpolates the coarse one's piecewise interpolant)
+    assert (f1 - f0).abs().mean() < 0.05 * spread
+    fine = _smooth_dense_model(16)
+    with torch.no_grad():
+        fine.mlp.load_state_dict(coarse.mlp.state_dict())
+        f_fine = fine.eval(q)
+        fine.regrid(4)
+        assert (fine.eval(q) - f_fine).abs().mean() < 0.05 * spread
+
+
+def test_a_fresh_model_loads_the_state_of_a_regridded_one():
+    model = _smooth_dense_model(4)
+    model.regrid(8)
+    fresh = NeuBRDF(nside=4, features="dense", feature_dim=4, hidden=8).double()
+    fresh.load_state_dict(model.state_dict())
+    assert fresh.cfg.nside == 8
+    q = Query(_random_dirs(50, 3), _random_dirs(50, 4))
+    with torch.no_grad():
+        torch.testing.assert_close(fresh.eval(q), model.eval(q), rtol=0, atol=0)
+
+
+def test_regrid_refuses_pruned_and_low_bit_grids(gen):
+    with pytest.raises(InputError, match="power of two"):
+        NeuBRDF(nside=4, features="dense").regrid(6)
+    with pytest.raises(InputError, match="'dense' or 'vq'"):
+        NeuBRDF(nside=4, features="lowbit").regrid(8)
+    pruned = NeuBRDF(nside=4, features="dense")
+    pruned.prune(_random_dirs(20, 5).float(), _random_dirs(20, 6).float())
+    with pytest.raises(InputError, match="pruned"):
+        pruned.regrid(8)

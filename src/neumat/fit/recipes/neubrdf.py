@@ -67,11 +67,20 @@ from ...core.errors import InputError
 from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
 
-OPTIONS = {"dense_warmup": 0.0, "vq_candidates": 0, "prune": False, "measured_azimuths": 64}
+OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 16, "dense_warmup": 0.0, "vq_candidates": 0, "prune": False,
+           "measured_azimuths": 64}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
 when the option is > 0; an explicit features setting wins).
+
+coarse_fraction: fraction of the steps trained first with dense features on a grid of N_side `coarse_nside`,
+whose interpolated features then start the model's own grid (`NeuBRDF.regrid`, coarse to fine); 0, the
+default, starts at the model's N_side. With a dense warm-up the coarse steps are part of it (coarse_fraction <=
+dense_warmup); without one the model must be built with features="dense". Why: at N_side 64 a slot sees about
+1.3 corner reads per step of 8192 queries, and a fit from random features spends thousands of steps on them
+(MERL-like gold-paint, 1200 steps of 8192: log error 0.0098 from scratch at N_side 64, 0.0012 after 600 steps
+at N_side 16, still 0.0011 right after regridding to 64).
 
 vq_candidates: with a dense warm-up, the VQ phase keeps per grid slot the logits of its K nearest codewords
 only (`VQFeatures.restrict`), so its steps cost O(K) per slot instead of O(2^b); 0 (default) keeps all 2^b,
@@ -102,32 +111,71 @@ def config_for_source(source, options: dict | None = None) -> dict:
 
 
 def phases(ctx: FitContext) -> list[Phase]:
-    """One online phase, or with option dense_warmup = f > 0 two (both on the measured samples of the source
-    and with a pruned model under options queries="replay" / prune, see `_measured`): "dense" (round(f steps) steps, at least
-    one, on the dense model; at its end `quantize_from_dense`) then "vq" (the rest, on the parameters that
-    exist after the switch, with the model's row-sparse optimiser). Each phase runs the learning-rate
-    schedule over its own steps. A checkpoint written after the switch holds the VQ state, which a freshly
-    built dense model loads (`neumat.models.neubrdf.quantized_state`), so resuming is exact either side."""
+    """One online phase, or the stages the options ask for, in this order (each with the learning-rate schedule
+    over its own steps; all on the measured samples of the source and with a pruned model under options
+    queries="replay" / prune, see `_measured`):
+
+    "coarse" (option coarse_fraction = c > 0): round(c steps) steps on a dense grid at coarse_nside (the model
+    is regridded to it now); at its end `NeuBRDF.regrid` back to the model's N_side.
+    "dense" (option dense_warmup = f > 0): the dense steps left up to round(f steps); at their end
+    `quantize_from_dense` (with vq_candidates).
+    "vq" (f > 0) or "fine" (c > 0, no warm-up: a dense model): the remaining steps.
+
+    Checkpoints hold the state of whichever grid the fit is on; a freshly built model loads any of them
+    (`neumat.models.neubrdf.regridded_state`, `quantized_state`), so resuming is exact in every phase."""
     ctx = _measured(ctx)
-    frac = _warmup(ctx.recipe.options)
-    if frac == 0:
-        if ctx.recipe.options.get("vq_candidates", 0):
-            raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
-                             "each slot's nearest codewords after the warm-up's k-means)")
+    options, steps, model = ctx.recipe.options, ctx.recipe.steps, ctx.model
+    frac = _warmup(options)
+    coarse = _coarse(options, model, frac)
+    candidates = _candidates(options, model)
+    if candidates and frac == 0:
+        raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
+                         "each slot's nearest codewords after the warm-up's k-means)")
+    if frac == 0 and coarse == 0:
         return [online_phase(ctx)]
-    features = getattr(getattr(ctx.model, "cfg", None), "features", None)
+    features = getattr(getattr(model, "cfg", None), "features", None)
     if features != "dense":
-        raise InputError(f"neubrdf recipe option dense_warmup={frac}: needs a model built with "
-                         f"features='dense' (it is quantised into the codebook after the warm-up), got "
-                         f"features={features!r}")
-    dense_steps = min(max(int(round(frac * ctx.recipe.steps)), 1), ctx.recipe.steps)
-    model = ctx.model
-    candidates = _candidates(ctx.recipe.options, model)
-    dense = online_phase(ctx, "dense", dense_steps)
-    dense.after = lambda: model.quantize_from_dense(candidates=candidates)
-    vq = online_phase(replace(ctx, resuming=True), "vq", ctx.recipe.steps - dense_steps)  # no second init
-    vq.params = lambda: [p for p in model.parameters() if p.requires_grad]
-    return [dense, vq]
+        name = "dense_warmup" if frac else "coarse_fraction"
+        raise InputError(f"neubrdf recipe option {name}={frac or coarse}: needs a model built with "
+                         f"features='dense' (the warm-up's features are quantised into the codebook afterwards), "
+                         f"got features={features!r}")
+    fine_nside = model.cfg.nside
+    coarse_steps = min(max(int(round(coarse * steps)), 1), steps) if coarse else 0
+    dense_end = min(max(int(round(frac * steps)), 1), steps) if frac else steps
+    if coarse:
+        if options.get("prune", False):
+            raise InputError("neubrdf recipe options coarse_fraction and prune: a pruned grid cannot be regridded; "
+                             "use one or the other")
+        model.regrid(options.get("coarse_nside", 16))
+    built, later = [], replace(ctx, resuming=True)  # the first phase initialises the output scale once
+    if coarse_steps:
+        built.append(online_phase(ctx, "coarse", coarse_steps))
+        built[-1].after = lambda: model.regrid(fine_nside)
+    if dense_end > coarse_steps:
+        built.append(online_phase(later if built else ctx, "dense" if frac else "fine", dense_end - coarse_steps))
+    if frac:
+        switch = lambda: model.quantize_from_dense(candidates=candidates)  # noqa: E731
+        last = built[-1]
+        last.after = switch if last.after is None else (lambda before=last.after: (before(), switch()))
+        built.append(online_phase(later, "vq", steps - dense_end))
+    for phase in built[1:]:
+        phase.params = lambda: [p for p in model.parameters() if p.requires_grad]
+    return [phase for phase in built if phase.steps > 0]
+
+
+def _coarse(options: dict, model, warmup: float) -> float:
+    frac = options.get("coarse_fraction", 0.0)
+    if not isinstance(frac, (int, float)) or isinstance(frac, bool) or not 0 <= frac < 1:
+        raise InputError(f"neubrdf recipe option coarse_fraction: expected a fraction in [0, 1), got {frac!r}")
+    if frac and warmup and frac > warmup:
+        raise InputError(f"neubrdf recipe option coarse_fraction={frac}: the coarse steps are part of the dense "
+                         f"warm-up, so at most dense_warmup={warmup}")
+    n = options.get("coarse_nside", 16)
+    fine = getattr(getattr(model, "cfg", None), "nside", None)
+    if frac and (isinstance(n, bool) or not isinstance(n, int) or n < 1 or n & (n - 1) or fine is None or n >= fine):
+        raise InputError(f"neubrdf recipe option coarse_nside: expected a power of two below the model's N_side "
+                         f"{fine}, got {n!r}")
+    return float(frac)
 
 
 def _candidates(options: dict, model) -> int:
