@@ -73,7 +73,7 @@ def test_coarse_to_fine_trains_a_coarse_grid_then_the_models_own():
     assert all(torch.isfinite(torch.tensor(r["loss"])) for r in res.history)
 
 
-def test_coarse_to_fine_of_a_dense_model_and_the_options_checks():
+def test_coarse_to_fine_of_a_dense_model_and_the_options_checks(tmp_path):
     recipe = _recipe(0.0, steps=4, coarse=0.5)
     torch.manual_seed(0)
     source = open_material("ggx:roughness=0.3")
@@ -81,6 +81,22 @@ def test_coarse_to_fine_of_a_dense_model_and_the_options_checks():
     res = fit(model, source, recipe, progress=False, device="cpu")
     assert [r["phase"] for r in res.history] == ["coarse"] * 2 + ["fine"] * 2
     assert model.cfg.nside == 2 and model.cfg.features == "dense"
+    # the fine phase's optimiser learns at fine_lr_scale (0.25) of the schedule's rate: its state in the
+    # checkpoint written after the fine phase's first step (the schedule halves every 2 steps of a phase)
+    ckpt = tmp_path / "fit.ckpt"
+
+    def stop(record):
+        if record["step"] == 3:
+            raise Interrupt
+
+    torch.manual_seed(0)
+    with pytest.raises(Interrupt):
+        fit(NeuBRDF(features="dense", **SMALL), source, recipe, progress=False, checkpoint=ckpt, callback=stop)
+    groups = torch.load(ckpt, weights_only=True)["optimizer"]["param_groups"]
+    assert [g["lr_scale"] for g in groups] == [0.25] and groups[0]["lr"] == pytest.approx(recipe.lr * 0.25)
+    with pytest.raises(InputError, match=r"fine_lr_scale: expected a factor in \(0, 1\]"):
+        fit(NeuBRDF(features="dense", **SMALL), source,
+            replace(recipe, options={**recipe.options, "fine_lr_scale": 0}), progress=False)
     with pytest.raises(InputError, match="coarse_fraction=0.5: needs a model built with features='dense'"):
         fit(NeuBRDF(features="vq", **SMALL), source, recipe, progress=False)
     with pytest.raises(InputError, match="at most dense_warmup=0.3"):
