@@ -52,12 +52,14 @@ the trainer must call to get these numbers),
 (about 7 hours on one CPU core at N_side 64). On a busy machine use one torch thread (two threads on two
 loaded cores ran 3 - 10x slower than one).
 
-CPU_RECIPE, what `neumat fit` runs on a CPU unless told otherwise: the paper's model (N_side 64) for about
-10 minutes on one core (0.33 CPU s per step, 8 minutes; benchmarks/results/cpu_recipes.md): 1500 steps of 2^13 (half the batch: twice the
-steps for the same time, more optimiser updates help a short fit more than larger batches), the same four
-halvings of the learning rate spread over the shorter run (every 375 steps), and the same EMA (a window of
-~100 steps, short enough for 1500). For a better CPU fit in the same time at a smaller size, use
-`--set nside=32` (0.12 s per step of 8192: about 3x the steps).
+CPU_RECIPE, what `neumat fit` runs on a CPU unless told otherwise: the paper's model (N_side 64, k 16, b 9,
+MLP 2 x 64) along the fastest path to its quality that we measured (benchmarks/results/neubrdf_paper_size.md,
+equal wall time, one thread): 5000 steps of 2^13, the first 40 % on a dense N_side 16 grid (coarse_fraction),
+then dense at N_side 64 up to 70 % (dense_warmup), then the codebook model with 8 candidate codewords per slot
+(vq_candidates), the learning rate halved at 1/2 and 3/4 of each phase ("halves"), EMA 0.01. At equal time
+(4-5 minutes) the paper's end-to-end VQ reached a held-out log error of 0.0129 on MERL-like gold-paint and
+0.0331 on RGL vch_golden_yellow (570 - 620 steps), this path 0.0022 and 0.0096 (2850 - 4760 steps). About 8
+minutes on one core (0.07 / 0.08 / 0.11 s per step of the three phases on a loaded machine, k-means 15 s).
 """
 from __future__ import annotations
 
@@ -100,10 +102,11 @@ RECIPE = Recipe(steps=20000, batch_size=2 ** 14, lr=1e-2, betas=(0.9, 0.999), ep
                 lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
                 log_every=100, schedule="step", checkpoint_every=2000, options=dict(OPTIONS))
 
-#: the paper's model for about 10 minutes on one CPU core (module docstring)
-CPU_RECIPE = Recipe(steps=1500, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
-                    lr_decay_every=375, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
-                    log_every=50, schedule="step", checkpoint_every=250, options=dict(OPTIONS))
+#: the paper's model in about 8 minutes on one CPU core, coarse to fine, then the codebook (module docstring)
+CPU_RECIPE = Recipe(steps=5000, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
+                    lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
+                    log_every=100, schedule="halves", checkpoint_every=500,
+                    options={**OPTIONS, "coarse_fraction": 0.4, "dense_warmup": 0.7, "vq_candidates": 8})
 CPU_MINUTES = 8
 
 
