@@ -104,6 +104,12 @@ def test_coarse_to_fine_of_a_dense_model_and_the_options_checks(tmp_path):
     bad = replace(recipe, options={**recipe.options, "coarse_nside": 2})
     with pytest.raises(InputError, match="coarse_nside: expected a power of two below the model's N_side 2"):
         fit(NeuBRDF(features="dense", **SMALL), source, bad, progress=False)
+    auto = replace(recipe, options={**recipe.options, "coarse_nside": 0})  # a quarter of N_side 2: 1
+    torch.manual_seed(0)
+    coarse_sizes = []
+    fit(NeuBRDF(features="dense", **SMALL), source, auto, progress=False,
+        callback=lambda r: coarse_sizes.append(r["phase"]))
+    assert coarse_sizes == ["coarse"] * 2 + ["fine"] * 2
     with pytest.raises(InputError, match="vq_candidates: needs dense_warmup"):
         fit(NeuBRDF(features="dense", **SMALL), source, _recipe(0.0, coarse=0.5, candidates=2), progress=False)
 

@@ -69,16 +69,16 @@ from ...core.errors import InputError
 from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
 
-OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 16, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
+OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 0, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
            "vq_candidates": 0, "prune": False, "measured_azimuths": 64}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
 when the option is > 0; an explicit features setting wins).
 
-coarse_fraction: fraction of the steps trained first with dense features on a grid of N_side `coarse_nside`,
-whose interpolated features then start the model's own grid (`NeuBRDF.regrid`, coarse to fine); 0, the
-default, starts at the model's N_side. With a dense warm-up the coarse steps are part of it (coarse_fraction <=
+coarse_fraction: fraction of the steps trained first with dense features on a grid of N_side `coarse_nside`
+(0, the default: a quarter of the model's N_side, at least 1; 16 for the paper's 64), whose interpolated features then
+start the model's own grid (`NeuBRDF.regrid`, coarse to fine); 0, the default, starts at the model's N_side. With a dense warm-up the coarse steps are part of it (coarse_fraction <=
 dense_warmup); without one the model must be built with features="dense". Why: at N_side 64 a slot sees about
 1.3 corner reads per step of 8192 queries, and a fit from random features spends thousands of steps on them
 (MERL-like gold-paint, 1200 steps of 8192: log error 0.0098 from scratch at N_side 64, 0.0012 after 600 steps
@@ -151,7 +151,7 @@ def phases(ctx: FitContext) -> list[Phase]:
         if options.get("prune", False):
             raise InputError("neubrdf recipe options coarse_fraction and prune: a pruned grid cannot be regridded; "
                              "use one or the other")
-        model.regrid(options.get("coarse_nside", 16))
+        model.regrid(_coarse_nside(options, fine_nside))
     built, later = [], replace(ctx, resuming=True)  # the first phase initialises the output scale once
     if coarse_steps:
         built.append(online_phase(ctx, "coarse", coarse_steps))
@@ -194,12 +194,20 @@ def _coarse(options: dict, model, warmup: float) -> float:
     if frac and warmup and frac > warmup:
         raise InputError(f"neubrdf recipe option coarse_fraction={frac}: the coarse steps are part of the dense "
                          f"warm-up, so at most dense_warmup={warmup}")
-    n = options.get("coarse_nside", 16)
-    fine = getattr(getattr(model, "cfg", None), "nside", None)
-    if frac and (isinstance(n, bool) or not isinstance(n, int) or n < 1 or n & (n - 1) or fine is None or n >= fine):
-        raise InputError(f"neubrdf recipe option coarse_nside: expected a power of two below the model's N_side "
-                         f"{fine}, got {n!r}")
+    if frac:
+        _coarse_nside(options, getattr(getattr(model, "cfg", None), "nside", None))
     return float(frac)
+
+
+def _coarse_nside(options: dict, fine: int | None) -> int:
+    """The coarse grid's N_side: option coarse_nside, or 0 for a quarter of the model's `fine` N_side (at least 1)."""
+    n = options.get("coarse_nside", 0)
+    if n == 0 and not isinstance(n, bool) and fine is not None:
+        n = max(fine // 4, 1)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1 or n & (n - 1) or fine is None or n >= fine:
+        raise InputError(f"neubrdf recipe option coarse_nside: expected a power of two below the model's N_side "
+                         f"{fine} (0: a quarter of it), got {options.get('coarse_nside', 0)!r}")
+    return n
 
 
 def _candidates(options: dict, model) -> int:
