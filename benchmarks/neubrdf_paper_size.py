@@ -9,10 +9,11 @@ through a dense warm-up: warmup=F (dense_warmup), candidates=K (vq_candidates), 
 N_side 16), e.g. "coarse=0.4,warmup=0.7,candidates=8"; a spec with coarse but no warmup is a dense model.
 
 Equal time: each arm's step count is `--seconds` divided by its seconds per step, measured on this source
-before the fits (dense, VQ and restricted-VQ steps timed separately, 12 steps after 3). Batch 8192, lr 1e-2
-halved at 1/2 and 3/4 of each phase (schedule "halves"), EMA 0.01, the loss log_cos. Every fitted model is scored in its shipped
-form (`runtime()`: 1/4 corner weights, fp16): held-out reflectance errors (2^18 cosine queries, seed 7) and
-image metrics under the comparison protocol (`neumat.render.comparison`) beside the reference's noise floor.
+before the fits (coarse, dense, VQ and restricted-VQ steps timed separately, 12 steps after 3). Batch 8192,
+lr 1e-2 halved at 1/2 and 3/4 of each phase (schedule "halves"), EMA 0.01, the loss log_cos. Every fitted
+model is scored in its shipped form (`runtime()`: 1/4 corner weights, fp16): held-out reflectance errors (2^18
+cosine queries, seed 7) and image metrics under the comparison protocol (`neumat.render.comparison`) beside
+the reference's noise floor.
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/neubrdf_paper_size.py --materials FILE... \
         [--seconds 300] [--arms vq warmup=0.7 warmup=0.7,candidates=8 dense] [--queries cosine] [--out FILE]

@@ -347,7 +347,7 @@ class NeuBRDF(LearnedMaterial):
         drawn with `seed`) of the features of the slots that some pixel reads (`used_slots`), each
         slot's index logits start at 0.01 N(0, 1) plus `margin` on its nearest codeword (so the argmax is the
         nearest codeword), and `Config.features` becomes "vq" (`index_bits` defaults to `Config.index_bits`).
-        `candidates` K in [1, 2^b): each slot keeps the logits of its K nearest codewords only
+        `candidates` K in [1, 2^b]: each slot keeps the logits of its K nearest codewords only
         (`VQFeatures.restrict`: steps cost O(K) per slot instead of O(2^b)); 0 keeps all 2^b.
         Returns self. Build the optimiser again afterwards (`optimizer`): the parameters changed."""
         if not isinstance(self.grid, DenseFeatures):
@@ -400,7 +400,7 @@ class NeuBRDF(LearnedMaterial):
         past the equator take psi at the equator. Why: at N_side 64 each of the 49,922 slots sees about 1.3 of
         the 8 x 8192 corner reads of a step, and a fit started there spends its first thousands of steps
         moving random features; trained at N_side 16 first (3,266 slots), the grid starts near the answer.
-        Only for unpruned models without a neural texture. Returns self; build the optimiser again."""
+        Not for pruned or low-bit grids. Returns self; build the optimiser again."""
         nside = hpx.check_nside(nside, "NeuBRDF.regrid nside", power_of_two=True)
         if self.pruned:
             raise InputError("NeuBRDF.regrid: a pruned grid cannot be re-sampled (prune after regridding)")

@@ -114,7 +114,8 @@ class _StraightThrough(torch.autograd.Function):
         return grad_logits, grad_code, None, None, None, None
 
 
-def _candidate_products(g: torch.Tensor, codebook: torch.Tensor, cand: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
+def _candidate_products(g: torch.Tensor, codebook: torch.Tensor, cand: torch.Tensor,
+                        chunk: int = 4096) -> torch.Tensor:
     """<g_u, D[cand_uj]> (U, K) for gradients g (U, k), codebook D (2^b, k), candidates (U, K) int64: the
     candidate rows gathered with `index_select` and multiplied with `bmm`, on row chunks that stay in cache
     (on one CPU thread at U = 32k, k = 16: 7 ms for K = 8, 32 ms for K = 32; advanced indexing of the whole

@@ -76,15 +76,20 @@ quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model tra
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
 when the option is > 0; an explicit features setting wins).
 
-coarse_fraction: fraction of the steps trained first with dense features on a grid of N_side `coarse_nside`
-(0, the default: a quarter of the model's N_side, at least 1; 16 for the paper's 64), whose interpolated features then
-start the model's own grid (`NeuBRDF.regrid`, coarse to fine); 0, the default, starts at the model's N_side. With a dense warm-up the coarse steps are part of it (coarse_fraction <=
+coarse_fraction: fraction of the steps trained first with dense features on a coarse grid, whose
+interpolated features then start the model's own grid (`NeuBRDF.regrid`, coarse to fine); 0, the default,
+starts at the model's N_side. With a dense warm-up the coarse steps are part of it (coarse_fraction <=
 dense_warmup); without one the model must be built with features="dense". Why: at N_side 64 a slot sees about
 1.3 corner reads per step of 8192 queries, and a fit from random features spends thousands of steps on them
 (MERL-like gold-paint, 1200 steps of 8192: log error 0.0098 from scratch at N_side 64, 0.0012 after 600 steps
-at N_side 16, still 0.0011 right after regridding to 64). The phases after the coarse one run their schedule
-at `fine_lr_scale` times the learning rate: they refine a grid that already fits (the same gold-paint run ended
-at 0.0014 with the full rate, 0.00094 at a quarter).
+at N_side 16, still 0.0011 right after regridding to 64).
+
+coarse_nside: N_side of the coarse grid; 0, the default, is a quarter of the model's (at least 1): 16 for the
+paper's 64.
+
+fine_lr_scale: the phases after the coarse one run their schedule at this factor of the learning rate: they
+refine a grid that already fits (the gold-paint run above ended at 0.0014 with the full rate, 0.00094 at a
+quarter).
 
 vq_candidates: with a dense warm-up, the VQ phase keeps per grid slot the logits of its K nearest codewords
 only (`VQFeatures.restrict`), so its steps cost O(K) per slot instead of O(2^b); 0 (default) keeps all 2^b,
@@ -140,10 +145,11 @@ def phases(ctx: FitContext) -> list[Phase]:
         return [online_phase(ctx)]
     features = getattr(getattr(model, "cfg", None), "features", None)
     if features != "dense":
-        name = "dense_warmup" if frac else "coarse_fraction"
-        raise InputError(f"neubrdf recipe option {name}={frac or coarse}: needs a model built with "
-                         f"features='dense' (the warm-up's features are quantised into the codebook afterwards), "
-                         f"got features={features!r}")
+        why = (f"dense_warmup={frac}: needs a model built with features='dense' (the warm-up's features are "
+               "quantised into the codebook afterwards)" if frac else
+               f"coarse_fraction={coarse}: needs a model built with features='dense' (or a dense_warmup, to end "
+               "with the codebook)")
+        raise InputError(f"neubrdf recipe option {why}, got features={features!r}")
     fine_nside = model.cfg.nside
     coarse_steps = min(max(int(round(coarse * steps)), 1), steps) if coarse else 0
     dense_end = min(max(int(round(frac * steps)), 1), steps) if frac else steps
