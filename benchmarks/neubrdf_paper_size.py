@@ -4,9 +4,10 @@ codebook model's quality on a CPU).
 
 Arms (`--arms`, each fitted through the one trainer on the source itself, online queries): "vq" (the paper's
 end-to-end straight-through VQ over all 2^b codewords), "dense" (dense per-slot features, "w/o quantization",
-1.6 MB at fp16: Table 4's comparator), or recipe options as KEY=VALUE[,KEY=VALUE...] of a VQ model trained
-through a dense warm-up: warmup=F (dense_warmup), candidates=K (vq_candidates), coarse=C (coarse_fraction, at
-N_side 16), e.g. "coarse=0.4,warmup=0.7,candidates=8"; a spec with coarse but no warmup is a dense model.
+1.6 MB at fp16: Table 4's comparator), "lowbit" (Table 4's 4-bit features, 0.4 MB), or recipe options as
+KEY=VALUE[,KEY=VALUE...] of a VQ model trained through a dense warm-up: warmup=F (dense_warmup), candidates=K
+(vq_candidates), coarse=C (coarse_fraction, at N_side 16), e.g. "coarse=0.4,warmup=0.7,candidates=8"; a spec
+with coarse but no warmup is a dense model.
 
 Equal time: each arm's step count is `--seconds` divided by its seconds per step, measured on this source
 before the fits (coarse, dense, VQ and restricted-VQ steps timed separately, 12 steps after 3). Batch 8192,
@@ -49,7 +50,7 @@ OPTION_NAMES = {"warmup": "dense_warmup", "candidates": "vq_candidates", "coarse
 
 def parse_arm(spec: str) -> tuple[str, dict]:
     """(features the model is built with, recipe options) of an arm spec (module docstring)."""
-    if spec in ("vq", "dense"):
+    if spec in ("vq", "dense", "lowbit"):
         return spec, {}
     options = {}
     for item in spec.split(","):
@@ -89,6 +90,8 @@ def per_step_costs(source, queries: str, arms: list[str]) -> dict:
     costs = {"coarse": step_seconds(NeuBRDF(nside=16, features="dense"), source, queries),
              "dense": step_seconds(NeuBRDF(features="dense"), source, queries),
              ("vq", 0): step_seconds(NeuBRDF(features="vq"), source, queries)}
+    if "lowbit" in arms:
+        costs["lowbit"] = step_seconds(NeuBRDF(features="lowbit"), source, queries)
     for spec in arms:
         k = parse_arm(spec)[1].get("vq_candidates", 0)
         if ("vq", k) not in costs:
@@ -101,7 +104,7 @@ def arm_step_seconds(spec: str, costs: dict) -> float:
     """Mean seconds per step of an arm from the phase costs."""
     features, options = parse_arm(spec)
     if not options:
-        return costs["dense"] if features == "dense" else costs[("vq", 0)]
+        return costs[features] if features != "vq" else costs[("vq", 0)]
     coarse, warmup = options.get("coarse_fraction", 0.0), options.get("dense_warmup", 0.0)
     dense_end = warmup if warmup else 1.0
     vq = costs[("vq", options.get("vq_candidates", 0))]
