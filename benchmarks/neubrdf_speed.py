@@ -50,6 +50,21 @@ def make_optimizer(model: NeuBRDF, lr: float = 1e-2):
     return torch.optim.Adam(model.parameters(), lr=lr)
 
 
+def timed_step(model: NeuBRDF, opt, gen: torch.Generator, batch: int) -> tuple[float, float]:
+    """(wall-clock, CPU) seconds of one training step of `model` on `batch` cosine queries of `target` (the
+    queries and targets are drawn before the clock starts)."""
+    wi, wo = cosine_dirs(batch, gen), cosine_dirs(batch, gen)
+    q, y = Query(wi, wo), target(wi, wo)
+    t0, c0 = time.perf_counter(), time.process_time()
+    pred = model.eval(q)
+    cos = wi[:, 2:3]
+    loss = (torch.log1p(pred * cos) - torch.log1p(y * cos)).abs().mean()
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    opt.step()
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
 def step_seconds(features: str, nside: int, batch: int, steps: int, warmup: int) -> tuple[float, float]:
     """Median (wall-clock, CPU) seconds of one training step."""
     torch.manual_seed(0)
@@ -58,18 +73,10 @@ def step_seconds(features: str, nside: int, batch: int, steps: int, warmup: int)
     opt = make_optimizer(model)
     times, cpu = [], []
     for i in range(warmup + steps):
-        wi, wo = cosine_dirs(batch, gen), cosine_dirs(batch, gen)
-        q, y = Query(wi, wo), target(wi, wo)
-        t0, c0 = time.perf_counter(), time.process_time()
-        pred = model.eval(q)
-        cos = wi[:, 2:3]
-        loss = (torch.log1p(pred * cos) - torch.log1p(y * cos)).abs().mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+        wall, proc = timed_step(model, opt, gen, batch)
         if i >= warmup:
-            times.append(time.perf_counter() - t0)
-            cpu.append(time.process_time() - c0)
+            times.append(wall)
+            cpu.append(proc)
     return sorted(times)[len(times) // 2], sorted(cpu)[len(cpu) // 2]
 
 

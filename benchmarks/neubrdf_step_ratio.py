@@ -10,15 +10,13 @@ dense warm-up with K candidate codewords per slot, recipe option vq_candidates).
 """
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from neubrdf_speed import cosine_dirs, make_optimizer, target  # noqa: E402
+from neubrdf_speed import make_optimizer, timed_step  # noqa: E402
 
-from neumat.core.query import Query  # noqa: E402
 from neumat.models.neubrdf import NeuBRDF  # noqa: E402
 
 
@@ -44,22 +42,10 @@ def main() -> None:
             m = build(arm, n)
             setups[n] = (m, make_optimizer(m), torch.Generator().manual_seed(0), [], [])
 
-        def step(n):
-            m, opt, gen, tw, tc = setups[n]
-            wi, wo = cosine_dirs(a.batch, gen), cosine_dirs(a.batch, gen)
-            q, y = Query(wi, wo), target(wi, wo)
-            t0, c0 = time.perf_counter(), time.process_time()
-            pred = m.eval(q)
-            cos = wi[:, 2:3]
-            loss = (torch.log1p(pred * cos) - torch.log1p(y * cos)).abs().mean()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            return time.perf_counter() - t0, time.process_time() - c0
-
         for r in range(a.rounds + 2):
             for n in (16, 64):
-                w, c = step(n)
+                m, opt, gen = setups[n][:3]
+                w, c = timed_step(m, opt, gen, a.batch)
                 if r >= 2:
                     setups[n][3].append(w)
                     setups[n][4].append(c)

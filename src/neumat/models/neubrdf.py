@@ -414,10 +414,7 @@ class NeuBRDF(LearnedMaterial):
         dirs[h:, 2] = -dirs[h:, 2]  # a south slot holds the mirror image of an upper-hemisphere wo
         dirs[:, 2] = dirs[:, 2].clamp(min=0)
         dirs = torch.nn.functional.normalize(dirs, dim=-1).to(self.vertex_dirs)
-        was_training = self.training
-        self.train(False)
         feats = torch.cat([self._lookup(dirs[:h], False), self._lookup(dirs[h:], True)])
-        self.train(was_training)
         self._set_dense_grid(new_cfg, feats)
         return self
 

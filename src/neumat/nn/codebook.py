@@ -224,7 +224,7 @@ class VQFeatures(nn.Module):
             self.register_buffer("index", torch.zeros(self.num_vertices, dtype=torch.int32))
         cand = state_dict.get(prefix + "candidates")
         if cand is not None and not self.frozen and self.candidates is None:  # a restricted training state
-            self.restrict(torch.zeros_like(cand).copy_(torch.arange(cand.shape[1])))
+            self.restrict(torch.arange(cand.shape[1]).repeat(cand.shape[0], 1))  # shape only: the load fills it
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 

@@ -158,16 +158,23 @@ def phases(ctx: FitContext) -> list[Phase]:
             raise InputError("neubrdf recipe options coarse_fraction and prune: a pruned grid cannot be regridded; "
                              "use one or the other")
         model.regrid(_coarse_nside(options, fine_nside))
+    def leave_coarse():
+        model.regrid(fine_nside)
+        if frac and dense_end == coarse_steps:  # no dense steps at the model's N_side: quantise right away
+            quantize()
+
+    def quantize():
+        model.quantize_from_dense(candidates=candidates)
+
     built, later = [], replace(ctx, resuming=True)  # the first phase initialises the output scale once
     if coarse_steps:
         built.append(online_phase(ctx, "coarse", coarse_steps))
-        built[-1].after = lambda: model.regrid(fine_nside)
+        built[-1].after = leave_coarse
     if dense_end > coarse_steps:
         built.append(online_phase(later if built else ctx, "dense" if frac else "fine", dense_end - coarse_steps))
+        if frac:
+            built[-1].after = quantize
     if frac:
-        switch = lambda: model.quantize_from_dense(candidates=candidates)  # noqa: E731
-        last = built[-1]
-        last.after = switch if last.after is None else (lambda before=last.after: (before(), switch()))
         built.append(online_phase(later, "vq", steps - dense_end))
     for phase in built[1:]:
         phase.params = lambda: [p for p in model.parameters() if p.requires_grad]
