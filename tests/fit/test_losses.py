@@ -31,6 +31,18 @@ def test_log_cos_closed_form():
     assert got.item() == pytest.approx(expected, rel=1e-12)
 
 
+def test_log_cos_eps_closed_form():
+    """eps = 0.01 in place of log_cos's 1; a negative target counts as 0."""
+    L, e = math.log, 0.01
+    expected = _mean([[abs(L(e + 1) - L(e + 2)), 0.0, abs(L(e + 3) - L(e + 1))],
+                      [0.0, abs(L(e) - L(e + S)), abs(L(e + 4 * S) - L(e))],
+                      [0.0, 0.0, 0.0]])
+    got = LOSSES.get("log_cos_eps")()(PRED, TARGET, Q)
+    assert got.item() == pytest.approx(expected, rel=1e-12)
+    assert LOSSES.get("log_cos_eps")()(PRED[:1], -TARGET[:1], Q[:1]).item() == pytest.approx(
+        sum(abs(L(e + p) - L(e)) for p in (1, 2, 3)) / 3, rel=1e-12)
+
+
 def test_l1_l2_closed_forms():
     d = [[1, 0, 2], [0, 1, 4], [6, 0, 1]]
     assert LOSSES.get("l1")()(PRED, TARGET, Q).item() == pytest.approx(_mean(d), rel=1e-12)
@@ -50,7 +62,7 @@ def test_relative_value_and_gradient():
 
 
 def test_losses_are_zero_at_the_target_and_unknown_names_raise():
-    for name in ("log_cos", "l1", "l2", "relative"):
+    for name in ("log_cos", "log_cos_eps", "l1", "l2", "relative"):
         assert LOSSES.get(name)()(TARGET, TARGET, Q).item() == 0.0
     with pytest.raises(UnknownNameError, match="log_cos"):
         LOSSES.get("logcos")

@@ -75,6 +75,33 @@ def test_rusinkiewicz_sampler_chi2():
     assert res, res.message
 
 
+def test_merl_sampler_chi2():
+    """(sqrt(theta_h / (pi/2)), theta_d / (pi/2)) must have density proportional to the valid fraction of phi_d:
+    theta_h = pi/2 u^2 with u uniform, as MERL's cells."""
+    from neumat.core.coords import io_to_rusinkiewicz
+
+    g = (torch.arange(4000, dtype=torch.float64) + 0.5) / 4000
+    norm = _valid_fraction(g[:, None] ** 2, g[None, :]).mean().item()
+
+    def pick(q):
+        th, _, td, _ = io_to_rusinkiewicz(q.wi.double(), q.wo.double())
+        return torch.stack([(th / (math.pi / 2)).sqrt(), td / (math.pi / 2)], -1)
+
+    res = chi2_2d(_sampler_fn("merl", _Plain(), pick), lambda p: _valid_fraction(p[:, 0] ** 2, p[:, 1]) / norm,
+                  n_samples=100_000, res=(16, 16), quad=24)
+    assert res, res.message
+
+
+def test_cosine_merl_sampler_is_half_cosine_then_half_merl():
+    n = 1001
+    q = QUERY_SAMPLERS.get("cosine_merl")(_Textured(), None)(n, torch.Generator().manual_seed(3), "cpu")
+    gen = torch.Generator().manual_seed(3)
+    a = QUERY_SAMPLERS.get("cosine")(_Textured(), None)(n // 2, gen, "cpu")
+    b = QUERY_SAMPLERS.get("merl")(_Textured(), None)(n - n // 2, gen, "cpu")
+    for got, want in ((q.wi, (a.wi, b.wi)), (q.wo, (a.wo, b.wo)), (q.uv, (a.uv, b.uv))):
+        torch.testing.assert_close(got, torch.cat(want), rtol=0, atol=0)
+
+
 def test_rusinkiewicz_sampler_valid_and_exact_count():
     q = QUERY_SAMPLERS.get("rusinkiewicz")(_Textured(), None)(1000, torch.Generator().manual_seed(1), "cpu")
     assert len(q) == 1000 and q.uv.shape == (1000, 2)
@@ -95,7 +122,7 @@ def test_replay_sampler_draws_stored_samples_uniformly():
     assert stat < 22.5  # chi-square, 6 degrees of freedom, p = 0.001
 
 
-@pytest.mark.parametrize("name", ["cosine", "rusinkiewicz"])
+@pytest.mark.parametrize("name", ["cosine", "rusinkiewicz", "merl", "cosine_merl"])
 def test_full_sphere_source_raises(name):
     with pytest.raises(InputError, match="translucent.*whole sphere"):
         QUERY_SAMPLERS.get(name)(_Sphere(), None)

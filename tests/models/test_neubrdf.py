@@ -395,3 +395,29 @@ def test_regrid_refuses_pruned_and_low_bit_grids(gen):
     pruned.prune(_random_dirs(20, 5).float(), _random_dirs(20, 6).float())
     with pytest.raises(InputError, match="pruned"):
         pruned.regrid(8)
+
+
+def test_direction_features_make_the_two_lookups_cancel_at_the_mirror_direction():
+    """After init_direction_features, psi(wi; S+)[:3] is wi and psi(mirrored wo; S-)[:3] is (wo_x, wo_y, -wo_z),
+    up to the inverse-distance interpolation inside a pixel (under half a pixel, 3.7 degrees at N_side 16), and
+    the two cancel at wo = reflect(wi): the mirrored wo is -wi, whose pixel and weights are wi's, antipodal
+    (up to float32 at pixel edges); a VQ model is refused."""
+    import math
+    from neumat.nn.codebook import DenseFeatures
+    model = NeuBRDF(nside=16, features="dense").init_direction_features()
+    assert isinstance(model.grid, DenseFeatures)
+    g = torch.Generator().manual_seed(0)
+    wi = torch.nn.functional.normalize(torch.randn(4000, 3, generator=g), dim=-1)
+    wi[:, 2] = wi[:, 2].abs() + 1e-3
+    wi = torch.nn.functional.normalize(wi, dim=-1)
+    wo = wi * torch.tensor([-1.0, -1.0, 1.0])
+    with torch.no_grad():
+        fi = model._lookup(wi, False)[:, :3]
+        fo = model._lookup(wo, True)[:, :3]
+    half_pixel = 0.5 * math.radians(3.7)
+    assert float((fi - wi).norm(dim=-1).max()) < half_pixel
+    assert float((fo + wi).norm(dim=-1).max()) < half_pixel
+    cancel = (fi + fo).norm(dim=-1)
+    assert float(cancel.quantile(0.99)) < 1e-5 and float(cancel.max()) < half_pixel
+    with pytest.raises(InputError, match="needs a model with features='dense'"):
+        NeuBRDF(nside=2, features="vq").init_direction_features()

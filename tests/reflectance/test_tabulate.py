@@ -136,3 +136,14 @@ def test_table_layout():
     # table order: theta_h slowest, phi_d fastest
     assert th[n_d * n_p] > th[0] and td[n_p] > td[0] and pd[1] > pd[0]
     assert torch.allclose(th[:1], torch.tensor([(0.5 / 90) ** 2 * math.pi / 2], dtype=torch.float64))
+
+
+def test_merl_table_mse_is_the_closed_form_between_two_lambertians():
+    """Two Lambertians differ by (a - b) / pi on every valid cell: the table MSE is the channel mean of its
+    square; a material against itself gives 0; negatives would be clamped, as in the table."""
+    from neumat.reflectance.analytic import Lambert
+    from neumat.reflectance.tabulate import merl_table_mse
+    a, b = (0.2, 0.5, 0.9), (0.3, 0.1, 0.9)
+    expected = sum(((x - y) / math.pi) ** 2 for x, y in zip(a, b)) / 3
+    assert merl_table_mse(Lambert(a), Lambert(b)) == pytest.approx(expected, rel=1e-12)
+    assert merl_table_mse(Lambert(a), Lambert(a)) == 0.0

@@ -11,6 +11,10 @@ Built-ins (means over the N queries and 3 channels):
               as NBRDF (Sztrajman et al. 2021; their code's `mean_absolute_logarithmic_error` on
               cosine-weighted values) and Neural Appearance Models (Zeltner et al. 2024, "L1 loss in log
               space"); NeuBRDF leaves its loss to the supplement, and follows NBRDF in evaluation.
+  "log_cos_eps": |log(eps + f_hat cos_i) - log(eps + f cos_i)|, eps = 0.01: log_cos is this with eps = 1, under
+              which values below ~0.01 (the tails of a sharp lobe, 0.007 - 0.04 sr^-1 on MERL chrome 8 - 16 deg
+              off the mirror direction) carry almost no gradient (f_hat cos / (1 + f_hat cos)), and fits that also
+              see the peak let them fall to 1e-10 (`benchmarks/results/neubrdf_direction_init.md`).
   "l1":       |f_hat - f|.
   "l2":       (f_hat - f)^2.
   "relative": (f_hat - f)^2 / (sg(f_hat)^2 + eps), eps = 0.01, the prediction-relative L2 of Noise2Noise
@@ -41,6 +45,17 @@ class LogCosLoss(nn.Module):
     def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
         c = _cos_i(q, pred)
         return (torch.log1p(pred * c) - torch.log1p(target.clamp(min=0) * c)).abs().mean()
+
+
+@LOSSES.register("log_cos_eps")
+class LogCosEpsLoss(nn.Module):
+    """mean |log(eps + f_hat cos_i) - log(eps + f cos_i)|, eps = 0.01."""
+
+    eps = 0.01
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        c = _cos_i(q, pred)
+        return (torch.log(self.eps + pred * c) - torch.log(self.eps + target.clamp(min=0) * c)).abs().mean()
 
 
 @LOSSES.register("l1")

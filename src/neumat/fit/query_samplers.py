@@ -10,6 +10,11 @@ Built-ins:
   "rusinkiewicz": (theta_h, theta_d) uniform in [0, pi/2)^2, phi_h and phi_d uniform in [0, 2 pi), configurations
                   with wi or wo below the horizon rejected (so: uniform on the valid part of that box);
                   the MERL parametrisation, dense near the specular peak.
+  "merl":         theta_h = pi/2 u^2 (the density of the MERL table's cells: 8 % of them within half a degree
+                  of the specular peak), phi_h, theta_d, phi_d as "rusinkiewicz"; the data regime of fits to MERL
+                  tables, which NeuBRDF and NBRDF train on.
+  "cosine_merl":  half the queries "cosine", half "merl": the peak of a sharp specular material is seen (0.5 deg
+                  wide on MERL chrome: "cosine" puts 1 query in 10^4 there) and the rest of the hemisphere too.
   "replay":       uniform draws, with replacement, of the stored samples of a `MeasuredSamples` source
                   (sparse measurements): the targets are the measured values themselves.
 """
@@ -59,10 +64,10 @@ def cosine_queries(source: Material, model=None) -> QueryDraw:
     return draw
 
 
-@QUERY_SAMPLERS.register("rusinkiewicz")
-def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
-    """Uniform (theta_h, phi_h, theta_d, phi_d) with below-horizon configurations rejected."""
-    _require_hemisphere(source, "rusinkiewicz")
+def _half_angle_queries(source: Material, model, sampler: str, theta_h_power: int) -> QueryDraw:
+    """(theta_h, theta_d) = pi/2 (u0^p, u1), phi_h and phi_d uniform in [0, 2 pi), configurations with wi or wo
+    below the horizon rejected; p = 1 is uniform in theta_h, p = 2 MERL's cell density."""
+    _require_hemisphere(source, sampler)
     with_uv = _needs_uv(source, model)
 
     def draw(n: int, generator: torch.Generator, device) -> Query:
@@ -70,7 +75,7 @@ def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
         while count < n:
             u = uniform(2 * (n - count) + 16, 6 if with_uv else 4, generator, device)
             half_pi = 0.5 * math.pi
-            wi, wo = rusinkiewicz_to_io(half_pi * u[:, 0], 2 * math.pi * u[:, 1], half_pi * u[:, 2],
+            wi, wo = rusinkiewicz_to_io(half_pi * u[:, 0] ** theta_h_power, 2 * math.pi * u[:, 1], half_pi * u[:, 2],
                                         2 * math.pi * u[:, 3])
             ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
             wi, wo, u = wi[ok], wo[ok], u[ok]
@@ -78,6 +83,31 @@ def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
             count += wi.shape[0]
         wi, wo, uv = (torch.cat(parts)[:n] for parts in zip(*got))
         return Query(wi, wo, uv=uv if with_uv else None)
+
+    return draw
+
+
+@QUERY_SAMPLERS.register("rusinkiewicz")
+def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
+    """Uniform (theta_h, phi_h, theta_d, phi_d) with below-horizon configurations rejected."""
+    return _half_angle_queries(source, model, "rusinkiewicz", 1)
+
+
+@QUERY_SAMPLERS.register("merl")
+def merl_queries(source: Material, model=None) -> QueryDraw:
+    """MERL's cell density in theta_h (see module docstring)."""
+    return _half_angle_queries(source, model, "merl", 2)
+
+
+@QUERY_SAMPLERS.register("cosine_merl")
+def cosine_merl_queries(source: Material, model=None) -> QueryDraw:
+    """Half "cosine", half "merl" queries (the first n // 2 cosine-weighted); see module docstring."""
+    cosine, merl = cosine_queries(source, model), merl_queries(source, model)
+
+    def draw(n: int, generator: torch.Generator, device) -> Query:
+        a, b = cosine(n // 2, generator, device), merl(n - n // 2, generator, device)
+        uv = None if a.uv is None else torch.cat([a.uv, b.uv])
+        return Query(torch.cat([a.wi, b.wi]), torch.cat([a.wo, b.wo]), uv=uv)
 
     return draw
 

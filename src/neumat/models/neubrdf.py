@@ -418,6 +418,25 @@ class NeuBRDF(LearnedMaterial):
         self._set_dense_grid(new_cfg, feats)
         return self
 
+    @torch.no_grad()
+    def init_direction_features(self, scale: float = 1.0) -> "NeuBRDF":
+        """Start the first 3 feature channels of every slot at `scale` times the slot's vertex direction on the
+        sphere (S+ slots above the equator, S- slots below it); the other channels keep their random start.
+        psi(wi; S+)[:3] then begins near wi and psi(wo mirrored; S-)[:3] near (wo_x, wo_y, -wo_z) (inverse-
+        distance interpolation: within half a pixel), and at the mirror direction the two cancel (the mirrored wo
+        is -wi, whose pixel and weights are wi's, antipodal), so the first MLP layer sees about wi - reflect(wo)
+        from the first step and can place a specular peak finer than a pixel. Why: from random features a fit of MERL-like chrome never found its
+        0.5-degree peak (`benchmarks/results/neubrdf_sharp_peak.md`). Dense features only; returns self."""
+        if not isinstance(self.grid, DenseFeatures):
+            raise InputError("NeuBRDF.init_direction_features: needs a model with features='dense' "
+                             f"(got {self.cfg.features!r})")
+        if self.cfg.feature_dim < 3:
+            raise InputError(f"NeuBRDF.init_direction_features: needs feature_dim >= 3, got {self.cfg.feature_dim}")
+        dirs = hpx.vertex2vec(self.cfg.nside, hpx.grid_vertex_ids(self.cfg.nside), torch.float64)
+        self.grid.features[:, :3] = (scale * dirs).to(self.grid.features)
+        self._drop_runtime()
+        return self
+
     def _set_dense_grid(self, cfg: Config, feats: torch.Tensor) -> None:
         """Install a dense grid at cfg.nside holding `feats` (2 n, k), and the buffers of that size."""
         device = self.level_i.device

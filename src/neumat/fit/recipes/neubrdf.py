@@ -70,7 +70,7 @@ from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
 
 OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 0, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
-           "vq_candidates": 0, "prune": False, "measured_azimuths": 64}
+           "vq_candidates": 0, "direction_features": False, "prune": False, "measured_azimuths": 64}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
@@ -94,6 +94,10 @@ quarter).
 vq_candidates: with a dense warm-up, the VQ phase keeps per grid slot the logits of its K nearest codewords
 only (`VQFeatures.restrict`), so its steps cost O(K) per slot instead of O(2^b); 0 (default) keeps all 2^b,
 the paper's estimator. 1 fixes every index at its k-means codeword (codebook and MLP still train).
+
+direction_features: start the first 3 feature channels of the dense grid (the coarse one, with coarse_fraction)
+at each slot's direction (`NeuBRDF.init_direction_features`), so the MLP sees wi - reflect(wo) from the first step.
+Needs a dense grid (features="dense" or a dense_warmup). Why: benchmarks/results/neubrdf_direction_init.md.
 
 prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
 measured directions that the fit replays, so that pixels holding no measurement read their nearest
@@ -141,9 +145,12 @@ def phases(ctx: FitContext) -> list[Phase]:
     if candidates and frac == 0:
         raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
                          "each slot's nearest codewords after the warm-up's k-means)")
-    if frac == 0 and coarse == 0:
-        return [online_phase(ctx)]
+    directions = _flag(options, "direction_features")
     features = getattr(getattr(model, "cfg", None), "features", None)
+    if frac == 0 and coarse == 0:
+        if directions:
+            _dense_for(model, features, "direction_features=True").init_direction_features()
+        return [online_phase(ctx)]
     if features != "dense":
         why = (f"dense_warmup={frac}: needs a model built with features='dense' (the warm-up's features are "
                "quantised into the codebook afterwards)" if frac else
@@ -158,6 +165,9 @@ def phases(ctx: FitContext) -> list[Phase]:
             raise InputError("neubrdf recipe options coarse_fraction and prune: a pruned grid cannot be regridded; "
                              "use one or the other")
         model.regrid(_coarse_nside(options, fine_nside))
+    if directions:
+        model.init_direction_features()  # a resumed fit loads its checkpoint over it
+
     def leave_coarse():
         model.regrid(fine_nside)
         if frac and dense_end == coarse_steps:  # no dense steps at the model's N_side: quantise right away
@@ -181,6 +191,20 @@ def phases(ctx: FitContext) -> list[Phase]:
         if coarse:
             phase.optimizer = _scaled(phase.optimizer, _fine_lr_scale(options))
     return [phase for phase in built if phase.steps > 0]
+
+
+def _flag(options: dict, name: str) -> bool:
+    value = options.get(name, False)
+    if not isinstance(value, bool):
+        raise InputError(f"neubrdf recipe option {name}: expected true or false, got {value!r}")
+    return value
+
+
+def _dense_for(model, features, why: str):
+    if features != "dense":
+        raise InputError(f"neubrdf recipe option {why}: needs a model built with features='dense' (or a "
+                         f"dense_warmup), got features={features!r}")
+    return model
 
 
 def _scaled(make, factor: float):
