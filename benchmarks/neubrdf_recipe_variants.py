@@ -5,10 +5,10 @@ with the dense grid. Scored in the training form: held-out log / relative error 
 the MERL-table MSE (Table 4's metric) and images (64^2, 256 spp, comparison protocol, with the reference's floor).
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/neubrdf_recipe_variants.py merl_tables/chrome.binary \
-        [--variants base qloss new newdense] [--seed 0] [--quantize]
+        [--variants base qloss new newdense] [--seed 0] [--direction-scale 10] [--quantize]
 
 Variants: "base" = CPU_RECIPE; "qloss" = base with queries cosine_merl and loss log_cos_eps; "new" = qloss with
-direction_features; "newdense" = new without the warm-up's switch to the codebook (dense_warmup 0: coarse N_side 16
+direction_features = --direction-scale; "newdense" = new without the warm-up's switch to the codebook (dense_warmup 0: coarse N_side 16
 then dense N_side 64 to the end, 1.6 MB). --quantize: for dense variants also the score right after k-means into
 the codebook (`quantize_from_dense`, 8 candidates), before any VQ step.
 """
@@ -32,12 +32,12 @@ from neumat.render.comparison import image_comparison, reference_renders
 VARIANTS = ("base", "qloss", "new", "newdense")
 
 
-def variant_recipe(variant: str, seed: int):
+def variant_recipe(variant: str, seed: int, direction_scale: float):
     recipe = replace(CPU_RECIPE, seed=seed, options=dict(CPU_RECIPE.options))
     if variant != "base":
         recipe = replace(recipe, queries="cosine_merl", loss="log_cos_eps")
     if variant in ("new", "newdense"):
-        recipe.options["direction_features"] = True
+        recipe.options["direction_features"] = direction_scale
     if variant == "newdense":
         recipe.options.update(dense_warmup=0.0, vq_candidates=0)
     return recipe
@@ -48,6 +48,7 @@ def main() -> None:
     ap.add_argument("material")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--direction-scale", type=float, default=10.0)
     ap.add_argument("--quantize", action="store_true")
     a = ap.parse_args()
     torch.set_num_threads(1)
@@ -67,7 +68,7 @@ def main() -> None:
     for variant in a.variants:
         torch.manual_seed(a.seed)
         t0 = time.perf_counter()
-        model = fit(NeuBRDF(features="dense"), source, variant_recipe(variant, a.seed), progress=False).model
+        model = fit(NeuBRDF(features="dense"), source, variant_recipe(variant, a.seed, a.direction_scale), progress=False).model
         row(f"{variant}, seed {a.seed}", model, f"{time.perf_counter() - t0:.0f}")
         if a.quantize and model.cfg.features == "dense":
             row(f"{variant}, k-means into the codebook", copy.deepcopy(model).quantize_from_dense(candidates=8), "")

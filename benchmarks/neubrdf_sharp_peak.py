@@ -4,12 +4,12 @@ the reference's floor), and the fitted model against the table along the mirror 
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/neubrdf_sharp_peak.py merl_tables/chrome.binary \
         [--nside 16] [--steps 800] [--queries cosine rusinkiewicz merl cosine_merl] [--loss log_cos log_cos_eps] \
-        [--starts random directions]
+        [--starts random directions] [--direction-scale 1]
 
 Queries (`neumat.fit.query_samplers`): "cosine" (the recipe's), "rusinkiewicz" (theta_h uniform: 1.1 % of the
 queries within 1 degree of the peak), "merl" (theta_h = pi/2 u^2, the density of the MERL table's cells: 10.5 %
 within 1 degree), "cosine_merl" (half and half). Starts: "random" features, or "directions"
-(`NeuBRDF.init_direction_features`). Every combination is run. Batch 8192, lr 1e-2 halved every steps / 4,
+(`NeuBRDF.init_direction_features(--direction-scale)`). Every combination is run. Batch 8192, lr 1e-2 halved every steps / 4,
 EMA 0.01; images 64^2 at 256 spp.
 """
 from __future__ import annotations
@@ -52,6 +52,7 @@ def main() -> None:
     ap.add_argument("--queries", nargs="+", default=["cosine", "rusinkiewicz", "merl"])
     ap.add_argument("--loss", nargs="+", default=["log_cos"])
     ap.add_argument("--starts", nargs="+", default=["random"], choices=["random", "directions"])
+    ap.add_argument("--direction-scale", type=float, default=1.0)
     a = ap.parse_args()
     torch.set_num_threads(1)
     source = open_material(a.material)
@@ -69,7 +70,7 @@ def main() -> None:
         torch.manual_seed(0)
         model = NeuBRDF(nside=a.nside, features="dense")
         if start == "directions":
-            model.init_direction_features()
+            model.init_direction_features(a.direction_scale)
         t0 = time.perf_counter()
         res = fit(model, source, recipe, progress=False, queries=QUERY_SAMPLERS.get(name)(source, model))
         seconds = time.perf_counter() - t0

@@ -70,7 +70,7 @@ from ..phase import FitContext, Phase, online_phase
 from ..recipe import Recipe
 
 OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 0, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
-           "vq_candidates": 0, "direction_features": False, "prune": False, "measured_azimuths": 64}
+           "vq_candidates": 0, "direction_features": 0.0, "prune": False, "measured_azimuths": 64}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
@@ -95,9 +95,12 @@ vq_candidates: with a dense warm-up, the VQ phase keeps per grid slot the logits
 only (`VQFeatures.restrict`), so its steps cost O(K) per slot instead of O(2^b); 0 (default) keeps all 2^b,
 the paper's estimator. 1 fixes every index at its k-means codeword (codebook and MLP still train).
 
-direction_features: start the first 3 feature channels of the dense grid (the coarse one, with coarse_fraction)
-at each slot's direction (`NeuBRDF.init_direction_features`), so the MLP sees wi - reflect(wo) from the first step.
-Needs a dense grid (features="dense" or a dense_warmup). Why: benchmarks/results/neubrdf_direction_init.md.
+direction_features: a scale s > 0 starts the first 3 feature channels of the dense grid (the coarse one, with
+coarse_fraction) at s times each slot's direction (`NeuBRDF.init_direction_features`), so the MLP sees about
+s (wi - reflect(wo)) from the first step; 0, the default, keeps the random start. Needs a dense grid
+(features="dense" or a dense_warmup). 10 is what we use: on MERL-like chrome (dense N_side 64, 1500 steps,
+cosine_merl queries, log_cos_eps) image SSIM 0.75 at s = 1, 0.85 at 10; at N_side 16, 800 steps, 0.70 / 0.70 /
+0.78 / 0.77 at 1 / 3 / 10 / 30 (benchmarks/results/neubrdf_direction_init.md).
 
 prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
 measured directions that the fit replays, so that pixels holding no measurement read their nearest
@@ -145,11 +148,11 @@ def phases(ctx: FitContext) -> list[Phase]:
     if candidates and frac == 0:
         raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
                          "each slot's nearest codewords after the warm-up's k-means)")
-    directions = _flag(options, "direction_features")
+    directions = _direction_scale(options)
     features = getattr(getattr(model, "cfg", None), "features", None)
     if frac == 0 and coarse == 0:
         if directions:
-            _dense_for(model, features, "direction_features=True").init_direction_features()
+            _dense_for(model, features, f"direction_features={directions}").init_direction_features(directions)
         return [online_phase(ctx)]
     if features != "dense":
         why = (f"dense_warmup={frac}: needs a model built with features='dense' (the warm-up's features are "
@@ -166,7 +169,7 @@ def phases(ctx: FitContext) -> list[Phase]:
                              "use one or the other")
         model.regrid(_coarse_nside(options, fine_nside))
     if directions:
-        model.init_direction_features()  # a resumed fit loads its checkpoint over it
+        model.init_direction_features(directions)  # a resumed fit loads its checkpoint over it
 
     def leave_coarse():
         model.regrid(fine_nside)
@@ -193,11 +196,11 @@ def phases(ctx: FitContext) -> list[Phase]:
     return [phase for phase in built if phase.steps > 0]
 
 
-def _flag(options: dict, name: str) -> bool:
-    value = options.get(name, False)
-    if not isinstance(value, bool):
-        raise InputError(f"neubrdf recipe option {name}: expected true or false, got {value!r}")
-    return value
+def _direction_scale(options: dict) -> float:
+    scale = options.get("direction_features", 0.0)
+    if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 <= scale < float("inf"):
+        raise InputError(f"neubrdf recipe option direction_features: expected a scale >= 0 (0: off), got {scale!r}")
+    return float(scale)
 
 
 def _dense_for(model, features, why: str):
