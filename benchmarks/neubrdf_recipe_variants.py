@@ -8,8 +8,8 @@ the MERL-table MSE (Table 4's metric) and images (64^2, 256 spp, comparison prot
         [--variants base qloss new newdense] [--seed 0] [--direction-scale 10] [--quantize]
 
 Variants: "base" = CPU_RECIPE; "qloss" = base with queries cosine_merl and loss log_cos_eps; "new" = qloss with
-direction_features = --direction-scale; "newdense" = new without the warm-up's switch to the codebook (dense_warmup 0: coarse N_side 16
-then dense N_side 64 to the end, 1.6 MB). --quantize: for dense variants also the score right after k-means into
+direction_features = --direction-scale; "newdense" = new without the warm-up's switch to the codebook
+(dense_warmup 0: coarse N_side 16, then dense N_side 64 to the end, 1.6 MB). --quantize: for dense variants also the score right after k-means into
 the codebook (`quantize_from_dense`, 8 candidates), before any VQ step.
 """
 from __future__ import annotations
@@ -68,7 +68,8 @@ def main() -> None:
     for variant in a.variants:
         torch.manual_seed(a.seed)
         t0 = time.perf_counter()
-        model = fit(NeuBRDF(features="dense"), source, variant_recipe(variant, a.seed, a.direction_scale), progress=False).model
+        recipe = variant_recipe(variant, a.seed, a.direction_scale)
+        model = fit(NeuBRDF(features="dense"), source, recipe, progress=False).model
         row(f"{variant}, seed {a.seed}", model, f"{time.perf_counter() - t0:.0f}")
         if a.quantize and model.cfg.features == "dense":
             row(f"{variant}, k-means into the codebook", copy.deepcopy(model).quantize_from_dense(candidates=8), "")

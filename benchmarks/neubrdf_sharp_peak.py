@@ -9,8 +9,8 @@ the reference's floor), and the fitted model against the table along the mirror 
 Queries (`neumat.fit.query_samplers`): "cosine" (the recipe's), "rusinkiewicz" (theta_h uniform: 1.1 % of the
 queries within 1 degree of the peak), "merl" (theta_h = pi/2 u^2, the density of the MERL table's cells: 10.5 %
 within 1 degree), "cosine_merl" (half and half). Starts: "random" features, or "directions"
-(`NeuBRDF.init_direction_features(--direction-scale)`). Every combination is run. Batch 8192, lr 1e-2 halved every steps / 4,
-EMA 0.01; images 64^2 at 256 spp.
+(`NeuBRDF.init_direction_features(--direction-scale)`). Every combination is run. Batch 8192, lr 1e-2 halved
+every steps / 4, EMA 0.01; images 64^2 at 256 spp.
 """
 from __future__ import annotations
 
@@ -60,8 +60,8 @@ def main() -> None:
     for t in (10, 30, 60):
         print(f"table at theta_i {t}, offsets " + ", ".join(f"{o:g}" for o in OFFSETS) + " degrees: "
               + ", ".join(f"{v:.3g}" for v in mirror_profile(source, t)))
-    print("| queries | loss | start | N_side | steps | fit s | log_err | rel_err | image MAE | SSIM | FLIP | floor SSIM | "
-          "model at the mirror direction, theta_i 10 / 30 / 60 |")
+    print("| queries | loss | start | N_side | steps | fit s | log_err | rel_err | image MAE | SSIM | FLIP | "
+          "floor SSIM | model at the mirror direction, theta_i 10 / 30 / 60 |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, loss, start in itertools.product(a.queries, a.loss, a.starts):
         r = recipe_for("neubrdf")

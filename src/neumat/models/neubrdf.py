@@ -422,11 +422,12 @@ class NeuBRDF(LearnedMaterial):
     def init_direction_features(self, scale: float = 1.0) -> "NeuBRDF":
         """Start the first 3 feature channels of every slot at `scale` times the slot's vertex direction on the
         sphere (S+ slots above the equator, S- slots below it); the other channels keep their random start.
-        psi(wi; S+)[:3] then begins near wi and psi(wo mirrored; S-)[:3] near (wo_x, wo_y, -wo_z) (inverse-
-        distance interpolation: within half a pixel), and at the mirror direction the two cancel (the mirrored wo
-        is -wi, whose pixel and weights are wi's, antipodal), so the first MLP layer sees about wi - reflect(wo)
-        from the first step and can place a specular peak finer than a pixel. Why: from random features a fit of MERL-like chrome never found its
-        0.5-degree peak (`benchmarks/results/neubrdf_sharp_peak.md`). Dense features only; returns self."""
+        psi(wi; S+)[:3] then begins near scale wi and psi(wo mirrored; S-)[:3] near scale (wo_x, wo_y, -wo_z)
+        (inverse-distance interpolation: within half a pixel), and at the mirror direction the two cancel (the
+        mirrored wo is -wi, whose pixel and weights are wi's, antipodal), so the first MLP layer sees about
+        scale (wi - reflect(wo)) from the first step and can place a specular peak finer than a pixel. Why: from
+        random features no fit of MERL-like chrome found its 0.5-degree peak (`benchmarks/results/
+        neubrdf_direction_init.md`). Dense features only; returns self."""
         if not isinstance(self.grid, DenseFeatures):
             raise InputError("NeuBRDF.init_direction_features: needs a model with features='dense' "
                              f"(got {self.cfg.features!r})")
