@@ -9,8 +9,8 @@ the MERL-table MSE (Table 4's metric) and images (64^2, 256 spp, comparison prot
 
 Variants: "base" = CPU_RECIPE; "qloss" = base with queries cosine_merl and loss log_cos_eps; "new" = qloss with
 direction_features = --direction-scale; "newdense" = new without the warm-up's switch to the codebook
-(dense_warmup 0: coarse N_side 16, then dense N_side 64 to the end, 1.6 MB). --quantize: for dense variants also the score right after k-means into
-the codebook (`quantize_from_dense`, 8 candidates), before any VQ step.
+(dense_warmup 0: coarse N_side 16, then dense N_side 64 to the end, 1.6 MB). --quantize: for dense variants also
+the score right after k-means into the codebook (`quantize_from_dense`, 8 candidates), before any VQ step.
 """
 from __future__ import annotations
 

@@ -24,7 +24,6 @@ import torch
 
 from neumat.catalog.open_material import open_material
 from neumat.core.query import Query
-from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
@@ -66,13 +65,13 @@ def main() -> None:
     for name, loss, start in itertools.product(a.queries, a.loss, a.starts):
         r = recipe_for("neubrdf")
         recipe = replace(r, steps=a.steps, batch_size=8192, lr_decay_every=max(a.steps // 4, 1), log_every=a.steps,
-                         loss=loss)
+                         loss=loss, queries=name)
         torch.manual_seed(0)
         model = NeuBRDF(nside=a.nside, features="dense")
         if start == "directions":
             model.init_direction_features(a.direction_scale)
         t0 = time.perf_counter()
-        res = fit(model, source, recipe, progress=False, queries=QUERY_SAMPLERS.get(name)(source, model))
+        res = fit(model, source, recipe, progress=False)
         seconds = time.perf_counter() - t0
         err = reflectance_errors(res.model, source, n=2 ** 17)
         img = image_comparison(res.model, source, 256, 64, renders=renders)
@@ -80,6 +79,7 @@ def main() -> None:
         print(f"| {name} | {loss} | {start} | {a.nside} | {a.steps} | {seconds:.0f} | {err['log_err']:.5f} | "
               f"{err['rel_err']:.3f} | {img['mae']:.4f} | {img['ssim']:.4f} | {img['flip']:.4f} | "
               f"{img['floor_ssim']:.4f} | {profile} |", flush=True)
+
 
 if __name__ == "__main__":
     main()

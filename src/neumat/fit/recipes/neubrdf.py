@@ -149,16 +149,15 @@ def phases(ctx: FitContext) -> list[Phase]:
         raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
                          "each slot's nearest codewords after the warm-up's k-means)")
     directions = _direction_scale(options)
-    features = getattr(getattr(model, "cfg", None), "features", None)
-    if frac == 0 and coarse == 0:
-        if directions:
-            _dense_for(model, features, f"direction_features={directions}").init_direction_features(directions)
+    if frac == 0 and coarse == 0 and not directions:
         return [online_phase(ctx)]
+    features = getattr(getattr(model, "cfg", None), "features", None)
     if features != "dense":
         why = (f"dense_warmup={frac}: needs a model built with features='dense' (the warm-up's features are "
                "quantised into the codebook afterwards)" if frac else
                f"coarse_fraction={coarse}: needs a model built with features='dense' (or a dense_warmup, to end "
-               "with the codebook)")
+               "with the codebook)" if coarse else
+               f"direction_features={directions}: needs a model built with features='dense' (or a dense_warmup)")
         raise InputError(f"neubrdf recipe option {why}, got features={features!r}")
     fine_nside = model.cfg.nside
     coarse_steps = min(max(int(round(coarse * steps)), 1), steps) if coarse else 0
@@ -170,6 +169,8 @@ def phases(ctx: FitContext) -> list[Phase]:
         model.regrid(_coarse_nside(options, fine_nside))
     if directions:
         model.init_direction_features(directions)  # a resumed fit loads its checkpoint over it
+    if frac == 0 and coarse == 0:
+        return [online_phase(ctx)]
 
     def leave_coarse():
         model.regrid(fine_nside)
@@ -201,13 +202,6 @@ def _direction_scale(options: dict) -> float:
     if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 <= scale < float("inf"):
         raise InputError(f"neubrdf recipe option direction_features: expected a scale >= 0 (0: off), got {scale!r}")
     return float(scale)
-
-
-def _dense_for(model, features, why: str):
-    if features != "dense":
-        raise InputError(f"neubrdf recipe option {why}: needs a model built with features='dense' (or a "
-                         f"dense_warmup), got features={features!r}")
-    return model
 
 
 def _scaled(make, factor: float):
