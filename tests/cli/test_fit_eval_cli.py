@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.cli import fitting
+from neumat.core.errors import InputError
 from neumat.io.modelfile import read_header
 from neumat.models.neubrdf import NeuBRDF
 
@@ -156,6 +157,11 @@ def test_fit_on_cpu_picks_the_cpu_recipe_and_says_so(app, teacher, tmp_path):
     assert res.exit_code == 0, res.output
     assert read_header(tmp_path / "p.nmat")["recipe"]["lr_decay_every"] == paper.lr_decay_every
     assert "CPU-sized" not in res.output
+    res = CliRunner().invoke(app, [*args, "--set", "steps=3", "--recipe", "dense", "-o", str(tmp_path / "d.nmat")])
+    assert res.exit_code == 0, res.output
+    h = read_header(tmp_path / "d.nmat")
+    assert (h["recipe"]["loss"], h["recipe"]["options"]["direction_features"]) == ("log_cos_eps", 10.0)
+    assert h["config"]["features"] == "dense"
     res = CliRunner().invoke(app, [*args, "--recipe", "gpu", "-o", str(tmp_path / "x.nmat")])
     assert res.exit_code == 2 and "--recipe" in output_text(res)
 
@@ -166,10 +172,14 @@ def test_cpu_recipe_is_the_default_on_a_cpu(monkeypatch):
     from neumat.fit.recipe import recipe_for
 
     cpu, gpu = torch.device("cpu"), torch.device("cuda")
-    assert fitting.choose_recipe(None, cpu, False) == "cpu"
-    assert fitting.choose_recipe(None, cpu, True) == "paper"
-    assert fitting.choose_recipe(None, gpu, False) == "paper"
-    assert fitting.choose_recipe("paper", cpu, False) == "paper" and fitting.choose_recipe("cpu", gpu, True) == "cpu"
+    assert fitting.choose_recipe(None, "neubrdf", cpu, False) == "cpu"
+    assert fitting.choose_recipe(None, "neubrdf", cpu, True) == "paper"
+    assert fitting.choose_recipe(None, "neubrdf", gpu, False) == "paper"
+    assert fitting.choose_recipe("paper", "neubrdf", cpu, False) == "paper"
+    assert fitting.choose_recipe("cpu", "neubrdf", gpu, True) == "cpu"
+    assert fitting.choose_recipe("dense", "neubrdf", cpu, False) == "dense"  # a named recipe
+    with pytest.raises(InputError, match="--recipe: model ggx has the recipes paper, cpu; got 'dense'"):
+        fitting.choose_recipe("dense", "ggx", cpu, False)
     note = fitting.cpu_recipe_note("neubrdf", recipe_for("neubrdf", "cpu"))
     c, p = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
     assert note.startswith(f"using the CPU-sized recipe of neubrdf ({c.steps} steps x {c.batch_size}, about ")

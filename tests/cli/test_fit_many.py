@@ -153,7 +153,24 @@ def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
     assert job.options_sha256() != FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path),
                                           recipe="cpu").options_sha256()
     bad = CliRunner().invoke(app, [*args, "--recipe", "gpu"])
-    assert bad.exit_code == 2 and "--recipe: expected 'paper' or 'cpu'" in " ".join(bad.output.split())
+    assert bad.exit_code == 2 and "--recipe: model neubrdf has the recipes paper, cpu, dense; got 'gpu'" in \
+        " ".join(bad.output.split())
+
+
+def test_model_recipes_scope_a_named_recipe_to_one_model():
+    """fit-many --recipe: a plain value for every model, MODEL:NAME for one (it wins), "paper" by default; each
+    checked against that model's recipes; a scope naming no --model is refused."""
+    from neumat.cli.fit_many import model_recipes
+    from neumat.core.errors import InputError
+
+    models = ["neubrdf", "ggx"]
+    assert model_recipes([], models) == {"neubrdf": "paper", "ggx": "paper"}
+    assert model_recipes(["cpu", "neubrdf:dense"], models) == {"neubrdf": "dense", "ggx": "cpu"}
+    assert model_recipes(["neubrdf:dense"], models) == {"neubrdf": "dense", "ggx": "paper"}
+    with pytest.raises(InputError, match="model ggx has the recipes paper, cpu; got 'dense'"):
+        model_recipes(["dense"], models)
+    with pytest.raises(InputError, match="--recipe: nbrdf is not one of the --model values"):
+        model_recipes(["nbrdf:cpu"], models)
 
 
 class KillFirstAttempt:

@@ -66,8 +66,37 @@ def test_every_model_has_a_cpu_recipe_no_larger_than_the_papers():
     cpu, paper = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
     assert cpu.steps < paper.steps and paper.options["dense_warmup"] == 0 == paper.options["coarse_fraction"]
     assert 0 < cpu.options["coarse_fraction"] <= cpu.options["dense_warmup"] < 1 and cpu.schedule == "halves"
-    with pytest.raises(InputError, match="machine"):
+    with pytest.raises(InputError, match="recipe 'tpu': model neubrdf has the recipes paper, cpu, dense"):
         recipe_for("neubrdf", "tpu")
+
+
+def test_named_recipe_dense_is_the_cpu_recipe_on_a_direction_coded_dense_grid():
+    """neubrdf's named recipe "dense": the CPU recipe's budget and schedule with the settings of the dense path
+    (cosine_merl queries, log_cos_eps, direction start 10, no codebook phase); the model it builds is dense
+    (config_for_source), an explicit features setting still wins and then the phases refuse it; other models
+    list no named recipe and refuse the name."""
+    from types import SimpleNamespace
+
+    from neumat.cli.fitting import build_model_and_recipe
+    from neumat.fit.recipe import recipe_choices
+
+    dense, cpu = recipe_for("neubrdf", "dense"), recipe_for("neubrdf", "cpu")
+    check_recipe(dense)
+    assert (dense.steps, dense.batch_size, dense.schedule) == (cpu.steps, cpu.batch_size, cpu.schedule)
+    assert (dense.loss, dense.queries) == ("log_cos_eps", "cosine_merl")
+    assert dense.options == {**cpu.options, "dense_warmup": 0.0, "vq_candidates": 0, "direction_features": 10.0}
+    assert recipe_choices("neubrdf") == ["paper", "cpu", "dense"] and recipe_choices("ggx") == ["paper", "cpu"]
+    source = SimpleNamespace()
+    model, recipe = build_model_and_recipe("neubrdf", {"nside": 8}, source=source, machine="dense")
+    assert model.cfg.features == "dense" and recipe == dense
+    model, _ = build_model_and_recipe("neubrdf", {"nside": 8}, source=source, machine="cpu")
+    assert model.cfg.features == "dense"  # the CPU recipe's dense warm-up
+    model, _ = build_model_and_recipe("neubrdf", {"nside": 8}, source=source, machine="paper")
+    assert model.cfg.features == "vq"
+    model, _ = build_model_and_recipe("neubrdf", {"nside": 8, "features": "vq"}, source=source, machine="dense")
+    assert model.cfg.features == "vq"
+    with pytest.raises(InputError, match="recipe 'dense': model ggx has the recipes paper, cpu"):
+        recipe_for("ggx", "dense")
 
 
 def test_latent_pyramids_follow_the_source():

@@ -73,7 +73,7 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         if "num_materials" in overrides:
             raise InputError("--set num_materials: fit-clusters sets each cluster's number of materials itself")
         dev = resolve_device(device)
-        machine = choose_recipe(recipe_name, dev, steps is not None or "steps" in overrides)
+        machine = choose_recipe(recipe_name, MODEL, dev, steps is not None or "steps" in overrides)
         paths = expand_sources(sources)
         if k > len(paths):
             raise InputError(f"-k {k}: more clusters than materials; expected at most {len(paths)} (the number "

@@ -30,7 +30,7 @@ class FitJob:
     """What to fit and how. source: a file path or spec (as `neumat fit` takes it); name: the source's short
     name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
     errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
-    recipe: "paper" or "cpu", the model's recipe (`neumat.fit.recipe.recipe_for`); evaluate_only: the model
+    recipe: "paper", "cpu" or a named recipe of the model (`neumat.fit.recipe.recipe_for`); evaluate_only: the model
     at `out` was fitted with these fit options before: only evaluate it (not part of the hashes)."""
 
     source: str

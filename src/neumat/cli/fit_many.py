@@ -32,8 +32,11 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
              set_: list[str] = typer.Option(None, "--set", help="key=value for every fit, as `neumat fit --set`; "
                                                                "MODEL:key=value for that model's fits only"),
              steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
-             recipe_name: str = typer.Option("paper", "--recipe", help="paper | cpu: each model's paper recipe or "
-                                             "its CPU-sized one (about 10 min per fit on a core)"),
+             recipe_name: list[str] = typer.Option(None, "--recipe", help="paper | cpu | a named recipe: each "
+                                                   "model's paper recipe (the default), its CPU-sized one (about 10 "
+                                                   "min per fit on a core) or one it names (neumat list); "
+                                                   "MODEL:NAME for that model's fits only, e.g. --recipe cpu "
+                                                   "--recipe neubrdf:dense"),
              seed: int = typer.Option(None, **SEED_RANGE, help="seed of every fit (default: the recipe's)"),
              device: str = typer.Option(None, callback=device_option,
                                        help="torch device of every fit (default: cuda if available, else cpu); "
@@ -82,13 +85,13 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
         out.mkdir(parents=True, exist_ok=True)
         overrides = model_overrides(parse_overrides(set_), model)
+        recipes = model_recipes(recipe_name or [], model)
         common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
-                      recipe=checked_recipe_name(recipe_name),
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
                       image_spp=image_spp, image_resolution=image_resolution)
         named = source_names(expand_sources(sources))
-        jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], **common) for s, n in named.items()
-                for m in model]
+        jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], recipe=recipes[m], **common)
+                for s, n in named.items() for m in model]
         results = out / "results.json"
         previous = {(r["source"], r["model"]): r for r in read_rows(results)}
         rows, todo = {}, []
@@ -154,6 +157,21 @@ def model_overrides(overrides: dict, models: list[str]) -> dict[str, dict]:
         raise InputError(f"--set: {', '.join(unknown)} is not one of the --model values ({', '.join(models)})")
     plain = {k: v for k, v in overrides.items() if k not in scoped}
     return {m: plain | {k.partition(":")[2]: v for k, v in overrides.items() if scoped.get(k) == m} for m in models}
+
+
+def model_recipes(values: list[str], models: list[str]) -> dict[str, str]:
+    """model -> the recipe name its fits run: "paper", or the last plain --recipe value, or the last "MODEL:NAME"
+    for that model (which wins); each checked against the model's recipes (`checked_recipe_name`)."""
+    scoped = [v.partition(":") for v in values if ":" in v]
+    unknown = sorted({m for m, _, _ in scoped if m not in models})
+    if unknown:
+        raise InputError(f"--recipe: {', '.join(unknown)} is not one of the --model values ({', '.join(models)})")
+    plain = [v for v in values if ":" not in v]
+    out = {}
+    for m in models:
+        name = ([n for s, _, n in scoped if s == m] or plain or ["paper"])[-1]
+        out[m] = checked_recipe_name(name, m)
+    return out
 
 
 def expand_sources(items: list[str]) -> list[str]:

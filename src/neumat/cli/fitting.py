@@ -25,9 +25,10 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field, "
                                                            "else a recipe option; lists as a,b"),
         steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
-        recipe_name: str = typer.Option(None, "--recipe", help="paper | cpu: the model's paper recipe (sized for a "
-                                        "GPU) or its CPU-sized one (about 10 min on 2 cores); default: cpu on a CPU "
-                                        "device when neither --steps nor --set steps=N is given, else paper"),
+        recipe_name: str = typer.Option(None, "--recipe", help="paper | cpu | a named recipe of the model (neumat "
+                                        "list): the paper's recipe (sized for a GPU), the CPU-sized one (about 10 "
+                                        "min on 2 cores) or e.g. neubrdf's dense; default: cpu on a CPU device when "
+                                        "neither --steps nor --set steps=N is given, else paper"),
         device: str = typer.Option(None, callback=device_option,
                                   help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, **SEED_RANGE,
@@ -63,7 +64,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         if tau is not None:
             overrides.update(parse_overrides([f"tau={tau}"]))
         dev = resolve_device(device)
-        machine = choose_recipe(recipe_name, dev, steps is not None or "steps" in overrides)
+        machine = choose_recipe(recipe_name, model, dev, steps is not None or "steps" in overrides)
         src = open_training_source(model, sources, parse_overrides(source_option, "--source-option"))
         m, recipe = build_model_and_recipe(model, overrides, seed, source=src, machine=machine)
         if machine == "cpu" and recipe_name is None and not quiet:
@@ -81,18 +82,22 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     run_command(go)
 
 
-def checked_recipe_name(recipe_name: str) -> str:
-    """`recipe_name` if it is "paper" or "cpu" (a --recipe value), else InputError."""
-    if recipe_name not in ("paper", "cpu"):
-        raise InputError(f"--recipe: expected 'paper' or 'cpu', got {recipe_name!r}")
+def checked_recipe_name(recipe_name: str, model: str) -> str:
+    """`recipe_name` if model `model` has a recipe of that name (a --recipe value: "paper", "cpu" or one of the
+    model's named recipes, `neumat.fit.recipe.recipe_choices`), else InputError naming its choices."""
+    from ..fit.recipe import recipe_choices
+
+    choices = recipe_choices(model)
+    if recipe_name not in choices:
+        raise InputError(f"--recipe: model {model} has the recipes {', '.join(choices)}; got {recipe_name!r}")
     return recipe_name
 
 
-def choose_recipe(recipe_name: str | None, device, budget_given: bool) -> str:
-    """Which of the model's recipes a fit runs: `recipe_name` ("paper" or "cpu") when given, else "cpu" on a CPU
-    device when the command line names no step budget, else "paper"."""
+def choose_recipe(recipe_name: str | None, model: str, device, budget_given: bool) -> str:
+    """Which of the model's recipes a fit runs: `recipe_name` when given (checked against `model`'s), else "cpu"
+    on a CPU device when the command line names no step budget, else "paper"."""
     if recipe_name is not None:
-        return checked_recipe_name(recipe_name)
+        return checked_recipe_name(recipe_name, model)
     return "cpu" if device.type == "cpu" and not budget_given else "paper"
 
 
@@ -151,7 +156,7 @@ def _unknown_keys(overrides: dict, known: set[str]) -> str:
 
 def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None, source=None,
                            machine: str = "paper"):
-    """A fresh model `model` and its recipe for `machine` ("paper" or "cpu", see `recipe_for`) with `overrides`
+    """A fresh model `model` and its recipe `machine` ("paper", "cpu" or a named one, see `recipe_for`) with `overrides`
     applied: model config fields first, then recipe fields, then recipe options (unknown keys raise). With a `source`, the recipe module's
     `config_for_source(source, options) -> dict` (if it has one) supplies config defaults that follow the source (e.g. the
     latent resolution of a texture set); overrides win. The model is initialised after seeding torch with the

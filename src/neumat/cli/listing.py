@@ -13,12 +13,13 @@ def register(app: typer.Typer) -> None:
 
 def catalogue() -> dict:
     """{"models": [one object per registered model], "sources": [...], "source_kinds": {...}, "exporters": [...]}
-    as `neumat list --json` prints it; a model's "recipe" is true when `neumat fit` can train it."""
+    as `neumat list --json` prints it; a model's "recipe" is true when `neumat fit` can train it, "recipes" are
+    the names its --recipe takes."""
     from ..catalog.sources import load_sources
     from ..core.errors import UnknownNameError
     from ..export.glsl_common import load_generators
     from ..export.registry import load_formats
-    from ..fit.recipe import recipe_for
+    from ..fit.recipe import recipe_choices, recipe_for
     from ..models.base import SOURCE_KINDS
     from ..models.registry import load_all
 
@@ -33,7 +34,7 @@ def catalogue() -> dict:
         except UnknownNameError:
             recipe = None
         rows.append({"name": name, "paper": cls.paper, "source_kinds": list(cls.source_kinds),
-                     "recipe": recipe is not None,
+                     "recipe": recipe is not None, "recipes": recipe_choices(name) if recipe else [],
                      "steps": recipe.steps if recipe else None, "batch_size": recipe.batch_size if recipe else None,
                      "phase_split": list(recipe.phase_split) if recipe else None,
                      "exports": formats.names() if name in exportable else []})
@@ -52,6 +53,7 @@ def list_all(json: bool = typer.Option(False, "--json", help="print one JSON obj
         print_table("models (neumat fit SOURCE --model NAME)", [
             {"model": m["name"], "fits": ", ".join(m["source_kinds"]),
              "recipe": f"{m['steps']} x {m['batch_size']}" if m["recipe"] else "none",
+             "--recipe": ", ".join(m["recipes"]) or "-",
              "exports": ", ".join(m["exports"]) or "-"} for m in data["models"]])
         print_table("what each model is", [{"model": m["name"], "paper": m["paper"]} for m in data["models"]])
         print_table("material sources (file suffix, folder or spec)",

@@ -4,8 +4,9 @@ Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.reci
 '_'), and a CPU-sized recipe as `CPU_RECIPE` (the paper's architecture, a budget that finishes in about 10
 minutes on 2 CPU cores for a typical source; benchmarks/results/cpu_recipes.md); that module may also define
 `phases(ctx) -> list[Phase]` (`neumat.fit.phase`) when the model trains in stages and
-`config_for_source(source, options)` for config fields that follow the source. `recipe_for(name, machine)` /
-`phases_for` find them, `recipe_names` lists every model that has one. Recipes are
+`config_for_source(source, options)` for config fields that follow the source, and `NAMED_RECIPES` ({name: Recipe})
+for further recipes a user can ask for by name (`neumat fit --recipe NAME`). `recipe_for(name, machine)` /
+`phases_for` find them, `recipe_choices` lists a model's recipe names, `recipe_names` every model that has one. Recipes are
 plain dataclasses, so `config_from_dict(Recipe, ...)` / `config_to_dict` turn them into JSON for model files,
 checkpoints and `--set` overrides.
 """
@@ -124,15 +125,27 @@ MACHINE_RECIPES = {"paper": "RECIPE", "gpu": "RECIPE", "cpu": "CPU_RECIPE"}
 
 def recipe_for(model_name: str, machine: str = "paper") -> Recipe:
     """A copy of a recipe of model `model_name` from `neumat.fit.recipes.<name, '-' -> '_'>`: its `RECIPE`
-    (the paper's, sized for a GPU) for machine "paper" or "gpu", its `CPU_RECIPE` for "cpu"."""
-    if machine not in MACHINE_RECIPES:
-        raise InputError(f"recipe machine: expected one of {', '.join(MACHINE_RECIPES)}, got {machine!r}")
+    (the paper's, sized for a GPU) for machine "paper" or "gpu", its `CPU_RECIPE` for "cpu", else the recipe of
+    that name in its `NAMED_RECIPES` (InputError naming the model's choices when it has none of that name)."""
     mod = _recipe_module(model_name)
-    attr = MACHINE_RECIPES[machine]
-    recipe = getattr(mod, attr, None)
+    named = getattr(mod, "NAMED_RECIPES", {})
+    if machine in MACHINE_RECIPES:
+        where = f"{mod.__name__}.{MACHINE_RECIPES[machine]}"
+        recipe = getattr(mod, MACHINE_RECIPES[machine], None)
+    elif machine in named:
+        where, recipe = f"{mod.__name__}.NAMED_RECIPES[{machine!r}]", named[machine]
+    else:
+        raise InputError(f"recipe {machine!r}: model {model_name} has the recipes "
+                         f"{', '.join(recipe_choices(model_name))}")
     if not isinstance(recipe, Recipe):
-        raise InputError(f"{mod.__name__}.{attr}: expected a neumat.fit.recipe.Recipe, got {type(recipe).__name__}")
+        raise InputError(f"{where}: expected a neumat.fit.recipe.Recipe, got {type(recipe).__name__}")
     return replace(recipe, options=dict(recipe.options))  # a copy: callers may edit it
+
+
+def recipe_choices(model_name: str) -> list[str]:
+    """The recipe names `recipe_for(model_name, name)` takes: "paper", "cpu" (and "gpu", the same as "paper",
+    not listed), then the model's `NAMED_RECIPES`."""
+    return ["paper", "cpu", *getattr(_recipe_module(model_name), "NAMED_RECIPES", {})]
 
 
 def cpu_minutes(model_name: str) -> float | None:

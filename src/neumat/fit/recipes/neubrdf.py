@@ -97,8 +97,8 @@ the paper's estimator. 1 fixes every index at its k-means codeword (codebook and
 
 direction_features: a scale s > 0 starts the first 3 feature channels of the dense grid (the coarse one, with
 coarse_fraction) at s times each slot's direction (`NeuBRDF.init_direction_features`), so the MLP sees about
-s (wi - reflect(wo)) from the first step; 0, the default, keeps the random start. Needs a dense grid
-(features="dense" or a dense_warmup). 10 is what we use: on MERL-like chrome (dense N_side 64, 1500 steps,
+s (wi - reflect(wo)) from the first step; 0, the default, keeps the random start. Needs a dense grid: the
+model is built with features="dense" unless a features setting says otherwise. The "dense" named recipe sets it. 10 is what we use: on MERL-like chrome (dense N_side 64, 1500 steps,
 cosine_merl queries, log_cos_eps) image SSIM 0.75 at s = 1, 0.85 at 10; at N_side 16, 800 steps, 0.70 / 0.70 /
 0.78 / 0.77 at 1 / 3 / 10 / 30 (benchmarks/results/neubrdf_direction_init.md).
 
@@ -121,10 +121,21 @@ CPU_RECIPE = Recipe(steps=5000, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999),
                     options={**OPTIONS, "coarse_fraction": 0.4, "dense_warmup": 0.7, "vq_candidates": 8})
 CPU_MINUTES = 8
 
+#: `neumat fit --recipe dense`: the CPU recipe's steps and schedule on a dense grid (16 floats per slot: 1.6 MB at
+#: fp16, 19x the paper's codebook model) with the direction-coded start (direction_features 10), half cosine and
+#: half MERL-density queries and the floored log loss. The lowest errors we measured: RGL Table 3 mean image
+#: MAE 0.0017 against the codebook's 0.0105, NBRDF's 0.0147 (benchmarks/results/neubrdf_direction_init.md); it
+#: does not quantise into a codebook (k-means loses the direction code). About 6-9 minutes on one core.
+DENSE_RECIPE = replace(CPU_RECIPE, loss="log_cos_eps", queries="cosine_merl",
+                       options={**OPTIONS, "coarse_fraction": 0.4, "direction_features": 10.0})
+NAMED_RECIPES = {"dense": DENSE_RECIPE}
+
 
 def config_for_source(source, options: dict | None = None) -> dict:
-    """Config defaults from the recipe options: dense features for a dense warm-up (`OPTIONS`)."""
-    return {"features": "dense"} if _warmup(options or {}) > 0 else {}
+    """Config defaults from the recipe options: dense features for a dense warm-up or a direction-coded start
+    (`OPTIONS`)."""
+    options = options or {}
+    return {"features": "dense"} if _warmup(options) > 0 or _direction_scale(options) > 0 else {}
 
 
 def phases(ctx: FitContext) -> list[Phase]:
