@@ -20,7 +20,7 @@ demo: $(STAMP)
 	$(BIN)/neumat demo --out out/demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(JOBS) --durations=15
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist worksteal --durations=15
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(JOBS) -m slow

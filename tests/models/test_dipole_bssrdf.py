@@ -61,7 +61,7 @@ def _fresnel(c, eta):
 
 
 def test_fit_recovers_known_coefficients():
-    truth = _sphere_model(samples=1024, init_sigma_a=0.08, init_sigma_s=4.0)
+    truth = _sphere_model(samples=256, init_sigma_a=0.08, init_sigma_s=4.0)
     with torch.no_grad():
         truth.log_sigma_a.copy_(torch.log(torch.tensor([0.03, 0.08, 0.2])))
     g = torch.Generator().manual_seed(2)
@@ -70,7 +70,7 @@ def test_fit_recovers_known_coefficients():
     with torch.no_grad():
         value = truth.raw(wi, x, wo, x)
     obs = Observations(x=x, n=x.clone(), wo=wo, wi=wi, value=value)
-    m = _sphere_model(samples=1024)  # starts at sigma_a 0.05, sigma_s' 2
+    m = _sphere_model(samples=256)  # starts at sigma_a 0.05, sigma_s' 2
     m.set_surface(truth.points, truth.normals, truth.areas)
     recipe = recipe_for("dipole-bssrdf")  # 300 steps of 256, lr 0.05
     recipe.options["validation_fraction"] = 0  # every observation trains
