@@ -129,6 +129,17 @@ def test_runtime_and_pruned_grids_match_torch():
 
 
 @needs_gl
+@pytest.mark.parametrize("features", ["vq", "dense"])
+def test_inverse_distance_runtime_matches_torch(features):
+    """runtime_interpolation="idw": the shader of the runtime model reads the vertex directions and weights the
+    corners as the runtime's slot table does."""
+    model = _model({**SMALL, "features": features, "runtime_interpolation": "idw"})
+    model.runtime()
+    assert model.is_runtime and "nbrdf_vertices" in export_glsl(model).textures
+    assert _parity(model) < 1e-4
+
+
+@needs_gl
 def test_neural_texture_matches_torch():
     model = _model({**SMALL, "texture_height": 16, "texture_width": 12, "texture_channels": 6,
                     "texture_levels": 3})

@@ -96,6 +96,44 @@ def test_runtime_mode_is_exact_refactoring(gen, hidden_layers):
     assert bool((fast[::7] == 0).all())
 
 
+@pytest.mark.parametrize("features", ["vq", "dense"])
+def test_inverse_distance_runtime_is_the_training_form_at_fp16(gen, tmp_path, features):
+    """runtime_interpolation="idw": runtime() caches per-slot first-layer rows and sums the 8 weighted corner
+    rows, the same function as the inverse-distance lookup with the fp16-rounded parameters (pruned grid,
+    more than one chunk, 0 below the horizon); the model file re-enters that form bit for bit; a specular
+    peak narrower than a pixel keeps its shape, which the uniform runtime flattens to one value per pixel."""
+    from neumat.catalog.modelfile import load_model, save_model
+
+    m = NeuBRDF(nside=8, index_bits=6, hidden=32, features=features, runtime_interpolation="idw")
+    m.prune(_dirs(300, gen), _dirs(300, gen))
+    wi, wo = _dirs(20000, gen), _dirs(20000, gen)
+    wo[::7, 2] *= -1
+    q = Query(wi, wo)
+    m.freeze()
+    with torch.no_grad():
+        for p in m.parameters():
+            p.copy_(p.half())
+        ref = m.eval(q)
+        fast = m.runtime().eval(q)
+    assert m.is_runtime and m.cfg.interpolation == "idw"
+    torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-6)
+    assert bool((fast[::7] == 0).all())
+    loaded = load_model(save_model(m, tmp_path / "idw.nmat"))
+    assert loaded.is_runtime and loaded.cfg.interpolation == "idw"
+    with torch.no_grad():
+        assert torch.equal(loaded.eval(q), fast)
+    # inside one pixel pair the uniform runtime is constant, the inverse-distance one is not
+    w0 = torch.nn.functional.normalize(torch.tensor([[0.3, 0.2, 0.9]]), dim=-1)
+    near = torch.nn.functional.normalize(w0 + 0.01 * torch.randn(64, 3, generator=gen), dim=-1)
+    same = hpx.vec2pix(8, near) == hpx.vec2pix(8, w0)
+    qq = Query(near[same], w0.expand(int(same.sum()), 3))
+    uniform = NeuBRDF(nside=8, index_bits=6, hidden=32, features=features)
+    uniform.load_state_dict(m.state_dict(), strict=False)
+    with torch.no_grad():
+        assert float(fast.std()) > 0 and float(loaded.eval(qq).std(0).max()) > 0
+        assert float(uniform.runtime().eval(qq).std(0).max()) == 0
+
+
 def test_zero_below_horizon_and_dtype(gen):
     m = NeuBRDF(nside=2, index_bits=3, hidden=8)
     wi, wo = _dirs(10, gen, torch.float64), _dirs(10, gen, torch.float64)

@@ -56,6 +56,11 @@ class Config:
     """Bits per feature value in "lowbit" mode."""
     interpolation: str = "idw"
     """Corner weights: "idw" (normalised inverse great-circle distance, training) or "uniform" (1/4, runtime)."""
+    runtime_interpolation: str = "uniform"
+    """Corner weights of the runtime form (`NeuBRDF.runtime`): "uniform", the paper's 1/4 (one feature per pixel:
+    two table reads per evaluation), or "idw", the training form's weights (8 reads and 8 weights per
+    evaluation), which keep specular peaks narrower than a pixel (MERL-like chrome: image SSIM 0.85 -> 0.94 at
+    N_side 64, benchmarks/results/neubrdf_direction_init.md)."""
     texture_height: int = 0
     """h of the neural texture T (h x w x c) for spatially varying materials; 0 without texture."""
     texture_width: int = 0
@@ -78,8 +83,9 @@ def _check_config(c: Config) -> None:
         raise InputError(f"NeuBRDF.lowbit_bits: expected 1 .. 8, got {c.lowbit_bits}")
     if c.features not in ("vq", "dense", "lowbit"):
         raise InputError(f"NeuBRDF.features: expected 'vq', 'dense' or 'lowbit', got {c.features!r}")
-    if c.interpolation not in ("idw", "uniform"):
-        raise InputError(f"NeuBRDF.interpolation: expected 'idw' or 'uniform', got {c.interpolation!r}")
+    for name in ("interpolation", "runtime_interpolation"):
+        if getattr(c, name) not in ("idw", "uniform"):
+            raise InputError(f"NeuBRDF.{name}: expected 'idw' or 'uniform', got {getattr(c, name)!r}")
     if c.texture_channels and (c.texture_height < 1 or c.texture_width < 1):
         raise InputError("NeuBRDF.texture_height/texture_width: expected >= 1 with texture_channels > 0")
     if c.texture_channels and min(c.texture_height, c.texture_width) >> (c.texture_levels - 1) < 1:
@@ -253,21 +259,39 @@ class NeuBRDF(LearnedMaterial):
         return f.to(q.dtype)
 
     def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:
-        """exp(MLP) from the runtime table, (N, 3): one pixel lookup for wi and wo together, then the first
-        layer as the sum of two table rows (the pre-activations of the wi pixel and of the wo pixel), the
-        rest of the MLP on chunks that stay in cache. Directions below the horizon give finite values that
-        the caller masks."""
+        """exp(MLP) from the runtime table, (N, 3), on chunks that stay in cache. Uniform weights: one pixel
+        lookup for wi and wo together, then the first layer as the sum of two table rows (the pre-activations
+        of the wi pixel and of the wo pixel). Inverse-distance weights: the 4 corner slots of each pixel and
+        their weights, then the first layer as the weighted sum of those 8 slots' rows plus the bias. Then the
+        rest of the MLP. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
         rest = self.mlp.net[1:]
         out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
         for s in range(0, m, chunk):
             c = min(chunk, m - s)
-            x, y, z = (torch.cat([wi[s:s + c, i], wo[s:s + c, i]]) for i in range(3))
-            pix = hpx.vec2pix_xyz(n, x, y, z)
-            rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
-            h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
+            if self.cfg.interpolation == "idw":
+                corners = [self._corner_weights(w[s:s + c], south) for w, south in ((wi, False), (wo, True))]
+                rows = torch.cat([slots for slots, _ in corners], -1)
+                weights = torch.cat([wts for _, wts in corners], -1).to(self._runtime_table.dtype)
+                h = nn.functional.embedding_bag(rows, self._runtime_table, per_sample_weights=weights,
+                                                mode="sum").add_(self.mlp.net[0].bias)
+            else:
+                x, y, z = (torch.cat([wi[s:s + c, i], wo[s:s + c, i]]) for i in range(3))
+                pix = hpx.vec2pix_xyz(n, x, y, z)
+                rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
+                h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
             torch.exp(rest(h), out=out[s:s + c])
         return out
+
+    def _corner_weights(self, w: torch.Tensor, south: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """Grid slots (N, 4) of the corners `_lookup_both` reads for w (N, 3) on S+ or, mirrored, on S- (at the
+        pixels' lookup levels, outside a fit) and their normalised inverse-distance weights (N, 4)."""
+        n = self.cfg.nside
+        d = hpx.hemisphere_direction(w, south)
+        pix = hpx.vec2pix_unchecked(n, d)
+        level = 0 if self._pruning is None else self._pruning[int(south)][pix]
+        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
+        return slots, hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
@@ -475,18 +499,27 @@ class NeuBRDF(LearnedMaterial):
     def runtime(self) -> "NeuBRDF":
         """Switch to the paper's runtime mode: frozen indices, floats rounded to fp16 (what the model file
         stores, see `shipped_state`: a saved and loaded runtime model evaluates bit for bit like this one),
-        1/4 weights, per-pixel caches.
+        the corner weights of `Config.runtime_interpolation` (1/4 by default), caches.
 
-        Caches, for every ring pixel p of each grid: the mean F(p) of its 4 (ancestor) corner features, and
-        the first-layer pre-activations W_i F_i(p) + b and W_o F_o(p) (W = [W_i, W_o] the first MLP layer),
-        stacked in one table (2 x 12 N_side^2, hidden), the latter indexed by the pixel of the unmirrored wo.
-        Evaluation is then two pixel lookups, two gathers, an add and the rest of the MLP: the same function as
-        `interpolation="uniform"`."""
+        Uniform weights cache, for every ring pixel p of each grid: the mean F(p) of its 4 (ancestor) corner
+        features, and the first-layer pre-activations W_i F_i(p) + b and W_o F_o(p) (W = [W_i, W_o] the first
+        MLP layer), stacked in one table (2 x 12 N_side^2, hidden), the latter indexed by the pixel of the
+        unmirrored wo. Evaluation is then two pixel lookups, two gathers, an add and the rest of the MLP: the
+        same function as `interpolation="uniform"`. Inverse-distance weights cache W_i f(s) for every slot s of
+        S+ and W_o f(s) for every slot of S- (2 n, hidden): evaluation is the weighted sum of the 8 corner
+        rows, the bias and the rest of the MLP, the same function as `interpolation="idw"`."""
         self.freeze()
         for p in self.parameters():
             p.copy_(p.half())
-        self.cfg = replace(self.cfg, interpolation="uniform")
+        self.cfg = replace(self.cfg, interpolation=self.cfg.runtime_interpolation)
         n, k = self.cfg.nside, self.cfg.feature_dim
+        first = self.mlp.net[0]
+        if self.cfg.interpolation == "idw":
+            feats = self.grid(torch.arange(self.grid.num_vertices, device=self.level_i.device))
+            h = hpx.hemisphere_size(n)
+            self._runtime_table = torch.cat([feats[:h] @ first.weight[:, :k].t(),
+                                             feats[h:] @ first.weight[:, k:2 * k].t()])
+            return self.train(False)
         pix = torch.arange(12 * n * n, device=self.level_i.device)
         tables = []
         for south in (False, True):
@@ -496,7 +529,6 @@ class NeuBRDF(LearnedMaterial):
             # pixels outside the hemisphere are never looked up; their entries are left at 0
             tables.append(torch.where(ok.all(-1, keepdim=True), self.grid(slots).mean(1), 0.0))
         self._pixel_features = (tables[0], tables[1])
-        first = self.mlp.net[0]
         w_i, w_o = first.weight[:, :k], first.weight[:, k:2 * k]
         pre_o = tables[1][hpx.mirror_pixels(n).to(pix.device)] @ w_o.t()
         self._runtime_table = torch.cat([torch.addmm(first.bias, tables[0], w_i.t()), pre_o])
