@@ -23,7 +23,7 @@ from neumat.fit.ema import EMA
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.metrics.hdr import reflectance_errors
 from neumat.models.neubrdf import NeuBRDF
-from neumat.reflectance.tabulate import merl_table_mse
+from neumat.reflectance.tabulate import merl_table_mse, tabulate_merl
 
 BATCH = 8192
 
@@ -62,9 +62,10 @@ def main() -> None:
     source = open_material(a.material)
     draw = QUERY_SAMPLERS.get("cosine")(source)
     gen = torch.Generator().manual_seed(0)
+    table = tabulate_merl(source)
 
     def scores(m: NeuBRDF) -> tuple[float, float]:
-        return reflectance_errors(m, source, n=2 ** 17, seed=7)["log_err"], merl_table_mse(m, source)
+        return reflectance_errors(m, source, n=2 ** 17, seed=7)["log_err"], merl_table_mse(m, table)
 
     def row(label: str, m: NeuBRDF, dense: tuple[float, float] | None = None, seconds: bool = True) -> None:
         s = scores(m)

@@ -147,3 +147,7 @@ def test_merl_table_mse_is_the_closed_form_between_two_lambertians():
     expected = sum(((x - y) / math.pi) ** 2 for x, y in zip(a, b)) / 3
     assert merl_table_mse(Lambert(a), Lambert(b)) == pytest.approx(expected, rel=1e-12)
     assert merl_table_mse(Lambert(a), Lambert(a)) == 0.0
+    table = tabulate_merl(Lambert(b))  # a tabulated reference scores the same
+    assert merl_table_mse(Lambert(a), table) == merl_table_mse(Lambert(a), Lambert(b))
+    with pytest.raises(InputError, match="a tabulated reference must be a MERL table of shape"):
+        merl_table_mse(Lambert(a), table[:, :10])

@@ -63,16 +63,20 @@ def tabulate_merl(material: Material, device: str | torch.device = "cpu", batch:
     return out.T.reshape(3, *MERL_DIMS).numpy()
 
 
-def merl_table_mse(model: Material, reference: Material, device: str | torch.device = "cpu",
+def merl_table_mse(model: Material, reference: Material | np.ndarray, device: str | torch.device = "cpu",
                    batch: int = 1 << 16) -> float:
     """Mean squared error (sr^-2) of `model` against `reference` over the valid cells of the MERL table
     (both directions above the surface at the cell centre, phi_h = 0), all three channels: the "MSE on the raw
     data" of NeuBRDF's Table 4 and Fig. 8. Both are tabulated as `tabulate_merl` does (negatives as 0); the
     errors are in BRDF units (the table's values times the MERL scale factors). It weights the cells, not the
     sphere: MERL's theta_h = (i / 90)^2 pi / 2 puts 8 % of the cells within half a degree of the specular peak,
-    so on shiny materials the peak dominates it."""
-    want = tabulate_merl(reference, device=device, batch=batch)
+    so on shiny materials the peak dominates it. `reference` may be its `tabulate_merl` table already (scoring
+    several models against one reference then tabulates it once)."""
     got = tabulate_merl(model, device=device, batch=batch)
+    want = reference if isinstance(reference, np.ndarray) else tabulate_merl(reference, device=device, batch=batch)
+    if want.shape != got.shape:
+        raise InputError(f"merl_table_mse: a tabulated reference must be a MERL table of shape {got.shape}, "
+                         f"got {want.shape}")
     valid = want[0] != MISSING
     scale = np.asarray(MERL_SCALE)[:, None]
     return float((((got[:, valid] - want[:, valid]) * scale) ** 2).mean())
