@@ -1,14 +1,14 @@
 """A training recipe: optimiser, schedule, batch, loss, query distribution and seed of one fit.
 
-Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>` ('-' ->
-'_'), and a CPU-sized recipe as `CPU_RECIPE` (the paper's architecture, a budget that finishes in about 10
-minutes on 2 CPU cores for a typical source; benchmarks/results/cpu_recipes.md); that module may also define
-`phases(ctx) -> list[Phase]` (`neumat.fit.phase`) when the model trains in stages and
-`config_for_source(source, options)` for config fields that follow the source, and `NAMED_RECIPES` ({name: Recipe})
-for further recipes a user can ask for by name (`neumat fit --recipe NAME`). `recipe_for(name, machine)` /
-`phases_for` find them, `recipe_choices` lists a model's recipe names, `recipe_names` every model that has one. Recipes are
-plain dataclasses, so `config_from_dict(Recipe, ...)` / `config_to_dict` turn them into JSON for model files,
-checkpoints and `--set` overrides.
+Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>` ('-' -> '_'), and
+a CPU-sized recipe as `CPU_RECIPE` (the paper's architecture, a budget that finishes in about 10 minutes on 2 CPU
+cores for a typical source; benchmarks/results/cpu_recipes.md); that module may also define `phases(ctx) ->
+list[Phase]` (`neumat.fit.phase`) when the model trains in stages and `config_for_source(source, options)` for
+config fields that follow the source, and `NAMED_RECIPES` ({name: Recipe}) for further recipes a user can ask for
+by name (`neumat fit --recipe NAME`). `recipe_for(name, machine)` / `phases_for` find them, `recipe_choices` lists
+a model's recipe names, `recipe_names` every model that has one. Recipes are plain dataclasses, so
+`config_from_dict(Recipe, ...)` / `config_to_dict` turn them into JSON for model files, checkpoints and `--set`
+overrides.
 """
 from __future__ import annotations
 
