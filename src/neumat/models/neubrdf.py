@@ -60,7 +60,7 @@ class Config:
     """Corner weights of the runtime form (`NeuBRDF.runtime`): "uniform", the paper's 1/4 (one feature per pixel:
     two table reads per evaluation), or "idw", the training form's weights (8 reads and 8 weights per
     evaluation), which keep specular peaks narrower than a pixel (MERL-like chrome: image SSIM 0.85 -> 0.94 at
-    N_side 64, benchmarks/results/neubrdf_direction_init.md)."""
+    N_side 64, benchmarks/results/neubrdf_runtime_forms.md)."""
     texture_height: int = 0
     """h of the neural texture T (h x w x c) for spatially varying materials; 0 without texture."""
     texture_width: int = 0

@@ -97,8 +97,8 @@ the paper's estimator. 1 fixes every index at its k-means codeword (codebook and
 
 direction_features: a scale s > 0 starts the first 3 feature channels of the dense grid (the coarse one, with
 coarse_fraction) at s times each slot's direction (`NeuBRDF.init_direction_features`), so the MLP sees about
-s (wi - reflect(wo)) from the first step; 0, the default, keeps the random start. Needs a dense grid: the model is built
-with features="dense" unless a features setting says otherwise. The "dense" named recipe sets it. 10 is what we
+s (wi - reflect(wo)) from the first step; 0, the default, keeps the random start. Needs a dense grid: the model is
+built with features="dense" unless a features setting says otherwise. The "dense" named recipe sets it. 10 is what we
 use: on MERL-like chrome (dense N_side 64, 1500 steps, cosine_merl queries, log_cos_eps) image SSIM 0.75 at s = 1,
 0.85 at 10; at N_side 16, 800 steps, 0.70 / 0.70 / 0.78 / 0.77 at 1 / 3 / 10 / 30
 (benchmarks/results/neubrdf_direction_init.md).
