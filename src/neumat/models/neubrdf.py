@@ -174,8 +174,10 @@ class NeuBRDF(LearnedMaterial):
         self.register_load_state_dict_pre_hook(quantized_state)
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
-        # runtime caches (see `runtime`): per-pixel mean corner features and first-layer pre-activations
+        # runtime caches (see `runtime`): per-pixel mean corner features (uniform weights) or corner vertex ids
+        # (inverse-distance weights), and first-layer pre-activations
         self._pixel_features: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._pixel_corners: tuple[torch.Tensor, torch.Tensor] | None = None
         self._runtime_table: torch.Tensor | None = None
 
     @property
@@ -289,8 +291,12 @@ class NeuBRDF(LearnedMaterial):
         n = self.cfg.nside
         d = hpx.hemisphere_direction(w, south)
         pix = hpx.vec2pix_unchecked(n, d)
-        level = 0 if self._pruning is None else self._pruning[int(south)][pix]
-        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
+        if self._pixel_corners is not None:
+            vid = self._pixel_corners[int(south)][pix]
+            slots = vid + hpx.south_grid_offset(n) if south else vid
+        else:
+            level = 0 if self._pruning is None else self._pruning[int(south)][pix]
+            slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
         return slots, hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
 
     def forward(self, q: Query) -> torch.Tensor:
@@ -493,6 +499,7 @@ class NeuBRDF(LearnedMaterial):
 
     def _drop_runtime(self) -> None:
         self._pixel_features = None
+        self._pixel_corners = None
         self._runtime_table = None
 
     @torch.no_grad()
@@ -506,8 +513,9 @@ class NeuBRDF(LearnedMaterial):
         MLP layer), stacked in one table (2 x 12 N_side^2, hidden), the latter indexed by the pixel of the
         unmirrored wo. Evaluation is then two pixel lookups, two gathers, an add and the rest of the MLP: the
         same function as `interpolation="uniform"`. Inverse-distance weights cache W_i f(s) for every slot s of
-        S+ and W_o f(s) for every slot of S- (2 n, hidden): evaluation is the weighted sum of the 8 corner
-        rows, the bias and the rest of the MLP, the same function as `interpolation="idw"`."""
+        S+ and W_o f(s) for every slot of S- (2 n, hidden) and every pixel's 4 (ancestor) corner vertex ids:
+        evaluation is a pixel lookup per direction, the weighted sum of the 8 corner rows, the bias and the
+        rest of the MLP, the same function as `interpolation="idw"`."""
         self.freeze()
         for p in self.parameters():
             p.copy_(p.half())
@@ -519,6 +527,10 @@ class NeuBRDF(LearnedMaterial):
             h = hpx.hemisphere_size(n)
             self._runtime_table = torch.cat([feats[:h] @ first.weight[:, :k].t(),
                                              feats[h:] @ first.weight[:, k:2 * k].t()])
+            pix = torch.arange(12 * n * n, device=self.level_i.device)
+            self._pixel_corners = tuple(
+                hpx.pixel_corner_slots(n, pix, south, 0 if self._pruning is None else self._pruning[int(south)])[1]
+                for south in (False, True))
             return self.train(False)
         pix = torch.arange(12 * n * n, device=self.level_i.device)
         tables = []
