@@ -152,9 +152,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
 def model_overrides(overrides: dict, models: list[str]) -> dict[str, dict]:
     """model -> its --set values: the plain keys, and "MODEL:key" for that model only (which wins)."""
     scoped = {k: k.partition(":")[0] for k in overrides if ":" in k}
-    unknown = sorted({m for m in scoped.values() if m not in models})
-    if unknown:
-        raise InputError(f"--set: {', '.join(unknown)} is not one of the --model values ({', '.join(models)})")
+    check_scopes("--set", scoped.values(), models)
     plain = {k: v for k, v in overrides.items() if k not in scoped}
     return {m: plain | {k.partition(":")[2]: v for k, v in overrides.items() if scoped.get(k) == m} for m in models}
 
@@ -163,15 +161,20 @@ def model_recipes(values: list[str], models: list[str]) -> dict[str, str]:
     """model -> the recipe name its fits run: "paper", or the last plain --recipe value, or the last "MODEL:NAME"
     for that model (which wins); each checked against the model's recipes (`checked_recipe_name`)."""
     scoped = [v.partition(":") for v in values if ":" in v]
-    unknown = sorted({m for m, _, _ in scoped if m not in models})
-    if unknown:
-        raise InputError(f"--recipe: {', '.join(unknown)} is not one of the --model values ({', '.join(models)})")
+    check_scopes("--recipe", (m for m, _, _ in scoped), models)
     plain = [v for v in values if ":" not in v]
     out = {}
     for m in models:
         name = ([n for s, _, n in scoped if s == m] or plain or ["paper"])[-1]
         out[m] = checked_recipe_name(name, m)
     return out
+
+
+def check_scopes(option: str, scopes, models: list[str]) -> None:
+    """InputError naming the MODEL: scopes of `option` values that are not among the --model values."""
+    unknown = sorted({m for m in scopes if m not in models})
+    if unknown:
+        raise InputError(f"{option}: {', '.join(unknown)} is not one of the --model values ({', '.join(models)})")
 
 
 def expand_sources(items: list[str]) -> list[str]:

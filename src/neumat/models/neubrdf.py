@@ -197,18 +197,7 @@ class NeuBRDF(LearnedMaterial):
         if self._pixel_features is not None:
             return [self._pixel_features[int(south)][hpx.vec2pix_unchecked(n, hpx.hemisphere_direction(w, south))]
                     for w, south in dirs]
-        corners = []
-        for w, south in dirs:
-            d = hpx.hemisphere_direction(w, south)
-            pix = hpx.vec2pix_unchecked(n, d)
-            if self._pruning is None:
-                level = 0
-            else:
-                level = self._pruning[int(south)][pix]
-                if self._training_steps and self.training and torch.is_grad_enabled():
-                    level = self._training_levels(pix, level, self._pruning[2 + int(south)])
-            slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
-            corners.append((d, slots, vid))
+        corners = [self._corners(w, south) for w, south in dirs]
         feats = self.grid(torch.cat([slots for _, slots, _ in corners])) if len(corners) > 1 else \
             self.grid(corners[0][1])  # (sum N, 4, k)
         out = []
@@ -216,9 +205,31 @@ class NeuBRDF(LearnedMaterial):
             if self.cfg.interpolation == "uniform":
                 out.append(f.mean(1))
             else:
-                wts = hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
-                out.append((wts.unsqueeze(-1) * f).sum(1))
+                out.append((self._idw_weights(d, vid).unsqueeze(-1) * f).sum(1))
         return out
+
+    def _corners(self, w: torch.Tensor, south: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(the direction looked up (N, 3), grid slots (N, 4), vertex ids (N, 4)) of the corners psi reads for
+        w (N, 3) on S+ or, mirrored, on S-: the corners of its pixel's lookup level (during a fit, a pruned grid's
+        training levels, `_training_levels`), from the runtime's per-pixel table when it has one."""
+        n = self.cfg.nside
+        d = hpx.hemisphere_direction(w, south)
+        pix = hpx.vec2pix_unchecked(n, d)
+        if self._pixel_corners is not None:
+            vid = self._pixel_corners[int(south)][pix]
+            return d, (vid + hpx.south_grid_offset(n) if south else vid), vid
+        if self._pruning is None:
+            level = 0
+        else:
+            level = self._pruning[int(south)][pix]
+            if self._training_steps and self.training and torch.is_grad_enabled():
+                level = self._training_levels(pix, level, self._pruning[2 + int(south)])
+        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
+        return d, slots, vid
+
+    def _idw_weights(self, d: torch.Tensor, vid: torch.Tensor) -> torch.Tensor:
+        """Normalised inverse-distance weights (N, 4) of directions d (N, 3) to their corner vertices vid (N, 4)."""
+        return hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
 
     def _training_levels(self, pix: torch.Tensor, level: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
         """Lookup levels (N,) while training a pruned grid: a direction in a supervised pixel whose ancestors
@@ -272,9 +283,10 @@ class NeuBRDF(LearnedMaterial):
         for s in range(0, m, chunk):
             c = min(chunk, m - s)
             if self.cfg.interpolation == "idw":
-                corners = [self._corner_weights(w[s:s + c], south) for w, south in ((wi, False), (wo, True))]
-                rows = torch.cat([slots for slots, _ in corners], -1)
-                weights = torch.cat([wts for _, wts in corners], -1).to(self._runtime_table.dtype)
+                corners = [self._corners(w[s:s + c], south) for w, south in ((wi, False), (wo, True))]
+                rows = torch.cat([slots for _, slots, _ in corners], -1)
+                weights = torch.cat([self._idw_weights(d, vid) for d, _, vid in corners],
+                                    -1).to(self._runtime_table.dtype)
                 h = nn.functional.embedding_bag(rows, self._runtime_table, per_sample_weights=weights,
                                                 mode="sum").add_(self.mlp.net[0].bias)
             else:
@@ -284,20 +296,6 @@ class NeuBRDF(LearnedMaterial):
                 h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
             torch.exp(rest(h), out=out[s:s + c])
         return out
-
-    def _corner_weights(self, w: torch.Tensor, south: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """Grid slots (N, 4) of the corners `_lookup_both` reads for w (N, 3) on S+ or, mirrored, on S- (at the
-        pixels' lookup levels, outside a fit) and their normalised inverse-distance weights (N, 4)."""
-        n = self.cfg.nside
-        d = hpx.hemisphere_direction(w, south)
-        pix = hpx.vec2pix_unchecked(n, d)
-        if self._pixel_corners is not None:
-            vid = self._pixel_corners[int(south)][pix]
-            slots = vid + hpx.south_grid_offset(n) if south else vid
-        else:
-            level = 0 if self._pruning is None else self._pruning[int(south)][pix]
-            slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
-        return slots, hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
@@ -522,17 +520,16 @@ class NeuBRDF(LearnedMaterial):
         self.cfg = replace(self.cfg, interpolation=self.cfg.runtime_interpolation)
         n, k = self.cfg.nside, self.cfg.feature_dim
         first = self.mlp.net[0]
+        pix = torch.arange(12 * n * n, device=self.level_i.device)
         if self.cfg.interpolation == "idw":
             feats = self.grid(torch.arange(self.grid.num_vertices, device=self.level_i.device))
             h = hpx.hemisphere_size(n)
             self._runtime_table = torch.cat([feats[:h] @ first.weight[:, :k].t(),
                                              feats[h:] @ first.weight[:, k:2 * k].t()])
-            pix = torch.arange(12 * n * n, device=self.level_i.device)
             self._pixel_corners = tuple(
                 hpx.pixel_corner_slots(n, pix, south, 0 if self._pruning is None else self._pruning[int(south)])[1]
                 for south in (False, True))
             return self.train(False)
-        pix = torch.arange(12 * n * n, device=self.level_i.device)
         tables = []
         for south in (False, True):
             vid = hpx.ancestor_corner_vertices(n, pix, 0 if self._pruning is None else self._pruning[int(south)])
