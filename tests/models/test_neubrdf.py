@@ -156,6 +156,34 @@ def test_freeze_state_dict_roundtrip(gen):
         torch.testing.assert_close(fresh.eval(q), before, rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("form", ["uniform", "idw"])
+def test_a_runtime_model_moves_with_its_caches(gen, form):
+    """`.double()` / `.to(device)` after `prune` and `runtime()` move the pruning levels and the runtime caches
+    with the parameters: the moved model evaluates the same function."""
+    m = NeuBRDF(nside=8, index_bits=6, hidden=32, runtime_interpolation=form)
+    m.prune(_dirs(300, gen), _dirs(300, gen))
+    q = Query(_dirs(5000, gen), _dirs(5000, gen))
+    with torch.no_grad():
+        ref = m.runtime().eval(q)
+        wide = m.double().eval(Query(q.wi.double(), q.wo.double()))
+    assert wide.dtype == torch.float64
+    torch.testing.assert_close(wide.float(), ref, rtol=1e-5, atol=1e-6)
+    m.to("meta")
+    caches = [m._runtime_table, *m._pruning, *(m._pixel_corners if form == "idw" else m._pixel_features)]
+    assert all(t.device.type == "meta" for t in caches)
+
+
+@pytest.mark.cuda
+def test_a_runtime_model_moved_to_the_gpu_evaluates_like_on_the_cpu(gen):
+    m = NeuBRDF(nside=8, index_bits=6, hidden=32)
+    m.prune(_dirs(300, gen), _dirs(300, gen))
+    q = Query(_dirs(5000, gen), _dirs(5000, gen))
+    with torch.no_grad():
+        ref = m.runtime().eval(q)
+        got = m.cuda().eval(Query(q.wi.cuda(), q.wo.cuda())).cpu()
+    torch.testing.assert_close(got, ref, rtol=1e-4, atol=1e-5)
+
+
 def test_pruning_uses_ancestors(gen):
     nside = 8
     m = NeuBRDF(nside=nside, features="dense", hidden=8)

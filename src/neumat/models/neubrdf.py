@@ -495,6 +495,18 @@ class NeuBRDF(LearnedMaterial):
         `_training_levels`); evaluation outside a fit stays deterministic."""
         self._training_steps = True
 
+    def _apply(self, fn, recurse: bool = True):
+        """`.to()`, `.cuda()`, `.half()` ... also move the pruning levels and the runtime caches (plain
+        attributes, tuples of tensors), so a model moved after `prune` or `runtime()` keeps working."""
+        super()._apply(fn, recurse)
+        for name in ("_pruning", "_pixel_features", "_pixel_corners", "_runtime_table"):
+            value = getattr(self, name)
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, fn(value))
+            elif value is not None:
+                setattr(self, name, tuple(fn(t) for t in value))
+        return self
+
     def _drop_runtime(self) -> None:
         self._pixel_features = None
         self._pixel_corners = None
