@@ -13,8 +13,10 @@ Equal time: each arm's step count is `--seconds` divided by its seconds per step
 before the fits (coarse, dense, VQ and restricted-VQ steps timed separately, 12 steps after 3). Batch 8192,
 lr 1e-2 halved at 1/2 and 3/4 of each phase (schedule "halves"), EMA 0.01, the loss log_cos. Every fitted
 model is scored in its shipped form (`runtime()`: 1/4 corner weights, fp16): held-out reflectance errors (2^18
-cosine queries, seed 7) and image metrics under the comparison protocol (`neumat.render.comparison`) beside
-the reference's noise floor.
+cosine queries, seed 7), Table 4's metric (the MSE over the MERL table's cells, `merl_table_mse`) and image
+metrics under the comparison protocol (`neumat.render.comparison`) beside the reference's noise floor. The
+arms "vq", "lowbit" and "dense" are Table 4's three rows; "grid bytes" is Table 4's memory (fp16, the low-bit
+grid at its 4 bits, no MLP).
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/neubrdf_paper_size.py --materials FILE... \
         [--seconds 300] [--arms vq warmup=0.7 warmup=0.7,candidates=8 dense] [--queries cosine] [--out FILE]
@@ -40,6 +42,7 @@ from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
 from neumat.models.neubrdf import NeuBRDF
+from neumat.reflectance.tabulate import merl_table_mse, tabulate_merl
 from neumat.render.comparison import image_comparison, reference_renders
 
 BATCH = 8192
@@ -135,7 +138,7 @@ def main() -> None:
     torch.set_num_threads(1)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     header = ("| material | arm | steps | fit s | log_err | rel_err | image MAE | SSIM | FLIP | floor MAE | floor SSIM "
-              "| bytes | log_err / dense |")
+              "| grid bytes | log_err / dense | table MSE | MSE / dense |")
     rows = []
     print(header, flush=True)
     for path in a.materials:
@@ -143,7 +146,8 @@ def main() -> None:
         name = Path(path).stem
         costs = per_step_costs(source, a.queries, a.arms)
         renders = reference_renders(source, a.spp, a.resolution)
-        dense_err = None
+        table = tabulate_merl(source)
+        dense_err = dense_mse = None
         results = []
         for spec in a.arms:
             steps = max(int(a.seconds / arm_step_seconds(spec, costs)), 4)
@@ -151,23 +155,25 @@ def main() -> None:
             model = res.model.runtime()
             err = reflectance_errors(model, source, n=2 ** 18, seed=7)
             img = image_comparison(model, source, a.spp, a.resolution, renders=renders)
-            results.append((spec, steps, res.seconds, err, img, model.size_bytes()))
+            mse = merl_table_mse(model, table)
+            results.append((spec, steps, res.seconds, err, img, model.grid_size_bytes(), mse))
             if spec == "dense":
-                dense_err = err["log_err"]
-        for spec, steps, seconds, err, img, size in results:
+                dense_err, dense_mse = err["log_err"], mse
+        for spec, steps, seconds, err, img, size, mse in results:
             ratio = f"{err['log_err'] / dense_err:.2f}" if dense_err else ""
+            mse_ratio = f"{mse / dense_mse:.2f}" if dense_mse else ""
             rows.append(f"| {name} | {spec} | {steps} | {seconds:.0f} | {err['log_err']:.5f} | {err['rel_err']:.3f} | "
                         f"{img['mae']:.4f} | {img['ssim']:.4f} | {img['flip']:.4f} | {img['floor_mae']:.5f} | "
-                        f"{img['floor_ssim']:.4f} | {size:,} | {ratio} |")
+                        f"{img['floor_ssim']:.4f} | {size:,} | {ratio} | {mse:.4g} | {mse_ratio} |")
             print(rows[-1], flush=True)
         cost_text = ", ".join(f"{k if isinstance(k, str) else f'VQ {k[1] or 2 ** 9} candidates'} {v:.3f} s"
                               for k, v in costs.items())
-        rows.append(f"|  | seconds per step of {BATCH} on {name}: {cost_text} |" + " |" * 11)
+        rows.append(f"|  | seconds per step of {BATCH} on {name}: {cost_text} |" + " |" * 13)
     section = [f"## {time.strftime('%Y-%m-%d')}: {a.seconds:g} s per arm, queries {a.queries}, seed {a.seed}", "",
                f"Command: `OMP_NUM_THREADS=1 PYTHONPATH=src python {' '.join(sys.argv)}`; commit {commit}; "
                f"{platform.machine()}, one torch thread on a 2-core machine (other jobs running: wall times are "
                f"approximate). Images: {a.resolution}^2, {a.spp} spp, comparison protocol; models scored in "
-               "their shipped form.", "", header, "|" + "---|" * 13, *rows, ""]
+               "their shipped form.", "", header, "|" + "---|" * 15, *rows, ""]
     out = Path(a.out)
     if not out.exists():
         out.write_text("# NeuBRDF at the paper's sizes: training paths at equal wall time (issue 32)\n\n"
