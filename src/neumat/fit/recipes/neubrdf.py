@@ -66,11 +66,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ...core.errors import InputError
-from ..phase import FitContext, Phase, online_phase
+from ..phase import FitContext, Phase, online_phase, query_draw
 from ..recipe import Recipe
 
 OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 0, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
-           "vq_candidates": 0, "direction_features": 0.0, "prune": False, "measured_azimuths": 64}
+           "vq_candidates": 0, "direction_features": 0.0, "prune": False, "measured_azimuths": 64,
+           "runtime_fraction": 0.0, "runtime_samples": 8}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
@@ -106,6 +107,22 @@ use: on MERL-like chrome (dense N_side 64, 1500 steps, cosine_merl queries, log_
 prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
 measured directions that the fit replays, so that pixels holding no measurement read their nearest
 supervised ancestor's corners and the slots no pixel reads are not stored. Needs queries="replay".
+
+runtime_fraction: the last fraction of the steps trains the model in its runtime form (1/4 corner weights,
+`Config.runtime_interpolation` "uniform"), against the source averaged over each query's pixel pair
+(`neumat.fit.pixel_pair_targets.PixelPairAverage`, runtime_samples points per query), at fine_lr_scale times
+the rate; the other fractions (coarse_fraction, dense_warmup) are then fractions of the steps before it. 0, the
+default, is the paper's training (inverse-distance weights throughout). Why: the shipped 1/4-weight model is
+constant on every (wi pixel, wo pixel) pair, and a model trained with inverse-distance weights, evaluated at the
+pixel centres, is far from the pair averages wherever the function varies within a pixel; on MERL-like chrome
+(dense path, N_side 64) the shipped model renders at image MAE 0.036 and SSIM 0.85 where the pair averages
+themselves render at 0.003 / 0.98 (benchmarks/results/neubrdf_runtime_forms.md). A per-query log loss in the 1/4
+form does not fix it (it fits something like the pair's median, which loses a sub-pixel peak's energy); pair
+averages as targets do. The fitted model keeps interpolation "uniform" (the form it was trained for). Not with
+queries="replay" (measured samples cannot be averaged over pixels) nor with an inverse-distance runtime (its
+runtime form is the training form).
+
+runtime_samples: points per query of the pixel-pair averages (the targets' noise falls as 1 / sqrt of it).
 
 measured_azimuths: with queries="replay" on an RGL file (`*_rgb.bsdf`), its measurement directions
 (`neumat.fit.measured_samples.rgl_samples`) are the replayed samples; an isotropic file's single measured
@@ -150,10 +167,23 @@ def phases(ctx: FitContext) -> list[Phase]:
     `quantize_from_dense` (with vq_candidates).
     "vq" (f > 0) or "fine" (c > 0, no warm-up: a dense model): the remaining steps.
 
+    "runtime" (option runtime_fraction = r > 0): the last round(r steps) steps, in the runtime form against
+    pixel-pair averages (see the option).
+
     Checkpoints hold the state of whichever grid the fit is on; a freshly built model loads any of them
     (`neumat.models.neubrdf.regridded_state`, `quantized_state`), so resuming is exact in every phase."""
     ctx = _measured(ctx)
-    options, steps, model = ctx.recipe.options, ctx.recipe.steps, ctx.model
+    runtime_steps = _runtime_steps(ctx)
+    nside = ctx.model.cfg.nside  # the model's own; a coarse phase regrids it now
+    built = _training_phases(ctx, ctx.recipe.steps - runtime_steps)
+    if runtime_steps:
+        built.append(_runtime_phase(ctx, runtime_steps, nside))
+    return built
+
+
+def _training_phases(ctx: FitContext, steps: int) -> list[Phase]:
+    """The phases before the runtime one: coarse, dense / fine, vq (see `phases`), `steps` in all."""
+    options, model = ctx.recipe.options, ctx.model
     frac = _warmup(options)
     coarse = _coarse(options, model, frac)
     candidates = _candidates(options, model)
@@ -162,7 +192,7 @@ def phases(ctx: FitContext) -> list[Phase]:
                          "each slot's nearest codewords after the warm-up's k-means)")
     directions = _direction_scale(options)
     if frac == 0 and coarse == 0 and not directions:
-        return [online_phase(ctx)]
+        return [online_phase(ctx, steps=steps)]
     features = getattr(getattr(model, "cfg", None), "features", None)
     if features != "dense":
         why = (f"dense_warmup={frac}: needs a model built with features='dense' (the warm-up's features are "
@@ -182,7 +212,7 @@ def phases(ctx: FitContext) -> list[Phase]:
     if directions:
         model.init_direction_features(directions)  # a resumed fit loads its checkpoint over it
     if frac == 0 and coarse == 0:
-        return [online_phase(ctx)]
+        return [online_phase(ctx, steps=steps)]
 
     def leave_coarse():
         model.regrid(fine_nside)
@@ -207,6 +237,61 @@ def phases(ctx: FitContext) -> list[Phase]:
         if coarse:
             phase.optimizer = _scaled(phase.optimizer, _fine_lr_scale(options))
     return [phase for phase in built if phase.steps > 0]
+
+
+def _runtime_phase(ctx: FitContext, steps: int, nside: int) -> Phase:
+    """`steps` steps of the model (N_side `nside`) in its 1/4-weight runtime form against the source's pixel-pair
+    averages (option runtime_samples points per query, drawn from the fit's generator), at fine_lr_scale times
+    the rate."""
+    from ..pixel_pair_targets import PixelPairAverage
+
+    model = ctx.model
+    targets = PixelPairAverage(ctx.source, nside, _runtime_samples(ctx.recipe.options), ctx.generator)
+    phase = online_phase(replace(ctx, source=targets, queries=query_draw(ctx), resuming=True), "runtime", steps)
+    train_step = phase.losses
+
+    def losses(step: int) -> dict:
+        if model.cfg.interpolation != "uniform":  # also when a resumed fit starts in this phase
+            model.cfg = replace(model.cfg, interpolation="uniform")
+        return train_step(step)
+
+    phase.losses = losses
+    phase.params = lambda: [p for p in model.parameters() if p.requires_grad]
+    phase.optimizer = _scaled(phase.optimizer, _fine_lr_scale(ctx.recipe.options))
+    return phase
+
+
+def _runtime_steps(ctx: FitContext) -> int:
+    """Steps of the runtime phase (0: none); InputError for a fraction out of range or a fit it cannot serve."""
+    options = ctx.recipe.options
+    frac = options.get("runtime_fraction", 0.0)
+    if not isinstance(frac, (int, float)) or isinstance(frac, bool) or not 0 <= frac < 1:
+        raise InputError(f"neubrdf recipe option runtime_fraction: expected a fraction in [0, 1), got {frac!r}")
+    _runtime_samples(options)
+    if frac == 0:
+        return 0
+    queries = ctx.queries if ctx.queries is not None else ctx.recipe.queries
+    if queries == "replay":
+        raise InputError(f"neubrdf recipe option runtime_fraction={frac}: needs a source it can evaluate anywhere "
+                         "(its targets average the source over pixel pairs); queries=replay fits measured samples "
+                         "only")
+    form = getattr(getattr(ctx.model, "cfg", None), "runtime_interpolation", None)
+    if form != "uniform":
+        raise InputError(f"neubrdf recipe option runtime_fraction={frac}: the model's runtime_interpolation is "
+                         f"{form!r}, whose runtime form is the training form already; it serves 'uniform' only")
+    steps = ctx.recipe.steps
+    runtime = min(max(int(round(frac * steps)), 1), steps)
+    if runtime == steps:
+        raise InputError(f"neubrdf recipe option runtime_fraction={frac}: leaves none of the {steps} steps for "
+                         "training before it")
+    return runtime
+
+
+def _runtime_samples(options: dict) -> int:
+    k = options.get("runtime_samples", 8)
+    if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+        raise InputError(f"neubrdf recipe option runtime_samples: expected an integer >= 1, got {k!r}")
+    return k
 
 
 def _direction_scale(options: dict) -> float:
