@@ -72,9 +72,9 @@ def test_every_model_has_a_cpu_recipe_no_larger_than_the_papers():
 
 def test_named_recipe_dense_is_the_cpu_recipe_on_a_direction_coded_dense_grid():
     """neubrdf's named recipe "dense": the CPU recipe's budget and schedule with the settings of the dense path
-    (cosine_merl queries, log_cos_eps, direction start 10, no codebook phase); the model it builds is dense
-    (config_for_source), an explicit features setting still wins and then the phases refuse it; other models
-    list no named recipe and refuse the name."""
+    (cosine_merl queries, log_cos_eps, direction start 10, no codebook phase, the last 20 % in the runtime form);
+    the model it builds is dense (config_for_source), an explicit features setting still wins and then the phases
+    refuse it; other models list no named recipe and refuse the name."""
     from types import SimpleNamespace
 
     from neumat.cli.fitting import build_model_and_recipe
@@ -84,7 +84,8 @@ def test_named_recipe_dense_is_the_cpu_recipe_on_a_direction_coded_dense_grid():
     check_recipe(dense)
     assert (dense.steps, dense.batch_size, dense.schedule) == (cpu.steps, cpu.batch_size, cpu.schedule)
     assert (dense.loss, dense.queries) == ("log_cos_eps", "cosine_merl")
-    assert dense.options == {**cpu.options, "dense_warmup": 0.0, "vq_candidates": 0, "direction_features": 10.0}
+    assert dense.options == {**cpu.options, "dense_warmup": 0.0, "vq_candidates": 0, "direction_features": 10.0,
+                             "runtime_fraction": 0.2}
     assert recipe_choices("neubrdf") == ["paper", "cpu", "dense"] and recipe_choices("ggx") == ["paper", "cpu"]
     source = SimpleNamespace()
     model, recipe = build_model_and_recipe("neubrdf", {"nside": 8}, source=source, machine="dense")

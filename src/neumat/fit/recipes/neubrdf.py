@@ -141,11 +141,15 @@ CPU_MINUTES = 8
 
 #: `neumat fit --recipe dense`: the CPU recipe's steps and schedule on a dense grid (16 floats per slot: 1.6 MB at
 #: fp16, 19x the paper's codebook model) with the direction-coded start (direction_features 10), half cosine and
-#: half MERL-density queries and the floored log loss. The lowest errors we measured: RGL Table 3 mean image
-#: MAE 0.0017 against the codebook's 0.0105, NBRDF's 0.0147 (benchmarks/results/neubrdf_direction_init.md); it
-#: does not quantise into a codebook (k-means loses the direction code). About 6-9 minutes on one core.
+#: half MERL-density queries and the floored log loss, the last 20 % of the steps in the runtime form against
+#: pixel-pair averages (runtime_fraction). The lowest errors we measured: RGL Table 3 mean image MAE 0.0017
+#: against the codebook's 0.0105, NBRDF's 0.0147 (benchmarks/results/neubrdf_direction_init.md, before the
+#: runtime phase); MERL-like chrome 0.0046 with the runtime phase, 0.0359 without, NBRDF 0.0077
+#: (benchmarks/results/neubrdf_runtime_forms.md). It does not quantise into a codebook (k-means loses the
+#: direction code). About 6-9 minutes on one core.
 DENSE_RECIPE = replace(CPU_RECIPE, loss="log_cos_eps", queries="cosine_merl",
-                       options={**OPTIONS, "coarse_fraction": 0.4, "direction_features": 10.0})
+                       options={**OPTIONS, "coarse_fraction": 0.4, "direction_features": 10.0,
+                                "runtime_fraction": 0.2})
 NAMED_RECIPES = {"dense": DENSE_RECIPE}
 
 
