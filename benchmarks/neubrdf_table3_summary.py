@@ -1,0 +1,68 @@
+"""NeuBRDF's Table 3 on our data from `neumat fit-many` results (issue 32): per source the models' image and
+reflectance errors with the lowest image MAE in bold, then per model the mean image MAE / RMSE / SSIM, and how
+many sources NeuBRDF wins in image MAE against each other model, with the sources it loses.
+
+    python benchmarks/neubrdf_table3_summary.py OUT/results.json [MORE/results.json ...] [--label "dense path"]
+
+Sources fitted by fewer than all the models seen are listed as incomplete and left out of the means.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+MODEL = "neubrdf"
+
+
+def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
+    """source name -> model -> row (status ok), later files overriding earlier ones."""
+    table: dict[str, dict[str, dict]] = {}
+    for path in paths:
+        for row in json.loads(Path(path).read_text())["rows"]:
+            if row.get("status") == "ok":
+                table.setdefault(row["name"], {})[row["model"]] = row
+    return table
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("results", nargs="+", help="fit-many results.json files")
+    ap.add_argument("--label", default="", help="shown after 'neubrdf' in the rows (e.g. the recipe)")
+    a = ap.parse_args()
+    table = load_rows(a.results)
+    models = sorted({m for per in table.values() for m in per}, key=lambda m: (m != MODEL, m))
+    complete = {name: per for name, per in table.items() if set(per) == set(models)}
+    print("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "
+          "| fit s |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, per in complete.items():
+        best = min(per, key=lambda m: per[m]["metrics"]["img_mae"])
+        for model in models:
+            row, m = per[model], per[model]["metrics"]
+            mae = f"**{m['img_mae']:.4f}**" if model == best else f"{m['img_mae']:.4f}"
+            label = f"{model} {a.label}".strip() if model == MODEL else model
+            print(f"| {name} | {label} | {m['log_err']:.5f} | {mae} | {m['img_rmse']:.4f} | {m['img_ssim']:.4f} | "
+                  f"{m['img_flip']:.4f} | {m['img_floor_mae']:.5f} | {m['img_floor_ssim']:.4f} | "
+                  f"{row['bytes_fp16']:,} | {row['fit_seconds']:.0f} |")
+    n = len(complete)
+    print(f"\n{n} sources with all of {', '.join(models)}"
+          + (f"; incomplete: {', '.join(sorted(set(table) - set(complete)))}" if len(complete) < len(table) else ""))
+    if not n:
+        return
+    print("\n| model | mean image MAE | mean image RMSE | mean SSIM | min SSIM |\n|---|---|---|---|---|")
+    for model in models:
+        ms = [per[model]["metrics"] for per in complete.values()]
+        print(f"| {model} | {sum(m['img_mae'] for m in ms) / n:.4f} | {sum(m['img_rmse'] for m in ms) / n:.4f} | "
+              f"{sum(m['img_ssim'] for m in ms) / n:.4f} | {min(m['img_ssim'] for m in ms):.4f} |")
+    if MODEL not in models:
+        return
+    print()
+    for other in (m for m in models if m != MODEL):
+        lost = [name for name, per in complete.items()
+                if per[MODEL]["metrics"]["img_mae"] >= per[other]["metrics"]["img_mae"]]
+        print(f"{MODEL} lower image MAE than {other}: {n - len(lost)} of {n}"
+              + (f" (not on {', '.join(lost)})" if lost else ""))
+
+
+if __name__ == "__main__":
+    main()
