@@ -6,11 +6,13 @@ Arms (`--arms`, each fitted through the one trainer on the source itself, online
 end-to-end straight-through VQ over all 2^b codewords), "dense" (dense per-slot features, "w/o quantization",
 1.6 MB at fp16: Table 4's comparator), "lowbit" (Table 4's 4-bit features, 0.4 MB), or recipe options as
 KEY=VALUE[,KEY=VALUE...] of a VQ model trained through a dense warm-up: warmup=F (dense_warmup), candidates=K
-(vq_candidates), coarse=C (coarse_fraction, at N_side 16), e.g. "coarse=0.4,warmup=0.7,candidates=8"; a spec
-with coarse but no warmup is a dense model.
+(vq_candidates), coarse=C (coarse_fraction, at N_side 16), runtime=R (runtime_fraction: the last R of the steps
+in the 1/4-weight form against pixel-pair averages), e.g. "coarse=0.4,warmup=0.7,candidates=8"; a spec with
+coarse but no warmup is a dense model.
 
 Equal time: each arm's step count is `--seconds` divided by its seconds per step, measured on this source
-before the fits (coarse, dense, VQ and restricted-VQ steps timed separately, 12 steps after 3). Batch 8192,
+before the fits (coarse, dense, VQ and restricted-VQ steps timed separately, 12 steps after 3; runtime steps
+are counted at the cost of the phase before them, so arms with one run longer than --seconds: see "fit s"). Batch 8192,
 lr 1e-2 halved at 1/2 and 3/4 of each phase (schedule "halves"), EMA 0.01, the loss log_cos. Every fitted
 model is scored in its shipped form (`runtime()`: 1/4 corner weights, fp16): held-out reflectance errors (2^18
 cosine queries, seed 7), Table 4's metric (the MSE over the MERL table's cells, `merl_table_mse`) and image
@@ -48,7 +50,8 @@ from neumat.render.comparison import image_comparison, reference_renders
 BATCH = 8192
 
 
-OPTION_NAMES = {"warmup": "dense_warmup", "candidates": "vq_candidates", "coarse": "coarse_fraction"}
+OPTION_NAMES = {"warmup": "dense_warmup", "candidates": "vq_candidates", "coarse": "coarse_fraction",
+                "runtime": "runtime_fraction"}
 
 
 def parse_arm(spec: str) -> tuple[str, dict]:
