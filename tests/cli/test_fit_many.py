@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 from neumat.catalog.modelfile import save_model
 from neumat.cli import fit_many
 from neumat.cli.fit_engines import RunProgress, run_ray
+from neumat.cli import fit_job as fit_job_module
 from neumat.cli.fit_job import FitJob, run_fit_job
 from neumat.models.ggx_fit import GGXFit
 
@@ -93,6 +94,28 @@ def test_changed_source_or_options_are_fitted_again(app, tmp_path):
     assert all(r["steps"] == 11 for r in _rows(out).values())
 
 
+def test_threads_set_torch_threads_for_each_job_only_and_keep_the_rows(app, tmp_path, monkeypatch):
+    """--threads N: each job runs with N torch threads and restores the caller's afterwards; it changes no hash,
+    so a rerun with another --threads keeps every row."""
+    src = _teachers(tmp_path / "src", 2)
+    out = tmp_path / "out"
+    args = [*src, *FAST, "--engine", "local", "-o", str(out)]
+    before = torch.get_num_threads()
+    seen = []
+    real_fit = fit_job_module._fit_and_evaluate
+    monkeypatch.setattr(fit_job_module, "_fit_and_evaluate",
+                        lambda job: (seen.append(torch.get_num_threads()), real_fit(job))[1])
+    torch.set_num_threads(2)
+    try:
+        assert CliRunner().invoke(app, [*args, "--threads", "1"]).exit_code == 0
+        assert seen == [1, 1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    res = CliRunner().invoke(app, [*args, "--threads", "2"])
+    assert res.exit_code == 0 and "2 already done (kept), 0 to fit" in " ".join(res.output.split()), res.output
+    assert CliRunner().invoke(app, [*args, "--threads", "0"]).exit_code == 2
+
+
 def test_changed_evaluation_options_evaluate_the_saved_models_again_without_refitting(app, tmp_path):
     """--image-spp changed: the saved models are evaluated again (same .nmat, fit seconds and recipe kept, new
     image metrics with the reference's noise floor); a row written before fit_sha256 existed (only its options
@@ -148,7 +171,7 @@ def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
 
     job = FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path))
     before = {k: v for k, v in asdict(job).items()
-              if k not in ("source", "name", "out_dir", "device", "recipe", "evaluate_only")}
+              if k not in ("source", "name", "out_dir", "device", "recipe", "evaluate_only", "threads")}
     assert job.legacy_options_sha256() == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
     assert job.options_sha256() != FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path),
                                           recipe="cpu").options_sha256()

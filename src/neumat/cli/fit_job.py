@@ -31,7 +31,8 @@ class FitJob:
     name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
     errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
     recipe: "paper", "cpu" or a named recipe of the model (`neumat.fit.recipe.recipe_for`); evaluate_only: the model
-    at `out` was fitted with these fit options before: only evaluate it (not part of the hashes)."""
+    at `out` was fitted with these fit options before: only evaluate it; threads: torch intra-op threads of the
+    job (None: torch's default, all cores). The last two are not part of the hashes."""
 
     source: str
     name: str
@@ -47,6 +48,7 @@ class FitJob:
     image_resolution: int = 64
     recipe: str = "paper"
     evaluate_only: bool = False
+    threads: int | None = None
 
     @property
     def out(self) -> Path:
@@ -96,14 +98,21 @@ def source_sha256(source: str) -> str:
 def run_fit_job(job: FitJob) -> dict:
     """Fit, save, reload and evaluate `job`; its row (ROW_KEYS) with status "ok", or "error" and the error
     (the .nmat of a failed job is removed)."""
+    import torch
+
     t0 = time.perf_counter()
+    threads = torch.get_num_threads()
     try:
+        if job.threads:
+            torch.set_num_threads(job.threads)
         row = error_row(job, None) | {"source_sha256": source_sha256(job.source)}
         row |= _fit_and_evaluate(job) | {"status": "ok"}
     except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
         if not job.evaluate_only:  # an evaluation that failed keeps the model it could not evaluate
             job.out.unlink(missing_ok=True)
         row = error_row(job, e)
+    finally:
+        torch.set_num_threads(threads)
     row["seconds"] = time.perf_counter() - t0
     return row
 

@@ -53,6 +53,9 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
              address: str = typer.Option(None, help="Ray cluster to run on (ray://host:10001, auto; default: "
                                                     "$RAY_ADDRESS, else a local instance)"),
              retries: int = typer.Option(2, min=0, help="times a task whose Ray worker died is run again"),
+             threads: int = typer.Option(None, min=1, help="torch threads per fit (default: torch's, all cores); 1 "
+                                                          "when other work shares the machine (two fits of two "
+                                                          "threads each on two cores ran 2-3x slower than of one)"),
              quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per job (the summary stays)"),
              out: Path = typer.Option(..., "-o", "--out", help="output folder: <source>.<model>.nmat, "
                                                                "results.json, results.md")) -> None:
@@ -88,7 +91,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         recipes = model_recipes(recipe_name or [], model)
         common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
-                      image_spp=image_spp, image_resolution=image_resolution)
+                      image_spp=image_spp, image_resolution=image_resolution, threads=threads)
         named = source_names(expand_sources(sources))
         jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], recipe=recipes[m], **common)
                 for s, n in named.items() for m in model]
