@@ -57,6 +57,27 @@ def test_fit_is_reproducible_and_resumable(app, teacher, tmp_path):
     assert all(torch.equal(a[k], b[k]) and torch.equal(a[k], c[k]) for k in a)
 
 
+def test_threads_sets_torch_threads_for_the_fit_only(app, teacher, tmp_path, monkeypatch):
+    """--threads N: the fit runs with N torch threads; the caller's count comes back after it (also after a
+    failed fit); 0 is refused."""
+    from neumat.fit import trainer
+
+    seen, real_fit = [], trainer.fit
+    monkeypatch.setattr(trainer, "fit", lambda *a, **k: (seen.append(torch.get_num_threads()), real_fit(*a, **k))[1])
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        args = ["fit", teacher, *SMALL, "--steps", "2", "--quiet"]
+        res = CliRunner().invoke(app, [*args, "--threads", "1", "-o", str(tmp_path / "a.nmat")])
+        assert res.exit_code == 0, res.output
+        assert seen == [1] and torch.get_num_threads() == 2
+        res = CliRunner().invoke(app, [*args, "--threads", "1", "--set", "nside=-1", "-o", str(tmp_path / "b.nmat")])
+        assert res.exit_code != 0 and torch.get_num_threads() == 2
+        assert CliRunner().invoke(app, [*args, "--threads", "0", "-o", str(tmp_path / "c.nmat")]).exit_code == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_fit_analytic_spec(app, tmp_path):
     out = tmp_path / "m.nmat"
     res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", *SMALL, "--steps", "5", "--quiet", "-o", str(out)])

@@ -120,10 +120,11 @@ def test_runtime_phase_fits_the_pair_averages_at_the_models_own_nside():
     assert own < 0.65 * coarse, (own, coarse)  # 0.57 measured; 0.72 when the targets averaged at N_side 1
 
 
-@pytest.mark.parametrize("stop_at", [5, 6, 7])
+@pytest.mark.parametrize("stop_at", [5, 6, 7, 8])
 def test_runtime_phase_resumes_bit_for_bit(stop_at, tmp_path):
-    """A checkpoint before the runtime phase (5), at its first step (6, written before the switch of form)
-    and inside it (7) resumes to the uninterrupted fit: same state, form and history."""
+    """A checkpoint before the runtime phase (5), at its first step (6, written before the switch of form),
+    inside it (7) and after the fit's last step (8, where the resumed fit runs no step) resumes to the
+    uninterrupted fit: same state, form and history."""
     source = open_material(SOURCE)
     ref_model = _model()
     ref = fit(ref_model, source, _recipe(0.25), progress=False, device="cpu")

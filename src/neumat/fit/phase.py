@@ -35,6 +35,9 @@ class Phase:
     params:    parameters the optimiser updates in this phase (None: a solver phase, no optimiser), or a
                callable returning them when the phase starts, for parameters that an earlier phase's `after`
                creates (NeuBRDF's dense warm-up replaces the feature grid by a codebook).
+    start:     called when the phase begins, also when a resumed fit continues inside it or skips it as done: sets
+               model state that neither parameters nor checkpoints hold (NeuBRDF's runtime phase switches the
+               model to its 1/4-weight form).
     after:     called once when the phase has run its last step (before that step's checkpoint), e.g. to bake
                latents from the encoder or freeze what the phase trained.
     optimizer: `make(params, lr, betas, eps) -> torch.optim.Optimizer`, default Adam.
@@ -47,6 +50,7 @@ class Phase:
     steps: int
     losses: LossStep
     params: list[nn.Parameter] | Callable[[], list[nn.Parameter]] | None = None
+    start: Callable[[], None] | None = None
     after: Callable[[], None] | None = None
     optimizer: Callable[..., torch.optim.Optimizer] | None = None
     stateful: list[nn.Module] = field(default_factory=list)

@@ -106,6 +106,8 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
         begin = 0
         for phase in phases:
             end = begin + phase.steps
+            if phase.start is not None:
+                phase.start()
             if state["step"] >= end:
                 begin = end
                 continue

@@ -252,14 +252,11 @@ def _runtime_phase(ctx: FitContext, steps: int, nside: int) -> Phase:
     model = ctx.model
     targets = PixelPairAverage(ctx.source, nside, _runtime_samples(ctx.recipe.options), ctx.generator)
     phase = online_phase(replace(ctx, source=targets, queries=query_draw(ctx), resuming=True), "runtime", steps)
-    train_step = phase.losses
 
-    def losses(step: int) -> dict:
-        if model.cfg.interpolation != "uniform":  # also when a resumed fit starts in this phase
-            model.cfg = replace(model.cfg, interpolation="uniform")
-        return train_step(step)
+    def start() -> None:
+        model.cfg = replace(model.cfg, interpolation="uniform")
 
-    phase.losses = losses
+    phase.start = start
     phase.params = lambda: [p for p in model.parameters() if p.requires_grad]
     phase.optimizer = _scaled(phase.optimizer, _fine_lr_scale(ctx.recipe.options))
     return phase
