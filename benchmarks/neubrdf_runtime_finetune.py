@@ -7,7 +7,7 @@ after under the Table 3 protocol (`neumat.render.comparison`: sphere under the s
 reference at the next seed) and the held-out log error (2^16 cosine queries, seed 7).
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/neubrdf_runtime_finetune.py MODEL.nmat SOURCE \
-        [--steps 1000] [--samples 8] [--lr 2.5e-3] [--loss log_cos_eps]
+        [--steps 1000] [--samples 8] [--lr 2.5e-3] [--loss log_cos_eps] [-o TUNED.nmat]
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import torch
 
-from neumat.catalog.modelfile import load_model
+from neumat.catalog.modelfile import load_model, save_model
 from neumat.catalog.open_material import open_material
 from neumat.fit.ema import EMA
 from neumat.fit.losses import LOSSES
@@ -40,6 +40,7 @@ def main() -> None:
     ap.add_argument("--loss", default="log_cos_eps")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--spp", type=int, default=512)
+    ap.add_argument("-o", "--out", help="save the fine-tuned model's shipped form here (.nmat)")
     a = ap.parse_args()
     torch.set_num_threads(1)
     source = open_material(a.source)
@@ -81,6 +82,10 @@ def main() -> None:
             show(i + 1, ema.shadow)
     print(f"{a.steps} steps in {time.perf_counter() - t0:.0f} s", flush=True)
     show(a.steps, ema.shadow)
+    if a.out:
+        save_model(copy.deepcopy(ema.shadow).runtime(), a.out, source=a.source,
+                   metrics={"finetune_steps": a.steps, "finetune_samples": a.samples})
+        print(f"wrote {a.out}")
 
 
 if __name__ == "__main__":
