@@ -1,11 +1,12 @@
-"""Helpers shared by CLI commands: clean error reporting, the console, key=value overrides."""
+"""Helpers shared by CLI commands: clean error reporting, the console, key=value overrides, torch threads."""
 from __future__ import annotations
 
 import json
 import math
 import numbers
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import typer
 from rich.console import Console
@@ -17,6 +18,25 @@ from ..core.config import parse_value
 from ..core.errors import InputError, NeumatError
 
 console = Console(stderr=True)
+
+#: help of the --threads options of `neumat fit` and `neumat fit-many`
+THREADS_HELP = ("torch threads per fit (default: torch's, all cores); 1 when other work shares the cores (two fits "
+                "of 2 threads each on two cores ran 2-3x slower than of one)")
+
+
+@contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """torch's intra-op threads set to `threads` (None or 0: left as they are) inside the block, the caller's
+    count restored afterwards, also when the block raises."""
+    import torch
+
+    before = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def run_command(fn: Callable[[], Any]) -> Any:

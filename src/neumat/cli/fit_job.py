@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..core.errors import DataFormatError
+from .common import torch_threads
 
 #: the row keys, in the order results.json and results.md show them
 ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "nmat", "nmat_sha256",
@@ -98,21 +99,15 @@ def source_sha256(source: str) -> str:
 def run_fit_job(job: FitJob) -> dict:
     """Fit, save, reload and evaluate `job`; its row (ROW_KEYS) with status "ok", or "error" and the error
     (the .nmat of a failed job is removed)."""
-    import torch
-
     t0 = time.perf_counter()
-    threads = torch.get_num_threads()
-    try:
-        if job.threads:
-            torch.set_num_threads(job.threads)
-        row = error_row(job, None) | {"source_sha256": source_sha256(job.source)}
-        row |= _fit_and_evaluate(job) | {"status": "ok"}
-    except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
-        if not job.evaluate_only:  # an evaluation that failed keeps the model it could not evaluate
-            job.out.unlink(missing_ok=True)
-        row = error_row(job, e)
-    finally:
-        torch.set_num_threads(threads)
+    with torch_threads(job.threads):
+        try:
+            row = error_row(job, None) | {"source_sha256": source_sha256(job.source)}
+            row |= _fit_and_evaluate(job) | {"status": "ok"}
+        except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
+            if not job.evaluate_only:  # an evaluation that failed keeps the model it could not evaluate
+                job.out.unlink(missing_ok=True)
+            row = error_row(job, e)
     row["seconds"] = time.perf_counter() - t0
     return row
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import SEED_RANGE, console, device_option, parse_overrides, run_command
+from .common import SEED_RANGE, THREADS_HELP, console, device_option, parse_overrides, run_command
 from .fit_engines import RAY_HINT, RunProgress, ray_available, run_local, run_ray
 from .fit_job import FIT_KEYS, FitJob, run_fit_job, source_sha256
 from .fit_results import is_done, is_fitted, markdown, read_rows, write_rows
@@ -53,9 +53,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
              address: str = typer.Option(None, help="Ray cluster to run on (ray://host:10001, auto; default: "
                                                     "$RAY_ADDRESS, else a local instance)"),
              retries: int = typer.Option(2, min=0, help="times a task whose Ray worker died is run again"),
-             threads: int = typer.Option(None, min=1, help="torch threads per fit (default: torch's, all cores); 1 "
-                                                          "when other work shares the machine (two fits of two "
-                                                          "threads each on two cores ran 2-3x slower than of one)"),
+             threads: int = typer.Option(None, min=1, help=THREADS_HELP),
              quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per job (the summary stays)"),
              out: Path = typer.Option(..., "-o", "--out", help="output folder: <source>.<model>.nmat, "
                                                                "results.json, results.md")) -> None:

@@ -9,7 +9,8 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import SEED_RANGE, device_option, output_option, parse_overrides, print_json, print_table, run_command
+from .common import (SEED_RANGE, THREADS_HELP, device_option, output_option, parse_overrides, print_json,
+                     print_table, run_command, torch_threads)
 
 
 def register(app: typer.Typer) -> None:
@@ -36,9 +37,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
-        threads: int = typer.Option(None, min=1, help="torch threads of the fit (default: torch's, all cores); 1 "
-                                                      "when other work shares the cores (two fits of 2 threads "
-                                                      "each on two cores ran 2-3x slower than of one)"),
+        threads: int = typer.Option(None, min=1, help=THREADS_HELP),
         source_option: list[str] = typer.Option(None, "--source-option",
                                                 help="key=value passed to the source reader, e.g. max_size=256 "
                                                      "or samples=64 for a texture-set folder"),
@@ -56,17 +55,6 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     coding) run them as phases of the same fit, with --device, --checkpoint and --resume."""
 
     def go():
-        import torch
-
-        before = torch.get_num_threads()
-        if threads:
-            torch.set_num_threads(threads)
-        try:
-            fit_and_save()
-        finally:
-            torch.set_num_threads(before)
-
-    def fit_and_save():
         from ..fit.trainer import fit as fit_model
         from ..catalog.modelfile import save_model
 
@@ -93,7 +81,8 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss "
               f"{metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} bytes "
               "stored at fp16)")
-    run_command(go)
+    with torch_threads(threads):
+        run_command(go)
 
 
 def checked_recipe_name(recipe_name: str, model: str) -> str:
