@@ -3,8 +3,12 @@ reflectance errors with the lowest image MAE in bold, then per model the mean im
 many sources NeuBRDF wins in image MAE against each other model, with the sources it loses.
 
     python benchmarks/neubrdf_table3_summary.py OUT/results.json [MORE/results.json ...] [--label "dense path"]
+    python benchmarks/neubrdf_table3_summary.py NEW/results.json --from-table results/neubrdf_table3_merl.md
 
-Sources fitted by fewer than all the models seen are listed as incomplete and left out of the means.
+`--from-table` reads the per-source rows of an earlier output of this script (for runs whose results.json is
+gone); its values carry the printed rounding (image MAE to 4 decimals), and a tie counts as a loss. Results files
+override table rows for the same source and model. Sources fitted by fewer than all the models seen are listed as
+incomplete and left out of the means.
 """
 from __future__ import annotations
 
@@ -25,12 +29,49 @@ def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
     return table
 
 
+TABLE_COLUMNS = ("log_err", "img_mae", "img_rmse", "img_ssim", "img_flip", "img_floor_mae", "img_floor_ssim")
+
+
+def load_table_rows(path: str) -> dict[str, dict[str, dict]]:
+    """source name -> model -> row, from the per-source markdown table this script prints (first such table in
+    the file; bold marks dropped, the model is the label's first word)."""
+    table: dict[str, dict[str, dict]] = {}
+    header = "| source | model | log_err | image MAE |"
+    lines = Path(path).read_text().splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines) if line.startswith(header)) + 2
+    except StopIteration:
+        raise SystemExit(f"{path}: no per-source table (a line starting {header!r})") from None
+    for line in lines[start:]:
+        cells = [c.strip().replace("*", "").replace(",", "") for c in line.strip().strip("|").split("|")]
+        if len(cells) != 11:
+            break
+        try:
+            values = [float(c) for c in cells[2:]]
+        except ValueError:
+            raise SystemExit(f"{path}: cannot read the row {line!r}") from None
+        table.setdefault(cells[0], {})[cells[1].split()[0]] = {
+            "metrics": dict(zip(TABLE_COLUMNS, values[:7])), "bytes_fp16": int(values[7]), "fit_seconds": values[8]}
+    if not table:
+        raise SystemExit(f"{path}: the per-source table has no rows")
+    return table
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("results", nargs="+", help="fit-many results.json files")
+    ap.add_argument("results", nargs="*", help="fit-many results.json files")
+    ap.add_argument("--from-table", action="append", default=[], metavar="MD",
+                    help="also read the per-source rows of an earlier output of this script (repeatable)")
     ap.add_argument("--label", default="", help="shown after 'neubrdf' in the rows (e.g. the recipe)")
     a = ap.parse_args()
-    table = load_rows(a.results)
+    if not a.results and not a.from_table:
+        ap.error("give fit-many results.json files and/or --from-table")
+    table: dict[str, dict[str, dict]] = {}
+    for path in a.from_table:
+        for name, per in load_table_rows(path).items():
+            table.setdefault(name, {}).update(per)
+    for name, per in load_rows(a.results).items():
+        table.setdefault(name, {}).update(per)
     models = sorted({m for per in table.values() for m in per}, key=lambda m: (m != MODEL, m))
     complete = {name: per for name, per in table.items() if set(per) == set(models)}
     print("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "

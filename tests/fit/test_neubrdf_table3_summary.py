@@ -1,0 +1,59 @@
+"""benchmarks/neubrdf_table3_summary.py: its per-source table read back with --from-table gives the same summary as
+the results.json it came from, results override table rows, and a file without the table is refused by name."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "neubrdf_table3_summary.py"
+
+
+def _row(name, model, mae, ssim):
+    metrics = dict(log_err=0.001, img_mae=mae, img_rmse=2 * mae, img_ssim=ssim, img_flip=0.01, img_floor_mae=0.0005,
+                   img_floor_ssim=0.999)
+    return dict(name=name, model=model, status="ok", metrics=metrics, bytes_fp16=1350, fit_seconds=12.0)
+
+
+def _summary(*args):
+    out = subprocess.run([sys.executable, str(SCRIPT), *map(str, args)], capture_output=True, text=True)
+    return out.returncode, out.stdout, out.stderr
+
+
+def _results(path, rows):
+    path.write_text(json.dumps({"rows": rows}))
+    return path
+
+
+def test_table_round_trip_and_override(tmp_path):
+    first = _results(tmp_path / "a.json", [
+        _row("gold", "neubrdf", 0.0005, 0.9997), _row("gold", "nbrdf", 0.0014, 0.9992),
+        _row("steel", "neubrdf", 0.0035, 0.9866), _row("steel", "nbrdf", 0.0025, 0.9936)])
+    rc, table, err = _summary(first, "--label", "dense")
+    assert rc == 0, err
+    assert "neubrdf lower image MAE than nbrdf: 1 of 2 (not on steel)" in table
+    md = tmp_path / "table.md"
+    md.write_text("# earlier run\n\n" + table)
+    rc, again, err = _summary("--from-table", md, "--label", "dense")
+    assert rc == 0, err
+    assert again == table
+    # a new run of steel's NeuBRDF overrides the table's row; a new source joins
+    second = _results(tmp_path / "b.json", [
+        _row("steel", "neubrdf", 0.0020, 0.9950), _row("nickel", "neubrdf", 0.0010, 0.9986),
+        _row("nickel", "nbrdf", 0.0108, 0.9846)])
+    rc, merged, err = _summary(second, "--from-table", md)
+    assert rc == 0, err
+    assert "3 sources with all of neubrdf, nbrdf" in merged
+    assert "neubrdf lower image MAE than nbrdf: 3 of 3" in merged
+    assert "| steel | neubrdf | 0.00100 | **0.0020** |" in merged
+
+
+@pytest.mark.parametrize("text", ["no table here\n", "| source | model | log_err | image MAE | x |\n|---|\n"
+                                  "| gold | neubrdf | a | b | c | d | e | f | g | h | i |\n"])
+def test_bad_table_is_refused_by_name(tmp_path, text):
+    md = tmp_path / "bad.md"
+    md.write_text(text)
+    rc, _, err = _summary("--from-table", md)
+    assert rc != 0
+    assert "bad.md" in err
