@@ -71,7 +71,7 @@ from ..recipe import Recipe
 
 OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 0, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
            "vq_candidates": 0, "direction_features": 0.0, "prune": False, "measured_azimuths": 64,
-           "runtime_fraction": 0.0, "runtime_samples": 8}
+           "runtime_fraction": 0.0, "runtime_samples": 32}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
@@ -124,9 +124,9 @@ runtime form is the training form).
 
 runtime_samples: points per query of the pixel-pair averages. Their noise falls as 1 / sqrt of it, and so does a
 bias: a log-L1 loss fits the median of the noisy targets, below their mean where a sub-pixel peak spreads the
-points (MERL-like steel, N_side 64: 6.5 % of the energy lost at 8, 4 % at 16, 1 % at 64; 3000 steps of fine-tuning
-end at image MAE 0.0035 with 8, 0.0027 with 16; benchmarks/results/neubrdf_runtime_forms.md). 16 or more on sharp
-metals.
+points (MERL-like steel, N_side 64: 6.5 % of the energy lost at 8, 4 % at 16, 1 % at 64). The recipe `dense` with
+32 instead of 8 (the default until the Table 3 rows were fitted): steel image MAE 0.0035 -> 0.0027,
+blue-metallic-paint2 0.0012 -> 0.0011, at about the same fit time (benchmarks/results/neubrdf_runtime_forms.md).
 
 measured_azimuths: with queries="replay" on an RGL file (`*_rgb.bsdf`), its measurement directions
 (`neumat.fit.measured_samples.rgl_samples`) are the replayed samples; an isotropic file's single measured
@@ -293,7 +293,7 @@ def _runtime_steps(ctx: FitContext) -> int:
 
 
 def _runtime_samples(options: dict) -> int:
-    k = options.get("runtime_samples", 8)
+    k = options.get("runtime_samples", OPTIONS["runtime_samples"])
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
         raise InputError(f"neubrdf recipe option runtime_samples: expected an integer >= 1, got {k!r}")
     return k
