@@ -29,6 +29,8 @@ def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
     return table
 
 
+HEADER = ("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "
+          "| fit s |")
 TABLE_COLUMNS = ("log_err", "img_mae", "img_rmse", "img_ssim", "img_flip", "img_floor_mae", "img_floor_ssim")
 
 
@@ -36,12 +38,14 @@ def load_table_rows(path: str) -> dict[str, dict[str, dict]]:
     """source name -> model -> row, from the per-source markdown table this script prints (first such table in
     the file; bold marks dropped, the model is the label's first word)."""
     table: dict[str, dict[str, dict]] = {}
-    header = "| source | model | log_err | image MAE |"
-    lines = Path(path).read_text().splitlines()
     try:
-        start = next(i for i, line in enumerate(lines) if line.startswith(header)) + 2
-    except StopIteration:
-        raise SystemExit(f"{path}: no per-source table (a line starting {header!r})") from None
+        lines = Path(path).read_text().splitlines()
+    except OSError as e:
+        raise SystemExit(f"{path}: cannot read it ({e.strerror})") from None
+    try:
+        start = lines.index(HEADER) + 2
+    except ValueError:
+        raise SystemExit(f"{path}: no per-source table (a line {HEADER!r})") from None
     for line in lines[start:]:
         cells = [c.strip().replace("*", "").replace(",", "") for c in line.strip().strip("|").split("|")]
         if len(cells) != 11:
@@ -67,15 +71,12 @@ def main() -> None:
     if not a.results and not a.from_table:
         ap.error("give fit-many results.json files and/or --from-table")
     table: dict[str, dict[str, dict]] = {}
-    for path in a.from_table:
-        for name, per in load_table_rows(path).items():
+    for rows in [*map(load_table_rows, a.from_table), load_rows(a.results)]:  # later sources override earlier ones
+        for name, per in rows.items():
             table.setdefault(name, {}).update(per)
-    for name, per in load_rows(a.results).items():
-        table.setdefault(name, {}).update(per)
     models = sorted({m for per in table.values() for m in per}, key=lambda m: (m != MODEL, m))
     complete = {name: per for name, per in table.items() if set(per) == set(models)}
-    print("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "
-          "| fit s |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    print(f"{HEADER}\n|---|---|---|---|---|---|---|---|---|---|---|")
     for name, per in complete.items():
         best = min(per, key=lambda m: per[m]["metrics"]["img_mae"])
         for model in models:

@@ -1,5 +1,6 @@
 """benchmarks/neubrdf_table3_summary.py: its per-source table read back with --from-table gives the same summary as
-the results.json it came from, results override table rows, and a file without the table is refused by name."""
+the results.json it came from, results override table rows, and a missing file or one without the table is refused
+by name."""
 import json
 import subprocess
 import sys
@@ -49,11 +50,15 @@ def test_table_round_trip_and_override(tmp_path):
     assert "| steel | neubrdf | 0.00100 | **0.0020** |" in merged
 
 
-@pytest.mark.parametrize("text", ["no table here\n", "| source | model | log_err | image MAE | x |\n|---|\n"
-                                  "| gold | neubrdf | a | b | c | d | e | f | g | h | i |\n"])
+BAD_ROW = ("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "
+           "| fit s |\n|---|\n| gold | neubrdf | a | b | c | d | e | f | g | h | i |\n")
+
+
+@pytest.mark.parametrize("text", ["no table here\n", BAD_ROW, None])
 def test_bad_table_is_refused_by_name(tmp_path, text):
     md = tmp_path / "bad.md"
-    md.write_text(text)
+    if text is not None:  # None: the file does not exist
+        md.write_text(text)
     rc, _, err = _summary("--from-table", md)
     assert rc != 0
     assert "bad.md" in err
