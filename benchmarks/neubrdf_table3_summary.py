@@ -4,10 +4,13 @@ many sources NeuBRDF wins in image MAE against each other model, with the source
 
     python benchmarks/neubrdf_table3_summary.py OUT/results.json [MORE/results.json ...] [--label "dense path"]
     python benchmarks/neubrdf_table3_summary.py NEW/results.json --from-table results/neubrdf_table3_merl.md
+    python benchmarks/neubrdf_table3_summary.py CODEBOOK/results.json --from-table results/neubrdf_table3_merl.md \
+        --table-models nbrdf,ggx --label codebook
 
 `--from-table` reads the per-source rows of an earlier output of this script (for runs whose results.json is
 gone); its values carry the printed rounding (image MAE to 4 decimals), and a tie counts as a loss. Results files
-override table rows for the same source and model. Sources fitted by fewer than all the models seen are listed as
+override table rows for the same source and model; `--table-models` takes only the listed models from the tables
+(e.g. the baselines, when NEW holds another NeuBRDF recipe fitted to some of the sources). Sources fitted by fewer than all the models seen are listed as
 incomplete and left out of the means.
 """
 from __future__ import annotations
@@ -66,12 +69,16 @@ def main() -> None:
     ap.add_argument("results", nargs="*", help="fit-many results.json files")
     ap.add_argument("--from-table", action="append", default=[], metavar="MD",
                     help="also read the per-source rows of an earlier output of this script (repeatable)")
+    ap.add_argument("--table-models", metavar="M1,M2", help="take only these models' rows from the --from-table files")
     ap.add_argument("--label", default="", help="shown after 'neubrdf' in the rows (e.g. the recipe)")
     a = ap.parse_args()
     if not a.results and not a.from_table:
         ap.error("give fit-many results.json files and/or --from-table")
+    keep = set(a.table_models.split(",")) if a.table_models else None
+    earlier = [{name: {m: row for m, row in per.items() if keep is None or m in keep} for name, per in rows.items()}
+               for rows in map(load_table_rows, a.from_table)]
     table: dict[str, dict[str, dict]] = {}
-    for rows in [*map(load_table_rows, a.from_table), load_rows(a.results)]:  # later sources override earlier ones
+    for rows in [*earlier, load_rows(a.results)]:  # later sources override earlier ones
         for name, per in rows.items():
             table.setdefault(name, {}).update(per)
     models = sorted({m for per in table.values() for m in per}, key=lambda m: (m != MODEL, m))

@@ -50,6 +50,21 @@ def test_table_round_trip_and_override(tmp_path):
     assert "| steel | neubrdf | 0.00100 | **0.0020** |" in merged
 
 
+def test_table_models_keeps_only_the_listed_models_of_a_table(tmp_path):
+    first = _results(tmp_path / "a.json", [
+        _row("gold", "neubrdf", 0.0005, 0.9997), _row("gold", "nbrdf", 0.0014, 0.9992),
+        _row("steel", "neubrdf", 0.0035, 0.9866), _row("steel", "nbrdf", 0.0025, 0.9936)])
+    md = tmp_path / "table.md"
+    md.write_text(_summary(first)[1])
+    # another NeuBRDF recipe fitted to gold only: steel's NeuBRDF row of the table must not stand in for it
+    codebook = _results(tmp_path / "cb.json", [_row("gold", "neubrdf", 0.0030, 0.9900)])
+    rc, out, err = _summary(codebook, "--from-table", md, "--table-models", "nbrdf", "--label", "codebook")
+    assert rc == 0, err
+    assert "1 sources with all of neubrdf, nbrdf; incomplete: steel" in out
+    assert "| gold | neubrdf codebook | 0.00100 | 0.0030 |" in out
+    assert "neubrdf lower image MAE than nbrdf: 0 of 1 (not on gold)" in out
+
+
 BAD_ROW = ("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "
            "| fit s |\n|---|\n| gold | neubrdf | a | b | c | d | e | f | g | h | i |\n")
 

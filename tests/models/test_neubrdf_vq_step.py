@@ -7,9 +7,13 @@ gradient of softmax(rows) @ D (D held fixed) for the rows and of the hard lookup
 """
 from __future__ import annotations
 
+import copy
+
+import pytest
 import torch
 import torch.nn.functional as F
 
+from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.models.neubrdf import NeuBRDF
 from neumat.nn.codebook import VQFeatures
@@ -112,3 +116,48 @@ def test_quantize_from_dense_starts_at_the_nearest_codewords():
     q2 = Query(q2.wi.float(), q2.wo.float())
     _loss(model.eval(q2), y.float(), q2).backward()
     opt.step()
+
+
+def _two_group_model():
+    """A dense NeuBRDF (b 1) whose slot features are (+-1 by slot parity + noise 0.05, uniform in [-10, 10]): plain
+    k-means into 2 codewords splits the wide second channel, the groups are told apart by the first."""
+    torch.manual_seed(0)
+    model = NeuBRDF(nside=4, feature_dim=2, index_bits=1, hidden=8, features="dense")
+    n = model.grid.num_vertices
+    group = torch.arange(n) % 2
+    with torch.no_grad():
+        model.grid.features.copy_(torch.stack([group * 2.0 - 1 + 0.05 * torch.randn(n), torch.rand(n) * 20 - 10], -1))
+    return model, group
+
+
+def test_weighted_quantize_from_dense_clusters_by_the_weighted_channels():
+    model, group = _two_group_model()
+    used = model.used_slots()
+    plain = copy.deepcopy(model).quantize_from_dense()
+    idx = plain.grid.indices()[used]
+    assert 0.3 < float((idx == group[used]).float().mean()) < 0.7  # the plain split ignores the groups
+    weights = torch.zeros(model.grid.num_vertices, 2)
+    weights[:, 0] = 1.0  # only the first channel matters
+    weighted = copy.deepcopy(model).quantize_from_dense(weights=weights, iterations=50)
+    idx = weighted.grid.indices()[used]
+    assert torch.equal(idx, group[used]) or torch.equal(idx, 1 - group[used])
+    code = weighted.grid.codebook.detach()
+    feats = model.grid.features.detach()[used]
+    for c in (0, 1):  # each codeword is the weighted mean of its slots, channel by channel (Lloyd's fixed point)
+        members = feats[idx == c]
+        assert abs(float(code[c, 0]) - float(members[:, 0].mean())) < 1e-5
+        assert abs(abs(float(code[c, 0])) - 1.0) < 0.02
+        # the second channel carries 1e-6 of the mean weight: still the members' mean there
+        assert abs(float(code[c, 1]) - float(members[:, 1].mean())) < 1e-3
+
+
+@pytest.mark.parametrize("weights, why", [(torch.ones(5, 2), "expected a float tensor"),
+                                          ("ones", "expected a float tensor"),
+                                          (-1.0, "non-negative"), (float("nan"), "finite"), (0.0, "not all 0")])
+def test_quantize_from_dense_refuses_bad_weights(weights, why):
+    model, _ = _two_group_model()
+    if isinstance(weights, float):
+        weights = torch.full((model.grid.num_vertices, 2), weights)
+    with pytest.raises(InputError, match=why):
+        model.quantize_from_dense(weights=weights)
+    assert model.cfg.features == "dense"

@@ -368,7 +368,7 @@ class NeuBRDF(LearnedMaterial):
 
     @torch.no_grad()
     def quantize_from_dense(self, index_bits: int | None = None, iterations: int = 25, margin: float = 1.0,
-                            seed: int = 0, candidates: int = 0) -> "NeuBRDF":
+                            seed: int = 0, candidates: int = 0, weights: torch.Tensor | None = None) -> "NeuBRDF":
         """End of a dense warm-up: replace dense per-slot features by a VQ grid that starts at them.
 
         The codebook (2^b, k) is the k-means clustering (Lloyd, `iterations` rounds from a k-means++ start
@@ -377,7 +377,11 @@ class NeuBRDF(LearnedMaterial):
         nearest codeword), and `Config.features` becomes "vq" (`index_bits` defaults to `Config.index_bits`).
         `candidates` K in [1, 2^b]: each slot keeps the logits of its K nearest codewords only
         (`VQFeatures.restrict`: steps cost O(K) per slot instead of O(2^b)); 0 keeps all 2^b.
-        Returns self. Build the optimiser again afterwards (`optimizer`): the parameters changed."""
+        `weights` (2 n, k), >= 0: weighted k-means, the distance of slot s to codeword c being
+        sum_j weights[s, j] (x_sj - c_j)^2 and each codeword the weighted mean of its slots per channel (the
+        nearest codeword and the candidates by the same distance); e.g. how much the loss depends on each slot's
+        channels (`neumat.fit.feature_sensitivity`), so the codewords go where errors cost most. None: plain
+        k-means. Returns self. Build the optimiser again afterwards (`optimizer`): the parameters changed."""
         if not isinstance(self.grid, DenseFeatures):
             raise InputError("NeuBRDF.quantize_from_dense: expected a model with features='dense'")
         bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
@@ -387,30 +391,34 @@ class NeuBRDF(LearnedMaterial):
             raise InputError(f"NeuBRDF.quantize_from_dense candidates: expected 0 (all) or 1 .. {2 ** bits}, "
                              f"got {candidates!r}")
         feats = self.grid.features.detach()
-        data = feats[self.used_slots()]
+        if weights is not None:
+            weights = _kmeans_weights(weights, feats)
+        used = self.used_slots()
+        data, w = feats[used], (None if weights is None else weights[used])
         m = 2 ** bits
         gen = torch.Generator(device="cpu").manual_seed(seed)
         # k-means++ start: each next codeword drawn with probability proportional to the squared distance
         # to the nearest one so far (ties of identical features only cost empty clusters)
         start = [data[int(torch.randint(data.shape[0], (1,), generator=gen))]]
-        d2 = (data - start[0]).pow(2).sum(-1)
+        d2 = _row_sq_distance(data, w, start[0])
         for _ in range(m - 1):
-            w = d2.double().cpu()
-            i = int(torch.multinomial(w, 1, generator=gen)) if float(w.sum()) > 0 else \
+            p = d2.double().cpu()
+            i = int(torch.multinomial(p, 1, generator=gen)) if float(p.sum()) > 0 else \
                 int(torch.randint(data.shape[0], (1,), generator=gen))
             start.append(data[i])
-            d2 = torch.minimum(d2, (data - data[i]).pow(2).sum(-1))
+            d2 = torch.minimum(d2, _row_sq_distance(data, w, data[i]))
         start = torch.stack(start)
         code = start.clone()
+        mass = torch.ones_like(data) if w is None else w
         for _ in range(iterations):
-            near = torch.cdist(data, code).argmin(-1)
-            sums = torch.zeros_like(code).index_add_(0, near, data)
-            counts = torch.bincount(near, minlength=m).unsqueeze(-1).to(data.dtype)
-            code = torch.where(counts > 0, sums / counts.clamp(min=1), code)  # empty clusters keep their place
+            near = _distance_order(data, w, code).argmin(-1)
+            sums = torch.zeros_like(code).index_add_(0, near, mass * data)
+            total = torch.zeros_like(code).index_add_(0, near, mass)
+            code = torch.where(total > 0, sums / total.clamp(min=1e-30), code)  # empty clusters keep their place
         vq = VQFeatures(self.grid.num_vertices, self.grid.dim, bits).to(feats.device, feats.dtype)
         vq.codebook.copy_(code)
         logits = torch.randn(vq.logits.shape, generator=gen).to(vq.logits) * 0.01
-        distance = torch.cdist(feats, code)
+        distance = _distance_order(feats, weights, code)
         logits[torch.arange(logits.shape[0]), distance.argmin(-1)] += margin
         vq.logits.copy_(logits)
         if candidates:
@@ -594,6 +602,33 @@ class NeuBRDF(LearnedMaterial):
     def flops(self) -> int:
         """MLP floating-point operations per evaluation (feature lookups not counted)."""
         return self.mlp.flops()
+
+
+def _kmeans_weights(weights, feats: torch.Tensor) -> torch.Tensor:
+    """`quantize_from_dense` weights checked against the features (2 n, k) and made positive: + 1e-6 of their
+    mean, so that a slot no query reached (weight 0) still gets a nearest codeword by its features."""
+    if not isinstance(weights, torch.Tensor) or weights.shape != feats.shape or not weights.is_floating_point():
+        raise InputError(f"NeuBRDF.quantize_from_dense weights: expected a float tensor {tuple(feats.shape)} (one per "
+                         f"slot and channel), got {getattr(weights, 'shape', type(weights).__name__)}")
+    w = weights.detach().to(feats)
+    if not bool(torch.isfinite(w).all()) or bool((w < 0).any()) or float(w.sum()) <= 0:
+        raise InputError("NeuBRDF.quantize_from_dense weights: expected finite, non-negative weights, not all 0")
+    return w + 1e-6 * w.mean()
+
+
+def _row_sq_distance(x: torch.Tensor, w: torch.Tensor | None, c: torch.Tensor) -> torch.Tensor:
+    """(N,) squared distances of the rows of x (N, k) to one point c (k,): sum_j w_nj (x_nj - c_j)^2 (w = 1 when
+    None)."""
+    d = (x - c).pow(2)
+    return (d if w is None else w * d).sum(-1)
+
+
+def _distance_order(x: torch.Tensor, w: torch.Tensor | None, code: torch.Tensor) -> torch.Tensor:
+    """(N, M), increasing with the distance of each row of x (N, k) to each codeword (M, k): the Euclidean
+    distance when w is None, else the weighted squared distance sum_j w_nj (x_nj - c_mj)^2 (w (N, k))."""
+    if w is None:
+        return torch.cdist(x, code)
+    return (w * x * x).sum(-1, keepdim=True) - 2 * (w * x) @ code.t() + w @ (code * code).t()
 
 
 def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None:

@@ -66,12 +66,13 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ...core.errors import InputError
+from ..feature_sensitivity import feature_sensitivity
 from ..phase import FitContext, Phase, online_phase, query_draw
 from ..recipe import Recipe
 
 OPTIONS = {"coarse_fraction": 0.0, "coarse_nside": 0, "fine_lr_scale": 0.25, "dense_warmup": 0.0,
            "vq_candidates": 0, "direction_features": 0.0, "prune": False, "measured_azimuths": 64,
-           "runtime_fraction": 0.0, "runtime_samples": 32}
+           "runtime_fraction": 0.0, "runtime_samples": 32, "kmeans_weights": "uniform"}
 """dense_warmup: fraction of the steps trained with dense per-vertex features before they are k-means
 quantised into the codebook (`NeuBRDF.quantize_from_dense`) and the VQ model trains on; 0, the default, is
 the paper's end-to-end VQ training. Needs a model built with features="dense" (`config_for_source` picks it
@@ -107,6 +108,13 @@ use: on MERL-like chrome (dense N_side 64, 1500 steps, cosine_merl queries, log_
 prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
 measured directions that the fit replays, so that pixels holding no measurement read their nearest
 supervised ancestor's corners and the slots no pixel reads are not stored. Needs queries="replay".
+
+kmeans_weights: how the k-means at the end of a dense warm-up weighs the slots' feature channels: "uniform" (the
+default: plain k-means) or "sensitivity" (`neumat.fit.feature_sensitivity`: each slot's channels weighted by the
+squared gradients of the fit's loss over SENSITIVITY_BATCHES batches, so codewords go where quantisation errors cost
+the loss most). On MERL-like blue-metallic-paint2 (benchmarks/results/neubrdf_table3_codebook.md) it quantises a
+dense N_side 64 grid into 512 codewords as well as plain k-means does into 1024 (image MAE 0.0147 / 0.0148, 0.0212
+plain), but after the CPU recipe's VQ phase the two end equal (0.0301 / 0.0304), hence the default.
 
 runtime_fraction: the last fraction of the steps trains the model in its runtime form (1/4 corner weights,
 `Config.runtime_interpolation` "uniform"), against the source averaged over each query's pixel pair
@@ -156,6 +164,10 @@ DENSE_RECIPE = replace(CPU_RECIPE, loss="log_cos_eps", queries="cosine_merl",
                                 "runtime_fraction": 0.2})
 NAMED_RECIPES = {"dense": DENSE_RECIPE}
 
+#: batches of the sensitivity estimate of option kmeans_weights="sensitivity" (at N_side 64 and 2^13 queries per
+#: batch, each slot's corners are read about 100 times; about 10 s on one core)
+SENSITIVITY_BATCHES = 80
+
 
 def config_for_source(source, options: dict | None = None) -> dict:
     """Config defaults from the recipe options: dense features for a dense warm-up or a direction-coded start
@@ -195,6 +207,10 @@ def _training_phases(ctx: FitContext, steps: int) -> list[Phase]:
     frac = _warmup(options)
     coarse = _coarse(options, model, frac)
     candidates = _candidates(options, model)
+    weighting = _kmeans_weighting(options)
+    if weighting != "uniform" and frac == 0:
+        raise InputError(f"neubrdf recipe option kmeans_weights={weighting!r}: needs dense_warmup > 0 (it weighs the "
+                         "k-means that ends the warm-up)")
     if candidates and frac == 0:
         raise InputError("neubrdf recipe option vq_candidates: needs dense_warmup > 0 (the candidates are "
                          "each slot's nearest codewords after the warm-up's k-means)")
@@ -228,7 +244,9 @@ def _training_phases(ctx: FitContext, steps: int) -> list[Phase]:
             quantize()
 
     def quantize():
-        model.quantize_from_dense(candidates=candidates)
+        weights = feature_sensitivity(ctx, SENSITIVITY_BATCHES, ctx.recipe.seed + 2) if weighting == "sensitivity" \
+            else None
+        model.quantize_from_dense(candidates=candidates, weights=weights)
 
     built, later = [], replace(ctx, resuming=True)  # the first phase initialises the output scale once
     if coarse_steps:
@@ -290,6 +308,13 @@ def _runtime_steps(ctx: FitContext) -> int:
         raise InputError(f"neubrdf recipe option runtime_fraction={frac}: leaves none of the {steps} steps for "
                          "training before it")
     return runtime
+
+
+def _kmeans_weighting(options: dict) -> str:
+    value = options.get("kmeans_weights", OPTIONS["kmeans_weights"])
+    if value not in ("uniform", "sensitivity"):
+        raise InputError(f"neubrdf recipe option kmeans_weights: expected 'uniform' or 'sensitivity', got {value!r}")
+    return value
 
 
 def _runtime_samples(options: dict) -> int:
