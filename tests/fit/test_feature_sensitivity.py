@@ -54,6 +54,8 @@ def test_sensitivity_is_the_squared_loss_gradient_by_central_differences(loss):
     assert checked == 6 and float(sens.max()) > 0
     # more batches add up: two batches are at least the first one
     assert bool((feature_sensitivity(ctx, batches=2, seed=5) >= sens - 1e-18).all())
+    with torch.no_grad():  # as from a phase hook that runs without gradients: the same numbers
+        torch.testing.assert_close(feature_sensitivity(ctx, batches=1, seed=5), sens, rtol=0, atol=0)
 
 
 def test_sensitivity_needs_a_dense_grid_and_a_batch_count():

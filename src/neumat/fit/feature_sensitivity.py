@@ -31,11 +31,12 @@ def feature_sensitivity(ctx: FitContext, batches: int, seed: int) -> torch.Tenso
     loss_fn, draw = loss_module(ctx), query_draw(ctx)
     gen = torch.Generator(device=ctx.device).manual_seed(seed)
     total = torch.zeros_like(features, requires_grad=False)
-    for _ in range(batches):
-        q = draw(ctx.recipe.batch_size, gen, ctx.device)
-        target = online_targets(ctx, q)
-        pred = model.eval(q)
-        grad, = torch.autograd.grad(loss_fn(pred, target.to(pred.dtype), q), features, allow_unused=True)
-        if grad is not None:
-            total += grad.pow(2)
+    with torch.enable_grad():  # also when called from a hook that runs under no_grad
+        for _ in range(batches):
+            q = draw(ctx.recipe.batch_size, gen, ctx.device)
+            target = online_targets(ctx, q)
+            pred = model.eval(q)
+            grad, = torch.autograd.grad(loss_fn(pred, target.to(pred.dtype), q), features, allow_unused=True)
+            if grad is not None:
+                total += grad.pow(2)
     return total
