@@ -10,8 +10,8 @@ many sources NeuBRDF wins in image MAE against each other model, with the source
 `--from-table` reads the per-source rows of an earlier output of this script (for runs whose results.json is
 gone); its values carry the printed rounding (image MAE to 4 decimals), and a tie counts as a loss. Results files
 override table rows for the same source and model; `--table-models` takes only the listed models from the tables
-(e.g. the baselines, when NEW holds another NeuBRDF recipe fitted to some of the sources). Sources fitted by fewer than all the models seen are listed as
-incomplete and left out of the means.
+(e.g. the baselines, when NEW holds another NeuBRDF recipe fitted to some of the sources). Sources fitted by fewer
+than all the models seen are listed as incomplete and left out of the means.
 """
 from __future__ import annotations
 

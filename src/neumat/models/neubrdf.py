@@ -410,9 +410,10 @@ class NeuBRDF(LearnedMaterial):
         start = torch.stack(start)
         code = start.clone()
         mass = torch.ones_like(data) if w is None else w
+        moment = data if w is None else w * data  # each slot's share of its codeword's (weighted) sum
         for _ in range(iterations):
             near = _distance_order(data, w, code).argmin(-1)
-            sums = torch.zeros_like(code).index_add_(0, near, mass * data)
+            sums = torch.zeros_like(code).index_add_(0, near, moment)
             total = torch.zeros_like(code).index_add_(0, near, mass)
             code = torch.where(total > 0, sums / total.clamp(min=1e-30), code)  # empty clusters keep their place
         vq = VQFeatures(self.grid.num_vertices, self.grid.dim, bits).to(feats.device, feats.dtype)
