@@ -106,6 +106,7 @@ CONFIGS = {
     "lowbit": {**SMALL, "features": "lowbit", "lowbit_bits": 3},
     "silu-3-layers": {**SMALL, "activation": "silu", "hidden_layers": 3},
     "nside-1": {**SMALL, "nside": 1},
+    "direction-inputs": {**SMALL, "direction_inputs": "hd"},
 }
 
 
@@ -147,6 +148,20 @@ def test_neural_texture_matches_torch():
     assert shader.spatially_varying and "vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)" in shader.entry
     assert _parity(model, lod=True) < 1e-4
     assert _parity(model, lod=False) < 1e-4  # no lod: level 0, as eval
+
+
+@needs_gl
+@pytest.mark.parametrize("interpolation", ["uniform", "idw"])
+def test_direction_inputs_runtime_and_texture_match_torch(interpolation):
+    """direction_inputs="hd": the shader's half / difference vectors (`nm_hd`) and their place after the
+    texture channels, in the runtime form (its table plus the direction columns) and with a neural texture."""
+    model = _model({**SMALL, "direction_inputs": "hd", "runtime_interpolation": interpolation})
+    model.runtime()
+    assert _parity(model) < 1e-4
+    textured = _model({**SMALL, "direction_inputs": "hd", "texture_height": 8, "texture_width": 8,
+                       "texture_channels": 3})
+    assert "nm_hd(wi, wo, hd)" in export_glsl(textured).source
+    assert _parity(textured) < 1e-4
 
 
 @needs_gl

@@ -120,6 +120,8 @@ OTHER_FAMILIES = {
     "neubrdf": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16},
     "neubrdf (neural texture)": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16, "texture_height": 8,
                                  "texture_width": 8, "texture_channels": 4},
+    "neubrdf (direction inputs)": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16,
+                                   "direction_inputs": "hd"},
 }
 
 

@@ -96,6 +96,43 @@ def test_runtime_mode_is_exact_refactoring(gen, hidden_layers):
     assert bool((fast[::7] == 0).all())
 
 
+@pytest.mark.parametrize("form", ["uniform", "idw"])
+def test_direction_inputs_feed_h_and_d_to_the_mlp_in_both_forms(gen, tmp_path, form):
+    """direction_inputs="hd": the MLP's last 6 inputs are NBRDF's (h, d) of (wi, wo); the runtime form adds
+    their first-layer columns to its table rows (the same function at fp16, both corner weightings, more than
+    one chunk), the model file keeps it, and it costs 6 x hidden fp16 weights more than the paper's model."""
+    from neumat.catalog.modelfile import load_model, save_model
+    from neumat.models.nbrdf import NBRDF
+
+    m = NeuBRDF(nside=8, index_bits=6, hidden=32, direction_inputs="hd", runtime_interpolation=form)
+    wi, wo = _dirs(20000, gen), _dirs(20000, gen)
+    q = Query(wi, wo)
+    with torch.no_grad():
+        x = m.features(q)
+        assert x.shape == (20000, 2 * 16 + 6)
+        torch.testing.assert_close(x[:, -6:], NBRDF.encode(wi, wo))
+        for p in m.mlp.parameters():  # an MLP on which h and d matter
+            p.add_(0.3 * torch.randn(p.shape, generator=gen))
+        with_hd = m.eval(q)
+        columns = m.mlp.net[0].weight[:, -6:].clone()
+        m.mlp.net[0].weight[:, -6:] = 0
+        without = m.eval(q)
+        m.mlp.net[0].weight[:, -6:] = columns
+        assert float(((with_hd - without).abs() / without).median()) > 0.01  # the inputs change the function
+        m.freeze()
+        m.cfg.interpolation = form
+        for p in m.parameters():
+            p.copy_(p.half())
+        ref = m.eval(q)
+        fast = m.runtime().eval(q)
+    torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-6)
+    loaded = load_model(save_model(m, tmp_path / "hd.nmat"))
+    assert loaded.cfg.direction_inputs == "hd" and loaded.is_runtime
+    with torch.no_grad():
+        assert torch.equal(loaded.eval(q), fast)
+    assert m.size_bytes() - NeuBRDF(nside=8, index_bits=6, hidden=32).size_bytes() == 2 * 6 * 32
+
+
 @pytest.mark.parametrize("features", ["vq", "dense"])
 def test_inverse_distance_runtime_is_the_training_form_at_fp16(gen, tmp_path, features):
     """runtime_interpolation="idw": runtime() caches per-slot first-layer rows and sums the 8 weighted corner
@@ -239,6 +276,7 @@ def test_texture_model_needs_uv(gen):
     (dict(interpolation="nearest"), "interpolation"),
     (dict(texture_channels=4), "texture_height"),
     (dict(texture_channels=4, texture_height=2, texture_width=2, texture_levels=3), "texture_levels"),
+    (dict(direction_inputs="rusinkiewicz"), "direction_inputs"),
 ])
 def test_bad_config_raises(kwargs, match):
     with pytest.raises(InputError, match=match):

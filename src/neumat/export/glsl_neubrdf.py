@@ -5,7 +5,7 @@ mirrored wo on S- (`ang2pix`, analytic, as the paper's Sec. 3.2 asks: no per-pix
 vertices of that pixel or of its pruned ancestor, their grid slots, the slots' codebook indices and codebook
 rows, the corner weights (1/4 at runtime, inverse great-circle distance while training), the tiny MLP
 and exp; with the neural-texture plug-in, the texture's bilinear / trilinear lookup is appended to the MLP
-input. The grids stay as compact as the model stores them (a b-bit index per slot plus the 2^b x k
+input, and with `Config.direction_inputs` "hd" the half and difference vectors after it (`nm_hd`). The grids stay as compact as the model stores them (a b-bit index per slot plus the 2^b x k
 codebook); only pruned models add their per-pixel level table and only inverse-distance models the vertex
 directions. Entry points (directions in the local frame, z up; linear RGB BRDF without the cosine, 0 below
 the horizon):
@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError
-from ..models.neubrdf import NeuBRDF
+from ..models.neubrdf import DIRECTION_INPUTS, NeuBRDF
 from ..nn import healpix as hpx
 from ..nn.codebook import VQFeatures
 from .glsl_common import _COMMON, GLSL_GENERATORS, GLSLExport, mlp_chain, pyramid_reader
@@ -174,6 +174,22 @@ float {name}_at(int m) {{
 }}
 """
 
+_HD = """
+// Config.direction_inputs "hd": the Rusinkiewicz half vector h and difference vector d (wi in the frame whose
+// pole is h, x axis towards phi_h: neumat.core.coords.io_to_hd)
+void nm_hd(vec3 wi, vec3 wo, out float hd[6]) {
+    vec3 h = wi + wo;
+    h = h / max(length(h), 1e-12);
+    float st = length(h.xy), cp = 1.0, sp = 0.0;
+    if (st > 0.0) { cp = h.x / st; sp = h.y / st; }
+    float a = cp * wi.x + sp * wi.y;
+    hd[0] = h.x; hd[1] = h.y; hd[2] = h.z;
+    hd[3] = h.z * a - st * wi.z;
+    hd[4] = cp * wi.y - sp * wi.x;
+    hd[5] = st * a + h.z * wi.z;
+}
+"""
+
 
 @GLSL_GENERATORS.register("neubrdf")
 def export_neubrdf(model: NeuBRDF) -> GLSLExport:
@@ -238,10 +254,15 @@ void nm_lookup(vec3 w, bool south, out float psi[{k}]) {{
         parts.append(src)
         textures.update(tex)
     z_param = f", vec4 z[{-(-c // 4)}]" if textured else ""
-    in_dim = 2 * k + c
+    extra = DIRECTION_INPUTS[cfg.direction_inputs]
+    in_dim = 2 * k + c + extra
+    if extra:
+        parts.append(_HD)
     mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_act")
     parts.append("\n".join(mlp_consts))
     texture_input = f"    for (int i = 0; i < {c}; ++i) x[{2 * k} + i] = z[i / 4][i % 4];\n" if textured else ""
+    if extra:
+        texture_input += f"    float hd[6];\n    nm_hd(wi, wo, hd);\n    for (int i = 0; i < 6; ++i) x[{2 * k + c} + i] = hd[i];\n"
     parts.append(f"""
 vec3 nm_decode(vec3 wi, vec3 wo{z_param}) {{
     float pi_[{k}], po[{k}], x[{in_dim}];
@@ -278,6 +299,7 @@ vec3 neumat_eval(vec3 wi, vec3 wo) {
         entry = ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
     header = (f"// neumat GLSL export of a 'neubrdf' model (N_side {n}, k {k}, {cfg.features} features, "
               f"{'inverse-distance' if idw else 'uniform'} corner weights{', pruned' if pruned else ''}"
-              f"{', neural texture' if textured else ''}); see neumat.export.glsl_neubrdf.\n")
+              f"{', neural texture' if textured else ''}{', direction inputs h, d' if extra else ''}); "
+              "see neumat.export.glsl_neubrdf.\n")
     exact = tuple(name for name in ("nbrdf_index", "nbrdf_levels", "nbrdf_vertices") if name in textures)
     return GLSLExport(header + "\n".join(parts), textures, textured, entry, exact=exact)

@@ -17,6 +17,7 @@ from torch import nn
 
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import resolve_config
+from neumat.core.coords import io_to_hd
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
@@ -28,6 +29,9 @@ from neumat.nn.latent_texture import bilinear, trilinear
 from neumat.nn.mlp import MLP
 from neumat.nn.packing import pack_bits, unpack_bits
 from neumat.nn.row_adam import RowAdam
+
+#: values of `Config.direction_inputs` and the number of MLP inputs each adds
+DIRECTION_INPUTS = {"none": 0, "hd": 6}
 
 
 @dataclass
@@ -69,6 +73,13 @@ class Config:
     """c of the neural texture T; 0 disables the texture plug-in."""
     texture_levels: int = 1
     """Mip levels of T (level l is h / 2^l x w / 2^l, each learned); Query.lod blends them trilinearly."""
+    direction_inputs: str = "none"
+    """Extra MLP inputs besides the features: "none" (the paper: the MLP sees the interpolated features only)
+    or "hd", our extension: the Rusinkiewicz half and difference vectors (hx, hy, hz, dx, dy, dz) of (wi, wo),
+    NBRDF's 6 inputs (`neumat.core.coords.io_to_hd`), appended last; 6 x hidden more MLP weights (768 bytes
+    at fp16 for 2 x 64). Why: 2^b codewords cannot place a highlight finer than about a 2^b-slot grid
+    (benchmarks/results/neubrdf_table3_codebook.md), while the MLP, given h, can; the codebook then carries the
+    material's variation across directions (see `neumat.fit.recipes.neubrdf`)."""
 
 
 def _check_config(c: Config) -> None:
@@ -86,6 +97,9 @@ def _check_config(c: Config) -> None:
     for name in ("interpolation", "runtime_interpolation"):
         if getattr(c, name) not in ("idw", "uniform"):
             raise InputError(f"NeuBRDF.{name}: expected 'idw' or 'uniform', got {getattr(c, name)!r}")
+    if c.direction_inputs not in DIRECTION_INPUTS:
+        raise InputError(f"NeuBRDF.direction_inputs: expected one of {', '.join(map(repr, DIRECTION_INPUTS))}, "
+                         f"got {c.direction_inputs!r}")
     if c.texture_channels and (c.texture_height < 1 or c.texture_width < 1):
         raise InputError("NeuBRDF.texture_height/texture_width: expected >= 1 with texture_channels > 0")
     if c.texture_channels and min(c.texture_height, c.texture_width) >> (c.texture_levels - 1) < 1:
@@ -160,7 +174,7 @@ class NeuBRDF(LearnedMaterial):
             self.grid = LowBitFeatures(v, k, cfg.lowbit_bits)
         self.texture = (NeuralTexture(cfg.texture_height, cfg.texture_width, cfg.texture_channels,
                                       cfg.texture_levels) if self.spatially_varying else None)
-        self.mlp = MLP(2 * k + cfg.texture_channels, cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
+        self.mlp = MLP(2 * k + cfg.texture_channels + DIRECTION_INPUTS[cfg.direction_inputs], cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
         # hierarchy level of every ring pixel for each grid (0 = unpruned; see `prune`)
         self.register_buffer("level_i", torch.zeros(12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(12 * n * n, dtype=torch.int8))
@@ -251,7 +265,7 @@ class NeuBRDF(LearnedMaterial):
         return level
 
     def features(self, q: Query) -> torch.Tensor:
-        """MLP input (N, 2 k + c): [psi(wi; S+), psi(mirrored wo; S-)(, T(uv))]."""
+        """MLP input (N, 2 k + c (+ 6)): [psi(wi; S+), psi(mirrored wo; S-)(, T(uv))(, h, d)]."""
         wi = q.wi.to(self.vertex_dirs.dtype)
         wo = q.wo.to(self.vertex_dirs.dtype)
         parts = self._lookup_both(((wi, False), (wo, True)))
@@ -259,6 +273,8 @@ class NeuBRDF(LearnedMaterial):
             q.require("uv", who="NeuBRDF with a neural texture")
             lod = None if q.lod is None else q.lod.to(wi.dtype)
             parts.append(self.texture(q.uv.to(wi.dtype), lod))
+        if self.cfg.direction_inputs == "hd":
+            parts.append(direction_inputs(wi, wo))
         return torch.cat(parts, -1)
 
     def eval(self, q: Query) -> torch.Tensor:
@@ -276,7 +292,8 @@ class NeuBRDF(LearnedMaterial):
         lookup for wi and wo together, then the first layer as the sum of two table rows (the pre-activations
         of the wi pixel and of the wo pixel). Inverse-distance weights: the 4 corner slots of each pixel and
         their weights, then the first layer as the weighted sum of those 8 slots' rows plus the bias. Then the
-        rest of the MLP. Directions below the horizon give finite values that the caller masks."""
+        rest of the MLP; with `Config.direction_inputs`, their first-layer columns times the inputs are added
+        before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
         rest = self.mlp.net[1:]
         out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
@@ -294,6 +311,10 @@ class NeuBRDF(LearnedMaterial):
                 pix = hpx.vec2pix_xyz(n, x, y, z)
                 rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
                 h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
+            if self.cfg.direction_inputs != "none":  # their first-layer columns, the last ones
+                extra = DIRECTION_INPUTS[self.cfg.direction_inputs]
+                h.addmm_(direction_inputs(wi[s:s + c], wo[s:s + c]).to(h.dtype),
+                         self.mlp.net[0].weight[:, -extra:].t())
             torch.exp(rest(h), out=out[s:s + c])
         return out
 
@@ -603,6 +624,11 @@ class NeuBRDF(LearnedMaterial):
     def flops(self) -> int:
         """MLP floating-point operations per evaluation (feature lookups not counted)."""
         return self.mlp.flops()
+
+
+def direction_inputs(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """The "hd" direction inputs (N, 6) of `Config.direction_inputs`: Rusinkiewicz h and d of wi, wo (N, 3)."""
+    return torch.cat(io_to_hd(wi, wo), -1)
 
 
 def _kmeans_weights(weights, feats: torch.Tensor) -> torch.Tensor:
