@@ -221,6 +221,30 @@ def test_fit_without_steps_on_a_cpu_announces_the_cpu_recipe(app, teacher, tmp_p
     assert read_header(tmp_path / "c.nmat")["recipe"]["lr_decay_every"] == module.CPU_RECIPE.lr_decay_every
 
 
+def test_cpu_recipe_with_direction_inputs_fits_quantises_and_exports(app, tmp_path, monkeypatch):
+    """--set direction_inputs=hd through the CPU recipe's phases (coarse, dense, k-means, VQ; steps shortened):
+    the file is the codebook model with the 6 inputs, it evaluates as written, and its GLSL export carries them."""
+    from dataclasses import replace
+
+    import neumat.fit.recipes.neubrdf as module
+    from neumat.export.glsl import export_glsl
+
+    monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=20))
+    out = tmp_path / "hd.nmat"
+    res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", "--recipe", "cpu", "--set", "nside=4",
+                                   "--set", "index_bits=3", "--set", "hidden=8", "--set", "batch_size=256",
+                                   "--set", "direction_inputs=hd", "--device", "cpu", "--quiet", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    h = read_header(out)
+    assert h["config"]["direction_inputs"] == "hd" and h["config"]["features"] == "vq" and h["runtime"]
+    model = load_model(out)
+    assert model.mlp.net[0].weight.shape[1] == 2 * 16 + 6
+    assert "nm_hd(wi, wo, hd)" in export_glsl(model).source
+    res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", "--steps", "2", "--set", "nside=2",
+                                   "--set", "direction_inputs=nbrdf", "--device", "cpu", "-o", str(out)])
+    assert res.exit_code == 2 and "direction_inputs" in output_text(res)
+
+
 def test_eval_and_compare_take_source_options(app, teacher, monkeypatch):
     """--source-option reaches the reader of the reference, as fit's does (an analytic spec takes none: the
     error says so); compare passes them to its first material only."""

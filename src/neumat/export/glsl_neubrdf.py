@@ -5,9 +5,10 @@ mirrored wo on S- (`ang2pix`, analytic, as the paper's Sec. 3.2 asks: no per-pix
 vertices of that pixel or of its pruned ancestor, their grid slots, the slots' codebook indices and codebook
 rows, the corner weights (1/4 at runtime, inverse great-circle distance while training), the tiny MLP
 and exp; with the neural-texture plug-in, the texture's bilinear / trilinear lookup is appended to the MLP
-input, and with `Config.direction_inputs` "hd" the half and difference vectors after it (`nm_hd`). The grids stay as compact as the model stores them (a b-bit index per slot plus the 2^b x k
-codebook); only pruned models add their per-pixel level table and only inverse-distance models the vertex
-directions. Entry points (directions in the local frame, z up; linear RGB BRDF without the cosine, 0 below
+input, and with `Config.direction_inputs` "hd" the half and difference vectors after it (`nm_hd`). The
+grids stay as compact as the model stores them (a b-bit index per slot plus the 2^b x k codebook); only
+pruned models add their per-pixel level table and only inverse-distance models the vertex directions. Entry
+points (directions in the local frame, z up; linear RGB BRDF without the cosine, 0 below
 the horizon):
 
     vec3 neumat_eval(vec3 wi, vec3 wo)                              // homogeneous
@@ -260,16 +261,17 @@ void nm_lookup(vec3 w, bool south, out float psi[{k}]) {{
         parts.append(_HD)
     mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_act")
     parts.append("\n".join(mlp_consts))
-    texture_input = f"    for (int i = 0; i < {c}; ++i) x[{2 * k} + i] = z[i / 4][i % 4];\n" if textured else ""
+    more_inputs = f"    for (int i = 0; i < {c}; ++i) x[{2 * k} + i] = z[i / 4][i % 4];\n" if textured else ""
     if extra:
-        texture_input += f"    float hd[6];\n    nm_hd(wi, wo, hd);\n    for (int i = 0; i < 6; ++i) x[{2 * k + c} + i] = hd[i];\n"
+        more_inputs += (f"    float hd[6];\n    nm_hd(wi, wo, hd);\n"
+                        f"    for (int i = 0; i < 6; ++i) x[{2 * k + c} + i] = hd[i];\n")
     parts.append(f"""
 vec3 nm_decode(vec3 wi, vec3 wo{z_param}) {{
     float pi_[{k}], po[{k}], x[{in_dim}];
     nm_lookup(wi, false, pi_);
     nm_lookup(wo, true, po);
     for (int i = 0; i < {k}; ++i) {{ x[i] = pi_[i]; x[{k} + i] = po[i]; }}
-{texture_input}{mlp_body}    return exp(vec3({out}[0], {out}[1], {out}[2]));
+{more_inputs}{mlp_body}    return exp(vec3({out}[0], {out}[1], {out}[2]));
 }}
 """)
     if textured:

@@ -174,7 +174,8 @@ class NeuBRDF(LearnedMaterial):
             self.grid = LowBitFeatures(v, k, cfg.lowbit_bits)
         self.texture = (NeuralTexture(cfg.texture_height, cfg.texture_width, cfg.texture_channels,
                                       cfg.texture_levels) if self.spatially_varying else None)
-        self.mlp = MLP(2 * k + cfg.texture_channels + DIRECTION_INPUTS[cfg.direction_inputs], cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
+        self.mlp = MLP(2 * k + cfg.texture_channels + DIRECTION_INPUTS[cfg.direction_inputs], cfg.hidden,
+                       cfg.hidden_layers, 3, cfg.activation)
         # hierarchy level of every ring pixel for each grid (0 = unpruned; see `prune`)
         self.register_buffer("level_i", torch.zeros(12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(12 * n * n, dtype=torch.int8))
