@@ -17,11 +17,11 @@ from torch import nn
 
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import resolve_config
-from neumat.core.coords import io_to_hd
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
+from neumat.models.nbrdf import NBRDF
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
@@ -76,7 +76,7 @@ class Config:
     direction_inputs: str = "none"
     """Extra MLP inputs besides the features: "none" (the paper: the MLP sees the interpolated features only)
     or "hd", our extension: the Rusinkiewicz half and difference vectors (hx, hy, hz, dx, dy, dz) of (wi, wo),
-    NBRDF's 6 inputs (`neumat.core.coords.io_to_hd`), appended last; 6 x hidden more MLP weights (768 bytes
+    NBRDF's 6 inputs (`NBRDF.encode`), appended last; 6 x hidden more MLP weights (768 bytes
     at fp16 for 2 x 64). Why: 2^b codewords cannot place a highlight finer than about a 2^b-slot grid
     (benchmarks/results/neubrdf_table3_codebook.md), while the MLP, given h, can; the codebook then carries the
     material's variation across directions (see `neumat.fit.recipes.neubrdf`)."""
@@ -275,7 +275,7 @@ class NeuBRDF(LearnedMaterial):
             lod = None if q.lod is None else q.lod.to(wi.dtype)
             parts.append(self.texture(q.uv.to(wi.dtype), lod))
         if self.cfg.direction_inputs == "hd":
-            parts.append(direction_inputs(wi, wo))
+            parts.append(NBRDF.encode(wi, wo))
         return torch.cat(parts, -1)
 
     def eval(self, q: Query) -> torch.Tensor:
@@ -297,6 +297,8 @@ class NeuBRDF(LearnedMaterial):
         before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
         rest = self.mlp.net[1:]
+        # the direction inputs' first-layer columns (the last ones), (6, hidden)
+        hd_weight = self.mlp.net[0].weight[:, -6:].t() if self.cfg.direction_inputs == "hd" else None
         out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
         for s in range(0, m, chunk):
             c = min(chunk, m - s)
@@ -312,10 +314,8 @@ class NeuBRDF(LearnedMaterial):
                 pix = hpx.vec2pix_xyz(n, x, y, z)
                 rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
                 h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
-            if self.cfg.direction_inputs != "none":  # their first-layer columns, the last ones
-                extra = DIRECTION_INPUTS[self.cfg.direction_inputs]
-                h.addmm_(direction_inputs(wi[s:s + c], wo[s:s + c]).to(h.dtype),
-                         self.mlp.net[0].weight[:, -extra:].t())
+            if hd_weight is not None:
+                h.addmm_(NBRDF.encode(wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
             torch.exp(rest(h), out=out[s:s + c])
         return out
 
@@ -433,15 +433,16 @@ class NeuBRDF(LearnedMaterial):
         code = start.clone()
         mass = torch.ones_like(data) if w is None else w
         moment = data if w is None else w * data  # each slot's share of its codeword's (weighted) sum
+        order = _distance_order(data, w)
         for _ in range(iterations):
-            near = _distance_order(data, w, code).argmin(-1)
+            near = order(code).argmin(-1)
             sums = torch.zeros_like(code).index_add_(0, near, moment)
             total = torch.zeros_like(code).index_add_(0, near, mass)
             code = torch.where(total > 0, sums / total.clamp(min=1e-30), code)  # empty clusters keep their place
         vq = VQFeatures(self.grid.num_vertices, self.grid.dim, bits).to(feats.device, feats.dtype)
         vq.codebook.copy_(code)
         logits = torch.randn(vq.logits.shape, generator=gen).to(vq.logits) * 0.01
-        distance = _distance_order(feats, weights, code)
+        distance = _distance_order(feats, weights)(code)
         logits[torch.arange(logits.shape[0]), distance.argmin(-1)] += margin
         vq.logits.copy_(logits)
         if candidates:
@@ -627,11 +628,6 @@ class NeuBRDF(LearnedMaterial):
         return self.mlp.flops()
 
 
-def direction_inputs(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-    """The "hd" direction inputs (N, 6) of `Config.direction_inputs`: Rusinkiewicz h and d of wi, wo (N, 3)."""
-    return torch.cat(io_to_hd(wi, wo), -1)
-
-
 def _kmeans_weights(weights, feats: torch.Tensor) -> torch.Tensor:
     """`quantize_from_dense` weights checked against the features (2 n, k) and made positive: + 1e-6 of their
     mean, so that a slot no query reached (weight 0) still gets a nearest codeword by its features."""
@@ -651,12 +647,15 @@ def _row_sq_distance(x: torch.Tensor, w: torch.Tensor | None, c: torch.Tensor) -
     return (d if w is None else w * d).sum(-1)
 
 
-def _distance_order(x: torch.Tensor, w: torch.Tensor | None, code: torch.Tensor) -> torch.Tensor:
-    """(N, M), increasing with the distance of each row of x (N, k) to each codeword (M, k): the Euclidean
-    distance when w is None, else the weighted squared distance sum_j w_nj (x_nj - c_mj)^2 (w (N, k))."""
+def _distance_order(x: torch.Tensor, w: torch.Tensor | None):
+    """A function of codewords code (M, k) giving (N, M), increasing with the distance of each row of x (N, k) to
+    each codeword: the Euclidean distance when w is None, else the weighted squared distance
+    sum_j w_nj (x_nj - c_mj)^2 (w (N, k)), whose terms in x alone are computed here, once for all calls."""
     if w is None:
-        return torch.cdist(x, code)
-    return (w * x * x).sum(-1, keepdim=True) - 2 * (w * x) @ code.t() + w @ (code * code).t()
+        return lambda code: torch.cdist(x, code)
+    wx = w * x
+    wxx = (wx * x).sum(-1, keepdim=True)
+    return lambda code: wxx - 2 * wx @ code.t() + w @ (code * code).t()
 
 
 def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None:
