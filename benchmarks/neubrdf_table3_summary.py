@@ -8,7 +8,8 @@ many sources NeuBRDF wins in image MAE against each other model, with the source
         --table-models nbrdf,ggx --label codebook
 
 `--from-table` reads the per-source rows of an earlier output of this script (for runs whose results.json is
-gone); its values carry the printed rounding (image MAE to 4 decimals), and a tie counts as a loss. Results files
+gone); its values carry the printed rounding (image MAE to 4 decimals), so a comparison with a table row is made at
+that rounding, and one equal there is listed as undecided (neither a win nor a loss). Results files
 override table rows for the same source and model; `--table-models` takes only the listed models from the tables
 (e.g. the baselines, when NEW holds another NeuBRDF recipe fitted to some of the sources). Sources fitted by fewer
 than all the models seen are listed as incomplete and left out of the means.
@@ -58,7 +59,8 @@ def load_table_rows(path: str) -> dict[str, dict[str, dict]]:
         except ValueError:
             raise SystemExit(f"{path}: cannot read the row {line!r}") from None
         table.setdefault(cells[0], {})[cells[1].split()[0]] = {
-            "metrics": dict(zip(TABLE_COLUMNS, values[:7])), "bytes_fp16": int(values[7]), "fit_seconds": values[8]}
+            "metrics": dict(zip(TABLE_COLUMNS, values[:7])), "bytes_fp16": int(values[7]), "fit_seconds": values[8],
+            "rounded": True}
     if not table:
         raise SystemExit(f"{path}: the per-source table has no rows")
     return table
@@ -107,10 +109,23 @@ def main() -> None:
         return
     print()
     for other in (m for m in models if m != MODEL):
-        lost = [name for name, per in complete.items()
-                if per[MODEL]["metrics"]["img_mae"] >= per[other]["metrics"]["img_mae"]]
-        print(f"{MODEL} lower image MAE than {other}: {n - len(lost)} of {n}"
-              + (f" (not on {', '.join(lost)})" if lost else ""))
+        verdicts = {name: compare_mae(per[MODEL], per[other]) for name, per in complete.items()}
+        lost = [name for name, v in verdicts.items() if v == "loss"]
+        undecided = [name for name, v in verdicts.items() if v == "undecided"]
+        print(f"{MODEL} lower image MAE than {other}: {n - len(lost) - len(undecided)} of {n}"
+              + (f" (not on {', '.join(lost)})" if lost else "")
+              + (f"; equal at the table's 4-decimal rounding, undecided: {', '.join(undecided)}" if undecided else ""))
+
+
+def compare_mae(ours: dict, other: dict) -> str:
+    """'win' / 'loss' in image MAE; 'undecided' when either row comes from a table (`--from-table`) and the two
+    are equal at its printed rounding (4 decimals)."""
+    a, b = ours["metrics"]["img_mae"], other["metrics"]["img_mae"]
+    if ours.get("rounded") or other.get("rounded"):
+        a, b = round(a, 4), round(b, 4)
+        if a == b:
+            return "undecided"
+    return "win" if a < b else "loss"
 
 
 if __name__ == "__main__":

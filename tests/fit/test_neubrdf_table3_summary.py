@@ -65,6 +65,22 @@ def test_table_models_keeps_only_the_listed_models_of_a_table(tmp_path):
     assert "neubrdf lower image MAE than nbrdf: 0 of 1 (not on gold)" in out
 
 
+def test_a_table_row_is_compared_at_its_printed_rounding(tmp_path):
+    baseline = _results(tmp_path / "a.json", [
+        _row("gold", "neubrdf", 0.0005, 0.9997), _row("gold", "nbrdf", 0.00118, 0.9992),
+        _row("steel", "neubrdf", 0.0035, 0.9866), _row("steel", "nbrdf", 0.00118, 0.9936),
+        _row("plastic", "neubrdf", 0.0035, 0.9866), _row("plastic", "nbrdf", 0.00118, 0.9936)])
+    md = tmp_path / "table.md"
+    md.write_text(_summary(baseline)[1])  # nbrdf's 0.00118 is printed as 0.0012
+    new = _results(tmp_path / "b.json", [_row("gold", "neubrdf", 0.00124, 0.999), _row("steel", "neubrdf", 0.00104, 0.99),
+                                         _row("plastic", "neubrdf", 0.00126, 0.99)])
+    rc, out, err = _summary(new, "--from-table", md, "--table-models", "nbrdf")
+    assert rc == 0, err
+    # 0.00124 against a printed 0.0012 may be a win or a loss; 0.00104 wins and 0.00126 loses at any rounding
+    assert ("neubrdf lower image MAE than nbrdf: 1 of 3 (not on plastic); equal at the table's 4-decimal rounding, "
+            "undecided: gold") in out
+
+
 BAD_ROW = ("| source | model | log_err | image MAE | image RMSE | SSIM | FLIP | floor MAE | floor SSIM | bytes (fp16) "
            "| fit s |\n|---|\n| gold | neubrdf | a | b | c | d | e | f | g | h | i |\n")
 
