@@ -107,6 +107,7 @@ CONFIGS = {
     "silu-3-layers": {**SMALL, "activation": "silu", "hidden_layers": 3},
     "nside-1": {**SMALL, "nside": 1},
     "direction-inputs": {**SMALL, "direction_inputs": "hd"},
+    "direction-inputs-warped": {**SMALL, "direction_inputs": "hd_warp"},
 }
 
 
@@ -151,14 +152,17 @@ def test_neural_texture_matches_torch():
 
 
 @needs_gl
+@pytest.mark.parametrize("kind", ["hd", "hd_warp"])
 @pytest.mark.parametrize("interpolation", ["uniform", "idw"])
-def test_direction_inputs_runtime_and_texture_match_torch(interpolation):
-    """direction_inputs="hd": the shader's half / difference vectors (`nm_hd`) and their place after the
-    texture channels, in the runtime form (its table plus the direction columns) and with a neural texture."""
-    model = _model({**SMALL, "direction_inputs": "hd", "runtime_interpolation": interpolation})
+def test_direction_inputs_runtime_and_texture_match_torch(interpolation, kind):
+    """direction_inputs "hd" / "hd_warp": the shader's half / difference vectors (`nm_hd`, warped under
+    NM_HD_WARP) and their place after the texture channels, in the runtime form (its table plus the direction
+    columns) and with a neural texture."""
+    model = _model({**SMALL, "direction_inputs": kind, "runtime_interpolation": interpolation})
     model.runtime()
+    assert ("#define NM_HD_WARP" in export_glsl(model).source) == (kind == "hd_warp")
     assert _parity(model) < 1e-4
-    textured = _model({**SMALL, "direction_inputs": "hd", "texture_height": 8, "texture_width": 8,
+    textured = _model({**SMALL, "direction_inputs": kind, "texture_height": 8, "texture_width": 8,
                        "texture_channels": 3})
     assert "nm_hd(wi, wo, hd)" in export_glsl(textured).source
     assert _parity(textured) < 1e-4

@@ -122,6 +122,8 @@ OTHER_FAMILIES = {
                                  "texture_width": 8, "texture_channels": 4},
     "neubrdf (direction inputs)": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16,
                                    "direction_inputs": "hd"},
+    "neubrdf (warped direction inputs)": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16,
+                                          "direction_inputs": "hd_warp"},
 }
 
 

@@ -95,7 +95,7 @@ SCENES = {
     "neubrdf-sphere-light-low": (lambda: _perturbed(NeuBRDF(nside=8, feature_dim=8, index_bits=5, hidden=16), 0.3),
                                  View(elevation=0.3, azimuth=2.5, exposure=1.0)),
     "neubrdf-direction-inputs": (lambda: _perturbed(NeuBRDF(nside=8, feature_dim=8, index_bits=5, hidden=16,
-                                                            direction_inputs="hd"), 0.3),
+                                                            direction_inputs="hd_warp"), 0.3),
                                  View(elevation=0.6, azimuth=1.0, exposure=1.0)),
     "neubrdf-texture-plane": (lambda: _perturbed(NeuBRDF(nside=8, feature_dim=8, index_bits=5, hidden=16,
                                                          texture_height=8, texture_width=8, texture_channels=4), 0.3),

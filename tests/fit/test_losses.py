@@ -8,7 +8,7 @@ import torch
 
 from neumat.core.errors import UnknownNameError
 from neumat.core.query import Query
-from neumat.fit.losses import LOSSES
+from neumat.fit.losses import LOSSES, LogCosEpsLinearLoss
 
 S = math.sqrt(0.5)
 WI = torch.tensor([[0.0, 0.0, 1.0], [S, 0.0, S], [1.0, 0.0, 0.0]], dtype=torch.float64)
@@ -43,6 +43,24 @@ def test_log_cos_eps_closed_form():
         sum(abs(L(e + p) - L(e)) for p in (1, 2, 3)) / 3, rel=1e-12)
 
 
+def test_log_cos_eps_linear_closed_form_and_gradient():
+    """log_cos_eps + w mean_c [ mean_n |p c - t c| / mean_n(t c) ], the normaliser a constant (stop gradient)."""
+    c = torch.tensor([1.0, S, 0.0], dtype=torch.float64).unsqueeze(-1)
+    t = TARGET * c
+    linear = ((PRED * c - t).abs().mean(0) / t.mean(0)).mean()
+    assert LOSSES.get("log_cos_eps_linear")().weight == 0.5
+    for w in (0.5, 2.0):
+        loss = LogCosEpsLinearLoss(w)
+        pred = PRED.clone().requires_grad_(True)
+        value = loss(pred, TARGET, Q)
+        assert value.item() == pytest.approx(LOSSES.get("log_cos_eps")()(PRED, TARGET, Q).item() + w * linear.item(),
+                                             rel=1e-12)
+        value.backward()
+        log_grad = torch.sign(torch.log(0.01 + PRED * c) - torch.log(0.01 + t)) * c / (0.01 + PRED * c) / 9
+        lin_grad = w * torch.sign(PRED * c - t) * c / t.mean(0) / 9
+        torch.testing.assert_close(pred.grad, log_grad + lin_grad, rtol=1e-12, atol=1e-15)
+
+
 def test_l1_l2_closed_forms():
     d = [[1, 0, 2], [0, 1, 4], [6, 0, 1]]
     assert LOSSES.get("l1")()(PRED, TARGET, Q).item() == pytest.approx(_mean(d), rel=1e-12)
@@ -62,7 +80,7 @@ def test_relative_value_and_gradient():
 
 
 def test_losses_are_zero_at_the_target_and_unknown_names_raise():
-    for name in ("log_cos", "log_cos_eps", "l1", "l2", "relative"):
+    for name in ("log_cos", "log_cos_eps", "log_cos_eps_linear", "l1", "l2", "relative"):
         assert LOSSES.get(name)()(TARGET, TARGET, Q).item() == 0.0
     with pytest.raises(UnknownNameError, match="log_cos"):
         LOSSES.get("logcos")

@@ -96,21 +96,57 @@ def test_runtime_mode_is_exact_refactoring(gen, hidden_layers):
     assert bool((fast[::7] == 0).all())
 
 
-@pytest.mark.parametrize("form", ["uniform", "idw"])
-def test_direction_inputs_feed_h_and_d_to_the_mlp_in_both_forms(gen, tmp_path, form):
-    """direction_inputs="hd": the MLP's last 6 inputs are NBRDF's (h, d) of (wi, wo); the runtime form adds
-    their first-layer columns to its table rows (the same function at fp16, both corner weightings, more than
-    one chunk), the model file keeps it, and it costs 6 x hidden fp16 weights more than the paper's model."""
+def _warped_hd(wi, wo):
+    """(hx, hy) scaled from length sin theta_h to sqrt(theta_h / (pi / 2)), in float64 from the Rusinkiewicz
+    angles (`neumat.core.coords.io_to_rusinkiewicz`); hz and d as NBRDF's."""
+    from neumat.core.coords import io_to_rusinkiewicz
+    from neumat.models.nbrdf import NBRDF
+
+    theta_h, phi_h, _, _ = io_to_rusinkiewicz(wi.double(), wo.double())
+    r = (theta_h / (math.pi / 2)).sqrt()
+    hd = NBRDF.encode(wi.double(), wo.double())
+    return torch.cat([torch.stack([r * phi_h.cos(), r * phi_h.sin()], -1), hd[:, 2:]], -1)
+
+
+def test_warped_direction_inputs_closed_form(gen):
+    """direction_inputs="hd_warp": NBRDF's (h, d) with (hx, hy) of length sqrt(theta_h / (pi / 2)) along phi_h
+    (float64 from the Rusinkiewicz angles), 0 at the mirror configuration, equal to "hd" at theta_h = 90 deg."""
+    from neumat.models.neubrdf import direction_inputs
+
+    wi, wo = _dirs(5000, gen), _dirs(5000, gen)
+    torch.testing.assert_close(direction_inputs("hd_warp", wi, wo).double(), _warped_hd(wi, wo), rtol=1e-5,
+                               atol=1e-6)
+    a = math.radians(30)
+    w = torch.tensor([[math.sin(a), 0.0, math.cos(a)]])
+    mirror = direction_inputs("hd_warp", w, w * torch.tensor([-1.0, -1.0, 1.0]))
+    assert torch.equal(mirror[:, :2], torch.zeros(1, 2)) and mirror[0, 2] == pytest.approx(1.0)
+    one_degree = math.radians(1)
+    wi = torch.tensor([[math.sin(a + 2 * one_degree), 0.0, math.cos(a + 2 * one_degree)]])
+    wo = torch.tensor([[-math.sin(a), 0.0, math.cos(a)]])  # theta_h = 1 degree
+    assert float(direction_inputs("hd_warp", wi, wo)[0, :2].norm()) == pytest.approx(math.sqrt(1 / 90), rel=1e-4)
+    assert float(direction_inputs("hd", wi, wo)[0, :2].norm()) == pytest.approx(math.sin(one_degree), rel=1e-4)
+
+
+@pytest.mark.parametrize("kind, form", [("hd", "uniform"), ("hd", "idw"), ("hd_warp", "uniform"),
+                                        ("hd_warp", "idw")])
+def test_direction_inputs_feed_h_and_d_to_the_mlp_in_both_forms(gen, tmp_path, kind, form):
+    """direction_inputs "hd" / "hd_warp": the MLP's last 6 inputs are NBRDF's (h, d) of (wi, wo) (warped); the
+    runtime form adds their first-layer columns to its table rows (the same function at fp16, both corner
+    weightings, more than one chunk), the model file keeps it, and it costs 6 x hidden fp16 weights more than the
+    paper's model."""
     from neumat.catalog.modelfile import load_model, save_model
     from neumat.models.nbrdf import NBRDF
 
-    m = NeuBRDF(nside=8, index_bits=6, hidden=32, direction_inputs="hd", runtime_interpolation=form)
+    m = NeuBRDF(nside=8, index_bits=6, hidden=32, direction_inputs=kind, runtime_interpolation=form)
     wi, wo = _dirs(20000, gen), _dirs(20000, gen)
     q = Query(wi, wo)
     with torch.no_grad():
         x = m.features(q)
         assert x.shape == (20000, 2 * 16 + 6)
-        torch.testing.assert_close(x[:, -6:], NBRDF.encode(wi, wo))
+        expected = NBRDF.encode(wi, wo)
+        if kind == "hd_warp":  # h from the float64 closed form, d NBRDF's as in "hd"
+            expected[:, :3] = _warped_hd(wi, wo)[:, :3].float()
+        torch.testing.assert_close(x[:, -6:], expected, rtol=1e-5, atol=1e-6)
         for p in m.mlp.parameters():  # an MLP on which h and d matter
             p.add_(0.3 * torch.randn(p.shape, generator=gen))
         with_hd = m.eval(q)
@@ -127,7 +163,7 @@ def test_direction_inputs_feed_h_and_d_to_the_mlp_in_both_forms(gen, tmp_path, f
         fast = m.runtime().eval(q)
     torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-6)
     loaded = load_model(save_model(m, tmp_path / "hd.nmat"))
-    assert loaded.cfg.direction_inputs == "hd" and loaded.is_runtime
+    assert loaded.cfg.direction_inputs == kind and loaded.is_runtime
     with torch.no_grad():
         assert torch.equal(loaded.eval(q), fast)
     assert m.size_bytes() - NeuBRDF(nside=8, index_bits=6, hidden=32).size_bytes() == 2 * 6 * 32

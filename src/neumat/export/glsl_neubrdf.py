@@ -5,7 +5,7 @@ mirrored wo on S- (`ang2pix`, analytic, as the paper's Sec. 3.2 asks: no per-pix
 vertices of that pixel or of its pruned ancestor, their grid slots, the slots' codebook indices and codebook
 rows, the corner weights (1/4 at runtime, inverse great-circle distance while training), the tiny MLP
 and exp; with the neural-texture plug-in, the texture's bilinear / trilinear lookup is appended to the MLP
-input, and with `Config.direction_inputs` "hd" the half and difference vectors after it (`nm_hd`). The
+input, and with `Config.direction_inputs` "hd" / "hd_warp" the half and difference vectors after it (`nm_hd`). The
 grids stay as compact as the model stores them (a b-bit index per slot plus the 2^b x k codebook); only
 pruned models add their per-pixel level table and only inverse-distance models the vertex directions. Entry
 points (directions in the local frame, z up; linear RGB BRDF without the cosine, 0 below
@@ -177,14 +177,20 @@ float {name}_at(int m) {{
 
 _HD = """
 // Config.direction_inputs "hd": the Rusinkiewicz half vector h and difference vector d (wi in the frame whose
-// pole is h, x axis towards phi_h: neumat.core.coords.io_to_hd)
+// pole is h, x axis towards phi_h: neumat.core.coords.io_to_hd); "hd_warp" (NM_HD_WARP defined): (h.x, h.y)
+// rescaled to length sqrt(theta_h / (pi / 2)) (neumat.models.neubrdf.direction_inputs)
 void nm_hd(vec3 wi, vec3 wo, out float hd[6]) {
     vec3 h = wi + wo;
     h = h / max(length(h), 1e-12);
     float st = length(h.xy), cp = 1.0, sp = 0.0;
     if (st > 0.0) { cp = h.x / st; sp = h.y / st; }
     float a = cp * wi.x + sp * wi.y;
+#ifdef NM_HD_WARP
+    float r = sqrt(atan(st, h.z) / 1.5707963267948966);
+    hd[0] = cp * r; hd[1] = sp * r; hd[2] = h.z;
+#else
     hd[0] = h.x; hd[1] = h.y; hd[2] = h.z;
+#endif
     hd[3] = h.z * a - st * wi.z;
     hd[4] = cp * wi.y - sp * wi.x;
     hd[5] = st * a + h.z * wi.z;
@@ -258,7 +264,7 @@ void nm_lookup(vec3 w, bool south, out float psi[{k}]) {{
     extra = DIRECTION_INPUTS[cfg.direction_inputs]
     in_dim = 2 * k + c + extra
     if extra:
-        parts.append(_HD)
+        parts.append(("#define NM_HD_WARP\n" if cfg.direction_inputs == "hd_warp" else "") + _HD)
     mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_act")
     parts.append("\n".join(mlp_consts))
     more_inputs = f"    for (int i = 0; i < {c}; ++i) x[{2 * k} + i] = z[i / 4][i % 4];\n" if textured else ""

@@ -15,6 +15,11 @@ Built-ins (means over the N queries and 3 channels):
               which values below ~0.01 (the tails of a sharp lobe, 0.007 - 0.04 sr^-1 on MERL chrome 8 - 16 deg
               off the mirror direction) carry almost no gradient (f_hat cos / (1 + f_hat cos)), and fits that also
               see the peak let them fall to 1e-10 (`benchmarks/results/neubrdf_direction_init.md`).
+  "log_cos_eps_linear": log_cos_eps + w |f_hat cos_i - f cos_i| / mean(f cos_i), w = 0.5, the linear term per
+              channel normalised by the batch's mean cosine-weighted target (stop gradient): in log space its
+              gradient on a query is proportional to f_hat cos_i, so it weighs queries by what they add to a
+              rendered pixel and holds the energy of a sharp lobe, which a log loss alone trades away against
+              the lobe's tails.
   "l1":       |f_hat - f|.
   "l2":       (f_hat - f)^2.
   "relative": (f_hat - f)^2 / (sg(f_hat)^2 + eps), eps = 0.01, the prediction-relative L2 of Noise2Noise
@@ -56,6 +61,22 @@ class LogCosEpsLoss(nn.Module):
     def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
         c = _cos_i(q, pred)
         return (torch.log(self.eps + pred * c) - torch.log(self.eps + target.clamp(min=0) * c)).abs().mean()
+
+
+@LOSSES.register("log_cos_eps_linear")
+class LogCosEpsLinearLoss(LogCosEpsLoss):
+    """log_cos_eps + weight * mean |f_hat cos_i - f cos_i| / mean(f cos_i) (per channel, over the batch)."""
+
+    def __init__(self, weight: float = 0.5) -> None:
+        super().__init__()
+        self.weight = weight
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        c = _cos_i(q, pred)
+        t = target.clamp(min=0) * c
+        scale = t.mean(0).clamp(min=1e-8)
+        linear = ((pred * c - t).abs().mean(0) / scale).mean()
+        return super().forward(pred, target, q) + self.weight * linear
 
 
 @LOSSES.register("l1")
