@@ -45,18 +45,26 @@ def test_sharing_cost_formula():
     assert SharedNeuBRDF(num_materials=3, **SMALL).material(2).size_bytes() == sharing_cost(small).shared_per_material
 
 
-def test_one_material_equals_neubrdf(gen):
+@pytest.mark.parametrize("inputs", ["none", "hd", "hd_warp"])
+def test_one_material_equals_neubrdf(gen, inputs):
+    """One material is NeuBRDF, with or without direction inputs (their bytes included)."""
     torch.manual_seed(0)
-    ref = NeuBRDF(**SMALL)
-    shared = SharedNeuBRDF(num_materials=1, **SMALL)
+    ref = NeuBRDF(**SMALL, direction_inputs=inputs)
+    shared = SharedNeuBRDF(num_materials=1, **SMALL, direction_inputs=inputs)
+    assert sharing_cost(shared.cfg).separate_per_material == shared.size_bytes() == ref.size_bytes()
     shared.grid.load_state_dict(ref.grid.state_dict())
     shared.mlp.load_state_dict(ref.mlp.state_dict())
     wi, wo = _queries(50, gen).wi[:20], _queries(50, gen).wo[:20]
     ref.prune(wi, wo)
     shared.prune(0, wi, wo)
     q = _queries(400, gen)
+    for p in ref.mlp.parameters():  # an MLP on which the direction inputs matter
+        p.data.add_(0.3 * torch.randn(p.shape, generator=gen))
+    shared.mlp.load_state_dict(ref.mlp.state_dict())
     torch.testing.assert_close(shared.eval(q), ref.eval(q), rtol=1e-6, atol=0)
     assert shared.flops() == ref.flops()
+    with pytest.raises(InputError, match="direction_inputs"):
+        SharedNeuBRDF(num_materials=1, **SMALL, direction_inputs="nbrdf")
 
 
 def test_views_material_queries_and_rebuild(gen):

@@ -25,7 +25,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
-from neumat.models.neubrdf import shipped_state, unpack_levels
+from neumat.models.neubrdf import DIRECTION_INPUTS, direction_inputs, shipped_state, unpack_levels
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import VQFeatures, float_bits, storage_bytes
@@ -52,6 +52,9 @@ class Config:
     """Hidden activation of the shared MLP (as NeuBRDF's; see `neumat.models.neubrdf.Config`)."""
     interpolation: str = "idw"
     """Corner weights: "idw" (inverse great-circle distance, training) or "uniform" (1/4, runtime)."""
+    direction_inputs: str = "none"
+    """Extra inputs of the shared MLP, as NeuBRDF's (`neumat.models.neubrdf.Config.direction_inputs`): "none"
+    (the paper), "hd" or "hd_warp" (6 inputs from the half and difference vectors, our extension)."""
 
 
 def _check_config(c: Config) -> None:
@@ -63,6 +66,9 @@ def _check_config(c: Config) -> None:
         raise InputError(f"SharedNeuBRDF.index_bits: expected 1 .. 16, got {c.index_bits}")
     if c.interpolation not in ("idw", "uniform"):
         raise InputError(f"SharedNeuBRDF.interpolation: expected 'idw' or 'uniform', got {c.interpolation!r}")
+    if c.direction_inputs not in DIRECTION_INPUTS:
+        raise InputError(f"SharedNeuBRDF.direction_inputs: expected one of "
+                         f"{', '.join(map(repr, DIRECTION_INPUTS))}, got {c.direction_inputs!r}")
     check_memory(hpx.grid_bytes(c.nside, c.num_materials, 4 * 2 ** c.index_bits),
                  f"SharedNeuBRDF nside={c.nside}, index_bits={c.index_bits}, {c.num_materials} materials")
 
@@ -114,7 +120,8 @@ class SharedNeuBRDF(LearnedMaterial):
         n, t, k = cfg.nside, cfg.num_materials, cfg.feature_dim
         self.slots_per_material = 2 * hpx.hemisphere_size(n)
         self.grid = VQFeatures(t * self.slots_per_material, k, cfg.index_bits)
-        self.mlp = MLP(2 * k, cfg.hidden, cfg.hidden_layers, 3, cfg.activation)
+        self.mlp = MLP(2 * k + DIRECTION_INPUTS[cfg.direction_inputs], cfg.hidden, cfg.hidden_layers, 3,
+                       cfg.activation)
         self.register_buffer("level_i", torch.zeros(t, 12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(t, 12 * n * n, dtype=torch.int8))
         self.register_load_state_dict_post_hook(lambda module, keys: module._check_levels())
@@ -182,8 +189,10 @@ class SharedNeuBRDF(LearnedMaterial):
         q.require("wo", who="SharedNeuBRDF.eval")
         ids = self._material_ids(q)
         wi, wo = q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype)
-        x = torch.cat([self._lookup(ids, wi, False), self._lookup(ids, wo, True)], -1)
-        f = torch.exp(self.mlp(x))
+        parts = [self._lookup(ids, wi, False), self._lookup(ids, wo, True)]
+        if self.cfg.direction_inputs != "none":
+            parts.append(direction_inputs(self.cfg.direction_inputs, wi, wo))
+        f = torch.exp(self.mlp(torch.cat(parts, -1)))
         f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
         return f.to(q.dtype)
 
@@ -305,11 +314,12 @@ class SharingCost:
 
 def sharing_cost(cfg: Config, precision: str = "fp16") -> SharingCost:
     """Bytes per material of `cfg.num_materials` materials with and without sharing (no model is built).
-    n = 6 nside^2 + 6 nside + 1 vertices per hemisphere grid; mlp = weights and biases of the 2k -> 3 MLP."""
+    n = 6 nside^2 + 6 nside + 1 vertices per hemisphere grid; mlp = weights and biases of the 2k (+ 6 direction
+    inputs) -> 3 MLP."""
     _check_config(cfg)
     p = float_bits(precision)
     slots = 2 * hpx.hemisphere_size(cfg.nside)
-    dims = [2 * cfg.feature_dim] + [cfg.hidden] * cfg.hidden_layers + [3]
+    dims = [2 * cfg.feature_dim + DIRECTION_INPUTS[cfg.direction_inputs]] + [cfg.hidden] * cfg.hidden_layers + [3]
     mlp = sum(a * b + b for a, b in zip(dims[:-1], dims[1:]))
     shared_bits = p * cfg.feature_dim * 2 ** cfg.index_bits + p * mlp
     t = cfg.num_materials
