@@ -18,8 +18,10 @@ Built-ins (means over the N queries and 3 channels):
   "log_cos_eps_linear": log_cos_eps + w |f_hat cos_i - f cos_i| / mean(f cos_i), w = 0.5, the linear term per
               channel normalised by the batch's mean cosine-weighted target (stop gradient): in log space its
               gradient on a query is proportional to f_hat cos_i, so it weighs queries by what they add to a
-              rendered pixel and holds the energy of a sharp lobe, which a log loss alone trades away against
-              the lobe's tails.
+              rendered pixel, where a log loss weighs a sharp lobe's peak like its tails. Measured once on
+              MERL-like steel (NeuBRDF, direction_inputs "hd"): image MAE 0.0089 -> 0.0055, chrome 0.0029 ->
+              0.0027; no recipe uses it, since warped direction inputs did more
+              (`benchmarks/results/neubrdf_table3_hd_warp.md`, section 1).
   "l1":       |f_hat - f|.
   "l2":       (f_hat - f)^2.
   "relative": (f_hat - f)^2 / (sg(f_hat)^2 + eps), eps = 0.01, the prediction-relative L2 of Noise2Noise
