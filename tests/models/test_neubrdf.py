@@ -110,7 +110,8 @@ def _warped_hd(wi, wo):
 
 def test_warped_direction_inputs_closed_form(gen):
     """direction_inputs="hd_warp": NBRDF's (h, d) with (hx, hy) of length sqrt(theta_h / (pi / 2)) along phi_h
-    (float64 from the Rusinkiewicz angles), 0 at the mirror configuration, equal to "hd" at theta_h = 90 deg."""
+    (float64 from the Rusinkiewicz angles); 0 at the mirror configuration; at theta_h = 1 degree of length
+    sqrt(1 / 90) where "hd" has sin(1 degree)."""
     from neumat.models.neubrdf import direction_inputs
 
     wi, wo = _dirs(5000, gen), _dirs(5000, gen)
