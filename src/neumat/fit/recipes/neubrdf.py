@@ -63,7 +63,10 @@ minutes on one core (0.07 / 0.08 / 0.11 s per step of the three phases on a load
 With the model option `direction_inputs="hd"` (`neumat.models.neubrdf.Config`: NBRDF's h and d as 6 more MLP
 inputs, not the paper's model) the same recipe ends on the 25 MERL-like tables at a mean Table 3 image MAE of
 0.0012 and SSIM 0.9978, against 0.0112 / 0.935 without, and with queries="cosine_merl", loss="log_cos_eps" at
-0.0010 / 0.9983, lower than NBRDF on 24 of 25 (benchmarks/results/neubrdf_table3_hd.md).
+0.0010 / 0.9983, lower than NBRDF on 24 of 25 (benchmarks/results/neubrdf_table3_hd.md). With the half vector warped
+to MERL's sqrt(theta_h) coordinate (`direction_inputs="hd_warp"`) and those queries and loss: 0.0006 / 0.9995, lower
+than NBRDF and GGX on all 25 (benchmarks/results/neubrdf_table3_hd_warp.md); what we recommend, though not the
+paper's model.
 """
 from __future__ import annotations
 
