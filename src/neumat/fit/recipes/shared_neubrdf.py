@@ -13,9 +13,11 @@ the Rusinkiewicz table), "cluster_code_dim" (8), "cluster_width" (16 channels), 
 steps of the autoencoder), "cluster_lr" (3e-3).
 
 CPU_RECIPE: NeuBRDF's recipe shortened to 1500 steps of 2^13 (its four halvings every 375 steps), end-to-end
-VQ with these options (the joint fit has no coarse or dense phases): a joint step costs about what a NeuBRDF
-step of the same batch costs (the batch is split over the materials), so about 10 minutes on one core for two
-materials at N_side 64.
+VQ with these options (the joint fit has no coarse or dense phases, so every step carries the full 2^b-way
+straight-through estimator over each material's touched slots): measured 1747-1779 s for two materials at N_side 64
+on one core beside other jobs (benchmarks/results/neubrdf_table3_hd_warp.md, section 6), about 30 minutes:
+above the 15 minutes every CPU recipe is held to and the 10 that CPU_MINUTES still states (open; it was sized
+from a NeuBRDF step, which the candidate-restricted VQ of NeuBRDF's CPU recipe makes much cheaper).
 """
 from __future__ import annotations
 
