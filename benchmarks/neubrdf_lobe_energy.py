@@ -19,6 +19,7 @@ import torch
 import neumat
 from neumat.catalog.modelfile import load_model
 from neumat.core.query import Query
+from neumat.warp.hemisphere import sample_uniform_hemisphere
 
 THETA_O_DEG = (0, 20, 40, 60, 75)
 OFFSETS_DEG = (-8, -3, -2, -1, -0.5, 0, 0.5, 1, 2, 3, 8)
@@ -38,9 +39,7 @@ def albedo_samples(theta_o: float, cone: float, n: int, gen: torch.Generator):
     mirror = torch.tensor([-wo[0], 0.0, wo[2]])
     u = torch.rand(n, 2, generator=gen)
     phi = 2 * math.pi * u[:, 1]
-    z = u[:, 0]
-    uniform = torch.stack([(1 - z * z).clamp(min=0).sqrt() * phi.cos(), (1 - z * z).clamp(min=0).sqrt() * phi.sin(),
-                           z], -1)
+    uniform = sample_uniform_hemisphere(u)
     zc = 1 - u[:, 0] * (1 - math.cos(cone))
     rc = (1 - zc * zc).clamp(min=0).sqrt()
     b, c = _cone_frame(mirror)

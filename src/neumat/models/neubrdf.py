@@ -35,6 +35,13 @@ from neumat.nn.row_adam import RowAdam
 DIRECTION_INPUTS = {"none": 0, "hd": 6, "hd_warp": 6}
 
 
+def check_direction_inputs(kind: str, who: str) -> None:
+    """Refuse a `Config.direction_inputs` value that is not one of `DIRECTION_INPUTS`, naming `who`."""
+    if kind not in DIRECTION_INPUTS:
+        raise InputError(f"{who}.direction_inputs: expected one of {', '.join(map(repr, DIRECTION_INPUTS))}, "
+                         f"got {kind!r}")
+
+
 def direction_inputs(kind: str, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     """The extra MLP inputs (N, 6) of `Config.direction_inputs` `kind` ("hd" or "hd_warp") of directions wi, wo
     (N, 3). "hd": NBRDF's (hx, hy, hz, dx, dy, dz) (`NBRDF.encode`). "hd_warp": the same with (hx, hy), of length
@@ -114,9 +121,7 @@ def _check_config(c: Config) -> None:
     for name in ("interpolation", "runtime_interpolation"):
         if getattr(c, name) not in ("idw", "uniform"):
             raise InputError(f"NeuBRDF.{name}: expected 'idw' or 'uniform', got {getattr(c, name)!r}")
-    if c.direction_inputs not in DIRECTION_INPUTS:
-        raise InputError(f"NeuBRDF.direction_inputs: expected one of {', '.join(map(repr, DIRECTION_INPUTS))}, "
-                         f"got {c.direction_inputs!r}")
+    check_direction_inputs(c.direction_inputs, "NeuBRDF")
     if c.texture_channels and (c.texture_height < 1 or c.texture_width < 1):
         raise InputError("NeuBRDF.texture_height/texture_width: expected >= 1 with texture_channels > 0")
     if c.texture_channels and min(c.texture_height, c.texture_width) >> (c.texture_levels - 1) < 1:
@@ -314,9 +319,10 @@ class NeuBRDF(LearnedMaterial):
         before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
         rest = self.mlp.net[1:]
-        # the direction inputs' first-layer columns (the last ones), (6, hidden)
+        # the direction inputs' first-layer columns (the last ones), (extra, hidden)
         kind = self.cfg.direction_inputs
-        hd_weight = self.mlp.net[0].weight[:, -6:].t() if kind != "none" else None
+        extra = DIRECTION_INPUTS[kind]
+        hd_weight = self.mlp.net[0].weight[:, -extra:].t() if extra else None
         out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
         for s in range(0, m, chunk):
             c = min(chunk, m - s)

@@ -25,7 +25,8 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
-from neumat.models.neubrdf import DIRECTION_INPUTS, direction_inputs, shipped_state, unpack_levels
+from neumat.models.neubrdf import (DIRECTION_INPUTS, check_direction_inputs, direction_inputs, shipped_state,
+                                   unpack_levels)
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import VQFeatures, float_bits, storage_bytes
@@ -66,9 +67,7 @@ def _check_config(c: Config) -> None:
         raise InputError(f"SharedNeuBRDF.index_bits: expected 1 .. 16, got {c.index_bits}")
     if c.interpolation not in ("idw", "uniform"):
         raise InputError(f"SharedNeuBRDF.interpolation: expected 'idw' or 'uniform', got {c.interpolation!r}")
-    if c.direction_inputs not in DIRECTION_INPUTS:
-        raise InputError(f"SharedNeuBRDF.direction_inputs: expected one of "
-                         f"{', '.join(map(repr, DIRECTION_INPUTS))}, got {c.direction_inputs!r}")
+    check_direction_inputs(c.direction_inputs, "SharedNeuBRDF")
     check_memory(hpx.grid_bytes(c.nside, c.num_materials, 4 * 2 ** c.index_bits),
                  f"SharedNeuBRDF nside={c.nside}, index_bits={c.index_bits}, {c.num_materials} materials")
 
