@@ -130,3 +130,37 @@ def test_shared_neubrdf_list_of_sources_resumes_bit_for_bit(tmp_path):
         fit(make(), sources[:1], recipe, steps=1, progress=False)
     with pytest.raises(InputError, match="list of Materials"):
         fit(make(), sources[0], recipe, steps=1, progress=False)
+
+
+@pytest.mark.parametrize("stop", [1, 2, 3, 5])
+def test_shared_neubrdf_cpu_path_resumes_bit_for_bit_in_every_phase(stop, tmp_path):
+    """The CPU recipe's path for the joint fit (coarse grid, dense warm-up, joint k-means into the shared codebook,
+    VQ with candidates): phases in that order, a VQ model with candidates at the end, and a checkpoint inside the
+    coarse (1), at the switch to the model's grid (2), at the quantisation (3) and inside the VQ phase (5)
+    resumes to the uninterrupted fit."""
+    from neumat.fit.recipe import recipe_config_for_source
+
+    sources = [Plastic(diffuse=(0.6, 0.3, 0.15), roughness=0.3), GGX(roughness=0.2)]
+    cpu = recipe_for("shared-neubrdf", "cpu")
+    assert {k: cpu.options[k] for k in ("coarse_fraction", "dense_warmup", "vq_candidates")} == \
+        {"coarse_fraction": 0.4, "dense_warmup": 0.7, "vq_candidates": 8}
+    recipe = replace(cpu, steps=6, batch_size=256, ema=0.05, log_every=1, checkpoint_every=1,
+                     options={**cpu.options, "coarse_fraction": 0.3, "dense_warmup": 0.5, "vq_candidates": 2,
+                              "coarse_nside": 2})
+    derived = recipe_config_for_source("shared-neubrdf", sources, recipe.options)
+    assert derived == {"num_materials": 2, "features": "dense"}
+
+    def make():
+        torch.manual_seed(0)
+        return SharedNeuBRDF(**{**derived, **SMALL})
+
+    phases = []
+    ref = fit(make(), sources, recipe, progress=False, callback=lambda r: phases.append(r["phase"]))
+    assert phases == ["coarse"] * 2 + ["dense"] + ["vq"] * 3
+    assert ref.model.cfg.features == "vq" and ref.model.cfg.nside == SMALL["nside"]
+    assert ref.model.grid.candidates.shape == (ref.model.grid_rows(SMALL["nside"]), 2)
+    model, res = _interrupted_then_resumed(make, sources, tmp_path / "fit.ckpt", stop=stop, recipe=recipe)
+    _assert_same(ref.model, model)
+    assert _strip(res.history) == _strip(ref.history)
+    assert recipe_config_for_source("shared-neubrdf", sources, recipe_for("shared-neubrdf").options) == \
+        {"num_materials": 2}  # the paper's recipe: end-to-end VQ

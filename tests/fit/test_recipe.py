@@ -50,15 +50,17 @@ def test_recipe_for_unknown_model_raises():
 
 
 def test_every_model_has_a_cpu_recipe_no_larger_than_the_papers():
-    """recipe_for(name, "cpu") is the module's CPU_RECIPE: valid, with the paper's options (NeuBRDF's CPU recipe
-    sets its training-path options: coarse to fine, dense warm-up, candidate codewords), never a larger budget
+    """recipe_for(name, "cpu") is the module's CPU_RECIPE: valid, with the paper's options (the CPU recipes of
+    NeuBRDF and shared NeuBRDF set their training-path options: coarse to fine, dense warm-up, candidate
+    codewords), never a larger budget
     (steps x batch) than RECIPE; "gpu" is the paper's; an unknown machine is refused."""
     from neumat.fit.recipe import cpu_minutes, recipe_names
 
     for name in recipe_names():
         cpu, paper = recipe_for(name, "cpu"), recipe_for(name, "paper")
         check_recipe(cpu)
-        path = {"coarse_fraction", "dense_warmup", "vq_candidates"} if name == "neubrdf" else set()
+        path = {"coarse_fraction", "dense_warmup", "vq_candidates"} if name in ("neubrdf", "shared-neubrdf") \
+            else set()
         assert cpu.options.keys() == paper.options.keys() and recipe_for(name, "gpu") == paper, name
         assert {k for k in cpu.options if cpu.options[k] != paper.options[k]} <= path, name
         assert cpu.steps * cpu.batch_size <= paper.steps * paper.batch_size, name

@@ -147,3 +147,102 @@ def test_fit_clusters_builds_one_shared_model_per_group():
     assert [group for group, _ in out] == [[1], [0, 2]]
     assert [model.cfg.num_materials for _, model in out] == [1, 2]
     assert all(model.cfg.nside == SMALL["nside"] and not model.training for _, model in out)
+
+
+def _dense_pair(gen) -> tuple[SharedNeuBRDF, list[NeuBRDF]]:
+    """A dense SharedNeuBRDF of 2 materials and, for each, a dense NeuBRDF holding that material's features and
+    the same MLP (float64)."""
+    shared = SharedNeuBRDF(num_materials=2, features="dense", **SMALL).double()
+    with torch.no_grad():
+        shared.grid.features.copy_(torch.randn(shared.grid.features.shape, generator=gen, dtype=torch.float64))
+    own = []
+    for m in range(2):
+        ref = NeuBRDF(features="dense", **SMALL).double()
+        rows = slice(m * shared.slots_per_material, (m + 1) * shared.slots_per_material)
+        with torch.no_grad():
+            ref.grid.features.copy_(shared.grid.features[rows])
+        ref.mlp.load_state_dict(shared.mlp.state_dict())
+        own.append(ref)
+    return shared, own
+
+
+def test_dense_regrid_equals_neubrdfs_regrid_of_each_material(gen):
+    """A dense shared model evaluates each material as a NeuBRDF holding its features, before and after
+    regridding coarse to fine and back (same interpolant re-sampled per material)."""
+    shared, own = _dense_pair(gen)
+    q = _queries(300, gen)
+    q = Query(q.wi.double(), q.wo.double())
+    for nside in (4, 16, 2, None):  # the start, then after each regrid
+        with torch.no_grad():
+            for m in range(2):
+                torch.testing.assert_close(shared.eval_material(m, q), own[m].eval(q), rtol=1e-12, atol=0)
+        if nside is not None:
+            shared.regrid(nside)
+            for ref in own:
+                ref.regrid(nside)
+    assert shared.cfg.nside == 2 and shared.grid.num_vertices == shared.grid_rows(2) == 2 * own[0].grid_rows(2)
+    assert shared.level_i.shape == (2, 12 * 2 * 2)
+    fresh = SharedNeuBRDF(num_materials=2, features="dense", **SMALL).double()
+    fresh.load_state_dict(shared.state_dict())  # a checkpoint after regridding loads into a fresh model
+    assert fresh.cfg.nside == 2
+    torch.testing.assert_close(fresh.eval_material(1, q), shared.eval_material(1, q), rtol=0, atol=0)
+    shared.prune(0, q.wi[:5], q.wo[:5])
+    with pytest.raises(InputError, match="pruned"):
+        shared.regrid(4)
+
+
+def test_quantize_from_dense_builds_one_codebook_from_all_materials(gen):
+    """With as many codewords as distinct slot features (spread over both materials, some only in one), the shared
+    k-means codebook holds them all and the VQ model evaluates as the dense one; with candidates, each slot's
+    K nearest codewords; a checkpoint of the VQ state loads into a fresh dense model."""
+    shared, _ = _dense_pair(gen)
+    bits = SMALL["index_bits"]
+    distinct = torch.randn(2 ** bits, shared.cfg.feature_dim, generator=gen, dtype=torch.float64) * 3
+    v = shared.slots_per_material
+    pick = torch.cat([torch.randint(0, 2 ** (bits - 1), (v,), generator=gen),  # material 0: the first half only
+                      torch.randint(0, 2 ** bits, (v,), generator=gen)])
+    pick[v:v + 2 ** bits] = torch.arange(2 ** bits)  # material 1 uses every codeword
+    with torch.no_grad():
+        shared.grid.features.copy_(distinct[pick])
+    q = _queries(300, gen)
+    q = Query(q.wi.double(), q.wo.double())
+    with torch.no_grad():
+        dense = [shared.eval_material(m, q) for m in range(2)]
+    shared.quantize_from_dense(candidates=3)
+    assert shared.cfg.features == "vq" and shared.grid.candidates.shape == (2 * v, 3)
+    shared.train(False)
+    with torch.no_grad():
+        for m in range(2):
+            torch.testing.assert_close(shared.eval_material(m, q), dense[m], rtol=1e-9, atol=1e-12)
+    chosen = shared.grid.codebook[shared.grid.indices()]
+    torch.testing.assert_close(chosen, distinct[pick], rtol=0, atol=1e-9)
+    fresh = SharedNeuBRDF(num_materials=2, features="dense", **SMALL).double()
+    fresh.load_state_dict(shared.state_dict())
+    assert fresh.cfg.features == "vq"
+    fresh.train(False)
+    with torch.no_grad():
+        torch.testing.assert_close(fresh.eval_material(0, q), dense[0], rtol=1e-9, atol=1e-12)
+    with pytest.raises(InputError, match="features='dense'"):
+        shared.quantize_from_dense()
+    with pytest.raises(InputError, match="candidates"):
+        SharedNeuBRDF(num_materials=2, features="dense", **SMALL).quantize_from_dense(candidates=2 ** bits + 1)
+    with pytest.raises(InputError, match="features"):
+        SharedNeuBRDF(num_materials=2, features="lowbit", **SMALL)
+
+
+def test_optimizer_updates_only_the_index_logits_of_the_batch(gen):
+    """`optimizer`: the VQ logits get sparse row gradients and a step moves only the rows the batch read (at
+    index_lr_scale times the rate); a dense model gets a plain Adam over all its parameters."""
+    model = SharedNeuBRDF(num_materials=2, **SMALL)
+    opt = model.optimizer(1e-2)
+    assert [g.get("lr_scale", 1.0) for g in opt.param_groups] == [1.0, model.index_lr_scale]
+    before = model.grid.logits.detach().clone()
+    q = _queries(20, gen)
+    ids = torch.ones(20, dtype=torch.long)  # material 1 only
+    model.eval(MaterialQuery(q.wi, q.wo, material=ids)).sum().backward()
+    assert model.grid.logits.grad.is_sparse
+    opt.step()
+    moved = (model.grid.logits.detach() != before).any(-1)
+    assert moved.any() and not moved[:model.slots_per_material].any()  # material 0's rows untouched
+    dense = SharedNeuBRDF(num_materials=2, features="dense", **SMALL)
+    assert len(dense.optimizer(1e-2).param_groups) == 1

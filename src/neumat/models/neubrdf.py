@@ -26,10 +26,11 @@ from neumat.models.nbrdf import NBRDF
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
+from neumat.nn.codebook_kmeans import vq_from_dense
 from neumat.nn.latent_texture import bilinear, trilinear
 from neumat.nn.mlp import MLP
 from neumat.nn.packing import pack_bits, unpack_bits
-from neumat.nn.row_adam import RowAdam
+from neumat.nn.row_adam import RowAdam, grid_optimizer
 
 #: values of `Config.direction_inputs` and the number of MLP inputs each adds
 DIRECTION_INPUTS = {"none": 0, "hd": 6, "hd_warp": 6}
@@ -361,13 +362,7 @@ class NeuBRDF(LearnedMaterial):
         with the VQ logits switched to sparse row gradients and updated lazily, only on the vertices of
         each batch (a dense Adam step would touch all 2n x 2^b logits, 25.6 M at the defaults), at
         `index_lr_scale` times the learning rate."""
-        params = [p for p in self.parameters() if p.requires_grad]
-        if not isinstance(self.grid, VQFeatures) or self.grid.frozen:
-            return RowAdam(params, lr=lr, betas=betas, eps=eps)
-        self.grid.sparse_grad = True
-        rest = [p for p in params if p is not self.grid.logits]
-        return RowAdam([{"params": rest}, {"params": [self.grid.logits], "lr_scale": self.index_lr_scale}],
-                       lr=lr, betas=betas, eps=eps)
+        return grid_optimizer(self, self.grid, lr, betas, eps, self.index_lr_scale)
 
     # ------------------------------------------------------------------------ pruning and runtime
 
@@ -431,50 +426,21 @@ class NeuBRDF(LearnedMaterial):
         if not isinstance(self.grid, DenseFeatures):
             raise InputError("NeuBRDF.quantize_from_dense: expected a model with features='dense'")
         bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
-        if bits > 16:
-            raise InputError(f"NeuBRDF.quantize_from_dense index_bits: expected 1 .. 16, got {bits}")
-        if isinstance(candidates, bool) or not isinstance(candidates, int) or not 0 <= candidates <= 2 ** bits:
-            raise InputError(f"NeuBRDF.quantize_from_dense candidates: expected 0 (all) or 1 .. {2 ** bits}, "
-                             f"got {candidates!r}")
-        feats = self.grid.features.detach()
-        if weights is not None:
-            weights = _kmeans_weights(weights, feats)
-        used = self.used_slots()
-        data, w = feats[used], (None if weights is None else weights[used])
-        m = 2 ** bits
-        gen = torch.Generator(device="cpu").manual_seed(seed)
-        # k-means++ start: each next codeword drawn with probability proportional to the squared distance
-        # to the nearest one so far (ties of identical features only cost empty clusters)
-        start = [data[int(torch.randint(data.shape[0], (1,), generator=gen))]]
-        d2 = _row_sq_distance(data, w, start[0])
-        for _ in range(m - 1):
-            p = d2.double().cpu()
-            i = int(torch.multinomial(p, 1, generator=gen)) if float(p.sum()) > 0 else \
-                int(torch.randint(data.shape[0], (1,), generator=gen))
-            start.append(data[i])
-            d2 = torch.minimum(d2, _row_sq_distance(data, w, data[i]))
-        start = torch.stack(start)
-        code = start.clone()
-        mass = torch.ones_like(data) if w is None else w
-        moment = data if w is None else w * data  # each slot's share of its codeword's (weighted) sum
-        order = _distance_order(data, w)
-        for _ in range(iterations):
-            near = order(code).argmin(-1)
-            sums = torch.zeros_like(code).index_add_(0, near, moment)
-            total = torch.zeros_like(code).index_add_(0, near, mass)
-            code = torch.where(total > 0, sums / total.clamp(min=1e-30), code)  # empty clusters keep their place
-        vq = VQFeatures(self.grid.num_vertices, self.grid.dim, bits).to(feats.device, feats.dtype)
-        vq.codebook.copy_(code)
-        logits = torch.randn(vq.logits.shape, generator=gen).to(vq.logits) * 0.01
-        distance = _distance_order(feats, weights)(code)
-        logits[torch.arange(logits.shape[0]), distance.argmin(-1)] += margin
-        vq.logits.copy_(logits)
-        if candidates:
-            vq.restrict(distance.topk(candidates, -1, largest=False).indices)
-        self.grid = vq
-        self.cfg = replace(self.cfg, features="vq", index_bits=bits)
-        self._drop_runtime()
+        self._use_vq_grid(vq_from_dense(self.grid.features, self.used_slots(), bits, iterations=iterations,
+                                        margin=margin, seed=seed, candidates=candidates, weights=weights,
+                                        who="NeuBRDF.quantize_from_dense"))
         return self
+
+    def _use_vq_grid(self, vq: VQFeatures) -> None:
+        """Install the VQ grid `vq` (this grid's rows) in place of the current one; `Config.features` becomes
+        "vq" with vq's index bits."""
+        self.grid = vq
+        self.cfg = replace(self.cfg, features="vq", index_bits=vq.bits)
+        self._drop_runtime()
+
+    def grid_rows(self, nside: int) -> int:
+        """Slots of a feature grid at `nside` (2 n: S+ and S-)."""
+        return 2 * hpx.hemisphere_size(nside)
 
     @torch.no_grad()
     def regrid(self, nside: int) -> "NeuBRDF":
@@ -652,36 +618,6 @@ class NeuBRDF(LearnedMaterial):
         return self.mlp.flops()
 
 
-def _kmeans_weights(weights, feats: torch.Tensor) -> torch.Tensor:
-    """`quantize_from_dense` weights checked against the features (2 n, k) and made positive: + 1e-6 of their
-    mean, so that a slot no query reached (weight 0) still gets a nearest codeword by its features."""
-    if not isinstance(weights, torch.Tensor) or weights.shape != feats.shape or not weights.is_floating_point():
-        raise InputError(f"NeuBRDF.quantize_from_dense weights: expected a float tensor {tuple(feats.shape)} (one per "
-                         f"slot and channel), got {getattr(weights, 'shape', type(weights).__name__)}")
-    w = weights.detach().to(feats)
-    if not bool(torch.isfinite(w).all()) or bool((w < 0).any()) or float(w.sum()) <= 0:
-        raise InputError("NeuBRDF.quantize_from_dense weights: expected finite, non-negative weights, not all 0")
-    return w + 1e-6 * w.mean()
-
-
-def _row_sq_distance(x: torch.Tensor, w: torch.Tensor | None, c: torch.Tensor) -> torch.Tensor:
-    """(N,) squared distances of the rows of x (N, k) to one point c (k,): sum_j w_nj (x_nj - c_j)^2 (w = 1 when
-    None)."""
-    d = (x - c).pow(2)
-    return (d if w is None else w * d).sum(-1)
-
-
-def _distance_order(x: torch.Tensor, w: torch.Tensor | None):
-    """A function of codewords code (M, k) giving (N, M), increasing with the distance of each row of x (N, k) to
-    each codeword: the Euclidean distance when w is None, else the weighted squared distance
-    sum_j w_nj (x_nj - c_mj)^2 (w (N, k)), whose terms in x alone are computed here, once for all calls."""
-    if w is None:
-        return lambda code: torch.cdist(x, code)
-    wx = w * x
-    wxx = (wx * x).sum(-1, keepdim=True)
-    return lambda code: wxx - 2 * wx @ code.t() + w @ (code * code).t()
-
-
 def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None:
     """State-dict hook of NeuBRDF-like models (NeuBRDF, SharedNeuBRDF): in runtime mode the state is the
     shipped form, floats as fp16 (exact: `runtime` rounded them) and the pruning levels `level_i` /
@@ -711,18 +647,19 @@ def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None
 
 def regridded_state(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
                     unexpected_keys, error_msgs) -> None:
-    """Load-state-dict pre-hook: a NeuBRDF given the training state of a grid at another N_side (a checkpoint
-    written after `regrid`, e.g. resuming a coarse-to-fine fit) is given a dense grid of that N_side first (the
-    state's own values then load; `quantized_state` makes it a VQ grid if the state is one)."""
-    if not isinstance(module, NeuBRDF) or module.pruned:
+    """Load-state-dict pre-hook of NeuBRDF-like models (NeuBRDF, SharedNeuBRDF: `grid_rows`, `_set_dense_grid`,
+    `pruned`): a model given the training state of a grid at another N_side (a checkpoint written after `regrid`,
+    e.g. resuming a coarse-to-fine fit) is given a dense grid of that N_side first (the state's own values then
+    load; `quantized_state` makes it a VQ grid if the state is one)."""
+    if module.pruned:
         return
     rows = next((state_dict[prefix + k].shape[0] for k in ("grid.features", "grid.logits")
                  if prefix + k in state_dict), None)
     if rows is None or rows == module.grid.num_vertices:
         return
-    nside = next((n for n in (2 ** i for i in range(14)) if 2 * hpx.hemisphere_size(n) == rows), None)
+    nside = next((n for n in (2 ** i for i in range(14)) if module.grid_rows(n) == rows), None)
     if nside is None:
-        return  # not a NeuBRDF grid size: the load reports the mismatch
+        return  # not a grid size of this model: the load reports the mismatch
     like = next(module.mlp.parameters())
     feats = torch.zeros(rows, module.cfg.feature_dim, device=like.device, dtype=like.dtype)
     module._set_dense_grid(replace(module.cfg, nside=nside, features="dense"), feats)
@@ -730,17 +667,17 @@ def regridded_state(module, state_dict: dict, prefix: str, local_metadata, stric
 
 def quantized_state(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
                     unexpected_keys, error_msgs) -> None:
-    """Load-state-dict pre-hook: a dense model given the training state of a VQ grid (a checkpoint written
-    after `quantize_from_dense`, e.g. resuming a fit with a dense warm-up past the switch) becomes a VQ model
-    of the state's index bits first, as `quantize_from_dense` made it, so that the state loads."""
+    """Load-state-dict pre-hook of NeuBRDF-like models (`_use_vq_grid`): a dense model given the training state
+    of a VQ grid (a checkpoint written after `quantize_from_dense`, e.g. resuming a fit with a dense warm-up past
+    the switch) becomes a VQ model of the state's index bits first, as `quantize_from_dense` made it, so that the
+    state loads."""
     if not isinstance(module.grid, DenseFeatures) or prefix + "grid.logits" not in state_dict:
         return
     bits = int(state_dict[prefix + "grid.codebook"].shape[0]).bit_length() - 1
     dense = module.grid.features
-    module.grid = VQFeatures(module.grid.num_vertices, module.grid.dim, bits).to(dense.device, dense.dtype)
-    module.grid.requires_grad_(dense.requires_grad)
-    module.cfg = replace(module.cfg, features="vq", index_bits=bits)
-    module._drop_runtime()
+    vq = VQFeatures(module.grid.num_vertices, module.grid.dim, bits).to(dense.device, dense.dtype)
+    vq.requires_grad_(dense.requires_grad)
+    module._use_vq_grid(vq)
 
 
 def unpack_levels(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys, unexpected_keys,

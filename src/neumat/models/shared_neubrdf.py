@@ -14,7 +14,7 @@ t 2n b + p k 2^b bits; see `sharing_cost` for the bytes per material with and wi
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import torch
 from torch import nn
@@ -25,12 +25,14 @@ from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
-from neumat.models.neubrdf import (DIRECTION_INPUTS, check_direction_inputs, direction_inputs, shipped_state,
-                                   unpack_levels)
+from neumat.models.neubrdf import (DIRECTION_INPUTS, capped_levels, check_direction_inputs, direction_inputs,
+                                   quantized_state, regridded_state, shipped_state, unpack_levels, used_slot_mask)
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
-from neumat.nn.codebook import VQFeatures, float_bits, storage_bytes
+from neumat.nn.codebook import DenseFeatures, VQFeatures, float_bits, storage_bytes
+from neumat.nn.codebook_kmeans import vq_from_dense
 from neumat.nn.mlp import MLP
+from neumat.nn.row_adam import RowAdam, grid_optimizer
 
 
 @dataclass
@@ -56,6 +58,9 @@ class Config:
     direction_inputs: str = "none"
     """Extra inputs of the shared MLP, as NeuBRDF's (`neumat.models.neubrdf.Config.direction_inputs`): "none"
     (the paper), "hd" or "hd_warp" (6 inputs from the half and difference vectors, our extension)."""
+    features: str = "vq"
+    """Vertex feature storage: "vq" (indices into the shared codebook, the paper) or "dense" (k floats per vertex
+    and material: the warm-up of a fit that ends with `quantize_from_dense`, see `neumat.fit.recipes.shared_neubrdf`)."""
 
 
 def _check_config(c: Config) -> None:
@@ -68,7 +73,10 @@ def _check_config(c: Config) -> None:
     if c.interpolation not in ("idw", "uniform"):
         raise InputError(f"SharedNeuBRDF.interpolation: expected 'idw' or 'uniform', got {c.interpolation!r}")
     check_direction_inputs(c.direction_inputs, "SharedNeuBRDF")
-    check_memory(hpx.grid_bytes(c.nside, c.num_materials, 4 * 2 ** c.index_bits),
+    if c.features not in ("vq", "dense"):
+        raise InputError(f"SharedNeuBRDF.features: expected 'vq' or 'dense', got {c.features!r}")
+    slot = 4 * (2 ** c.index_bits if c.features == "vq" else c.feature_dim)  # float32 index logits / features
+    check_memory(hpx.grid_bytes(c.nside, c.num_materials, slot),
                  f"SharedNeuBRDF nside={c.nside}, index_bits={c.index_bits}, {c.num_materials} materials")
 
 
@@ -110,6 +118,8 @@ class SharedNeuBRDF(LearnedMaterial):
     source_kinds = ("brdf-set",)
     can_sample = False
     Config = Config
+    index_lr_scale = 10.0
+    """Learning-rate factor of the index logits (as `NeuBRDF.index_lr_scale`)."""
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
@@ -118,7 +128,8 @@ class SharedNeuBRDF(LearnedMaterial):
         self.cfg = cfg
         n, t, k = cfg.nside, cfg.num_materials, cfg.feature_dim
         self.slots_per_material = 2 * hpx.hemisphere_size(n)
-        self.grid = VQFeatures(t * self.slots_per_material, k, cfg.index_bits)
+        rows = t * self.slots_per_material
+        self.grid = VQFeatures(rows, k, cfg.index_bits) if cfg.features == "vq" else DenseFeatures(rows, k)
         self.mlp = MLP(2 * k + DIRECTION_INPUTS[cfg.direction_inputs], cfg.hidden, cfg.hidden_layers, 3,
                        cfg.activation)
         self.register_buffer("level_i", torch.zeros(t, 12 * n * n, dtype=torch.int8))
@@ -130,6 +141,8 @@ class SharedNeuBRDF(LearnedMaterial):
         self._runtime = False
         self.register_state_dict_post_hook(shipped_state)
         self.register_load_state_dict_pre_hook(unpack_levels)
+        self.register_load_state_dict_pre_hook(regridded_state)
+        self.register_load_state_dict_pre_hook(quantized_state)
 
     @property
     def config(self) -> Config:
@@ -209,6 +222,89 @@ class SharedNeuBRDF(LearnedMaterial):
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
+
+    def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> RowAdam:
+        """The optimiser to train this model with (the trainer's hook), as NeuBRDF's: the VQ index logits of all
+        materials get sparse row gradients, updated only on the vertices of each batch, at `index_lr_scale` times
+        the rate (a dense Adam step over the t x 2n x 2^b logits cost 0.45 of 1.1 s per step of 8192 queries for
+        two materials at N_side 64)."""
+        return grid_optimizer(self, self.grid, lr, betas, eps, self.index_lr_scale)
+
+    # ------------------------------------------------------------- dense warm-up, coarse to fine
+
+    def grid_rows(self, nside: int) -> int:
+        """Slots of all t feature grids at `nside` (t x 2n)."""
+        return self.cfg.num_materials * 2 * hpx.hemisphere_size(nside)
+
+    @property
+    def pruned(self) -> bool:
+        """Whether `prune` made some pixel of some material look up an ancestor level."""
+        return bool((self.level_i != 0).any()) or bool((self.level_o != 0).any())
+
+    def used_slots(self) -> torch.Tensor:
+        """Mask (t x 2n,) of the slots some pixel of their material's (pruned) grids reads."""
+        n = self.cfg.nside
+        masks = [used_slot_mask(n, (capped_levels(n, self.level_i[m], False), capped_levels(n, self.level_o[m], True))
+                                if self.pruned else None, self.level_i.device)
+                 for m in range(self.cfg.num_materials)]
+        return torch.cat(masks)
+
+    @torch.no_grad()
+    def quantize_from_dense(self, index_bits: int | None = None, iterations: int = 25, margin: float = 1.0,
+                            seed: int = 0, candidates: int = 0,
+                            weights: torch.Tensor | None = None) -> "SharedNeuBRDF":
+        """End of a dense warm-up, as `NeuBRDF.quantize_from_dense`: the shared codebook is the k-means of the used
+        slots' features of ALL t materials (`neumat.nn.codebook_kmeans.vq_from_dense`), each slot's logits start on
+        its nearest codeword (its K nearest only with `candidates` K), and `Config.features` becomes "vq". Returns
+        self; build the optimiser again afterwards."""
+        if not isinstance(self.grid, DenseFeatures):
+            raise InputError("SharedNeuBRDF.quantize_from_dense: expected a model with features='dense'")
+        bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
+        self._use_vq_grid(vq_from_dense(self.grid.features, self.used_slots(), bits, iterations=iterations,
+                                        margin=margin, seed=seed, candidates=candidates, weights=weights,
+                                        who="SharedNeuBRDF.quantize_from_dense"))
+        return self
+
+    def _use_vq_grid(self, vq: VQFeatures) -> None:
+        """Install the VQ grid `vq` (this grid's rows); `Config.features` becomes "vq" with vq's index bits."""
+        self.grid = vq
+        self.cfg = replace(self.cfg, features="vq", index_bits=vq.bits)
+
+    @torch.no_grad()
+    def regrid(self, nside: int) -> "SharedNeuBRDF":
+        """Coarse to fine, as `NeuBRDF.regrid`: every material's grids become dense grids at `nside` holding this
+        model's interpolated features at the new slots' directions (`Config.nside` becomes `nside`, features
+        "dense"; the MLP is kept). Not for pruned grids. Returns self; build the optimiser again."""
+        nside = hpx.check_nside(nside, "SharedNeuBRDF.regrid nside", power_of_two=True)
+        if self.pruned:
+            raise InputError("SharedNeuBRDF.regrid: a pruned grid cannot be re-sampled (prune after regridding)")
+        new_cfg = replace(self.cfg, nside=nside, features="dense")
+        _check_config(new_cfg)
+        dirs = hpx.vertex2vec(nside, hpx.grid_vertex_ids(nside), torch.float64)
+        h = hpx.hemisphere_size(nside)
+        dirs[h:, 2] = -dirs[h:, 2]  # a south slot holds the mirror image of an upper-hemisphere wo
+        dirs[:, 2] = dirs[:, 2].clamp(min=0)
+        dirs = nn.functional.normalize(dirs, dim=-1).to(self.vertex_dirs)
+        feats = []
+        for m in range(self.cfg.num_materials):
+            ids = torch.full((h,), m, dtype=torch.long, device=dirs.device)
+            feats += [self._lookup(ids, dirs[:h], False), self._lookup(ids, dirs[h:], True)]
+        self._set_dense_grid(new_cfg, torch.cat(feats))
+        return self
+
+    def _set_dense_grid(self, cfg: Config, feats: torch.Tensor) -> None:
+        """Install dense grids at cfg.nside holding `feats` (t x 2n, k), and the buffers of that size."""
+        device, n, t = self.level_i.device, cfg.nside, cfg.num_materials
+        grid = DenseFeatures(feats.shape[0], feats.shape[1]).to(device, feats.dtype)
+        with torch.no_grad():
+            grid.features.copy_(feats)
+        grid.requires_grad_(next(self.mlp.parameters()).requires_grad)
+        self.grid = grid
+        self.cfg = cfg
+        self.slots_per_material = 2 * hpx.hemisphere_size(n)
+        self.level_i = torch.zeros(t, 12 * n * n, dtype=torch.int8, device=device)
+        self.level_o = torch.zeros(t, 12 * n * n, dtype=torch.int8, device=device)
+        self.vertex_dirs = hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32).to(device)
 
     # -------------------------------------------------------------------------- pruning, freezing
 

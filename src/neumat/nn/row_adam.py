@@ -68,3 +68,20 @@ class RowAdam(torch.optim.Optimizer):
                     v.mul_(b2).addcmul_(g, g, value=1 - b2)
                     p.addcdiv_(m, v.sqrt().div_(bc2_sqrt).add_(eps), value=-step_size)
         return loss
+
+
+def grid_optimizer(module: torch.nn.Module, grid, lr: float, betas: tuple[float, float] = (0.9, 0.999),
+                   eps: float = 1e-8, index_lr_scale: float = 1.0) -> RowAdam:
+    """The optimiser of a model whose feature grid `grid` may be a training `VQFeatures`: RowAdam on every
+    trainable parameter of `module`, with the grid's index logits switched to sparse row gradients (updated
+    lazily, only on the vertices of each batch, instead of a dense step over all V x 2^b logits) at
+    `index_lr_scale` times the learning rate; plain Adam's update for any other grid."""
+    from neumat.nn.codebook import VQFeatures
+
+    params = [p for p in module.parameters() if p.requires_grad]
+    if not isinstance(grid, VQFeatures) or grid.frozen or not grid.logits.requires_grad:
+        return RowAdam(params, lr=lr, betas=betas, eps=eps)
+    grid.sparse_grad = True
+    rest = [p for p in params if p is not grid.logits]
+    return RowAdam([{"params": rest}, {"params": [grid.logits], "lr_scale": index_lr_scale}],
+                   lr=lr, betas=betas, eps=eps)

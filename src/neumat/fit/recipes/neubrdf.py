@@ -180,7 +180,7 @@ def config_for_source(source, options: dict | None = None) -> dict:
     """Config defaults from the recipe options: dense features for a dense warm-up or a direction-coded start
     (`OPTIONS`)."""
     options = options or {}
-    return {"features": "dense"} if _warmup(options) > 0 or _direction_scale(options) > 0 else {}
+    return {"features": "dense"} if warmup_fraction(options) > 0 or _direction_scale(options) > 0 else {}
 
 
 def phases(ctx: FitContext) -> list[Phase]:
@@ -202,16 +202,18 @@ def phases(ctx: FitContext) -> list[Phase]:
     ctx = _measured(ctx)
     runtime_steps = _runtime_steps(ctx)
     nside = ctx.model.cfg.nside  # the model's own; a coarse phase regrids it now
-    built = _training_phases(ctx, ctx.recipe.steps - runtime_steps)
+    built = training_phases(ctx, ctx.recipe.steps - runtime_steps)
     if runtime_steps:
         built.append(_runtime_phase(ctx, runtime_steps, nside))
     return built
 
 
-def _training_phases(ctx: FitContext, steps: int) -> list[Phase]:
-    """The phases before the runtime one: coarse, dense / fine, vq (see `phases`), `steps` in all."""
+def training_phases(ctx: FitContext, steps: int) -> list[Phase]:
+    """The phases before the runtime one: coarse, dense / fine, vq (see `phases`), `steps` in all. Also those of
+    SharedNeuBRDF (`neumat.fit.recipes.shared_neubrdf`), whose model offers the same `regrid` and
+    `quantize_from_dense`."""
     options, model = ctx.recipe.options, ctx.model
-    frac = _warmup(options)
+    frac = warmup_fraction(options)
     coarse = _coarse(options, model, frac)
     candidates = _candidates(options, model)
     weighting = _kmeans_weighting(options)
@@ -387,7 +389,7 @@ def _candidates(options: dict, model) -> int:
     return k
 
 
-def _warmup(options: dict) -> float:
+def warmup_fraction(options: dict) -> float:
     frac = options.get("dense_warmup", 0.0)
     if not isinstance(frac, (int, float)) or isinstance(frac, bool) or not 0 <= frac < 1:
         raise InputError(f"neubrdf recipe option dense_warmup: expected a fraction in [0, 1), got {frac!r}")

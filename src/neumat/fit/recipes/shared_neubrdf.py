@@ -12,26 +12,38 @@ on tabulated reflectance, then k-means on its codes; sizes are ours): "cluster_r
 the Rusinkiewicz table), "cluster_code_dim" (8), "cluster_width" (16 channels), "cluster_steps" (500 Adam
 steps of the autoencoder), "cluster_lr" (3e-3).
 
-CPU_RECIPE: NeuBRDF's recipe shortened to 1500 steps of 2^13 (its four halvings every 375 steps), end-to-end
-VQ with these options (the joint fit has no coarse or dense phases, so every step carries the full 2^b-way
-straight-through estimator over each material's touched slots): measured 1747-1779 s for two materials at N_side 64
-on one core beside other jobs (benchmarks/results/neubrdf_table3_hd_warp.md, section 6), about 30 minutes:
-above the 15 minutes every CPU recipe is held to and the 10 that CPU_MINUTES still states (open; it was sized
-from a NeuBRDF step, which the candidate-restricted VQ of NeuBRDF's CPU recipe makes much cheaper).
+Options of NeuBRDF's recipe that the joint fit takes, with NeuBRDF's meanings (`neumat.fit.recipes.neubrdf`):
+"coarse_fraction", "coarse_nside", "fine_lr_scale", "dense_warmup", "vq_candidates"; all off in RECIPE (the paper's
+end-to-end VQ). With dense_warmup the model is built with dense features per material and slot, and the k-means
+at the warm-up's end clusters the slots of all t materials into the one shared codebook
+(`SharedNeuBRDF.quantize_from_dense`).
+
+CPU_RECIPE: NeuBRDF's CPU recipe (5000 steps of 2^13, coarse N_side 16 up to 40 %, dense N_side 64 up to 70 %,
+then the shared codebook with 8 candidate codewords per slot, "halves" schedule), every batch split equally
+between the materials. The paper's end-to-end VQ, shortened to 1500 steps of 2^13, took 1747-1779 s for two
+materials at N_side 64 on one core (a step of the full 2^b-way straight-through estimator over every material's
+touched slots, and a dense Adam step over all t x 2n x 2^b logits before `SharedNeuBRDF.optimizer`); see
+benchmarks/results/neubrdf_table3_hd_warp.md, section 6, for both paths' times and errors.
 """
 from __future__ import annotations
 
 from dataclasses import replace
 
-from ..phase import FitContext, Phase, online_phase
+from ..phase import FitContext, Phase
 from ..recipe import Recipe
+from .neubrdf import CPU_RECIPE as NEUBRDF_CPU_RECIPE
+from .neubrdf import OPTIONS as NEUBRDF_OPTIONS
 from .neubrdf import RECIPE as NEUBRDF_RECIPE
+from .neubrdf import warmup_fraction, training_phases
 
-RECIPE: Recipe = replace(NEUBRDF_RECIPE, options={"cluster_resolution": 16, "cluster_code_dim": 8,
-                                                  "cluster_width": 16, "cluster_steps": 500, "cluster_lr": 3e-3})
-#: NeuBRDF's recipe shortened for a CPU, with the same options (module docstring)
-CPU_RECIPE: Recipe = replace(RECIPE, steps=1500, batch_size=2 ** 13, lr_decay_every=375, log_every=50,
-                             checkpoint_every=250, options=dict(RECIPE.options))
+#: the clustering's options, then the NeuBRDF options the joint fit takes (module docstring)
+OPTIONS = {"cluster_resolution": 16, "cluster_code_dim": 8, "cluster_width": 16, "cluster_steps": 500,
+           "cluster_lr": 3e-3, **{k: NEUBRDF_OPTIONS[k] for k in ("coarse_fraction", "coarse_nside", "fine_lr_scale",
+                                                                   "dense_warmup", "vq_candidates")}}
+RECIPE: Recipe = replace(NEUBRDF_RECIPE, options=dict(OPTIONS))
+#: NeuBRDF's CPU path for the joint fit (module docstring)
+CPU_RECIPE: Recipe = replace(NEUBRDF_CPU_RECIPE, options={
+    **OPTIONS, **{k: NEUBRDF_CPU_RECIPE.options[k] for k in ("coarse_fraction", "dense_warmup", "vq_candidates")}})
 CPU_MINUTES = 10
 
 
@@ -41,9 +53,11 @@ def phases(ctx: FitContext) -> list[Phase]:
     base = ctx.queries if isinstance(ctx.queries, str) else ctx.recipe.queries
     joint = joint_source(ctx.source, ctx.model.cfg.num_materials, base)
     draw = ctx.queries if ctx.queries is not None and not isinstance(ctx.queries, str) else "joint"
-    return [online_phase(replace(ctx, source=joint, queries=draw))]
+    return training_phases(replace(ctx, source=joint, queries=draw), ctx.recipe.steps)
 
 
 def config_for_source(source, options: dict | None = None) -> dict:
-    """Config defaults from the source: num_materials = the number of source materials (a list / tuple)."""
-    return {"num_materials": len(source)} if isinstance(source, (list, tuple)) else {}
+    """Config defaults from the source and the options: num_materials = the number of source materials (a list /
+    tuple); dense features for a dense warm-up."""
+    derived = {"num_materials": len(source)} if isinstance(source, (list, tuple)) else {}
+    return {**derived, "features": "dense"} if warmup_fraction(options or {}) > 0 else derived
