@@ -205,3 +205,15 @@ def test_shared_ancestor_levels_brute_force(gen):
         for p in range(0, hpx.npix(nside), 7):
             want = bool(((levels == level) & (anc == anc[p])).any())
             assert bool((mask[p] >> level) & 1) == want
+
+
+def test_check_levels_checks_every_call_and_the_level_cap_is_cached():
+    """`check_levels` validates the tensor's current values on every call (an in-place change is seen: it once
+    sat under `grid_level_cap`'s cache decorator, which keyed it on the tensor object), and `grid_level_cap`
+    is computed once per (nside, south)."""
+    levels = torch.zeros(12 * 4 * 4, dtype=torch.int8)
+    assert hpx.check_levels(levels, 4, "levels") is levels
+    levels[3] = 3  # above log2 4 = 2
+    with pytest.raises(InputError, match=r"levels: expected integer pruning levels in \[0, 2\]"):
+        hpx.check_levels(levels, 4, "levels")
+    assert hpx.grid_level_cap(4, True) is hpx.grid_level_cap(4, True)

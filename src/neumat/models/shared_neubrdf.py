@@ -173,18 +173,34 @@ class SharedNeuBRDF(LearnedMaterial):
     def _lookup(self, ids: torch.Tensor, w: torch.Tensor, south: bool) -> torch.Tensor:
         """Interpolated features (N, k) of directions w (N, 3) on the S+ (wi) or S- (mirrored wo) grid of
         materials ids (N,)."""
+        return self._lookup_both(ids, ((w, south),))[0]
+
+    def _lookup_both(self, ids: torch.Tensor, dirs) -> list[torch.Tensor]:
+        """The interpolated features (N, k) of each (w (N, 3), south) of `dirs` for materials ids (N,), with one
+        feature-grid call for all corners (a VQ grid runs its straight-through step once, as NeuBRDF's)."""
+        pruned = self.pruned
+        corners = [self._corners(ids, w, south, pruned) for w, south in dirs]
+        feats = self.grid(torch.cat([slots for _, slots, _ in corners]))  # (sum N, 4, k)
+        out = []
+        for (d, _, vid), f in zip(corners, feats.split([slots.shape[0] for _, slots, _ in corners])):
+            if self.cfg.interpolation == "uniform":
+                out.append(f.mean(1))
+            else:
+                out.append((hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype)).unsqueeze(-1) * f).sum(1))
+        return out
+
+    def _corners(self, ids: torch.Tensor, w: torch.Tensor, south: bool, pruned: bool):
+        """(the direction looked up (N, 3), grid slots (N, 4), vertex ids (N, 4)) of the corners read for w (N, 3)
+        on material ids' S+ or, mirrored, S- grid: at each pixel's pruning level, capped to stay on the grid."""
         n = self.cfg.nside
         d = hpx.hemisphere_direction(w, south)
         pix = hpx.vec2pix_unchecked(n, d)
-        level = (self.level_o if south else self.level_i)[ids, pix].long()
-        level = torch.minimum(level, hpx.grid_level_cap(n, south).to(pix.device)[pix])  # stay on the grid
-        vid = hpx.ancestor_corner_vertices(n, pix, level)
-        slots = (vid + hpx.south_grid_offset(n) if south else vid) + (ids * self.slots_per_material).unsqueeze(-1)
-        feats = self.grid(slots)
-        if self.cfg.interpolation == "uniform":
-            return feats.mean(1)
-        wts = hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype))
-        return (wts.unsqueeze(-1) * feats).sum(1)
+        level = 0
+        if pruned:
+            level = (self.level_o if south else self.level_i)[ids, pix].long()
+            level = torch.minimum(level, hpx.grid_level_cap(n, south).to(pix.device)[pix])
+        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
+        return d, slots + (ids * self.slots_per_material).unsqueeze(-1), vid
 
     def _material_ids(self, q: Query) -> torch.Tensor:
         if isinstance(q, MaterialQuery):
@@ -201,7 +217,7 @@ class SharedNeuBRDF(LearnedMaterial):
         q.require("wo", who="SharedNeuBRDF.eval")
         ids = self._material_ids(q)
         wi, wo = q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype)
-        parts = [self._lookup(ids, wi, False), self._lookup(ids, wo, True)]
+        parts = self._lookup_both(ids, ((wi, False), (wo, True)))
         if self.cfg.direction_inputs != "none":
             parts.append(direction_inputs(self.cfg.direction_inputs, wi, wo))
         f = torch.exp(self.mlp(torch.cat(parts, -1)))

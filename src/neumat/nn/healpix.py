@@ -507,7 +507,6 @@ def shared_ancestor_levels(nside: int, levels: torch.Tensor) -> torch.Tensor:
     return mask[nest]
 
 
-@functools.lru_cache(maxsize=16)
 def check_levels(levels: torch.Tensor, nside: int, name: str) -> torch.Tensor:
     """Check pruning levels (any shape, integer) against the hierarchy of `nside`: 0 .. log2 nside."""
     top = nside.bit_length() - 1
@@ -517,6 +516,7 @@ def check_levels(levels: torch.Tensor, nside: int, name: str) -> torch.Tensor:
     return levels
 
 
+@functools.lru_cache(maxsize=16)
 def grid_level_cap(nside: int, south: bool) -> torch.Tensor:
     """Largest hierarchy level (12 nside^2,) int64 at which each ring pixel's ancestor still has all 4
     corners on the S+ grid (vertex rings 0 .. 2 nside + 1; `south` False) or on S- (rings 2 nside - 1 ..
