@@ -19,17 +19,11 @@ import torch
 import neumat
 from neumat.catalog.modelfile import load_model
 from neumat.core.query import Query
+from neumat.fit.directional_blur import sample_cone
 from neumat.warp.hemisphere import sample_uniform_hemisphere
 
 THETA_O_DEG = (0, 20, 40, 60, 75)
 OFFSETS_DEG = (-8, -3, -2, -1, -0.5, 0, 0.5, 1, 2, 3, 8)
-
-
-def _cone_frame(axis: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Two unit vectors (3,) completing the unit `axis` (3,) (which lies in the xz plane) to a frame."""
-    b = torch.linalg.cross(torch.tensor([0.0, 1.0, 0.0]), axis)
-    b = b / b.norm()
-    return b, torch.linalg.cross(axis, b)
 
 
 def albedo_samples(theta_o: float, cone: float, n: int, gen: torch.Generator):
@@ -38,12 +32,8 @@ def albedo_samples(theta_o: float, cone: float, n: int, gen: torch.Generator):
     wo = torch.tensor([math.sin(theta_o), 0.0, math.cos(theta_o)])
     mirror = torch.tensor([-wo[0], 0.0, wo[2]])
     u = torch.rand(n, 2, generator=gen)
-    phi = 2 * math.pi * u[:, 1]
     uniform = sample_uniform_hemisphere(u)
-    zc = 1 - u[:, 0] * (1 - math.cos(cone))
-    rc = (1 - zc * zc).clamp(min=0).sqrt()
-    b, c = _cone_frame(mirror)
-    in_cone_dirs = (rc * phi.cos()).unsqueeze(-1) * b + (rc * phi.sin()).unsqueeze(-1) * c + zc.unsqueeze(-1) * mirror
+    in_cone_dirs = sample_cone(mirror[None], cone, u[None])[0]
     wi = torch.cat([uniform[: n // 2], in_cone_dirs[n // 2:]])
     wi = wi / wi.norm(dim=-1, keepdim=True)
     in_cone = wi @ mirror >= math.cos(cone)
