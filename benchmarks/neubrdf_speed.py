@@ -3,7 +3,8 @@
 Prints two tables:
 - training: seconds per optimiser step (forward, log_cos loss, backward, Adam) for the "vq", "dense" and
   "lowbit" feature grids at several N_side (k 16, b 9, MLP 2 x 64), batch 8192 cosine-weighted queries;
-  the optimiser is the model's own (`model.optimizer(lr, betas, eps)`) when it has one, else Adam;
+  the optimiser is the model's own (`model.optimizer(lr, betas, eps)`) when it has one, else Adam; with
+  --shared T also a SharedNeuBRDF of T materials (each batch split evenly over them; "vq" and "dense" only);
 - evaluation: evaluations per second of `model.eval(q)` in training mode (idw weights, no gradient) and in
   `runtime()` mode, for batches 2^16 .. 2^20 (queries built beforehand), per wall-clock second and per
   CPU second of the process (the latter is less sensitive to other processes on a shared machine; with
@@ -27,6 +28,7 @@ import torch
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
 from neumat.models.neubrdf import NeuBRDF
+from neumat.models.shared_neubrdf import MaterialQuery, SharedNeuBRDF
 from neumat.testing.parity import glsl_evals_per_second, opengl_available
 
 
@@ -50,11 +52,14 @@ def make_optimizer(model: NeuBRDF, lr: float = 1e-2):
     return torch.optim.Adam(model.parameters(), lr=lr)
 
 
-def timed_step(model: NeuBRDF, opt, gen: torch.Generator, batch: int) -> tuple[float, float]:
+def timed_step(model: NeuBRDF | SharedNeuBRDF, opt, gen: torch.Generator, batch: int) -> tuple[float, float]:
     """(wall-clock, CPU) seconds of one training step of `model` on `batch` cosine queries of `target` (the
-    queries and targets are drawn before the clock starts)."""
+    queries and targets are drawn before the clock starts; a shared model's rows split evenly over its
+    materials)."""
     wi, wo = cosine_dirs(batch, gen), cosine_dirs(batch, gen)
     q, y = Query(wi, wo), target(wi, wo)
+    if isinstance(model, SharedNeuBRDF):
+        q = MaterialQuery(wi, wo, material=torch.arange(batch) % model.cfg.num_materials)
     t0, c0 = time.perf_counter(), time.process_time()
     pred = model.eval(q)
     cos = wi[:, 2:3]
@@ -65,11 +70,14 @@ def timed_step(model: NeuBRDF, opt, gen: torch.Generator, batch: int) -> tuple[f
     return time.perf_counter() - t0, time.process_time() - c0
 
 
-def step_seconds(features: str, nside: int, batch: int, steps: int, warmup: int) -> tuple[float, float]:
-    """Median (wall-clock, CPU) seconds of one training step."""
+def step_seconds(features: str, nside: int, batch: int, steps: int, warmup: int,
+                 materials: int = 0) -> tuple[float, float]:
+    """Median (wall-clock, CPU) seconds of one training step of a NeuBRDF, or of a SharedNeuBRDF of `materials`
+    materials when > 0."""
     torch.manual_seed(0)
     gen = torch.Generator().manual_seed(0)
-    model = NeuBRDF(nside=nside, features=features)
+    model = SharedNeuBRDF(num_materials=materials, nside=nside, features=features) if materials else \
+        NeuBRDF(nside=nside, features=features)
     opt = make_optimizer(model)
     times, cpu = [], []
     for i in range(warmup + steps):
@@ -108,6 +116,7 @@ def main() -> None:
     ap.add_argument("--eval-log2", type=int, nargs="+", default=[16, 18, 20], help="log2 of the eval batches")
     ap.add_argument("--eval-nside", type=int, default=64)
     ap.add_argument("--glsl-log2", type=int, default=18, help="log2 of the GLSL batch (0: skip the shader)")
+    ap.add_argument("--shared", type=int, default=0, help="also time a SharedNeuBRDF of this many materials")
     ap.add_argument("--skip-train", action="store_true")
     ap.add_argument("--skip-eval", action="store_true")
     ap.add_argument("--quick", action="store_true", help="one N_side (16), 2 steps, batch 2^16 only")
@@ -118,11 +127,15 @@ def main() -> None:
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, cpus {os.cpu_count()}")
     if not a.skip_train:
         print(f"\ntraining step, batch {a.batch} (median of {a.steps} steps)")
-        print(f"{'features':>8} {'nside':>6} {'s/step':>8} {'cpu-s':>8} {'load 1/5/15':>14}")
-        for features in a.features:
-            for nside in a.nsides:
-                s, c = step_seconds(features, nside, a.batch, a.steps, warmup=2)
-                print(f"{features:>8} {nside:>6} {s:8.3f} {c:8.3f} {load():>14}", flush=True)
+        print(f"{'model':>10} {'features':>8} {'nside':>6} {'s/step':>8} {'cpu-s':>8} {'load 1/5/15':>14}")
+        for materials in [0] + ([a.shared] if a.shared else []):
+            name = f"shared x{materials}" if materials else "neubrdf"
+            for features in a.features:
+                if materials and features == "lowbit":
+                    continue
+                for nside in a.nsides:
+                    s, c = step_seconds(features, nside, a.batch, a.steps, warmup=2, materials=materials)
+                    print(f"{name:>10} {features:>8} {nside:>6} {s:8.3f} {c:8.3f} {load():>14}", flush=True)
     if not a.skip_eval:
         print(f"\nevaluation, N_side {a.eval_nside}, vq: evals per wall second (per CPU second), best of 3")
         print(f"{'batch':>8} {'train-mode':>20} {'runtime()':>20} {'load 1/5/15':>14}")

@@ -20,10 +20,10 @@ at the warm-up's end clusters the slots of all t materials into the one shared c
 
 CPU_RECIPE: NeuBRDF's CPU recipe (5000 steps of 2^13, coarse N_side 16 up to 40 %, dense N_side 64 up to 70 %,
 then the shared codebook with 8 candidate codewords per slot, "halves" schedule), every batch split equally
-between the materials. The paper's end-to-end VQ, shortened to 1500 steps of 2^13, took 1747-1779 s for two
-materials at N_side 64 on one core (a step of the full 2^b-way straight-through estimator over every material's
-touched slots, and a dense Adam step over all t x 2n x 2^b logits before `SharedNeuBRDF.optimizer`); see
-benchmarks/results/neubrdf_table3_hd_warp.md, section 6, for both paths' times and errors.
+between the materials. Two MERL-like materials at N_side 64 with hd_warp inputs: 249 - 268 s on one core beside
+another fit, image MAE within 1.0 - 1.3x of own fits, ahead of NBRDF on all four; the paper's end-to-end VQ
+shortened to 1500 steps took 1747 - 1779 s at 2 - 2.7x the own fits' error
+(benchmarks/results/neubrdf_table3_hd_warp.md, section 6). More materials add k-means time (about 15 s each).
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ RECIPE: Recipe = replace(NEUBRDF_RECIPE, options=dict(OPTIONS))
 #: NeuBRDF's CPU path for the joint fit (module docstring)
 CPU_RECIPE: Recipe = replace(NEUBRDF_CPU_RECIPE, options={
     **OPTIONS, **{k: NEUBRDF_CPU_RECIPE.options[k] for k in ("coarse_fraction", "dense_warmup", "vq_candidates")}})
-CPU_MINUTES = 10
+CPU_MINUTES = 6
 
 
 def phases(ctx: FitContext) -> list[Phase]:
