@@ -180,3 +180,25 @@ def test_ggx_sampling_chi2(anisotropic, wi):
     below = model.sample(Query(torch.tensor([[0.0, 0.6, -0.8]], dtype=torch.float64)),
                          torch.full((1, 2), 0.5, dtype=torch.float64))
     assert below.pdf.item() == 0 and torch.all(below.weight == 0)
+
+
+def test_ggx_starts_find_a_sharp_lobe_a_single_start_misses():
+    """The GGX recipe's trial starts (alpha_starts): on a sharp GGX source (alpha 0.01) the fit from the default
+    start alone stops short (measured: alpha 0.0131, F0 red 0.47, held-out log error 0.0040), the best of three
+    starts recovers it (0.0100, 0.85, 0.00052); bad options are refused before any trial runs."""
+    source = DiffuseGGX((0.02, 0.02, 0.02), (0.9, 0.6, 0.3), 0.01, 0.01)
+    fits = {}
+    for starts in ([], [0.3, 0.05, 0.01]):
+        recipe = replace(recipe_for("ggx"), steps=300, batch_size=4096,
+                         options={"alpha_starts": starts, "start_steps": 60})
+        model = GGXFit()
+        fit(model, source, recipe, progress=False)
+        fits[len(starts)] = model, reflectance_errors(model, source, n=2 ** 14)["log_err"]
+    (single, single_err), (best, best_err) = fits[0], fits[3]
+    torch.testing.assert_close(best.alpha.detach(), torch.tensor([0.01, 0.01]), atol=0, rtol=0.03)
+    assert float(single.alpha[0]) > 0.012 and best_err < 0.25 * single_err, (single_err, best_err)
+    for bad, why in (({"alpha_starts": [0.3, 2.0]}, "alpha_starts"), ({"alpha_starts": "0.3"}, "alpha_starts"),
+                     ({"start_steps": 0}, "start_steps")):
+        recipe = replace(recipe_for("ggx"), options={**recipe_for("ggx").options, **bad})
+        with pytest.raises(InputError, match=why):
+            fit(GGXFit(), source, recipe, steps=1, progress=False)

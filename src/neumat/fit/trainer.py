@@ -94,13 +94,14 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
         build = phases_for(name)
     except UnknownNameError:  # a model without a recipe module, fitted with an explicit recipe
         build = None
+    started = time.perf_counter()  # the fit's seconds include the phase builder's own work (e.g. GGX's trial starts)
     phases = build(ctx) if build is not None else [online_phase(ctx)]
     ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
     state = {"step": 0, "history": [], "seconds": 0.0, "running": {}, "optimizer": None, "guard": {}}
     if resuming:
         state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen, source)
     total = sum(p.steps for p in phases)
-    t0 = time.perf_counter() - state["seconds"]
+    t0 = started - state["seconds"]
     with _Progress(progress, total, state["step"], name) as bar:
         guard = NonFiniteGuard(model, ema, name, state.pop("guard"), report=bar.note)
         begin = 0
