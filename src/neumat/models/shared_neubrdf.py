@@ -60,7 +60,8 @@ class Config:
     (the paper), "hd" or "hd_warp" (6 inputs from the half and difference vectors, our extension)."""
     features: str = "vq"
     """Vertex feature storage: "vq" (indices into the shared codebook, the paper) or "dense" (k floats per vertex
-    and material: the warm-up of a fit that ends with `quantize_from_dense`, see `neumat.fit.recipes.shared_neubrdf`)."""
+    and material: the warm-up of a fit that ends with `quantize_from_dense`, see
+    `neumat.fit.recipes.shared_neubrdf`)."""
 
 
 def _check_config(c: Config) -> None:
