@@ -5,7 +5,7 @@ import math
 
 import torch
 
-from neumat.nn.codebook import scratch
+from neumat.nn.codebook import VQFeatures, scratch
 
 
 def _coalesced(g: torch.Tensor) -> torch.Tensor:
@@ -76,8 +76,6 @@ def grid_optimizer(module: torch.nn.Module, grid, lr: float, betas: tuple[float,
     trainable parameter of `module`, with the grid's index logits switched to sparse row gradients (updated
     lazily, only on the vertices of each batch, instead of a dense step over all V x 2^b logits) at
     `index_lr_scale` times the learning rate; plain Adam's update for any other grid."""
-    from neumat.nn.codebook import VQFeatures
-
     params = [p for p in module.parameters() if p.requires_grad]
     if not isinstance(grid, VQFeatures) or grid.frozen or not grid.logits.requires_grad:
         return RowAdam(params, lr=lr, betas=betas, eps=eps)
