@@ -21,7 +21,7 @@ at the warm-up's end clusters the slots of all t materials into the one shared c
 CPU_RECIPE: NeuBRDF's CPU recipe (5000 steps of 2^13, coarse N_side 16 up to 40 %, dense N_side 64 up to 70 %,
 then the shared codebook with 8 candidate codewords per slot, "halves" schedule), every batch split equally
 between the materials. Two MERL-like materials at N_side 64 with hd_warp inputs: 249 - 268 s on one core beside
-another fit, image MAE within 1.0 - 1.3x of own fits, ahead of NBRDF on all four; the paper's end-to-end VQ
+another fit, image MAE at 0.8 - 1.3x the own fits', ahead of NBRDF on all four; the paper's end-to-end VQ
 shortened to 1500 steps took 1747 - 1779 s at 2 - 2.7x the own fits' error
 (benchmarks/results/neubrdf_table3_hd_warp.md, section 6). More materials add k-means time (about 15 s each).
 """
