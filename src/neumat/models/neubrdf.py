@@ -423,13 +423,8 @@ class NeuBRDF(LearnedMaterial):
         nearest codeword and the candidates by the same distance); e.g. how much the loss depends on each slot's
         channels (`neumat.fit.feature_sensitivity`), so the codewords go where errors cost most. None: plain
         k-means. Returns self. Build the optimiser again afterwards (`optimizer`): the parameters changed."""
-        if not isinstance(self.grid, DenseFeatures):
-            raise InputError("NeuBRDF.quantize_from_dense: expected a model with features='dense'")
-        bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
-        self._use_vq_grid(vq_from_dense(self.grid.features, self.used_slots(), bits, iterations=iterations,
-                                        margin=margin, seed=seed, candidates=candidates, weights=weights,
-                                        who="NeuBRDF.quantize_from_dense"))
-        return self
+        return quantize_dense_grid(self, "NeuBRDF.quantize_from_dense", index_bits, iterations=iterations,
+                                   margin=margin, seed=seed, candidates=candidates, weights=weights)
 
     def _use_vq_grid(self, vq: VQFeatures) -> None:
         """Install the VQ grid `vq` (this grid's rows) in place of the current one; `Config.features` becomes
@@ -458,12 +453,7 @@ class NeuBRDF(LearnedMaterial):
             raise InputError("NeuBRDF.regrid: expected a model with features 'dense' or 'vq'")
         new_cfg = replace(self.cfg, nside=nside, features="dense")
         _check_config(new_cfg)
-        slots = hpx.grid_vertex_ids(nside)
-        dirs = hpx.vertex2vec(nside, slots, torch.float64)
-        h = hpx.hemisphere_size(nside)
-        dirs[h:, 2] = -dirs[h:, 2]  # a south slot holds the mirror image of an upper-hemisphere wo
-        dirs[:, 2] = dirs[:, 2].clamp(min=0)
-        dirs = torch.nn.functional.normalize(dirs, dim=-1).to(self.vertex_dirs)
+        dirs, h = hpx.grid_slot_directions(nside).to(self.vertex_dirs), hpx.hemisphere_size(nside)
         feats = torch.cat([self._lookup(dirs[:h], False), self._lookup(dirs[h:], True)])
         self._set_dense_grid(new_cfg, feats)
         return self
@@ -492,11 +482,7 @@ class NeuBRDF(LearnedMaterial):
         """Install a dense grid at cfg.nside holding `feats` (2 n, k), and the buffers of that size."""
         device = self.level_i.device
         n = cfg.nside
-        grid = DenseFeatures(feats.shape[0], feats.shape[1]).to(device, feats.dtype)
-        with torch.no_grad():
-            grid.features.copy_(feats)
-        grid.requires_grad_(next(self.mlp.parameters()).requires_grad)
-        self.grid = grid
+        self.grid = DenseFeatures.holding(feats.to(device), next(self.mlp.parameters()).requires_grad)
         self.cfg = cfg
         self.level_i = torch.zeros(12 * n * n, dtype=torch.int8, device=device)
         self.level_o = torch.zeros(12 * n * n, dtype=torch.int8, device=device)
@@ -643,6 +629,18 @@ def shipped_state(module, state_dict: dict, prefix: str, local_metadata) -> None
         used = module.used_slots()
         index = unpack_bits(state_dict.pop(key), grid.bits, grid.num_vertices, key)
         state_dict[prefix + "packed_used_index"] = pack_bits(index[used.to(index.device)], grid.bits)
+
+
+@torch.no_grad()
+def quantize_dense_grid(model, who: str, index_bits: int | None, **kmeans):
+    """`quantize_from_dense` of NeuBRDF-like models (NeuBRDF, SharedNeuBRDF: `grid`, `cfg.index_bits`, `used_slots`,
+    `_use_vq_grid`): the dense grid replaced by `neumat.nn.codebook_kmeans.vq_from_dense` of its used slots (keywords
+    `kmeans`: iterations, margin, seed, candidates, weights); `who` names the caller in errors. Returns model."""
+    if not isinstance(model.grid, DenseFeatures):
+        raise InputError(f"{who}: expected a model with features='dense'")
+    bits = model.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
+    model._use_vq_grid(vq_from_dense(model.grid.features, model.used_slots(), bits, who=who, **kmeans))
+    return model
 
 
 def regridded_state(module, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,

@@ -26,11 +26,11 @@ from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.models.neubrdf import (DIRECTION_INPUTS, capped_levels, check_direction_inputs, direction_inputs,
-                                   quantized_state, regridded_state, shipped_state, unpack_levels, used_slot_mask)
+                                   quantize_dense_grid, quantized_state, regridded_state, shipped_state,
+                                   unpack_levels, used_slot_mask)
 from neumat.models.registry import MODELS
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, VQFeatures, float_bits, storage_bytes
-from neumat.nn.codebook_kmeans import vq_from_dense
 from neumat.nn.mlp import MLP
 from neumat.nn.row_adam import RowAdam, grid_optimizer
 
@@ -260,9 +260,9 @@ class SharedNeuBRDF(LearnedMaterial):
 
     def used_slots(self) -> torch.Tensor:
         """Mask (t x 2n,) of the slots some pixel of their material's (pruned) grids reads."""
-        n = self.cfg.nside
+        n, pruned = self.cfg.nside, self.pruned
         masks = [used_slot_mask(n, (capped_levels(n, self.level_i[m], False), capped_levels(n, self.level_o[m], True))
-                                if self.pruned else None, self.level_i.device)
+                                if pruned else None, self.level_i.device)
                  for m in range(self.cfg.num_materials)]
         return torch.cat(masks)
 
@@ -274,13 +274,8 @@ class SharedNeuBRDF(LearnedMaterial):
         slots' features of ALL t materials (`neumat.nn.codebook_kmeans.vq_from_dense`), each slot's logits start on
         its nearest codeword (its K nearest only with `candidates` K), and `Config.features` becomes "vq". Returns
         self; build the optimiser again afterwards."""
-        if not isinstance(self.grid, DenseFeatures):
-            raise InputError("SharedNeuBRDF.quantize_from_dense: expected a model with features='dense'")
-        bits = self.cfg.index_bits if index_bits is None else check_int(index_bits, "index_bits")
-        self._use_vq_grid(vq_from_dense(self.grid.features, self.used_slots(), bits, iterations=iterations,
-                                        margin=margin, seed=seed, candidates=candidates, weights=weights,
-                                        who="SharedNeuBRDF.quantize_from_dense"))
-        return self
+        return quantize_dense_grid(self, "SharedNeuBRDF.quantize_from_dense", index_bits, iterations=iterations,
+                                   margin=margin, seed=seed, candidates=candidates, weights=weights)
 
     def _use_vq_grid(self, vq: VQFeatures) -> None:
         """Install the VQ grid `vq` (this grid's rows); `Config.features` becomes "vq" with vq's index bits."""
@@ -297,11 +292,7 @@ class SharedNeuBRDF(LearnedMaterial):
             raise InputError("SharedNeuBRDF.regrid: a pruned grid cannot be re-sampled (prune after regridding)")
         new_cfg = replace(self.cfg, nside=nside, features="dense")
         _check_config(new_cfg)
-        dirs = hpx.vertex2vec(nside, hpx.grid_vertex_ids(nside), torch.float64)
-        h = hpx.hemisphere_size(nside)
-        dirs[h:, 2] = -dirs[h:, 2]  # a south slot holds the mirror image of an upper-hemisphere wo
-        dirs[:, 2] = dirs[:, 2].clamp(min=0)
-        dirs = nn.functional.normalize(dirs, dim=-1).to(self.vertex_dirs)
+        dirs, h = hpx.grid_slot_directions(nside).to(self.vertex_dirs), hpx.hemisphere_size(nside)
         feats = []
         for m in range(self.cfg.num_materials):
             ids = torch.full((h,), m, dtype=torch.long, device=dirs.device)
@@ -312,11 +303,7 @@ class SharedNeuBRDF(LearnedMaterial):
     def _set_dense_grid(self, cfg: Config, feats: torch.Tensor) -> None:
         """Install dense grids at cfg.nside holding `feats` (t x 2n, k), and the buffers of that size."""
         device, n, t = self.level_i.device, cfg.nside, cfg.num_materials
-        grid = DenseFeatures(feats.shape[0], feats.shape[1]).to(device, feats.dtype)
-        with torch.no_grad():
-            grid.features.copy_(feats)
-        grid.requires_grad_(next(self.mlp.parameters()).requires_grad)
-        self.grid = grid
+        self.grid = DenseFeatures.holding(feats.to(device), next(self.mlp.parameters()).requires_grad)
         self.cfg = cfg
         self.slots_per_material = 2 * hpx.hemisphere_size(n)
         self.level_i = torch.zeros(t, 12 * n * n, dtype=torch.int8, device=device)

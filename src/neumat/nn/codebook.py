@@ -243,6 +243,14 @@ class DenseFeatures(nn.Module):
         self.dim = check_int(dim, "dim")
         self.features = nn.Parameter(torch.randn(num_vertices, dim) * init_std)
 
+    @classmethod
+    def holding(cls, feats: torch.Tensor, requires_grad: bool = True) -> "DenseFeatures":
+        """A grid of feats.shape[0] vertices holding the features `feats` (V, k), on their device and dtype."""
+        grid = cls(feats.shape[0], feats.shape[1]).to(feats.device, feats.dtype)
+        with torch.no_grad():
+            grid.features.copy_(feats)
+        return grid.requires_grad_(requires_grad)
+
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
         _check_ids(ids, self.num_vertices)
         return self.features[ids]

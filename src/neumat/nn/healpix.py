@@ -447,6 +447,19 @@ def grid_vertex_ids(nside: int) -> torch.Tensor:
     return torch.cat([torch.arange(h), torch.arange(h) + nvertices(n) - h])
 
 
+def grid_slot_directions(nside: int) -> torch.Tensor:
+    """Unit directions (2 n, 3) float64 that the slots of the merged sphere grid [S+, S-] stand for as upper-hemisphere
+    lookups: an S+ slot its vertex direction, an S- slot the mirror image (z negated) of its vertex, i.e. the wo whose
+    mirrored lookup lands on it; slots past the equator take the equator's direction. What re-sampling a grid at
+    another N_side evaluates (`NeuBRDF.regrid`)."""
+    n = check_nside(nside)
+    h = hemisphere_size(n)
+    dirs = vertex2vec(n, grid_vertex_ids(n), torch.float64)
+    dirs[h:, 2] = -dirs[h:, 2]  # a south slot holds the mirror image of an upper-hemisphere wo
+    dirs[:, 2] = dirs[:, 2].clamp(min=0)
+    return torch.nn.functional.normalize(dirs, dim=-1)
+
+
 def supervised_pixels(nside: int, dirs: torch.Tensor) -> torch.Tensor:
     """Mask (12 nside^2,) of ring pixels that contain at least one of the unit directions dirs (N, 3)."""
     nside = check_nside(nside)
