@@ -69,7 +69,7 @@ def test_header_contents(tmp_path, gen):
     path = save_model(m, tmp_path / "m.nmat", recipe=recipe, source=tmp_path / "src.binary",
                       metrics={"rmse_hdr": 0.5})
     h = read_header(path)
-    assert h["type"] == "neubrdf" and h["format"] == "neumat-model" and h["format_version"] == 1
+    assert h["type"] == "neubrdf" and h["format"] == "neumat-model" and h["format_version"] == 2
     assert h["config"]["nside"] == 4 and h["recipe"]["batch_size"] == 32 and h["metrics"] == {"rmse_hdr": 0.5}
     # sha256 of b"abc"
     assert h["source"] == {"name": "src.binary",
@@ -109,7 +109,7 @@ def _set(key, value):
     (dict(header_change=_set("type", "neubrdff")), "unknown model 'neubrdff'.*did you mean neubrdf"),
     (dict(header_change=lambda h: h["config"].__setitem__("nsides", 4)), "unknown key.*nsides"),
     (dict(header_change=lambda h: h["config"].__setitem__("index_bits", 0)), "index_bits"),
-    (dict(header_change=_set("format_version", 2)), "format version 2.*upgrade neumat"),
+    (dict(header_change=_set("format_version", 3)), "format version 3.*upgrade neumat"),
     (dict(header_change=_set("format", "other")), "format"),
     (dict(header_change=_set("colour", 1)), "unknown key.*colour"),
     (dict(header_change=lambda h: h.pop("config")), "lacks.*config"),

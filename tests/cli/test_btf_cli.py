@@ -104,7 +104,7 @@ def test_btf_generate_interreflection_and_fibres_are_the_library_options(tmp_pat
 
 
 def test_fit_sparse_btf_with_a_dictionary(tmp_path):
-    """`neumat fit BTF --model sparse-btf --dictionary D --tau T`: codes the BTF; the saved model loads and
+    """`neumat fit BTF --model sparse-btf --set dictionary=D --set tau=T`: codes the BTF; the saved model loads and
     evaluates like the coded one."""
     import torch
 
@@ -117,8 +117,8 @@ def test_fit_sparse_btf_with_a_dictionary(tmp_path):
                                  "--tau", "16,4,4", "--patch", "4", "--iterations", "3"])
     assert r.exit_code == 0, r.output
     out = tmp_path / "coded.nmat"
-    r = CliRunner().invoke(app, ["fit", str(paths[2]), "--model", "sparse-btf", "--dictionary", str(dictionary),
-                                 "--tau", "32,8,8", "-o", str(out)])
+    r = CliRunner().invoke(app, ["fit", str(paths[2]), "--model", "sparse-btf", "--set",
+                                 f"dictionary={dictionary}", "--set", "tau=32,8,8", "-o", str(out)])
     assert r.exit_code == 0, r.output
     model = load(out)
     assert model.cfg.tau == (32, 8, 8)
@@ -131,7 +131,7 @@ def test_fit_sparse_btf_with_a_dictionary(tmp_path):
     assert r.exit_code == 2 and "patches" in r.output
     with pytest.warns(UserWarning, match="trained on the BTF it then codes"):
         r = CliRunner().invoke(app, ["fit", str(paths[2]), "--model", "sparse-btf", "--set", "patch=4", "--set",
-                                     "num_dictionaries=2", "--set", "tau_train=16,4,4", "--tau", "16,4,4",
+                                     "num_dictionaries=2", "--set", "tau_train=16,4,4", "--set", "tau=16,4,4",
                                      "--steps", "3", "-q", "-o", str(out)])
     assert r.exit_code == 0, r.output
     assert load(out).cfg.patch == 4

@@ -16,12 +16,14 @@ from neumat.io.images import read_image
 def test_demo_writes_report_model_and_pictures(tmp_path):
     out = tmp_path / "demo"
     r = CliRunner().invoke(app, ["demo", "-o", str(out), "--source", "plastic:diffuse=0.4/0.2/0.1,roughness=0.2",
-                                 "--steps", "5", "--nside", "4", "--spp", "2", "--resolution", "24"])
+                                 "--steps", "5", "--set", "nside=4", "--set", "hidden=8", "--spp", "2",
+                                 "--resolution", "24"])
     assert r.exit_code == 0, r.output
     html = (out / "report.html").read_text()
     assert html.startswith("<!DOCTYPE html>") and len(re.findall(r'<img src="data:image/png;base64,', html)) >= 4
     model = load(out / "neubrdf.nmat")
-    assert not model.is_runtime  # the training form: inverse-distance corner weights, no HEALPix facets
+    assert model.is_runtime and model.cfg.features == "vq"  # the shipped form, as `neumat fit` writes it
+    assert "preset recommended" in r.output and "model.direction_inputs=hd_warp" in r.output
     metrics = json.loads((out / "metrics.json").read_text())
     for key in ("flip", "ssim", "noise_floor_flip", "bytes_fp16", "fit_seconds"):
         assert isinstance(metrics[key], (int, float)), key

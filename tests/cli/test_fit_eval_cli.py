@@ -86,7 +86,7 @@ def test_fit_analytic_spec(app, tmp_path):
 
 
 @pytest.mark.parametrize("args, match", [
-    (["--set", "nsides=4"], "unknown key.*'nsides' \\(did you mean nside"),
+    (["--set", "nsides=4"], "unknown key 'nsides'.*did you mean model.nside"),
     (["--set", "index_bits=0"], "index_bits"),
     (["--set", "nside=2.5"], "nside"),
     (["--set", "nside=-4"], "nside"),
@@ -142,8 +142,8 @@ def test_fit_neubrdf_at_defaults_writes_the_small_runtime_form(app, tmp_path):
     from neumat.core.query import Query
 
     out, ckpt = tmp_path / "m.nmat", tmp_path / "fit.ckpt"
-    res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", "--steps", "2", "--device", "cpu", "--quiet",
-                                   "--checkpoint", str(ckpt), "-o", str(out)])
+    res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", "--preset", "paper", "--steps", "2", "--device",
+                                   "cpu", "--quiet", "--checkpoint", str(ckpt), "-o", str(out)])
     assert res.exit_code == 0, res.output
     h = read_header(out)
     assert h["runtime"] and h["config"]["nside"] == 64 and h["config"]["index_bits"] == 9
@@ -177,48 +177,33 @@ def test_fit_on_cpu_picks_the_cpu_recipe_and_says_so(app, teacher, tmp_path):
     res = CliRunner().invoke(app, [*args, "--set", "steps=3", "--recipe", "paper", "-o", str(tmp_path / "p.nmat")])
     assert res.exit_code == 0, res.output
     assert read_header(tmp_path / "p.nmat")["recipe"]["lr_decay_every"] == paper.lr_decay_every
-    assert "CPU-sized" not in res.output
+    assert "the paper's exact model" not in res.output
     res = CliRunner().invoke(app, [*args, "--set", "steps=3", "--recipe", "dense", "-o", str(tmp_path / "d.nmat")])
     assert res.exit_code == 0, res.output
     h = read_header(tmp_path / "d.nmat")
     assert (h["recipe"]["loss"], h["recipe"]["options"]["direction_features"]) == ("log_cos_eps", 10.0)
     assert h["config"]["features"] == "dense"
-    res = CliRunner().invoke(app, [*args, "--recipe", "gpu", "-o", str(tmp_path / "x.nmat")])
-    assert res.exit_code == 2 and "--recipe" in output_text(res)
+    res = CliRunner().invoke(app, [*args, "--preset", "gpu", "-o", str(tmp_path / "x.nmat")])
+    assert res.exit_code == 2 and "no preset 'gpu'" in output_text(res)
 
 
-def test_cpu_recipe_is_the_default_on_a_cpu(monkeypatch):
-    """The choice itself (a full CPU-recipe fit takes minutes): cpu on a CPU device without a step budget,
-    paper with --steps / --set steps or on a GPU, --recipe wins; the announcement names both recipes."""
-    from neumat.fit.recipe import recipe_for
-
-    cpu, gpu = torch.device("cpu"), torch.device("cuda")
-    assert fitting.choose_recipe(None, "neubrdf", cpu, False) == "cpu"
-    assert fitting.choose_recipe(None, "neubrdf", cpu, True) == "paper"
-    assert fitting.choose_recipe(None, "neubrdf", gpu, False) == "paper"
-    assert fitting.choose_recipe("paper", "neubrdf", cpu, False) == "paper"
-    assert fitting.choose_recipe("cpu", "neubrdf", gpu, True) == "cpu"
-    assert fitting.choose_recipe("dense", "neubrdf", cpu, False) == "dense"  # a named recipe
-    with pytest.raises(InputError, match="--recipe: model ggx has the recipes paper, cpu; got 'dense'"):
-        fitting.choose_recipe("dense", "ggx", cpu, False)
-    note = fitting.cpu_recipe_note("neubrdf", recipe_for("neubrdf", "cpu"))
-    c, p = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
-    assert note.startswith(f"using the CPU-sized recipe of neubrdf ({c.steps} steps x {c.batch_size}, about ")
-    assert note.endswith(f"the paper's is {p.steps} steps x {p.batch_size} (--recipe paper)")
-
-
-def test_fit_without_steps_on_a_cpu_announces_the_cpu_recipe(app, teacher, tmp_path, monkeypatch):
-    """Through the command: no --steps on a CPU -> the CPU recipe, announced (its steps shortened by patching the
-    recipe module, so that the test stays fast)."""
+def test_fit_without_options_runs_the_recommended_preset_and_says_so(app, teacher, tmp_path, monkeypatch):
+    """Through the command with no preset: the recommended one runs (its steps shortened by patching the recipe
+    module, so that the test stays fast), one line names it, its overrides and how to get the paper's model, and the
+    file records it."""
     from dataclasses import replace
 
     import neumat.fit.recipes.neubrdf as module
 
-    monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=2))
+    monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=4))
     res = CliRunner().invoke(app, ["fit", teacher, *SMALL, "--device", "cpu", "-o", str(tmp_path / "c.nmat")])
     assert res.exit_code == 0, res.output
-    assert "using the CPU-sized recipe of neubrdf (2 steps x 256" in output_text(res)
-    assert read_header(tmp_path / "c.nmat")["recipe"]["lr_decay_every"] == module.CPU_RECIPE.lr_decay_every
+    text = output_text(res)
+    assert "neubrdf: preset recommended (recipe cpu; model.features=dense, model.direction_inputs=hd_warp" in text
+    assert "4 steps x 256" in text and "the paper's exact model: --preset paper" in text
+    h = read_header(tmp_path / "c.nmat")
+    assert h["preset"]["name"] == "recommended" and h["config"]["direction_inputs"] == "hd_warp"
+    assert h["recipe"]["lr_decay_every"] == module.CPU_RECIPE.lr_decay_every
 
 
 def test_cpu_recipe_with_direction_inputs_fits_quantises_and_exports(app, tmp_path, monkeypatch):

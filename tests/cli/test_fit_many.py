@@ -145,55 +145,55 @@ def test_changed_evaluation_options_evaluate_the_saved_models_again_without_refi
     assert _rows(out)["teacher0"]["nmat_sha256"] == first["nmat_sha256"]
 
 
-def test_recipe_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tmp_path):
-    """--recipe cpu: each model's CPU-sized recipe (neubrdf: 2^13 queries a step, not the paper's 2^14); a rerun
-    with the paper's recipe fits again; a paper-recipe row's options hash of before the image protocol was
-    hashed does not mention the recipe (results written before the option existed are recognised)."""
+def test_preset_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tmp_path):
+    """--preset cpu: each model's CPU path (neubrdf: 2^13 queries a step, not the paper's 2^14); a rerun with the
+    paper's preset fits again; a paper-preset row's options hash of before the image protocol was hashed does not
+    mention the preset (results written before the option existed are recognised); the default is recommended."""
     from neumat.fit.recipe import recipe_for
 
     out = tmp_path / "out"
     args = ["ggx:roughness=0.3", "-m", "neubrdf", "--steps", "2", "--set", "nside=2", "--set", "index_bits=3",
             "--set", "hidden=8", "--eval-n", "2048", "--image-spp", "0", "--device", "cpu", "--engine", "local",
             "-o", str(out)]
-    res = CliRunner().invoke(app, [*args, "--recipe", "cpu"])
+    res = CliRunner().invoke(app, [*args, "--preset", "cpu"])
     assert res.exit_code == 0, res.output
     (row,) = _rows(out).values()
     assert row["recipe"]["batch_size"] == recipe_for("neubrdf", "cpu").batch_size != recipe_for("neubrdf").batch_size
     from neumat.catalog.modelfile import load_model
     saved = load_model(row["nmat"])
     assert saved.is_runtime and saved.cfg.interpolation == "uniform"  # the shipped form, as `neumat fit` writes
-    res = CliRunner().invoke(app, args)
+    res = CliRunner().invoke(app, [*args, "--preset", "paper"])
     assert "0 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
     (row,) = _rows(out).values()
     assert row["recipe"]["batch_size"] == recipe_for("neubrdf").batch_size
     import hashlib
     from dataclasses import asdict
 
-    job = FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path))
+    job = FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path), preset="paper")
     before = {k: v for k, v in asdict(job).items()
-              if k not in ("source", "name", "out_dir", "device", "recipe", "evaluate_only", "threads")}
+              if k not in ("source", "name", "out_dir", "device", "preset", "evaluate_only", "threads")}
     assert job.legacy_options_sha256() == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
     assert job.options_sha256() != FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path),
-                                          recipe="cpu").options_sha256()
-    bad = CliRunner().invoke(app, [*args, "--recipe", "gpu"])
-    assert bad.exit_code == 2 and "--recipe: model neubrdf has the recipes paper, cpu, dense; got 'gpu'" in \
-        " ".join(bad.output.split())
+                                          preset="cpu").options_sha256()
+    assert FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path)).preset == "recommended"
+    bad = CliRunner().invoke(app, [*args, "--preset", "gpu"])
+    assert bad.exit_code == 2 and "model neubrdf has no preset 'gpu'" in " ".join(bad.output.split())
 
 
-def test_model_recipes_scope_a_named_recipe_to_one_model():
-    """fit-many --recipe: a plain value for every model, MODEL:NAME for one (it wins), "paper" by default; each
-    checked against that model's recipes; a scope naming no --model is refused."""
-    from neumat.cli.fit_many import model_recipes
-    from neumat.core.errors import InputError
+def test_model_presets_scope_a_preset_to_one_model():
+    """fit-many --preset: a plain value for every model, MODEL:NAME for one (it wins), recommended by default;
+    each checked against that model's presets; a scope naming no --model is refused."""
+    from neumat.cli.fit_many import model_presets
+    from neumat.core.errors import InputError, UnknownNameError
 
     models = ["neubrdf", "ggx"]
-    assert model_recipes([], models) == {"neubrdf": "paper", "ggx": "paper"}
-    assert model_recipes(["cpu", "neubrdf:dense"], models) == {"neubrdf": "dense", "ggx": "cpu"}
-    assert model_recipes(["neubrdf:dense"], models) == {"neubrdf": "dense", "ggx": "paper"}
-    with pytest.raises(InputError, match="model ggx has the recipes paper, cpu; got 'dense'"):
-        model_recipes(["dense"], models)
-    with pytest.raises(InputError, match="--recipe: nbrdf is not one of the --model values"):
-        model_recipes(["nbrdf:cpu"], models)
+    assert model_presets([], models) == {"neubrdf": "recommended", "ggx": "recommended"}
+    assert model_presets(["cpu", "neubrdf:dense"], models) == {"neubrdf": "dense", "ggx": "cpu"}
+    assert model_presets(["neubrdf:dense"], models) == {"neubrdf": "dense", "ggx": "recommended"}
+    with pytest.raises(UnknownNameError, match="model ggx has no preset 'dense'"):
+        model_presets(["dense"], models)
+    with pytest.raises(InputError, match="--preset: nbrdf is not one of the --model values"):
+        model_presets(["nbrdf:cpu"], models)
 
 
 class KillFirstAttempt:

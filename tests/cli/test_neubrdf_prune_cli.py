@@ -68,7 +68,8 @@ def test_rgl_samples_refuses_other_materials():
 def test_cli_fit_with_pruning(app, rgl, tmp_path):
     runner = CliRunner()
     # N_side 16, b 6: large enough that the slots pruning drops outweigh its 1-bit-per-pixel mask
-    args = ["fit", rgl, *SMALL, "--set", "nside=16", "--set", "index_bits=6", "--set", "queries=replay",
+    args = ["fit", rgl, *SMALL, "--preset", "paper", "--set", "nside=16", "--set", "index_bits=6",
+            "--set", "queries=replay",
             "--set", "measured_azimuths=1"]
     res = runner.invoke(app, [*args, "--set", "prune=true", "-o", str(tmp_path / "pruned.nmat")])
     assert res.exit_code == 0, res.output
@@ -104,12 +105,12 @@ def test_cli_fit_with_pruning(app, rgl, tmp_path):
     ("rgl", ["prune=true"], "prune=true: needs queries=replay"),
     ("ggx:roughness=0.3", ["queries=replay"], "holds no measurement samples"),
     ("ggx:roughness=0.3", ["queries=replay", "prune=true"], "holds no measurement samples"),
-    ("rgl", ["queries=replay", "prune=yes"], "prune: expected true or false"),
-    ("rgl", ["queries=replay", "measured_azimuths=0"], "azimuths: expected a positive integer"),
+    ("rgl", ["queries=replay", "prune=yes"], "option.prune: expected true/false"),
+    ("rgl", ["queries=replay", "measured_azimuths=0"], "option.measured_azimuths: expected a value >= 1, got 0"),
 ])
 def test_cli_pruning_bad_combinations(app, rgl, tmp_path, source, sets, match):
     src = rgl if source == "rgl" else source
-    res = CliRunner().invoke(app, ["fit", src, *SMALL, *[a for s in sets for a in ("--set", s)],
+    res = CliRunner().invoke(app, ["fit", src, *SMALL, "--preset", "paper", *[a for s in sets for a in ("--set", s)],
                                    "-o", str(tmp_path / "x.nmat")])
     assert res.exit_code != 0
     assert re.search(match, output_text(res)), res.output

@@ -148,7 +148,8 @@ def test_shared_neubrdf_cpu_path_resumes_bit_for_bit_in_every_phase(stop, tmp_pa
                      options={**cpu.options, "coarse_fraction": 0.3, "dense_warmup": 0.5, "vq_candidates": 2,
                               "coarse_nside": 2})
     derived = recipe_config_for_source("shared-neubrdf", sources, recipe.options)
-    assert derived == {"num_materials": 2, "features": "dense"}
+    assert derived == {"num_materials": 2}  # the presets set features; the dense warm-up needs them dense
+    derived["features"] = "dense"
 
     def make():
         torch.manual_seed(0)

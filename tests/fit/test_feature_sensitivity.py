@@ -13,7 +13,7 @@ from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.feature_sensitivity import feature_sensitivity
 from neumat.fit.phase import FitContext, loss_module, online_targets, query_draw
-from neumat.fit.recipe import recipe_config_for_source, recipe_for
+from neumat.fit.recipe import recipe_for
 from neumat.fit.trainer import fit
 from neumat.models.neubrdf import NeuBRDF
 
@@ -72,7 +72,7 @@ def _fit(weights: str):
                      options={**r.options, "dense_warmup": 0.5, "vq_candidates": 2, "kmeans_weights": weights})
     torch.manual_seed(0)
     source = open_material("ggx:roughness=0.3")
-    model = NeuBRDF(**{**recipe_config_for_source("neubrdf", source, recipe.options), "nside": 2, "index_bits": 2,
+    model = NeuBRDF(**{"features": "dense", "nside": 2, "index_bits": 2,
                        "hidden": 4})
     res = fit(model, source, recipe, progress=False, device="cpu")
     return model, res
@@ -90,7 +90,7 @@ def test_kmeans_weights_refuses_unknown_values_and_fits_without_a_warmup():
     source = open_material("ggx:roughness=0.3")
     r = recipe_for("neubrdf")
     bad = replace(r, steps=4, batch_size=64, options={**r.options, "dense_warmup": 0.5, "kmeans_weights": "fisher"})
-    with pytest.raises(InputError, match="kmeans_weights: expected 'uniform' or 'sensitivity', got 'fisher'"):
+    with pytest.raises(InputError, match="option.kmeans_weights: expected one of 'uniform', 'sensitivity', got 'fisher'"):
         fit(NeuBRDF(nside=2, hidden=4, features="dense"), source, bad, progress=False)
     no_warmup = replace(bad, options={**r.options, "kmeans_weights": "sensitivity"})
     with pytest.raises(InputError, match="needs dense_warmup > 0"):

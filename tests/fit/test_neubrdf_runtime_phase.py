@@ -147,9 +147,9 @@ def test_runtime_phase_resumes_bit_for_bit(stop_at, tmp_path):
 
 def test_runtime_fraction_errors():
     source = open_material(SOURCE)
-    with pytest.raises(InputError, match=r"runtime_fraction: expected a fraction in \[0, 1\)"):
+    with pytest.raises(InputError, match=r"option.runtime_fraction: expected a value in \[0, 1\), got 1.0"):
         fit(_model(), source, _recipe(1.0), progress=False)
-    with pytest.raises(InputError, match="runtime_samples: expected an integer >= 1"):
+    with pytest.raises(InputError, match="option.runtime_samples: expected a value >= 1, got 0"):
         fit(_model(), source, _recipe(0.25, runtime_samples=0), progress=False)
     with pytest.raises(InputError, match="runtime_interpolation is 'idw'"):
         fit(_model(runtime_interpolation="idw"), source, _recipe(0.25), progress=False)

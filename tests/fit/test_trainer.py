@@ -174,12 +174,12 @@ def test_model_optimizer_and_lr_scale_of_its_groups():
 
 
 def test_progress_bar_and_default_recipe(monkeypatch):
-    """Without a recipe the model's own is used (here shortened through `steps` and a smaller batch)."""
+    """Without a recipe the default preset's is used (here shortened through `steps` and a smaller batch)."""
     from neumat.fit.recipes import neubrdf as neubrdf_recipe
-    monkeypatch.setattr(neubrdf_recipe.RECIPE, "batch_size", 16)
-    m = NeuBRDF(nside=2, index_bits=2, hidden=4)
+    monkeypatch.setattr(neubrdf_recipe.CPU_RECIPE, "batch_size", 16)
+    m = NeuBRDF(nside=2, index_bits=3, hidden=4, features="dense", direction_inputs="hd_warp")
     res = fit(m, Blinn(), steps=3, progress=True)
-    assert res.steps == 3 and [r["step"] for r in res.history] == [3]
+    assert res.steps == 3 and res.recipe.batch_size == 16 and res.history[-1]["step"] == 3
 
 
 class _NaNSource(Material):

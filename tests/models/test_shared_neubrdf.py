@@ -127,7 +127,7 @@ def test_joint_fit_through_the_shared_trainer():
     torch.manual_seed(0)
     model = SharedNeuBRDF(num_materials=2, nside=8, index_bits=6, hidden=32)
     before = [reflectance_errors(model.material(i), m, n=2 ** 14)["rel_err"] for i, m in enumerate(materials)]
-    recipe = replace(recipe_for("neubrdf"), batch_size=1024, lr=1e-2, ema=0.0, lr_decay_every=0)
+    recipe = replace(recipe_for("shared-neubrdf"), batch_size=1024, lr=1e-2, ema=0.0, lr_decay_every=0)
     result = fit_shared(model, materials, recipe, steps=250, progress=False)
     assert result.steps == 250
     after = [reflectance_errors(model.material(i), m, n=2 ** 14)["rel_err"] for i, m in enumerate(materials)]
@@ -142,7 +142,7 @@ def test_joint_fit_through_the_shared_trainer():
 def test_fit_clusters_builds_one_shared_model_per_group():
     materials = [Plastic(diffuse=(0.6, 0.3, 0.15)), GGX(roughness=0.2), Plastic(diffuse=(0.2, 0.5, 0.3))]
     clustering = Clustering(labels=np.array([1, 0, 1]), codes=np.zeros((3, 2)), reconstruction_mse=0.0)
-    recipe = replace(recipe_for("neubrdf"), batch_size=64, ema=0.0)
+    recipe = replace(recipe_for("shared-neubrdf"), batch_size=64, ema=0.0)
     out = fit_clusters(materials, 2, SMALL, recipe, clustering=clustering, steps=2, progress=False)
     assert [group for group, _ in out] == [[1], [0, 2]]
     assert [model.cfg.num_materials for _, model in out] == [1, 2]

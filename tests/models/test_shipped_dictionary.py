@@ -34,7 +34,7 @@ def test_fit_with_the_default_dictionary(tmp_path):
     src = write_btf(tmp_path / "b.nbtf", btf)
     out = tmp_path / "b.nmat"
     r = CliRunner().invoke(app, ["fit", str(src), "--model", "sparse-btf", "--set", "dictionary=default",
-                                 "--tau", "32,8,8", "-o", str(out)])
+                                 "--set", "tau=32,8,8", "-o", str(out)])
     assert r.exit_code == 0, r.output
     model = load(out)
     ref = read_btf(src)
@@ -47,7 +47,7 @@ def test_fit_with_the_default_dictionary(tmp_path):
     assert mse(ref, model.decode()) < 0.8 * mse(ref, untrained.decode())
     # per-BTF statistics through the CLI: six stored numbers
     r = CliRunner().invoke(app, ["fit", str(src), "--model", "sparse-btf", "--set", "dictionary=default",
-                                 "--set", "statistics=btf", "--tau", "32,8,8", "-o", str(out)])
+                                 "--set", "statistics=btf", "--set", "tau=32,8,8", "-o", str(out)])
     assert r.exit_code == 0, r.output
     model = load(out)
     assert model.cfg.statistics == "btf" and model.storage()["statistics"] == 2 * 3 * 4

@@ -56,9 +56,11 @@ def source_info(source: Any) -> dict:
     return {"name": source.describe(), "sha256": hashlib.sha256(values.numpy().tobytes()).hexdigest()}
 
 
-def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: dict | None = None) -> Path:
+def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: dict | None = None,
+               preset: dict | None = None) -> Path:
     """Write `model` to `path` (.nmat). recipe: the Recipe it was trained with; source: the training source
-    (file path, spec string or Material); metrics: JSON-serialisable numbers measured at save time."""
+    (file path, spec string or Material); metrics: JSON-serialisable numbers measured at save time; preset:
+    {"name", "overrides"} of the preset the fit used."""
     path = Path(path)
     if path.suffix != ".nmat":
         raise InputError(f"save_model: model files end in .nmat, got {str(path)!r}")
@@ -75,6 +77,8 @@ def save_model(model, path: str | Path, *, recipe=None, source=None, metrics: di
               "source": source_info(source) if source is not None else None, "metrics": metrics,
               "size_bytes": {p: int(model.size_bytes(p)) for p in ("fp16", "fp32")}, "flops": int(model.flops()),
               "neumat_version": __version__}
+    if preset is not None:
+        header["preset"] = preset
     tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
     return write_model_file(path, header, tensors)
 

@@ -1,5 +1,6 @@
-"""`neumat demo`: the main job end to end — fit NeuBRDF to a material, render reference and model side by side
-with a FLIP error map, write an HTML report, `metrics.json` and the model's web viewer page.
+"""`neumat demo`: the main job end to end — fit NeuBRDF to a material with the preset `neumat fit` uses, render
+reference and the shipped model side by side with a FLIP error map, write an HTML report, `metrics.json` and the
+model's web viewer page (the same shipped form).
 
 The renders are lit by three directional lights: with delta lights every pixel sample of the direct
 illumination is exact (no Monte Carlo noise; only the sub-pixel positions of anti-aliasing are random), so the
@@ -13,14 +14,13 @@ from pathlib import Path
 
 import typer
 
-from .common import SEED_RANGE, console, device_option, print_table, run_command
+from .common import (SEED_RANGE, THREADS_HELP, console, device_option, parse_overrides, print_table, run_command,
+                     torch_threads)
 
 #: default material: a smooth analytic plastic (exact values, no table to interpolate)
 DEFAULT_SOURCE = "plastic:diffuse=0.35/0.12/0.05,roughness=0.2,eta=1.5"
 #: key, fill and rim lights of the renders: (direction towards the light, irradiance RGB)
 LIGHTS = (((-0.6, 0.8, 0.9), (3.0, 2.8, 2.5)), ((0.9, 0.2, 0.5), (0.8, 0.9, 1.1)), ((0.3, 0.9, -0.4), (2.0, 2.0, 2.0)))
-#: (wi, wo) pairs at which a measured source is evaluated once before the fit (analytic sources train online)
-POOL_SIZE = 2 ** 18
 #: the paper's budget (Dou et al. 2024, Sec. 4; our recipe `neumat.fit.recipes.neubrdf`): N_side, steps, batch
 PAPER_NSIDE, PAPER_STEPS, PAPER_BATCH = 64, 20000, 2 ** 14
 #: SSIM the paper reports over MERL renders (Table 3)
@@ -33,71 +33,61 @@ def register(app: typer.Typer) -> None:
 
 def demo(out: Path = typer.Option(Path("out/demo"), "-o", "--out", help="output folder"),
          source: str = typer.Option(DEFAULT_SOURCE, help="material to fit (a spec, or a MERL / RGL file)"),
-         steps: int = typer.Option(600, min=1, help="training steps"),
-         batch: int = typer.Option(8192, min=1, help="queries per training step"),
-         nside: int = typer.Option(16, min=1, help="HEALPix N_side of the NeuBRDF grids"),
-         features: str = typer.Option("dense", help="NeuBRDF vertex features: dense, vq (the paper's) or lowbit"),
+         preset: str = typer.Option(None, "--preset", help="a NeuBRDF preset, as `neumat fit --preset` (default: "
+                                                         "recommended, what we would ship)"),
+         set_: list[str] = typer.Option(None, "--set", help="key=value, as `neumat fit --set`"),
+         steps: int = typer.Option(None, min=1, help="training steps (default: the preset's)"),
          spp: int = typer.Option(16, min=1, help="samples per pixel of the renders (anti-aliasing only)"),
          resolution: int = typer.Option(256, min=16),
          device: str = typer.Option(None, callback=device_option,
                                    help="torch device (default: cuda if available, else cpu)"),
          seed: int = typer.Option(0, **SEED_RANGE),
+         threads: int = typer.Option(None, min=1, help=THREADS_HELP),
          quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output (the last line stays)")) -> None:
-    """Fit NeuBRDF to a material, render reference | model | FLIP, write OUT/report.html and OUT/metrics.json."""
-    run_command(lambda: run_demo(out, source, steps, batch, nside, features, spp, resolution, device, seed, quiet))
+    """Fit NeuBRDF to a material as `neumat fit` does, render reference | shipped model | FLIP, write
+    OUT/report.html, OUT/metrics.json and OUT/viewer.html."""
+    with torch_threads(threads):
+        run_command(lambda: run_demo(out, source, preset, parse_overrides(set_), steps, spp, resolution, device,
+                                     seed, quiet))
 
 
-def run_demo(out: Path, source: str, steps: int, batch: int, nside: int, features: str, spp: int,
+def run_demo(out: Path, source: str, preset: str | None, overrides: dict, steps: int | None, spp: int,
              resolution: int, device: str | None, seed: int, quiet: bool = False) -> Path:
     """The demo job; returns the report path."""
     import time
-    from dataclasses import replace
 
     import torch
 
     from ..catalog.modelfile import save_model
     from ..catalog.open_material import open_material
     from ..export.web.viewer import write_viewer
-    from ..fit.measured_samples import MeasuredSamples
-    from ..fit.recipe import recipe_for
+    from ..fit.preset import DEFAULT_PRESET, build_fit
     from ..fit.trainer import fit
     from ..io.images import write_image, write_image_ldr
-    from ..metrics.hdr import cosine_queries, reflectance_errors
+    from ..metrics.hdr import reflectance_errors
     from ..metrics.image import image_metrics
-    from ..models.neubrdf import NeuBRDF
-    from ..reflectance.analytic import AnalyticMaterial
     from ..viz.compare import compare_image
     from ..viz.report import write_report
     from ..viz.slices import brdf_slice_image, brdf_slice_range, polar_plot
+    from .fitting import preset_note, resolve_device
 
     start = time.perf_counter()
-    dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    dev = resolve_device(device)
     reference = open_material(source)
     out.mkdir(parents=True, exist_ok=True)
-    say = (lambda text: None) if quiet else console.print
-    say(f"[bold]neumat demo[/]: fitting NeuBRDF (N_side {nside}, {features}) to {source} on {dev}")
-
-    # analytic sources are cheap and exact: fresh targets every step; measured ones are evaluated once on a pool
-    # of cosine-distributed queries that the fit replays
-    if isinstance(reference, AnalyticMaterial):
-        samples, queries = reference, "cosine"
-    else:
-        pool = cosine_queries(POOL_SIZE, torch.Generator().manual_seed(seed), torch.device("cpu"))
-        samples, queries = MeasuredSamples.from_material(reference, pool, name=source), "replay"
-    torch.manual_seed(seed)
-    model = NeuBRDF(nside=nside, features=features)
-    # the demo's own short CPU schedule (the paper's budget is 20000 steps of 2^14 on a GPU): the recipe's rate
-    # decayed by a cosine to 5 % at the last step, and an EMA over the last ~50 steps. On the default plastic
-    # (600 x 8192, N_side 16) dense features reach image FLIP 0.017 where the paper's VQ codebook stays at 0.05
-    # (its codebook indices need far more steps to settle; the renders are blotchy)
-    recipe = replace(recipe_for("neubrdf"), batch_size=batch, lr=1e-2, schedule="cosine", lr_min=5e-4, ema=0.02,
-                     seed=seed, checkpoint_every=steps)
-    result = fit(model, samples, recipe, steps=steps, device=dev, progress=not quiet, queries=queries)
-    model = result.model.eval()  # the training form: inverse-distance corner weights, no per-pixel facets
+    say = (lambda text, **kw: None) if quiet else console.print
+    model, resolved = build_fit("neubrdf", preset or DEFAULT_PRESET, device=dev, source=reference,
+                                overrides=overrides, seed=seed)
+    say(f"[bold]neumat demo[/]: fitting NeuBRDF to {source} on {dev}")
+    say(preset_note("neubrdf", resolved), markup=False)
+    result = fit(model, reference, resolved.recipe, steps=steps, device=dev, progress=not quiet)
+    model = result.model.runtime()  # the shipped form: what the file, the renders and the viewer hold
     errors = reflectance_errors(model, reference, n=2 ** 18, seed=seed, device=dev)
-    model_path = save_model(model, out / "neubrdf.nmat", recipe=recipe, source=source,
-                            metrics={**errors, "fit_seconds": result.seconds})
+    model_path = save_model(model, out / "neubrdf.nmat", recipe=result.recipe, source=source,
+                            metrics={**errors, "fit_seconds": result.seconds},
+                            preset={"name": resolved.preset, "overrides": resolved.applied})
     viewer = write_viewer(model, out / "viewer.html", title=f"NeuBRDF fitted to {source}")
+    cfg, recipe = model.cfg, result.recipe
 
     say(f"rendering reference (twice, for the noise floor) and model ({resolution}x{resolution}, {spp} spp)")
     images, times = {}, {}
@@ -116,16 +106,18 @@ def run_demo(out: Path, source: str, steps: int, batch: int, nside: int, feature
     write_image_ldr(out / "compare.png", picture)
 
     summary = {"source": source, "flip": metrics["flip"], "ssim": metrics["ssim"], "psnr": metrics["psnr"],
-               "noise_floor_flip": floor["flip"], "noise_floor_ssim": floor["ssim"], "nside": nside,
-               "features": features, "steps": result.steps, "batch": batch, "fit_seconds": result.seconds,
+               "noise_floor_flip": floor["flip"], "noise_floor_ssim": floor["ssim"], "preset": resolved.preset,
+               "nside": cfg.nside, "features": cfg.features, "direction_inputs": cfg.direction_inputs,
+               "steps": result.steps, "batch": recipe.batch_size, "fit_seconds": result.seconds,
                "bytes_fp16": model.size_bytes("fp16"), **{f"brdf_{k}": v for k, v in errors.items()},
                "spp": spp, "resolution": resolution}
-    budget = (f"Budget: N_side {nside} ({features} features), {result.steps} steps of {batch} queries "
-              f"({result.steps * batch / (PAPER_STEPS * PAPER_BATCH):.1%} of the {PAPER_STEPS} x {PAPER_BATCH} "
-              f"target evaluations of the full recipe) in {result.seconds:.0f} s on {dev}. The paper trains "
-              f"N_side {PAPER_NSIDE} with a 2^9-row codebook on a GPU and reports SSIM {PAPER_SSIM} averaged over "
-              f"renders of the MERL materials; this is a smaller model trained for a small fraction of that budget "
-              f"on one smooth material, so its numbers are not the paper's.")
+    budget = (f"Model: {resolved.describe()}: N_side {cfg.nside}, {cfg.features} features, direction inputs "
+              f"{cfg.direction_inputs}, {model.size_bytes('fp16'):,} bytes at fp16. Budget: {result.steps} steps of "
+              f"{recipe.batch_size} queries ({result.steps * recipe.batch_size / (PAPER_STEPS * PAPER_BATCH):.1%} of "
+              f"the {PAPER_STEPS} x {PAPER_BATCH} target evaluations of the paper's recipe) in "
+              f"{result.seconds:.0f} s on {dev}. The paper trains N_side {PAPER_NSIDE} with a 2^9-row codebook on a "
+              f"GPU and reports SSIM {PAPER_SSIM} averaged over renders of the MERL materials; `--preset paper` "
+              f"runs its exact model and recipe.")
     slice_range = brdf_slice_range([reference, model])
     summary["total_seconds"] = time.perf_counter() - start
     (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
@@ -146,11 +138,9 @@ def run_demo(out: Path, source: str, steps: int, batch: int, nside: int, feature
                     ("NeuBRDF", brdf_slice_image(model, value_range=slice_range))]},
         {"heading": "In-plane BRDF (log scale)",
          "images": [("reference vs NeuBRDF", polar_plot({"reference": reference, "NeuBRDF": model}))]},
-        {"heading": "Files", "text": f"model: {model_path.name} (training form: inverse-distance corner weights; "
-                                     f"`model.runtime()` switches to the paper's 1/4 weights, which are constant "
-                                     f"over each HEALPix pixel and show its facets); metrics.json; images: "
-                                     f"reference.exr, neubrdf.exr, compare.png; {viewer.name}: the model's GLSL "
-                                     f"export in an interactive WebGL 2 page"},
+        {"heading": "Files", "text": f"model: {model_path.name} (the shipped runtime form, rendered above); "
+                                     f"metrics.json; images: reference.exr, neubrdf.exr, compare.png; "
+                                     f"{viewer.name}: the same model's GLSL export in an interactive WebGL 2 page"},
     ])
     console.print(f"[bold green]wrote[/] {report} ({summary['total_seconds']:.0f} s)")
     return report

@@ -36,7 +36,9 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
                                                 "(cluster_steps, cluster_resolution, cluster_code_dim, ...)"),
                  steps: int = typer.Option(None, min=0, help="optimiser steps of each cluster's fit (default: "
                                                              "the recipe's)"),
-                 recipe_name: str = typer.Option(None, "--recipe", help="paper | cpu, as `neumat fit --recipe`"),
+                 preset: str = typer.Option(None, "--preset", help="a preset of shared-neubrdf, as `neumat fit "
+                                            "--preset` (default: recommended)"),
+                 recipe_alias: str = typer.Option(None, "--recipe", hidden=True, help="the old name of --preset"),
                  device: str = typer.Option(None, callback=device_option,
                                             help="torch device (default: cuda if available, else cpu)"),
                  seed: int = typer.Option(None, **SEED_RANGE, help="seed of the autoencoder, k-means, the model "
@@ -65,7 +67,8 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         from ..fit.shared_neubrdf import cluster_materials
         from ..fit.trainer import fit
         from .fit_many import expand_sources, source_names
-        from .fitting import build_model_and_recipe, choose_recipe, cpu_recipe_note, resolve_device
+        from ..fit.preset import build_fit
+        from .fitting import chosen_preset, preset_note, resolve_device
 
         if out.exists() and not out.is_dir():
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
@@ -73,7 +76,7 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         if "num_materials" in overrides:
             raise InputError("--set num_materials: fit-clusters sets each cluster's number of materials itself")
         dev = resolve_device(device)
-        machine = choose_recipe(recipe_name, MODEL, dev, steps is not None or "steps" in overrides)
+        name = chosen_preset(preset, recipe_alias)
         paths = expand_sources(sources)
         if k > len(paths):
             raise InputError(f"-k {k}: more clusters than materials; expected at most {len(paths)} (the number "
@@ -81,9 +84,10 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         names = source_names(paths)
         materials = [open_brdf(p, parse_overrides(source_option, "--source-option")) for p in paths]
         # checks --set and gives the recipe before the clustering (the model of this call is not used)
-        _, recipe = build_model_and_recipe(MODEL, overrides, seed, source=materials[:1], machine=machine)
-        if machine == "cpu" and recipe_name is None and not quiet:
-            print(cpu_recipe_note(MODEL, recipe))
+        _, resolved = build_fit(MODEL, name, device=dev, source=materials[:1], overrides=overrides, seed=seed)
+        if not quiet:
+            print(preset_note(MODEL, resolved))
+        recipe = resolved.recipe
         opts = recipe.options
         settings = {"resolution": opts["cluster_resolution"], "code_dim": opts["cluster_code_dim"],
                     "width": opts["cluster_width"], "steps": opts["cluster_steps"], "lr": opts["cluster_lr"],
@@ -101,16 +105,17 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
             members = [paths[j] for j in group]
             nmat = out / f"cluster{label}.nmat"
             print(f"cluster {label}: {len(members)} material(s): {', '.join(names[p] for p in members)}", flush=True)
-            model, base = build_model_and_recipe(MODEL, overrides, seed, source=[materials[j] for j in group],
-                                                 machine=machine)
-            joint = replace(base, batch_size=base.batch_size * len(members))
+            model, built = build_fit(MODEL, name, device=dev, source=[materials[j] for j in group],
+                                     overrides=overrides, seed=seed)
+            joint = replace(built.recipe, batch_size=built.recipe.batch_size * len(members))
             result = fit(model, [materials[j] for j in group], joint, steps=steps, device=dev, progress=not quiet)
             loss = result.history[-1]["loss"] if result.history else None
             if loss is not None and not math.isfinite(loss):
                 raise DataFormatError(f"the fit of cluster {label} ({', '.join(members)}) ended with a non-finite "
                                       f"loss ({loss})")
             save_model(result.model.runtime(), nmat, recipe=result.recipe, source=members,
-                       metrics={"final_loss": loss, "fit_seconds": result.seconds})
+                       metrics={"final_loss": loss, "fit_seconds": result.seconds},
+                       preset={"name": built.preset, "overrides": built.applied})
             shipped = load_model(nmat, device=dev)
             for i, j in enumerate(group):
                 view = shipped.material(i)

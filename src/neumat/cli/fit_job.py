@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..core.errors import DataFormatError
+from ..fit.preset import DEFAULT_PRESET
 from .common import torch_threads
 
 #: the row keys, in the order results.json and results.md show them
@@ -31,7 +32,7 @@ class FitJob:
     """What to fit and how. source: a file path or spec (as `neumat fit` takes it); name: the source's short
     name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
     errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
-    recipe: "paper", "cpu" or a named recipe of the model (`neumat.fit.recipe.recipe_for`); evaluate_only: the model
+    preset: a preset of the model (`neumat.fit.preset`); evaluate_only: the model
     at `out` was fitted with these fit options before: only evaluate it; threads: torch intra-op threads of the
     job (None: torch's default, all cores). The last two are not part of the hashes."""
 
@@ -47,7 +48,7 @@ class FitJob:
     eval_n: int = 2 ** 16
     image_spp: int = 16
     image_resolution: int = 64
-    recipe: str = "paper"
+    preset: str = DEFAULT_PRESET
     evaluate_only: bool = False
     threads: int | None = None
 
@@ -72,8 +73,14 @@ class FitJob:
 
     def _fit_options(self) -> dict:
         options = {k: asdict(self)[k] for k in ("model", "overrides", "steps", "seed", "source_options")}
-        if self.recipe != "paper":
-            options["recipe"] = self.recipe
+        if self.preset != "paper":  # "recipe": the key of rows written before presets (the same names then)
+            options["recipe"] = self.preset
+            if self.preset != "cpu":
+                from ..fit.preset import preset_named
+
+                preset = preset_named(self.model, self.preset)
+                options["preset"] = {"recipe": preset.recipe, "overrides": dict(preset.overrides),
+                                     "by_source": {k: dict(v) for k, v in preset.by_source.items()}}
         return options
 
 
@@ -127,7 +134,8 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     from ..catalog.modelfile import load_model, save_model
     from ..core.config import config_to_dict
     from ..fit.trainer import fit
-    from .fitting import build_model_and_recipe, open_training_source, resolve_device
+    from ..fit.preset import build_fit
+    from .fitting import open_training_source, resolve_device
 
     device = resolve_device(job.device)
     src = open_training_source(job.model, [job.source], job.source_options)
@@ -136,13 +144,15 @@ def _fit_and_evaluate(job: FitJob) -> dict:
         return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
                 "metrics": _checked(evaluate_against(fitted, src, job, device), job),
                 "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
-    model, recipe = build_model_and_recipe(job.model, job.overrides, job.seed, source=src, machine=job.recipe)
-    result = fit(model, src, recipe, steps=job.steps, device=device, progress=False)
+    model, resolved = build_fit(job.model, job.preset, device=device, source=src, overrides=job.overrides,
+                                seed=job.seed)
+    result = fit(model, src, resolved.recipe, steps=job.steps, device=device, progress=False)
     loss = result.history[-1]["loss"] if result.history else None
     if loss is not None and not math.isfinite(loss):
         raise DataFormatError(f"fit of {job.model!r} to {job.source!r} ended with a non-finite loss ({loss})")
     save_model(result.model.runtime(), job.out, recipe=result.recipe, source=job.source,
-               metrics={"final_loss": loss, "fit_seconds": result.seconds})  # the shipped form, as `neumat fit`
+               metrics={"final_loss": loss, "fit_seconds": result.seconds},
+               preset={"name": resolved.preset, "overrides": resolved.applied})  # the shipped form, as `neumat fit`
     fitted = load_model(job.out, device=device)
     metrics = _checked(evaluate_against(fitted, src, job, device), job)
     return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,

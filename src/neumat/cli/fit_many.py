@@ -15,7 +15,6 @@ from .common import SEED_RANGE, THREADS_HELP, console, device_option, parse_over
 from .fit_engines import RAY_HINT, RunProgress, ray_available, run_local, run_ray
 from .fit_job import FIT_KEYS, FitJob, run_fit_job, source_sha256
 from .fit_results import is_done, is_fitted, markdown, read_rows, write_rows
-from .fitting import checked_recipe_name
 
 #: source kinds fit-many fits (one Material per source)
 KINDS = ("brdf", "svbrdf", "btf")
@@ -32,11 +31,11 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
              set_: list[str] = typer.Option(None, "--set", help="key=value for every fit, as `neumat fit --set`; "
                                                                "MODEL:key=value for that model's fits only"),
              steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
-             recipe_name: list[str] = typer.Option(None, "--recipe", help="paper | cpu | a named recipe: each "
-                                                   "model's paper recipe (the default), its CPU-sized one (about 10 "
-                                                   "min per fit on a core) or one it names (neumat list); "
-                                                   "MODEL:NAME for that model's fits only, e.g. --recipe cpu "
-                                                   "--recipe neubrdf:dense"),
+             preset: list[str] = typer.Option(None, "--preset", help="a preset of every model (default: "
+                                              "recommended, the best setting we measured; paper, cpu or one the "
+                                              "model names, `neumat list MODEL`); MODEL:NAME for that model's fits "
+                                              "only, e.g. --preset cpu --preset neubrdf:dense"),
+             recipe_alias: list[str] = typer.Option(None, "--recipe", hidden=True, help="the old name of --preset"),
              seed: int = typer.Option(None, **SEED_RANGE, help="seed of every fit (default: the recipe's)"),
              device: str = typer.Option(None, callback=device_option,
                                        help="torch device of every fit (default: cuda if available, else cpu); "
@@ -86,12 +85,12 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
         out.mkdir(parents=True, exist_ok=True)
         overrides = model_overrides(parse_overrides(set_), model)
-        recipes = model_recipes(recipe_name or [], model)
+        presets = model_presets([*(recipe_alias or []), *(preset or [])], model)
         common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
                       image_spp=image_spp, image_resolution=image_resolution, threads=threads)
         named = source_names(expand_sources(sources))
-        jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], recipe=recipes[m], **common)
+        jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], preset=presets[m], **common)
                 for s, n in named.items() for m in model]
         results = out / "results.json"
         previous = {(r["source"], r["model"]): r for r in read_rows(results)}
@@ -158,16 +157,18 @@ def model_overrides(overrides: dict, models: list[str]) -> dict[str, dict]:
     return {m: plain | {k.partition(":")[2]: v for k, v in overrides.items() if scoped.get(k) == m} for m in models}
 
 
-def model_recipes(values: list[str], models: list[str]) -> dict[str, str]:
-    """model -> the recipe name its fits run: "paper", or the last plain --recipe value, or the last "MODEL:NAME"
-    for that model (which wins); each checked against the model's recipes (`checked_recipe_name`)."""
+def model_presets(values: list[str], models: list[str]) -> dict[str, str]:
+    """model -> the preset its fits run: the default preset, or the last plain --preset value, or the last
+    "MODEL:NAME" for that model (which wins); each checked against the model's presets."""
+    from ..fit.preset import DEFAULT_PRESET, preset_named
+
     scoped = [v.partition(":") for v in values if ":" in v]
-    check_scopes("--recipe", (m for m, _, _ in scoped), models)
+    check_scopes("--preset", (m for m, _, _ in scoped), models)
     plain = [v for v in values if ":" not in v]
     out = {}
     for m in models:
-        name = ([n for s, _, n in scoped if s == m] or plain or ["paper"])[-1]
-        out[m] = checked_recipe_name(name, m)
+        out[m] = ([n for s, _, n in scoped if s == m] or plain or [DEFAULT_PRESET])[-1]
+        preset_named(m, out[m])
     return out
 
 

@@ -1,9 +1,7 @@
 """`neumat fit` and `neumat eval`."""
 from __future__ import annotations
 
-import difflib
 import time
-from dataclasses import fields
 from pathlib import Path
 
 import typer
@@ -18,18 +16,22 @@ def register(app: typer.Typer) -> None:
     app.command("eval")(evaluate)
 
 
+PRESET_HELP = ("a preset of the model (`neumat list MODEL`): recommended (the default: the best setting we "
+               "measured, sized to the device), paper (the paper's model and recipe, sized for a GPU), cpu (the "
+               "paper's model along the fastest CPU path) or one of the model's own")
+
+
 def fit(sources: list[str] = typer.Argument(..., help="training source: a material file (.binary, .bsdf, .nmat, "
                                              ".json), a texture-set folder, a BTF (.nbtf, .btf), translucent "
                                              "observations (.npz) or an analytic spec; several for models that "
                                              "fit a set (shared-neubrdf)"),
         model: str = typer.Option("neubrdf", "--model", "-m", help="registered model name (`neumat list`)"),
-        set_: list[str] = typer.Option(None, "--set", help="key=value: a model config field, else a recipe field, "
-                                                           "else a recipe option; lists as a,b"),
-        steps: int = typer.Option(None, min=0, help="optimiser steps (default: the recipe's)"),
-        recipe_name: str = typer.Option(None, "--recipe", help="paper | cpu | a named recipe of the model (neumat "
-                                        "list): the paper's recipe (sized for a GPU), the CPU-sized one (about 10 "
-                                        "min on 2 cores) or e.g. neubrdf's dense; default: cpu on a CPU device when "
-                                        "neither --steps nor --set steps=N is given, else paper"),
+        preset: str = typer.Option(None, "--preset", help=PRESET_HELP),
+        recipe_alias: str = typer.Option(None, "--recipe", hidden=True, help="the same as --preset (old name)"),
+        set_: list[str] = typer.Option(None, "--set", help="key=value: model.KEY (config field), recipe.KEY "
+                                                           "(recipe field) or option.KEY (recipe option); a bare KEY "
+                                                           "when only one of them has it; lists as a,b"),
+        steps: int = typer.Option(None, min=0, help="optimiser steps (default: the preset's)"),
         device: str = typer.Option(None, callback=device_option,
                                   help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, **SEED_RANGE,
@@ -41,78 +43,56 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         source_option: list[str] = typer.Option(None, "--source-option",
                                                 help="key=value passed to the source reader, e.g. max_size=256 "
                                                      "or samples=64 for a texture-set folder"),
-        dictionary: Path = typer.Option(None, help="sparse-btf: a trained dictionary ensemble (.nmat); the same "
-                                                   "as --set dictionary=PATH"),
-        tau: str = typer.Option(None, help="sparse-btf: coefficients per data point tau_t, one value or Y,U,V; "
-                                           "the same as --set tau=..."),
         out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
                                  help="output model file (.nmat)")) -> None:
-    """Fit MODEL to SOURCE through the one trainer, with the model's recipe (the paper's on a GPU, the CPU-sized
-    one on a CPU unless --steps or --recipe paper; --set overrides config fields, recipe fields and recipe
-    options), and save the model in its shipped (runtime) form as a .nmat file that records the recipe and the
-    source's name and hash; training state lives only in --checkpoint. Models trained in stages
-    (neural-appearance: encoder then latents; neupress: appearance then sampler; sparse-btf: dictionary then
-    coding) run them as phases of the same fit, with --device, --checkpoint and --resume."""
+    """Fit MODEL to SOURCE through the one trainer with a preset (default: recommended, the best setting we
+    measured, sized to the device; --preset paper for the paper's exact model and recipe), and save the model in
+    its shipped (runtime) form as a .nmat file that records the preset, the recipe and the source's name and hash;
+    training state lives only in --checkpoint. Models trained in stages run them as phases of the same fit."""
 
     def go():
-        from ..fit.trainer import fit as fit_model
         from ..catalog.modelfile import save_model
+        from ..fit.preset import build_fit
+        from ..fit.trainer import fit as fit_model
 
         if out.suffix != ".nmat":
             raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
         overrides = parse_overrides(set_)
-        if dictionary is not None:
-            overrides["dictionary"] = str(dictionary)
-        if tau is not None:
-            overrides.update(parse_overrides([f"tau={tau}"]))
         dev = resolve_device(device)
-        machine = choose_recipe(recipe_name, model, dev, steps is not None or "steps" in overrides)
+        name = chosen_preset(preset, recipe_alias)
         src = open_training_source(model, sources, parse_overrides(source_option, "--source-option"))
-        m, recipe = build_model_and_recipe(model, overrides, seed, source=src, machine=machine)
-        if machine == "cpu" and recipe_name is None and not quiet:
-            print(cpu_recipe_note(model, recipe))
-        result = fit_model(m, src, recipe, steps=steps, device=dev, progress=not quiet,
+        m, resolved = build_fit(model, name, device=dev, source=src, overrides=overrides, seed=seed)
+        if not quiet:
+            print(preset_note(model, resolved))
+        result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
                            checkpoint=checkpoint, resume=resume)
         last = result.history[-1] if result.history else {}
         metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
         shipped = result.model.runtime()
         save_model(shipped, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
-                   metrics=metrics)
-        print(f"wrote {out} ({model}, {result.steps} steps, {result.seconds:.1f} s, final loss "
-              f"{metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} bytes "
-              "stored at fp16)")
+                   metrics=metrics, preset={"name": resolved.preset, "overrides": resolved.applied})
+        print(f"wrote {out} ({model}, preset {resolved.preset}, {result.steps} steps, {result.seconds:.1f} s, final "
+              f"loss {metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} "
+              "bytes stored at fp16)")
     with torch_threads(threads):
         run_command(go)
 
 
-def checked_recipe_name(recipe_name: str, model: str) -> str:
-    """`recipe_name` if model `model` has a recipe of that name (a --recipe value: "paper", "cpu" or one of the
-    model's named recipes, `neumat.fit.recipe.recipe_choices`), else InputError naming its choices."""
-    from ..fit.recipe import recipe_choices
+def chosen_preset(preset: str | None, recipe_alias: str | None = None) -> str:
+    """The preset a fit runs: --preset, else the old --recipe name, else `neumat.fit.preset.DEFAULT_PRESET`."""
+    from ..fit.preset import DEFAULT_PRESET
 
-    choices = recipe_choices(model)
-    if recipe_name not in choices:
-        raise InputError(f"--recipe: model {model} has the recipes {', '.join(choices)}; got {recipe_name!r}")
-    return recipe_name
-
-
-def choose_recipe(recipe_name: str | None, model: str, device, budget_given: bool) -> str:
-    """Which of the model's recipes a fit runs: `recipe_name` when given (checked against `model`'s), else "cpu"
-    on a CPU device when the command line names no step budget, else "paper"."""
-    if recipe_name is not None:
-        return checked_recipe_name(recipe_name, model)
-    return "cpu" if device.type == "cpu" and not budget_given else "paper"
+    if preset is not None and recipe_alias is not None and preset != recipe_alias:
+        raise InputError(f"--preset {preset} and --recipe {recipe_alias}: --recipe is the old name of --preset; "
+                         "give one")
+    return preset or recipe_alias or DEFAULT_PRESET
 
 
-def cpu_recipe_note(model: str, recipe) -> str:
-    """The line `neumat fit` prints when it picks the CPU-sized recipe on its own: its budget, its expected time
-    and the paper's recipe, with how to ask for it."""
-    from ..fit.recipe import cpu_minutes, recipe_for
-
-    paper, minutes = recipe_for(model, "paper"), cpu_minutes(model)
-    time = "its time follows the source" if minutes is None else f"about {minutes:g} min"
-    return (f"using the CPU-sized recipe of {model} ({recipe.steps} steps x {recipe.batch_size}, {time}); the "
-            f"paper's is {paper.steps} steps x {paper.batch_size} (--recipe paper)")
+def preset_note(model: str, resolved) -> str:
+    """The line a fit prints before it starts: the preset it uses and how to get the paper's exact model."""
+    paper = ("" if resolved.preset in ("paper", "cpu") else
+             "; the paper's exact model: --preset paper (its recipe, sized for a GPU) or --preset cpu")
+    return f"{model}: {resolved.describe()}, {resolved.recipe.steps} steps x {resolved.recipe.batch_size}{paper}"
 
 
 def resolve_device(device: str | None):
@@ -149,48 +129,6 @@ def open_training_source(model: str, sources: list[str], options: dict):
             raise InputError(f"--source-option: observation files take no reader options, got {sorted(options)}")
         return Observations.load(sources[0])
     return open_material(sources[0], **options)
-
-
-def _unknown_keys(overrides: dict, known: set[str]) -> str:
-    """The keys of `overrides` not in `known`, each with its closest known names ("" when all are known)."""
-    hints = {k: difflib.get_close_matches(k, known, n=2) for k in overrides if k not in known}
-    return "; ".join(f"{k!r}" + (f" (did you mean {', '.join(h)}?)" if h else "") for k, h in hints.items())
-
-
-def build_model_and_recipe(model: str, overrides: dict, seed: int | None = None, source=None,
-                           machine: str = "paper"):
-    """A fresh model `model` and its recipe `machine` ("paper", "cpu" or a named one, see `recipe_for`) with `overrides`
-    applied: model config fields first, then recipe fields, then recipe options (unknown keys raise). With a `source`, the recipe module's
-    `config_for_source(source, options) -> dict` (if it has one) supplies config defaults that follow the source (e.g. the
-    latent resolution of a texture set); overrides win. The model is initialised after seeding torch with the
-    recipe's seed."""
-    import torch
-
-    from ..core.config import config_from_dict, config_to_dict
-    from ..fit.recipe import Recipe, check_recipe, recipe_config_for_source, recipe_for
-    from ..models.registry import model_class
-
-    cls = model_class(model)
-    config_keys = {f.name for f in fields(cls.Config)}
-    recipe_keys = {f.name for f in fields(Recipe)} - {"options"}
-    base = recipe_for(model, machine)
-    option_keys = set(base.options)
-    text = _unknown_keys(overrides, config_keys | recipe_keys | option_keys)
-    if text:
-        raise InputError(f"--set: unknown key(s) {text}: not a field of {model!r}'s config "
-                         f"({', '.join(sorted(config_keys))}), of the recipe ({', '.join(sorted(recipe_keys))}) "
-                         f"nor a recipe option ({', '.join(sorted(option_keys)) or 'none'})")
-    rest = {k: v for k, v in overrides.items() if k not in config_keys}
-    options = {**base.options, **{k: v for k, v in rest.items() if k in option_keys and k not in recipe_keys}}
-    recipe = config_from_dict(Recipe, {**config_to_dict(base), **{k: v for k, v in rest.items() if k in recipe_keys},
-                                       "options": options})
-    if seed is not None:
-        recipe.seed = seed
-    check_recipe(recipe)
-    derived = recipe_config_for_source(model, source, recipe.options) if source is not None else {}
-    cfg = config_from_dict(cls.Config, {**derived, **{k: v for k, v in overrides.items() if k in config_keys}})
-    torch.manual_seed(recipe.seed)
-    return cls(config=cfg), recipe
 
 
 def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),

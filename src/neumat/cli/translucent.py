@@ -174,27 +174,25 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
 
         import torch
 
-        from ..fit.recipe import recipe_for
+        from ..fit.preset import DEFAULT_PRESET, build_fit
         from ..fit.trainer import fit as fit_model
         from ..fit.translucent_fit import best_validation
         from ..fit.translucent_observations import Observations
         from ..catalog.modelfile import save_model
         from .common import parse_overrides
-        from .fitting import build_model_and_recipe
 
         _check_suffix(out, ".nmat", "fit --out")
         data = Observations.load(observations)
         source = Observations.load_source(observations) or {}
         overrides = {k: _value(v) for k, v in parse_overrides(set_, text=True).items()}
-        known = recipe_for("neupress").options
-        options = {k: overrides.pop(k) for k in list(overrides) if k in known}
-        model, recipe = build_model_and_recipe("neupress", overrides, seed)
-        recipe.options.update(options)
         if validation is not None:
-            recipe.options["validation_fraction"] = validation
-        if "bbox" in source and "bounds" not in options:  # the object's box, written by trace
-            recipe.options["bounds"] = source["bbox"]
+            overrides["option.validation_fraction"] = validation
+        if "bbox" in source and not any(k.rpartition(".")[2] == "bounds" for k in overrides):
+            overrides["option.bounds"] = source["bbox"]  # the object's box, written by trace
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        model, resolved = build_fit("neupress", DEFAULT_PRESET, device=dev, source=data, overrides=overrides,
+                                    seed=seed)
+        recipe = resolved.recipe
         result = fit_model(model, data, recipe, steps=steps, device=dev, progress=not quiet, checkpoint=checkpoint,
                            resume=resume)
         kl = [r["kl"] for r in result.history if r["phase"] == "sampler"]
@@ -210,7 +208,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
                         "relative to its variance": best["validation_mse"] / variance if variance > 0 else None})
         row["sampler KL"] = metrics["sampler_kl"]
         save_model(model.cpu(), out, recipe=replace(recipe, steps=result.steps), source=observations,
-                   metrics=metrics)
+                   metrics=metrics, preset={"name": resolved.preset, "overrides": resolved.applied})
         print_table(f"wrote {out} ({model.size_bytes('fp32') // 1024} KB fp32)", [row])
     run_command(go)
 

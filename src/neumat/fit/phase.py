@@ -75,6 +75,13 @@ class FitContext:
     loss: str | nn.Module | None = None
     queries: str | Callable | None = None
 
+    @property
+    def opts(self) -> Any:
+        """The recipe's options, typed and checked (`neumat.fit.recipe.typed_options`)."""
+        from .recipe import typed_options
+
+        return typed_options(model_name(self.model), self.recipe.options)
+
     def option(self, name: str) -> Any:
         """The recipe's model-specific option `name` (Recipe.options)."""
         if name not in self.recipe.options:

@@ -1,14 +1,9 @@
-"""A training recipe: optimiser, schedule, batch, loss, query distribution and seed of one fit.
+"""A training recipe: optimiser, schedule, batch, loss, query distribution, seed and options of one fit.
 
-Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>` ('-' -> '_'), and
-a CPU-sized recipe as `CPU_RECIPE` (the paper's architecture, a budget that finishes in about 10 minutes on 2 CPU
-cores for a typical source; benchmarks/results/cpu_recipes.md); that module may also define `phases(ctx) ->
-list[Phase]` (`neumat.fit.phase`) when the model trains in stages and `config_for_source(source, options)` for
-config fields that follow the source, and `NAMED_RECIPES` ({name: Recipe}) for further recipes a user can ask for
-by name (`neumat fit --recipe NAME`). `recipe_for(name, machine)` / `phases_for` find them, `recipe_choices` lists
-a model's recipe names, `recipe_names` every model that has one. Recipes are plain dataclasses, so
-`config_from_dict(Recipe, ...)` / `config_to_dict` turn them into JSON for model files, checkpoints and `--set`
-overrides.
+A model's recipe module `neumat.fit.recipes.<name>` ('-' -> '_') holds `RECIPE` (the paper's), `CPU_RECIPE` (the
+paper's model on a CPU budget), optionally `NAMED_RECIPES`, typed `Options`, `phases(ctx)` for staged training,
+`config_for_source(source, options)` for config fields that follow the source, and `PRESETS` (`neumat.fit.preset`,
+what users choose between). Recipes are plain dataclasses, stored as JSON in model files and checkpoints.
 """
 from __future__ import annotations
 
@@ -148,14 +143,6 @@ def recipe_choices(model_name: str) -> list[str]:
     return ["paper", "cpu", *getattr(_recipe_module(model_name), "NAMED_RECIPES", {})]
 
 
-def cpu_minutes(model_name: str) -> float | None:
-    """Minutes the CPU recipe of `model_name` takes on a CPU for a typical source, as measured (its recipe
-    module's `CPU_MINUTES`; benchmarks/results/cpu_recipes.md), or None when its time follows the source
-    rather than a step budget (the BTF solvers)."""
-    minutes = getattr(_recipe_module(model_name), "CPU_MINUTES", None)
-    return None if minutes is None else float(minutes)
-
-
 def latent_size_for_source(source: Any) -> int | None:
     """The latent-texture resolution that follows a spatially varying source: the largest power of two not above
     the smaller side of its textures (`source.textures.size` or `source.texture_size`, (height, width)), or None
@@ -173,6 +160,29 @@ def recipe_names() -> list[str]:
     """Registry names of every model with a recipe module ('_' -> '-')."""
     package = importlib.import_module("neumat.fit.recipes")
     return sorted(info.name.replace("_", "-") for info in pkgutil.iter_modules(package.__path__))
+
+
+def options_class(model_name: str) -> type | None:
+    """The typed recipe options (a dataclass, validated by `neumat.core.config`) of model `model_name`'s recipe
+    module (its `Options`), or None when its options are an untyped dict or it has no recipe module."""
+    try:
+        return getattr(_recipe_module(model_name), "Options", None)
+    except UnknownNameError:
+        return None
+
+
+def typed_options(model_name: str, options: dict) -> Any:
+    """`options` (a recipe's options dict) as model `model_name`'s `Options` dataclass, strictly checked (unknown
+    keys, types and ranges raise InputError); the dict itself for a model without typed options."""
+    from ..core.config import config_from_dict
+
+    cls = options_class(model_name)
+    if cls is None:
+        return options
+    try:
+        return config_from_dict(cls, options)
+    except InputError as e:
+        raise InputError(f"{model_name} recipe options: {e}".replace(f"{cls.__name__}.", "option.")) from None
 
 
 def recipe_config_for_source(model_name: str, source: Any, options: dict) -> dict:

@@ -36,7 +36,8 @@ from ..models.base import LearnedMaterial
 from . import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
 from .ema import EMA
 from .phase import FitContext, Phase, model_name, online_phase
-from .recipe import Recipe, check_recipe, learning_rate, phases_for, recipe_for
+from .preset import default_recipe
+from .recipe import Recipe, check_recipe, learning_rate, phases_for, typed_options
 from .rollback import CHECKPOINT_KEYS, NonFiniteGuard
 
 
@@ -65,7 +66,8 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
 
     source:     a Material for online fits; what the model's recipe phases read otherwise (translucent
                 observations, a BTF table).
-    recipe:     defaults to `recipe_for(model.name)`; `steps` overrides recipe.steps (split over the phases by
+    recipe:     defaults to the recipe of the model's default preset for this source and device
+                (`neumat.fit.preset.default_recipe`); `steps` overrides recipe.steps (split over the phases by
                 recipe.phase_split).
     device:     torch device for the model, the queries and the targets; default: the model's.
     checkpoint: file written every `recipe.checkpoint_every` steps, at the end of every phase and at the end;
@@ -79,13 +81,14 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
         raise InputError(f"fit: model must be a neumat.models.base.LearnedMaterial (a torch nn.Module "
                          f"implementing neumat.Material), got {type(model).__name__}")
     name = model_name(model)
-    recipe = replace(recipe if recipe is not None else recipe_for(name))
+    dev = torch.device(device) if device is not None else _model_device(model)
+    recipe = replace(recipe if recipe is not None else default_recipe(model, source, dev))
     if steps is not None:
         recipe.steps = steps
     check_recipe(recipe)
+    typed_options(name, recipe.options)
     if resume and checkpoint is None:
         raise InputError("fit: resume=True needs a checkpoint path")
-    dev = torch.device(device) if device is not None else _model_device(model)
     model.to(dev).train()
     gen = torch.Generator(device=dev).manual_seed(recipe.seed)
     resuming = resume and Path(checkpoint).is_file()
@@ -281,20 +284,22 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
     return state | {"guard": {k: blob[k] for k in CHECKPOINT_KEYS if k in blob}}
 
 
-#: a fit whose estimated time exceeds this many seconds says so after its first steps
+#: a fit whose estimated time exceeds this many seconds suggests a shorter run when it announces its estimate
 LONG_FIT_SECONDS = 15 * 60
+#: steps not counted in the announced estimate (the first steps pay one-off costs: allocation, caches)
+WARMUP_STEPS = 2
 
 
 class _Progress:
     """Progress of a fit on stderr: a rich bar with the live loss on a terminal, a plain line every 30 s (and at
-    the end of each phase) otherwise; nothing when `enabled` is false. Either way, a fit whose estimated time
-    exceeds LONG_FIT_SECONDS says so once, after its first steps, with the estimate."""
+    the end of each phase) otherwise; nothing when `enabled` is false. Either way the fit announces once, after
+    its first steps, the time it will take, measured on this source and machine (not a constant)."""
 
     def __init__(self, enabled: bool, total: int, start: int, name: str) -> None:
         self.enabled, self.total, self.done, self.name = enabled, total, start, name
         self.terminal = enabled and sys.stderr.isatty()
         self.t0 = self.last_line = time.perf_counter()
-        self.start, self.warned = start, False
+        self.start, self.warned, self.t_warm = start, False, self.t0
         if self.terminal:
             from rich.console import Console
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
@@ -317,16 +322,27 @@ class _Progress:
         rate = (time.perf_counter() - self.t0) / max(self.done - self.start, 1)
         return rate * (self.total - self.done)
 
+    def estimate(self) -> float | None:
+        """Seconds still to go at the speed of the steps after the first WARMUP_STEPS, or None before any."""
+        counted = self.done - self.start - WARMUP_STEPS
+        if counted < 1:
+            return None
+        return (time.perf_counter() - self.t_warm) / counted * (self.total - self.done)
+
     def advance(self) -> None:
         self.done += 1
+        if self.done - self.start == WARMUP_STEPS:
+            self.t_warm = time.perf_counter()
         if self.terminal:
             self.bar.advance(self.task)
-        if self.enabled and not self.warned and (self.done - self.start >= 20 or time.perf_counter() - self.t0 > 10):
+        counted = self.done - self.start - WARMUP_STEPS
+        if self.enabled and not self.warned and counted > 0 and (
+                counted >= 20 or time.perf_counter() - self.t_warm > 10 or self.done == self.total):
             self.warned = True
-            eta = self._eta()
-            if eta > LONG_FIT_SECONDS:
-                print(f"fit {self.name}: about {eta / 60:.0f} minutes to go at this speed ({self.total} steps); "
-                      "pass --steps for a shorter run", file=sys.stderr, flush=True)
+            eta = self.estimate()
+            hint = "; pass --steps for a shorter run" if eta > LONG_FIT_SECONDS else ""
+            self.note(f"fit {self.name}: about {_duration(eta)} to go for {self.total - self.done} more steps "
+                      f"(measured on the last {counted}){hint}")
 
     def note(self, message: str) -> None:
         """Say `message` (an event of the fit, e.g. a rollback) on a line of its own, above the bar on a terminal;
@@ -344,3 +360,10 @@ class _Progress:
             print(f"fit {self.name}: step {record['step']}/{total} ({record['phase']}) loss {record['loss']:.4g}, "
                   f"{time.perf_counter() - self.t0:.0f} s, about {self._eta():.0f} s to go", file=sys.stderr,
                   flush=True)
+
+
+def _duration(seconds: float) -> str:
+    """`seconds` as "40 s", "12 min" or "2.5 h"."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"

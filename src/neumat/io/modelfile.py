@@ -5,7 +5,8 @@ The header is stored as the safetensors metadata entry "neumat":
   format "neumat-model", format_version (int; a reader refuses newer versions), type (registry name),
   config (the model's Config as a dict), runtime (whether `runtime()` was in effect: re-entered on load),
   recipe (the training Recipe as a dict, or null), source ({"name", "sha256"} or null), metrics (dict or
-  null), size_bytes ({"fp16", "fp32"}), flops, neumat_version (informational: a warning when it differs).
+  null), size_bytes ({"fp16", "fp32"}), flops, neumat_version (informational: a warning when it differs);
+  since format version 2 optionally preset ({"name", "overrides"}: the preset the fit used, `neumat.fit.preset`).
 The weights are the model's full `state_dict` (buffers included, e.g. pruning levels, frozen indices).
 
 Reading is strict: unknown header keys, a newer format version or a truncated file raise DataFormatError
@@ -25,10 +26,12 @@ from ..core.version import __version__
 from .atomic import atomic_write
 
 FORMAT = "neumat-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 HEADER_KEY = "neumat"
 HEADER_FIELDS = ("format", "format_version", "type", "config", "runtime", "recipe", "source", "metrics",
                  "size_bytes", "flops", "neumat_version")
+#: header fields a file may lack (older files do)
+OPTIONAL_FIELDS = ("preset",)
 
 
 def write_model_file(path: str | Path, header: dict, tensors: dict[str, torch.Tensor]) -> Path:
@@ -80,7 +83,7 @@ def _read(path: str | Path, weights: bool) -> tuple[dict, dict]:
 def _check_header(header: Any, where: str) -> None:
     if not isinstance(header, dict):
         raise DataFormatError(f"{where}: the header must be a JSON object")
-    unknown = sorted(set(header) - set(HEADER_FIELDS))
+    unknown = sorted(set(header) - set(HEADER_FIELDS) - set(OPTIONAL_FIELDS))
     missing = [k for k in HEADER_FIELDS if k not in header]
     if header.get("format") != FORMAT:
         raise DataFormatError(f"{where}: header format is {header.get('format')!r}, expected {FORMAT!r}")

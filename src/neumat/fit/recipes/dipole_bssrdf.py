@@ -34,7 +34,6 @@ RECIPE = Recipe(steps=300, batch_size=256, lr=0.05, schedule="halves", loss="l2"
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = 1
 
 
 def observed_quadrature(ctx: FitContext) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -35,7 +35,6 @@ RECIPE = Recipe(steps=2000, batch_size=16384, lr=2e-2, schedule="cosine", lr_min
 
 #: the paper-size recipe already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = 2.5
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -35,7 +35,6 @@ RECIPE = Recipe(steps=500_000, batch_size=1 << 16, lr=3e-3, betas=(0.99, 0.999),
 #: RECIPE's first 1000 steps at 2^12 queries: about 10 minutes on one CPU core for a 1K set (module docstring)
 CPU_RECIPE = Recipe(steps=1000, batch_size=1 << 12, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
                     lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200)
-CPU_MINUTES = 11
 
 HOMOGENEOUS_RECIPE = Recipe(steps=100_000, batch_size=1 << 18, lr=3e-3, betas=(0.99, 0.999), eps=1e-15,
                             lr_decay=0.9, lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix",

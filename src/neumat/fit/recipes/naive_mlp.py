@@ -12,4 +12,3 @@ RECIPE = Recipe(steps=20_000, batch_size=8192, lr=1e-3, schedule="cosine", lr_mi
 #: RECIPE at half the steps (module docstring)
 CPU_RECIPE = Recipe(steps=10_000, batch_size=8192, lr=1e-3, schedule="cosine", lr_min=1e-5,
                     loss="log_cos", queries="cosine")
-CPU_MINUTES = 6

@@ -18,4 +18,3 @@ RECIPE = Recipe(steps=125_000, batch_size=512, lr=5e-4, betas=(0.9, 0.999), eps=
 #: RECIPE's queries in batches of 4096 (module docstring)
 CPU_RECIPE = Recipe(steps=15_625, batch_size=4096, lr=5e-4, betas=(0.9, 0.999), eps=1e-15,
                     loss="log_cos", queries="rusinkiewicz")
-CPU_MINUTES = 5

@@ -1,4 +1,4 @@
 """Training recipe of the neumip-frame baseline: the gated model's recipe (Timonen et al. 2025 train every
 model with the same data, loss and optimiser), its CPU-sized recipe and its latent size that follows the
 source."""
-from neumat.fit.recipes.multiscale import CPU_MINUTES, CPU_RECIPE, RECIPE, config_for_source  # noqa: F401
+from neumat.fit.recipes.multiscale import CPU_RECIPE, RECIPE, config_for_source  # noqa: F401

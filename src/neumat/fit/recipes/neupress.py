@@ -37,7 +37,6 @@ RECIPE = Recipe(steps=2300, batch_size=4096, lr=1e-3, schedule="halves", loss="l
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = 4
 
 
 def phases(ctx: FitContext) -> list[Phase]:

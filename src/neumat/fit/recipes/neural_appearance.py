@@ -65,7 +65,6 @@ RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="l
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = 4
 
 #: the phases, in order
 PHASES = ("encoder", "latents")

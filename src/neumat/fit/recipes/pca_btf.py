@@ -8,7 +8,7 @@ matrix unless both sides of the texel x angle matrix exceed it), "oversample" (1
 of the randomised subspace iteration used otherwise. steps, batch_size, lr and the schedule are unused.
 
 CPU_RECIPE: RECIPE itself: its one step is the PCA of the BTF, no optimiser budget to size; its time follows the
-BTF's size (`CPU_MINUTES` None: `neumat fit` says so instead of a time).
+BTF's size.
 """
 from __future__ import annotations
 
@@ -22,7 +22,6 @@ RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
 
 #: RECIPE itself (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = None
 
 
 def config_for_source(btf, options: dict | None = None) -> dict:

@@ -7,7 +7,7 @@ and takes an Adam step on the sampler's parameters alone against `neumat.fit.pro
 material)`.
 
 CPU_RECIPE: RECIPE itself: 2000 steps of 4096 sampler queries, sized for a CPU already (its time follows the
-material's evaluation; `CPU_MINUTES` None).
+material's evaluation).
 """
 from __future__ import annotations
 
@@ -25,7 +25,6 @@ RECIPE = Recipe(steps=2000, batch_size=4096, lr=3e-3, schedule="halves", log_eve
 
 #: RECIPE itself (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = None
 
 
 def phases(ctx: FitContext) -> list[Phase]:

@@ -23,7 +23,7 @@ unused (solver phases). The same defaults serve `neumat.fit.sparse_dictionary.tr
 BTFs, `neumat fit-dictionary`).
 
 CPU_RECIPE: RECIPE itself: its steps are solver passes over the BTF (dictionary learning, then sparse coding),
-no optimiser budget to size; their time follows the BTF and the dictionary (`CPU_MINUTES` None).
+no optimiser budget to size; their time follows the BTF and the dictionary.
 """
 from __future__ import annotations
 
@@ -46,7 +46,6 @@ RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1,
 
 #: RECIPE itself (module docstring)
 CPU_RECIPE = RECIPE
-CPU_MINUTES = None
 
 
 def config_for_source(btf, options: dict | None = None) -> dict:
