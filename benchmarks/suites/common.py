@@ -2,8 +2,10 @@
 per-model summary with its seed spread, and budgets stated from the recipes themselves."""
 from __future__ import annotations
 
+import contextlib
 import json
 import statistics
+import sys
 import tempfile
 from pathlib import Path
 
@@ -25,8 +27,9 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
         with tempfile.TemporaryDirectory(prefix="neumat-bench-") as out:
             args = ["fit-many", *sources, *[a for m in models for a in ("-m", m)], *options, "--seed", str(seed),
                     "--threads", str(run.threads), "--engine", "local", "-q", "-o", out]
-            try:
-                app(args, standalone_mode=False)
+            try:  # fit-many's progress goes to stderr: stdout stays the suite's table or JSON
+                with contextlib.redirect_stdout(sys.stderr):
+                    app(args, standalone_mode=False)
             except SystemExit as stop:  # exit status 1: some job failed; its row says why
                 if stop.code not in (0, 1, None):
                     raise

@@ -72,19 +72,24 @@ def _materials(run: harness.Run) -> dict:
     if run.quick:
         run.skip(f"models other than {', '.join(QUICK_MODELS)}", "--quick")
     for name in names:
-        torch.manual_seed(run.seed)
-        model = load_all().get(name)()
-        if name == "dipole-bssrdf":
-            k = model.cfg.samples  # its surface quadrature, set from the object in training: a sphere of radius 0.5
-            x = 0.5 * sample_uniform_sphere(torch.rand(k, 2))
-            model.set_surface(x, 2 * x, torch.full((k,), torch.pi / k))
-        out[name] = model.runtime().eval()
+        out[name] = runtime_model(name, run.seed)
     data = shared_data_dir()
     if data is None:
         run.skip("measured reference", "shared data absent (neumat.io.shared_data)")
     else:
         out["rgl:paper_white"] = open_material(data / "rgl" / "paper_white_rgb.bsdf")
     return out
+
+
+def runtime_model(name: str, seed: int):
+    """Registered model `name` at its default (paper) config, seeded, in its runtime form and eval mode."""
+    torch.manual_seed(seed)
+    model = load_all().get(name)()
+    if name == "dipole-bssrdf":
+        k = model.cfg.samples  # its surface quadrature, set from the object in training: a sphere of radius 0.5
+        x = 0.5 * sample_uniform_sphere(torch.rand(k, 2))
+        model.set_surface(x, 2 * x, torch.full((k,), torch.pi / k))
+    return model.runtime().eval()
 
 
 def queries(material, n: int, seed: int = 0) -> Query:

@@ -2,7 +2,7 @@
 
 Each registered model ships its paper's defaults as `RECIPE` in `neumat.fit.recipes.<model name>` ('-' -> '_'), and
 a CPU-sized recipe as `CPU_RECIPE` (the paper's architecture, a budget that finishes in about 10 minutes on 2 CPU
-cores for a typical source; benchmarks/results/cpu_recipes.md); that module may also define `phases(ctx) ->
+cores for a typical source; benchmarks/studies/neubrdf/results/cpu_recipes.md); that module may also define `phases(ctx) ->
 list[Phase]` (`neumat.fit.phase`) when the model trains in stages and `config_for_source(source, options)` for
 config fields that follow the source, and `NAMED_RECIPES` ({name: Recipe}) for further recipes a user can ask for
 by name (`neumat fit --recipe NAME`). `recipe_for(name, machine)` / `phases_for` find them, `recipe_choices` lists
@@ -150,7 +150,7 @@ def recipe_choices(model_name: str) -> list[str]:
 
 def cpu_minutes(model_name: str) -> float | None:
     """Minutes the CPU recipe of `model_name` takes on a CPU for a typical source, as measured (its recipe
-    module's `CPU_MINUTES`; benchmarks/results/cpu_recipes.md), or None when its time follows the source
+    module's `CPU_MINUTES`; benchmarks/studies/neubrdf/results/cpu_recipes.md), or None when its time follows the source
     rather than a step budget (the BTF solvers)."""
     minutes = getattr(_recipe_module(model_name), "CPU_MINUTES", None)
     return None if minutes is None else float(minutes)

@@ -44,7 +44,7 @@ logits at 10x the rate, `NeuBRDF.index_lr_scale`) leaky ReLU and SiLU fit equall
 0.0095 / 0.0102, cc_iris_purple_gem 0.0091 / 0.0087), and leaky ReLU evaluates ~30 % faster (runtime mode,
 one thread: 2.4-2.8e6 vs 1.8-1.9e6 evaluations per CPU second).
 
-CPU budget (benchmarks/neubrdf_speed.py; one thread, batch 8192, k 16, b 9, MLP 2 x 64, CPU seconds per
+CPU budget (benchmarks/studies/neubrdf/neubrdf_speed.py; one thread, batch 8192, k 16, b 9, MLP 2 x 64, CPU seconds per
 step on a shared, loaded 2-core machine): "vq" 0.054 / 0.12 / 0.43 s at N_side 16 / 32 / 64 (0.43 s was
 1.07 s before the unique-slot straight-through and the lazy row-wise Adam of `NeuBRDF.optimizer`, which
 the trainer must call to get these numbers),
@@ -53,7 +53,7 @@ the trainer must call to get these numbers),
 loaded cores ran 3 - 10x slower than one).
 
 CPU_RECIPE, what `neumat fit` runs on a CPU unless told otherwise: the paper's model (N_side 64, k 16, b 9,
-MLP 2 x 64) along the fastest path to its quality that we measured (benchmarks/results/neubrdf_paper_size.md,
+MLP 2 x 64) along the fastest path to its quality that we measured (benchmarks/studies/neubrdf/results/neubrdf_paper_size.md,
 equal wall time, one thread): 5000 steps of 2^13, the first 40 % on a dense N_side 16 grid (coarse_fraction),
 then dense at N_side 64 up to 70 % (dense_warmup), then the codebook model with 8 candidate codewords per slot
 (vq_candidates), the learning rate halved at 1/2 and 3/4 of each phase ("halves"), EMA 0.01. At equal time
@@ -63,9 +63,9 @@ minutes on one core (0.07 / 0.08 / 0.11 s per step of the three phases on a load
 With the model option `direction_inputs="hd"` (`neumat.models.neubrdf.Config`: NBRDF's h and d as 6 more MLP
 inputs, not the paper's model) the same recipe ends on the 25 MERL-like tables at a mean Table 3 image MAE of
 0.0012 and SSIM 0.9978, against 0.0112 / 0.935 without, and with queries="cosine_merl", loss="log_cos_eps" at
-0.0010 / 0.9983, lower than NBRDF on 24 of 25 (benchmarks/results/neubrdf_table3_hd.md). With the half vector warped
+0.0010 / 0.9983, lower than NBRDF on 24 of 25 (benchmarks/studies/neubrdf/results/neubrdf_table3_hd.md). With the half vector warped
 to MERL's sqrt(theta_h) coordinate (`direction_inputs="hd_warp"`) and those queries and loss: 0.0006 / 0.9995, lower
-than NBRDF and GGX on all 25 (benchmarks/results/neubrdf_table3_hd_warp.md); what we recommend, though not the
+than NBRDF and GGX on all 25 (benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md); what we recommend, though not the
 paper's model.
 """
 from __future__ import annotations
@@ -110,7 +110,7 @@ s (wi - reflect(wo)) from the first step; 0, the default, keeps the random start
 built with features="dense" unless a features setting says otherwise. The "dense" named recipe sets it. 10 is what we
 use: on MERL-like chrome (dense N_side 64, 1500 steps, cosine_merl queries, log_cos_eps) image SSIM 0.75 at s = 1,
 0.85 at 10; at N_side 16, 800 steps, 0.70 / 0.70 / 0.78 / 0.77 at 1 / 3 / 10 / 30
-(benchmarks/results/neubrdf_direction_init.md).
+(benchmarks/studies/neubrdf/results/neubrdf_direction_init.md).
 
 prune: sparse measurements (paper Sec. 3.2.1): before training, `model.prune(samples.wi, samples.wo)` on the
 measured directions that the fit replays, so that pixels holding no measurement read their nearest
@@ -119,7 +119,7 @@ supervised ancestor's corners and the slots no pixel reads are not stored. Needs
 kmeans_weights: how the k-means at the end of a dense warm-up weighs the slots' feature channels: "uniform" (the
 default: plain k-means) or "sensitivity" (`neumat.fit.feature_sensitivity`: each slot's channels weighted by the
 squared gradients of the fit's loss over SENSITIVITY_BATCHES batches, so codewords go where quantisation errors cost
-the loss most). On MERL-like blue-metallic-paint2 (benchmarks/results/neubrdf_table3_codebook.md) it quantises a
+the loss most). On MERL-like blue-metallic-paint2 (benchmarks/studies/neubrdf/results/neubrdf_table3_codebook.md) it quantises a
 dense N_side 64 grid into 512 codewords as well as plain k-means does into 1024 (image MAE 0.0147 / 0.0148, 0.0212
 plain), but after the CPU recipe's VQ phase the two end equal (0.0301 / 0.0304), hence the default.
 
@@ -131,7 +131,7 @@ default, is the paper's training (inverse-distance weights throughout). Why: the
 constant on every (wi pixel, wo pixel) pair, and a model trained with inverse-distance weights, evaluated at the
 pixel centres, is far from the pair averages wherever the function varies within a pixel; on MERL-like chrome
 (dense path, N_side 64) the shipped model renders at image MAE 0.036 and SSIM 0.85 where the pair averages
-themselves render at 0.003 / 0.98 (benchmarks/results/neubrdf_runtime_forms.md). A per-query log loss in the 1/4
+themselves render at 0.003 / 0.98 (benchmarks/studies/neubrdf/results/neubrdf_runtime_forms.md). A per-query log loss in the 1/4
 form does not fix it (it fits something like the pair's median, which loses a sub-pixel peak's energy); pair
 averages as targets do. The fitted model keeps interpolation "uniform" (the form it was trained for). Not with
 queries="replay" (measured samples cannot be averaged over pixels) nor with an inverse-distance runtime (its
@@ -141,7 +141,7 @@ runtime_samples: points per query of the pixel-pair averages. Their noise falls 
 bias: a log-L1 loss fits the median of the noisy targets, below their mean where a sub-pixel peak spreads the
 points (MERL-like steel, N_side 64: 6.5 % of the energy lost at 8, 4 % at 16, 1 % at 64). The recipe `dense` with
 32 instead of 8 (the default until the Table 3 rows were fitted): steel image MAE 0.0035 -> 0.0027,
-blue-metallic-paint2 0.0012 -> 0.0011, at about the same fit time (benchmarks/results/neubrdf_runtime_forms.md).
+blue-metallic-paint2 0.0012 -> 0.0011, at about the same fit time (benchmarks/studies/neubrdf/results/neubrdf_runtime_forms.md).
 
 measured_azimuths: with queries="replay" on an RGL file (`*_rgb.bsdf`), its measurement directions
 (`neumat.fit.measured_samples.rgl_samples`) are the replayed samples; an isotropic file's single measured
@@ -162,9 +162,9 @@ CPU_MINUTES = 8
 #: fp16, 19x the paper's codebook model) with the direction-coded start (direction_features 10), half cosine and
 #: half MERL-density queries and the floored log loss, the last 20 % of the steps in the runtime form against
 #: pixel-pair averages (runtime_fraction). The lowest errors we measured: RGL Table 3 mean image MAE 0.0017
-#: against the codebook's 0.0105, NBRDF's 0.0147 (benchmarks/results/neubrdf_direction_init.md, before the
+#: against the codebook's 0.0105, NBRDF's 0.0147 (benchmarks/studies/neubrdf/results/neubrdf_direction_init.md, before the
 #: runtime phase); MERL-like chrome 0.0046 with the runtime phase, 0.0359 without, NBRDF 0.0077
-#: (benchmarks/results/neubrdf_runtime_forms.md). It does not quantise into a codebook (k-means loses the
+#: (benchmarks/studies/neubrdf/results/neubrdf_runtime_forms.md). It does not quantise into a codebook (k-means loses the
 #: direction code). About 6-9 minutes on one core.
 DENSE_RECIPE = replace(CPU_RECIPE, loss="log_cos_eps", queries="cosine_merl",
                        options={**OPTIONS, "coarse_fraction": 0.4, "direction_features": 10.0,

@@ -23,7 +23,7 @@ then the shared codebook with 8 candidate codewords per slot, "halves" schedule)
 between the materials. Two MERL-like materials at N_side 64 with hd_warp inputs: 249 - 268 s on one core beside
 another fit, image MAE at 0.8 - 1.3x the own fits', ahead of NBRDF on all four; the paper's end-to-end VQ
 shortened to 1500 steps took 1747 - 1779 s at 2 - 2.7x the own fits' error
-(benchmarks/results/neubrdf_table3_hd_warp.md, section 6). More materials add k-means time (about 15 s each).
+(benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md, section 6). More materials add k-means time (about 15 s each).
 """
 from __future__ import annotations
 
