@@ -4,7 +4,7 @@ and anisotropic fibres.
     python docs/btf_effects.py [--size 100] [--samples 64]
 
 Rows: three shared PBR sets (100 x 100-texel crops at texel (300, 300), one texture texel per BTF texel, relief
-4x the set's height scale, as benchmarks/btf_real.py). Columns: direct light only; with one bounce of
+4x the set's height scale, as benchmarks/studies/btf/btf_real.py). Columns: direct light only; with one bounce of
 inter-reflection (`--interreflection`); the bounce alone, 8x brighter; direct light with fibres of anisotropy
 0.8 along the height map's grain (`--fibres 0.8 --fibre-direction grain`). Lit from 40 degrees elevation on
 the left, seen from the mirror direction (the specular highlight, where the fibres show), one stop brighter,

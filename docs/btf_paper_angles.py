@@ -4,7 +4,7 @@ figures (Kavoosi et al.), so that they can be set beside its measured UBO2014 im
     python docs/btf_paper_angles.py [--size 100]
 
 Rows: the six shared sets (100 x 100-texel crops at texel (300, 300), relief 4x the set's height scale, as
-benchmarks/btf_real.py). Columns, (azimuth, elevation above the surface) of the incident light / the view as the
+benchmarks/studies/btf/btf_real.py). Columns, (azimuth, elevation above the surface) of the incident light / the view as the
 captions give them: Fig. 1 (0, 45) / (0, 90); Figs. 4 and 6 (270, 66.5) / (15, 79); Fig. 5 (0, 90) / (15, 30).
 Radiance under a unit directional light, one stop brighter, tiles magnified 2x. Writes
 docs/images/btf_paper_angles.png; about a minute on 2 cores.

@@ -1,4 +1,4 @@
-"""benchmarks/neubrdf_lobe_energy.py: its albedo estimator (uniform + cone directions, balance heuristic) against
+"""benchmarks/studies/neubrdf/neubrdf_lobe_energy.py: its albedo estimator (uniform + cone directions, balance heuristic) against
 closed forms for a Lambertian BRDF, and the script end to end on a model file against its source."""
 import importlib.util
 import math
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "neubrdf_lobe_energy.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "studies" / "neubrdf" / "neubrdf_lobe_energy.py"
 
 
 def _module():

@@ -1,4 +1,4 @@
-"""benchmarks/neubrdf_table3_summary.py: its per-source table read back with --from-table gives the same summary as
+"""benchmarks/studies/neubrdf/neubrdf_table3_summary.py: its per-source table read back with --from-table gives the same summary as
 the results.json it came from, results override table rows, and a missing file or one without the table is refused
 by name."""
 import json
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "neubrdf_table3_summary.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "studies" / "neubrdf" / "neubrdf_table3_summary.py"
 
 
 def _row(name, model, mae, ssim):

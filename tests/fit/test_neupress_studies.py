@@ -1,9 +1,7 @@
-"""benchmarks/neupress_studies.py on tiny synthetic inputs (no Mitsuba, no images): the skip / layer ablation and
+"""benchmarks/studies/neupress/neupress_studies.py on tiny synthetic inputs (no Mitsuba, no images): the skip / layer ablation and
 the baselines study give a row per variant, and their score is the held-out MSE over the held-out variance."""
 import importlib
-import sys
 from argparse import Namespace
-from pathlib import Path
 
 import pytest
 import torch
@@ -11,16 +9,9 @@ import torch
 from neumat.fit.translucent_observations import Observations
 from neumat.warp import sample_uniform_sphere
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
-
-
 @pytest.fixture(scope="module")
 def studies():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        yield importlib.import_module("neupress_studies")
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    return importlib.import_module("benchmarks.studies.neupress.neupress_studies")
 
 
 def _observations(n, seed):

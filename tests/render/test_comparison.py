@@ -1,6 +1,6 @@
 """Comparison renderings: the "mis-lobes" strategy and the "sobol" sampler are unbiased (a Lambertian under a
-constant sky reflects albedo x radiance), both materials of a comparison see the same directions, and the noise
-floor falls with the sample count."""
+constant sky reflects albedo x radiance), quasi-random points converge faster, and the noise floor is scored like
+the material and falls with the sample count."""
 from __future__ import annotations
 
 import pytest
@@ -32,11 +32,15 @@ def test_sobol_points_converge_faster_than_independent_ones():
     assert err["sobol"] < 0.8 * err["random"], err
 
 
-def test_same_material_same_seed_is_exact_and_the_floor_falls_with_spp():
+def test_the_reference_scores_the_floor_the_floor_falls_with_spp_and_another_material_is_above_it():
+    """The material and the floor are scored the same way: the reference as the material gets exactly the floor
+    (the floor is what a perfect model scores), which falls with spp, and a different material scores worse."""
     m = open_material("ggx:roughness=0.1")
     same = image_comparison(m, m, spp=4, resolution=16)
-    assert same["mae"] == 0 and same["floor_mae"] > 0
+    assert same["mae"] == same["floor_mae"] > 0 and same["ssim"] == same["floor_ssim"]
     assert image_comparison(m, m, spp=64, resolution=16)["floor_mae"] < 0.5 * same["floor_mae"]
+    other = image_comparison(open_material("ggx:roughness=0.4"), m, spp=64, resolution=16)
+    assert other["mae"] > 2 * other["floor_mae"] and other["ssim"] < other["floor_ssim"]
 
 
 def test_unknown_sampler_is_refused():

@@ -24,7 +24,7 @@ ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha25
 FIT_KEYS = ("recipe", "steps", "fit_seconds")
 #: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
 #: evaluated under an older protocol are evaluated again
-IMAGE_PROTOCOL = "sphere/sky, mis-lobes, sobol, floor at seed + 1"
+IMAGE_PROTOCOL = "sphere/sky, mis-lobes, sobol, model and floor against the reference at 16x spp"
 
 
 @dataclass(frozen=True)

@@ -138,8 +138,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
                                                           "`neumat fit` takes them, e.g. max_size=64"),
              n_configs: int = typer.Option(2 ** 18, "--n-configs", min=1, help="random (wi, wo) configurations"),
              image: bool = typer.Option(True, "--image/--no-image",
-                                        help="also compare sphere renderings (neumat.render.comparison), and the "
-                                             "reference with itself at the next seed (floor_*: its noise)"),
+                                        help="also compare sphere renderings (neumat.render.comparison): the model "
+                                             "and the reference at --spp, each against the reference at 16x --spp "
+                                             "(floor_*: the reference's score, what a perfect model gets)"),
              spp: int = typer.Option(16, min=1, help="samples per pixel of the renderings"),
              resolution: int = typer.Option(128, min=8, help="rendering width and height"),
              scales: int = typer.Option(0, "--scales", min=0,
@@ -176,9 +177,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
         row = {"model": str(model), "against": against}
         row.update(reflectance_errors(m, ref, n=n_configs, seed=seed, device=dev))
         if image:
-            from ..render.comparison import image_comparison
+            from ..render.comparison import PROTOCOL, image_comparison
 
-            row.update(image_comparison(m, ref, spp, resolution, seed=seed, device=dev))
+            row.update(image_comparison(m, ref, spp, resolution, seed=seed, device=dev), image_protocol=PROTOCOL)
         series = None
         if scales:
             from ..render.scale_series import score_scale_series

@@ -62,12 +62,13 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
                                     help="comparison picture (.png)")) -> None:
     """Render the reference and every other material identically (the same directions: a fixed lobe mixture and
     light sampling, quasi-random points); print image and reflectance metrics, and the reference against itself
-    rendered with the next seed (its noise floor: image errors near it are noise)."""
+    scored the same way (its noise floor: image errors near it are noise). Protocol: every material at --spp with
+    --seed, scored against the reference at 16x --spp with the next seed (neumat.render.comparison)."""
     from ..core.errors import InputError
     from ..catalog.open_material import open_material
     from ..metrics.hdr import reflectance_errors
     from ..metrics.image import image_metrics
-    from ..render.comparison import COMPARISON_SAMPLING, FLOOR_NAME
+    from ..render.comparison import COMPARISON_SAMPLING, FLOOR_NAME, PROTOCOL, REFERENCE_FACTOR
     from ..render.render import render as render_image
 
     def go():
@@ -79,10 +80,11 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
                     progress=not (json or quiet), **COMPARISON_SAMPLING)
         imgs = {name: render_image(m, seed=seed, **opts) for name, m in mats.items()}
         ref_name = materials[0]
-        floor = image_metrics(imgs[ref_name], render_image(mats[ref_name], seed=seed + 1, **opts))
+        converged = render_image(mats[ref_name], seed=seed + 1, **{**opts, "spp": REFERENCE_FACTOR * spp})
+        floor = image_metrics(converged, imgs[ref_name])
         rows = []
         for name in materials[1:]:
-            row = {"material": name, **image_metrics(imgs[ref_name], imgs[name])}
+            row = {"material": name, **image_metrics(converged, imgs[name])}
             row.update(reflectance_errors(mats[name], mats[ref_name], n=n_configs, seed=seed, device=device))
             rows.append(row)
         if out is not None:
@@ -91,8 +93,8 @@ def compare(materials: list[str] = typer.Argument(..., help="reference first, th
             values = {r["material"]: {k: v for k, v in r.items() if k != "material"} for r in rows}
             write_image_ldr(out, compare_image(imgs[ref_name], {n: imgs[n] for n in materials[1:]}, values))
         if json:
-            print_json({"reference": ref_name, "results": rows, "floor": floor})
+            print_json({"reference": ref_name, "results": rows, "floor": floor, "protocol": PROTOCOL})
         else:  # one row per metric, one column per material and the floor: readable at 80 columns
-            print_table(f"against {ref_name}", [{"metric": k, **{r["material"]: r[k] for r in rows},
+            print_table(f"against {ref_name} ({PROTOCOL})", [{"metric": k, **{r["material"]: r[k] for r in rows},
                                                  FLOOR_NAME: floor.get(k, "")} for k in rows[0] if k != "material"])
     run_command(go)

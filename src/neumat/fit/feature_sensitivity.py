@@ -8,7 +8,7 @@ Fisher information, what Adam's second moment tracks). Quantising feature x_s to
 about sum_j sensitivity[s, j] (x_sj - c_j)^2 (up to a constant factor), so a k-means under that distance spends its
 codewords where errors cost the loss most: on MERL-like blue-metallic-paint2 (dense N_side 64 into 512 codewords,
 no VQ steps), held-out log error 0.0071 -> 0.0059 and image MAE 0.021 -> 0.015 against plain k-means, though not
-after the CPU recipe's VQ phase (benchmarks/results/neubrdf_table3_codebook.md).
+after the CPU recipe's VQ phase (benchmarks/studies/neubrdf/results/neubrdf_table3_codebook.md).
 """
 from __future__ import annotations
 

@@ -14,14 +14,14 @@ Built-ins (means over the N queries and 3 channels):
   "log_cos_eps": |log(eps + f_hat cos_i) - log(eps + f cos_i)|, eps = 0.01: log_cos is this with eps = 1, under
               which values below ~0.01 (the tails of a sharp lobe, 0.007 - 0.04 sr^-1 on MERL chrome 8 - 16 deg
               off the mirror direction) carry almost no gradient (f_hat cos / (1 + f_hat cos)), and fits that also
-              see the peak let them fall to 1e-10 (`benchmarks/results/neubrdf_direction_init.md`).
+              see the peak let them fall to 1e-10 (`benchmarks/studies/neubrdf/results/neubrdf_direction_init.md`).
   "log_cos_eps_linear": log_cos_eps + w |f_hat cos_i - f cos_i| / mean(f cos_i), w = 0.5, the linear term per
               channel normalised by the batch's mean cosine-weighted target (stop gradient): in log space its
               gradient on a query is proportional to f_hat cos_i, so it weighs queries by what they add to a
               rendered pixel, where a log loss weighs a sharp lobe's peak like its tails. Measured once on
               MERL-like steel (NeuBRDF, direction_inputs "hd"): image MAE 0.0089 -> 0.0055, chrome 0.0029 ->
               0.0027; no recipe uses it, since warped direction inputs did more
-              (`benchmarks/results/neubrdf_table3_hd_warp.md`, section 1).
+              (`benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md`, section 1).
   "l1":       |f_hat - f|.
   "l2":       (f_hat - f)^2.
   "relative": (f_hat - f)^2 / (sg(f_hat)^2 + eps), eps = 0.01, the prediction-relative L2 of Noise2Noise

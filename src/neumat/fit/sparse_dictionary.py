@@ -181,7 +181,7 @@ def training_size_warning(n_points: int, num_dictionaries: int, tau_train: tuple
       so fewer than max_n m_n / min(tau_l, m_n) members leave basis directions no training point constrains
       (the smallest tau_l counts);
     - the paper's ratio: at least `PAPER_POINTS_PER_DICTIONARY` (360) members, the training set the paper's
-      results come from (benchmarks/results/btf_vs_pca.md, section 14, measures the SparseBTF / PCA ratio from
+      results come from (benchmarks/studies/btf/results/btf_vs_pca.md, section 14, measures the SparseBTF / PCA ratio from
       75 to 2880 points at 17 x 17 directions).
     """
     per = n_points / num_dictionaries

@@ -86,7 +86,7 @@ class Config:
     """Corner weights of the runtime form (`NeuBRDF.runtime`): "uniform", the paper's 1/4 (one feature per pixel:
     two table reads per evaluation), or "idw", the training form's weights (8 reads and 8 weights per
     evaluation), which keep specular peaks narrower than a pixel (MERL-like chrome: image SSIM 0.85 -> 0.94 at
-    N_side 64, benchmarks/results/neubrdf_runtime_forms.md)."""
+    N_side 64, benchmarks/studies/neubrdf/results/neubrdf_runtime_forms.md)."""
     texture_height: int = 0
     """h of the neural texture T (h x w x c) for spatially varying materials; 0 without texture."""
     texture_width: int = 0
@@ -100,11 +100,11 @@ class Config:
     or "hd", our extension: the Rusinkiewicz half and difference vectors (hx, hy, hz, dx, dy, dz) of (wi, wo),
     NBRDF's 6 inputs (`NBRDF.encode`), appended last; 6 x hidden more MLP weights (768 bytes
     at fp16 for 2 x 64). Why: 2^b codewords cannot place a highlight finer than about a 2^b-slot grid
-    (benchmarks/results/neubrdf_table3_codebook.md), while the MLP, given h, can; the codebook then carries the
+    (benchmarks/studies/neubrdf/results/neubrdf_table3_codebook.md), while the MLP, given h, can; the codebook then carries the
     material's variation across directions (see `neumat.fit.recipes.neubrdf`). "hd_warp": the same 6 inputs with
     the half vector's (hx, hy) warped to MERL's sqrt(theta_h) coordinate (`direction_inputs`), which resolves
     sharp highlights: MERL-like steel image MAE 0.0089 -> 0.0021, SSIM 0.971 -> 0.997 (CPU recipe, cosine_merl
-    queries, log_cos_eps; benchmarks/results/neubrdf_table3_hd_warp.md)."""
+    queries, log_cos_eps; benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md)."""
 
 
 def _check_config(c: Config) -> None:
@@ -466,7 +466,7 @@ class NeuBRDF(LearnedMaterial):
         (inverse-distance interpolation: within half a pixel), and at the mirror direction the two cancel (the
         mirrored wo is -wi, whose pixel and weights are wi's, antipodal), so the first MLP layer sees about
         scale (wi - reflect(wo)) from the first step and can place a specular peak finer than a pixel. Why: from
-        random features no fit of MERL-like chrome found its 0.5-degree peak (`benchmarks/results/
+        random features no fit of MERL-like chrome found its 0.5-degree peak (`benchmarks/studies/neubrdf/results/
         neubrdf_direction_init.md`). Dense features only; returns self."""
         if not isinstance(self.grid, DenseFeatures):
             raise InputError("NeuBRDF.init_direction_features: needs a model with features='dense' "

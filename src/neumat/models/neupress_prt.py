@@ -64,7 +64,7 @@ FILE_TYPE = "sh-prt"
 #: view bins (theta, phi), light directions and arithmetic of `neumat translucent prt` (the paper's 16 x 64 x 1024
 #: in float32 are the PRTConfig defaults): 8 x 16 x 32 is 253x fewer evaluations per vertex, bfloat16 about 3x
 #: faster each, for meshes of tens of thousands of vertices in minutes; what this costs against the paper's
-#: counts and float32 is measured in benchmarks/results/neupress_prt.md
+#: counts and float32 is measured in benchmarks/studies/neupress/results/neupress_prt.md
 FAST_VIEW_BINS = (8, 16)
 FAST_LIGHT_SAMPLES = 32
 FAST_PRECISION = "bf16"
@@ -87,7 +87,7 @@ class PRTConfig:
     precision: str = "fp32"
     """Arithmetic of the material's evaluations: "fp32", or "bf16" for NeuPreSS models (Fourier angles in float32,
     their cosines and the MLP in bfloat16, projection in float32: 2-3x faster on CPUs with AVX-512 BF16, a_lm
-    within ~1% of float32; benchmarks/results/neupress_prt.md)."""
+    within ~1% of float32; benchmarks/studies/neupress/results/neupress_prt.md)."""
     batch_size: int = 65536
     """Material evaluations per batch."""
 

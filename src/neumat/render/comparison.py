@@ -1,15 +1,17 @@
 """Image metrics of a material against its reference under one rendering protocol, with the reference's own
-noise floor.
+noise floor scored the same way.
 
-Protocol: the sphere under the sky, direct light, `strategy="mis-lobes"` (light sampling and a fixed,
-material-independent lobe mixture, so both renders use the same directions) and `sampler="sobol"`
-(randomly shifted quasi-random points per pixel). The floor is the same metrics of the reference against
-itself rendered with the next seed: errors near it are noise, not the material.
+Protocol (`PROTOCOL`): the sphere under the sky, direct light, `strategy="mis-lobes"` (light sampling and a fixed,
+material-independent lobe mixture) and `sampler="sobol"` (randomly shifted quasi-random points per pixel). The
+material and the reference are each rendered at `spp` with `seed` and both scored against the reference rendered at
+`REFERENCE_FACTOR` x spp with seed + 1 (its own error is about 1/4 of one render's, independent of both): the
+reference's score is the floor, what a perfect model gets; errors near it are noise, not the material. (Scoring
+the material against a same-seed reference while the floor compares two seeds made the floor worse than the model,
+e.g. SSIM 0.51 against 0.99, and meaningless.)
 
-Measured on MERL-like tables (128^2, 1024 spp): with the default "mis" strategy and independent numbers the
-floor was SSIM 0.35 / MAE 0.042 at 64 spp (blue-metallic-paint2: a glossy lobe that cosine sampling of the
-table misses, so every rendering is mostly fireflies); this protocol gives SSIM 0.991 / MAE 0.0023 at 64 spp
-and SSIM 0.9998 / MAE 0.00034 at 1024 spp (chrome: 0.998 / 0.0009).
+Measured on MERL-like tables (128^2, 1024 spp): with the default "mis" strategy and independent numbers one render
+against another was SSIM 0.35 / MAE 0.042 at 64 spp (blue-metallic-paint2: a glossy lobe that cosine sampling of
+the table misses); with this strategy and sampler SSIM 0.991 / MAE 0.0023 at 64 spp.
 """
 from __future__ import annotations
 
@@ -20,8 +22,13 @@ from .render import render
 #: the comparison renderings' strategy and sampler (module docstring)
 COMPARISON_SAMPLING = dict(strategy="mis-lobes", sampler="sobol")
 COMPARISON_OPTIONS = dict(scene="sphere", **COMPARISON_SAMPLING)
-#: how tables name the reference rendered again with the next seed (the noise floor)
-FLOOR_NAME = "reference, seed + 1"
+#: the scoring reference's samples per pixel, as a multiple of the compared renders'
+REFERENCE_FACTOR = 16
+#: how tables name the reference scored like a model (the noise floor)
+FLOOR_NAME = "floor (reference at spp)"
+#: the protocol in one line, for tables and results files
+PROTOCOL = (f"sphere under the sky, mis-lobes + sobol; model and reference each rendered at spp (seed s) and "
+            f"scored against the reference at {REFERENCE_FACTOR}x spp (seed s+1); floor = the reference's score")
 
 
 def comparison_images(materials: dict[str, Material], spp: int, resolution: int, seed: int = 0, device=None,
@@ -32,18 +39,21 @@ def comparison_images(materials: dict[str, Material], spp: int, resolution: int,
 
 
 def reference_renders(reference: Material, spp: int, resolution: int, seed: int = 0, device=None) -> tuple:
-    """The reference rendered with `seed` and with seed + 1 (the second one measures the noise floor)."""
-    return tuple(comparison_images({"ref": reference}, spp, resolution, s, device)["ref"] for s in (seed, seed + 1))
+    """(the scoring reference: `reference` at REFERENCE_FACTOR x spp with seed + 1, `reference` at spp with seed:
+    scored against the first, the floor)."""
+    return (comparison_images({"ref": reference}, REFERENCE_FACTOR * spp, resolution, seed + 1, device)["ref"],
+            comparison_images({"ref": reference}, spp, resolution, seed, device)["ref"])
 
 
 def image_comparison(material: Material, reference: Material, spp: int, resolution: int, seed: int = 0,
                      device=None, floor: bool = True, renders: tuple | None = None) -> dict[str, float]:
-    """`image_metrics` keys of `material` against `reference`, and with `floor` the same keys prefixed
-    "floor_" for the reference against itself at seed + 1. renders: `reference_renders` of the same settings,
-    when several materials are compared with one reference (else rendered here)."""
+    """`image_metrics` keys of `material` (rendered at spp with `seed`) against the converged reference, and with
+    `floor` the same keys prefixed "floor_" for the reference rendered like the material (module docstring).
+    renders: `reference_renders` of the same settings, when several materials are compared with one reference
+    (else rendered here)."""
     if renders is None:
         renders = reference_renders(reference, spp, resolution, seed, device) if floor else \
-            (comparison_images({"ref": reference}, spp, resolution, seed, device)["ref"],)
+            (comparison_images({"ref": reference}, REFERENCE_FACTOR * spp, resolution, seed + 1, device)["ref"],)
     test = comparison_images({"test": material}, spp, resolution, seed, device)["test"]
     out = image_metrics(renders[0], test)
     if floor:

@@ -3,7 +3,7 @@ coefficients (log sigma_a, log sigma_s'), and with `texture_resolution` > 1 thei
 to path-traced observations (differentiable rendering of the observations, Deng et al. 2022), as NeuPreSS's
 appearance phase (`neumat.fit.translucent_fit`): Adam lr 0.05 halved at 50 % and 75 %, 300 steps of 256 observations,
 5 % held back for early stopping, of which at most 4096 are used (each evaluation sums over the whole surface
-quadrature: 1.9e3 queries/s in benchmarks/results/neupress.md). The model needs its surface quadrature
+quadrature: 1.9e3 queries/s in benchmarks/studies/neupress/results/neupress.md). The model needs its surface quadrature
 (`DipoleBSSRDF.set_surface`, from the object: `TranslucentObject.surface_samples`); a fresh fit of a model
 without one takes `cfg.samples` observed points with their normals, each standing for 1 / samples of the area
 of the observed points' convex hull (exact for convex objects, an underestimate for concave ones).
@@ -13,7 +13,7 @@ loss adds `smoothness` x (mean squared training value) x `DipoleBSSRDF.smoothnes
 neighbouring texels of the log-coefficient offsets): scaled by the data's power, so the weight is unitless; it
 fills texels no observation reaches and damps texels few observations reach.
 
-CPU_RECIPE: RECIPE itself, which is CPU-sized: the dipole fit of benchmarks/results/neupress.md took 47 s on 2 CPU
+CPU_RECIPE: RECIPE itself, which is CPU-sized: the dipole fit of benchmarks/studies/neupress/results/neupress.md took 47 s on 2 CPU
 cores, within the 10-minute CPU budget.
 """
 from __future__ import annotations

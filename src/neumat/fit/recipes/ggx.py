@@ -11,10 +11,10 @@ near-black sphere, held-out log error 0.0041, relative error 1.0), from 0.05 or 
 otherwise) from each starting alpha, each on its own random numbers; the run continues from the trial with the
 lowest loss on one held-out batch (ties: the first listed). An empty list, or one start, is the plain single-start
 fit. On the 25 MERL-like tables: chrome image MAE 0.0647 -> 0.0194, steel 0.0551 -> 0.0221, four glossy
-dielectrics worse in images (benchmarks/results/neubrdf_table3_hd_warp.md, section 7).
+dielectrics worse in images (benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md, section 7).
 
 CPU_RECIPE: the same recipe: 2000 steps of 2^14 take about 2.5 minutes on one CPU core
-(benchmarks/results/cpu_recipes.md), within the 10-minute CPU budget; the trials add 3 x 200 steps (44 - 95 s per
+(benchmarks/studies/neubrdf/results/cpu_recipes.md), within the 10-minute CPU budget; the trials add 3 x 200 steps (44 - 95 s per
 fit measured with them, beside other jobs).
 """
 from __future__ import annotations

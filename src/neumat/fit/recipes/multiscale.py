@@ -15,12 +15,12 @@ registered as "relative_l2_mix" in `neumat.fit.losses` (`LOSSES`).
 CPU_RECIPE (the gated model and every baseline sharing this recipe): RECIPE is 4-5 GPU hours; on a CPU a
 step of 2^16 footprint queries takes seconds (each target filters the texture set over its footprint), so
 the CPU recipe takes 2^12 queries per step for 1000 steps, about 10 minutes on one core for a 1K texture set (0.59 - 0.65 CPU s per step)
-(benchmarks/results/cpu_recipes.md); on a 64^2 crop with `--source-option samples=8` about 2 minutes. Otherwise it
+(benchmarks/studies/neubrdf/results/cpu_recipes.md); on a 64^2 crop with `--source-option samples=8` about 2 minutes. Otherwise it
 is RECIPE: the same optimiser, EMA weight and schedule, i.e. the paper's first 1000 steps, whose learning rate is
 still constant (its first decay is at 10k steps). An earlier CPU recipe compressed the paper's 50 decays into the
 1000 steps (x 0.9 every 20, to 1.5e-5 at the end): on a 64^2 Plaster001 crop both models ended far worse (mean
 FLIP over 9 scales 0.159 / 0.148 gated / tripleplane against 0.112 / 0.123 at the constant rate) and the gated
-model, which needs more steps at full rate, fell behind tripleplane (benchmarks/results/multiscale_protocol.md, CLI
+model, which needs more steps at full rate, fell behind tripleplane (benchmarks/studies/multiscale/results/multiscale_protocol.md, CLI
 section). Expect a rough fit: the paper's quality needs RECIPE on a GPU. The latent resolution follows the source
 (`config_for_source`).
 """

@@ -7,7 +7,7 @@ x 100 epochs = 125k steps of 512 fresh Rusinkiewicz queries (the same distributi
 
 CPU_RECIPE: the same 6.4e7 queries in 8x larger batches, 15625 steps of 4096:
 a step of 512 costs about as much as one of 4096 on a CPU (0.04 CPU s, mostly per-step overhead: the
-source's evaluation and the optimiser; benchmarks/results/cpu_recipes.md), so RECIPE takes about 90 minutes
+source's evaluation and the optimiser; benchmarks/studies/neubrdf/results/cpu_recipes.md), so RECIPE takes about 90 minutes
 on one core and this about 5 (0.017 CPU s per step of 4096). Adam's step size does not grow with the batch, so the learning rate stays.
 """
 from neumat.fit.recipe import Recipe

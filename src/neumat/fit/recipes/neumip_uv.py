@@ -1,12 +1,12 @@
 """Training recipe of the NeuMIP-on-UV baseline of NeuPreSS (`neumat.models.neumip_uv`): every parameter (latent
 texture and MLP) fitted by L2 to path-traced observations exactly as NeuPreSS's appearance phase
 (`neumat.fit.translucent_fit`, `neumat.fit.recipes.neupress`): Adam lr 1e-3 halved at 50 % and 75 %, batches of
-4096, 5 % held back for early stopping, 2000 steps (the budget of benchmarks/results/neupress.md, where it
+4096, 5 % held back for early stopping, 2000 steps (the budget of benchmarks/studies/neupress/results/neupress.md, where it
 scores 0.435 of the held-out variance). The projection centre is the middle of the option "bounds" (default:
 the bounding box of the observed points).
 
 CPU_RECIPE: RECIPE itself, which is CPU-sized: its fit, as NeuPreSS's appearance phase (79 s in
-benchmarks/results/neupress.md), takes 1-2 minutes on 2 CPU cores, within the 10-minute CPU budget.
+benchmarks/studies/neupress/results/neupress.md), takes 1-2 minutes on 2 CPU cores, within the 10-minute CPU budget.
 """
 from __future__ import annotations
 

@@ -12,12 +12,12 @@ observations (`neumat.fit.translucent_observations.Observations`, the source of 
    Gaussian lobe, at `sampler_batch` = 32 random (x, wo, n) of the training observations per step.
 
 Steps: 2000 appearance + 300 sampler (phase_split 20/23, 3/23 of 2300), the budget of every run in
-benchmarks/results/neupress.md (the low-frequency and smooth variants reach their best validation record at
+benchmarks/studies/neupress/results/neupress.md (the low-frequency and smooth variants reach their best validation record at
 steps 1800-1900 of 2000; the sampler's KL is 0.04-0.05 after 300 steps). The 4000 + 1000 steps that the old
 `fit_neupress` defaults named were never measured. The Fourier scale is the model's (`NeuPreSS.Config`: G ~
 N(0, 0.3^2), not the paper's N(18, 1); see there).
 
-CPU_RECIPE: RECIPE itself, which is CPU-sized: the NeuPreSS fit of benchmarks/results/neupress.md took 79 + 143 s
+CPU_RECIPE: RECIPE itself, which is CPU-sized: the NeuPreSS fit of benchmarks/studies/neupress/results/neupress.md took 79 + 143 s
 (appearance + sampler) on 2 CPU cores, within the 10-minute CPU budget.
 """
 from __future__ import annotations

@@ -14,7 +14,7 @@ The last half_finish of the latents phase's steps (default 10 %) train half-awar
 which trains in FP32 and infers in FP16): every parameter enters the forward rounded as the fp16 exports store it,
 with a straight-through gradient, and the phase ends by rounding the parameters in place
 (`neumat.models.half_precision`), so the fitted model is exactly what its fp16 export stores
-(benchmarks/results/neural_appearance_timing.md: rounding a model trained in FP32 moves eval by up to 5e-3 and the
+(benchmarks/studies/neural_appearance/results/neural_appearance_timing.md: rounding a model trained in FP32 moves eval by up to 5e-3 and the
 pdf by up to 3e-3, relative). half_finish=0 trains in FP32 to the end, as the paper.
 Optionally (blur_degrees > 0) the targets of the first steps are directionally blurred, a cone around wo that
 shrinks to nothing at blur_until of all steps (counted over both phases), blur_samples directions each, so
@@ -36,7 +36,7 @@ History records carry "brdf loss", "sampler loss" (and "albedo loss"); "loss" is
 surface_features).
 
 CPU_RECIPE: RECIPE itself: 2000 steps of 2048 took 45-62 s on one core for 64^2 texture sets
-(benchmarks/results/neural_appearance.md), so RECIPE's 4000 of 4096 take about 4 minutes there.
+(benchmarks/studies/neural_appearance/results/neural_appearance.md), so RECIPE's 4000 of 4096 take about 4 minutes there.
 """
 from __future__ import annotations
 

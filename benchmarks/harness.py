@@ -1,0 +1,237 @@
+"""The suites' shared harness: thread pinning, seeds, CPU-second timing with its own floor, run metadata, results
+as JSON (benchmarks/schema.json) and the Markdown page rendered from them; one place, so every suite's numbers
+are taken and recorded the same way."""
+from __future__ import annotations
+
+import datetime
+import importlib.metadata
+import json
+import math
+import os
+import platform
+import random
+import shlex
+import subprocess
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = Path(__file__).resolve().parent / "results"
+SCHEMA_PATH = Path(__file__).resolve().parent / "schema.json"
+#: the results format's version (schema.json's "schema" constant)
+SCHEMA = "neumat-bench/1"
+#: distributions whose versions every results file records
+PACKAGES = ("neumat", "torch", "numpy", "mitsuba", "moderngl", "slangpy", "ray")
+
+
+def pin_threads(threads: int) -> None:
+    """Run torch, OpenMP/MKL children and llvmpipe on `threads` threads (set before any timing)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "LP_NUM_THREADS"):
+        os.environ[var] = str(threads)
+    torch.set_num_threads(threads)
+
+
+def seed_all(seed: int) -> None:
+    """Seed Python, NumPy and torch."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def cpu_seconds(fn: Callable[[], object], repeats: int = 5, min_seconds: float = 0.02, grad: bool = False) -> float:
+    """CPU seconds of one call of fn: the best of `repeats` samples, each enough calls to last `min_seconds`
+    of CPU time (after one untimed warm-up call); CPU time, not wall time, so other users' load counts less."""
+    with torch.set_grad_enabled(grad):
+        fn()
+        calls = 1
+        while True:
+            sample = _cpu_time(fn, calls)
+            if sample >= min_seconds or calls >= 2 ** 20:
+                break
+            calls *= 2 if sample <= 0 else max(2, min(64, math.ceil(1.2 * min_seconds / sample)))
+        best = min([sample] + [_cpu_time(fn, calls) for _ in range(repeats - 1)])
+    return best / calls
+
+
+def _cpu_time(fn: Callable[[], object], calls: int) -> float:
+    start = time.process_time()
+    for _ in range(calls):
+        fn()
+    return time.process_time() - start
+
+
+def timer_floor(repeats: int = 5, min_seconds: float = 0.02) -> float:
+    """`cpu_seconds` of an empty call: below this a timing measures the harness, not the code."""
+    return cpu_seconds(lambda: None, repeats, min_seconds)
+
+
+def sgemm_flops_per_second(n: int = 512, repeats: int = 5, min_seconds: float = 0.02) -> float:
+    """This machine's fp32 matrix-product rate on the current threads (torch.mm of n x n matrices, 2 n^3 FLOPs):
+    the bound that '% of sgemm' divides by."""
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.rand(n, n, generator=g), torch.rand(n, n, generator=g)
+    return 2 * n ** 3 / cpu_seconds(lambda: torch.mm(a, b), repeats, min_seconds)
+
+
+def machine() -> dict:
+    """Where and with what a run was made: commit, versions, threads, CPU model, device, load."""
+    return {
+        "commit": _git("rev-parse", "HEAD"),
+        "dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+        "host": platform.node(),
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count(),
+        "threads": torch.get_num_threads(),
+        "device": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "cpu",
+        "load": [round(x, 2) for x in os.getloadavg()],
+        "python": platform.python_version(),
+        "versions": {p: _version(p) for p in PACKAGES},
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def _git(*args: str) -> str:
+    out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+    return out.stdout.strip() if out.returncode == 0 else "unknown"
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+class Run:
+    """One suite run: its options, the tables and skips it records, and the results document built from them."""
+
+    def __init__(self, suite, quick: bool, seed: int, threads: int, repeats: int, argv: list[str]) -> None:
+        self.suite, self.quick, self.seed, self.threads, self.repeats = suite, quick, seed, threads, repeats
+        self.command = shlex.join(["python", "-m", "benchmarks", *argv])
+        self.tables: list[dict] = []
+        self.skipped: list[dict] = []
+        self.protocol: dict[str, str] = {}
+        self.min_seconds = 0.005 if quick else 0.05
+
+    def time(self, fn: Callable[[], object], grad: bool = False) -> float:
+        """`cpu_seconds` at this run's repeats and sample length."""
+        return cpu_seconds(fn, self.repeats, self.min_seconds, grad)
+
+    def table(self, name: str, title: str, rows: list[dict], notes: str = "") -> None:
+        """Record a table: rows of {column: number, text, bool or None}, columns in the first row's order."""
+        columns = list(dict.fromkeys(k for row in rows for k in row))
+        self.tables.append({"name": name, "title": title, "columns": columns, "rows": [_plain(r) for r in rows],
+                            "notes": notes})
+
+    def skip(self, what: str, reason: str) -> None:
+        """Record something the run could not measure here, and why."""
+        self.skipped.append({"what": what, "reason": reason})
+
+    def execute(self) -> dict:
+        """Pin threads, seed, run the suite and return its results document."""
+        pin_threads(self.threads)
+        seed_all(self.seed)
+        started = time.perf_counter()
+        cpu0 = time.process_time()
+        self.suite.run(self)
+        mode = "quick" if self.quick else "full"
+        return {
+            "schema": SCHEMA,
+            "suite": self.suite.NAME,
+            "mode": mode,
+            "command": self.command,
+            "description": self.suite.DESCRIPTION,
+            "budget": self.suite.BUDGET[mode],
+            "seed": self.seed,
+            "machine": machine(),
+            "harness": {"timer": "best of N samples of process CPU seconds, each sample >= min_seconds of calls",
+                        "repeats": self.repeats, "min_seconds": self.min_seconds,
+                        "floor_seconds": timer_floor(self.repeats, self.min_seconds)},
+            "protocol": self.protocol,
+            "tables": self.tables,
+            "skipped": self.skipped,
+            "wall_seconds": round(time.perf_counter() - started, 2),
+            "cpu_seconds": round(time.process_time() - cpu0, 2),
+        }
+
+
+def _plain(row: dict) -> dict:
+    """JSON-safe values: finite floats rounded to 6 significant digits, non-finite ones as None."""
+    out = {}
+    for k, v in row.items():
+        if isinstance(v, (np.floating, np.integer)) or (torch.is_tensor(v) and v.numel() == 1):
+            v = v.item()
+        if isinstance(v, float):
+            v = float(f"{v:.6g}") if math.isfinite(v) else None
+        out[str(k)] = v
+    return out
+
+
+def write(doc: dict, out: Path) -> tuple[Path, Path]:
+    """Write `doc` as JSON at `out` and regenerate the folder's page (README.md: every results file in it);
+    returns both paths."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=1) + "\n")
+    page = out.parent / "README.md"
+    docs = [json.loads(p.read_text()) for p in sorted(out.parent.glob("*.json"))]
+    page.write_text("\n".join(markdown(d) for d in docs))
+    return out, page
+
+
+def markdown(doc: dict) -> str:
+    """The Markdown page of one results document (generated: edit the suite, not the page)."""
+    m = doc["machine"]
+    budget = doc["budget"]
+    lines = [f"# {doc['suite']} ({doc['mode']})", "", doc["description"], "",
+             "<!-- generated by benchmarks/harness.py from the JSON beside this file; do not edit -->", "",
+             f"    {doc['command']}", "",
+             f"commit `{m['commit'][:12]}`{' (dirty)' if m['dirty'] else ''}, {m['date']}, {m['host']}: {m['cpu']}, "
+             f"{m['threads']} thread(s) of {m['cores']} cores, device {m['device']}, load {m['load']}; "
+             f"torch {m['versions']['torch']}. Wall {doc['wall_seconds']} s, CPU {doc['cpu_seconds']} s.", "",
+             f"Budget: {budget['ours']}. Paper: {budget['paper']}. Expected wall time on 2 cores: "
+             f"{budget['expected_wall']}.", "",
+             f"Timer: {doc['harness']['timer']} (N = {doc['harness']['repeats']}, min "
+             f"{doc['harness']['min_seconds']} s); its floor: {doc['harness']['floor_seconds']:.3g} s per call."]
+    for key, text in doc["protocol"].items():
+        lines += ["", f"Protocol ({key}): {text}"]
+    for t in doc["tables"]:
+        lines += ["", f"## {t['title']}", ""]
+        if t["notes"]:
+            lines += [t["notes"], ""]
+        if not t["rows"]:
+            lines.append("(no rows: see below)")
+            continue
+        lines += ["| " + " | ".join(t["columns"]) + " |", "|" + "---|" * len(t["columns"])]
+        lines += ["| " + " | ".join(_cell(r.get(c)) for c in t["columns"]) + " |" for r in t["rows"]]
+    if doc["skipped"]:
+        lines += ["", "## Not measured here", ""] + [f"- {s['what']}: {s['reason']}" for s in doc["skipped"]]
+    return "\n".join(lines) + "\n"
+
+
+def _cell(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def default_out(suite_name: str, quick: bool) -> Path:
+    """benchmarks/results/<suite>/<quick|full>.json."""
+    return RESULTS / suite_name / f"{'quick' if quick else 'full'}.json"

@@ -1,0 +1,81 @@
+"""What the quality suites share: fits through `neumat fit-many` (in this process), their rows as table rows, the
+per-model summary with its seed spread, and budgets stated from the recipes themselves."""
+from __future__ import annotations
+
+import contextlib
+import json
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+from neumat.cli.main import app
+from neumat.fit.recipe import cpu_minutes, recipe_for
+
+from .. import harness
+
+#: the fit-many metrics every quality table shows (image metrics under neumat.render.comparison's protocol)
+METRICS = ("log_err", "rmse_hdr", "img_mae", "img_ssim", "img_flip", "img_floor_mae", "img_floor_ssim",
+           "img_floor_flip")
+
+
+def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int]) -> list[dict]:
+    """fit-many's result rows of every (source, model) for each seed (a "seed" key added); a failed job's row
+    has status "error" and its message, and the run records it as skipped."""
+    rows = []
+    for seed in seeds:
+        with tempfile.TemporaryDirectory(prefix="neumat-bench-") as out:
+            args = ["fit-many", *sources, *[a for m in models for a in ("-m", m)], *options, "--seed", str(seed),
+                    "--threads", str(run.threads), "--engine", "local", "-q", "-o", out]
+            try:  # fit-many's progress goes to stderr: stdout stays the suite's table or JSON
+                with contextlib.redirect_stdout(sys.stderr):
+                    app(args, standalone_mode=False)
+            except SystemExit as stop:  # exit status 1: some job failed; its row says why
+                if stop.code not in (0, 1, None):
+                    raise
+            for row in json.loads((Path(out) / "results.json").read_text())["rows"]:
+                if row["status"] != "ok":
+                    run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
+                rows.append({**row, "seed": seed})
+    return rows
+
+
+def quality_rows(rows: list[dict]) -> list[dict]:
+    """One table row per fitted (source, model, seed): the METRICS, bytes and fit seconds."""
+    return [{"source": r["name"], "model": r["model"], "seed": r["seed"],
+             **{k: r["metrics"].get(k) for k in METRICS}, "bytes": r.get("bytes_fp16"),
+             "fit s": r.get("fit_seconds")} for r in rows if r["status"] == "ok"]
+
+
+def summary_rows(rows: list[dict], metrics: tuple[str, ...] = ("log_err", "img_mae", "img_ssim", "img_flip")) -> list[dict]:
+    """Per model: each metric's mean over the sources for every seed, and the spread of those means over seeds
+    (max - min: how far a rerun with another seed moves the number)."""
+    out = []
+    for model in dict.fromkeys(r["model"] for r in rows):
+        per_seed = {}
+        for r in rows:
+            if r["model"] == model and r["status"] == "ok":
+                per_seed.setdefault(r["seed"], []).append(r["metrics"])
+        row = {"model": model, "seeds": len(per_seed), "sources": min((len(v) for v in per_seed.values()), default=0)}
+        for k in metrics:
+            means = [statistics.fmean(m[k] for m in ms) for ms in per_seed.values() if all(k in m for m in ms)]
+            row[f"{k} mean"] = statistics.fmean(means) if means else None
+            row[f"{k} seed spread"] = max(means) - min(means) if len(means) > 1 else None
+        out.append(row)
+    return out
+
+
+def recipe_budget(models: list[str], steps: int | None = None) -> str:
+    """'model: steps x batch (CPU recipe; ~N min on one core)' per model, or the given step count."""
+    parts = []
+    for m in models:
+        r = recipe_for(m, "cpu")
+        minutes = cpu_minutes(m)
+        parts.append(f"{m} {steps or r.steps} x {r.batch_size}" + (f" (~{minutes:g} min/fit on one core)"
+                                                                   if minutes and not steps else ""))
+    return "; ".join(parts)
+
+
+def paper_budget(models: list[str]) -> str:
+    """'model: steps x batch' of each model's paper recipe."""
+    return "; ".join(f"{m} {recipe_for(m, 'paper').steps} x {recipe_for(m, 'paper').batch_size}" for m in models)

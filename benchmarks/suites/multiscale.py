@@ -1,0 +1,44 @@
+"""multiscale: the multi-scale gated SVBRDF (Timonen et al. 2025) against its FLOP-matched baselines on the shared
+texture sets, through `neumat fit-many` at the CPU recipes (Tables 4 and 6 on our data)."""
+from __future__ import annotations
+
+from neumat.io.shared_data import shared_data_dir
+
+from .. import harness
+from .common import fit_many, paper_budget, quality_rows, recipe_budget, summary_rows
+
+NAME = "multiscale"
+DESCRIPTION = "the multi-scale gated SVBRDF against neumip, tripleplane, nbrdf-uv and ggx-mipmap, through fit-many"
+MODELS = ["multiscale", "neumip", "tripleplane", "nbrdf-uv", "ggx-mipmap"]
+BUDGET = {
+    "quick": {"ours": "multiscale and ggx-mipmap, 10 steps x 256 on Wood092_1K at 32^2 texels, one seed",
+              "paper": paper_budget(MODELS) + " on a GPU", "expected_wall": "about 20 s"},
+    "full": {"ours": f"CPU recipes: {recipe_budget(MODELS)}; 6 texture sets at 256^2 texels x 5 models, seeds 0 and "
+                     "1 (60 fits); sphere images 128^2 at 64 spp",
+             "paper": paper_budget(MODELS) + " on a GPU, at the sets' full resolution",
+             "expected_wall": "about 11 h one fit after another (one thread)"},
+}
+
+
+def run(run: harness.Run) -> None:
+    """Fit and tabulate; the scale series (paper Fig. 4 / Table 6) is `neumat eval --scales 9` on the fitted files."""
+    from neumat.render.comparison import PROTOCOL
+
+    run.protocol["image"] = PROTOCOL
+    data = shared_data_dir()
+    if data is None:
+        run.skip("every fit", "no texture sets: shared data absent (neumat.io.shared_data)")
+        return
+    sets = sorted(str(p) for p in (data / "svbrdf").iterdir() if p.is_dir())
+    if run.quick:
+        rows = fit_many(run, sets[-1:], ["multiscale", "ggx-mipmap"],
+                        ["--recipe", "cpu", "--steps", "10", "--set", "batch_size=256", "--source-option",
+                         "max_size=32", "--eval-n", "4096", "--image-spp", "2", "--image-resolution", "32"], [run.seed])
+    else:
+        rows = fit_many(run, sets, MODELS, ["--recipe", "cpu", "--source-option", "max_size=256", "--eval-n",
+                                            str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"],
+                        [run.seed, run.seed + 1])
+    run.table("fits", "Texture sets x models (sphere images: the texture at about one scale)", quality_rows(rows))
+    run.table("summary", "Per model: mean over the sets, seed spread", summary_rows(rows))
+    run.skip("the scale series (Fig. 4, Table 6's FLIP over scales)", "not in fit-many: `neumat eval MODEL.nmat "
+             "--against SET --scales 9` per fitted file")

@@ -1,0 +1,204 @@
+"""speed: every registered model in its shipped runtime form, analytic GGX and a measured RGL table: FLOPs per
+query, evaluations and sample+pdf per CPU second at three batch sizes, % of this core's fp32 sgemm rate, cost
+against GGX in the same process, the GLSL (llvmpipe) and Slang (slangpy CPU) exports' rates, and training step
+CPU time per phase at two batch sizes through the library's trainer (issue 49 item 1; measures, asserts nothing)."""
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import replace
+
+import torch
+
+from neumat.catalog.open_material import open_material
+from neumat.cli.fitting import build_model_and_recipe
+from neumat.core.query import Query
+from neumat.fit.trainer import fit
+from neumat.io.shared_data import shared_data_dir
+from neumat.models.registry import load_all
+from neumat.warp.hemisphere import sample_cosine_hemisphere
+from neumat.warp.sphere import sample_uniform_sphere
+
+from .. import harness
+
+NAME = "speed"
+DESCRIPTION = ("evaluations / sample+pdf per CPU second, FLOPs, % of sgemm, cost against GGX, export rates and "
+               "training step time of every model")
+BUDGET = {
+    "quick": {"ours": "ggx, nbrdf, neubrdf and neural-appearance at batches of 2^10 and 2^12 queries, best of 3; "
+                      "exports of neubrdf only; training steps of nbrdf and a small neubrdf at batches 2^8 and 2^10",
+              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
+              "expected_wall": "about 30 s"},
+    "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries, best of 7 samples of >= 0.05 CPU s; every export "
+                     "target; training steps of every BRDF / SVBRDF model at its CPU recipe, batches 2^10 and 2^13",
+             "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
+             "expected_wall": "about 40 min on one thread"},
+}
+#: the models a quick run times (the others' paper-sized latent textures take seconds per batch)
+QUICK_MODELS = ("ggx", "nbrdf", "neubrdf", "neural-appearance")
+
+
+def run(run: harness.Run) -> None:
+    """Fill the run's tables: machine bounds, evaluation rates, export rates, training step times."""
+    sizes = [2 ** 10, 2 ** 12] if run.quick else [2 ** 10, 2 ** 16, 2 ** 20]
+    sgemm = harness.sgemm_flops_per_second(repeats=run.repeats, min_seconds=run.min_seconds)
+    run.table("bounds", "This core's bounds", [{"what": "fp32 sgemm (torch.mm 512^2, 2 n^3 FLOPs)",
+                                                "GFLOP/s": sgemm / 1e9, "threads": torch.get_num_threads()}])
+    run.protocol["flops"] = ("FLOPs per query: the model's analytic count `model.flops()` (neumat.metrics.flops."
+                             "model_flops: 2 per multiply-add, as sgemm's 2 n^3); '% sgemm' = FLOPs x evaluations "
+                             "per CPU second / the sgemm rate above; 'x GGX' = GGX's rate / the model's at the same "
+                             "batch, measured in this process")
+    materials = _materials(run)
+    ggx = {n: _eval_rate(run, materials["ggx:roughness=0.2"], n) for n in sizes}
+    rows = []
+    for name, m in materials.items():
+        flops = int(m.flops()) if callable(getattr(m, "flops", None)) else None
+        for n in sizes:
+            rate = ggx[n] if name == "ggx:roughness=0.2" else _eval_rate(run, m, n)
+            rows.append({"material": name, "queries": n, "flops/query": flops, "evals/cpu s": rate,
+                         "sample+pdf/cpu s": _sample_rate(run, m, n) if m.can_sample else None,
+                         "% sgemm": None if flops is None else 100 * flops * rate / sgemm,
+                         "x GGX": ggx[n] / rate})
+    run.table("eval", "Evaluation and sampling rates (runtime form, one thread)", rows,
+              "models at their default (paper) config; dipole-bssrdf with its quadrature on a sphere of radius 0.5")
+    _exports(run, materials, sizes[-1] if run.quick else 2 ** 16)
+    _training(run)
+
+
+def _materials(run: harness.Run) -> dict:
+    """Analytic GGX, every registered model at its default config in runtime form, and a measured RGL table."""
+    out = {"ggx:roughness=0.2": open_material("ggx:roughness=0.2")}
+    names = QUICK_MODELS if run.quick else load_all().names()
+    if run.quick:
+        run.skip(f"models other than {', '.join(QUICK_MODELS)}", "--quick")
+    for name in names:
+        out[name] = runtime_model(name, run.seed)
+    data = shared_data_dir()
+    if data is None:
+        run.skip("measured reference", "shared data absent (neumat.io.shared_data)")
+    else:
+        out["rgl:paper_white"] = open_material(data / "rgl" / "paper_white_rgb.bsdf")
+    return out
+
+
+def runtime_model(name: str, seed: int):
+    """Registered model `name` at its default (paper) config, seeded, in its runtime form and eval mode."""
+    torch.manual_seed(seed)
+    model = load_all().get(name)()
+    if name == "dipole-bssrdf":
+        k = model.cfg.samples  # its surface quadrature, set from the object in training: a sphere of radius 0.5
+        x = 0.5 * sample_uniform_sphere(torch.rand(k, 2))
+        model.set_surface(x, 2 * x, torch.full((k,), torch.pi / k))
+    return model.runtime().eval()
+
+
+def queries(material, n: int, seed: int = 0) -> Query:
+    """n queries on the material's domain: cosine-weighted hemisphere pairs (the sphere for translucent
+    models), uv and x where it reads them."""
+    g = torch.Generator().manual_seed(seed)
+    u = torch.rand(n, 6, generator=g)
+    if material.full_sphere:
+        x = 0.5 * sample_uniform_sphere(u[:, 4:6])
+        return Query(sample_uniform_sphere(u[:, :2]), sample_uniform_sphere(u[:, 2:4]), x=x, n=2 * x)
+    uv = u[:, 4:6] if material.spatially_varying else None
+    return Query(sample_cosine_hemisphere(u[:, :2]), sample_cosine_hemisphere(u[:, 2:4]), uv=uv)
+
+
+def _eval_rate(run: harness.Run, material, n: int) -> float:
+    q = queries(material, n, run.seed)
+    return n / run.time(lambda: material.eval(q))
+
+
+def _sample_rate(run: harness.Run, material, n: int) -> float:
+    q = queries(material, n, run.seed)
+    u = torch.rand(n, 2, generator=torch.Generator().manual_seed(run.seed + 1))
+
+    def sample_and_pdf():
+        s = material.sample(q, u)
+        material.pdf(replace(q, wo=s.wo))
+    return n / run.time(sample_and_pdf)
+
+
+def _exports(run: harness.Run, materials: dict, n: int) -> None:
+    """GLSL on llvmpipe (EGL) and Slang on slangpy's CPU device, where the package exports the model."""
+    from neumat.export.registry import load_formats
+    from neumat.testing.parity import glsl_evals_per_second, opengl_available
+    from neumat.testing.slang_parity import slang_available, slang_evals_per_second
+
+    targets = {"glsl (llvmpipe)": (opengl_available("egl"), glsl_evals_per_second),
+               "slang (slangpy cpu)": (slang_available("cpu"), slang_evals_per_second)}
+    names = ["neubrdf"] if run.quick else [k for k in materials if k in load_all().names()]
+    if run.quick:
+        run.skip("exports of models other than neubrdf", "--quick")
+    rows = []
+    for target, (available, rate) in targets.items():
+        fmt = target.split()[0]
+        if not available:
+            run.skip(f"{fmt} export rates", f"{target} is not available on this machine")
+            continue
+        for name in names:
+            m = materials[name]
+            try:
+                exported = load_formats().get(fmt).export(m)
+            except Exception as e:  # noqa: BLE001  (a model without this export: recorded, not fatal)
+                run.skip(f"{fmt} export of {name}", f"{type(e).__name__}: {str(e).splitlines()[0][:120]}")
+                continue
+            rows.append({"material": name, "target": target, "queries": n,
+                         "evals/wall s": rate(exported, queries(m, n, run.seed))})
+    run.table("exports", "Export targets (one thread where the target honours it)", rows,
+              "wall-clock marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
+              "compilation and uploads do not count); llvmpipe with LP_NUM_THREADS = the run's threads")
+
+
+def _training(run: harness.Run) -> None:
+    """CPU seconds per training step per phase (median over the phase's steps after its first) at two batches."""
+    batches = [2 ** 8, 2 ** 10] if run.quick else [2 ** 10, 2 ** 13]
+    svbrdf = shared_data_dir()
+    if run.quick:
+        jobs = [("nbrdf", {}), ("neubrdf", {"nside": 8})]
+        run.skip("training steps of models other than nbrdf and neubrdf (N_side 8)", "--quick")
+    else:
+        jobs = [(n, {}) for n in load_all().names()
+                if load_all().get(n).source_kinds[0] in ("brdf", "svbrdf") and n != "ggx"]
+        for n in load_all().names():
+            if load_all().get(n).source_kinds[0] not in ("brdf", "svbrdf"):
+                run.skip(f"training steps of {n}", f"source kind {load_all().get(n).source_kinds[0]!r} not timed")
+    rows = []
+    for name, overrides in jobs:
+        kind = load_all().get(name).source_kinds[0]
+        if kind == "svbrdf" and svbrdf is None:
+            run.skip(f"training steps of {name}", "no SVBRDF texture set: shared data absent")
+            continue
+        source = open_material("ggx:roughness=0.2") if kind == "brdf" else \
+            open_material(svbrdf / "svbrdf" / "Wood092_1K", max_size=64)
+        for batch in batches:
+            for phase, seconds in step_seconds(name, overrides, source, batch, 3 if run.quick else 10, run.seed):
+                rows.append({"model": name, "batch": batch, "phase": phase, "cpu s/step": seconds})
+    run.table("training", "Training step CPU time per phase (library trainer, CPU recipe)", rows,
+              "median over each phase's steps after its first; sources: analytic GGX (BRDF models), Wood092_1K at "
+              "64^2 (SVBRDF models)" + ("; quick: neubrdf at N_side 8" if run.quick else ""))
+
+
+def step_seconds(name: str, overrides: dict, source, batch: int, per_phase: int, seed: int) -> list[tuple]:
+    """[(phase, median CPU seconds per step)] of a fit of `name` through `neumat.fit.trainer.fit` at its CPU recipe
+    with `batch`, long enough that every phase of the recipe gets about `per_phase` steps or more."""
+    model, recipe = build_model_and_recipe(name, overrides, seed, source, machine="cpu")
+    fractions = [f for f in (_phase_fractions(recipe) or [1.0]) if f > 0]
+    steps = int(per_phase / min(fractions)) + 1
+    marks = []
+    fit(model, source, replace(recipe, batch_size=batch, steps=steps, log_every=1, checkpoint_every=10 ** 9),
+        progress=False, callback=lambda r: marks.append((r["phase"], r["step"], time.process_time())))
+    per_phase_times: dict[str, list[float]] = {}
+    for (p0, s0, t0), (p1, s1, t1) in zip(marks, marks[1:]):
+        if p0 == p1 and s1 == s0 + 1:
+            per_phase_times.setdefault(p1, []).append(t1 - t0)
+    return [(p, statistics.median(ts)) for p, ts in per_phase_times.items()]
+
+
+def _phase_fractions(recipe) -> list[float]:
+    """The recipe's phase fractions: its phase_split, or NeuBRDF's option fractions (coarse, dense warm-up)."""
+    if recipe.phase_split:
+        return list(recipe.phase_split)
+    o = recipe.options
+    bounds = sorted(f for f in (o.get("coarse_fraction", 0), o.get("dense_warmup", 0)) if 0 < f < 1)
+    return [b - a for a, b in zip([0.0] + bounds, bounds + [1.0])]

@@ -1,0 +1,104 @@
+"""The benchmark suites (`python -m benchmarks`): --list names every suite, every suite's --quick run writes results
+that match benchmarks/schema.json with its command, commit and machine, every committed results file does, and the
+benchmarks hold no sys.path edit and no training loop of their own. Speed numbers are checked for sanity only."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import pytest
+
+from benchmarks import harness
+from benchmarks.suites import SUITES
+from neumat.io.shared_data import shared_data_dir
+
+ROOT = Path(__file__).resolve().parents[2]
+SCHEMA = json.loads(harness.SCHEMA_PATH.read_text())
+#: suites whose quick run needs the shared data for any row
+NEEDS_DATA = {"multiscale", "neural-appearance"}
+
+
+def _bench(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "benchmarks", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_list_names_every_suite_with_its_budget():
+    out = _bench("--list")
+    assert out.returncode == 0, out.stderr
+    for name in SUITES:
+        assert re.search(rf"^{re.escape(name)}\s", out.stdout, re.M), name
+    assert out.stdout.count("on 2 cores") == len(SUITES)
+
+
+def test_unknown_suite_and_bad_out_are_refused(tmp_path):
+    assert "invalid choice: 'nope'" in _bench("nope").stderr
+    assert "expected a .json path" in _bench("speed", "--out", str(tmp_path / "x.txt")).stderr
+
+
+@pytest.mark.parametrize("suite", SUITES)
+def test_quick_run_writes_schema_valid_results(suite, tmp_path):
+    if suite in NEEDS_DATA and shared_data_dir() is None:
+        pytest.skip("shared data absent: the suite's sources are the shared texture sets")
+    out = tmp_path / suite / "quick.json"
+    run = _bench(suite, "--quick", "--json", "--out", str(out))
+    assert run.returncode == 0, run.stderr[-3000:]
+    doc = json.loads(run.stdout)
+    jsonschema.validate(doc, SCHEMA)
+    assert doc == json.loads(out.read_text())
+    assert doc["suite"] == suite and doc["mode"] == "quick"
+    assert doc["command"] == f"python -m benchmarks {suite} --quick --json --out {out}"
+    assert re.fullmatch(r"[0-9a-f]{40}", doc["machine"]["commit"]) and doc["machine"]["threads"] == 1
+    assert any(t["rows"] for t in doc["tables"]), doc["skipped"]
+    page = (out.parent / "README.md").read_text()
+    assert doc["command"] in page and f"# {suite} (quick)" in page
+    if suite == "speed":
+        _check_speed(doc)
+
+
+def _check_speed(doc: dict) -> None:
+    """Sanity, not speed: rates positive, % of sgemm and the GGX ratio consistent with the rates."""
+    gflops = doc["tables"][0]["rows"][0]["GFLOP/s"]
+    assert gflops > 0.1
+    rows = {(r["material"], r["queries"]): r for r in next(t for t in doc["tables"] if t["name"] == "eval")["rows"]}
+    assert {m for m, _ in rows} >= {"ggx:roughness=0.2", "ggx", "nbrdf", "neubrdf"}
+    for (material, n), r in rows.items():
+        assert r["evals/cpu s"] > 0
+        ggx = rows[("ggx:roughness=0.2", n)]["evals/cpu s"]
+        assert r["x GGX"] == pytest.approx(ggx / r["evals/cpu s"], rel=1e-3)
+        if r["flops/query"] is not None:
+            assert r["% sgemm"] == pytest.approx(100 * r["flops/query"] * r["evals/cpu s"] / (gflops * 1e9), rel=1e-3)
+    training = next(t for t in doc["tables"] if t["name"] == "training")["rows"]
+    assert {r["phase"] for r in training if r["model"] == "neubrdf"} == {"coarse", "dense", "vq"}
+    assert all(r["cpu s/step"] > 0 for r in training)
+
+
+def test_committed_results_match_the_schema_and_name_their_command():
+    files = sorted((ROOT / "benchmarks" / "results").rglob("*.json"))
+    for path in files:
+        doc = json.loads(path.read_text())
+        jsonschema.validate(doc, SCHEMA)
+        assert doc["command"].startswith(f"python -m benchmarks {doc['suite']}"), path
+    assert not [p for p in (ROOT / "benchmarks" / "results").rglob("*") if p.is_file()
+                and p.suffix not in (".json", ".md")]
+
+
+def test_no_sys_path_edit_and_no_training_loop_in_the_benchmarks():
+    """Every script imports siblings as a package; the suites fit only through neumat.fit (no optimiser, no
+    backward pass of their own)."""
+    for path in (ROOT / "benchmarks").rglob("*.py"):
+        assert "sys.path" not in path.read_text(), path
+    for path in (ROOT / "benchmarks").glob("*.py"):
+        _no_training_loop(path)
+    for path in (ROOT / "benchmarks" / "suites").glob("*.py"):
+        _no_training_loop(path)
+
+
+def _no_training_loop(path: Path) -> None:
+    text = path.read_text()
+    for pattern in (r"\.backward\(", r"torch\.optim\.", r"\.step\(\)"):
+        assert not re.search(pattern, text), (path, pattern)
