@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from neumat.cli.main import app
-from neumat.fit.recipe import cpu_minutes, recipe_for
+from neumat.fit.recipe import recipe_for
 
 from .. import harness
 
@@ -66,14 +66,8 @@ def summary_rows(rows: list[dict], metrics: tuple[str, ...] = ("log_err", "img_m
 
 
 def recipe_budget(models: list[str], steps: int | None = None) -> str:
-    """'model: steps x batch (CPU recipe; ~N min on one core)' per model, or the given step count."""
-    parts = []
-    for m in models:
-        r = recipe_for(m, "cpu")
-        minutes = cpu_minutes(m)
-        parts.append(f"{m} {steps or r.steps} x {r.batch_size}" + (f" (~{minutes:g} min/fit on one core)"
-                                                                   if minutes and not steps else ""))
-    return "; ".join(parts)
+    """'model steps x batch' of each model's CPU recipe, or with the given step count."""
+    return "; ".join(f"{m} {steps or recipe_for(m, 'cpu').steps} x {recipe_for(m, 'cpu').batch_size}" for m in models)
 
 
 def paper_budget(models: list[str]) -> str:

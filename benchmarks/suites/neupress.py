@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from neumat.cli.fitting import build_model_and_recipe
 from neumat.core.query import Query
+from neumat.fit.preset import build_fit
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.warp.sphere import sample_uniform_sphere
@@ -46,8 +46,9 @@ def run(run: harness.Run) -> None:
     for seed in seeds:
         train = observations(n, seed)
         for name in MODELS:
-            model, recipe = build_model_and_recipe(name, SMALL[name] if run.quick else {}, seed, train, "cpu")
-            result = fit(model, train, recipe, steps=steps, progress=False)
+            model, setting = build_fit(name, "cpu", source=train, overrides=SMALL[name] if run.quick else {},
+                                       seed=seed)
+            result = fit(model, train, setting.recipe, steps=steps, progress=False)
             with torch.no_grad():
                 pred = result.model.eval(Query(test.wi, test.wo, x=test.x, n=test.n))
             rows.append({"model": name, "seed": seed, "steps": result.steps, "fit s": result.seconds,

@@ -11,8 +11,8 @@ from dataclasses import replace
 import torch
 
 from neumat.catalog.open_material import open_material
-from neumat.cli.fitting import build_model_and_recipe
 from neumat.core.query import Query
+from neumat.fit.preset import build_fit
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import load_all
@@ -182,7 +182,8 @@ def _training(run: harness.Run) -> None:
 def step_seconds(name: str, overrides: dict, source, batch: int, per_phase: int, seed: int) -> list[tuple]:
     """[(phase, median CPU seconds per step)] of a fit of `name` through `neumat.fit.trainer.fit` at its CPU recipe
     with `batch`, long enough that every phase of the recipe gets about `per_phase` steps or more."""
-    model, recipe = build_model_and_recipe(name, overrides, seed, source, machine="cpu")
+    model, setting = build_fit(name, "cpu", source=source, overrides=overrides, seed=seed)
+    recipe = setting.recipe
     fractions = [f for f in (_phase_fractions(recipe) or [1.0]) if f > 0]
     steps = int(per_phase / min(fractions)) + 1
     marks = []

@@ -68,6 +68,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
 
     def go() -> bool:
         from ..models.registry import model_class
+        from ..render.comparison import PROTOCOL
 
         if engine not in ("auto", "ray", "local"):
             raise InputError(f"--engine: expected auto, ray or local, got {engine!r}")
@@ -135,9 +136,9 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         notes = [f"`{run['command']}`", "",
                  f"{len(jobs)} job(s), {len(todo)} fitted or evaluated in this run ({run['engine']}, wall time "
                  f"{run['wall_seconds']:.1f} s), {len(failed)} failed. Metrics: reflectance errors over {eval_n} "
-                 f"cosine-weighted (wi, wo)" + (f"; img_*: {image_resolution}^2 sphere renderings at {image_spp} spp (img_floor_*: the "
-                                                  f"reference against itself at the next seed)"
-                                               if image_spp else "") + "; bytes at fp16; fit_s: training seconds."]
+                 f"cosine-weighted (wi, wo)" + (f"; img_*: {image_resolution}^2 sphere renderings at {image_spp} "
+                                                  f"spp, {PROTOCOL}" if image_spp else "")
+                 + "; bytes at fp16; fit_s: training seconds."]
         (out / "results.md").write_text(markdown(ordered, f"fit-many: {len(named)} sources x {', '.join(model)}", notes))
         console.print(f"wrote {out}/results.json and results.md: {len(ordered) - len(failed)} ok, {len(failed)} "
                       f"failed; {run['wall_seconds']:.1f} s", highlight=False, soft_wrap=True)
