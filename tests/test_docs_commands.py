@@ -28,7 +28,7 @@ QUICK: dict[tuple[str, ...], dict[str, str]] = {
     ("export",): {"--check": "64"},
     ("fit-dictionary",): {"--iterations": "2"},
     ("fit-many",): {"--steps": "3", "--image-spp": "1"},
-    ("fit-clusters",): {"--steps": "3", "--eval-n": "4096"},
+    ("fit-clusters",): {"--steps": "3", "--n-configs": "4096"},
     ("data", "btf-generate"): {"--size": "20", "--spp": "1"},
     ("data", "texture-set"): {"--size": "32"},
     ("data", "texture-stats"): {"--samples": "2", "--crop": "16"},

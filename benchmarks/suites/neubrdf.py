@@ -15,11 +15,11 @@ DESCRIPTION = ("NeuBRDF's Tables 3 (RGL) and 4 (MERL-like) against NBRDF and GGX
 TABLE3_MODELS = ["neubrdf", "nbrdf", "ggx"]
 TABLE4_MODELS = ["neubrdf", "nbrdf"]
 #: fit-many's evaluation options of a full run (the eval protocol's image metrics at 64 spp, 128^2)
-FULL_EVAL = ["--eval-n", str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"]
+FULL_EVAL = ["--n-configs", str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"]
 #: the paper's exact model on the CPU path, beside the default
 PAPER_MODEL = ["--preset", "cpu"]
 QUICK = ["--preset", "cpu", "--steps", "30", "--set", "neubrdf:nside=4", "--set", "neubrdf:index_bits=4",
-         "--set", "batch_size=1024", "--eval-n", "4096", "--image-spp", "4", "--image-resolution", "32"]
+         "--set", "batch_size=1024", "--n-configs", "4096", "--image-spp", "4", "--image-resolution", "32"]
 BUDGET = {
     "quick": {"ours": "neubrdf (N_side 4, b 4) and nbrdf, 30 steps x 1024 on analytic GGX and paper_white, one seed; "
                       "images 32^2 at 4 spp",

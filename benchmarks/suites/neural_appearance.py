@@ -33,9 +33,9 @@ def run(run: harness.Run) -> None:
     if run.quick:
         rows = fit_many(run, sets[-1:], MODELS[:1],
                         ["--preset", "cpu", "--steps", "10", "--set", "batch_size=256", "--source-option",
-                         "max_size=32", "--eval-n", "4096", "--image-spp", "2", "--image-resolution", "32"], [run.seed])
+                         "max_size=32", "--n-configs", "4096", "--image-spp", "2", "--image-resolution", "32"], [run.seed])
     else:
-        rows = fit_many(run, sets, MODELS, ["--preset", "cpu", "--source-option", "max_size=256", "--eval-n",
+        rows = fit_many(run, sets, MODELS, ["--preset", "cpu", "--source-option", "max_size=256", "--n-configs",
                                             str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"],
                         [run.seed, run.seed + 1])
     run.table("fits", "Texture sets x models", quality_rows(rows))

@@ -35,8 +35,8 @@ def run(run: harness.Run) -> None:
                 app(["data", "btf-generate", f"procedural:{kind}", "-o", str(path), "--size", str(size), "--spp", str(spp),
                      "-q"], standalone_mode=False)
             sources.append(str(path))
-        quick = ["--set", "sparse-btf:num_dictionaries=2", "--set", "sparse-btf:steps=2", "--eval-n", "4096"]
-        options = (quick if run.quick else ["--eval-n", str(2 ** 18)]) + ["--image-spp", "0"]
+        quick = ["--set", "sparse-btf:num_dictionaries=2", "--set", "sparse-btf:steps=2", "--n-configs", "4096"]
+        options = (quick if run.quick else ["--n-configs", str(2 ** 18)]) + ["--image-spp", "0"]
         rows = fit_many(run, sources, ["sparse-btf", "pca-btf"], options,
                         [run.seed] if run.quick else [run.seed, run.seed + 1])
     run.table("fits", "Generated BTFs x models (bytes: each model's own size; PCA's rank follows SparseBTF's bytes "

@@ -5,12 +5,16 @@ from __future__ import annotations
 import json
 import re
 
+import pytest
 import torch
 from typer.testing import CliRunner
 
 from neumat import Query, load
 from neumat.cli.main import app
+from neumat.export.web.headless import chromium, viewer_pixels
+from neumat.export.web.scene import View, viewer_image
 from neumat.io.images import read_image
+from neumat.models.half_precision import half_rounded
 
 
 def test_demo_writes_report_model_and_pictures(tmp_path):
@@ -42,3 +46,20 @@ def test_demo_writes_report_model_and_pictures(tmp_path):
 def test_demo_reports_a_bad_source(tmp_path):
     r = CliRunner().invoke(app, ["demo", "-o", str(tmp_path), "--source", "nosuch:x=1", "--steps", "1"])
     assert r.exit_code == 2 and "unknown" in r.output
+
+
+@pytest.mark.skipif(chromium() is None, reason="no chromium on PATH (Debian: apt-get install chromium)")
+def test_demo_viewer_renders_the_model_the_report_renders(tmp_path):
+    """The page shows the shipped (runtime) model that the report's renders show: no facets one has and the other
+    lacks (headless Chromium against the torch model in the viewer's scene)."""
+    out = tmp_path / "demo"
+    r = CliRunner().invoke(app, ["demo", "-o", str(out), "--steps", "5", "--set", "nside=4", "--set", "hidden=8",
+                                 "--spp", "1", "--resolution", "16", "-q"])
+    assert r.exit_code == 0, r.output
+    model = load(out / "neubrdf.nmat")
+    view = View(elevation=0.6, azimuth=1.0, exposure=1.0)
+    pixels = viewer_pixels(out / "viewer.html", view, 40, 32)
+    reference = viewer_image(half_rounded(model), view, 40, 32)
+    assert model.is_runtime and float((reference.amax(-1) > 0).float().mean()) > 0.1
+    error = (pixels[..., :3] - reference).abs() / reference.abs().clamp(min=1e-3 * float(reference.max()))
+    assert float(error.max()) < 1e-3, float(error.max())

@@ -39,7 +39,7 @@ def app() -> typer.Typer:
 def test_fit_clusters_writes_one_model_per_cluster_as_cluster_materials_groups(app, tmp_path):
     out = tmp_path / "run"
     res = CliRunner().invoke(app, ["fit-clusters", *SOURCES, "-k", "2", *SMALL, "--steps", "4", "--seed", "5",
-                                   "--eval-n", "4096", "-o", str(out)])
+                                   "--n-configs", "4096", "-o", str(out)])
     assert res.exit_code == 0, res.output
     summary = json.loads((out / "clusters.json").read_text())
     rows = summary["materials"]
@@ -80,14 +80,14 @@ def test_fit_clusters_writes_one_model_per_cluster_as_cluster_materials_groups(a
 
 def test_every_source_a_cluster_of_its_own_and_a_rerun_with_fewer_clusters_removes_the_stale_model(app, tmp_path):
     res = CliRunner().invoke(app, ["fit-clusters", PLASTICS[0], METALS[0], "-k", "2", *SMALL, "--steps", "2",
-                                   "--eval-n", "0", "-o", str(tmp_path / "run")])
+                                   "--n-configs", "0", "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
     summary = json.loads((tmp_path / "run" / "clusters.json").read_text())
     assert sorted(len(c["members"]) for c in summary["clusters"]) == [1, 1]
     assert all(r["member"] == 0 and r["metrics"] == {} for r in summary["materials"].values())
     (tmp_path / "run" / "notes.txt").write_text("kept")
     res = CliRunner().invoke(app, ["fit-clusters", PLASTICS[0], METALS[0], "-k", "1", *SMALL, "--steps", "2",
-                                   "--eval-n", "0", "-o", str(tmp_path / "run")])
+                                   "--n-configs", "0", "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["cluster0.nmat", "clusters.json", "notes.txt"]
     assert "removed 1 model(s) of an earlier run with more clusters: cluster1.nmat" in output_text(res)

@@ -21,7 +21,7 @@ from neumat.cli import fit_job as fit_job_module
 from neumat.cli.fit_job import FitJob, run_fit_job
 from neumat.models.ggx_fit import GGXFit
 
-FAST = ["-m", "ggx", "--steps", "10", "--set", "batch_size=256", "--eval-n", "2048", "--image-spp", "1",
+FAST = ["-m", "ggx", "--steps", "10", "--set", "batch_size=256", "--n-configs", "2048", "--image-spp", "1",
         "--image-resolution", "8", "--device", "cpu"]
 
 
@@ -153,7 +153,7 @@ def test_preset_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
 
     out = tmp_path / "out"
     args = ["ggx:roughness=0.3", "-m", "neubrdf", "--steps", "2", "--set", "nside=2", "--set", "index_bits=3",
-            "--set", "hidden=8", "--eval-n", "2048", "--image-spp", "0", "--device", "cpu", "--engine", "local",
+            "--set", "hidden=8", "--n-configs", "2048", "--image-spp", "0", "--device", "cpu", "--engine", "local",
             "-o", str(out)]
     res = CliRunner().invoke(app, [*args, "--preset", "cpu"])
     assert res.exit_code == 0, res.output

@@ -125,3 +125,23 @@ def test_model_files_of_format_version_1_still_load(tmp_path):
     old = tmp_path / "old.nmat"
     save_file(load_file(str(path)), str(old), metadata={HEADER_KEY: json.dumps(header)})
     assert isinstance(load_model(old), GGXFit)
+
+
+def test_every_computing_command_takes_threads_and_one_device_default():
+    """One CLI grammar: every command but list / version / data info takes --threads; every --device defaults to
+    the same resolver (cuda when torch sees a GPU, else cpu)."""
+    import typer
+
+    from neumat.cli.common import default_device, device_option
+    from neumat.cli.main import app
+
+    def commands(group, prefix=""):
+        for name, sub in group.commands.items():
+            yield from commands(sub, f"{prefix}{name} ") if hasattr(sub, "commands") else [(prefix + name, sub)]
+
+    for name, command in commands(typer.main.get_command(app)):
+        options = {o for p in command.params for o in p.opts}
+        assert ("--threads" in options) == (name not in ("list", "version", "data info")), name
+        device = [p for p in command.params if "--device" in p.opts]
+        assert all(p.default is None and p.callback is not None for p in device), name
+    assert device_option(None) == default_device() == ("cuda" if torch.cuda.is_available() else "cpu")

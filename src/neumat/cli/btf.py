@@ -41,7 +41,7 @@ def register(app: typer.Typer) -> None:
             iterations: int = typer.Option(None, "--iterations", min=1, help="maximum training iterations "
                                                                       "[default: sparse-btf recipe steps - 1]"),
             seed: int = typer.Option(None, "--seed", help="[default: sparse-btf recipe]", **SEED_RANGE),
-            device: str = typer.Option("cpu", "--device", callback=device_option),
+            device: str = typer.Option(None, "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs. Warns when the data points are too few for K
         (fewer than the paper's 360 per dictionary: neumat.fit.sparse_dictionary.training_size_warning); the BTFs'
@@ -90,7 +90,7 @@ def register_data(data_app: typer.Typer) -> None:
             fibre_direction: str = typer.Option("grain", "--fibre-direction",
                                                 help="fibre field: grain (along the height map's ridges), "
                                                      "weave:<p> (p x p-texel plain weave), angle:<deg>"),
-            device: str = typer.Option("cpu", "--device", callback=device_option),
+            device: str = typer.Option(None, "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Generate a BTF from a PBR texture set (or a procedural material) by ray marching its displaced height
         field."""

@@ -20,8 +20,8 @@ from ..core.errors import InputError, NeumatError
 console = Console(stderr=True)
 
 #: help of the --threads options of `neumat fit` and `neumat fit-many`
-THREADS_HELP = ("torch threads per fit (default: torch's, all cores); 1 when other work shares the cores (two fits "
-                "of 2 threads each on two cores ran 2-3x slower than of one)")
+THREADS_HELP = ("torch threads of the command, per fit where it runs several (default: torch's, all cores); 1 when "
+                "other work shares the cores (two fits of 2 threads each on two cores ran 2-3x slower than of one)")
 
 
 @contextmanager
@@ -61,14 +61,55 @@ def _fail(message: str) -> None:
     raise typer.Exit(2)
 
 
-def device_option(value: str | None) -> str | None:
-    """Typer callback of --device options: refuse a device that does not exist here before any work."""
-    if value is not None:
-        try:
-            check_device(value, "device")
-        except InputError as e:
-            raise typer.BadParameter(str(e).removeprefix("device: ")) from None
+def default_device() -> str:
+    """The device of every command whose --device is not given: cuda when torch sees a GPU, else cpu."""
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def device_option(value: str | None) -> str:
+    """Typer callback of every --device option: the default device when none is given (one rule for all
+    commands), and a device that does not exist here refused before any work."""
+    if value is None:
+        return default_device()
+    try:
+        check_device(value, "device")
+    except InputError as e:
+        raise typer.BadParameter(str(e).removeprefix("device: ")) from None
     return value
+
+
+def with_threads(command: Callable) -> Callable:
+    """`command` with a --threads option (torch's intra-op threads for its run), for commands that compute and
+    do not take one themselves."""
+    import functools
+    import inspect
+
+    signature = inspect.signature(command)
+    if "threads" in signature.parameters:
+        return command
+    option = inspect.Parameter("threads", inspect.Parameter.KEYWORD_ONLY, annotation="int",
+                               default=typer.Option(None, "--threads", min=1, help=THREADS_HELP))
+
+    @functools.wraps(command)
+    def run(*args, threads: int | None = None, **kwargs):
+        with torch_threads(threads):
+            return command(*args, **kwargs)
+
+    run.__signature__ = signature.replace(parameters=[*signature.parameters.values(), option])
+    run.__annotations__ = {**command.__annotations__, "threads": "int"}
+    return run
+
+
+def add_threads(app: typer.Typer, skip: tuple[str, ...] = ("list", "version", "info")) -> None:
+    """Give every command of `app` and its sub-apps that computes (all but `skip`) a --threads option."""
+    for info in app.registered_commands:
+        name = info.name or info.callback.__name__.replace("_", "-")
+        if name not in skip:
+            info.callback = with_threads(info.callback)
+    for group in app.registered_groups:
+        add_threads(group.typer_instance, skip)
 
 
 def output_option(*suffixes: str) -> Callable[[Path | None], Path | None]:

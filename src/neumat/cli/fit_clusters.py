@@ -46,9 +46,9 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
                                                                   "the recipe's)"),
                  source_option: list[str] = typer.Option(None, "--source-option",
                                                          help="key=value for the source readers"),
-                 eval_n: int = typer.Option(2 ** 16, "--eval-n", min=0, help="random (wi, wo) configurations of "
-                                                                             "each member's reflectance errors "
-                                                                             "against its source; 0: none"),
+                 eval_n: int = typer.Option(2 ** 16, "--n-configs", "--eval-n", min=0,
+                                            help="random (wi, wo) configurations of each member's reflectance "
+                                                 "errors against its source; 0: none (--eval-n: its old name)"),
                  quiet: bool = typer.Option(False, "--quiet", "-q", help="no training progress"),
                  out: Path = typer.Option(..., "-o", "--out", help="output folder: cluster<c>.nmat, "
                                                                    "clusters.json")) -> None:

@@ -41,8 +41,9 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                                        help="torch device of every fit (default: cuda if available, else cpu); "
                                             "with Ray, cuda asks one GPU per task"),
              source_option: list[str] = typer.Option(None, "--source-option", help="key=value for the source reader"),
-             eval_n: int = typer.Option(2 ** 16, "--eval-n", min=1, help="random (wi, wo) configurations of the "
-                                                                         "reflectance errors"),
+             eval_n: int = typer.Option(2 ** 16, "--n-configs", "--eval-n", min=1,
+                                        help="random (wi, wo) configurations of the reflectance errors, as `neumat "
+                                             "eval --n-configs` (--eval-n: its old name)"),
              image_spp: int = typer.Option(16, "--image-spp", min=0, help="samples per pixel of the sphere "
                                                                          "renderings of the image metrics; 0: none"),
              image_resolution: int = typer.Option(64, "--image-resolution", min=8, help="rendering width and height"),
@@ -61,7 +62,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
     OUT/<source>.<model>.nmat, OUT/results.json (one row per source and model: source and its hash, model,
     recipe, metrics, bytes, fit seconds, device, worker, or the error that stopped it) and OUT/results.md. A
     failing source gets its error row and the others go on. Run the same command again to resume: rows whose
-    .nmat, source hash and options match are kept, those whose evaluation options alone changed (--eval-n,
+    .nmat, source hash and options match are kept, those whose evaluation options alone changed (--n-configs,
     --image-spp, --image-resolution) are evaluated again without refitting, the others (failed, new, changed) are
     fitted. Without Ray installed, --engine auto runs the jobs one after another here (install Ray: pip install
     'neumat[ray]'). Exit code 1 when some job failed."""

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
-from .common import (SEED_RANGE, THREADS_HELP, device_option, output_option, parse_overrides, print_json,
+from .common import (SEED_RANGE, THREADS_HELP, default_device, device_option, output_option, parse_overrides, print_json,
                      print_table, run_command, torch_threads)
 
 
@@ -96,12 +96,12 @@ def preset_note(model: str, resolved) -> str:
 
 
 def resolve_device(device: str | None):
-    """The torch device `device` names (default: cuda if available, else cpu); InputError for a name torch does
-    not know or a CUDA device this machine lacks."""
+    """The torch device `device` names (default: `common.default_device`); InputError for a name torch does not
+    know or a CUDA device this machine lacks."""
     import torch
 
     if device is None:
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        return torch.device(default_device())
     try:
         dev = torch.device(device)
     except (RuntimeError, ValueError):
@@ -166,7 +166,7 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
         from ..catalog.open_material import open_material
         from ..metrics.hdr import reflectance_errors
 
-        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        dev = resolve_device(device)
         m = load_model(model, device=dev)
         if member is not None:
             if not callable(getattr(m, "material", None)):

@@ -25,7 +25,8 @@ def render(material: str = typer.Argument(..., help="material file (.binary, .bs
            strategy: str = typer.Option("mis", help="mis | light | material | mis-lobes (a fixed lobe mixture "
                                                     "instead of the material's sampler)"),
            sampler: str = typer.Option("random", help="random | sobol (shifted quasi-random points per pixel)"),
-           device: str = typer.Option(None, callback=device_option, help="torch device, e.g. cuda"),
+           device: str = typer.Option(None, callback=device_option,
+                                                 help="torch device (default: cuda if available, else cpu)"),
            seed: int = typer.Option(0, **SEED_RANGE),
            quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output"),
            out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),

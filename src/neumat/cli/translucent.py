@@ -162,7 +162,8 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
                                                     "phase_split (default: the recipe's, fit/recipes/neupress.py)"),
         validation: float = typer.Option(None, help="fraction held back; the fit keeps the best weights on it "
                                                     "(default: the recipe's validation_fraction)"),
-        device: str = typer.Option(None, help="torch device (default: cuda if available, else cpu)"),
+        device: str = typer.Option(None, callback=device_option,
+                                   help="torch device (default: cuda if available, else cpu)"),
         seed: int = typer.Option(None, help="seed of the model, the validation split and the batches "
                                             "(default: the recipe's)", **SEED_RANGE),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
@@ -189,7 +190,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
             overrides["option.validation_fraction"] = validation
         if "bbox" in source and not any(k.rpartition(".")[2] == "bounds" for k in overrides):
             overrides["option.bounds"] = source["bbox"]  # the object's box, written by trace
-        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        dev = device
         model, resolved = build_fit("neupress", DEFAULT_PRESET, device=dev, source=data, overrides=overrides,
                                     seed=seed)
         recipe = resolved.recipe
@@ -235,8 +236,8 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
            azimuth: float = typer.Option(None, help="camera azimuth in degrees (default: orbit_camera's)"),
            elevation: float = typer.Option(None, help="camera elevation in degrees (default: orbit_camera's)"),
            seed: int = typer.Option(0, **SEED_RANGE),
-           device: str = typer.Option("cpu", "--device", callback=device_option,
-                                      help="torch device the model is evaluated on")) -> None:
+           device: str = typer.Option(None, "--device", callback=device_option,
+                                      help="torch device the model is evaluated on (default: cuda if available, else cpu)")) -> None:
     """Render MODEL on the geometry of its object under an environment map (Eq. 5)."""
     def go():
         import time
@@ -327,8 +328,8 @@ def prt(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
         subdivisions: int = typer.Option(4, min=0, max=7, help="for the analytic sphere: icosphere subdivisions "
                                                                "(10 4^s + 2 vertices)"),
         batch_size: int = typer.Option(16384, min=1, help="network evaluations per batch"),
-        device: str = typer.Option("cpu", "--device", callback=device_option,
-                                   help="torch device the model is evaluated on"),
+        device: str = typer.Option(None, "--device", callback=device_option,
+                                   help="torch device the model is evaluated on (default: cuda if available, else cpu)"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar")) -> None:
     """Precompute the SH PRT table of MODEL (NeuPreSS Sec. 4.3) at every vertex of its object's mesh."""
     def go():
@@ -377,8 +378,8 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
                azimuth: float = typer.Option(None, help="camera azimuth in degrees (default: orbit_camera's)"),
                elevation: float = typer.Option(None, help="camera elevation in degrees (default: orbit_camera's)"),
                seed: int = typer.Option(0, **SEED_RANGE),
-               device: str = typer.Option("cpu", "--device", callback=device_option,
-                                          help="torch device of the table and the model")) -> None:
+               device: str = typer.Option(None, "--device", callback=device_option,
+                                          help="torch device of the table and the model (default: cuda if available, else cpu)")) -> None:
     """Render an SH PRT table (Eq. 11) under an environment map, optionally against the network and the
     path-traced reference (subsurface light only, as `translucent render`)."""
     def go():
