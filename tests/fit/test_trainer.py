@@ -238,3 +238,28 @@ def test_model_without_recipe_or_parameters_raises():
         fit(frozen, Blinn(), Recipe(steps=1, batch_size=4, lr=0.1), progress=False)
     with pytest.raises(InputError, match="nn.Module"):
         fit(Blinn(), Blinn(), Recipe(steps=1, batch_size=4, lr=0.1), progress=False)
+
+
+class _Drifting(NeuBRDF):
+    """A NeuBRDF whose output is scaled up step after step (no gradient through the scale): its loss rises, as a
+    fit that blows up does."""
+
+    def on_step(self, step: int, total_steps: int) -> None:
+        self.scale = 1.0 + step
+
+    def eval(self, q):
+        return super().eval(q) * getattr(self, "scale", 1.0)
+
+
+def test_a_fit_that_ends_far_above_its_best_loss_says_so():
+    """The trainer's check at the end of each phase: the last record far above the phase's lowest is a FitWarning
+    and in FitResult.warnings; a fit that improves stays silent."""
+    from neumat.fit.trainer import ENDS_ABOVE_BEST, FitWarning, ended_above_best
+
+    recipe = Recipe(steps=40, batch_size=64, lr=1e-3, log_every=5)
+    with pytest.warns(FitWarning, match=r"phase 'fit' ended at loss .*x its lowest .* at step 5\)"):
+        res = fit(_Drifting(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
+    assert len(res.warnings) == 1 and res.history[-1]["loss"] > ENDS_ABOVE_BEST * min(r["loss"] for r in res.history)
+    history = [{"phase": "a", "step": 1, "loss": 1.0}, {"phase": "a", "step": 2, "loss": 1.9},
+               {"phase": "b", "step": 3, "loss": 5.0}, {"phase": "b", "step": 4, "loss": 0.1}]
+    assert ended_above_best(history, "m") == []

@@ -19,9 +19,9 @@ from .common import torch_threads
 #: the row keys, in the order results.json and results.md show them
 ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "nmat", "nmat_sha256",
             "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker",
-            "error")
+            "warnings", "error")
 #: the row keys an evaluation of an already fitted model takes over from the fit's row
-FIT_KEYS = ("recipe", "steps", "fit_seconds")
+FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings")
 #: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
 #: evaluated under an older protocol are evaluated again
 IMAGE_PROTOCOL = "sphere/sky, mis-lobes, sobol, model and floor against the reference at 16x spp"
@@ -157,7 +157,8 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     metrics = _checked(evaluate_against(fitted, src, job, device), job)
     return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
             "recipe": config_to_dict(result.recipe), "metrics": metrics, "steps": result.steps,
-            "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device)}
+            "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device),
+            "warnings": result.warnings}
 
 
 def _checked(metrics: dict[str, float], job: FitJob) -> dict[str, float]:

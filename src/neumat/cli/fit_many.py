@@ -126,7 +126,7 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         for row in stream:
             key = (row["source"], row["model"])
             if row["status"] == "ok" and key in previous and row["fit_sha256"] == previous[key].get("fit_sha256"):
-                row |= {k: previous[key][k] for k in FIT_KEYS if row.get(k) is None}  # evaluated again, not refitted
+                row |= {k: previous[key].get(k) for k in FIT_KEYS if row.get(k) is None}  # evaluated again, not refitted
             rows[key] = row
             ordered = [rows[(j.source, j.model)] for j in jobs if (j.source, j.model) in rows]
             write_rows(results, ordered, run | {"wall_seconds": time.perf_counter() - t0})

@@ -1,7 +1,9 @@
 """`neumat fit` and `neumat eval`."""
 from __future__ import annotations
 
+import sys
 import time
+import warnings
 from pathlib import Path
 
 import typer
@@ -53,6 +55,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     def go():
         from ..catalog.modelfile import save_model
         from ..fit.preset import build_fit
+        from ..fit.trainer import FitWarning
         from ..fit.trainer import fit as fit_model
 
         if out.suffix != ".nmat":
@@ -64,8 +67,12 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         m, resolved = build_fit(model, name, device=dev, source=src, overrides=overrides, seed=seed)
         if not quiet:
             print(preset_note(model, resolved))
-        result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
-                           checkpoint=checkpoint, resume=resume)
+        with warnings.catch_warnings():  # said once below, as one line
+            warnings.simplefilter("ignore", FitWarning)
+            result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
+                               checkpoint=checkpoint, resume=resume)
+        for text in result.warnings:
+            print(f"warning: {text}", file=sys.stderr)
         last = result.history[-1] if result.history else {}
         metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
         shipped = result.model.runtime()

@@ -22,7 +22,8 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, replace
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -55,6 +56,8 @@ class FitResult:
     seconds: float
     steps: int
     recipe: Recipe | None = None
+    warnings: list[str] = field(default_factory=list)
+    """What went wrong without stopping the fit: a phase that ended far above its best loss (`ENDS_ABOVE_BEST`)."""
 
 
 def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: int | None = None,
@@ -183,8 +186,35 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     if ema is not None:
         model.load_state_dict(ema.state_dict())
     model.train(False)
+    problems = ended_above_best(state["history"], name)
+    for text in problems:
+        warnings.warn(text, FitWarning, stacklevel=2)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
-                     recipe=replace(recipe, steps=total))
+                     recipe=replace(recipe, steps=total), warnings=problems)
+
+
+#: a phase whose last recorded loss is this many times its lowest says so: fits that blew up used to end silently
+ENDS_ABOVE_BEST = 2.0
+
+
+class FitWarning(UserWarning):
+    """A fit finished, but not well (it ended far above its best loss)."""
+
+
+def ended_above_best(history: list[dict], name: str) -> list[str]:
+    """One message per phase of `history` whose last recorded loss is more than ENDS_ABOVE_BEST times its lowest
+    (phases with at least two finite, positive records)."""
+    out = []
+    for phase in dict.fromkeys(r["phase"] for r in history):
+        losses = [(r["loss"], r["step"]) for r in history if r["phase"] == phase and math.isfinite(r["loss"])]
+        if len(losses) < 2 or min(losses)[0] <= 0:
+            continue
+        (best, at), last = min(losses), losses[-1][0]
+        if last > ENDS_ABOVE_BEST * best:
+            out.append(f"fit {name}: phase {phase!r} ended at loss {last:.4g}, {last / best:.1f}x its lowest "
+                       f"({best:.4g} at step {at}): the fit became unstable; try a lower learning rate "
+                       "(--set lr=...) or another seed")
+    return out
 
 
 def _record(running: dict, done: int, phase: str, lr: float, seconds: float) -> dict:
