@@ -6,17 +6,7 @@ units do, as the paper counts). `measured_matmul_flops` cross-checks the dense p
 under `torch.utils.flop_counter.FlopCounterMode`, which counts 2 m n k per matrix product (linear layers,
 batched matrix products) and nothing else.
 
-`paper_flops` counts one evaluation as the paper does (Sec. 5: EDM2's counter, Karras et al. 2024,
-github.com/NVlabs/edm2/count_flops.py), by running the model and pricing each torch operation: 1 per
-multiply-add of a matrix product (the bias add of a linear layer is free), 3 per SiLU / sigmoid / softmax
-element, 2 per clamp element, 1 per element of the other arithmetic (add, mul, div, exp, sqrt, ...), 4 per
-output element of a bilinear texture read (EDM2's bilinear-upsampling rate; the paper counts angular texture
-reads, not the spatial texture fetch), nothing for data movement (views, cat, gather, indexing).
-`paper_flops` leaves out, as the paper does, the spatial texture fetch (everything run inside a
-`LatentPyramid`) and work that does not grow with the batch (weight preconditioning: the count is the
-difference between batches of 2n and n queries, over n). The
-analytic `model.flops()` counts 2 per multiply-add and 9 per channel of a texture read, so the two differ
-by about 2x on the MLPs.
+Details: docs/notes/multiscale.md, section `neumat.metrics.flops`.
 """
 from __future__ import annotations
 
