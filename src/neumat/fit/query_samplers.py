@@ -42,7 +42,7 @@ def _require_hemisphere(source: Material, sampler: str) -> None:
 
 @QUERY_SAMPLERS.register("cosine")
 def cosine_queries(source: Material, model=None) -> QueryDraw:
-    """Cosine-weighted wi and wo (see module docstring)."""
+    """Cosine-weighted wi and wo (see docs/notes/fit.md)."""
     _require_hemisphere(source, "cosine")
     with_uv = _needs_uv(source, model)
 
@@ -85,13 +85,13 @@ def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
 
 @QUERY_SAMPLERS.register("merl")
 def merl_queries(source: Material, model=None) -> QueryDraw:
-    """MERL's cell density in theta_h (see module docstring)."""
+    """MERL's cell density in theta_h (see docs/notes/fit.md)."""
     return _half_angle_queries(source, model, "merl", 2)
 
 
 @QUERY_SAMPLERS.register("cosine_merl")
 def cosine_merl_queries(source: Material, model=None) -> QueryDraw:
-    """Half "cosine", half "merl" queries (the first n // 2 cosine-weighted); see module docstring."""
+    """Half "cosine", half "merl" queries (the first n // 2 cosine-weighted); see docs/notes/fit.md."""
     cosine, merl = cosine_queries(source, model), merl_queries(source, model)
 
     def draw(n: int, generator: torch.Generator, device) -> Query:
