@@ -2,33 +2,10 @@
 neumip-frame, neural-appearance), the shader runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024,
 Sec. 7).
 
-Entry points (directions in the local frame, z up; uv texture coordinates; footprint a uv^2 covariance):
+Entry points: `neumat_eval`, `neumat_eval_lod` and, for neural-appearance, `neumat_albedo`, `neumat_lobes`,
+`neumat_sample`, `neumat_pdf`; the pyramid is one `sampler2DArray` atlas (`neumat_spatial`).
 
-    vec3  neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)     // BRDF value, cosine excluded
-    vec3  neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)
-    // neural-appearance with Config.albedo: the directional albedo for the viewer direction wo (Sec. 6.4)
-    vec3  neumat_albedo(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
-    // neural-appearance only: its importance sampler (proxy + defensive cosine share). Per hit, the latent is
-    // filtered and the sampler MLP run once; sample, pdf and eval reuse them:
-    NeumatLobes neumat_lobes(vec3 wi, vec2 uv, mat2 footprint)
-    vec3  neumat_sample(NeumatLobes l, vec2 u)                       // wo for u in [0, 1)^2
-    float neumat_pdf(NeumatLobes l, vec3 wo)                         // its solid-angle density
-    vec3  neumat_eval(NeumatLobes l, vec3 wo)                        // = neumat_eval(wi, wo, uv, footprint);
-                                                                     //   trilinear level selection only
-    // the same, each filtering and running the sampler itself (thin wrappers of the above)
-    vec3  neumat_sample(vec3 wi, vec2 uv, mat2 footprint, vec2 u)
-    float neumat_pdf(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
-
-computing what `model.eval`, `model.sample(q, u).wo` and `model.pdf` compute: the latent z from the same
-anisotropic filtering of the pyramid as the multi-scale export (`neumat.export.glsl`), the learned frames, the
-SiLU MLP with exponential output, and the sampler MLP (ReLU) with the proxy's activations, closed-form sampling
-and density (`neumat.warp.microfacet_proxy`). Decoders are constants in the source; the pyramid is one
-`sampler2DArray` atlas (`neumat_spatial`), RGBA16F with packed half weights at precision "fp16" (the
-default, `neumat.export.half_precision`), RGBA32F with float constants at "fp32". With NeuMIP's neural offset
-module (Config.offset) the offset pyramid is a second atlas of the same layout (`neumat_offset`), and z is read at
-the parallax-shifted uv' of `NeuMIP.offset_uv` (`_parallax`). `neumat.export.slang` spells
-this source in Slang (a shader module with interfaces and a compute entry point), so both dialects compute the
-same function.
+Details: docs/formats/glsl.md, section `neumat.export.glsl_latent_mlp`.
 """
 from __future__ import annotations
 

@@ -1,29 +1,10 @@
 """GLSL export of NeuBRDF (Dou, Zheng et al. 2024): the runtime the paper deploys in Falcor, as a shader.
 
-`export_neubrdf(model)` computes what `model.eval` computes: the HEALPix ring pixel of wi on S+ and of the
-mirrored wo on S- (`ang2pix`, analytic, as the paper's Sec. 3.2 asks: no per-pixel tables), the 4 corner
-vertices of that pixel or of its pruned ancestor, their grid slots, the slots' codebook indices and codebook
-rows, the corner weights (1/4 at runtime, inverse great-circle distance while training), the tiny MLP
-and exp; with the neural-texture plug-in, the texture's bilinear / trilinear lookup is appended to the MLP
-input, and with `Config.direction_inputs` "hd" / "hd_warp" the half and difference vectors after it (`nm_hd`). The
-grids stay as compact as the model stores them (a b-bit index per slot plus the 2^b x k codebook); only
-pruned models add their per-pixel level table and only inverse-distance models the vertex directions. Entry
-points (directions in the local frame, z up; linear RGB BRDF without the cosine, 0 below
-the horizon):
+`export_neubrdf(model)` computes what `model.eval` computes (analytic HEALPix lookup, codebook, tiny MLP,
+exp). Entry points `neumat_eval(wi, wo[, uv[, footprint]])` and `neumat_eval_lod`; tables are RGBA32F
+`sampler2DArray`s (`nbrdf_index`, `nbrdf_features`, `nbrdf_levels`, `nbrdf_vertices`).
 
-    vec3 neumat_eval(vec3 wi, vec3 wo)                              // homogeneous
-    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv)                     // neural texture: level 0
-    vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)      // neural texture: trilinear at lod
-    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)     // = neumat_eval(wi, wo, uv), as `eval`
-
-Tables are RGBA32F `sampler2DArray`s of one layer read with `texelFetch`, four values per texel in row-major
-order, `TABLE_WIDTH` texels a row (see `nm_fetch`):
-
-    nbrdf_index     slot s -> codebook index (vq), value s
-    nbrdf_features  vq: codebook row r, component j at value r k + j; dense / low-bit: the decoded
-                    feature of slot s at value s k + j
-    nbrdf_levels    pruned models: lookup level of ring pixel p of S+ at value p, of S- at 12 N^2 + p
-    nbrdf_vertices  inverse-distance models: unit vector of sphere vertex v at values 4 v .. 4 v + 2
+Details: docs/formats/glsl.md, section `neumat.export.glsl_neubrdf`.
 """
 from __future__ import annotations
 

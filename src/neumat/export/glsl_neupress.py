@@ -1,34 +1,11 @@
 """GLSL export of NeuPreSS (TG et al.): the appearance module and its light sampler as shader functions, for
 a renderer that lights a translucent object by a distant environment (Eq. 5).
 
-Entry points (object space, unit directions; x on the object's surface, n its outward normal there):
+Entry points: `neumat_translucent`, `neumat_sigma`, `neumat_sample_incident`, `neumat_incident_pdf`,
+`neumat_translucent_shade`, `neumat_rough_dielectric_reflection`; the networks' weights lie in the RGBA32F
+texture `neumat_weights`, the environment in `neumat_env`.
 
-    vec3  neumat_translucent(vec3 wi, vec3 x, vec3 wo)          // S_hat (1/sr, linear RGB), clamped at 0
-    float neumat_sigma(vec3 x, vec3 wo)                          // the sampling lobe's width in radians
-    vec3  neumat_sample_incident(vec3 x, vec3 wo, vec3 n, vec2 u)   // a light direction wi for u in [0, 1)^2
-    float neumat_incident_pdf(vec3 wi, vec3 x, vec3 wo, vec3 n)    // its solid-angle density
-    vec3  neumat_translucent_shade(vec3 x, vec3 n, vec3 wo, float alpha, float ior, int samples)
-    float neumat_rough_dielectric_reflection(vec3 n, vec3 wo, vec3 wi, float alpha, float ior)
-
-computing what `model.eval`, `model.sigma`, `model.sample_incident` and `model.incident_pdf` compute.
-
-`neumat_translucent_shade` shades a fragment of the object for a rasteriser (TG et al., Eq. 3 and 5): the outer
-surface reflection of the environment (a GGX rough dielectric of roughness alpha and index ior, Walter et al.
-2007, sampled by the GGX distribution of normals) plus the subsurface term (samples drawn from the model's lobe,
-S_hat * L_env / pdf), both over the same `samples` points of a Hammersley set (u = ((k + 0.5) / samples,
-radical inverse of k to 24 bits)), so a CPU reference computes the same sum. The environment is the
-equirectangular `uniform sampler2DArray neumat_env` (one layer, RGB radiance, the mapping of
-`neumat.render.envmaps`, nearest texel as `EnvironmentMap`). `neumat_rough_dielectric_reflection` is the surface
-term's f_r cos(theta_i) (Mitsuba's `roughdielectric` reflection). The environment is not occluded (the object
-alone); x, n, wo are object space, and the map is looked up with object-space directions. The Slang export
-(`neumat.export.slang`) spells them too, the environment a buffer bound with its size at run time. The two
-networks (7 x 128 and 512-128-32 by default) are too large for constants in the source, so every matrix,
-bias and Fourier matrix lies in one RGBA32F texture `neumat_weights` (1 layer, 1024 texels wide, read with
-`texelFetch`): a matrix of `out x in` as 4 ceil(out / 4) rows of ceil(in / 4) texels, zero-padded, a bias as
-ceil(out / 4) texels; the offsets are constants in the source. Activations are vec4 arrays (float arrays of
-512 exhaust Mesa's temporaries and silently give wrong values). Angles use atan (llvmpipe's acos is ~1e-4 rad
-off, which the paper's Fourier scale turns into percent errors); the lobe's expm1 / log1p (not in GLSL) use
-their series below 1e-3.
+Details: docs/formats/glsl.md, section `neumat.export.glsl_neupress`.
 """
 from __future__ import annotations
 

@@ -1,26 +1,11 @@
 """GLSL export of SparseBTF (Kavoosi et al. 2023, Sec. 3.4: the sparse coefficients, their index tuples, the
 membership vector and the dictionary ensemble uploaded as textures, one BTF element reconstructed per query).
 
-`export_sparse_btf(model)` computes exactly what `SparseBTF.eval` computes with `angular = "coefficient"`
-(Eq. 6): the k nearest light and view bins with inverse-angular-distance weights, wrap-around bilinear over 4
-texels, per data point those texels fall in (1, 2 or 4) and YUV channel the sum over its coefficients of
-value x (bilinear-weighted U1 rows) x (bilinear-weighted U2 rows) x (weighted U3 rows) x (weighted U4 rows),
-then the interpolated per-image mean and std, YUV -> RGB and exp. BTFs are not
-prefiltered, so the footprint and lod arguments of the common entry points are ignored (as in `eval`):
+`export_sparse_btf(model)` computes what `SparseBTF.eval` computes with `angular = "coefficient"`; entry
+points `neumat_eval` / `neumat_eval_lod`; textures `sbtf_codes`, `sbtf_points`, `sbtf_dict_s`, `sbtf_dict_a`,
+`sbtf_stats`.
 
-    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv)
-    vec3 neumat_eval(vec3 wi, vec3 wo, vec2 uv, mat2 footprint)
-    vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod)
-
-Textures (RGBA32F `sampler2DArray`s, read with `texelFetch` only):
-
-    sbtf_codes   layer c (Y, U, V), row = data point, column t: (value, l1 x p + l2, l3, l4) of coefficient t
-    sbtf_points  layer c, data point i at (i % width, i / width): (membership, count, 0, 0)
-    sbtf_dict_s  layer c x K + k, row i, column j: (U1[i, j], U2[i, j], 0, 0) of dictionary k of channel c
-    sbtf_dict_a  layer c x K + k, row i, column j: (U3[i, j], U4[i, j], 0, 0) (zero-padded to max(L, V))
-    sbtf_stats   layer 0 mean, layer 1 std: row = light bin, column = view bin, rgb = (Y, U, V)
-
-Light and view directions are baked into the source as constants.
+Details: docs/formats/glsl.md, section `neumat.export.glsl_sparse_btf`.
 """
 from __future__ import annotations
 

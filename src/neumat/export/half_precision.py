@@ -2,18 +2,9 @@
 latent textures and decoder weights stored in half precision, computed in float32, as the runtime of Real-Time
 Neural Appearance Models (Zeltner et al. 2024, Sec. 7) infers in FP16.
 
-`to_half(export)` rewrites an fp32 export (what every generator in `GLSL_GENERATORS` emits):
+`to_half(export)` rewrites an fp32 export: textures become RGBA16F, float constant arrays packed halves.
 
-- every texture but those the generator lists in `GLSLExport.exact` (index tables, fixed Fourier matrices,
-  geometry) becomes float16 (RGBA16F, `.f16` files); `texelFetch` returns the half values as floats;
-- every `const float NAME[n]` array of the source (decoder weights and biases, frame decoders, warp parameters:
-  the only float arrays the generators emit) becomes `const uint NAME_F16[ceil(n / 2)]`, two IEEE halves per
-  word (element 2k in the low 16 bits), read by the function `float NAME_AT(int k)`; `nm_half(uint)` converts
-  a half's bits to float exactly (GLSL 3.30 has no unpackHalf2x16).
-
-Values are rounded to the nearest half (ties to even); a value beyond the half range raises InputError naming
-the array or texture. The torch reference is `neumat.models.half_precision.half_rounded(model)` (the same
-rounded values, float32 arithmetic).
+Details: docs/formats/glsl.md, section `neumat.export.half_precision`.
 """
 from __future__ import annotations
 

@@ -3,60 +3,12 @@ multi-scale models, NeuBRDF, SparseBTF and NeuPreSS: one shader module per neura
 interface, as the runtime of Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) generates for the
 Slang shading language.
 
-`export_slang(model) -> SlangExport`. The module (`neumat.slang`) defines, with directions in the local frame
-(z up, wi towards the light, wo towards the viewer), uv texture coordinates (wrapping) and footprint the
-pixel filter's covariance in uv^2 (symmetric):
+`export_slang(model) -> SlangExport`: interfaces `INeumatMaterial`, `INeumatSampler`, `INeumatAlbedo`,
+`INeumatBRDF`, `INeumatTranslucent`, `INeumatTranslucentShade` and the compute entry point `neumat_batch`;
+the module is the model's GLSL export spelled in Slang (`glsl_to_slang`). `SlangExport.write(folder)` writes
+`neumat.slang`, its buffers and `manifest.json`.
 
-    interface INeumatMaterial {                                  // every spatially varying model
-        float3 eval(float3 wi, float3 wo, float2 uv, float2x2 footprint);   // BRDF value, cosine excluded
-        float3 eval_lod(float3 wi, float3 wo, float2 uv, float lod);        // trilinear at a mip level
-    }
-    interface INeumatSampler : INeumatMaterial {                 // neural-appearance
-        float3 sample(float3 wi, float2 uv, float2x2 footprint, float2 u);  // wo for u in [0, 1)^2
-        float pdf(float3 wi, float3 wo, float2 uv, float2x2 footprint);     // its solid-angle density
-    }
-    interface INeumatAlbedo {                                    // neural-appearance with Config.albedo
-        float3 albedo(float3 wi, float3 wo, float2 uv, float2x2 footprint); // directional albedo for wo
-    }
-    interface INeumatBRDF {                                      // homogeneous models (neubrdf, multiscale
-        float3 eval(float3 wi, float3 wo);                       //   with homogeneous=True)
-    }
-    interface INeumatTranslucent {                               // neupress (object space, x on the surface)
-        float3 translucent(float3 wi, float3 x, float3 wo);      // S_hat, 1/sr
-        float sigma(float3 x, float3 wo);                        // light-sampling lobe width, radians
-        float3 sample_incident(float3 x, float3 wo, float3 n, float2 u);
-        float incident_pdf(float3 wi, float3 x, float3 wo, float3 n);
-    }
-    interface INeumatTranslucentShade : INeumatTranslucent {     // neupress: a fragment in a rasteriser
-        float3 shade(float3 x, float3 n, float3 wo, float alpha, float ior, int samples);  // radiance to wo
-        float rough_dielectric_reflection(float3 n, float3 wo, float3 wi, float alpha, float ior);
-    }
-    struct NeumatMaterial : <the interfaces the model has> { ... }
-
-plus the free functions `neumat_eval`, `neumat_eval_lod`, ... the methods call, and a compute entry point
-`neumat_batch` that answers a batch of queries (`neumat.testing.slang_parity` runs it on slangpy's CPU
-device; its buffers are listed in `manifest.json`). Values are what `model.eval`, `model.albedo`,
-`model.sample(q, u).wo` and `model.pdf` compute: the same anisotropic filtering of the latent pyramid (wrap
-tiling, up to max_probes trilinear probes), learned frames, SiLU MLP with exp output, and proxy sampler with
-its defensive cosine share. `shade` and `rough_dielectric_reflection` are the GLSL export's
-`neumat_translucent_shade` and `neumat_rough_dielectric_reflection` (`neumat.export.glsl_neupress`: the rough
-dielectric's reflection of the environment plus the learned subsurface term, over one Hammersley set); they read
-the environment, which the export does not carry: the renderer binds `StructuredBuffer<float4> neumat_env`
-(equirectangular linear RGB, rows x columns, the mapping of `neumat.render.envmaps`) and its size
-`uniform int neumat_env_width, neumat_env_height` (`environment_bindings(radiance)` gives all three; listed
-under "runtime_buffers" in `manifest.json`), so one module shades under any environment.
-
-One source of truth for the math: the module is the model's GLSL export (`neumat.export.glsl.export_glsl`,
-itself parity-tested) spelled in Slang by `glsl_to_slang`, a token-level rewrite of the GLSL subset those generators
-emit (vector / matrix types, lerp, frac, atan2, static const arrays); every texture becomes a
-`StructuredBuffer<float4>` (`StructuredBuffer<uint2>` of packed halves for an fp16 export's textures) read by index
-(layer, row, column) (a texture the export declares but does not carry, the environment, with its size as
-uniforms), so no hardware sampling is involved and the module runs on Slang's CPU target. Decoder weights
-are constants in the source (packed halves at precision "fp16", `neumat.export.half_precision`). The Slang-only parts
-(interfaces, struct, compute entry point) are written here.
-
-`SlangExport.write(folder)` writes `neumat.slang`, one raw little-endian float16 (.f16) or float32 (.f32) file per
-buffer (layers x height x width x 4, in buffer order) and `manifest.json`.
+Details: docs/formats/slang.md, section `neumat.export.slang`.
 """
 from __future__ import annotations
 

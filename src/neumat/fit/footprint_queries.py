@@ -1,24 +1,10 @@
 """The training query distribution of Timonen et al. 2025, Sec. 4.2: directions, uv and footprints.
 
-wi and wo are cosine-weighted on the upper hemisphere, uv uniform in [0, 1]^2, and the footprint follows
-Eq. 9, Sigma = e1 diag((1 + z2) / cos(theta_o), 1) R(u3), read as the linear map from a unit isotropic
-Gaussian to texture space; `Query.footprint` holds its covariance
+wi and wo cosine-weighted, uv uniform, footprints as the paper's Eq. 9 (`Query.footprint` holds their
+covariance), the level range shifted to the source's texel size by default (`texel_relative`). Registered as
+the "footprint" and "footprint-uv" query samplers.
 
-    C = e1^2 R(u3)^T diag(((1 + z2) / cos theta_o)^2, 1) R(u3)      (uv units^2)
-
-with log2 e1 = l_min + (l_max - l_min) e2, e2 = (exp(5 e3) - 1) / (exp(5) - 1), e3 ~ U(0, 1) (fine levels
-drawn more often), z2 ~ N(0, 0.2^2), u3 ~ U(0, 2 pi), and theta_o the angle between the geometric normal and
-the viewing direction wo. Two guards the paper leaves implicit: 1 + z2 is clamped to at least 0.2 (4
-standard deviations) and cos theta_o to at least `min_cos`, bounding the elongation.
-
-The paper's [l_min, l_max] = [-13, 1] is in uv units for its 1024^2 textures. On a source of another size the
-same range would put the footprints elsewhere in texels (at 64^2, 3/4 of them below 1/8 texel), so by
-default (`texel_relative=True`) the range is shifted by log2(1024 / S) for a source with S x S texels (S =
-max(H, W) of its `textures`), keeping the distribution in texels the paper's; sources without a known size
-keep the uv range.
-
-Registered as the "footprint" query sampler (`neumat.fit.query_samplers.QUERY_SAMPLERS`), and as
-"footprint-uv" with the paper's range in uv units whatever the source's size.
+Details: docs/notes/multiscale.md, section `neumat.fit.footprint_queries`.
 """
 from __future__ import annotations
 

@@ -4,19 +4,9 @@
 from `generator` (drawn on the generator's device, then moved to `device`), so a fit is reproducible from
 its seed and resumable from the generator state. Models and recipe modules may register their own.
 
-Built-ins:
-  "cosine":       wi and wo independent, each cosine-weighted on the upper hemisphere (density
-                  cos(theta)/pi); uv uniform in [0, 1]^2 when the source or the model is spatially varying.
-  "rusinkiewicz": (theta_h, theta_d) uniform in [0, pi/2)^2, phi_h and phi_d uniform in [0, 2 pi), configurations
-                  with wi or wo below the horizon rejected (so: uniform on the valid part of that box);
-                  the MERL parametrisation, dense near the specular peak.
-  "merl":         theta_h = pi/2 u^2 (the density of the MERL table's cells: 8 % of them within half a degree
-                  of the specular peak), phi_h, theta_d, phi_d as "rusinkiewicz"; the data regime of fits to MERL
-                  tables, which NeuBRDF and NBRDF train on.
-  "cosine_merl":  half the queries "cosine", half "merl": the peak of a sharp specular material is seen (0.5 deg
-                  wide on MERL chrome: "cosine" puts 1 query in 10^4 there) and the rest of the hemisphere too.
-  "replay":       uniform draws, with replacement, of the stored samples of a `MeasuredSamples` source
-                  (sparse measurements): the targets are the measured values themselves.
+Built-ins: "cosine", "rusinkiewicz", "merl", "cosine_merl", "replay".
+
+Details: docs/notes/fit.md, section `neumat.fit.query_samplers`.
 """
 from __future__ import annotations
 
@@ -52,7 +42,7 @@ def _require_hemisphere(source: Material, sampler: str) -> None:
 
 @QUERY_SAMPLERS.register("cosine")
 def cosine_queries(source: Material, model=None) -> QueryDraw:
-    """Cosine-weighted wi and wo (see module docstring)."""
+    """Cosine-weighted wi and wo (see docs/notes/fit.md)."""
     _require_hemisphere(source, "cosine")
     with_uv = _needs_uv(source, model)
 
@@ -95,13 +85,13 @@ def rusinkiewicz_queries(source: Material, model=None) -> QueryDraw:
 
 @QUERY_SAMPLERS.register("merl")
 def merl_queries(source: Material, model=None) -> QueryDraw:
-    """MERL's cell density in theta_h (see module docstring)."""
+    """MERL's cell density in theta_h (see docs/notes/fit.md)."""
     return _half_angle_queries(source, model, "merl", 2)
 
 
 @QUERY_SAMPLERS.register("cosine_merl")
 def cosine_merl_queries(source: Material, model=None) -> QueryDraw:
-    """Half "cosine", half "merl" queries (the first n // 2 cosine-weighted); see module docstring."""
+    """Half "cosine", half "merl" queries (the first n // 2 cosine-weighted); see docs/notes/fit.md."""
     cosine, merl = cosine_queries(source, model), merl_queries(source, model)
 
     def draw(n: int, generator: torch.Generator, device) -> Query:

@@ -1,25 +1,11 @@
 """The trainer's guard against non-finite steps and parameters: skip, back off, return to the last good state.
 
-`neumat.fit.trainer.fit` keeps one `NonFiniteGuard` per fit; it acts in every phase with an optimiser (a
-solver phase has no learning rate to lower and is not guarded):
+`neumat.fit.trainer.fit` keeps one `NonFiniteGuard` per fit: a non-finite step is skipped and the learning
+rate halved; after ROLLBACK_AFTER in a row, or at a non-finite parameter, the last good in-memory snapshot is
+restored; the fit gives up with an InputError after MAX_ROLLBACKS. The guard's state is checkpointed, so a
+resumed fit behaves as the uninterrupted one.
 
-- a step whose gradient norm is not finite is skipped, and the learning rate is halved from then on;
-- a snapshot of the last good state (the model's state, the optimiser's state, the EMA copy: cloned tensors,
-  in memory, on the model's device) is taken when the phase starts and at each later "point" of the phase
-  (a history record or a multiple of `checkpoint_every`, whether or not a checkpoint is written), provided
-  every step since the previous point was finite and every parameter of the model and of its EMA copy is;
-- after ROLLBACK_AFTER non-finite steps in a row, or when a parameter is found non-finite at a point, the
-  snapshot is restored, the learning rate halved once more, and training goes on from the current step (the
-  query generator is not rewound, so the batches that follow differ); the next history record holds
-  "rollback": the step whose state was restored, and the progress output says so;
-- the fit gives up with an InputError after MAX_ROLLBACKS rollbacks, or, when no snapshot exists yet (the
-  phase was non-finite from its first steps), after MAX_SKIPPED_STEPS non-finite steps in a row, or at once
-  at a non-finite parameter.
-
-A phase's own stateful modules (`Phase.stateful`, e.g. the best validation so far) are not rolled back. The
-guard's counters go into the fit's checkpoints (`checkpoint_state`), and so does the snapshot whenever it is
-older than the checkpoint (otherwise the checkpoint's own state is the snapshot), so a resumed fit skips, rolls
-back and gives up exactly as the uninterrupted one.
+Details: docs/notes/fit.md, section `neumat.fit.rollback`.
 """
 from __future__ import annotations
 

@@ -1,21 +1,11 @@
 """The one trainer: fit any learned model to its source, in one or several phases.
 
-A fit is a list of phases (`neumat.fit.phase`) from the model's recipe module: one online phase for most
-models (every step draws `batch_size` queries from the recipe's query sampler, evaluates the source on them
-without gradient and takes one optimiser step on the recipe's loss), or the stages a paper trains in
-(encoder then latents, appearance then sampler, dictionary then coding). All phases share one loop: the
-learning-rate schedule (per phase), optional EMA of the parameters (the EMA copy becomes the fitted model),
-gradient-norm clipping, a guard against non-finite values (`neumat.fit.rollback`: a step whose gradients
-are not finite is skipped and the learning rate halved from then on; after a few such steps in a row, or at
-non-finite parameters, the fit returns to an in-memory snapshot of its last good state), progress (a bar on a
-terminal, plain lines otherwise), and checkpoints (model, optimiser, EMA, loss state, step, history, the
-guard's state, random number generator states, a source's own generator included) from which `resume=True`
-continues bit for bit as if never interrupted, in whichever phase the checkpoint was written.
+A fit is a list of phases (`neumat.fit.phase`) from the model's recipe module. All phases share one loop:
+schedule, EMA, gradient clipping, the non-finite guard (`neumat.fit.rollback`), progress, and checkpoints
+from which `resume=True` continues bit for bit. Model hooks (`neumat.models.base.LearnedMaterial`):
+`on_step`, `init_from_targets`, `optimizer`.
 
-Model hooks (declared by `neumat.models.base.LearnedMaterial`): `on_step(step, total_steps)` before every
-step (on the model and its EMA copy), `init_from_targets(target)` once on a fresh online fit, and
-`optimizer(lr, betas, eps)` for a model that brings its own optimiser; a param group's "lr_scale"
-(default 1) multiplies the schedule's learning rate.
+Details: docs/notes/fit.md, section `neumat.fit.trainer`.
 """
 from __future__ import annotations
 

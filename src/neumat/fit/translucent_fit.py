@@ -2,18 +2,10 @@
 (`neumat.fit.trainer.fit`): L2 on random minibatches of path-traced observations (`Observations`, from
 `neumat translucent trace`), with early stopping on a held-back fraction of them.
 
-The recipe options these phases read (every translucent recipe lists them, with its defaults):
-  validation_fraction: fraction of the source held back for validation (0: none), drawn with the recipe's
-                       seed (`Observations.split(fraction, seed=recipe.seed)`); the fit trains on the rest.
-  max_validation:      use at most this many of the held-back observations (None: all; the dipole's sum over
-                       its surface quadrature is slow to evaluate).
-  bounds:              the object's bounding box [[lo x, y, z], [hi x, y, z]] for `model.set_bounds`, or None:
-                       that of all observed points (models without set_bounds ignore it).
+Recipe options read: validation_fraction, max_validation, bounds. Early stopping keeps the weights of the
+lowest validation MSE (`EarlyStopping`; `best_validation(history)` reads the best record back).
 
-Early stopping: the validation MSE is measured for every history record of the phase (every `recipe.log_every`
-steps and after its last step) and stored in the record as "validation_mse"; the phase ends with the weights of
-the lowest one. That state (best MSE, its step, those weights) lives in an `EarlyStopping` module listed in the
-phase's `stateful`, so a resumed fit continues exactly. `best_validation(history)` reads the best record back.
+Details: docs/notes/neupress.md, section `neumat.fit.translucent_fit`.
 """
 from __future__ import annotations
 

@@ -8,22 +8,7 @@
 `material` is anything `neumat.open_material` reads (a `.nmat` model, a MERL / RGL / BTF file, a texture-set
 folder or an analytic spec such as "ggx:roughness=0.2"); `bsdf(material)` wraps a Material object instead.
 
-Conventions. Mitsuba's local frame is neumat's (z the shading normal, x the tangent dp/du). The material's
-incident slot `wi` gets Mitsuba's `si.wi` (in radiance transport the direction to the viewer) and `wo` the
-evaluated or sampled direction, as Mitsuba's own `measured` plugin feeds its tables, so `eval` returns
-f(wi=si.wi, wo=wo) cos(theta_wo) and `sample` draws wo with `material.sample(Query(wi=si.wi), u)`, the material's
-own importance sampling of exactly that function (cosine-weighted where the material cannot sample): the weights
-f cos / pdf stay bounded, also for non-reciprocal tables. In importance transport (light tracing) the roles of
-si.wi and wo swap in `eval`, so both transport modes see the same function. For a reciprocal material the order
-does not matter. Spatially varying materials get uv = si.uv modulo 1 (tiling) and no footprint: Mitsuba's path
-tracer carries no ray differentials, so they are evaluated at their finest level. The surface is one-sided, as
-Mitsuba's own BSDFs; wrap it in a `twosided` BSDF for two-sided use.
-
-The plugin runs torch on concrete arrays, so Dr.Jit must trace the integrator's loops and virtual calls in
-evaluated mode (`evaluated_mode()`, used by `render`). Mitsuba's symbolic virtual calls (plain `mi.render`)
-trace every live BSDF instance, also while rendering scenes without a neumat BSDF; there the plugin returns
-placeholder values that Mitsuba never uses, so such scenes render unaffected. A neumat surface that is actually
-hit in symbolic mode gets NaN values (its pixels come out NaN), never a plausible-looking wrong image.
+Details: docs/formats/mitsuba_plugins.md, section `neumat.integrations.mitsuba`.
 """
 from __future__ import annotations
 

@@ -1,39 +1,11 @@
 """Mitsuba 3 integrator plugin that puts a NeuPreSS translucent object (a model of `neumat translucent fit`) in a
 Mitsuba scene with other objects and lights.
 
-    from neumat.integrations import mitsuba_translucent as nm_translucent
-    mi = nm_translucent.register()
-    scene = mi.load_dict({"type": "scene",
-        "integrator": {"type": "neumat_translucent", "model": "sphere.nmat", "observations": "obs.npz",
-                       "shape": "translucent", "integrator": {"type": "volpath", "max_depth": 64}},
-        "translucent": nm_translucent.translucent_shape("obs.npz", to_world=T),   # the object, placed by T
-        "box": {...}, "light": {"type": "envmap", ...}, "sensor": {...}})
-    image = nm_translucent.render(scene, spp=64)
+`register()` adds the integrator "neumat_translucent", `translucent_shape(observations, to_world=T)` places
+the object, `render(scene, spp)` renders (evaluated mode). The inner integrator renders the object's rough
+dielectric surface; the plugin adds the learned subsurface term under distant light (TG et al., Eq. 5).
 
-NeuPreSS splits the object's light transport (TG et al., Eq. 3) into the outer surface reflection f_r (a GGX
-rough dielectric) and the subsurface term S_hat, learned under distant light. The scene holds the object's
-outer surface with its rough dielectric BSDF and a black (fully absorbing) interior medium, as the ground
-truth's "black" scene (`neumat.reflectance.translucent`): the inner integrator (default `volpath`) then renders
-the surface reflection, with local illumination, shadows and inter-reflections with the rest of the scene, and
-everything else. The plugin adds at every camera-ray hit on the object the subsurface radiance of Eq. 5,
-L(x, wo) = integral of L_in(wi) S_hat(wi; x, wo) dwi, with the incident radiance L_in taken as distant: the
-emitters are sampled from the centre of the object's bounding sphere and visibility is traced from there,
-skipping the object itself (its self-shadowing is part of S_hat), so other objects do cast shadows on it.
-Emitter sampling is combined by multiple importance sampling (balance heuristic) with the model's learned
-Gaussian lobe (`sample_incident`); strategy "light" or "model" uses one alone. Delta emitters (point, spot,
-directional) count by emitter sampling alone; a point light's irradiance is taken at the centre.
-
-Object space: the model is trained in the object's own coordinates. The plugin recovers the shape's
-object-to-world transform (a sphere's `to_world`; for a mesh, a least-squares fit of its world vertices to the
-object's mesh from the observations' config) and refuses transforms that are not a rotation, a uniform scale
-and a translation (S_hat is not invariant under shear or non-uniform scale), a shape that is not the
-observations' object, and a model whose bounding box is not that object's.
-
-What is not included: secondary hits on the object (in reflections on other surfaces, or light reflected by the
-object onto others) get the surface reflection alone, never the subsurface term; light the object scatters onto
-other objects is missing likewise; near emitters are treated as distant (their direction and distance from the
-object's centre). Like the BSDF plugin (`neumat.integrations.mitsuba`), the plugin runs torch on concrete arrays:
-render with `render` (evaluated mode).
+Details: docs/formats/mitsuba_plugins.md, section `neumat.integrations.mitsuba_translucent`.
 """
 from __future__ import annotations
 

@@ -1,28 +1,10 @@
 """Layered material descriptions (`.json` with "type": "layered"): parsing and checking. The material
 (`neumat.reflectance.layered.LayeredMaterial`) is built by `neumat.catalog.layered_file.read_layered`.
 
-    {"type": "layered",
-     "base": "Tiles074_1K",                      # any material `open_material` opens; paths relative to this file
-     "max_size": 256,                            # optional: downscale a texture-set base to at most this size
-     "coats": [                                  # bottom to top
-       {"eta": 1.5, "roughness": 0.03, "tint": [0.9, 0.95, 1.0]},
-       {"eta": 1.5, "roughness": {"smudges": {"seed": 1, "size": 256}, "low": 0.05, "high": 0.4},
-        "weight": {"image": "mask.png"}, "normal": "coat_normal.png"}],
-     "sheen": {"color": [1, 0.9, 0.8], "roughness": 0.3, "weight": 0.5}}   # optional, on top of the coats
+`read_description(path)` checks the top level and returns a `LayeredDescription`; `read_coat`, `read_sheen`
+and `read_conductor` read the parts.
 
-The base may also be a textured conductor (`neumat.reflectance.conductor_base`):
-{"conductor": "gold"} (a preset) or {"eta": [r, g, b], "k": [r, g, b]}, with "roughness" (GGX alpha; a number
-or a map, default 0.2) and an optional "normal" image, e.g.
-    "base": {"conductor": "copper", "roughness": {"smudges": {"seed": 3, "size": 128}, "low": 0.05, "high": 0.3}}
-"coats" may be empty when there is a sheen.
-A coat's `roughness` (GGX alpha) and `weight` are numbers or maps: {"smudges": {smudge_map arguments}} or
-{"image": path} (grey values in [0, 1], linear), mapped to [low, high] (roughness: no default; weight: 0 and 1).
-`normal` is an optional OpenGL-convention normal-map image. The sheen's roughness (Charlie alpha, default 0.3) and
-weight are numbers or maps alike; its colour is RGB in [0, 1] (default white). Unknown keys raise.
-
-`read_description(path)` checks the top level and returns a `LayeredDescription`; `read_coat(...)` reads one
-coat into a `CoatDescription` (maps as tensors), generating smudge masks with the function it is given;
-`read_sheen` and `read_conductor` read the sheen and a conductor base alike.
+Details: docs/formats/layered_file.md, section `neumat.io.layered_file`.
 """
 from __future__ import annotations
 

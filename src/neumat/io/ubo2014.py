@@ -8,44 +8,7 @@ write_ubo_dfmf,write_ubo_fmf}.m`` and ``matlab/utils/fread_matrix.m``; cross-che
 `btf-extractor` package). This module is an independent implementation of that layout. All numbers are
 little-endian; matrices are stored row-major.
 
-1. Signature (ASCII, no terminator): ``!DFMF08FCR`` (decorrelated full matrix factorisation, the UBO2014
-   archive), ``!FMF12FCER`` (FMF with an extended header), ``!FMF06FCR``, ``!FMF06FC``. A trailing ``R``
-   means a rotation block follows the texture size. ``!PVF...`` and ``!BDIF...`` files are refused.
-2. Meta data: u32 size (bytes of this block, the size field included), u32 version, 3 x char[80]
-   (measurement setup, image sensor, light source), f32 pixels per mm, 3 x f32 RGB scale; version > 1:
-   u32 cosine flag (cos theta_light multiplied into the data); version > 2: u32 n + n chars of XML;
-   version > 3: u32 channel count, then per channel u32 n + n chars of its name.
-3. Directions: u32 n_view; per view f32 theta, f32 phi (radians), u32 n_light, n_light x (f32 theta,
-   f32 phi). The light list is the same for every view (btflib keeps the first one, and so do we).
-4. u32 width, u32 height; with the ``R`` suffix: u32 n_rot + n_rot x 9 f32 (local frame rotations, unused).
-5. DFMF: u32 max components, i32 colour model, 3 x f32 colour mean, 3 x 3 f32 colour matrix; then per
-   channel: u8 scalar size (2 = float16, 4 = float32, 8 = float64), u32 P, u32 rows, u32 cols, P singular
-   values, U (rows x P), SxV (cols x P), so channel c of the table is U SxV^T.
-   FMF: extended header only (``!FMF12FCER``): u8 header version; >= 1: u32 dynamic-range reduction flag;
-   >= 2: u32 x 2 height-map size + float16 height map (skipped). Then u32 P, u8 scalar size, u32 P (again),
-   u32 rows, u32 cols, P singular values, U, SxV; one matrix holds all channels (channel index fastest).
-6. Matrix orientation: angular rows are indexed lv = view * n_light + light, spatial rows xy = y * width + x
-   (x fastest). DFMF: U is angular (n_light n_view rows) and SxV spatial (width height rows), or the other
-   way round; FMF: U has n_channel n_light n_view rows (then SxV is spatial) or n_channel width height
-   rows (then SxV is angular). When both readings fit, the first (U angular) is used, as in btflib.
-7. Decoding, in btflib's order: colour model back to RGB (0 RGB, 1 YUV, 3 PCA: rgb = c M + mean with c a
-   row vector, 4 YCoCg, 9 log Y + UV, 10 log Y, U, V, 11 log Y + U / Y, V / Y, 12 log RGB, with
-   eps = 1e-5); FMF with dynamic-range reduction: x = exp(x) - 1e-5; with the cosine flag: divide by
-   cos theta_light. The file ends right after the last matrix (checked, as the C++ reader does).
-
-Conventions of the result (`BTFTable`, linear RGB apparent BRDF, cosine excluded):
-- Directions: a file's (theta, phi) is the polar angle from the macro normal and the azimuth from the
-  texture's x axis towards its y axis, both pointing away from the surface: the light list becomes
-  `light_dirs` = wi (towards the light) and the view list `view_dirs` = wo (towards the camera), as
-  (sin theta cos phi, sin theta sin phi, cos theta), without any sign change.
-- Texels: stored row y = 0 is the *bottom* of the image (the C++ reader of btf-extractor flips it so that
-  its images come out upright); our row i = height - 1 - y, column j = x, so that u = +x and v = +y, the
-  tangent frame of `neumat.io.texture_set`.
-- No clamping: truncated SVDs may give slightly negative values, which are kept.
-
-Not verified against a real UBO2014 file (none was available): the row flip and the axis orientation of
-the stored azimuths, which colour models and scalar sizes the archive actually uses (btf-extractor only
-decodes colour models 0 and 11 from float16 factors), and whether any UBO2014 file sets the cosine flag.
+Details: docs/formats/ubo2014.md, section `neumat.io.ubo2014`.
 """
 from __future__ import annotations
 

@@ -6,17 +6,7 @@ units do, as the paper counts). `measured_matmul_flops` cross-checks the dense p
 under `torch.utils.flop_counter.FlopCounterMode`, which counts 2 m n k per matrix product (linear layers,
 batched matrix products) and nothing else.
 
-`paper_flops` counts one evaluation as the paper does (Sec. 5: EDM2's counter, Karras et al. 2024,
-github.com/NVlabs/edm2/count_flops.py), by running the model and pricing each torch operation: 1 per
-multiply-add of a matrix product (the bias add of a linear layer is free), 3 per SiLU / sigmoid / softmax
-element, 2 per clamp element, 1 per element of the other arithmetic (add, mul, div, exp, sqrt, ...), 4 per
-output element of a bilinear texture read (EDM2's bilinear-upsampling rate; the paper counts angular texture
-reads, not the spatial texture fetch), nothing for data movement (views, cat, gather, indexing).
-`paper_flops` leaves out, as the paper does, the spatial texture fetch (everything run inside a
-`LatentPyramid`) and work that does not grow with the batch (weight preconditioning: the count is the
-difference between batches of 2n and n queries, over n). The
-analytic `model.flops()` counts 2 per multiply-add and 9 per channel of a texture read, so the two differ
-by about 2x on the MLPs.
+Details: docs/notes/multiscale.md, section `neumat.metrics.flops`.
 """
 from __future__ import annotations
 
@@ -90,7 +80,7 @@ class _PaperCounter(TorchDispatchMode):
 
 def paper_flops_of(fn, *inputs, batch: int) -> float:
     """FLOPs per item of `fn(*inputs)` (a module or function over a batch of `batch` items), counted as the
-    paper does (module docstring)."""
+    paper does (docs/notes/multiscale.md)."""
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise InputError(f"paper_flops_of: expected a positive integer batch size, got {batch!r}")
     with torch.no_grad(), _PaperCounter() as counter:
@@ -99,7 +89,7 @@ def paper_flops_of(fn, *inputs, batch: int) -> float:
 
 
 def paper_flops(model, query: Query) -> float:
-    """FLOPs per query of `model.eval`, counted as the paper does (module docstring): the count over the query
+    """FLOPs per query of `model.eval`, counted as the paper does (docs/notes/multiscale.md): the count over the query
     batch twice minus the count over it once, over its size, without the spatial texture fetch."""
     n = len(query)
     if n == 0:

@@ -1,20 +1,10 @@
 """LearnedMaterial: the base of every registered model, declaring what the trainer, the model files, the
 exporters and `neumat list` use.
 
-A model is a torch `nn.Module` answering the Material protocol (`eval`, and `sample` / `pdf` where it
-samples). Class attributes say what it is; the hooks have do-nothing defaults, so a model overrides only
-what it needs:
+Class attributes: `name`, `Config`, `paper`, `source_kinds`. Hooks with do-nothing defaults: `on_step`,
+`init_from_targets`, `optimizer`, `runtime`, `size_bytes`, `flops`.
 
-    name          registry name (also the recipe module's: `neumat.fit.recipes.<name, '-' -> '_'>`)
-    Config        its config dataclass (paper defaults, one docstring per field); instances keep it as `cfg`
-    paper         the publication it implements, or what it is a baseline of
-    source_kinds  the kinds of source it fits (see SOURCE_KINDS)
-    on_step(step, total_steps)      before every training step (annealing, freezing)
-    init_from_targets(target)       once before a fresh online fit, with the source's values at one batch
-    optimizer(lr, betas, eps)       its own optimiser, or None for Adam on all trainable parameters
-    runtime()                       switch to the form that is shipped (packed, no training state); returns self
-    size_bytes(precision)           stored size of the runtime form; every model defaults to fp16
-    flops()                         floating-point operations of one evaluation
+Details: docs/notes/fit.md, section `neumat.models.base`.
 """
 from __future__ import annotations
 

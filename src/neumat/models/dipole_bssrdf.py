@@ -3,32 +3,10 @@ textured coefficients: the analytic baselines NeuPreSS compares against, here fi
 observations by gradient descent (as Deng et al. 2022 fit the textured one by differentiable rendering: the
 paper's "Diff." row).
 
-S_d(x_i, wi; x_o, wo) = Ft(eta, wi) R_d(|x_i - x_o|) Ft(eta, wo) / pi with the dipole profile
+Homogeneous (`texture_resolution` 1, the default: six learned parameters) or textured (a trilinear grid of
+log-coefficient offsets over the bounding box); queries need x, wo and n.
 
-    R_d(r) = alpha' / (4 pi) [z_r (s_tr d_r + 1) e^(-s_tr d_r) / d_r^3 + z_v (s_tr d_v + 1) e^(-s_tr d_v) / d_v^3],
-    s_t' = s_a + s_s', alpha' = s_s' / s_t', s_tr = sqrt(3 s_a s_t'), z_r = 1 / s_t', z_v = z_r (1 + 4 A / 3),
-    d_{r,v} = sqrt(r^2 + z_{r,v}^2), A = (1 + F_dr) / (1 - F_dr), F_dr = -1.440 / eta^2 + 0.710 / eta + 0.668
-    + 0.0636 eta,
-
-per RGB channel. Under a directional light of unit irradiance from wi, the light reaching the lit surface gives
-
-    S_hat(wi; x_o, wo) = Ft(eta, n_o . wo) / pi * sum_k R_d(|x_k - x_o|) Ft(eta, n_k . wi) max(n_k . wi, 0) A_k
-
-over a fixed quadrature of surface points x_k with normals n_k and areas A_k (`set_surface`; exact visibility for
-convex objects, self-shadowing of concave ones is ignored, as in the dipole model). eta is fixed. Queries need x,
-wo and n (the normal at x).
-
-Homogeneous (`texture_resolution` 1, the default): six learned parameters, log s_a and log s_s' per channel, in
-1 / object unit. Textured (`texture_resolution` R > 1): the coefficients vary over the object as
-
-    log s(x) = log s_base + T(x),
-
-T a trilinear R^3 x 6 grid of offsets (log s_a and log s_s' per channel) over the object's bounding box
-(`set_bounds`; position-based, so any mesh works; points outside are clamped to the box), zero at the start (the
-homogeneous model). R_d between an incidence point x_k and the exit point x_o uses the coefficients at x_o: every
-query then has one profile, and the observed value at x_o constrains the texture there (the mean of both ends
-would be reciprocal but blurs the texture with the sum's reach). Fitting may penalise the texture's roughness
-(`smoothness`, the recipe's option of that name).
+Details: docs/notes/neupress.md, section `neumat.models.dipole_bssrdf`.
 """
 from __future__ import annotations
 

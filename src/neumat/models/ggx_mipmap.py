@@ -1,19 +1,10 @@
 """GGX parameter mip-map, the analytic baseline of Timonen et al. 2025 (Sec. 5.2, item 4).
 
-A pyramid of 12 GGX parameters per texel, every level optimised directly (as the latent pyramids, with the
-same preconditioner and anisotropic filtering of the parameters by the query footprint), then evaluated as
-one analytic BRDF. Channels (raw -> value):
+A pyramid of 12 GGX parameters per texel (albedo, F0, normal slopes, anisotropic roughness and its
+rotation), every level optimised directly and filtered by the query footprint like the latent pyramids, then
+evaluated as one analytic BRDF.
 
-    0-2   diffuse albedo        softplus
-    3-5   specular F0 (Schlick) softplus
-    6-7   normal slopes (sx, sy) -> n = normalize(sx, sy, 1)
-    8-9   log alpha_x, log alpha_y (clamped to [1e-3, 2])
-    10-11 (c, s): the roughness ellipse's tangent is rotated by phi = atan2(s, c) / 2 from the +u tangent
-
-    f = [albedo / pi + D G F / (4 cos_i cos_o)](wi', wo') * ((wi'.z / wi.z + wo'.z / wo.z) / 2)
-
-with wi', wo' in the shading frame; the symmetrised cosine ratio is the one of `neumat.reflectance.svbrdf`,
-so that at the finest scale the model can match a normal-mapped GGX material. 0 below either horizon.
+Details: docs/notes/multiscale.md, section `neumat.models.ggx_mipmap`.
 """
 from __future__ import annotations
 

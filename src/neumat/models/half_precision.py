@@ -1,22 +1,10 @@
 """The torch side of half-precision inference: `half_rounded(model)`, a copy of a model that stores what an fp16
 export stores (`neumat.export.half_precision`) and computes in float32, as the exports' shaders do.
 
-Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 7) train in FP32 and infer in FP16. The exports keep
-the latent textures and the decoder weights in half precision (RGBA16F textures, weights packed two per uint)
-and accumulate in float32, so the reference of their parity checks is this copy, not a half-precision forward
-pass: its preconditioned textures (`LatentPyramid`, `AngularTexture`) are baked (the preconditioned values become
-the parameters, the preconditioner is dropped, as the exports store the preconditioned textures), the shading
-frames' weight scale is folded into their decoder weights (as the exports store them), vector-quantised features
-are frozen (their logits replaced by the indices the exports store), and then every
-floating-point parameter is rounded to the nearest float16 (ties to even) and kept as float32. Buffers (index
-tables, fixed Fourier matrices) are left as they are: the exports store them exactly.
+Half-aware training (`with_half_parameters`, `snap_to_half_`) ends a fit on parameters an fp16 export
+stores exactly.
 
-Half-aware training (`with_half_parameters`, `snap_to_half_`) lets a fit end on a model whose parameters are
-exactly what an fp16 export stores, so that the export equals the trained model up to float32 arithmetic: for
-its last steps every parameter enters the forward pass rounded as the export rounds it, with a straight-through
-gradient to the float32 parameter (quantisation-aware training), and at the end the parameters are rounded in
-place. It supports models whose exports store each parameter as a constant multiple of itself (plain parameters;
-the shading frames' scaled weights); preconditioned textures and vector-quantised features are refused.
+Details: docs/formats/glsl.md, section `neumat.models.half_precision`.
 """
 from __future__ import annotations
 

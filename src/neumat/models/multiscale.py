@@ -1,23 +1,12 @@
 """Multi-scale gated neural (SV)BRDF (Timonen, Kemppinen, Lehtinen 2025).
 
     log f(wi, wo | uv, Sigma) = MLP(z_h, z_d),   z_h = H z_s,  z_d = D z_s                  (paper Eq. 6)
-    z_s = T(S, uv, Sigma),  H = T(H, warp_h(r_h), phi_h),  D = T(D, warp_d(r_d), phi_d)
 
-S is a learned latent mip pyramid read with anisotropic filtering (`neumat.nn.latent_texture`); H and D are
-polar latent textures over the disk-projected half and difference vectors holding D_h x D_s and D_d x D_s
-matrices (`neumat.nn.angular_texture`), addressed through learned radial warps decoded from z_s
-(`neumat.nn.radial_warp`). wi and wo are first moved into a shading frame decoded from z_s and lifted back
-to the hemisphere (`neumat.nn.shading_frames`). All textures are preconditioned in the frequency domain
-(`neumat.nn.preconditioner`). SiLU hidden activations, exponential output; 0 below the geometric horizon.
+S: a latent mip pyramid (`neumat.nn.latent_texture`); H, D: polar latent textures (`neumat.nn.angular_texture`)
+addressed through learned radial warps; learned shading frames, preconditioned textures, SiLU, exp output.
+`homogeneous=True`: no spatial texture.
 
-Homogeneous variant (`homogeneous=True`): no spatial texture, no shading frame, shared warps, and H, D
-hold the latents z_h, z_d directly.
-
-Defaults: D_s = 8 spatial channels on a 1024^2 pyramid and 8 x 8 matrices in 16 x 40 angular textures,
-an MLP 16 -> 16 -> 3, warps and frame decoded by linear layers. With these the angular textures take
-327.7 kB and the decoders (MLP 323 + frame 54 + warps 72 floats) 1.80 kB in fp32, the paper's Table 5
-(328 kB and 1.79 kB); the homogeneous Table 3 model has 16 x 48 textures of 8 channels (49.2 kB).
-The supplement's exact layer sizes were not available to us; these are inferred from those sizes.
+Details: docs/notes/multiscale.md, section `neumat.models.multiscale`.
 """
 from __future__ import annotations
 

@@ -8,13 +8,7 @@ max() op as in code in nn.h"), which gives an exact 0 where the network output i
 start uniform in [-0.05, 0.05], biases at 0, as theirs. Their loss and schedule are in
 `neumat.fit.recipes.nbrdf`.
 
-The authors' published networks (`neumat.io.nbrdf_keras`, built by `nbrdf_from_keras`) need two input
-options the defaults do not use. Their training data and their renderer (Mitsuba plugin `nbrdf_npy`) use the
-half vector with phi_h dropped, (sin theta_h, 0, cos theta_h) (`half="theta"`), and d of the light direction
-(here `wi`). Their networks are not reciprocal: d and its mirror (-dx, -dy, dz) (phi_d and phi_d + pi, the
-same pair of directions swapped) differ by 5-16 % on average (their training fed phi_d in [pi, 2 pi) with the
-MERL table's phi_d = pi values). `fold_phi_d=True` evaluates the network only on phi_d in [0, pi), MERL's
-own half range, by mirroring d when dy < 0: reciprocal, and equal to the authors' function on that half.
+Details: docs/notes/neubrdf.md, section `neumat.models.nbrdf`.
 """
 from __future__ import annotations
 

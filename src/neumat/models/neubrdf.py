@@ -71,10 +71,8 @@ class Config:
     hidden_layers: int = 2
     """Number of hidden MLP layers."""
     activation: str = "leaky_relu"
-    """Hidden activation of the MLP (the paper does not name one). Leaky ReLU (slope 0.01), not ReLU: at the
-    recipe's learning rate 1e-2, ReLU units of the second layer died within a few hundred steps on dark
-    measured materials (all 64 on RGL cc_ibiza_sunset: the model became constant); SiLU fits as well but
-    evaluates ~30 % slower. See `neumat.fit.recipes.neubrdf`."""
+    """Hidden activation of the MLP (the paper does not name one). Leaky ReLU (slope 0.01): ReLU units died on
+    dark measured materials, SiLU evaluates slower (docs/notes/neubrdf.md, "Config.activation")."""
     features: str = "vq"
     """Vertex feature storage: "vq" (codebook indices, the paper), "dense" (floats per vertex) or
     "lowbit" (per-vertex features quantised to `lowbit_bits` bits); the last two are the Table 4 ablations."""
@@ -85,8 +83,8 @@ class Config:
     runtime_interpolation: str = "uniform"
     """Corner weights of the runtime form (`NeuBRDF.runtime`): "uniform", the paper's 1/4 (one feature per pixel:
     two table reads per evaluation), or "idw", the training form's weights (8 reads and 8 weights per
-    evaluation), which keep specular peaks narrower than a pixel (MERL-like chrome: image SSIM 0.85 -> 0.94 at
-    N_side 64, benchmarks/studies/neubrdf/results/neubrdf_runtime_forms.md)."""
+    evaluation), which keep specular peaks narrower than a pixel
+    (docs/notes/neubrdf.md, "Config.runtime_interpolation")."""
     texture_height: int = 0
     """h of the neural texture T (h x w x c) for spatially varying materials; 0 without texture."""
     texture_width: int = 0
@@ -96,15 +94,11 @@ class Config:
     texture_levels: int = 1
     """Mip levels of T (level l is h / 2^l x w / 2^l, each learned); Query.lod blends them trilinearly."""
     direction_inputs: str = "none"
-    """Extra MLP inputs besides the features: "none" (the paper: the MLP sees the interpolated features only)
-    or "hd", our extension: the Rusinkiewicz half and difference vectors (hx, hy, hz, dx, dy, dz) of (wi, wo),
-    NBRDF's 6 inputs (`NBRDF.encode`), appended last; 6 x hidden more MLP weights (768 bytes
-    at fp16 for 2 x 64). Why: 2^b codewords cannot place a highlight finer than about a 2^b-slot grid
-    (benchmarks/studies/neubrdf/results/neubrdf_table3_codebook.md), while the MLP, given h, can; the codebook then carries the
-    material's variation across directions (see `neumat.fit.recipes.neubrdf`). "hd_warp": the same 6 inputs with
-    the half vector's (hx, hy) warped to MERL's sqrt(theta_h) coordinate (`direction_inputs`), which resolves
-    sharp highlights: MERL-like steel image MAE 0.0089 -> 0.0021, SSIM 0.971 -> 0.997 (CPU recipe, cosine_merl
-    queries, log_cos_eps; benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md)."""
+    """Extra MLP inputs besides the features: "none" (the paper: the MLP sees the interpolated features only),
+    "hd", our extension: the Rusinkiewicz half and difference vectors (hx, hy, hz, dx, dy, dz) of (wi, wo),
+    NBRDF's 6 inputs (`NBRDF.encode`), appended last, 6 x hidden more MLP weights; or "hd_warp": the same with
+    the half vector's (hx, hy) warped to MERL's sqrt(theta_h) coordinate (`direction_inputs`). Why: the MLP,
+    given h, places highlights finer than 2^b codewords can (docs/notes/neubrdf.md, "Config.direction_inputs")."""
 
 
 def _check_config(c: Config) -> None:
@@ -178,8 +172,7 @@ class NeuBRDF(LearnedMaterial):
     coarse_fraction = 0.5
     index_lr_scale = 10.0
     """Learning rate of the VQ index logits relative to the recipe's (the trainer honours a param group's
-    "lr_scale"). Measured on RGL vch_golden_yellow (N_side 16, 1000 steps of 2^14, held-out log_cos error):
-    0.0135 / 0.0119 / 0.0100 / 0.0104 / 0.0159 at 0.1 / 1 / 10 / 30 / 100 (dense features: 0.0055)."""
+    "lr_scale"); 10 gave the lowest held-out error (docs/notes/neubrdf.md, "NeuBRDF.index_lr_scale")."""
     """Share of training lookups in supervised pixels of a pruned grid made at an ancestor level (`prune`)."""
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:

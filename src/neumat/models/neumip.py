@@ -7,28 +7,7 @@ The spatial latent z_s comes from the same learned, preconditioned mip pyramid w
 as the gated model (`neumat.models.multiscale`); the MLP reads it concatenated with the local-frame
 Cartesian directions (6 values). SiLU, exponential output, as every model of the paper's common codebase.
 
-Without the offset module uv' = uv. With it (NeuMIP's "neural offsets": per its abstract, a generalisation of
-parallax mapping "trained without supervision by any explicit heightfield", cseweb.ucsd.edu/~viscomp/projects/
-NeuMIP; Timonen et al. Sec. 2: it "modif[ies] T with a neural offset module that is conditional on" the view
-direction; the form below, a depth from a second neural texture and a small MLP, is our reading, not checked
-against NeuMIP's full text), a second latent pyramid O (`offset_channels`) is filtered at the query's footprint
-like S, and
-
-    h   = MLP_o(z_o, wo) / spatial_size,   z_o = T(O, uv, Sigma)        (depth in uv units; the MLP's output
-    uv' = uv + h wo.xy / max(wo.z, offset_min_cos)                       is in finest-level texels)
-
-i.e. the lookup moves along the view ray (the grazing factor clamped so it stays finite). MLP_o is SiLU with a
-linear output that starts at 0 (`MLP.start_constant`): an untrained offset model is the plain one. Timonen et al.
-implement the module too; their Table 5 gives NeuMIP 5.06 kB of MLPs (fp32) against 4.86 kB for Zeltner's and
-74100 kB of spatial textures against 44700 kB for 8 channels. The offset defaults follow: 5 offset channels
-(74100 / 44700 x 8 - 8 = 5.3 extra channels with mips) and MLP_o (5 + 3) -> 6 -> 1 (61 parameters), so with
-the main MLP (1203) the MLPs hold 1264 floats = 5056 B = 5.06 kB. (Textures: 72701 kB at 1024^2. 7 channels
-at the finest level only would give 74099 kB, an exact match, if their offset texture has no mips; we keep the
-pyramid so that the depth is filtered at the footprint like z_s.)
-
-Defaults are FLOP-matched to the gated model (2484 FLOPs): 8 latent channels, MLP 14 -> 20 -> 20 -> 20 -> 3,
-2343 FLOPs (with the offset module 2343 + 114 + 8 = 2465). Subclasses add a learned shading frame
-(`neumat.models.neumip_frame`) or Rusinkiewicz inputs (`neumat.models.nbrdf_uv`).
+Details: docs/notes/multiscale.md, section `neumat.models.neumip`.
 """
 from __future__ import annotations
 

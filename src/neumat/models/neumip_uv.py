@@ -2,24 +2,10 @@
 object against (TG et al., Sec. 5, Table 2: "To enable a fair comparison with NeuMIP, we render textures in UV space
 to train the networks").
 
-    S_hat(wi; x, wo) = max(MLP([z(uv(x)), wi', wo']), 0)
+S_hat = max(MLP([z(uv(x)), wi', wo']), 0) over a latent texture in the object's spherical UV space;
+"surface-brdf-uv" reads the same network as a surface BRDF (the stand-in for NeRFactor).
 
-z: a learned latent texture (`neumat.nn.latent_texture.LatentPyramid`, bilinear at its finest level: the
-object is seen at one scale) over the object's UV space; wi', wo': the object-space light and view directions in
-the local frame at x (normal n, tangent along +phi), so that the network sees them as a BTF does, the light
-possibly from below the local horizon (back-lighting). The MLP is NeuMIP's plain ReLU network, its output linear and
-fitted by L2 to the same path-traced observations as NeuPreSS (`neumat.fit.neumip_uv`).
-
-"surface-brdf-uv" is the same network read as a spatially varying surface BRDF times the cosine,
-S_hat = softplus(MLP(...)) max(wi'_z, 0): reflection at x only, no light from behind the tangent plane. It stands
-in for the paper's NeRFactor comparison (a relightable surface-reflectance model, "the resulting appearance
-resembles that of a flat texture"): NeRFactor itself recovers geometry and a MERL-prior BRDF from photographs,
-which is not reproduced; what is compared is its representation class, fitted to the same observations.
-
-UV space: the object's meshes carry no texture coordinates here, so uv is the spherical projection about the centre
-c of the object's bounding box (`set_bounds`): u = atan2(y, x) / 2 pi + 1/2, v = acos(z / r) / pi, for
-(x, y, z) = point - c. It is a bijection for star-shaped objects (the benchmark's sphere); concave meshes fold
-into it. Queries need x, wo and n.
+Details: docs/notes/neupress.md, section `neumat.models.neumip_uv`.
 """
 from __future__ import annotations
 

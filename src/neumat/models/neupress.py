@@ -43,12 +43,9 @@ DIRECTION_ENCODINGS = ("spherical", "cartesian")
 class Config:
     """NeuPreSS hyper-parameters; defaults are the paper's (Sec. 4.1) except the Fourier scale of G.
 
-    G ~ N(0, 0.3^2) instead of the paper's N(18, 1): the paper traced 10000 paths per observation (24-48 h); at
-    the 32-64 paths a workstation traces, the estimator is heavy-tailed (80-90 % of single paths are 0, the
-    largest 0.1 % carry 80-95 % of the variance) and N(18, 1) learns the noise: in benchmarks/studies/neupress/results/neupress.md
-    (402k observations x 64 paths) its held-out error is 0.875 of the held-out variance with its best validation
-    record at step 300, against 0.456 for N(0, 0.3^2) (and a 1.8x lower image MSE; N(0, 0.1^2) scores 0.434 but
-    blurs the marble / ketchup pattern). `feature_mean=18, feature_std=1` gives the paper's."""
+    G ~ N(0, 0.3^2) instead of the paper's N(18, 1): at the few paths per observation a workstation traces,
+    N(18, 1) learns the noise (docs/notes/neupress.md, "Config: the Fourier scale"). `feature_mean=18,
+    feature_std=1` gives the paper's."""
 
     features: int = 256
     """Rows of the Fourier matrix G (the feature vector has twice as many entries)."""

@@ -1,39 +1,10 @@
 """Spherical harmonic PRT from a NeuPreSS-style full-sphere material (TG et al., Sec. 4.3, Eqs. 9-11).
 
-A translucent object's subsurface scattering under distant light, S_hat(wi; x, wo) (1/sr, RGB: radiance
-towards wo at surface point x under a unit-irradiance directional light from wi), is projected per vertex
-and per view direction onto real SH in wi (Eq. 10):
+Per vertex and view bin, S_hat is projected onto real SH in wi (Eq. 10), an environment onto the same basis
+(Eq. 9), and the radiance is their dot product (Eq. 11). View bins: view_theta x view_phi of equal solid angle;
+light quadrature "gauss" (default, exact for band-limited transport) or "fibonacci".
 
-    a_lm(x_v, wo) = integral_{4 pi} S_hat(wi; x_v, wo) Y_lm(wi) dwi,
-
-an environment onto the same basis (Eq. 9), b_lm = integral L_env Y_lm, and the outgoing radiance is the
-per-channel dot product (Eq. 11) L(x_v, wo) = sum_lm a_lm(x_v, wo) b_lm, exact (at view-bin centres) whenever
-S_hat or L_env is band-limited to the stored degree.
-
-View bins. As in the paper ("an even 16 x 64 distribution of wo directions at each vertex"), the
-hemisphere around each vertex normal n is cut into view_theta x view_phi bins of equal solid angle:
-uniform in cos theta and in phi, in the frame (t, b, n) of `neumat.core.frames.frame_from_normal`, phi
-measured from t towards b. Bin (i, j) covers 1 - cos theta in [i, i + 1] / view_theta and phi in
-2 pi [j, j + 1] / view_phi; a_lm is computed at its centre. At render time a_lm at wo is bilinear in the
-continuous bin coordinates
-
-    s = (1 - cos theta) view_theta - 0.5   (clamped to [0, view_theta - 1]),
-    r = phi view_phi / (2 pi) - 0.5        (wrapping: bin view_phi - 1 neighbours bin 0),
-
-which are integers at bin centres; wo below the vertex's horizon (cos theta <= 0) gives radiance 0.
-
-Lighting (Eq. 9): an `EnvironmentMap` is integrated texel by texel (its radiance is piecewise constant), with a
-per-texel Gauss-Legendre rule accurate to ~1e-8 for the stored degree; other distant lights or callables use
-the light quadrature below; a directional light projects exactly (b = E Y_lm(d)).
-
-Light quadrature. The paper Monte Carlo samples wi; here a deterministic rule is used, so that the result
-does not depend on a seed and is exact for band-limited transport:
-  "gauss" (default): a product rule, Gauss-Legendre nodes in z = cos theta (object space) times equally
-      spaced phi, n_z = round(sqrt(M / 2)) rings of n_phi = M // n_z points (about M in all, weights
-      w_z 2 pi / n_phi). It integrates every spherical polynomial of degree <= min(2 n_z - 1, n_phi - 1)
-      exactly (degree 43 for M = 1024), so a_lm of an S_hat of SH degree d is exact when d + degree is <= that.
-  "fibonacci": M points of a Fibonacci (golden spiral) sphere with equal weights 4 pi / M; uniform point
-      density, but not exact: Gram matrix errors of the SH up to degree 4 of ~6e-4 at M = 1024, ~8e-5 at 4096.
+Details: docs/notes/neupress.md, section `neumat.models.neupress_prt`.
 """
 from __future__ import annotations
 

@@ -4,26 +4,10 @@ decoders, one for the BRDF and one for importance sampling.
     f(x, wi, wo) = exp(MLP(z(x), T(z) wi, T(z) wo))                       (Eq. 3)
     p(wo | x, wi) = two-lobe proxy(MLP_s(wi, sg(z(x))))                   (Sec. 4.3, App. A)
 
-z(x): an 8-channel latent mip pyramid (`neumat.nn.latent_texture`, anisotropic filtering with a footprint,
-trilinear with a lod); T: N = 2 learned shading frames decoded from z by one linear layer (Eq. 7,
-`neumat.nn.shading_frames`); the BRDF decoder is the latent-pyramid MLP of `neumat.models.neumip` with those
-frames, SiLU, exponential output (`decode`); the sampler is a `neumat.models.proxy_sampler.ProxySampler`
-(3 x 32) fed the detached latent. Defaults: BRDF decoder 2 x 32 (the paper's middle configuration; it also
-reports 2 x 16 and 3 x 64), no frequency preconditioner (that is Timonen et al.'s).
+z(x): a latent mip pyramid; T: learned shading frames; the sampler a `ProxySampler`. Trained with an
+encoder, then baked and fine-tuned (`neumat.fit.recipes.neural_appearance`).
 
-Training (Sec. 5, `neumat.fit.trainer.fit` with the recipe `neumat.fit.recipes.neural_appearance`): an encoder MLP maps the
-source's surface parameters k(x) (`source.sampling_features`, e.g. an SVBRDF's base colour, normal, roughness,
-metalness) to z, trained end to end with both decoders; `bake` then fills every texel of every pyramid level
-with the encoder's output, and the latents are fine-tuned directly on filtered targets. Coarse levels are baked
-from LEAN-prefiltered parameters (`Config.lean`: normal-map slope spread becomes roughness; the encoder reads one
-normal and one isotropic roughness per layer, so LEAN's anisotropic covariance is reduced to its trace).
-A fractional level is read trilinearly by default; the paper's Russian roulette is Config.level_selection
-("roulette", `neumat.models.neumip`). The sampler is trained on the BRDF's queries by default; the paper's second
-batch is the recipe option sampler_batch="separate".
-
-Albedo inference (Sec. 6.4, `Config.albedo`): the BRDF MLP has 3 more outputs, exp(.) of which is the
-directional albedo alpha(x, wo) = int f(x, wi, wo) cos(theta_i) dwi (`albedo(q)`), fitted with an L2 loss against
-one-sample estimates of the source's albedo.
+Details: docs/notes/neural_appearance.md, section `neumat.models.neural_appearance`.
 """
 from __future__ import annotations
 

@@ -3,25 +3,10 @@ Models (Zeltner et al. 2024, Sec. 4.3, 5.2), a small MLP that maps the incident 
 varying materials, a per-point feature vector) to the 9 parameters of the analytic two-lobe proxy
 (`neumat.warp.microfacet_proxy`), sampled and evaluated in closed form, so density and sampler agree exactly.
 
-- `ProxySampler`: MLP [wi (N, 3), features (N, F)] -> raw (N, 9) -> `ProxyLobes`; starts at w_d = 0.5,
-  alpha = 0.5, no tilt. `Config.lobes = "isotropic"` is the paper's ablation (Sec. 6.3, Fig. 11, after
-  Sztrajman et al. 2021 / Fan et al. 2022): the MLP has 2 outputs, the diffuse weight and one roughness, and the
-  lobes are a centred isotropic GGX and an untilted cosine lobe (`isotropic_raw`).
-- `SampledMaterial(material, sampler)`: the material with the sampler attached (`can_sample = True`): eval is
-  the material's, `sample` / `pdf` the proxy's mixed with cosine sampling of the geometric hemisphere with
-  probability DEFENSIVE (`sample_defensive` / `defensive_pdf`), weight = f cos / p. The proxy alone can put
-  next to no density where f > 0 (a tilted cosine lobe leaves part of the hemisphere to the tail of the
-  specular lobe): its weights are then heavy-tailed, and on the RGL paper_white at 60 degrees its albedo
-  estimate came out 5 standard errors low at 200k samples. The defensive share bounds every weight by
-  pi f / DEFENSIVE. It is a `LearnedMaterial` named "proxy-sampler" whose training state is the sampler's
-  alone (the material is a fixed target): `neumat.fit.proxy_sampler.fit_sampler(material)` trains the sampler
-  through the one trainer (`neumat.fit.trainer.fit`, recipe `neumat.fit.recipes.proxy_sampler`) against the
-  material's f cos(theta_o), as the paper trains its sampler against the learned BRDF (KL divergence through
-  its score-function gradient, `neumat.fit.proxy_sampler.proxy_kl_loss`).
+`ProxySampler` is the decoder; `SampledMaterial(material, sampler)` attaches it to a material, mixed with a
+defensive cosine share (why: it bounds every weight f cos / p).
 
-Spatially varying materials provide the features through `sampling_features(q) -> (N, F)` (no gradient) and
-`sampling_feature_dim`: the paper feeds its latent code z(x), as the multiscale model does with its spatial
-latent z_s; a reference SVBRDF gives its texture parameters at uv (the paper's encoder input k(x)).
+Details: docs/notes/neural_appearance.md, section `neumat.models.proxy_sampler`.
 """
 from __future__ import annotations
 

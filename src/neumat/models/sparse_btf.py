@@ -7,24 +7,7 @@ Stored per BTF (Sec. 3.3-3.4), per YUV channel c: for every p x p patch (data po
 (l1, l2, l3, l4) into the coefficient tensor; plus the per-image mean and std of the standardisation.
 The shared ensemble is kept as buffers (`dict_n`, (3, K, m_n, m_n)).
 
-- `element` reconstructs single elements (Eq. 5) in the standardised model space;
-- `element_interpolated` interpolates over direction bins in coefficient space (Eq. 6, generalised from
-  2 bins to the k-nearest inverse-distance weights of `neumat.reflectance.btf.angular_weights`): it equals
-  the same weighted sum of Eq. 5 values;
-- `eval` answers Query(wi, wo, uv): wrap-around bilinear over 4 texels and k x k angular bins. With
-  `angular = "coefficient"` the angular interpolation is done in coefficient space (Eq. 6, batched: taps of a
-  query in one data point are merged, and the weighted U3 / U4 rows are formed once per query and data
-  point; `_texel_sum_interpolated`) and the per-image mean/std are
-  interpolated with the same weights before the inverse transform (fast, the paper's runtime
-  path); with `angular = "value"` every bin is reconstructed and inverted to linear RGB first, which equals
-  `TabulatedBTF(decode())` exactly;
-- `blend` interpolates two SparseBTFs in coefficient space (Eqs. 7-9) with the change-of-basis matrices
-  R^(n) = U^(n,k)T U^(n,p) when the data points use different dictionaries.
-
-Storage (`storage`) follows the authors' released coefficient files: per non-zero coefficient a float16
-value and four uint16 indices; per data point and channel a uint16 membership and a uint16 count; the
-ensemble in float16; the standardisation statistics as float32 (or float16: `storage(statistics_bytes=2)`), per
-angular image (or, with Config.statistics "btf", one mean and deviation per channel).
+Details: docs/notes/sparse_btf.md, section `neumat.models.sparse_btf`.
 """
 from __future__ import annotations
 

@@ -3,22 +3,7 @@ orthonormal 4D dictionaries, sparse coding (Eq. 3), reconstruction (Eq. 4) and d
 the ensemble (Eq. 2) is training code, in the fit package (fit/sparse_dictionary.py, and the "dictionary"
 phase of the sparse-btf recipe).
 
-Data points (Sec. 3.1): a BTF (L, V, H, W, 3) is log transformed (log(x + eps)), converted RGB -> YUV
-(BT.601, as in the authors' code), and every angular image (one light, one view, one channel) is
-standardised by its own mean and standard deviation over the texels (stored, so the transform inverts
-exactly). The result is cut into non-overlapping p x p spatial patches; one data point per patch and
-channel is the 4D tensor X (m1, m2, m3, m4) = (patch row, patch col, light, view), the paper's order
-(m1, m2 spatial; m3 incoming; m4 outgoing).
-
-Dictionary ensemble (Sec. 3.2): K dictionaries, each four orthonormal matrices U^(n,k) (m_n x m_n).
-Training (fit/sparse_dictionary.py) minimises sum_i ||X_i - S_i x_1 U^(1,m_i) ... x_4 U^(4,m_i)||^2
-with ||S_i||_0 <= tau_l (Eq. 2) by alternating (a) coding: every point is projected on every dictionary (Eq. 3), the tau_l largest
-coefficients kept (optimal for an orthonormal basis), and assigned to the dictionary with the sparsest,
-then lowest-error, representation; (b) update: for each dictionary and mode n, the orthogonal Procrustes
-solution U^(n) = polar(sum_i Z_i(n) S_i(n)^T) with Z_i = X_i x_{m != n} U^(m)T (the other modes fixed),
-followed by re-coding. Both steps never increase the objective; training stops when the relative decrease
-is below `tol`. Initialisation: a random partition of the points into K groups and the HOSVD bases
-(left singular vectors of each mode unfolding) of every group.
+Details: docs/notes/sparse_btf.md, section `neumat.models.sparse_dictionary`.
 """
 from __future__ import annotations
 

@@ -8,19 +8,7 @@ forward pass returns the codebook row of the argmax index, the codebook gets the
 lookup, and the logits get the gradient of the softmax mixture (straight-through estimator, as in
 kaolin-wisp's CodebookOctreeGrid). `freeze()` replaces the logits by the integer indices.
 
-Speed: a batch touches only some vertices, so the straight-through step runs on the unique ids of the
-batch only (a fused autograd function: the forward pass is an argmax, the softmax is computed in the
-backward pass), and with `sparse_grad = True` the logits get a sparse row gradient that `RowAdam`
-updates lazily (only the rows of the batch), instead of a dense 2n x 2^b gradient and Adam step.
-
-Candidate indices (`restrict`, our addition, not VQ-AD's): each vertex keeps logits over K candidate
-codewords only (a (V, K) table of codebook rows, e.g. its K nearest after a k-means start), so a step costs
-O(U K k) instead of O(U 2^b): the softmax of the straight-through gradient runs over the candidates, the
-argmax picks among them. With all 2^b codewords as candidates it is the full estimator (a permutation of
-the logits: same forward, same gradients); with K = 1 the indices are fixed and only the codebook learns.
-
-Storage (bits, the paper's formula): vq: V b + p k 2^b; dense: V k p; lowbit: V k q, with V vertices,
-p the float precision in bits (16 for fp16) and q the low-bit width.
+Details: docs/notes/neubrdf.md, section `neumat.nn.codebook`.
 """
 from __future__ import annotations
 
@@ -134,7 +122,7 @@ class VQFeatures(nn.Module):
     forward(ids (...,) int) -> (..., dim). Training: straight-through softmax over per-vertex logits, on the
     unique ids of the batch; frozen: integer index lookup. `sparse_grad`: give the logits a sparse row
     gradient (train with `RowAdam`; torch.optim.Adam rejects sparse gradients). After `restrict`, the logits
-    are (num_vertices, K) over the codebook rows `candidates` (num_vertices, K) (module docstring).
+    are (num_vertices, K) over the codebook rows `candidates` (num_vertices, K) (docs/notes/neubrdf.md).
     """
 
     def __init__(self, num_vertices: int, dim: int, bits: int, init_std: float = 1.0) -> None:
@@ -169,7 +157,7 @@ class VQFeatures(nn.Module):
     def restrict(self, candidates: torch.Tensor) -> None:
         """Keep per vertex only the logits of its K candidate codewords `candidates` (num_vertices, K) int
         (distinct rows of the codebook per vertex), taken from the current logits, so that each training
-        step costs O(K) per vertex instead of O(2^b) (module docstring). Build the optimiser again afterwards:
+        step costs O(K) per vertex instead of O(2^b) (docs/notes/neubrdf.md). Build the optimiser again afterwards:
         the logits are a new parameter."""
         if self.frozen:
             raise InputError("VQFeatures.restrict: the indices are frozen")

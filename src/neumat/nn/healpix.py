@@ -7,17 +7,7 @@ input's device. `nside` may be any positive integer for the ring-scheme function
 nested scheme and the hierarchy (`ring2nest`, `nest2ring`, `parent`, `ancestor_corner_vertices`) need
 `nside` to be a power of two.
 
-Vertices. Pixel corners are the points where NeuBRDF stores features. The sphere has V = 12 nside^2 + 2
-vertices on 4 nside + 1 iso-latitude vertex rings r = 0 (north pole) ... 4 nside (south pole); ring r
-holds 4 r vertices for r <= nside, 4 nside in the belt, 4 (4 nside - r) in the south cap. Vertex ids run
-ring by ring from the north pole and by increasing phi (starting at phi >= 0) inside a ring. A vertex
-ring lies at the latitude of the pixel-centre ring of the same number.
-
-NeuBRDF layout (paper, Sec. 3.2.2). The north hemisphere grid S+ holds vertex rings 0 .. 2 nside + 1
-(the equator and the ring just past it): n = 6 nside^2 + 6 nside + 1 vertices, which are exactly the
-vertex ids 0 .. n - 1. The south grid S- holds vertex rings 2 nside - 1 .. 4 nside, also n vertices.
-The merged sphere grid has 2 n slots: S+ at slots [0, n), S- at [n, 2 n). `wi` is looked up on S+;
-`wo` is mirrored to (pi - theta, phi) and looked up on S-.
+Details: docs/notes/neubrdf.md, section `neumat.nn.healpix`.
 """
 from __future__ import annotations
 

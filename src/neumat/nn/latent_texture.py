@@ -3,17 +3,7 @@
 Texture layout: (C, H, W) tensors in image orientation, as `neumat.io.texture_set`: texel (row i, column j)
 has its centre at uv = ((j + 0.5) / W, 1 - (i + 0.5) / H); u points right, v up; lookups wrap (tile).
 
-Footprints are Gaussian filters in uv given by their covariance Sigma (N, 2, 2) (uv units^2), the
-`Query.footprint` convention. Anisotropic filtering follows texture hardware (Heckbert / EXT_texture_filter_
-anisotropic): up to `max_probes` trilinear probes along the major axis, at the mip level of the minor axis
-(of the major axis / max_probes when that is coarser). Level choice and probe spacing match the second moments
-of the Gaussian: a trilinear probe of level l (box pyramid + bilinear tent) has a standard deviation of about
-2^l / 2 texels per axis, so a Gaussian of standard deviation s texels uses lod = log2(2 s); n probes spaced d
-apart add a variance d^2 (n^2 - 1) / 12 along the major axis, which makes up major^2 - minor^2.
-
-Implementation: trilinear probes of all levels go through one `grid_sample` over an atlas of the levels,
-each padded circularly by one texel (built from the flattened levels by one `index_select`), whatever the
-number of levels and probes.
+Details: docs/notes/multiscale.md, section `neumat.nn.latent_texture`.
 """
 from __future__ import annotations
 
@@ -172,7 +162,7 @@ def footprint_lod(footprint: torch.Tensor, height: int, width: int, max_probes: 
 def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: torch.Tensor,
                        max_probes: int = 16, flat: torch.Tensor | None = None,
                        level_u: torch.Tensor | None = None) -> torch.Tensor:
-    """Gaussian-footprint filtered lookup of a pyramid (see module docstring).
+    """Gaussian-footprint filtered lookup of a pyramid (see docs/notes/multiscale.md).
 
     levels: mip levels (C, H_l, W_l), level 0 finest, level l about 2^l times coarser; uv (N, 2);
     footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels. `flat`: the

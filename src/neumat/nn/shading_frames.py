@@ -8,12 +8,7 @@ and lifted back to the upper hemisphere, w -> (w_x, w_y, sqrt(1 - w_x^2 - w_y^2)
 frame puts below the horizon is mirrored above it instead of leaving the domain of the angular textures.
 At initialisation (zero weights, bias = (0, 0, 1 | 1, 0, 0) per frame) every frame is the geometric one.
 
-The decoder's weights enter scaled, v = bias + `weight_scale` W z (default 0.1). With Adam, whose steps are
-about the learning rate per parameter whatever the gradient's size, this is a learning rate 10x lower for W:
-the 6 x D weights act on every texel's frame at once, and at the full rate they tilt the frames of a flat
-material by ~20 degrees within a few hundred steps (measured on Wood092 at 64^2, lr 1e-2), a fold that the
-decoder then has to undo; the scale keeps them within a few degrees and lowers the fitting error ~9x there.
-The function class is unchanged (W can be rescaled at export).
+Details: docs/notes/multiscale.md, section `neumat.nn.shading_frames`.
 """
 from __future__ import annotations
 
@@ -44,7 +39,7 @@ def frame_from_vectors(normal: torch.Tensor, tangent: torch.Tensor) -> tuple[tor
 
 class ShadingFrame(nn.Module):
     """forward(z (N, D), wi (N, 3), wo (N, 3)) -> (wi', wo'), each (N, 3 frames): directions in every learned
-    frame, lifted, frame after frame. weight_scale: factor on the decoder weights (module docstring)."""
+    frame, lifted, frame after frame. weight_scale: factor on the decoder weights (docs/notes/multiscale.md)."""
 
     def __init__(self, latent_dim: int, weight_scale: float = 0.1, frames: int = 1) -> None:
         super().__init__()

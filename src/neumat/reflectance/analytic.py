@@ -8,12 +8,7 @@ returns 0 unless wi and wo are both above the surface.
 Roughness: `GGX` and `Plastic` take the GGX alpha itself (Mitsuba's `alpha`), `Principled` takes perceptual
 roughness with alpha = roughness^2 (glTF / Disney).
 
-Plastic energy model (Mitsuba 3's `plastic` diffuse lobe under `roughplastic`'s GGX coat):
-    f = D G1(wi) G1(wo) F(wi.h) / (4 cos_i cos_o)
-        + diffuse (1 - F(cos_i)) (1 - F(cos_o)) / (pi eta^2 (1 - Fdr_int))
-with F the dielectric Fresnel of the coat (eta) and Fdr_int its hemispherical reflectance seen from inside,
-integrated exactly here (Mitsuba uses a polynomial fit, within 0.1 %). Without the coat's rough-surface
-transmittance correction, so the diffuse albedo is exactly (1 - F(cos_i)) * diffuse.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.analytic`.
 """
 from __future__ import annotations
 

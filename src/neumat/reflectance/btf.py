@@ -8,12 +8,7 @@ Layout: `data (L, V, H, W, 3)`; `light_dirs (L, 3)` and `view_dirs (V, 3)` unit 
 frame (z = macro normal). Texel (row i, col j) has its centre at uv = ((j + 0.5) / W, 1 - (i + 0.5) / H),
 the texture-set convention of `neumat.io.texture_set` (u right, v up, row 0 at the top).
 
-Lookup (`TabulatedBTF.eval`):
-- spatial: bilinear between the 4 nearest texel centres, wrapping around (the BTF tiles);
-- angular: inverse-angular-distance weights over the k nearest direction bins, separately for the light
-  and the view direction (`angular_weights`), i.e. k x k table combinations; k = 3 by default. A query
-  direction that coincides with a bin gets that bin's value exactly.
-Directions at or below the horizon return 0.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.btf`.
 """
 from __future__ import annotations
 

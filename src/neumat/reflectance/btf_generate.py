@@ -8,15 +8,7 @@ principled BRDF of the texture maps at the hit point in the frame of the local s
 one elevation are shaded and shadow-marched together (`elevation_groups`; the march takes the same steps as
 for each light alone).
 
-Optional measured-like effects: one bounce of inter-reflection (`interreflection` = S: at every visible hit,
-S stratified cosine-weighted directions over the local hemisphere are marched to the point of the height
-field they meet, whose directly lit, shadowed radiance towards the hit is reflected by the hit's BRDF;
-escaping rays bring nothing, the light being directional), anisotropic fibres (`fibres`: the principled
-BRDF's GGX lobe stretched along a fibre direction field, `neumat.reflectance.fibre_field`) and relative
-sensor noise (`noise`).
-
-Stored value: apparent BRDF = outgoing radiance / cos(theta_light) of the macro surface (cosine excluded,
-like every neumat BRDF), see `neumat.reflectance.btf`.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.btf_generate`.
 """
 from __future__ import annotations
 

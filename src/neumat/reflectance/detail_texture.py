@@ -3,17 +3,9 @@ appearance the multi-scale paper selects its materials for (Timonen et al. 2025 
 filtered look is not a simple average of albedos), made with the package's own code so that a benchmark is
 not limited to the few shared sets.
 
-Kinds (all metals but chainmail's gaps; `size` texels a side, `seed` the random layout; scratches, brushed and
-chainmail tile when `size` is a multiple of 16, foil when it is a multiple of 24, the period of its noise):
-  "scratches": a polished metal plate with a few hundred random straight scratches (grooves 1-2 texels wide,
-               rougher than the plate) over a faint noise;
-  "brushed":   brushed metal: fine grooves along u (streaks of random depth, long along u, a texel or two
-               across), roughness streaks with them: anisotropic when filtered;
-  "foil":      crumpled foil: ridged noise over three octaves (facets and sharp creases, mean tilt ~16-20
-               degrees), rougher along the creases, glossy gold;
-  "chainmail": rings of a staggered lattice (round wire cross-section), dark rough gaps between them.
-Normals come from the height (`normals_from_height`, the set's height_scale); the statistics of a set
-(normal tilt, roughness spread, separability) are `neumat.reflectance.texture_statistics`.
+Kinds: "scratches", "brushed", "foil", "chainmail".
+
+Details: docs/notes/reflectance.md, section `neumat.reflectance.detail_texture`.
 """
 from __future__ import annotations
 

@@ -1,37 +1,10 @@
 """Layered reference materials: textured rough dielectric coats and a sheen layer over a base material.
 
-Real-Time Neural Appearance Models (Zeltner et al. 2024, Sec. 8) bake layered material graphs whose shading is
-"a weighted combination of standard BRDF models". This material is such a graph: a base (an SVBRDF from a PBR
-texture set, a textured conductor (`neumat.reflectance.conductor_base`), or any homogeneous material) under coats
-listed bottom to top, and optionally a sheen layer on top of them all. At a point uv, coat by coat,
+A base (SVBRDF, textured conductor or any material) under rough dielectric coats listed bottom to top,
+albedo-scaled (Kelemen and Szirmay-Kalos 2001, Kulla and Conty 2017), and an optional sheen on top: the
+layered graphs of Zeltner et al. 2024, Sec. 8. Reciprocal; filtering and sampling as the SVBRDF.
 
-    f <- (1 - w) f + w [ f_coat + A T f ]                     (w: the coat's weight, its presence in [0, 1])
-
-    f_coat = D(h) G1(wi') G1(wo') F_eta(wi' . h) / (4 mu_i mu_o) * (mu_i / wi_z + mu_o / wo_z) / 2
-    A      = (1 - E(mu_i)) (1 - E(mu_o)) / (1 - E_avg)          (albedo scaling: Kelemen and Szirmay-Kalos 2001,
-                                                                 Kulla and Conty 2017)
-    T      = tint ^ ((1 / mu_i_t + 1 / mu_o_t) / 2)             (Beer-Lambert along the refracted paths)
-
-with wi', wo' the directions in the coat's shading frame (its own normal map; tangent +u projected), mu_i, mu_o
-their cosines, mu_t = sqrt(1 - (1 - mu^2) / eta^2) the refracted cosines, E the coat lobe's directional albedo and
-E_avg its cosine-weighted average (`neumat.reflectance.coat_albedo`). The cosine ratio is the SVBRDF convention
-(`neumat.reflectance.svbrdf`): values exclude the geometric cosine. Directions below a coat's shading horizon see
-no light through that coat (its share is 0). Every factor is symmetric in wi and wo, so f is reciprocal; over a
-white Lambertian base, a flat colourless coat conserves energy exactly (up to the albedo table's error).
-
-The sheen layer (fuzz of cloth or dust, `neumat.reflectance.sheen`) is the same albedo-scaled form in the
-geometric frame, with c = max(colour):
-
-    f <- (1 - w) f + w [ colour f_sheen + (1 - c E_s(mu_i)) (1 - c E_s(mu_o)) / (1 - c E_s_avg) f ]
-
-so a white sheen over a white Lambertian base conserves energy and a coloured one stays below 1.
-
-Filtering, as the SVBRDF: with a footprint (or a lod), `eval` averages the point value over Gaussian positions.
-Sampling, per query at the footprint centre: a one-sample mixture over the components, the sheen first (with
-probability w c E_s(mu_i), cosine-distributed directions), then the top coat, coat k chosen with probability
-R_k w_k E_k(mu_i) (R_k: the mass the layers above leave, prod (1 - w E)), the base with the remainder; coats
-sample GGX visible normals in their frames, the base uses its own sampler (cosine if it has none); the pdf is the
-mixture's density.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.layered`.
 """
 from __future__ import annotations
 

@@ -2,19 +2,10 @@
 Appearance Models bake its latent pyramid (Zeltner et al. 2024, Sec. 5.1: "we prefilter the material parameters
 k(x) (using LEAN) for coarse MIP levels").
 
-A normal n and its roughness alpha are one microfacet slope distribution: slopes b = (n_x / n_z, n_y / n_z) with
-per-axis variance alpha^2 / 2 (Beckmann's; GGX has no finite slope variance, so its alpha is read the same way).
-Over a 2^l x 2^l block of finest texels, LEAN averages the first and second slope moments
+The coarse texel keeps the slope moments: n' = normalize(B_x, B_y, 1), alpha'^2 = E[alpha^2] +
+trace(E[b b^T] - B B^T); other parameters are box-averaged.
 
-    B = E[b],   M = E[b b^T] + E[alpha^2 / 2] I,
-
-and the filtered distribution has mean slope B and covariance M - B B^T. The encoder reads one normal and one
-isotropic roughness per layer, so the coarse texel gets n' = normalize(B_x, B_y, 1) and
-
-    alpha'^2 = trace(M - B B^T) = E[alpha^2] + trace(E[b b^T] - B B^T),
-
-clamped to at most 1: the slope spread of the normal map turns into roughness (Toksvig's effect, LEAN's
-isotropic part). Every other parameter is box-averaged. Level 0 is the finest level unchanged.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.lean`.
 """
 from __future__ import annotations
 

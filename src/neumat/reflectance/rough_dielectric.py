@@ -8,12 +8,7 @@ surface), the side the environment lights. The unit is 1/sr and the cosine is no
 returns f_r cos_o). The transmission lobe is not here: the light it carries into the object is the subsurface
 term (NeuPreSS's S_hat).
 
-Sampling draws wi from the fixed direction wo by GGX visible normals (Heitz 2018, `neumat.warp.ggx`): density
-G1(wo) D(h) / (4 cos_o) per steradian; reflections below the surface are failures (pdf 0), so the density
-integrates to less than 1 over the upper hemisphere. F is not part of the density.
-
-Directions are unit (N, 3) vectors, in the local frame (z = the normal) when `n` is None, else in any frame
-with unit outward normals n (N, 3). alpha is a float or an (N,) tensor; eta a float > 1 or an (N,) tensor.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.rough_dielectric`.
 """
 from __future__ import annotations
 

@@ -1,21 +1,10 @@
 """The sheen lobe of layered materials (cloth and dust fuzz) and its directional albedo table.
 
-"Charlie" sheen (Estevez and Kulla 2017, the glTF KHR_materials_sheen lobe) with Neubelt and Pettineo's
-visibility, white (colour 1), in the geometric frame:
+"Charlie" sheen (Estevez and Kulla 2017) with Neubelt and Pettineo's visibility, divided by its directional
+albedo where that exceeds 1 so that it stays energy-bounded and reciprocal; tabulated on the grid of
+`neumat.reflectance.coat_albedo.CoatAlbedo`.
 
-    f_sheen(wi, wo) = D(h) V(mu_i, mu_o),   D(h) = (2 + 1/alpha) sin(theta_h)^(1/alpha) / (2 pi),
-                                            V = 1 / (4 (mu_i + mu_o - mu_i mu_o))
-
-with h the half vector and alpha in [SHEEN_ALPHA_MIN, 1] (small: fuzz seen at grazing angles only). This lobe
-is not energy-bounded: its directional albedo E_0(mu) reaches 1.86 at grazing incidence for alpha 0.05 (1 for
-alpha ~ 0.2), which would make the albedo scaling below the sheen negative. So the lobe the layer uses is
-
-    f_sheen = D V / (max(1, E_0(mu_i)) max(1, E_0(mu_o)))
-
-still symmetric in wi and wo (reciprocal), with albedo E(mu) <= E_0(mu) / max(1, E_0(mu)) <= 1 (equal to E_0
-wherever E_0 <= 1 in both directions). E_0 and E are tabulated in float64 with scrambled-Sobol
-cosine-distributed directions (E = mean(pi f)) on the grid of `neumat.reflectance.coat_albedo.CoatAlbedo`, whose
-lookups and exact cosine average E_avg they share.
+Details: docs/notes/reflectance.md, section `neumat.reflectance.sheen`.
 """
 from __future__ import annotations
 

@@ -1,26 +1,9 @@
 """A spatially varying principled material from PBR maps, and its prefiltered (apparent) value.
 
-Point value at uv (no mip maps: the function keeps its full complexity, Timonen et al. 2025 Sec. 4.1):
-the maps are looked up bilinearly at the finest resolution (wrap tiling, `neumat.nn.latent_texture`
-orientation), the normal map gives a shading normal n_s, wi and wo are moved into the perturbed frame
-(tangent = +u projected onto the plane of n_s) and shaded with the principled GGX BRDF:
+Point value at uv: the maps bilinear at the finest level, a normal-mapped principled GGX BRDF. Apparent
+value (paper Eq. 1): the mean over `samples` Gaussian positions of the footprint, symmetrised in wi and wo.
 
-    f(wi, wo | uv) = f_principled(wi', wo') * (wi . n_s) / wi_z
-
-The factor (wi . n_s) / wi_z turns the normal-mapped cosine into the geometric one of our convention
-(values exclude cos with respect to the geometric normal z), so that f cos_i = f_principled cos_s as
-in a real-time shader. Directions below the perturbed horizon (wi . n_s <= 0 or wo . n_s <= 0) give 0,
-as do directions below the geometric horizon.
-
-Apparent value (paper Eq. 1) for a Gaussian footprint of covariance Sigma (Query.footprint, uv^2):
-
-    f(wi, wo | uv, Sigma) = E_{x ~ N(uv, Sigma)} f(wi, wo | x)
-
-estimated with `samples` Monte Carlo positions per query (256 by default, as the paper), computed in
-batches. Values are symmetrised, (f(wi, wo) + f(wo, wi)) / 2, as the paper's targets; the principled
-BRDF is reciprocal, so this averages the two cosine ratios. Without a footprint (and without a lod) the
-point value is returned; a lod alone means the isotropic footprint of that mip level
-(`latent_texture.isotropic_footprint`).
+Details: docs/notes/reflectance.md, section `neumat.reflectance.svbrdf`.
 """
 from __future__ import annotations
 

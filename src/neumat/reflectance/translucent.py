@@ -7,27 +7,7 @@ irradiance arrives from wi (wi points towards the light), external surface refle
 is 1/sr; the radiance under a distant environment is L(x, wo) = integral of L_env(wi) S_hat dwi over the
 sphere (Eq. 5). All positions and directions are in object space.
 
-External reflection is removed sample by sample: every path is traced twice with the same random
-numbers, once with the real interior and once with a black (fully absorbing) interior, and the two are
-subtracted. The first vertex (where external reflection happens) is identical in both, so the difference
-is the subsurface part alone, unbiased.
-
-The medium mixes two materials of Jensen et al. 2001 (reduced scattering and absorption in 1/mm, isotropic
-phase function) by a smooth procedural noise, like the paper's dragon and Lucy; `size_mm` sets how many
-millimetres the object's bounding-box diagonal spans and so how translucent it is.
-
-The paper's other scenes (grape, paperweight, drink with ice) are expressed with `TranslucentConfig.inner`
-(shapes inside the volume, each with its own medium or an opaque diffuse surface, `InnerShape`), a roughness
-texture on the outer surface and an albedo texture on the medium. Both textures use the projection
-`latlong_uv`: the direction from the bounding-box centre, u = atan2(y, x) / 2 pi (mod 1) along the image's
-width, v = acos(z) / pi down its height (row 0 looks along +z), bilinear with wrap-around (Mitsuba's `bitmap`
-filter; on the unit sphere this is Mitsuba's own sphere uv).
-
-Path length: `max_depth` 5000 is the paper's. Against 1000 it changes nothing here: Mitsuba's volpath plays
-Russian roulette from depth 5 with a survival probability of at most 0.95, so a path reaches 1000 events with
-probability below 1e-22. Measured (40 views of 16^2 rays at 32 spp, one thread): S_hat bit for bit the same
-(mean (0.0449, 0.0204, 0.0161) on the default sphere; also at size_mm 40 and 200) and the same time (4.4 vs
-4.7 s); paths are cut by the roulette, not the limit (depth 10 -> 100 changes the mean, 100 -> 1000 by 1e-9).
+Details: docs/notes/reflectance.md, section `neumat.reflectance.translucent`.
 """
 from __future__ import annotations
 

@@ -1,23 +1,10 @@
 """The analytic two-lobe sampling proxy of Real-Time Neural Appearance Models (Zeltner et al. 2024, App. A),
 the distribution whose 9 parameters the neural importance-sampling decoder predicts.
 
-In the local shading frame (z = normal), per query:
+p(wo) = w_d p_d(wo) + w_s p_s(wo) (Eq. 8): a tilted cosine lobe and an anisotropic, non-centred GGX
+reflection lobe; `proxy_from_raw` maps network outputs (N, 9) to valid parameters.
 
-    p(wo) = w_d p_d(wo) + w_s p_s(wo),  w_d + w_s = 1                                              (Eq. 8)
-
-- p_d: cosine-weighted about the tilted normal n_d = normalize(-mu_d,x, -mu_d,y, 1) (Eq. 9), max(0, wo.n_d)/pi;
-- p_s: reflection of wi about a half vector h = normalize(M h_std) (Eq. 12), h_std drawn from the GGX NDF of
-  unit roughness, M = [[a_x, 0, -mu_s,x], [a_y rho, a_y sqrt(1 - rho^2), -mu_s,y], [0, 0, 1]] (Eq. 11):
-  elliptical anisotropy (a_x, a_y, correlation rho) and non-centred mean slopes (Dupuy 2015). Its density
-  (Eq. 10) is p_std(normalize(M^-1 h)) det(M^-1) / |M^-1 h|^3 / (4 |wo.h|), h = normalize(wi + wo) taken on
-  the upper side. For unit roughness D_std = 1/pi everywhere, and sampling it by the usual technique draws
-  h_std with density D_std(h) h_z = h_z / pi (cosine-weighted): that is the p_std used here, so density and
-  sampler agree (Eq. 10 writes D_std for it).
-
-Directions are (N, 3) unit vectors; wo may fall below the horizon (the density is normalised over the whole
-sphere). `proxy_from_raw` maps raw network outputs (N, 9) to valid parameters with the paper's kind of final
-activations (its "quadratic approximations of tanh and sinh" are not given; ours are in `soft_tanh` and
-`soft_sinh`) and a softmax over the two weights.
+Details: docs/notes/neural_appearance.md, section `neumat.warp.microfacet_proxy`.
 """
 from __future__ import annotations
 

@@ -9,11 +9,7 @@ along -z, so the viewer direction is +z. The object is rotated by R = Rx(pitch) 
 - plane: the square |x|, |y| < 0.8 of the object's xy plane, normal R e_z, uv = (xy / 1.6 + 1/2) x tiles,
   tangent R e_x (hidden when R e_z faces away: n_z <= 1e-3).
 
-The light is directional, from (cos e cos a, cos e sin a, sin e) in view space (a: azimuth, e: elevation),
-of radiance 2^exposure; a pixel's linear value is f(wi, wo, uv) cos(theta_i) 2^exposure (0 off the object or
-below either horizon). The page passes the pixel's uv footprint (dFdx / dFdy) to spatially filtered exports;
-`viewer_image` queries without a footprint, so it equals the page only for models that ignore footprints
-(homogeneous BRDFs, NeuBRDF, BTFs).
+Details: docs/formats/web_viewer.md, section `neumat.export.web.scene`.
 """
 from __future__ import annotations
 
