@@ -107,6 +107,24 @@ def test_list_model_shows_presets_and_every_key_with_type_default_and_doc():
     assert res.exit_code == 2 and "unknown model 'neubrdff'" in res.output
 
 
+def test_list_model_documents_every_key_of_every_model():
+    """Every key of every model with a recipe (config fields, recipe fields, typed recipe options) has a doc."""
+    from neumat.cli.main import app
+    from neumat.fit.recipe import recipe_names
+    from neumat.models.registry import load_all
+
+    models = [m for m in recipe_names() if m in load_all()]
+    assert len(models) > 15
+    undocumented = {}
+    for model in models:
+        res = CliRunner().invoke(app, ["list", model, "--json"])
+        assert res.exit_code == 0, (model, res.output)
+        missing = [k["key"] for k in json.loads(res.stdout)["keys"] if not k["doc"]]
+        if missing:
+            undocumented[model] = missing
+    assert not undocumented, undocumented
+
+
 def test_model_files_of_format_version_1_still_load(tmp_path):
     """Files written before presets (format version 1, no preset field) load as before."""
     from safetensors.torch import load_file, save_file

@@ -175,6 +175,7 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
         import torch
 
         from ..fit.preset import DEFAULT_PRESET, build_fit
+        from ..fit.recipe import typed_options
         from ..fit.trainer import fit as fit_model
         from ..fit.translucent_fit import best_validation
         from ..fit.translucent_observations import Observations
@@ -183,12 +184,9 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
 
         _check_suffix(out, ".nmat", "fit --out")
         data = Observations.load(observations)
-        source = Observations.load_source(observations) or {}
         overrides = {k: _value(v) for k, v in parse_overrides(set_, text=True).items()}
         if validation is not None:
             overrides["option.validation_fraction"] = validation
-        if "bbox" in source and not any(k.rpartition(".")[2] == "bounds" for k in overrides):
-            overrides["option.bounds"] = source["bbox"]  # the object's box, written by trace
         dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
         model, resolved = build_fit("neupress", DEFAULT_PRESET, device=dev, source=data, overrides=overrides,
                                     seed=seed)
@@ -200,7 +198,8 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
         row = {"observations": len(data), "steps": result.steps}
         best = best_validation(result.history)
         if best is not None:
-            held = data.split(recipe.options["validation_fraction"], seed=recipe.seed)[1]  # as the recipe splits
+            held = data.split(typed_options("neupress", recipe.options).validation_fraction,
+                              seed=recipe.seed)[1]  # as the recipe splits
             variance = float(held.value.var())
             metrics.update(validation_mse=best["validation_mse"], validation_variance=variance,
                            best_step=best["step"])

@@ -22,23 +22,44 @@ still constant (its first decay is at 10k steps). An earlier CPU recipe compress
 FLIP over 9 scales 0.159 / 0.148 gated / tripleplane against 0.112 / 0.123 at the constant rate) and the gated
 model, which needs more steps at full rate, fell behind tripleplane (benchmarks/studies/multiscale/results/multiscale_protocol.md, CLI
 section). Expect a rough fit: the paper's quality needs RECIPE on a GPU. The latent resolution follows the source
-(`config_for_source`).
+(`config_for_source`). `Options`: the footprint distribution's fine_bias and elongation_std (the paper's values).
 """
 from __future__ import annotations
 
-import neumat.fit.footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
+from dataclasses import replace
+
+from neumat.core.config import config_to_dict
+from neumat.fit.footprint_queries import FootprintOptions
+from neumat.fit.phase import FitContext, Phase, online_phase
+from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.recipe import Recipe, latent_size_for_source
 
+#: the recipe options: the footprint distribution's
+Options = FootprintOptions
+
 RECIPE = Recipe(steps=500_000, batch_size=1 << 16, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
-                lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint")
+                lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint",
+                options=config_to_dict(Options()))
 
 #: RECIPE's first 1000 steps at 2^12 queries: about 10 minutes on one CPU core for a 1K set (module docstring)
 CPU_RECIPE = Recipe(steps=1000, batch_size=1 << 12, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
-                    lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200)
+                    lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200,
+                    options=config_to_dict(Options()))
 
 HOMOGENEOUS_RECIPE = Recipe(steps=100_000, batch_size=1 << 18, lr=3e-3, betas=(0.99, 0.999), eps=1e-15,
                             lr_decay=0.9, lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix",
-                            queries="cosine")
+                            queries="cosine", options=config_to_dict(Options()))
+
+
+def phases(ctx: FitContext) -> list[Phase]:
+    """One online phase; the "footprint" and "footprint-uv" samplers draw with the options fine_bias and
+    elongation_std."""
+    name = ctx.queries if ctx.queries is not None else ctx.recipe.queries
+    if name in ("footprint", "footprint-uv"):
+        o = ctx.opts
+        draw = QUERY_SAMPLERS.get(name)(ctx.source, ctx.model, fine_bias=o.fine_bias, elongation_std=o.elongation_std)
+        ctx = replace(ctx, queries=draw)
+    return [online_phase(ctx)]
 
 
 def config_for_source(source, options: dict | None = None) -> dict:

@@ -5,8 +5,8 @@ observations (`neumat.fit.translucent_observations.Observations`, the source of 
    observations, lr 1e-3 halved at 50 % and 75 % of the phase ("halves"). 5 % of the observations are held
    back (the paper keeps 5 %); the validation MSE is measured every `log_every` steps and the phase ends with
    the weights of its lowest value (early stopping: noisy path-traced targets are otherwise learnt by heart;
-   `neumat.fit.translucent_fit`). The bounding box that scales positions is that of the observed points unless
-   the option "bounds" gives the object's.
+   `neumat.fit.translucent_fit`). The bounding box that scales positions is the option bounds, else the object's
+   recorded with the observations, else the observed points' (`neumat.fit.translucent_fit.set_bounds_from`).
 2. "sampler": Adam on the importance-sampling module only, the KL divergence (`neumat.fit.neupress.sampler_kl`)
    between the appearance module's output binned on a `grid` = 32 x 64 grid of light directions and the
    Gaussian lobe, at `sampler_batch` = 32 random (x, wo, n) of the training observations per step.
@@ -22,18 +22,30 @@ CPU_RECIPE: RECIPE itself, which is CPU-sized: the NeuPreSS fit of benchmarks/st
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 
+from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
 from neumat.fit.neupress import light_grid, neupress_predict, sampler_kl
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.recipe import Recipe
-from neumat.fit.translucent_fit import observation_phase, set_bounds_from, split_observations
+from neumat.fit.translucent_fit import ObservationOptions, observation_phase, set_bounds_from, split_observations
+
+
+@dataclass
+class Options(ObservationOptions):
+    """NeuPreSS's recipe options: those of every fit on observations, and the sampler phase's."""
+
+    sampler_batch: int = bounded(32, ge=1)
+    """Random training observations (x, wo, n) per step of the sampler phase."""
+    grid: tuple[int, int] = (32, 64)
+    """[n_theta, n_phi] light directions the appearance module's output is binned on for the sampler's KL."""
+
 
 RECIPE = Recipe(steps=2300, batch_size=4096, lr=1e-3, schedule="halves", loss="l2", log_every=100,
-                phase_split=(20 / 23, 3 / 23),
-                options={"validation_fraction": 0.05, "max_validation": None, "bounds": None,
-                         "sampler_batch": 32, "grid": [32, 64]})
+                phase_split=(20 / 23, 3 / 23), options=config_to_dict(Options()))
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -46,14 +58,10 @@ def phases(ctx: FitContext) -> list[Phase]:
     appearance_steps, sampler_steps = ctx.split(("appearance", "sampler"))
     appearance = [p for name, p in model.named_parameters() if name.startswith("appearance")]
     sampler = [p for name, p in model.named_parameters() if name.startswith("sampler")]
-    batch = ctx.option("sampler_batch")
-    size = ctx.option("grid")
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise InputError(f"recipe of 'neupress': option sampler_batch: expected a positive integer, got {batch!r}")
-    if not isinstance(size, (list, tuple)) or len(size) != 2 or not all(
-            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in size):
-        raise InputError(f"recipe of 'neupress': option grid: expected [n_theta, n_phi] (positive integers), "
-                         f"got {size!r}")
+    batch, size = ctx.opts.sampler_batch, ctx.opts.grid
+    if len(size) != 2 or min(size) < 1:
+        raise InputError(f"neupress recipe options: option.grid: expected [n_theta, n_phi] (positive integers), "
+                         f"got {list(size)}")
     grid = tuple(t.to(ctx.device) for t in light_grid(*size))
     gen = ctx.generator
 

@@ -41,16 +41,17 @@ CPU_RECIPE: RECIPE itself: 2000 steps of 2048 took 45-62 s on one core for 64^2 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import torch
 from torch import nn
 
-from neumat.core.checks import check_int
+from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.directional_blur import blur_angle, blurred_eval
-from neumat.fit.footprint_queries import footprint_queries
+from neumat.fit.footprint_queries import FootprintOptions, footprint_queries
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.fit.proxy_sampler import proxy_kl_loss
 from neumat.models.half_precision import snap_to_half_, with_half_parameters
@@ -58,10 +59,27 @@ from neumat.warp.uniform import uniform
 from neumat.fit.recipe import Recipe, latent_size_for_source
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
+
+
+@dataclass
+class Options(FootprintOptions):
+    """NeuralAppearance's recipe options (module docstring); fine_bias and elongation_std shape the latents
+    phase's footprints."""
+
+    blur_degrees: float = bounded(0.0, ge=0, le=90)
+    """Initial half-angle of the directional blur of the targets (0: no blur)."""
+    blur_samples: int = bounded(4, ge=1)
+    """Directions averaged per blurred target."""
+    blur_until: float = bounded(0.5, gt=0, le=1)
+    """Fraction of all steps (both phases) at which the blur has shrunk to nothing."""
+    sampler_batch: Literal["shared", "separate"] = "shared"
+    """The sampling decoder trains on the BRDF's batch ("shared") or on a second one drawn the same way (the paper)."""
+    half_finish: float = bounded(0.1, ge=0, le=1)
+    """Last fraction of the latents phase trained half-aware, ending on fp16-exact parameters (0: FP32 throughout)."""
+
+
 RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="log_cos", phase_split=(0.5, 0.5),
-                log_every=100,
-                options={"blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
-                         "sampler_batch": "shared", "half_finish": 0.1})
+                log_every=100, options=config_to_dict(Options()))
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -89,27 +107,10 @@ def config_for_source(source, options: dict | None = None) -> dict:
     return config
 
 
-def _options(ctx: FitContext) -> dict:
-    """The recipe's options, validated (InputError naming the bad one)."""
-    unknown = sorted(set(ctx.recipe.options) - set(RECIPE.options))
-    if unknown:
-        raise InputError(f"neural-appearance recipe: unknown option(s) {', '.join(unknown)} "
-                         f"(known: {', '.join(sorted(RECIPE.options))})")
-    o = {name: ctx.option(name) if name in ctx.recipe.options else default for name, default in RECIPE.options.items()}
+def _check_queries(ctx: FitContext) -> None:
     if directions_of(ctx) not in ("cosine", "rusinkiewicz"):
         raise InputError(f"neural-appearance recipe queries: expected 'cosine' or 'rusinkiewicz', got "
                          f"{directions_of(ctx)!r}")
-    for name, lo, hi in (("blur_degrees", 0, 90), ("blur_until", 0, 1), ("half_finish", 0, 1)):
-        v = o[name]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi or (name == "blur_until"
-                                                                                          and v == 0):
-            bounds = {"blur_degrees": "[0, 90]", "blur_until": "(0, 1]", "half_finish": "[0, 1]"}[name]
-            raise InputError(f"neural-appearance option {name}: expected a number in {bounds}, got {v!r}")
-    check_int(o["blur_samples"], "neural-appearance option blur_samples", 1)
-    if o["sampler_batch"] not in ("shared", "separate"):
-        raise InputError(f"neural-appearance option sampler_batch: expected 'shared' or 'separate', got "
-                         f"{o['sampler_batch']!r}")
-    return o
 
 
 def _check(model, source) -> None:
@@ -129,21 +130,23 @@ def _check(model, source) -> None:
 def phases(ctx: FitContext) -> list[Phase]:
     model, source, dev, gen, batch = ctx.model, ctx.source, ctx.device, ctx.generator, ctx.recipe.batch_size
     _check(model, source)
-    o = _options(ctx)
+    _check_queries(ctx)
+    o = ctx.opts
     encoder_steps, latent_steps = ctx.split(PHASES)
     total_steps = encoder_steps + latent_steps
     brdf_loss = loss_module(ctx)
     # footprints in uv as before (the texel-relative range is the multi-scale paper's protocol, issue 28)
-    draw_filtered = footprint_queries(source, texel_relative=False)
+    draw_filtered = footprint_queries(source, texel_relative=False, fine_bias=o.fine_bias,
+                                      elongation_std=o.elongation_std)
     draw_directions = query_draw(ctx)
     albedo = model.cfg.albedo
 
     def target_of(q: Query, step: int) -> torch.Tensor:
         """The source's value, directionally blurred early in training (blur_degrees > 0); step counts over
         both phases."""
-        angle = blur_angle(step, total_steps, o["blur_degrees"], o["blur_until"])
+        angle = blur_angle(step, total_steps, o.blur_degrees, o.blur_until)
         with torch.no_grad():
-            return blurred_eval(source, q, angle, o["blur_samples"], gen)
+            return blurred_eval(source, q, angle, o.blur_samples, gen)
 
     def albedo_estimate(q: Query) -> torch.Tensor:
         """One-sample estimates (N, 3) of the source's albedo at q's x and wo: f(w', wo) cos(theta') / p(w'), w'
@@ -166,7 +169,7 @@ def phases(ctx: FitContext) -> list[Phase]:
         second one (sampler_batch). `step`: the fit's step (over both phases), for the blur schedule."""
         q, z = draw()
         u = uniform(batch, 2, gen, dev)
-        sq, sz = draw() if o["sampler_batch"] == "separate" else (q, z)
+        sq, sz = draw() if o.sampler_batch == "separate" else (q, z)
         sz = sz.detach()
         out = model.decode_outputs(z, q)
         lobes = model.sampler.lobes(sq.wi, sz)
@@ -182,7 +185,7 @@ def phases(ctx: FitContext) -> list[Phase]:
             k = source.sampling_features(q)
         return q, model.encode(k)
 
-    half_from = latent_steps - int(round(o["half_finish"] * latent_steps))  # first half-aware latents step
+    half_from = latent_steps - int(round(o.half_finish * latent_steps))  # first half-aware latents step
 
     def latent_losses(step: int) -> dict[str, torch.Tensor]:
         """The latents phase's losses at its step `step`; half-aware from half_from on (module docstring)."""
