@@ -143,3 +143,27 @@ def test_model_files_of_format_version_1_still_load(tmp_path):
     old = tmp_path / "old.nmat"
     save_file(load_file(str(path)), str(old), metadata={HEADER_KEY: json.dumps(header)})
     assert isinstance(load_model(old), GGXFit)
+
+
+def test_model_files_without_the_new_config_keys_still_load(tmp_path):
+    """NeuBRDF and SharedNeuBRDF files written before pruned_ancestor_fraction / index_lr_scale were Config fields
+    load with their defaults (0.5, 10.0)."""
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    from neumat.catalog.modelfile import load_model, save_model
+    from neumat.io.modelfile import HEADER_KEY
+    from neumat.models.neubrdf import NeuBRDF
+    from neumat.models.shared_neubrdf import SharedNeuBRDF
+
+    for model in (NeuBRDF(nside=2, index_bits=3, hidden=8), SharedNeuBRDF(nside=2, index_bits=3, hidden=8)):
+        path = save_model(model, tmp_path / "new.nmat")
+        with safe_open(str(path), "pt") as f:
+            header = json.loads(f.metadata()[HEADER_KEY])
+        for key in ("pruned_ancestor_fraction", "index_lr_scale"):
+            header["config"].pop(key, None)
+        old = tmp_path / "old.nmat"
+        save_file(load_file(str(path)), str(old), metadata={HEADER_KEY: json.dumps(header)})
+        loaded = load_model(old)
+        assert type(loaded) is type(model) and loaded.cfg.index_lr_scale == 10.0
+    assert load_model(tmp_path / "new.nmat").cfg == model.cfg
