@@ -348,8 +348,8 @@ def test_optimizer_hook_updates_only_the_batch_logits(gen):
 
 
 def test_training_levels_of_a_pruned_grid(gen):
-    """Supervised pixels are looked up at their own level or, `Config.pruned_ancestor_fraction` of the time, uniformly at
-    one of the ancestor levels read by pruned pixels; pruned pixels always at their own level."""
+    """Supervised pixels are looked up at their own level or, `Config.pruned_ancestor_fraction` of the time, uniformly
+    at one of the ancestor levels read by pruned pixels; pruned pixels always at their own level."""
     nside = 16
     m = NeuBRDF(nside=nside, features="dense", hidden=8)
     wi = _dirs(30, gen) * 0.05 + torch.tensor([0.5, 0.0, 0.85])

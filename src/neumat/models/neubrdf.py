@@ -372,8 +372,8 @@ class NeuBRDF(LearnedMaterial):
         """Multi-resolution sparse grids from the supervised directions wi, wo (N, 3) (paper Sec. 3.2.1):
         a pixel holding no training direction uses the corners of its nearest ancestor that holds one. Call
         before training on sparse measurements: training then also looks directions up at those ancestor
-        levels (`Config.pruned_ancestor_fraction` of the lookups, see `_training_levels`), so that the corners the pruned
-        pixels read are trained on the reflectance inside the ancestor, not left at their initial values."""
+        levels (`Config.pruned_ancestor_fraction` of the lookups, see `_training_levels`), so that the corners the
+        pruned pixels read are trained on the reflectance inside the ancestor, not left at their initial values."""
         n = self.cfg.nside
         for south, w, name in ((False, wi, "wi"), (True, wo, "wo")):
             check_directions(w, f"NeuBRDF.prune {name}")
