@@ -244,7 +244,7 @@ class SharedNeuBRDF(LearnedMaterial):
 
     def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> RowAdam:
         """The optimiser to train this model with (the trainer's hook), as NeuBRDF's: the VQ index logits of all
-        materials get sparse row gradients, updated only on the vertices of each batch, at `index_lr_scale` times
+        materials get sparse row gradients, updated only on the vertices of each batch, at `Config.index_lr_scale` times
         the rate (a dense Adam step over the t x 2n x 2^b logits cost 0.45 of 1.1 s per step of 8192 queries for
         two materials at N_side 64)."""
         return grid_optimizer(self, self.grid, lr, betas, eps, self.cfg.index_lr_scale)

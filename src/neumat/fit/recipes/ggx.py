@@ -36,7 +36,7 @@ class Options:
     """The GGX recipe's trial starts (module docstring)."""
 
     alpha_starts: list[float] = field(default_factory=lambda: [0.3, 0.05, 0.01])
-    """Starting roughnesses of the trial fits, inside the model's (alpha_min, alpha_max); fewer than two: a plain fit."""
+    """Starting roughnesses of the trial fits, inside the model's (alpha_min, alpha_max); fewer than two: no trials."""
     start_steps: int = bounded(200, ge=1)
     """Steps of each trial fit (at most the fit's own)."""
 
