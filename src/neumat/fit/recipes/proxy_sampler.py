@@ -24,7 +24,6 @@ from neumat.models.proxy_sampler import SampledMaterial, features_of
 from neumat.warp.hemisphere import sample_uniform_hemisphere
 
 
-
 @dataclass
 class Options:
     """The proxy sampler's recipe has no options (any given is refused by name)."""
