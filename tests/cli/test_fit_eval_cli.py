@@ -10,8 +10,6 @@ import typer
 from typer.testing import CliRunner
 
 from neumat.catalog.modelfile import load_model, save_model
-from neumat.cli import fitting
-from neumat.core.errors import InputError
 from neumat.io.modelfile import read_header
 from neumat.models.neubrdf import NeuBRDF
 

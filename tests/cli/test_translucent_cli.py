@@ -155,3 +155,28 @@ def test_trace_scene_option_errors(tmp_path):
     assert r.exit_code == 2 and "alistofobjects" in _said(r)
     r = _run("trace", "-o", tmp_path / "o.npz", "--roughness-range", "0.1")
     assert r.exit_code == 2 and "LO,HI" in _said(r)
+
+
+def test_fit_and_translucent_fit_set_the_same_bounds(tmp_path):
+    """One bounds rule (`set_bounds_from`): `neumat fit obs.npz --model neupress` and `neumat translucent fit obs.npz`
+    both take the object's box recorded in the file (here larger than the observed points'), and without one the
+    observed points' box."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.nn.functional.normalize(torch.randn(64, 3, generator=g), dim=-1)
+    obs = Observations(x, x.clone(), x.clone(), x.flip(0), torch.rand(64, 3, generator=g))
+    box = [[-2.0, -1.5, -1.0], [2.0, 1.5, 1.0]]
+    obs.save(tmp_path / "o.npz", source={"bbox": box})
+    obs.save(tmp_path / "plain.npz")
+    small = ["--steps", 2, "--device", "cpu", "--set", "features=4", "--set", "width=4", "--set", "layers=1",
+             "--set", "batch_size=8", "--set", "sampler_batch=2", "--set", "sampler_hidden=4"]
+    lists = {"fit": ["--set", "grid=2,4"], "translucent": ["--set", "grid=[2,4]"]}  # each CLI's list syntax
+    for name, want in (("o", torch.tensor(box)), ("plain", torch.stack([x.min(0).values, x.max(0).values]))):
+        src = tmp_path / f"{name}.npz"
+        r = CliRunner().invoke(app, list(map(str, ["fit", src, "--model", "neupress", "-q", *small,
+                                                   *lists["fit"], "-o", tmp_path / f"{name}_fit.nmat"])))
+        assert r.exit_code == 0, r.output
+        r = _run("fit", src, "-q", *small, *lists["translucent"], "-o", tmp_path / f"{name}_translucent.nmat")
+        assert r.exit_code == 0, r.output
+        a, b = (load_model(tmp_path / f"{name}_{k}.nmat") for k in ("fit", "translucent"))
+        assert torch.equal(a.box_min, b.box_min) and torch.equal(a.box_max, b.box_max)
+        assert torch.allclose(a.box_min, want[0]) and torch.allclose(a.box_max, want[1])

@@ -82,9 +82,13 @@ def test_training_options_run_and_bad_values_raise():
                                                                       for h in fit.history)
     with pytest.raises(InputError, match="queries"):
         _fit(model, source, queries="uniform", steps=2, batch_size=8)
-    for bad in (dict(blur_degrees=-1.0), dict(blur_until=0.0), dict(blur_samples=0),
-                dict(sampler_batch="twice"), dict(blur_degree=1.0)):
-        with pytest.raises(InputError, match=next(iter(bad))):
+    for bad, why in ((dict(blur_degrees=-1.0), r"option.blur_degrees: expected a value in \[0, 90\], got -1.0"),
+                     (dict(blur_until=0.0), r"option.blur_until: expected a value in \(0, 1\], got 0.0"),
+                     (dict(blur_samples=0), r"option.blur_samples: expected a value >= 1, got 0"),
+                     (dict(sampler_batch="twice"), r"option.sampler_batch: expected one of 'shared', 'separate', "
+                                                   r"got 'twice'"),
+                     (dict(blur_degree=1.0), r"unknown key\(s\) blur_degree \(known: blur_degrees, ")):
+        with pytest.raises(InputError, match="^neural-appearance recipe options: " + why):
             _fit(model, source, bad, steps=2, batch_size=8)
 
 

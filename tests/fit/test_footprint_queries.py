@@ -86,3 +86,35 @@ def test_texel_relative_footprints_match_the_paper_at_1024():
     # at 1024^2 the texel-relative draw is the uv draw
     assert torch.equal(paper, _minor_texels("footprint", 1024, n, 0))
     assert (_minor_texels("footprint-uv", 64, n, 1) < 1 / 8).double().mean().item() > 0.7
+
+
+def test_fine_bias_and_elongation_std_are_recipe_options_that_reach_the_draws(monkeypatch):
+    """The multiscale family's options fine_bias / elongation_std are checked by name and build its fit's footprint
+    sampler; with elongation_std 0 every footprint's elongation is exactly 1 / cos theta_o (clamped)."""
+    import neumat.fit.recipes.tripleplane as tripleplane
+    from neumat.fit.phase import FitContext
+    from neumat.fit.preset import resolve_preset
+    from neumat.fit.recipe import recipe_for
+    from neumat.models.registry import build_model
+
+    import neumat.fit.recipes.multiscale as multiscale
+    with pytest.raises(InputError, match=r"option.fine_bias: expected a value > 0, got 0"):
+        resolve_preset("tripleplane", "paper", overrides={"option.fine_bias": 0})
+    assert recipe_for("neumip", "cpu").options == {"fine_bias": 5.0, "elongation_std": 0.2}
+    built = []
+
+    class Recording:
+        def get(self, name):
+            return lambda *args, **kwargs: built.append(kwargs) or QUERY_SAMPLERS.get(name)(*args, **kwargs)
+
+    monkeypatch.setattr(multiscale, "QUERY_SAMPLERS", Recording())
+    recipe = recipe_for("tripleplane", "cpu")
+    recipe.options.update(fine_bias=3.0, elongation_std=0.0)
+    ctx = FitContext(build_model({"type": "tripleplane"}), Lambert(), recipe, torch.device("cpu"),
+                     torch.Generator().manual_seed(0), resuming=True)
+    tripleplane.phases(ctx)
+    assert built == [{"fine_bias": 3.0, "elongation_std": 0.0}]
+    q = QUERY_SAMPLERS.get("footprint")(Lambert(), **built[0])(256, torch.Generator().manual_seed(1), "cpu")
+    eig = torch.linalg.eigvalsh(q.footprint.double())
+    want = (1 / q.wo[:, 2].clamp(min=0.01)).double()
+    assert torch.allclose((eig[:, 1] / eig[:, 0]).sqrt(), torch.maximum(want, 1 / want), rtol=1e-4)

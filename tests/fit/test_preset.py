@@ -107,6 +107,24 @@ def test_list_model_shows_presets_and_every_key_with_type_default_and_doc():
     assert res.exit_code == 2 and "unknown model 'neubrdff'" in res.output
 
 
+def test_list_model_documents_every_key_of_every_model():
+    """Every key of every model with a recipe (config fields, recipe fields, typed recipe options) has a doc."""
+    from neumat.cli.main import app
+    from neumat.fit.recipe import recipe_names
+    from neumat.models.registry import load_all
+
+    models = [m for m in recipe_names() if m in load_all()]
+    assert len(models) > 15
+    undocumented = {}
+    for model in models:
+        res = CliRunner().invoke(app, ["list", model, "--json"])
+        assert res.exit_code == 0, (model, res.output)
+        missing = [k["key"] for k in json.loads(res.stdout)["keys"] if not k["doc"]]
+        if missing:
+            undocumented[model] = missing
+    assert not undocumented, undocumented
+
+
 def test_model_files_of_format_version_1_still_load(tmp_path):
     """Files written before presets (format version 1, no preset field) load as before."""
     from safetensors.torch import load_file, save_file
@@ -145,3 +163,27 @@ def test_every_computing_command_takes_threads_and_one_device_default():
         device = [p for p in command.params if "--device" in p.opts]
         assert all(p.default is None and p.callback is not None for p in device), name
     assert device_option(None) == default_device() == ("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def test_model_files_without_the_new_config_keys_still_load(tmp_path):
+    """NeuBRDF and SharedNeuBRDF files written before pruned_ancestor_fraction / index_lr_scale were Config fields
+    load with their defaults (0.5, 10.0)."""
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    from neumat.catalog.modelfile import load_model, save_model
+    from neumat.io.modelfile import HEADER_KEY
+    from neumat.models.neubrdf import NeuBRDF
+    from neumat.models.shared_neubrdf import SharedNeuBRDF
+
+    for model in (NeuBRDF(nside=2, index_bits=3, hidden=8), SharedNeuBRDF(nside=2, index_bits=3, hidden=8)):
+        path = save_model(model, tmp_path / "new.nmat")
+        with safe_open(str(path), "pt") as f:
+            header = json.loads(f.metadata()[HEADER_KEY])
+        for key in ("pruned_ancestor_fraction", "index_lr_scale"):
+            header["config"].pop(key, None)
+        old = tmp_path / "old.nmat"
+        save_file(load_file(str(path)), str(old), metadata={HEADER_KEY: json.dumps(header)})
+        loaded = load_model(old)
+        assert type(loaded) is type(model) and loaded.cfg.index_lr_scale == 10.0
+    assert load_model(tmp_path / "new.nmat").cfg == model.cfg

@@ -169,8 +169,8 @@ def test_model_optimizer_and_lr_scale_of_its_groups():
     m.optimizer = lambda *a: made.append(hook(*a)) or made[-1]
     fit(m, Blinn(), Recipe(steps=3, batch_size=16, lr=0.01, lr_decay=0.5, lr_decay_every=2), progress=False)
     (opt,) = made
-    assert [g["lr"] for g in opt.param_groups] == [0.005, 0.005 * NeuBRDF.index_lr_scale]
-    assert opt.param_groups[1]["params"] == [m.grid.logits] and NeuBRDF.index_lr_scale == 10.0
+    assert [g["lr"] for g in opt.param_groups] == [0.005, 0.005 * m.cfg.index_lr_scale]
+    assert opt.param_groups[1]["params"] == [m.grid.logits] and m.cfg.index_lr_scale == 10.0
 
 
 def test_progress_bar_and_default_recipe(monkeypatch):

@@ -87,7 +87,8 @@ def test_sources_are_checked():
     for source in (DipoleBSSRDF(samples=8), "obs.npz", obs.value):
         with pytest.raises(InputError, match="Observations"):
             fit(m, source, steps=2, progress=False)
-    with pytest.raises(InputError, match="validation_fraction"):
+    with pytest.raises(InputError, match=r"^dipole-bssrdf recipe options: option.validation_fraction: expected a "
+                                         r"value in \[0, 1\), got 1.5$"):
         r = recipe_for("dipole-bssrdf")
         r.options["validation_fraction"] = 1.5
         fit(DipoleBSSRDF(samples=8), obs, r, steps=2, progress=False)

@@ -197,8 +197,12 @@ def test_ggx_starts_find_a_sharp_lobe_a_single_start_misses():
     (single, single_err), (best, best_err) = fits[0], fits[3]
     torch.testing.assert_close(best.alpha.detach(), torch.tensor([0.01, 0.01]), atol=0, rtol=0.03)
     assert float(single.alpha[0]) > 0.012 and best_err < 0.25 * single_err, (single_err, best_err)
-    for bad, why in (({"alpha_starts": [0.3, 2.0]}, "alpha_starts"), ({"alpha_starts": "0.3"}, "alpha_starts"),
-                     ({"start_steps": 0}, "start_steps")):
+    for bad, why in (({"alpha_starts": [0.3, 2.0]}, r"^ggx recipe options: option.alpha_starts: expected alphas in "
+                                                    r"\(0.001, 1.0\) \(the model's alpha_min, alpha_max\), "
+                                                    r"got \[0.3, 2.0\]$"),
+                     ({"alpha_starts": "0.3"}, r"^ggx recipe options: option.alpha_starts: expected a number, "
+                                               r"got '0.3'$"),
+                     ({"start_steps": 0}, r"^ggx recipe options: option.start_steps: expected a value >= 1, got 0$")):
         recipe = replace(recipe_for("ggx"), options={**recipe_for("ggx").options, **bad})
         with pytest.raises(InputError, match=why):
             fit(GGXFit(), source, recipe, steps=1, progress=False)

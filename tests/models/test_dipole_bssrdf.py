@@ -157,7 +157,8 @@ def test_textured_size_and_bad_config():
         DipoleBSSRDF(texture_resolution=0)
     with pytest.raises(InputError, match="set_bounds"):
         m.set_bounds(torch.ones(3), torch.zeros(3))
-    with pytest.raises(InputError, match="smoothness"):
+    with pytest.raises(InputError, match=r"^dipole-bssrdf recipe options: option.smoothness: expected a value "
+                                         r">= 0, got -1.0$"):
         x = sample_uniform_sphere(torch.rand(64, 2, generator=torch.Generator().manual_seed(0)))
         obs = Observations(x=x, n=x.clone(), wo=x.clone(), wi=x.clone(), value=torch.rand(64, 3))
         recipe = recipe_for("dipole-bssrdf")

@@ -116,6 +116,6 @@ def test_half_finish_is_checked(bad):
     source = SVBRDF(procedural_texture_set("bumps", 8, seed=0), samples=2)
     model = NeuralAppearance(**config_for_source(source))
     recipe = recipe_for("neural-appearance")
-    with pytest.raises(InputError, match="half_finish"):
+    with pytest.raises(InputError, match=r"^neural-appearance recipe options: option.half_finish: expected "):
         fit(model, source, replace(recipe, steps=2, batch_size=8, options={**recipe.options, "half_finish": bad}),
             progress=False)

@@ -348,8 +348,8 @@ def test_optimizer_hook_updates_only_the_batch_logits(gen):
 
 
 def test_training_levels_of_a_pruned_grid(gen):
-    """Supervised pixels are looked up at their own level or, `coarse_fraction` of the time, uniformly at
-    one of the ancestor levels read by pruned pixels; pruned pixels always at their own level."""
+    """Supervised pixels are looked up at their own level or, `Config.pruned_ancestor_fraction` of the time, uniformly
+    at one of the ancestor levels read by pruned pixels; pruned pixels always at their own level."""
     nside = 16
     m = NeuBRDF(nside=nside, features="dense", hidden=8)
     wi = _dirs(30, gen) * 0.05 + torch.tensor([0.5, 0.0, 0.85])
@@ -362,9 +362,9 @@ def test_training_levels_of_a_pruned_grid(gen):
     torch.manual_seed(0)
     level = m._training_levels(pix, torch.zeros_like(pix), coarse)
     counts = torch.bincount(level, minlength=5).double() / level.numel()
-    assert abs(counts[0] - (1 - m.coarse_fraction)) < 0.01
+    assert abs(counts[0] - (1 - m.cfg.pruned_ancestor_fraction)) < 0.01
     for l in range(1, 5):
-        want = m.coarse_fraction / len(bits) if l in bits else 0.0
+        want = m.cfg.pruned_ancestor_fraction / len(bits) if l in bits else 0.0
         assert abs(counts[l] - want) < 0.01
     far = hpx.vec2pix(nside, torch.tensor([[-0.6, 0.0, 0.8]])).expand(100)
     lv = m.level_i[far].long()

@@ -235,7 +235,7 @@ def test_optimizer_updates_only_the_index_logits_of_the_batch(gen):
     index_lr_scale times the rate); a dense model gets a plain Adam over all its parameters."""
     model = SharedNeuBRDF(num_materials=2, **SMALL)
     opt = model.optimizer(1e-2)
-    assert [g.get("lr_scale", 1.0) for g in opt.param_groups] == [1.0, model.index_lr_scale]
+    assert [g.get("lr_scale", 1.0) for g in opt.param_groups] == [1.0, model.cfg.index_lr_scale]
     before = model.grid.logits.detach().clone()
     q = _queries(20, gen)
     ids = torch.ones(20, dtype=torch.long)  # material 1 only

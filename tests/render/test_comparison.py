@@ -4,7 +4,6 @@ the material and falls with the sample count."""
 from __future__ import annotations
 
 import pytest
-import torch
 
 from neumat import InputError
 from neumat.catalog.open_material import open_material

@@ -56,8 +56,6 @@ def run_demo(out: Path, source: str, preset: str | None, overrides: dict, steps:
     """The demo job; returns the report path."""
     import time
 
-    import torch
-
     from ..catalog.modelfile import save_model
     from ..catalog.open_material import open_material
     from ..export.web.viewer import write_viewer

@@ -68,6 +68,7 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         from ..fit.trainer import fit
         from .fit_many import expand_sources, source_names
         from ..fit.preset import build_fit
+        from ..fit.recipe import typed_options
         from .fitting import chosen_preset, preset_note, resolve_device
 
         if out.exists() and not out.is_dir():
@@ -88,9 +89,9 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
         if not quiet:
             print(preset_note(MODEL, resolved))
         recipe = resolved.recipe
-        opts = recipe.options
-        settings = {"resolution": opts["cluster_resolution"], "code_dim": opts["cluster_code_dim"],
-                    "width": opts["cluster_width"], "steps": opts["cluster_steps"], "lr": opts["cluster_lr"],
+        opts = typed_options(MODEL, recipe.options)
+        settings = {"resolution": opts.cluster_resolution, "code_dim": opts.cluster_code_dim,
+                    "width": opts.cluster_width, "steps": opts.cluster_steps, "lr": opts.cluster_lr,
                     "seed": recipe.seed}
         print(f"clustering {len(paths)} materials into {k}: autoencoder on {settings['resolution']}^3 tables, "
               f"{settings['steps']} steps, then k-means", flush=True)

@@ -167,8 +167,6 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
     for final numbers. The sphere shows the texture at about one scale; --scales N scores filtering across
     scales (Timonen et al. 2025, Fig. 4 / Table 6) on the plane scene at --resolution."""
     def go():
-        import torch
-
         from ..catalog.modelfile import load_model
         from ..catalog.open_material import open_material
         from ..metrics.hdr import reflectance_errors

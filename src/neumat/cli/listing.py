@@ -76,6 +76,8 @@ def list_all(model: str = typer.Argument(None, help="a registered model: list it
     formats), every kind of material source and every export format; with MODEL, that model's presets and every
     key `neumat fit --set` takes, with its type, default and what it does."""
     def go():
+        from rich.markup import escape  # a doc's [lo, hi] is text, not markup
+
         if model is not None:
             data = model_catalogue(model)
             if json:
@@ -87,8 +89,8 @@ def list_all(model: str = typer.Argument(None, help="a registered model: list it
                                       for kind, o in p["by_source"].items()]).strip("; ") or "-",
                  "what": p["doc"]} for p in data["presets"]], width=200)
             print_table(f"{model}: keys (neumat fit --set KEY=VALUE; a bare KEY where only one namespace has it)", [
-                {"key": k["key"], "type": f"{k['type']} {'in ' if k['range'][:1] in '[(' else ''}{k['range']}".strip(),
-                 "default": k["default"], "what": k["doc"]} for k in data["keys"]], width=200)
+                {"key": k["key"], "type": f"{k['type']} {'in ' if k['range'][:1] in ('[', '(') else ''}{k['range']}"
+                 .strip(), "default": k["default"], "what": escape(k["doc"])} for k in data["keys"]], width=200)
             return None
         data = catalogue()
         if json:

@@ -173,9 +173,8 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
     def go():
         from dataclasses import replace
 
-        import torch
-
         from ..fit.preset import DEFAULT_PRESET, build_fit
+        from ..fit.recipe import typed_options
         from ..fit.trainer import fit as fit_model
         from ..fit.translucent_fit import best_validation
         from ..fit.translucent_observations import Observations
@@ -184,24 +183,21 @@ def fit(observations: Path = typer.Argument(..., help="observations file from `n
 
         _check_suffix(out, ".nmat", "fit --out")
         data = Observations.load(observations)
-        source = Observations.load_source(observations) or {}
         overrides = {k: _value(v) for k, v in parse_overrides(set_, text=True).items()}
         if validation is not None:
             overrides["option.validation_fraction"] = validation
-        if "bbox" in source and not any(k.rpartition(".")[2] == "bounds" for k in overrides):
-            overrides["option.bounds"] = source["bbox"]  # the object's box, written by trace
-        dev = device
-        model, resolved = build_fit("neupress", DEFAULT_PRESET, device=dev, source=data, overrides=overrides,
+        model, resolved = build_fit("neupress", DEFAULT_PRESET, device=device, source=data, overrides=overrides,
                                     seed=seed)
         recipe = resolved.recipe
-        result = fit_model(model, data, recipe, steps=steps, device=dev, progress=not quiet, checkpoint=checkpoint,
-                           resume=resume)
+        result = fit_model(model, data, recipe, steps=steps, device=device, progress=not quiet,
+                           checkpoint=checkpoint, resume=resume)
         kl = [r["kl"] for r in result.history if r["phase"] == "sampler"]
         metrics = {"sampler_kl": kl[-1] if kl else None, "fit_seconds": result.seconds}
         row = {"observations": len(data), "steps": result.steps}
         best = best_validation(result.history)
         if best is not None:
-            held = data.split(recipe.options["validation_fraction"], seed=recipe.seed)[1]  # as the recipe splits
+            held = data.split(typed_options("neupress", recipe.options).validation_fraction,
+                              seed=recipe.seed)[1]  # as the recipe splits
             variance = float(held.value.var())
             metrics.update(validation_mse=best["validation_mse"], validation_variance=variance,
                            best_step=best["step"])

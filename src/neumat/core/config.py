@@ -33,7 +33,8 @@ def config_from_dict(cls: type[C], data: dict, *, ignore: tuple[str, ...] = ("ty
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known - set(ignore))
     if unknown:
-        raise InputError(f"{cls.__name__}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        raise InputError(f"{cls.__name__}: unknown key(s) {', '.join(unknown)} "
+                         f"(known: {', '.join(sorted(known)) or 'none'})")
     kwargs = {k: _coerce(hints[k], v, f"{cls.__name__}.{k}") for k, v in data.items() if k in known}
     for f in dataclasses.fields(cls):
         if f.name in kwargs:

@@ -9,9 +9,11 @@ Details: docs/notes/multiscale.md, section `neumat.fit.footprint_queries`.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 
+from ..core.config import bounded
 from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
@@ -23,15 +25,27 @@ from .query_samplers import QUERY_SAMPLERS, QueryDraw
 L_MIN, L_MAX = -13.0, 1.0
 #: texture size (texels) at which the paper's range holds
 PAPER_TEXELS = 1024
-#: exponent of the fine-level bias e2 = (exp(B e3) - 1) / (exp(B) - 1)
+#: paper value: exponent B of the fine-level bias e2 = (exp(B e3) - 1) / (exp(B) - 1)
 FINE_BIAS = 5.0
-#: standard deviation of z2 in the elongation (1 + z2) / cos theta_o
+#: paper value: standard deviation of z2 in the elongation (1 + z2) / cos theta_o
 ELONGATION_STD = 0.2
 
 
-def footprint_scale(e3: torch.Tensor, l_min: float = L_MIN, l_max: float = L_MAX) -> torch.Tensor:
-    """e1 (N,) in uv units from uniform e3 (N,): log2 e1 = l_min + (l_max - l_min)(exp(5 e3) - 1)/(exp(5) - 1)."""
-    e2 = torch.expm1(FINE_BIAS * e3) / math.expm1(FINE_BIAS)
+@dataclass
+class FootprintOptions:
+    """Recipe options of the fits that draw these footprints (the paper's values by default)."""
+
+    fine_bias: float = bounded(FINE_BIAS, gt=0)
+    """Exponent B of the fine-level bias of the footprint scales (larger: fine footprints drawn more often)."""
+    elongation_std: float = bounded(ELONGATION_STD, ge=0)
+    """Standard deviation of z2 in the footprints' elongation (1 + z2) / cos theta_o."""
+
+
+def footprint_scale(e3: torch.Tensor, l_min: float = L_MIN, l_max: float = L_MAX,
+                    fine_bias: float = FINE_BIAS) -> torch.Tensor:
+    """e1 (N,) in uv units from uniform e3 (N,): log2 e1 = l_min + (l_max - l_min)(exp(B e3) - 1)/(exp(B) - 1),
+    B = fine_bias."""
+    e2 = torch.expm1(fine_bias * e3) / math.expm1(fine_bias)
     return torch.exp2(l_min + (l_max - l_min) * e2)
 
 
@@ -46,10 +60,10 @@ def footprint_covariance(scale: torch.Tensor, elongation: torch.Tensor, angle: t
 
 
 def sample_footprints(cos_view: torch.Tensor, u: torch.Tensor, z2: torch.Tensor, min_cos: float = 0.01,
-                      l_min: float = L_MIN, l_max: float = L_MAX) -> torch.Tensor:
+                      l_min: float = L_MIN, l_max: float = L_MAX, fine_bias: float = FINE_BIAS) -> torch.Tensor:
     """Eq. 9 covariances (N, 2, 2) from cos theta_o (N,), uniforms u (N, 2) (e3, u3 / 2 pi) and
-    z2 (N,) ~ N(0, 0.2^2)."""
-    scale = footprint_scale(u[:, 0], l_min, l_max)
+    z2 (N,) ~ N(0, elongation_std^2)."""
+    scale = footprint_scale(u[:, 0], l_min, l_max, fine_bias)
     elongation = (1 + z2).clamp(min=0.2) / cos_view.clamp(min=min_cos)
     return footprint_covariance(scale, elongation, 2 * math.pi * u[:, 1])
 
@@ -69,30 +83,33 @@ def texel_shift(source: Material) -> float:
 
 @QUERY_SAMPLERS.register("footprint")
 def footprint_queries(source: Material, model=None, min_cos: float = 0.01, l_min: float = L_MIN,
-                      l_max: float = L_MAX, texel_relative: bool = True) -> QueryDraw:
+                      l_max: float = L_MAX, texel_relative: bool = True, fine_bias: float = FINE_BIAS,
+                      elongation_std: float = ELONGATION_STD) -> QueryDraw:
     """draw(n, generator, device) -> Query with cosine-weighted wi, wo, uniform uv and Eq. 9 footprints;
     with `texel_relative`, [l_min, l_max] is shifted by `texel_shift(source)` (see the module docstring)."""
     if getattr(source, "full_sphere", False):
         raise InputError("query sampler 'footprint' draws surface queries, but the source spans the whole sphere")
-    if not (0 < min_cos <= 1) or not (l_min < l_max):
-        raise InputError(f"footprint_queries: expected 0 < min_cos <= 1 and l_min < l_max, got min_cos={min_cos}, "
-                         f"l_min={l_min}, l_max={l_max}")
+    if not (0 < min_cos <= 1) or not (l_min < l_max) or not fine_bias > 0 or not elongation_std >= 0:
+        raise InputError(f"footprint_queries: expected 0 < min_cos <= 1, l_min < l_max, fine_bias > 0 and "
+                         f"elongation_std >= 0, got min_cos={min_cos}, l_min={l_min}, l_max={l_max}, "
+                         f"fine_bias={fine_bias}, elongation_std={elongation_std}")
     if texel_relative:
         shift = texel_shift(source)
         l_min, l_max = l_min + shift, l_max + shift
 
     def draw(n: int, generator: torch.Generator, device) -> Query:
         u = uniform(n, 8, generator, device)
-        z2 = ELONGATION_STD * torch.randn(n, generator=generator, device=generator.device).to(device)
+        z2 = elongation_std * torch.randn(n, generator=generator, device=generator.device).to(device)
         wi = sample_cosine_hemisphere(u[:, 0:2])
         wo = sample_cosine_hemisphere(u[:, 2:4])
-        cov = sample_footprints(wo[:, 2], u[:, 6:8], z2, min_cos, l_min, l_max)
+        cov = sample_footprints(wo[:, 2], u[:, 6:8], z2, min_cos, l_min, l_max, fine_bias)
         return Query(wi, wo, uv=u[:, 4:6], footprint=cov)
 
     return draw
 
 
 @QUERY_SAMPLERS.register("footprint-uv")
-def footprint_uv_queries(source: Material, model=None) -> QueryDraw:
-    """The "footprint" sampler with the paper's log2-scale range in uv units, whatever the source's size."""
-    return footprint_queries(source, model, texel_relative=False)
+def footprint_uv_queries(source: Material, model=None, **kwargs) -> QueryDraw:
+    """The "footprint" sampler with the paper's log2-scale range in uv units, whatever the source's size
+    (`kwargs`: those of `footprint_queries`)."""
+    return footprint_queries(source, model, texel_relative=False, **kwargs)

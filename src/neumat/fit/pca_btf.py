@@ -14,7 +14,7 @@ from ..core.errors import InputError
 from ..models.pca_btf import PCABTF, Config
 from ..models.sparse_dictionary import rgb_to_model_space
 from ..reflectance.btf import TabulatedBTF
-from .recipe import recipe_for
+from .recipe import recipe_for, typed_options
 
 
 def fit_pca(btf: TabulatedBTF, ranks: tuple[int, int, int] | None = None, log_eps: float | None = None,
@@ -65,10 +65,10 @@ def decompose(btf: TabulatedBTF, log_eps: float | None = None, max_rank: int | N
     1e-4 relative (test). Defaults: log_eps from `neumat.models.pca_btf.Config`, the others from the pca-btf
     recipe's options."""
     log_eps = Config().log_eps if log_eps is None else log_eps
-    opts = recipe_for("pca-btf").options
-    exact_limit = opts["exact_limit"] if exact_limit is None else exact_limit
-    oversample = opts["oversample"] if oversample is None else oversample
-    power_iterations = opts["power_iterations"] if power_iterations is None else power_iterations
+    opts = typed_options("pca-btf", recipe_for("pca-btf").options)
+    exact_limit = opts.exact_limit if exact_limit is None else exact_limit
+    oversample = opts.oversample if oversample is None else oversample
+    power_iterations = opts.power_iterations if power_iterations is None else power_iterations
     l, v, h, w, _ = btf.data.shape
     lv, hw = l * v, h * w
     if max_rank is not None and max_rank < 0:

@@ -82,13 +82,6 @@ class FitContext:
 
         return typed_options(model_name(self.model), self.recipe.options)
 
-    def option(self, name: str) -> Any:
-        """The recipe's model-specific option `name` (Recipe.options)."""
-        if name not in self.recipe.options:
-            raise InputError(f"recipe of {model_name(self.model)!r}: no option {name!r} "
-                             f"(known: {', '.join(sorted(self.recipe.options)) or 'none'})")
-        return self.recipe.options[name]
-
     def split(self, names: tuple[str, ...]) -> list[int]:
         """The recipe's steps split over phases `names` by Recipe.phase_split (fractions; the last phase takes
         the rounding rest). An empty phase_split with one name gives all steps to it."""

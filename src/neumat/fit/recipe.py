@@ -182,7 +182,8 @@ def typed_options(model_name: str, options: dict) -> Any:
     try:
         return config_from_dict(cls, options)
     except InputError as e:
-        raise InputError(f"{model_name} recipe options: {e}".replace(f"{cls.__name__}.", "option.")) from None
+        text = str(e).replace(f"{cls.__name__}: ", "").replace(f"{cls.__name__}.", "option.")
+        raise InputError(f"{model_name} recipe options: {text}") from None
 
 
 def recipe_config_for_source(model_name: str, source: Any, options: dict) -> dict:

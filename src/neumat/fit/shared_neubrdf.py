@@ -23,7 +23,7 @@ from ..core.query import Query
 from ..models.shared_neubrdf import MaterialQuery, SharedNeuBRDF
 from ..nn.conv_autoencoder import ConvAutoencoder, train_autoencoder
 from .query_samplers import QUERY_SAMPLERS
-from .recipe import Recipe, recipe_for
+from .recipe import Recipe, recipe_for, typed_options
 
 
 # ----------------------------------------------------------------------------------- clustering
@@ -73,12 +73,12 @@ def cluster_materials(materials: Sequence[Material], k: int, *, resolution: int 
     from sklearn.cluster import KMeans
 
     recipe = recipe_for("shared-neubrdf")
-    opts = recipe.options
-    resolution = opts["cluster_resolution"] if resolution is None else resolution
-    code_dim = opts["cluster_code_dim"] if code_dim is None else code_dim
-    width = opts["cluster_width"] if width is None else width
-    steps = opts["cluster_steps"] if steps is None else steps
-    lr = opts["cluster_lr"] if lr is None else lr
+    opts = typed_options("shared-neubrdf", recipe.options)
+    resolution = opts.cluster_resolution if resolution is None else resolution
+    code_dim = opts.cluster_code_dim if code_dim is None else code_dim
+    width = opts.cluster_width if width is None else width
+    steps = opts.cluster_steps if steps is None else steps
+    lr = opts.cluster_lr if lr is None else lr
     seed = recipe.seed if seed is None else seed
 
     materials = list(materials)

@@ -28,10 +28,10 @@ from ..models.sparse_dictionary import (BTFDictionary, Codes, Ensemble, code_poi
 
 def _recipe_defaults() -> dict:
     """iterations, tol, fraction, seed of the sparse-btf recipe (the one place these defaults live)."""
-    from .recipe import recipe_for
+    from .recipe import recipe_for, typed_options
     r = recipe_for("sparse-btf")
-    return {"iterations": max(r.steps - 1, 0), "tol": r.options["tol"], "fraction": r.options["fraction"],
-            "seed": r.seed}
+    o = typed_options("sparse-btf", r.options)
+    return {"iterations": max(r.steps - 1, 0), "tol": o.tol, "fraction": o.fraction, "seed": r.seed}
 
 
 def hosvd_bases(x: torch.Tensor) -> list[torch.Tensor]:
@@ -130,7 +130,7 @@ def train_ensemble(x: torch.Tensor, num_dictionaries: int, tau: int, max_iters: 
                    description: str = "training dictionaries") -> tuple[Ensemble, TrainingLog]:
     """Train an ensemble of `num_dictionaries` orthonormal 4D dictionaries on data points x (N, m1..m4) with
     training sparsity `tau` (tau_l), alternating coding/assignment and Procrustes updates (module docstring).
-    max_iters, tol, seed: default the sparse-btf recipe's (steps - 1, options["tol"], seed)."""
+    max_iters, tol, seed: default the sparse-btf recipe's (steps - 1, option tol, seed)."""
     defaults = _recipe_defaults()
     max_iters = defaults["iterations"] if max_iters is None else max_iters
     tol = defaults["tol"] if tol is None else tol

@@ -2,24 +2,38 @@
 (`neumat.fit.trainer.fit`): L2 on random minibatches of path-traced observations (`Observations`, from
 `neumat translucent trace`), with early stopping on a held-back fraction of them.
 
-Recipe options read: validation_fraction, max_validation, bounds. Early stopping keeps the weights of the
-lowest validation MSE (`EarlyStopping`; `best_validation(history)` reads the best record back).
+The recipe options these phases read are `ObservationOptions`, the base of every translucent recipe's `Options`.
 
 Details: docs/notes/neupress.md, section `neumat.fit.translucent_fit`.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import torch
 from torch import nn
 
+from ..core.config import bounded
 from ..core.errors import InputError
 from .phase import FitContext, Phase, model_name
 from .translucent_observations import Observations
 
 Predict = Callable[[Observations], torch.Tensor]
+
+
+@dataclass
+class ObservationOptions:
+    """Recipe options of every fit on path-traced observations (NeuPreSS and its baselines)."""
+
+    validation_fraction: float = bounded(0.05, ge=0, lt=1)
+    """Fraction of the observations held back for early stopping (0: none), drawn with the recipe's seed."""
+    max_validation: int | None = bounded(None, ge=1)
+    """Use at most this many held-back observations (None: all; a slow model's validation costs less)."""
+    bounds: list[list[float]] | None = None
+    """Object bounding box [[lo x, y, z], [hi x, y, z]] for model.set_bounds; None: the box recorded with the
+    observations, else the observed points'."""
 
 
 def observation_mse(predict: Predict, observations: Observations, batch: int = 65536) -> float:
@@ -47,18 +61,12 @@ def observations_source(ctx: FitContext) -> Observations:
 def split_observations(ctx: FitContext) -> tuple[Observations, Observations | None]:
     """(training, validation or None) on ctx.device, by the recipe's validation options."""
     src = observations_source(ctx)
-    fraction = ctx.option("validation_fraction")
-    if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 <= fraction < 1:
-        raise InputError(f"recipe of {model_name(ctx.model)!r}: option validation_fraction: expected a number in "
-                         f"[0, 1) (0: no validation), got {fraction!r}")
+    fraction = ctx.opts.validation_fraction
     if fraction == 0:
         return src.to(ctx.device), None
     train, held = src.split(fraction, seed=ctx.recipe.seed)
-    limit = ctx.option("max_validation")
+    limit = ctx.opts.max_validation
     if limit is not None:
-        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
-            raise InputError(f"recipe of {model_name(ctx.model)!r}: option max_validation: expected a positive "
-                             f"integer or None, got {limit!r}")
         held = held[:limit]
     if len(train) == 0:
         raise InputError(f"fit {model_name(ctx.model)}: validation_fraction {fraction} of {len(src)} observations "
@@ -67,20 +75,22 @@ def split_observations(ctx: FitContext) -> tuple[Observations, Observations | No
 
 
 def set_bounds_from(ctx: FitContext) -> None:
-    """model.set_bounds from the recipe's "bounds" option, else the bounding box of all observed points; only
-    on a fresh fit (a resumed one has them from the checkpoint)."""
+    """model.set_bounds from the option bounds, else the bounding box recorded with the observations
+    (`Observations.bbox`, the object's), else that of the observed points: one rule for every entry point. Only on
+    a fresh fit (a resumed one has them from the checkpoint)."""
     if ctx.resuming or not hasattr(ctx.model, "set_bounds"):
         return
-    box = ctx.option("bounds")
+    box = ctx.opts.bounds
     src = observations_source(ctx)
-    if box is None:
-        lo, hi = src.x.min(0).values, src.x.max(0).values
+    if box is not None:
+        if len(box) != 2 or any(len(b) != 3 for b in box):
+            raise InputError(f"{model_name(ctx.model)} recipe options: option.bounds: expected [[lo x, y, z], "
+                             f"[hi x, y, z]] or None, got {box!r}")
+        lo, hi = (torch.tensor(b, dtype=torch.float32) for b in box)
+    elif src.bbox is not None:
+        lo, hi = src.bbox
     else:
-        try:
-            lo, hi = (torch.as_tensor(b, dtype=torch.float32) for b in box)
-        except (TypeError, ValueError):
-            raise InputError(f"recipe of {model_name(ctx.model)!r}: option bounds: expected [[lo x, y, z], "
-                             f"[hi x, y, z]] or None, got {box!r}") from None
+        lo, hi = src.x.min(0).values, src.x.max(0).values
     ctx.model.set_bounds(lo.to(ctx.device), hi.to(ctx.device))
 
 

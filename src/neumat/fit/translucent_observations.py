@@ -26,7 +26,10 @@ class Observations:
     """N observations, all (N, 3) float32 object space: surface point x, outward unit normal n, unit view
     direction wo (towards the camera), unit light direction wi (towards the light) and the observed S_hat
     (RGB, 1/sr; a Monte Carlo estimate, so a value may be slightly negative: `TranslucentObject.trace` subtracts
-    two traces and does not clamp, which would bias it). Anything else raises InputError."""
+    two traces and does not clamp, which would bias it). Anything else raises InputError.
+
+    `bbox`: the object's bounding box (lo (3,), hi (3,)) that `load` reads from the file's recorded source, or None;
+    kept by indexing and `to` (the object does not change), used by `neumat.fit.translucent_fit.set_bounds_from`."""
 
     x: torch.Tensor
     n: torch.Tensor
@@ -35,6 +38,7 @@ class Observations:
     value: torch.Tensor
 
     def __post_init__(self) -> None:
+        self.bbox: tuple[torch.Tensor, torch.Tensor] | None = None
         n = self.x.shape[0]
         for f in fields(self):
             t = getattr(self, f.name)
@@ -53,13 +57,17 @@ class Observations:
         return self.x.shape[0]
 
     def __getitem__(self, index) -> "Observations":
-        return Observations(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return self._with_bbox(Observations(**{f.name: getattr(self, f.name)[index] for f in fields(self)}))
 
     def to(self, device: str | torch.device) -> "Observations":
         """The same observations on `device` (self when they are there already)."""
         if self.x.device == torch.device(device):
             return self
-        return Observations(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+        return self._with_bbox(Observations(**{f.name: getattr(self, f.name).to(device) for f in fields(self)}))
+
+    def _with_bbox(self, other: "Observations") -> "Observations":
+        other.bbox = self.bbox
+        return other
 
     def split(self, fraction: float, seed: int = 0) -> tuple["Observations", "Observations"]:
         """(rest, held-out) with a random `fraction` of the observations held out."""
@@ -77,8 +85,8 @@ class Observations:
 
     @classmethod
     def load(cls, path: str | Path) -> "Observations":
-        """Read what `save` wrote; a missing, empty or truncated file, missing arrays or values that
-        `Observations` refuses raise errors naming the file."""
+        """Read what `save` wrote, with `bbox` from its recorded source; a missing, empty or truncated file, missing
+        arrays or values that `Observations` refuses raise errors naming the file."""
         path = Path(path)
         if not path.is_file():
             raise InputError(f"observations file {path} does not exist")
@@ -89,9 +97,13 @@ class Observations:
             raise DataFormatError(f"{path}: not a neumat observations file (.npz of x, n, wo, wi, value; "
                                   f"empty or truncated?): {e}") from None
         try:
-            return cls(**arrays)
+            obs = cls(**arrays)
         except InputError as e:
             raise DataFormatError(f"{path}: {e}") from None
+        box = (cls.load_source(path) or {}).get("bbox")
+        if box is not None:
+            obs.bbox = tuple(torch.tensor(b, dtype=torch.float32) for b in box)
+        return obs
 
     @staticmethod
     def load_source(path: str | Path) -> dict | None:

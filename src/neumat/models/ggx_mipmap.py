@@ -47,9 +47,11 @@ class Config:
     max_probes: int = 16
     """Most anisotropic-filtering probes along the major axis."""
     init_albedo: float = 0.3
+    """Initial (uniform) diffuse albedo."""
     init_f0: float = 0.04
+    """Initial (uniform) specular F0."""
     init_alpha: float = 0.3
-    """Initial (uniform) diffuse albedo, specular F0 and GGX alpha."""
+    """Initial (uniform) GGX alpha."""
 
 
 @MODELS.register("ggx-mipmap")

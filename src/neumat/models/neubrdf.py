@@ -11,13 +11,13 @@ up on the north grid S+, `wo` mirrored to (pi - theta, phi) on the south grid S-
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import torch
 from torch import nn
 
 from neumat.core.checks import check_directions, check_int, check_memory
-from neumat.core.config import resolve_config
+from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
@@ -99,9 +99,16 @@ class Config:
     NBRDF's 6 inputs (`NBRDF.encode`), appended last, 6 x hidden more MLP weights; or "hd_warp": the same with
     the half vector's (hx, hy) warped to MERL's sqrt(theta_h) coordinate (`direction_inputs`). Why: the MLP,
     given h, places highlights finer than 2^b codewords can (docs/notes/neubrdf.md, "Config.direction_inputs")."""
+    pruned_ancestor_fraction: float = bounded(0.5, gt=0, le=1)
+    """Share of training lookups in supervised pixels of a pruned grid made at an ancestor level (`NeuBRDF.prune`)."""
+    index_lr_scale: float = bounded(10.0, gt=0)
+    """Learning rate of the VQ index logits relative to the recipe's (the trainer honours a param group's
+    "lr_scale"); 10 gave the lowest held-out error (docs/notes/neubrdf.md, "NeuBRDF.index_lr_scale")."""
 
 
 def _check_config(c: Config) -> None:
+    for f in fields(c):
+        check_bounds(f, getattr(c, f.name), f"NeuBRDF.{f.name}")
     for name in ("nside", "feature_dim", "index_bits", "hidden", "lowbit_bits", "texture_levels"):
         check_int(getattr(c, name), f"NeuBRDF.{name}")
     for name in ("hidden_layers", "texture_height", "texture_width", "texture_channels"):
@@ -169,11 +176,6 @@ class NeuBRDF(LearnedMaterial):
     source_kinds = ("brdf",)
     can_sample = False
     Config = Config
-    coarse_fraction = 0.5
-    index_lr_scale = 10.0
-    """Learning rate of the VQ index logits relative to the recipe's (the trainer honours a param group's
-    "lr_scale"); 10 gave the lowest held-out error (docs/notes/neubrdf.md, "NeuBRDF.index_lr_scale")."""
-    """Share of training lookups in supervised pixels of a pruned grid made at an ancestor level (`prune`)."""
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
@@ -265,7 +267,7 @@ class NeuBRDF(LearnedMaterial):
     def _training_levels(self, pix: torch.Tensor, level: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
         """Lookup levels (N,) while training a pruned grid: a direction in a supervised pixel whose ancestors
         are read by pruned pixels (bit masks `coarse`, see `hpx.shared_ancestor_levels`) is looked up, with
-        probability `coarse_fraction`, at one of those ancestor levels (uniformly chosen), so that the
+        probability `Config.pruned_ancestor_fraction`, at one of those ancestor levels (uniformly chosen), so that the
         ancestors' corners, which the pruned pixels read, learn the reflectance inside the ancestor.
         Active during a fit only (see `on_step`)."""
         mask = torch.where(level == 0, coarse[pix], 0)
@@ -273,7 +275,7 @@ class NeuBRDF(LearnedMaterial):
         for l in range(1, self.cfg.nside.bit_length()):
             count += (mask >> l) & 1
         u = torch.rand(pix.shape, device=pix.device)
-        pick = (u * (count / self.coarse_fraction)).long()  # u < fraction -> pick < count: a coarse level
+        pick = (u * (count / self.cfg.pruned_ancestor_fraction)).long()  # u < fraction -> pick < count: a coarse level
         seen = torch.zeros_like(mask)
         for l in range(1, self.cfg.nside.bit_length()):
             bit = (mask >> l) & 1
@@ -354,8 +356,8 @@ class NeuBRDF(LearnedMaterial):
         """The optimiser to train this model with (the trainer's hook): Adam on every trainable parameter,
         with the VQ logits switched to sparse row gradients and updated lazily, only on the vertices of
         each batch (a dense Adam step would touch all 2n x 2^b logits, 25.6 M at the defaults), at
-        `index_lr_scale` times the learning rate."""
-        return grid_optimizer(self, self.grid, lr, betas, eps, self.index_lr_scale)
+        `Config.index_lr_scale` times the learning rate."""
+        return grid_optimizer(self, self.grid, lr, betas, eps, self.cfg.index_lr_scale)
 
     # ------------------------------------------------------------------------ pruning and runtime
 
@@ -363,8 +365,8 @@ class NeuBRDF(LearnedMaterial):
         """Multi-resolution sparse grids from the supervised directions wi, wo (N, 3) (paper Sec. 3.2.1):
         a pixel holding no training direction uses the corners of its nearest ancestor that holds one. Call
         before training on sparse measurements: training then also looks directions up at those ancestor
-        levels (`coarse_fraction` of the lookups, see `_training_levels`), so that the corners the pruned
-        pixels read are trained on the reflectance inside the ancestor, not left at their initial values."""
+        levels (`Config.pruned_ancestor_fraction` of the lookups, see `_training_levels`), so that the corners the
+        pruned pixels read are trained on the reflectance inside the ancestor, not left at their initial values."""
         n = self.cfg.nside
         for south, w, name in ((False, wi, "wi"), (True, wo, "wo")):
             check_directions(w, f"NeuBRDF.prune {name}")

@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from neumat.core.checks import check_directions, check_int, check_memory, check_shape
-from neumat.core.config import resolve_config
+from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, upper_hemisphere
 from neumat.core.query import Query
@@ -62,9 +62,13 @@ class Config:
     """Vertex feature storage: "vq" (indices into the shared codebook, the paper) or "dense" (k floats per vertex
     and material: the warm-up of a fit that ends with `quantize_from_dense`, see
     `neumat.fit.recipes.shared_neubrdf`)."""
+    index_lr_scale: float = bounded(10.0, gt=0)
+    """Learning-rate factor of the index logits (as `neumat.models.neubrdf.Config.index_lr_scale`)."""
 
 
 def _check_config(c: Config) -> None:
+    for f in fields(c):
+        check_bounds(f, getattr(c, f.name), f"SharedNeuBRDF.{f.name}")
     for name, lo in (("num_materials", 1), ("nside", 1), ("feature_dim", 1), ("index_bits", 1), ("hidden", 1),
                      ("hidden_layers", 0)):
         check_int(getattr(c, name), f"SharedNeuBRDF.{name}", lo)
@@ -119,8 +123,6 @@ class SharedNeuBRDF(LearnedMaterial):
     source_kinds = ("brdf-set",)
     can_sample = False
     Config = Config
-    index_lr_scale = 10.0
-    """Learning-rate factor of the index logits (as `NeuBRDF.index_lr_scale`)."""
 
     def __init__(self, config: Config | None = None, **kwargs) -> None:
         nn.Module.__init__(self)
@@ -242,10 +244,10 @@ class SharedNeuBRDF(LearnedMaterial):
 
     def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> RowAdam:
         """The optimiser to train this model with (the trainer's hook), as NeuBRDF's: the VQ index logits of all
-        materials get sparse row gradients, updated only on the vertices of each batch, at `index_lr_scale` times
+        materials get sparse row gradients, updated only on the vertices of each batch, at `Config.index_lr_scale` times
         the rate (a dense Adam step over the t x 2n x 2^b logits cost 0.45 of 1.1 s per step of 8192 queries for
         two materials at N_side 64)."""
-        return grid_optimizer(self, self.grid, lr, betas, eps, self.index_lr_scale)
+        return grid_optimizer(self, self.grid, lr, betas, eps, self.cfg.index_lr_scale)
 
     # ------------------------------------------------------------- dense warm-up, coarse to fine
 

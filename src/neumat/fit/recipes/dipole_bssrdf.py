@@ -6,31 +6,37 @@ appearance phase (`neumat.fit.translucent_fit`): Adam lr 0.05 halved at 50 % and
 quadrature: 1.9e3 queries/s in benchmarks/studies/neupress/results/neupress.md). The model needs its surface quadrature
 (`DipoleBSSRDF.set_surface`, from the object: `TranslucentObject.surface_samples`); a fresh fit of a model
 without one takes `cfg.samples` observed points with their normals, each standing for 1 / samples of the area
-of the observed points' convex hull (exact for convex objects, an underestimate for concave ones).
 
-Textured: the texture spans the object's bounding box (option "bounds", else that of the observed points) and the
-loss adds `smoothness` x (mean squared training value) x `DipoleBSSRDF.smoothness()` (mean squared difference of
-neighbouring texels of the log-coefficient offsets): scaled by the data's power, so the weight is unitless; it
-fills texels no observation reaches and damps texels few observations reach.
-
-CPU_RECIPE: RECIPE itself, which is CPU-sized: the dipole fit of benchmarks/studies/neupress/results/neupress.md took 47 s on 2 CPU
-cores, within the 10-minute CPU budget.
+Details (schedule, options, measurements): docs/notes/neupress.md,
+section `neumat.fit.recipes.dipole_bssrdf`.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import torch
 from scipy.spatial import ConvexHull
 
-from neumat.core.checks import check_number
+from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
 from neumat.fit.dipole_bssrdf import dipole_predict
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.recipe import Recipe
-from neumat.fit.translucent_fit import observation_phase, set_bounds_from, split_observations
+from neumat.fit.translucent_fit import ObservationOptions, observation_phase, set_bounds_from, split_observations
+
+
+@dataclass
+class Options(ObservationOptions):
+    """The dipole's recipe options: those of every fit on observations, and the texture's smoothness."""
+
+    max_validation: int | None = bounded(4096, ge=1)
+    """Use at most this many held-back observations (None: all); each sums over the whole surface quadrature."""
+    smoothness: float = bounded(0.01, ge=0)
+    """Weight of the texture's smoothness term, relative to the data's mean squared value (module docstring)."""
+
 
 RECIPE = Recipe(steps=300, batch_size=256, lr=0.05, schedule="halves", loss="l2", log_every=20,
-                options={"validation_fraction": 0.05, "max_validation": 4096, "bounds": None,
-                         "smoothness": 0.01})
+                options=config_to_dict(Options()))
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -56,9 +62,7 @@ def phases(ctx: FitContext) -> list[Phase]:
     params, penalty = [model.log_sigma_a, model.log_sigma_s], None
     if model.textured:
         set_bounds_from(ctx)
-        weight = ctx.option("smoothness")
-        check_number(weight, "recipe of 'dipole-bssrdf': option smoothness", 0)
-        scale = weight * float((train.value ** 2).mean())
+        scale = ctx.opts.smoothness * float((train.value ** 2).mean())
         params.append(model.texture)
 
         def penalty() -> dict[str, torch.Tensor]:

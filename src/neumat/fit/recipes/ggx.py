@@ -1,37 +1,35 @@
 """Training recipe of the GGX baseline: a few thousand Adam steps on the 7 (or 8) parameters, from the best of a
 few starting roughnesses.
 
-Rusinkiewicz queries (uniform in theta_h) put enough samples near the specular peak to fit sharp lobes;
-log(1 + f cos) L1 loss as the neural models, so that all baselines minimise the same objective.
-
-Starts (options "alpha_starts", "start_steps"): the loss has a rough, dark local minimum that a fit started at
-alpha 0.3 falls into on sharp metals. MERL-like chrome from alpha 0.3 ended at alpha 0.91 with F0 0.005 (a
-near-black sphere, held-out log error 0.0041, relative error 1.0), from 0.05 or 0.01 at alpha 0.0051 with F0 0.08 -
-0.10 (0.0012, 0.37). So before the run, a short trial fit (start_steps steps, at most the fit's own; the recipe
-otherwise) from each starting alpha, each on its own random numbers; the run continues from the trial with the
-lowest loss on one held-out batch (ties: the first listed). An empty list, or one start, is the plain single-start
-fit. On the 25 MERL-like tables: chrome image MAE 0.0647 -> 0.0194, steel 0.0551 -> 0.0221, four glossy
-dielectrics worse in images (benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md, section 7).
-
-CPU_RECIPE: the same recipe: 2000 steps of 2^14 take about 2.5 minutes on one CPU core
-(benchmarks/studies/neubrdf/results/cpu_recipes.md), within the 10-minute CPU budget; the trials add 3 x 200 steps (44 - 95 s per
-fit measured with them, beside other jobs).
+Details (schedule, options, measurements): docs/notes/neubrdf.md,
+section `neumat.fit.recipes.ggx`.
 """
 from __future__ import annotations
 
 import copy
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import torch
 
+from ...core.config import bounded, config_to_dict
 from ...core.errors import InputError
 from ..phase import FitContext, Phase, loss_module, online_phase, online_targets, query_draw
 from ..recipe import Recipe
 
-OPTIONS = {"alpha_starts": [0.3, 0.05, 0.01], "start_steps": 200}
+
+
+@dataclass
+class Options:
+    """The GGX recipe's trial starts (module docstring)."""
+
+    alpha_starts: list[float] = field(default_factory=lambda: [0.3, 0.05, 0.01])
+    """Starting roughnesses of the trial fits, inside the model's (alpha_min, alpha_max); fewer than two: no trials."""
+    start_steps: int = bounded(200, ge=1)
+    """Steps of each trial fit (at most the fit's own)."""
+
 
 RECIPE = Recipe(steps=2000, batch_size=16384, lr=2e-2, schedule="cosine", lr_min=1e-3,
-                loss="log_cos", queries="rusinkiewicz", options=dict(OPTIONS))
+                loss="log_cos", queries="rusinkiewicz", options=config_to_dict(Options()))
 
 #: the paper-size recipe already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -72,15 +70,11 @@ def best_start(ctx: FitContext, starts: list[float], steps: int):
 
 
 def _starts(ctx: FitContext) -> tuple[list[float], int]:
-    options = ctx.recipe.options
-    starts = options.get("alpha_starts", [])
-    starts = list(starts) if isinstance(starts, (list, tuple)) else starts
+    """(alpha_starts, start_steps); InputError for a start outside the model's alpha range."""
+    o = ctx.opts
     cfg = getattr(ctx.model, "cfg", None)
     lo, hi = getattr(cfg, "alpha_min", 0.0), getattr(cfg, "alpha_max", 1.0)
-    if not isinstance(starts, list) or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and lo < a < hi
-                                               for a in starts):
-        raise InputError(f"ggx recipe option alpha_starts: expected a list of alphas in ({lo}, {hi}), got {starts!r}")
-    steps = options.get("start_steps", OPTIONS["start_steps"])
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise InputError(f"ggx recipe option start_steps: expected an integer >= 1, got {steps!r}")
-    return [float(a) for a in starts], steps
+    if not all(lo < a < hi for a in o.alpha_starts):
+        raise InputError(f"ggx recipe options: option.alpha_starts: expected alphas in ({lo}, {hi}) (the model's "
+                         f"alpha_min, alpha_max), got {o.alpha_starts}")
+    return o.alpha_starts, o.start_steps

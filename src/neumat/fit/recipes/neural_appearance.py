@@ -1,56 +1,23 @@
 """Training recipe of `neumat.models.neural_appearance.NeuralAppearance` (Zeltner et al. 2024, Sec. 5): two
 phases through the one trainer (`neumat.fit.trainer.fit`).
 
-Phase "encoder": surface parameters k(x) of the source (`source.sampling_features`) are encoded to z and
-decoded to f, end to end, on point targets f(wi, wo | x) (no footprint): wi, wo cosine-weighted (or, with
-recipe queries="rusinkiewicz", uniform in half and difference angles as the paper), x uniform. Trains the
-decoders and the encoder. After its last step, `model.bake(source)` writes the encoder's latents into every
-texel of every pyramid level (with phase_split (0, 1) there is no encoder phase and no bake: the latents are
-optimised from their random initialisation, the paper's "direct optimisation" ablation).
-Phase "latents": the pyramid texels are optimised directly, with the decoders, on filtered targets
-f(wi, wo | x, Sigma) for the footprints of `neumat.fit.footprint_queries` (fine levels drawn more often, as the
-paper's exponentially distributed filter footprints).
-The last half_finish of the latents phase's steps (default 10 %) train half-aware (a deviation from the paper,
-which trains in FP32 and infers in FP16): every parameter enters the forward rounded as the fp16 exports store it,
-with a straight-through gradient, and the phase ends by rounding the parameters in place
-(`neumat.models.half_precision`), so the fitted model is exactly what its fp16 export stores
-(benchmarks/studies/neural_appearance/results/neural_appearance_timing.md: rounding a model trained in FP32 moves eval by up to 5e-3 and the
-pdf by up to 3e-3, relative). half_finish=0 trains in FP32 to the end, as the paper.
-Optionally (blur_degrees > 0) the targets of the first steps are directionally blurred, a cone around wo that
-shrinks to nothing at blur_until of all steps (counted over both phases), blur_samples directions each, so
-narrow peaks are learned broad first (Sec. 5, `neumat.fit.directional_blur`).
-
-Every step also trains the sampling decoder on the same queries (or, with sampler_batch="separate", on a second
-batch drawn the same way, as the paper): directions drawn from its current proxy are scored against the model's
-current BRDF (no gradient) by the KL divergence, with the latent detached, so the sampler does not disturb the
-BRDF (`neumat.fit.proxy_sampler.proxy_kl_loss`). BRDF loss: the recipe's ("log_cos", the paper's L1 in log
-space). Adam; the learning rate halves at 50 % and 75 % of each phase ("halves").
-
-With `Config.albedo` every step also fits the decoder's albedo output with an L2 loss against one-sample
-estimates of the source's directional albedo at the same (x, wo) (and footprint): f(w', wo | x) cos / p(w')
-with w' from an even mixture of the source's own sampler given wo and the cosine density, or pi f(w', wo | x) for
-a cosine-distributed w' when the source cannot sample (Sec. 6.4; unbiased, so the L2 optimum is the albedo).
-
-History records carry "brdf loss", "sampler loss" (and "albedo loss"); "loss" is their sum.
-`config_for_source(source)` gives the model Config fields that follow from the source (spatial_size,
-surface_features).
-
-CPU_RECIPE: RECIPE itself: 2000 steps of 2048 took 45-62 s on one core for 64^2 texture sets
-(benchmarks/studies/neural_appearance/results/neural_appearance.md), so RECIPE's 4000 of 4096 take about 4 minutes there.
+Details (schedule, options, measurements): docs/notes/neural_appearance.md,
+section `neumat.fit.recipes.neural_appearance`.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import torch
 from torch import nn
 
-from neumat.core.checks import check_int
+from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.directional_blur import blur_angle, blurred_eval
-from neumat.fit.footprint_queries import footprint_queries
+from neumat.fit.footprint_queries import FootprintOptions, footprint_queries
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.fit.proxy_sampler import proxy_kl_loss
 from neumat.models.half_precision import snap_to_half_, with_half_parameters
@@ -58,10 +25,27 @@ from neumat.warp.uniform import uniform
 from neumat.fit.recipe import Recipe, latent_size_for_source
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
+
+
+@dataclass
+class Options(FootprintOptions):
+    """NeuralAppearance's recipe options (module docstring); fine_bias and elongation_std shape the latents
+    phase's footprints."""
+
+    blur_degrees: float = bounded(0.0, ge=0, le=90)
+    """Initial half-angle of the directional blur of the targets (0: no blur)."""
+    blur_samples: int = bounded(4, ge=1)
+    """Directions averaged per blurred target."""
+    blur_until: float = bounded(0.5, gt=0, le=1)
+    """Fraction of all steps (both phases) at which the blur has shrunk to nothing."""
+    sampler_batch: Literal["shared", "separate"] = "shared"
+    """The sampling decoder trains on the BRDF's batch ("shared") or on a second one drawn the same way (the paper)."""
+    half_finish: float = bounded(0.1, ge=0, le=1)
+    """Last fraction of the latents phase trained half-aware, ending on fp16-exact parameters (0: FP32 throughout)."""
+
+
 RECIPE = Recipe(steps=4000, batch_size=4096, lr=3e-3, schedule="halves", loss="log_cos", phase_split=(0.5, 0.5),
-                log_every=100,
-                options={"blur_degrees": 0.0, "blur_samples": 4, "blur_until": 0.5,
-                         "sampler_batch": "shared", "half_finish": 0.1})
+                log_every=100, options=config_to_dict(Options()))
 
 #: RECIPE already fits the CPU budget (module docstring)
 CPU_RECIPE = RECIPE
@@ -89,27 +73,10 @@ def config_for_source(source, options: dict | None = None) -> dict:
     return config
 
 
-def _options(ctx: FitContext) -> dict:
-    """The recipe's options, validated (InputError naming the bad one)."""
-    unknown = sorted(set(ctx.recipe.options) - set(RECIPE.options))
-    if unknown:
-        raise InputError(f"neural-appearance recipe: unknown option(s) {', '.join(unknown)} "
-                         f"(known: {', '.join(sorted(RECIPE.options))})")
-    o = {name: ctx.option(name) if name in ctx.recipe.options else default for name, default in RECIPE.options.items()}
+def _check_queries(ctx: FitContext) -> None:
     if directions_of(ctx) not in ("cosine", "rusinkiewicz"):
         raise InputError(f"neural-appearance recipe queries: expected 'cosine' or 'rusinkiewicz', got "
                          f"{directions_of(ctx)!r}")
-    for name, lo, hi in (("blur_degrees", 0, 90), ("blur_until", 0, 1), ("half_finish", 0, 1)):
-        v = o[name]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi or (name == "blur_until"
-                                                                                          and v == 0):
-            bounds = {"blur_degrees": "[0, 90]", "blur_until": "(0, 1]", "half_finish": "[0, 1]"}[name]
-            raise InputError(f"neural-appearance option {name}: expected a number in {bounds}, got {v!r}")
-    check_int(o["blur_samples"], "neural-appearance option blur_samples", 1)
-    if o["sampler_batch"] not in ("shared", "separate"):
-        raise InputError(f"neural-appearance option sampler_batch: expected 'shared' or 'separate', got "
-                         f"{o['sampler_batch']!r}")
-    return o
 
 
 def _check(model, source) -> None:
@@ -129,21 +96,23 @@ def _check(model, source) -> None:
 def phases(ctx: FitContext) -> list[Phase]:
     model, source, dev, gen, batch = ctx.model, ctx.source, ctx.device, ctx.generator, ctx.recipe.batch_size
     _check(model, source)
-    o = _options(ctx)
+    _check_queries(ctx)
+    o = ctx.opts
     encoder_steps, latent_steps = ctx.split(PHASES)
     total_steps = encoder_steps + latent_steps
     brdf_loss = loss_module(ctx)
     # footprints in uv as before (the texel-relative range is the multi-scale paper's protocol, issue 28)
-    draw_filtered = footprint_queries(source, texel_relative=False)
+    draw_filtered = footprint_queries(source, texel_relative=False, fine_bias=o.fine_bias,
+                                      elongation_std=o.elongation_std)
     draw_directions = query_draw(ctx)
     albedo = model.cfg.albedo
 
     def target_of(q: Query, step: int) -> torch.Tensor:
         """The source's value, directionally blurred early in training (blur_degrees > 0); step counts over
         both phases."""
-        angle = blur_angle(step, total_steps, o["blur_degrees"], o["blur_until"])
+        angle = blur_angle(step, total_steps, o.blur_degrees, o.blur_until)
         with torch.no_grad():
-            return blurred_eval(source, q, angle, o["blur_samples"], gen)
+            return blurred_eval(source, q, angle, o.blur_samples, gen)
 
     def albedo_estimate(q: Query) -> torch.Tensor:
         """One-sample estimates (N, 3) of the source's albedo at q's x and wo: f(w', wo) cos(theta') / p(w'), w'
@@ -166,7 +135,7 @@ def phases(ctx: FitContext) -> list[Phase]:
         second one (sampler_batch). `step`: the fit's step (over both phases), for the blur schedule."""
         q, z = draw()
         u = uniform(batch, 2, gen, dev)
-        sq, sz = draw() if o["sampler_batch"] == "separate" else (q, z)
+        sq, sz = draw() if o.sampler_batch == "separate" else (q, z)
         sz = sz.detach()
         out = model.decode_outputs(z, q)
         lobes = model.sampler.lobes(sq.wi, sz)
@@ -182,7 +151,7 @@ def phases(ctx: FitContext) -> list[Phase]:
             k = source.sampling_features(q)
         return q, model.encode(k)
 
-    half_from = latent_steps - int(round(o["half_finish"] * latent_steps))  # first half-aware latents step
+    half_from = latent_steps - int(round(o.half_finish * latent_steps))  # first half-aware latents step
 
     def latent_losses(step: int) -> dict[str, torch.Tensor]:
         """The latents phase's losses at its step `step`; half-aware from half_from on (module docstring)."""

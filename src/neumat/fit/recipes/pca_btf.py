@@ -3,22 +3,36 @@ truncated PCA of the source BTF (`neumat.fit.pca_btf.decompose`, then the model 
 components). `fit(PCABTF.for_btf(btf, ranks=...), btf)`; the source is one tabulated BTF
 (`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the truncation.
 
-Options (of the solve, `decompose`): "exact_limit" (4096: the exact eigendecomposition of the smaller Gram
-matrix unless both sides of the texel x angle matrix exceed it), "oversample" (16) and "power_iterations" (6)
-of the randomised subspace iteration used otherwise. steps, batch_size, lr and the schedule are unused.
+`Options` are those of the solve (`decompose`). steps, batch_size, lr and the schedule are unused.
 
 CPU_RECIPE: RECIPE itself: its one step is the PCA of the BTF, no optimiser budget to size; its time follows the
 BTF's size.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+from ...core.config import bounded, config_to_dict
 from ...core.errors import InputError
 from ...models.btf_size import btf_table_size
 from ..phase import FitContext, Phase
 from ..recipe import Recipe
 
-RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1,
-                options={"exact_limit": 4096, "oversample": 16, "power_iterations": 6})
+
+
+@dataclass
+class Options:
+    """Options of the PCA solve (`neumat.fit.pca_btf.decompose`)."""
+
+    exact_limit: int = bounded(4096, ge=0)
+    """Exact eigendecomposition of the smaller Gram matrix unless both sides of the texel x angle matrix exceed this."""
+    oversample: int = bounded(16, ge=0)
+    """Extra vectors of the randomised subspace iteration used otherwise."""
+    power_iterations: int = bounded(6, ge=0)
+    """Passes of that randomised subspace iteration."""
+
+
+RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1, options=config_to_dict(Options()))
 
 #: RECIPE itself (module docstring)
 CPU_RECIPE = RECIPE
@@ -42,8 +56,9 @@ def phases(ctx: FitContext) -> list[Phase]:
     def solve(step: int) -> dict:
         data = btf.data.to(ctx.device)
         table = TabulatedBTF(data, btf.light_dirs, btf.view_dirs, btf.neighbours, label=btf.label)
-        dec = decompose(table, model.cfg.log_eps, max(model.cfg.ranks), ctx.option("exact_limit"),
-                        ctx.option("oversample"), ctx.option("power_iterations"))
+        o = ctx.opts
+        dec = decompose(table, model.cfg.log_eps, max(model.cfg.ranks), o.exact_limit, o.oversample,
+                        o.power_iterations)
         model.load_components(dec, table.light_dirs, table.view_dirs)
         return {"mse": dec.residual(model.cfg.ranks)}
 

@@ -11,6 +11,8 @@ material's evaluation).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 
 from neumat.core.errors import InputError
@@ -20,6 +22,12 @@ from neumat.fit.proxy_sampler import proxy_kl_loss
 from neumat.fit.recipe import Recipe
 from neumat.models.proxy_sampler import SampledMaterial, features_of
 from neumat.warp.hemisphere import sample_uniform_hemisphere
+
+
+@dataclass
+class Options:
+    """The proxy sampler's recipe has no options (any given is refused by name)."""
+
 
 RECIPE = Recipe(steps=2000, batch_size=4096, lr=3e-3, schedule="halves", log_every=100)
 
@@ -35,8 +43,6 @@ def phases(ctx: FitContext) -> list[Phase]:
     if ctx.source is not material:
         raise InputError("proxy-sampler fit: the source must be the material the sampler is attached to "
                          "(fit(SampledMaterial(material, sampler), material))")
-    if ctx.recipe.options:
-        raise InputError(f"proxy-sampler recipe: no options, got {', '.join(sorted(ctx.recipe.options))}")
     features = model.sampler.cfg.features
     who = material.describe() if hasattr(material, "describe") else type(material).__name__
 

@@ -1,48 +1,42 @@
 """Training recipe of SparseBTF (Kavoosi et al., EGSR 2023): "dictionary then coding", two solver phases of the
 one trainer. `fit(SparseBTF.for_btf(btf, ...), btf)`; the source is ONE tabulated BTF (`neumat.io.btf.read_btf`).
 
-- "dictionary": one step = one training iteration (sparse coding / assignment, then the Procrustes update of
-  every dictionary and mode; `neumat.fit.sparse_dictionary.ensemble_iteration`) of the Y, U and V ensembles,
-  initialised from the HOSVD bases of a random partition of the data points (drawn with the fit's generator).
-  recipe.steps - 1 iterations (today's `train_dictionary` default: 20); a channel whose objective fell by at
-  most `tol` (relative) in its last iteration has converged and is left as it is (as `train_ensemble`
-  stops). The ensembles being trained are the model's own `dict_n` buffers, and the objective history and
-  convergence flags are buffers of a stateful module, so a checkpoint between iterations resumes bit for bit.
-  K, tau_l (`tau_train`), the patch size and log eps are the model's Config fields (paper: K = 8, tau_l =
-  (256, 32, 32) for Y, U, V, p = 10). With option "dictionary" (the path of a dictionary .nmat from `neumat
-  fit-dictionary`) the phase has zero steps: the given ensemble is used.
-  A dictionary trained on the BTF it then codes does not measure how a dictionary generalises to BTFs it
-  has not seen (the paper trains it once on other BTFs); the fit warns when it does so.
-- "coding": one step: project every data point on every dictionary and keep the cfg.tau largest
-  coefficients (the model's `code`, i.e. what `SparseBTF.encode` does).
-
-Options: "dictionary" (None or a path), "fraction" (random fraction of the BTF's data points the dictionary
-phase trains on: 1.0 as today's `train_dictionary` default; the paper uses 10 % of a large training set),
-"tol" (1e-3, relative objective decrease below which a channel stops). batch_size, lr and the schedule are
-unused (solver phases). The same defaults serve `neumat.fit.sparse_dictionary.train_dictionary` (several
-BTFs, `neumat fit-dictionary`).
-
-CPU_RECIPE: RECIPE itself: its steps are solver passes over the BTF (dictionary learning, then sparse coding),
-no optimiser budget to size; their time follows the BTF and the dictionary.
+Details (schedule, options, measurements): docs/notes/sparse_btf.md,
+section `neumat.fit.recipes.sparse_btf`.
 """
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from torch import nn
 
+from ...core.config import bounded, config_to_dict
 from ...core.errors import InputError
 from ...models.btf_size import btf_table_size
 from ...models.sparse_dictionary import BTFDictionary, code_points
 from ..phase import FitContext, Phase
-from ..recipe import Recipe
+from ..recipe import Recipe, typed_options
 from ..sparse_dictionary import (check_points, ensemble_iteration, has_converged, init_ensemble, keep_count,
                                  objective)
 
-RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1,
-                options={"dictionary": None, "fraction": 1.0, "tol": 1e-3})
+
+
+@dataclass
+class Options:
+    """SparseBTF's recipe options (module docstring); also the defaults of `train_dictionary`."""
+
+    dictionary: str | None = None
+    """Path of a dictionary .nmat from `neumat fit-dictionary` to code with; None: train one on the source BTF."""
+    fraction: float = bounded(1.0, gt=0, le=1)
+    """Random fraction of the BTF's data points the dictionary phase trains on."""
+    tol: float = bounded(1e-3, ge=0)
+    """Relative objective decrease of an iteration below which a channel has converged and stops."""
+
+
+RECIPE = Recipe(steps=21, batch_size=1, lr=1.0, log_every=1, checkpoint_every=1, options=config_to_dict(Options()))
 
 #: RECIPE itself (module docstring)
 CPU_RECIPE = RECIPE
@@ -52,8 +46,9 @@ def config_for_source(btf, options: dict | None = None) -> dict:
     """The model's size from the BTF (direction counts, texels) and, with option "dictionary", the fields the
     dictionary was trained with (patch, K, tau_train, log eps)."""
     out = btf_table_size(btf, "sparse-btf")
-    if (options or {}).get("dictionary") is not None:
-        d = BTFDictionary.load(Path(options["dictionary"]))
+    path = typed_options("sparse-btf", options or {}).dictionary
+    if path is not None:
+        d = BTFDictionary.load(Path(path))
         out.update(patch=d.patch, num_dictionaries=d.num_dictionaries, tau_train=list(d.tau_train),
                    log_eps=d.log_eps)
     return out
@@ -82,7 +77,7 @@ def phases(ctx: FitContext) -> list[Phase]:
                          "option 'dictionary'")
     model.check_source(btf)
     cfg, dev = model.cfg, ctx.device
-    path = ctx.option("dictionary")
+    path = ctx.opts.dictionary
     coding = Phase("coding", 1, lambda step: {"mse": model.code(btf)})
     if path is not None:
         dictionary = BTFDictionary.load(Path(path), device=dev)
@@ -99,9 +94,7 @@ def phases(ctx: FitContext) -> list[Phase]:
                   "generalises to BTFs it has not seen (train one on other BTFs with `neumat fit-dictionary`)",
                   stacklevel=2)
     iterations = max(ctx.recipe.steps - 1, 0)
-    tol = float(ctx.option("tol"))
-    if not tol >= 0:
-        raise InputError(f"sparse-btf option tol: expected a number >= 0, got {tol!r}")
+    tol = ctx.opts.tol
     points = _training_points(ctx, btf)
     for c in range(3):
         check_points(points[c], cfg.num_dictionaries, cfg.tau_train[c])
@@ -141,9 +134,8 @@ def _training_points(ctx: FitContext, btf) -> torch.Tensor:
     cfg = ctx.model.cfg
     from ...models.sparse_dictionary import prepare_btf
     points = prepare_btf(btf.data.to(ctx.device), cfg.patch, cfg.log_eps, cfg.statistics)[0]
-    fraction = ctx.option("fraction")
     n = points.shape[1]
-    keep = keep_count(n, cfg.num_dictionaries, fraction)
+    keep = keep_count(n, cfg.num_dictionaries, ctx.opts.fraction)
     if keep >= n:
         return points
     gen = torch.Generator(device=ctx.device).manual_seed(ctx.recipe.seed + 2)
