@@ -31,7 +31,7 @@ class GridOptions:
     dense_warmup: float = bounded(0.0, ge=0, lt=1)
     """Fraction of the steps on dense features before k-means quantises them into the codebook (0: end-to-end VQ)."""
     vq_candidates: int = bounded(0, ge=0)
-    """After a dense warm-up, codewords kept per slot for the VQ phase (0 or more than 2^index_bits: all, the paper's)."""
+    """After a dense warm-up, codewords kept per slot for the VQ phase (0, or more than 2^index_bits: all)."""
 
 
 @dataclass
