@@ -1,5 +1,5 @@
 #!/bin/bash
-# Session rglexp driver (benchmarks/results/neubrdf_rgl_defaults.md); paths under /tmp/rglexp as run.
+# Session rglexp driver (benchmarks/studies/neubrdf/results/neubrdf_rgl_defaults.md); paths under /tmp/rglexp as run.
 # usage: run_arm.sh TAG SRC [--set ...]   -> /tmp/rglexp/TAG.nmat, TAG.fit.log, TAG.eval.json (eval in the background)
 TAG=$1; SRC=$2; shift 2
 cd /work/wtexp
