@@ -22,6 +22,15 @@ def shared_data() -> Path:
 
 
 @pytest.fixture
+def without_llvm(monkeypatch):
+    """This process has decided that no LLVM >= 16 is usable, as on a fresh Debian 12: whatever reaches Mitsuba
+    refuses, so a command's own argument errors show only when it checks them first."""
+    from neumat.core import llvm
+    monkeypatch.setattr(llvm, "_decided", (None, "Mitsuba 3's LLVM backend found no usable LLVM >= 16 (test); "
+                                                 + llvm.FIX))
+
+
+@pytest.fixture
 def gen() -> torch.Generator:
     """A seeded CPU generator."""
     return torch.Generator().manual_seed(1234)
@@ -35,3 +44,15 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "cuda" in item.keywords:
             item.add_marker(skip)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """One line per distinct skip reason with its count, so that `make test -q` says why tests skipped (Mitsuba
+    without LLVM >= 16, no GPU, no shared data) without pytest's per-location -rs list."""
+    reasons: dict[str, int] = {}
+    for report in terminalreporter.stats.get("skipped", []):
+        if isinstance(report.longrepr, tuple):
+            reason = report.longrepr[2].removeprefix("Skipped: ")
+            reasons[reason] = reasons.get(reason, 0) + 1
+    for reason, count in sorted(reasons.items(), key=lambda rc: -rc[1]):
+        terminalreporter.write_line(f"skipped {count}: {reason}")

@@ -55,3 +55,21 @@ def test_errors_name_the_problem(tmp_path):
         r = CliRunner().invoke(app, args)
         assert r.exit_code == 2, r.output
         assert message in _said(r), r.output
+
+
+def test_argument_errors_come_before_mitsuba(tmp_path, without_llvm):
+    """Without a usable LLVM, the commands that need Mitsuba still name their own bad arguments first."""
+    scene = tmp_path / "scene.xml"
+    scene.write_text(SCENE)
+    cases = [(["mitsuba-render", str(tmp_path / "none.xml"), "-o", str(tmp_path / "x.png")], "doesnotexist"),
+             (["mitsuba-render", str(scene), "-D", "mat", "-o", str(tmp_path / "x.png")], "-Dexpectskey=value"),
+             (["mitsuba-render", str(scene), "-o", str(tmp_path / "x.txt")], ".png"),
+             (["render", "ggx", "--scene", f"mesh:{tmp_path / 'none.ply'}", "-o", str(tmp_path / "x.png")],
+              "doesnotexist"),
+             (["render", "ggx", "--scene", f"mesh:{scene}", "-o", str(tmp_path / "x.png")], ".ply")]
+    for args, message in cases:
+        r = CliRunner().invoke(app, args)
+        assert r.exit_code == 2 and message in _said(r), r.output
+    r = CliRunner().invoke(app, ["mitsuba-render", str(scene), "-o", str(tmp_path / "x.png")])
+    assert r.exit_code == 2 and "libllvm19" in _said(r), r.output  # the refusal itself
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.xml"]

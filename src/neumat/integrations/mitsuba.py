@@ -30,12 +30,14 @@ from __future__ import annotations
 import contextlib
 import functools
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ..core.errors import InputError, NeumatError
+from ..core.llvm import configure_llvm
 from ..core.material import Material, material_device
 from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
@@ -133,9 +135,15 @@ def _check_rgb(variant: str) -> None:
 
 
 def _current_mitsuba():
-    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is."""
-    import mitsuba as mi
-    return import_mitsuba() if mi.variant() is None else mi
+    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is (imported by
+    `import_mitsuba`, which chooses the LLVM first, when nobody has imported it yet). An LLVM variant set by the
+    caller is checked against the chosen LLVM too (`configure_llvm`)."""
+    mi = sys.modules.get("mitsuba")
+    if mi is None or mi.variant() is None:
+        return import_mitsuba()
+    if mi.variant().startswith("llvm_"):
+        configure_llvm()
+    return mi
 
 
 def _bsdf_class(mi) -> type:
