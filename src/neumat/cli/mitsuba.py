@@ -35,8 +35,13 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
         mi = mitsuba_translucent.register()  # the neumat BSDF and the translucent integrator
         try:
             loaded = mi.load_file(str(scene), **params)
-        except RuntimeError as e:  # Mitsuba's parser: the message names the file, line and problem
-            raise InputError(f"Mitsuba could not load {str(scene)!r}: {plugin.unwrap_error(e) or e}") from None
+        except (RuntimeError, UnicodeDecodeError) as e:  # the parser: the message names the file, line, problem
+            # a message quoting a file's bytes (a PLY header of random bytes) fails to decode: decode it leniently
+            why = str(e.object.decode("utf-8", "replace") if isinstance(e, UnicodeDecodeError)
+                      else plugin.unwrap_error(e) or e)
+            why = "".join(c if c.isprintable() else " " for c in why)
+            raise InputError(f"Mitsuba could not load {str(scene)!r} or a file it names: {' '.join(why.split())}"
+                             ) from None
         image = plugin.render(loaded, spp=spp, seed=seed)
         write_image(out, image[..., :3])
         print(f"wrote {out}")

@@ -92,12 +92,30 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0) -> tor
     mi = _current_mitsuba()
     if not isinstance(scene, mi.Scene):
         raise InputError(f"scene: expected a mitsuba Scene (mi.load_dict / mi.load_file), got {type(scene).__name__}")
+    check_renderable(scene, sensor)
     with evaluated_mode():
         try:
             image = mi.render(scene, spp=0 if spp is None else spp, seed=seed, sensor=sensor)
         except RuntimeError as e:  # Dr.Jit wraps an error of the plugin in its own
             raise unwrap_error(e) or e from None
     return torch.from_numpy(np.array(image, dtype=np.float32))
+
+
+def check_renderable(scene, sensor: int = 0) -> None:
+    """InputError naming what keeps `mi.render` from rendering `scene` with sensor number `sensor`: no integrator,
+    no such sensor, a film without pixels or with more values than a Dr.Jit array holds (2^32). Mitsuba would
+    raise deep inside its render call instead."""
+    if scene.integrator() is None:
+        raise InputError('the scene has no integrator; add one, e.g. <integrator type="path"/>')
+    sensors = scene.sensors()
+    if not sensors:
+        raise InputError('the scene has no sensor; add one, e.g. <sensor type="perspective"> with a film')
+    if not 0 <= sensor < len(sensors):
+        raise InputError(f"sensor: expected an index below the scene's {len(sensors)} sensors, got {sensor}")
+    w, h = (int(v) for v in sensors[sensor].film().crop_size())
+    if w < 1 or h < 1 or w * h * 4 >= 2 ** 32:  # an RGB film stores at least 4 values (+ weight) per pixel
+        raise InputError(f"the scene's film is {w} x {h} pixels; expected width and height >= 1 and fewer than "
+                         "2^32 / 4 pixels (2^32 values: the most a Dr.Jit array holds)")
 
 
 def unwrap_error(error: BaseException) -> NeumatError | None:
