@@ -30,7 +30,7 @@ from pathlib import Path
 import torch
 
 from ..core.errors import DataFormatError, InputError
-from ..io.tagged_file import read_tagged, write_tagged
+from ..io.tagged_file import header_field, read_tagged, write_tagged
 
 #: RGB -> YUV (BT.601 analogue), rows Y, U, V
 RGB_TO_YUV = torch.tensor([[0.299, 0.587, 0.114],
@@ -329,8 +329,14 @@ class BTFDictionary:
             ens = [Ensemble([tensors[f"U{j + 1}_{ch}"].to(device) for j in range(4)]) for ch in "YUV"]
         except KeyError as e:
             raise DataFormatError(f"{path}: missing dictionary tensor {e}") from None
-        return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device), int(meta["patch"]),
-                   tuple(meta["tau_train"]), float(meta["log_eps"]), meta.get("info", {}))
+        for k in ("light_dirs", "view_dirs"):
+            if k not in tensors:
+                raise DataFormatError(f"{path}: missing dictionary tensor {k!r}")
+        return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device),
+                   header_field(meta, "patch", "positive integer", path),
+                   tuple(header_field(meta, "tau_train", "list of finite numbers", path)),
+                   float(header_field(meta, "log_eps", "finite number", path)),
+                   header_field(meta, "info", "object", path, default={}))
 
 
 #: dictionaries shipped with the package: name -> file under neumat/models/data (docs/btf.md, "Shipped dictionary")
