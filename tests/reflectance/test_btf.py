@@ -29,6 +29,9 @@ def test_direction_sets_are_unit_upper_hemisphere():
         assert bool((d[:, 2] > 0).all())
     with pytest.raises(InputError, match="direction set"):
         direction_set("rings:9x15")
+    for spec in ("rings:3xnan", "rings:1xnan", "rings:2x-inf", "rings:3x0"):
+        with pytest.raises(InputError, match="ring step must be a positive number"):
+            direction_set(spec)
 
 
 def test_ubo151_ring_angles_and_azimuth_offsets():

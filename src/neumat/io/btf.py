@@ -158,12 +158,12 @@ def _validate_header(path: Path, meta: dict, keys: set[str]) -> dict:
     if isinstance(header.get("version"), bool) or header.get("version") != VERSION:
         raise DataFormatError(f"{path}: header version {header.get('version')!r}, this reader knows {VERSION}")
     for k in ("height", "width", "n_light", "n_view"):
-        header_field(header, k, "positive integer", path)
+        header_field(header, k, "a positive integer", f"{path}: header")
     if header.get("dtype") not in ("float16", "float32"):
         raise DataFormatError(f"{path}: header dtype {header.get('dtype')!r}, expected 'float16' or 'float32'")
-    header_field(header, "label", "string", path, default=None)
-    header_field(header, "extra", "object", path, default=None)
-    header_field(header, "clamped", "non-negative integer", path, default=None)
+    header_field(header, "label", "a string", f"{path}: header", default=None)
+    header_field(header, "extra", "a JSON object", f"{path}: header", default=None)
+    header_field(header, "clamped", "a non-negative integer", f"{path}: header", default=None)
     chunks = {k for k in keys if k.startswith("light_") and k != "light_dirs"}
     if len(chunks) != header["n_light"] or chunks != {_chunk(i) for i in range(header["n_light"])}:
         raise DataFormatError(f"{path}: header says {header['n_light']} light directions but the file has "

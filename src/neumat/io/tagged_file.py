@@ -50,23 +50,23 @@ def _number(v: Any) -> bool:
 
 #: what `header_field` can ask for, and how to tell it (a JSON true is no number)
 FIELD_KINDS = {
-    "positive integer": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
-    "non-negative integer": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
-    "finite number": _number,
-    "list of finite numbers": lambda v: isinstance(v, list) and all(_number(x) for x in v),
-    "string": lambda v: isinstance(v, str),
-    "object": lambda v: isinstance(v, dict),
+    "a positive integer": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
+    "a non-negative integer": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+    "a finite number": _number,
+    "a list of finite numbers": lambda v: isinstance(v, list) and all(_number(x) for x in v),
+    "a string": lambda v: isinstance(v, str),
+    "a JSON object": lambda v: isinstance(v, dict),
 }
 
 
-def header_field(header: dict, key: str, kind: str, where: str | Path, **default: Any) -> Any:
-    """header[key] when it is a `kind` (a key of FIELD_KINDS); `default=...` stands in for a missing key.
-    DataFormatError naming the file and field otherwise: a JSON value of the wrong type fails here, not deep in
-    the reader with a traceback."""
+def header_field(header: dict, key: str, kind: str, where: str, **default: Any) -> Any:
+    """header[key] when it is `kind` (a key of FIELD_KINDS); `default=...` stands in for a missing key.
+    DataFormatError naming `where` ("FILE: header") and the field otherwise: a JSON value of the wrong type fails
+    here, not deep in the reader with a traceback."""
     if key not in header and "default" in default:
         return default["default"]
     if key not in header:
-        raise DataFormatError(f"{where}: header lacks the field {key!r} ({kind})")
+        raise DataFormatError(f"{where} lacks the field {key!r} ({kind})")
     if not FIELD_KINDS[kind](header[key]):
-        raise DataFormatError(f"{where}: header field {key!r} must be a {kind}, got {header[key]!r}"[:300])
+        raise DataFormatError(f"{where} field {key!r} must be {kind}, got {header[key]!r}"[:300])
     return header[key]

@@ -332,11 +332,12 @@ class BTFDictionary:
         for k in ("light_dirs", "view_dirs"):
             if k not in tensors:
                 raise DataFormatError(f"{path}: missing dictionary tensor {k!r}")
+        where = f"{path}: header"
         return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device),
-                   header_field(meta, "patch", "positive integer", path),
-                   tuple(header_field(meta, "tau_train", "list of finite numbers", path)),
-                   float(header_field(meta, "log_eps", "finite number", path)),
-                   header_field(meta, "info", "object", path, default={}))
+                   header_field(meta, "patch", "a positive integer", where),
+                   tuple(header_field(meta, "tau_train", "a list of finite numbers", where)),
+                   float(header_field(meta, "log_eps", "a finite number", where)),
+                   header_field(meta, "info", "a JSON object", where, default={}))
 
 
 #: dictionaries shipped with the package: name -> file under neumat/models/data (docs/btf.md, "Shipped dictionary")
