@@ -6,7 +6,10 @@ from pathlib import Path
 import pytest
 import torch
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from neumat.io.shared_data import shared_data_candidates, shared_data_dir
+
+#: the library's answer ($NEUMAT_SHARED_DATA, else ../shared/data), so tests and commands read the same data
+SHARED_DATA = shared_data_dir()
 
 # one torch thread per test process: xdist runs one process per core, and small test batches gain
 # nothing from intra-op threads while oversubscribed cores slow them down many times over
@@ -15,9 +18,10 @@ torch.set_num_threads(1)
 
 @pytest.fixture
 def shared_data() -> Path:
-    """Path of ../shared/data; skips the test when it is absent."""
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"real data folder {SHARED_DATA} is absent")
+    """The reference data folder (`neumat.io.shared_data`); skips the test when it is absent."""
+    if SHARED_DATA is None:
+        pytest.skip(f"real data folder absent (looked in {', '.join(map(str, shared_data_candidates()))}; set "
+                    "NEUMAT_SHARED_DATA)")
     return SHARED_DATA
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..core.errors import InputError
 from ..core.material import Material
+from ..io.shared_data import resolve_data_path
 from .sources import FOLDER, SPEC, Source, file_suffixes, load_sources
 
 
@@ -25,11 +26,12 @@ def open_material(name: str | Path, **kwargs) -> Material:
 
 
 def material_source(name: str | Path) -> tuple[Source, Path | str]:
-    """(the source that reads `name`, its path or, for an analytic spec, its text), reading nothing: callers
+    """(the source that reads `name`, its path (`neumat.io.shared_data.resolve_data_path`) or, for an analytic
+    spec, its text), reading nothing: callers
     refuse a missing or unsupported file before starting work. InputError naming the problem."""
     sources = load_sources()
     text = str(name)
-    path = Path(text)
+    path = resolve_data_path(text)  # also docs/examples/... and paths inside $NEUMAT_SHARED_DATA
     if path.is_dir():
         return sources[FOLDER], path
     suffixes = file_suffixes()

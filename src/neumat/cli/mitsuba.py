@@ -14,7 +14,7 @@ def register(app: typer.Typer) -> None:
     app.command("mitsuba-render")(mitsuba_render)
 
 
-def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file (.xml)"),
+def mitsuba_render(scene_arg: Path = typer.Argument(..., metavar="SCENE", help="Mitsuba 3 scene file (.xml)"),
                    define: list[str] = typer.Option(None, "-D", "--define",
                                                     help="scene parameter NAME=VALUE (the XML's $NAME), repeatable"),
                    spp: int = typer.Option(None, min=1, help="samples per pixel (default: the scene's sampler)"),
@@ -29,6 +29,8 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
     from ..io.images import write_image
 
     def go():
+        from ..io.shared_data import resolve_data_path
+        scene = resolve_data_path(scene_arg)  # docs/examples/scene.xml also from an installed wheel
         if not scene.is_file():
             raise InputError(f"scene file {str(scene)!r} does not exist")
         params = parse_overrides(define, "-D", text=True)  # Mitsuba substitutes the text as written
