@@ -122,8 +122,8 @@ def direction_pairs(draw):
 
 
 def _mostly_accepted(counts: Counter, what: str) -> None:
-    """At least 30 valid draws reached the material, and it refused at most 10 % of them."""
-    assert counts["valid"] >= 30 and counts["refused"] <= 0.1 * counts["valid"], (what, dict(counts))
+    """At least 20 valid draws (of about 45 expected) reached the material, and it refused at most 10 % of them."""
+    assert counts["valid"] >= 20 and counts["refused"] <= 0.1 * counts["valid"], (what, dict(counts))
 
 
 def test_eval_and_pdf_are_finite_and_non_negative():
@@ -164,7 +164,7 @@ def test_sample_checks_u_and_returns_unit_directions():
     def check(spec, pair, data):
         q = _query_or_none(pair[0], material=MATERIALS[spec])
         assume(q is not None)
-        if data.draw(st.booleans()):
+        if data.draw(st.integers(0, 3)):  # mostly u in [0, 1)^2
             u = torch.tensor(data.draw(st.lists(st.floats(0, 1, exclude_max=True), min_size=2 * len(q),
                                                 max_size=2 * len(q))), dtype=q.dtype).reshape(len(q), 2)
         else:

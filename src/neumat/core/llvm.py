@@ -152,25 +152,24 @@ def usable_libllvm() -> str:
     return lib
 
 
-def loaded_libllvm() -> str | None:
-    """The resolved path of the libLLVM this process has mapped (Linux's /proc/self/maps), or None."""
+def loaded_libllvms() -> set[str]:
+    """The resolved paths of the libLLVMs this process has mapped (Linux's /proc/self/maps; Mesa's llvmpipe maps
+    one too), or an empty set."""
     try:
         maps = Path("/proc/self/maps").read_text()
     except OSError:
-        return None
-    for fields in (line.split(maxsplit=5) for line in maps.splitlines()):
-        if len(fields) == 6 and Path(fields[5]).name.startswith("libLLVM"):
-            return os.path.realpath(fields[5])
-    return None
+        return set()
+    return {os.path.realpath(fields[5]) for fields in (line.split(maxsplit=5) for line in maps.splitlines())
+            if len(fields) == 6 and Path(fields[5]).name.startswith("libLLVM")}
 
 
 def configure_llvm() -> None:
     """Point DRJIT_LIBLLVM_PATH at the library `usable_libllvm()` chose, or raise InputError. Also an
-    InputError when Dr.Jit, imported earlier, already loaded another libLLVM: its kernels could abort."""
+    InputError when Dr.Jit, imported earlier, loaded another libLLVM instead: its kernels could abort."""
     lib = usable_libllvm()
-    loaded = loaded_libllvm() if "drjit" in sys.modules else None
-    if loaded is not None and loaded != lib:
-        raise InputError(f"Dr.Jit was imported before neumat chose an LLVM and loaded {loaded}, not {lib} (which "
-                         "passed the probe); let neumat load Mitsuba first (neumat.core.mitsuba.import_mitsuba) "
-                         "or set DRJIT_LIBLLVM_PATH before importing drjit")
+    loaded = loaded_libllvms() if "drjit" in sys.modules else set()
+    if loaded and lib not in loaded:
+        raise InputError(f"Dr.Jit was imported before neumat chose an LLVM and loaded {', '.join(sorted(loaded))}, "
+                         f"not {lib} (which passed the probe); let neumat load Mitsuba first "
+                         "(neumat.core.mitsuba.import_mitsuba) or set DRJIT_LIBLLVM_PATH before importing drjit")
     os.environ["DRJIT_LIBLLVM_PATH"] = lib
