@@ -6,7 +6,10 @@ from pathlib import Path
 import pytest
 import torch
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from neumat.io.shared_data import shared_data_candidates, shared_data_dir
+
+#: the library's answer ($NEUMAT_SHARED_DATA, else ../shared/data), so tests and commands read the same data
+SHARED_DATA = shared_data_dir()
 
 # one torch thread per test process: xdist runs one process per core, and small test batches gain
 # nothing from intra-op threads while oversubscribed cores slow them down many times over
@@ -15,10 +18,20 @@ torch.set_num_threads(1)
 
 @pytest.fixture
 def shared_data() -> Path:
-    """Path of ../shared/data; skips the test when it is absent."""
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"real data folder {SHARED_DATA} is absent")
+    """The reference data folder (`neumat.io.shared_data`); skips the test when it is absent."""
+    if SHARED_DATA is None:
+        pytest.skip(f"real data folder absent (looked in {', '.join(map(str, shared_data_candidates()))}; set "
+                    "NEUMAT_SHARED_DATA)")
     return SHARED_DATA
+
+
+@pytest.fixture
+def without_llvm(monkeypatch):
+    """This process has decided that no LLVM >= 16 is usable, as on a fresh Debian 12: whatever reaches Mitsuba
+    refuses, so a command's own argument errors show only when it checks them first."""
+    from neumat.core import llvm
+    monkeypatch.setattr(llvm, "_decided", (None, "Mitsuba 3's LLVM backend found no usable LLVM >= 16 (test); "
+                                                 + llvm.FIX))
 
 
 @pytest.fixture
@@ -35,3 +48,15 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "cuda" in item.keywords:
             item.add_marker(skip)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """One line per distinct skip reason with its count, so that `make test -q` says why tests skipped (Mitsuba
+    without LLVM >= 16, no GPU, no shared data) without pytest's per-location -rs list."""
+    reasons: dict[str, int] = {}
+    for report in terminalreporter.stats.get("skipped", []):
+        if isinstance(report.longrepr, tuple):
+            reason = report.longrepr[2].removeprefix("Skipped: ")
+            reasons[reason] = reasons.get(reason, 0) + 1
+    for reason, count in sorted(reasons.items(), key=lambda rc: -rc[1]):
+        terminalreporter.write_line(f"skipped {count}: {reason}")

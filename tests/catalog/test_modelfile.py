@@ -117,6 +117,7 @@ def _set(key, value):
     (dict(tensors_change=lambda t: t.pop("mlp.net.0.bias")), "Missing key.*mlp.net.0.bias"),
     (dict(tensors_change=lambda t: t.__setitem__("mlp.net.0.bias", torch.zeros(3))), "size mismatch"),
     (dict(raw_header="{not json"), "not valid JSON"),
+    (dict(header_change=lambda h: h["config"].__setitem__("hidden", 10 ** 30)), "bad config.*TypeError"),
 ])
 def test_strict_loading_raises(edit, match, tmp_path, gen):
     path = save_model(_trained_like("dense", gen), tmp_path / "m.nmat")

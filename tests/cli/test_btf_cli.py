@@ -58,6 +58,10 @@ def test_btf_generate_procedural_material(tmp_path):
     torch.testing.assert_close(read_btf(out).data.float(), expected.data, rtol=2e-3, atol=1e-4)   # stored fp16
     r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:velvet", "-o", str(tmp_path / "v.nbtf")])
     assert r.exit_code != 0 and "procedural material 'velvet'" in r.output
+    r = CliRunner().invoke(_apps(), ["data", "btf-generate", "procedural:bricks~2", "-o", str(tmp_path / "n.nbtf"),
+                                     "--size", "8", "--directions", "rings:3xnan"])
+    assert r.exit_code == 2 and r.output.startswith("error: ") and "ring step" in r.output, r.output
+    assert not (tmp_path / "n.nbtf").exists()
 
 
 def test_btf_generate_noise_is_the_library_noise(tmp_path):

@@ -260,3 +260,36 @@ def test_model_scoped_overrides():
     assert got == {"nbrdf": {"steps": 5, "hidden": 8}, "neubrdf": {"steps": 6, "nside": 4}}
     with pytest.raises(Exception, match="ggx is not one of the --model values"):
         fit_many.model_overrides({"ggx:x": 1}, ["nbrdf"])
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_an_address_where_no_cluster_answers_fails_in_seconds(app, tmp_path):
+    """Ray itself retries for minutes printing warnings; nothing is written."""
+    import time
+    pytest.importorskip("ray")
+    t0 = time.perf_counter()
+    for address in (f"127.0.0.1:{_free_port()}", f"ray://127.0.0.1:{_free_port()}"):
+        r = CliRunner().invoke(app, ["lambert", *FAST, "--engine", "ray", "--address", address,
+                                     "-o", str(tmp_path / "out")])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"--address {address}: no Ray cluster answers at that address" in said, said
+        assert said.count("error:") == 1
+    assert time.perf_counter() - t0 < 20 and not (tmp_path / "out").exists()
+
+
+def test_mistyped_paths_are_refused_before_any_job(app, tmp_path):
+    for source in (str(tmp_path / "paper_whte.bsdf"), str(tmp_path / "nowhere" / "set")):
+        r = CliRunner().invoke(app, ["lambert", source, *FAST, "--engine", "local", "-o", str(tmp_path / "out")])
+        assert r.exit_code == 2 and f"materialfile'{source}'doesnotexist" in "".join(r.output.split()), r.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_help_shows_the_ray_extra(app):
+    r = CliRunner().invoke(app, ["--help"], terminal_width=200)
+    assert "pip install 'neumat[ray]'" in r.output, r.output

@@ -55,3 +55,46 @@ def test_errors_name_the_problem(tmp_path):
         r = CliRunner().invoke(app, args)
         assert r.exit_code == 2, r.output
         assert message in _said(r), r.output
+
+
+@pytest.mark.mitsuba
+def test_malformed_scenes_are_one_line_errors(tmp_path):
+    """Scenes Mitsuba loads but cannot render, and a mesh file of random bytes: one `error:` line, exit 2, no
+    image (Mitsuba's exceptions used to print raw)."""
+    mitsuba_or_skip()
+    import numpy as np
+    (tmp_path / "junk.ply").write_bytes(np.random.default_rng(0).bytes(4096))
+    film = '<film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{w}"/></film>'
+    sensor = '<sensor type="perspective">' + film + '</sensor>'
+    cases = {"no sensor": ('<integrator type="path"/><shape type="sphere"/>', "nosensor"),
+             "no integrator": (sensor.format(w=8) + '<shape type="sphere"/>', "nointegrator"),
+             "width 0": ('<integrator type="path"/>' + sensor.format(w=0) + '<shape type="sphere"/>', "0x0pixels"),
+             "100000^2": ('<integrator type="path"/>' + sensor.format(w=100000) + '<shape type="sphere"/>',
+                          "100000x100000pixels"),
+             "random mesh": ('<integrator type="path"/>' + sensor.format(w=8) + '<shape type="ply"><string '
+                             f'name="filename" value="{tmp_path / "junk.ply"}"/></shape>', "junk.ply")}
+    for name, (body, message) in cases.items():
+        scene = tmp_path / "scene.xml"
+        scene.write_text(f'<scene version="3.0.0">{body}</scene>')
+        r = CliRunner().invoke(app, ["mitsuba-render", str(scene), "-o", str(tmp_path / "x.png")])
+        assert r.exit_code == 2 and message in _said(r), (name, r.output)
+        assert r.output.startswith("error: ") and len(r.output.strip().splitlines()) == 1, (name, r.output)
+        assert not (tmp_path / "x.png").exists()
+
+
+def test_argument_errors_come_before_mitsuba(tmp_path, without_llvm):
+    """Without a usable LLVM, the commands that need Mitsuba still name their own bad arguments first."""
+    scene = tmp_path / "scene.xml"
+    scene.write_text(SCENE)
+    cases = [(["mitsuba-render", str(tmp_path / "none.xml"), "-o", str(tmp_path / "x.png")], "doesnotexist"),
+             (["mitsuba-render", str(scene), "-D", "mat", "-o", str(tmp_path / "x.png")], "-Dexpectskey=value"),
+             (["mitsuba-render", str(scene), "-o", str(tmp_path / "x.txt")], ".png"),
+             (["render", "ggx", "--scene", f"mesh:{tmp_path / 'none.ply'}", "-o", str(tmp_path / "x.png")],
+              "doesnotexist"),
+             (["render", "ggx", "--scene", f"mesh:{scene}", "-o", str(tmp_path / "x.png")], ".ply")]
+    for args, message in cases:
+        r = CliRunner().invoke(app, args)
+        assert r.exit_code == 2 and message in _said(r), r.output
+    r = CliRunner().invoke(app, ["mitsuba-render", str(scene), "-o", str(tmp_path / "x.png")])
+    assert r.exit_code == 2 and "libllvm19" in _said(r), r.output  # the refusal itself
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.xml"]

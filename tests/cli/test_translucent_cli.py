@@ -70,7 +70,8 @@ def test_trace_fit_render(tmp_path):
     assert r.exit_code == 2 and ".png" in _said(r)
 
 
-def test_errors_name_the_problem(tmp_path):
+def test_errors_name_the_problem(tmp_path, without_llvm):
+    """Without a usable LLVM too: each argument is checked before Mitsuba loads."""
     r = _run("trace", "-o", tmp_path / "o.txt")
     assert r.exit_code == 2 and ".npz" in _said(r)
     r = _run("trace", "-o", tmp_path / "o.npz", "--scene", "cube")
@@ -91,6 +92,16 @@ def test_errors_name_the_problem(tmp_path):
     assert r.exit_code == 2 and "objectdescription" in _said(r)
     r = _run("render", tmp_path / "n.nmat", tmp_path / "plain.npz", "-o", tmp_path / "i.png", "--light", "point:0/0/1")
     assert r.exit_code == 2 and "env:sky" in _said(r)
+    from neumat.core.config import config_to_dict
+    from neumat.reflectance.translucent import TranslucentConfig
+    Observations(x, x, x, x, x).save(tmp_path / "o.npz", source={"object": config_to_dict(TranslucentConfig())})
+    for option, value, message in (("--strategy", "bsdf", "light|model|mis"), ("--appearance", "surface",
+                                   "full|subsurface"), ("--reference-spp", 2, ".png")):
+        r = _run("render", tmp_path / "n.nmat", tmp_path / "o.npz", "-o", tmp_path / "i.exr", option, value)
+        assert r.exit_code == 2 and message in _said(r), r.output
+    r = _run("trace", "-o", tmp_path / "t.npz", "--roughness-texture", tmp_path / "none.exr")
+    assert r.exit_code == 2 and "none.exr" in _said(r), r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["n.nmat", "o.npz", "other.nmat", "plain.npz"]
 
 
 def test_fit_takes_recipe_and_config_overrides_and_resumes(tmp_path):
@@ -148,7 +159,7 @@ def test_trace_scene_options_and_noise_floor(tmp_path):
     assert "noise" not in source and source["object"]["inner"][0]["albedo"] == [0, 0, 0]
 
 
-def test_trace_scene_option_errors(tmp_path):
+def test_trace_scene_option_errors(tmp_path, without_llvm):
     r = _run("trace", "-o", tmp_path / "o.npz", "--inner", "[{oops")
     assert r.exit_code == 2 and "--inner" in _said(r)
     r = _run("trace", "-o", tmp_path / "o.npz", "--inner", '{"scale": 0.3}')

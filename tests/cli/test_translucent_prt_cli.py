@@ -70,7 +70,8 @@ def test_prt_and_prt_render_on_a_small_sphere(tmp_path):
     assert read_image(tmp_path / "c.png").ndim == 3
 
 
-def test_prt_errors_name_the_problem(tmp_path):
+def test_prt_errors_name_the_problem(tmp_path, without_llvm):
+    """Without a usable LLVM too: each argument is checked before Mitsuba loads."""
     obs, model = _observations(tmp_path / "o.npz"), _model(tmp_path / "m.nmat")
     r = _run("prt", model, obs, "-o", tmp_path / "t.npz")
     assert r.exit_code == 2 and ".prt" in _said(r)

@@ -44,25 +44,92 @@ def test_library_dirs_start_with_ld_library_path(tmp_path, monkeypatch):
     assert llvm.library_dirs()[:2] == [tmp_path / "x", tmp_path / "y"]
 
 
+def test_search_folders_can_be_named(tmp_path, monkeypatch):
+    """$NEUMAT_LIBLLVM_DIRS replaces the default folders (CI names an empty one to act out a machine without
+    LLVM >= 16)."""
+    monkeypatch.setenv("NEUMAT_LIBLLVM_DIRS", f"{tmp_path / 'x'}{os.pathsep}{tmp_path / 'y'}")
+    assert llvm.library_dirs() == [tmp_path / "x", tmp_path / "y"]
+
+
+def _probe_passing(monkeypatch, passing: set[str]) -> list[str]:
+    """Replace the probe by one that passes exactly the paths in `passing`; returns the list of probed paths."""
+    probed = []
+
+    def probe(lib):
+        probed.append(str(lib))
+        return (True, "3.9") if str(lib) in passing else (False, "killed by signal 6: LLVM ERROR: Cannot select")
+    monkeypatch.setattr(llvm, "probe", probe)
+    return probed
+
+
 def test_choice_and_refusal(monkeypatch, tmp_path):
-    """The first candidate that passes the probe is chosen; a set DRJIT_LIBLLVM_PATH is probed, never
-    overridden; none passing raises InputError naming the fix."""
-    monkeypatch.setattr(llvm, "find_libllvm", lambda dirs=None: [Path("/l/libLLVM.so.20.1"), Path("/l/libLLVM-19.so")])
-    for passing, expected in (({"/l/libLLVM-19.so"}, "/l/libLLVM-19.so"), ({None}, None)):
-        monkeypatch.setattr(llvm, "probe", lambda lib, p=passing: (str(lib) if lib else None) in p and (True, "3.9")
-                            or (False, "killed by signal 6: LLVM ERROR: Cannot select"))
-        monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
-        llvm.usable_libllvm.cache_clear()
-        assert llvm.usable_libllvm() == expected
-    monkeypatch.setattr(llvm, "probe", lambda lib: (False, "killed by signal 6: LLVM ERROR: Cannot select"))
-    llvm.usable_libllvm.cache_clear()
-    with pytest.raises(InputError, match="apt install libllvm19.*DRJIT_LIBLLVM_PATH"):
+    """The resolved file of the first candidate that passes is chosen; a set DRJIT_LIBLLVM_PATH is the only
+    candidate, refused unprobed when its name says LLVM < 16; none passing raises InputError naming the fix."""
+    _fake_libs(tmp_path, ["libLLVM.so.20.1", "libLLVM.so.19.1", "libLLVM-15.so.1"])
+    (tmp_path / "libLLVM-19.so").symlink_to(tmp_path / "libLLVM.so.19.1")
+    monkeypatch.setenv("NEUMAT_LIBLLVM_DIRS", str(tmp_path))
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    nineteen = str(tmp_path / "libLLVM.so.19.1")
+    probed = _probe_passing(monkeypatch, {nineteen})
+    assert llvm.choose_libllvm() == nineteen
+    assert probed == [str(tmp_path / "libLLVM.so.20.1"), nineteen]  # resolved files, newest first, never 15
+    _probe_passing(monkeypatch, set())
+    with pytest.raises(InputError, match="libLLVM.so.20.1: killed by signal 6.*apt install libllvm19.*DRJIT_LIBLL"):
+        llvm.choose_libllvm()
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "libLLVM-19.so"))
+    probed = _probe_passing(monkeypatch, {nineteen})
+    assert llvm.choose_libllvm() == nineteen and probed == [nineteen]  # the symlink's file, not the link
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "libLLVM-15.so.1"))
+    with pytest.raises(InputError, match=r"DRJIT_LIBLLVM_PATH='.*libLLVM-15.so.1' \(LLVM 15\) is older.*apt install"):
+        llvm.choose_libllvm()
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "missing" / "libLLVM.so.19.1"))
+    with pytest.raises(InputError, match=r"\(LLVM 19\) is not a file.*apt install libllvm19"):
+        llvm.choose_libllvm()
+    assert probed == [nineteen]  # neither was probed
+
+
+def test_empty_search_refuses_without_probing(monkeypatch, tmp_path):
+    monkeypatch.setenv("NEUMAT_LIBLLVM_DIRS", str(tmp_path))
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    probed = _probe_passing(monkeypatch, set())
+    with pytest.raises(InputError, match=r"no usable LLVM >= 16 \(none in \$NEUMAT_LIBLLVM_DIRS=.*libllvm19"):
+        llvm.choose_libllvm()
+    assert probed == []
+
+
+def test_the_answer_is_decided_once_per_process(monkeypatch, tmp_path):
+    """A library appearing (or vanishing) while the process runs does not change the answer: no new probe."""
+    monkeypatch.setenv("NEUMAT_LIBLLVM_DIRS", str(tmp_path))
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(llvm, "_decided", None)  # restored after the test: the session keeps its own answer
+    nineteen = str(tmp_path / "libLLVM.so.19.1")
+    probed = _probe_passing(monkeypatch, {nineteen})
+    for _ in range(2):
+        with pytest.raises(InputError, match="none in"):
+            llvm.usable_libllvm()
+    _fake_libs(tmp_path, ["libLLVM.so.19.1"])  # installed under the running process
+    with pytest.raises(InputError, match="none in"):
         llvm.usable_libllvm()
-    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/l/libLLVM-15.so.1")
-    llvm.usable_libllvm.cache_clear()
-    with pytest.raises(InputError, match=r"DRJIT_LIBLLVM_PATH='/l/libLLVM-15.so.1' \(LLVM 15\).*apt install"):
-        llvm.usable_libllvm()
-    llvm.usable_libllvm.cache_clear()
+    assert probed == []
+    monkeypatch.setattr(llvm, "_decided", None)
+    assert llvm.usable_libllvm() == nineteen and probed == [nineteen]
+    (tmp_path / "libLLVM.so.19.1").unlink()
+    assert llvm.usable_libllvm() == nineteen and probed == [nineteen]
+
+
+def test_configure_points_drjit_at_the_chosen_file_or_refuses_another_loaded(monkeypatch):
+    monkeypatch.setattr(llvm, "_decided", ("/l/libLLVM.so.19.1", None))
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/l/libLLVM-19.so")
+    monkeypatch.delitem(sys.modules, "drjit", raising=False)
+    llvm.configure_llvm()
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == "/l/libLLVM.so.19.1"
+    monkeypatch.setitem(sys.modules, "drjit", object())  # Dr.Jit imported earlier, with its own choice
+    monkeypatch.setattr(llvm, "loaded_libllvms", lambda: {"/usr/lib/libLLVM-15.so.1"})
+    with pytest.raises(InputError, match="loaded /usr/lib/libLLVM-15.so.1, not /l/libLLVM.so.19.1"):
+        llvm.configure_llvm()
+    # Mesa's llvmpipe (the GLSL tests) maps its LLVM beside Dr.Jit's
+    monkeypatch.setattr(llvm, "loaded_libllvms", lambda: {"/usr/lib/libLLVM-15.so.1", "/l/libLLVM.so.19.1"})
+    llvm.configure_llvm()
 
 
 @pytest.mark.skipif(not LLVM15.is_file(), reason=f"{LLVM15} (Debian 12's LLVM) is absent")
@@ -72,19 +139,34 @@ def test_llvm15_fails_the_probe_without_harming_the_caller():
     assert not ok and "signal" in why and "LLVM ERROR" in why
 
 
-@pytest.mark.skipif(not LLVM15.is_file(), reason=f"{LLVM15} (Debian 12's LLVM) is absent")
-def test_cli_refuses_llvm15_with_the_fix(tmp_path):
-    """Mitsuba 3 on LLVM 15 used to abort the process (SIGABRT) at its first kernel."""
+_TRIANGLE = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+
+
+@pytest.mark.parametrize("command,setting", [("render", "empty search"), ("mitsuba-render", "LLVM 15"),
+                                             ("trace", "missing file")])
+def test_cli_refuses_without_llvm_16_in_one_line_naming_libllvm19(tmp_path, command, setting):
+    """A machine without LLVM >= 16: each Mitsuba command exits 2 with neumat's line only (no Dr.Jit line: Dr.Jit
+    is never loaded) and writes nothing. Mitsuba 3 on LLVM 15 used to abort the process at its first kernel."""
     pytest.importorskip("mitsuba")
-    mesh = tmp_path / "tri.ply"
-    mesh.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                    "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
-                    "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
-    env = {**os.environ, "PYTHONPATH": SRC, "DRJIT_LIBLLVM_PATH": str(LLVM15)}
-    r = subprocess.run([sys.executable, "-m", "neumat.cli.main", "render", "ggx", "--scene", f"mesh:{mesh}",
-                        "--resolution", "8", "-o", str(tmp_path / "x.png")],
+    (tmp_path / "tri.ply").write_text(_TRIANGLE)
+    (tmp_path / "s.xml").write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    env.update(PYTHONPATH=SRC, NEUMAT_LIBLLVM_DIRS=str(empty))
+    if setting == "LLVM 15":
+        env["DRJIT_LIBLLVM_PATH"] = str(LLVM15)  # refused by its name: need not exist
+    elif setting == "missing file":
+        env["DRJIT_LIBLLVM_PATH"] = str(tmp_path / "gone" / "libLLVM.so.19.1")  # Dr.Jit would complain about it
+    args = {"render": ["render", "ggx", "--scene", f"mesh:{tmp_path / 'tri.ply'}", "--resolution", "8"],
+            "mitsuba-render": ["mitsuba-render", str(tmp_path / "s.xml")],
+            "trace": ["translucent", "trace", "--images", "1"]}[command]
+    out = tmp_path / ("x.npz" if command == "trace" else "x.png")
+    r = subprocess.run([sys.executable, "-m", "neumat.cli.main", *args, "-o", str(out)],
                        env=env, capture_output=True, text=True, timeout=120)
-    said = " ".join(r.stderr.split())
     assert r.returncode == 2, r.stderr
-    assert "Traceback" not in r.stderr and "apt install libllvm19" in said and "LLVM 15" in said
-    assert not (tmp_path / "x.png").exists()
+    assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("error: "), r.stderr
+    assert "apt install libllvm19" in r.stderr and {"empty search": "none in", "LLVM 15": "(LLVM 15) is older",
+                                                    "missing file": "is not a file"}[setting] in r.stderr
+    assert r.stdout == "" and sorted(p.name for p in tmp_path.iterdir()) == ["empty", "s.xml", "tri.ply"]

@@ -44,3 +44,31 @@ def test_observations_bad_input(tmp_path):
         Observations.load(tmp_path / "other.npz")
     with pytest.raises(InputError, match="images"):
         collect_observations(None, images=0)
+
+
+def test_negative_values_are_legitimate_but_not_a_negative_mean(tmp_path):
+    """A value is a difference of two Monte Carlo traces, so some are negative (kept, unclamped); a channel whose
+    mean lies far below 0 cannot be such data and is refused."""
+    g = torch.Generator().manual_seed(0)
+    up = torch.tensor([[0.0, 0.0, 1.0]]).repeat(400, 1)
+    noisy = 0.05 + 0.2 * torch.randn(400, 3, generator=g)  # about 40% negative, mean 0.05
+    assert float((noisy < 0).float().mean()) > 0.3
+    Observations(up, up, up, up, noisy).save(tmp_path / "noisy.npz")
+    assert torch.equal(Observations.load(tmp_path / "noisy.npz").value, noisy)
+    shifted = noisy.clone()
+    shifted[:, 1] -= 0.2  # green's mean -0.15: 10 standard errors below 0
+    Observations(up, up, up, up, shifted).save(tmp_path / "shifted.npz")
+    with pytest.raises(DataFormatError, match="channel G is -0.1.*standard errors below 0"):
+        Observations.load(tmp_path / "shifted.npz")
+
+
+@pytest.mark.parametrize("source,match", [([1], "expected a JSON object"), ({"spp": 0}, "'spp' must be a positive"),
+                                          ({"bbox": [[0, 0, 0], [1, 1, True]]}, "'bbox'"),
+                                          ({"object": {"media": 5}}, "TranslucentConfig.media"),
+                                          ({"noise": []}, "'noise' must be a JSON object")])
+def test_a_malformed_source_is_refused(tmp_path, source, match):
+    up = torch.tensor([[0.0, 0.0, 1.0]]).repeat(4, 1)
+    Observations(up, up, up, up, up).save(tmp_path / "o.npz", source=source)
+    for read in (Observations.load, Observations.load_source):
+        with pytest.raises(DataFormatError, match=match):
+            read(tmp_path / "o.npz")

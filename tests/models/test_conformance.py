@@ -260,6 +260,34 @@ def test_sampler_chi_square(name):
     assert result.passed, result
 
 
+def _proxy_sampled() -> LearnedMaterial:
+    """A model that cannot sample with the proxy sampler attached (`neumat.models.proxy_sampler`)."""
+    from neumat.models.proxy_sampler import ProxySampler, SampledMaterial
+    torch.manual_seed(0)
+    return SampledMaterial(_model("naive-mlp"), ProxySampler())
+
+
+@pytest.mark.parametrize("name", SAMPLERS + ["proxy-sampler"])
+def test_sample_weight_contract(name):
+    """Sample.weight = f(wi, wo) cos(theta_o) / pdf, finite, with pdf the model's own pdf(wo), and 0 where sampling
+    failed (pdf 0), on queries with some incident directions below the horizon."""
+    model = (_proxy_sampled() if name == "proxy-sampler" else _model(name)).eval()
+    q = _queries(model, n=2048)
+    u = torch.rand(len(q), 2, generator=torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        s = model.sample(q, u)
+        at = Query(q.wi, s.wo, uv=q.uv, x=q.x, n=q.n)
+        f, pdf = model.eval(at), model.pdf(at)
+    assert s.wo.shape == (len(q), 3) and s.pdf.shape == (len(q),) and s.weight.shape == (len(q), 3)
+    assert bool(torch.isfinite(s.weight).all() and torch.isfinite(s.pdf).all() and (s.pdf >= 0).all())
+    ok = s.pdf > 0
+    assert 0.5 < float(ok.float().mean()) and bool((s.weight[~ok] == 0).all())  # most draws sampled
+    torch.testing.assert_close(s.pdf[ok], pdf[ok], rtol=1e-4, atol=1e-6)
+    expected = f[ok] * s.wo[ok, 2:].clamp(min=0) / s.pdf[ok, None]
+    torch.testing.assert_close(s.weight[ok], expected, rtol=1e-4, atol=1e-6)
+    assert float(expected.abs().max()) > 0  # not vacuously all zero
+
+
 @pytest.mark.cuda
 @pytest.mark.parametrize("name", NAMES)
 def test_cuda_eval_matches_cpu(name):

@@ -29,6 +29,9 @@ def test_direction_sets_are_unit_upper_hemisphere():
         assert bool((d[:, 2] > 0).all())
     with pytest.raises(InputError, match="direction set"):
         direction_set("rings:9x15")
+    for spec in ("rings:3xnan", "rings:1xnan", "rings:2x-inf", "rings:3x0"):
+        with pytest.raises(InputError, match="ring step must be a positive number"):
+            direction_set(spec)
 
 
 def test_ubo151_ring_angles_and_azimuth_offsets():
@@ -124,3 +127,39 @@ def test_truncated_and_inconsistent_files_raise(tmp_path, small_btf):
         read_btf(bad)
     with pytest.raises(InputError, match="does not exist"):
         read_btf(tmp_path / "missing.nbtf")
+
+
+def _with_header(src, dst, key: str, **fields):
+    """Copy safetensors file `src` to `dst` with fields of its JSON header (metadata `key`) replaced."""
+    import json
+
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+    with safe_open(str(src), framework="pt") as f:
+        meta, tensors = dict(f.metadata()), {k: f.get_tensor(k) for k in f.keys()}
+    meta[key] = json.dumps({**json.loads(meta[key]), **fields})
+    save_file(tensors, str(dst), metadata=meta)
+    return dst
+
+
+@pytest.mark.parametrize("field,value", [("label", [1]), ("extra", "x"), ("clamped", 1.5), ("version", True),
+                                         ("n_view", "17"), ("n_light", 10 ** 30)])
+def test_header_fields_of_the_wrong_json_type_are_data_format_errors(tmp_path, small_btf, field, value):
+    """Each a one-line error at the CLI, exit 2 (n_light 1e30 used to exhaust the memory building names)."""
+    from typer.testing import CliRunner
+
+    from neumat.cli.main import app
+    bad = _with_header(write_btf(tmp_path / "a.nbtf", small_btf), tmp_path / "bad.nbtf", "neumat_btf",
+                       **{field: value})
+    with pytest.raises(DataFormatError, match=field if field != "n_light" else "light chunks"):
+        read_btf(bad)
+    r = CliRunner().invoke(app, ["data", "info", str(bad)])
+    assert r.exit_code == 2 and r.output.startswith("error: ") and len(r.output.strip().splitlines()) == 1, r.output
+
+
+@pytest.mark.parametrize("field,value", [("patch", "8"), ("tau_train", 4), ("log_eps", None), ("info", [1])])
+def test_dictionary_header_fields_of_the_wrong_json_type_are_data_format_errors(tmp_path, field, value):
+    from neumat.models.sparse_dictionary import BTFDictionary, shipped_dictionary
+    bad = _with_header(shipped_dictionary("default"), tmp_path / "bad.nmat", "neumat", **{field: value})
+    with pytest.raises(DataFormatError, match=f"header field '{field}' must be"):
+        BTFDictionary.load(bad)

@@ -4,11 +4,12 @@ documented shape; a raw torch error is a failure."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from neumat.core.errors import InputError
@@ -103,43 +104,84 @@ def test_query_accepts_valid_directions_or_raises_input_error(wi, wo):
         assert ((q.wi.norm(dim=-1) - 1).abs() <= 1e-3).all()
 
 
-@SETTINGS
-@given(spec=st.sampled_from(SPECS), wi=raw_directions(), wo=raw_directions())
-def test_eval_and_pdf_are_finite_and_non_negative(spec, wi, wo):
+def _unit(draw, n: int, dtype) -> torch.Tensor:
+    theta = draw(st.lists(st.floats(0, math.pi), min_size=n, max_size=n))  # below the horizon too
+    phi = draw(st.lists(st.floats(0, 2 * math.pi), min_size=n, max_size=n))
+    return torch.tensor([[math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), math.cos(a)] for a, b in zip(theta, phi)],
+                        dtype=dtype).reshape(n, 3)
+
+
+@st.composite
+def direction_pairs(draw):
+    """(wi, wo): mostly a valid pair (unit, one float dtype and count), else raw ones: the material properties below
+    see many valid queries, so that refusing them cannot pass unnoticed."""
+    if draw(st.integers(0, 3)) == 0:
+        return draw(raw_directions()), draw(raw_directions())
+    n, dtype = draw(st.integers(1, 4)), draw(st.sampled_from([torch.float32, torch.float64]))
+    return _unit(draw, n, dtype), _unit(draw, n, dtype)
+
+
+def _mostly_accepted(counts: Counter, what: str) -> None:
+    """At least 20 valid draws (of about 45 expected) reached the material, and it refused at most 10 % of them."""
+    assert counts["valid"] >= 20 and counts["refused"] <= 0.1 * counts["valid"], (what, dict(counts))
+
+
+def test_eval_and_pdf_are_finite_and_non_negative():
     """Values of the query's dtype, finite, >= 0 (the synthetic RGL table has no negative entries) and 0 below the
     horizon; a pdf where the material samples."""
-    m = MATERIALS[spec]
-    q = _query_or_none(wi, wo, m)
-    if q is None:
-        return
-    try:
-        f = m.eval(q)
-        pdf = m.pdf(q) if m.can_sample else torch.zeros(len(q), dtype=q.dtype)
-    except InputError:
-        return
-    assert f.shape == (len(q), 3) and f.dtype == q.dtype, (spec, f.shape, f.dtype, q.dtype)
-    assert torch.isfinite(f).all() and (f >= 0).all(), (spec, q.wi, q.wo, f)
-    below = (q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)
-    assert (f[below] == 0).all() and (pdf[below] == 0).all(), (spec, q.wi, q.wo, f, pdf)
-    assert pdf.shape == (len(q),) and torch.isfinite(pdf).all() and (pdf >= 0).all()
+    counts = Counter()
+
+    @SETTINGS
+    @given(spec=st.sampled_from(SPECS), pair=direction_pairs())
+    def check(spec, pair):
+        m, (wi, wo) = MATERIALS[spec], pair
+        q = _query_or_none(wi, wo, m)
+        assume(q is not None)
+        counts["valid"] += 1
+        try:
+            f = m.eval(q)
+            pdf = m.pdf(q) if m.can_sample else torch.zeros(len(q), dtype=q.dtype)
+        except InputError:
+            counts["refused"] += 1
+            assume(False)
+        assert f.shape == (len(q), 3) and f.dtype == q.dtype, (spec, f.shape, f.dtype, q.dtype)
+        assert torch.isfinite(f).all() and (f >= 0).all(), (spec, q.wi, q.wo, f)
+        below = (q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)
+        assert (f[below] == 0).all() and (pdf[below] == 0).all(), (spec, q.wi, q.wo, f, pdf)
+        assert pdf.shape == (len(q),) and torch.isfinite(pdf).all() and (pdf >= 0).all()
+
+    check()
+    _mostly_accepted(counts, "eval / pdf")
 
 
-@SETTINGS
-@given(spec=st.sampled_from(SPECS), wi=raw_directions(), data=st.data())
-def test_sample_checks_u_and_returns_unit_directions(spec, wi, data):
-    if not MATERIALS[spec].can_sample:
-        return
-    q = _query_or_none(wi, material=MATERIALS[spec])
-    if q is None:
-        return
-    u = _tensor(data.draw, len(q), 2, data.draw(st.sampled_from([torch.float32, torch.float64, torch.int64])))
-    in_range = u.is_floating_point() and bool(((u >= 0) & (u < 1)).all())
-    try:
-        s = MATERIALS[spec].sample(q, u)
-    except InputError:
-        return
-    assert in_range, f"u = {u} was accepted"
-    assert torch.isfinite(s.wo).all() and ((s.wo.norm(dim=-1) - 1).abs() < 1e-3).all()
+def test_sample_checks_u_and_returns_unit_directions():
+    """u outside [0, 1)^2 (or not floating point) is refused; inside, the material samples unit directions."""
+    counts = Counter()
+
+    @SETTINGS
+    @given(spec=st.sampled_from([s for s in SPECS if MATERIALS[s].can_sample]), pair=direction_pairs(),
+           data=st.data())
+    def check(spec, pair, data):
+        q = _query_or_none(pair[0], material=MATERIALS[spec])
+        assume(q is not None)
+        if data.draw(st.integers(0, 3)):  # mostly u in [0, 1)^2
+            u = torch.tensor(data.draw(st.lists(st.floats(0, 1, exclude_max=True), min_size=2 * len(q),
+                                                max_size=2 * len(q))), dtype=q.dtype).reshape(len(q), 2)
+        else:
+            u = _tensor(data.draw, len(q), 2, data.draw(st.sampled_from([torch.float32, torch.float64, torch.int64])))
+        in_range = u.is_floating_point() and bool(((u >= 0) & (u < 1)).all())
+        counts["valid"] += in_range
+        try:
+            s = MATERIALS[spec].sample(q, u)
+        except InputError:
+            counts["refused"] += in_range
+            assume(not in_range)
+            return
+        assert in_range, f"u = {u} was accepted"
+        assert torch.isfinite(s.wo).all() and ((s.wo.norm(dim=-1) - 1).abs() < 1e-3).all()
+
+    check()
+    _mostly_accepted(counts, "sample")
 
 
 def test_lambert_refuses_u_outside_the_unit_square():

@@ -93,6 +93,10 @@ def write_observations(t: Path) -> None:
     for n in (0, 1):
         Observations(up[:n], up[:n], up[:n], up[:n], up[:n]).save(t / f"obs{n}.npz")
     np.savez(t / "nonunit.npz", x=up.numpy(), n=2 * up.numpy(), wo=up.numpy(), wi=up.numpy(), value=up.numpy())
+    Observations(up, up, up, up, -up).save(t / "negative.npz")  # every value -1: no Monte Carlo difference
+    for name, source in {"src_list": [1, 2], "src_bbox": {"bbox": "x"}, "src_seed": {"seed": "one"},
+                         "src_object": {"object": {"nope": 1}}, "src_extra": {"colour": 1}}.items():
+        Observations(up, up, up, up, up).save(t / f"{name}.npz", source=source)
     (t / "obs.npz").unlink()
 
 
@@ -109,6 +113,8 @@ def write_btfs(t: Path) -> None:
     tensors = load_file(t / "ok.nbtf")
     save_file({**tensors, "light_00001": tensors["light_00001"].float()}, t / "dtype.nbtf", metadata=meta)
     save_file({**tensors, "light_00001": -tensors["light_00001"]}, t / "negative.nbtf", metadata=meta)
+    save_file(tensors, t / "label.nbtf", metadata={"neumat_btf": json.dumps({**json.loads(meta["neumat_btf"]),
+                                                                            "label": [1]})})
     (t / "ok.nbtf").unlink()
 
 
@@ -136,6 +142,8 @@ def write_broken_data(t: Path) -> None:
     (t / "cycle_a.json").write_text(layered.format("cycle_b.json"))
     (t / "cycle_b.json").write_text(layered.format("cycle_a.json"))
     (t / "cycle_self.json").write_text(layered.format("cycle_self.json"))
+    (t / "smudge_seed.json").write_text('{"type": "layered", "base": "lambert", "coats": [{"roughness": '
+                                        '{"smudges": {"seed": "one", "size": 16}, "low": 0.1, "high": 0.3}}]}')
     (t / "bomb.png").write_bytes(png_declaring(100000, 100000))
 
 
@@ -231,6 +239,16 @@ def _checked_cases(t: Path) -> dict[str, tuple[list[str], str]]:
         "fit-obs-zero": ([*fit, str(t / "obs0.npz")], "observations are empty"),
         "fit-obs-one": ([*fit, str(t / "obs1.npz")], "leaves none to train on"),
         "fit-obs-non-unit": ([*fit, str(t / "nonunit.npz")], "Observations.n: expected unit vectors"),
+        "fit-obs-negative": ([*fit, str(t / "negative.npz")], "standard errors below 0; single values may be negative"),
+        "fit-obs-source-list": ([*fit, str(t / "src_list.npz")], "source: expected a JSON object"),
+        "fit-obs-source-bbox": ([*fit, str(t / "src_bbox.npz")], "source field 'bbox': expected"),
+        "fit-obs-source-seed": ([*fit, str(t / "src_seed.npz")], "source field 'seed' must be a non-negative"),
+        "fit-obs-source-object": ([*fit, str(t / "src_object.npz")], "source field 'object': TranslucentConfig"),
+        "fit-obs-source-unknown": ([*fit, str(t / "src_extra.npz")], "unknown field(s) ['colour']"),
+        "info-nbtf-label-type": (["data", "info", str(t / "label.nbtf")], "header field 'label' must be a string"),
+        "layered-smudge-seed": (["data", "info", str(t / "smudge_seed.json")], "smudge_map seed: expected an integer"),
+        "btf-directions-nan": (["data", "btf-generate", "procedural:bumps", "-o", str(t / "out.nbtf"), "--size", "8",
+                                "--directions", "rings:3xnan"], "ring step must be a positive number"),
     }
 
 

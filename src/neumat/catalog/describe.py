@@ -16,6 +16,7 @@ import torch
 
 from ..core.errors import InputError
 from ..core.query import Query
+from ..io.shared_data import resolve_data_path
 from .open_material import open_material
 
 #: image suffixes `describe` reports on
@@ -24,7 +25,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".hdr")
 
 def describe(name: str | Path) -> dict[str, Any]:
     """A flat dict of facts about the file or analytic spec `name` (see the module docstring)."""
-    path = Path(str(name))
+    path = resolve_data_path(str(name))  # also inside $NEUMAT_SHARED_DATA
     suffix = path.suffix.lower()
     if path.exists() and not path.is_file():
         raise InputError(f"{name}: is a directory, expected a material file or image")

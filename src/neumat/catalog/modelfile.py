@@ -112,6 +112,9 @@ def load_model(path: str | Path, device: str | torch.device | None = None):
         model = cls(config=cfg)
     except InputError as e:
         raise DataFormatError(f"{where}: bad config for model {header['type']!r}: {e}") from None
+    except (TypeError, OverflowError) as e:  # a size of the right JSON type beyond what torch takes (1e30)
+        raise DataFormatError(f"{where}: bad config for model {header['type']!r}: {type(e).__name__}: "
+                              f"{str(e).splitlines()[0][:200]}") from None
     _check_weights(model.state_dict(), tensors, where)
     try:
         model.load_state_dict(tensors, strict=True)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..core.errors import InputError
 from ..core.material import Material
+from ..io.shared_data import resolve_data_path
 from .sources import FOLDER, SPEC, Source, file_suffixes, load_sources
 
 
@@ -15,25 +16,34 @@ def open_material(name: str | Path, **kwargs) -> Material:
     folder (an SVBRDF), or an analytic spec such as
     ``ggx:roughness=0.2,fresnel=dielectric,eta=1.5``; any source of `neumat.catalog.sources.SOURCES`.
     Keyword arguments go to the reader."""
+    source, what = material_source(name)
+    if isinstance(what, Path):
+        return _read(source, what, kwargs)
+    if kwargs:
+        raise InputError(f"{what!r}: reader options {sorted(kwargs)} only apply to files and folders; "
+                         "write analytic parameters into the spec string")
+    return source.reader(what)
+
+
+def material_source(name: str | Path) -> tuple[Source, Path | str]:
+    """(the source that reads `name`, its path (`neumat.io.shared_data.resolve_data_path`) or, for an analytic
+    spec, its text), reading nothing: callers
+    refuse a missing or unsupported file before starting work. InputError naming the problem."""
     sources = load_sources()
     text = str(name)
-    path = Path(text)
-    suffix = path.suffix.lower()
+    path = resolve_data_path(text)  # also docs/examples/... and paths inside $NEUMAT_SHARED_DATA
     if path.is_dir():
-        return _read(sources[FOLDER], path, kwargs)
+        return sources[FOLDER], path
     suffixes = file_suffixes()
-    if suffix in suffixes:
+    if path.suffix.lower() in suffixes:
         if not path.is_file():
             raise InputError(f"material file {text!r} does not exist or is not a regular file")
-        return _read(sources[suffix], path, kwargs)
+        return sources[path.suffix.lower()], path
     if path.exists():
         raise InputError(f"{text!r}: unsupported material file (known: {', '.join(suffixes)})")
     if ":" not in text and "/" in text:
         raise InputError(f"material file {text!r} does not exist")
-    if kwargs:
-        raise InputError(f"{text!r}: reader options {sorted(kwargs)} only apply to files and folders; "
-                         "write analytic parameters into the spec string")
-    return sources[SPEC].reader(text)
+    return sources[SPEC], text
 
 
 def _read(source: Source, path: Path, kwargs: dict) -> Material:

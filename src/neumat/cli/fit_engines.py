@@ -4,6 +4,7 @@ after every row, and report the run's progress (done / failed / running, ETA).""
 from __future__ import annotations
 
 import os
+import socket
 import time
 from typing import Callable, Iterator
 
@@ -76,7 +77,11 @@ def run_ray(jobs: list, task: Callable[[object], dict], progress: RunProgress, *
     started = not ray.is_initialized()
     if started:
         if address:
-            ray.init(address=address, log_to_driver=False)
+            check_ray_address(address)
+            try:
+                ray.init(address=address, log_to_driver=False)
+            except ConnectionError as e:  # "auto" with no Ray instance on this machine
+                raise InputError(f"--address {address}: no Ray cluster answers ({str(e).splitlines()[0]})") from None
         else:
             ray.init(num_cpus=workers or os.cpu_count(), include_dashboard=False, log_to_driver=False,
                      object_store_memory=OBJECT_STORE_BYTES)
@@ -108,6 +113,19 @@ def run_ray(jobs: list, task: Callable[[object], dict], progress: RunProgress, *
     finally:
         if started:
             ray.shutdown()
+
+
+def check_ray_address(address: str, timeout: float = 5.0) -> None:
+    """InputError within `timeout` seconds when nothing accepts connections at a HOST:PORT or ray://HOST:PORT
+    address (Ray itself retries for minutes, printing warnings); other forms ("auto") are left to Ray."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise InputError(f"--address {address}: no Ray cluster answers at that address "
+                         f"({e.strerror or type(e).__name__})") from None
 
 
 def _run_task(task: Callable[[object], dict], job) -> dict:

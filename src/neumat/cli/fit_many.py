@@ -2,6 +2,7 @@
 independent job (a Ray task), evaluated against its source; results.json + results.md; resumable."""
 from __future__ import annotations
 
+import os
 import shlex
 import sys
 import time
@@ -12,7 +13,7 @@ import typer
 
 from ..core.errors import InputError
 from .common import SEED_RANGE, THREADS_HELP, console, device_option, parse_overrides, run_command
-from .fit_engines import RAY_HINT, RunProgress, ray_available, run_local, run_ray
+from .fit_engines import RAY_HINT, RunProgress, check_ray_address, ray_available, run_local, run_ray
 from .fit_job import FIT_KEYS, FitJob, run_fit_job, source_sha256
 from .fit_results import is_done, is_fitted, markdown, read_rows, write_rows
 
@@ -65,9 +66,10 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
     .nmat, source hash and options match are kept, those whose evaluation options alone changed (--n-configs,
     --image-spp, --image-resolution) are evaluated again without refitting, the others (failed, new, changed) are
     fitted. Without Ray installed, --engine auto runs the jobs one after another here (install Ray: pip install
-    'neumat[ray]'). Exit code 1 when some job failed."""
+    'neumat\\[ray]'). Exit code 1 when some job failed."""
 
     def go() -> bool:
+        from ..catalog.open_material import material_source
         from ..models.registry import model_class
         from ..render.comparison import PROTOCOL
 
@@ -78,20 +80,24 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
             raise InputError(f"--engine ray: Ray is not installed; {RAY_HINT}")
         if engine == "auto" and not use_ray:
             console.print(f"note: Ray is not installed, so the jobs run one after another in this process "
-                          f"({RAY_HINT} to run them in parallel or on a cluster)")
+                          f"({RAY_HINT} to run them in parallel or on a cluster)", markup=False)
         for m in model:
             if model_class(m).source_kinds[0] not in KINDS:
                 raise InputError(f"--model {m}: fit-many fits models of one material per source "
                                  f"({', '.join(KINDS)}), {m!r} fits {model_class(m).source_kinds[0]}")
         if out.exists() and not out.is_dir():
             raise InputError(f"-o/--out: {str(out)!r} is a file; expected a folder")
+        named = source_names(expand_sources(sources))
+        for s in named:
+            material_source(s)  # a mistyped path is refused here, before any job or Ray starts
+        if use_ray and (address or os.environ.get("RAY_ADDRESS")):
+            check_ray_address(address or os.environ["RAY_ADDRESS"])
         out.mkdir(parents=True, exist_ok=True)
         overrides = model_overrides(parse_overrides(set_), model)
         presets = model_presets([*(recipe_alias or []), *(preset or [])], model)
         common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
                       image_spp=image_spp, image_resolution=image_resolution, threads=threads)
-        named = source_names(expand_sources(sources))
         jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], preset=presets[m], **common)
                 for s, n in named.items() for m in model]
         results = out / "results.json"

@@ -14,7 +14,7 @@ def register(app: typer.Typer) -> None:
     app.command("mitsuba-render")(mitsuba_render)
 
 
-def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file (.xml)"),
+def mitsuba_render(scene_arg: Path = typer.Argument(..., metavar="SCENE", help="Mitsuba 3 scene file (.xml)"),
                    define: list[str] = typer.Option(None, "-D", "--define",
                                                     help="scene parameter NAME=VALUE (the XML's $NAME), repeatable"),
                    spp: int = typer.Option(None, min=1, help="samples per pixel (default: the scene's sampler)"),
@@ -29,14 +29,21 @@ def mitsuba_render(scene: Path = typer.Argument(..., help="Mitsuba 3 scene file 
     from ..io.images import write_image
 
     def go():
+        from ..io.shared_data import resolve_data_path
+        scene = resolve_data_path(scene_arg)  # docs/examples/scene.xml also from an installed wheel
         if not scene.is_file():
             raise InputError(f"scene file {str(scene)!r} does not exist")
         params = parse_overrides(define, "-D", text=True)  # Mitsuba substitutes the text as written
         mi = mitsuba_translucent.register()  # the neumat BSDF and the translucent integrator
         try:
             loaded = mi.load_file(str(scene), **params)
-        except RuntimeError as e:  # Mitsuba's parser: the message names the file, line and problem
-            raise InputError(f"Mitsuba could not load {str(scene)!r}: {plugin.unwrap_error(e) or e}") from None
+        except (RuntimeError, UnicodeDecodeError) as e:  # the parser: the message names the file, line, problem
+            # a message quoting a file's bytes (a PLY header of random bytes) fails to decode: decode it leniently
+            why = str(e.object.decode("utf-8", "replace") if isinstance(e, UnicodeDecodeError)
+                      else plugin.unwrap_error(e) or e)
+            why = "".join(c if c.isprintable() else " " for c in why)
+            raise InputError(f"Mitsuba could not load {str(scene)!r} or a file it names: {' '.join(why.split())}"
+                             ) from None
         image = plugin.render(loaded, spp=spp, seed=seed)
         write_image(out, image[..., :3])
         print(f"wrote {out}")

@@ -249,10 +249,10 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         for option, value, known in (("--strategy", strategy, STRATEGIES), ("--appearance", appearance, APPEARANCES)):
             if value not in known:
                 raise InputError(f"{option}: expected one of {'|'.join(known)}, got {value!r}")
-        m = _neupress(model, device)
-        obj = _translucent_object(observations, seed)
         if reference_spp and out.suffix.lower() != ".png":
             raise InputError(f"--out {out}: the comparison picture of --reference-spp is a .png")
+        m = _neupress(model, device)
+        obj = _translucent_object(observations, seed)  # loads Mitsuba: after every check of the arguments
         env = _environment(light, env_width)
         camera = _orbit(obj, resolution, azimuth, elevation)
         t = time.perf_counter()
@@ -331,15 +331,17 @@ def prt(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
     def go():
         import time
 
-        from ..models.neupress_prt import FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, SHPRT, PRTConfig
+        from ..models.neupress_prt import (FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, SHPRT, PRTConfig,
+                                           check_config)
         from ..render.mesh import object_mesh, vertex_normals
 
         _check_suffix(out, ".prt", "prt --out")
         m = _neupress(model, device)
-        obj = _translucent_object(observations)
         vt, vp = _view_bins(view_bins) if view_bins else FAST_VIEW_BINS
-        cfg = PRTConfig(degree=degree, view_theta=vt, view_phi=vp, batch_size=batch_size,
-                        light_samples=light_samples or FAST_LIGHT_SAMPLES, precision=precision or FAST_PRECISION)
+        cfg = check_config(PRTConfig(degree=degree, view_theta=vt, view_phi=vp, batch_size=batch_size,
+                                     light_samples=light_samples or FAST_LIGHT_SAMPLES,
+                                     precision=precision or FAST_PRECISION))
+        obj = _translucent_object(observations)  # loads Mitsuba: after every check of the arguments
         vertices, faces = object_mesh(obj, subdivisions)
         normals = vertex_normals(vertices, faces)
         t = time.perf_counter()
@@ -392,9 +394,10 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
         _check_suffix(table, ".prt", "prt-render TABLE")
         if (model is not None or reference_spp) and out.suffix.lower() != ".png":
             raise InputError(f"--out {out}: the comparison picture of --model / --reference-spp is a .png")
+        environment_map(light)
         prt_table = SHPRT.load(table, device=device)
         net = _neupress(model, device) if model is not None else None
-        obj = _translucent_object(observations, seed)
+        obj = _translucent_object(observations, seed)  # loads Mitsuba: after every check of the arguments
         env = _environment(light, env_width)
         camera = _orbit(obj, resolution, azimuth, elevation)
         t = time.perf_counter()

@@ -3,17 +3,19 @@
 Dr.Jit emits intrinsics (`llvm.maximum`, `llvm.minimum`) that LLVM 15 cannot select: on such an LLVM the
 first kernel using them aborts the process ("LLVM ERROR: Cannot select ... fmaximum"), which no Python
 `except` catches, and a probe such as `mi.Float * 2` passes. So each candidate library is probed in a
-subprocess with a real kernel (a ray cast, `dr.maximum`, `dr.minimum`), and the first that passes is put in
-DRJIT_LIBLLVM_PATH for this process.
+subprocess with a real kernel (a ray cast, `dr.maximum`, `dr.minimum`), and the resolved file of the first
+that passes is put in DRJIT_LIBLLVM_PATH for this process. Dr.Jit reads that variable once, when `drjit` is
+imported, so nothing may import it before `configure_llvm()`.
 
-Candidates, in order: DRJIT_LIBLLVM_PATH when it is set (the only one then: the user's choice is probed, not
-overridden); else every versioned `libLLVM*.so*` of version >= 16 in the library path (LD_LIBRARY_PATH, the
-system library folders, /usr/lib/llvm-*/lib), newest first; else Dr.Jit's own search. None passing raises
-InputError naming the fix.
+Candidates: DRJIT_LIBLLVM_PATH when it is set (the only one then: the user's choice is probed, not
+overridden, and refused unprobed when its name says LLVM < 16); else every versioned `libLLVM*.so*` of version
+>= 16 in the search folders, newest first. The folders are $NEUMAT_LIBLLVM_DIRS when set (an os.pathsep list;
+CI points it at an empty folder to act out a machine without LLVM >= 16), else LD_LIBRARY_PATH, the system
+library folders and /usr/lib/llvm-*/lib. None passing raises InputError naming the fix. The answer, either
+way, is decided once per process: a library installed while the process runs does not change it.
 """
 from __future__ import annotations
 
-import functools
 import os
 import re
 import secrets
@@ -57,7 +59,11 @@ def llvm_version(path: str | Path) -> int | None:
 
 
 def library_dirs() -> list[Path]:
-    """Folders searched for libLLVM: LD_LIBRARY_PATH, the system library folders, /usr/lib/llvm-*/lib."""
+    """Folders searched for libLLVM: $NEUMAT_LIBLLVM_DIRS when set, else LD_LIBRARY_PATH, the system library
+    folders and /usr/lib/llvm-*/lib."""
+    chosen = os.environ.get("NEUMAT_LIBLLVM_DIRS")
+    if chosen is not None:
+        return [Path(d) for d in chosen.split(os.pathsep) if d]
     dirs = [Path(d) for d in os.environ.get("LD_LIBRARY_PATH", "").split(os.pathsep) if d]
     dirs += [Path(d) for d in _SYSTEM_DIRS]
     dirs += sorted(Path("/usr/lib").glob("llvm-*/lib"))
@@ -81,13 +87,10 @@ def find_libllvm(dirs: list[Path] | None = None) -> list[Path]:
     return [p for v, p in sorted(found.values(), key=lambda vp: -vp[0])]
 
 
-def probe(libllvm: str | Path | None, timeout: float = _PROBE_TIMEOUT_S) -> tuple[bool, str]:
-    """Run a Mitsuba kernel in a subprocess with DRJIT_LIBLLVM_PATH = `libllvm` (None: Dr.Jit's own search).
+def probe(libllvm: str | Path, timeout: float = _PROBE_TIMEOUT_S) -> tuple[bool, str]:
+    """Run a Mitsuba kernel in a subprocess with DRJIT_LIBLLVM_PATH = `libllvm`.
     Returns (passed, Mitsuba's version or why it failed)."""
-    env = dict(os.environ)
-    env.pop("DRJIT_LIBLLVM_PATH", None)
-    if libllvm is not None:
-        env["DRJIT_LIBLLVM_PATH"] = str(libllvm)
+    env = {**os.environ, "DRJIT_LIBLLVM_PATH": str(libllvm)}
     code = _PROBE.format(variant=VARIANT, c=0.25 + secrets.randbelow(1 << 20) / (1 << 22))
     try:
         r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout)
@@ -101,34 +104,72 @@ def probe(libllvm: str | Path | None, timeout: float = _PROBE_TIMEOUT_S) -> tupl
     return False, f"{how}: {why[:200]}" if why else how
 
 
-@functools.lru_cache(maxsize=1)
-def usable_libllvm() -> str | None:
-    """The library path that passed the probe (None: Dr.Jit's own search passed), probed once per process.
-    Raises InputError naming the fix when no candidate passes."""
+def choose_libllvm() -> str:
+    """Probe the candidates (module docstring) now; the resolved path of the first that passes. Raises
+    InputError naming the fix when none does."""
     given = os.environ.get("DRJIT_LIBLLVM_PATH")
     if given:
-        ok, why = probe(given)
-        if ok:
-            return given
         v = llvm_version(given)
-        raise InputError(f"DRJIT_LIBLLVM_PATH={given!r}{f' (LLVM {v})' if v else ''} is unusable by Mitsuba 3's "
-                         f"LLVM backend ({why}); {FIX}")
+        label = f"DRJIT_LIBLLVM_PATH={given!r}{f' (LLVM {v})' if v else ''}"
+        if v is not None and v < MIN_LLVM:
+            raise InputError(f"{label} is older than the LLVM {MIN_LLVM} Mitsuba 3's LLVM backend needs; {FIX}")
+        real = os.path.realpath(given)
+        if not os.path.isfile(real):
+            raise InputError(f"{label} is not a file; {FIX}")
+        ok, why = probe(real)
+        if ok:
+            return real
+        raise InputError(f"{label} is unusable by Mitsuba 3's LLVM backend ({why}); {FIX}")
     tried = []
     for lib in find_libllvm():
-        ok, why = probe(lib)
+        real = os.path.realpath(lib)
+        ok, why = probe(real)
         if ok:
-            return str(lib)
+            return real
         tried.append(f"{lib}: {why}")
-    ok, why = probe(None)
-    if ok:
-        return None
-    tried.append(f"Dr.Jit's own search: {why}")
-    raise InputError(f"Mitsuba 3's LLVM backend found no usable LLVM >= {MIN_LLVM} ({'; '.join(tried)}); {FIX}")
+    where = ("$NEUMAT_LIBLLVM_DIRS=" + os.environ["NEUMAT_LIBLLVM_DIRS"] if "NEUMAT_LIBLLVM_DIRS" in os.environ
+             else "the library folders")
+    raise InputError(f"Mitsuba 3's LLVM backend found no usable LLVM >= {MIN_LLVM} "
+                     f"({'; '.join(tried) if tried else 'none in ' + where}); {FIX}")
+
+
+#: (library, None) or (None, refusal) once `usable_libllvm` has decided for this process
+_decided: tuple[str | None, str | None] | None = None
+
+
+def usable_libllvm() -> str:
+    """The resolved path of the library that passed the probe, decided once per process (`choose_libllvm`):
+    a later call, also after a refusal, gives the same answer without probing again."""
+    global _decided
+    if _decided is None:
+        try:
+            _decided = (choose_libllvm(), None)
+        except InputError as e:
+            _decided = (None, str(e))
+    lib, refusal = _decided
+    if refusal is not None:
+        raise InputError(refusal)
+    return lib
+
+
+def loaded_libllvms() -> set[str]:
+    """The resolved paths of the libLLVMs this process has mapped (Linux's /proc/self/maps; Mesa's llvmpipe maps
+    one too), or an empty set."""
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return set()
+    return {os.path.realpath(fields[5]) for fields in (line.split(maxsplit=5) for line in maps.splitlines())
+            if len(fields) == 6 and Path(fields[5]).name.startswith("libLLVM")}
 
 
 def configure_llvm() -> None:
-    """Point DRJIT_LIBLLVM_PATH at a usable LLVM (see the module docstring) or raise InputError.
-    Call before Mitsuba loads its LLVM backend."""
+    """Point DRJIT_LIBLLVM_PATH at the library `usable_libllvm()` chose, or raise InputError. Also an
+    InputError when Dr.Jit, imported earlier, loaded another libLLVM instead: its kernels could abort."""
     lib = usable_libllvm()
-    if lib is not None:
-        os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    loaded = loaded_libllvms() if "drjit" in sys.modules else set()
+    if loaded and lib not in loaded:
+        raise InputError(f"Dr.Jit was imported before neumat chose an LLVM and loaded {', '.join(sorted(loaded))}, "
+                         f"not {lib} (which passed the probe); let neumat load Mitsuba first "
+                         "(neumat.core.mitsuba.import_mitsuba) or set DRJIT_LIBLLVM_PATH before importing drjit")
+    os.environ["DRJIT_LIBLLVM_PATH"] = lib

@@ -5,19 +5,21 @@ Shared by the mesh scenes (`neumat.render.scenes`), the ray-traced translucent s
 """
 from __future__ import annotations
 
+import importlib.util
+
 from .errors import InputError
 from .llvm import VARIANT, configure_llvm
 
 
 def import_mitsuba():
     """The `mitsuba` module with the llvm_ad_rgb variant set, after `neumat.core.llvm.configure_llvm` found an
-    LLVM its kernels compile with. Raises InputError when Mitsuba or such an LLVM is missing."""
-    try:
-        import mitsuba as mi
-    except ImportError as e:
-        raise InputError(f"mesh scenes need Mitsuba 3 (pip install mitsuba): {e}") from e
+    LLVM its kernels compile with. Raises InputError when Mitsuba or such an LLVM is missing. Mitsuba is
+    imported only then: importing it loads Dr.Jit's LLVM (printing Dr.Jit's own complaint when there is none)."""
+    if importlib.util.find_spec("mitsuba") is None:
+        raise InputError("mesh scenes need Mitsuba 3 (pip install mitsuba)")
     configure_llvm()
     try:
+        import mitsuba as mi
         if mi.variant() != VARIANT:
             mi.set_variant(VARIANT)
     except Exception as e:  # the variant failing to load

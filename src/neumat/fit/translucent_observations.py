@@ -100,6 +100,7 @@ class Observations:
             obs = cls(**arrays)
         except InputError as e:
             raise DataFormatError(f"{path}: {e}") from None
+        _check_mean_value(obs.value, path)
         box = (cls.load_source(path) or {}).get("bbox")
         if box is not None:
             obs.bbox = tuple(torch.tensor(b, dtype=torch.float32) for b in box)
@@ -107,15 +108,66 @@ class Observations:
 
     @staticmethod
     def load_source(path: str | Path) -> dict | None:
-        """The `source` dict saved with the observations in `path` (None if none was saved)."""
+        """The `source` dict saved with the observations in `path` (None if none was saved), holding only the
+        fields `neumat translucent trace` writes, each of its type (DataFormatError naming the file otherwise)."""
         path = Path(path)
         if not path.is_file():
             raise InputError(f"observations file {path} does not exist")
         try:
-            data = np.load(path)
-            return json.loads(str(data["source"])) if "source" in data.files else None
-        except (ValueError, OSError) as e:
-            raise DataFormatError(f"{path}: not a neumat observations file ({e})") from e
+            with np.load(path) as data:
+                if "source" not in data.files:
+                    return None
+                source = json.loads(str(data["source"]))
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            raise DataFormatError(f"{path}: not a neumat observations file ({e})") from None
+        _check_source(source, f"{path}: source")
+        return source
+
+
+#: the fields of an observations file's `source` (`neumat translucent trace`) but "object" (a TranslucentConfig)
+#: and "bbox" (the box [[lo], [hi]]), and their kinds (`neumat.io.tagged_file.FIELD_KINDS`)
+SOURCE_FIELDS = {"spp": "a positive integer", "seed": "a non-negative integer", "noise": "a JSON object"}
+
+
+def _check_source(source, where: str) -> None:
+    from ..core.config import config_from_dict
+    from ..io.tagged_file import header_field
+    from ..reflectance.translucent import TranslucentConfig
+
+    if not isinstance(source, dict):
+        raise DataFormatError(f"{where}: expected a JSON object (what `neumat translucent trace` writes), got "
+                              f"{source!r}"[:300])
+    known = {"object", "bbox", *SOURCE_FIELDS}
+    if set(source) - known:
+        raise DataFormatError(f"{where}: unknown field(s) {sorted(set(source) - known)} (known: {sorted(known)})")
+    for key, kind in (*SOURCE_FIELDS.items(), ("object", "a JSON object")):
+        header_field(source, key, kind, where, default=None)
+    if "object" in source:
+        try:
+            config_from_dict(TranslucentConfig, source["object"])
+        except InputError as e:
+            raise DataFormatError(f"{where} field 'object': {e}") from None
+    if "bbox" in source:
+        box = np.asarray(source["bbox"], dtype=object)
+        ok = box.shape == (2, 3) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in box.flat)
+        if not ok or not (np.isfinite(box.astype(float)).all() and (box[0] < box[1]).all()):
+            raise DataFormatError(f"{where} field 'bbox': expected [[lo x, y, z], [hi x, y, z]] with finite lo < hi, "
+                                  f"got {source['bbox']!r}"[:300])
+
+
+def _check_mean_value(value: torch.Tensor, path: Path) -> None:
+    """Single values may be negative (each is a difference of two Monte Carlo traces, `TranslucentObject.trace`),
+    but S_hat is >= 0, so a channel mean more than 4 standard errors below 0 is not such data: DataFormatError."""
+    if value.shape[0] < 2:
+        return
+    v = value.double()
+    mean, se = v.mean(0), v.std(0) / v.shape[0] ** 0.5
+    bad = [c for c in range(3) if float(mean[c]) < -4 * float(se[c])]
+    if bad:
+        c = bad[0]
+        raise DataFormatError(f"{path}: the mean observed value of channel {'RGB'[c]} is {float(mean[c]):.4g}, "
+                              f"{float(-mean[c] / se[c]):.3g} standard errors below 0; single values may be negative "
+                              "(each is a difference of two Monte Carlo traces), but S_hat is >= 0 on average")
 
 
 def orbit_rays(obj: TranslucentObject, view: torch.Tensor, resolution: int,

@@ -15,12 +15,14 @@ from __future__ import annotations
 import contextlib
 import functools
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ..core.errors import InputError, NeumatError
+from ..core.llvm import configure_llvm
 from ..core.material import Material, material_device
 from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
@@ -75,12 +77,30 @@ def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0) -> tor
     mi = _current_mitsuba()
     if not isinstance(scene, mi.Scene):
         raise InputError(f"scene: expected a mitsuba Scene (mi.load_dict / mi.load_file), got {type(scene).__name__}")
+    check_renderable(scene, sensor)
     with evaluated_mode():
         try:
             image = mi.render(scene, spp=0 if spp is None else spp, seed=seed, sensor=sensor)
         except RuntimeError as e:  # Dr.Jit wraps an error of the plugin in its own
             raise unwrap_error(e) or e from None
     return torch.from_numpy(np.array(image, dtype=np.float32))
+
+
+def check_renderable(scene, sensor: int = 0) -> None:
+    """InputError naming what keeps `mi.render` from rendering `scene` with sensor number `sensor`: no integrator,
+    no such sensor, a film without pixels or with more values than a Dr.Jit array holds (2^32). Mitsuba would
+    raise deep inside its render call instead."""
+    if scene.integrator() is None:
+        raise InputError('the scene has no integrator; add one, e.g. <integrator type="path"/>')
+    sensors = scene.sensors()
+    if not sensors:
+        raise InputError('the scene has no sensor; add one, e.g. <sensor type="perspective"> with a film')
+    if not 0 <= sensor < len(sensors):
+        raise InputError(f"sensor: expected an index below the scene's {len(sensors)} sensors, got {sensor}")
+    w, h = (int(v) for v in sensors[sensor].film().crop_size())
+    if w < 1 or h < 1 or w * h * 4 >= 2 ** 32:  # an RGB film stores at least 4 values (+ weight) per pixel
+        raise InputError(f"the scene's film is {w} x {h} pixels; expected width and height >= 1 and fewer than "
+                         "2^32 / 4 pixels (2^32 values: the most a Dr.Jit array holds)")
 
 
 def unwrap_error(error: BaseException) -> NeumatError | None:
@@ -118,9 +138,15 @@ def _check_rgb(variant: str) -> None:
 
 
 def _current_mitsuba():
-    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is."""
-    import mitsuba as mi
-    return import_mitsuba() if mi.variant() is None else mi
+    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is (imported by
+    `import_mitsuba`, which chooses the LLVM first, when nobody has imported it yet). An LLVM variant set by the
+    caller is checked against the chosen LLVM too (`configure_llvm`)."""
+    mi = sys.modules.get("mitsuba")
+    if mi is None or mi.variant() is None:
+        return import_mitsuba()
+    if mi.variant().startswith("llvm_"):
+        configure_llvm()
+    return mi
 
 
 def _bsdf_class(mi) -> type:

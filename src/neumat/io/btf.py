@@ -22,6 +22,7 @@ import torch
 
 from ..core.errors import DataFormatError, InputError
 from .atomic import atomic_write
+from .tagged_file import header_field
 
 FORMAT = "neumat-btf"
 VERSION = 1
@@ -150,18 +151,21 @@ def _validate_header(path: Path, meta: dict, keys: set[str]) -> dict:
         header = json.loads(meta["neumat_btf"])
     except json.JSONDecodeError as e:
         raise DataFormatError(f"{path}: malformed 'neumat_btf' header ({e})") from None
+    if not isinstance(header, dict):
+        raise DataFormatError(f"{path}: the 'neumat_btf' header must be a JSON object")
     if header.get("format") != FORMAT:
         raise DataFormatError(f"{path}: header format {header.get('format')!r}, expected {FORMAT!r}")
-    if header.get("version") != VERSION:
+    if isinstance(header.get("version"), bool) or header.get("version") != VERSION:
         raise DataFormatError(f"{path}: header version {header.get('version')!r}, this reader knows {VERSION}")
     for k in ("height", "width", "n_light", "n_view"):
-        if not isinstance(header.get(k), int) or header[k] < 1:
-            raise DataFormatError(f"{path}: header field {k!r} must be a positive integer, got {header.get(k)!r}")
+        header_field(header, k, "a positive integer", f"{path}: header")
     if header.get("dtype") not in ("float16", "float32"):
         raise DataFormatError(f"{path}: header dtype {header.get('dtype')!r}, expected 'float16' or 'float32'")
+    header_field(header, "label", "a string", f"{path}: header", default=None)
+    header_field(header, "extra", "a JSON object", f"{path}: header", default=None)
+    header_field(header, "clamped", "a non-negative integer", f"{path}: header", default=None)
     chunks = {k for k in keys if k.startswith("light_") and k != "light_dirs"}
-    expected = {_chunk(i) for i in range(header["n_light"])}
-    if chunks != expected:
+    if len(chunks) != header["n_light"] or chunks != {_chunk(i) for i in range(header["n_light"])}:
         raise DataFormatError(f"{path}: header says {header['n_light']} light directions but the file has "
                               f"{len(chunks)} light chunks")
     for k in ("light_dirs", "view_dirs"):

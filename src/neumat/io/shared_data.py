@@ -27,3 +27,25 @@ def shared_data_dir() -> Path | None:
         if candidate.is_dir():
             return candidate
     return None
+
+
+#: the documented examples (docs/examples in a checkout links here), shipped in the wheel
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def resolve_data_path(text: str | Path) -> Path:
+    """`text` as a path: itself when it exists or is absolute, else docs/examples/NAME from the shipped
+    examples, else a path inside the reference data folder (`rgl/x.bsdf`, or `../shared/data/rgl/x.bsdf` run
+    from elsewhere), else itself (for the caller's "does not exist"). So the README's commands run from an
+    installed wheel too."""
+    path = Path(text)
+    if path.exists() or path.is_absolute():
+        return path
+    parts = path.parts
+    if parts[:2] == ("docs", "examples") and (EXAMPLES.joinpath(*parts[2:])).exists():
+        return EXAMPLES.joinpath(*parts[2:])
+    inside = parts[3:] if parts[:3] == ("..", "shared", "data") else parts
+    data = shared_data_dir()
+    if data is not None and inside and data.joinpath(*inside).exists():
+        return data.joinpath(*inside)
+    return path

@@ -3,7 +3,9 @@ dictionary and of SH-PRT tables (model files have their own, stricter header: `n
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -40,3 +42,31 @@ def read_tagged(path: str | Path, file_type: str, what: str) -> tuple[dict, dict
         kind = header.get("type") if isinstance(header, dict) else None
         raise DataFormatError(f"{path}: header type {kind!r}, expected {file_type!r}")
     return header, tensors
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+#: what `header_field` can ask for, and how to tell it (a JSON true is no number)
+FIELD_KINDS = {
+    "a positive integer": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
+    "a non-negative integer": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+    "a finite number": _number,
+    "a list of finite numbers": lambda v: isinstance(v, list) and all(_number(x) for x in v),
+    "a string": lambda v: isinstance(v, str),
+    "a JSON object": lambda v: isinstance(v, dict),
+}
+
+
+def header_field(header: dict, key: str, kind: str, where: str, **default: Any) -> Any:
+    """header[key] when it is `kind` (a key of FIELD_KINDS); `default=...` stands in for a missing key.
+    DataFormatError naming `where` ("FILE: header") and the field otherwise: a JSON value of the wrong type fails
+    here, not deep in the reader with a traceback."""
+    if key not in header and "default" in default:
+        return default["default"]
+    if key not in header:
+        raise DataFormatError(f"{where} lacks the field {key!r} ({kind})")
+    if not FIELD_KINDS[kind](header[key]):
+        raise DataFormatError(f"{where} field {key!r} must be {kind}, got {header[key]!r}"[:300])
+    return header[key]

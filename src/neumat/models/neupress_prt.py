@@ -73,7 +73,8 @@ def _positive_int(value, name: str, minimum: int = 1) -> int:
     return v
 
 
-def _check_config(c: PRTConfig) -> PRTConfig:
+def check_config(c: PRTConfig) -> PRTConfig:
+    """`c`, or InputError naming its first bad field; callers check before slow work (loading Mitsuba)."""
     if not isinstance(c, PRTConfig):
         raise InputError(f"config: expected a PRTConfig, got {type(c).__name__}")
     _positive_int(c.degree, "PRTConfig.degree", 0)
@@ -223,7 +224,7 @@ class SHPRT:
 
     def __init__(self, coefficients: torch.Tensor, points: torch.Tensor, normals: torch.Tensor,
                  config: PRTConfig | None = None, faces: torch.Tensor | None = None) -> None:
-        cfg = _check_config(PRTConfig() if config is None else config)
+        cfg = check_config(PRTConfig() if config is None else config)
         _check_vertices(points, normals)
         v = points.shape[0]
         check_shape(coefficients, "coefficients", (v, cfg.view_theta, cfg.view_phi, sh_count(cfg.degree), 3))
@@ -277,7 +278,7 @@ class SHPRT:
         each chunk projected by one float32 matrix product. A NeuPreSS model is evaluated through
         `_SeparableNeuPreSS` (no per-query Fourier features); other materials through `eval(Query)`.
         """
-        cfg = _check_config(PRTConfig() if config is None else config)
+        cfg = check_config(PRTConfig() if config is None else config)
         if not callable(getattr(material, "eval", None)):
             raise InputError(f"material: expected a Material with eval(Query), got {type(material).__name__}")
         if not getattr(material, "full_sphere", False):

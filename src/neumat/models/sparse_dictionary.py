@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from ..core.errors import DataFormatError, InputError
-from ..io.tagged_file import read_tagged, write_tagged
+from ..io.tagged_file import header_field, read_tagged, write_tagged
 
 #: RGB -> YUV (BT.601 analogue), rows Y, U, V
 RGB_TO_YUV = torch.tensor([[0.299, 0.587, 0.114],
@@ -314,8 +314,15 @@ class BTFDictionary:
             ens = [Ensemble([tensors[f"U{j + 1}_{ch}"].to(device) for j in range(4)]) for ch in "YUV"]
         except KeyError as e:
             raise DataFormatError(f"{path}: missing dictionary tensor {e}") from None
-        return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device), int(meta["patch"]),
-                   tuple(meta["tau_train"]), float(meta["log_eps"]), meta.get("info", {}))
+        for k in ("light_dirs", "view_dirs"):
+            if k not in tensors:
+                raise DataFormatError(f"{path}: missing dictionary tensor {k!r}")
+        where = f"{path}: header"
+        return cls(ens, tensors["light_dirs"].to(device), tensors["view_dirs"].to(device),
+                   header_field(meta, "patch", "a positive integer", where),
+                   tuple(header_field(meta, "tau_train", "a list of finite numbers", where)),
+                   float(header_field(meta, "log_eps", "a finite number", where)),
+                   header_field(meta, "info", "a JSON object", where, default={}))
 
 
 #: dictionaries shipped with the package: name -> file under neumat/models/data (docs/btf.md, "Shipped dictionary")

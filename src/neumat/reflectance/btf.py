@@ -74,7 +74,9 @@ def direction_set(spec: str | int, dtype=torch.float32, device=None) -> torch.Te
             n_rings, step = int(n_rings), float(step)
         except ValueError:
             raise InputError(f"direction set {spec!r}: expected 'rings:<n_rings>x<step_deg>'") from None
-        if n_rings < 1 or step <= 0 or (n_rings - 1) * step >= 90:
+        if not math.isfinite(step) or step <= 0:
+            raise InputError(f"direction set {spec!r}: the ring step must be a positive number of degrees")
+        if n_rings < 1 or (n_rings - 1) * step >= 90:
             raise InputError(f"direction set {spec!r}: rings must stay below 90 degrees")
         rings = [(0.0, 1)] + [(i * step, max(3, round(2 * math.pi * math.sin(math.radians(i * step))
                                                        / math.radians(step))))

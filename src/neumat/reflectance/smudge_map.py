@@ -22,6 +22,8 @@ def smudge_map(size: int = 256, seed: int = 0, smudges: int = 24, extent: float 
     if not (isinstance(smudges, int) and smudges >= 0) or not 0 < extent <= 0.5 or not ridge_period >= 2:
         raise InputError(f"smudge_map: need smudges >= 0, extent in (0, 0.5], ridge_period >= 2 texels; got "
                          f"{smudges}, {extent}, {ridge_period}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 63:
+        raise InputError(f"smudge_map seed: expected an integer in [0, 2^63), got {seed!r}")
     g = torch.Generator().manual_seed(seed)
     y, x = torch.meshgrid((torch.arange(size) + 0.5) / size, (torch.arange(size) + 0.5) / size, indexing="ij")
     out = torch.zeros(size, size)
