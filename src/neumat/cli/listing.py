@@ -13,8 +13,8 @@ def register(app: typer.Typer) -> None:
 
 def catalogue() -> dict:
     """{"models": [one object per registered model], "sources": [...], "source_kinds": {...}, "exporters": [...]}
-    as `neumat list --json` prints it; a model's "recipe" is true when `neumat fit` can train it, "recipes" are
-    the names its --recipe takes."""
+    as `neumat list --json` prints it; a model's "recipe" is true when `neumat fit` can train it, "presets" are
+    the names its --preset takes."""
     from ..catalog.sources import load_sources
     from ..core.errors import UnknownNameError
     from ..export.glsl_common import load_generators
