@@ -95,8 +95,9 @@ def source_kind(source: Any) -> str:
 
 
 def settable_keys(model: str) -> dict[str, dict[str, Any]]:
-    """{namespace: {key: (type, default)}} of what `--set` can change for model `model`: its config fields, the
-    recipe's fields and its recipe options (typed, or the keys of its base recipe's options)."""
+    """{namespace: {key: (type, default, dataclass field or None)}} of what `--set` can change for model `model`:
+    its config fields, the recipe's fields and its recipe options (typed, or the keys of its base recipe's
+    options)."""
     import typing
 
     from ..models.registry import model_class
@@ -154,6 +155,8 @@ def resolve_preset(model: str, preset: str = DEFAULT_PRESET, *, device: Any = "c
     """The model config and recipe of a fit of model `model` with `preset` on `device` (a torch device or its
     type), for `source` (its kind picks the preset's `by_source` overrides), with the caller's `overrides`
     (namespaced or unambiguous bare keys) on top and `seed` (the recipe's) last. Everything is checked."""
+    from ..models.registry import model_class
+
     p = preset_named(model, preset)
     device_type = getattr(device, "type", str(device).split(":")[0])
     recipe_name = p.recipe or ("cpu" if device_type == "cpu" else "paper")
@@ -169,8 +172,6 @@ def resolve_preset(model: str, preset: str = DEFAULT_PRESET, *, device: Any = "c
         recipe.seed = seed
     check_recipe(recipe)
     typed_options(model, recipe.options)
-    from ..models.registry import model_class
-
     derived = recipe_config_for_source(model, source, recipe.options) if source is not None else {}
     config = config_from_dict(model_class(model).Config, {**derived, **part["model"]})
     return Resolved(preset, recipe_name, config, recipe, applied)
