@@ -55,11 +55,16 @@ def _rows(out: Path) -> dict[str, dict]:
     return {r["name"]: r for r in json.loads((out / "results.json").read_text())["rows"]}
 
 
-def test_three_good_sources_and_a_corrupt_one_on_ray_then_a_rerun_fits_only_the_failed(app, ray_2cpu, tmp_path):
+@pytest.mark.parametrize("engine", ["local", pytest.param("ray", marks=pytest.mark.slow)])
+def test_three_good_sources_and_a_corrupt_one_then_a_rerun_fits_only_the_failed(app, tmp_path, request, engine):
+    """The same rows from both engines; the Ray run (about 3 minutes of Ray start-up on a loaded 2-core machine) is
+    `slow`, and Ray stays in the default run through the killed-worker tests below."""
+    if engine == "ray":
+        request.getfixturevalue("ray_2cpu")
     sources = _teachers(tmp_path / "src", 3)
     (tmp_path / "src" / "corrupt.binary").write_bytes(b"\x00\x01 not a MERL table" * 100)
     out = tmp_path / "out"
-    res = CliRunner().invoke(app, [str(tmp_path / "src"), *FAST, "-o", str(out)])
+    res = CliRunner().invoke(app, [str(tmp_path / "src"), *FAST, "--engine", engine, "-o", str(out)])
     assert res.exit_code == 1, res.output  # some job failed
     rows = _rows(out)
     assert sorted(rows) == ["corrupt", "teacher0", "teacher1", "teacher2"]
@@ -74,7 +79,7 @@ def test_three_good_sources_and_a_corrupt_one_on_ray_then_a_rerun_fits_only_the_
     assert "corrupt" in (out / "results.md").read_text() and "| ggx | 3 | 1 |" in (out / "results.md").read_text()
 
     mtimes = {n: Path(r["nmat"]).stat().st_mtime_ns for n, r in rows.items() if r["status"] == "ok"}
-    res = CliRunner().invoke(app, [str(tmp_path / "src"), *FAST, "-o", str(out)])
+    res = CliRunner().invoke(app, [str(tmp_path / "src"), *FAST, "--engine", engine, "-o", str(out)])
     assert res.exit_code == 1 and "3 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
     again = _rows(out)
     assert {n: Path(again[n]["nmat"]).stat().st_mtime_ns for n in mtimes} == mtimes
