@@ -11,6 +11,7 @@ from pathlib import Path
 
 from neumat.cli.main import app
 from neumat.fit.recipe import recipe_for
+from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
 
@@ -38,6 +39,25 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
                     run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
                 rows.append({**row, "seed": seed})
     return rows
+
+
+def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str]) -> list[dict] | None:
+    """fit-many rows of `models` on every shared texture set at the paper's models' CPU path (256^2 texels, two
+    seeds), or of `quick_models` on one set at 32^2 for 10 steps in a quick run; None (the run says why) without
+    shared data."""
+    data = shared_data_dir()
+    if data is None:
+        run.skip("every fit", "no texture sets: shared data absent (neumat.io.shared_data)")
+        return None
+    sets = sorted(str(p) for p in (data / "svbrdf").iterdir() if p.is_dir())
+    if run.quick:
+        return fit_many(run, sets[-1:], quick_models,
+                        ["--preset", "cpu", "--steps", "10", "--set", "batch_size=256", "--source-option",
+                         "max_size=32", "--n-configs", "4096", "--image-spp", "2", "--image-resolution", "32"],
+                        [run.seed])
+    return fit_many(run, sets, models, ["--preset", "cpu", "--source-option", "max_size=256", "--n-configs",
+                                        str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"],
+                    [run.seed, run.seed + 1])
 
 
 def quality_rows(rows: list[dict]) -> list[dict]:

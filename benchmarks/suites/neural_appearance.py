@@ -2,10 +2,8 @@
 ggx-mipmap baselines on the shared texture sets, through `neumat fit-many` at the CPU recipes (its image table)."""
 from __future__ import annotations
 
-from neumat.io.shared_data import shared_data_dir
-
 from .. import harness
-from .common import fit_many, paper_budget, quality_rows, recipe_budget, summary_rows
+from .common import paper_budget, quality_rows, recipe_budget, summary_rows, texture_set_fits
 
 NAME = "neural-appearance"
 DESCRIPTION = "neural-appearance against neumip-frame and ggx-mipmap on the texture sets, through fit-many"
@@ -25,19 +23,9 @@ def run(run: harness.Run) -> None:
     from neumat.render.comparison import PROTOCOL
 
     run.protocol["image"] = PROTOCOL
-    data = shared_data_dir()
-    if data is None:
-        run.skip("every fit", "no texture sets: shared data absent (neumat.io.shared_data)")
+    rows = texture_set_fits(run, MODELS, MODELS[:1])
+    if rows is None:
         return
-    sets = sorted(str(p) for p in (data / "svbrdf").iterdir() if p.is_dir())
-    if run.quick:
-        rows = fit_many(run, sets[-1:], MODELS[:1],
-                        ["--preset", "cpu", "--steps", "10", "--set", "batch_size=256", "--source-option",
-                         "max_size=32", "--n-configs", "4096", "--image-spp", "2", "--image-resolution", "32"], [run.seed])
-    else:
-        rows = fit_many(run, sets, MODELS, ["--preset", "cpu", "--source-option", "max_size=256", "--n-configs",
-                                            str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"],
-                        [run.seed, run.seed + 1])
     run.table("fits", "Texture sets x models", quality_rows(rows))
     run.table("summary", "Per model: mean over the sets, seed spread", summary_rows(rows))
     run.skip("sampler variance (Sec. 6.3)", "not yet a suite table: benchmarks/studies/neural_appearance/"

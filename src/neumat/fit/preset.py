@@ -184,9 +184,9 @@ def default_recipe(model: Any, source: Any, device: Any = "cpu") -> Recipe:
 
     name = model_name(model)
     r = resolve_preset(name, DEFAULT_PRESET, device=device, source=source)
-    have = config_to_dict(model.cfg)
-    wanted = {k.partition(".")[2]: v for k, v in r.applied.items() if k.startswith("model.")}
-    differ = {k: v for k, v in wanted.items() if config_to_dict(r.config)[k] != have.get(k)}
+    have, want = config_to_dict(model.cfg), config_to_dict(r.config)
+    differ = {k: want[k] for k in (q.partition(".")[2] for q in r.applied if q.startswith("model."))
+              if want[k] != have.get(k)}
     if differ:
         raise InputError(f"fit: the {DEFAULT_PRESET} preset of {name} trains a model with "
                          f"{', '.join(f'{k}={v!r}' for k, v in differ.items())}; build it with "
