@@ -76,4 +76,4 @@ def test_rule_catches_narrative():
     queries, log_cos_eps; benchmarks/studies/neubrdf/results/neubrdf_table3_hd_warp.md), where a log loss
     weighs a peak like its tails. Measured once on MERL-like chrome: 0.0029 and 0.0027."""
     assert sum(map(is_measurement_line, text.splitlines())) == 3
-    assert not is_measurement_line("Corner weights of the runtime form (docs/notes/neubrdf.md).")
+    assert not is_measurement_line("Corner weights of the runtime form (src/neumat/methods/neubrdf/NOTES.md).")

@@ -12,8 +12,8 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src" / "neumat"
 
 #: subpackages, bottom to top: a module may import only from its own subpackage or from one listed before it
-LAYERS = ["core", "color", "warp", "nn", "io", "metrics", "reflectance", "render", "models", "fit", "catalog",
-          "export", "testing", "viz", "integrations", "cli"]
+LAYERS = ["core", "color", "warp", "nn", "io", "metrics", "reflectance", "render", "models", "fit", "export",
+          "methods", "catalog", "testing", "viz", "integrations", "cli"]
 
 
 

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from neumat.cli.main import app
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness

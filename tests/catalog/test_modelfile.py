@@ -14,7 +14,7 @@ from neumat.fit.recipe import Recipe
 from neumat.catalog.modelfile import load_model, save_model, source_info
 from neumat.catalog.open_material import open_material
 from neumat.io.modelfile import read_header
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 
 
 def _dirs(n: int, gen: torch.Generator) -> torch.Tensor:
@@ -128,7 +128,7 @@ def test_strict_loading_raises(edit, match, tmp_path, gen):
 
 def test_model_files_of_the_renamed_zeltner_model_load_as_neumip_frame(tmp_path):
     """Files written when neumip-frame was registered as "zeltner" load as neumip-frame, with the same weights."""
-    from neumat.models.neumip_frame import NeuMIPFrame
+    from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
 
     m = NeuMIPFrame(spatial_size=8, spatial_channels=4, hidden=8, hidden_layers=1)
     old = _rewrite(save_model(m, tmp_path / "m.nmat"), tmp_path / "old.nmat", header_change=_set("type", "zeltner"))

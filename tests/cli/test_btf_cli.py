@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 from neumat.cli import btf as btf_cli
 from neumat.io.btf import write_btf
 from neumat.reflectance.btf import read_btf
-from neumat.models.sparse_dictionary import BTFDictionary
+from neumat.methods.sparse_btf.dictionary import BTFDictionary
 from btf_util import synthetic_btf
 
 

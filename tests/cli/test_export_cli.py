@@ -45,8 +45,8 @@ def test_export_refuses_a_model_without_a_shader(tmp_path):
 
 @needs_gl
 def test_export_check_runs_a_sparse_btf(tmp_path):
-    from neumat.models.sparse_btf import SparseBTF
-    from neumat.fit.sparse_dictionary import train_dictionary
+    from neumat.methods.sparse_btf.model import SparseBTF
+    from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 
     from btf_util import synthetic_btf
 
@@ -115,7 +115,7 @@ def test_export_web_writes_the_viewer_page(tmp_path):
 
 def test_export_slang_refuses_a_model_it_cannot_export(tmp_path):
     path = _saved(tmp_path, {"type": "nbrdf-uv", "spatial_size": 8})
-    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--slang"])
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "out"), "--format", "slang"])
     assert result.exit_code == 2 and "export_slang" in result.output and "cartesian" in result.output
     assert not (tmp_path / "out").exists()
 

@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 from neumat.catalog.modelfile import load_model
 from neumat.catalog.open_material import open_material
 from neumat.cli import fit_clusters, fitting
-from neumat.fit.shared_neubrdf import cluster_materials
-from neumat.models.shared_neubrdf import SharedNeuBRDF
+from neumat.methods.neubrdf.shared_targets import cluster_materials
+from neumat.methods.neubrdf.shared_model import SharedNeuBRDF
 
 from cli_util import output_text
 

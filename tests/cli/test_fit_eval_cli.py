@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.io.modelfile import read_header
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 
 from cli_util import fitting_app, output_text
 
@@ -163,7 +163,7 @@ def test_fit_neubrdf_at_defaults_writes_the_small_runtime_form(app, tmp_path):
 def test_fit_on_cpu_picks_the_cpu_recipe_and_says_so(app, teacher, tmp_path):
     """Without --steps on a CPU the CPU-sized recipe runs and one line names it and the paper's; --recipe paper
     picks the paper's (here with --set steps to keep the test short: --set fields still apply)."""
-    from neumat.fit.recipe import recipe_for
+    from neumat.fit.method import recipe_for
 
     cpu, paper = recipe_for("neubrdf", "cpu"), recipe_for("neubrdf", "paper")
     assert cpu.steps * cpu.batch_size < paper.steps * paper.batch_size
@@ -186,14 +186,15 @@ def test_fit_on_cpu_picks_the_cpu_recipe_and_says_so(app, teacher, tmp_path):
 
 
 def test_fit_without_options_runs_the_recommended_preset_and_says_so(app, teacher, tmp_path, monkeypatch):
-    """Through the command with no preset: the recommended one runs (its steps shortened by patching the recipe
-    module, so that the test stays fast), one line names it, its overrides and how to get the paper's model, and the
+    """Through the command with no preset: the recommended one runs (its steps shortened by patching the method's
+    recipe, so that the test stays fast), one line names it, its overrides and how to get the paper's model, and the
     file records it."""
     from dataclasses import replace
 
-    import neumat.fit.recipes.neubrdf as module
+    from neumat.fit.method import method_for
 
-    monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=4))
+    recipes = method_for("neubrdf").recipes
+    monkeypatch.setitem(recipes, "cpu", replace(recipes["cpu"], steps=4))
     res = CliRunner().invoke(app, ["fit", teacher, *SMALL, "--device", "cpu", "-o", str(tmp_path / "c.nmat")])
     assert res.exit_code == 0, res.output
     text = output_text(res)
@@ -201,7 +202,7 @@ def test_fit_without_options_runs_the_recommended_preset_and_says_so(app, teache
     assert "4 steps x 256" in text and "the paper's exact model: --preset paper" in text
     h = read_header(tmp_path / "c.nmat")
     assert h["preset"]["name"] == "recommended" and h["config"]["direction_inputs"] == "hd_warp"
-    assert h["recipe"]["lr_decay_every"] == module.CPU_RECIPE.lr_decay_every
+    assert h["recipe"]["lr_decay_every"] == recipes["cpu"].lr_decay_every
 
 
 def test_cpu_recipe_with_direction_inputs_fits_quantises_and_exports(app, tmp_path, monkeypatch):
@@ -209,10 +210,11 @@ def test_cpu_recipe_with_direction_inputs_fits_quantises_and_exports(app, tmp_pa
     the file is the codebook model with the 6 inputs, it evaluates as written, and its GLSL export carries them."""
     from dataclasses import replace
 
-    import neumat.fit.recipes.neubrdf as module
     from neumat.export.glsl import export_glsl
+    from neumat.fit.method import method_for
 
-    monkeypatch.setattr(module, "CPU_RECIPE", replace(module.CPU_RECIPE, steps=20))
+    recipes = method_for("neubrdf").recipes
+    monkeypatch.setitem(recipes, "cpu", replace(recipes["cpu"], steps=20))
     out = tmp_path / "hd.nmat"
     res = CliRunner().invoke(app, ["fit", "plastic:roughness=0.3", "--recipe", "cpu", "--set", "nside=4",
                                    "--set", "index_bits=3", "--set", "hidden=8", "--set", "batch_size=256",

@@ -19,7 +19,7 @@ from neumat.cli import fit_many
 from neumat.cli.fit_engines import RunProgress, run_ray
 from neumat.cli import fit_job as fit_job_module
 from neumat.cli.fit_job import FitJob, run_fit_job
-from neumat.models.ggx_fit import GGXFit
+from neumat.methods.baselines.ggx import GGXFit
 
 FAST = ["-m", "ggx", "--steps", "10", "--set", "batch_size=256", "--n-configs", "2048", "--image-spp", "1",
         "--image-resolution", "8", "--device", "cpu"]
@@ -154,7 +154,7 @@ def test_preset_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
     """--preset cpu: each model's CPU path (neubrdf: 2^13 queries a step, not the paper's 2^14); a rerun with the
     paper's preset fits again; a paper-preset row's options hash of before the image protocol was hashed does not
     mention the preset (results written before the option existed are recognised); the default is recommended."""
-    from neumat.fit.recipe import recipe_for
+    from neumat.fit.method import recipe_for
 
     out = tmp_path / "out"
     args = ["ggx:roughness=0.3", "-m", "neubrdf", "--steps", "2", "--set", "nside=2", "--set", "index_bits=3",

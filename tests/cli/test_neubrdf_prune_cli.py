@@ -16,7 +16,7 @@ from neumat.catalog.open_material import open_material
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.measured_samples import rgl_samples
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.nn import healpix as hpx
 
 from cli_util import fitting_app, output_text
@@ -163,7 +163,7 @@ def test_pruned_fit_resumes_to_the_uninterrupted_one(tmp_path):
     from dataclasses import replace
 
     from neumat.fit.measured_samples import MeasuredSamples
-    from neumat.fit.recipe import recipe_for
+    from neumat.fit.method import recipe_for
     from neumat.fit.trainer import fit
 
     gen = torch.Generator().manual_seed(0)

@@ -10,7 +10,7 @@ from neumat.fit.translucent_observations import Observations
 from neumat.io.images import read_image
 from neumat.catalog.modelfile import load_model
 from neumat.io.modelfile import read_header
-from neumat.models.neupress import NeuPreSS
+from neumat.methods.neupress.model import NeuPreSS
 from tests.mitsuba_util import mitsuba_or_skip
 
 
@@ -168,10 +168,11 @@ def test_trace_scene_option_errors(tmp_path, without_llvm):
     assert r.exit_code == 2 and "LO,HI" in _said(r)
 
 
-def test_fit_and_translucent_fit_set_the_same_bounds(tmp_path):
-    """One bounds rule (`set_bounds_from`): `neumat fit obs.npz --model neupress` and `neumat translucent fit obs.npz`
-    both take the object's box recorded in the file (here larger than the observed points'), and without one the
-    observed points' box."""
+def test_fit_and_translucent_fit_are_one_fit(tmp_path):
+    """`neumat translucent fit obs.npz` is the old name of `neumat fit obs.npz --model neupress`: one bounds rule
+    (`set_bounds_from`: the object's box recorded in the file, here larger than the observed points', and without one
+    the observed points' box), the same weights and the same report (held-back error) in the header; both list
+    syntaxes (a,b and JSON) are read by both."""
     g = torch.Generator().manual_seed(0)
     x = torch.nn.functional.normalize(torch.randn(64, 3, generator=g), dim=-1)
     obs = Observations(x, x.clone(), x.clone(), x.flip(0), torch.rand(64, 3, generator=g))
@@ -180,7 +181,7 @@ def test_fit_and_translucent_fit_set_the_same_bounds(tmp_path):
     obs.save(tmp_path / "plain.npz")
     small = ["--steps", 2, "--device", "cpu", "--set", "features=4", "--set", "width=4", "--set", "layers=1",
              "--set", "batch_size=8", "--set", "sampler_batch=2", "--set", "sampler_hidden=4"]
-    lists = {"fit": ["--set", "grid=2,4"], "translucent": ["--set", "grid=[2,4]"]}  # each CLI's list syntax
+    lists = {"fit": ["--set", "grid=2,4"], "translucent": ["--set", "grid=[2,4]"]}  # either list syntax
     for name, want in (("o", torch.tensor(box)), ("plain", torch.stack([x.min(0).values, x.max(0).values]))):
         src = tmp_path / f"{name}.npz"
         r = CliRunner().invoke(app, list(map(str, ["fit", src, "--model", "neupress", "-q", *small,
@@ -191,3 +192,6 @@ def test_fit_and_translucent_fit_set_the_same_bounds(tmp_path):
         a, b = (load_model(tmp_path / f"{name}_{k}.nmat") for k in ("fit", "translucent"))
         assert torch.equal(a.box_min, b.box_min) and torch.equal(a.box_max, b.box_max)
         assert torch.allclose(a.box_min, want[0]) and torch.allclose(a.box_max, want[1])
+        assert all(torch.equal(t, b.state_dict()[k]) for k, t in a.state_dict().items())
+        ma, mb = (read_header(tmp_path / f"{name}_{k}.nmat")["metrics"] for k in ("fit", "translucent"))
+        assert ma["validation_mse"] == mb["validation_mse"] > 0 and ma.get("sampler_kl") == mb.get("sampler_kl")

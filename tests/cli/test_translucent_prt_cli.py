@@ -11,8 +11,8 @@ from neumat.cli.main import app
 from neumat.core.config import config_to_dict
 from neumat.fit.translucent_observations import Observations
 from neumat.io.images import read_image
-from neumat.models.neupress import NeuPreSS
-from neumat.models.neupress_prt import FAST_PRECISION, PRTConfig, SHPRT
+from neumat.methods.neupress.model import NeuPreSS
+from neumat.methods.neupress.prt import FAST_PRECISION, PRTConfig, SHPRT
 from neumat.reflectance.translucent import TranslucentConfig
 from neumat.render.mesh import icosphere, vertex_normals
 from tests.mitsuba_util import mitsuba_or_skip

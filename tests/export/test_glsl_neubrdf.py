@@ -9,7 +9,7 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.nn import healpix as hpx
 from neumat.testing.parity import glsl_eval, glsl_run, opengl_available
 

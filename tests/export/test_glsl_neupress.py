@@ -6,8 +6,8 @@ import torch
 from neumat import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
-from neumat.export.glsl_neupress import export_neupress
-from neumat.models.neupress import NeuPreSS
+from neumat.methods.neupress.glsl import export_neupress
+from neumat.methods.neupress.model import NeuPreSS
 from neumat.testing.parity import glsl_run, opengl_available
 from neumat.warp import sample_uniform_sphere
 

@@ -7,8 +7,8 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
-from neumat.models.sparse_btf import SparseBTF
-from neumat.fit.sparse_dictionary import train_dictionary
+from neumat.methods.sparse_btf.model import SparseBTF
+from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 from neumat.testing.parity import glsl_eval, opengl_available
 
 from btf_util import N_DIRS, SIZE, synthetic_btf

@@ -161,8 +161,8 @@ def test_slang_export_of_the_other_families_matches_torch(name):
 def test_slang_export_of_sparse_btf_matches_torch():
     """SparseBTF's coefficient-space reconstruction (its GLSL export) through the same rewrite."""
     from btf_util import synthetic_btf
-    from neumat.models.sparse_btf import SparseBTF
-    from neumat.fit.sparse_dictionary import train_dictionary
+    from neumat.methods.sparse_btf.model import SparseBTF
+    from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 
     dictionary = train_dictionary([synthetic_btf(s) for s in (1, 2, 3)], num_dictionaries=2, tau_train=(24, 8, 8),
                                   patch=4, max_iters=4, seed=0)

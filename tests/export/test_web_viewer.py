@@ -14,7 +14,7 @@ from neumat.export.web.headless import chromium, viewer_pixels, viewer_screensho
 from neumat.export.web.scene import View, viewer_image, viewer_queries
 from neumat.export.web.viewer import viewer_html, write_viewer
 from neumat.models.half_precision import half_rounded
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.models.registry import build_model
 
 needs_browser = pytest.mark.skipif(chromium() is None, reason="no chromium on PATH (Debian: apt-get install chromium)")
@@ -121,8 +121,8 @@ def test_page_renders_what_torch_renders(name, tmp_path):
 @needs_browser
 def test_sparse_btf_page_matches_torch(tmp_path):
     from btf_util import synthetic_btf
-    from neumat.models.sparse_btf import SparseBTF
-    from neumat.fit.sparse_dictionary import train_dictionary
+    from neumat.methods.sparse_btf.model import SparseBTF
+    from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 
     dictionary = train_dictionary([synthetic_btf(s) for s in (1, 2)], num_dictionaries=2, tau_train=(16, 4, 4),
                                   patch=4, max_iters=2)

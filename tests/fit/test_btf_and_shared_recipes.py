@@ -10,14 +10,14 @@ import pytest
 import torch
 
 from neumat.core.errors import InputError
-from neumat.fit.pca_btf import fit_pca
-from neumat.fit.recipe import recipe_for
-from neumat.fit.sparse_dictionary import train_dictionary
+from neumat.methods.sparse_btf.pca_solve import fit_pca
+from neumat.fit.method import recipe_for
+from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 from neumat.fit.trainer import fit
-from neumat.models.pca_btf import PCABTF
-from neumat.models.shared_neubrdf import SharedNeuBRDF
-from neumat.models.sparse_btf import SparseBTF
-from neumat.models.sparse_dictionary import rgb_to_model_space
+from neumat.methods.sparse_btf.pca import PCABTF
+from neumat.methods.neubrdf.shared_model import SharedNeuBRDF
+from neumat.methods.sparse_btf.model import SparseBTF
+from neumat.methods.sparse_btf.dictionary import rgb_to_model_space
 from neumat.reflectance.analytic import GGX, Plastic
 
 from btf_util import synthetic_btf
@@ -138,7 +138,7 @@ def test_shared_neubrdf_cpu_path_resumes_bit_for_bit_in_every_phase(stop, tmp_pa
     VQ with candidates): phases in that order, a VQ model with candidates at the end, and a checkpoint inside the
     coarse (1), at the switch to the model's grid (2), at the quantisation (3) and inside the VQ phase (5)
     resumes to the uninterrupted fit."""
-    from neumat.fit.recipe import recipe_config_for_source
+    from neumat.fit.method import recipe_config_for_source
 
     sources = [Plastic(diffuse=(0.6, 0.3, 0.15), roughness=0.3), GGX(roughness=0.2)]
     cpu = recipe_for("shared-neubrdf", "cpu")

@@ -9,9 +9,9 @@ from typer.testing import CliRunner
 from btf_util import synthetic_btf
 from neumat.cli import btf as btf_cli
 from neumat.core.errors import InputError
-from neumat.fit.sparse_dictionary import PAPER_POINTS_PER_DICTIONARY, train_dictionary, training_size_warning
+from neumat.methods.sparse_btf.dictionary_train import PAPER_POINTS_PER_DICTIONARY, train_dictionary, training_size_warning
 from neumat.io.btf import write_btf
-from neumat.models.sparse_btf import Config
+from neumat.methods.sparse_btf.model import Config
 
 
 def test_rule_flags_the_issue_set_and_passes_the_papers():

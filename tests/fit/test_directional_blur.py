@@ -8,10 +8,10 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.fit.directional_blur import blur_angle, blurred_eval, sample_cone
-from neumat.fit.recipe import recipe_for
+from neumat.methods.neural_appearance.directional_blur import blur_angle, blurred_eval, sample_cone
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.analytic import GGX, Lambert
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF

@@ -1,4 +1,4 @@
-"""neumat.fit.feature_sensitivity against central differences of the fit's loss (float64), and recipe option
+"""neumat.methods.neubrdf.feature_sensitivity against central differences of the fit's loss (float64), and recipe option
 kmeans_weights: a fit with the sensitivity-weighted k-means ends the warm-up on other codewords than plain k-means,
 and bad values are refused."""
 from __future__ import annotations
@@ -11,11 +11,11 @@ import torch
 from neumat.catalog.open_material import open_material
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.fit.feature_sensitivity import feature_sensitivity
+from neumat.methods.neubrdf.feature_sensitivity import feature_sensitivity
 from neumat.fit.phase import FitContext, loss_module, online_targets, query_draw
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 
 
 def _context(model, source, loss):

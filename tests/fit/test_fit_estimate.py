@@ -5,9 +5,9 @@ import re
 import time
 from dataclasses import replace
 
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.reflectance.spec import parse_spec
 
 

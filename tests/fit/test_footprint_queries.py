@@ -91,13 +91,13 @@ def test_texel_relative_footprints_match_the_paper_at_1024():
 def test_fine_bias_and_elongation_std_are_recipe_options_that_reach_the_draws(monkeypatch):
     """The multiscale family's options fine_bias / elongation_std are checked by name and build its fit's footprint
     sampler; with elongation_std 0 every footprint's elongation is exactly 1 / cos theta_o (clamped)."""
-    import neumat.fit.recipes.tripleplane as tripleplane
+    import neumat.methods.latent_mlp.train as tripleplane
     from neumat.fit.phase import FitContext
     from neumat.fit.preset import resolve_preset
-    from neumat.fit.recipe import recipe_for
+    from neumat.fit.method import recipe_for
     from neumat.models.registry import build_model
 
-    import neumat.fit.recipes.multiscale as multiscale
+    import neumat.methods.latent_mlp.train as multiscale
     with pytest.raises(InputError, match=r"option.fine_bias: expected a value > 0, got 0"):
         resolve_preset("tripleplane", "paper", overrides={"option.fine_bias": 0})
     assert recipe_for("neumip", "cpu").options == {"fine_bias": 5.0, "elongation_std": 0.2}

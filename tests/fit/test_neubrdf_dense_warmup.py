@@ -8,9 +8,9 @@ import torch
 
 from neumat.catalog.open_material import open_material
 from neumat.core.errors import InputError
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 
 SMALL = dict(nside=2, index_bits=2, hidden=4)
 #: grid slots of a NeuBRDF at N_side 1 and 2 (2 (6 N^2 + 6 N + 1))

@@ -6,10 +6,10 @@ from dataclasses import replace
 import pytest
 import torch
 
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.reflectance.analytic import GGX
 
 # measured in runtime form (seed 0, 300 steps of 4096, recipe lr 1e-2): vq rel 0.30 / log 0.026,

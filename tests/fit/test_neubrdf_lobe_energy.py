@@ -33,7 +33,7 @@ def test_albedo_of_a_lambertian_brdf(theta_o_deg):
 def test_script_on_a_model_against_itself(tmp_path):
     """A model file as its own source: every albedo ratio is +0.000 and every slice ratio 1.000."""
     from neumat.catalog.modelfile import save_model
-    from neumat.models.ggx_fit import GGXFit
+    from neumat.methods.baselines.ggx import GGXFit
 
     path = save_model(GGXFit(), tmp_path / "ggx.nmat")
     out = subprocess.run([sys.executable, str(SCRIPT), str(path), str(path), "--samples", "12"], capture_output=True,

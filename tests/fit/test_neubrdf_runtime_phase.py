@@ -11,10 +11,10 @@ from neumat.catalog.open_material import open_material
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.measured_samples import MeasuredSamples
-from neumat.fit.pixel_pair_targets import LEVELS, PixelPairAverage
-from neumat.fit.recipe import recipe_for
+from neumat.methods.neubrdf.pixel_pair_targets import LEVELS, PixelPairAverage
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.nn import healpix as hpx
 
 SOURCE = "ggx:roughness=0.15"

@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from neumat.fit.proxy_sampler import fit_sampler
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.methods.neural_appearance.proxy_train import fit_sampler
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
-from neumat.models.neural_appearance import NeuralAppearance
-from neumat.models.proxy_sampler import ProxySampler, SampledMaterial
+from neumat.methods.neural_appearance.model import NeuralAppearance
+from neumat.methods.neural_appearance.proxy_sampler import ProxySampler, SampledMaterial
 from neumat.reflectance.analytic import GGX
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
@@ -81,9 +81,8 @@ def test_device_follows_the_argument(uninterrupted):
     model, res = _na_fit(device=torch.device("cpu"))
     assert all(p.device.type == "cpu" for p in model.parameters())
     assert _strip(res.history) == _strip(uninterrupted[1].history)
-    root = Path(__file__).resolve().parents[2] / "src" / "neumat" / "fit"
-    for path in (root / "recipes" / "neural_appearance.py", root / "proxy_sampler.py",
-                 root / "recipes" / "proxy_sampler.py"):
+    root = Path(__file__).resolve().parents[2] / "src" / "neumat" / "methods" / "neural_appearance"
+    for path in (root / "train.py", root / "proxy_train.py", root / "proxy_recipe.py"):
         assert '"cpu"' not in path.read_text(), path             # no tensor on a hard-coded device
 
 

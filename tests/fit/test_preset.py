@@ -11,7 +11,7 @@ from neumat.core.config import config_to_dict
 from neumat.core.errors import InputError, UnknownNameError
 from neumat.fit.preset import (DEFAULT_PRESET, build_fit, default_recipe, presets_for, qualify, resolve_preset,
                                source_kind)
-from neumat.fit.recipe import recipe_for, recipe_names
+from neumat.fit.method import recipe_for, recipe_names
 from neumat.reflectance.spec import parse_spec as parse_material_spec
 
 
@@ -35,7 +35,7 @@ def test_every_model_with_a_recipe_has_the_three_presets_and_they_resolve():
 def test_neubrdf_default_is_the_measured_setting_by_source_kind():
     """With no options, a MERL table or an analytic source gets exactly the setting of the published Table 3 rows
     (hd_warp, cosine_merl, log_cos_eps on the CPU path); an RGL measured file keeps the paper's queries and loss,
-    where those two failed on an unseen file (docs/notes/neubrdf.md)."""
+    where those two failed on an unseen file (src/neumat/methods/neubrdf/NOTES.md)."""
     from neumat.reflectance.measured import RglMaterial
 
     plastic = parse_material_spec("plastic:roughness=0.2")
@@ -80,7 +80,7 @@ def test_python_fit_defaults_to_the_recommended_recipe_and_says_how_to_build_its
     """trainer.fit without a recipe runs the default preset's recipe when the model has the preset's fields, and
     refuses (naming them and build_fit) when it does not."""
     from neumat.fit.trainer import fit
-    from neumat.models.neubrdf import NeuBRDF
+    from neumat.methods.neubrdf.model import NeuBRDF
 
     plastic = parse_material_spec("plastic:roughness=0.3")
     model, r = build_fit("neubrdf", source=plastic, overrides={"nside": 2, "index_bits": 3, "hidden": 8})
@@ -110,7 +110,7 @@ def test_list_model_shows_presets_and_every_key_with_type_default_and_doc():
 def test_list_model_documents_every_key_of_every_model():
     """Every key of every model with a recipe (config fields, recipe fields, typed recipe options) has a doc."""
     from neumat.cli.main import app
-    from neumat.fit.recipe import recipe_names
+    from neumat.fit.method import recipe_names
     from neumat.models.registry import load_all
 
     models = [m for m in recipe_names() if m in load_all()]
@@ -131,7 +131,7 @@ def test_model_files_of_format_version_1_still_load(tmp_path):
 
     from neumat.catalog.modelfile import load_model, save_model
     from neumat.io.modelfile import HEADER_KEY
-    from neumat.models.ggx_fit import GGXFit
+    from neumat.methods.baselines.ggx import GGXFit
 
     path = save_model(GGXFit(), tmp_path / "new.nmat", preset={"name": "paper", "overrides": {}})
     from safetensors import safe_open
@@ -146,7 +146,7 @@ def test_model_files_of_format_version_1_still_load(tmp_path):
 
 
 def test_every_computing_command_takes_threads_and_one_device_default():
-    """One CLI grammar: every command but list / version / data info takes --threads; every --device defaults to
+    """One CLI grammar: every command but list / version / data info takes --threads and --quiet; every --device defaults to
     the same resolver (cuda when torch sees a GPU, else cpu)."""
     import typer
 
@@ -160,6 +160,7 @@ def test_every_computing_command_takes_threads_and_one_device_default():
     for name, command in commands(typer.main.get_command(app)):
         options = {o for p in command.params for o in p.opts}
         assert ("--threads" in options) == (name not in ("list", "version", "data info")), name
+        assert ("--quiet" in options) == (name not in ("list", "version", "data info")), name
         device = [p for p in command.params if "--device" in p.opts]
         assert all(p.default is None and p.callback is not None for p in device), name
     assert device_option(None) == default_device() == ("cuda" if torch.cuda.is_available() else "cpu")
@@ -173,8 +174,8 @@ def test_model_files_without_the_new_config_keys_still_load(tmp_path):
 
     from neumat.catalog.modelfile import load_model, save_model
     from neumat.io.modelfile import HEADER_KEY
-    from neumat.models.neubrdf import NeuBRDF
-    from neumat.models.shared_neubrdf import SharedNeuBRDF
+    from neumat.methods.neubrdf.model import NeuBRDF
+    from neumat.methods.neubrdf.shared_model import SharedNeuBRDF
 
     for model in (NeuBRDF(nside=2, index_bits=3, hidden=8), SharedNeuBRDF(nside=2, index_bits=3, hidden=8)):
         path = save_model(model, tmp_path / "new.nmat")
@@ -187,3 +188,24 @@ def test_model_files_without_the_new_config_keys_still_load(tmp_path):
         loaded = load_model(old)
         assert type(loaded) is type(model) and loaded.cfg.index_lr_scale == 10.0
     assert load_model(tmp_path / "new.nmat").cfg == model.cfg
+
+
+def test_quiet_silences_a_fit_run_by_any_command(monkeypatch, capsys):
+    """A command's --quiet (neumat.cli.common.with_quiet) reaches the trainer: no progress lines while it runs, and
+    the variable is gone afterwards."""
+    import os
+
+    from neumat.cli.common import QUIET_ENV, with_quiet
+    from neumat.fit.trainer import fit
+    from neumat.methods.baselines.naive_mlp import NaiveMLP
+    from neumat.reflectance.analytic import Lambert
+
+    monkeypatch.delenv(QUIET_ENV, raising=False)
+
+    def command(steps: int = 2):
+        fit(NaiveMLP(hidden=4), Lambert(), recipe_for("naive-mlp"), steps=steps, progress=True, device="cpu")
+
+    with_quiet(command)(quiet=True)
+    assert capsys.readouterr().err == "" and QUIET_ENV not in os.environ
+    with_quiet(command)(quiet=False)
+    assert "fit naive-mlp" in capsys.readouterr().err

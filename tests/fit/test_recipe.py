@@ -8,7 +8,8 @@ import pytest
 
 from neumat.core.config import config_from_dict, config_to_dict
 from neumat.core.errors import InputError, UnknownNameError
-from neumat.fit.recipe import Recipe, check_recipe, learning_rate, recipe_for
+from neumat.fit.recipe import Recipe, check_recipe, learning_rate
+from neumat.fit.method import recipe_for
 
 
 def test_step_schedule():
@@ -54,7 +55,7 @@ def test_every_model_has_a_cpu_recipe_no_larger_than_the_papers():
     NeuBRDF and shared NeuBRDF set their training-path options: coarse to fine, dense warm-up, candidate
     codewords), never a larger budget
     (steps x batch) than RECIPE; "gpu" is the paper's; an unknown machine is refused."""
-    from neumat.fit.recipe import recipe_names
+    from neumat.fit.method import recipe_names
 
     for name in recipe_names():
         cpu, paper = recipe_for(name, "cpu"), recipe_for(name, "paper")
@@ -79,7 +80,7 @@ def test_named_recipe_dense_is_the_cpu_recipe_on_a_direction_coded_dense_grid():
     from types import SimpleNamespace
 
     from neumat.fit.preset import build_fit
-    from neumat.fit.recipe import recipe_choices
+    from neumat.fit.method import recipe_choices
 
     dense, cpu = recipe_for("neubrdf", "dense"), recipe_for("neubrdf", "cpu")
     check_recipe(dense)
@@ -107,7 +108,7 @@ def test_latent_pyramids_follow_the_source():
     from types import SimpleNamespace
 
     from neumat.fit.preset import build_fit
-    from neumat.fit.recipe import recipe_config_for_source
+    from neumat.fit.method import recipe_config_for_source
 
     source = SimpleNamespace(textures=SimpleNamespace(size=(38, 64)))
     for name in ("multiscale", "neumip", "neumip-frame", "nbrdf-uv", "tripleplane", "ggx-mipmap",

@@ -15,7 +15,7 @@ from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.recipe import Recipe
 from neumat.fit.trainer import fit
 from neumat.models.base import LearnedMaterial
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 
@@ -62,7 +62,7 @@ def test_neubrdf_fit_reaches_error(features, bound):
     MLP 2 x 32, on a Lambert + Blinn-Phong lobe. Relative L2 error on held-out cosine-weighted queries,
     measured (seeds fixed, one thread): vq 0.238, dense 0.072; a constant (the mean) scores 0.69. (With
     the earlier ReLU MLP, default output initialisation and index logits at the base learning rate: vq
-    0.238, dense 0.074; ReLU collapsed on dark measured materials, see `neumat.fit.recipes.neubrdf`.)
+    0.238, dense 0.074; ReLU collapsed on dark measured materials, see `neumat.methods.neubrdf.train`.)
     Each fit takes about 6 s on one core."""
     torch.manual_seed(0)
     m = NeuBRDF(nside=8, index_bits=6, hidden=32, features=features)
@@ -175,7 +175,7 @@ def test_model_optimizer_and_lr_scale_of_its_groups():
 
 def test_progress_bar_and_default_recipe(monkeypatch):
     """Without a recipe the default preset's is used (here shortened through `steps` and a smaller batch)."""
-    from neumat.fit.recipes import neubrdf as neubrdf_recipe
+    from neumat.methods.neubrdf import train as neubrdf_recipe
     monkeypatch.setattr(neubrdf_recipe.CPU_RECIPE, "batch_size", 16)
     m = NeuBRDF(nside=2, index_bits=3, hidden=4, features="dense", direction_inputs="hd_warp")
     res = fit(m, Blinn(), steps=3, progress=True)

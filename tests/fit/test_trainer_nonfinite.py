@@ -19,7 +19,7 @@ from neumat.fit.recipe import Recipe
 from neumat.fit.rollback import MAX_ROLLBACKS, MAX_SKIPPED_STEPS, ROLLBACK_AFTER, restore_snapshot, take_snapshot
 from neumat.fit.trainer import fit
 from neumat.models.base import LearnedMaterial
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 

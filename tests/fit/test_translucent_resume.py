@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from neumat import InputError
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
-from neumat.models.dipole_bssrdf import DipoleBSSRDF
-from neumat.models.neupress import NeuPreSS
+from neumat.methods.baselines.dipole_bssrdf import DipoleBSSRDF
+from neumat.methods.neupress.model import NeuPreSS
 from neumat.warp import sample_uniform_sphere
 
 

@@ -11,7 +11,7 @@ from neumat.core.material import Material
 from neumat.core.query import Query
 from neumat.catalog.modelfile import save_model
 from neumat.io.texture_set import TextureSet
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.analytic import GGX, Lambert
 from neumat.reflectance.svbrdf import SVBRDF
 
@@ -244,7 +244,7 @@ def test_bad_input_is_refused_clearly(mi):
         mi.load_dict({"type": "neumat", "material": "/no/such/model.nmat"})
     with pytest.raises(InputError, match="expected a neumat Material"):
         plugin.bsdf(42)
-    from neumat.models.neupress import NeuPreSS
+    from neumat.methods.neupress.model import NeuPreSS
     with pytest.raises(InputError, match="translucent"):
         plugin.bsdf(NeuPreSS())
     with pytest.raises(InputError, match="installed Mitsuba variants"):

@@ -32,7 +32,7 @@ def _nt():
 
 def _model(lo, hi):
     """A tiny NeuPreSS with random weights (a positive S_hat of some structure) on the box lo - hi."""
-    from neumat.models.neupress import NeuPreSS
+    from neumat.methods.neupress.model import NeuPreSS
     torch.manual_seed(0)
     m = NeuPreSS(features=16, width=16, layers=2, sampler_hidden=(8,))
     m.set_bounds(torch.as_tensor(lo, dtype=torch.float32), torch.as_tensor(hi, dtype=torch.float32))

@@ -12,12 +12,12 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.material import Material
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.ggx_fit import GGXFit
-from neumat.models.naive_mlp import NaiveMLP
-from neumat.models.nbrdf import NBRDF
+from neumat.methods.baselines.ggx import GGXFit
+from neumat.methods.baselines.naive_mlp import NaiveMLP
+from neumat.methods.baselines.nbrdf import NBRDF
 from neumat.models.registry import model_class
 from neumat.reflectance.analytic import Plastic
 from neumat.reflectance.microfacet import fresnel_schlick, microfacet_brdf

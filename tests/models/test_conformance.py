@@ -1,7 +1,7 @@
 """Conformance of every registered model, looping over the registry: it declares what the trainer and `neumat list`
 use, answers the Material protocol (shape, finiteness, the horizon, the input's dtype), trains two steps through
 the command line's path, round-trips a `.nmat` file bit for bit, and passes the chi-square test where it samples.
-The same checks run on a GPU against the CPU (marker `cuda`). A new model needs a SMALL entry below."""
+The same checks run on a GPU against the CPU (marker `cuda`). A method's small config is its `Method.small`."""
 from __future__ import annotations
 
 import dataclasses
@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from btf_util import synthetic_btf
 from neumat.cli.main import app
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_config_for_source, recipe_for, recipe_names
+from neumat.fit.method import recipe_config_for_source, recipe_for, recipe_names
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.io.btf import write_btf
@@ -25,50 +25,21 @@ from neumat.catalog.modelfile import load_model, save_model
 from neumat.catalog.open_material import open_material
 from neumat.models.base import SOURCE_KINDS, LearnedMaterial
 from neumat.models.registry import load_all
+from neumat.fit.method import load_methods
 from neumat.testing.chi2 import chi2_material
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 from neumat.warp.sphere import sample_uniform_sphere
 
-#: small configurations (seconds to build and fit on a CPU); every registered model needs one
-SMALL = {
-    "dipole-bssrdf": dict(samples=4, texture_resolution=2),  # the textured dipole (the homogeneous: its tests)
-    "ggx": {},
-    "ggx-mipmap": dict(spatial_size=8),
-    "multiscale": dict(spatial_size=8),
-    "naive-mlp": dict(hidden=8),
-    "nbrdf": {},
-    "nbrdf-uv": dict(spatial_size=8),
-    "neubrdf": dict(nside=2, index_bits=2, hidden=4),
-    "neumip": dict(spatial_size=8),
-    "neumip-frame": dict(spatial_channels=4, spatial_size=8),
-    "neumip-offset": dict(spatial_size=8),
-    "neumip-uv": dict(spatial_size=8),
-    "neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
-    "neural-appearance": dict(spatial_size=8),
-    "pca-btf": {},
-    "shared-neubrdf": dict(num_materials=2, nside=2, index_bits=2, hidden=4),
-    "sparse-btf": dict(patch=5, num_dictionaries=2, tau=[8, 4, 4], tau_train=[8, 4, 4]),
-    "surface-brdf-uv": dict(spatial_size=8),
-    "tripleplane": dict(spatial_size=8),
-}
 NAMES = load_all().names()
-
-
-def _sphere_quadrature(model) -> None:
-    """The dipole's surface quadrature (set from the observed object in training): 4 points of a sphere of
-    radius 0.5."""
-    x = 0.5 * torch.nn.functional.normalize(torch.tensor([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [-1, -1, -1]]), dim=-1)
-    model.set_surface(x, 2 * x, torch.full((4,), torch.pi / 4))
-
-
-#: what a model needs before it evaluates, beyond its config (what its training sets from the source)
-PREPARE = {"dipole-bssrdf": _sphere_quadrature}
+METHODS = load_methods()
 
 
 def _model(name: str, dtype=torch.float32) -> LearnedMaterial:
     torch.manual_seed(0)
-    model = load_all().get(name)(**SMALL[name])
-    PREPARE.get(name, lambda m: None)(model)
+    method = METHODS.get(name)
+    model = method.model(**method.small)
+    if method.prepare is not None:
+        method.prepare(model)
     return model.to(dtype)
 
 
@@ -89,10 +60,11 @@ def _queries(model, n: int = 512, dtype=torch.float32, device="cpu") -> Query:
     return Query(cast(wi), cast(wo), uv=cast(uv), x=cast(x), n=cast(n_))
 
 
-def test_every_model_has_a_recipe_and_a_small_config():
-    assert set(NAMES) == set(SMALL)
-    # every model has a recipe; the one more is the proxy sampler attached to any material (not a saved model)
+def test_every_model_is_a_method():
+    # every model has a method (its recipes); the one more is the proxy sampler attached to any material (not a
+    # saved model)
     assert set(recipe_names()) - set(NAMES) == {"proxy-sampler"} and set(NAMES) <= set(recipe_names())
+    assert all(METHODS.get(name).model is load_all().get(name) for name in NAMES)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -159,7 +131,7 @@ def _sources(kind: str, tmp_path) -> list[str]:
 
 def _set_args(name: str) -> list[str]:
     args = []
-    for k, v in SMALL[name].items():
+    for k, v in METHODS.get(name).small.items():
         args += ["--set", f"{k}={','.join(map(str, v)) if isinstance(v, list) else v}"]
     return args + ["--set", f"batch_size={64}"]
 
@@ -226,7 +198,7 @@ def test_checkpoint_written_mid_run_resumes_to_the_uninterrupted_result(name, tm
 
     def run(**kw):
         torch.manual_seed(0)
-        model = load_all().get(name)(**{**derived, **SMALL[name]})
+        model = load_all().get(name)(**{**derived, **METHODS.get(name).small})
         return model, fit(model, _python_source(kind, args), recipe, progress=False, device="cpu", **kw)
 
     ref_model, ref = run()
@@ -261,8 +233,8 @@ def test_sampler_chi_square(name):
 
 
 def _proxy_sampled() -> LearnedMaterial:
-    """A model that cannot sample with the proxy sampler attached (`neumat.models.proxy_sampler`)."""
-    from neumat.models.proxy_sampler import ProxySampler, SampledMaterial
+    """A model that cannot sample with the proxy sampler attached (`neumat.methods.neural_appearance.proxy_sampler`)."""
+    from neumat.methods.neural_appearance.proxy_sampler import ProxySampler, SampledMaterial
     torch.manual_seed(0)
     return SampledMaterial(_model("naive-mlp"), ProxySampler())
 

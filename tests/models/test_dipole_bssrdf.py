@@ -8,10 +8,10 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
-from neumat.models.dipole_bssrdf import DipoleBSSRDF, dipole_profile, dipole_total_reflectance
+from neumat.methods.baselines.dipole_bssrdf import DipoleBSSRDF, dipole_profile, dipole_total_reflectance
 from neumat.models.registry import build_model
 from neumat.warp import sample_uniform_sphere
 

@@ -11,12 +11,12 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.models.half_precision import half_rounded, is_half_exact, snap_to_half_, with_half_parameters
-from neumat.models.neumip import NeuMIP
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.latent_mlp.neumip import NeuMIP
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.warp.hemisphere import sample_cosine_hemisphere

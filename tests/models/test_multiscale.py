@@ -8,8 +8,8 @@ from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LOSSES
-from neumat.fit.recipe import recipe_for
-from neumat.models.multiscale import MultiScale
+from neumat.fit.method import recipe_for
+from neumat.methods.latent_mlp.multiscale import MultiScale
 from neumat.models.registry import build_model, model_class
 from neumat.nn.angular_texture import disk_polar, half_difference
 from neumat.warp.hemisphere import sample_cosine_hemisphere
@@ -195,7 +195,7 @@ def test_gating_equals_per_query_matrix_products():
 
 
 def test_tripleplane_concatenates_without_warps_or_frame():
-    from neumat.models.tripleplane import TriplePlane
+    from neumat.methods.latent_mlp.tripleplane import TriplePlane
 
     t = build_model({"type": "tripleplane", **SMALL})
     assert isinstance(t, TriplePlane) and t.name == "tripleplane"

@@ -16,7 +16,7 @@ import torch.nn.functional as F
 
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
-from neumat.models.multiscale import MultiScale
+from neumat.methods.latent_mlp.multiscale import MultiScale
 from neumat.nn.angular_texture import disk_polar, half_difference
 from neumat.nn.latent_texture import footprint_axes
 from neumat.nn.preconditioner import preconditioner_kernel

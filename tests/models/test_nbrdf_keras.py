@@ -71,7 +71,7 @@ def random_configurations(n, seed):
 
 @pytest.mark.parametrize("name", MATERIALS)
 def test_matches_the_authors_formula(fits, name):
-    from neumat.models.nbrdf import NBRDF, nbrdf_from_keras
+    from neumat.methods.baselines.nbrdf import NBRDF, nbrdf_from_keras
 
     ref = reference(fits, name)
     th, td, pd, wi, wo = random_configurations(4000, seed=len(name))
@@ -88,8 +88,8 @@ def test_matches_the_authors_formula(fits, name):
 
 @pytest.mark.parametrize("name", MATERIALS)
 def test_reciprocity(fits, name):
-    """Folded (default): reciprocal. Raw: the authors' networks are not (documented in models/nbrdf.py)."""
-    from neumat.models.nbrdf import NBRDF
+    """Folded (default): reciprocal. Raw: the authors' networks are not (documented in methods/baselines/nbrdf.py)."""
+    from neumat.methods.baselines.nbrdf import NBRDF
     from neumat.testing.reciprocity import reciprocity_check
 
     assert reciprocity_check(NBRDF.from_keras(fits / f"{name}.h5"), n=4096, rtol=1e-9, atol=1e-12,

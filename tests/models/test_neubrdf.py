@@ -9,7 +9,7 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.models.neubrdf import NeuBRDF, NeuralTexture
+from neumat.methods.neubrdf.model import NeuBRDF, NeuralTexture
 from neumat.nn import healpix as hpx
 from neumat.nn.healpix import grid_vertex_ids, vertex2vec
 
@@ -100,7 +100,7 @@ def _warped_hd(wi, wo):
     """(hx, hy) scaled from length sin theta_h to sqrt(theta_h / (pi / 2)), in float64 from the Rusinkiewicz
     angles (`neumat.core.coords.io_to_rusinkiewicz`); hz and d as NBRDF's."""
     from neumat.core.coords import io_to_rusinkiewicz
-    from neumat.models.nbrdf import NBRDF
+    from neumat.methods.baselines.nbrdf import NBRDF
 
     theta_h, phi_h, _, _ = io_to_rusinkiewicz(wi.double(), wo.double())
     r = (theta_h / (math.pi / 2)).sqrt()
@@ -112,7 +112,7 @@ def test_warped_direction_inputs_closed_form(gen):
     """direction_inputs="hd_warp": NBRDF's (h, d) with (hx, hy) of length sqrt(theta_h / (pi / 2)) along phi_h
     (float64 from the Rusinkiewicz angles); 0 at the mirror configuration; at theta_h = 1 degree of length
     sqrt(1 / 90) where "hd" has sin(1 degree)."""
-    from neumat.models.neubrdf import direction_inputs
+    from neumat.methods.neubrdf.model import direction_inputs
 
     wi, wo = _dirs(5000, gen), _dirs(5000, gen)
     torch.testing.assert_close(direction_inputs("hd_warp", wi, wo).double(), _warped_hd(wi, wo), rtol=1e-5,
@@ -136,7 +136,7 @@ def test_direction_inputs_feed_h_and_d_to_the_mlp_in_both_forms(gen, tmp_path, k
     weightings, more than one chunk), the model file keeps it, and it costs 6 x hidden fp16 weights more than the
     paper's model."""
     from neumat.catalog.modelfile import load_model, save_model
-    from neumat.models.nbrdf import NBRDF
+    from neumat.methods.baselines.nbrdf import NBRDF
 
     m = NeuBRDF(nside=8, index_bits=6, hidden=32, direction_inputs=kind, runtime_interpolation=form)
     wi, wo = _dirs(20000, gen), _dirs(20000, gen)
@@ -380,7 +380,7 @@ def test_pruning_lowers_held_out_error(gen):
     from dataclasses import replace
 
     from neumat.fit.measured_samples import MeasuredSamples
-    from neumat.fit.recipe import recipe_for
+    from neumat.fit.method import recipe_for
     from neumat.fit.trainer import fit
     from neumat.reflectance.analytic import Plastic
 
@@ -439,7 +439,7 @@ def test_fit_does_not_collapse_on_a_dark_coated_material():
     (error exactly the all-zero one)."""
     from dataclasses import replace
 
-    from neumat.fit.recipe import recipe_for
+    from neumat.fit.method import recipe_for
     from neumat.fit.trainer import fit
     from neumat.catalog.open_material import open_material
     from neumat.metrics.hdr import cosine_queries

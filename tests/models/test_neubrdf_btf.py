@@ -8,13 +8,13 @@ import pytest
 import torch
 
 from neumat import InputError, Material, Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.measured_samples import table_samples
 from neumat.models.btf_table_queries import decode_table, table_queries, texel_centre_uv
-from neumat.models.neubrdf import NeuBRDF
-from neumat.models.sparse_btf import mse
-from neumat.models.sparse_dictionary import rgb_to_model_space
+from neumat.methods.neubrdf.model import NeuBRDF
+from neumat.methods.sparse_btf.model import mse
+from neumat.methods.sparse_btf.dictionary import rgb_to_model_space
 from neumat.reflectance.btf import direction_set
 from neumat.reflectance.btf_generate import generate_btf
 from neumat.reflectance.procedural_texture import procedural_texture_set

@@ -15,7 +15,7 @@ import torch.nn.functional as F
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.nn.codebook import VQFeatures
 
 

@@ -3,7 +3,7 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.models.registry import build_model, model_class
 from neumat.nn.angular_texture import half_difference
 from neumat.warp.hemisphere import sample_cosine_hemisphere

@@ -1,4 +1,4 @@
-"""NeuMIP's neural offset module (`neumat.models.neumip`, Config.offset; registered on as "neumip-offset")."""
+"""NeuMIP's neural offset module (`neumat.methods.latent_mlp.neumip`, Config.offset; registered on as "neumip-offset")."""
 from dataclasses import replace
 
 import pytest
@@ -8,7 +8,7 @@ from neumat.catalog.modelfile import load_model, save_model
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.fit.footprint_queries import footprint_queries
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.texture_set import TextureSet
 from neumat.models.registry import build_model

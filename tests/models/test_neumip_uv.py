@@ -7,11 +7,11 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.catalog.modelfile import load_model, save_model
-from neumat.models.neumip_uv import NeuMIPUV, local_frame, sphere_uv
+from neumat.methods.baselines.neumip_uv import NeuMIPUV, local_frame, sphere_uv
 from neumat.models.registry import build_model
 from neumat.warp import sample_uniform_sphere
 

@@ -7,12 +7,12 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
-from neumat.fit.neupress import light_grid, neupress_predict, sampler_kl
-from neumat.fit.recipe import recipe_for
+from neumat.methods.neupress.targets import light_grid, neupress_predict, sampler_kl
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_fit import best_validation, observation_mse
 from neumat.fit.translucent_observations import Observations
-from neumat.models.neupress import NeuPreSS
+from neumat.methods.neupress.model import NeuPreSS
 from neumat.models.registry import build_model
 from neumat.nn.fourier import FourierFeatures
 from neumat.nn.skip_mlp import SkipMLP

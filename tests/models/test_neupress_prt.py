@@ -11,8 +11,8 @@ import torch
 from neumat import DataFormatError, InputError
 from neumat.core.frames import frame_from_normal, to_local, to_world
 from neumat.core.query import Query
-from neumat.models.neupress import NeuPreSS
-from neumat.models.neupress_prt import PRTConfig, SHPRT, sh_light_coefficients, sphere_quadrature
+from neumat.methods.neupress.model import NeuPreSS
+from neumat.methods.neupress.prt import PRTConfig, SHPRT, sh_light_coefficients, sphere_quadrature
 from neumat.nn.spherical_harmonics import real_sh, sh_count
 from neumat.render.envmaps import equirect_to_dir
 from neumat.render.lights import ConstantEnvironment, DirectionalLight, EnvironmentMap

@@ -11,11 +11,11 @@ import pytest
 from neumat import InputError, Query
 from neumat.fit.losses import LogCosLoss
 from neumat.catalog.modelfile import load_model, save_model
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.warp.uniform import uniform
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.analytic import GGX
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.lean import lean_pyramid

@@ -11,11 +11,11 @@ import torch
 from neumat import InputError, Query
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.export.glsl import export_glsl
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neural_appearance import NeuralAppearance
-from neumat.fit.proxy_sampler import fit_sampler
-from neumat.models.proxy_sampler import ProxySampler, SampledMaterial
+from neumat.methods.neural_appearance.model import NeuralAppearance
+from neumat.methods.neural_appearance.proxy_train import fit_sampler
+from neumat.methods.neural_appearance.proxy_sampler import ProxySampler, SampledMaterial
 from neumat.reflectance.analytic import GGX
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF

@@ -5,10 +5,10 @@ import pytest
 import torch
 
 from neumat import InputError, Query
-from neumat.fit.pca_btf import best_ranks, decompose, fit_pca
-from neumat.models.pca_btf import rank_budget
-from neumat.models.sparse_dictionary import rgb_to_model_space
-from neumat.models.sparse_btf import mse
+from neumat.methods.sparse_btf.pca_solve import best_ranks, decompose, fit_pca
+from neumat.methods.sparse_btf.pca import rank_budget
+from neumat.methods.sparse_btf.dictionary import rgb_to_model_space
+from neumat.methods.sparse_btf.model import mse
 from neumat.reflectance.btf import TabulatedBTF
 
 from btf_util import N_DIRS, SIZE, synthetic_btf

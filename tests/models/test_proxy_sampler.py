@@ -9,10 +9,10 @@ import torch
 
 from neumat import InputError, Query
 from neumat.color.tonemap import LUMINANCE
-from neumat.fit.proxy_sampler import fit_sampler
-from neumat.models.neumip_frame import NeuMIPFrame
-from neumat.models.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial
-from neumat.models.multiscale import MultiScale
+from neumat.methods.neural_appearance.proxy_train import fit_sampler
+from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
+from neumat.methods.neural_appearance.proxy_sampler import DEFENSIVE, ProxySampler, SampledMaterial
+from neumat.methods.latent_mlp.multiscale import MultiScale
 from neumat.reflectance.analytic import GGX, Lambert
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF

@@ -7,7 +7,7 @@ import torch
 from neumat import InputError, Query
 from neumat.export.glsl import export_glsl
 from neumat.export.slang import export_slang
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.nn.latent_texture import LatentPyramid, footprint_lod, trilinear
 from neumat.testing.parity import glsl_eval, opengl_available
 from neumat.testing.slang_parity import SlangKernel, slang_available, slang_eval

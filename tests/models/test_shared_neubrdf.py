@@ -11,12 +11,12 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.models.registry import model_class
-from neumat.fit.shared_neubrdf import Clustering, JointSource, cluster_materials, fit_clusters, fit_shared
-from neumat.models.shared_neubrdf import Config, MaterialQuery, SharedNeuBRDF, sharing_cost
+from neumat.methods.neubrdf.shared_targets import Clustering, JointSource, cluster_materials, fit_clusters, fit_shared
+from neumat.methods.neubrdf.shared_model import Config, MaterialQuery, SharedNeuBRDF, sharing_cost
 from neumat.nn.conv_autoencoder import ConvAutoencoder, train_autoencoder
 from neumat.reflectance.analytic import GGX, Plastic
 from neumat.warp.hemisphere import sample_cosine_hemisphere

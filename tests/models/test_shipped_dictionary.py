@@ -4,7 +4,7 @@ from __future__ import annotations
 import torch
 from typer.testing import CliRunner
 
-from neumat.models.sparse_dictionary import SHIPPED_DICTIONARIES, BTFDictionary, shipped_dictionary
+from neumat.methods.sparse_btf.dictionary import SHIPPED_DICTIONARIES, BTFDictionary, shipped_dictionary
 from neumat.reflectance.btf import direction_set
 
 
@@ -23,8 +23,8 @@ def test_fit_with_the_default_dictionary(tmp_path):
     from neumat import load
     from neumat.cli.main import app
     from neumat.io.btf import write_btf
-    from neumat.models.sparse_btf import SparseBTF, mse
-    from neumat.models.sparse_dictionary import Ensemble
+    from neumat.methods.sparse_btf.model import SparseBTF, mse
+    from neumat.methods.sparse_btf.dictionary import Ensemble
     from neumat.reflectance.btf import read_btf
     from neumat.reflectance.btf_generate import generate_btf
     from neumat.reflectance.procedural_texture import procedural_texture_set

@@ -9,9 +9,9 @@ from safetensors.torch import load_file, save_file
 from neumat import DataFormatError, InputError, Query
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.io.modelfile import read_model_file
-from neumat.models.sparse_btf import SparseBTF, _pairs_of_taps, mse
-from neumat.fit.sparse_dictionary import train_dictionary, train_ensemble
-from neumat.models.sparse_dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
+from neumat.methods.sparse_btf.model import SparseBTF, _pairs_of_taps, mse
+from neumat.methods.sparse_btf.dictionary_train import train_dictionary, train_ensemble
+from neumat.methods.sparse_btf.dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
                                              keep_largest, mode_product, model_space_to_rgb, prepare_btf, project,
                                              rgb_to_model_space)
 from neumat.reflectance.btf import angular_weights, direction_set

@@ -11,9 +11,9 @@ import torch
 from neumat.core.coords import spherical_to_dir
 from neumat.core.query import Query
 from neumat.fit.measured_samples import MeasuredSamples
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.nn import healpix as hpx
 from neumat.reflectance.analytic import Plastic
 

@@ -159,7 +159,7 @@ def test_header_fields_of_the_wrong_json_type_are_data_format_errors(tmp_path, s
 
 @pytest.mark.parametrize("field,value", [("patch", "8"), ("tau_train", 4), ("log_eps", None), ("info", [1])])
 def test_dictionary_header_fields_of_the_wrong_json_type_are_data_format_errors(tmp_path, field, value):
-    from neumat.models.sparse_dictionary import BTFDictionary, shipped_dictionary
+    from neumat.methods.sparse_btf.dictionary import BTFDictionary, shipped_dictionary
     bad = _with_header(shipped_dictionary("default"), tmp_path / "bad.nmat", "neumat", **{field: value})
     with pytest.raises(DataFormatError, match=f"header field '{field}' must be"):
         BTFDictionary.load(bad)

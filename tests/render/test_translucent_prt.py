@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from neumat import InputError
-from neumat.models.neupress_prt import PRTConfig, SHPRT
+from neumat.methods.neupress.prt import PRTConfig, SHPRT
 from neumat.render.camera import make_camera
 from neumat.render.lights import EnvironmentMap
 from neumat.render.translucent import _pixel_rays

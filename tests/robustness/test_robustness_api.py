@@ -260,7 +260,8 @@ def test_float64_query_on_a_float32_svbrdf():
 
 def test_observations_and_recipes_refuse_bad_numbers():
     from dataclasses import replace
-    from neumat.fit.recipe import check_recipe, recipe_for
+    from neumat.fit.recipe import check_recipe
+    from neumat.fit.method import recipe_for
     from neumat.fit.translucent_observations import Observations
     up = torch.tensor([[0.0, 0.0, 1.0]]).repeat(3, 1)
     with pytest.raises(InputError, match="Observations.wi: expected unit vectors, 3 of 3"):

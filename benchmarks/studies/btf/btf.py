@@ -69,19 +69,19 @@ from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.io.texture_set import load_texture_set
 from neumat.color.tonemap import LUMINANCE
 from neumat.fit.measured_samples import table_samples
 from neumat.models.btf_table_queries import decode_table
-from neumat.models.neubrdf import NeuBRDF
-from neumat.fit.pca_btf import best_ranks, decompose, fit_pca
-from neumat.models.pca_btf import rank_budget
-from neumat.models.sparse_btf import SparseBTF, mse
-from neumat.fit.sparse_dictionary import train_dictionary
-from neumat.models.sparse_dictionary import BTFDictionary, rgb_to_model_space
+from neumat.methods.neubrdf.model import NeuBRDF
+from neumat.methods.sparse_btf.pca_solve import best_ranks, decompose, fit_pca
+from neumat.methods.sparse_btf.pca import rank_budget
+from neumat.methods.sparse_btf.model import SparseBTF, mse
+from neumat.methods.sparse_btf.dictionary_train import train_dictionary
+from neumat.methods.sparse_btf.dictionary import BTFDictionary, rgb_to_model_space
 from neumat.reflectance.btf import direction_set
 from neumat.reflectance.btf_generate import generate_btf, texture_tile
 from neumat.reflectance.procedural_texture import KINDS, RELIEF, material_name, parse_material, procedural_texture_set

@@ -32,12 +32,12 @@ import torch
 
 from .btf import log_mse, table
 
-from neumat.fit.pca_btf import best_ranks, decompose, fit_pca        
+from neumat.methods.sparse_btf.pca_solve import best_ranks, decompose, fit_pca        
 from neumat.io.btf import write_btf                                  
 from neumat.io.texture_set import load_texture_set                   
-from neumat.models.pca_btf import rank_budget                        
-from neumat.models.sparse_btf import SparseBTF, mse                  
-from neumat.models.sparse_dictionary import BTFDictionary            
+from neumat.methods.sparse_btf.pca import rank_budget                        
+from neumat.methods.sparse_btf.model import SparseBTF, mse                  
+from neumat.methods.sparse_btf.dictionary import BTFDictionary            
 from neumat.reflectance.btf import direction_set, read_btf           
 from neumat.reflectance.btf_generate import generate_btf, texture_tile
 from neumat.reflectance.procedural_texture import RELIEF, parse_material, procedural_texture_set

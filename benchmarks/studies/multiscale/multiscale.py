@@ -52,7 +52,7 @@ from rich.console import Console
 from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs
 from neumat.core.material import Material
 from neumat.fit.footprint_queries import footprint_queries
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.texture_set import load_texture_set
 from neumat.metrics.flops import model_flops, paper_flops

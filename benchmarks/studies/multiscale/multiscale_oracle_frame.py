@@ -14,7 +14,7 @@ from torch import nn
 
 import multiscale as benchmark
 from neumat.core.frames import to_local
-from neumat.models.multiscale import MultiScale
+from neumat.methods.latent_mlp.multiscale import MultiScale
 from neumat.models.registry import MODELS
 from neumat.nn.shading_frames import lift_to_hemisphere
 from neumat.reflectance.svbrdf import SVBRDF

@@ -29,7 +29,7 @@ import torch
 from neumat.fit.ema import EMA
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LOSSES
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.texture_set import load_texture_set
 from neumat.models.registry import build_model

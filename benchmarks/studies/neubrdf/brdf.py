@@ -44,8 +44,8 @@ from rich.table import Table
 
 from neumat.core.query import Query
 from neumat.fit.measured_samples import MeasuredSamples
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.multiscale import HOMOGENEOUS_RECIPE
+from neumat.fit.method import recipe_for
+from neumat.methods.latent_mlp.train import HOMOGENEOUS_RECIPE
 from neumat.fit.trainer import fit
 from neumat.catalog.open_material import open_material
 from neumat.cli.fit_engines import RunProgress, add_engine_arguments, run_jobs

@@ -1,6 +1,6 @@
 """What the paper's codebook costs a fitted dense NeuBRDF before any VQ step (issue 32): quantise its N_side 64 grid
 into 2^b codewords (`NeuBRDF.quantize_from_dense`, plain k-means, and with --weights sensitivity the k-means weighted
-by the CPU recipe's loss sensitivity, `neumat.fit.feature_sensitivity`) and score each codebook model, in the
+by the CPU recipe's loss sensitivity, `neumat.methods.neubrdf.feature_sensitivity`) and score each codebook model, in the
 training form and shipped (runtime, 1/4 weights), against the dense grid: held-out log error and relative error
 (2^16 cosine queries, seed 7) and the Table 3 image protocol (`neumat.render.comparison`: sphere under the sky,
 128^2, 512 spp; floor = the reference at the next seed). --vq-steps then trains the first size's plain k-means start
@@ -24,13 +24,13 @@ import torch
 from .neubrdf_codebook_gap import train
 from neumat.catalog.modelfile import load_model
 from neumat.catalog.open_material import open_material
-from neumat.fit.feature_sensitivity import feature_sensitivity
+from neumat.methods.neubrdf.feature_sensitivity import feature_sensitivity
 from neumat.fit.phase import FitContext
 from neumat.fit.query_samplers import QUERY_SAMPLERS
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neubrdf import SENSITIVITY_BATCHES
+from neumat.fit.method import recipe_for
+from neumat.methods.neubrdf.train import SENSITIVITY_BATCHES
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.render.comparison import image_comparison, reference_renders
 
 

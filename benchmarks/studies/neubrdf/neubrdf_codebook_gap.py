@@ -22,7 +22,7 @@ from neumat.catalog.open_material import open_material
 from neumat.fit.ema import EMA
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.reflectance.tabulate import merl_table_mse, tabulate_merl
 
 BATCH = 8192

@@ -19,7 +19,7 @@ import torch
 import neumat
 from neumat.catalog.modelfile import load_model
 from neumat.core.query import Query
-from neumat.fit.directional_blur import sample_cone
+from neumat.methods.neural_appearance.directional_blur import sample_cone
 from neumat.warp.hemisphere import sample_uniform_hemisphere
 
 THETA_O_DEG = (0, 20, 40, 60, 75)

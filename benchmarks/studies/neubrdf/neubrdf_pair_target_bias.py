@@ -1,5 +1,5 @@
 """How far below the pixel-pair average NeuBRDF's runtime phase aims (issue 32): the phase fits each query's pixel
-pair to a K-point mean of the source (`neumat.fit.pixel_pair_targets.PixelPairAverage`) under an L1 loss on
+pair to a K-point mean of the source (`neumat.methods.neubrdf.pixel_pair_targets.PixelPairAverage`) under an L1 loss on
 logs (log_cos_eps), whose minimiser is the median of those noisy means, not their mean. Where a sub-pixel peak
 makes the K points spread, the median lies below the mean and the fitted pair loses energy; the gap closes as K
 grows. Per K: over `--queries` cosine_merl queries, `--draws` K-point means each, the energy lost, 1 -
@@ -15,7 +15,7 @@ import argparse
 import torch
 
 from neumat.catalog.open_material import open_material
-from neumat.fit.pixel_pair_targets import PixelPairAverage
+from neumat.methods.neubrdf.pixel_pair_targets import PixelPairAverage
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 
 

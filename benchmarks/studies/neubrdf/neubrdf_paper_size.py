@@ -40,10 +40,10 @@ import torch
 from neumat.catalog.open_material import open_material
 from neumat.core.query import Query
 from neumat.fit.query_samplers import QUERY_SAMPLERS
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.reflectance.tabulate import merl_table_mse, tabulate_merl
 from neumat.render.comparison import image_comparison, reference_renders
 

@@ -22,10 +22,10 @@ from dataclasses import replace
 import torch
 
 from neumat.catalog.open_material import open_material
-from neumat.fit.recipes.neubrdf import CPU_RECIPE
+from neumat.methods.neubrdf.train import CPU_RECIPE
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.reflectance.tabulate import merl_table_mse, tabulate_merl
 from neumat.render.comparison import image_comparison, reference_renders
 

@@ -1,6 +1,6 @@
 """What NeuBRDF's runtime phase does to a model already fitted (issue 32): fine-tune a fitted NeuBRDF (.nmat) in
 its 1/4-weight runtime form against the source averaged over each query's pixel pair
-(`neumat.fit.pixel_pair_targets.PixelPairAverage`), the loop of the recipe's runtime phase (option
+(`neumat.methods.neubrdf.pixel_pair_targets.PixelPairAverage`), the loop of the recipe's runtime phase (option
 runtime_fraction) on its own: cosine_merl queries, batch 8192, the given loss, Adam (the model's row-sparse
 optimiser) at --lr halved at 1/2 and 3/4, EMA 0.01. Scores the shipped form (`runtime()`) before, halfway and
 after under the Table 3 protocol (`neumat.render.comparison`: sphere under the sky, 128^2, 512 spp, floor = the
@@ -22,7 +22,7 @@ from neumat.catalog.modelfile import load_model, save_model
 from neumat.catalog.open_material import open_material
 from neumat.fit.ema import EMA
 from neumat.fit.losses import LOSSES
-from neumat.fit.pixel_pair_targets import PixelPairAverage
+from neumat.methods.neubrdf.pixel_pair_targets import PixelPairAverage
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.metrics.hdr import reflectance_errors
 from neumat.render.comparison import image_comparison, reference_renders

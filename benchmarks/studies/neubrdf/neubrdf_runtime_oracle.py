@@ -3,7 +3,7 @@
 NeuBRDF's runtime form (1/4 corner weights) reads one feature per HEALPix pixel for wi and one for the mirrored
 wo, so whatever its MLP, the shipped model is constant on every pair (pixel of wi, pixel of wo). The best such
 function in L2 is the reference averaged over the pixel pair. This script renders that oracle, the average of
-the reference over K points per pixel pair (`neumat.fit.pixel_pair_targets.PixelPairAverage`: uniform
+the reference over K points per pixel pair (`neumat.methods.neubrdf.pixel_pair_targets.PixelPairAverage`: uniform
 sub-pixel centres of the nested hierarchy, 2^8 per pixel, drawn independently for wi and wo), under the Table 3
 protocol (`neumat.render.comparison`: sphere under the sky, 128^2, 512 spp, floor = the reference at the next
 seed), at several N_side. The same averages are the targets of NeuBRDF's runtime phase (recipe option
@@ -21,7 +21,7 @@ import time
 import torch
 
 from neumat.catalog.open_material import open_material
-from neumat.fit.pixel_pair_targets import PixelPairAverage
+from neumat.methods.neubrdf.pixel_pair_targets import PixelPairAverage
 from neumat.nn import healpix as hpx
 from neumat.render.comparison import image_comparison, reference_renders
 

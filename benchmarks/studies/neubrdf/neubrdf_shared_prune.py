@@ -80,7 +80,7 @@ def coverage(path: str, nside: int, azimuths: int) -> dict:
 
     from neumat.catalog.open_material import open_material
     from neumat.fit.measured_samples import rgl_samples
-    from neumat.models.neubrdf import NeuBRDF
+    from neumat.methods.neubrdf.model import NeuBRDF
     from neumat.nn import healpix as hpx
 
     s = rgl_samples(open_material(str(ROOT / path)), azimuths)
@@ -180,7 +180,7 @@ def merl_tables(folder: Path) -> list[str]:
 def equal_bytes_config(nside: int, budget: float) -> dict:
     """The NeuBRDF (index_bits 5 - 9, hidden 16 - 64) with the most fp16 bytes not above `budget` (the
     smallest of them when none fits): {"index_bits", "hidden", "bytes"}."""
-    from neumat.models.neubrdf import NeuBRDF
+    from neumat.methods.neubrdf.model import NeuBRDF
 
     options = [{"index_bits": b, "hidden": h, "bytes": NeuBRDF(nside=nside, index_bits=b, hidden=h).size_bytes("fp16")}
                for b in range(5, 10) for h in (16, 24, 32, 48, 64)]

@@ -24,10 +24,10 @@ import torch
 
 from neumat.catalog.open_material import open_material
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.render.comparison import image_comparison, reference_renders
 
 OFFSETS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)  # degrees from the mirror direction, in the plane of incidence

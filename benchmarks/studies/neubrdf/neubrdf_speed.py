@@ -9,7 +9,7 @@ Prints two tables:
   `runtime()` mode, for batches 2^16 .. 2^20 (queries built beforehand), per wall-clock second and per
   CPU second of the process (the latter is less sensitive to other processes on a shared machine; with
   T threads on an idle machine the wall rate is at most T times the CPU rate); then the same model's GLSL
-  export (`neumat.export.glsl_neubrdf`) on the local OpenGL, llvmpipe on a CPU-only machine (marginal rate,
+  export (`neumat.methods.neubrdf.glsl`) on the local OpenGL, llvmpipe on a CPU-only machine (marginal rate,
   `neumat.testing.parity.glsl_evals_per_second`), where a headless context can be created.
 
 The machine load average is printed next to the numbers (timings on a shared machine are noisy).
@@ -27,8 +27,8 @@ import torch
 
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
-from neumat.models.neubrdf import NeuBRDF
-from neumat.models.shared_neubrdf import MaterialQuery, SharedNeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
+from neumat.methods.neubrdf.shared_model import MaterialQuery, SharedNeuBRDF
 from neumat.testing.parity import glsl_evals_per_second, opengl_available
 
 

@@ -14,7 +14,7 @@ import torch
 
 from .neubrdf_speed import make_optimizer, timed_step
 
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 
 
 def build(arm: str, nside: int) -> NeuBRDF:

@@ -27,10 +27,10 @@ import torch
 
 from neumat.catalog.open_material import open_material
 from neumat.fit.measured_samples import MeasuredSamples
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.metrics.hdr import cosine_queries, reflectance_errors
-from neumat.models.neubrdf import NeuBRDF
+from neumat.methods.neubrdf.model import NeuBRDF
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "rgl"
 MATERIALS = ("vch_golden_yellow_rgb", "cc_iris_purple_gem_rgb")

@@ -10,7 +10,7 @@ its own light direction and camera direction, --spp paths per ray; held-out: --t
 lights at --test-spp paths per ray, traced twice with different seeds so that the noise of the reference itself
 is known ("noise floor": half the mean squared difference of the two traces).
 Variants: "paper" (Fourier G ~ N(18, 1), 7 layers of 128, spherical angles), "low frequency" (G ~ N(0, 0.3^2))
-and "smooth" (G ~ N(0, 0.1^2)), each fitted by its recipe (`fit/recipes/neupress.py`: the appearance phase on
+and "smooth" (G ~ N(0, 0.1^2)), each fitted by its recipe (`methods/neupress/train.py`: the appearance phase on
 random batches with a fraction held back for validation, keeping the weights of the best validation record, then the
 light sampler); --steps, --sampler-steps and --batch override the recipe's steps of the two phases and batch size,
 and every default not set here is the recipe's or `NeuPreSS.Config`'s. Scores: held-out MSE (linear RGB,
@@ -18,7 +18,7 @@ and every default not set here is the recipe's or `NeuPreSS.Config`'s. Scores: h
 floor over that variance is the best a perfect model could score).
 Baselines: the dipole BSSRDF of a homogeneous medium (Jensen et al. 2001) over a --dipole-samples surface quadrature,
 its six coefficients fitted to the same observations by its recipe (--dipole-steps overrides its steps); NeuMIP on
-UV textures (`neumat.models.neumip_uv`: 128^2 x 8 latents over the spherical UV projection, MLP 4 x 64 of the latent
+UV textures (`neumat.methods.baselines.neumip_uv`: 128^2 x 8 latents over the spherical UV projection, MLP 4 x 64 of the latent
 and the local light and view directions), fitted by its recipe (--steps and --batch override it).
 "surface BRDF on UV textures" (`surface-brdf-uv`, the same network read as a surface BRDF times the cosine) stands
 in for the paper's NeRFactor row. --variants picks NeuPreSS variants (default all three; empty for none),
@@ -35,17 +35,17 @@ import time
 
 import torch
 from neumat.cli.common import print_table
-from neumat.fit.dipole_bssrdf import dipole_predict
-from neumat.fit.neumip_uv import neumip_uv_predict
-from neumat.fit.recipe import recipe_for
+from neumat.methods.baselines.dipole_observed import dipole_predict
+from neumat.methods.baselines.neumip_uv_targets import neumip_uv_predict
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_fit import best_validation
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
-from neumat.models.dipole_bssrdf import DipoleBSSRDF
+from neumat.methods.baselines.dipole_bssrdf import DipoleBSSRDF
 from neumat.models.registry import build_model
-from neumat.models.neupress import NeuPreSS
+from neumat.methods.neupress.model import NeuPreSS
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.envmaps import downsample_envmap, read_envmap
 from neumat.render.lights import EnvironmentMap

@@ -42,7 +42,7 @@ from neumat.fit.translucent_observations import Observations
 from neumat.io.images import write_image_ldr
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
-from neumat.models.neupress_prt import (FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, PRTConfig, SHPRT,
+from neumat.methods.neupress.prt import (FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, PRTConfig, SHPRT,
                                         _QueryTransport, _SeparableNeuPreSS, sphere_quadrature)
 from neumat.nn.spherical_harmonics import real_sh
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject

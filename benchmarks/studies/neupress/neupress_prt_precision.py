@@ -18,7 +18,7 @@ from neumat.catalog.modelfile import load_model
 from neumat.cli.common import print_table
 from neumat.core.config import config_from_dict
 from neumat.fit.translucent_observations import Observations
-from neumat.models.neupress_prt import SHPRT, PRTConfig, sphere_quadrature
+from neumat.methods.neupress.prt import SHPRT, PRTConfig, sphere_quadrature
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
 from neumat.render.mesh import object_mesh, vertex_normals
 

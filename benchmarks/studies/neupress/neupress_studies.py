@@ -34,13 +34,13 @@ from .neupress import environment, held_out
 from neumat.cli.common import print_table
 from neumat.core.config import config_from_dict
 from neumat.core.query import Query
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_fit import best_validation
 from neumat.fit.translucent_observations import Observations, collect_observations
 from neumat.metrics.image import image_metrics
-from neumat.models.dipole_bssrdf import DipoleBSSRDF
-from neumat.models.neupress import NeuPreSS
+from neumat.methods.baselines.dipole_bssrdf import DipoleBSSRDF
+from neumat.methods.neupress.model import NeuPreSS
 
 STUDIES = ("skips", "translucency", "baselines")
 #: the paper's Fig. 7: skips on and off at 5, 7 and 11 layers

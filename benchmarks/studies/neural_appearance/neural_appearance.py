@@ -8,7 +8,7 @@ neumip-frame baseline, at equal steps and batch.
 
 Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 halved at 50% / 75%):
   "full"          encoder phase (half the steps), bake, latent phase (`neumat.fit.trainer.fit`, recipe
-                  `neumat.fit.recipes.neural_appearance`), 2 frames;
+                  `neumat.methods.neural_appearance.train`), 2 frames;
   "no encoder"    the latents optimised from random values for all the steps (the paper's Fig. 8 ablation);
   "1 frame"       as "full" with one learned shading frame;
   "neumip-frame"  the baseline of Timonen et al. (one frame, preconditioned pyramid, MLP 3 x 20) trained with
@@ -20,7 +20,7 @@ Variants (each `--steps` steps of `--batch` queries, loss log_cos, Adam 3e-3 hal
   "roulette"      as "full", fractional mip levels read by Russian roulette (one level per query in training,
                   the two-level expectation in eval; the paper's Sec. 4.1) instead of trilinearly;
   "ggx-mipmap"    the analytic baseline: diffuse + anisotropic GGX with 12 textured, filtered parameters per
-                  texel (`neumat.models.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
+                  texel (`neumat.methods.latent_mlp.ggx_mipmap`), fitted the same way with its recipe and log_cos (the
                   paper's Fig. 3 compares its neural model with such a textured analytic fit).
 --variants picks some of them (default: full, no encoder, 1 frame and the two neumip-frame rows). --coat puts every
 texture set under a smudged clear coat (`neumat.reflectance.layered`: eta 1.5, GGX alpha 0.03 to 0.3 by a
@@ -62,15 +62,15 @@ from neumat.export.glsl import export_glsl
 from neumat.export.slang import export_slang
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.fit.losses import LogCosLoss
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.warp.uniform import uniform
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.color.tonemap import LUMINANCE
-from neumat.models.neural_appearance import NeuralAppearance
-from neumat.models.ggx_mipmap import GGXMipmap
-from neumat.models.neumip_frame import NeuMIPFrame
+from neumat.methods.neural_appearance.model import NeuralAppearance
+from neumat.methods.latent_mlp.ggx_mipmap import GGXMipmap
+from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
 from neumat.reflectance.layered import Coat, LayeredMaterial
 from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF

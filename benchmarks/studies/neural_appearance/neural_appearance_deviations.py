@@ -4,7 +4,7 @@ docs/neural_appearance.md: controlled short fits on a 64^2 texture set, one swit
     python benchmarks/studies/neural_appearance/neural_appearance_deviations.py                    # Wood092 and Metal027 at 64^2
     python benchmarks/studies/neural_appearance/neural_appearance_deviations.py --sets Wood092_1K --steps 300 --batch 256
 
-Variants of neural-appearance (`neumat.models.neural_appearance`, its recipe at --steps x --batch, 16-sample
+Variants of neural-appearance (`neumat.methods.neural_appearance.model`, its recipe at --steps x --batch, 16-sample
 targets, seed 0 for all):
   "ours"             as shipped: directions in each learned frame lifted to the hemisphere, frame weights x 0.1,
                      loss |log(1 + f_hat cos_i) - log(1 + f cos_i)| ("log_cos");
@@ -33,11 +33,11 @@ from .neural_appearance import held_out, scores
 import neumat.nn.shading_frames as shading_frames
 from neumat.core.query import Query
 from neumat.fit.losses import LOSSES
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.svbrdf import SVBRDF
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 

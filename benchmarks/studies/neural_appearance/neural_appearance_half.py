@@ -13,7 +13,7 @@ on slangpy's CPU device. Queries (--queries of each, seed 5): "eval" at `footpri
 wo, uniform uv, Eq. 9 footprints); "pdf (sampled wo)" at directions the fp32 model samples (what a path tracer asks
 after sampling); "pdf (cosine wo)" at cosine-distributed wo (what MIS asks for a light sample).
 
---half-finish sets the recipe's half_finish (default: the recipe's 0.1; `neumat.fit.recipes.neural_appearance`):
+--half-finish sets the recipe's half_finish (default: the recipe's 0.1; `neumat.methods.neural_appearance.train`):
 the last fraction of the latents phase trains half-aware and the fit ends on a model whose parameters are what the
 fp16 exports store; 0 trains in FP32 to the end. "model vs source" is the fitted fp32 model's own error, to see
 what half-aware training costs: relative L1 sum |f - f_src| / sum |f_src| at the eval queries, the source's
@@ -54,11 +54,11 @@ from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
 from neumat.export.slang import export_slang
 from neumat.fit.footprint_queries import footprint_queries
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.models.half_precision import half_rounded, is_half_exact, round_to_half
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.testing.parity import glsl_eval, opengl_available
 from neumat.testing.slang_parity import SlangKernel, slang_available, slang_eval
 from neumat.warp.hemisphere import sample_cosine_hemisphere

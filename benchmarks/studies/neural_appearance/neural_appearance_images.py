@@ -39,13 +39,13 @@ import torch
 from .neural_appearance import rate
 
 from neumat.fit.footprint_queries import footprint_queries
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
-from neumat.models.ggx_mipmap import GGXMipmap
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.latent_mlp.ggx_mipmap import GGXMipmap
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.layered import Coat, LayeredMaterial
 from neumat.reflectance.smudge_map import smudge_map
 from neumat.reflectance.svbrdf import SVBRDF

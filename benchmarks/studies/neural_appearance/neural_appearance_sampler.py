@@ -23,7 +23,7 @@ same with half its roughness and metalness 1 (a glossy metal, whose narrow lobes
                jointly (the paper's way), the isotropic sampler can collapse to its cosine lobe (see
                benchmarks/studies/neural_appearance/results/neural_appearance_sampler.md), and a refit separates the lobe family from that training dynamic;
   "cosine"     cosine-weighted sampling of the geometric hemisphere.
-The learned samplers draw with the defensive 5 % cosine share (`neumat.models.proxy_sampler.DEFENSIVE`).
+The learned samplers draw with the defensive 5 % cosine share (`neumat.methods.neural_appearance.proxy_sampler.DEFENSIVE`).
 
 Estimates: one-sample estimates f cos / p (luminance) of the directional albedo of one BRDF, so that only the
 sampler differs: "model" rows use ours' f (what the samplers were trained for), "reference" rows the source's
@@ -62,14 +62,14 @@ from neumat.cli.common import print_table
 from neumat.color.tonemap import LUMINANCE
 from neumat.core.material import Material
 from neumat.core.query import Query
-from neumat.fit.proxy_sampler import fit_sampler
-from neumat.fit.recipe import recipe_for
-from neumat.fit.recipes.neural_appearance import config_for_source
+from neumat.methods.neural_appearance.proxy_train import fit_sampler
+from neumat.fit.method import recipe_for
+from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.reflectance.procedural_texture import procedural_texture_set
 from neumat.reflectance.svbrdf import SVBRDF
-from neumat.models.neural_appearance import NeuralAppearance
-from neumat.models.proxy_sampler import ProxySampler, SampledMaterial, defensive_pdf, sample_defensive
+from neumat.methods.neural_appearance.model import NeuralAppearance
+from neumat.methods.neural_appearance.proxy_sampler import ProxySampler, SampledMaterial, defensive_pdf, sample_defensive
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 SAMPLERS = ("cosine", "alone", "isotropic", "iso refit", "ours", "ours refit")

@@ -50,7 +50,7 @@ from .neural_appearance_images import open_source, start_run
 from neumat.cli.common import print_table
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
-from neumat.models.neural_appearance import NeuralAppearance
+from neumat.methods.neural_appearance.model import NeuralAppearance
 from neumat.reflectance.analytic import Lambert
 from neumat.reflectance.conductor_base import TexturedConductor
 from neumat.reflectance.layered import Coat, LayeredMaterial, Sheen

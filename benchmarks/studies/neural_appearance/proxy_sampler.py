@@ -33,8 +33,8 @@ from neumat.core.query import Query
 from neumat.catalog.open_material import open_material
 from neumat.io.shared_data import shared_data_dir
 from neumat.color.tonemap import LUMINANCE
-from neumat.fit.proxy_sampler import fit_sampler
-from neumat.models.proxy_sampler import SampledMaterial
+from neumat.methods.neural_appearance.proxy_train import fit_sampler
+from neumat.methods.neural_appearance.proxy_sampler import SampledMaterial
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 ANALYTIC = ["ggx:roughness=0.05", "ggx:roughness=0.15", "ggx:roughness=0.4", "ggx:alpha_x=0.08,alpha_y=0.4",

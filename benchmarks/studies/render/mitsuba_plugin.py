@@ -27,15 +27,15 @@ from dataclasses import replace
 import numpy as np
 import torch
 from neumat.cli.common import print_table
-from neumat.fit.recipe import recipe_for
+from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.integrations import mitsuba as plugin
 from neumat.io.images import write_image_ldr
 from neumat.io.shared_data import shared_data_dir
 from neumat.metrics.image import image_metrics
-from neumat.models.neubrdf import NeuBRDF
-from neumat.fit.proxy_sampler import fit_sampler
-from neumat.models.proxy_sampler import SampledMaterial
+from neumat.methods.neubrdf.model import NeuBRDF
+from neumat.methods.neural_appearance.proxy_train import fit_sampler
+from neumat.methods.neural_appearance.proxy_sampler import SampledMaterial
 from neumat.reflectance.measured import RglMaterial
 from neumat.viz.compare import compare_image
 

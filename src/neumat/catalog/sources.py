@@ -1,6 +1,6 @@
 """The material sources `open_material` knows: a registry keyed by file suffix, plus "folder" and "spec".
 
-Each entry is a `Source`: a human-readable `kind`, the `reader(path, **options)` that builds the Material and the
+`SOURCES` is a `neumat.core.registry.Registry` of data records: each entry is a `Source`: a human-readable `kind`, the `reader(path, **options)` that builds the Material and the
 `noun` error messages name one by. Keys are lowercase file suffixes (".binary", ".bsdf", ...), "folder" (a PBR
 texture-set folder) and "spec" (an analytic spec string such as ``ggx:roughness=0.2``; its reader takes the
 string). A module of `neumat.catalog` may register more with `register_source`; `load_sources()` imports them all
@@ -13,8 +13,8 @@ from typing import Callable
 
 from ..core.errors import InputError
 from ..core.material import Material
-from ..core.registry import import_package_modules
-from ..models.nbrdf import nbrdf_from_keras
+from ..core.registry import Registry, import_package_modules
+from neumat.methods.baselines.nbrdf import nbrdf_from_keras
 from ..reflectance.btf import read_btf, read_ubo2014
 from ..reflectance.measured import MerlMaterial, RglMaterial
 from ..reflectance.spec import parse_spec
@@ -35,8 +35,8 @@ class Source:
     noun: str
 
 
-#: key (file suffix, FOLDER or SPEC) -> Source, in registration order
-SOURCES: dict[str, Source] = {}
+#: key (file suffix, FOLDER or SPEC) -> Source
+SOURCES: Registry = Registry("material source")
 
 
 def register_source(key: str, kind: str, noun: str) -> Callable[[Callable[..., Material]], Callable[..., Material]]:
@@ -46,9 +46,7 @@ def register_source(key: str, kind: str, noun: str) -> Callable[[Callable[..., M
                          f"got {key!r}")
 
     def deco(reader: Callable[..., Material]) -> Callable[..., Material]:
-        if key in SOURCES:
-            raise InputError(f"material source registry: {key!r} is already registered")
-        SOURCES[key] = Source(kind, reader, noun)
+        SOURCES.register(key)(Source(kind, reader, noun))
         return reader
 
     return deco
@@ -56,7 +54,7 @@ def register_source(key: str, kind: str, noun: str) -> Callable[[Callable[..., M
 
 def file_suffixes() -> list[str]:
     """The registered file suffixes, in registration order."""
-    return [k for k in load_sources() if k.startswith(".")]
+    return [k for k, _ in load_sources().items() if k.startswith(".")]
 
 
 register_source(FOLDER, "PBR texture-set folder (SVBRDF)", "texture-set folder")(SVBRDF.from_folder)
@@ -68,7 +66,7 @@ register_source(".btf", "Bonn / UBO2014 BTF", "UBO2014 BTF file")(read_ubo2014)
 register_source(".h5", "NBRDF network of Sztrajman et al. (Keras .h5 + .json)", "NBRDF Keras network")(nbrdf_from_keras)
 register_source(SPEC, "analytic spec string", "analytic spec")(parse_spec)
 
-def load_sources() -> dict[str, Source]:
+def load_sources() -> Registry:
     """Import every module of `neumat.catalog` (some register sources, e.g. ".json") and return `SOURCES`."""
     import_package_modules("neumat.catalog")
     return SOURCES

@@ -44,9 +44,9 @@ def register(app: typer.Typer) -> None:
             device: str = typer.Option(None, "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs. Warns when the data points are too few for K
-        (fewer than the paper's 360 per dictionary: neumat.fit.sparse_dictionary.training_size_warning); the BTFs'
+        (fewer than the paper's 360 per dictionary: neumat.methods.sparse_btf.dictionary_train.training_size_warning); the BTFs'
         texels must split into --patch x --patch patches (btf-generate's default --size does)."""
-        from ..fit.sparse_dictionary import train_dictionary
+        from neumat.methods.sparse_btf.dictionary_train import train_dictionary
         from ..reflectance.btf import read_btf
 
         def go():
@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
 def register_data(data_app: typer.Typer) -> None:
     """Add `btf-generate` to the `neumat data` sub-app. Its default --size is a multiple of SparseBTF's
     Config.patch, so that `neumat fit-dictionary` takes its output with its own defaults."""
-    from ..models.sparse_btf import Config
+    from neumat.methods.sparse_btf.model import Config
     patch = Config.patch
 
     @data_app.command("btf-generate")

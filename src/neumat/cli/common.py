@@ -102,12 +102,52 @@ def with_threads(command: Callable) -> Callable:
     return run
 
 
+def with_quiet(command: Callable) -> Callable:
+    """`command` with a --quiet / -q option, for commands that compute and do not take one themselves: no progress
+    output from what it runs (a fit's progress lines; `neumat.fit.trainer` reads NEUMAT_QUIET)."""
+    import contextlib
+    import functools
+    import inspect
+    import os
+
+    signature = inspect.signature(command)
+    if "quiet" in signature.parameters:
+        return command
+    option = inspect.Parameter("quiet", inspect.Parameter.KEYWORD_ONLY, annotation="bool",
+                               default=typer.Option(False, "--quiet", "-q", help="no progress output"))
+
+    @contextlib.contextmanager
+    def quiet_env(on: bool):
+        before = os.environ.get(QUIET_ENV)
+        if on:
+            os.environ[QUIET_ENV] = "1"
+        try:
+            yield
+        finally:
+            if on and before is None:
+                os.environ.pop(QUIET_ENV, None)
+
+    @functools.wraps(command)
+    def run(*args, quiet: bool = False, **kwargs):
+        with quiet_env(quiet):
+            return command(*args, **kwargs)
+
+    run.__signature__ = signature.replace(parameters=[*signature.parameters.values(), option])
+    run.__annotations__ = {**command.__annotations__, "quiet": "bool"}
+    return run
+
+
+#: set while a command runs with --quiet (read by the trainer's progress)
+QUIET_ENV = "NEUMAT_QUIET"
+
+
 def add_threads(app: typer.Typer, skip: tuple[str, ...] = ("list", "version", "info")) -> None:
-    """Give every command of `app` and its sub-apps that computes (all but `skip`) a --threads option."""
+    """Give every command of `app` and its sub-apps that computes (all but `skip`) a --threads and a --quiet
+    option."""
     for info in app.registered_commands:
         name = info.name or info.callback.__name__.replace("_", "-")
         if name not in skip:
-            info.callback = with_threads(info.callback)
+            info.callback = with_quiet(with_threads(info.callback))
     for group in app.registered_groups:
         add_threads(group.typer_instance, skip)
 
@@ -139,7 +179,10 @@ SEED_RANGE = {"min": 0, "max": 2 ** 63 - 1}
 
 def parse_overrides(items: list[str] | None, option: str = "--set", text: bool = False) -> dict[str, Any]:
     """`["nside=32", "lr=1e-3", "betas=0.99,0.999"]` -> {"nside": 32, "lr": 0.001, "betas": [0.99, 0.999]} (a
-    value with commas is a list), or with `text` the values as written; `option` names the flag in errors."""
+    value with commas is a list; JSON for nested lists and null: bounds=[[0,0,0],[1,1,1]], bounds=null), or with
+    `text` the values as written; `option` names the flag in errors."""
+    import json
+
     out = {}
     for item in items or []:
         key, sep, value = item.partition("=")
@@ -147,6 +190,11 @@ def parse_overrides(items: list[str] | None, option: str = "--set", text: bool =
             raise InputError(f"{option} expects key=value, got {item!r}")
         if text:
             out[key.strip()] = value
+        elif value.strip().startswith("[") or value.strip() == "null":
+            try:
+                out[key.strip()] = json.loads(value)
+            except ValueError:
+                raise InputError(f"{option} {key.strip()}: {value!r} is not a JSON list") from None
         else:
             out[key.strip()] = [parse_value(v) for v in value.split(",")] if "," in value else parse_value(value)
     return out

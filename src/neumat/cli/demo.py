@@ -21,7 +21,7 @@ from .common import (SEED_RANGE, THREADS_HELP, console, device_option, parse_ove
 DEFAULT_SOURCE = "plastic:diffuse=0.35/0.12/0.05,roughness=0.2,eta=1.5"
 #: key, fill and rim lights of the renders: (direction towards the light, irradiance RGB)
 LIGHTS = (((-0.6, 0.8, 0.9), (3.0, 2.8, 2.5)), ((0.9, 0.2, 0.5), (0.8, 0.9, 1.1)), ((0.3, 0.9, -0.4), (2.0, 2.0, 2.0)))
-#: the paper's budget (Dou et al. 2024, Sec. 4; our recipe `neumat.fit.recipes.neubrdf`): N_side, steps, batch
+#: the paper's budget (Dou et al. 2024, Sec. 4; our recipe `neumat.methods.neubrdf.train`): N_side, steps, batch
 PAPER_NSIDE, PAPER_STEPS, PAPER_BATCH = 64, 20000, 2 ** 14
 #: SSIM the paper reports over MERL renders (Table 3)
 PAPER_SSIM = 0.996

@@ -1,10 +1,10 @@
-"""`neumat export`: a fitted model as GLSL source plus textures (`neumat.export.glsl`), and with --slang also as
-a Slang module (`neumat.export.slang`: every model `export_glsl` takes but ggx-mipmap-like analytic ones) in
-OUT/slang; --precision fp16 (default: half textures and weights, `neumat.export.half_precision`) or fp32. The
-summary gives the texture and weight bytes at both precisions; --check compares with the torch model and, at
-fp16, with `half_rounded(model)` (the halves it stores, float32 arithmetic)."""
+"""`neumat export`: a fitted model in every export format it asks for (`--format`, repeatable: the formats of
+`neumat.export.registry`, glsl by default), each refusing a model it cannot take before anything is written;
+--precision fp16 (default) or fp32; --check compares each written shader with the torch model
+(`neumat.testing.export_check`)."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import typer
@@ -16,90 +16,45 @@ def register(app: typer.Typer) -> None:
     app.command("export")(export)
 
 
-def export(model: Path = typer.Argument(..., help="model file (.nmat) of a multi-scale, neumip-family "
-                                        "(neumip, neumip-frame, neural-appearance), neubrdf, sparse-btf or neupress model"),
+def export(model: Path = typer.Argument(..., help="model file (.nmat) of a model `neumat list` shows with exports"),
            out: Path = typer.Option(..., "-o", "--out", help="output folder (created)"),
+           formats: list[str] = typer.Option(["glsl"], "--format", "-f",
+                                             help="export format, repeatable: glsl (GLSL 3.30 source, textures, "
+                                                  "manifest.json), slang (a Slang module in OUT/slang), web (a "
+                                                  "self-contained WebGL 2 page, OUT/viewer.html); `neumat list` "
+                                                  "names them"),
            check: int = typer.Option(0, "--check", min=0,
-                                     help="also run the shader on N random queries (headless OpenGL) and print "
-                                          "its largest relative difference from the torch model"),
-           web: bool = typer.Option(False, "--web", help="also write OUT/viewer.html: a self-contained WebGL 2 "
-                                                         "page showing the material on a sphere or a plane"),
+                                     help="also run each written shader on N random queries (headless OpenGL, "
+                                          "slangpy's CPU device) and print its largest relative difference from "
+                                          "the torch model"),
            precision: str = typer.Option("fp16", "--precision",
                                          help="fp16 (half textures and weights, float32 arithmetic) or fp32"),
-           slang: bool = typer.Option(False, "--slang", help="also write a Slang module (neumat.slang, its buffers, "
-                                                             "manifest.json) to OUT/slang (the models GLSL "
-                                                             "export takes); --check checks it "
-                                                             "too, on slangpy's CPU device")) -> None:
-    """Write MODEL as GLSL 3.30 (neumat.glsl), its textures (raw float16 or float32) and manifest.json to OUT."""
+           web: bool = typer.Option(False, "--web", hidden=True, help="the same as --format glsl --format web"),
+           slang: bool = typer.Option(False, "--slang", hidden=True,
+                                      help="the same as --format glsl --format slang")) -> None:
+    """Write MODEL in each --format (GLSL by default) to OUT."""
     def go():
-        import torch
-
         from ..catalog.modelfile import load_model
         from ..export.registry import load_formats
+        from ..testing.export_check import export_check, half_note
 
-        formats = load_formats()
+        registry = load_formats()
+        names = list(dict.fromkeys([*formats, *(["glsl", "slang"] if slang else []),
+                                    *(["glsl", "web"] if web else [])]))
+        chosen = {name: registry.get(name) for name in names}  # unknown names: one line with the close matches
         m = load_model(model, device="cpu")
-        if slang:
-            slang_export = formats.get("slang").export(m, precision)  # refuses other models before anything is written
-        exported = formats.get("glsl").export(m, precision)  # refuses unknown models and precisions
-        folder = exported.write(out)
-        print(f"wrote {folder / 'neumat.glsl'} ({len(exported.source)} characters) and "
-              f"{len(exported.textures)} textures to {folder}")
-        sizes = {p: exported.storage_bytes(p) for p in ("fp16", "fp32")}
-        print("stored bytes: " + "; ".join(f"{p} {b['textures']} textures + {b['weights']} weights = {b['total']}"
-                                          for p, b in sizes.items())
-              + f" (fp16 / fp32 = {sizes['fp16']['total'] / sizes['fp32']['total']:.3f}); written: {precision}"
-              + (f", float32 at both: {', '.join(exported.exact)}" if exported.exact else ""))
-        if precision == "fp16" and getattr(m, "name", None) == "neural-appearance":
-            from ..models.half_precision import is_half_exact
-
-            print("fp16: the model's parameters are the stored halves (a half-aware fit): the export computes what "
-                  "the model computes" if is_half_exact(m) else "fp16: the parameters are rounded to the nearest "
-                  "half on export (the model trained in fp32 to its end; the recipe option half_finish ends a fit on "
-                  "its fp16 values)")
-        if slang:
-            slang_folder = slang_export.write(folder / "slang")
-            print(f"wrote {slang_folder / 'neumat.slang'} ({len(slang_export.source)} characters), "
-                  f"{len(slang_export.buffers)} buffer(s) and manifest.json to {slang_folder}")
-        if web:
-            page = formats.get("web").export(exported, folder / "viewer.html",
-                                             title=f"{getattr(m, 'name', 'model')} ({model.name})")
-            print(f"wrote {page} ({page.stat().st_size / 1e6:.2f} MB): open it in a browser with WebGL 2")
-        if check and getattr(m, "name", None) == "neupress":
-            from ..testing.parity import neupress_parity
-
-            d = neupress_parity(exported, m, check)
-            print(f"shader vs torch on {check} random queries: S_hat max difference {d['translucent']:.2e} of its "
-                  f"largest value, sigma max relative difference {d['sigma']:.2e}")
-            if slang:
-                from ..testing.slang_parity import neupress_slang_parity
-
-                d = neupress_slang_parity(slang_export, m, check)
-                print(f"Slang module (CPU) vs torch: S_hat max difference {d['translucent']:.2e} of its largest "
-                      f"value, sigma max relative difference {d['sigma']:.2e}")
-        elif check:
-            from ..fit.footprint_queries import footprint_queries
-            from ..testing.parity import glsl_eval
-
-            from ..models.half_precision import half_rounded
-
-            q = footprint_queries(m, m)(check, torch.Generator().manual_seed(0), torch.device("cpu"))
-            with torch.no_grad():
-                ref = m.eval(q)
-                half = half_rounded(m).eval(q) if precision == "fp16" else None
-
-            def report(got: torch.Tensor, first: str, then: str) -> None:
-                for reference, text in ((ref, first), (half, then)):
-                    if reference is not None:
-                        rel = (got - reference).abs() / reference.abs().clamp(min=1e-6)
-                        print(f"{text}: max relative difference {float(rel.max()):.2e}, "
-                              f"median {float(rel.median()):.2e}")
-
-            report(glsl_eval(exported, q), f"shader vs torch on {check} Sec. 4.2 queries",
-                   "shader vs torch with the halves stored (half_rounded)")
-            if slang:
-                from ..testing.slang_parity import slang_eval
-
-                report(slang_eval(slang_export, q), "Slang module (CPU) vs torch on the same queries",
-                       "Slang module (CPU) vs torch with the halves stored (half_rounded)")
+        exports = {name: fmt.export(m, precision) for name, fmt in chosen.items()}  # refusals before any write
+        for name, exported in exports.items():
+            if hasattr(exported, "title"):  # a page shows the model and the file it came from
+                exports[name] = dataclasses.replace(exported, title=f"{getattr(m, 'name', 'model')} ({model.name})")
+        for name, fmt in chosen.items():
+            _, summary = fmt.write(exports[name], out)
+            print(summary)
+        note = half_note(m, precision)
+        if note:
+            print(note)
+        if check:
+            for name, exported in exports.items():
+                for line in export_check(name, exported, m, check, precision):
+                    print(line)
     run_command(go)

@@ -1,5 +1,5 @@
 """`neumat fit-clusters`: NeuBRDF with codebooks shared per cluster (Dou et al. 2024, Sec. 3.3) from the command
-line. Clusters the sources (convolutional autoencoder + k-means, `neumat.fit.shared_neubrdf.cluster_materials`),
+line. Clusters the sources (convolutional autoencoder + k-means, `neumat.methods.neubrdf.shared_targets.cluster_materials`),
 fits one shared-neubrdf per cluster through the one trainer, scores every member against its source, and
 writes OUT/cluster<c>.nmat per cluster and OUT/clusters.json (which material went where, and how well)."""
 from __future__ import annotations
@@ -64,11 +64,11 @@ def fit_clusters(sources: list[str] = typer.Argument(..., help="BRDF sources: ma
 
     def go():
         from ..catalog.modelfile import load_model, save_model
-        from ..fit.shared_neubrdf import cluster_materials
+        from neumat.methods.neubrdf.shared_targets import cluster_materials
         from ..fit.trainer import fit
         from .fit_many import expand_sources, source_names
         from ..fit.preset import build_fit
-        from ..fit.recipe import typed_options
+        from ..fit.method import typed_options
         from .fitting import chosen_preset, preset_note, resolve_device
 
         if out.exists() and not out.is_dir():

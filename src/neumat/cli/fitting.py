@@ -53,36 +53,51 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     training state lives only in --checkpoint. Models trained in stages run them as phases of the same fit."""
 
     def go():
-        from ..catalog.modelfile import save_model
-        from ..fit.preset import build_fit
-        from ..fit.trainer import FitWarning
-        from ..fit.trainer import fit as fit_model
-
-        if out.suffix != ".nmat":
-            raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
-        overrides = parse_overrides(set_)
-        dev = resolve_device(device)
-        name = chosen_preset(preset, recipe_alias)
-        src = open_training_source(model, sources, parse_overrides(source_option, "--source-option"))
-        m, resolved = build_fit(model, name, device=dev, source=src, overrides=overrides, seed=seed)
-        if not quiet:
-            print(preset_note(model, resolved))
-        with warnings.catch_warnings():  # said once below, as one line
-            warnings.simplefilter("ignore", FitWarning)
-            result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
-                               checkpoint=checkpoint, resume=resume)
-        for text in result.warnings:
-            print(f"warning: {text}", file=sys.stderr)
-        last = result.history[-1] if result.history else {}
-        metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
-        shipped = result.model.runtime()
-        save_model(shipped, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
-                   metrics=metrics, preset={"name": resolved.preset, "overrides": resolved.applied})
-        print(f"wrote {out} ({model}, preset {resolved.preset}, {result.steps} steps, {result.seconds:.1f} s, final "
-              f"loss {metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} "
-              "bytes stored at fp16)")
+        run_fit(model, sources, chosen_preset(preset, recipe_alias), parse_overrides(set_), out, steps=steps,
+                device=device, seed=seed, checkpoint=checkpoint, resume=resume, quiet=quiet,
+                source_options=parse_overrides(source_option, "--source-option"))
     with torch_threads(threads):
         run_command(go)
+
+
+def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: Path, *, steps: int | None = None,
+            device: str | None = None, seed: int | None = None, checkpoint: Path | None = None, resume: bool = False,
+            quiet: bool = False, source_options: dict | None = None) -> None:
+    """What `neumat fit` does: fit `model` to `sources` with `preset` and `overrides`, save its shipped form to
+    `out` with the preset, the recipe, the source and the metrics, and print what was written (with the method's
+    report, e.g. a translucent fit's held-back error)."""
+    from ..catalog.modelfile import save_model
+    from ..fit.method import method_for
+    from ..fit.preset import build_fit
+    from ..fit.trainer import FitWarning
+    from ..fit.trainer import fit as fit_model
+
+    if out.suffix != ".nmat":
+        raise InputError(f"-o/--out: model files end in .nmat, got {str(out)!r}")
+    dev = resolve_device(device)
+    src = open_training_source(model, sources, source_options or {})
+    m, resolved = build_fit(model, preset, device=dev, source=src, overrides=overrides, seed=seed)
+    if not quiet:
+        print(preset_note(model, resolved))
+    with warnings.catch_warnings():  # said once below, as one line
+        warnings.simplefilter("ignore", FitWarning)
+        result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
+                           checkpoint=checkpoint, resume=resume)
+    for text in result.warnings:
+        print(f"warning: {text}", file=sys.stderr)
+    last = result.history[-1] if result.history else {}
+    metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
+    report = method_for(model).report
+    extra, row = report(result.model, src, result) if report is not None else ({}, {})
+    metrics.update(extra)
+    shipped = result.model.runtime()
+    save_model(shipped, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
+               metrics=metrics, preset={"name": resolved.preset, "overrides": resolved.applied})
+    print(f"wrote {out} ({model}, preset {resolved.preset}, {result.steps} steps, {result.seconds:.1f} s, final "
+          f"loss {metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} "
+          "bytes stored at fp16)")
+    if row:
+        print_table(f"{model} fit report", [row])
 
 
 def chosen_preset(preset: str | None, recipe_alias: str | None = None) -> str:

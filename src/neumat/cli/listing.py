@@ -17,15 +17,15 @@ def catalogue() -> dict:
     the names its --preset takes."""
     from ..catalog.sources import load_sources
     from ..core.errors import UnknownNameError
-    from ..export.glsl_common import load_generators
+    from ..export.glsl import glsl_models
     from ..export.registry import load_formats
     from ..fit.preset import presets_for
-    from ..fit.recipe import recipe_for
+    from ..fit.method import recipe_for
     from ..models.base import SOURCE_KINDS
     from ..models.registry import load_all
 
     models = load_all()
-    exportable = load_generators()
+    exportable = glsl_models()
     formats = load_formats()
     rows = []
     for name in models.names():
@@ -51,7 +51,8 @@ def model_catalogue(model: str) -> dict:
 
     from ..core.config import field_docs, range_text, type_text
     from ..fit.preset import DEFAULT_PRESET, presets_for, settable_keys
-    from ..fit.recipe import Recipe, options_class
+    from ..fit.recipe import Recipe
+    from ..fit.method import options_class
     from ..models.registry import model_class
 
     cls = model_class(model)

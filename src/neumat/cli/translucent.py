@@ -150,63 +150,30 @@ def _pair(text: str, what: str) -> tuple[float, float]:
     return lo, hi
 
 
-@app.command()
+@app.command(hidden=True)
 def fit(observations: Path = typer.Argument(..., help="observations file from `neumat translucent trace`"),
         out: Path = typer.Option(..., "-o", "--out", callback=output_option(".nmat"),
                                  help="model file to write (.nmat)"),
-        set_: list[str] = typer.Option(None, "--set", help="key=value: a NeuPreSS config field (feature_mean=18 "
-                                                          "feature_std=1 for the paper's Fourier scale), a recipe "
-                                                          "field (batch_size, lr, phase_split, ...) or a recipe "
-                                                          "option (sampler_batch, grid, ...)"),
-        steps: int = typer.Option(None, min=0, help="optimiser steps of both phases, split by the recipe's "
-                                                    "phase_split (default: the recipe's, fit/recipes/neupress.py)"),
-        validation: float = typer.Option(None, help="fraction held back; the fit keeps the best weights on it "
-                                                    "(default: the recipe's validation_fraction)"),
+        set_: list[str] = typer.Option(None, "--set", help="key=value, as `neumat fit --set`"),
+        steps: int = typer.Option(None, min=0, help="optimiser steps (default: the preset's)"),
+        validation: float = typer.Option(None, help="the same as --set validation_fraction=X"),
         device: str = typer.Option(None, callback=device_option,
                                    help="torch device (default: cuda if available, else cpu)"),
-        seed: int = typer.Option(None, help="seed of the model, the validation split and the batches "
-                                            "(default: the recipe's)", **SEED_RANGE),
+        seed: int = typer.Option(None, help="seed of the recipe (default: the recipe's)", **SEED_RANGE),
         checkpoint: Path = typer.Option(None, help="checkpoint file, written during the fit"),
         resume: bool = typer.Option(False, "--resume", help="continue from --checkpoint if it exists"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar")) -> None:
-    """Fit NeuPreSS (appearance, then light sampler) to traced observations with its recipe and save it."""
+    """The old name of `neumat fit OBSERVATIONS.npz --model neupress` (the same fit, bounds and report)."""
     def go():
-        from dataclasses import replace
-
-        from ..fit.preset import DEFAULT_PRESET, build_fit
-        from ..fit.recipe import typed_options
-        from ..fit.trainer import fit as fit_model
-        from ..fit.translucent_fit import best_validation
-        from ..fit.translucent_observations import Observations
-        from ..catalog.modelfile import save_model
+        from ..fit.preset import DEFAULT_PRESET
         from .common import parse_overrides
+        from .fitting import run_fit
 
-        _check_suffix(out, ".nmat", "fit --out")
-        data = Observations.load(observations)
-        overrides = {k: _value(v) for k, v in parse_overrides(set_, text=True).items()}
+        overrides = parse_overrides(set_)
         if validation is not None:
             overrides["option.validation_fraction"] = validation
-        model, resolved = build_fit("neupress", DEFAULT_PRESET, device=device, source=data, overrides=overrides,
-                                    seed=seed)
-        recipe = resolved.recipe
-        result = fit_model(model, data, recipe, steps=steps, device=device, progress=not quiet,
-                           checkpoint=checkpoint, resume=resume)
-        kl = [r["kl"] for r in result.history if r["phase"] == "sampler"]
-        metrics = {"sampler_kl": kl[-1] if kl else None, "fit_seconds": result.seconds}
-        row = {"observations": len(data), "steps": result.steps}
-        best = best_validation(result.history)
-        if best is not None:
-            held = data.split(typed_options("neupress", recipe.options).validation_fraction,
-                              seed=recipe.seed)[1]  # as the recipe splits
-            variance = float(held.value.var())
-            metrics.update(validation_mse=best["validation_mse"], validation_variance=variance,
-                           best_step=best["step"])
-            row.update({"validation": len(held), "best step": best["step"], "validation MSE": best["validation_mse"],
-                        "relative to its variance": best["validation_mse"] / variance if variance > 0 else None})
-        row["sampler KL"] = metrics["sampler_kl"]
-        save_model(model.cpu(), out, recipe=replace(recipe, steps=result.steps), source=observations,
-                   metrics=metrics, preset={"name": resolved.preset, "overrides": resolved.applied})
-        print_table(f"wrote {out} ({model.size_bytes('fp32') // 1024} KB fp32)", [row])
+        run_fit("neupress", [str(observations)], DEFAULT_PRESET, overrides, out, steps=steps, device=device,
+                seed=seed, checkpoint=checkpoint, resume=resume, quiet=quiet)
     run_command(go)
 
 
@@ -289,20 +256,6 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
     run_command(go)
 
 
-def _value(text: str):
-    """A --set value: JSON for lists and null (grid=[32,64], phase_split=[0.9,0.1], bounds=null), else as
-    `neumat fit` reads values."""
-    import json
-
-    from ..core.config import parse_value
-    if text.strip().startswith("[") or text.strip() == "null":
-        try:
-            return json.loads(text)
-        except ValueError:
-            pass
-    return parse_value(text)
-
-
 def _check_suffix(path: Path, suffix: str, what: str) -> None:
     from ..core.errors import InputError
     if path.suffix.lower() != suffix:
@@ -315,7 +268,7 @@ def prt(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
         out: Path = typer.Option(..., "-o", "--out", callback=output_option(".prt"),
                                  help="SH PRT table to write (.prt)"),
         view_bins: str = typer.Option(None, help="view bins per vertex, THETAxPHI (default: "
-                                                 "neumat.models.neupress_prt.FAST_VIEW_BINS, 8x16; the paper 16x64)"),
+                                                 "neumat.methods.neupress.prt.FAST_VIEW_BINS, 8x16; the paper 16x64)"),
         light_samples: int = typer.Option(None, min=1, help="light directions of the Gauss rule per view bin "
                                                             "(default: FAST_LIGHT_SAMPLES, 32; the paper 1024)"),
         precision: str = typer.Option(None, help="network arithmetic, bf16 or fp32 (default: FAST_PRECISION, "
@@ -331,7 +284,7 @@ def prt(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
     def go():
         import time
 
-        from ..models.neupress_prt import (FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, SHPRT, PRTConfig,
+        from neumat.methods.neupress.prt import (FAST_LIGHT_SAMPLES, FAST_PRECISION, FAST_VIEW_BINS, SHPRT, PRTConfig,
                                            check_config)
         from ..render.mesh import object_mesh, vertex_normals
 
@@ -386,7 +339,7 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
         from ..core.errors import InputError
         from ..io.images import write_image, write_image_ldr
         from ..metrics.image import image_metrics
-        from ..models.neupress_prt import SHPRT
+        from neumat.methods.neupress.prt import SHPRT
         from ..render.translucent import render_translucent, render_translucent_reference
         from ..render.translucent_prt import render_prt
         from ..viz.compare import compare_image
@@ -437,7 +390,7 @@ def _neupress(path: Path, device: str):
     """The NeuPreSS model in `path` on `device` (InputError for another kind of model)."""
     from ..catalog.modelfile import load_model
     from ..core.errors import InputError
-    from ..models.neupress import NeuPreSS
+    from neumat.methods.neupress.model import NeuPreSS
 
     _check_suffix(path, ".nmat", "MODEL")
     m = load_model(path, device=device)
@@ -484,5 +437,5 @@ def _view_bins(text: str) -> tuple[int, int]:
 
 def _light_count(cfg) -> int:
     """Directions of the light quadrature `cfg` asks for (the Gauss rule rounds to rings x points)."""
-    from ..models.neupress_prt import sphere_quadrature
+    from neumat.methods.neupress.prt import sphere_quadrature
     return sphere_quadrature(cfg.light_samples, cfg.light_rule)[1].shape[0]

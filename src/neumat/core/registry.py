@@ -1,4 +1,5 @@
-"""A typed name -> factory registry. Duplicate names raise; unknown names raise with close matches."""
+"""A typed name -> entry registry (factories, classes or data records). Duplicate names raise; unknown names raise
+with close matches."""
 from __future__ import annotations
 
 import difflib
@@ -49,8 +50,19 @@ class Registry(Generic[T]):
         kwargs = {k: v for k, v in spec.items() if k != "type"}
         return self.get(spec["type"])(**kwargs)
 
+    def __getitem__(self, name: str) -> T:
+        return self.get(name)
+
     def names(self) -> list[str]:
+        """The registered names, sorted."""
         return sorted(self._items)
+
+    def items(self) -> list[tuple[str, Callable[..., T]]]:
+        """(name, entry) pairs in registration order."""
+        return list(self._items.items())
+
+    def __len__(self) -> int:
+        return len(self._items)
 
     def __contains__(self, name: str) -> bool:
         return name.lower() in self._items

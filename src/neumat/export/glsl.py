@@ -1,6 +1,6 @@
 """GLSL export of the multi-scale models (Timonen et al. 2025, Sec. 5.3: the model as a pixel shader).
 
-`export_glsl(model)` turns a fitted `neumat.models.multiscale.MultiScale` (the gated model, its homogeneous
+`export_glsl(model)` turns a fitted `neumat.methods.latent_mlp.multiscale.MultiScale` (the gated model, its homogeneous
 variant, and the configurations built on it: tripleplane, the ablations) into GLSL 3.30 source plus its
 textures. The source defines
 
@@ -13,7 +13,8 @@ Details: docs/formats/glsl.md, section `neumat.export.glsl`.
 from __future__ import annotations
 
 from ..core.errors import InputError
-from .glsl_common import GLSLExport, load_generators
+from ..fit.method import load_methods
+from .glsl_common import GLSLExport
 from .half_precision import to_half
 from .registry import EXPORT_FORMATS, ExportFormat
 
@@ -24,23 +25,28 @@ PRECISIONS = ("fp16", "fp32")
 
 def export_glsl(model, precision: str = "fp16") -> GLSLExport:
     """GLSL source and textures computing `model.eval` (see module docstring). model: a MultiScale (or a
-    configuration of it such as tripleplane), a neumip-family model (`neumat.export.glsl_latent_mlp`, with the
-    neural-appearance sampler), a NeuBRDF (`neumat.export.glsl_neubrdf`), a SparseBTF
-    (`neumat.export.glsl_sparse_btf`) or a NeuPreSS translucent object
-    (`neumat.export.glsl_neupress`): any model whose registry name has a generator in `GLSL_GENERATORS`;
+    configuration of it such as tripleplane), a neumip-family model (`neumat.methods.latent_mlp.glsl`, with the
+    neural-appearance sampler), a NeuBRDF (`neumat.methods.neubrdf.glsl`), a SparseBTF
+    (`neumat.methods.sparse_btf.glsl`) or a NeuPreSS translucent object
+    (`neumat.methods.neupress.glsl`): any model whose method declares a GLSL generator (`glsl_models()`);
     anything else raises InputError. precision "fp16" stores textures and weights as halves
     (`neumat.export.half_precision`; textures a generator lists in `GLSLExport.exact` stay float32), "fp32" as
     floats."""
     if precision not in PRECISIONS:
         raise InputError(f"export_glsl precision: expected one of {', '.join(PRECISIONS)}, got {precision!r}")
-    generators = load_generators()
     name = getattr(model, "name", None)
-    if not isinstance(name, str) or name not in generators:
+    if not isinstance(name, str) or name not in glsl_models():
         raise InputError(f"export_glsl: expected a multi-scale model (multiscale, tripleplane), a latent-pyramid MLP "
                          f"(neumip, neumip-frame, neural-appearance), a neubrdf, a sparse-btf or a neupress, got "
                          f"{type(model).__name__} ({getattr(model, 'name', '?')})")
-    exported = generators.get(name)(model)
+    exported = load_methods().get(name).glsl(model)
     return to_half(exported) if precision == "fp16" else exported
+
+
+def glsl_models() -> list[str]:
+    """Names of the models whose method declares a GLSL generator (what `export_glsl` takes)."""
+    methods = load_methods()
+    return [name for name in methods.names() if methods.get(name).glsl is not None]
 
 
 EXPORT_FORMATS.register("glsl")(ExportFormat("GLSL 3.30 source, textures and manifest.json", export_glsl))

@@ -1,10 +1,8 @@
 """Shared pieces of the GLSL exporters: `GLSLExport`, the common GLSL functions, texture packing, latent-pyramid
-readers, shading frames, MLP chains, and the registry of per-model GLSL generators.
+readers, shading frames and MLP chains.
 
-A generator module (`neumat.export.glsl_*`) registers `generator(model) -> GLSLExport` under the registry names of
-the models it exports with `@GLSL_GENERATORS.register(name)`; `load_generators()` imports every such module
-(pkgutil discovery, `neumat.core.registry.import_package_modules`, as the model registry), so
-`neumat.export.glsl.export_glsl` is a lookup."""
+A method declares its generator `glsl(model) -> GLSLExport` in its `neumat.fit.method.Method`;
+`neumat.export.glsl.export_glsl` looks it up."""
 from __future__ import annotations
 
 import json
@@ -16,7 +14,6 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError
-from ..core.registry import Registry, import_package_modules
 
 GLSL_VERSION = "#version 330 core"
 
@@ -59,6 +56,17 @@ class GLSLExport:
                        for name, t in self.textures.items())
         weights *= 2 if precision == "fp16" else 4
         return {"textures": int(textures), "weights": int(weights), "total": int(textures + weights)}
+
+    def summary(self, folder: Path) -> str:
+        """What `write(folder)` wrote and its bytes at both precisions (`neumat export` prints it)."""
+        sizes = {p: self.storage_bytes(p) for p in ("fp16", "fp32")}
+        return (f"wrote {Path(folder) / 'neumat.glsl'} ({len(self.source)} characters) and {len(self.textures)} "
+                f"textures to {folder}\nstored bytes: "
+                + "; ".join(f"{p} {b['textures']} textures + {b['weights']} weights = {b['total']}"
+                            for p, b in sizes.items())
+                + (f" (fp16 / fp32 = {sizes['fp16']['total'] / sizes['fp32']['total']:.3f})" if sizes["fp32"]["total"]
+                   else "") + f"; written: {self.precision}"
+                + (f", float32 at both: {', '.join(self.exact)}" if self.exact else ""))
 
     def write(self, folder: str | Path) -> Path:
         """Write neumat.glsl, one raw little-endian file per texture (<name>.f32, or <name>.f16 for a float16
@@ -371,12 +379,3 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
         {target}[o] = acc;
     }}
 """
-
-
-#: model registry name -> generator(model) -> GLSLExport
-GLSL_GENERATORS: Registry = Registry("GLSL generator")
-
-def load_generators() -> Registry:
-    """Import every `neumat.export.glsl_*` module (each registers its generators) and return the registry."""
-    import_package_modules("neumat.export", prefix="glsl_")
-    return GLSL_GENERATORS

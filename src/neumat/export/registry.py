@@ -1,12 +1,13 @@
 """The export formats: name ("glsl", "slang", "web") -> `ExportFormat` (what it writes, and its function).
 
 Each format module registers itself (`EXPORT_FORMATS.register(name)(ExportFormat(...))`); `load_formats()` imports
-every module of `neumat.export` (pkgutil discovery, `neumat.core.registry.import_package_modules`, as the model
-registry), so the command line (`neumat.cli.exporting`) and the Slang exporter look formats up instead of importing
-them."""
+every module of `neumat.export`, so `neumat export --format` iterates the formats instead of naming them. Which
+models a format takes is what their methods declare (`neumat.fit.method.Method.glsl`).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 from ..core.registry import Registry, import_package_modules
@@ -14,15 +15,24 @@ from ..core.registry import Registry, import_package_modules
 
 @dataclass(frozen=True)
 class ExportFormat:
-    """description: what the format writes; export: its entry point (`export_glsl(model)`,
-    `export_slang(model)`, `write_viewer(model_or_glsl_export, path, title)`)."""
+    """description: what the format writes; export(model, precision): the export (an object whose
+    `write(folder) -> Path` writes it and whose `summary(written) -> str` says what was written), refusing a model
+    it cannot take before anything is written; folder: the subfolder of the output it writes into ("" = the
+    output itself)."""
 
     description: str
     export: Callable
+    folder: str = ""
+
+    def write(self, exported, out: Path) -> tuple[Path, str]:
+        """Write `exported` under `out` (its subfolder created); returns (what was written, its summary)."""
+        written = exported.write(Path(out) / self.folder if self.folder else Path(out))
+        return written, exported.summary(written)
 
 
 #: format name -> ExportFormat
 EXPORT_FORMATS: Registry = Registry("export format")
+
 
 def load_formats() -> Registry:
     """Import every module of `neumat.export` and its subpackages (the format modules register themselves) and

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from .glsl_common import GLSLExport, load_generators
+from .glsl import glsl_models
+from .glsl_common import GLSLExport
 from .registry import EXPORT_FORMATS, ExportFormat, load_formats
 
 #: floats per query in the compute entry point's input buffer `neumat_queries` (offsets in QUERY_LAYOUT)
@@ -98,6 +99,11 @@ class SlangExport:
     def entry_points(self) -> list[str]:
         """Slang signatures of the methods of `NeumatMaterial`."""
         return [_SIGNATURES[e] for e in self.entries]
+
+    def summary(self, folder: Path) -> str:
+        """What `write(folder)` wrote (`neumat export` prints it)."""
+        return (f"wrote {Path(folder) / 'neumat.slang'} ({len(self.source)} characters), {len(self.buffers)} "
+                f"buffer(s) and manifest.json to {folder}")
 
     def write(self, folder: str | Path) -> Path:
         """Write neumat.slang, one raw little-endian file per buffer (<buffer>.f16 for float16, <buffer>.f32 for
@@ -328,15 +334,14 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
     model (multiscale, tripleplane and the other configurations `export_glsl` takes), a NeuBRDF, a SparseBTF or
     a NeuPreSS (module docstring). Anything else raises InputError naming the model type. precision: that of
     the GLSL export it spells ("fp16": half buffers and weights, float32 arithmetic; or "fp32")."""
-    from ..models.neumip import NeuMIP
-
     name = getattr(model, "name", None)
-    if not isinstance(name, str) or name not in load_generators():
+    if not isinstance(name, str) or name not in glsl_models():
         raise InputError(f"export_slang: expected a latent-pyramid MLP (neumip, neumip-frame, neural-appearance), a "
                          f"multi-scale model, a neubrdf, a sparse-btf or a neupress, got {type(model).__name__} "
                          f"({getattr(model, 'name', '?')})")
-    if isinstance(model, NeuMIP) and model.cfg.directions != "cartesian":
-        raise InputError(f"export_slang: {model.name} with {model.cfg.directions!r} directions has no Slang export "
+    directions = getattr(getattr(model, "cfg", None), "directions", "cartesian")  # the neumip family's inputs
+    if directions != "cartesian":
+        raise InputError(f"export_slang: {model.name} with {directions!r} directions has no Slang export "
                          "(cartesian only)")
     glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
@@ -353,4 +358,5 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
                        glsl.storage_bytes(), list(runtime))
 
 
-EXPORT_FORMATS.register("slang")(ExportFormat("Slang module, its buffers and manifest.json", export_slang))
+EXPORT_FORMATS.register("slang")(ExportFormat("Slang module, its buffers and manifest.json", export_slang,
+                                              folder="slang"))

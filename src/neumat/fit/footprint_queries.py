@@ -4,7 +4,7 @@ wi and wo cosine-weighted, uv uniform, footprints as the paper's Eq. 9 (`Query.f
 covariance), the level range shifted to the source's texel size by default (`texel_relative`). Registered as
 the "footprint" and "footprint-uv" query samplers.
 
-Details: docs/notes/multiscale.md, section `neumat.fit.footprint_queries`.
+Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.fit.footprint_queries`.
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 A loss is built as `LOSSES.get(name)()` and called `loss(pred (N, 3), target (N, 3), q: Query)` -> scalar.
 Losses are `nn.Module`s, so a loss that keeps state (running statistics) keeps it in buffers, which the
-trainer checkpoints. Models and recipe modules may register their own at import time.
+trainer checkpoints. Methods may register their own at import time.
 
 Built-ins: "log_cos", "log_cos_eps", "log_cos_eps_linear", "l1", "l2", "relative", "relative_l2_mix".
 

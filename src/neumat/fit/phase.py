@@ -1,7 +1,7 @@
 """Phases of a fit: what one stretch of the trainer's loop optimises, and how one step computes its losses.
 
 The trainer (`neumat.fit.trainer.fit`) runs a list of phases one after the other in one loop, with one step
-counter, one checkpoint and one history. A recipe module (`neumat.fit.recipes.<model>`) may define
+counter, one checkpoint and one history. A method (`neumat.fit.method.Method`) may declare
 `phases(ctx) -> list[Phase]` for models that train in stages (encoder then latents, appearance then
 sampler, dictionary then coding); without it a fit is the single phase `online_phase(ctx)`: online targets
 `source.eval(q)` at queries from the recipe's query sampler, the recipe's loss.
@@ -78,7 +78,7 @@ class FitContext:
     @property
     def opts(self) -> Any:
         """The recipe's options, typed and checked (`neumat.fit.recipe.typed_options`)."""
-        from .recipe import typed_options
+        from .method import typed_options
 
         return typed_options(model_name(self.model), self.recipe.options)
 

@@ -2,7 +2,7 @@
 
 Every model has "paper" (the paper's model and recipe, sized for a GPU), "cpu" (the paper's model along the
 fastest CPU path) and "recommended" (the best setting measured on our data; where nothing measured beats the
-paper's, the paper's model sized to the device). A recipe module adds or replaces presets in `PRESETS`. Every
+paper's, the paper's model sized to the device). A method adds or replaces presets (`Method.presets`). Every
 fitting entry point defaults to `DEFAULT_PRESET`, so a fit gets what the project knows without flags.
 """
 from __future__ import annotations
@@ -13,7 +13,8 @@ from typing import Any, Mapping
 
 from ..core.config import config_from_dict, config_to_dict
 from ..core.errors import InputError, UnknownNameError
-from .recipe import Recipe, check_recipe, options_class, recipe_config_for_source, recipe_for, typed_options
+from .method import method_for, options_class, recipe_config_for_source, recipe_for, typed_options
+from .recipe import Recipe, check_recipe
 
 #: the preset every fitting entry point uses unless told otherwise
 DEFAULT_PRESET = "recommended"
@@ -52,17 +53,16 @@ class Resolved:
 
 def presets_for(model: str) -> dict[str, Preset]:
     """Every preset of model `model`: the built-in "paper", "cpu" and "recommended", replaced or extended by its
-    recipe module's `PRESETS`."""
-    from .recipe import _recipe_module
-
+    method's presets (`neumat.fit.method.Method.presets`)."""
+    method = method_for(model)
     built_in = {
         "paper": Preset("the paper's model and recipe, sized for a GPU", recipe="paper"),
         "cpu": Preset("the paper's model along the fastest CPU path we measured", recipe="cpu"),
         "recommended": Preset("the paper's model, sized to the device (nothing we measured beats it yet)"),
     }
-    named = getattr(_recipe_module(model), "NAMED_RECIPES", {})
-    built_in.update({name: Preset(f"the named recipe {name!r}", recipe=name) for name in named})
-    return {**built_in, **getattr(_recipe_module(model), "PRESETS", {})}
+    built_in.update({name: Preset(f"the named recipe {name!r}", recipe=name)
+                     for name in method.recipes if name not in ("paper", "cpu")})
+    return {**built_in, **method.presets}
 
 
 def preset_named(model: str, name: str) -> Preset:

@@ -2,7 +2,7 @@
 
 `QUERY_SAMPLERS.get(name)(source, model)` returns `draw(n, generator, device) -> Query`. Random numbers come
 from `generator` (drawn on the generator's device, then moved to `device`), so a fit is reproducible from
-its seed and resumable from the generator state. Models and recipe modules may register their own.
+its seed and resumable from the generator state. Methods may register their own.
 
 Built-ins: "cosine", "rusinkiewicz", "merl", "cosine_merl", "replay".
 

@@ -1,6 +1,6 @@
 """The one trainer: fit any learned model to its source, in one or several phases.
 
-A fit is a list of phases (`neumat.fit.phase`) from the model's recipe module. All phases share one loop:
+A fit is a list of phases (`neumat.fit.phase`) from the model's method (`neumat.fit.method`). All phases share one loop:
 schedule, EMA, gradient clipping, the non-finite guard (`neumat.fit.rollback`), progress, and checkpoints
 from which `resume=True` continues bit for bit. Model hooks (`neumat.models.base.LearnedMaterial`):
 `on_step`, `init_from_targets`, `optimizer`.
@@ -10,6 +10,7 @@ Details: docs/notes/fit.md, section `neumat.fit.trainer`.
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 import warnings
@@ -24,11 +25,12 @@ from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError, UnknownNameError
 from ..io.atomic import atomic_write
 from ..models.base import LearnedMaterial
-from . import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
+from neumat.fit import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
 from .ema import EMA
 from .phase import FitContext, Phase, model_name, online_phase
 from .preset import default_recipe
-from .recipe import Recipe, check_recipe, learning_rate, phases_for, typed_options
+from .recipe import Recipe, check_recipe, learning_rate
+from .method import phases_for, typed_options
 from .rollback import CHECKPOINT_KEYS, NonFiniteGuard
 
 
@@ -88,7 +90,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     ctx = FitContext(model, source, recipe, dev, gen, resuming, loss, queries)
     try:
         build = phases_for(name)
-    except UnknownNameError:  # a model without a recipe module, fitted with an explicit recipe
+    except UnknownNameError:  # a model without a method, fitted with an explicit recipe
         build = None
     started = time.perf_counter()  # the fit's seconds include the phase builder's own work (e.g. GGX's trial starts)
     phases = build(ctx) if build is not None else [online_phase(ctx)]
@@ -316,6 +318,7 @@ class _Progress:
     its first steps, the time it will take, measured on this source and machine (not a constant)."""
 
     def __init__(self, enabled: bool, total: int, start: int, name: str) -> None:
+        enabled = enabled and not os.environ.get("NEUMAT_QUIET")  # a command's --quiet (neumat.cli.common)
         self.enabled, self.total, self.done, self.name = enabled, total, start, name
         self.terminal = enabled and sys.stderr.isatty()
         self.t0 = self.last_line = time.perf_counter()

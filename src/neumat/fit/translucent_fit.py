@@ -4,7 +4,7 @@
 
 The recipe options these phases read are `ObservationOptions`, the base of every translucent recipe's `Options`.
 
-Details: docs/notes/neupress.md, section `neumat.fit.translucent_fit`.
+Details: src/neumat/methods/neupress/NOTES.md, section `neumat.fit.translucent_fit`.
 """
 from __future__ import annotations
 
@@ -158,3 +158,25 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
         stopping.restore(params)
 
     return Phase(name, steps, losses, params, after=after, stateful=[stopping], on_record=on_record)
+
+
+def observation_report(model, source: Observations, result) -> tuple[dict, dict]:
+    """What a fit on observations reports beyond its loss: (metrics saved in the .nmat, one table row). The
+    held-back error at the best step relative to the held-back values' variance, and the light sampler's last KL
+    where the model trains one."""
+    from .method import typed_options
+
+    metrics: dict = {}
+    row: dict = {"observations": len(source)}
+    best = best_validation(result.history)
+    if best is not None:
+        opts = typed_options(model_name(model), result.recipe.options)
+        held = source.split(opts.validation_fraction, seed=result.recipe.seed)[1]  # as the phases split
+        variance = float(held.value.var())
+        metrics.update(validation_mse=best["validation_mse"], validation_variance=variance, best_step=best["step"])
+        row.update({"validation": len(held), "best step": best["step"], "validation MSE": best["validation_mse"],
+                    "relative to its variance": best["validation_mse"] / variance if variance > 0 else None})
+    kl = [r["kl"] for r in result.history if r.get("phase") == "sampler" and "kl" in r]
+    if kl:
+        metrics["sampler_kl"] = row["sampler KL"] = kl[-1]
+    return metrics, row

@@ -1,4 +1,4 @@
-"""Mitsuba 3 integrator plugin that puts a NeuPreSS translucent object (a model of `neumat translucent fit`) in a
+"""Mitsuba 3 integrator plugin that puts a NeuPreSS translucent object (a model of `neumat fit OBS.npz --model neupress`) in a
 Mitsuba scene with other objects and lights.
 
 `register()` adds the integrator "neumat_translucent", `translucent_shape(observations, to_world=T)` places
@@ -366,7 +366,7 @@ def _make_integrator_class(mi) -> type:
 
 def _open_model(model):
     from ..catalog.modelfile import load_model
-    from ..models.neupress import NeuPreSS
+    from neumat.methods.neupress.model import NeuPreSS
     m = load_model(model) if isinstance(model, (str, Path)) else model
     if not hasattr(m, "sample_incident") or not getattr(m, "full_sphere", False) or not hasattr(m, "box_min"):
         raise InputError(f"{PLUGIN_NAME}: model: expected a NeuPreSS model (a full-sphere S_hat with "

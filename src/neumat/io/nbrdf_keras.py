@@ -2,7 +2,7 @@
 
 Their training script saves a `Sequential` model with `model.save_weights(h5)` and `model.to_json()`: Dense
 layers (6 -> 21 relu -> 21 relu -> 3 linear) followed by one `Lambda` layer computing ``exp(x) - 1``.
-`read_nbrdf_keras` returns the plain arrays; `neumat.models.nbrdf.nbrdf_from_keras` builds the model.
+`read_nbrdf_keras` returns the plain arrays; `neumat.methods.baselines.nbrdf.nbrdf_from_keras` builds the model.
 
 HDF5 layout (Keras 2.2 `save_weights`): root attribute `layer_names`; for each layer a group with attribute
 `weight_names` (``dense_1/kernel:0``, ``dense_1/bias:0``) naming datasets under that group. A kernel is stored

@@ -6,7 +6,7 @@ units do, as the paper counts). `measured_matmul_flops` cross-checks the dense p
 under `torch.utils.flop_counter.FlopCounterMode`, which counts 2 m n k per matrix product (linear layers,
 batched matrix products) and nothing else.
 
-Details: docs/notes/multiscale.md, section `neumat.metrics.flops`.
+Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.metrics.flops`.
 """
 from __future__ import annotations
 
@@ -80,7 +80,7 @@ class _PaperCounter(TorchDispatchMode):
 
 def paper_flops_of(fn, *inputs, batch: int) -> float:
     """FLOPs per item of `fn(*inputs)` (a module or function over a batch of `batch` items), counted as the
-    paper does (docs/notes/multiscale.md)."""
+    paper does (src/neumat/methods/latent_mlp/NOTES.md)."""
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise InputError(f"paper_flops_of: expected a positive integer batch size, got {batch!r}")
     with torch.no_grad(), _PaperCounter() as counter:
@@ -89,7 +89,7 @@ def paper_flops_of(fn, *inputs, batch: int) -> float:
 
 
 def paper_flops(model, query: Query) -> float:
-    """FLOPs per query of `model.eval`, counted as the paper does (docs/notes/multiscale.md): the count over the query
+    """FLOPs per query of `model.eval`, counted as the paper does (src/neumat/methods/latent_mlp/NOTES.md): the count over the query
     batch twice minus the count over it once, over its size, without the spatial texture fetch."""
     n = len(query)
     if n == 0:

@@ -8,7 +8,7 @@ forward pass returns the codebook row of the argmax index, the codebook gets the
 lookup, and the logits get the gradient of the softmax mixture (straight-through estimator, as in
 kaolin-wisp's CodebookOctreeGrid). `freeze()` replaces the logits by the integer indices.
 
-Details: docs/notes/neubrdf.md, section `neumat.nn.codebook`.
+Details: src/neumat/methods/neubrdf/NOTES.md, section `neumat.nn.codebook`.
 """
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ class VQFeatures(nn.Module):
     forward(ids (...,) int) -> (..., dim). Training: straight-through softmax over per-vertex logits, on the
     unique ids of the batch; frozen: integer index lookup. `sparse_grad`: give the logits a sparse row
     gradient (train with `RowAdam`; torch.optim.Adam rejects sparse gradients). After `restrict`, the logits
-    are (num_vertices, K) over the codebook rows `candidates` (num_vertices, K) (docs/notes/neubrdf.md).
+    are (num_vertices, K) over the codebook rows `candidates` (num_vertices, K) (src/neumat/methods/neubrdf/NOTES.md).
     """
 
     def __init__(self, num_vertices: int, dim: int, bits: int, init_std: float = 1.0) -> None:
@@ -157,7 +157,7 @@ class VQFeatures(nn.Module):
     def restrict(self, candidates: torch.Tensor) -> None:
         """Keep per vertex only the logits of its K candidate codewords `candidates` (num_vertices, K) int
         (distinct rows of the codebook per vertex), taken from the current logits, so that each training
-        step costs O(K) per vertex instead of O(2^b) (docs/notes/neubrdf.md). Build the optimiser again afterwards:
+        step costs O(K) per vertex instead of O(2^b) (src/neumat/methods/neubrdf/NOTES.md). Build the optimiser again afterwards:
         the logits are a new parameter."""
         if self.frozen:
             raise InputError("VQFeatures.restrict: the indices are frozen")

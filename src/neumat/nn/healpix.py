@@ -7,7 +7,7 @@ input's device. `nside` may be any positive integer for the ring-scheme function
 nested scheme and the hierarchy (`ring2nest`, `nest2ring`, `parent`, `ancestor_corner_vertices`) need
 `nside` to be a power of two.
 
-Details: docs/notes/neubrdf.md, section `neumat.nn.healpix`.
+Details: src/neumat/methods/neubrdf/NOTES.md, section `neumat.nn.healpix`.
 """
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Texture layout: (C, H, W) tensors in image orientation, as `neumat.io.texture_set`: texel (row i, column j)
 has its centre at uv = ((j + 0.5) / W, 1 - (i + 0.5) / H); u points right, v up; lookups wrap (tile).
 
-Details: docs/notes/multiscale.md, section `neumat.nn.latent_texture`.
+Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.nn.latent_texture`.
 """
 from __future__ import annotations
 
@@ -162,7 +162,7 @@ def footprint_lod(footprint: torch.Tensor, height: int, width: int, max_probes: 
 def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: torch.Tensor,
                        max_probes: int = 16, flat: torch.Tensor | None = None,
                        level_u: torch.Tensor | None = None) -> torch.Tensor:
-    """Gaussian-footprint filtered lookup of a pyramid (see docs/notes/multiscale.md).
+    """Gaussian-footprint filtered lookup of a pyramid (see src/neumat/methods/latent_mlp/NOTES.md).
 
     levels: mip levels (C, H_l, W_l), level 0 finest, level l about 2^l times coarser; uv (N, 2);
     footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels. `flat`: the

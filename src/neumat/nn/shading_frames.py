@@ -8,7 +8,7 @@ and lifted back to the upper hemisphere, w -> (w_x, w_y, sqrt(1 - w_x^2 - w_y^2)
 frame puts below the horizon is mirrored above it instead of leaving the domain of the angular textures.
 At initialisation (zero weights, bias = (0, 0, 1 | 1, 0, 0) per frame) every frame is the geometric one.
 
-Details: docs/notes/multiscale.md, section `neumat.nn.shading_frames`.
+Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.nn.shading_frames`.
 """
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def frame_from_vectors(normal: torch.Tensor, tangent: torch.Tensor) -> tuple[tor
 
 class ShadingFrame(nn.Module):
     """forward(z (N, D), wi (N, 3), wo (N, 3)) -> (wi', wo'), each (N, 3 frames): directions in every learned
-    frame, lifted, frame after frame. weight_scale: factor on the decoder weights (docs/notes/multiscale.md)."""
+    frame, lifted, frame after frame. weight_scale: factor on the decoder weights (src/neumat/methods/latent_mlp/NOTES.md)."""
 
     def __init__(self, latent_dim: int, weight_scale: float = 0.1, frames: int = 1) -> None:
         super().__init__()

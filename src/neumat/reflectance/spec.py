@@ -23,7 +23,7 @@ from . import analytic  # noqa: F401  (its materials register their spec names)
 from .spec_registry import SPEC_MATERIALS
 
 #: names accepted by `parse_spec` (the analytic materials'; `SPEC_MATERIALS` holds any registered later too)
-SPEC_NAMES: tuple[str, ...] = tuple(SPEC_MATERIALS)
+SPEC_NAMES: tuple[str, ...] = tuple(name for name, _ in SPEC_MATERIALS.items())
 
 
 def _close(word: str, known) -> str:
@@ -56,7 +56,7 @@ def parse_spec(spec: str) -> Material:
     name = name.strip().lower()
     if name not in SPEC_MATERIALS:
         raise UnknownNameError(f"spec {spec!r}: unknown material {name!r}; {_close(name, SPEC_MATERIALS)}"
-                               f"(known: {', '.join(SPEC_MATERIALS)})")
+                               f"(known: {', '.join(n for n, _ in SPEC_MATERIALS.items())})")
     cls = SPEC_MATERIALS[name]
     keys = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
     kwargs: dict = {}

@@ -86,8 +86,8 @@ class SVBRDF(Material):
         n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return {"base_color": m[:, 0:3], "normal": n, "roughness": m[:, 6], "metallic": m[:, 7]}
 
-    #: features `sampling_features` gives a learned sampler (`neumat.models.proxy_sampler`) and the encoder of
-    #: `neumat.models.neural_appearance` (its surface parameters k(x))
+    #: features `sampling_features` gives a learned sampler (`neumat.methods.neural_appearance.proxy_sampler`) and the encoder of
+    #: `neumat.methods.neural_appearance.model` (its surface parameters k(x))
     sampling_feature_dim = 8
     #: the normal (channels 3-5) and principled roughness (6, alpha = roughness^2) among them, for LEAN
     #: prefiltering of coarse levels (`neumat.reflectance.lean`)

@@ -20,7 +20,7 @@ from .translucent import _pixel_rays
 
 def render_prt(prt, env: EnvironmentMap, camera: Camera, resolution: int, spp: int = 4, seed: int = 0,
                batch: int = 1 << 16) -> torch.Tensor:
-    """(resolution, resolution, 3) float32 radiance of the SH PRT table `prt` (a `neumat.models.neupress_prt.SHPRT`
+    """(resolution, resolution, 3) float32 radiance of the SH PRT table `prt` (a `neumat.methods.neupress.prt.SHPRT`
     that holds its mesh's faces) lit by `env`, seen by `camera` with `spp` jittered samples per pixel."""
     check_int(resolution, "resolution")
     check_int(spp, "spp")

@@ -199,3 +199,4 @@ def neupress_parity(export: GLSLExport, model, n: int, seed: int = 0, backend: s
     g_f = glsl_run(export, inputs, "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);", backend)[:, :3]
     g_sigma = glsl_run(export, inputs, "colour = vec4(neumat_sigma(x.xyz, wo.xyz));", backend)[:, 0]
     return neupress_differences(f, sigma, g_f, g_sigma)
+

@@ -4,7 +4,7 @@ the distribution whose 9 parameters the neural importance-sampling decoder predi
 p(wo) = w_d p_d(wo) + w_s p_s(wo) (Eq. 8): a tilted cosine lobe and an anisotropic, non-centred GGX
 reflection lobe; `proxy_from_raw` maps network outputs (N, 9) to valid parameters.
 
-Details: docs/notes/neural_appearance.md, section `neumat.warp.microfacet_proxy`.
+Details: src/neumat/methods/neural_appearance/NOTES.md, section `neumat.warp.microfacet_proxy`.
 """
 from __future__ import annotations
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -77,4 +78,28 @@ def write_viewer(model_or_export, path: str | Path, title: str | None = None) ->
     return path
 
 
-EXPORT_FORMATS.register("web")(ExportFormat("self-contained WebGL 2 viewer page (viewer.html)", write_viewer))
+@dataclass(frozen=True)
+class WebExport:
+    """A viewer page to be written: the GLSL export it shows and its title."""
+
+    shader: GLSLExport
+    title: str
+
+    def write(self, folder: str | Path) -> Path:
+        """Write `folder`/viewer.html; returns its path."""
+        return write_viewer(self.shader, Path(folder) / "viewer.html", self.title)
+
+    def summary(self, path: Path) -> str:
+        """What `write` wrote (`neumat export` prints it)."""
+        return f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB): open it in a browser with WebGL 2"
+
+
+def web_export(model, precision: str = "fp16") -> WebExport:
+    """The viewer page of `model` (its GLSL export at `precision`); InputError for a model without a BRDF entry
+    point, before anything is written."""
+    shader = export_glsl(model, precision)
+    _adapter(shader)
+    return WebExport(shader, getattr(model, "name", None) or "neumat material")
+
+
+EXPORT_FORMATS.register("web")(ExportFormat("self-contained WebGL 2 viewer page (viewer.html)", web_export))

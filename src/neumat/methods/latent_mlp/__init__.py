@@ -1,0 +1,25 @@
+"""Latent textures decoded by small MLPs: the multi-scale gated model (Timonen et al. 2025) and its baselines
+(tripleplane, NeuMIP and its offset / frame variants, nbrdf-uv, ggx-mipmap), all trained with its recipe (the
+paper trains every model with the same data, loss and optimiser); notes in NOTES.md."""
+from neumat.fit.method import Method, register_method
+from neumat.methods.latent_mlp import train
+from neumat.methods.latent_mlp.ggx_mipmap import GGXMipmap
+from neumat.methods.latent_mlp.glsl import export_latent_mlp
+from neumat.methods.latent_mlp.glsl_multiscale import export_multiscale
+from neumat.methods.latent_mlp.multiscale import MultiScale
+from neumat.methods.latent_mlp.nbrdf_uv import NBRDFUV
+from neumat.methods.latent_mlp.neumip import NeuMIP
+from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
+from neumat.methods.latent_mlp.neumip_offset import NeuMIPOffset
+from neumat.methods.latent_mlp.tripleplane import TriplePlane
+
+for name, model, glsl, small in (
+        ("multiscale", MultiScale, export_multiscale, dict(spatial_size=8)),
+        ("tripleplane", TriplePlane, export_multiscale, dict(spatial_size=8)),
+        ("neumip", NeuMIP, export_latent_mlp, dict(spatial_size=8)),
+        ("neumip-offset", NeuMIPOffset, export_latent_mlp, dict(spatial_size=8)),
+        ("neumip-frame", NeuMIPFrame, export_latent_mlp, dict(spatial_channels=4, spatial_size=8)),
+        ("nbrdf-uv", NBRDFUV, export_latent_mlp, dict(spatial_size=8)),
+        ("ggx-mipmap", GGXMipmap, None, dict(spatial_size=8))):
+    register_method(Method(name, model, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE}, options=train.Options,
+                           phases=train.phases, config_for_source=train.config_for_source, glsl=glsl, small=small))

@@ -1,0 +1,203 @@
+"""Multi-scale gated neural (SV)BRDF (Timonen, Kemppinen, Lehtinen 2025).
+
+    log f(wi, wo | uv, Sigma) = MLP(z_h, z_d),   z_h = H z_s,  z_d = D z_s                  (paper Eq. 6)
+
+S: a latent mip pyramid (`neumat.nn.latent_texture`); H, D: polar latent textures (`neumat.nn.angular_texture`)
+addressed through learned radial warps; learned shading frames, preconditioned textures, SiLU, exp output.
+`homogeneous=True`: no spatial texture.
+
+Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.methods.latent_mlp.multiscale`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from neumat.core.checks import check_int, check_number
+from neumat.core.config import resolve_config
+from neumat.core.errors import InputError
+from neumat.core.material import upper_hemisphere
+from neumat.core.query import Query
+from neumat.models.base import LearnedMaterial
+from neumat.methods.latent_mlp.spatial_latent import SpatialLatent
+from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
+from neumat.nn.codebook import float_bits, storage_bytes
+from neumat.nn.latent_texture import LatentPyramid
+from neumat.nn.mlp import MLP
+from neumat.nn.preconditioner import FrequencyPreconditioner, preconditioner_kernel
+from neumat.nn.radial_warp import RadialWarp
+from neumat.nn.shading_frames import ShadingFrame, lift_to_hemisphere
+
+
+@dataclass
+class Config:
+    """Hyper-parameters of the gated multi-scale model; defaults follow the paper (see module docstring)."""
+
+    homogeneous: bool = False
+    """True for spatially uniform BRDFs: no spatial texture, H and D hold z_h, z_d directly."""
+    spatial_channels: int = 8
+    """D_s, channels of the spatial latent z_s."""
+    spatial_size: int = 1024
+    """Finest level of the spatial pyramid, texels a side (a power of two)."""
+    half_channels: int = 8
+    """D_h, dimension of z_h."""
+    diff_channels: int = 8
+    """D_d, dimension of z_d."""
+    angular_radial: int = 16
+    """Rows (radii) of the angular textures."""
+    angular_phi: int = 40
+    """Columns (azimuths) of the angular textures."""
+    hidden: int = 16
+    """Hidden channels c of the decoder MLP."""
+    hidden_layers: int = 1
+    """Hidden layers L of the decoder MLP."""
+    warp_terms: int = 2
+    """Components of each radial warp (Eq. 7)."""
+    shading_frame: bool = True
+    """Learned shading frame from z_s (spatially varying only)."""
+    frame_weight_scale: float = 0.1
+    """Factor on the shading-frame decoder's weights, i.e. its relative learning rate under Adam
+    (`neumat.nn.shading_frames`; 1 measured ~1.7x worse mean FLIP on Wood092)."""
+    gating: bool = True
+    """z_h = H z_s, z_d = D z_s (Eq. 6). False: H, D hold vectors and the MLP reads [z_h, z_d, z_s]
+    concatenated (the tripleplane conditioning, Eq. 5)."""
+    radial_warps: bool = True
+    """Learned radial warps of the angular coordinates (Eq. 7); False reads the textures at r directly."""
+    spatial_precondition: float = 10.0
+    """Preconditioner strength A of the spatial pyramid."""
+    angular_precondition: float = 5.0
+    """Preconditioner strength A of the angular textures."""
+    max_probes: int = 16
+    """Most anisotropic-filtering probes along the major axis."""
+    init_std: float = 1.0
+    """Standard deviation of the (preconditioned) spatial latents and of z_h, z_d at initialisation."""
+    init_log_value: float = -2.0
+    """Initial bias of the MLP output (log f): exp(-2) = 0.14 is on the scale of diffuse BRDF values. The
+    paper does not state its initialisation; starting near 1 leaves the prediction-relative loss on a
+    plateau (relative error ~1, small gradients) for the first few hundred steps."""
+
+
+def _check_config(c: Config) -> None:
+    for name, lo in (("spatial_channels", 1), ("spatial_size", 1), ("half_channels", 1), ("diff_channels", 1),
+                     ("angular_radial", 2), ("angular_phi", 1), ("hidden", 1), ("hidden_layers", 0),
+                     ("warp_terms", 1), ("max_probes", 1)):
+        check_int(getattr(c, name), f"multiscale.{name}", lo)
+    if c.spatial_size & (c.spatial_size - 1):
+        raise InputError(f"multiscale.spatial_size: expected a power of two, got {c.spatial_size}")
+    check_number(c.init_log_value, "multiscale.init_log_value")
+    for name in ("spatial_precondition", "angular_precondition", "init_std", "frame_weight_scale"):
+        check_number(getattr(c, name), f"multiscale.{name}", 0)
+
+
+def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) -> torch.Tensor:
+    """White noise whose preconditioned version (strength A, over the last two axes) has standard deviation
+    about `std` (the filter's mean squared gain divided out)."""
+    gain = preconditioner_kernel(shape[-2], shape[-1], strength).square().mean().sqrt().item() if strength else 1.0
+    return torch.randn(shape) * (std / gain)
+
+
+class MultiScale(LearnedMaterial, SpatialLatent):
+    """The gated multi-scale model (see module docstring). eval(q) -> (N, 3)."""
+
+    name = "multiscale"
+    paper = "Timonen, Kemppinen, Lehtinen 2025: multi-scale gated neural SVBRDF"
+    source_kinds = ("svbrdf",)
+    can_sample = False
+    Config = Config
+
+    def __init__(self, config: Config | None = None, **kwargs) -> None:
+        nn.Module.__init__(self)
+        cfg = resolve_config(type(self).Config, config, kwargs, self.name)
+        _check_config(cfg)
+        self.cfg = cfg
+        self.spatially_varying = not cfg.homogeneous
+        ds, dh, dd = cfg.spatial_channels, cfg.half_channels, cfg.diff_channels
+        gated = cfg.gating and not cfg.homogeneous
+        gate = ds if gated else 1
+        ang = FrequencyPreconditioner(cfg.angular_precondition)
+        shape = (cfg.angular_radial, cfg.angular_phi)
+        self.half_texture = AngularTexture(dh * gate, *shape, 2 * math.pi, precondition=ang)
+        self.diff_texture = AngularTexture(dd * gate, *shape, math.pi, precondition=ang)
+        # matrices scaled so that z_h = H z_s has standard deviation init_std for z_s of init_std
+        matrix_std = 1 / math.sqrt(ds) if gated else cfg.init_std
+        with torch.no_grad():
+            for tex in (self.half_texture, self.diff_texture):
+                tex.raw.copy_(preconditioned_noise(tuple(tex.raw.shape), matrix_std, cfg.angular_precondition))
+        latent = 0 if cfg.homogeneous else ds
+        self.warp_h = RadialWarp(cfg.warp_terms, latent) if cfg.radial_warps else None
+        self.warp_d = RadialWarp(cfg.warp_terms, latent) if cfg.radial_warps else None
+        if cfg.homogeneous:
+            self.spatial = None
+            self.frame = None
+        else:
+            self.spatial = LatentPyramid(ds, cfg.spatial_size, max_probes=cfg.max_probes,
+                                         precondition=FrequencyPreconditioner(cfg.spatial_precondition))
+            with torch.no_grad():
+                for p in self.spatial.raw:
+                    p.copy_(preconditioned_noise(tuple(p.shape), cfg.init_std, cfg.spatial_precondition))
+            self.frame = ShadingFrame(ds, cfg.frame_weight_scale) if cfg.shading_frame else None
+        self.mlp = MLP(dh + dd + (0 if gated or cfg.homogeneous else ds), cfg.hidden, cfg.hidden_layers, 3, "silu")
+        with torch.no_grad():
+            self.mlp.linears()[-1].bias.fill_(cfg.init_log_value)
+
+    @property
+    def config(self) -> Config:
+        return self.cfg
+
+    def latents(self, q: Query) -> torch.Tensor:
+        """MLP input: [z_h, z_d] (N, D_h + D_d), or [z_h, z_d, z_s] without gating."""
+        q.require("wo", who="multiscale.eval")
+        wi, wo = q.wi, q.wo
+        z_s = None
+        if self.spatial is not None:
+            z_s = self.spatial_latent(q)
+        if self.frame is not None:
+            wi, wo = self.frame(z_s, wi, wo)
+        else:
+            wi, wo = lift_to_hemisphere(wi), lift_to_hemisphere(wo)
+        h, d = half_difference(wi, wo)
+        r_h, phi_h = disk_polar(h)
+        r_d, phi_d = disk_polar(d, math.pi)
+        if self.warp_h is not None:
+            r_h, r_d = self.warp_h(r_h, z_s), self.warp_d(r_d, z_s)
+        if z_s is None or not self.cfg.gating:
+            a_h, a_d = self.half_texture(r_h, phi_h), self.diff_texture(r_d, phi_d)
+            return torch.cat([a_h, a_d] if z_s is None else [a_h, a_d, z_s], -1)
+        # gating on channels-first reads: H (D_h, D_s, N) times z_s (D_s, N), summed over D_s
+        z = z_s.t().unsqueeze(0)
+        z_h = (self.half_texture.read(r_h, phi_h).view(self.cfg.half_channels, -1, len(z_s)) * z).sum(1)
+        z_d = (self.diff_texture.read(r_d, phi_d).view(self.cfg.diff_channels, -1, len(z_s)) * z).sum(1)
+        return torch.cat([z_h, z_d], 0).t()
+
+    def eval(self, q: Query) -> torch.Tensor:
+        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
+        f = torch.exp(self.mlp(self.latents(q)))
+        return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f)).to(q.dtype)
+
+    def forward(self, q: Query) -> torch.Tensor:
+        return self.eval(q)
+
+    # ------------------------------------------------------------------------------ cost and size
+
+    def size_bytes(self, precision: str = "fp16") -> int:
+        """Stored size: every parameter (spatial pyramid with all levels, angular textures, decoders)."""
+        return storage_bytes(sum(p.numel() for p in self.parameters()) * float_bits(precision))
+
+    def flops(self) -> int:
+        """Floating-point operations per evaluation, counted as the paper does: decoders, gating, warps,
+        shading frame and angular texture reads; not the spatial texture fetch (done by texture units)."""
+        c = self.cfg
+        total = self.mlp.flops() + 3  # + exp
+        total += self.half_texture.flops() + self.diff_texture.flops()
+        if self.warp_h is not None:
+            total += self.warp_h.flops() + self.warp_d.flops()
+        total += 2 * 3 + 30 + 2 * 20  # half vector, rotation into the half frame, two disk-polar conversions
+        if not c.homogeneous:
+            if c.gating:
+                total += 2 * (c.half_channels + c.diff_channels) * c.spatial_channels  # matrix products
+            if self.frame is not None:
+                total += self.frame.flops()
+        return total
