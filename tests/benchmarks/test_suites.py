@@ -102,3 +102,20 @@ def _no_training_loop(path: Path) -> None:
     text = path.read_text()
     for pattern in (r"\.backward\(", r"torch\.optim\.", r"\.step\(\)"):
         assert not re.search(pattern, text), (path, pattern)
+
+
+def test_neumat_bench_runs_the_suite_entry_point(tmp_path):
+    """`neumat bench` is `python -m benchmarks` of the source repository: --list names every suite, a quick run
+    writes the same schema-checked JSON."""
+    from typer.testing import CliRunner
+
+    from neumat.cli.main import app
+
+    listed = subprocess.run([sys.executable, "-m", "neumat", "bench", "--list"], capture_output=True, text=True,
+                            timeout=120)
+    assert listed.returncode == 0, listed.stderr
+    assert all(line.split()[0] in SUITES for line in listed.stdout.splitlines() if line and not line[0].isspace())
+    out = tmp_path / "e.json"
+    result = CliRunner().invoke(app, ["bench", "export-parity", "--quick", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.read_text())["suite"] == "export-parity"

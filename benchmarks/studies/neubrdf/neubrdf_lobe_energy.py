@@ -5,7 +5,7 @@ model / source along the plane of incidence near the mirror direction.
     python benchmarks/studies/neubrdf/neubrdf_lobe_energy.py merl_tables/steel.binary A.nmat B.nmat [--cone-deg 10] [--samples 20]
 
 The albedo is a Monte Carlo estimate with 2^samples directions per outgoing direction, half uniform on the
-hemisphere and half uniform in the cone (balance heuristic), the same directions for the source and every model
+hemisphere and half uniform in the cone (balance heuristic; `neumat.testing.furnace.mirror_cone_samples`), the same directions for the source and every model
 (so their ratio is far less noisy than either estimate). Printed ratios are model / source - 1 (channel means).
 One torch thread.
 """
@@ -19,28 +19,10 @@ import torch
 import neumat
 from neumat.catalog.modelfile import load_model
 from neumat.core.query import Query
-from neumat.methods.neural_appearance.directional_blur import sample_cone
-from neumat.warp.hemisphere import sample_uniform_hemisphere
+from neumat.testing.furnace import mirror_cone_samples
 
 THETA_O_DEG = (0, 20, 40, 60, 75)
 OFFSETS_DEG = (-8, -3, -2, -1, -0.5, 0, 0.5, 1, 2, 3, 8)
-
-
-def albedo_samples(theta_o: float, cone: float, n: int, gen: torch.Generator):
-    """Query (wi above the horizon, wo at elevation theta_o, azimuth 0), weights cos / (n pdf) (M, 1) and whether
-    each wi lies in the cone of half-angle `cone` (radians) around the mirror direction (M,)."""
-    wo = torch.tensor([math.sin(theta_o), 0.0, math.cos(theta_o)])
-    mirror = torch.tensor([-wo[0], 0.0, wo[2]])
-    u = torch.rand(n, 2, generator=gen)
-    uniform = sample_uniform_hemisphere(u)
-    in_cone_dirs = sample_cone(mirror[None], cone, u[None])[0]
-    wi = torch.cat([uniform[: n // 2], in_cone_dirs[n // 2:]])
-    wi = wi / wi.norm(dim=-1, keepdim=True)
-    in_cone = wi @ mirror >= math.cos(cone)
-    pdf = 0.5 / (2 * math.pi) + 0.5 / (2 * math.pi * (1 - math.cos(cone))) * in_cone.float()
-    keep = wi[:, 2] > 0
-    weight = (wi[keep, 2] / (n * pdf[keep])).unsqueeze(-1)
-    return Query(wi[keep], wo.expand(int(keep.sum()), 3).contiguous()), weight, in_cone[keep]
 
 
 def main() -> None:
@@ -59,7 +41,7 @@ def main() -> None:
     print("|---|---|" + "---|" * len(models))
     with torch.no_grad():
         for deg in THETA_O_DEG:
-            q, w, in_cone = albedo_samples(math.radians(deg), math.radians(a.cone_deg), 2 ** a.samples, gen)
+            q, w, in_cone = mirror_cone_samples(math.radians(deg), math.radians(a.cone_deg), 2 ** a.samples, gen)
             cone_w = w * in_cone.unsqueeze(-1)
             ref = source.eval(q).float().clamp(min=0)
             total, in_c = float((ref * w).sum(0).mean()), float((ref * cone_w).sum(0).mean())

@@ -3,15 +3,17 @@ from __future__ import annotations
 
 import typer
 
-from . import btf, check, data, demo, exporting, fit_clusters, fit_many, fitting, listing, mitsuba, rendering, translucent
+from . import (bench, btf, check, data, demo, exporting, fit_clusters, fit_many, fitting, listing, mitsuba, rendering,
+               translucent)
 from .common import add_threads, run_command
 
 app = typer.Typer(help="neumat: compact learned models of material appearance.", no_args_is_help=True,
                   pretty_exceptions_enable=False, add_completion=False)
 app.add_typer(data.app, name="data")
-for module in (rendering, mitsuba, fitting, fit_many, fit_clusters, btf, check, demo, exporting, translucent, listing):
+for module in (rendering, mitsuba, fitting, fit_many, fit_clusters, btf, check, demo, exporting, translucent, listing,
+               bench):
     module.register(app)
-add_threads(app)
+add_threads(app, skip=("list", "version", "info", "bench"))
 
 
 def _print_version(value: bool) -> None:

@@ -15,6 +15,27 @@ from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
 
 _METHODS = ("cosine", "material")
+
+
+def mirror_cone_samples(theta_o: float, cone: float, n: int, gen: torch.Generator):
+    """Directions to estimate a directional albedo int f cos dwi at wo = (sin theta_o, 0, cos theta_o) where a
+    sharp lobe would defeat cosine sampling: half of the n directions uniform on the hemisphere, half uniform in
+    the cone of half-angle `cone` (radians) around the mirror direction (balance heuristic). Returns the Query
+    (wi above the horizon), the weights cos / (n pdf) (M, 1) and whether each wi lies in the cone (M,); the same
+    directions serve every material compared, so ratios of estimates are far less noisy than either."""
+    from ..methods.neural_appearance.directional_blur import sample_cone
+    from ..warp.hemisphere import sample_uniform_hemisphere
+
+    wo = torch.tensor([math.sin(theta_o), 0.0, math.cos(theta_o)])
+    mirror = torch.tensor([-wo[0], 0.0, wo[2]])
+    u = torch.rand(n, 2, generator=gen)
+    wi = torch.cat([sample_uniform_hemisphere(u)[: n // 2], sample_cone(mirror[None], cone, u[None])[0][n // 2:]])
+    wi = wi / wi.norm(dim=-1, keepdim=True)
+    in_cone = wi @ mirror >= math.cos(cone)
+    pdf = 0.5 / (2 * math.pi) + 0.5 / (2 * math.pi * (1 - math.cos(cone))) * in_cone.to(wi.dtype)
+    keep = wi[:, 2] > 0
+    weight = (wi[keep, 2] / (n * pdf[keep])).unsqueeze(-1)
+    return Query(wi[keep], wo.expand(int(keep.sum()), 3).contiguous()), weight, in_cone[keep]
 _BATCH = 1 << 18  # queries per material call
 
 

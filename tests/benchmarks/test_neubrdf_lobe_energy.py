@@ -1,33 +1,10 @@
-"""benchmarks/studies/neubrdf/neubrdf_lobe_energy.py: its albedo estimator (uniform + cone directions, balance heuristic) against
-closed forms for a Lambertian BRDF, and the script end to end on a model file against its source."""
-import importlib.util
-import math
+"""benchmarks/studies/neubrdf/neubrdf_lobe_energy.py end to end on a model file against itself (its estimator,
+`neumat.testing.furnace.mirror_cone_samples`, is tested in tests/testing/test_furnace_reciprocity.py)."""
 import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-import torch
-
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "studies" / "neubrdf" / "neubrdf_lobe_energy.py"
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location("neubrdf_lobe_energy", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.mark.parametrize("theta_o_deg", [0, 40])
-def test_albedo_of_a_lambertian_brdf(theta_o_deg):
-    """f = 1 / pi: albedo 1; inside a cone of half-angle a around the normal (theta_o = 0) sin^2 a."""
-    cone = math.radians(10)
-    q, w, in_cone = _module().albedo_samples(math.radians(theta_o_deg), cone, 2 ** 18, torch.Generator().manual_seed(1))
-    assert float(w.sum() / math.pi) == pytest.approx(1.0, abs=0.01)
-    if theta_o_deg == 0:
-        assert float((w.squeeze(-1) * in_cone).sum() / math.pi) == pytest.approx(math.sin(cone) ** 2, rel=0.01)
-    assert bool((q.wi[:, 2] > 0).all())
 
 
 def test_script_on_a_model_against_itself(tmp_path):

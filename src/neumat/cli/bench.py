@@ -1,0 +1,42 @@
+"""`neumat bench`: the benchmark suite (`python -m benchmarks` of the source repository) from the command line."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import typer
+
+from ..core.errors import InputError
+from .common import run_command
+
+
+def register(app: typer.Typer) -> None:
+    app.command("bench")(bench)
+
+
+def benchmarks_root() -> Path:
+    """The source repository holding `benchmarks/` (beside `src/`); InputError when this install has none."""
+    root = Path(__file__).resolve().parents[3]
+    if not (root / "benchmarks" / "__main__.py").is_file():
+        raise InputError("neumat bench: the benchmark suite ships with the source repository (benchmarks/ beside "
+                         "src/); this install has none: clone the repository and `pip install -e .` it")
+    return root
+
+
+def bench(suite: str = typer.Argument(None, help="the suite to run (--list names them)"),
+          list_: bool = typer.Option(False, "--list", help="name every suite with its budget, and exit"),
+          quick: bool = typer.Option(False, "--quick", help="the seconds-long smoke version of the suite"),
+          json_: bool = typer.Option(False, "--json", help="print the results JSON instead of the Markdown"),
+          out: Path = typer.Option(None, "--out", help="write the results JSON (and its folder's README.md) here"),
+          seed: int = typer.Option(0, help="seed of every fit and query set"),
+          threads: int = typer.Option(1, "--threads", min=1, help="CPU threads (default 1)")) -> None:
+    """Run a benchmark suite: JSON results naming the command, commit and machine, and a Markdown table."""
+    def go():
+        args = (["--list"] if list_ else []) + ([suite] if suite else []) + (["--quick"] if quick else []) \
+            + (["--json"] if json_ else []) + (["--out", str(out.resolve())] if out else []) \
+            + ["--seed", str(seed), "--threads", str(threads)]
+        done = subprocess.run([sys.executable, "-m", "benchmarks", *args], cwd=benchmarks_root())
+        if done.returncode:
+            raise typer.Exit(done.returncode)
+    run_command(go)
