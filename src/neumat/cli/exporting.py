@@ -21,8 +21,9 @@ def export(model: Path = typer.Argument(..., help="model file (.nmat) of a model
            formats: list[str] = typer.Option(["glsl"], "--format", "-f",
                                              help="export format, repeatable: glsl (GLSL 3.30 source, textures, "
                                                   "manifest.json), slang (a Slang module in OUT/slang), web (a "
-                                                  "self-contained WebGL 2 page, OUT/viewer.html); `neumat list` "
-                                                  "names them"),
+                                                  "self-contained WebGL 2 page, OUT/viewer.html), drjit (the "
+                                                  "Dr.Jit runtime in OUT/drjit: Mitsuba's native neumat BSDF); "
+                                                  "`neumat list` names them"),
            check: int = typer.Option(0, "--check", min=0,
                                      help="also run each written shader on N random queries (headless OpenGL, "
                                           "slangpy's CPU device) and print its largest relative difference from "

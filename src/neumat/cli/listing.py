@@ -27,6 +27,8 @@ def catalogue() -> dict:
     models = load_all()
     exportable = glsl_models()
     formats = load_formats()
+    takes = {f: set(exportable if formats.get(f).models is None else formats.get(f).models())
+             for f in formats.names()}
     rows = []
     for name in models.names():
         cls = models.get(name)
@@ -38,7 +40,7 @@ def catalogue() -> dict:
                      "recipe": recipe is not None, "presets": list(presets_for(name)) if recipe else [],
                      "steps": recipe.steps if recipe else None, "batch_size": recipe.batch_size if recipe else None,
                      "phase_split": list(recipe.phase_split) if recipe else None,
-                     "exports": formats.names() if name in exportable else []})
+                     "exports": [f for f in formats.names() if name in takes[f]]})
     sources = [{"key": key, "kind": s.kind} for key, s in load_sources().items()]
     exporters = [{"name": n, "description": formats.get(n).description} for n in formats.names()]
     return {"models": rows, "sources": sources, "source_kinds": dict(SOURCE_KINDS), "exporters": exporters}

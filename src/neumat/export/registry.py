@@ -2,7 +2,7 @@
 
 Each format module registers itself (`EXPORT_FORMATS.register(name)(ExportFormat(...))`); `load_formats()` imports
 every module of `neumat.export`, so `neumat export --format` iterates the formats instead of naming them. Which
-models a format takes is what their methods declare (`neumat.fit.method.Method.glsl`).
+models a format takes is what their methods declare (`neumat.fit.method.Method.glsl`, `Method.drjit`).
 """
 from __future__ import annotations
 
@@ -18,11 +18,13 @@ class ExportFormat:
     """description: what the format writes; export(model, precision): the export (an object whose
     `write(folder) -> Path` writes it and whose `summary(written) -> str` says what was written), refusing a model
     it cannot take before anything is written; folder: the subfolder of the output it writes into ("" = the
-    output itself)."""
+    output itself); models: () -> the names of the models it takes (None: those with a GLSL generator,
+    `neumat.export.glsl.glsl_models`)."""
 
     description: str
     export: Callable
     folder: str = ""
+    models: Callable | None = None
 
     def write(self, exported, out: Path) -> tuple[Path, str]:
         """Write `exported` under `out` (its subfolder created); returns (what was written, its summary)."""

@@ -24,7 +24,8 @@ class Method:
     options: the typed recipe options (a dataclass) or None; phases(ctx): the staged training, None for one online
     phase; config_for_source(source, options): config fields that follow the source; presets: added to or
     replacing the built-in paper / cpu / recommended; glsl(model): its GLSL generator (Slang and the web viewer
-    are spelled from it), None when it has no shader; small: a tiny config for the conformance suite; prepare:
+    are spelled from it), None when it has no shader; drjit(model): its Dr.Jit runtime translator (model -> (manifest,
+arrays) for `neumat.export.drjit.runtime`: Mitsuba renders it natively), None when it has none; small: a tiny config for the conformance suite; prepare:
     what a fresh small model needs before it evaluates (set by training from the source); report(model, source,
     result): (metrics saved in the .nmat, a table row) a fit reports beyond its loss (held-back error, ...)."""
 
@@ -36,6 +37,7 @@ class Method:
     config_for_source: Callable | None = None
     presets: Mapping[str, Any] = field(default_factory=dict)
     glsl: Callable | None = None
+    drjit: Callable | None = None
     small: Mapping[str, Any] = field(default_factory=dict)
     prepare: Callable | None = None
     report: Callable | None = None

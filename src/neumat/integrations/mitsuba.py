@@ -22,11 +22,11 @@ import numpy as np
 import torch
 
 from ..core.errors import InputError, NeumatError
-from ..core.llvm import configure_llvm
 from ..core.material import Material, material_device
-from ..core.mitsuba import import_mitsuba
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
+from . import mitsuba_native
+from .mitsuba_native import check_rgb as _check_rgb, current_mitsuba as _current_mitsuba, set_variant as _set_variant
 
 #: the plugin name registered with Mitsuba
 PLUGIN_NAME = "neumat"
@@ -37,15 +37,13 @@ _DTYPE = torch.float32
 
 
 def register(variant: str | None = None):
-    """Register the "neumat" BSDF plugin and return the `mitsuba` module.
+    """Register the "neumat" BSDF plugin and return the `mitsuba` module. Its `material` (or `filename`) property
+    takes a drjit export or a `.nmat` of a model with a Dr.Jit runtime natively (`neumat.integrations.mitsuba_native`:
+    no torch while rendering, symbolic mode) unless `native` is false, anything else through this torch bridge.
 
     variant: a Mitsuba RGB variant to set first (default: keep the current one, or set llvm_ad_rgb when none
     is set). Registering again (or for another variant) is harmless."""
-    mi = _current_mitsuba() if variant is None else _set_variant(variant)
-    _check_rgb(mi.variant())
-    cls = _bsdf_class(mi)
-    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
-    return mi
+    return mitsuba_native.register(variant)  # one plugin: native where a Dr.Jit runtime exists, else this bridge
 
 
 def bsdf(material: Material | str | Path):
@@ -72,18 +70,36 @@ def evaluated_mode():
 
 
 def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0) -> torch.Tensor:
-    """`mi.render(scene, spp=spp, seed=seed, sensor=sensor)` in evaluated mode, as a float32 (H, W, C) torch
-    tensor on the CPU (linear RGB, plus any extra film channels)."""
+    """`mi.render(scene, spp=spp, seed=seed, sensor=sensor)` as a float32 (H, W, C) torch tensor on the CPU (linear
+    RGB, plus any extra film channels): in evaluated mode when the scene holds a torch-bridge BSDF or a neumat
+    integrator (`needs_evaluated_mode`), in Mitsuba's default (symbolic) mode otherwise, e.g. when every neumat
+    BSDF in it is native."""
     mi = _current_mitsuba()
     if not isinstance(scene, mi.Scene):
         raise InputError(f"scene: expected a mitsuba Scene (mi.load_dict / mi.load_file), got {type(scene).__name__}")
     check_renderable(scene, sensor)
-    with evaluated_mode():
+    with evaluated_mode() if needs_evaluated_mode(scene) else contextlib.nullcontext():
         try:
             image = mi.render(scene, spp=0 if spp is None else spp, seed=seed, sensor=sensor)
         except RuntimeError as e:  # Dr.Jit wraps an error of the plugin in its own
             raise unwrap_error(e) or e from None
     return torch.from_numpy(np.array(image, dtype=np.float32))
+
+
+def needs_evaluated_mode(scene) -> bool:
+    """Whether `scene` holds something that hands arrays to torch (a torch-bridge neumat BSDF, possibly inside
+    another BSDF such as twosided, or an integrator of neumat's), which Dr.Jit's symbolic mode cannot feed."""
+    if type(scene.integrator()).__module__.startswith("neumat."):
+        return True
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is None:
+            continue
+        if type(bsdf).__module__.startswith("neumat.") and not mitsuba_native.is_native(bsdf):
+            return True
+        if "NeumatBSDF" in str(bsdf):  # a bridge BSDF nested in a Mitsuba BSDF (twosided, blendbsdf, ...)
+            return True
+    return False
 
 
 def check_renderable(scene, sensor: int = 0) -> None:
@@ -120,35 +136,6 @@ def unwrap_error(error: BaseException) -> NeumatError | None:
     return InputError(f"{where}: {quoted.group(2).strip()}" if where else quoted.group(2).strip())
 
 
-def _set_variant(variant: str):
-    mi = import_mitsuba()
-    if not isinstance(variant, str) or variant not in mi.variants():
-        raise InputError(f"variant: expected one of the installed Mitsuba variants {mi.variants()}, got {variant!r}")
-    _check_rgb(variant)
-    if mi.variant() != variant:
-        mi.set_variant(variant)
-    return mi
-
-
-def _check_rgb(variant: str) -> None:
-    parts = variant.split("_")
-    if "rgb" not in parts or "polarized" in parts:
-        raise InputError(f"Mitsuba variant {variant!r}: the neumat plugin needs an unpolarised RGB variant "
-                         "(for example llvm_ad_rgb or cuda_ad_rgb)")
-
-
-def _current_mitsuba():
-    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is (imported by
-    `import_mitsuba`, which chooses the LLVM first, when nobody has imported it yet). An LLVM variant set by the
-    caller is checked against the chosen LLVM too (`configure_llvm`)."""
-    mi = sys.modules.get("mitsuba")
-    if mi is None or mi.variant() is None:
-        return import_mitsuba()
-    if mi.variant().startswith("llvm_"):
-        configure_llvm()
-    return mi
-
-
 def _bsdf_class(mi) -> type:
     """The plugin class for mi's current variant, built once per variant (Mitsuba's base classes differ per
     variant)."""
@@ -171,10 +158,11 @@ def _make_bsdf_class(mi) -> type:
         def __init__(self, props, material=None):
             mi.BSDF.__init__(self, props)
             if material is None:
-                if "material" not in props:
+                key = next((k for k in ("material", "filename") if k in props), None)
+                if key is None:
                     raise InputError("neumat BSDF: the 'material' property (a model file, measured file, "
                                      "texture-set folder or analytic spec) is required")
-                material = props["material"]
+                material = props[key]
             self.material = _open(material)
             flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
             if self.material.spatially_varying:
@@ -345,3 +333,6 @@ def _chunks(n: int):
 def _query(wi, wo, uv, rows: slice, device) -> Query:
     return Query(wi.to(device), None if wo is None else wo.to(device),
                  uv=None if uv is None else uv[rows].to(device))
+
+
+mitsuba_native.set_bridge(_bsdf_class)  # the "neumat" plugin's fallback for sources without a native form

@@ -1,12 +1,14 @@
 """NeuBRDF (Dou, Zheng et al., CVPR 2024) and its jointly trained multi-material form; notes in NOTES.md."""
 from neumat.fit.method import Method, register_method
 from neumat.methods.neubrdf import shared_train, train
+from neumat.methods.neubrdf.drjit import translate as drjit_translate
 from neumat.methods.neubrdf.glsl import export_neubrdf
 from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.methods.neubrdf.shared_model import SharedNeuBRDF
 
 register_method(Method("neubrdf", NeuBRDF, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE, **train.NAMED_RECIPES},
                        options=train.Options, phases=train.phases, presets=train.PRESETS, glsl=export_neubrdf,
+                       drjit=drjit_translate,
                        small=dict(nside=2, index_bits=2, hidden=4)))
 register_method(Method("shared-neubrdf", SharedNeuBRDF, {"paper": shared_train.RECIPE, "cpu": shared_train.CPU_RECIPE},
                        options=shared_train.Options, phases=shared_train.phases,

@@ -1,0 +1,92 @@
+"""NeuBRDF in Mitsuba 3 natively (its Dr.Jit runtime, `neumat.integrations.mitsuba_native`) against Mitsuba's own
+BSDFs and the torch bridge: seconds per image of the same scene, one run, one Dr.Jit thread.
+
+    python benchmarks/studies/render/mitsuba_native.py --model paper_white.nmat
+    # the model: neumat fit ../shared/data/rgl/paper_white_rgb.bsdf -o paper_white.nmat --steps 300 --threads 1
+
+Scene: the bunny scene of `mitsuba_plugin.py` (shared Stanford bunny on a diffuse floor under the studio map, path
+integrator, --depth), --res^2 pixels, --spp, llvm_ad_rgb. Rows: Mitsuba `roughconductor` (GGX, alpha 0.2) and
+`measured` (the RGL file the model was fitted to) in Mitsuba's default symbolic mode and in evaluated mode; the
+torch bridge with the NeuBRDF (evaluated mode, all it can run in); the native runtime in symbolic mode (the
+default) and in evaluated mode. Each time is the best of --repeats renders after a warm-up render that compiles
+the kernels; ratios are to `measured` symbolic and to `roughconductor` symbolic, measured in the same run
+(interleaved, so that load from other processes hits every row alike).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--model", required=True, help="a NeuBRDF .nmat fitted to --rgl")
+    p.add_argument("--rgl", default="paper_white_rgb", help="shared RGL file (stem) the model was fitted to")
+    p.add_argument("--res", type=int, default=128)
+    p.add_argument("--spp", type=int, default=16)
+    p.add_argument("--depth", type=int, default=6)
+    p.add_argument("--repeats", type=int, default=3)
+    args = p.parse_args()
+
+    from neumat.io.shared_data import shared_data_dir
+    data = shared_data_dir()
+    if data is None:
+        raise SystemExit("this benchmark needs the shared data folder (../shared/data or NEUMAT_SHARED_DATA)")
+    import torch
+    torch.set_num_threads(1)
+    from neumat.integrations import mitsuba as plugin
+    mi = plugin.register("llvm_ad_rgb")
+    import drjit as dr
+    dr.set_thread_count(1)
+    from benchmarks.studies.render.mitsuba_plugin import bunny_scene
+
+    rgl = str(data / "rgl" / f"{args.rgl}.bsdf")
+    cases = [("Mitsuba roughconductor (GGX, alpha 0.2)", {"type": "roughconductor", "distribution": "ggx",
+                                                          "alpha": 0.2}, False),
+             ("Mitsuba measured", {"type": "measured", "filename": rgl}, False),
+             ("Mitsuba measured, evaluated mode", {"type": "measured", "filename": rgl}, True),
+             ("neumat torch bridge, NeuBRDF (evaluated mode)", {"type": "neumat", "filename": args.model,
+                                                                "native": False}, True),
+             ("neumat native Dr.Jit runtime, NeuBRDF (symbolic)", {"type": "neumat", "filename": args.model}, False),
+             ("neumat native Dr.Jit runtime, NeuBRDF, evaluated mode", {"type": "neumat", "filename": args.model},
+              True)]
+    # Mitsuba's symbolic calls trace every live BSDF: scenes are built once, the bridge (NaN in symbolic mode) only
+    # ever renders in evaluated mode, and every other row is unaffected by it
+    scenes = [bunny_scene(mi, bsdf, args.res, args.spp, args.depth, data) for _, bsdf, _ in cases]
+
+    def render(i: int, seed: int):
+        with plugin.evaluated_mode() if cases[i][2] else _null():
+            image = mi.render(scenes[i], spp=args.spp, seed=seed)
+            dr.eval(image)
+            dr.sync_thread()
+        return np.array(image)
+
+    images = [render(i, 99) for i in range(len(cases))]  # warm-up: compiles every kernel
+    best = [float("inf")] * len(cases)
+    for r in range(args.repeats):
+        for i in range(len(cases)):
+            start = time.perf_counter()
+            images[i] = render(i, 0)
+            best[i] = min(best[i], time.perf_counter() - start)
+    measured, ggx = best[1], best[0]
+    print(f"{args.res}^2 pixels, {args.spp} spp, path max_depth {args.depth}, bunny scene, llvm_ad_rgb, one Dr.Jit "
+          f"thread, best of {args.repeats}; model {args.model}")
+    print("| BSDF in the same scene | seconds | x Mitsuba `measured` (symbolic) | x `roughconductor` | image mean |")
+    print("|---|---|---|---|---|")
+    for (name, _, _), seconds, image in zip(cases, best, images):
+        print(f"| {name} | {seconds:.3f} | {seconds / measured:.2f} | {seconds / ggx:.2f} | "
+              f"{float(np.mean(image[..., :3])):.4f} |")
+
+
+class _null:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+if __name__ == "__main__":
+    main()

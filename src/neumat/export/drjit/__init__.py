@@ -1,0 +1,10 @@
+"""The Dr.Jit runtime export target ("drjit"): learned models translated once into Dr.Jit arrays and evaluated in
+Mitsuba 3's own kernels (symbolic / megakernel mode, LLVM or CUDA), without torch.
+
+- `neumat.export.drjit.runtime` (imports no torch): the export's files, `load_runtime`, and the shared pieces
+  (HEALPix `vec2pix`, NeuBRDF's direction inputs, the `drjit.nn` MLP).
+- `neumat.export.drjit.format`: the "drjit" entry of the export registry; a method declares its translator as
+  `neumat.fit.method.Method.drjit` (model -> (manifest, arrays)), e.g. `neumat.methods.neubrdf.drjit`.
+
+Details: docs/mitsuba.md, section "Native Dr.Jit runtime".
+"""

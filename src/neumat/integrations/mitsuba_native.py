@@ -1,0 +1,222 @@
+"""The native Mitsuba 3 BSDF: a learned model evaluated by its Dr.Jit runtime (`neumat.export.drjit.runtime`) inside
+Mitsuba's own kernels, symbolic (megakernel) mode included, without torch.
+
+    from neumat.integrations import mitsuba_native
+    mi = mitsuba_native.register()      # the "neumat" plugin; llvm_ad_rgb unless an RGB variant is already set
+    bsdf = {"type": "neumat", "filename": "model.nmat"}   # or the folder `neumat export --format drjit` wrote
+    image = mi.render(mi.load_dict({... "bsdf": bsdf ...}))  # Mitsuba's default (symbolic) mode
+
+The "neumat" plugin registered here is the same one `neumat.integrations.mitsuba.register` registers: its
+`filename` (or `material`) property picks the native path whenever one exists (a drjit export, or a `.nmat` whose
+method declares a Dr.Jit translator, `neumat.fit.method.Method.drjit`: translated once at load, with torch) and the
+torch bridge (`neumat.integrations.mitsuba`, evaluated mode; it installs itself as the fallback when imported, and
+its `register` is this one) for everything else; `"native": False` forces the bridge. Loading a drjit export and rendering it import no torch; this module imports none either.
+
+Conventions are the bridge's (docs/mitsuba.md): `si.wi` in the model's incident slot, swapped in importance
+transport, value times cos(theta_wo), one-sided glossy reflection. The models translated so far cannot sample
+themselves: `sample` draws cosine-weighted (Mitsuba's `square_to_cosine_hemisphere`, as the bridge does).
+"""
+from __future__ import annotations
+
+import functools
+import sys
+from pathlib import Path
+
+from ..core.errors import InputError
+
+#: the plugin name registered with Mitsuba (the bridge's: one plugin, two paths)
+PLUGIN_NAME = "neumat"
+
+
+def register(variant: str | None = None):
+    """Register the "neumat" BSDF plugin (native where possible, the torch bridge otherwise) and return the
+    `mitsuba` module. variant: a Mitsuba RGB variant to set first (default: keep the current one, or set
+    llvm_ad_rgb when none is set)."""
+    mi = current_mitsuba() if variant is None else set_variant(variant)
+    check_rgb(mi.variant())
+    mi.register_bsdf(PLUGIN_NAME, lambda props: make_bsdf(mi, props))
+    return mi
+
+
+def make_bsdf(mi, props):
+    """The plugin factory: a native BSDF for a drjit export or a `.nmat` with a Dr.Jit translator (unless the
+    property `native` is false), the torch bridge's BSDF otherwise."""
+    source = None
+    for key in ("filename", "material"):
+        if key in props:
+            source = props[key]
+            break
+    native = bool(props["native"]) if "native" in props else True
+    if native and source is not None:
+        runtime = native_runtime(source, mi.Float)
+        if runtime is not None:
+            return native_class(mi.variant())(props, runtime)
+    if _BRIDGE is None:
+        raise InputError(f"neumat BSDF: {source!r} has no native (Dr.Jit) form or native is false; the torch bridge "
+                         "renders it: register the plugin with neumat.integrations.mitsuba.register()")
+    return _BRIDGE(mi)(props)
+
+
+#: the torch bridge's class factory (mi -> BSDF class), set by `neumat.integrations.mitsuba` when it is imported, so
+#: that this module never imports torch
+_BRIDGE = None
+
+
+def set_bridge(factory) -> None:
+    """Install the torch bridge (`neumat.integrations.mitsuba` does, on import) as the fallback of `make_bsdf`."""
+    global _BRIDGE
+    _BRIDGE = factory
+
+
+def native_runtime(source, backend, compute: str | None = None):
+    """The Dr.Jit runtime of `source` (a drjit export folder or manifest, or a `.nmat` path whose model has a Dr.Jit
+    translator; the latter is translated with torch), or None when it has none."""
+    from ..export.drjit.runtime import is_export, load_runtime
+
+    if not isinstance(source, (str, Path)):
+        return None
+    path = Path(source)
+    if is_export(path):
+        return load_runtime(path, backend, compute)
+    if path.suffix != ".nmat" or not path.is_file():
+        return None
+    from ..export.drjit.format import drjit_models, export_drjit  # torch from here on
+    from ..io.modelfile import read_header
+
+    if read_header(path)["type"] not in drjit_models():
+        return None
+    from ..catalog.modelfile import load_model
+
+    model = load_model(path, device="cpu")
+    try:
+        exported = export_drjit(model)
+    except InputError:  # a configuration the translator does not cover: the bridge renders it
+        return None
+    return load_runtime(exported.source(), backend, compute)
+
+
+def bsdf(source, variant: str | None = None, compute: str | None = None):
+    """A native Mitsuba BSDF object for `source` (a drjit export, a `.nmat` with a Dr.Jit translator, or a
+    `DrJitExport`), for use as a "bsdf" value in `mi.load_dict`; InputError when it has no native form."""
+    mi = register(variant)
+    if hasattr(source, "manifest") and hasattr(source, "arrays"):
+        from ..export.drjit.runtime import load_runtime
+        runtime = load_runtime((source.manifest, source.arrays), mi.Float, compute)
+    else:
+        runtime = native_runtime(source, mi.Float, compute)
+    if runtime is None:
+        raise InputError(f"{source!r}: no native (Dr.Jit) form; models with one: a drjit export, or a .nmat of "
+                         "a model whose method declares a Dr.Jit translator (neumat list: exports 'drjit')")
+    return native_class(mi.variant())(mi.Properties(PLUGIN_NAME), runtime)
+
+
+def is_native(bsdf_object) -> bool:
+    """Whether a Mitsuba BSDF object is this module's native BSDF."""
+    return getattr(bsdf_object, "neumat_native", False) is True
+
+
+# ------------------------------------------------------------------------------------------ variants
+
+def set_variant(variant: str):
+    from ..core.mitsuba import import_mitsuba
+
+    mi = import_mitsuba()
+    if not isinstance(variant, str) or variant not in mi.variants():
+        raise InputError(f"variant: expected one of the installed Mitsuba variants {mi.variants()}, got {variant!r}")
+    check_rgb(variant)
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return mi
+
+
+def check_rgb(variant: str) -> None:
+    parts = variant.split("_")
+    if "rgb" not in parts or "polarized" in parts:
+        raise InputError(f"Mitsuba variant {variant!r}: the neumat plugin needs an unpolarised RGB variant "
+                         "(for example llvm_ad_rgb or cuda_ad_rgb)")
+
+
+def current_mitsuba():
+    """The `mitsuba` module with its current variant, or with llvm_ad_rgb set when none is (imported by
+    `import_mitsuba`, which chooses the LLVM first, when nobody has imported it yet). An LLVM variant set by the
+    caller is checked against the chosen LLVM too (`configure_llvm`)."""
+    from ..core.llvm import configure_llvm
+    from ..core.mitsuba import import_mitsuba
+
+    mi = sys.modules.get("mitsuba")
+    if mi is None or mi.variant() is None:
+        return import_mitsuba()
+    if mi.variant().startswith("llvm_"):
+        configure_llvm()
+    return mi
+
+
+# ------------------------------------------------------------------------------------------ the BSDF
+
+@functools.cache
+def native_class(variant: str) -> type:
+    """The native BSDF class for Mitsuba variant `variant` (built once per variant)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        raise InputError(f"native BSDF class for {variant!r} requested while Mitsuba's variant is {mi.variant()!r}")
+
+    class NeumatNativeBSDF(mi.BSDF):
+        """A neumat model on its Dr.Jit runtime as a one-sided glossy-reflection Mitsuba BSDF (module docstring)."""
+
+        neumat_native = True
+
+        def __init__(self, props, runtime):
+            mi.BSDF.__init__(self, props)
+            self.runtime = runtime
+            flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+            if runtime.spatially_varying:
+                flags = flags | mi.BSDFFlags.SpatiallyVarying
+            self.m_flags = flags
+            self.m_components = [flags]
+
+        def _value(self, ctx, si, wo, active):
+            """f(wi, wo) cos(theta_wo) on the active lanes with both directions above the surface, and that mask."""
+            active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+            if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                active = active & False
+            importance = ctx.mode == mi.TransportMode.Importance
+            first, second = (wo, si.wi) if importance else (si.wi, wo)
+            f = mi.Color3f(self.runtime.eval(mi.Vector3f(first), mi.Vector3f(second), active))
+            return dr.select(active, f * mi.Frame3f.cos_theta(wo), 0.0), active
+
+        def _pdf(self, si, wo, active):
+            ok = active & (mi.Frame3f.cos_theta(si.wi) > 0)
+            return dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
+
+        def eval(self, ctx, si, wo, active=True):
+            return self._value(ctx, si, wo, active)[0]
+
+        def pdf(self, ctx, si, wo, active=True):
+            ok = mi.Bool(active) & (mi.Frame3f.cos_theta(wo) > 0)
+            if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                ok = ok & False
+            return self._pdf(si, wo, ok)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            value, ok = self._value(ctx, si, wo, active)
+            return value, self._pdf(si, wo, ok)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            wo = mi.warp.square_to_cosine_hemisphere(sample2)
+            value, ok = self._value(ctx, si, wo, active)
+            pdf = dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = wo
+            bs.pdf = pdf
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+            bs.sampled_component = mi.UInt32(0)
+            ok = ok & (pdf > 0)
+            return bs, dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+
+        def to_string(self):
+            return f"NeumatNativeBSDF[runtime={self.runtime.describe()!r}]"
+
+    return NeumatNativeBSDF

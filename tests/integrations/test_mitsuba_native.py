@@ -1,0 +1,229 @@
+"""The native Mitsuba BSDF (`neumat.integrations.mitsuba_native`): a NeuBRDF .nmat (or its drjit export) evaluated by
+the Dr.Jit runtime inside Mitsuba's kernels. Against the torch bridge on the same file: eval / pdf / eval_pdf /
+sample values, both transport modes; Mitsuba's chi2 test of its sampler; a render equal to the bridge's within
+float error (the same cosine warp on the same random numbers); no torch import while loading and rendering a drjit
+export; a cuda_ad_rgb run (skipped without a GPU)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from neumat.catalog.modelfile import save_model
+from neumat.methods.neubrdf.model import NeuBRDF
+
+pytestmark = pytest.mark.mitsuba
+SRC = str(Path(__file__).resolve().parents[2] / "src")
+
+
+@pytest.fixture(scope="module")
+def mi():
+    from mitsuba_util import mitsuba_or_skip
+    mitsuba_or_skip()
+    from neumat.integrations import mitsuba as plugin
+    return plugin.register()
+
+
+@pytest.fixture(scope="module")
+def nmat(tmp_path_factory) -> Path:
+    """A small NeuBRDF in its shipped (runtime) form, values in a BRDF's range, not reciprocal."""
+    torch.manual_seed(0)
+    model = NeuBRDF(nside=8, feature_dim=8, index_bits=5, hidden=16, direction_inputs="hd_warp")
+    with torch.no_grad():
+        last = model.mlp.linears()[-1]
+        last.weight.mul_(0.3)
+        last.bias.copy_(torch.tensor([-1.0, -1.3, -1.6]))
+    return save_model(model.train(False).runtime(), tmp_path_factory.mktemp("native") / "neubrdf.nmat")
+
+
+def _dirs(n: int, g: torch.Generator, below: float = 0.1) -> torch.Tensor:
+    v = torch.randn(n, 3, generator=g)
+    v[:, 2] = v[:, 2].abs() * torch.where(torch.rand(n, generator=g) < below, -1.0, 1.0)
+    return v / v.norm(dim=-1, keepdim=True)
+
+
+def _si(mi, wi: torch.Tensor):
+    import drjit as dr
+    si = dr.zeros(mi.SurfaceInteraction3f, wi.shape[0])
+    si.wi = _vec(mi, wi)
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    return si
+
+
+def _vec(mi, w: torch.Tensor):
+    return mi.Vector3f(*(mi.Float(c.contiguous()) for c in w.T))
+
+
+def _np(x) -> torch.Tensor:
+    a = np.array(x, dtype=np.float64)
+    return torch.from_numpy(a.T.copy() if a.ndim == 2 else a)
+
+
+def test_the_plugin_picks_the_native_path_for_a_neubrdf_file(mi, nmat):
+    native = mi.load_dict({"type": "neumat", "filename": str(nmat)})
+    bridge = mi.load_dict({"type": "neumat", "material": str(nmat), "native": False})
+    assert "NeumatNativeBSDF" in str(native) and "NeumatBSDF[" in str(bridge)
+    # a source without a Dr.Jit form goes through the bridge
+    assert "NeumatBSDF[" in str(mi.load_dict({"type": "neumat", "material": "ggx:roughness=0.3"}))
+
+
+def test_eval_pdf_and_sample_match_the_torch_bridge(mi, nmat):
+    from neumat.integrations import mitsuba as plugin
+    native = mi.load_dict({"type": "neumat", "filename": str(nmat)})
+    bridge = mi.load_dict({"type": "neumat", "filename": str(nmat), "native": False})
+    g = torch.Generator().manual_seed(3)
+    n = 5000
+    viewer, light = _dirs(n, g), _dirs(n, g)
+    for mode in (mi.TransportMode.Radiance, mi.TransportMode.Importance):
+        ctx = mi.BSDFContext(mode)
+        with plugin.evaluated_mode():  # the bridge needs it; the native BSDF runs in either mode
+            theirs = [_np(v) for v in bridge.eval_pdf(ctx, _si(mi, viewer), _vec(mi, light))]
+        ours = [_np(v) for v in native.eval_pdf(ctx, _si(mi, viewer), _vec(mi, light))]
+        up = (viewer[:, 2] > 0) & (light[:, 2] > 0)
+        assert bool(up.any()) and bool((ours[0][~up] == 0).all()) and bool((ours[1][light[:, 2] <= 0] == 0).all())
+        assert torch.allclose(ours[0], theirs[0], rtol=1e-4, atol=1e-7)
+        assert torch.allclose(ours[1], theirs[1], rtol=1e-5, atol=1e-7)
+        assert torch.allclose(_np(native.eval(ctx, _si(mi, viewer), _vec(mi, light))), ours[0])
+        assert torch.allclose(_np(native.pdf(ctx, _si(mi, viewer), _vec(mi, light))), ours[1])
+    # the model is not reciprocal: the two transport modes differ, so the swap above was tested
+    ctx, imp = mi.BSDFContext(), mi.BSDFContext(mi.TransportMode.Importance)
+    a = _np(native.eval(ctx, _si(mi, viewer), _vec(mi, light)))
+    b = _np(native.eval(imp, _si(mi, viewer), _vec(mi, light))) * (viewer[:, 2:3] / light[:, 2:3]).double()
+    assert not torch.allclose(a, b, rtol=1e-3)
+    # sample: the bridge's cosine warp on the same numbers, pdf and weight = eval / pdf
+    u = torch.rand(n, 2, generator=g)
+    s2 = mi.Point2f(mi.Float(u[:, 0].contiguous()), mi.Float(u[:, 1].contiguous()))
+    bs, weight = native.sample(ctx, _si(mi, viewer), mi.Float(0.5), s2)
+    with plugin.evaluated_mode():
+        bs_b, weight_b = bridge.sample(ctx, _si(mi, viewer), mi.Float(0.5), s2)
+    front = viewer[:, 2] > 0  # a failed sample's wo is unused (the bridge leaves it at the normal)
+    assert torch.allclose(_np(bs.wo)[front], _np(bs_b.wo)[front], atol=1e-5)
+    assert torch.allclose(_np(bs.pdf), _np(bs_b.pdf), rtol=1e-4, atol=1e-7)
+    assert torch.allclose(_np(weight), _np(weight_b), rtol=1e-4, atol=1e-6)
+    assert bool((_np(weight)[viewer[:, 2] <= 0] == 0).all())
+
+
+@pytest.mark.parametrize("theta", [0.3, 1.2])
+def test_mitsuba_chi2_accepts_the_native_sampler(mi, nmat, theta):
+    """Symbolic mode (Mitsuba's default), as the native BSDF renders."""
+    import drjit as dr
+    bsdf = mi.load_dict({"type": "neumat", "filename": str(nmat)})
+    wi = mi.ScalarVector3f(np.sin(theta), 0.0, np.cos(theta))
+    ctx = mi.BSDFContext()
+
+    def sample(s):
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(s))
+        si.wi = mi.Vector3f(wi)
+        bs, _ = bsdf.sample(ctx, si, s.x, mi.Point2f(s.y, s.z))
+        return bs.wo, dr.select(bs.pdf > 0, 1.0, 0.0)
+
+    def pdf(wo):
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(wo))
+        si.wi = mi.Vector3f(wi)
+        return bsdf.pdf(ctx, si, wo)
+
+    test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample, pdf_func=pdf,
+                                 sample_dim=3, sample_count=200_000, res=32, ires=8)
+    assert test.run(), test.messages
+
+
+def _scene(mi, bsdf, spp: int = 16, size: int = 32):
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "path", "max_depth": 4},
+        "sensor": {"type": "perspective", "fov": 30,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent", "sample_count": spp}},
+        "sphere": {"type": "sphere", "bsdf": bsdf},
+        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90)
+                  .scale(3), "bsdf": {"type": "diffuse"}},
+        "sun": {"type": "directional", "direction": [0.3, -1, -0.4], "irradiance": 3.0},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 0.9]}}})
+
+
+def test_native_render_equals_the_bridge_render(mi, nmat):
+    """The same warps on the same random numbers: the same image up to float error; the native scene renders in
+    symbolic mode (`render` picks it), where the bridge could only give NaN."""
+    import drjit as dr
+    from neumat.integrations import mitsuba as plugin
+    native_scene = _scene(mi, {"type": "neumat", "filename": str(nmat)})
+    assert not plugin.needs_evaluated_mode(native_scene)
+    assert dr.flag(dr.JitFlag.SymbolicCalls)
+    ours = torch.from_numpy(np.array(mi.render(native_scene), dtype=np.float32))  # plain Mitsuba, symbolic
+    bridge_scene = _scene(mi, {"type": "neumat", "filename": str(nmat), "native": False})
+    assert plugin.needs_evaluated_mode(bridge_scene)
+    theirs = plugin.render(bridge_scene)
+    assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
+    close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
+    assert float(close.float().mean()) > 0.99, float(close.float().mean())
+    assert abs(float(ours.mean() / theirs.mean()) - 1) < 1e-3
+    again = plugin.render(native_scene)  # neumat's render: symbolic for this scene, the same image
+    assert torch.allclose(again, ours)
+
+
+_NO_TORCH = """
+import sys
+from neumat.integrations import mitsuba_native
+mi = mitsuba_native.register()
+import numpy as np
+bsdf = {{"type": "neumat", "filename": {path!r}}}
+scene = mi.load_dict({{"type": "scene", "integrator": {{"type": "path", "max_depth": 3}},
+    "sensor": {{"type": "perspective", "film": {{"type": "hdrfilm", "width": 8, "height": 8}},
+               "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+               "sampler": {{"type": "independent", "sample_count": 4}}}},
+    "sphere": {{"type": "sphere", "bsdf": bsdf}}, "sky": {{"type": "constant"}}}})
+image = np.array(mi.render(scene))
+assert np.isfinite(image).all() and image.mean() > 0, image.mean()
+print("torch imported:", "torch" in sys.modules)
+"""
+
+
+def test_a_native_render_imports_no_torch(mi, nmat, tmp_path):
+    from neumat.catalog.modelfile import load_model
+    from neumat.export.registry import load_formats
+    fmt = load_formats().get("drjit")
+    folder, _ = fmt.write(fmt.export(load_model(nmat), "fp16"), tmp_path)
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    run = subprocess.run([sys.executable, "-c", _NO_TORCH.format(path=str(folder))], capture_output=True, text=True,
+                         env=env, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "torch imported: False" in run.stdout, run.stdout + run.stderr[-2000:]
+
+
+_CUDA = """
+import json, sys
+import numpy as np
+from neumat.integrations import mitsuba_native
+mi = mitsuba_native.register("cuda_ad_rgb")
+import drjit as dr
+wi, wo = (np.array(a, dtype=np.float32) for a in json.loads(sys.stdin.read()))
+bsdf = mi.load_dict({{"type": "neumat", "filename": {path!r}}})
+si = dr.zeros(mi.SurfaceInteraction3f, wi.shape[0])
+si.wi = mi.Vector3f(*(mi.Float(c) for c in wi.T))
+value = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*(mi.Float(c) for c in wo.T))))
+print(json.dumps(value.tolist()))
+"""
+
+
+@pytest.mark.cuda
+def test_native_bsdf_under_cuda_ad_rgb(mi, nmat):
+    """The same BSDF under cuda_ad_rgb (fp16 compute, cooperative vectors on tensor cores) against LLVM's fp32, within
+    the fp16 bound (1e-2 relative); in a subprocess, since a process holds one Mitsuba variant at a time here."""
+    import json
+    g = torch.Generator().manual_seed(7)
+    wi, wo = _dirs(4096, g, below=0.0), _dirs(4096, g, below=0.0)
+    bsdf = mi.load_dict({"type": "neumat", "filename": str(nmat)})
+    si = _si(mi, wi)
+    expected = _np(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    run = subprocess.run([sys.executable, "-c", _CUDA.format(path=str(nmat))], capture_output=True, text=True,
+                         env=env, timeout=600, input=json.dumps([wi.tolist(), wo.tolist()]))
+    assert run.returncode == 0, run.stderr[-3000:]
+    got = torch.tensor(json.loads(run.stdout.strip().splitlines()[-1]), dtype=torch.float64).T
+    assert float(((got - expected).abs() / expected.abs().clamp(min=1e-30)).max()) < 1e-2
