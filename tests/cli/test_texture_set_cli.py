@@ -19,7 +19,8 @@ from cli_util import output_text
 runner = CliRunner()
 
 
-@pytest.mark.parametrize("kind, make", [("brushed", detail_texture_set), ("weave", procedural_texture_set)])
+@pytest.mark.parametrize("kind, make", [("brushed", detail_texture_set), ("polished", detail_texture_set),
+                                        ("weave", procedural_texture_set)])
 def test_texture_set_writes_a_folder_that_reads_back(tmp_path, kind, make):
     out = tmp_path / kind
     res = runner.invoke(app, ["data", "texture-set", kind, "-o", str(out), "--size", "24", "--seed", "3"])

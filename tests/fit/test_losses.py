@@ -94,3 +94,35 @@ def test_log_cos_of_negative_targets_is_finite_and_treats_them_as_zero():
     loss = LOSSES.get("log_cos")()
     value = loss(pred, torch.full((4, 3), -3.0), q)
     assert torch.isfinite(value) and value == loss(pred, torch.zeros(4, 3), q)
+
+
+def test_relative_l2_huber_is_eq10_up_to_its_clip_and_bounds_one_querys_pull():
+    """Issue 55: on a near-mirror a few queries per batch hit a peak 1e3 x above the prediction; under Eq. 10 their
+    pull on log f_hat (2 f / f_hat each) outweighed a whole batch of queries the model over-predicts (2 each)."""
+    eq10, huber = LOSSES.get("relative_l2_mix")(), LOSSES.get("relative_l2_huber")()
+    assert huber.clip == 10.0
+    pred = PRED.abs() + 0.5                                  # relative residuals all below 10: the same loss
+    for name in ("relative_l2_mix", "relative_l2_huber"):
+        assert LOSSES.get(name)()(TARGET, TARGET, Q).item() == 0.0
+    assert huber(pred, TARGET, Q).item() == pytest.approx(eq10(pred, TARGET, Q).item(), rel=1e-12)
+    # 1000 queries predicted 2x too high, one at 1e-3 of a peak: the gradient on a shared log-scale b
+    n = 1001
+    target = torch.full((n, 3), 0.5, dtype=torch.float64)
+    target[0] = 1000.0
+    b = torch.zeros((), dtype=torch.float64, requires_grad=True)
+    q = Query(WI[:1].expand(n, 3), WI[:1].expand(n, 3))
+    grads = {}
+    for name, loss in (("eq10", eq10), ("huber", huber)):
+        b.grad = None
+        loss(torch.full((n, 3), 1.0, dtype=torch.float64) * b.exp(), target, q).backward()
+        grads[name] = float(b.grad)
+    assert grads["eq10"] < 0 < grads["huber"]                # Eq. 10 raises every prediction for the one peak
+    # beyond the clip the per-query loss is 2 c r - c^2 (r the relative residual), finite gradients at r = 0
+    pred = torch.tensor([[0.01, 0.01, 0.01], [1.0, 1.0, 1.0]], dtype=torch.float64, requires_grad=True)
+    target = torch.tensor([[100.0, 100.0, 100.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    value = huber(pred, target, Query(WI[:2], WI[:2]))
+    r = math.sqrt(3 * (100 - 0.01) ** 2 / (3 * (0.01 + 1e-6) ** 2))
+    expected = (0.9999 * (20 * r - 100) + 1e-4 * 3 * (100 - 0.01) ** 2) / 2
+    assert value.item() == pytest.approx(expected, rel=1e-9)
+    value.backward()
+    assert bool(torch.isfinite(pred.grad).all()) and bool((pred.grad[1] == 0).all())

@@ -10,7 +10,7 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.io.texture_set import TextureSet, load_texture_set, normals_from_height, write_texture_set
-from neumat.reflectance.detail_texture import DETAIL_KINDS, detail_texture_set
+from neumat.reflectance.detail_texture import DETAIL_KINDS, POLISHED_KINDS, detail_texture_set
 from neumat.reflectance.texture_statistics import noise_corrected_rank, separability_rank, texture_statistics
 
 
@@ -26,6 +26,18 @@ def test_detail_sets_have_strong_normal_and_roughness_detail_and_follow_their_se
     torch.testing.assert_close(ts.normal, normals_from_height(ts.height, ts.height_scale))
     again, other = detail_texture_set(kind, 32, seed=1), detail_texture_set(kind, 32, seed=2)
     assert torch.equal(again.height, ts.height) and not torch.equal(other.height, ts.height)
+
+
+def test_the_polished_set_is_a_near_mirror_metal_with_gentle_relief():
+    """Issue 55's regime: alpha = roughness^2 <= 0.01 everywhere, metal, tilts of about a degree, seeded."""
+    assert "polished" in POLISHED_KINDS and "polished" not in DETAIL_KINDS
+    ts = detail_texture_set("polished", 64, seed=1)
+    assert ts.name == "detail_polished_1" and float(ts.metalness.min()) == 1
+    assert float(ts.roughness.max() ** 2) <= 0.01 and float(ts.roughness.std()) < 1e-6
+    tilt = torch.rad2deg(torch.acos(ts.normal[..., 2].clamp(max=1)))
+    assert 0.3 < float(tilt.mean()) < 3 and float(tilt.max()) < 6, (float(tilt.mean()), float(tilt.max()))
+    torch.testing.assert_close(ts.normal, normals_from_height(ts.height, ts.height_scale))
+    assert not torch.equal(detail_texture_set("polished", 64, seed=2).height, ts.height)
 
 
 @pytest.mark.parametrize("args, match", [(("wood", 32), "unknown kind 'wood'"), (("foil", 8), "size"),

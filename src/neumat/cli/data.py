@@ -45,22 +45,23 @@ def convert(source: str = typer.Argument(..., help="any BRDF: RGL .bsdf, NBRDF .
 
 @app.command("texture-set")
 def texture_set(kind: str = typer.Argument(..., help="scratches, brushed, foil, chainmail (strong normal and "
-                                           "roughness detail) or bumps, weave, bricks, dents, ridges"),
+                                           "roughness detail), polished (a near-mirror metal, roughness 0.09) or "
+                                           "bumps, weave, bricks, dents, ridges"),
                 out: Path = typer.Option(..., "-o", "--out", help="output texture-set folder (created)"),
                 size: int = typer.Option(256, min=16, help="texels a side"),
                 seed: int = typer.Option(0, min=0, help="the random layout")) -> None:
     """Write a procedural PBR texture set (colour, OpenGL normals, roughness, metalness, displacement) as a
     folder that `neumat fit`, `eval`, `data btf-generate` and the benchmarks read like a downloaded set."""
     from ..io.texture_set import write_texture_set
-    from ..reflectance.detail_texture import DETAIL_KINDS, detail_texture_set
+    from ..reflectance.detail_texture import DETAIL_KINDS, POLISHED_KINDS, detail_texture_set
     from ..reflectance.procedural_texture import KINDS, procedural_texture_set
 
     def go():
-        if kind not in DETAIL_KINDS + KINDS:
+        detail = DETAIL_KINDS + POLISHED_KINDS
+        if kind not in detail + KINDS:
             from ..core.errors import InputError
-            raise InputError(f"texture-set: unknown kind {kind!r}; expected one of {', '.join(DETAIL_KINDS + KINDS)}")
-        textures = (detail_texture_set(kind, size, seed) if kind in DETAIL_KINDS
-                    else procedural_texture_set(kind, size, seed))
+            raise InputError(f"texture-set: unknown kind {kind!r}; expected one of {', '.join(detail + KINDS)}")
+        textures = detail_texture_set(kind, size, seed) if kind in detail else procedural_texture_set(kind, size, seed)
         folder = write_texture_set(textures, out)
         print(f"wrote {textures.name} ({size}x{size} texels) to {folder}")
     run_command(go)

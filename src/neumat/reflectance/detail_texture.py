@@ -3,7 +3,8 @@ appearance the multi-scale paper selects its materials for (Timonen et al. 2025 
 filtered look is not a simple average of albedos), made with the package's own code so that a benchmark is
 not limited to the few shared sets.
 
-Kinds: "scratches", "brushed", "foil", "chainmail".
+Kinds: "scratches", "brushed", "foil", "chainmail"; and "polished" (POLISHED_KINDS), a near-mirror metal without
+roughness detail: the regime where the latent-texture fits used to blow up (issue 55).
 
 Details: docs/notes/reflectance.md, section `neumat.reflectance.detail_texture`.
 """
@@ -18,6 +19,10 @@ from ..core.errors import InputError
 from ..io.texture_set import TextureSet, normals_from_height
 
 DETAIL_KINDS = ("scratches", "brushed", "foil", "chainmail")
+#: near-mirror sets: gentle relief, one low roughness everywhere (no roughness detail, so not among DETAIL_KINDS)
+POLISHED_KINDS = ("polished",)
+#: roughness of "polished" (alpha = 0.09^2 = 0.008, as the polished metal of issue 55)
+POLISHED_ROUGHNESS = 0.09
 
 
 def _grid(size: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -103,15 +108,24 @@ def _chainmail(size, g, x, y):
     return color, z, 0.3 * (1 - gap) + 0.85 * gap, 1 - gap
 
 
-_MAKERS = {"scratches": _scratches, "brushed": _brushed, "foil": _foil, "chainmail": _chainmail}
+def _polished(size, g, x, y):
+    # orange-peel waviness: two octaves of smooth noise, tilts of about a degree (fixed depths in uv), so that the
+    # filtered lobes stay near-delta at fine footprints and widen a little at coarse ones
+    z = 0.004 * _smooth_noise(size, (8, 8), g) + 0.001 * _smooth_noise(size, (32, 32), g)
+    rough = torch.full((size, size), POLISHED_ROUGHNESS)
+    return torch.tensor([0.91, 0.89, 0.86]).expand(size, size, 3), z, rough, torch.ones(size, size)
+
+
+_MAKERS = {"scratches": _scratches, "brushed": _brushed, "foil": _foil, "chainmail": _chainmail,
+           "polished": _polished}
 
 
 def detail_texture_set(kind: str, size: int = 256, seed: int = 0) -> TextureSet:
-    """A texture set of `kind` (DETAIL_KINDS, module docstring), size x size texels, named
+    """A texture set of `kind` (DETAIL_KINDS or POLISHED_KINDS, module docstring), size x size texels, named
     "detail_<kind>_<seed>": height the maker's displacement rescaled to [0, 1], height_scale its range in
     texture widths, normals from it."""
     if kind not in _MAKERS:
-        raise InputError(f"detail texture set: unknown kind {kind!r}; expected one of {', '.join(DETAIL_KINDS)}")
+        raise InputError(f"detail texture set: unknown kind {kind!r}; expected one of {', '.join(DETAIL_KINDS + POLISHED_KINDS)}")
     check_int(size, "detail texture set size", 16)
     check_int(seed, "detail texture set seed", 0)
     g = torch.Generator().manual_seed(seed)
