@@ -8,6 +8,7 @@ import statistics
 import sys
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 from neumat.cli.main import app
 from neumat.fit.method import recipe_for
@@ -20,9 +21,11 @@ METRICS = ("log_err", "rmse_hdr", "img_mae", "img_ssim", "img_flip", "img_floor_
            "img_floor_flip")
 
 
-def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int]) -> list[dict]:
+def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],
+             after: Callable[[dict], dict] | None = None) -> list[dict]:
     """fit-many's result rows of every (source, model) for each seed (a "seed" key added); a failed job's row
-    has status "error" and its message, and the run records it as skipped."""
+    has status "error" and its message, and the run records it as skipped. `after(row)` runs on each fitted row
+    while its .nmat still exists (row["nmat"]); what it returns is added to the row."""
     rows = []
     for seed in seeds:
         with tempfile.TemporaryDirectory(prefix="neumat-bench-") as out:
@@ -37,11 +40,14 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
             for row in json.loads((Path(out) / "results.json").read_text())["rows"]:
                 if row["status"] != "ok":
                     run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
+                elif after is not None:
+                    row = {**row, **after(row)}
                 rows.append({**row, "seed": seed})
     return rows
 
 
-def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str]) -> list[dict] | None:
+def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str],
+                     after: Callable[[dict], dict] | None = None) -> list[dict] | None:
     """fit-many rows of `models` on every shared texture set at the paper's models' CPU path (256^2 texels, two
     seeds), or of `quick_models` on one set at 32^2 for 10 steps in a quick run; None (the run says why) without
     shared data."""
@@ -54,10 +60,10 @@ def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str
         return fit_many(run, sets[-1:], quick_models,
                         ["--preset", "cpu", "--steps", "10", "--set", "batch_size=256", "--source-option",
                          "max_size=32", "--n-configs", "4096", "--image-spp", "2", "--image-resolution", "32"],
-                        [run.seed])
+                        [run.seed], after)
     return fit_many(run, sets, models, ["--preset", "cpu", "--source-option", "max_size=256", "--n-configs",
                                         str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"],
-                    [run.seed, run.seed + 1])
+                    [run.seed, run.seed + 1], after)
 
 
 def quality_rows(rows: list[dict]) -> list[dict]:
