@@ -1,11 +1,12 @@
-"""export-parity: every exported model's GLSL (llvmpipe) and Slang (slangpy CPU) evaluation against the torch model
-on the same queries: relative error median / p99 / max (the exporters' tests check tolerances; this records them)."""
+"""export-parity: every exported model's GLSL (llvmpipe), Slang (slangpy CPU) and Dr.Jit runtime (LLVM) evaluation
+against the torch model on the same queries: relative error median / p99 / max (the exporters' tests check tolerances; this records them)."""
 from __future__ import annotations
 
 import torch
 
 from neumat.export.registry import load_formats
 from neumat.models.registry import load_all
+from neumat.testing.drjit_parity import drjit_available, drjit_eval
 from neumat.testing.parity import glsl_eval, opengl_available
 from neumat.testing.slang_parity import slang_available, slang_eval
 
@@ -13,7 +14,7 @@ from .. import harness
 from .speed import queries, runtime_model
 
 NAME = "export-parity"
-DESCRIPTION = "GLSL and Slang exports against the torch model: relative error of eval on the same queries"
+DESCRIPTION = "GLSL, Slang and Dr.Jit exports against the torch model: relative error of eval on the same queries"
 BUDGET = {
     "quick": {"ours": "neubrdf at its default config, 1024 queries", "paper": "none (an engineering check)",
               "expected_wall": "about 15 s"},
@@ -27,7 +28,8 @@ def run(run: harness.Run) -> None:
     run.protocol["error"] = "|export - torch| / (|torch| + 1e-3) per channel, over cosine-weighted queries"
     names = ["neubrdf"] if run.quick else load_all().names()
     n = 2 ** 10 if run.quick else 2 ** 14
-    targets = {"glsl": (opengl_available("egl"), glsl_eval), "slang": (slang_available("cpu"), slang_eval)}
+    targets = {"glsl": (opengl_available("egl"), glsl_eval), "slang": (slang_available("cpu"), slang_eval),
+               "drjit": (drjit_available(), drjit_eval)}
     rows = []
     for fmt, (available, evaluate) in targets.items():
         if not available:

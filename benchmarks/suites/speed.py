@@ -1,6 +1,6 @@
 """speed: every registered model in its shipped runtime form, analytic GGX and a measured RGL table: FLOPs per
 query, evaluations and sample+pdf per CPU second at three batch sizes, % of this core's fp32 sgemm rate, cost
-against GGX in the same process, the GLSL (llvmpipe) and Slang (slangpy CPU) exports' rates, and training step
+against GGX in the same process, the GLSL (llvmpipe), Slang (slangpy CPU) and Dr.Jit runtime (LLVM) exports' rates, and training step
 CPU time per phase at two batch sizes through the library's trainer (issue 49 item 1; measures, asserts nothing)."""
 from __future__ import annotations
 
@@ -122,11 +122,13 @@ def _sample_rate(run: harness.Run, material, n: int) -> float:
 def _exports(run: harness.Run, materials: dict, n: int) -> None:
     """GLSL on llvmpipe (EGL) and Slang on slangpy's CPU device, where the package exports the model."""
     from neumat.export.registry import load_formats
+    from neumat.testing.drjit_parity import drjit_available, drjit_evals_per_second
     from neumat.testing.parity import glsl_evals_per_second, opengl_available
     from neumat.testing.slang_parity import slang_available, slang_evals_per_second
 
     targets = {"glsl (llvmpipe)": (opengl_available("egl"), glsl_evals_per_second),
-               "slang (slangpy cpu)": (slang_available("cpu"), slang_evals_per_second)}
+               "slang (slangpy cpu)": (slang_available("cpu"), slang_evals_per_second),
+               "drjit (llvm)": (drjit_available(), _one_thread(drjit_evals_per_second))}
     names = ["neubrdf"] if run.quick else [k for k in materials if k in load_all().names()]
     if run.quick:
         run.skip("exports of models other than neubrdf", "--quick")
@@ -148,6 +150,19 @@ def _exports(run: harness.Run, materials: dict, n: int) -> None:
     run.table("exports", "Export targets (one thread where the target honours it)", rows,
               "wall-clock marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
               "compilation and uploads do not count); llvmpipe with LP_NUM_THREADS = the run's threads")
+
+
+def _one_thread(rate):
+    """`rate` with Dr.Jit on one thread (the suite's single-thread protocol), its thread count restored after."""
+    def wrapped(exported, q):
+        import drjit as dr
+        before = dr.thread_count()
+        dr.set_thread_count(1)
+        try:
+            return rate(exported, q)
+        finally:
+            dr.set_thread_count(before)
+    return wrapped
 
 
 def _training(run: harness.Run) -> None:

@@ -58,6 +58,21 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     assert doc["command"] in page and f"# {suite} (quick)" in page
     if suite == "speed":
         _check_speed(doc)
+    if suite in ("speed", "export-parity"):
+        _check_drjit_rows(doc)
+
+
+def _check_drjit_rows(doc: dict) -> None:
+    """The Dr.Jit runtime's rows (quick mode: neubrdf) where Mitsuba's LLVM backend runs here."""
+    from neumat.testing.drjit_parity import drjit_available
+    if not drjit_available():
+        return
+    rows = [r for t in doc["tables"] for r in t["rows"] if str(r.get("target", "")).startswith("drjit")]
+    assert [r.get("model", r.get("material")) for r in rows] == ["neubrdf"], doc["skipped"]
+    if doc["suite"] == "export-parity":
+        assert rows[0]["max"] < 1e-4
+    else:
+        assert rows[0]["evals/wall s"] > 0
 
 
 def _check_speed(doc: dict) -> None:

@@ -57,7 +57,7 @@ def _model(seed: int = 0, **overrides) -> NeuBRDF:
     return model.train(False)
 
 
-def _parity(model: NeuBRDF, compute: str = "fp32", n: int = 20000, source=None) -> float:
+def _parity(model: NeuBRDF, compute: str = "fp32", n: int = 20000, source=None, mlp_form=None) -> float:
     """Largest relative difference of the runtime from the torch runtime form, boundary lookups left out."""
     from neumat.export.drjit.format import export_drjit
     from neumat.export.drjit.runtime import load_runtime
@@ -66,7 +66,7 @@ def _parity(model: NeuBRDF, compute: str = "fp32", n: int = 20000, source=None) 
         model.runtime()
     g = torch.Generator().manual_seed(1)
     wi, wo = _directions(n, g), _directions(n, g)
-    runtime = load_runtime(source or export_drjit(model).source(), "llvm", compute)
+    runtime = load_runtime(source or export_drjit(model).source(), "llvm", compute, mlp_form)
     got = torch.from_numpy(np.array(runtime.eval(_array3(wi), _array3(wo)), dtype=np.float64).T.copy())
     with torch.no_grad():
         ref = model.eval(Query(wi, wo)).double()
@@ -81,6 +81,22 @@ def _parity(model: NeuBRDF, compute: str = "fp32", n: int = 20000, source=None) 
                          ids=["vq hd_warp", "no direction inputs", "hd", "dense", "lowbit", "relu", "paper size"])
 def test_runtime_matches_the_torch_runtime_form(drjit_llvm, overrides):
     assert _parity(_model(**overrides)) < 1e-4
+
+
+def test_both_mlp_forms(drjit_llvm):
+    """LLVM's default constant-weight fma chains and CUDA's drjit.nn cooperative vectors, both in fp32."""
+    model = _model(6)
+    assert _parity(model, mlp_form="literal") < 1e-4
+    assert _parity(model, mlp_form="coopvec") < 1e-4
+    from neumat.export.drjit.runtime import load_runtime
+    assert load_runtime(_export(model), "llvm").mlp.form == "literal"  # the LLVM default
+    with pytest.raises(InputError, match="literal for fp32 only"):
+        load_runtime(_export(model), "llvm", "fp16", "literal")
+
+
+def _export(model):
+    from neumat.export.drjit.format import export_drjit
+    return export_drjit(model).source()
 
 
 def test_pruned_grid_and_fp16_compute(drjit_llvm):

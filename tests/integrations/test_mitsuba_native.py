@@ -227,3 +227,106 @@ def test_native_bsdf_under_cuda_ad_rgb(mi, nmat):
     assert run.returncode == 0, run.stderr[-3000:]
     got = torch.tensor(json.loads(run.stdout.strip().splitlines()[-1]), dtype=torch.float64).T
     assert float(((got - expected).abs() / expected.abs().clamp(min=1e-30)).max()) < 1e-2
+
+
+@pytest.fixture(scope="module")
+def ggx_nmat(tmp_path_factory) -> Path:
+    """A fitted-GGX file (anisotropic, coloured diffuse): the baseline that samples itself."""
+    from neumat.methods.baselines.ggx import GGXFit
+    model = GGXFit(anisotropic=True)
+    with torch.no_grad():
+        model.raw_alpha.copy_(torch.tensor([-1.5, -0.5]))
+        model.raw_diffuse.copy_(torch.tensor([0.1, -0.5, -1.0]))
+    return save_model(model.train(False), tmp_path_factory.mktemp("native_ggx") / "ggx.nmat")
+
+
+@pytest.mark.parametrize("theta", [0.3, 1.2])
+def test_mitsuba_chi2_accepts_the_native_ggx_sampler(mi, ggx_nmat, theta):
+    import drjit as dr
+    bsdf = mi.load_dict({"type": "neumat", "filename": str(ggx_nmat)})
+    assert "NeumatNativeBSDF" in str(bsdf) and bsdf.runtime.can_sample
+    wi = mi.ScalarVector3f(np.sin(theta), 0.0, np.cos(theta))
+    ctx = mi.BSDFContext()
+
+    def sample(s):
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(s))
+        si.wi = mi.Vector3f(wi)
+        bs, _ = bsdf.sample(ctx, si, s.x, mi.Point2f(s.y, s.z))
+        return bs.wo, dr.select(bs.pdf > 0, 1.0, 0.0)
+
+    def pdf(wo):
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(wo))
+        si.wi = mi.Vector3f(wi)
+        return bsdf.pdf(ctx, si, wo)
+
+    test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample, pdf_func=pdf,
+                                 sample_dim=3, sample_count=200_000, res=32, ires=8)
+    assert test.run(), test.messages
+
+
+def test_native_ggx_render_equals_the_bridge_render(mi, ggx_nmat):
+    """The model's own sampler on the same random numbers in both paths: the same image up to float error."""
+    from neumat.integrations import mitsuba as plugin
+    native_scene = _scene(mi, {"type": "neumat", "filename": str(ggx_nmat)})
+    ours = torch.from_numpy(np.array(mi.render(native_scene), dtype=np.float32))
+    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(ggx_nmat), "native": False}))
+    assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
+    close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
+    assert float(close.float().mean()) > 0.98, float(close.float().mean())
+    assert abs(float(ours.mean() / theirs.mean()) - 1) < 2e-3
+
+
+@pytest.fixture(scope="module")
+def multiscale_nmat(tmp_path_factory) -> Path:
+    """A small spatially varying multi-scale model (shading frame, warps decoded from z_s)."""
+    from neumat.methods.latent_mlp.multiscale import MultiScale
+    torch.manual_seed(0)
+    model = MultiScale(spatial_size=32)
+    with torch.no_grad():
+        model.mlp.linears()[-1].weight.mul_(0.3)
+        model.frame.decode.weight.normal_(0, 0.3)
+    return save_model(model.train(False), tmp_path_factory.mktemp("native_ms") / "multiscale.nmat")
+
+
+def test_a_uv_mapped_model_reads_si_uv_and_the_ray_footprint(mi, multiscale_nmat):
+    """eval against the torch model at si.uv with the box-filter footprint of si.duv_dx, si.duv_dy (and at the
+    finest level, the bridge's value, where they are zero)."""
+    from neumat.catalog.modelfile import load_model
+    from neumat.core.query import Query
+    model = load_model(multiscale_nmat, device="cpu")
+    native = mi.load_dict({"type": "neumat", "filename": str(multiscale_nmat)})
+    assert native.runtime.spatially_varying and "NeumatNativeBSDF" in str(native)
+    g = torch.Generator().manual_seed(4)
+    n = 4000
+    viewer, light = _dirs(n, g, below=0.0), _dirs(n, g, below=0.0)
+    uv = torch.rand(n, 2, generator=g) * 2 - 0.5
+    dx = torch.randn(n, 2, generator=g) * 0.02
+    dy = torch.stack([-dx[:, 1], dx[:, 0]], -1) * (0.05 + torch.rand(n, 1, generator=g))  # elongation up to 20
+    ctx = mi.BSDFContext()
+    for differentials in (False, True):
+        si = _si(mi, viewer)
+        si.uv = mi.Point2f(mi.Float(uv[:, 0].contiguous()), mi.Float(uv[:, 1].contiguous()))
+        footprint = None
+        if differentials:
+            si.duv_dx = mi.Vector2f(mi.Float(dx[:, 0].contiguous()), mi.Float(dx[:, 1].contiguous()))
+            si.duv_dy = mi.Vector2f(mi.Float(dy[:, 0].contiguous()), mi.Float(dy[:, 1].contiguous()))
+            jac = torch.stack([dx, dy], -1)
+            footprint = jac @ jac.transpose(1, 2) / 12
+        ours = _np(native.eval(ctx, si, _vec(mi, light)))
+        with torch.no_grad():
+            ref = model.eval(Query(viewer, light, uv=uv, footprint=footprint)).double() * light[:, 2:3].double()
+        err = ((ours - ref).abs() / ref.abs()).max(-1).values
+        assert float(err.quantile(0.99)) < 1e-4 and float(err.max()) < 1e-2, (differentials, float(err.max()))
+    assert not torch.allclose(ours, _np(native.eval(ctx, _si(mi, viewer), _vec(mi, light))), rtol=1e-2)
+
+
+def test_native_multiscale_render_equals_the_bridge_render(mi, multiscale_nmat):
+    """Mitsuba's path tracer computes no uv partials: the native path reads the finest level, as the bridge."""
+    from neumat.integrations import mitsuba as plugin
+    ours = torch.from_numpy(np.array(mi.render(_scene(mi, {"type": "neumat", "filename": str(multiscale_nmat)})),
+                                     dtype=np.float32))
+    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(multiscale_nmat), "native": False}))
+    assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
+    close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
+    assert float(close.float().mean()) > 0.98, float(close.float().mean())
+    assert abs(float(ours.mean() / theirs.mean()) - 1) < 2e-3

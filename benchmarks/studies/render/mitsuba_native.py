@@ -8,9 +8,12 @@ Scene: the bunny scene of `mitsuba_plugin.py` (shared Stanford bunny on a diffus
 integrator, --depth), --res^2 pixels, --spp, llvm_ad_rgb. Rows: Mitsuba `roughconductor` (GGX, alpha 0.2) and
 `measured` (the RGL file the model was fitted to) in Mitsuba's default symbolic mode and in evaluated mode; the
 torch bridge with the NeuBRDF (evaluated mode, all it can run in); the native runtime in symbolic mode (the
-default) and in evaluated mode. Each time is the best of --repeats renders after a warm-up render that compiles
+default) and in evaluated mode, and with its MLP as `drjit.nn` cooperative vectors (`mlp_form: coopvec`, the CUDA
+default) instead of LLVM's default constant-weight fma chains. Each time is the best of --repeats renders after a warm-up render that compiles
 the kernels; ratios are to `measured` symbolic and to `roughconductor` symbolic, measured in the same run
-(interleaved, so that load from other processes hits every row alike).
+(interleaved, so that load from other processes hits every row alike). A second table (same run): a UV-mapped
+sphere on the same floor under the same map, Mitsuba `roughconductor` against the multiscale model (--multiscale,
+default the paper's configuration at its initialisation) natively (symbolic and evaluated) and through the bridge.
 """
 from __future__ import annotations
 
@@ -28,6 +31,10 @@ def main() -> None:
     p.add_argument("--spp", type=int, default=16)
     p.add_argument("--depth", type=int, default=6)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--multiscale", default=None,
+                   help="a multiscale .nmat for the UV-mapped table (default: the paper's configuration, 1024^2 x 8 "
+                        "spatial latents, at its initialisation: the cost does not depend on the fit)")
+    p.add_argument("--no-multiscale", action="store_true", help="only the NeuBRDF table")
     args = p.parse_args()
 
     from neumat.io.shared_data import shared_data_dir
@@ -51,10 +58,23 @@ def main() -> None:
                                                                 "native": False}, True),
              ("neumat native Dr.Jit runtime, NeuBRDF (symbolic)", {"type": "neumat", "filename": args.model}, False),
              ("neumat native Dr.Jit runtime, NeuBRDF, evaluated mode", {"type": "neumat", "filename": args.model},
-              True)]
+              True),
+             ("neumat native Dr.Jit runtime, NeuBRDF, drjit.nn coopvec MLP (symbolic)",
+              {"type": "neumat", "filename": args.model, "mlp_form": "coopvec"}, False)]
     # Mitsuba's symbolic calls trace every live BSDF: scenes are built once, the bridge (NaN in symbolic mode) only
     # ever renders in evaluated mode, and every other row is unaffected by it
     scenes = [bunny_scene(mi, bsdf, args.res, args.spp, args.depth, data) for _, bsdf, _ in cases]
+    first_uv = len(cases)
+    if not args.no_multiscale:
+        ms = args.multiscale or _default_multiscale()
+        cases += [("Mitsuba roughconductor (GGX, alpha 0.2)", {"type": "roughconductor", "distribution": "ggx",
+                                                              "alpha": 0.2}, False),
+                  ("neumat native Dr.Jit runtime, multiscale (symbolic)", {"type": "neumat", "filename": ms}, False),
+                  ("neumat native Dr.Jit runtime, multiscale, evaluated mode", {"type": "neumat", "filename": ms},
+                   True),
+                  ("neumat torch bridge, multiscale (evaluated mode)", {"type": "neumat", "filename": ms,
+                                                                       "native": False}, True)]
+        scenes += [sphere_scene(mi, bsdf, args.res, args.spp, args.depth, data) for _, bsdf, _ in cases[first_uv:]]
 
     def render(i: int, seed: int):
         with plugin.evaluated_mode() if cases[i][2] else _null():
@@ -75,9 +95,45 @@ def main() -> None:
           f"thread, best of {args.repeats}; model {args.model}")
     print("| BSDF in the same scene | seconds | x Mitsuba `measured` (symbolic) | x `roughconductor` | image mean |")
     print("|---|---|---|---|---|")
-    for (name, _, _), seconds, image in zip(cases, best, images):
+    for (name, _, _), seconds, image in zip(cases[:first_uv], best, images):
         print(f"| {name} | {seconds:.3f} | {seconds / measured:.2f} | {seconds / ggx:.2f} | "
               f"{float(np.mean(image[..., :3])):.4f} |")
+    if len(cases) > first_uv:
+        ggx = best[first_uv]
+        print(f"\nUV-mapped scene (sphere with Mitsuba's uv on the same floor under the same map), same run; model "
+              f"{ms}")
+        print("| BSDF in the same scene | seconds | x `roughconductor` | image mean |")
+        print("|---|---|---|---|")
+        for (name, _, _), seconds, image in list(zip(cases, best, images))[first_uv:]:
+            print(f"| {name} | {seconds:.3f} | {seconds / ggx:.2f} | {float(np.mean(image[..., :3])):.4f} |")
+
+
+def _default_multiscale() -> str:
+    """A .nmat of the paper's multiscale configuration at its initialisation (in a temporary folder)."""
+    import tempfile
+    from pathlib import Path
+
+    import torch
+    from neumat.catalog.modelfile import save_model
+    from neumat.methods.latent_mlp.multiscale import MultiScale
+
+    torch.manual_seed(0)
+    path = Path(tempfile.mkdtemp(prefix="neumat_bench_")) / "multiscale.nmat"
+    return str(save_model(MultiScale().train(False), path))
+
+
+def sphere_scene(mi, bsdf, res: int, spp: int, depth: int, data):
+    """A unit sphere (Mitsuba's uv: longitude, latitude) standing on the floor of `bunny_scene`, same camera, map."""
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "path", "max_depth": depth},
+        "sensor": {"type": "perspective", "fov": 32,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.4, 3.2], target=[0, 0.45, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent", "sample_count": spp}},
+        "ball": {"type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "bsdf": bsdf},
+        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(3),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}},
+        "env": {"type": "envmap", "filename": str(data / "envmap" / "studio_small_03_1k.hdr")}})
 
 
 class _null:

@@ -13,8 +13,12 @@ torch bridge (`neumat.integrations.mitsuba`, evaluated mode; it installs itself 
 its `register` is this one) for everything else; `"native": False` forces the bridge. Loading a drjit export and rendering it import no torch; this module imports none either.
 
 Conventions are the bridge's (docs/mitsuba.md): `si.wi` in the model's incident slot, swapped in importance
-transport, value times cos(theta_wo), one-sided glossy reflection. The models translated so far cannot sample
-themselves: `sample` draws cosine-weighted (Mitsuba's `square_to_cosine_hemisphere`, as the bridge does).
+transport, value times cos(theta_wo), one-sided glossy reflection. Models that cannot sample themselves
+(`Runtime.can_sample` false) are sampled cosine-weighted (Mitsuba's `square_to_cosine_hemisphere`, as the bridge
+does); a model that samples (the fitted GGX) draws from its own sampler on `sample2`, as the bridge's
+`material.sample`. The `mlp_form` property picks the runtime's MLP form (`neumat.export.drjit.runtime.FORMS`).
+Spatially varying models read `si.uv` and the footprint of Mitsuba's
+uv partials (`si.duv_dx`, `si.duv_dy`; zero, the finest level, where the integrator computes none).
 """
 from __future__ import annotations
 
@@ -48,7 +52,7 @@ def make_bsdf(mi, props):
             break
     native = bool(props["native"]) if "native" in props else True
     if native and source is not None:
-        runtime = native_runtime(source, mi.Float)
+        runtime = native_runtime(source, mi.Float, mlp_form=props["mlp_form"] if "mlp_form" in props else None)
         if runtime is not None:
             return native_class(mi.variant())(props, runtime)
     if _BRIDGE is None:
@@ -68,16 +72,17 @@ def set_bridge(factory) -> None:
     _BRIDGE = factory
 
 
-def native_runtime(source, backend, compute: str | None = None):
+def native_runtime(source, backend, compute: str | None = None, mlp_form: str | None = None):
     """The Dr.Jit runtime of `source` (a drjit export folder or manifest, or a `.nmat` path whose model has a Dr.Jit
-    translator; the latter is translated with torch), or None when it has none."""
+    translator; the latter is translated with torch), or None when it has none. compute, mlp_form: see
+    `neumat.export.drjit.runtime.load_runtime`."""
     from ..export.drjit.runtime import is_export, load_runtime
 
     if not isinstance(source, (str, Path)):
         return None
     path = Path(source)
     if is_export(path):
-        return load_runtime(path, backend, compute)
+        return load_runtime(path, backend, compute, mlp_form)
     if path.suffix != ".nmat" or not path.is_file():
         return None
     from ..export.drjit.format import drjit_models, export_drjit  # torch from here on
@@ -92,7 +97,7 @@ def native_runtime(source, backend, compute: str | None = None):
         exported = export_drjit(model)
     except InputError:  # a configuration the translator does not cover: the bridge renders it
         return None
-    return load_runtime(exported.source(), backend, compute)
+    return load_runtime(exported.source(), backend, compute, mlp_form)
 
 
 def bsdf(source, variant: str | None = None, compute: str | None = None):
@@ -176,6 +181,17 @@ def native_class(variant: str) -> type:
             self.m_flags = flags
             self.m_components = [flags]
 
+        def _where(self, si):
+            """The uv and footprint arguments of the runtime: si.uv and the covariance in uv^2 of the box pixel
+            filter over Mitsuba's uv partials, (J J^T) / 12 with J = [duv_dx, duv_dy] (zero without ray
+            differentials: the finest level), for spatially varying models; None otherwise."""
+            if not self.runtime.spatially_varying:
+                return {}
+            dx, dy = si.duv_dx, si.duv_dy
+            cov = ((dx[0] * dx[0] + dy[0] * dy[0]) / 12, (dx[0] * dx[1] + dy[0] * dy[1]) / 12,
+                   (dx[1] * dx[1] + dy[1] * dy[1]) / 12)
+            return {"uv": (si.uv[0], si.uv[1]), "footprint": cov}
+
         def _value(self, ctx, si, wo, active):
             """f(wi, wo) cos(theta_wo) on the active lanes with both directions above the surface, and that mask."""
             active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
@@ -183,11 +199,13 @@ def native_class(variant: str) -> type:
                 active = active & False
             importance = ctx.mode == mi.TransportMode.Importance
             first, second = (wo, si.wi) if importance else (si.wi, wo)
-            f = mi.Color3f(self.runtime.eval(mi.Vector3f(first), mi.Vector3f(second), active))
+            f = mi.Color3f(self.runtime.eval(mi.Vector3f(first), mi.Vector3f(second), active, **self._where(si)))
             return dr.select(active, f * mi.Frame3f.cos_theta(wo), 0.0), active
 
         def _pdf(self, si, wo, active):
             ok = active & (mi.Frame3f.cos_theta(si.wi) > 0)
+            if self.runtime.can_sample:
+                return dr.select(ok, mi.Float(self.runtime.pdf(mi.Vector3f(si.wi), mi.Vector3f(wo), ok)), 0.0)
             return dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
 
         def eval(self, ctx, si, wo, active=True):
@@ -204,9 +222,16 @@ def native_class(variant: str) -> type:
             return value, self._pdf(si, wo, ok)
 
         def sample(self, ctx, si, sample1, sample2, active=True):
-            wo = mi.warp.square_to_cosine_hemisphere(sample2)
+            if self.runtime.can_sample:  # the model's own sampler on sample2, as the bridge's material.sample
+                up = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0)
+                wo, pdf = self.runtime.sample(mi.Vector3f(si.wi), sample2[0], sample2[1], up)
+                wo, pdf = mi.Vector3f(wo), mi.Float(pdf)
+            else:
+                wo = mi.warp.square_to_cosine_hemisphere(sample2)
             value, ok = self._value(ctx, si, wo, active)
-            pdf = dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
+            if not self.runtime.can_sample:
+                pdf = dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
+            pdf = dr.select(ok, pdf, 0.0)
             bs = dr.zeros(mi.BSDFSample3f)
             bs.wo = wo
             bs.pdf = pdf

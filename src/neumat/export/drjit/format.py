@@ -50,13 +50,14 @@ def export_drjit(model, precision: str = "fp16") -> DrJitExport:
     form rounded to fp16 as halves (lossless), "fp32" as floats."""
     if precision not in PRECISIONS:
         raise InputError(f"export_drjit precision: expected one of {', '.join(PRECISIONS)}, got {precision!r}")
-    name = getattr(model, "name", None)
-    if not isinstance(name, str) or name not in drjit_models():
-        raise InputError(f"export_drjit: no Dr.Jit runtime for {type(model).__name__} ({name or '?'}); models with "
-                         f"one: {', '.join(drjit_models())}")
     from ...fit.method import load_methods
 
-    manifest, arrays = load_methods().get(name).drjit(model)
+    name = getattr(model, "name", None)
+    method = load_methods().get(name) if isinstance(name, str) and name in drjit_models() else None
+    if method is None or (method.model is not None and not isinstance(model, method.model)):
+        raise InputError(f"export_drjit: no Dr.Jit runtime for {type(model).__name__} ({name or '?'}); models with "
+                         f"one: {', '.join(drjit_models())}")
+    manifest, arrays = method.drjit(model)
     out = {}
     for key, value in arrays.items():
         value = np.asarray(value)

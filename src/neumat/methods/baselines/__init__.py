@@ -6,6 +6,7 @@ from neumat.fit.method import Method, register_method
 from neumat.fit.translucent_fit import observation_report
 from neumat.methods.baselines import dipole_train, ggx_train, naive_mlp_train, nbrdf_train, neumip_uv_train
 from neumat.methods.baselines.dipole_bssrdf import DipoleBSSRDF
+from neumat.methods.baselines.drjit import translate_ggx, translate_naive_mlp, translate_nbrdf
 from neumat.methods.baselines.ggx import GGXFit
 from neumat.methods.baselines.naive_mlp import NaiveMLP
 from neumat.methods.baselines.nbrdf import NBRDF
@@ -20,10 +21,11 @@ def _sphere_quadrature(model: DipoleBSSRDF) -> None:
 
 
 register_method(Method("naive-mlp", NaiveMLP, {"paper": naive_mlp_train.RECIPE, "cpu": naive_mlp_train.CPU_RECIPE},
-                       small=dict(hidden=8)))
-register_method(Method("nbrdf", NBRDF, {"paper": nbrdf_train.RECIPE, "cpu": nbrdf_train.CPU_RECIPE}))
+                       small=dict(hidden=8), drjit=translate_naive_mlp))
+register_method(Method("nbrdf", NBRDF, {"paper": nbrdf_train.RECIPE, "cpu": nbrdf_train.CPU_RECIPE},
+                       drjit=translate_nbrdf))
 register_method(Method("ggx", GGXFit, {"paper": ggx_train.RECIPE, "cpu": ggx_train.CPU_RECIPE},
-                       options=ggx_train.Options, phases=ggx_train.phases))
+                       options=ggx_train.Options, phases=ggx_train.phases, drjit=translate_ggx))
 register_method(Method("dipole-bssrdf", DipoleBSSRDF, {"paper": dipole_train.RECIPE, "cpu": dipole_train.CPU_RECIPE},
                        options=dipole_train.Options, phases=dipole_train.phases,
                        small=dict(samples=4, texture_resolution=2), prepare=_sphere_quadrature,

@@ -3,6 +3,7 @@
 paper trains every model with the same data, loss and optimiser); notes in NOTES.md."""
 from neumat.fit.method import Method, register_method
 from neumat.methods.latent_mlp import train
+from neumat.methods.latent_mlp.drjit import translate as drjit_translate
 from neumat.methods.latent_mlp.ggx_mipmap import GGXMipmap
 from neumat.methods.latent_mlp.glsl import export_latent_mlp
 from neumat.methods.latent_mlp.glsl_multiscale import export_multiscale
@@ -13,6 +14,9 @@ from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
 from neumat.methods.latent_mlp.neumip_offset import NeuMIPOffset
 from neumat.methods.latent_mlp.tripleplane import TriplePlane
 
+#: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
+DRJIT = {"multiscale": drjit_translate, "tripleplane": drjit_translate}
+
 for name, model, glsl, small in (
         ("multiscale", MultiScale, export_multiscale, dict(spatial_size=8)),
         ("tripleplane", TriplePlane, export_multiscale, dict(spatial_size=8)),
@@ -22,4 +26,5 @@ for name, model, glsl, small in (
         ("nbrdf-uv", NBRDFUV, export_latent_mlp, dict(spatial_size=8)),
         ("ggx-mipmap", GGXMipmap, None, dict(spatial_size=8))):
     register_method(Method(name, model, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE}, options=train.Options,
-                           phases=train.phases, config_for_source=train.config_for_source, glsl=glsl, small=small))
+                           phases=train.phases, config_for_source=train.config_for_source, glsl=glsl, small=small,
+                           drjit=DRJIT.get(name)))

@@ -1,0 +1,53 @@
+"""Evaluate a Dr.Jit runtime export (`neumat.export.drjit`) on torch queries, for parity checks and rates against
+the torch model: `drjit_eval(exported, q)` runs the runtime on Dr.Jit's LLVM backend (the LLVM that
+`neumat.core.llvm` chose; Mitsuba's import sets it up) and returns the values as a torch tensor."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.query import Query
+from .parity import marginal_rate
+
+
+def drjit_available() -> bool:
+    """Whether `drjit_eval` can run here: Mitsuba 3 / Dr.Jit with a usable LLVM (>= 16)."""
+    from ..core.errors import InputError
+    from ..core.mitsuba import import_mitsuba
+
+    try:
+        import_mitsuba()
+    except (InputError, ImportError):
+        return False
+    return True
+
+
+def _runtime(exported):
+    from ..export.drjit.runtime import Runtime, load_runtime
+
+    if isinstance(exported, Runtime):
+        return exported
+    return load_runtime(exported.source() if hasattr(exported, "source") else exported, "llvm")
+
+
+def drjit_eval(exported, q: Query) -> torch.Tensor:
+    """Values (N, 3) (float32) of a `DrJitExport` (or a loaded runtime, or an export folder) at the queries q: uv
+    and the footprint where q has them (else the finest level)."""
+    import drjit as dr
+    from drjit.llvm.ad import Array3f, Float
+
+    rt = _runtime(exported)
+    cpu = lambda t: Float(np.ascontiguousarray(t.detach().cpu().float().numpy()))  # noqa: E731
+    vec = lambda w: Array3f(*(cpu(w[:, i]) for i in range(3)))  # noqa: E731
+    uv = None if q.uv is None else (cpu(q.uv[:, 0]), cpu(q.uv[:, 1]))
+    fp = None if q.footprint is None else tuple(cpu(q.footprint[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+    out = rt.eval(vec(q.wi), vec(q.wo), True, uv, fp)
+    dr.eval(out)
+    return torch.from_numpy(np.array(out, dtype=np.float32).T.copy()).to(q.wi.device)
+
+
+def drjit_evals_per_second(exported, q: Query) -> float:
+    """Evaluations per second of the runtime on Dr.Jit's LLVM backend with its current thread count, the
+    `marginal_rate` (kernel compilation and transfers do not count)."""
+    rt = _runtime(exported)
+    return marginal_rate(lambda part: drjit_eval(rt, part), q, "drjit_evals_per_second")
