@@ -4,21 +4,10 @@ Mitsuba's own kernels, symbolic (megakernel) mode included, without torch.
     from neumat.integrations import mitsuba_native
     mi = mitsuba_native.register()      # the "neumat" plugin; llvm_ad_rgb unless an RGB variant is already set
     bsdf = {"type": "neumat", "filename": "model.nmat"}   # or the folder `neumat export --format drjit` wrote
-    image = mi.render(mi.load_dict({... "bsdf": bsdf ...}))  # Mitsuba's default (symbolic) mode
 
-The "neumat" plugin registered here is the same one `neumat.integrations.mitsuba.register` registers: its
-`filename` (or `material`) property picks the native path whenever one exists (a drjit export, or a `.nmat` whose
-method declares a Dr.Jit translator, `neumat.fit.method.Method.drjit`: translated once at load, with torch) and the
-torch bridge (`neumat.integrations.mitsuba`, evaluated mode; it installs itself as the fallback when imported, and
-its `register` is this one) for everything else; `"native": False` forces the bridge. Loading a drjit export and rendering it import no torch; this module imports none either.
-
-Conventions are the bridge's (docs/mitsuba.md): `si.wi` in the model's incident slot, swapped in importance
-transport, value times cos(theta_wo), one-sided glossy reflection. Models that cannot sample themselves
-(`Runtime.can_sample` false) are sampled cosine-weighted (Mitsuba's `square_to_cosine_hemisphere`, as the bridge
-does); a model that samples (the fitted GGX) draws from its own sampler on `sample2`, as the bridge's
-`material.sample`. The `mlp_form` property picks the runtime's MLP form (`neumat.export.drjit.runtime.FORMS`).
-Spatially varying models read `si.uv` and the footprint of Mitsuba's
-uv partials (`si.duv_dx`, `si.duv_dy`; zero, the finest level, where the integrator computes none).
+The plugin picks the native path whenever one exists (a drjit export, or a `.nmat` whose method declares a Dr.Jit
+translator) and the torch bridge (`neumat.integrations.mitsuba`) otherwise; `"native": False` forces the bridge.
+Conventions, sampling and footprints: docs/formats/drjit.md.
 """
 from __future__ import annotations
 

@@ -1,20 +1,9 @@
 """The Dr.Jit runtime of exported models: load a `drjit` export and evaluate it on Dr.Jit arrays, without torch.
 
-An export (`neumat.export.drjit.format`, `neumat export --format drjit`) is a folder holding `manifest.json` (the
-program and its settings) and `arrays.npz` (the weights, stored as the method's translator wrote them: fp16 where
-the runtime form rounded them to fp16). `load_runtime(path, backend)` reads it with numpy only and builds a
-`Runtime` whose `eval(wi, wo, active)` is pure Dr.Jit, so it records in symbolic (megakernel) mode and runs on the
-LLVM and CUDA backends alike. This module imports neither torch nor any torch-using part of neumat.
-
-Programs (the manifest's "program"; one per model family's runtime form, `PROGRAMS`):
-
-- "healpix-mlp" (NeuBRDF): the runtime form of `neumat.methods.neubrdf.model.NeuBRDF` with uniform corner weights:
-  the ring pixels of wi and wo (`vec2pix`), two rows of the per-pixel first-layer table (built at load from the
-  corner features and the first MLP layer), the direction inputs' first-layer columns, the rest of the MLP
-  (`Mlp`: unrolled fma on constant weights on LLVM, `drjit.nn` cooperative vectors on CUDA) and exp.
-
-Shared pieces a new program uses: `vec2pix` (HEALPix ring pixel, float32 as `neumat.nn.healpix.vec2pix_xyz`),
-`direction_inputs` (NBRDF's half / difference vectors, optionally warped), `Mlp`.
+An export (`neumat export --format drjit`) is a folder holding `manifest.json` (the program and its settings) and
+`arrays.npz` (the weights). `load_runtime(path, backend)` reads it with numpy only and builds a `Runtime` whose
+`eval(wi, wo, active)` is pure Dr.Jit (symbolic mode, LLVM and CUDA alike). One program per model family's runtime
+form (`PROGRAMS`); shared pieces `vec2pix`, `direction_inputs`, `Mlp`. Programs and formats: docs/formats/drjit.md.
 """
 from __future__ import annotations
 
