@@ -1,8 +1,12 @@
 """GLSL export of NeuBRDF (Dou, Zheng et al. 2024): the runtime the paper deploys in Falcor, as a shader.
 
-`export_neubrdf(model)` computes what `model.eval` computes (analytic HEALPix lookup, codebook, tiny MLP,
-exp). Entry points `neumat_eval(wi, wo[, uv[, footprint]])` and `neumat_eval_lod`; tables are RGBA32F
-`sampler2DArray`s (`nbrdf_index`, `nbrdf_features`, `nbrdf_levels`, `nbrdf_vertices`).
+`export_neubrdf(model)` computes what `model.eval` computes. Uniform corner weights (the runtime form): the
+runtime's per-pixel first-layer table (`nbrdf_first`, two rows per evaluation, one vec4 texel per 4
+pre-activations) and the rest of the MLP; inverse-distance weights: analytic HEALPix corners, codebook, first
+layer. The MLP is unrolled in vec4 groups (`neumat.export.glsl_common.mlp_vec4`), then exp. Entry points
+`neumat_eval(wi, wo[, uv[, footprint]])` and `neumat_eval_lod`; tables are RGBA32F (RGBA16F for the codebook /
+features of an fp16 export) `sampler2DArray`s (`nbrdf_first`, or `nbrdf_index`, `nbrdf_features`,
+`nbrdf_levels`, `nbrdf_vertices`).
 
 Details: docs/formats/glsl.md, section `neumat.methods.neubrdf.glsl`.
 """
