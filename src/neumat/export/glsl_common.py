@@ -137,6 +137,8 @@ def _ivec2s(name: str, pairs: list[tuple[int, int]]) -> str:
 _COMMON = """
 float nm_softplus(float x) { return x > 20.0 ? x : (x < -15.0 ? exp(x) : log(1.0 + exp(x))); }
 float nm_silu(float x) { return x / (1.0 + exp(-x)); }
+vec4 nm_silu4(vec4 x) { return x / (1.0 + exp(-x)); }
+vec4 nm_relu4(vec4 x) { return max(x, 0.0); }
 
 // i modulo n for i in [-n, 2n) (GLSL leaves % of negative operands undefined)
 int nm_wrap(int i, int n) { return i < 0 ? i + n : (i >= n ? i - n : i); }
@@ -360,20 +362,25 @@ vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
 """
 
 
-def mlp_chain(prefix: str, mlp, source: str, activation: str) -> tuple[list[str], str, str]:
-    """Constants (`<prefix><layer>_W / _B`), statements and the name of the output array of an MLP (neumat.nn.mlp)
-    whose input is `source` (an expression in i), `activation` (a GLSL function) after every hidden layer."""
-    consts, body, previous = [], "", source
+def mlp_chain(prefix: str, mlp, source: str | list[str], activation: str) -> tuple[list[str], str, str]:
+    """Constants (`<prefix><layer>_W / _B`), statements and the name of the output float array of an MLP
+    (neumat.nn.mlp) whose input is `source` (an expression in i, or one expression per input: with constant i
+    both arms of a conditional compile, so `[a if i < 3 else b for i in ...]` spells an input that picks its
+    source by index), `activation` (a GLSL function of a float) after
+    every hidden layer (its vec4 spelling `<activation>4` on the hidden groups: nm_silu4, nm_relu4 of `_COMMON`):
+    `mlp_vec4` (unrolled, vec4 groups) of source at i = 0, 1, ..., the output copied into
+    `float <prefix><last>[out]`."""
     layers = mlp.linears()
-    for i, layer in enumerate(layers):
-        name, array = f"{prefix}{i}", f"{prefix.lower()}{i}"
-        consts += [_floats(f"{name}_W", layer.weight), _floats(f"{name}_B", layer.bias)]
-        body += f"    float {array}[{layer.out_features}];\n" + _linear(name, layer.out_features, layer.in_features,
-                                                                           previous, array)
-        if i < len(layers) - 1:
-            body += f"    for (int o = 0; o < {layer.out_features}; ++o) {array}[o] = {activation}({array}[o]);\n"
-        previous = f"{array}[i]"
-    return consts, body, f"{prefix.lower()}{len(layers) - 1}"
+    inputs = list(source) if isinstance(source, list) else \
+        [re.sub(r"\bi\b", str(i), source) for i in range(layers[0].in_features)]
+    consts, body, outputs = mlp_vec4(prefix, mlp, inputs, f"{activation}4")
+    out_dim, array = layers[-1].out_features, f"{prefix.lower()}{len(layers) - 1}"
+    values = []
+    for g, var in enumerate(outputs):
+        size = min(4, out_dim - 4 * g)
+        values += [var] if size == 1 else [f"{var}.{c}" for c in _SWIZZLE[:size]]
+    body += f"    float {array}[{out_dim}] = float[]({', '.join(values)});\n"
+    return consts, body, array
 
 
 def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> str:
