@@ -26,7 +26,8 @@ DESCRIPTION = ("evaluations / sample+pdf per CPU second, FLOPs, % of sgemm, cost
                "training step time of every model")
 BUDGET = {
     "quick": {"ours": "ggx, nbrdf, neubrdf and neural-appearance at batches of 2^10 and 2^12 queries, best of 3; "
-                      "exports of neubrdf only (GLSL at fp32 and fp16 beside GLSL GGX, 2^16 queries); training steps of nbrdf and a small neubrdf at batches 2^8 and 2^10",
+                      "exports of neubrdf only (GLSL at fp32 and fp16 beside GLSL GGX, 2^16 queries); training steps "
+                      "of nbrdf and a small neubrdf at batches 2^8 and 2^10",
               "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
               "expected_wall": "about 30 s"},
     "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries, best of 7 samples of >= 0.05 CPU s; every export "

@@ -29,7 +29,7 @@ class GLSLExport:
     entry: list[str] | None = None
     """The entry points the source defines (manifest.json); default those of `spatially_varying`."""
     precision: str = "fp32"
-    """"fp32" (float textures, float constants) or "fp16" (half textures, weights packed as halves)."""
+    """"fp32" (float textures, float constants) or "fp16" (half textures, weights as halves)."""
     exact: tuple[str, ...] = ()
     """Textures stored as float32 at every precision (index tables, fixed Fourier matrices, geometry, tables
     computed from the stored values)."""

@@ -10,10 +10,11 @@ from ..core.checks import check_int
 
 
 def best_time(fn: Callable[[], object], repeats: int = 3, warmup: bool = True,
-              clock: Callable[[], float] = time.perf_counter) -> float:
+              clock: Callable[[], float] | None = None) -> float:
     """Seconds of the fastest of `repeats` calls of fn() (after one untimed warm-up call unless `warmup` is
-    False), without gradients: the least disturbed run on a shared machine. `clock`: wall (the default) or, say,
-    `time.process_time` (CPU seconds of every thread of this process: a loaded machine's waits do not count)."""
+    False), without gradients: the least disturbed run on a shared machine. `clock`: wall (None:
+    time.perf_counter) or, say, `time.process_time` (CPU seconds of every thread of this process: a loaded machine's waits do not count)."""
+    clock = clock or time.perf_counter
     check_int(repeats, "best_time repeats", 1)
     with torch.no_grad():
         if warmup:
