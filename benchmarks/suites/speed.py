@@ -26,7 +26,8 @@ DESCRIPTION = ("evaluations / sample+pdf per CPU second, FLOPs, % of sgemm, cost
                "training step time of every model")
 BUDGET = {
     "quick": {"ours": "ggx, nbrdf, neubrdf and neural-appearance at batches of 2^10 and 2^12 queries, best of 3; "
-                      "exports of neubrdf only; training steps of nbrdf and a small neubrdf at batches 2^8 and 2^10",
+                      "exports of neubrdf only (GLSL at fp32 and fp16 beside GLSL GGX, 2^16 queries); training steps "
+                      "of nbrdf and a small neubrdf at batches 2^8 and 2^10",
               "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
               "expected_wall": "about 30 s"},
     "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries, best of 7 samples of >= 0.05 CPU s; every export "
@@ -61,7 +62,13 @@ def run(run: harness.Run) -> None:
                          "x GGX": ggx[n] / rate})
     run.table("eval", "Evaluation and sampling rates (runtime form, one thread)", rows,
               "models at their default (paper) config; dipole-bssrdf with its quadrature on a sphere of radius 0.5")
-    _exports(run, materials, sizes[-1] if run.quick else 2 ** 16)
+    export_n = 2 ** 16
+    torch_rates = {r["material"]: r["evals/cpu s"] for r in rows if r["queries"] == export_n}
+    missing = [name for name in materials if name not in torch_rates]
+    for name in (["ggx:roughness=0.2", "neubrdf"] if run.quick else missing):  # the exports' torch rates
+        if name in materials and name not in torch_rates:
+            torch_rates[name] = _eval_rate(run, materials[name], export_n)
+    _exports(run, materials, export_n, torch_rates, sgemm)
     _training(run)
 
 
@@ -119,47 +126,79 @@ def _sample_rate(run: harness.Run, material, n: int) -> float:
     return n / run.time(sample_and_pdf)
 
 
-def _exports(run: harness.Run, materials: dict, n: int) -> None:
-    """GLSL on llvmpipe (EGL) and Slang on slangpy's CPU device, where the package exports the model."""
+def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm: float) -> None:
+    """GLSL on llvmpipe (EGL) at both precisions, beside GLSL GGX and the harness's floor (a shader returning
+    wi + wo), and Slang on slangpy's CPU device, where the package exports the model: marginal rates per wall and
+    per CPU second of this process (llvmpipe's thread included), % of the sgemm bound, cost against GLSL GGX and
+    against the model's torch runtime per CPU second."""
+    from neumat.export.glsl_common import GLSLExport
     from neumat.export.registry import load_formats
     from neumat.testing.drjit_parity import drjit_available, drjit_evals_per_second
+    from neumat.testing.glsl_ggx import ggx_glsl
     from neumat.testing.parity import glsl_evals_per_second, opengl_available
     from neumat.testing.slang_parity import slang_available, slang_evals_per_second
 
-    targets = {"glsl (llvmpipe)": (opengl_available("egl"), glsl_evals_per_second),
-               "slang (slangpy cpu)": (slang_available("cpu"), slang_evals_per_second),
-               "drjit (llvm)": (drjit_available(), _one_thread(drjit_evals_per_second))}
+    targets = {"glsl (llvmpipe)": (opengl_available("egl"), glsl_evals_per_second, ("fp32", "fp16")),
+               "slang (slangpy cpu)": (slang_available("cpu"), slang_evals_per_second, ("fp16",)),
+               "drjit (llvm)": (drjit_available(), _one_thread(drjit_evals_per_second), ("fp32",))}
     names = ["neubrdf"] if run.quick else [k for k in materials if k in load_all().names()]
     if run.quick:
         run.skip("exports of models other than neubrdf", "--quick")
     rows = []
-    for target, (available, rate) in targets.items():
+    for target, (available, rate, precisions) in targets.items():
         fmt = target.split()[0]
         if not available:
             run.skip(f"{fmt} export rates", f"{target} is not available on this machine")
             continue
+        jobs = []
+        if fmt == "glsl":
+            ggx = materials["ggx:roughness=0.2"]
+            jobs += [("ggx:roughness=0.2", "fp32", ggx_glsl(ggx), ggx),
+                     ("harness floor (wi + wo)", "fp32",
+                      GLSLExport("vec3 neumat_eval(vec3 wi, vec3 wo) { return wi + wo; }", {}, False), ggx)]
         for name in names:
             m = materials[name]
-            try:
-                exported = load_formats().get(fmt).export(m)
-            except Exception as e:  # noqa: BLE001  (a model without this export: recorded, not fatal)
-                run.skip(f"{fmt} export of {name}", f"{type(e).__name__}: {str(e).splitlines()[0][:120]}")
-                continue
-            rows.append({"material": name, "target": target, "queries": n,
-                         "evals/wall s": rate(exported, queries(m, n, run.seed))})
+            for precision in precisions:
+                try:
+                    jobs.append((name, precision, load_formats().get(fmt).export(m, precision=precision), m))
+                except Exception as e:  # noqa: BLE001  (a model without this export: recorded, not fatal)
+                    run.skip(f"{fmt} export of {name}", f"{type(e).__name__}: {str(e).splitlines()[0][:120]}")
+        ggx_rate = None
+        for name, precision, exported, m in jobs:
+            q = queries(m, n, run.seed)
+            wall = rate(exported, q)
+            cpu = rate(exported, q, clock="cpu", repeats=max(run.repeats, 5))
+            flops = int(m.flops()) if name in names and callable(getattr(m, "flops", None)) else None
+            if name == "ggx:roughness=0.2":
+                ggx_rate = cpu
+            rows.append({"material": name, "target": target, "precision": precision, "queries": n,
+                         "evals/wall s": wall, "evals/cpu s": cpu,
+                         "% sgemm": None if flops is None else 100 * flops * cpu / sgemm,
+                         "x GGX (glsl)": None if ggx_rate is None or name.startswith("harness") else ggx_rate / cpu,
+                         "x torch": torch_rates[name] / cpu if name in torch_rates else None})
     run.table("exports", "Export targets (one thread where the target honours it)", rows,
-              "wall-clock marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
-              "compilation and uploads do not count); llvmpipe with LP_NUM_THREADS = the run's threads")
+              "marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
+              "compilation and uploads do not count), per wall second (best of the run's repeats) and per CPU "
+              "second of this process (best of at least 5; llvmpipe's thread counted, a loaded machine's waits "
+              "not); llvmpipe with LP_NUM_THREADS = the run's threads; '% sgemm' from the CPU rate and the model's "
+              "FLOPs; 'x GGX (glsl)' = GLSL GGX's CPU rate / the row's (same harness); 'x torch' = the torch "
+              "runtime's evals/cpu s at the same batch (table above) / the row's; the floor row is the harness's "
+              "own cost (query upload, one fragment, read-back)")
 
 
 def _one_thread(rate):
-    """`rate` with Dr.Jit on one thread (the suite's single-thread protocol), its thread count restored after."""
-    def wrapped(exported, q):
+    """`rate` with Dr.Jit on one thread (the suite's single-thread protocol), its thread count restored after; the
+    harness's clock / repeats arguments pass through where `rate` takes them."""
+    import inspect
+
+    takes = set(inspect.signature(rate).parameters)
+
+    def wrapped(exported, q, **kwargs):
         import drjit as dr
         before = dr.thread_count()
         dr.set_thread_count(1)
         try:
-            return rate(exported, q)
+            return rate(exported, q, **{k: v for k, v in kwargs.items() if k in takes})
         finally:
             dr.set_thread_count(before)
     return wrapped

@@ -9,7 +9,9 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
+from neumat.methods.neubrdf.glsl import hemisphere_pixels
 from neumat.methods.neubrdf.model import NeuBRDF
+from neumat.models.half_precision import half_rounded
 from neumat.nn import healpix as hpx
 from neumat.testing.parity import glsl_eval, glsl_run, opengl_available
 
@@ -83,16 +85,18 @@ def _model(spec: dict, seed: int = 1) -> NeuBRDF:
     return model
 
 
-def _parity(model: NeuBRDF, n: int = 4096, lod: bool = False, seed: int = 2) -> float:
-    """Largest relative difference of the shader from model.eval over random queries (both directions on the
-    hemisphere, uv over three tiles), leaving out lookups within 1e-5 rad of a pixel boundary."""
+def _parity(model: NeuBRDF, n: int = 4096, lod: bool = False, seed: int = 2, precision: str = "fp32",
+            reference: NeuBRDF | None = None) -> float:
+    """Largest relative difference of the shader (at `precision`) from `reference`.eval (default: the model) over
+    random queries (both directions on the hemisphere, uv over three tiles), leaving out lookups within 1e-5 rad
+    of a pixel boundary."""
     g = torch.Generator().manual_seed(seed)
     wi, wo = _directions(n, g, upper=True), _directions(n, g, upper=True)
     uv = torch.rand(n, 2, generator=g) * 3 - 1 if model.texture is not None else None
     q = Query(wi=wi, wo=wo, uv=uv, lod=torch.rand(n, generator=g) * 5 - 1 if lod else None)
     with torch.no_grad():
-        reference = model.eval(q)
-    out = glsl_eval(export_glsl(model, "fp32"), q)
+        reference = (reference or model).eval(q)
+    out = glsl_eval(export_glsl(model, precision), q)
     nside = model.cfg.nside
     keep = ~(_near_boundary(nside, wi, g) | _near_boundary(nside, wo * torch.tensor([1.0, 1.0, -1.0]), g))
     assert int(keep.sum()) > 0.9 * n
@@ -185,7 +189,13 @@ def test_tables_are_compact_and_written(tmp_path):
     assert torch.equal(torch.from_numpy(shader.textures["nbrdf_features"]).flatten()[:32 * 8],
                        model.grid.codebook.detach().flatten())
     model.runtime()
-    assert set(export_glsl(model).textures) == {"nbrdf_index", "nbrdf_features"}  # 1/4 weights: no directions
+    runtime = export_glsl(model)
+    assert set(runtime.textures) == {"nbrdf_first"}  # 1/4 weights: the runtime's first-layer table only
+    assert runtime.exact == ("nbrdf_first",)  # float32 at every precision (a float32 product, as in torch)
+    p, h = hemisphere_pixels(8), 16
+    rows = torch.from_numpy(runtime.textures["nbrdf_first"]).reshape(-1, h)  # 1024 texels: 64 rows of 16 a line
+    table = model._runtime_table
+    assert torch.equal(rows[:p], table[:p]) and torch.equal(rows[p:2 * p], table[12 * 64:12 * 64 + p])
     manifest = json.loads((shader.write(tmp_path) / "manifest.json").read_text())
     assert manifest["entry"] == ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
     assert (tmp_path / "nbrdf_index.f32").stat().st_size == shader.textures["nbrdf_index"].nbytes
@@ -194,3 +204,37 @@ def test_tables_are_compact_and_written(tmp_path):
 def test_unsupported_activation_is_refused():
     with pytest.raises(InputError, match="gelu"):
         export_glsl(NeuBRDF(**SMALL, activation="gelu"))
+
+
+@needs_gl
+@pytest.mark.parametrize("features", ["vq", "dense"])
+@pytest.mark.parametrize("kind", ["none", "hd_warp"])
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_first_layer_table_matches_torch(features, kind, precision):
+    """The uniform-weight shader (`nbrdf_first`: the runtime's per-pixel first-layer table, one vec4 fetch per
+    4 pre-activations, the unrolled vec4 MLP): the runtime form against its torch runtime (its floats are halves
+    already, so both precisions compute the same function), and the training form with uniform weights, at fp16
+    against `half_rounded` (the stored values as halves, float32 arithmetic), with a hidden width that is not a
+    multiple of 4 and a neural texture."""
+    spec = {**SMALL, "features": features, "direction_inputs": kind}
+    model = _model(spec).runtime()
+    assert "nbrdf_first" in export_glsl(model, precision).textures
+    assert _parity(model, precision=precision) < 1e-4
+    trained = _model({**spec, "interpolation": "uniform", "hidden": 18, "texture_height": 8, "texture_width": 8,
+                      "texture_channels": 5})
+    shader = export_glsl(trained, precision)
+    assert set(shader.textures) == {"nbrdf_first", "neumat_spatial"}
+    reference = half_rounded(trained) if precision == "fp16" else trained
+    assert _parity(trained, precision=precision, reference=reference) < 1e-4
+
+
+@needs_gl
+def test_first_layer_table_without_hidden_layers_and_pruned_matches_torch():
+    """The table feeding the output layer directly (no hidden layer), and a pruned grid's ancestor features."""
+    model = _model({**SMALL, "hidden_layers": 0, "interpolation": "uniform"})
+    assert _parity(model) < 1e-4
+    model = _model(SMALL)
+    g = torch.Generator().manual_seed(5)
+    model.prune(_directions(60, g, upper=True), _directions(60, g, upper=True))
+    model.runtime()
+    assert _parity(model) < 1e-4

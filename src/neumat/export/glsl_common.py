@@ -29,9 +29,14 @@ class GLSLExport:
     entry: list[str] | None = None
     """The entry points the source defines (manifest.json); default those of `spatially_varying`."""
     precision: str = "fp32"
-    """"fp32" (float textures, float constants) or "fp16" (half textures, weights packed as halves)."""
+    """"fp32" (float textures, float constants) or "fp16" (half textures, weights as halves)."""
     exact: tuple[str, ...] = ()
-    """Textures stored as float32 at every precision (index tables, fixed Fourier matrices, geometry)."""
+    """Textures stored as float32 at every precision (index tables, fixed Fourier matrices, geometry, tables
+    computed from the stored values)."""
+    fp16_textures: dict[str, np.ndarray] = field(default_factory=dict)
+    """Of the `exact` textures computed from stored values (NeuBRDF's first-layer table), their values when those
+    are halves (computed in float32 from the half-rounded values, as `neumat.models.half_precision.half_rounded`):
+    the fp16 form (`to_half`) stores these instead."""
     weight_values: int | None = None
     """Decoder weights in the source (set by `to_half`; an fp32 export counts its `const float` arrays)."""
 
@@ -132,6 +137,8 @@ def _ivec2s(name: str, pairs: list[tuple[int, int]]) -> str:
 _COMMON = """
 float nm_softplus(float x) { return x > 20.0 ? x : (x < -15.0 ? exp(x) : log(1.0 + exp(x))); }
 float nm_silu(float x) { return x / (1.0 + exp(-x)); }
+vec4 nm_silu4(vec4 x) { return x / (1.0 + exp(-x)); }
+vec4 nm_relu4(vec4 x) { return max(x, 0.0); }
 
 // i modulo n for i in [-n, 2n) (GLSL leaves % of negative operands undefined)
 int nm_wrap(int i, int n) { return i < 0 ? i + n : (i >= n ? i - n : i); }
@@ -355,20 +362,25 @@ vec3 neumat_eval_lod(vec3 wi, vec3 wo, vec2 uv, float lod) {{
 """
 
 
-def mlp_chain(prefix: str, mlp, source: str, activation: str) -> tuple[list[str], str, str]:
-    """Constants (`<prefix><layer>_W / _B`), statements and the name of the output array of an MLP (neumat.nn.mlp)
-    whose input is `source` (an expression in i), `activation` (a GLSL function) after every hidden layer."""
-    consts, body, previous = [], "", source
+def mlp_chain(prefix: str, mlp, source: str | list[str], activation: str) -> tuple[list[str], str, str]:
+    """Constants (`<prefix><layer>_W / _B`), statements and the name of the output float array of an MLP
+    (neumat.nn.mlp) whose input is `source` (an expression in i, or one expression per input: with constant i
+    both arms of a conditional compile, so `[a if i < 3 else b for i in ...]` spells an input that picks its
+    source by index), `activation` (a GLSL function of a float) after
+    every hidden layer (its vec4 spelling `<activation>4` on the hidden groups: nm_silu4, nm_relu4 of `_COMMON`):
+    `mlp_vec4` (unrolled, vec4 groups) of source at i = 0, 1, ..., the output copied into
+    `float <prefix><last>[out]`."""
     layers = mlp.linears()
-    for i, layer in enumerate(layers):
-        name, array = f"{prefix}{i}", f"{prefix.lower()}{i}"
-        consts += [_floats(f"{name}_W", layer.weight), _floats(f"{name}_B", layer.bias)]
-        body += f"    float {array}[{layer.out_features}];\n" + _linear(name, layer.out_features, layer.in_features,
-                                                                           previous, array)
-        if i < len(layers) - 1:
-            body += f"    for (int o = 0; o < {layer.out_features}; ++o) {array}[o] = {activation}({array}[o]);\n"
-        previous = f"{array}[i]"
-    return consts, body, f"{prefix.lower()}{len(layers) - 1}"
+    inputs = list(source) if isinstance(source, list) else \
+        [re.sub(r"\bi\b", str(i), source) for i in range(layers[0].in_features)]
+    consts, body, outputs = mlp_vec4(prefix, mlp, inputs, f"{activation}4")
+    out_dim, array = layers[-1].out_features, f"{prefix.lower()}{len(layers) - 1}"
+    values = []
+    for g, var in enumerate(outputs):
+        size = min(4, out_dim - 4 * g)
+        values += [var] if size == 1 else [f"{var}.{c}" for c in _SWIZZLE[:size]]
+    body += f"    float {array}[{out_dim}] = float[]({', '.join(values)});\n"
+    return consts, body, array
 
 
 def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> str:
@@ -379,3 +391,77 @@ def _linear(name: str, out_dim: int, in_dim: int, source: str, target: str) -> s
         {target}[o] = acc;
     }}
 """
+
+
+_VEC = {1: "float", 2: "vec2", 3: "vec3", 4: "vec4"}
+_SWIZZLE = "xyzw"
+
+
+def vec4_components(names: list[str], count: int) -> list[str]:
+    """The first `count` scalar components of the vec4 variables `names` (`["a.x", "a.y", ...]`)."""
+    out = [f"{name}.{c}" for name in names for c in _SWIZZLE][:count]
+    if len(out) < count:
+        raise ValueError(f"vec4_components: {len(names)} vec4s hold fewer than {count} components")
+    return out
+
+
+def dense_vec4(name: str, weight: torch.Tensor, inputs: list[str], target: str, bias: torch.Tensor | None = None,
+               init: list[str] | None = None, pad: bool = False) -> tuple[list[str], str, list[str]]:
+    """Constants, statements and output variables of `y = W x (+ b | + init)`, unrolled and vectorised: outputs in
+    groups of 4 (`vec4 <target>_<g>`; a last group of fewer outputs is a float / vec2 / vec3), each the sum of one
+    vecN product per input, `x_i * vecN(W[o, i], W[o + 1, i], ...)`, read from `const float <name>_W[out * in]`
+    (row-major, as `mlp_chain`) with constant indices, so that the compiler folds them into immediates
+    (`half_precision.to_half` packs the array as halves; the constant reads of those fold too). `inputs`: one
+    scalar GLSL expression per input column. The start of each group is `init[g]` (a vec4 expression, swizzled to
+    the group's size) if given, else the bias `const float <name>_B[out]` (or 0). `pad`: every group a vec4, the
+    missing outputs 0."""
+    out_dim, in_dim = weight.shape
+    if len(inputs) != in_dim:
+        raise ValueError(f"dense_vec4 {name}: {len(inputs)} inputs for a {out_dim} x {in_dim} matrix")
+    consts = [_floats(f"{name}_W", weight)] if in_dim else []
+    if bias is not None and init is None:
+        consts.append(_floats(f"{name}_B", bias))
+    code, outputs = "", []
+    for g, o0 in enumerate(range(0, out_dim, 4)):
+        rows = list(range(o0, min(o0 + 4, out_dim)))
+        vec = _VEC[4 if pad else len(rows)]
+        zeros = [] if vec == _VEC[len(rows)] else ["0.0"] * (4 - len(rows))
+        if init is not None:  # a vec4 expression; fewer outputs read its first components
+            start = init[g] if vec == "vec4" else f"({init[g]}).{_SWIZZLE[:len(rows)]}"
+        elif bias is not None:
+            start = f"{vec}({', '.join([f'{name}_B[{o}]' for o in rows] + zeros)})"
+        else:
+            start = f"{vec}(0.0)"
+        terms = [start] + [f"{x} * {vec}({', '.join([f'{name}_W[{o * in_dim + i}]' for o in rows] + zeros)})"
+                           for i, x in enumerate(inputs)]
+        var = f"{target}_{g}"
+        code += f"    {vec} {var} = " + "\n        + ".join(terms) + ";\n"
+        outputs.append(var)
+    return consts, code, outputs
+
+
+def mlp_vec4(prefix: str, mlp, inputs: list[str], activation: str, first_init: list[str] | None = None,
+             first_columns: slice | None = None) -> tuple[list[str], str, list[str]]:
+    """`mlp_chain` unrolled and vectorised (`dense_vec4` per layer): constants `<prefix><layer>_W / _B`, statements,
+    and the output variables (vec4 groups; the last a float / vec2 / vec3 when the output size is not a multiple of
+    4). `inputs`: one scalar expression per input; `activation`: a GLSL function of a vec4 applied to every hidden
+    group (hidden groups are vec4s, padded outputs are 0 before the activation and never read). `first_init`,
+    `first_columns`: the first layer starts from `first_init` (one vec4 expression per group, e.g. a lookup table's
+    pre-activations, bias included) and reads only the weight columns `first_columns` (those of `inputs`)."""
+    consts, body, xs = [], "", list(inputs)
+    layers = mlp.linears()
+    outputs: list[str] = []
+    for l, layer in enumerate(layers):
+        name, var = f"{prefix}{l}", f"{prefix.lower()}{l}"
+        weight, bias, init = layer.weight.detach(), layer.bias.detach(), None
+        if l == 0 and first_columns is not None:
+            weight = weight[:, first_columns]
+            init = first_init
+        hidden = l < len(layers) - 1
+        c, code, outputs = dense_vec4(name, weight, xs, var, bias, init, pad=hidden)
+        consts += c
+        body += code
+        if hidden:
+            body += "".join(f"    {v} = {activation}({v});\n" for v in outputs)
+            xs = vec4_components(outputs, layer.out_features)
+    return consts, body, outputs

@@ -61,6 +61,13 @@ def _index_calls(source: str, name: str, accessor: str) -> str:
     return "".join(out) + source[pos:]
 
 
+def _literal(value: np.float16) -> str:
+    """A GLSL float literal that parses (as float32) to exactly the half `value`."""
+    text = repr(float(np.float32(value)))  # the shortest decimal of the value (exact in float32, as every half)
+    text = text if "." in text or "e" in text else text + ".0"
+    return f"({text})" if text.startswith("-") else text
+
+
 def to_half(export: GLSLExport) -> GLSLExport:
     """The fp16 form of an fp32 `export` (module docstring); `export` is left unchanged."""
     if export.precision != "fp32":
@@ -73,14 +80,23 @@ def to_half(export: GLSLExport) -> GLSLExport:
         if len(flat) != int(n):
             raise InputError(f"to_half: array {name} declares {n} values and has {len(flat)}")
         weights += len(flat)
-        words = pack_halves(half_values(flat, f"parameter {name}"))
-        packed = (f"const uint {name}_F16[{len(words)}] = uint[]({', '.join(f'0x{w:08x}u' for w in words)});\n"
-                  f"float {name}_AT(int k) {{ uint w = {name}_F16[k >> 1]; "
-                  f"return nm_half((k & 1) == 0 ? w & 65535u : w >> 16u); }}")
-        body = body.replace(f"const float {name}[{n}] = float[]({values});", packed, 1)
-        body = _index_calls(body, name, f"{name}_AT")
+        half = half_values(flat, f"parameter {name}")
+        marker = f"/* {name} */"
+        body = body.replace(f"const float {name}[{n}] = float[]({values});", marker, 1)
+        # reads at a literal index (unrolled code, `glsl_common.dense_vec4`) become the half's value as a literal,
+        # what a compiler folds a constant read of the packed array into (Mesa takes minutes to fold 10^4 of them)
+        body = re.sub(rf"\b{name}\[(\d+)\]", lambda m: _literal(half[int(m.group(1))]), body)
+        packed = ""
+        if re.search(rf"\b{name}\[", body):  # reads at computed indices: packed halves and their accessor
+            words = pack_halves(half)
+            packed = (f"const uint {name}_F16[{len(words)}] = uint[]({', '.join(f'0x{w:08x}u' for w in words)});\n"
+                      f"float {name}_AT(int k) {{ uint w = {name}_F16[k >> 1]; "
+                      f"return nm_half((k & 1) == 0 ? w & 65535u : w >> 16u); }}")
+            body = _index_calls(body, name, f"{name}_AT")
+        body = body.replace(marker, packed, 1)
     body = HALF_GLSL + body  # also read by the Slang spelling of half textures (`neumat.export.slang`)
-    textures = {name: data if name in export.exact else half_values(data, f"texture {name}")
-                for name, data in export.textures.items()}
+    textures = {name: export.fp16_textures.get(name, data) if name in export.exact
+                else half_values(data, f"texture {name}") for name, data in export.textures.items()}
     source = (header + "\n" if header else "") + body
-    return dataclasses.replace(export, source=source, textures=textures, precision="fp16", weight_values=weights)
+    return dataclasses.replace(export, source=source, textures=textures, precision="fp16", weight_values=weights,
+                               fp16_textures={})

@@ -8,6 +8,8 @@ its query (wi, wo, uv, footprint or lod) from float textures with `texelFetch`, 
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 
@@ -90,23 +92,31 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
     return glsl_run(export, inputs, call, backend, width)[:, :3].to(q.wi.device)
 
 
-def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "egl") -> float:
+def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "egl", clock: str = "wall",
+                          repeats: int = 3) -> float:
     """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine), the
-    `marginal_rate` (context creation, compilation and uploads do not count)."""
-    return marginal_rate(lambda part: glsl_eval(export, part, backend), q, "glsl_evals_per_second")
+    `marginal_rate` (context creation, compilation and uploads do not count); per wall or per CPU second of this
+    process (`clock` "cpu": llvmpipe's threads included, a loaded machine's waits not)."""
+    return marginal_rate(lambda part: glsl_eval(export, part, backend), q, "glsl_evals_per_second", clock, repeats)
 
 
-def marginal_rate(run, q: Query, who: str) -> float:
-    """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of 3 each, after a warm-up on
-    64), so that fixed costs do not count. NaN when the larger batch ran no slower (overheads dominate: use more
-    queries)."""
+#: clocks of `marginal_rate`
+CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
+
+
+def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3) -> float:
+    """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of `repeats` each, after a
+    warm-up on 64), so that fixed costs do not count; seconds of `clock` ("wall" or "cpu": this process's CPU
+    seconds, `CLOCKS`). NaN when the larger batch ran no slower (overheads dominate: use more queries)."""
+    if clock not in CLOCKS:
+        raise InputError(f"{who} clock: expected one of {', '.join(CLOCKS)}, got {clock!r}")
     n = len(q.wi)
     if n < 64:
         raise InputError(f"{who}: expected at least 64 queries, got {n}")
     run(q[:64])  # driver start-up, compilation
 
     def best_of(m: int) -> float:
-        return best_time(lambda: run(q[:m]), 3, warmup=False)
+        return best_time(lambda: run(q[:m]), repeats, warmup=False, clock=CLOCKS[clock])
 
     marginal = best_of(n) - best_of(n // 8)
     return (n - n // 8) / marginal if marginal > 0 else float("nan")

@@ -144,13 +144,14 @@ def slang_eval(export: SlangExport | SlangKernel, q: Query, entry: str | None = 
     return (out[:, 0] if entry in _SCALAR else out[:, :3]).to(q.wi.device)
 
 
-def slang_evals_per_second(export: SlangExport | SlangKernel, q: Query) -> float:
+def slang_evals_per_second(export: SlangExport | SlangKernel, q: Query, clock: str = "wall",
+                           repeats: int = 3) -> float:
     """Evaluations per second of `slang_eval(export, q)` (eval with q's footprint, else eval_lod), the
-    `neumat.testing.parity.marginal_rate` (compilation and uploads do not count)."""
+    `neumat.testing.parity.marginal_rate` (compilation and uploads do not count) per wall or CPU second."""
     from .parity import marginal_rate
 
     kernel = export if isinstance(export, SlangKernel) else SlangKernel(export)
-    return marginal_rate(lambda part: slang_eval(kernel, part), q, "slang_evals_per_second")
+    return marginal_rate(lambda part: slang_eval(kernel, part), q, "slang_evals_per_second", clock, repeats)
 
 
 def neupress_slang_parity(export: SlangExport, model, n: int, seed: int = 0) -> dict[str, float]:

@@ -128,7 +128,7 @@ def _parallax(model: NeuMIP) -> tuple[str, dict[str, np.ndarray]]:
         src, textures = pyramid_reader(model.offset_texture.levels(), model.offset_texture.max_probes,
                                        name="offset")
     channels, layers = cfg.offset_channels, -(-cfg.offset_channels // 4)
-    inputs = f"(i < {channels} ? zo[i / 4][i % 4] : wo[i - {channels}])"  # [z_o, wo] as NeuMIP.offset_uv
+    inputs = [f"zo[{i // 4}].{'xyzw'[i % 4]}" for i in range(channels)] + [f"wo.{c}" for c in "xyz"]  # [z_o, wo]
     consts, body, out = mlp_chain("NM_O", model.offset_mlp, inputs, "nm_silu")
     src += "\n".join(consts) + f"""
 
@@ -233,7 +233,8 @@ vec3 neumat_eval(NeumatLobes l, vec3 wo) {
     return nm_decode(l.wi, wo, l.z);
 }
 """
-        sampler_input = "(i < 3 ? wi[i] : z[(i - 3) / 4][(i - 3) % 4])"           # [wi, z] as ProxySampler
+        sampler_input = [f"wi.{c}" for c in "xyz"] + [f"z[{i // 4}].{'xyzw'[i % 4]}"      # [wi, z] as ProxySampler
+                                                      for i in range(model.sampler.mlp.linears()[0].in_features - 3)]
         s_consts, s_body, s_out = mlp_chain("NM_S", model.sampler.mlp, sampler_input, "nm_relu")
         parts.append(_SAMPLING + "\n".join(s_consts))
         parts.append(f"""

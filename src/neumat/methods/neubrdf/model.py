@@ -543,18 +543,44 @@ class NeuBRDF(LearnedMaterial):
                 hpx.pixel_corner_slots(n, pix, south, 0 if self._pruning is None else self._pruning[int(south)])[1]
                 for south in (False, True))
             return self.train(False)
+        self._pixel_features = self._pixel_mean_features()
+        self._runtime_table = self._pixel_first_layer(self._pixel_features)
+        return self.train(False)
+
+    @torch.no_grad()
+    def _pixel_mean_features(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per ring pixel of S+ and of S- (12 N_side^2, k) each: the mean of its 4 (ancestor) corner features,
+        what uniform weights interpolate (`runtime`); 0 for pixels outside the hemisphere (never looked up)."""
+        n = self.cfg.nside
+        pix = torch.arange(12 * n * n, device=self.level_i.device)
         tables = []
         for south in (False, True):
             vid = hpx.ancestor_corner_vertices(n, pix, 0 if self._pruning is None else self._pruning[int(south)])
             ok = (vid >= hpx.nvertices(n) - hpx.hemisphere_size(n)) if south else (vid < hpx.hemisphere_size(n))
             slots = (vid + hpx.south_grid_offset(n) if south else vid).clamp(0, 2 * hpx.hemisphere_size(n) - 1)
-            # pixels outside the hemisphere are never looked up; their entries are left at 0
             tables.append(torch.where(ok.all(-1, keepdim=True), self.grid(slots).mean(1), 0.0))
-        self._pixel_features = (tables[0], tables[1])
+        return tables[0], tables[1]
+
+    @torch.no_grad()
+    def _pixel_first_layer(self, tables: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+        """The uniform-weight runtime table (2 x 12 N_side^2, hidden) of per-pixel mean features `tables`
+        (`_pixel_mean_features`): rows W_i F_i(p) + b for the wi pixel p, then rows W_o F_o(mirror(p)) for the
+        pixel p of the unmirrored wo (`runtime`)."""
+        n, k = self.cfg.nside, self.cfg.feature_dim
+        first = self.mlp.net[0]
         w_i, w_o = first.weight[:, :k], first.weight[:, k:2 * k]
-        pre_o = tables[1][hpx.mirror_pixels(n).to(pix.device)] @ w_o.t()
-        self._runtime_table = torch.cat([torch.addmm(first.bias, tables[0], w_i.t()), pre_o])
-        return self.train(False)
+        pre_o = tables[1][hpx.mirror_pixels(n).to(tables[1].device)] @ w_o.t()
+        return torch.cat([torch.addmm(first.bias, tables[0], w_i.t()), pre_o])
+
+    @torch.no_grad()
+    def pixel_first_layer_table(self) -> torch.Tensor:
+        """The first-layer table of uniform corner weights (2 x 12 N_side^2, hidden), `_pixel_first_layer`: the
+        runtime's own table in runtime form with uniform weights, else computed from the current features and
+        first layer (what `eval` with `interpolation="uniform"` computes, refactored; the GLSL export's
+        `nbrdf_first`)."""
+        if self.is_runtime and self.cfg.interpolation == "uniform":
+            return self._runtime_table
+        return self._pixel_first_layer(self._pixel_mean_features())
 
     # ------------------------------------------------------------------------------------ storage
 
