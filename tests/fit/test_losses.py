@@ -126,3 +126,34 @@ def test_relative_l2_huber_is_eq10_up_to_its_clip_and_bounds_one_querys_pull():
     assert value.item() == pytest.approx(expected, rel=1e-9)
     value.backward()
     assert bool(torch.isfinite(pred.grad).all()) and bool((pred.grad[1] == 0).all())
+
+
+def test_relative_l2_robust_is_eq10_up_to_its_clip_and_pulls_dead_zone_predictions_up():
+    """Issue 55: with eps (1e-6) in the stop-gradient denominator, a prediction of 1e-16 against a target of 1e-4
+    got a pull of ~1e-9 on its log (Eq. 10 and Huber alike) and stayed there; "relative_l2_robust" pulls every
+    query under-predicted beyond the clip by 2 clip on log f_hat, and its value is the potential of that pull."""
+    eq10, huber, robust = (LOSSES.get(n)() for n in ("relative_l2_mix", "relative_l2_huber", "relative_l2_robust"))
+    assert robust(TARGET, TARGET, Q).item() == 0.0
+    pred = PRED.abs() + 0.5                                  # relative residuals all below 10: the same loss
+    assert robust(pred, TARGET, Q).item() == pytest.approx(eq10(pred, TARGET, Q).item(), rel=1e-12)
+    wi = WI[:1].expand(4, 3)
+    target = torch.tensor([[1e-4] * 3, [1e-4] * 3, [100.0] * 3, [0.3] * 3], dtype=torch.float64)
+    grads = {}
+    for name, loss in (("eq10", eq10), ("huber", huber), ("robust", robust)):
+        log_pred = torch.tensor([[-36.8] * 3, [-16.0] * 3, [-2.3] * 3, [-1.0] * 3], dtype=torch.float64,
+                                requires_grad=True)
+        loss(log_pred.exp(), target, Query(wi, wi)).backward()
+        grads[name] = log_pred.grad.sum(-1) * 4               # per query, on its log f_hat
+    assert abs(grads["eq10"][0]) < 1e-6 and abs(grads["huber"][0]) < 1e-6          # the dead zone
+    assert grads["robust"][:3].tolist() == pytest.approx([-20.0] * 3, rel=1e-3)        # 2 clip, wherever f_hat is
+    assert grads["robust"][3] == pytest.approx(grads["eq10"][3].item(), rel=1e-9)     # inside the clip: Eq. 10
+    # beyond the clip the value's own derivative in log f_hat is the pull (no stop-gradient): along a shared scale
+    b = torch.zeros((), dtype=torch.float64, requires_grad=True)
+    pred, t = torch.full((1, 3), 1e-3, dtype=torch.float64), torch.full((1, 3), 50.0, dtype=torch.float64)
+    robust(pred * b.exp(), t, Query(WI[:1], WI[:1])).backward()
+    h = 1e-6
+    numeric = (robust(pred * math.exp(h), t, Query(WI[:1], WI[:1])) - robust(pred * math.exp(-h), t,
+                                                                             Query(WI[:1], WI[:1]))) / (2 * h)
+    assert float(b.grad) == pytest.approx(float(numeric), rel=1e-5)
+    value = robust(torch.zeros(1, 3, dtype=torch.float64, requires_grad=True), t, Query(WI[:1], WI[:1]))
+    assert math.isfinite(value.item())                       # an underflowed prediction: finite, no NaN

@@ -5,11 +5,13 @@ Losses are `nn.Module`s, so a loss that keeps state (running statistics) keeps i
 trainer checkpoints. Methods may register their own at import time.
 
 Built-ins: "log_cos", "log_cos_eps", "log_cos_eps_linear", "l1", "l2", "relative", "relative_l2_mix",
-"relative_l2_huber".
+"relative_l2_huber", "relative_l2_robust".
 
 Details: docs/notes/fit.md, section `neumat.fit.losses`.
 """
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import nn
@@ -122,3 +124,37 @@ class RelativeL2HuberLoss(RelativeL2MixLoss):
 
     def __init__(self, weight: float = 0.9999, eps: float = 1e-6, clip: float = HUBER_CLIP) -> None:
         super().__init__(weight, eps, clip)
+
+
+#: the smallest |f_hat| "relative_l2_robust" divides by (a prediction that underflowed to 0 gets no gradient anyway)
+_TINY = 1e-30
+
+
+@LOSSES.register("relative_l2_robust")
+class RelativeL2RobustLoss(nn.Module):
+    """Eq. 10 up to relative residual `clip`, and beyond it (a query under-predicted more than `clip` times its
+    prediction's scale) c^2 + 2 c log((1 + q) / (1 + c)), q = |f_hat - f| / |f_hat| without stop-gradient or eps.
+
+    Each such query pulls log f_hat up by 2 c, as `relative_l2_huber` does wherever f_hat >> eps (one peak query
+    does not outweigh a batch), but (1) without its dead zone: with eps in the denominator, a prediction that fell
+    far below eps (1e-6; the exp decoders reach 1e-16 on a near-mirror, against targets of 1e-4) pulled log f_hat
+    by 2 c f_hat / (f_hat + eps) -> 0 however far below its target it was; and (2) the recorded value is the
+    potential of that pull, so the fit's loss records track what it descends: the stop-gradient denominator made
+    the Huber value grow as f / f_hat while the step pulled by a constant, and a fit that (correctly, for that
+    gradient) let an unresolved mirror peak go recorded a loss 30x above its first (issue 55,
+    benchmarks/studies/multiscale/results/polished_metal_stability.md). Wherever r <= clip (every query of a rough
+    set after the first steps) it is Eq. 10."""
+
+    def __init__(self, weight: float = 0.9999, eps: float = 1e-6, clip: float = HUBER_CLIP) -> None:
+        super().__init__()
+        self.weight, self.eps, self.clip = weight, eps, clip
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor, q: Query) -> torch.Tensor:
+        c = self.clip
+        sq = (pred - target).square().sum(-1)
+        rel = sq / (pred.detach() + self.eps).square().sum(-1)
+        tail = rel > c * c
+        ratio = sq.clamp(min=_TINY).sqrt() / pred.norm(dim=-1).clamp(min=_TINY)
+        ratio = torch.where(tail, ratio, torch.full_like(ratio, c))  # no gradient through the other branch
+        rel = torch.where(tail, c * c + 2 * c * (torch.log1p(ratio) - math.log1p(c)), rel)
+        return (self.weight * rel + (1 - self.weight) * sq).mean()
