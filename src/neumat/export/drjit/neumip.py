@@ -45,6 +45,8 @@ class NeuMip(Runtime):
     activation. Arrays: level{l} (C, H_l, W_l) (the preconditioned pyramid), frame_weight (6 frames, C) (scale
     folded in) / frame_bias, offset_level{l}, offset_layer{i}_*, layer{i}_* (the last layer: the 3 log f rows)."""
 
+    spatially_varying = True
+
     def __init__(self, manifest: dict, arrays: dict, backend: Backend, compute: str,
                  mlp_form: str | None = None) -> None:
         super().__init__(manifest, backend, compute, mlp_form)
@@ -124,6 +126,8 @@ TINY = 1.1754944e-38
 
 class GgxMipmap(Runtime):
     """Program "ggx-mipmap" (module docstring). Manifest: max_probes. Arrays: level{l} (12, H_l, W_l)."""
+
+    spatially_varying = True
 
     def __init__(self, manifest: dict, arrays: dict, backend: Backend, compute: str,
                  mlp_form: str | None = None) -> None:
