@@ -1,4 +1,5 @@
-"""Parity of the Dr.Jit runtime programs "neumip" (neumip, neumip-offset, neumip-frame, nbrdf-uv) and "ggx-mipmap"
+"""Parity of the Dr.Jit runtime programs "neumip" (neumip, neumip-offset, neumip-frame, nbrdf-uv, neural-appearance's
+eval: its decoder with 2 frames, the albedo outputs left out) and "ggx-mipmap"
 (`neumat.export.drjit.neumip`) with the torch models, on random queries with uv (tiled, outside [0, 1) too) and
 random anisotropic footprints (up to 30:1, 16 probes) or none (the finest level), fp32 compute: within 1e-4
 relative. As for the multi-scale family (tests/export/test_drjit_multiscale.py), a learned shading frame's lift
@@ -21,6 +22,7 @@ from neumat.methods.latent_mlp.nbrdf_uv import NBRDFUV
 from neumat.methods.latent_mlp.neumip import NeuMIP
 from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
 from neumat.methods.latent_mlp.neumip_offset import NeuMIPOffset
+from neumat.methods.neural_appearance.model import NeuralAppearance
 
 pytestmark = pytest.mark.mitsuba  # Dr.Jit's LLVM backend needs the LLVM that neumat.core.llvm finds
 N = 12000
@@ -91,9 +93,11 @@ def _parity(model, footprint: bool, source=None) -> float:
 
 CASES = [(NeuMIP, {}), (NeuMIPOffset, {}), (NeuMIPFrame, {}), (NeuMIPFrame, {"frames": 2}), (NBRDFUV, {}),
          (NeuMIP, {"level_selection": "roulette"}), (NeuMIPOffset, {"level_selection": "roulette"}),
-         (NBRDFUV, {"shading_frame": True}), (GGXMipmap, {})]
+         (NBRDFUV, {"shading_frame": True}), (GGXMipmap, {}), (NeuralAppearance, {"spatial_size": 64}),
+         (NeuralAppearance, {"spatial_size": 64, "albedo": True, "level_selection": "roulette"})]
 IDS = ["neumip", "neumip-offset", "neumip-frame", "neumip-frame 2 frames", "nbrdf-uv", "neumip roulette",
-       "neumip-offset roulette", "nbrdf-uv frame", "ggx-mipmap"]
+       "neumip-offset roulette", "nbrdf-uv frame", "ggx-mipmap",
+       "neural-appearance eval", "neural-appearance albedo roulette"]
 
 
 @pytest.mark.parametrize("footprint", [False, True], ids=["finest level", "footprint"])

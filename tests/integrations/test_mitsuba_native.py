@@ -355,3 +355,17 @@ def test_native_neumip_offset_render_equals_the_bridge_render(mi, tmp_path):
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     assert float(close.float().mean()) > 0.98, float(close.float().mean())
     assert abs(float(ours.mean() / theirs.mean()) - 1) < 2e-3
+
+
+def test_a_model_whose_sampler_has_no_native_form_keeps_the_bridge(mi, tmp_path):
+    """neural-appearance: its eval has a Dr.Jit form (program "neumip"), its learned sampler not yet; its model file
+    renders through the bridge (with the sampler), its drjit export folder natively (cosine-weighted sampling)."""
+    from neumat.export.drjit.format import export_drjit
+    from neumat.methods.neural_appearance.model import NeuralAppearance
+    torch.manual_seed(0)
+    model = NeuralAppearance(spatial_size=8).runtime().train(False)
+    nmat = save_model(model, tmp_path / "na.nmat")
+    assert "NeumatBSDF[" in str(mi.load_dict({"type": "neumat", "filename": str(nmat)}))
+    folder = export_drjit(model).write(tmp_path / "drjit")
+    native = mi.load_dict({"type": "neumat", "filename": str(folder)})
+    assert "NeumatNativeBSDF" in str(native) and not native.runtime.can_sample

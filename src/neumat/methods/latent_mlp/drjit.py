@@ -73,7 +73,9 @@ def translate(model: MultiScale) -> tuple[dict, dict]:
 @torch.no_grad()
 def translate_neumip(model: NeuMIP) -> tuple[dict, dict]:
     """(manifest, arrays) of a NeuMIP configuration (program "neumip"); InputError for a subclass that reads or
-    decodes differently (neural-appearance has its own)."""
+    decodes differently. neural-appearance's BRDF decoder is one (2 frames; its albedo outputs are left out): the
+    manifest's "model_samples" records that the model has a learned sampler which the runtime lacks, so that the
+    Mitsuba plugin keeps the bridge (and the sampler) for its model files."""
     if not isinstance(model, NeuMIP):
         raise InputError(f"neumip drjit translator: expected a NeuMIP model, got {type(model).__name__}")
     cls = type(model)
@@ -100,7 +102,7 @@ def translate_neumip(model: NeuMIP) -> tuple[dict, dict]:
     manifest = {"program": "neumip", "directions": c.directions, "frames": frames,
                 "offset": model.offset_mlp is not None, "offset_min_cos": c.offset_min_cos,
                 "spatial_size": c.spatial_size, "level_selection": c.level_selection, "max_probes": c.max_probes,
-                "activation": "silu",
+                "activation": "silu", "model_samples": bool(getattr(model, "can_sample", False)),
                 "describe": f"{model.name} (spatial {c.spatial_size}^2 x {c.spatial_channels}, {c.directions}"
                             f"{f', {frames} frame(s)' if frames else ''}{', offset' if c.offset else ''}, "
                             f"MLP {c.hidden}x{c.hidden_layers})"}
