@@ -17,7 +17,8 @@ def test_list_json_has_every_model_with_a_recipe():
     assert set(models) == set(load_all().names())
     assert all(m["recipe"] is True and m["steps"] > 0 and m["paper"] and m["source_kinds"] for m in models.values())
     assert models["neubrdf"]["exports"] == ["drjit", "glsl", "slang", "web"] and models["ggx"]["exports"] == ["drjit"]
-    assert models["neural-appearance"]["exports"] == ["glsl", "slang", "web"]  # a format lists only the models it takes
+    assert models["neural-appearance"]["exports"] == ["drjit", "glsl", "slang", "web"]
+    assert "drjit" not in models["neumip-uv"]["exports"]  # a format lists only the models it takes
     assert models["neural-appearance"]["phase_split"] == [0.5, 0.5]
     assert {".binary", ".bsdf", ".nmat", ".nbtf", ".json", "folder", "spec"} <= {s["key"] for s in data["sources"]}
     assert {e["name"] for e in data["exporters"]} == {"drjit", "glsl", "slang", "web"}

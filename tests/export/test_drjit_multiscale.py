@@ -105,6 +105,12 @@ def test_export_files_round_trip_and_refusals(drjit_llvm, tmp_path):
     model = _model(MultiScale, spatial_size=16, max_probes=4)
     written = export_drjit(model, "fp32").write(tmp_path / "drjit")
     assert _parity(model, True, source=written) < 1e-4
-    from neumat.methods.latent_mlp.neumip import NeuMIP
+    from neumat.methods.baselines.neumip_uv import NeuMIPUV
+    with pytest.raises(InputError, match="no Dr.Jit runtime"):  # no translator (yet)
+        export_drjit(NeuMIPUV(spatial_size=8))
+
+    class Shifted(MultiScale):  # a subclass that reads its latents elsewhere
+        def latent_uv(self, q, footprint):
+            return q.uv + 0.5
     with pytest.raises(InputError, match="no Dr.Jit runtime"):
-        export_drjit(NeuMIP(spatial_size=8))
+        export_drjit(Shifted(spatial_size=8))

@@ -330,3 +330,42 @@ def test_native_multiscale_render_equals_the_bridge_render(mi, multiscale_nmat):
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     assert float(close.float().mean()) > 0.98, float(close.float().mean())
     assert abs(float(ours.mean() / theirs.mean()) - 1) < 2e-3
+
+
+def test_native_neumip_offset_render_equals_the_bridge_render(mi, tmp_path):
+    """The "neumip" program (neural offset module and a learned shading frame) through the plugin: the same image as
+    the bridge up to float error (finest level in both, as for the multi-scale model)."""
+    from neumat.integrations import mitsuba as plugin
+    from neumat.methods.latent_mlp.neumip_offset import NeuMIPOffset
+    torch.manual_seed(0)
+    model = NeuMIPOffset(spatial_size=32, shading_frame=True)
+    with torch.no_grad():
+        for layer in model.mlp.linears():
+            layer.weight.normal_(0, 1.0 / layer.in_features ** 0.5)
+        model.frame.decode.weight.normal_(0, 0.3)
+        model.offset_mlp.linears()[-1].weight.normal_(0, 1.0)
+        model.offset_mlp.linears()[-1].bias.fill_(1.0)
+    nmat = save_model(model.train(False), tmp_path / "neumip-offset.nmat")
+    native = mi.load_dict({"type": "neumat", "filename": str(nmat)})
+    assert "NeumatNativeBSDF" in str(native) and native.runtime.spatially_varying
+    ours = torch.from_numpy(np.array(mi.render(_scene(mi, {"type": "neumat", "filename": str(nmat)})),
+                                     dtype=np.float32))
+    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(nmat), "native": False}))
+    assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
+    close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
+    assert float(close.float().mean()) > 0.98, float(close.float().mean())
+    assert abs(float(ours.mean() / theirs.mean()) - 1) < 2e-3
+
+
+def test_a_model_whose_sampler_has_no_native_form_keeps_the_bridge(mi, tmp_path):
+    """neural-appearance: its eval has a Dr.Jit form (program "neumip"), its learned sampler not yet; its model file
+    renders through the bridge (with the sampler), its drjit export folder natively (cosine-weighted sampling)."""
+    from neumat.export.drjit.format import export_drjit
+    from neumat.methods.neural_appearance.model import NeuralAppearance
+    torch.manual_seed(0)
+    model = NeuralAppearance(spatial_size=8).runtime().train(False)
+    nmat = save_model(model, tmp_path / "na.nmat")
+    assert "NeumatBSDF[" in str(mi.load_dict({"type": "neumat", "filename": str(nmat)}))
+    folder = export_drjit(model).write(tmp_path / "drjit")
+    native = mi.load_dict({"type": "neumat", "filename": str(folder)})
+    assert "NeumatNativeBSDF" in str(native) and not native.runtime.can_sample

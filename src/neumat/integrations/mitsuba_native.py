@@ -86,7 +86,11 @@ def native_runtime(source, backend, compute: str | None = None, mlp_form: str | 
         exported = export_drjit(model)
     except InputError:  # a configuration the translator does not cover: the bridge renders it
         return None
-    return load_runtime(exported.source(), backend, compute, mlp_form)
+    runtime = load_runtime(exported.source(), backend, compute, mlp_form)
+    if getattr(model, "can_sample", False) and not runtime.can_sample:
+        return None  # the model's learned sampler has no Dr.Jit form yet: the bridge keeps it (an export folder
+        # of such a model still loads natively, sampled cosine-weighted)
+    return runtime
 
 
 def bsdf(source, variant: str | None = None, compute: str | None = None):

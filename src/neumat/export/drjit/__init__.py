@@ -6,8 +6,10 @@ Mitsuba 3's own kernels (symbolic / megakernel mode, LLVM or CUDA), without torc
 - `neumat.export.drjit.format`: the "drjit" entry of the export registry; a method declares its translator as
   `neumat.fit.method.Method.drjit` (model -> (manifest, arrays)), e.g. `neumat.methods.neubrdf.drjit`.
 
-- `neumat.export.drjit.latent` (no torch): the latent-texture family's programs (registered on import, here).
+- `neumat.export.drjit.latent` (no torch): the latent-texture family's programs (registered on import, here):
+  "latent-mlp" there, "neumip" and "ggx-mipmap" in `neumat.export.drjit.neumip`.
 
 Details: docs/mitsuba.md, section "Native Dr.Jit runtime".
 """
 from . import latent  # noqa: F401  (registers the "latent-mlp" program in runtime.PROGRAMS)
+from . import neumip  # noqa: F401  (registers "neumip" and "ggx-mipmap")

@@ -80,8 +80,10 @@ class Pyramid:
             out = [t * wgt for t in texel] if out is None else [dr.fma(t, wgt, o) for t, o in zip(texel, out)]
         return out
 
-    def trilinear(self, u, v, lod, scale, active) -> list:
-        """scale x the trilinear lookup at lod (clamped to the pyramid) of uv (wrapped), `trilinear_flat`."""
+    def trilinear(self, u, v, lod, scale, active, pick: str | None = None) -> list:
+        """scale x the trilinear lookup at lod (clamped to the pyramid) of uv (wrapped), `trilinear_flat`; pick
+        "fine" / "coarse": only the finer / the coarser of the two levels (`trilinear_flat`'s level_u 1 / 0, the
+        coarser only where the lod has a fractional part)."""
         import drjit as dr
 
         b = self.backend
@@ -89,20 +91,20 @@ class Pyramid:
         lod = dr.clip(lod, 0.0, len(self.sizes) - 1.0)
         lo = dr.floor(lod)
         t = lod - lo
+        if pick == "fine":
+            t = b.Float(0.0)
+        elif pick == "coarse":
+            t = dr.select(t > 0, 1.0, 0.0)
         l0 = b.UInt(lo)
         l1 = dr.minimum(l0 + 1, len(self.sizes) - 1)
         a = self.bilinear(l0, u, v, (1 - t) * scale, active)
         c = self.bilinear(l1, u, v, t * scale, active)
         return [x + y for x, y in zip(a, c)]
 
-    def filter(self, u, v, footprint, active) -> list:
-        """z (C Floats) at uv filtered over the footprint (s_uu, s_uv, s_vv) covariance in uv^2: the probes of
-        `filter_anisotropic` (a Dr.Jit loop over each lane's probe count); None: bilinear at the finest level."""
+    def _geometry(self, footprint):
+        """(theta, major, n, sigma, lod) of `_probe_geometry` for the footprint (s_uu, s_uv, s_vv)."""
         import drjit as dr
 
-        b = self.backend
-        if footprint is None:
-            return self.bilinear(b.UInt(0), u - dr.floor(u), v - dr.floor(v), b.Float(1.0), active)
         h0, w0 = self.sizes[0]
         p = self.max_probes
         sa, sb, sc = footprint
@@ -114,7 +116,29 @@ class Pyramid:
         minor = dr.maximum(dr.sqrt(dr.maximum(mean - half, 0.0)), 1e-12)
         n = dr.clip(dr.ceil(major / minor), 1.0, float(p))
         sigma = dr.maximum(minor, major / p)
-        lod = dr.log2(dr.maximum(2 * sigma, 1e-12))
+        return theta, major, n, sigma, dr.log2(dr.maximum(2 * sigma, 1e-12))
+
+    def fraction(self, footprint):
+        """Weight t of the coarser of the two levels the footprint's probes read (`LatentPyramid.level_fraction`;
+        0 without a footprint)."""
+        import drjit as dr
+
+        if footprint is None:
+            return self.backend.Float(0.0)
+        lod = dr.clip(self._geometry(footprint)[4], 0.0, len(self.sizes) - 1.0)
+        return lod - dr.floor(lod)
+
+    def filter(self, u, v, footprint, active, pick: str | None = None) -> list:
+        """z (C Floats) at uv filtered over the footprint (s_uu, s_uv, s_vv) covariance in uv^2: the probes of
+        `filter_anisotropic` (a Dr.Jit loop over each lane's probe count); None: bilinear at the finest level.
+        pick: as `trilinear` (Russian-roulette level selection's two outcomes)."""
+        import drjit as dr
+
+        b = self.backend
+        if footprint is None:
+            return self.bilinear(b.UInt(0), u - dr.floor(u), v - dr.floor(v), b.Float(1.0), active)
+        h0, w0 = self.sizes[0]
+        theta, major, n, sigma, lod = self._geometry(footprint)
         spacing = dr.sqrt(dr.maximum(12 * (major * major - sigma * sigma), 0.0) / dr.maximum(n * n - 1, 1.0))
         ax, ay = dr.cos(theta) / w0, dr.sin(theta) / h0
         inv_n = 1 / n
@@ -122,7 +146,7 @@ class Pyramid:
 
         def body(k, *acc):
             offset = (k - first) * spacing
-            z = self.trilinear(u + offset * ax, v + offset * ay, lod, inv_n, active)
+            z = self.trilinear(u + offset * ax, v + offset * ay, lod, inv_n, active, pick)
             return (k + 1, *(s + x for s, x in zip(acc, z)))
 
         state = dr.while_loop(state=(b.Float(0.0), *[b.Float(0.0) for _ in range(self.channels)]),
@@ -188,6 +212,24 @@ def _lift(w: list) -> list:
     import drjit as dr
 
     return [w[0], w[1], dr.sqrt(dr.maximum(1 - (w[0] * w[0] + w[1] * w[1]), 1e-10))]
+
+
+def cross(a: list, b: list) -> list:
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def to_local(w: list, t: list, b: list, n: list) -> list:
+    """w in the frame (t, b, n) (`neumat.core.frames.to_local`)."""
+    return [w[0] * e[0] + w[1] * e[1] + w[2] * e[2] for e in (t, b, n)]
+
+
+def frame_from_vectors(v: list) -> tuple[list, list, list]:
+    """(t, b, n) of a decoded (normal, tangent) 6-vector (`neumat.nn.shading_frames.frame_from_vectors`)."""
+    n = _unit(v[:3])
+    t = v[3:6]
+    dot = t[0] * n[0] + t[1] * n[1] + t[2] * n[2]
+    t = _unit([t[k] - dot * n[k] for k in range(3)])
+    return t, cross(n, t), n
 
 
 def half_difference(wi: list, wo: list) -> tuple[list, list]:
@@ -310,16 +352,8 @@ class LatentMlp(Runtime):
                 footprint = tuple(b.Float(x) for x in footprint)
             z = self.pyramid.filter(u, v, footprint, ok)
         if self.frame is not None:
-            fv = _linear(*self.frame, z)
-            nrm = _unit(fv[:3])
-            t = fv[3:]
-            dot = t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]
-            t = _unit([t[k] - dot * nrm[k] for k in range(3)])
-            bt = [nrm[1] * t[2] - nrm[2] * t[1], nrm[2] * t[0] - nrm[0] * t[2], nrm[0] * t[1] - nrm[1] * t[0]]
-
-            def local(w):
-                return [w[0] * e[0] + w[1] * e[1] + w[2] * e[2] for e in (t, bt, nrm)]
-            a, c = _lift(local(a)), _lift(local(c))
+            t, bt, nrm = frame_from_vectors(_linear(*self.frame, z))
+            a, c = _lift(to_local(a, t, bt, nrm)), _lift(to_local(c, t, bt, nrm))
         else:
             a, c = _lift(a), _lift(c)
         h, d = half_difference(a, c)

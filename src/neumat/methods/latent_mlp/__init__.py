@@ -4,6 +4,7 @@ paper trains every model with the same data, loss and optimiser); notes in NOTES
 from neumat.fit.method import Method, register_method
 from neumat.methods.latent_mlp import train
 from neumat.methods.latent_mlp.drjit import translate as drjit_translate
+from neumat.methods.latent_mlp.drjit import translate_ggx_mipmap, translate_neumip
 from neumat.methods.latent_mlp.ggx_mipmap import GGXMipmap
 from neumat.methods.latent_mlp.glsl import export_latent_mlp
 from neumat.methods.latent_mlp.glsl_multiscale import export_multiscale
@@ -15,7 +16,9 @@ from neumat.methods.latent_mlp.neumip_offset import NeuMIPOffset
 from neumat.methods.latent_mlp.tripleplane import TriplePlane
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
-DRJIT = {"multiscale": drjit_translate, "tripleplane": drjit_translate}
+DRJIT = {"multiscale": drjit_translate, "tripleplane": drjit_translate, "neumip": translate_neumip,
+         "neumip-offset": translate_neumip, "neumip-frame": translate_neumip, "nbrdf-uv": translate_neumip,
+         "ggx-mipmap": translate_ggx_mipmap}
 
 for name, model, glsl, small in (
         ("multiscale", MultiScale, export_multiscale, dict(spatial_size=8)),
