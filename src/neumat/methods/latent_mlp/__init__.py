@@ -2,6 +2,7 @@
 (tripleplane, NeuMIP and its offset / frame variants, nbrdf-uv, ggx-mipmap), all trained with its recipe (the
 paper trains every model with the same data, loss and optimiser); notes in NOTES.md."""
 from neumat.fit.method import Method, register_method
+from neumat.fit.preset import Preset
 from neumat.methods.latent_mlp import train
 from neumat.methods.latent_mlp.drjit import translate as drjit_translate
 from neumat.methods.latent_mlp.drjit import translate_ggx_mipmap, translate_neumip
@@ -14,6 +15,14 @@ from neumat.methods.latent_mlp.neumip import NeuMIP
 from neumat.methods.latent_mlp.neumip_frame import NeuMIPFrame
 from neumat.methods.latent_mlp.neumip_offset import NeuMIPOffset
 from neumat.methods.latent_mlp.tripleplane import TriplePlane
+
+#: "recommended": the paper's model sized to the device, trained with `relative_l2_robust` (Eq. 10 up to relative
+#: residual 10, a log tail beyond) instead of Eq. 10; "paper" and "cpu" keep Eq. 10 (`relative_l2_mix`). Evidence:
+#: benchmarks/studies/multiscale/results/polished_metal_stability.md (last section) and NOTES.md's decision table
+PRESETS = {"recommended": Preset(
+    "the paper's model, sized to the device, with the robust loss (Eq. 10 up to relative residual 10, a log tail "
+    "beyond): no blow-up on polished metal, as good as Eq. 10 on rough sets",
+    overrides={"recipe.loss": "relative_l2_robust"})}
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
 DRJIT = {"multiscale": drjit_translate, "tripleplane": drjit_translate, "neumip": translate_neumip,
@@ -30,4 +39,4 @@ for name, model, glsl, small in (
         ("ggx-mipmap", GGXMipmap, None, dict(spatial_size=8))):
     register_method(Method(name, model, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE}, options=train.Options,
                            phases=train.phases, config_for_source=train.config_for_source, glsl=glsl, small=small,
-                           drjit=DRJIT.get(name)))
+                           drjit=DRJIT.get(name), presets=PRESETS))
