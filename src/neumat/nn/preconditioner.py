@@ -4,17 +4,11 @@ A learned texture is stored as raw parameters P (C, H, W); the forward pass uses
 
     T = IFFT2( FFT2(P) * K ),   K(fx, fy) = 1 / (1 + A sqrt(fx^2 + fy^2))
 
-with fx, fy in cycles per texel (numpy/torch `fftfreq`, in [-1/2, 1/2)) and circular boundaries. K is real,
-even and K(0, 0) = 1, so T is real, keeps the texture mean, and the map P -> T is linear and invertible:
-it does not change the optimum, but neighbouring texels move together early in training, as with Nicolet et
-al.'s "large steps". The paper uses A = 10 for the spatial texture and A = 5 for the angular textures.
-
-`FrequencyPreconditioner` caches its kernels; its backward pass is the same filter (`_SelfAdjointFilter`: the
-map is a circular convolution with a real, even kernel, so M^T = M), computed with two channels packed into one
-complex transform (`_filter`; src/neumat/methods/latent_mlp/NOTES.md, row "training step on a 1K set").
-`flat` preconditions a list of textures (a mip pyramid) at once: the small ones (at most SMALL_TEXELS texels per
-channel, where the per-call cost of an FFT dominates) with one block-diagonal matrix product (the same linear map,
-its matrix built once in float64).
+with fx, fy in cycles per texel (`fftfreq`) and circular boundaries: K is real, even and K(0, 0) = 1, so P -> T is
+linear, symmetric (its backward is the same filter) and invertible. The paper uses A = 10 spatially, 5 angularly.
+`FrequencyPreconditioner` packs two channels into one complex FFT; `flat` / `many` precondition a mip pyramid at
+once (small levels by one block-diagonal matrix). Details: src/neumat/methods/latent_mlp/NOTES.md (row "training
+step on a 1K set").
 """
 from __future__ import annotations
 
@@ -130,11 +124,18 @@ class FrequencyPreconditioner(nn.Module):
     def flat(self, raws: list[torch.Tensor]) -> torch.Tensor:
         """The preconditioned textures of raws [(C, H_i, W_i)], flattened row-major and concatenated:
         (C, sum H_i W_i). Textures of at most SMALL_TEXELS texels go through one block-diagonal matrix product."""
-        c = raws[0].shape[0]
         if self.strength == 0:
             return flat_levels(raws)
+        c = raws[0].shape[0]
+        return torch.cat([tex.reshape(c, -1) for tex in self.many(raws)], 1)
+
+    def many(self, raws: list[torch.Tensor]) -> list[torch.Tensor]:
+        """The preconditioned textures [(C, H_i, W_i)] of raws, as `flat` computes them (unflattened)."""
+        if self.strength == 0:
+            return list(raws)
+        c = raws[0].shape[0]
         small = [i for i, raw in enumerate(raws) if raw.shape[-2] * raw.shape[-1] <= SMALL_TEXELS]
-        pieces = [None if i in small else self(raw).reshape(c, -1) for i, raw in enumerate(raws)]
+        pieces = [None if i in small else self(raw) for i, raw in enumerate(raws)]
         if small:
             sizes = tuple(tuple(raws[i].shape[-2:]) for i in small)
             dtype, device = raws[0].dtype, raws[0].device
@@ -142,8 +143,8 @@ class FrequencyPreconditioner(nn.Module):
                 *(precondition_matrix(h, w, self.strength, dtype, device) for h, w in sizes)))
             dense = torch.cat([raws[i].reshape(c, -1) for i in small], 1) @ matrix
             for i, part in zip(small, dense.split([h * w for h, w in sizes], 1)):
-                pieces[i] = part
-        return torch.cat(pieces, 1)
+                pieces[i] = part.view(c, *raws[i].shape[-2:])
+        return pieces
 
     def extra_repr(self) -> str:
         return f"strength={self.strength}"
