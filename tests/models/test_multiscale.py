@@ -204,3 +204,25 @@ def test_tripleplane_concatenates_without_warps_or_frame():
     assert t.eval(_queries(16)).shape == (16, 3)
     full = TriplePlane()
     assert (full.half_texture.raw.numel() + full.diff_texture.raw.numel()) * 4 == 65_536  # Table 5: 65.5 kB
+
+
+def test_own_optimizer_is_adam_with_the_same_update():
+    """`MultiScale.optimizer` (fused Adam, `spatial_latent.fused_adam`) steps every parameter as torch.optim.Adam
+    does, over several steps with the CPU recipe's betas and eps (float64)."""
+    import copy
+
+    torch.manual_seed(0)
+    a = MultiScale(spatial_size=16).double()
+    b = copy.deepcopy(a)
+    opt_a = a.optimizer(3e-3, (0.99, 0.999), 1e-15)
+    opt_b = torch.optim.Adam(b.parameters(), lr=3e-3, betas=(0.99, 0.999), eps=1e-15)
+    assert isinstance(opt_a, torch.optim.Adam) and opt_a.defaults["fused"]
+    g = torch.Generator().manual_seed(1)
+    for _ in range(4):
+        for pa, pb in zip(a.parameters(), b.parameters()):
+            pa.grad = torch.randn(pa.shape, generator=g, dtype=pa.dtype)
+            pb.grad = pa.grad.clone()
+        opt_a.step()
+        opt_b.step()
+    for pa, pb in zip(a.parameters(), b.parameters()):
+        torch.testing.assert_close(pa, pb, rtol=1e-12, atol=1e-12)

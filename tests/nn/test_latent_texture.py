@@ -129,3 +129,41 @@ def test_atlas_lookups_equal_level_by_level_bilinear_reads():
     empty = uv[:0]
     assert filter_anisotropic(levels, empty, tiny[:0]).shape == (0, 3)
     assert trilinear(levels, empty, lod[:0]).shape == (0, 3)
+
+
+def test_build_atlas_matches_the_gathered_atlas_values_and_gradients():
+    """`build_atlas` (padded copies) holds the texels of the `flat_levels` gather on every used atlas texel, and
+    the pyramid's filtered and trilinear lookups through it equal those through the gather, values and gradients
+    (float64, preconditioned pyramid)."""
+    from neumat.nn.latent_texture import LatentPyramid, atlas_layout, build_atlas, filter_anisotropic, trilinear_flat
+    from neumat.nn.preconditioner import FrequencyPreconditioner, flat_levels
+
+    g = torch.Generator().manual_seed(5)
+    levels = [torch.randn(3, 16 >> l, 16 >> l, dtype=torch.float64, generator=g) for l in range(5)]
+    sizes = tuple(tuple(t.shape[1:]) for t in levels)
+    layout = atlas_layout(sizes, torch.device("cpu"))
+    width, height = (int(v) for v in layout["shape"])
+    gathered = flat_levels(levels).index_select(1, layout["source"]).view(3, height, width)
+    built = build_atlas(levels)[0]
+    used = torch.zeros(height, width, dtype=torch.bool)
+    for (h, w), (left, top) in zip(sizes, layout["origin"].long().tolist()):
+        used[top - 1:top + h + 1, left - 1:left + w + 1] = True
+    assert torch.equal(built[:, used], gathered[:, used])
+
+    pyramid = LatentPyramid(3, 16, precondition=FrequencyPreconditioner(10.0)).double()
+    n = 64
+    uv = torch.rand(n, 2, generator=g, dtype=torch.float64) * 3 - 1
+    cov = torch.diag_embed(torch.rand(n, 2, generator=g, dtype=torch.float64) * 1e-2 + 1e-5)
+    lod = torch.rand(n, generator=g, dtype=torch.float64) * 5 - 0.5
+    weight = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    for new, old in ((lambda: pyramid(uv, cov),
+                      lambda: filter_anisotropic(list(pyramid.raw), uv, cov, pyramid.max_probes, flat=pyramid.flat())),
+                     (lambda: pyramid(uv, lod=lod),
+                      lambda: trilinear_flat(pyramid.flat(), [t.shape[1:] for t in pyramid.raw], uv, lod))):
+        got = new()
+        grads = torch.autograd.grad((got * weight).sum(), list(pyramid.raw))
+        want = old()
+        wants = torch.autograd.grad((want * weight).sum(), list(pyramid.raw))
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
+        for a, b in zip(grads, wants):
+            torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)

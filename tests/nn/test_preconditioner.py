@@ -67,3 +67,18 @@ def test_flat_matches_per_texture_preconditioning_with_gradients():
             torch.testing.assert_close(x, y, rtol=1e-12, atol=1e-12)
         torch.testing.assert_close(module.flat(raws), got)  # cached matrix / kernels reused
     assert torch.equal(FrequencyPreconditioner(0.0).flat(raws), torch.cat([r.reshape(2, -1) for r in raws], 1))
+
+
+@pytest.mark.parametrize("shape", [(2, 16, 16), (3, 6, 5), (1, 7, 8), (2, 1, 1), (1, 2, 9)])
+def test_module_backward_is_the_same_filter_as_autograds(shape):
+    """The module's backward (the filter itself: the map is symmetric) equals autograd's gradient of
+    `precondition` (float64), for even and odd sizes; gradcheck passes."""
+    g = torch.Generator().manual_seed(3)
+    raw = torch.randn(shape, dtype=torch.float64, generator=g, requires_grad=True)
+    weight = torch.randn(shape, dtype=torch.float64, generator=g)
+    module = FrequencyPreconditioner(10.0)
+    (got,) = torch.autograd.grad((module(raw) * weight).sum(), raw)
+    (want,) = torch.autograd.grad((precondition(raw, 10.0) * weight).sum(), raw)
+    torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(module(raw), precondition(raw, 10.0), rtol=1e-12, atol=1e-12)
+    assert torch.autograd.gradcheck(module, (raw,))

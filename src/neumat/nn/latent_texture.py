@@ -107,16 +107,65 @@ def atlas_layout(sizes: tuple[tuple[int, int], ...], device: torch.device) -> di
             "shape": torch.tensor([width, height], device=device)}
 
 
-def trilinear_flat(flat: torch.Tensor, sizes: list[tuple[int, int]], uv: torch.Tensor, lod: torch.Tensor,
-                   scale: torch.Tensor | None = None, level_u: torch.Tensor | None = None) -> torch.Tensor:
+class _Atlas(torch.autograd.Function):
+    """levels -> atlas (C, H_a, W_a): each level padded circularly by one texel and copied to (left, top) of its
+    padded block; the backward pass reads each level's block and folds the padding back onto the texels it
+    copies (no full-atlas gradient copies per level, as autograd's slice assignment would make)."""
+
+    @staticmethod
+    def forward(ctx, places, height, width, *levels):
+        ctx.places = places
+        atlas = levels[0].new_zeros(levels[0].shape[0], height, width)
+        for tex, (left, top) in zip(levels, places):
+            h, w = tex.shape[1:]
+            block = atlas[:, top:top + h + 2, left:left + w + 2]
+            block[:, 1:h + 1, 1:w + 1] = tex
+            block[:, 0, 1:w + 1], block[:, h + 1, 1:w + 1] = tex[:, -1], tex[:, 0]
+            block[:, :, 0], block[:, :, w + 1] = block[:, :, w], block[:, :, 1]
+        ctx.shapes = [tex.shape for tex in levels]
+        return atlas
+
+    @staticmethod
+    def backward(ctx, grad):
+        out = []
+        for shape, (left, top) in zip(ctx.shapes, ctx.places):
+            h, w = shape[1:]
+            block = grad[:, top:top + h + 2, left:left + w + 2]
+            cols = block[:, :, 1:w + 1].clone()
+            cols[:, :, w - 1] += block[:, :, 0]
+            cols[:, :, 0] += block[:, :, w + 1]
+            g = cols[:, 1:h + 1].clone()
+            g[:, h - 1] += cols[:, 0]
+            g[:, 0] += cols[:, h + 1]
+            out.append(g)
+        return (None, None, None, *out)
+
+
+def build_atlas(levels: list[torch.Tensor]) -> torch.Tensor:
+    """The atlas (1, C, H_a, W_a) of `atlas_layout` of levels [(C, H_l, W_l)]: each level padded circularly by
+    one texel and copied into its place (unused texels 0; they are never read). The same texels as
+    `trilinear_flat`'s gather from `flat_levels`, with contiguous copies (and a folding backward) instead."""
+    sizes = tuple(tuple(int(v) for v in tex.shape[1:]) for tex in levels)
+    layout = atlas_layout(sizes, levels[0].device)
+    width, height = (int(v) for v in layout["shape"])
+    places = [(left - 1, top - 1) for left, top in layout["origin"].long().tolist()]
+    return _Atlas.apply(places, height, width, *levels).unsqueeze(0)
+
+
+def trilinear_flat(flat: torch.Tensor | None, sizes: list[tuple[int, int]], uv: torch.Tensor, lod: torch.Tensor,
+                   scale: torch.Tensor | None = None, level_u: torch.Tensor | None = None,
+                   atlas: torch.Tensor | None = None) -> torch.Tensor:
     """Trilinear lookups (N, C) in the levels of sizes [(H_l, W_l)] stored as `flat_levels` (C, T): bilinear
     (wrap tiling) in the two levels around lod (N,) (clamped to the pyramid), blended linearly and multiplied
     by scale (N,) if given. With level_u (N,) uniform in [0, 1], one of the two levels instead, the finer unless
     level_u < the fractional part of lod (Russian roulette, Zeltner et al. 2024 Sec. 4.1). One `grid_sample`
-    over an atlas of the circularly padded levels."""
-    layout = atlas_layout(tuple(tuple(int(v) for v in hw) for hw in sizes), flat.device)
+    over an atlas of the circularly padded levels (`atlas`: `build_atlas` of the levels, when the caller has it;
+    flat may then be None)."""
+    layout = atlas_layout(tuple(tuple(int(v) for v in hw) for hw in sizes), uv.device)
     width, height = (int(v) for v in layout["shape"])
-    atlas = flat.index_select(1, layout["source"]).view(1, -1, height, width)
+    if atlas is None:
+        atlas = flat.index_select(1, layout["source"]).view(1, -1, height, width)
+    flat = atlas  # dtype of the lookups
     lod = lod.clamp(0, len(sizes) - 1)
     lo = lod.floor()
     t = (lod - lo).to(flat.dtype)
@@ -161,13 +210,13 @@ def footprint_lod(footprint: torch.Tensor, height: int, width: int, max_probes: 
 
 def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: torch.Tensor,
                        max_probes: int = 16, flat: torch.Tensor | None = None,
-                       level_u: torch.Tensor | None = None) -> torch.Tensor:
+                       level_u: torch.Tensor | None = None, atlas: torch.Tensor | None = None) -> torch.Tensor:
     """Gaussian-footprint filtered lookup of a pyramid (see src/neumat/methods/latent_mlp/NOTES.md).
 
     levels: mip levels (C, H_l, W_l), level 0 finest, level l about 2^l times coarser; uv (N, 2);
     footprint (N, 2, 2) covariance in uv^2. Returns (N, C), differentiable in the levels. `flat`: the
-    levels' `flat_levels`, when the caller has it already (levels then only give the sizes). level_u (N,): the
-    probes of a query read one level by Russian roulette (`trilinear_flat`).
+    levels' `flat_levels`, or `atlas` their `build_atlas`, when the caller has it already (levels then only give
+    the sizes). level_u (N,): the probes of a query read one level by Russian roulette (`trilinear_flat`).
     """
     _, h, w = levels[0].shape
     n, sigma, lod, major, axis, scale = _probe_geometry(footprint, h, w, max_probes)
@@ -177,10 +226,11 @@ def filter_anisotropic(levels: list[torch.Tensor], uv: torch.Tensor, footprint: 
     used = k.unsqueeze(0) < n.unsqueeze(-1)
     delta = offset.unsqueeze(-1) * axis.unsqueeze(1) / scale  # (N, P, 2) uv offsets
     rows, probe = used.nonzero(as_tuple=True)
-    flat = flat_levels(levels) if flat is None else flat
+    if flat is None and atlas is None:
+        flat = flat_levels(levels)
     values = trilinear_flat(flat, [tex.shape[1:] for tex in levels], uv[rows] + delta[rows, probe], lod[rows],
-                            1 / n[rows], None if level_u is None else level_u[rows])
-    return uv.new_zeros(uv.shape[0], flat.shape[0], dtype=flat.dtype).index_add(0, rows, values)
+                            1 / n[rows], None if level_u is None else level_u[rows], atlas=atlas)
+    return uv.new_zeros(uv.shape[0], values.shape[1], dtype=values.dtype).index_add(0, rows, values)
 
 
 def isotropic_footprint(lod: torch.Tensor, width: int) -> torch.Tensor:
@@ -223,14 +273,21 @@ class LatentPyramid(nn.Module):
             return self.precondition.flat(list(self.raw))
         return flat_levels(self.levels())
 
+    def atlas(self) -> torch.Tensor:
+        """`build_atlas` of `levels()` (all preconditioned at once when the preconditioner can): what the
+        filtered and trilinear lookups read."""
+        if isinstance(self.precondition, FrequencyPreconditioner):
+            return build_atlas(self.precondition.many(list(self.raw)))
+        return build_atlas(self.levels())
+
     def forward(self, uv: torch.Tensor, footprint: torch.Tensor | None = None,
                 lod: torch.Tensor | None = None, level_u: torch.Tensor | None = None) -> torch.Tensor:
         if footprint is not None:
-            return filter_anisotropic(list(self.raw), uv, footprint, self.max_probes, flat=self.flat(),
+            return filter_anisotropic(list(self.raw), uv, footprint, self.max_probes, atlas=self.atlas(),
                                       level_u=level_u)
         if lod is not None:
-            return trilinear_flat(self.flat(), [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
-                                  level_u=level_u)
+            return trilinear_flat(None, [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
+                                  level_u=level_u, atlas=self.atlas())
         finest = self.raw[0] if self.precondition is None else self.precondition(self.raw[0])
         return bilinear(finest, uv)
 

@@ -22,7 +22,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
-from neumat.methods.latent_mlp.spatial_latent import SpatialLatent
+from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
@@ -146,6 +146,11 @@ class MultiScale(LearnedMaterial, SpatialLatent):
     @property
     def config(self) -> Config:
         return self.cfg
+
+    def optimizer(self, lr: float, betas: tuple[float, float], eps: float) -> torch.optim.Optimizer:
+        """Adam with the fused kernel (`spatial_latent.fused_adam`: the same update, a fifth of the time per step
+        on a 1K pyramid)."""
+        return fused_adam(self, lr, betas, eps)
 
     def latents(self, q: Query) -> torch.Tensor:
         """MLP input: [z_h, z_d] (N, D_h + D_d), or [z_h, z_d, z_s] without gating."""

@@ -23,7 +23,7 @@ from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.multiscale import preconditioned_noise
-from neumat.methods.latent_mlp.spatial_latent import SpatialLatent
+from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn.angular_texture import half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
@@ -147,6 +147,11 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
     @property
     def config(self) -> Config:
         return self.cfg
+
+    def optimizer(self, lr: float, betas: tuple[float, float], eps: float) -> torch.optim.Optimizer:
+        """Adam with the fused kernel (`spatial_latent.fused_adam`: the same update, a fifth of the time per step
+        on a 1K pyramid)."""
+        return fused_adam(self, lr, betas, eps)
 
     @property
     def outputs(self) -> int:
