@@ -167,7 +167,7 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
         for name, precision, exported, m in jobs:
             q = queries(m, n, run.seed)
             wall = rate(exported, q)
-            cpu = rate(exported, q, clock="cpu", repeats=max(run.repeats, 5))
+            cpu = rate(exported, q, clock="cpu", repeats=run.repeats if run.quick else max(run.repeats, 5))
             flops = int(m.flops()) if name in names and callable(getattr(m, "flops", None)) else None
             if name == "ggx:roughness=0.2":
                 ggx_rate = cpu

@@ -131,6 +131,6 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path):
     assert listed.returncode == 0, listed.stderr
     assert all(line.split()[0] in SUITES for line in listed.stdout.splitlines() if line and not line[0].isspace())
     out = tmp_path / "e.json"
-    result = CliRunner().invoke(app, ["bench", "export-parity", "--quick", "--out", str(out)])
+    result = CliRunner().invoke(app, ["bench", "sparsebtf", "--quick", "--out", str(out)])
     assert result.exit_code == 0, result.output
-    assert json.loads(out.read_text())["suite"] == "export-parity"
+    assert json.loads(out.read_text())["suite"] == "sparsebtf"
