@@ -220,18 +220,18 @@ class KillFirstAttempt:
 
 def test_a_killed_worker_loses_only_its_task_which_is_retried(ray_2cpu, tmp_path):
     ray_2cpu.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the task class lives in this test
-    sources = _teachers(tmp_path / "src", 3)
+    sources = _teachers(tmp_path / "src", 2)  # two jobs: each Ray worker start costs seconds (minutes under load)
     jobs = [FitJob(source=s, name=Path(s).stem, model="ggx", out_dir=str(tmp_path), overrides={"batch_size": 256},
                    steps=10, device="cpu", eval_n=2048, image_spp=0) for s in sources]
     log = tmp_path / "calls.log"
     progress = RunProgress(len(jobs), Console(file=open(os.devnull, "w")))
     rows = list(run_ray(jobs, KillFirstAttempt(sources[1], log), progress, workers=None, address=None,
                         gpus_per_task=0.0, retries=1, log=lambda text: None))
-    assert sorted(r["name"] for r in rows) == ["teacher0", "teacher1", "teacher2"]
+    assert sorted(r["name"] for r in rows) == ["teacher0", "teacher1"]
     assert all(r["status"] == "ok" for r in rows), rows
     calls = log.read_text().split()
-    assert calls.count(sources[1]) == 2 and calls.count(sources[0]) == calls.count(sources[2]) == 1
-    assert progress.done == 3 and progress.failed == 0
+    assert calls.count(sources[1]) == 2 and calls.count(sources[0]) == 1
+    assert progress.done == 2 and progress.failed == 0
 
 
 def test_a_task_killed_every_time_gets_an_error_row(ray_2cpu, tmp_path):
