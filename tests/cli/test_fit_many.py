@@ -218,6 +218,8 @@ class KillFirstAttempt:
         return run_fit_job(job)
 
 
+@pytest.mark.slow  # 5 s idle, 150-170 s on a 2-core machine under two busy loops (Ray's retry of a dead worker);
+# the default run keeps Ray's worker-death path through the next test
 def test_a_killed_worker_loses_only_its_task_which_is_retried(ray_2cpu, tmp_path):
     ray_2cpu.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the task class lives in this test
     sources = _teachers(tmp_path / "src", 2)  # two jobs: each Ray worker start costs seconds (minutes under load)
