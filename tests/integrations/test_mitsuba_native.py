@@ -8,13 +8,13 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from mitsuba_util import bsdf_chi2_test, mi_vector, to_torch
 from neumat.catalog.modelfile import save_model
 from neumat.methods.neubrdf.model import NeuBRDF
 
@@ -51,18 +51,9 @@ def _dirs(n: int, g: torch.Generator, below: float = 0.1) -> torch.Tensor:
 def _si(mi, wi: torch.Tensor):
     import drjit as dr
     si = dr.zeros(mi.SurfaceInteraction3f, wi.shape[0])
-    si.wi = _vec(mi, wi)
+    si.wi = mi_vector(mi, wi)
     si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
     return si
-
-
-def _vec(mi, w: torch.Tensor):
-    return mi.Vector3f(*(mi.Float(c.contiguous()) for c in w.T))
-
-
-def _np(x) -> torch.Tensor:
-    a = np.array(x, dtype=np.float64)
-    return torch.from_numpy(a.T.copy() if a.ndim == 2 else a)
 
 
 def test_the_plugin_picks_the_native_path_for_a_neubrdf_file(mi, nmat):
@@ -83,18 +74,18 @@ def test_eval_pdf_and_sample_match_the_torch_bridge(mi, nmat):
     for mode in (mi.TransportMode.Radiance, mi.TransportMode.Importance):
         ctx = mi.BSDFContext(mode)
         with plugin.evaluated_mode():  # the bridge needs it; the native BSDF runs in either mode
-            theirs = [_np(v) for v in bridge.eval_pdf(ctx, _si(mi, viewer), _vec(mi, light))]
-        ours = [_np(v) for v in native.eval_pdf(ctx, _si(mi, viewer), _vec(mi, light))]
+            theirs = [to_torch(v) for v in bridge.eval_pdf(ctx, _si(mi, viewer), mi_vector(mi, light))]
+        ours = [to_torch(v) for v in native.eval_pdf(ctx, _si(mi, viewer), mi_vector(mi, light))]
         up = (viewer[:, 2] > 0) & (light[:, 2] > 0)
         assert bool(up.any()) and bool((ours[0][~up] == 0).all()) and bool((ours[1][light[:, 2] <= 0] == 0).all())
         assert torch.allclose(ours[0], theirs[0], rtol=1e-4, atol=1e-7)
         assert torch.allclose(ours[1], theirs[1], rtol=1e-5, atol=1e-7)
-        assert torch.allclose(_np(native.eval(ctx, _si(mi, viewer), _vec(mi, light))), ours[0])
-        assert torch.allclose(_np(native.pdf(ctx, _si(mi, viewer), _vec(mi, light))), ours[1])
+        assert torch.allclose(to_torch(native.eval(ctx, _si(mi, viewer), mi_vector(mi, light))), ours[0])
+        assert torch.allclose(to_torch(native.pdf(ctx, _si(mi, viewer), mi_vector(mi, light))), ours[1])
     # the model is not reciprocal: the two transport modes differ, so the swap above was tested
     ctx, imp = mi.BSDFContext(), mi.BSDFContext(mi.TransportMode.Importance)
-    a = _np(native.eval(ctx, _si(mi, viewer), _vec(mi, light)))
-    b = _np(native.eval(imp, _si(mi, viewer), _vec(mi, light))) * (viewer[:, 2:3] / light[:, 2:3]).double()
+    a = to_torch(native.eval(ctx, _si(mi, viewer), mi_vector(mi, light)))
+    b = to_torch(native.eval(imp, _si(mi, viewer), mi_vector(mi, light))) * (viewer[:, 2:3] / light[:, 2:3]).double()
     assert not torch.allclose(a, b, rtol=1e-3)
     # sample: the bridge's cosine warp on the same numbers, pdf and weight = eval / pdf
     u = torch.rand(n, 2, generator=g)
@@ -103,33 +94,16 @@ def test_eval_pdf_and_sample_match_the_torch_bridge(mi, nmat):
     with plugin.evaluated_mode():
         bs_b, weight_b = bridge.sample(ctx, _si(mi, viewer), mi.Float(0.5), s2)
     front = viewer[:, 2] > 0  # a failed sample's wo is unused (the bridge leaves it at the normal)
-    assert torch.allclose(_np(bs.wo)[front], _np(bs_b.wo)[front], atol=1e-5)
-    assert torch.allclose(_np(bs.pdf), _np(bs_b.pdf), rtol=1e-4, atol=1e-7)
-    assert torch.allclose(_np(weight), _np(weight_b), rtol=1e-4, atol=1e-6)
-    assert bool((_np(weight)[viewer[:, 2] <= 0] == 0).all())
+    assert torch.allclose(to_torch(bs.wo)[front], to_torch(bs_b.wo)[front], atol=1e-5)
+    assert torch.allclose(to_torch(bs.pdf), to_torch(bs_b.pdf), rtol=1e-4, atol=1e-7)
+    assert torch.allclose(to_torch(weight), to_torch(weight_b), rtol=1e-4, atol=1e-6)
+    assert bool((to_torch(weight)[viewer[:, 2] <= 0] == 0).all())
 
 
 @pytest.mark.parametrize("theta", [0.3, 1.2])
 def test_mitsuba_chi2_accepts_the_native_sampler(mi, nmat, theta):
     """Symbolic mode (Mitsuba's default), as the native BSDF renders."""
-    import drjit as dr
-    bsdf = mi.load_dict({"type": "neumat", "filename": str(nmat)})
-    wi = mi.ScalarVector3f(np.sin(theta), 0.0, np.cos(theta))
-    ctx = mi.BSDFContext()
-
-    def sample(s):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(s))
-        si.wi = mi.Vector3f(wi)
-        bs, _ = bsdf.sample(ctx, si, s.x, mi.Point2f(s.y, s.z))
-        return bs.wo, dr.select(bs.pdf > 0, 1.0, 0.0)
-
-    def pdf(wo):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(wo))
-        si.wi = mi.Vector3f(wi)
-        return bsdf.pdf(ctx, si, wo)
-
-    test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample, pdf_func=pdf,
-                                 sample_dim=3, sample_count=200_000, res=32, ires=8)
+    test = bsdf_chi2_test(mi, mi.load_dict({"type": "neumat", "filename": str(nmat)}), theta)
     assert test.run(), test.messages
 
 
@@ -220,7 +194,7 @@ def test_native_bsdf_under_cuda_ad_rgb(mi, nmat):
     wi, wo = _dirs(4096, g, below=0.0), _dirs(4096, g, below=0.0)
     bsdf = mi.load_dict({"type": "neumat", "filename": str(nmat)})
     si = _si(mi, wi)
-    expected = _np(bsdf.eval(mi.BSDFContext(), si, _vec(mi, wo)))
+    expected = to_torch(bsdf.eval(mi.BSDFContext(), si, mi_vector(mi, wo)))
     env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
     run = subprocess.run([sys.executable, "-c", _CUDA.format(path=str(nmat))], capture_output=True, text=True,
                          env=env, timeout=600, input=json.dumps([wi.tolist(), wo.tolist()]))
@@ -242,25 +216,9 @@ def ggx_nmat(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("theta", [0.3, 1.2])
 def test_mitsuba_chi2_accepts_the_native_ggx_sampler(mi, ggx_nmat, theta):
-    import drjit as dr
     bsdf = mi.load_dict({"type": "neumat", "filename": str(ggx_nmat)})
     assert "NeumatNativeBSDF" in str(bsdf) and bsdf.runtime.can_sample
-    wi = mi.ScalarVector3f(np.sin(theta), 0.0, np.cos(theta))
-    ctx = mi.BSDFContext()
-
-    def sample(s):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(s))
-        si.wi = mi.Vector3f(wi)
-        bs, _ = bsdf.sample(ctx, si, s.x, mi.Point2f(s.y, s.z))
-        return bs.wo, dr.select(bs.pdf > 0, 1.0, 0.0)
-
-    def pdf(wo):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(wo))
-        si.wi = mi.Vector3f(wi)
-        return bsdf.pdf(ctx, si, wo)
-
-    test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample, pdf_func=pdf,
-                                 sample_dim=3, sample_count=200_000, res=32, ires=8)
+    test = bsdf_chi2_test(mi, bsdf, theta)
     assert test.run(), test.messages
 
 
@@ -312,12 +270,12 @@ def test_a_uv_mapped_model_reads_si_uv_and_the_ray_footprint(mi, multiscale_nmat
             si.duv_dy = mi.Vector2f(mi.Float(dy[:, 0].contiguous()), mi.Float(dy[:, 1].contiguous()))
             jac = torch.stack([dx, dy], -1)
             footprint = jac @ jac.transpose(1, 2) / 12
-        ours = _np(native.eval(ctx, si, _vec(mi, light)))
+        ours = to_torch(native.eval(ctx, si, mi_vector(mi, light)))
         with torch.no_grad():
             ref = model.eval(Query(viewer, light, uv=uv, footprint=footprint)).double() * light[:, 2:3].double()
         err = ((ours - ref).abs() / ref.abs()).max(-1).values
         assert float(err.quantile(0.99)) < 1e-4 and float(err.max()) < 1e-2, (differentials, float(err.max()))
-    assert not torch.allclose(ours, _np(native.eval(ctx, _si(mi, viewer), _vec(mi, light))), rtol=1e-2)
+    assert not torch.allclose(ours, to_torch(native.eval(ctx, _si(mi, viewer), mi_vector(mi, light))), rtol=1e-2)
 
 
 def test_native_multiscale_render_equals_the_bridge_render(mi, multiscale_nmat):

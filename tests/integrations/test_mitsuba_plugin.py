@@ -9,6 +9,7 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.material import Material
 from neumat.core.query import Query
+from mitsuba_util import bsdf_chi2_test, mi_vector, to_torch
 from neumat.catalog.modelfile import save_model
 from neumat.io.texture_set import TextureSet
 from neumat.methods.neural_appearance.model import NeuralAppearance
@@ -47,15 +48,6 @@ def _interaction(mi, wi: torch.Tensor, uv: torch.Tensor):
     return si
 
 
-def _vector(mi, w: torch.Tensor):
-    return mi.Vector3f(*(mi.Float(c.contiguous()) for c in w.T))
-
-
-def _np(x) -> torch.Tensor:
-    a = np.array(x, dtype=np.float64)
-    return torch.from_numpy(a.T.copy() if a.ndim == 2 else a)
-
-
 def _texture_set(size: int = 8) -> TextureSet:
     gen = torch.Generator().manual_seed(3)
     n = torch.randn(size, size, 3, generator=gen) * 0.3
@@ -82,20 +74,20 @@ def test_eval_and_pdf_are_the_materials_with_mitsubas_argument_order(mi, name):
     uv = torch.rand(n, 2, generator=gen) * 3 - 1  # tiles: the plugin wraps uv into [0, 1)
     si = _interaction(mi, viewer, uv)
     ctx = mi.BSDFContext()
-    value, pdf = bsdf.eval_pdf(ctx, si, _vector(mi, light))
+    value, pdf = bsdf.eval_pdf(ctx, si, mi_vector(mi, light))
     up = (viewer[:, 2] > 0) & (light[:, 2] > 0)
     # the material's incident slot gets si.wi (the viewer), as Mitsuba's `measured` feeds its tables
     q = Query(viewer[up], light[up], uv=torch.remainder(uv[up], 1.0))
     expected = material.eval(q).double() * light[up, 2:3].double()
-    got_value, got_pdf = _np(value), _np(pdf)
+    got_value, got_pdf = to_torch(value), to_torch(pdf)
     assert torch.allclose(got_value[up], expected, rtol=1e-4, atol=1e-6)
     assert torch.allclose(got_pdf[up], material.pdf(q).double(), rtol=1e-4, atol=1e-6)
     assert bool((got_value[~up] == 0).all()) and bool((got_pdf[~up] == 0).all())
-    assert torch.allclose(_np(bsdf.eval(ctx, si, _vector(mi, light))), got_value)
-    assert torch.allclose(_np(bsdf.pdf(ctx, si, _vector(mi, light))), got_pdf)
+    assert torch.allclose(to_torch(bsdf.eval(ctx, si, mi_vector(mi, light))), got_value)
+    assert torch.allclose(to_torch(bsdf.pdf(ctx, si, mi_vector(mi, light))), got_pdf)
     # importance transport: si.wi is the light, wo the viewer; the same function with the other cosine
     importance = mi.BSDFContext(mi.TransportMode.Importance)
-    swapped = _np(bsdf.eval(importance, _interaction(mi, light, uv), _vector(mi, viewer)))
+    swapped = to_torch(bsdf.eval(importance, _interaction(mi, light, uv), mi_vector(mi, viewer)))
     assert torch.allclose(swapped[up], material.eval(q).double() * viewer[up, 2:3].double(), rtol=1e-4, atol=1e-6)
 
 
@@ -111,13 +103,13 @@ def test_sample_returns_its_pdf_and_eval_over_pdf(mi, name):
     ctx = mi.BSDFContext()
     bs, weight = bsdf.sample(ctx, si, mi.Float(torch.rand(n, generator=gen)),
                              mi.Point2f(mi.Float(u[:, 0].contiguous()), mi.Float(u[:, 1].contiguous())))
-    wo, pdf, weight = _np(bs.wo).float(), _np(bs.pdf), _np(weight)
+    wo, pdf, weight = to_torch(bs.wo).float(), to_torch(bs.pdf), to_torch(weight)
     ok = pdf > 0
     assert int(ok.sum()) > 0.85 * int((viewer[:, 2] > 0).sum())
     assert bool((weight[viewer[:, 2] <= 0] == 0).all())
-    value, pdf_again = bsdf.eval_pdf(ctx, si, _vector(mi, wo / wo.norm(dim=-1, keepdim=True)))
-    assert torch.allclose(_np(pdf_again)[ok], pdf[ok], rtol=2e-3, atol=1e-5)
-    assert torch.allclose(weight[ok], _np(value)[ok] / pdf[ok, None], rtol=2e-3, atol=1e-5)
+    value, pdf_again = bsdf.eval_pdf(ctx, si, mi_vector(mi, wo / wo.norm(dim=-1, keepdim=True)))
+    assert torch.allclose(to_torch(pdf_again)[ok], pdf[ok], rtol=2e-3, atol=1e-5)
+    assert torch.allclose(weight[ok], to_torch(value)[ok] / pdf[ok, None], rtol=2e-3, atol=1e-5)
 
 
 class _NaNs(Material):
@@ -147,28 +139,10 @@ class _NoSampler(Material):
                          ids=["anisotropic ggx", "svbrdf", "no sampler"])
 @pytest.mark.parametrize("theta", [0.3, 1.2])
 def test_mitsuba_chi2_accepts_the_plugin_sampler(mi, material, theta):
-    import drjit as dr
     plugin = _plugin()
     bsdf = plugin.bsdf(material())
-    wi = mi.ScalarVector3f(np.sin(theta), 0.0, np.cos(theta))
-    ctx = mi.BSDFContext()
-
-    def sample(s):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(s))
-        si.wi, si.uv = mi.Vector3f(wi), mi.Point2f(0.37, 0.61)
-        bs, _ = bsdf.sample(ctx, si, s.x, mi.Point2f(s.y, s.z))
-        return bs.wo, dr.select(bs.pdf > 0, 1.0, 0.0)  # failed samples carry no weight, as in mi.chi2.BSDFAdapter
-
-    def pdf(wo):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(wo))
-        si.wi, si.uv = mi.Vector3f(wi), mi.Point2f(0.37, 0.61)
-        return bsdf.pdf(ctx, si, wo)
-
     with plugin.evaluated_mode():
-        test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample, pdf_func=pdf,
-                                     sample_dim=3, sample_count=400_000, res=48, ires=8)
-        # ires=8: at Mitsuba's default 4 its quadrature of the pdf is too coarse near grazing angles, where it
-        # rejects Mitsuba's own roughconductor with these alphas as well (p = 1e-6 at theta 1.2)
+        test = bsdf_chi2_test(mi, bsdf, theta, uv=(0.37, 0.61), sample_count=400_000, res=48)
         assert test.run(), test.messages
 
 
@@ -227,7 +201,7 @@ def test_model_file_through_load_dict(mi, tmp_path):
     gen = torch.Generator().manual_seed(2)
     viewer, light = _random_dirs(500, gen, below=0.0), _random_dirs(500, gen, below=0.0)
     uv = torch.rand(500, 2, generator=gen)
-    value = _np(bsdf.eval(mi.BSDFContext(), _interaction(mi, viewer, uv), _vector(mi, light)))
+    value = to_torch(bsdf.eval(mi.BSDFContext(), _interaction(mi, viewer, uv), mi_vector(mi, light)))
     with torch.no_grad():
         # not reciprocal: this pins the argument order (si.wi in the incident slot)
         expected = model.eval(Query(viewer, light, uv=uv)).double() * light[:, 2:3].double()

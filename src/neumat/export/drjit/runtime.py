@@ -78,41 +78,13 @@ class Backend:
 
     module: Any
 
-    @property
-    def Float(self):
-        return self.module.Float
+    #: the array types programs use, read from `module` (`backend.Float` is `module.Float`)
+    TYPES = ("Float", "Float16", "Int", "UInt", "Bool", "ArrayXf", "Array3f", "TensorXf", "TensorXf16")
 
-    @property
-    def Float16(self):
-        return self.module.Float16
-
-    @property
-    def Int(self):
-        return self.module.Int
-
-    @property
-    def UInt(self):
-        return self.module.UInt
-
-    @property
-    def Bool(self):
-        return self.module.Bool
-
-    @property
-    def ArrayXf(self):
-        return self.module.ArrayXf
-
-    @property
-    def Array3f(self):
-        return self.module.Array3f
-
-    @property
-    def TensorXf(self):
-        return self.module.TensorXf
-
-    @property
-    def TensorXf16(self):
-        return self.module.TensorXf16
+    def __getattr__(self, name: str):
+        if name in Backend.TYPES:
+            return getattr(self.module, name)
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
 
     @property
     def is_cuda(self) -> bool:
