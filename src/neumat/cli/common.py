@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import os
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -80,61 +81,52 @@ def device_option(value: str | None) -> str:
     return value
 
 
-def with_threads(command: Callable) -> Callable:
-    """`command` with a --threads option (torch's intra-op threads for its run), for commands that compute and
-    do not take one themselves."""
+def _with_option(command: Callable, name: str, annotation: str, option, context: Callable) -> Callable:
+    """`command` with one more keyword option `name` (a typer `option`), its run wrapped in `context(value)`;
+    `command` itself when it already takes `name`."""
     import functools
     import inspect
 
     signature = inspect.signature(command)
-    if "threads" in signature.parameters:
+    if name in signature.parameters:
         return command
-    option = inspect.Parameter("threads", inspect.Parameter.KEYWORD_ONLY, annotation="int",
-                               default=typer.Option(None, "--threads", min=1, help=THREADS_HELP))
+    parameter = inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, annotation=annotation, default=option)
 
     @functools.wraps(command)
-    def run(*args, threads: int | None = None, **kwargs):
-        with torch_threads(threads):
+    def run(*args, **kwargs):
+        with context(kwargs.pop(name, option.default)):
             return command(*args, **kwargs)
 
-    run.__signature__ = signature.replace(parameters=[*signature.parameters.values(), option])
-    run.__annotations__ = {**command.__annotations__, "threads": "int"}
+    run.__signature__ = signature.replace(parameters=[*signature.parameters.values(), parameter])
+    run.__annotations__ = {**command.__annotations__, name: annotation}
     return run
+
+
+def with_threads(command: Callable) -> Callable:
+    """`command` with a --threads option (torch's intra-op threads for its run), for commands that compute and
+    do not take one themselves."""
+    return _with_option(command, "threads", "int", typer.Option(None, "--threads", min=1, help=THREADS_HELP),
+                        torch_threads)
+
+
+@contextmanager
+def _quiet_env(on: bool):
+    """NEUMAT_QUIET set while the block runs, when `on`."""
+    before = os.environ.get(QUIET_ENV)
+    if on:
+        os.environ[QUIET_ENV] = "1"
+    try:
+        yield
+    finally:
+        if on and before is None:
+            os.environ.pop(QUIET_ENV, None)
 
 
 def with_quiet(command: Callable) -> Callable:
     """`command` with a --quiet / -q option, for commands that compute and do not take one themselves: no progress
     output from what it runs (a fit's progress lines; `neumat.fit.trainer` reads NEUMAT_QUIET)."""
-    import contextlib
-    import functools
-    import inspect
-    import os
-
-    signature = inspect.signature(command)
-    if "quiet" in signature.parameters:
-        return command
-    option = inspect.Parameter("quiet", inspect.Parameter.KEYWORD_ONLY, annotation="bool",
-                               default=typer.Option(False, "--quiet", "-q", help="no progress output"))
-
-    @contextlib.contextmanager
-    def quiet_env(on: bool):
-        before = os.environ.get(QUIET_ENV)
-        if on:
-            os.environ[QUIET_ENV] = "1"
-        try:
-            yield
-        finally:
-            if on and before is None:
-                os.environ.pop(QUIET_ENV, None)
-
-    @functools.wraps(command)
-    def run(*args, quiet: bool = False, **kwargs):
-        with quiet_env(quiet):
-            return command(*args, **kwargs)
-
-    run.__signature__ = signature.replace(parameters=[*signature.parameters.values(), option])
-    run.__annotations__ = {**command.__annotations__, "quiet": "bool"}
-    return run
+    return _with_option(command, "quiet", "bool", typer.Option(False, "--quiet", "-q", help="no progress output"),
+                        _quiet_env)
 
 
 #: set while a command runs with --quiet (read by the trainer's progress)
