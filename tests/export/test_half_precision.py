@@ -21,7 +21,7 @@ from neumat.export.slang import export_slang
 from neumat.models.half_precision import half_rounded
 from neumat.testing.parity import glsl_eval, glsl_run, opengl_available
 from neumat.testing.slang_parity import SlangKernel, slang_available, slang_eval
-from test_glsl_latent_mlp import CONFIGS, _model, _queries
+from tests.methods.latent_mlp.test_glsl_latent_mlp import CONFIGS, _model, _queries
 from test_slang import OTHER_FAMILIES
 
 needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")

@@ -16,7 +16,7 @@ from neumat.export.slang import (ENTRY_CODES, QUERY_FLOATS, QUERY_LAYOUT, enviro
                                   glsl_to_slang)
 from neumat.models.registry import build_model
 from neumat.testing.slang_parity import SlangKernel, slang_available, slang_eval
-from test_glsl_latent_mlp import _model, _queries as glsl_queries
+from tests.methods.latent_mlp.test_glsl_latent_mlp import _model, _queries as glsl_queries
 
 needs_slang = pytest.mark.skipif(not slang_available(), reason="slangpy is not installed or its CPU device "
                                                                "cannot be created (pip install slangpy)")
@@ -183,10 +183,10 @@ def test_slang_export_of_sparse_btf_matches_torch():
 @pytest.mark.parametrize("case", ["small cartesian", "paper"])
 def test_slang_export_of_neupress_matches_torch(case):
     """NeuPreSS (INeumatTranslucent): S_hat, the lobe width, light sampling and its pdf, with the bounds of its
-    GLSL parity test (tests/export/test_glsl_neupress.py: the paper's Fourier arguments reach ~400 rad, where
-    float32 phases lose ~1e-4). Measured (small / paper): S_hat 4.2e-7 / 3.8e-5 of its largest value, sigma
+    GLSL parity test (tests/methods/neupress/test_glsl_neupress.py: the paper's Fourier arguments reach ~400 rad,
+    where float32 phases lose ~1e-4). Measured (small / paper): S_hat 4.2e-7 / 3.8e-5 of its largest value, sigma
     1.9e-6 / 5.5e-5 relative, sampled directions 2.1e-6 / 5.7e-5, pdf 1.8e-5 / 6.9e-4 relative."""
-    from test_glsl_neupress import CASES, _model as neupress_model, _queries as neupress_queries
+    from tests.methods.neupress.test_glsl_neupress import CASES, _model as neupress_model, _queries as neupress_queries
 
     m = neupress_model(**CASES[case])
     x, wi, wo, u = neupress_queries()
@@ -241,10 +241,10 @@ def _shade_run(kernel: SlangKernel, entry: str, columns: dict[str, torch.Tensor]
 def test_slang_shade_of_neupress_is_the_torch_estimator():
     """INeumatTranslucentShade: shade() (GGX-sampled rough-dielectric reflection of the environment plus
     lobe-sampled S_hat over one Hammersley set) equals the torch computation of the same estimator that the GLSL
-    shade is tested against (tests/export/test_glsl_neupress_shade.py, same bounds), with the environment bound at
-    run time; rough_dielectric_reflection() equals its formula (Walter et al. 2007; its GLSL twin equals Mitsuba's
-    roughdielectric)."""
-    from test_glsl_neupress_shade import _env, _fresnel, _g1, _model as shade_model, _reference
+    shade is tested against (tests/methods/neupress/test_glsl_neupress_shade.py, same bounds), with the environment
+    bound at run time; rough_dielectric_reflection() equals its formula (Walter et al. 2007; its GLSL twin equals
+    Mitsuba's roughdielectric)."""
+    from tests.methods.neupress.test_glsl_neupress_shade import _env, _fresnel, _g1, _model as shade_model, _reference
     from neumat.render.lights import EnvironmentMap
     from neumat.warp import sample_uniform_sphere
 
@@ -284,7 +284,7 @@ def test_slang_shade_of_neupress_is_the_torch_estimator():
 
 
 def test_environment_bindings_layout_and_refusal(tmp_path):
-    from test_glsl_neupress_shade import _model as shade_model
+    from tests.methods.neupress.test_glsl_neupress_shade import _model as shade_model
 
     export = export_slang(shade_model(), "fp32")
     manifest = json.loads((export.write(tmp_path / "slang") / "manifest.json").read_text())

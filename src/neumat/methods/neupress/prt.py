@@ -476,7 +476,7 @@ class _SeparableNeuPreSS:
     without per-query encodings or transcendentals: v = (enc(wi), enc(wo), pos(x)) and G v is linear, so
     a = a_light(wi) + a_pair(wo, x), and cos a, sin a follow from the cosines and sines of the two parts (computed
     once per light direction and once per (vertex, view) pair) by the angle-addition formulas. Equal to
-    `NeuPreSS.eval` up to float32 rounding (tests/models/test_neupress_prt.py). For "bf16" the angle addition
+    `NeuPreSS.eval` up to float32 rounding (tests/methods/neupress/test_neupress_prt.py). For "bf16" the angle addition
     and the MLP (a bfloat16 copy of its weights) run in bfloat16."""
 
     def __init__(self, model, wi: torch.Tensor, precision: str = "fp32") -> None:

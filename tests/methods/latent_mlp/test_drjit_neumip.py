@@ -2,9 +2,9 @@
 eval: its decoder with 2 frames, the albedo outputs left out) and "ggx-mipmap"
 (`neumat.export.drjit.neumip`) with the torch models, on random queries with uv (tiled, outside [0, 1) too) and
 random anisotropic footprints (up to 30:1, 16 probes) or none (the finest level), fp32 compute: within 1e-4
-relative. As for the multi-scale family (tests/export/test_drjit_multiscale.py), a learned shading frame's lift
-z = sqrt(1 - x^2 - y^2) amplifies last-ulp differences near its horizon: queries with a local |z| < 0.01 in any
-frame are left out for neumip-frame; for the GGX mip-map, whose texel normal decides whether a query is above
+relative. As for the multi-scale family (tests/methods/latent_mlp/test_drjit_multiscale.py), a learned shading
+frame's lift z = sqrt(1 - x^2 - y^2) amplifies last-ulp differences near its horizon: queries with a local |z| < 0.01
+in any frame are left out for neumip-frame; for the GGX mip-map, whose texel normal decides whether a query is above
 its shading horizon (0 below), those within 0.01 of it."""
 from __future__ import annotations
 
