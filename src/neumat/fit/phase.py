@@ -44,6 +44,8 @@ class Phase:
     stateful:  modules with state of their own (a loss's running statistics), checkpointed with the fit.
     on_record: called with each history record of this phase before it is stored, checkpointed or shown (it
                may add fields, e.g. a validation loss); at the phase's last step it runs before `after`.
+    slow_from: the step of the phase from which its steps cost far more (batches traced online), or None: the
+               trainer says so and measures its time estimate again there, so that the estimate stays honest.
     """
 
     name: str
@@ -55,6 +57,7 @@ class Phase:
     optimizer: Callable[..., torch.optim.Optimizer] | None = None
     stateful: list[nn.Module] = field(default_factory=list)
     on_record: Callable[[dict], None] | None = None
+    slow_from: int | None = None
 
 
 @dataclass

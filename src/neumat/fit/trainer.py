@@ -117,7 +117,13 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
             state["optimizer"] = None
             guard.start_phase(opt, max(state["step"], begin), resumed=state["step"] > begin)
             running: dict[str, torch.Tensor] = {k: v.to(dev) for k, v in state["running"].items()}
+            slow = None if phase.slow_from is None else begin + phase.slow_from
+            if slow is not None and max(state["step"], begin) < slow < end:
+                bar.note(f"fit {name}: phase {phase.name!r} turns slower at step {slow} (e.g. batches traced online "
+                         "from there); the time estimate is measured again then")
             for step in range(max(state["step"], begin), end):
+                if step == slow:
+                    bar.remeasure()
                 scheduled_lr = learning_rate(recipe, step - begin, phase.steps)
                 lr = scheduled_lr * guard.lr_factor
                 if opt is not None:
@@ -342,8 +348,16 @@ class _Progress:
             self.bar.__exit__(*exc)
 
     def _eta(self) -> float:
-        rate = (time.perf_counter() - self.t0) / max(self.done - self.start, 1)
+        estimate = self.estimate()
+        if estimate is not None:
+            return estimate
+        rate = (time.perf_counter() - self.t_warm) / max(self.done - self.start, 1)
         return rate * (self.total - self.done)
+
+    def remeasure(self) -> None:
+        """Measure the time estimate again from the next step on and announce it once more (the steps from here
+        cost differently: a phase's `slow_from`)."""
+        self.start, self.warned, self.t_warm = self.done, False, time.perf_counter()
 
     def estimate(self) -> float | None:
         """Seconds still to go at the speed of the steps after the first WARMUP_STEPS, or None before any."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Literal, Sequence
 
 import torch
 from torch import nn
@@ -19,6 +19,7 @@ from ..core.config import bounded
 from ..core.errors import InputError
 from .phase import FitContext, Phase, model_name
 from .translucent_observations import Observations
+from .translucent_online import OnlineObservations
 
 Predict = Callable[[Observations], torch.Tensor]
 
@@ -34,6 +35,35 @@ class ObservationOptions:
     bounds: list[list[float]] | None = None
     """Object bounding box [[lo x, y, z], [hi x, y, z]] for model.set_bounds; None: the box recorded with the
     observations, else the observed points'."""
+
+
+@dataclass
+class SourceOptions:
+    """Recipe options saying where an appearance phase's batches come from: the observations file, or Mitsuba."""
+
+    source: Literal["offline", "online", "hybrid"] = "offline"
+    """offline: batches from the file; online: each traced fresh (no sample reused); hybrid: offline, then online."""
+    online_spp: int = bounded(16, ge=1)
+    """Paths per observation traced online."""
+    online_resolution: int = bounded(32, ge=1)
+    """Rays per side of each online view (one light and one Mitsuba trace per view: larger views, fewer calls)."""
+    warm_fraction: float = bounded(0.5, ge=0, le=1)
+    """hybrid: the fraction of the appearance steps trained on the file's observations before tracing online."""
+
+
+def online_source(ctx: FitContext, steps: int) -> tuple[OnlineObservations | None, int | None]:
+    """(the online source, the phase step it starts at) by option.source for an appearance phase of `steps` steps:
+    (None, None) offline; else built from the object the observations describe (InputError without one), with the
+    recipe's seed, so that its batches are a function of (seed, step)."""
+    opts = ctx.opts
+    if opts.source == "offline":
+        return None, None
+    src = observations_source(ctx)
+    online = OnlineObservations.from_observations(src, resolution=opts.online_resolution, spp=opts.online_spp,
+                                                  seed=ctx.recipe.seed,
+                                                  who=f"fit {model_name(ctx.model)} option.source={opts.source}")
+    start = 0 if opts.source == "online" else int(round(opts.warm_fraction * steps))
+    return online, start
 
 
 def observation_mse(predict: Predict, observations: Observations, batch: int = 65536) -> float:
@@ -127,23 +157,29 @@ def best_validation(history: list[dict]) -> dict | None:
 
 def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, params: list[nn.Parameter],
                       train: Observations, validation: Observations | None,
-                      penalty: Callable[[], dict[str, torch.Tensor]] | None = None) -> Phase:
+                      penalty: Callable[[], dict[str, torch.Tensor]] | None = None,
+                      online: OnlineObservations | None = None, online_from: int | None = None) -> Phase:
     """`steps` steps of the mean squared error of predict(o) against o.value on `recipe.batch_size` observations
     drawn (with ctx.generator) from `train`, plus the losses `penalty()` returns (a regulariser) if given; early
-    stopping on the validation MSE of `validation` unless it is None (both from `split_observations`)."""
+    stopping on the validation MSE of `validation` unless it is None (both from `split_observations`). With
+    `online` (from `online_source`), the steps from `online_from` on train on fresh batches `online.draw(step)`."""
     recipe = ctx.recipe
     gen = ctx.generator
 
-    def batch_loss() -> torch.Tensor:
-        idx = torch.randint(len(train), (recipe.batch_size,), generator=gen, device=gen.device)
-        o = train[idx.to(train.x.device)]
+    def batch_loss(step: int) -> torch.Tensor:
+        if online is not None and step >= online_from:
+            o = online.draw(step, recipe.batch_size).to(ctx.device)
+        else:
+            idx = torch.randint(len(train), (recipe.batch_size,), generator=gen, device=gen.device)
+            o = train[idx.to(train.x.device)]
         return ((predict(o) - o.value) ** 2).mean()
 
     def losses(step: int) -> dict[str, torch.Tensor]:
-        return {"mse": batch_loss(), **(penalty() if penalty is not None else {})}
+        return {"mse": batch_loss(step), **(penalty() if penalty is not None else {})}
 
+    slow_from = online_from if online is not None and online_from < steps else None
     if validation is None:
-        return Phase(name, steps, losses, params)
+        return Phase(name, steps, losses, params, slow_from=slow_from)
 
     stopping = EarlyStopping(params).to(ctx.device)
 
@@ -157,7 +193,8 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
                              f"diverged (lower lr, now {recipe.lr})")
         stopping.restore(params)
 
-    return Phase(name, steps, losses, params, after=after, stateful=[stopping], on_record=on_record)
+    return Phase(name, steps, losses, params, after=after, stateful=[stopping], on_record=on_record,
+                 slow_from=slow_from)
 
 
 def observation_report(model, source: Observations, result) -> tuple[dict, dict]:

@@ -29,7 +29,9 @@ class Observations:
     two traces and does not clamp, which would bias it). Anything else raises InputError.
 
     `bbox`: the object's bounding box (lo (3,), hi (3,)) that `load` reads from the file's recorded source, or None;
-    kept by indexing and `to` (the object does not change), used by `neumat.fit.translucent_fit.set_bounds_from`."""
+    kept by indexing and `to` (the object does not change), used by `neumat.fit.translucent_fit.set_bounds_from`.
+    `object_config`: the object's description (`TranslucentConfig` fields) that `load` reads from the same source, or
+    None; kept alike, so that an online fit can trace the object again (`neumat.fit.translucent_online`)."""
 
     x: torch.Tensor
     n: torch.Tensor
@@ -39,6 +41,7 @@ class Observations:
 
     def __post_init__(self) -> None:
         self.bbox: tuple[torch.Tensor, torch.Tensor] | None = None
+        self.object_config: dict | None = None
         n = self.x.shape[0]
         for f in fields(self):
             t = getattr(self, f.name)
@@ -66,7 +69,7 @@ class Observations:
         return self._with_bbox(Observations(**{f.name: getattr(self, f.name).to(device) for f in fields(self)}))
 
     def _with_bbox(self, other: "Observations") -> "Observations":
-        other.bbox = self.bbox
+        other.bbox, other.object_config = self.bbox, self.object_config
         return other
 
     def split(self, fraction: float, seed: int = 0) -> tuple["Observations", "Observations"]:
@@ -101,7 +104,9 @@ class Observations:
         except InputError as e:
             raise DataFormatError(f"{path}: {e}") from None
         _check_mean_value(obs.value, path)
-        box = (cls.load_source(path) or {}).get("bbox")
+        source = cls.load_source(path) or {}
+        obs.object_config = source.get("object")
+        box = source.get("bbox")
         if box is not None:
             obs.bbox = tuple(torch.tensor(b, dtype=torch.float32) for b in box)
         return obs

@@ -223,9 +223,13 @@ class TranslucentObject(Material):
         return out.to(q.device, q.dtype)
 
     # ---- rays ---------------------------------------------------------------------------------------------
-    def trace(self, o: torch.Tensor, d: torch.Tensor, light: torch.Tensor, spp: int | None = None) -> torch.Tensor:
+    def trace(self, o: torch.Tensor, d: torch.Tensor, light: torch.Tensor, spp: int | None = None,
+              seed: int | None = None) -> torch.Tensor:
         """Subsurface radiance (N, 3) float64 along rays o + t d (N, 3) under a unit-irradiance directional light
-        arriving from `light` (3,) (towards the light); rays that miss the object give 0."""
+        arriving from `light` (3,) (towards the light); rays that miss the object give 0.
+
+        seed: None draws fresh paths (from the object's seed and a call counter); an integer >= 0 makes the paths
+        a function of (seed, rays) alone, so that a resumed online fit re-traces the same batches."""
         check_shape(o, "o", (o.shape[0], 3))
         check_shape(d, "d", (o.shape[0], 3))
         check_directions(d, "d")
@@ -233,6 +237,8 @@ class TranslucentObject(Material):
         light = torch.as_tensor(light, dtype=torch.float64).reshape(3)
         check_directions(light[None], "light")
         spp = self.spp if spp is None else spp
+        if seed is not None:
+            check_int(seed, "trace seed", 0)
         self._set_light(light)
         n = o.shape[0]
         rays_per_call = max(1, WAVEFRONT // spp)
@@ -241,8 +247,8 @@ class TranslucentObject(Material):
             sl = slice(start, min(n, start + rays_per_call))
             oo = o[sl].repeat_interleave(spp, 0)
             dd = d[sl].repeat_interleave(spp, 0)
-            seed = self._next_seed()
-            diff = self._radiance("medium", oo, dd, seed) - self._radiance("black", oo, dd, seed)
+            call = self._next_seed() if seed is None else call_seed(seed, start)
+            diff = self._radiance("medium", oo, dd, call) - self._radiance("black", oo, dd, call)
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
         # not clamped: the difference is unbiased but one ray's mean can be negative (on a concave object a path
         # that reflects off the surface and meets it again diverges between the two traces); clamping would bias it
@@ -307,6 +313,12 @@ class TranslucentObject(Material):
     def _ray(self, o: torch.Tensor, d: torch.Tensor):
         mi = self.mi
         return mi.Ray3f(mi.Point3f(_np3(o)), mi.Vector3f(_np3(d)))
+
+
+def call_seed(*keys: int) -> int:
+    """A 31-bit seed for Mitsuba's sampler that is a hash of the integers `keys` (e.g. a fit's seed, its step and a
+    view): reproducible, and unrelated to the call-counter seeds of `TranslucentObject._next_seed` in practice."""
+    return int(np.random.SeedSequence([int(k) for k in keys]).generate_state(1)[0]) & 0x7FFFFFFF
 
 
 def medium_grids(config: TranslucentConfig, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

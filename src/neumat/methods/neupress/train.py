@@ -15,12 +15,14 @@ from neumat.core.errors import InputError
 from neumat.methods.neupress.targets import light_grid, neupress_predict, sampler_kl
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.recipe import Recipe
-from neumat.fit.translucent_fit import ObservationOptions, observation_phase, set_bounds_from, split_observations
+from neumat.fit.translucent_fit import (ObservationOptions, SourceOptions, observation_phase, online_source,
+                                       set_bounds_from, split_observations)
 
 
 @dataclass
-class Options(ObservationOptions):
-    """NeuPreSS's recipe options: those of every fit on observations, and the sampler phase's."""
+class Options(SourceOptions, ObservationOptions):
+    """NeuPreSS's recipe options: those of every fit on observations, where its batches come from (the file or
+    Mitsuba online), and the sampler phase's."""
 
     sampler_batch: int = bounded(32, ge=1)
     """Random training observations (x, wo, n) per step of the sampler phase."""
@@ -40,6 +42,7 @@ def phases(ctx: FitContext) -> list[Phase]:
     train, validation = split_observations(ctx)
     set_bounds_from(ctx)
     appearance_steps, sampler_steps = ctx.split(("appearance", "sampler"))
+    online, online_from = online_source(ctx, appearance_steps)
     appearance = [p for name, p in model.named_parameters() if name.startswith("appearance")]
     sampler = [p for name, p in model.named_parameters() if name.startswith("sampler")]
     batch, size = ctx.opts.sampler_batch, ctx.opts.grid
@@ -54,5 +57,5 @@ def phases(ctx: FitContext) -> list[Phase]:
         return {"kl": sampler_kl(model, train.x[idx], train.wo[idx], train.n[idx], grid)}
 
     return [observation_phase(ctx, "appearance", appearance_steps, neupress_predict(model), appearance, train,
-                              validation),
+                              validation, online=online, online_from=online_from),
             Phase("sampler", sampler_steps, kl, sampler)]
