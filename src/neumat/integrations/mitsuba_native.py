@@ -5,6 +5,9 @@ Mitsuba's own kernels, symbolic (megakernel) mode included, without torch.
     mi = mitsuba_native.register()      # the "neumat" plugin; llvm_ad_rgb unless an RGB variant is already set
     bsdf = {"type": "neumat", "filename": "model.nmat"}   # or the folder `neumat export --format drjit` wrote
 
+A set of materials (shared-neubrdf) renders its selected material (0 unless the model file says otherwise), or the
+one named by the integer property `member`.
+
 The plugin picks the native path whenever one exists (a drjit export, or a `.nmat` whose method declares a Dr.Jit
 translator) and the torch bridge (`neumat.integrations.mitsuba`) otherwise; `"native": False` forces the bridge.
 Conventions, sampling and footprints: docs/formats/drjit.md.
@@ -43,6 +46,10 @@ def make_bsdf(mi, props):
     if native and source is not None:
         runtime = native_runtime(source, mi.Float, mlp_form=props["mlp_form"] if "mlp_form" in props else None)
         if runtime is not None:
+            if "member" in props:  # a set of materials (shared-neubrdf): which one this BSDF renders
+                if getattr(runtime, "materials", 1) < 2 or not callable(getattr(runtime, "select", None)):
+                    raise InputError(f"neumat BSDF: 'member' given, but {source!r} holds one material")
+                runtime.select(int(props["member"]))
             return native_class(mi.variant())(props, runtime)
     if _BRIDGE is None:
         raise InputError(f"neumat BSDF: {source!r} has no native (Dr.Jit) form or native is false; the torch bridge "

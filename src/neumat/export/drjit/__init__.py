@@ -8,8 +8,11 @@ Mitsuba 3's own kernels (symbolic / megakernel mode, LLVM or CUDA), without torc
 
 - `neumat.export.drjit.latent` (no torch): the latent-texture family's programs (registered on import, here):
   "latent-mlp" there, "neumip" and "ggx-mipmap" in `neumat.export.drjit.neumip`.
+- `neumat.export.drjit.neubrdf` (no torch): "healpix-grid-mlp", the NeuBRDF forms "healpix-mlp" does not cover
+  (inverse-distance corner weights, a neural texture, shared-NeuBRDF's several materials).
 
 Details: docs/mitsuba.md, section "Native Dr.Jit runtime".
 """
 from . import latent  # noqa: F401  (registers the "latent-mlp" program in runtime.PROGRAMS)
 from . import neumip  # noqa: F401  (registers "neumip" and "ggx-mipmap")
+from . import neubrdf  # noqa: F401  (registers "healpix-grid-mlp")

@@ -1,7 +1,7 @@
 """NeuBRDF (Dou, Zheng et al., CVPR 2024) and its jointly trained multi-material form; notes in NOTES.md."""
 from neumat.fit.method import Method, register_method
 from neumat.methods.neubrdf import shared_train, train
-from neumat.methods.neubrdf.drjit import translate as drjit_translate
+from neumat.methods.neubrdf.drjit import translate as drjit_translate, translate_shared as drjit_translate_shared
 from neumat.methods.neubrdf.glsl import export_neubrdf
 from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.methods.neubrdf.shared_model import SharedNeuBRDF
@@ -13,4 +13,5 @@ register_method(Method("neubrdf", NeuBRDF, {"paper": train.RECIPE, "cpu": train.
 register_method(Method("shared-neubrdf", SharedNeuBRDF, {"paper": shared_train.RECIPE, "cpu": shared_train.CPU_RECIPE},
                        options=shared_train.Options, phases=shared_train.phases,
                        config_for_source=shared_train.config_for_source, presets=shared_train.PRESETS,
+                       drjit=drjit_translate_shared,
                        small=dict(num_materials=2, nside=2, index_bits=2, hidden=4)))
