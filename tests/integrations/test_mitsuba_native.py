@@ -315,14 +315,19 @@ def test_native_neumip_offset_render_equals_the_bridge_render(mi, tmp_path):
     assert abs(float(ours.mean() / theirs.mean()) - 1) < 2e-3
 
 
-def test_a_model_whose_sampler_has_no_native_form_keeps_the_bridge(mi, tmp_path):
-    """neural-appearance: its eval has a Dr.Jit form (program "neumip"), its learned sampler not yet; its model file
-    renders through the bridge (with the sampler), its drjit export folder natively (cosine-weighted sampling)."""
+def test_a_model_whose_sampler_has_no_native_form_keeps_the_bridge(mi, tmp_path, monkeypatch):
+    """A model with a learned sampler whose runtime cannot sample (here neural-appearance's program with its sampler
+    switched off): its model file renders through the bridge (with the sampler), its drjit export natively
+    (cosine-weighted sampling). neural-appearance itself samples natively
+    (tests/integrations/test_mitsuba_native_neural_appearance.py)."""
     from neumat.export.drjit.format import export_drjit
+    from neumat.export.drjit.runtime import PROGRAMS
     from neumat.methods.neural_appearance.model import NeuralAppearance
     torch.manual_seed(0)
     model = NeuralAppearance(spatial_size=8).runtime().train(False)
     nmat = save_model(model, tmp_path / "na.nmat")
+    assert "NeumatNativeBSDF" in str(mi.load_dict({"type": "neumat", "filename": str(nmat)}))
+    monkeypatch.setattr(PROGRAMS["neural-appearance"], "can_sample", False)
     assert "NeumatBSDF[" in str(mi.load_dict({"type": "neumat", "filename": str(nmat)}))
     folder = export_drjit(model).write(tmp_path / "drjit")
     native = mi.load_dict({"type": "neumat", "filename": str(folder)})

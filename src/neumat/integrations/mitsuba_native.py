@@ -95,7 +95,7 @@ def native_runtime(source, backend, compute: str | None = None, mlp_form: str | 
         return None
     runtime = load_runtime(exported.source(), backend, compute, mlp_form)
     if getattr(model, "can_sample", False) and not runtime.can_sample:
-        return None  # the model's learned sampler has no Dr.Jit form yet: the bridge keeps it (an export folder
+        return None  # a model whose learned sampler has no Dr.Jit form: the bridge keeps it (an export folder
         # of such a model still loads natively, sampled cosine-weighted)
     return runtime
 
@@ -192,11 +192,16 @@ def native_class(variant: str) -> type:
                    (dx[1] * dx[1] + dy[1] * dy[1]) / 12)
             return {"uv": (si.uv[0], si.uv[1]), "footprint": cov}
 
-        def _value(self, ctx, si, wo, active):
-            """f(wi, wo) cos(theta_wo) on the active lanes with both directions above the surface, and that mask."""
+        def _mask(self, ctx, si, wo, active):
+            """The active lanes with both directions above the surface (none when the context excludes the lobe)."""
             active = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
             if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
                 active = active & False
+            return active
+
+        def _value(self, ctx, si, wo, active):
+            """f(wi, wo) cos(theta_wo) on the active lanes with both directions above the surface, and that mask."""
+            active = self._mask(ctx, si, wo, active)
             importance = ctx.mode == mi.TransportMode.Importance
             first, second = (wo, si.wi) if importance else (si.wi, wo)
             f = mi.Color3f(self.runtime.eval(mi.Vector3f(first), mi.Vector3f(second), active, **self._where(si)))
@@ -205,7 +210,8 @@ def native_class(variant: str) -> type:
         def _pdf(self, si, wo, active):
             ok = active & (mi.Frame3f.cos_theta(si.wi) > 0)
             if self.runtime.can_sample:
-                return dr.select(ok, mi.Float(self.runtime.pdf(mi.Vector3f(si.wi), mi.Vector3f(wo), ok)), 0.0)
+                return dr.select(ok, mi.Float(self.runtime.pdf(mi.Vector3f(si.wi), mi.Vector3f(wo), ok,
+                                                               **self._where(si))), 0.0)
             return dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
 
         def eval(self, ctx, si, wo, active=True):
@@ -218,17 +224,33 @@ def native_class(variant: str) -> type:
             return self._pdf(si, wo, ok)
 
         def eval_pdf(self, ctx, si, wo, active=True):
+            if self.runtime.can_sample and hasattr(self.runtime, "eval_pdf"):  # one latent read, one set of lobes
+                ok = self._mask(ctx, si, wo, active)
+                f, pdf = self.runtime.eval_pdf(mi.Vector3f(si.wi), mi.Vector3f(wo), ok, **self._where(si),
+                                               swap=ctx.mode == mi.TransportMode.Importance)
+                return (dr.select(ok, mi.Color3f(f) * mi.Frame3f.cos_theta(wo), 0.0),
+                        dr.select(ok, mi.Float(pdf), 0.0))
             value, ok = self._value(ctx, si, wo, active)
             return value, self._pdf(si, wo, ok)
 
         def sample(self, ctx, si, sample1, sample2, active=True):
+            shared = hasattr(self.runtime, "sample_eval")
             if self.runtime.can_sample:  # the model's own sampler on sample2, as the bridge's material.sample
                 up = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0)
-                wo, pdf = self.runtime.sample(mi.Vector3f(si.wi), sample2[0], sample2[1], up)
+                if shared:  # one latent read and one set of lobes for direction, density and value
+                    wo, pdf, f = self.runtime.sample_eval(mi.Vector3f(si.wi), sample2[0], sample2[1], up,
+                                                          swap=ctx.mode == mi.TransportMode.Importance,
+                                                          **self._where(si))
+                else:
+                    wo, pdf = self.runtime.sample(mi.Vector3f(si.wi), sample2[0], sample2[1], up, **self._where(si))
                 wo, pdf = mi.Vector3f(wo), mi.Float(pdf)
             else:
                 wo = mi.warp.square_to_cosine_hemisphere(sample2)
-            value, ok = self._value(ctx, si, wo, active)
+            if self.runtime.can_sample and shared:
+                ok = self._mask(ctx, si, wo, active)
+                value = dr.select(ok, mi.Color3f(f) * mi.Frame3f.cos_theta(wo), 0.0)
+            else:
+                value, ok = self._value(ctx, si, wo, active)
             if not self.runtime.can_sample:
                 pdf = dr.select(ok, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
             pdf = dr.select(ok, pdf, 0.0)
@@ -240,6 +262,16 @@ def native_class(variant: str) -> type:
             bs.sampled_component = mi.UInt32(0)
             ok = ok & (pdf > 0)
             return bs, dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+
+        def traverse(self, callback):
+            """The runtime's latent pyramid (every level's texels, one flat Float; `Pyramid.data`) as the
+            differentiable parameter "latent", where the runtime has one (Mitsuba's `mi.traverse`, `prb`)."""
+            data = getattr(getattr(self.runtime, "pyramid", None), "data", None)
+            if data is not None:
+                callback.put("latent", data, mi.ParamFlags.Differentiable)
+
+        def parameters_changed(self, keys):
+            pass  # the kernels read the (updated in place) latent buffer as it is
 
         def to_string(self):
             return f"NeumatNativeBSDF[runtime={self.runtime.describe()!r}]"

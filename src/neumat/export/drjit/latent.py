@@ -150,7 +150,8 @@ class Pyramid:
             return (k + 1, *(s + x for s, x in zip(acc, z)))
 
         state = dr.while_loop(state=(b.Float(0.0), *[b.Float(0.0) for _ in range(self.channels)]),
-                              cond=lambda k, *acc: active & (k < n), body=body)
+                              cond=lambda k, *acc: active & (k < n), body=body,
+                              max_iterations=-1)  # a sum over probes: reverse-mode AD of the latents needs the hint
         return list(state[1:])
 
 

@@ -73,9 +73,9 @@ def translate(model: MultiScale) -> tuple[dict, dict]:
 @torch.no_grad()
 def translate_neumip(model: NeuMIP) -> tuple[dict, dict]:
     """(manifest, arrays) of a NeuMIP configuration (program "neumip"); InputError for a subclass that reads or
-    decodes differently. neural-appearance's BRDF decoder is one (2 frames; its albedo outputs are left out): the
-    manifest's "model_samples" records that the model has a learned sampler which the runtime lacks, so that the
-    Mitsuba plugin keeps the bridge (and the sampler) for its model files."""
+    decodes differently. neural-appearance's BRDF decoder is one (2 frames; its albedo outputs are left out): its
+    own translator (`neumat.methods.neural_appearance.drjit.translate`) adds the learned sampler to this (program
+    "neural-appearance"); "model_samples" records whether the model has a learned sampler."""
     if not isinstance(model, NeuMIP):
         raise InputError(f"neumip drjit translator: expected a NeuMIP model, got {type(model).__name__}")
     cls = type(model)
