@@ -74,7 +74,7 @@ def test_errors_name_the_problem(tmp_path, without_llvm):
     """Without a usable LLVM too: each argument is checked before Mitsuba loads."""
     r = _run("trace", "-o", tmp_path / "o.txt")
     assert r.exit_code == 2 and ".npz" in _said(r)
-    r = _run("trace", "-o", tmp_path / "o.npz", "--scene", "cube")
+    r = _run("trace", "-o", tmp_path / "o.npz", "--scene", "cone")
     assert r.exit_code == 2 and "mesh:PATH" in _said(r)
     r = _run("fit", tmp_path / "missing.npz", "-o", tmp_path / "m.nmat")
     assert r.exit_code == 2 and "doesnotexist" in _said(r)

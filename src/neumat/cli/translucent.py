@@ -16,14 +16,31 @@ def register(main: typer.Typer) -> None:
     main.add_typer(app, name="translucent")
 
 
+#: --scene values that name a whole preset object (TranslucentConfig), not only its outer shape
+SCENE_PRESETS = ("paperweight",)
+
+
 def object_shape(scene: str) -> str:
-    """TranslucentConfig.shape of a --scene value: 'sphere', or the path of `mesh:PATH`."""
-    if scene == "sphere":
+    """TranslucentConfig.shape of a --scene value: 'sphere', 'cube', or the path of `mesh:PATH`."""
+    if scene in ("sphere", "cube"):
         return scene
     if scene.startswith("mesh:") and scene[5:]:
         return scene[5:]
     from ..core.errors import InputError
-    raise InputError(f"--scene: expected 'sphere' or mesh:PATH (a closed PLY mesh), got {scene!r}")
+    raise InputError(f"--scene: expected 'sphere', 'cube', mesh:PATH (a closed PLY mesh) or a preset "
+                     f"({', '.join(SCENE_PRESETS)}), got {scene!r}")
+
+
+def object_config(scene: str, inner: list | None, given: dict):
+    """The TranslucentConfig of `trace`'s options: a preset's (`--scene paperweight`) or the defaults, with the
+    options given (not None) replacing its fields and a given --inner replacing its inner shapes."""
+    import dataclasses
+
+    from ..reflectance.translucent import TranslucentConfig, paperweight_config
+    given = {k: v for k, v in given.items() if v is not None}
+    if scene == "paperweight":
+        return dataclasses.replace(paperweight_config(), **given, **({} if inner is None else {"inner": inner}))
+    return TranslucentConfig(shape=object_shape(scene), inner=inner or [], **given)
 
 
 def environment_map(light: str) -> str:
@@ -38,7 +55,10 @@ def environment_map(light: str) -> str:
 @app.command()
 def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".npz"),
                                help="observations file to write (.npz)"),
-          scene: str = typer.Option("sphere", help="the object: 'sphere' or mesh:PATH (a closed PLY triangle mesh)"),
+          scene: str = typer.Option("sphere", help="the object: 'sphere', 'cube', mesh:PATH (a closed PLY triangle "
+                                                   "mesh), or the preset 'paperweight' (a weakly scattering cube "
+                                                   "around a marble bunny, docs/neupress.md; the other options "
+                                                   "change its fields)"),
           media: str = typer.Option(None, help="the two Jensen et al. media the noise mixes, A,B (default: "
                                                "TranslucentConfig's, as every unset object option)"),
           size_mm: float = typer.Option(None, help="millimetres across the bounding-box diagonal (smaller: more "
@@ -66,7 +86,7 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
     def go():
         from ..core.config import config_to_dict
         from ..fit.translucent_observations import collect_observations
-        from ..reflectance.translucent import TranslucentConfig, TranslucentObject
+        from ..reflectance.translucent import TranslucentObject
 
         _check_suffix(out, ".npz", "trace OUT")
         given = {"media": None if media is None else tuple(m.strip() for m in media.split(",")),
@@ -74,8 +94,7 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
                  "roughness_texture": None if roughness_texture is None else str(roughness_texture),
                  "roughness_range": None if roughness_range is None else _pair(roughness_range, "--roughness-range"),
                  "albedo_texture": None if albedo_texture is None else str(albedo_texture)}
-        cfg = TranslucentConfig(shape=object_shape(scene), inner=_inner_shapes(inner),
-                                **{k: v for k, v in given.items() if v is not None})
+        cfg = object_config(scene, None if inner is None else _inner_shapes(inner), given)
         obj = TranslucentObject(cfg, spp=spp, seed=seed)
         sizes = {} if resolution is None else {"resolution": resolution}
         obs = collect_observations(obj, images, seed=seed, progress=not quiet, **sizes)

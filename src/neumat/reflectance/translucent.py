@@ -48,14 +48,15 @@ class InnerShape:
     PLY mesh placed by x -> scale * x + center. It holds its own `medium` behind an `ior` interface, or, with
     no medium, is an opaque diffuse surface with `albedo` (a constant or an image texture)."""
 
-    #: "sphere" or the path of a closed PLY triangle mesh (outward normals)
+    #: "sphere", "cube" (Mitsuba's [-1, 1]^3) or the path of a closed PLY triangle mesh (outward normals)
     shape: str = "sphere"
-    #: the sphere's centre / the mesh's translation
+    #: the sphere's centre / the cube's / the mesh's translation
     center: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    #: the sphere's radius / the mesh's uniform scale
+    #: the sphere's radius / the cube's half side / the mesh's uniform scale
     scale: float = 0.3
     #: None: opaque diffuse surface; a JENSEN_MEDIA name (homogeneous, at the object's size_mm scale); or
-    #: "noise": the outer medium's mixed grid (albedo texture included)
+    #: "noise": the noise mix of the object's `media` (albedo texture included; the outer medium itself unless
+    #: the object's `outer_medium` names another)
     medium: str | None = None
     #: with a medium: None for an index-matched interface (Mitsuba `null` BSDF), else a smooth `dielectric`
     #: with this index inside and the outer `ior` outside
@@ -71,7 +72,8 @@ class InnerShape:
 class TranslucentConfig:
     """A translucent object. Defaults: a small marble-and-ketchup sphere, moderately translucent."""
 
-    #: "sphere" (unit sphere at the origin) or the path of a closed PLY triangle mesh (outward normals)
+    #: "sphere" (unit sphere at the origin), "cube" (Mitsuba's cube, [-1, 1]^3) or the path of a closed PLY
+    #: triangle mesh (outward normals)
     shape: str = "sphere"
     #: the two Jensen et al. media mixed by the noise (keys of JENSEN_MEDIA)
     media: tuple[str, str] = ("marble", "ketchup")
@@ -99,6 +101,13 @@ class TranslucentConfig:
     #: an RGB image (sRGB-decoded) multiplying the medium grid's single-scattering albedo, looked up in the
     #: `latlong_uv` projection of each voxel's direction from the box centre (the product is clipped to [0, 1])
     albedo_texture: str | None = None
+    #: None: the outer volume is the noise mix of `media` (the default); a JENSEN_MEDIA name: the outer volume is
+    #: that medium, homogeneous, and the noise mix fills only the inner shapes whose medium is "noise" (the
+    #: paperweight: a weakly scattering block around a marble bunny)
+    outer_medium: str | None = None
+    #: multiplies the outer homogeneous medium's sigma_s and sigma_a (its albedo unchanged; < 1: thinner, more
+    #: transparent); only with `outer_medium`
+    outer_density: float = 1.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.inner, (list, tuple)):
@@ -140,7 +149,8 @@ class TranslucentObject(Material):
 
     def describe(self) -> str:
         c = self.config
-        return f"translucent {Path(c.shape).name} {'+'.join(c.media)} {c.size_mm} mm, {self.spp} spp"
+        outer = "" if c.outer_medium is None else f" in {c.outer_medium} x{c.outer_density:g}"
+        return f"translucent {Path(c.shape).name} {'+'.join(c.media)}{outer} {c.size_mm} mm, {self.spp} spp"
 
     # ---- queries on the surface -------------------------------------------------------------------------
     def surface_roughness(self, x: torch.Tensor) -> torch.Tensor:
@@ -389,7 +399,7 @@ def _check_inner(c: TranslucentConfig, lo: np.ndarray, hi: np.ndarray) -> None:
     boxes = []
     for k, s in enumerate(c.inner):
         who = f"translucent inner[{k}]"
-        if s.shape == "sphere":
+        if s.shape in ("sphere", "cube"):
             box = (np.array(s.center) - s.scale, np.array(s.center) + s.scale)
         else:
             mesh = import_mitsuba().load_dict(_inner_shape_dict(s))
@@ -406,12 +416,16 @@ def _check_inner(c: TranslucentConfig, lo: np.ndarray, hi: np.ndarray) -> None:
         boxes.append(box)
 
 
+#: the analytic / built-in shapes `shape` may name besides a PLY file
+BUILTIN_SHAPES = ("sphere", "cube")
+
+
 def _check_shape(shape: str, who: str) -> None:
-    """InputError naming `who` unless `shape` is "sphere" or an existing, readable .ply file."""
-    if shape != "sphere":
+    """InputError naming `who` unless `shape` is "sphere", "cube" or an existing, readable .ply file."""
+    if shape not in BUILTIN_SHAPES:
         path = Path(shape)
         if not path.is_file() or path.suffix.lower() != ".ply":
-            raise InputError(f"{who}: expected 'sphere' or an existing .ply file, got {shape!r}")
+            raise InputError(f"{who}: expected 'sphere', 'cube' or an existing .ply file, got {shape!r}")
         check_ply(path)
 
 
@@ -462,11 +476,20 @@ def _check_config(c: TranslucentConfig) -> None:
     for key in ("roughness_texture", "albedo_texture"):
         if getattr(c, key) is not None:
             read_image(getattr(c, key))  # raises on a missing or unreadable image
+    if c.outer_medium is not None and c.outer_medium not in JENSEN_MEDIA:
+        raise InputError(f"translucent outer_medium: expected None (the noise mix) or one of {sorted(JENSEN_MEDIA)}, "
+                         f"got {c.outer_medium!r}")
+    check_number(c.outer_density, "translucent outer_density", 0.0, strict=True)
+    if c.outer_medium is None and c.outer_density != 1.0:
+        raise InputError(f"translucent outer_density: scales a homogeneous outer_medium, but outer_medium is None "
+                         f"(got outer_density {c.outer_density!r})")
 
 
 def _shape_dict(c: TranslucentConfig) -> dict:
     if c.shape == "sphere":
         return {"type": "sphere", "radius": 1.0}
+    if c.shape == "cube":
+        return {"type": "cube"}
     return {"type": "ply", "filename": str(c.shape)}
 
 
@@ -474,21 +497,23 @@ def _scene_dict(c, shape, interior, sigma_t, albedo, lo, hi) -> dict:
     """The Mitsuba scene of config c with the `interior` "medium" (the grids sigma_t and albedo over [lo, hi] and
     the inner shapes) or "black" (fully absorbing; nothing reaches inner shapes there, so they are left out)."""
     mi = import_mitsuba()
+    mm_per_unit = c.size_mm / max(np.linalg.norm(hi - lo), 1e-12)
     if interior == "black":
-        medium = {"type": "homogeneous", "albedo": 0.0, "sigma_t": 1e6}
+        medium = noise = {"type": "homogeneous", "albedo": 0.0, "sigma_t": 1e6}
     else:
         to_world = mi.ScalarTransform4f().translate(lo.tolist()).scale((hi - lo).tolist())
-        medium = mi.load_dict({"type": "heterogeneous",  # one object: the inner shapes' exterior too
-                               "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(sigma_t), "to_world": to_world},
-                               "albedo": {"type": "gridvolume", "grid": mi.VolumeGrid(albedo), "to_world": to_world}})
+        noise = mi.load_dict({"type": "heterogeneous",  # one object: the inner shapes' exterior too
+                              "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(sigma_t), "to_world": to_world},
+                              "albedo": {"type": "gridvolume", "grid": mi.VolumeGrid(albedo), "to_world": to_world}})
+        medium = noise if c.outer_medium is None else mi.load_dict(
+            homogeneous_medium(c.outer_medium, mm_per_unit * c.outer_density))
     desc = {"type": "scene",
             "integrator": {"type": "volpath", "max_depth": c.max_depth},
             "object": _outer_shape(c, shape, medium, lo, hi),
             "light": {"type": "directional", "direction": [0, 0, -1], "irradiance": 1.0}}
     if interior != "black":
-        mm_per_unit = c.size_mm / max(np.linalg.norm(hi - lo), 1e-12)
         for k, s in enumerate(c.inner):
-            desc[f"inner_{k}"] = _inner_dict(c, s, medium, mm_per_unit)
+            desc[f"inner_{k}"] = _inner_dict(c, s, medium, noise, mm_per_unit)
     return desc
 
 
@@ -512,13 +537,26 @@ def _outer_shape(c, shape: dict, medium, lo, hi):
 def _inner_shape_dict(s: InnerShape) -> dict:
     if s.shape == "sphere":
         return {"type": "sphere", "center": list(s.center), "radius": float(s.scale)}
+    if s.shape == "cube":
+        return {"type": "cube", "to_world": import_mitsuba().ScalarTransform4f().translate(list(s.center))
+                .scale(float(s.scale))}
     to_world = import_mitsuba().ScalarTransform4f().translate(list(s.center)).scale(float(s.scale))
     return {"type": "ply", "filename": str(s.shape), "to_world": to_world}
 
 
-def _inner_dict(c: TranslucentConfig, s: InnerShape, outer_medium, mm_per_unit: float) -> dict:
-    """An inner shape in the outer medium: an opaque diffuse surface, or its own medium behind a null (index-matched)
-    or smooth dielectric interface."""
+def homogeneous_medium(name: str, mm_per_unit: float) -> dict:
+    """Mitsuba `homogeneous` medium of the JENSEN_MEDIA entry `name` with lengths in object units (`mm_per_unit`
+    millimetres each). Mitsuba's rgb values lie in [0, 1], so sigma_t is a colour times its largest component."""
+    sigma_s, sigma_a = (np.array(v) for v in JENSEN_MEDIA[name])
+    sigma_t = (sigma_s + sigma_a) * mm_per_unit
+    return {"type": "homogeneous", "scale": float(sigma_t.max()),
+            "sigma_t": {"type": "rgb", "value": (sigma_t / sigma_t.max()).tolist()},
+            "albedo": {"type": "rgb", "value": (sigma_s / (sigma_s + sigma_a)).tolist()}}
+
+
+def _inner_dict(c: TranslucentConfig, s: InnerShape, outer_medium, noise_medium, mm_per_unit: float) -> dict:
+    """An inner shape in the outer medium: an opaque diffuse surface, or its own medium (`noise_medium` for
+    "noise") behind a null (index-matched) or smooth dielectric interface."""
     mi = import_mitsuba()
     desc = {**_inner_shape_dict(s), "exterior": outer_medium}
     if s.medium is None:
@@ -527,13 +565,9 @@ def _inner_dict(c: TranslucentConfig, s: InnerShape, outer_medium, mm_per_unit: 
         desc["bsdf"] = {"type": "diffuse", "reflectance": reflectance}
         return desc
     if s.medium == "noise":
-        desc["interior"] = outer_medium
-    else:  # homogeneous; Mitsuba's rgb values lie in [0, 1], so sigma_t is a colour times its largest component
-        sigma_s, sigma_a = (np.array(v) for v in JENSEN_MEDIA[s.medium])
-        sigma_t = (sigma_s + sigma_a) * mm_per_unit
-        desc["interior"] = {"type": "homogeneous", "scale": float(sigma_t.max()),
-                            "sigma_t": {"type": "rgb", "value": (sigma_t / sigma_t.max()).tolist()},
-                            "albedo": {"type": "rgb", "value": (sigma_s / (sigma_s + sigma_a)).tolist()}}
+        desc["interior"] = noise_medium
+    else:
+        desc["interior"] = homogeneous_medium(s.medium, mm_per_unit)
     desc["bsdf"] = ({"type": "null"} if s.ior is None else
                     {"type": "dielectric", "int_ior": float(s.ior), "ext_ior": float(c.ior)})
     return desc
@@ -546,3 +580,34 @@ def _up(w: torch.Tensor) -> list[float]:
 def _np3(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().cpu().numpy().astype(np.float32).T)
 
+
+
+#: the Stanford bunny of the reference data (`neumat.io.shared_data`), the paperweight's inner shape
+PAPERWEIGHT_MESH = "mesh/stanford_bunny_35k.ply"
+
+
+def paperweight_config(mesh: str | Path | None = None, fill: float = 0.7) -> TranslucentConfig:
+    """NeuPreSS's "Paperweight" (TG et al., Table 1): a cube of a weakly scattering medium holding the Stanford
+    bunny made of marble with a solid-texture variation of its optical properties. Built from what exists here: the
+    cube [-1, 1]^3 is skim milk (Jensen et al.) at 5% density (optical depth 0.1-0.3 across); the bunny (`mesh`,
+    default the 35k-vertex one of the reference data) is centred, its largest side `fill` of the cube's, behind an
+    index-matched interface, filled with the noise mix of marble and skin1 (darker, warmer veins) at 6 cycles per
+    cube diagonal; 6 mm across the cube's diagonal; the surface is the default rough dielectric (GGX alpha 0.3,
+    ior 1.5). The paper does not give these numbers; they are choices."""
+    from ..io.shared_data import resolve_data_path, shared_data_candidates
+    path = resolve_data_path(PAPERWEIGHT_MESH) if mesh is None else Path(mesh)
+    if not path.is_file():
+        where = "" if mesh is not None else f" (looked in {', '.join(map(str, shared_data_candidates()))}; set " \
+                                            "NEUMAT_SHARED_DATA)"
+        raise InputError(f"paperweight: the bunny mesh {str(path)!r} does not exist{where}")
+    _check_shape(str(path), "paperweight mesh")
+    check_number(fill, "paperweight fill", 0.0, strict=True)
+    if fill >= 1:
+        raise InputError(f"paperweight fill: expected a number in (0, 1) (the mesh must fit inside the cube), got {fill!r}")
+    box = import_mitsuba().load_dict({"type": "ply", "filename": str(path)}).bbox()
+    lo, hi = np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)
+    scale = 2 * fill / float((hi - lo).max())
+    center = tuple(round(float(v), 6) for v in -scale * (lo + hi) / 2)
+    bunny = InnerShape(shape=str(path), center=center, scale=round(scale, 6), medium="noise")
+    return TranslucentConfig(shape="cube", media=("marble", "skin1"), size_mm=6.0, noise_frequency=6.0,
+                             grid_resolution=48, outer_medium="skimmilk", outer_density=0.05, inner=(bunny,))
