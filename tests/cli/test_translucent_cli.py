@@ -131,7 +131,8 @@ def test_fit_takes_recipe_and_config_overrides_and_resumes(tmp_path):
 
 @pytest.mark.mitsuba
 def test_trace_scene_options_and_noise_floor(tmp_path):
-    """--max-depth, --inner (a .json file), the textures and --roughness-range reach the saved object config; the
+    """--max-depth, --inner (a .json file), the textures, --roughness-range and --sampler reach the saved object
+    config (with the default interior_emitter_sampling, false); the
     noise estimate is printed and saved, and --noise-check 0 skips it."""
     mitsuba_or_skip()
     import json
@@ -141,7 +142,8 @@ def test_trace_scene_options_and_noise_floor(tmp_path):
     from neumat.io.images import write_image
     write_image(tmp_path / "r.exr", np.full((4, 8, 3), 0.5, np.float32))
     (tmp_path / "inner.json").write_text(json.dumps([{"medium": "skin1", "scale": 0.4, "ior": 1.4}]))
-    r = _run("trace", "-o", tmp_path / "o.npz", "--images", 3, "--resolution", 8, "--spp", 2, "-q",
+    r = _run("trace", "-o", tmp_path / "o.npz", "--images", 3, "--resolution", 8, "--spp", 4, "-q",
+             "--sampler", "orthogonal",
              "--max-depth", 100, "--inner", tmp_path / "inner.json", "--roughness-texture", tmp_path / "r.exr",
              "--roughness-range", "0.1,0.2", "--albedo-texture", tmp_path / "r.exr", "--noise-check", 16)
     assert r.exit_code == 0, r.output
@@ -149,6 +151,7 @@ def test_trace_scene_options_and_noise_floor(tmp_path):
     cfg = source["object"]
     assert cfg["max_depth"] == 100 and cfg["inner"][0]["medium"] == "skin1" and cfg["roughness_range"] == [0.1, 0.2]
     assert cfg["roughness_texture"] == cfg["albedo_texture"] == str(tmp_path / "r.exr")
+    assert cfg["sampler"] == "orthogonal" and cfg["interior_emitter_sampling"] is False
     noise = source["noise"]
     assert 0 < noise["observations"] <= 16 and noise["variance"] > 0 and noise["relative"] > 0
     assert "noisefloor" in _said(r)

@@ -155,6 +155,10 @@ def test_noise_variance_is_half_the_squared_difference_of_two_evaluations():
     (dict(roughness_texture="/no/such.png"), "does not exist"),
     (dict(albedo_texture="/no/such.exr"), "does not exist"),
     (dict(roughness_range=(0.0, 0.5)), "roughness_range"),
+    (dict(interior_emitter_sampling="no"), "interior_emitter_sampling"),
+    (dict(interior_emitter_sampling=1), "interior_emitter_sampling"),
+    (dict(rr_depth=0), "rr_depth"),
+    (dict(sampler="sobol"), "sampler"),
 ])
 def test_bad_scene_config(kw, match):
     with pytest.raises(InputError, match=match):
@@ -166,3 +170,17 @@ def test_mesh_albedo_texture_needs_uv(tmp_path):
     mesh = _octahedron(tmp_path / "o.ply", scale=0.3)
     with pytest.raises(InputError, match="uv"):
         _object(inner=[{"shape": str(mesh), "albedo_texture": str(tmp_path / "a.exr")}])
+
+
+def test_estimator_defaults_and_old_descriptions():
+    """An object description written before issue 51's estimator fields existed (no `interior_emitter_sampling`,
+    `rr_depth`) loads with the defaults, False and 20 (same mean, `test_translucent.
+    test_default_estimator_keeps_the_mean`); a JSON boolean is kept, anything else refused."""
+    from neumat.core.config import config_from_dict
+    from neumat.reflectance.translucent import TranslucentConfig
+    old = {"shape": "sphere", "media": ["marble", "ketchup"], "size_mm": 4.0, "max_depth": 5000}
+    assert config_from_dict(TranslucentConfig, old).interior_emitter_sampling is False
+    assert config_from_dict(TranslucentConfig, old).rr_depth == 20
+    assert config_from_dict(TranslucentConfig, {**old, "interior_emitter_sampling": True}).interior_emitter_sampling
+    with pytest.raises(InputError, match="interior_emitter_sampling"):
+        config_from_dict(TranslucentConfig, {**old, "interior_emitter_sampling": "yes"})

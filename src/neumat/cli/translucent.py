@@ -79,6 +79,10 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
           roughness_range: str = typer.Option(None, help="alpha at roughness-texture values 0 and 1, LO,HI"),
           albedo_texture: Path = typer.Option(None, help="RGB image multiplying the medium's albedo "
                                                          "(latitude-longitude projection from the box centre)"),
+          sampler: str = typer.Option(None, help="Mitsuba sampler of each ray's --spp paths: independent, or "
+                                                 "orthogonal (--spp the square of a prime: 25, 49, 121; about half "
+                                                 "the variance, benchmarks/studies/neupress/results/"
+                                                 "neupress_variance.md)"),
           noise_check: int = typer.Option(2048, min=0, help="observations traced twice more to estimate the data's "
                                                            "Monte Carlo noise (0: skip)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
@@ -93,7 +97,7 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
                  "size_mm": size_mm, "roughness": roughness, "max_depth": max_depth,
                  "roughness_texture": None if roughness_texture is None else str(roughness_texture),
                  "roughness_range": None if roughness_range is None else _pair(roughness_range, "--roughness-range"),
-                 "albedo_texture": None if albedo_texture is None else str(albedo_texture)}
+                 "albedo_texture": None if albedo_texture is None else str(albedo_texture), "sampler": sampler}
         cfg = object_config(scene, None if inner is None else _inner_shapes(inner), given)
         obj = TranslucentObject(cfg, spp=spp, seed=seed)
         sizes = {} if resolution is None else {"resolution": resolution}

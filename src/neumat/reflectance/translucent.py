@@ -38,6 +38,8 @@ JENSEN_MEDIA = {
 }
 #: paths traced per Mitsuba call (bounds memory)
 WAVEFRONT = 1 << 20
+#: Mitsuba samplers `TranslucentConfig.sampler` accepts
+SAMPLERS = ("independent", "orthogonal")
 #: what `TranslucentObject.trace_environment` returns: subsurface only, everything, the surface reflection only
 TRACE_PARTS = ("subsurface", "full", "reflection")
 
@@ -91,6 +93,10 @@ class TranslucentConfig:
     ior: float = 1.5
     #: longest path, in scattering events and surface interactions (the paper's 5000)
     max_depth: int = 5000
+    #: depth from which volpath plays Russian roulette (survival min(max throughput x eta^2, 0.95)); unbiased at
+    #: any value. 20 (the default) against Mitsuba's 5: 0.83x the variance at the same CPU time
+    #: (benchmarks/studies/neupress/results/neupress_variance.md); traces made before this field existed used 5
+    rr_depth: int = 20
     #: shapes inside the volume (seeds in a grape, a bunny in a cube, ice in a drink); dicts are read as InnerShape
     inner: tuple[InnerShape, ...] = ()
     #: an image whose first channel (0..1, read without sRGB decoding) sets the surface's GGX alpha through
@@ -108,6 +114,17 @@ class TranslucentConfig:
     #: multiplies the outer homogeneous medium's sigma_s and sigma_a (its albedo unchanged; < 1: thinner, more
     #: transparent); only with `outer_medium`
     outer_density: float = 1.0
+    #: next-event estimation (a shadow ray towards the light) at scattering events inside the object: Mitsuba's
+    #: `sample_emitters` of the interior media. The rough dielectric surface blocks every such shadow ray (volpath's
+    #: shadow rays pass only null interfaces), so it adds exactly 0 and only costs the tracking to the surface; False
+    #: (the default) keeps the mean (light enters through the surface's own emitter sampling) at 15-19 % less CPU on
+    #: the bunny (benchmarks/studies/neupress/results/neupress_variance.md). True: Mitsuba's default, what traces
+    #: made before this field existed used (their recorded objects now load with False: same mean)
+    interior_emitter_sampling: bool = False
+    #: Mitsuba's sampler of `trace`'s `spp` paths per ray, one pixel's samples: "independent", or "orthogonal"
+    #: (Mitsuba's jittered orthogonal arrays, strength 2; needs `spp` to be the square of a prime: 4, 9, 25, 49, 121,
+    #: 169, ...; `trace_environment`'s single paths stay independent). Both are unbiased
+    sampler: str = "independent"
 
     def __post_init__(self) -> None:
         if not isinstance(self.inner, (list, tuple)):
@@ -129,7 +146,7 @@ class TranslucentObject(Material):
     def __init__(self, config: TranslucentConfig | None = None, spp: int = 64, seed: int = 0) -> None:
         self.config = config = config or TranslucentConfig()
         _check_config(config)
-        check_int(spp, "spp")
+        _check_spp(config, spp)
         self.spp, self.seed = spp, int(seed)
         self._calls = 0  # each trace call draws fresh random numbers (seeded by seed and this count)
         self.mi = mi = import_mitsuba()
@@ -247,6 +264,7 @@ class TranslucentObject(Material):
         light = torch.as_tensor(light, dtype=torch.float64).reshape(3)
         check_directions(light[None], "light")
         spp = self.spp if spp is None else spp
+        _check_spp(self.config, spp)
         if seed is not None:
             check_int(seed, "trace seed", 0)
         self._set_light(light)
@@ -258,7 +276,7 @@ class TranslucentObject(Material):
             oo = o[sl].repeat_interleave(spp, 0)
             dd = d[sl].repeat_interleave(spp, 0)
             call = self._next_seed() if seed is None else call_seed(seed, start)
-            diff = self._radiance("medium", oo, dd, call) - self._radiance("black", oo, dd, call)
+            diff = self._radiance("medium", oo, dd, call, spp=spp) - self._radiance("black", oo, dd, call, spp=spp)
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
         # not clamped: the difference is unbiased but one ray's mean can be negative (on a concave object a path
         # that reflects off the surface and meets it again diverges between the two traces); clamping would bias it
@@ -300,10 +318,17 @@ class TranslucentObject(Material):
                 out[sl] = self._radiance("medium" if part == "full" else "black", o[sl], d[sl], call_seed, scenes)
         return out
 
-    def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int, scenes=None) -> torch.Tensor:
+    def _radiance(self, interior: str, o: torch.Tensor, d: torch.Tensor, seed: int, scenes=None,
+                  spp: int = 1) -> torch.Tensor:
+        """One path per ray; with `spp` > 1 the rays come in runs of `spp` equal rays (`repeat_interleave`), each run
+        one pixel's samples of the config's sampler (Mitsuba numbers lanes k spp .. k spp + spp - 1 as pixel k)."""
         mi = self.mi
         scene = (scenes or self.scenes)[interior]
-        sampler = mi.load_dict({"type": "independent"})
+        if spp > 1 and self.config.sampler != "independent":
+            sampler = mi.load_dict({"type": self.config.sampler, "sample_count": spp})
+            sampler.set_samples_per_wavefront(spp)
+        else:
+            sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed, o.shape[0])
         value, _, _ = scene.integrator().sample(scene, sampler, self._ray(o, d))
         return torch.from_numpy(np.array(value, dtype=np.float64).T.copy())
@@ -323,6 +348,15 @@ class TranslucentObject(Material):
     def _ray(self, o: torch.Tensor, d: torch.Tensor):
         mi = self.mi
         return mi.Ray3f(mi.Point3f(_np3(o)), mi.Vector3f(_np3(d)))
+
+
+def _check_spp(c: TranslucentConfig, spp) -> None:
+    """spp is a positive integer, and the square of a prime with the orthogonal sampler (InputError otherwise)."""
+    check_int(spp, "translucent spp")
+    r = math.isqrt(spp)
+    if c.sampler == "orthogonal" and not (r * r == spp and r >= 2 and all(r % k for k in range(2, math.isqrt(r) + 1))):
+        raise InputError(f"translucent sampler 'orthogonal': spp must be the square of a prime (4, 9, 25, 49, 121, "
+                         f"169, ...), got {spp}")
 
 
 def call_seed(*keys: int) -> int:
@@ -468,6 +502,7 @@ def _check_config(c: TranslucentConfig) -> None:
         raise InputError(f"translucent ior: expected a number > 1, got {c.ior!r}")
     for key in ("grid_resolution", "max_depth"):
         check_int(getattr(c, key), f"translucent {key}", 2)
+    check_int(c.rr_depth, "translucent rr_depth", 1)
     for k, s in enumerate(c.inner):
         _check_inner_fields(k, s)
     lo, hi = c.roughness_range
@@ -483,6 +518,11 @@ def _check_config(c: TranslucentConfig) -> None:
     if c.outer_medium is None and c.outer_density != 1.0:
         raise InputError(f"translucent outer_density: scales a homogeneous outer_medium, but outer_medium is None "
                          f"(got outer_density {c.outer_density!r})")
+    if c.sampler not in SAMPLERS:
+        raise InputError(f"translucent sampler: expected one of {SAMPLERS}, got {c.sampler!r}")
+    if not isinstance(c.interior_emitter_sampling, bool):
+        raise InputError(f"translucent interior_emitter_sampling: expected true or false, got "
+                         f"{c.interior_emitter_sampling!r}")
 
 
 def _shape_dict(c: TranslucentConfig) -> dict:
@@ -498,17 +538,19 @@ def _scene_dict(c, shape, interior, sigma_t, albedo, lo, hi) -> dict:
     the inner shapes) or "black" (fully absorbing; nothing reaches inner shapes there, so they are left out)."""
     mi = import_mitsuba()
     mm_per_unit = c.size_mm / max(np.linalg.norm(hi - lo), 1e-12)
+    nee = bool(c.interior_emitter_sampling)
     if interior == "black":
-        medium = noise = {"type": "homogeneous", "albedo": 0.0, "sigma_t": 1e6}
+        medium = noise = {"type": "homogeneous", "albedo": 0.0, "sigma_t": 1e6, "sample_emitters": nee}
     else:
         to_world = mi.ScalarTransform4f().translate(lo.tolist()).scale((hi - lo).tolist())
         noise = mi.load_dict({"type": "heterogeneous",  # one object: the inner shapes' exterior too
                               "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(sigma_t), "to_world": to_world},
-                              "albedo": {"type": "gridvolume", "grid": mi.VolumeGrid(albedo), "to_world": to_world}})
+                              "albedo": {"type": "gridvolume", "grid": mi.VolumeGrid(albedo), "to_world": to_world},
+                              "sample_emitters": nee})
         medium = noise if c.outer_medium is None else mi.load_dict(
-            homogeneous_medium(c.outer_medium, mm_per_unit * c.outer_density))
+            homogeneous_medium(c.outer_medium, mm_per_unit * c.outer_density, nee))
     desc = {"type": "scene",
-            "integrator": {"type": "volpath", "max_depth": c.max_depth},
+            "integrator": {"type": "volpath", "max_depth": c.max_depth, "rr_depth": c.rr_depth},
             "object": _outer_shape(c, shape, medium, lo, hi),
             "light": {"type": "directional", "direction": [0, 0, -1], "irradiance": 1.0}}
     if interior != "black":
@@ -544,12 +586,13 @@ def _inner_shape_dict(s: InnerShape) -> dict:
     return {"type": "ply", "filename": str(s.shape), "to_world": to_world}
 
 
-def homogeneous_medium(name: str, mm_per_unit: float) -> dict:
+def homogeneous_medium(name: str, mm_per_unit: float, sample_emitters: bool = False) -> dict:
     """Mitsuba `homogeneous` medium of the JENSEN_MEDIA entry `name` with lengths in object units (`mm_per_unit`
-    millimetres each). Mitsuba's rgb values lie in [0, 1], so sigma_t is a colour times its largest component."""
+    millimetres each), `sample_emitters` as `TranslucentConfig.interior_emitter_sampling`. Mitsuba's rgb values lie
+    in [0, 1], so sigma_t is a colour times its largest component."""
     sigma_s, sigma_a = (np.array(v) for v in JENSEN_MEDIA[name])
     sigma_t = (sigma_s + sigma_a) * mm_per_unit
-    return {"type": "homogeneous", "scale": float(sigma_t.max()),
+    return {"type": "homogeneous", "scale": float(sigma_t.max()), "sample_emitters": sample_emitters,
             "sigma_t": {"type": "rgb", "value": (sigma_t / sigma_t.max()).tolist()},
             "albedo": {"type": "rgb", "value": (sigma_s / (sigma_s + sigma_a)).tolist()}}
 
@@ -567,7 +610,7 @@ def _inner_dict(c: TranslucentConfig, s: InnerShape, outer_medium, noise_medium,
     if s.medium == "noise":
         desc["interior"] = noise_medium
     else:
-        desc["interior"] = homogeneous_medium(s.medium, mm_per_unit)
+        desc["interior"] = homogeneous_medium(s.medium, mm_per_unit, bool(c.interior_emitter_sampling))
     desc["bsdf"] = ({"type": "null"} if s.ior is None else
                     {"type": "dielectric", "int_ior": float(s.ior), "ext_ior": float(c.ior)})
     return desc

@@ -6,12 +6,8 @@ Mitsuba 3's own kernels (symbolic / megakernel mode, LLVM or CUDA), without torc
 - `neumat.export.drjit.format`: the "drjit" entry of the export registry; a method declares its translator as
   `neumat.fit.method.Method.drjit` (model -> (manifest, arrays)), e.g. `neumat.methods.neubrdf.drjit`.
 
-- `neumat.export.drjit.latent` (no torch): the latent-texture family's programs (registered on import, here):
-  "latent-mlp" there, "neumip" and "ggx-mipmap" in `neumat.export.drjit.neumip`, "neural-appearance" (the decoder
-  and its learned sampler) in `neumat.export.drjit.neural_appearance`, "sparse-btf" in
-  `neumat.export.drjit.sparse_btf`.
-- `neumat.export.drjit.neubrdf` (no torch): "healpix-grid-mlp", the NeuBRDF forms "healpix-mlp" does not cover
-  (inverse-distance corner weights, a neural texture, shared-NeuBRDF's several materials).
+- one module per program family (no torch, each registers its programs on import): `latent` ("latent-mlp"),
+  `neumip` ("neumip", "ggx-mipmap"), `neubrdf` ("healpix-grid-mlp"), `neural_appearance`, `sparse_btf`.
 
 Details: docs/mitsuba.md, section "Native Dr.Jit runtime".
 """

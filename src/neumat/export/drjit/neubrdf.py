@@ -1,21 +1,11 @@
 """Dr.Jit runtime program "healpix-grid-mlp" (imports no torch): the NeuBRDF forms that "healpix-mlp" (runtime.py)
-does not cover, in one program.
+does not cover, in one program: inverse-distance corner weights (`runtime_interpolation = "idw"`, shared-NeuBRDF's
+default), a neural texture (T(uv) at the finest level, bilinear, wrap tiling) and several materials sharing one
+codebook and MLP (shared-NeuBRDF: `select(i)`, or per lane `eval(..., material=UInt)`); uniform weights as
+"healpix-mlp". S- is looked up at the pixel of the mirrored wo (x, y, -z); the MLP input order is the torch
+model's: [psi(wi), psi(mirrored wo), T(uv), direction inputs].
 
-- inverse-distance corner weights (`NeuBRDF.Config.runtime_interpolation = "idw"`, and shared-NeuBRDF's default
-  `interpolation`): per pixel the 4 (ancestor) corner feature rows and vertex ids; the first layer applied to every
-  feature row once at load (W_i f for S+, W_o f for S-), then per lane the weighted sum of 8 such rows, weights
-  the normalised inverse great-circle distances of the looked-up direction to the corner vertices
-  (`neumat.nn.healpix.idw_weights`, distances clamped to 1e-7);
-- uniform corner weights (1/4): per pixel the mean corner feature times the first layer, as "healpix-mlp";
-- a neural texture (NeuBRDF with `texture_channels > 0`, spatially varying): T(uv) read bilinearly (wrap tiling) at
-  the finest level, its first-layer columns added; the footprint is not read (as the torch bridge, which passes no
-  lod, and the GLSL export's `neumat_eval(wi, wo, uv, footprint)`);
-- several materials sharing one codebook and MLP (shared-NeuBRDF): one set of per-pixel corner rows per material;
-  the runtime evaluates material `material` (the manifest's, changed with `select(i)`), or per lane the material
-  given as `eval(..., material=UInt)`.
-
-S- is looked up at the pixel of the mirrored wo (x, y, -z), as the torch model does. The MLP input order is the
-torch model's: [psi(wi), psi(mirrored wo), T(uv), direction inputs].
+Details (weights, arrays, what the footprint does): docs/formats/drjit.md, "healpix-grid-mlp".
 """
 from __future__ import annotations
 
