@@ -64,11 +64,12 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
           size_mm: float = typer.Option(None, help="millimetres across the bounding-box diagonal (smaller: more "
                                                     "translucent)"),
           roughness: float = typer.Option(None, help="GGX alpha of the dielectric surface"),
-          images: int = typer.Option(1500, min=1, help="views, each with its own light direction"),
+          images: int = typer.Option(1000, min=1, help="views, each with its own light direction"),
           resolution: int = typer.Option(None, min=1, help="rays per side of each view (default: "
                                                            "collect_observations')"),
-          spp: int = typer.Option(32, min=1, help="paths per ray (Mitsuba calls cost ~20 ms each: "
-                                                  "32 is ~1.7x the time of 8)"),
+          spp: int = typer.Option(256, min=1, help="paths per ray (the default: the best image per CPU second "
+                                                   "measured, ~10 CPU min on the bunny: "
+                                                   "benchmarks/studies/neupress/results/neupress_budget.md)"),
           seed: int = typer.Option(0, **SEED_RANGE),
           max_depth: int = typer.Option(None, min=2, help="longest path (default: TranslucentConfig's, the paper's)"),
           inner: str = typer.Option(None, help="shapes inside the volume: a .json file or inline JSON, a list of "
