@@ -86,7 +86,7 @@ def test_sources_are_checked():
     m = NeuPreSS(features=8, width=16, layers=3, sampler_hidden=(8,))
     for source in (DipoleBSSRDF(samples=8), "obs.npz", obs.value):
         with pytest.raises(InputError, match="Observations"):
-            fit(m, source, steps=2, progress=False)
+            fit(m, source, recipe_for("neupress", "paper"), steps=2, progress=False)
     with pytest.raises(InputError, match=r"^dipole-bssrdf recipe options: option.validation_fraction: expected a "
                                          r"value in \[0, 1\), got 1.5$"):
         r = recipe_for("dipole-bssrdf")

@@ -2,19 +2,17 @@
 paths each (32k paths per call, like a view of `collect_observations`), traced 3 times per candidate, interleaved.
 The first repetition includes kernel compilation; compare the later ones.
 
-    nice -n 15 python benchmarks/studies/neupress/neupress_variance_cost.py base,no_interior_nee,rr20,no_interior_nee+rr20,orthogonal 3
+    nice -n 15 python -m benchmarks.studies.neupress.neupress_variance_cost base,no_interior_nee,rr20,no_interior_nee+rr20,orthogonal 3
 
 Results: benchmarks/studies/neupress/results/neupress_variance.md.
 """
 import json
 import sys
 import time
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
-from benchmarks.studies.neupress.neupress_variance import Variant, CANDIDATES, BUNNY
+from .neupress_variance import Variant, CANDIDATES, BUNNY
 from neumat.fit.translucent_observations import collect_observations
 from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject, call_seed
 obj = TranslucentObject(TranslucentConfig(shape=BUNNY, media=("marble", "ketchup"), size_mm=4.0), spp=1)

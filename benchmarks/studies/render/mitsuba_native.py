@@ -13,7 +13,9 @@ default) instead of LLVM's default constant-weight fma chains. Each time is the 
 the kernels; ratios are to `measured` symbolic and to `roughconductor` symbolic, measured in the same run
 (interleaved, so that load from other processes hits every row alike). A second table (same run): a UV-mapped
 sphere on the same floor under the same map, Mitsuba `roughconductor` against the multiscale model (--multiscale,
-default the paper's configuration at its initialisation) natively (symbolic and evaluated) and through the bridge.
+default the paper's configuration at its initialisation) and neural-appearance with its learned sampler
+(--neural-appearance, default its configuration at its initialisation) natively (symbolic and evaluated) and
+through the bridge.
 """
 from __future__ import annotations
 
@@ -34,6 +36,9 @@ def main() -> None:
     p.add_argument("--multiscale", default=None,
                    help="a multiscale .nmat for the UV-mapped table (default: the paper's configuration, 1024^2 x 8 "
                         "spatial latents, at its initialisation: the cost does not depend on the fit)")
+    p.add_argument("--neural-appearance", default=None,
+                   help="a neural-appearance .nmat (runtime form, with its learned sampler) for the UV-mapped table "
+                        "(default: the paper's configuration, 256^2 x 8 latents, at its initialisation)")
     p.add_argument("--no-multiscale", action="store_true", help="only the NeuBRDF table")
     args = p.parse_args()
 
@@ -74,6 +79,13 @@ def main() -> None:
                    True),
                   ("neumat torch bridge, multiscale (evaluated mode)", {"type": "neumat", "filename": ms,
                                                                        "native": False}, True)]
+        na = args.neural_appearance or _default_neural_appearance()
+        cases += [("neumat native Dr.Jit runtime, neural-appearance with its learned sampler (symbolic)",
+                   {"type": "neumat", "filename": na}, False),
+                  ("neumat native Dr.Jit runtime, neural-appearance with its learned sampler, evaluated mode",
+                   {"type": "neumat", "filename": na}, True),
+                  ("neumat torch bridge, neural-appearance with its learned sampler (evaluated mode)",
+                   {"type": "neumat", "filename": na, "native": False}, True)]
         scenes += [sphere_scene(mi, bsdf, args.res, args.spp, args.depth, data) for _, bsdf, _ in cases[first_uv:]]
 
     def render(i: int, seed: int):
@@ -100,8 +112,8 @@ def main() -> None:
               f"{float(np.mean(image[..., :3])):.4f} |")
     if len(cases) > first_uv:
         ggx = best[first_uv]
-        print(f"\nUV-mapped scene (sphere with Mitsuba's uv on the same floor under the same map), same run; model "
-              f"{ms}")
+        print(f"\nUV-mapped scene (sphere with Mitsuba's uv on the same floor under the same map), same run; models "
+              f"{ms}, {na}")
         print("| BSDF in the same scene | seconds | x `roughconductor` | image mean |")
         print("|---|---|---|---|")
         for (name, _, _), seconds, image in list(zip(cases, best, images))[first_uv:]:
@@ -120,6 +132,21 @@ def _default_multiscale() -> str:
     torch.manual_seed(0)
     path = Path(tempfile.mkdtemp(prefix="neumat_bench_")) / "multiscale.nmat"
     return str(save_model(MultiScale().train(False), path))
+
+
+def _default_neural_appearance() -> str:
+    """A .nmat of neural-appearance's default configuration (256^2 x 8 latents, two learned frames, the
+    anisotropic two-lobe learned sampler) at its initialisation, runtime form (in a temporary folder)."""
+    import tempfile
+    from pathlib import Path
+
+    import torch
+    from neumat.catalog.modelfile import save_model
+    from neumat.methods.neural_appearance.model import NeuralAppearance
+
+    torch.manual_seed(0)
+    path = Path(tempfile.mkdtemp(prefix="neumat_bench_")) / "neural_appearance.nmat"
+    return str(save_model(NeuralAppearance().train(False).runtime(), path))
 
 
 def sphere_scene(mi, bsdf, res: int, spp: int, depth: int, data):

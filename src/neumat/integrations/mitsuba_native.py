@@ -46,6 +46,10 @@ def make_bsdf(mi, props):
     if native and source is not None:
         runtime = native_runtime(source, mi.Float, mlp_form=props["mlp_form"] if "mlp_form" in props else None)
         if runtime is not None:
+            if getattr(runtime, "translucent", False):
+                raise InputError(f"neumat BSDF: {source!r} is a NeuPreSS object (S_hat of a whole translucent object), "
+                                 "not a surface BSDF: render it with the integrator 'neumat_translucent' "
+                                 "(neumat.integrations.mitsuba_translucent)")
             if "member" in props:  # a set of materials (shared-neubrdf): which one this BSDF renders
                 if getattr(runtime, "materials", 1) < 2 or not callable(getattr(runtime, "select", None)):
                     raise InputError(f"neumat BSDF: 'member' given, but {source!r} holds one material")

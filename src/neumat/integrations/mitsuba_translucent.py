@@ -5,6 +5,9 @@ Mitsuba scene with other objects and lights.
 the object, `render(scene, spp)` renders (evaluated mode). The inner integrator renders the object's rough
 dielectric surface; the plugin adds the learned subsurface term under distant light (TG et al., Eq. 5).
 
+A NeuPreSS (.nmat, object, or drjit export folder) runs on its Dr.Jit runtime (program "neupress"), no torch while
+rendering; `"native": false` or another kind of model keeps the torch path (docs/mitsuba.md).
+
 Details: docs/formats/mitsuba_plugins.md, section `neumat.integrations.mitsuba_translucent`.
 """
 from __future__ import annotations
@@ -13,11 +16,9 @@ import functools
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ..core.errors import InputError
-from ..core.query import Query
-from . import mitsuba as bsdf_plugin
+from . import mitsuba_native
 
 #: the integrator name registered with Mitsuba
 PLUGIN_NAME = "neumat_translucent"
@@ -29,21 +30,64 @@ BLACK_MEDIUM = {"type": "homogeneous", "albedo": 0.0, "sigma_t": 1e6}
 PLACEMENT_TOLERANCE = 1e-4
 #: most passes through the object's own surface when tracing from its centre
 SELF_PASSES = 16
-_DTYPE = torch.float32
 
 
 def register(variant: str | None = None):
     """Register the "neumat_translucent" integrator (and the "neumat" BSDF) and return the `mitsuba` module;
     variant as in `neumat.integrations.mitsuba.register`."""
-    mi = bsdf_plugin.register(variant)
+    mi = mitsuba_native.register(variant)
+    if mitsuba_native._BRIDGE is None:  # the "neumat" BSDF's torch fallback, imported only when a BSDF needs it
+        mitsuba_native.set_bridge(_lazy_bridge)
     cls = _integrator_class(mi)
     mi.register_integrator(PLUGIN_NAME, lambda props: cls(props))
     return mi
 
 
-def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0) -> torch.Tensor:
-    """`neumat.integrations.mitsuba.render`: the scene in evaluated mode, (H, W, C) float32 linear RGB."""
+def _lazy_bridge(mi):
+    from . import mitsuba as bsdf_plugin  # torch from here on; it installs itself as the bridge
+    return bsdf_plugin._bsdf_class(mi)
+
+
+def render(scene, spp: int | None = None, seed: int = 0, sensor: int = 0):
+    """`neumat.integrations.mitsuba.render`: the scene in evaluated mode, (H, W, C) float32 linear RGB torch tensor
+    (imports torch; a native model renders with plain `mi.render` too)."""
+    from . import mitsuba as bsdf_plugin
     return bsdf_plugin.render(scene, spp=spp, seed=seed, sensor=sensor)
+
+
+class ObjectFields:
+    """The three fields of an object's `TranslucentConfig` the integrator reads (shape, roughness, ior)."""
+
+    def __init__(self, shape: str = "sphere", roughness: float = 0.3, ior: float = 1.5) -> None:
+        self.shape, self.roughness, self.ior = shape, roughness, ior
+
+
+def object_fields(source):
+    """The object's shape, roughness and ior from an observations file without torch (numpy and json; the file's
+    other fields are not checked, which `object_config` does), from a dict of config fields, or from a config."""
+    import json
+    import zipfile
+
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        try:
+            with np.load(path) as data:
+                saved = json.loads(str(data["source"])) if "source" in data.files else None
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            raise InputError(f"observations {str(source)!r}: not a neumat observations file ({e})") from None
+        if not isinstance(saved, dict) or not isinstance(saved.get("object"), dict):
+            raise InputError(f"observations {str(source)!r}: no object description (write it with "
+                             "`neumat translucent trace`)")
+        source = saved["object"]
+    if isinstance(source, dict):
+        f = ObjectFields()
+        shape, roughness, ior = (source.get(k, getattr(f, k)) for k in ("shape", "roughness", "ior"))
+        if not isinstance(shape, str) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+                                                 for v in (roughness, ior)):
+            raise InputError(f"translucent object: expected a shape name and positive roughness and ior, got "
+                             f"{shape!r}, {roughness!r}, {ior!r}")
+        return ObjectFields(shape, float(roughness), float(ior))
+    return source
 
 
 def object_config(source):
@@ -72,7 +116,7 @@ def translucent_shape(source, to_world=None, shape_id: str = "translucent") -> d
     placed by `to_world` (a `mi.ScalarTransform4f`, a 4 x 4 matrix, or None), with id `shape_id` (what the
     integrator's "shape" names)."""
     cfg = object_config(source)
-    mi = bsdf_plugin._current_mitsuba()
+    mi = mitsuba_native.current_mitsuba()
     shape = {"type": "sphere", "radius": 1.0} if cfg.shape == "sphere" else {"type": "ply", "filename": str(cfg.shape)}
     shape.update(id=shape_id, interior=dict(BLACK_MEDIUM),
                  bsdf={"type": "roughdielectric", "distribution": "ggx", "alpha": cfg.roughness,
@@ -149,22 +193,38 @@ def _make_integrator_class(mi) -> type:
             self.samples = int(props.get("samples", 1))
             if self.samples < 1:
                 raise InputError(f"{PLUGIN_NAME}: samples: expected a positive integer, got {self.samples}")
-            self.model = _open_model(props["model"] if model is None else model)
-            self.config = object_config(props["observations"] if source is None else source)
+            native = bool(props["native"]) if "native" in props else True
+            self.model, self.runtime = _open_model(props["model"] if model is None else model, native, mi.Float)
+            observations = props["observations"] if source is None else source
+            # without torch when the model loaded without it (a drjit export): the three fields it reads
+            self.config = object_fields(observations) if self.model is None else object_config(observations)
             self._object_vertices = None
 
         def aov_names(self):
             return self.inner.aov_names()
 
         def to_string(self):
-            return f"NeumatTranslucent[shape={self.shape_id!r}, strategy={self.strategy!r}, inner={self.inner}]"
+            return (f"NeumatTranslucent[shape={self.shape_id!r}, strategy={self.strategy!r}, "
+                    f"{'native' if self.runtime is not None else 'torch'}, inner={self.inner}]")
+
+        @property
+        def native(self) -> bool:
+            """Whether the model runs on its Dr.Jit runtime (no torch while rendering)."""
+            return self.runtime is not None
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             result = self.inner.sample(scene, sampler, ray, medium, active)
+            if self.runtime is not None:
+                return self._sample_native(scene, sampler, ray, active, result)
+            import torch
+
+            from . import mitsuba as bsdf_plugin
             if bsdf_plugin._symbolic(dr):
                 return result
             L, valid, aovs = result
             shape, place = self._placement(scene)
+            place = tuple(torch.from_numpy(np.asarray(v, dtype=np.float64)) for v in place)
+            _DTYPE = torch.float32
             n = dr.width((ray.o, ray.d, active))
             si = scene.ray_intersect(mi.Ray3f(ray), active)
             on = si.is_valid() & (si.shape == mi.ShapePtr(shape)) & active
@@ -182,9 +242,71 @@ def _make_integrator_class(mi) -> type:
                 total /= self.samples
             return L + bsdf_plugin._color(mi, total), valid, aovs
 
+        def _sample_native(self, scene, sampler, ray, active, result):
+            """`sample` on the Dr.Jit runtime: the same estimators as `_subsurface` over the whole wavefront (lanes
+            off the object masked), in fp32 Dr.Jit arrays."""
+            L, valid, aovs = result
+            shape, (r, s, t, centre) = self._placement(scene)
+            si = scene.ray_intersect(mi.Ray3f(ray), active)
+            on = si.is_valid() & (si.shape == mi.ShapePtr(shape)) & active
+            inv_s = 1.0 / float(s)
+            x_o = _rotate_t(mi, r, si.p - mi.Vector3f(*(float(v) for v in t))) * inv_s
+            n_o, wo_o = dr.normalize(_rotate_t(mi, r, si.n)), dr.normalize(_rotate_t(mi, r, -ray.d))
+            total = mi.Color3f(0.0)
+            for _ in range(self.samples):
+                total += self._subsurface_native(scene, shape, sampler, on, x_o, n_o, wo_o, r, centre)
+            total = dr.select(on, total / self.samples, 0.0)
+            return L + total, valid, aovs
+
+        def _subsurface_native(self, scene, shape, sampler, on, x_o, n_o, wo_o, r, centre):
+            rt = self.runtime
+            u_light = sampler.next_2d()
+            u_model = sampler.next_2d()
+            n = dr.width(on)
+            it = dr.zeros(mi.Interaction3f, n)
+            it.p = mi.Point3f(*(float(c) for c in centre))
+            out = mi.Color3f(0.0)
+            lobe = rt.lobe(x_o, wo_o, n_o) if self.strategy in ("mis", "model") else None
+            if self.strategy in ("mis", "light"):
+                ds, weight = scene.sample_emitter_direction(it, u_light, False, on)
+                visible = self._unoccluded_mask(scene, shape, it, ds.d, ds.dist, on)
+                wi_o = dr.normalize(_rotate_t(mi, r, ds.d))
+                f = rt.eval(wi_o, wo_o, on, x=x_o)
+                w = dr.select(visible, weight, 0.0)
+                if self.strategy == "mis":
+                    delta = mi.has_flag(ds.emitter.flags(), mi.EmitterFlags.Delta)
+                    p_model = lobe.pdf([wi_o.x, wi_o.y, wi_o.z])
+                    w = w * dr.select(delta, 1.0, ds.pdf / dr.maximum(ds.pdf + p_model, 1e-30))
+                out += _finite(dr, f * w)
+            if self.strategy in ("mis", "model"):
+                wi, p_model = lobe.sample(u_model.x, u_model.y)
+                wi_o = mi.Vector3f(*wi)
+                wi_w = dr.normalize(_rotate(mi, r, wi_o))
+                radiance, p_light = self._incident_native(scene, shape, it, wi_w, on)
+                f = rt.eval(wi_o, wo_o, on, x=x_o)
+                mis = p_model / (p_model + p_light) if self.strategy == "mis" else 1.0
+                value = dr.select(on & (p_model > 0), f * radiance * (mis / dr.maximum(p_model, 1e-30)), 0.0)
+                out += _finite(dr, value)
+            return out
+
+        def _unoccluded_mask(self, scene, shape, it, d, dist, active=True):
+            """Where the emitter sample at `dist` along d from the centre is not blocked by another shape."""
+            tmax = dr.select(dr.isfinite(dist), dist * (1 - 1e-4), dr.largest(mi.Float))
+            si = self._trace_past_self(scene, shape, it, d, tmax, active)
+            return ~si.is_valid()
+
+        def _incident_native(self, scene, shape, it, wi_w, active):
+            """Radiance (Color3f) arriving at the centre from wi_w, and the emitter-sampling density (Float)."""
+            si = self._trace_past_self(scene, shape, it, wi_w, None, active)
+            emitter = si.emitter(scene)
+            hit = active & (emitter != None)  # noqa: E711  (Dr.Jit's pointer comparison)
+            radiance = emitter.eval(si, hit)
+            pdf = scene.pdf_emitter_direction(it, mi.DirectionSample3f(scene, si, it), hit)
+            return dr.select(hit, radiance, 0.0), dr.select(hit, pdf, 0.0)
+
         # ---- placement ----------------------------------------------------------------------------------
         def _placement(self, scene):
-            """(the shape, (R (3, 3), s, t (3,), centre (3,) world, all float64 torch))."""
+            """(the shape, (R (3, 3), s, t (3,), centre (3,) world, all float64 numpy))."""
             shapes = {sh.id(): sh for sh in scene.shapes()}
             if self.shape_id not in shapes:
                 raise InputError(f"{PLUGIN_NAME}: the scene has no shape with id {self.shape_id!r} (ids: "
@@ -206,8 +328,11 @@ def _make_integrator_class(mi) -> type:
             r, s, t = similarity(matrix, what)
             self._check_surface(shape, params, what)
             lo, hi = self._object_box()
-            model_lo = self.model.box_min.detach().double().cpu().numpy()
-            model_hi = self.model.box_max.detach().double().cpu().numpy()
+            if self.runtime is not None:
+                model_lo, model_hi = (np.asarray(v, np.float64) for v in (self.runtime.box_min, self.runtime.box_max))
+            else:
+                model_lo = self.model.box_min.detach().double().cpu().numpy()
+                model_hi = self.model.box_max.detach().double().cpu().numpy()
             diagonal = float(np.linalg.norm(hi - lo))
             if max(np.abs(model_lo - lo).max(), np.abs(model_hi - hi).max()) > 1e-3 * diagonal:
                 raise InputError(f"{PLUGIN_NAME}: the model's object-space box {np.round(model_lo, 4).tolist()} - "
@@ -215,8 +340,7 @@ def _make_integrator_class(mi) -> type:
                                  f"{np.round(lo, 4).tolist()} - {np.round(hi, 4).tolist()}: the model was fitted to "
                                  "another object (or placed elsewhere)")
             centre = t + s * (r @ ((lo + hi) / 2))
-            as_t = [torch.from_numpy(np.asarray(v, dtype=np.float64)) for v in (r, s, t, centre)]
-            return shape, tuple(as_t)
+            return shape, (r, s, t, centre)
 
         def _check_surface(self, shape, params, what):
             """The shape must carry the object's rough dielectric (the model excludes that reflection) and an
@@ -267,6 +391,11 @@ def _make_integrator_class(mi) -> type:
         # ---- the subsurface estimate --------------------------------------------------------------------
         def _subsurface(self, scene, shape, sampler, n, rows, x_o, n_o, wo_o, r, centre):
             """(M, 3) float32 subsurface radiance at the M hit rows (one sample per strategy)."""
+            import torch
+
+            from ..core.query import Query
+            from . import mitsuba as bsdf_plugin
+            _DTYPE = torch.float32
             u_light = sampler.next_2d()
             u_model = sampler.next_2d()
             out = torch.zeros(rows.numel(), 3, dtype=_DTYPE)
@@ -318,15 +447,15 @@ def _make_integrator_class(mi) -> type:
         def _device(self):
             return next(self.model.parameters()).device
 
-        def _trace_past_self(self, scene, shape, it, d, tmax=None):
+        def _trace_past_self(self, scene, shape, it, d, tmax=None, active=True):
             """The first surface interaction along rays from the centre `it` (Interaction3f) in directions d
             (Vector3f) up to tmax that is not on `shape`, tracing through the object's own surface up to
-            SELF_PASSES times (invalid where nothing else is hit)."""
+            SELF_PASSES times (invalid where nothing else is hit or on inactive lanes)."""
             m = dr.width(d)
             target = mi.ShapePtr(shape)
             origin = dr.zeros(mi.Point3f, m) + it.p
             maxt = dr.zeros(mi.Float, m) + (dr.largest(mi.Float) if tmax is None else tmax)
-            pending = dr.full(mi.Bool, True, m)
+            pending = dr.full(mi.Bool, True, m) & active
             result = dr.zeros(mi.SurfaceInteraction3f, m)
             for _ in range(SELF_PASSES):
                 ray = mi.Ray3f(origin, d)
@@ -347,11 +476,12 @@ def _make_integrator_class(mi) -> type:
             another shape."""
             tmax = dr.select(dr.isfinite(dist), dist * (1 - 1e-4), dr.largest(mi.Float))
             si = self._trace_past_self(scene, shape, it, d, tmax)
-            return 1.0 - _scalars(si.is_valid(), dr.width(dist)).float()
+            return 1.0 - _scalars(si.is_valid(), dr.width(dist)).float()  # torch path
 
         def _incident(self, scene, shape, it, wi_w):
             """Radiance (M, 3) float64 arriving at the centre from directions wi_w (M, 3), and the density (M,)
             with which emitter sampling picks them."""
+            from . import mitsuba as bsdf_plugin
             d = mi.Vector3f(*_columns(mi, wi_w))
             si = self._trace_past_self(scene, shape, it, d)
             emitter = si.emitter(scene)
@@ -364,7 +494,50 @@ def _make_integrator_class(mi) -> type:
     return NeumatTranslucentIntegrator
 
 
-def _open_model(model):
+def _open_model(model, native: bool = True, backend=None):
+    """(torch model or None, Dr.Jit runtime or None) of `model`: a NeuPreSS `.nmat` path or object (native: its
+    runtime, translated here with torch), a drjit export folder of one, a `DrJitExport` or a runtime (native only), or
+    another full-sphere model with sample_incident and incident_pdf (torch)."""
+    from ..export.drjit.runtime import Runtime, is_export, load_runtime
+
+    backend = "llvm" if backend is None else backend
+    if isinstance(model, Runtime) or (isinstance(model, (str, Path)) and is_export(model)) or \
+            (hasattr(model, "manifest") and hasattr(model, "arrays")):
+        if not native:
+            raise InputError(f"{PLUGIN_NAME}: a Dr.Jit runtime or export has no torch path (native: false)")
+        rt = model if isinstance(model, Runtime) else \
+            load_runtime(model if isinstance(model, (str, Path)) else model.source(), backend)
+        if not getattr(rt, "translucent", False):
+            raise InputError(f"{PLUGIN_NAME}: model: expected a NeuPreSS (program 'neupress'), got program "
+                             f"{rt.manifest.get('program')!r}")
+        return None, rt
+    m = _open_torch_model(model)
+    if native:
+        from ..export.drjit.format import export_drjit
+        from neumat.methods.neupress.model import NeuPreSS
+        if isinstance(m, NeuPreSS):
+            try:
+                return m, load_runtime(export_drjit(m, "fp32").source(), backend)
+            except InputError:  # a configuration the translator does not cover: the torch path
+                pass
+    return m, None
+
+
+def _rotate_t(mi, r, v):
+    """R^T v for a numpy (3, 3) R and a Dr.Jit 3-vector v (world to object space, before the scale)."""
+    return mi.Vector3f(*(float(r[0, i]) * v.x + float(r[1, i]) * v.y + float(r[2, i]) * v.z for i in range(3)))
+
+
+def _rotate(mi, r, v):
+    """R v (object to world space)."""
+    return mi.Vector3f(*(float(r[i, 0]) * v.x + float(r[i, 1]) * v.y + float(r[i, 2]) * v.z for i in range(3)))
+
+
+def _finite(dr, c):
+    return dr.select(dr.isfinite(c), c, 0.0)
+
+
+def _open_torch_model(model):
     from ..catalog.modelfile import load_model
     from neumat.methods.neupress.model import NeuPreSS
     m = load_model(model) if isinstance(model, (str, Path)) else model
@@ -376,29 +549,40 @@ def _open_model(model):
     return m
 
 
-def _unit(v: torch.Tensor) -> torch.Tensor:
+def _unit(v):
     return v / v.norm(dim=-1, keepdim=True).clamp(min=1e-30)
 
 
-def _scalars(v, n: int) -> torch.Tensor:
+def _scalars(v, n: int):
     """A Dr.Jit scalar array (n lanes, or one broadcast value) as an (n,) float64 torch tensor."""
+    import torch
     a = torch.from_numpy(np.array(v, dtype=np.float64).reshape(-1))
     return a.expand(n).clone() if a.numel() == 1 else a
 
 
-def _columns(mi, t: torch.Tensor):
+def _columns(mi, t):
     return tuple(mi.Float(t[:, i].float().contiguous()) for i in range(t.shape[1]))
 
 
-def _eval(model, dev, wi, x, wo) -> torch.Tensor:
+def _eval(model, dev, wi, x, wo):
     """S_hat (M, 3) float32 on the CPU, in chunks."""
+    import torch
+
+    from ..core.query import Query
+    from . import mitsuba as bsdf_plugin
+    _DTYPE = torch.float32
     with torch.no_grad():
         parts = [model.eval(Query(wi=wi[s].float(), wo=wo[s].float(), x=x[s].float()).to(dev)).to("cpu", _DTYPE)
                  for s in bsdf_plugin._chunks(wi.shape[0])]
     return torch.cat(parts) if parts else torch.zeros(0, 3, dtype=_DTYPE)
 
 
-def _pdf(model, dev, wi, x, wo, n) -> torch.Tensor:
+def _pdf(model, dev, wi, x, wo, n):
+    import torch
+
+    from ..core.query import Query
+    from . import mitsuba as bsdf_plugin
+    _DTYPE = torch.float32
     with torch.no_grad():
         parts = [model.incident_pdf(Query(wi=wi[s].float(), wo=wo[s].float(), x=x[s].float(), n=n[s].float())
                                     .to(dev)).to("cpu", _DTYPE) for s in bsdf_plugin._chunks(wi.shape[0])]

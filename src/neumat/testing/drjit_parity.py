@@ -41,7 +41,10 @@ def drjit_eval(exported, q: Query) -> torch.Tensor:
     vec = lambda w: Array3f(*(cpu(w[:, i]) for i in range(3)))  # noqa: E731
     uv = None if q.uv is None else (cpu(q.uv[:, 0]), cpu(q.uv[:, 1]))
     fp = None if q.footprint is None else tuple(cpu(q.footprint[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
-    out = rt.eval(vec(q.wi), vec(q.wo), True, uv, fp)
+    if getattr(rt, "translucent", False):  # NeuPreSS (program "neupress"): S_hat at the object-space position q.x
+        out = rt.eval(vec(q.wi), vec(q.wo), True, x=vec(q.x))
+    else:
+        out = rt.eval(vec(q.wi), vec(q.wo), True, uv, fp)
     dr.eval(out)
     return torch.from_numpy(np.array(out, dtype=np.float32).T.copy()).to(q.wi.device)
 

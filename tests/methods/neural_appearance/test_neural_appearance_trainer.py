@@ -81,7 +81,7 @@ def test_device_follows_the_argument(uninterrupted):
     model, res = _na_fit(device=torch.device("cpu"))
     assert all(p.device.type == "cpu" for p in model.parameters())
     assert _strip(res.history) == _strip(uninterrupted[1].history)
-    root = Path(__file__).resolve().parents[2] / "src" / "neumat" / "methods" / "neural_appearance"
+    root = Path(__file__).resolve().parents[3] / "src" / "neumat" / "methods" / "neural_appearance"
     for path in (root / "train.py", root / "proxy_train.py", root / "proxy_recipe.py"):
         assert '"cpu"' not in path.read_text(), path             # no tensor on a hard-coded device
 

@@ -3,7 +3,7 @@ its SH-PRT form; notes in NOTES.md."""
 from neumat.fit.method import Method, register_method
 from neumat.fit.preset import Preset
 from neumat.fit.translucent_fit import observation_report
-from neumat.methods.neupress import train
+from neumat.methods.neupress import drjit, train
 from neumat.methods.neupress.glsl import export_neupress
 from neumat.methods.neupress.model import NeuPreSS
 
@@ -16,4 +16,5 @@ PRESETS = {"recommended": Preset(
 register_method(Method("neupress", NeuPreSS, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE},
                        options=train.Options, phases=train.phases, glsl=export_neupress, report=observation_report,
                        presets=PRESETS,
+                       drjit=drjit.translate,  # program "neupress": S_hat and the light sampler
                        small=dict(features=16, width=16, layers=2, sampler_hidden=[8])))
