@@ -150,20 +150,14 @@ def direction_inputs(kind: str, wi, wo) -> list:
     to length sqrt(theta_h / (pi / 2)) (`neumat.methods.neubrdf.model.direction_inputs`)."""
     import drjit as dr
 
-    hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
-    inv = 1 / dr.maximum(dr.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
-    hx, hy, hz = hx * inv, hy * inv, hz * inv
-    st = dr.sqrt(hx * hx + hy * hy)
-    has = st > 0
-    inv_st = 1 / dr.select(has, st, 1.0)
-    cp = dr.select(has, hx * inv_st, 1.0)
-    sp = dr.select(has, hy * inv_st, 0.0)
-    a = cp * wi[0] + sp * wi[1]
-    d = [hz * a - st * wi[2], cp * wi[1] - sp * wi[0], st * a + hz * wi[2]]
+    h, d = hd_vectors(wi, wo)
     if kind == "hd_warp":
-        r = dr.sqrt(dr.atan2(st, hz) * (2 / math.pi))
-        return [dr.select(has, cp * r, 0.0), dr.select(has, sp * r, 0.0), hz, *d]
-    return [hx, hy, hz, *d]
+        hx, hy, hz = h
+        st = dr.sqrt(hx * hx + hy * hy)
+        has = st > 0
+        scale = dr.sqrt(dr.atan2(st, hz) * (2 / math.pi)) / dr.select(has, st, 1.0)
+        return [dr.select(has, hx * scale, 0.0), dr.select(has, hy * scale, 0.0), hz, *d]
+    return [*h, *d]
 
 
 def _activation(name: str) -> Callable:
