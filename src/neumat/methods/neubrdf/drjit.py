@@ -60,11 +60,7 @@ def translate(model: NeuBRDF) -> tuple[dict, dict]:
     n, k = cfg.nside, cfg.feature_dim
     device = model.level_i.device
     pix = torch.arange(12 * n * n, device=device)
-    if isinstance(model.grid, VQFeatures):
-        features, slot_rows = model.grid.codebook, model.grid.indices().long()
-    else:
-        slot_rows = torch.arange(model.grid.num_vertices, device=device)
-        features = model.grid(slot_rows)
+    features, slot_rows = _feature_rows(model.grid, device)
     rows = []
     for south in (False, True):  # as NeuBRDF.runtime builds its per-pixel features
         level = 0 if model._pruning is None else model._pruning[int(south)]
@@ -87,6 +83,14 @@ def translate(model: NeuBRDF) -> tuple[dict, dict]:
     return manifest, arrays
 
 
+def _feature_rows(grid, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """(feature rows, each grid slot's row): a VQ grid's codebook and indices, else the decoded slots themselves."""
+    if isinstance(grid, VQFeatures):
+        return grid.codebook, grid.indices().long()
+    slot_rows = torch.arange(grid.num_vertices, device=device)
+    return grid(slot_rows), slot_rows
+
+
 def _check_activation(activation: str) -> None:
     if activation not in ACTIVATIONS:
         raise InputError(f"export_drjit: NeuBRDF activation {activation!r} has no Dr.Jit form "
@@ -101,11 +105,7 @@ def _grid_program(model, levels, materials: int, material: int, interpolation: s
     n, k = cfg.nside, cfg.feature_dim
     device = model.vertex_dirs.device
     pix = torch.arange(12 * n * n, device=device)
-    if isinstance(model.grid, VQFeatures):
-        features, slot_rows = model.grid.codebook, model.grid.indices().long()
-    else:
-        slot_rows = torch.arange(model.grid.num_vertices, device=device)
-        features = model.grid(slot_rows)
+    features, slot_rows = _feature_rows(model.grid, device)
     h = hpx.hemisphere_size(n)
     rows, vids = [], []
     for m in range(materials):
