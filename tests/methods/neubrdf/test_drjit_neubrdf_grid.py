@@ -12,51 +12,13 @@ import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
-from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.methods.neubrdf.shared_model import MaterialQuery, SharedNeuBRDF
-from neumat.nn import healpix as hpx
+from tests.methods.neubrdf.test_drjit_neubrdf import (  # noqa: F401  (drjit_llvm: a fixture)
+    SMALL, _array3, _directions, _model, _near_boundary, drjit_llvm)
 
 pytestmark = pytest.mark.mitsuba  # Dr.Jit's LLVM backend needs the LLVM that neumat.core.llvm finds
 
-SMALL = {"nside": 8, "feature_dim": 8, "index_bits": 5, "hidden": 16}
 TEXTURE = {"texture_height": 8, "texture_width": 6, "texture_channels": 3}
-
-
-@pytest.fixture(scope="module")
-def drjit_llvm():
-    from mitsuba_util import mitsuba_or_skip
-    mitsuba_or_skip()  # chooses an LLVM >= 16 before Dr.Jit loads one, or skips with the reason
-    import drjit as dr
-    return dr
-
-
-def _directions(n: int, g: torch.Generator) -> torch.Tensor:
-    w = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
-    w[:, 2] = w[:, 2].abs()
-    return w
-
-
-def _near_boundary(nside: int, w: torch.Tensor, g: torch.Generator, eps: float = 1e-5) -> torch.Tensor:
-    pix = hpx.vec2pix(nside, w)
-    near = torch.zeros(len(w), dtype=torch.bool)
-    for _ in range(8):
-        moved = torch.nn.functional.normalize(w.double() + eps * torch.randn(w.shape, generator=g, dtype=torch.float64),
-                                              dim=-1)
-        near |= hpx.vec2pix(nside, moved.float()) != pix
-    return near
-
-
-def _array3(w: torch.Tensor):
-    from drjit.llvm.ad import Array3f, Float
-    return Array3f(*(Float(c.contiguous().numpy()) for c in w.T))
-
-
-def _model(seed: int = 0, **overrides) -> NeuBRDF:
-    torch.manual_seed(seed)
-    model = NeuBRDF(**{**SMALL, "direction_inputs": "hd_warp", **overrides})
-    with torch.no_grad():
-        model.mlp.linears()[-1].weight.mul_(0.3)  # values of a BRDF's range, not exp of a random net's
-    return model.train(False)
 
 
 def _shared(seed: int = 0, **overrides) -> SharedNeuBRDF:
