@@ -61,3 +61,19 @@ def bsdf_chi2_test(mi, bsdf, theta: float, uv=None, sample_count: int = 200_000,
     # Mitsuba's own roughconductor at low alphas as well (p = 1e-6 at theta 1.2)
     return mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample, pdf_func=pdf,
                                  sample_dim=3, sample_count=sample_count, res=res, ires=8)
+
+
+def sphere_scene(mi, bsdf, spp: int = 16, size: int = 32):
+    """A sphere with `bsdf` on a diffuse floor under a sun and a constant sky, path traced to depth 4: the scene
+    the native-plugin tests render natively and through the bridge."""
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "path", "max_depth": 4},
+        "sensor": {"type": "perspective", "fov": 30,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent", "sample_count": spp}},
+        "sphere": {"type": "sphere", "bsdf": bsdf},
+        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90)
+                  .scale(3), "bsdf": {"type": "diffuse"}},
+        "sun": {"type": "directional", "direction": [0.3, -1, -0.4], "irradiance": 3.0},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 0.9]}}})

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from mitsuba_util import bsdf_chi2_test, mi_vector, to_torch
+from mitsuba_util import bsdf_chi2_test, mi_vector, sphere_scene, to_torch
 from neumat.catalog.modelfile import save_model
 from neumat.methods.neubrdf.model import NeuBRDF
 
@@ -107,30 +107,16 @@ def test_mitsuba_chi2_accepts_the_native_sampler(mi, nmat, theta):
     assert test.run(), test.messages
 
 
-def _scene(mi, bsdf, spp: int = 16, size: int = 32):
-    return mi.load_dict({
-        "type": "scene", "integrator": {"type": "path", "max_depth": 4},
-        "sensor": {"type": "perspective", "fov": 30,
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent", "sample_count": spp}},
-        "sphere": {"type": "sphere", "bsdf": bsdf},
-        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90)
-                  .scale(3), "bsdf": {"type": "diffuse"}},
-        "sun": {"type": "directional", "direction": [0.3, -1, -0.4], "irradiance": 3.0},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 0.9]}}})
-
-
 def test_native_render_equals_the_bridge_render(mi, nmat):
     """The same warps on the same random numbers: the same image up to float error; the native scene renders in
     symbolic mode (`render` picks it), where the bridge could only give NaN."""
     import drjit as dr
     from neumat.integrations import mitsuba as plugin
-    native_scene = _scene(mi, {"type": "neumat", "filename": str(nmat)})
+    native_scene = sphere_scene(mi, {"type": "neumat", "filename": str(nmat)})
     assert not plugin.needs_evaluated_mode(native_scene)
     assert dr.flag(dr.JitFlag.SymbolicCalls)
     ours = torch.from_numpy(np.array(mi.render(native_scene), dtype=np.float32))  # plain Mitsuba, symbolic
-    bridge_scene = _scene(mi, {"type": "neumat", "filename": str(nmat), "native": False})
+    bridge_scene = sphere_scene(mi, {"type": "neumat", "filename": str(nmat), "native": False})
     assert plugin.needs_evaluated_mode(bridge_scene)
     theirs = plugin.render(bridge_scene)
     assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
@@ -225,9 +211,9 @@ def test_mitsuba_chi2_accepts_the_native_ggx_sampler(mi, ggx_nmat, theta):
 def test_native_ggx_render_equals_the_bridge_render(mi, ggx_nmat):
     """The model's own sampler on the same random numbers in both paths: the same image up to float error."""
     from neumat.integrations import mitsuba as plugin
-    native_scene = _scene(mi, {"type": "neumat", "filename": str(ggx_nmat)})
+    native_scene = sphere_scene(mi, {"type": "neumat", "filename": str(ggx_nmat)})
     ours = torch.from_numpy(np.array(mi.render(native_scene), dtype=np.float32))
-    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(ggx_nmat), "native": False}))
+    theirs = plugin.render(sphere_scene(mi, {"type": "neumat", "filename": str(ggx_nmat), "native": False}))
     assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     assert float(close.float().mean()) > 0.98, float(close.float().mean())
@@ -281,9 +267,9 @@ def test_a_uv_mapped_model_reads_si_uv_and_the_ray_footprint(mi, multiscale_nmat
 def test_native_multiscale_render_equals_the_bridge_render(mi, multiscale_nmat):
     """Mitsuba's path tracer computes no uv partials: the native path reads the finest level, as the bridge."""
     from neumat.integrations import mitsuba as plugin
-    ours = torch.from_numpy(np.array(mi.render(_scene(mi, {"type": "neumat", "filename": str(multiscale_nmat)})),
+    ours = torch.from_numpy(np.array(mi.render(sphere_scene(mi, {"type": "neumat", "filename": str(multiscale_nmat)})),
                                      dtype=np.float32))
-    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(multiscale_nmat), "native": False}))
+    theirs = plugin.render(sphere_scene(mi, {"type": "neumat", "filename": str(multiscale_nmat), "native": False}))
     assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     assert float(close.float().mean()) > 0.98, float(close.float().mean())
@@ -306,9 +292,9 @@ def test_native_neumip_offset_render_equals_the_bridge_render(mi, tmp_path):
     nmat = save_model(model.train(False), tmp_path / "neumip-offset.nmat")
     native = mi.load_dict({"type": "neumat", "filename": str(nmat)})
     assert "NeumatNativeBSDF" in str(native) and native.runtime.spatially_varying
-    ours = torch.from_numpy(np.array(mi.render(_scene(mi, {"type": "neumat", "filename": str(nmat)})),
+    ours = torch.from_numpy(np.array(mi.render(sphere_scene(mi, {"type": "neumat", "filename": str(nmat)})),
                                      dtype=np.float32))
-    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(nmat), "native": False}))
+    theirs = plugin.render(sphere_scene(mi, {"type": "neumat", "filename": str(nmat), "native": False}))
     assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     assert float(close.float().mean()) > 0.98, float(close.float().mean())

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from mitsuba_util import bsdf_chi2_test, mi_vector, to_torch
+from mitsuba_util import bsdf_chi2_test, mi_vector, sphere_scene, to_torch
 from neumat.catalog.modelfile import save_model
 from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.methods.neubrdf.shared_model import SharedNeuBRDF
@@ -126,29 +126,15 @@ def test_mitsuba_chi2_accepts_the_native_sampler(mi, nmats, name):
     assert test.run(), test.messages
 
 
-def _scene(mi, bsdf, spp: int = 16, size: int = 32):
-    return mi.load_dict({
-        "type": "scene", "integrator": {"type": "path", "max_depth": 4},
-        "sensor": {"type": "perspective", "fov": 30,
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent", "sample_count": spp}},
-        "sphere": {"type": "sphere", "bsdf": bsdf},
-        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90)
-                  .scale(3), "bsdf": {"type": "diffuse"}},
-        "sun": {"type": "directional", "direction": [0.3, -1, -0.4], "irradiance": 3.0},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 0.9]}}})
-
-
 @pytest.mark.parametrize("name", ["texture", "shared"])
 def test_native_render_equals_the_bridge_render(mi, nmats, name):
     """Symbolic (native) against the bridge's evaluated render of the same file: the same warps on the same random
     numbers, the same image up to float error (the textured model reads si.uv of the sphere in both)."""
     from neumat.integrations import mitsuba as plugin
-    native_scene = _scene(mi, {"type": "neumat", "filename": str(nmats[name])})
+    native_scene = sphere_scene(mi, {"type": "neumat", "filename": str(nmats[name])})
     assert not plugin.needs_evaluated_mode(native_scene)
     ours = torch.from_numpy(np.array(mi.render(native_scene), dtype=np.float32))
-    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(nmats[name]), "native": False}))
+    theirs = plugin.render(sphere_scene(mi, {"type": "neumat", "filename": str(nmats[name]), "native": False}))
     assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     assert float(close.float().mean()) > 0.99, float(close.float().mean())
