@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import torch
 
-from mitsuba_util import bsdf_chi2_test, mi_vector, to_torch
+from mitsuba_util import bsdf_chi2_test, mi_vector, sphere_scene, to_torch
 from neumat.catalog.modelfile import save_model
 from neumat.methods.neural_appearance.model import NeuralAppearance
-from test_mitsuba_native import _NO_TORCH, SRC, _dirs, _scene, _si
+from test_mitsuba_native import _NO_TORCH, SRC, _dirs, _si
 
 pytestmark = pytest.mark.mitsuba
 
@@ -97,10 +97,10 @@ def test_mitsuba_chi2_accepts_the_native_neural_appearance_sampler(mi, na_nmat, 
 def test_native_neural_appearance_render_equals_the_bridge_render(mi, na_nmat):
     """The learned sampler on the same random numbers in both paths: the same image up to float error."""
     from neumat.integrations import mitsuba as plugin
-    native_scene = _scene(mi, {"type": "neumat", "filename": str(na_nmat)})
+    native_scene = sphere_scene(mi, {"type": "neumat", "filename": str(na_nmat)})
     assert not plugin.needs_evaluated_mode(native_scene)
     ours = torch.from_numpy(np.array(mi.render(native_scene), dtype=np.float32))
-    theirs = plugin.render(_scene(mi, {"type": "neumat", "filename": str(na_nmat), "native": False}))
+    theirs = plugin.render(sphere_scene(mi, {"type": "neumat", "filename": str(na_nmat), "native": False}))
     assert bool(torch.isfinite(ours).all()) and float(ours.mean()) > 0
     close = ((ours - theirs).abs() <= 1e-3 * theirs.abs() + 1e-4).all(-1)
     print(f"close {float(close.float().mean()):.4f} mean ratio {float(ours.mean() / theirs.mean()):.6f}", end=" ")
