@@ -1,5 +1,5 @@
 """Parity of the Dr.Jit runtime program "sparse-btf" (`neumat.export.drjit.sparse_btf`) with `SparseBTF.eval`
-(angular "coefficient" interpolation), fp32 compute, on random queries (directions on the whole sphere, uv well
+(angular "coefficient" and "value" interpolation), fp32 compute, on random queries (directions on the whole sphere, uv well
 outside [0, 1]: wrap-around) and at bins and texel centres (the table's entries). As for the GLSL export
 (test_glsl_sparse_btf.py): queries whose k-th and (k+1)-th nearest bins are within 1e-5 in dot product are left
 out (a tie either implementation may break its own way: k-nearest interpolation jumps there), and the relative
@@ -75,18 +75,27 @@ def _max_error(model: SparseBTF, q: Query, source=None) -> float:
     return float(((got - ref).abs()[keep] / ref.abs()[keep].clamp(min=1e-3)).max())
 
 
+@pytest.mark.parametrize("angular", ["coefficient", "value"])
 @pytest.mark.parametrize("threshold", [0.0, 0.05], ids=["fixed counts", "variable counts"])
-def test_runtime_matches_torch(dictionary, threshold):
-    model = SparseBTF.encode(_btf(10), dictionary, (40, 10, 10), error_threshold=threshold).train(False)
+def test_runtime_matches_torch(dictionary, threshold, angular):
+    model = SparseBTF.encode(_btf(10), dictionary, (40, 10, 10), error_threshold=threshold,
+                             angular=angular).train(False)
     if threshold:
         assert model.counts.min() < model.counts.max()  # the error threshold stopped some data points early
-    err = _max_error(model, _queries(3000, 0))
+    q = _queries(3000, 0)
+    err = _max_error(model, q)
     print(f"max relative error {err:.2e}", end=" ")
     assert err < 1e-4
+    other = SparseBTF.encode(_btf(10), dictionary, (40, 10, 10), error_threshold=threshold,
+                             angular="value" if angular == "coefficient" else "coefficient").train(False)
+    with torch.no_grad():  # the two modes differ well beyond the tolerance: parity tells which one ran
+        a, b = model.eval(q).double(), other.eval(q).double()
+    assert float(((a - b).abs() / a.abs().clamp(min=1e-3)).max()) > 1e-2
 
 
-def test_runtime_returns_table_entries_at_bins_and_texel_centres(dictionary):
-    model = SparseBTF.encode(_btf(12), dictionary, (40, 10, 10))
+@pytest.mark.parametrize("angular", ["coefficient", "value"])
+def test_runtime_returns_table_entries_at_bins_and_texel_centres(dictionary, angular):
+    model = SparseBTF.encode(_btf(12), dictionary, (40, 10, 10), angular=angular)
     g = torch.Generator().manual_seed(4)
     n = 300
     li, vi = torch.randint(0, N_DIRS, (2, n), generator=g)
@@ -97,19 +106,25 @@ def test_runtime_returns_table_entries_at_bins_and_texel_centres(dictionary):
     assert torch.allclose(_runtime_eval(model, q), table, rtol=1e-4, atol=1e-6)
 
 
-def test_export_files_round_trip_and_refusal(dictionary, tmp_path):
+@pytest.mark.parametrize("angular", ["coefficient", "value"])
+def test_export_files_round_trip_and_refusal(dictionary, angular, tmp_path):
     from neumat.core.errors import InputError
     from neumat.export.drjit.format import drjit_models, export_drjit
     assert "sparse-btf" in drjit_models()
-    model = SparseBTF.encode(_btf(13), dictionary, (40, 10, 10))
+    model = SparseBTF.encode(_btf(13), dictionary, (40, 10, 10), angular=angular)
     folder = export_drjit(model, "fp32").write(tmp_path / "drjit")
     assert _max_error(model, _queries(1000, 1), source=folder) < 1e-4
-    model.cfg.angular = "value"
-    with pytest.raises(InputError, match="angular 'value'"):
-        export_drjit(model)
+
+    class OwnEval(SparseBTF):
+        def _eval_batch(self, q):
+            return super()._eval_batch(q)
+
+    with pytest.raises(InputError, match="expected a SparseBTF"):
+        export_drjit(OwnEval(model.cfg))
 
 
-def test_the_mitsuba_plugin_renders_a_sparse_btf_file_natively(dictionary, tmp_path):
+@pytest.mark.parametrize("angular", ["coefficient", "value"])
+def test_the_mitsuba_plugin_renders_a_sparse_btf_file_natively(dictionary, angular, tmp_path):
     """The .nmat through the native plugin (`neumat.integrations.mitsuba_native`): eval (f cos) at si.uv against the
     torch model, and a tiny render with the bridge's image up to float error (cosine sampling in both)."""
     import drjit as dr
@@ -117,7 +132,7 @@ def test_the_mitsuba_plugin_renders_a_sparse_btf_file_natively(dictionary, tmp_p
     from neumat.catalog.modelfile import save_model
     from neumat.integrations import mitsuba as plugin
     mi = plugin.register()
-    model = SparseBTF.encode(_btf(14), dictionary, (40, 10, 10)).train(False)
+    model = SparseBTF.encode(_btf(14), dictionary, (40, 10, 10), angular=angular).train(False)
     path = save_model(model, tmp_path / "sbtf.nmat")
     bsdf = mi.load_dict({"type": "neumat", "filename": str(path)})
     assert "NeumatNativeBSDF" in str(bsdf) and bsdf.runtime.manifest["program"] == "sparse-btf"

@@ -1,14 +1,16 @@
 """Dr.Jit runtime program "sparse-btf" (imports no torch): SparseBTF's decode (`neumat.methods.sparse_btf.model`,
-`SparseBTF.eval` with angular "coefficient", Eq. 6), one BTF element per query, as the GLSL export computes it
-(`neumat.methods.sparse_btf.glsl`):
+`SparseBTF.eval`), one BTF element per query, in either angular mode of the model (manifest "angular"):
 
 - the k nearest light bins of wi and view bins of wo (largest dot product, `angular_weights`), weighted by
   normalised inverse angular distance (atan2(|w x d|, w . d); an exact hit gets weight 1);
 - the 4 wrap-around bilinear taps of uv (`bilinear_taps`), each in its p x p data point;
-- per YUV channel c: z_c = sum_taps w_tap sum_j v_j U1[x1, i1] U2[x2, i2] (sum_a lw_a U3[l_a, i3])
-  (sum_b vw_b U4[v_b, i4]) over the data point's sparse coefficients (v_j, i1..i4) in dictionary `membership`;
-- f = max(exp(YUV_TO_RGB (z std + mean)) - eps, 0), std and mean interpolated with the same bin weights; 0 below
-  either horizon.
+- "coefficient" (Eq. 6, as the GLSL export `neumat.methods.sparse_btf.glsl`): per YUV channel c, z_c = sum_taps
+  w_tap sum_j v_j U1[x1, i1] U2[x2, i2] (sum_a lw_a U3[l_a, i3]) (sum_b vw_b U4[v_b, i4]) over the data point's
+  sparse coefficients (v_j, i1..i4) in dictionary `membership`; f = max(exp(YUV_TO_RGB (z std + mean)) - eps, 0),
+  std and mean interpolated with the same bin weights;
+- "value": z_c per tap and bin pair (a, b) with U3[l_a, i3] U4[v_b, i4], each standardised with its own bin's
+  std and mean and taken to linear RGB as above, then f = sum w_tap lw_a vw_b rgb (the decoded table, interpolated);
+- 0 below either horizon.
 """
 from __future__ import annotations
 
@@ -58,8 +60,9 @@ def _nearest(b: Backend, table: np.ndarray, w: list, k: int) -> tuple[list, list
 
 class SparseBtf(Runtime):
     """Program "sparse-btf" (module docstring). Manifest: patch, num_dictionaries, n_light, n_view, height, width,
-    log_eps, neighbours. Arrays: dict_1 .. dict_4 (3, K, m, m), values (3, P, T), index (3, P, T, 4), membership and
-    counts (3, P), mean and std (L, V, 3), light_dirs (L, 3), view_dirs (V, 3)."""
+    log_eps, neighbours, angular ("coefficient" where absent: exports made before "value" had a program). Arrays:
+    dict_1 .. dict_4 (3, K, m, m), values (3, P, T), index (3, P, T, 4), membership and counts (3, P), mean and std
+    (L, V, 3), light_dirs (L, 3), view_dirs (V, 3)."""
 
     spatially_varying = True
 
@@ -73,6 +76,9 @@ class SparseBtf(Runtime):
         self.n_light, self.n_view = int(manifest["n_light"]), int(manifest["n_view"])
         self.height, self.width = int(manifest["height"]), int(manifest["width"])
         self.eps, self.neighbours = float(manifest["log_eps"]), int(manifest["neighbours"])
+        self.angular = manifest.get("angular", "coefficient")
+        if self.angular not in ("coefficient", "value"):
+            raise DataFormatError(f"drjit export ({self.describe()}): unknown angular interpolation {self.angular!r}")
         self.patches = (self.height // self.p) * (self.width // self.p)
         values = arrays["values"].astype(np.float32)
         self.t = int(values.shape[2])
@@ -138,43 +144,89 @@ class SparseBtf(Runtime):
                 dm = c * k + memb
                 per.append((c, point * t, count, wgt, ((dm * p + x1) * p), ((dm * p + x2) * p),
                             [(dm * nl + a) * nl for a in li], [(dm * nv + a) * nv for a in vi]))
+        value = self.angular == "value"
+        bins = len(li) * len(vi)
 
-        def body(j, z0, z1, z2):
-            z = [z0, z1, z2]
-            for c, start, count, wgt, r1, r2, r3, r4 in per:
+        def body(j, *z):
+            z = list(z)
+            for slot, (c, start, count, wgt, r1, r2, r3, r4) in enumerate(per):
                 on = ok & (j < count)
                 at = start + j
                 val = dr.gather(b.Float, self.values, at, on)
                 i = [dr.gather(b.UInt, self.index, at * 4 + q, on) for q in range(4)]
                 u1 = dr.gather(b.Float, d1, r1 + i[0], on)
                 u2 = dr.gather(b.Float, d2, r2 + i[1], on)
+                m3 = [dr.gather(b.Float, d3, row + i[2], on) for row in r3]
+                m4 = [dr.gather(b.Float, d4, row + i[3], on) for row in r4]
+                if value:  # z[channel, tap, a, b]: every bin pair of the tap on its own
+                    spatial = val * u1 * u2
+                    for a, ma in enumerate(m3):
+                        sa = spatial * ma
+                        for bb, mb in enumerate(m4):
+                            z[slot * bins + a * len(m4) + bb] = dr.fma(sa, mb, z[slot * bins + a * len(m4) + bb])
+                    continue
                 u3 = None
-                for row, a in zip(r3, lw):
-                    g = dr.gather(b.Float, d3, row + i[2], on) * a
-                    u3 = g if u3 is None else u3 + g
+                for g, a in zip(m3, lw):
+                    u3 = g * a if u3 is None else u3 + g * a
                 u4 = None
-                for row, a in zip(r4, vw):
-                    g = dr.gather(b.Float, d4, row + i[3], on) * a
-                    u4 = g if u4 is None else u4 + g
+                for g, a in zip(m4, vw):
+                    u4 = g * a if u4 is None else u4 + g * a
                 z[c] = dr.fma(wgt, val * u1 * u2 * u3 * u4, z[c])
             return (j + 1, *z)
 
-        state = dr.while_loop(state=(b.UInt(0), b.Float(0.0), b.Float(0.0), b.Float(0.0)),
+        size = len(per) * bins if value else 3
+        state = dr.while_loop(state=(b.UInt(0), *(b.Float(0.0) for _ in range(size))),
                               cond=lambda j, *z: ok & (j < t), body=body)
         z = list(state[1:])
+        out = self._value_rgb(z, taps, li, lw, vi, vw, ok) if value else self._coefficient_rgb(z, li, lw, vi, vw, ok)
+        return dr.select(ok, b.Array3f(*out), 0.0)
+
+    def _cell(self, a, bb, ok) -> tuple[list, list]:
+        """Mean and std (3 Floats each) of the angular image of light bin a and view bin bb."""
+        import drjit as dr
+
+        b, cell = self.backend, (a * self.n_view + bb) * 3
+        return ([dr.gather(b.Float, self.mean, cell + c, ok) for c in range(3)],
+                [dr.gather(b.Float, self.std, cell + c, ok) for c in range(3)])
+
+    def _rgb(self, yuv: list) -> list:
+        """`model_space_to_rgb`: max(exp(YUV_TO_RGB yuv) - eps, 0)."""
+        import drjit as dr
+
+        return [dr.maximum(dr.exp(yuv[0] * row[0] + yuv[1] * row[1] + yuv[2] * row[2]) - self.eps, 0.0)
+                for row in YUV_TO_RGB.tolist()]
+
+    def _coefficient_rgb(self, z, li, lw, vi, vw, ok) -> list:
+        """"coefficient": the bin-interpolated statistics standardise the interpolated z, then RGB."""
+        import drjit as dr
+
+        b = self.backend
         mean, std = [b.Float(0.0)] * 3, [b.Float(0.0)] * 3
         for a, wa in zip(li, lw):
             for bb, wb in zip(vi, vw):
-                cell, wgt = (a * nv + bb) * 3, wa * wb
+                wgt = wa * wb
+                m, d = self._cell(a, bb, ok)
                 for c in range(3):
-                    mean[c] = dr.fma(dr.gather(b.Float, self.mean, cell + c, ok), wgt, mean[c])
-                    std[c] = dr.fma(dr.gather(b.Float, self.std, cell + c, ok), wgt, std[c])
-        yuv = [dr.fma(z[c], std[c], mean[c]) for c in range(3)]
-        out = []
-        for row in YUV_TO_RGB.tolist():
-            s = yuv[0] * row[0] + yuv[1] * row[1] + yuv[2] * row[2]
-            out.append(dr.maximum(dr.exp(s) - self.eps, 0.0))
-        return dr.select(ok, b.Array3f(*out), 0.0)
+                    mean[c] = dr.fma(m[c], wgt, mean[c])
+                    std[c] = dr.fma(d[c], wgt, std[c])
+        return self._rgb([dr.fma(z[c], std[c], mean[c]) for c in range(3)])
+
+    def _value_rgb(self, z, taps, li, lw, vi, vw, ok) -> list:
+        """"value": every tap and bin pair standardised with its own bin's statistics and taken to RGB, then the
+        RGB values weighted (tap weight x light weight x view weight) and summed."""
+        import drjit as dr
+
+        b, n_taps, bins = self.backend, len(taps), len(li) * len(vi)
+        out = [b.Float(0.0)] * 3
+        for a, (la, wa) in enumerate(zip(li, lw)):
+            for bb, (vb, wb) in enumerate(zip(vi, vw)):
+                mean, std = self._cell(la, vb, ok)
+                for tap, (*_, wt) in enumerate(taps):
+                    at = tap * bins + a * len(vi) + bb
+                    rgb = self._rgb([dr.fma(z[(c * n_taps) * bins + at], std[c], mean[c]) for c in range(3)])
+                    wgt = wt * wa * wb
+                    out = [dr.fma(wgt, v, o) for v, o in zip(rgb, out)]
+        return out
 
 
 PROGRAMS["sparse-btf"] = SparseBtf
