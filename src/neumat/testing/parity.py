@@ -58,10 +58,15 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
     """Values (N, 3) of the exported material at the queries q (float32, on q's device). Spatially varying
     exports use q.footprint if given, else q.lod (0 when absent); they need q.uv. entry "pdf" (density in
     channel 0) and "sample" (wo for u (N, 2); q.wo unused) call the sampler entry points of exports that
-    have them (with q.footprint)."""
+    have them (with q.footprint). A NeuPreSS export gives S_hat at the object-space position q.x, as the Slang
+    and Dr.Jit evaluators do."""
     n = len(q.wi)
     if n == 0:
         return q.wi.new_zeros(0, 3)
+    if entry == "eval" and any("neumat_translucent" in e for e in export.entry or ()):
+        q.require("x", who="glsl_eval (NeuPreSS export)")
+        inputs = {"wi": q.wi, "x": q.x, "wo": q.wo}
+        return glsl_run(export, inputs, _TRANSLUCENT_CALL, backend, width)[:, :3].to(q.wi.device)
     if entry not in ("eval", "pdf", "sample"):
         raise InputError(f"glsl_eval entry: expected 'eval', 'pdf' or 'sample', got {entry!r}")
     if entry != "eval":
@@ -181,6 +186,9 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         ctx.release()
 
 
+_TRANSLUCENT_CALL = "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);"
+
+
 def neupress_parity_queries(model, n: int, seed: int = 0) -> tuple[Query, torch.Tensor, torch.Tensor]:
     """n random NeuPreSS queries (x uniform in the model's bounding box, wi, wo uniform on the sphere) and the
     model's S_hat (N, 3) and lobe width sigma (N,) there."""
@@ -206,7 +214,7 @@ def neupress_parity(export: GLSLExport, model, n: int, seed: int = 0, backend: s
     "translucent" relative to the largest value, "sigma" relative."""
     q, f, sigma = neupress_parity_queries(model, n, seed)
     inputs = {"wi": q.wi, "x": q.x, "wo": q.wo}
-    g_f = glsl_run(export, inputs, "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);", backend)[:, :3]
+    g_f = glsl_run(export, inputs, _TRANSLUCENT_CALL, backend)[:, :3]
     g_sigma = glsl_run(export, inputs, "colour = vec4(neumat_sigma(x.xyz, wo.xyz));", backend)[:, 0]
     return neupress_differences(f, sigma, g_f, g_sigma)
 

@@ -8,7 +8,7 @@ from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
 from neumat.methods.neupress.glsl import export_neupress
 from neumat.methods.neupress.model import NeuPreSS
-from neumat.testing.parity import glsl_run, opengl_available
+from neumat.testing.parity import glsl_eval, glsl_run, opengl_available
 from neumat.warp import sample_uniform_sphere
 
 needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
@@ -64,6 +64,20 @@ def test_shader_matches_the_model(case):
     assert torch.allclose(g_sigma, sigma, rtol=1e-3)
     assert torch.allclose(g_wi, sampled, atol=2e-3)
     assert torch.allclose(g_pdf, pdf, rtol=3e-3, atol=1e-6)
+
+
+@needs_gl
+def test_glsl_eval_of_a_neupress_export_is_s_hat_at_the_query_position():
+    """The generic evaluator (the export-parity suite's) calls neumat_translucent at q.x; without x, one error."""
+    m = _model(**CASES["small cartesian"])
+    x, wi, wo, _ = _queries(64)
+    export = export_neupress(m)
+    with torch.no_grad():
+        f = m.eval(Query(wi=wi, wo=wo, x=x))
+    got = glsl_eval(export, Query(wi=wi, wo=wo, x=x))
+    assert float((got - f).abs().max()) < 2e-3 * float(f.abs().max())
+    with pytest.raises(InputError, match="needs Query.x"):
+        glsl_eval(export, Query(wi=wi, wo=wo))
 
 
 def test_export_glsl_dispatches_and_rejects_bad_models(tmp_path):
