@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import pytest
 
+import torch
+
 from neumat import InputError
 from neumat.catalog.open_material import open_material
-from neumat.render.comparison import image_comparison
+from neumat.core.material import Material, NonNegative
+from neumat.render.comparison import comparison_images, image_comparison, reference_renders
 from neumat.render.render import render
 
 
@@ -40,6 +43,52 @@ def test_the_reference_scores_the_floor_the_floor_falls_with_spp_and_another_mat
     assert image_comparison(m, m, spp=64, resolution=16)["floor_mae"] < 0.5 * same["floor_mae"]
     other = image_comparison(open_material("ggx:roughness=0.4"), m, spp=64, resolution=16)
     assert other["mae"] > 2 * other["floor_mae"] and other["ssim"] < other["floor_ssim"]
+
+
+class RedNoise(Material):
+    """A glossy material whose red channel carries a negative offset, as measured tables' noise: negative away
+    from the highlight, positive in it."""
+
+    def __init__(self) -> None:
+        self.inner = open_material("ggx:roughness=0.2")
+        self.can_sample = True
+
+    def eval(self, q):
+        return self.inner.eval(q) - torch.tensor([0.05, 0.0, 0.0], dtype=q.wi.dtype)
+
+    def sample(self, q, u):
+        return self.inner.sample(q, u)
+
+    def pdf(self, q):
+        return self.inner.pdf(q)
+
+
+def test_the_reference_is_scored_with_its_negative_values_read_as_zero():
+    """reference_renders renders NonNegative(reference) (what every fit's targets are), which is not what the raw
+    reference renders; a model equal to the clamped function scores the floor exactly."""
+    ref = RedNoise()
+    clamped = NonNegative(ref)
+    renders = reference_renders(ref, spp=16, resolution=16)
+    want = comparison_images({"c": clamped}, 16, 16, seed=0)["c"]
+    raw = comparison_images({"r": ref}, 16, 16, seed=0)["r"]
+    assert torch.equal(torch.as_tensor(renders[1]), torch.as_tensor(want))
+    assert float((torch.as_tensor(raw) - torch.as_tensor(want))[..., 0].abs().max()) > 0.01  # the clamp matters
+    scores = image_comparison(clamped, ref, spp=16, resolution=16)
+    assert scores["mae"] == scores["floor_mae"] and scores["ssim"] == scores["floor_ssim"]
+
+
+def test_non_negative_clamps_values_and_sample_weights_and_keeps_the_rest():
+    ref, g = RedNoise(), torch.Generator().manual_seed(0)
+    from neumat.core.query import Query
+    from neumat.warp.hemisphere import sample_cosine_hemisphere
+    wi, wo = (sample_cosine_hemisphere(torch.rand(256, 2, generator=g)) for _ in range(2))
+    q, u = Query(wi, wo), torch.rand(256, 2, generator=g)
+    m = NonNegative(ref)
+    assert torch.equal(m.eval(q), ref.eval(q).clamp(min=0)) and bool((ref.eval(q)[:, 0] < 0).any())
+    s, s_ref = m.sample(q, u), ref.sample(q, u)
+    assert torch.equal(s.wo, s_ref.wo) and torch.equal(s.pdf, s_ref.pdf)
+    assert torch.equal(s.weight, s_ref.weight.clamp(min=0))
+    assert torch.equal(m.pdf(q), ref.pdf(q)) and m.can_sample and not m.spatially_varying
 
 
 def test_unknown_sampler_is_refused():

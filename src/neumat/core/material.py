@@ -63,6 +63,36 @@ class Material:
         return self.name
 
 
+class NonNegative(Material):
+    """`material` with negative values read as 0. Why: measured tables keep negative noise (RGL files down to
+    -1.4 % of their maximum), which no fit reproduces (every loss clamps its targets) and which darkens a
+    rendered reference where a channel is near 0 (`neumat.render.comparison`)."""
+
+    def __init__(self, material: Material) -> None:
+        self.material = material
+        self.name = getattr(material, "name", type(material).__name__)
+        self.can_sample = material.can_sample
+        self.spatially_varying = material.spatially_varying
+        self.full_sphere = material.full_sphere
+        self.device = material_device(material)
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return self.material.eval(q).clamp(min=0)
+
+    def sample(self, q: Query, u: torch.Tensor) -> Sample:
+        s = self.material.sample(q, u)
+        return Sample(s.wo, s.pdf, s.weight.clamp(min=0))
+
+    def sample_direction(self, q: Query, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.material.sample_direction(q, u)
+
+    def pdf(self, q: Query) -> torch.Tensor:
+        return self.material.pdf(q)
+
+    def describe(self) -> str:
+        return self.material.describe()
+
+
 def material_device(*materials: Material) -> torch.device:
     """Device of the first material that has one, else CPU: a `device` attribute (wrappers that hold modules
     declare theirs), or an nn.Module's first parameter or buffer."""
