@@ -19,7 +19,6 @@ from torch import nn
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.baselines.nbrdf import NBRDF
@@ -301,7 +300,7 @@ class NeuBRDF(LearnedMaterial):
             f = self._runtime_eval(q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype))
         else:
             f = torch.exp(self.mlp(self.features(q)))
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0)
+        f = torch.where(torch.minimum(q.wi[:, 2:], q.wo[:, 2:]) > 0, f, 0.0)  # 0 unless both directions are up
         return f.to(q.dtype)
 
     def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:
@@ -312,7 +311,7 @@ class NeuBRDF(LearnedMaterial):
         rest of the MLP; with `Config.direction_inputs`, their first-layer columns times the inputs are added
         before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
-        rest = self.mlp.net[1:]
+        rest = list(self.mlp.net)[1:]  # called by their own forward: module calls cost as much as these small layers
         # the direction inputs' first-layer columns (the last ones), (extra, hidden)
         kind = self.cfg.direction_inputs
         extra = DIRECTION_INPUTS[kind]
@@ -328,13 +327,15 @@ class NeuBRDF(LearnedMaterial):
                 h = nn.functional.embedding_bag(rows, self._runtime_table, per_sample_weights=weights,
                                                 mode="sum").add_(self.mlp.net[0].bias)
             else:
-                x, y, z = (torch.cat([wi[s:s + c, i], wo[s:s + c, i]]) for i in range(3))
-                pix = hpx.vec2pix_xyz(n, x, y, z)
-                rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
-                h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
+                x, y, z = torch.cat((wi[s:s + c], wo[s:s + c])).t().contiguous()  # coordinate rows of wi, then wo
+                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c)
+                pix[1] += 12 * n * n  # the S- half of the table
+                h = nn.functional.embedding_bag(pix.t(), self._runtime_table, mode="sum")
             if hd_weight is not None:
                 h.addmm_(direction_inputs(kind, wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
-            torch.exp(rest(h), out=out[s:s + c])
+            for layer in rest:
+                h = layer.forward(h)
+            torch.exp(h, out=out[s:s + c])
         return out
 
     def forward(self, q: Query) -> torch.Tensor:
