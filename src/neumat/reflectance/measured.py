@@ -142,32 +142,39 @@ class Marginal2D:
             names = ("data", "cond", "marg")
             self._cache[key] = {n: getattr(self, n).to(device=device, dtype=dtype) for n in names if hasattr(self, n)}
             self._cache[key]["params"] = [p.to(device=device, dtype=dtype) for p in self.param_values]
+            # flat offsets of a patch's corners (ix, iy), (ix + 1, iy), (ix, iy + 1), (ix + 1, iy + 1)
+            self._cache[key]["corners"] = torch.tensor([0, 1, self.w, self.w + 1], device=device)
         return self._cache[key]
 
     def _slices(self, params: list[torch.Tensor], tabs: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """Slice indices (N, C) and weights (N, C) of the 2^D neighbouring parameter slices."""
+        """Slice indices (N, C) and weights (N, C) of the 2^D neighbouring parameter slices (parameters with one
+        slice count once: their second neighbour would have weight 0)."""
         n = params[0].shape[0] if params else 1
         ref = params[0] if params else tabs["data"]
         idx = torch.zeros(n, 1, dtype=torch.long, device=ref.device)
         wts = torch.ones(n, 1, dtype=ref.dtype, device=ref.device)
         for d, (p, vals) in enumerate(zip(params, tabs["params"])):
             size = vals.shape[0]
+            if size == 1:  # one slice along this parameter (an isotropic file's phi_i): nothing to interpolate
+                continue
             stride = int(np.prod(self.param_sizes[d + 1:], dtype=np.int64))
-            if size == 1:
-                i0 = torch.zeros_like(p, dtype=torch.long)
-                i1, w1 = i0, torch.zeros_like(p)
-            else:
-                i0 = (torch.searchsorted(vals, p.contiguous()).clamp(1, size - 1) - 1)
-                i1 = i0 + 1
-                w1 = ((p - vals[i0]) / (vals[i1] - vals[i0])).clamp(0, 1)
+            i0 = (torch.searchsorted(vals, p.contiguous()).clamp(1, size - 1) - 1)
+            i1 = i0 + 1
+            w1 = ((p - vals[i0]) / (vals[i1] - vals[i0])).clamp(0, 1)
             idx = torch.cat([idx + (i0 * stride)[:, None], idx + (i1 * stride)[:, None]], 1)
             wts = torch.cat([wts * (1 - w1)[:, None], wts * w1[:, None]], 1)
         return idx, wts
 
     @staticmethod
     def _lookup(table: torch.Tensor, sl: torch.Tensor, wts: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
-        """Parameter-interpolated table[:, i] for a (S, M) table and flat indices i (N,) -> (N,)."""
-        return (table[sl, i[:, None]] * wts).sum(-1)
+        """Parameter-interpolated table[:, i] for a (S, M) table and flat indices i (N,) or (N, J) -> (N,) or
+        (N, J): one flat gather of every (slice, index) pair, slices outermost (so that each slice's weight
+        multiplies a contiguous block), then the sum over the slices."""
+        rows = (sl * table.shape[1]).t().contiguous()               # (C, N) offsets of the slices
+        w = wts.t().contiguous()
+        if i.dim() == 1:
+            return (torch.take(table, rows + i) * w).sum(0)
+        return (torch.take(table, rows[:, :, None] + i) * w[:, :, None]).sum(0)
 
     def _corners(self, pos, sl, wts, tabs):
         """Patch (ix, iy), position inside it (fx, fy) and the four corner values of points pos (N, 2)."""
@@ -180,9 +187,14 @@ class Marginal2D:
 
     def _patch(self, ix, iy, sl, wts, tabs) -> list[torch.Tensor]:
         """Values (N, K) at the corners (ix, iy), (ix + 1, iy), (ix, iy + 1), (ix + 1, iy + 1)."""
-        i = iy * self.w + ix
-        data = tabs["data"]
-        return [(data[sl, (i + o)[:, None]] * wts[:, :, None]).sum(1) for o in (0, 1, self.w, self.w + 1)]
+        data = tabs["data"]                                         # (S, H * W, K)
+        corner = (iy * self.w + ix)[:, None] + tabs["corners"]     # (N, 4) flat corner cells
+        rows = (sl * data.shape[1]).t().contiguous()[:, :, None] + corner  # (C, N, 4) rows of the flat table
+        vals = data.view(-1, data.shape[2]).index_select(0, rows.view(-1)).view(*rows.shape, data.shape[2])
+        if sl.shape[1] == 1:  # no parameters: the one slice's weight is 1
+            return list(vals[0].unbind(1))
+        # slices outermost: each slice's weight multiplies a contiguous block of 4 K values
+        return list((vals * wts.t().contiguous()[:, :, None, None]).sum(0).unbind(1))
 
     def eval(self, pos: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
         """Bilinear value at pos (N, 2) for parameters (each (N,)): (N, K)."""
@@ -204,10 +216,11 @@ class Marginal2D:
         cond, wm = tabs["cond"], self.w - 1
         row0 = iy * wm
         prev = (ix - 1).clamp(min=0)
-        before = torch.lerp(self._lookup(cond, sl, wts, row0 + prev), self._lookup(cond, sl, wts, row0 + wm + prev), fy)
+        # the conditional CDF before column ix and at the row's end, on rows iy and iy + 1: one gather
+        c = self._lookup(cond, sl, wts, torch.stack([row0 + prev, row0 + wm + prev, row0 + wm - 1, row0 + 2 * wm - 1], 1))
+        b0, b1, r0, r1 = c.unbind(1)
+        before = torch.lerp(b0, b1, fy)
         sx = sx + torch.where(ix > 0, before, torch.zeros_like(before))
-        r0 = self._lookup(cond, sl, wts, row0 + wm - 1)
-        r1 = self._lookup(cond, sl, wts, row0 + 2 * wm - 1)
         sx = sx / torch.lerp(r0, r1, fy)
         sy = fy * torch.lerp(r0, r1, 0.5 * fy) / (self.h - 1)
         m_prev = self._lookup(tabs["marg"], sl, wts, (iy - 1).clamp(min=0))
