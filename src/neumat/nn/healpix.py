@@ -155,7 +155,7 @@ def vec2pix_xyz(nside: int, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -
     c = _loc2pix_constants(nside, x.dtype, x.device)
     tt = torch.atan2(y, x).mul_(c["2/pi"])
     tt = torch.where(tt < c["0.0"], tt + c["4.0"], tt)
-    tt.masked_fill_(tt >= c["4.0"], c["0.0"])
+    tt.masked_fill_(tt >= c["4.0"], 0.0)  # a Python number: a tensor value would cost a host sync
     return _loc2pix(nside, z, torch.sqrt(x * x + y * y), tt)
 
 

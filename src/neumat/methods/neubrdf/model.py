@@ -316,7 +316,7 @@ class NeuBRDF(LearnedMaterial):
         kind = self.cfg.direction_inputs
         extra = DIRECTION_INPUTS[kind]
         hd_weight = self.mlp.net[0].weight[:, -extra:].t() if extra else None
-        out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
+        out = None if 0 < m <= chunk else torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
         for s in range(0, m, chunk):
             c = min(chunk, m - s)
             if self.cfg.interpolation == "idw":
@@ -335,6 +335,8 @@ class NeuBRDF(LearnedMaterial):
                 h.addmm_(direction_inputs(kind, wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
             for layer in rest:
                 h = layer.forward(h)
+            if out is None:  # one chunk
+                return torch.exp(h)
             torch.exp(h, out=out[s:s + c])
         return out
 
