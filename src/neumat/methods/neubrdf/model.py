@@ -10,6 +10,7 @@ up on the north grid S+, `wo` mirrored to (pi - theta, phi) on the south grid S-
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -32,6 +33,14 @@ from neumat.nn.row_adam import RowAdam, grid_optimizer
 
 #: values of `Config.direction_inputs` and the number of MLP inputs each adds
 DIRECTION_INPUTS = {"none": 0, "hd": 6, "hd_warp": 6}
+
+
+@functools.lru_cache(maxsize=16)
+def _south_offset(nside: int, device: torch.device) -> torch.Tensor:
+    """(0, 12 n^2) as a (2, 1) column of ring pixel indices: added to the (wi, wo) pixel rows, the wo pixels index
+    the S- half of the runtime table (cached: the runtime eval adds it per call)."""
+    itype = torch.int32 if 12 * nside * nside < 2 ** 31 else torch.int64
+    return torch.tensor([[0], [12 * nside * nside]], dtype=itype, device=device)
 
 
 def check_direction_inputs(kind: str, who: str) -> None:
@@ -327,9 +336,9 @@ class NeuBRDF(LearnedMaterial):
                 h = nn.functional.embedding_bag(rows, self._runtime_table, per_sample_weights=weights,
                                                 mode="sum").add_(self.mlp.net[0].bias)
             else:
-                x, y, z = torch.cat((wi[s:s + c], wo[s:s + c])).t().contiguous()  # coordinate rows of wi, then wo
-                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c)
-                pix[1] += 12 * n * n  # the S- half of the table
+                pair = (wi, wo) if c == m else (wi[s:s + c], wo[s:s + c])
+                x, y, z = torch.cat(pair).t().contiguous()  # coordinate rows of wi, then wo
+                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c).add_(_south_offset(n, wi.device))  # wo: the S- half
                 h = nn.functional.embedding_bag(pix.t(), self._runtime_table, mode="sum")
             if hd_weight is not None:
                 h.addmm_(direction_inputs(kind, wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
