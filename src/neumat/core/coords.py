@@ -52,7 +52,7 @@ def hd_vectors(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.
     of models whose inputs are h and d. d is wi in the orthonormal frame (t, b, h) that `io_to_hd`'s rotations
     define: with u = (h_x, h_y) / sin theta_h ((1, 0) at the pole), t = (h_z u, -sin theta_h) and b = h x t."""
     h = wi + wo
-    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp_(min=1e-12)
+    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp(min=1e-12)
     hxy = h[:, :2]
     s = torch.linalg.vector_norm(hxy, dim=-1, keepdim=True)                        # sin theta_h (N, 1)
     u = torch.where(s > 0, hxy / s.clamp(min=torch.finfo(s.dtype).tiny), _x_axis(h.dtype, h.device))
@@ -64,7 +64,8 @@ def hd_vectors(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.
 @functools.lru_cache(maxsize=16)
 def _x_axis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """(1, 0): the direction phi = 0 of the plane, cached per dtype and device (hot paths use it per call)."""
-    return torch.tensor([1.0, 0.0], dtype=dtype, device=device)
+    with torch.inference_mode(False):  # a plain tensor even if first built in inference mode
+        return torch.tensor([1.0, 0.0], dtype=dtype, device=device)
 
 
 def hd_to_io(h: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

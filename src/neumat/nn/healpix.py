@@ -113,8 +113,9 @@ def _loc2pix_constants(n: int, dtype: torch.dtype, device: torch.device) -> dict
               "2/pi": 2 / math.pi, "4.0": 4.0}
     ints = {"1": 1, "2": 2, "4": 4, "n+1": n + 1, "1-n": 1 - n, "4n": 4 * n, "ncap": 2 * n * (n - 1),
             "npix": 12 * n * n}
-    out = {k: torch.tensor(v, dtype=dtype, device=device) for k, v in floats.items()}
-    out.update({k: torch.tensor(v, dtype=itype, device=device) for k, v in ints.items()})
+    with torch.inference_mode(False):  # plain tensors even if first built in inference mode (autograd may save them)
+        out = {k: torch.tensor(v, dtype=dtype, device=device) for k, v in floats.items()}
+        out.update({k: torch.tensor(v, dtype=itype, device=device) for k, v in ints.items()})
     out["itype"] = itype
     return out
 

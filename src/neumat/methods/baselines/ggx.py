@@ -93,7 +93,7 @@ def _ggx_eval(wi: torch.Tensor, wo: torch.Tensor, diffuse_pi: torch.Tensor, f0: 
     # with max(w_z, 0) the factors are >= min(alpha) > 0 below the horizon too (masked there): no 1 / 0 in gradients
     g1_den = (z.clamp(min=0) + torch.matmul(w * w, a2).sqrt_()).prod(0)
     h = wi + wo
-    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp_(min=1e-12)
+    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp(min=1e-12)
     # D(h) G1 G1 / (4 cos_i cos_o) = 1 / (pi ax ay q^2 g1_den), q = x^2 / ax^2 + y^2 / ay^2 + z^2 of h
     s = torch.matmul(h * h, inv_a2).square_().mul_(pi_ax_ay).mul_(g1_den).reciprocal_()
     fw = torch.sub(1, (wi * h).sum(-1, keepdim=True).clamp_(0, 1)).pow_(5)  # Schlick weight (1 - cos)^5

@@ -40,7 +40,8 @@ def _south_offset(nside: int, device: torch.device) -> torch.Tensor:
     """(0, 12 n^2) as a (2, 1) column of ring pixel indices: added to the (wi, wo) pixel rows, the wo pixels index
     the S- half of the runtime table (cached: the runtime eval adds it per call)."""
     itype = torch.int32 if 12 * nside * nside < 2 ** 31 else torch.int64
-    return torch.tensor([[0], [12 * nside * nside]], dtype=itype, device=device)
+    with torch.inference_mode(False):  # a plain tensor even if first built in inference mode
+        return torch.tensor([[0], [12 * nside * nside]], dtype=itype, device=device)
 
 
 def check_direction_inputs(kind: str, who: str) -> None:
