@@ -26,11 +26,13 @@ DESCRIPTION = ("evaluations / sample+pdf per CPU second, FLOPs, % of sgemm, cost
                "training step time of every model")
 BUDGET = {
     "quick": {"ours": "ggx, nbrdf, neubrdf and neural-appearance at batches of 2^10 and 2^12 queries, best of 3; "
-                      "exports of neubrdf only (GLSL at fp32 and fp16 beside GLSL GGX, 2^16 queries); training steps "
-                      "of nbrdf and a small neubrdf at batches 2^8 and 2^10",
+                      "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL at fp32 and fp16 "
+                      "beside GLSL GGX, 2^16 queries); training steps of nbrdf and a small neubrdf at batches 2^8 "
+                      "and 2^10",
               "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
               "expected_wall": "about 30 s"},
-    "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries, best of 7 samples of >= 0.05 CPU s; every export "
+    "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries, best of 7 samples of >= 0.05 CPU s; the fixed cost "
+                     "of a call at batches of 1 and 64; every export "
                      "target; training steps of every BRDF / SVBRDF model at its CPU recipe, batches 2^10 and 2^13",
              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
              "expected_wall": "about 40 min on one thread"},
@@ -62,6 +64,7 @@ def run(run: harness.Run) -> None:
                          "x GGX": ggx[n] / rate})
     run.table("eval", "Evaluation and sampling rates (runtime form, one thread)", rows,
               "models at their default (paper) config; dipole-bssrdf with its quadrature on a sphere of radius 0.5")
+    _fixed_costs(run, materials)
     export_n = 2 ** 16
     torch_rates = {r["material"]: r["evals/cpu s"] for r in rows if r["queries"] == export_n}
     missing = [name for name in materials if name not in torch_rates]
@@ -70,6 +73,21 @@ def run(run: harness.Run) -> None:
             torch_rates[name] = _eval_rate(run, materials[name], export_n)
     _exports(run, materials, export_n, torch_rates, sgemm)
     _training(run)
+
+
+def _fixed_costs(run: harness.Run, materials: dict) -> None:
+    """CPU microseconds of one eval call at batches of 1 and 64 queries (the Query built and checked once, outside
+    the timing), and of building a checked Query of one pair: the per-call cost small batches pay."""
+    rows = []
+    for name, m in materials.items():
+        q1, q64 = queries(m, 1, run.seed), queries(m, 64, run.seed)
+        rows.append({"what": f"{name}.eval", "us/call at 1": 1e6 * run.time(lambda: m.eval(q1)),
+                     "us/call at 64": 1e6 * run.time(lambda: m.eval(q64))})
+    q = queries(materials["ggx"] if "ggx" in materials else next(iter(materials.values())), 1, run.seed)
+    rows.append({"what": "Query(wi, wo) (checked)", "us/call at 1": 1e6 * run.time(lambda: Query(q.wi, q.wo)),
+                 "us/call at 64": None})
+    run.table("fixed", "Fixed cost of a call (one thread)", rows,
+              "target (issue 49): <= 50 us per eval call at batch 1, so that batches of 64 cost little more")
 
 
 def _materials(run: harness.Run) -> dict:

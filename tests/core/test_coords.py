@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from neumat.core.coords import (disk_to_hemisphere, disk_to_polar, dir_to_spherical, hd_to_io,
+from neumat.core.coords import (disk_to_hemisphere, disk_to_polar, dir_to_spherical, hd_to_io, hd_vectors,
                                 hemisphere_to_disk, io_to_hd, io_to_rusinkiewicz, polar_to_disk,
                                 rusinkiewicz_to_io, spherical_to_dir)
 
@@ -59,3 +59,17 @@ def test_dtype_follows_input(dtype):
     w = torch.tensor([[0.0, 0.6, 0.8]], dtype=dtype)
     assert dir_to_spherical(w)[0].dtype == dtype
     assert io_to_hd(w, w)[1].dtype == dtype
+
+
+@pytest.mark.parametrize("dtype, atol", [(torch.float64, 1e-12), (torch.float32, 2e-5)])
+def test_hd_vectors_equal_io_to_hd(gen, dtype, atol):
+    """The trigonometry-free h, d equal `io_to_hd`'s (float32: its acos / cos round trip loses ~1e-5 near the
+    pole), including h at the pole (phi_h = 0 in both)."""
+    wi, wo = _hemi(5000, gen), _hemi(5000, gen)
+    wo[:10] = wi[:10] * torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64)  # h = +z exactly
+    wi, wo = wi.to(dtype), wo.to(dtype)
+    h, d = io_to_hd(wi, wo)
+    h2, d2 = hd_vectors(wi, wo)
+    torch.testing.assert_close(h2, h, atol=atol, rtol=0)
+    torch.testing.assert_close(d2, d, atol=atol, rtol=0)
+    torch.testing.assert_close(d2[:10], wi[:10], atol=atol, rtol=0)

@@ -56,3 +56,30 @@ def test_with_wo_checks_the_new_directions_and_keeps_the_rest():
         Query(wi).with_wo(wi[:1])
     with pytest.raises(InputError, match="float64"):
         Query(wi).with_wo(wi.double())
+
+
+def test_queries_derived_from_a_checked_query_are_not_checked_again_but_odd_indices_are(monkeypatch):
+    """Sub-batches, swaps and a no-op `to` of a checked query reuse its checks (the fast path of evaluation
+    loops); an int index, whose fields lose a dimension, still gives one clear InputError."""
+    wi = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.8, 0.6]])
+    q = Query(wi, wi.flip(0), uv=torch.rand(3, 2))
+    assert q.to(dtype=torch.float32) is q and q.to("cpu") is q
+    assert q.to(dtype=torch.float64).wi.dtype == torch.float64
+    calls = []
+    monkeypatch.setattr(Query, "__post_init__", lambda self: calls.append(1))
+    for sub in (q[1:], q[torch.tensor([True, False, True])], q[torch.tensor([2, 0])], q.swapped()):
+        assert isinstance(sub, Query) and sub.uv is not None and sub.wi.shape[0] == sub.uv.shape[0]
+    assert torch.equal(q[torch.tensor([2, 0])].wo, wi.flip(0)[[2, 0]]) and torch.equal(q.swapped().wo, wi)
+    assert not calls
+    monkeypatch.undo()
+    with pytest.raises(InputError, match="Query.wi: expected shape"):
+        q[0]
+
+
+def test_direction_checks_catch_non_finite_and_non_unit_values_with_their_own_messages():
+    for bad, message in (([[float("inf"), 0.0, 1.0]], "non-finite"), ([[0.0, float("nan"), 1.0]], "non-finite"),
+                         ([[0.0, 0.0, 1.01]], "unit length")):
+        with pytest.raises(InputError, match=message):
+            Query(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor(bad))
+        with pytest.raises(InputError, match=message):
+            Query(torch.tensor(bad))

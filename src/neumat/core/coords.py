@@ -4,6 +4,7 @@ Angles in radians. theta is measured from +z, phi from +x towards +y, phi in [0,
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -44,6 +45,27 @@ def io_to_hd(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Te
     theta_h, phi_h = dir_to_spherical(h)
     d = _rot_y(_rot_z(wi, -phi_h), -theta_h)
     return h, d
+
+
+def hd_vectors(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """`io_to_hd` without trigonometry (phi_h = 0 at the pole, as there), in few tensor operations: the hot path
+    of models whose inputs are h and d. d is wi in the orthonormal frame (t, b, h) that `io_to_hd`'s rotations
+    define: with u = (h_x, h_y) / sin theta_h ((1, 0) at the pole), t = (h_z u, -sin theta_h) and b = h x t."""
+    h = wi + wo
+    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp(min=1e-12)
+    hxy = h[:, :2]
+    s = torch.linalg.vector_norm(hxy, dim=-1, keepdim=True)                        # sin theta_h (N, 1)
+    u = torch.where(s > 0, hxy / s.clamp(min=torch.finfo(s.dtype).tiny), _x_axis(h.dtype, h.device))
+    t = torch.cat((h[:, 2:] * u, -s), -1)
+    frame = torch.stack((t, torch.linalg.cross(h, t), h), 1)                       # rows t, b, h (N, 3, 3)
+    return h, torch.bmm(frame, wi.unsqueeze(-1)).squeeze(-1)
+
+
+@functools.lru_cache(maxsize=16)
+def _x_axis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(1, 0): the direction phi = 0 of the plane, cached per dtype and device (hot paths use it per call)."""
+    with torch.inference_mode(False):  # a plain tensor even if first built in inference mode
+        return torch.tensor([1.0, 0.0], dtype=dtype, device=device)
 
 
 def hd_to_io(h: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

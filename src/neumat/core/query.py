@@ -5,7 +5,7 @@ away from the surface: `wi` towards the light, `wo` towards the viewer.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import torch
 
@@ -42,13 +42,14 @@ class Query:
         for name, shape in shapes.items():
             t = getattr(self, name)
             if t is not None:
-                self._check_field(name, t, shape)
+                self._check_field(name, t, shape, finite=name != "wo")  # check_directions covered wo's
 
-    def _check_field(self, name: str, t: torch.Tensor, shape: tuple) -> None:
-        """Shape, finiteness and wi's dtype of the field `name` (its unit length, if a direction, is checked by
-        the caller)."""
+    def _check_field(self, name: str, t: torch.Tensor, shape: tuple, finite: bool = True) -> None:
+        """Shape, finiteness (unless `finite` is False: the caller checked it) and wi's dtype of the field `name`
+        (its unit length, if a direction, is checked by the caller)."""
         check_shape(t, f"Query.{name}", shape)
-        check_finite(t, f"Query.{name}")
+        if finite:
+            check_finite(t, f"Query.{name}")
         if t.dtype != self.wi.dtype:
             raise InputError(f"Query.{name} is {t.dtype} but Query.wi is {self.wi.dtype}: give every field of a "
                              "query one floating-point dtype")
@@ -88,31 +89,41 @@ class Query:
         other fields were when this query was built), which keeps the samplers' per-call overhead down."""
         if wo is not None:
             check_directions(wo, "Query.wo")
-            self._check_field("wo", wo, (len(self), 3))
-        q = object.__new__(type(self))
-        q.__dict__.update(self.__dict__, wo=wo)
-        return q
+            self._check_field("wo", wo, (len(self), 3), finite=False)
+        return self._derived(wo=wo)
 
     def swapped(self) -> "Query":
         """The query with wi and wo exchanged (for reciprocity)."""
         if self.wo is None:
             raise InputError("Query.swapped needs Query.wo")
-        return replace(self, wi=self.wo, wo=self.wi)
+        return self._derived(wi=self.wo, wo=self.wi)  # both were checked as directions of one dtype
+
+    def _derived(self, **changes) -> "Query":
+        """This query with `changes`, not checked again: for fields derived from checked ones."""
+        q = object.__new__(type(self))
+        q.__dict__.update(self.__dict__, **changes)
+        return q
 
     def to(self, device=None, dtype=None) -> "Query":
-        """Move every tensor field to `device` / `dtype`."""
+        """Move every tensor field to `device` / `dtype`: this query itself where they are there already, else a
+        new one, checked (a conversion can round)."""
         kw = {}
         for f in fields(self):
             t = getattr(self, f.name)
             kw[f.name] = None if t is None else t.to(device=device, dtype=dtype)
+        if all(kw[f.name] is getattr(self, f.name) for f in fields(self)):
+            return self
         return Query(**kw)
 
     def __getitem__(self, index) -> "Query":
-        """Select a sub-batch (slice, bool mask or index tensor)."""
+        """Select a sub-batch (slice, bool mask or index tensor). Rows of a checked query are not checked again;
+        other indices (an int, a 2D index) give a new query that is, as their shapes may not fit."""
         kw = {}
         for f in fields(self):
             t = getattr(self, f.name)
             kw[f.name] = None if t is None else t[index]
+        if isinstance(index, slice) or (isinstance(index, torch.Tensor) and index.dim() == 1):
+            return self._derived(**kw)
         return Query(**kw)
 
 

@@ -77,30 +77,47 @@ def _isqrt(x: torch.Tensor) -> torch.Tensor:
 def _loc2pix(n: int, z: torch.Tensor, sth: torch.Tensor, tt: torch.Tensor) -> torch.Tensor:
     """Ring pixel (int32, or int64 past 2^31 pixels) of points with cos(theta) = z, sin(theta) = sth and
     tt = phi / (pi / 2) in [0, 4), all contiguous (healpy loc2pix; the polar caps use the sin(theta) form,
-    accurate near the poles). Written with few, mostly in-place tensor operations: it is a hot path."""
-    itype = torch.int32 if 12 * n * n < 2 ** 31 else torch.int64
+    accurate near the poles). Written with few, mostly in-place tensor operations, their constants as cached
+    0-dim tensors (a Python number is wrapped into a tensor on every operation): it is a hot path."""
+    c = _loc2pix_constants(n, z.dtype, z.device)
     za = z.abs()
     # equatorial belt: jp, jm index the pixel along the two families of boundary lines
-    temp1 = tt.mul(n).add_(0.5 * n)
-    temp2 = z.mul(0.75 * n)
-    jp = torch.sub(temp1, temp2).to(itype)
-    jm = temp1.add_(temp2).to(itype)
-    ir = torch.sub(jp, jm).add_(n + 1)  # ring number counted from z = 2/3
-    kshift = torch.bitwise_and(ir, 1).neg_().add_(1)
-    pix_eq = jp.add_(jm).add_(kshift).add_(1 - n).bitwise_right_shift_(1).remainder_(4 * n)
-    pix_eq.add_(ir.sub_(1).mul_(4 * n)).add_(2 * n * (n - 1))
+    temp1 = tt.mul(c["n"]).add_(c["n/2"])
+    temp2 = z.mul(c["3n/4"])
+    jp = torch.sub(temp1, temp2).to(c["itype"])
+    jm = temp1.add_(temp2).to(c["itype"])
+    ir = torch.sub(jp, jm).add_(c["n+1"])  # ring number counted from z = 2/3
+    kshift = torch.bitwise_and(ir, c["1"]).neg_().add_(c["1"])
+    pix_eq = jp.add_(jm).add_(kshift).add_(c["1-n"]).bitwise_right_shift_(c["1"]).remainder_(c["4n"])
+    pix_eq.add_(ir.sub_(c["1"]).mul_(c["4n"])).add_(c["ncap"])
     # polar caps
     tp = torch.frac(tt)
-    tmp = sth.mul(n).div_(za.add(1).mul_(1 / 3).sqrt_())
-    jp = torch.mul(tp, tmp).to(itype)
-    jm = tp.neg_().add_(1).mul_(tmp).to(itype)
-    ir = jp.add_(jm).add_(1)
-    ip = torch.minimum(tt.mul(ir).to(itype), ir.mul(4).sub_(1))
-    two_ir = ir.mul(2)
-    north = ir.sub(1).mul_(two_ir).add_(ip)
-    south = ir.add_(1).mul_(two_ir).neg_().add_(12 * n * n).add_(ip)
-    pix_cap = torch.where(z > 0, north, south)
-    return torch.where(za <= 2 / 3, pix_eq, pix_cap)
+    tmp = sth.mul(c["n"]).div_(za.add(c["1.0"]).mul_(c["1/3"]).sqrt_())
+    jp = torch.mul(tp, tmp).to(c["itype"])
+    jm = tp.neg_().add_(c["1.0"]).mul_(tmp).to(c["itype"])
+    ir = jp.add_(jm).add_(c["1"])
+    ip = torch.minimum(tt.mul(ir).to(c["itype"]), ir.mul(c["4"]).sub_(c["1"]))
+    two_ir = ir.mul(c["2"])
+    north = ir.sub(c["1"]).mul_(two_ir).add_(ip)
+    south = ir.add_(c["1"]).mul_(two_ir).neg_().add_(c["npix"]).add_(ip)
+    pix_cap = torch.where(z > c["0.0"], north, south)
+    return torch.where(za <= c["2/3"], pix_eq, pix_cap)
+
+
+@functools.lru_cache(maxsize=64)
+def _loc2pix_constants(n: int, dtype: torch.dtype, device: torch.device) -> dict:
+    """The constants of `_loc2pix` and `vec2pix_xyz` for N_side n as 0-dim tensors: floats in `dtype` (the
+    values Python numbers would round to in that dtype), integers in the pixel index type."""
+    itype = torch.int32 if 12 * n * n < 2 ** 31 else torch.int64
+    floats = {"n": n, "n/2": 0.5 * n, "3n/4": 0.75 * n, "1.0": 1.0, "1/3": 1 / 3, "0.0": 0.0, "2/3": 2 / 3,
+              "2/pi": 2 / math.pi, "4.0": 4.0}
+    ints = {"1": 1, "2": 2, "4": 4, "n+1": n + 1, "1-n": 1 - n, "4n": 4 * n, "ncap": 2 * n * (n - 1),
+            "npix": 12 * n * n}
+    with torch.inference_mode(False):  # plain tensors even if first built in inference mode (autograd may save them)
+        out = {k: torch.tensor(v, dtype=dtype, device=device) for k, v in floats.items()}
+        out.update({k: torch.tensor(v, dtype=itype, device=device) for k, v in ints.items()})
+    out["itype"] = itype
+    return out
 
 
 def _phi2tt(phi: torch.Tensor) -> torch.Tensor:
@@ -136,9 +153,10 @@ def vec2pix_unchecked(nside: int, v: torch.Tensor) -> torch.Tensor:
 def vec2pix_xyz(nside: int, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     """Ring pixel (N,) int32 (int64 past 2^31 pixels) of unit vectors given as contiguous coordinate
     arrays x, y, z (N,); unchecked, the fastest form (strided coordinates slow atan2 down ~7x)."""
-    tt = torch.atan2(y, x).mul_(2 / math.pi)
-    tt = torch.where(tt < 0, tt + 4, tt)
-    tt.masked_fill_(tt >= 4, 0.0)
+    c = _loc2pix_constants(nside, x.dtype, x.device)
+    tt = torch.atan2(y, x).mul_(c["2/pi"])
+    tt = torch.where(tt < c["0.0"], tt + c["4.0"], tt)
+    tt.masked_fill_(tt >= c["4.0"], 0.0)  # a Python number: a tensor value would cost a host sync
     return _loc2pix(nside, z, torch.sqrt(x * x + y * y), tt)
 
 

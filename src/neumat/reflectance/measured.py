@@ -142,32 +142,44 @@ class Marginal2D:
             names = ("data", "cond", "marg")
             self._cache[key] = {n: getattr(self, n).to(device=device, dtype=dtype) for n in names if hasattr(self, n)}
             self._cache[key]["params"] = [p.to(device=device, dtype=dtype) for p in self.param_values]
+            # flat offsets (4, 1) of a patch's corners (ix, iy), (ix + 1, iy), (ix, iy + 1), (ix + 1, iy + 1)
+            self._cache[key]["corners"] = torch.tensor([[0], [1], [self.w], [self.w + 1]], device=device)
+            data = self._cache[key]["data"]                         # (S, H * W, K)
+            self._cache[key]["channels"] = [data[..., k].contiguous().view(-1) for k in range(data.shape[2])]
         return self._cache[key]
 
     def _slices(self, params: list[torch.Tensor], tabs: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """Slice indices (N, C) and weights (N, C) of the 2^D neighbouring parameter slices."""
+        """Slice indices (C, N) and weights (C, N) of the 2^D neighbouring parameter slices (parameters with one
+        slice count once: their second neighbour would have weight 0). Slices outermost: each slice's weight then
+        multiplies a contiguous block of gathered values."""
         n = params[0].shape[0] if params else 1
         ref = params[0] if params else tabs["data"]
-        idx = torch.zeros(n, 1, dtype=torch.long, device=ref.device)
-        wts = torch.ones(n, 1, dtype=ref.dtype, device=ref.device)
+        idx = torch.zeros(1, n, dtype=torch.long, device=ref.device)
+        wts = torch.ones(1, n, dtype=ref.dtype, device=ref.device)
         for d, (p, vals) in enumerate(zip(params, tabs["params"])):
             size = vals.shape[0]
+            if size == 1:  # one slice along this parameter (an isotropic file's phi_i): nothing to interpolate
+                continue
             stride = int(np.prod(self.param_sizes[d + 1:], dtype=np.int64))
-            if size == 1:
-                i0 = torch.zeros_like(p, dtype=torch.long)
-                i1, w1 = i0, torch.zeros_like(p)
-            else:
-                i0 = (torch.searchsorted(vals, p.contiguous()).clamp(1, size - 1) - 1)
-                i1 = i0 + 1
-                w1 = ((p - vals[i0]) / (vals[i1] - vals[i0])).clamp(0, 1)
-            idx = torch.cat([idx + (i0 * stride)[:, None], idx + (i1 * stride)[:, None]], 1)
-            wts = torch.cat([wts * (1 - w1)[:, None], wts * w1[:, None]], 1)
+            i0 = (torch.searchsorted(vals, p.contiguous()).clamp(1, size - 1) - 1)
+            i1 = i0 + 1
+            w1 = ((p - vals[i0]) / (vals[i1] - vals[i0])).clamp(0, 1)
+            idx = torch.cat([idx + i0 * stride, idx + i1 * stride], 0)
+            wts = torch.cat([wts * (1 - w1), wts * w1], 0)
         return idx, wts
+
+    def slices(self, params: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """`_slices` of parameters (each (N,)), for `eval` / `invert` calls of tables on the same parameter grid."""
+        return self._slices(params, self._tables(params[0].device, params[0].dtype))
 
     @staticmethod
     def _lookup(table: torch.Tensor, sl: torch.Tensor, wts: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
-        """Parameter-interpolated table[:, i] for a (S, M) table and flat indices i (N,) -> (N,)."""
-        return (table[sl, i[:, None]] * wts).sum(-1)
+        """Parameter-interpolated table[:, i] for a (S, M) table and flat indices i (N,) or (N, J) -> (N,) or
+        (N, J): one flat gather of every (slice, index) pair, then the weighted sum over the slices."""
+        rows = sl * table.shape[1]                                  # (C, N) offsets of the slices
+        if i.dim() == 1:
+            return (torch.take(table, rows + i) * wts).sum(0)
+        return (torch.take(table, rows[:, :, None] + i) * wts[:, :, None]).sum(0)
 
     def _corners(self, pos, sl, wts, tabs):
         """Patch (ix, iy), position inside it (fx, fy) and the four corner values of points pos (N, 2)."""
@@ -179,35 +191,42 @@ class Marginal2D:
         return ix, iy, x - ix.to(x.dtype), y - iy.to(y.dtype), self._patch(ix, iy, sl, wts, tabs)
 
     def _patch(self, ix, iy, sl, wts, tabs) -> list[torch.Tensor]:
-        """Values (N, K) at the corners (ix, iy), (ix + 1, iy), (ix, iy + 1), (ix + 1, iy + 1)."""
-        i = iy * self.w + ix
-        data = tabs["data"]
-        return [(data[sl, (i + o)[:, None]] * wts[:, :, None]).sum(1) for o in (0, 1, self.w, self.w + 1)]
+        """Values (K, N) (channels first) at the corners (ix, iy), (ix + 1, iy), (ix, iy + 1), (ix + 1, iy + 1)."""
+        channels = tabs["channels"]                                 # K x (S * H * W), one table per channel
+        corner = (iy * self.w + ix)[None, :] + tabs["corners"]     # (4, N) flat corner cells
+        # (C, 4, N) flat indices, queries innermost: the slice weights (C, 1, N) multiply contiguous rows
+        rows = (sl * (self.h * self.w))[:, None, :] + corner
+        vals = []
+        for table in channels:
+            v = torch.take(table, rows)
+            vals.append(v[0] if sl.shape[0] == 1 else (v * wts[:, None, :]).sum(0))  # one slice: weight 1
+        return list(torch.stack(vals, 1).unbind(0)) if len(vals) > 1 else [v[None] for v in vals[0].unbind(0)]
 
-    def eval(self, pos: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
-        """Bilinear value at pos (N, 2) for parameters (each (N,)): (N, K)."""
+    def eval(self, pos: torch.Tensor, params: list[torch.Tensor], slices=None) -> torch.Tensor:
+        """Bilinear value at pos (N, 2) for parameters (each (N,)): (N, K). slices: `slices(params)` if known."""
         tabs = self._tables(pos.device, pos.dtype)
-        sl, wts = self._slices(params, tabs)
+        sl, wts = slices or self._slices(params, tabs)
         _, _, fx, fy, (v00, v10, v01, v11) = self._corners(pos, sl, wts, tabs)
-        fx, fy = fx[:, None], fy[:, None]
-        return torch.lerp(torch.lerp(v00, v10, fx), torch.lerp(v01, v11, fx), fy)
+        return torch.lerp(torch.lerp(v00, v10, fx), torch.lerp(v01, v11, fx), fy).t()  # (K, N) -> (N, K)
 
-    def invert(self, pos: torch.Tensor, params: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Inverse of `sample`: uniform coordinates (N, 2) of warped points pos (N, 2), and the density (N,)."""
+    def invert(self, pos: torch.Tensor, params: list[torch.Tensor], slices=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Inverse of `sample`: uniform coordinates (N, 2) of warped points pos (N, 2), and the density (N,).
+        slices: `slices(params)` if known."""
         tabs = self._tables(pos.device, pos.dtype)
-        sl, wts = self._slices(params, tabs)
+        sl, wts = slices or self._slices(params, tabs)
         ix, iy, fx, fy, (v00, v10, v01, v11) = self._corners(pos, sl, wts, tabs)
-        v00, v10, v01, v11 = v00[:, 0], v10[:, 0], v01[:, 0], v11[:, 0]
+        v00, v10, v01, v11 = v00[0], v10[0], v01[0], v11[0]
         c0, c1 = torch.lerp(v00, v01, fy), torch.lerp(v10, v11, fy)
         pdf = torch.lerp(c0, c1, fx)
         sx = fx * torch.lerp(c0, c1, 0.5 * fx) / (self.w - 1)
         cond, wm = tabs["cond"], self.w - 1
         row0 = iy * wm
         prev = (ix - 1).clamp(min=0)
-        before = torch.lerp(self._lookup(cond, sl, wts, row0 + prev), self._lookup(cond, sl, wts, row0 + wm + prev), fy)
+        # the conditional CDF before column ix and at the row's end, on rows iy and iy + 1: one gather
+        c = self._lookup(cond, sl, wts, torch.stack([row0 + prev, row0 + wm + prev, row0 + wm - 1, row0 + 2 * wm - 1], 1))
+        b0, b1, r0, r1 = c.unbind(1)
+        before = torch.lerp(b0, b1, fy)
         sx = sx + torch.where(ix > 0, before, torch.zeros_like(before))
-        r0 = self._lookup(cond, sl, wts, row0 + wm - 1)
-        r1 = self._lookup(cond, sl, wts, row0 + 2 * wm - 1)
         sx = sx / torch.lerp(r0, r1, fy)
         sy = fy * torch.lerp(r0, r1, 0.5 * fy) / (self.h - 1)
         m_prev = self._lookup(tabs["marg"], sl, wts, (iy - 1).clamp(min=0))
@@ -221,13 +240,13 @@ class Marginal2D:
         eps = 2.0 ** -24
         u = u.clamp(eps, 1 - eps)
         ux, uy = u[:, 0], u[:, 1]
-        marg = (tabs["marg"][sl] * wts[:, :, None]).sum(1)  # (N, H-1)
+        marg = (tabs["marg"][sl] * wts[:, :, None]).sum(0)  # (N, H-1)
         row = torch.searchsorted(marg, uy[:, None].contiguous()).squeeze(1).clamp(max=self.h - 2)
         m_prev = marg.gather(1, (row - 1).clamp(min=0)[:, None]).squeeze(1)
         uy = uy - torch.where(row > 0, m_prev, torch.zeros_like(m_prev))
         wm = self.w - 1
         cond = tabs["cond"].view(-1, self.h, wm)
-        rows = [(cond[sl, (row + o)[:, None]] * wts[:, :, None]).sum(1) for o in (0, 1)]  # (N, W-1) each
+        rows = [(cond[sl, row + o] * wts[:, :, None]).sum(0) for o in (0, 1)]  # (N, W-1) each
         r0, r1 = rows[0][:, -1], rows[1][:, -1]
         fy = _sample_segment(uy, self.h - 1, r0, r1)
         ux = ux * torch.lerp(r0, r1, fy)
@@ -236,8 +255,8 @@ class Marginal2D:
         c_prev = cdf.gather(1, (col - 1).clamp(min=0)[:, None]).squeeze(1)
         ux = ux - torch.where(col > 0, c_prev, torch.zeros_like(c_prev))
         v00, v10, v01, v11 = self._patch(col, row, sl, wts, tabs)
-        c0 = torch.lerp(v00[:, 0], v01[:, 0], fy)
-        c1 = torch.lerp(v10[:, 0], v11[:, 0], fy)
+        c0 = torch.lerp(v00[0], v01[0], fy)
+        c1 = torch.lerp(v10[0], v11[0], fy)
         fx = _sample_segment(ux, wm, c0, c1)
         out = torch.stack([(col.to(u.dtype) + fx) / wm, (row.to(u.dtype) + fy) / (self.h - 1)], -1)
         return out, torch.lerp(c0, c1, fx)
@@ -325,8 +344,8 @@ class RglMaterial(Material):
         u_wi = torch.stack([_theta2u(theta_i), _phi2u(phi_i)], -1)
         return [phi_i, theta_i], u_m, u_wi
 
-    def _spectrum(self, sample, params, u_m, u_wi) -> torch.Tensor:
-        spec = self.rgb.eval(sample, params)
+    def _spectrum(self, sample, params, u_m, u_wi, slices=None) -> torch.Tensor:
+        spec = self.rgb.eval(sample, params, slices)
         if self.jacobian:
             spec = spec * (self.ndf.eval(u_m, []) / (4 * self.sigma.eval(u_wi, [])))
         return spec
@@ -339,8 +358,9 @@ class RglMaterial(Material):
         m = wi + wo
         m = m / m.norm(dim=-1, keepdim=True).clamp(min=1e-30)
         params, u_m, u_wi = self._angles(wi, m)
-        sample, _ = self.vndf.invert(u_m, params)
-        spec = self._spectrum(sample, params, u_m, u_wi)
+        slices = self.vndf.slices(params)  # vndf and rgb share the (phi_i, theta_i) grid
+        sample, _ = self.vndf.invert(u_m, params, slices)
+        spec = self._spectrum(sample, params, u_m, u_wi, slices)
         return torch.where(active[:, None], spec, torch.zeros_like(spec))
 
     def eval(self, q: Query) -> torch.Tensor:
@@ -357,8 +377,9 @@ class RglMaterial(Material):
         m = wi + wo
         m = m / m.norm(dim=-1, keepdim=True).clamp(min=1e-30)
         params, u_m, _ = self._angles(wi, m)
-        sample, vndf_pdf = self.vndf.invert(u_m, params)
-        lum_pdf = self.luminance.eval(sample, params)[:, 0]
+        slices = self.vndf.slices(params)  # vndf and luminance share the (phi_i, theta_i) grid
+        sample, vndf_pdf = self.vndf.invert(u_m, params, slices)
+        lum_pdf = self.luminance.eval(sample, params, slices)[:, 0]
         sin_m = torch.sqrt((1 - m[:, 2] ** 2).clamp(min=0))
         jac = (2 * math.pi ** 2 * u_m[:, 0] * sin_m).clamp(min=1e-6) * 4 * (wi * m).sum(-1)
         pdf = vndf_pdf * lum_pdf / jac

@@ -161,6 +161,39 @@ def test_ggx_recovers_known_parameters(anisotropic, alpha):
     torch.testing.assert_close(model.alpha.detach(), torch.tensor(alpha), atol=0, rtol=1e-2)
 
 
+@pytest.mark.parametrize("anisotropic", [False, True])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_ggx_eval_matches_the_microfacet_formula_in_and_across_chunks(anisotropic, dtype, gen):
+    """GGXFit.eval (few-operation kernel, cached constants, chunks) = kd / pi + `microfacet_brdf` (Schlick), 0 below
+    the horizon, within float rounding; with and without autograd, on one chunk and across several."""
+    model = GGXFit(anisotropic=anisotropic).to(dtype)
+    with torch.no_grad():
+        model.raw_alpha.copy_(torch.tensor([-2.0, 0.5][: model.raw_alpha.numel()]))
+        model.raw_specular.copy_(torch.tensor([0.5, -1.0, 2.0]))
+    q = _queries(3000, gen, dtype)
+    wi, wo = q.wi.clone(), q.wo.clone()
+    wi[::7, 2] *= -1
+    wo[::11] = torch.tensor([0.0, 0.0, -1.0], dtype=dtype)
+    wo[::13] = torch.tensor([0.0, 0.0, 1.0], dtype=dtype)
+    q = Query(wi, wo)
+    def expected():
+        a = model.alpha.detach()
+        ref = DiffuseGGX((0.0,) * 3, (0.0,) * 3, a[0].item(), a[1].item())
+        ref.kd, ref.f0 = model.diffuse.detach(), model.specular.detach()  # at the model's precision
+        return ref.eval(q)
+
+    tol = dict(rtol=4e-6, atol=0) if dtype == torch.float32 else dict(rtol=1e-13, atol=0)
+    with torch.no_grad():
+        torch.testing.assert_close(model.eval(q), expected(), **tol)
+        torch.testing.assert_close(model.eval(q, chunk=256), expected(), **tol)
+        model.raw_diffuse.add_(0.5)  # an in-place parameter update invalidates the cached constants
+        torch.testing.assert_close(model.eval(q, chunk=1000), expected(), **tol)
+    f = model.eval(q, chunk=1000)
+    assert f.requires_grad
+    f.sum().backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters())
+
+
 @pytest.mark.parametrize("anisotropic, wi", [(False, (0.3, 0.2, 0.93)), (True, (0.7, -0.3, 0.4)),
                                              (False, (0.95, 0.0, 0.05))])
 def test_ggx_sampling_chi2(anisotropic, wi):

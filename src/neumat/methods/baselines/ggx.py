@@ -24,7 +24,6 @@ from neumat.core.material import sample_weight, upper_hemisphere
 from neumat.core.query import Query, Sample
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
-from neumat.reflectance.microfacet import fresnel_schlick, microfacet_brdf
 from neumat.warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 
@@ -82,6 +81,26 @@ def _logit(p: float) -> float:
     return math.log(p / (1 - p))
 
 
+def _ggx_eval(wi: torch.Tensor, wo: torch.Tensor, diffuse_pi: torch.Tensor, f0: torch.Tensor, one_minus_f0: torch.Tensor,
+              a2: torch.Tensor, inv_a2: torch.Tensor, pi_ax_ay: torch.Tensor, zero: torch.Tensor) -> torch.Tensor:
+    """diffuse / pi + D(h) G1(wi) G1(wo) F(wi . h) / (4 cos_i cos_o) (N, 3), 0 unless both directions are up:
+    `microfacet_brdf` with Schlick Fresnel in few tensor operations, so that a small batch costs little more than
+    their dispatch. G1(w) / (2 cos) = 1 / (w_z + sqrt(ax^2 x^2 + ay^2 y^2 + z^2)) for both directions at once (wi, wo
+    stacked; the squares weighted by one product with the column a2 = (ax^2, ay^2, 1) (3, 1)), which cancels the
+    4 cos_i cos_o; scalars per query are (N, 1) columns."""
+    w = torch.stack((wi, wo))                                   # (2, N, 3)
+    z = w[..., 2:]                                              # (2, N, 1)
+    # with max(w_z, 0) the factors are >= min(alpha) > 0 below the horizon too (masked there): no 1 / 0 in gradients
+    g1_den = (z.clamp(min=0) + torch.matmul(w * w, a2).sqrt_()).prod(0)
+    h = wi + wo
+    h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp(min=1e-12)
+    # D(h) G1 G1 / (4 cos_i cos_o) = 1 / (pi ax ay q^2 g1_den), q = x^2 / ax^2 + y^2 / ay^2 + z^2 of h
+    s = torch.matmul(h * h, inv_a2).square_().mul_(pi_ax_ay).mul_(g1_den).reciprocal_()
+    fw = torch.sub(1, (wi * h).sum(-1, keepdim=True).clamp_(0, 1)).pow_(5)  # Schlick weight (1 - cos)^5
+    f = torch.addcmul(f0, one_minus_f0, fw).mul_(s).add_(diffuse_pi)
+    return torch.where(z.amin(0) > zero, f, zero)
+
+
 class GGXFit(LearnedMaterial):
     """Diffuse + GGX (Schlick) reflectance with learnable parameters (see module docstring)."""
 
@@ -135,17 +154,41 @@ class GGXFit(LearnedMaterial):
         a = self.alpha.to(dtype)
         return a[0].expand(n), a[1].expand(n)
 
-    def eval(self, q: Query) -> torch.Tensor:
-        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
+    def _eval_constants(self, dtype: torch.dtype) -> tuple[torch.Tensor, ...]:
+        """(diffuse / pi (3,), F0 (3,), 1 - F0 (3,), (ax^2, ay^2, 1) (3, 1), (1 / ax^2, 1 / ay^2, 1) (3, 1),
+        pi ax ay (), 0 ()) of the current parameters. Without autograd they are cached until a parameter changes
+        (in-place updates bump its version, `.to` replaces its storage): eval then costs no parameter maps."""
+        params = (self.raw_diffuse, self.raw_specular, self.raw_alpha)
+        key = (dtype, *((p.data_ptr(), p._version) for p in params))
+        cached = getattr(self, "_constants", None)
+        if cached is not None and cached[0] == key and not torch.is_grad_enabled():
+            return cached[1]
+        f0 = self.specular.to(dtype)
+        a = self.alpha.to(dtype)
+        a2 = torch.cat([a * a, torch.ones(1, dtype=dtype, device=a.device)]).unsqueeze(-1)
+        out = (self.diffuse.to(dtype) / math.pi, f0, 1 - f0, a2, 1 / a2, math.pi * a[0] * a[1],
+               torch.zeros((), dtype=dtype, device=a.device))
+        if not torch.is_grad_enabled():
+            self._constants = (key, out)
+        return out
+
+    def eval(self, q: Query, chunk: int = 2 ** 14) -> torch.Tensor:
+        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon. Evaluated on chunks of `chunk`
+        queries, whose temporaries stay in cache (the cost per query does not grow with N)."""
         q.require("wo", who="GGXFit.eval")
         dtype = self.raw_alpha.dtype
         wi, wo = q.wi.to(dtype), q.wo.to(dtype)
-        ax, ay = self._alphas(wi.shape[0], dtype)
-        f0 = self.specular
-        spec = microfacet_brdf(wi, wo, ax, ay, lambda cos: fresnel_schlick(cos, f0))
-        f = self.diffuse / math.pi + spec
-        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, torch.zeros_like(f))
-        return f.to(q.dtype)
+        consts = self._eval_constants(dtype)
+        n = wi.shape[0]
+        if n <= chunk:
+            return _ggx_eval(wi, wo, *consts).to(q.dtype)
+        if torch.is_grad_enabled():
+            return torch.cat([_ggx_eval(wi[s:s + chunk], wo[s:s + chunk], *consts)
+                              for s in range(0, n, chunk)]).to(q.dtype)
+        out = torch.empty(n, 3, dtype=dtype, device=wi.device)
+        for s in range(0, n, chunk):
+            out[s:s + chunk] = _ggx_eval(wi[s:s + chunk], wo[s:s + chunk], *consts)
+        return out.to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
@@ -190,7 +233,7 @@ class GGXFit(LearnedMaterial):
         wo = wo / wo.norm(dim=-1, keepdim=True)
         ok = (q.wi[:, 2] > 0) & (wo[:, 2] > 0)
         pdf = torch.where(ok, self._mixture_pdf(wi, wo), torch.zeros_like(u0))
-        weight = sample_weight(self.eval(Query(wi, wo)), wo, pdf, ok)
+        weight = sample_weight(self.eval(Query.trusted(wi, wo)), wo, pdf, ok)
         return Sample(wo.to(q.dtype), pdf.to(q.dtype), weight.to(q.dtype))
 
     # ---------------------------------------------------------------------------------- storage

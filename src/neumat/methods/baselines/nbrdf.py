@@ -19,9 +19,8 @@ from torch import nn
 
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
-from neumat.core.coords import io_to_hd
+from neumat.core.coords import hd_vectors
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
@@ -91,13 +90,13 @@ class NBRDF(LearnedMaterial):
 
     @staticmethod
     def encode(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-        """Network input (N, 6): (hx, hy, hz, dx, dy, dz) of directions wi, wo (N, 3)."""
-        h, d = io_to_hd(wi, wo)
+        """Network input (N, 6): (hx, hy, hz, dx, dy, dz) of directions wi, wo (N, 3) (`hd_vectors`)."""
+        h, d = hd_vectors(wi, wo)
         return torch.cat([h, d], -1)
 
     def inputs(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """Network input (N, 6) under this model's `half` and `fold_phi_d` options (defaults: `encode`)."""
-        h, d = io_to_hd(wi, wo)
+        h, d = hd_vectors(wi, wo)
         if self.cfg.half == "theta":
             h = torch.stack([torch.sqrt(h[:, 0] ** 2 + h[:, 1] ** 2), torch.zeros_like(h[:, 0]), h[:, 2]], -1)
         if self.cfg.fold_phi_d:
@@ -134,10 +133,10 @@ class NBRDF(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NBRDF.eval")
-        dtype = self.mlp.linears()[0].weight.dtype
+        dtype = self.mlp.net[0].weight.dtype
         x = self.mlp(self.inputs(q.wi.to(dtype), q.wo.to(dtype)))
         f = torch.relu(torch.exp(x) - 1) if self.cfg.output == "exp_minus_one" else torch.exp(x)
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
+        f = torch.where(torch.minimum(q.wi[:, 2:], q.wo[:, 2:]) > 0, f, 0.0)  # 0 unless both directions are up
         return f.to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:

@@ -10,6 +10,7 @@ up on the north grid S+, `wo` mirrored to (pi - theta, phi) on the south grid S-
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -19,7 +20,6 @@ from torch import nn
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.baselines.nbrdf import NBRDF
@@ -33,6 +33,15 @@ from neumat.nn.row_adam import RowAdam, grid_optimizer
 
 #: values of `Config.direction_inputs` and the number of MLP inputs each adds
 DIRECTION_INPUTS = {"none": 0, "hd": 6, "hd_warp": 6}
+
+
+@functools.lru_cache(maxsize=16)
+def _south_offset(nside: int, device: torch.device) -> torch.Tensor:
+    """(0, 12 n^2) as a (2, 1) column of ring pixel indices: added to the (wi, wo) pixel rows, the wo pixels index
+    the S- half of the runtime table (cached: the runtime eval adds it per call)."""
+    itype = torch.int32 if 12 * nside * nside < 2 ** 31 else torch.int64
+    with torch.inference_mode(False):  # a plain tensor even if first built in inference mode
+        return torch.tensor([[0], [12 * nside * nside]], dtype=itype, device=device)
 
 
 def check_direction_inputs(kind: str, who: str) -> None:
@@ -301,7 +310,7 @@ class NeuBRDF(LearnedMaterial):
             f = self._runtime_eval(q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype))
         else:
             f = torch.exp(self.mlp(self.features(q)))
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0)
+        f = torch.where(torch.minimum(q.wi[:, 2:], q.wo[:, 2:]) > 0, f, 0.0)  # 0 unless both directions are up
         return f.to(q.dtype)
 
     def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:
@@ -312,12 +321,12 @@ class NeuBRDF(LearnedMaterial):
         rest of the MLP; with `Config.direction_inputs`, their first-layer columns times the inputs are added
         before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
-        rest = self.mlp.net[1:]
+        rest = list(self.mlp.net)[1:]  # called by their own forward: module calls cost as much as these small layers
         # the direction inputs' first-layer columns (the last ones), (extra, hidden)
         kind = self.cfg.direction_inputs
         extra = DIRECTION_INPUTS[kind]
         hd_weight = self.mlp.net[0].weight[:, -extra:].t() if extra else None
-        out = torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
+        out = None if 0 < m <= chunk else torch.empty(m, 3, dtype=self._runtime_table.dtype, device=wi.device)
         for s in range(0, m, chunk):
             c = min(chunk, m - s)
             if self.cfg.interpolation == "idw":
@@ -328,13 +337,17 @@ class NeuBRDF(LearnedMaterial):
                 h = nn.functional.embedding_bag(rows, self._runtime_table, per_sample_weights=weights,
                                                 mode="sum").add_(self.mlp.net[0].bias)
             else:
-                x, y, z = (torch.cat([wi[s:s + c, i], wo[s:s + c, i]]) for i in range(3))
-                pix = hpx.vec2pix_xyz(n, x, y, z)
-                rows = torch.stack([pix[:c], pix[c:].add_(12 * n * n)], -1)
-                h = nn.functional.embedding_bag(rows, self._runtime_table, mode="sum")
+                pair = (wi, wo) if c == m else (wi[s:s + c], wo[s:s + c])
+                x, y, z = torch.cat(pair).t().contiguous()  # coordinate rows of wi, then wo
+                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c).add_(_south_offset(n, wi.device))  # wo: the S- half
+                h = nn.functional.embedding_bag(pix.t(), self._runtime_table, mode="sum")
             if hd_weight is not None:
                 h.addmm_(direction_inputs(kind, wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
-            torch.exp(rest(h), out=out[s:s + c])
+            for layer in rest:
+                h = layer.forward(h)
+            if out is None:  # one chunk
+                return torch.exp(h)
+            torch.exp(h, out=out[s:s + c])
         return out
 
     def forward(self, q: Query) -> torch.Tensor:
