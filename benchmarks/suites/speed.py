@@ -156,7 +156,8 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
     from neumat.testing.parity import glsl_evals_per_second, opengl_available
     from neumat.testing.slang_parity import slang_available, slang_evals_per_second
 
-    targets = {"glsl (llvmpipe)": (opengl_available("egl"), glsl_evals_per_second, ("fp32", "fp16")),
+    targets = {"glsl (llvmpipe)": (opengl_available("egl"), glsl_evals_per_second,
+                                   ("fp32",) if run.quick else ("fp32", "fp16")),
                "slang (slangpy cpu)": (slang_available("cpu"), slang_evals_per_second, ("fp16",)),
                "drjit (llvm)": (drjit_available(), _one_thread(drjit_evals_per_second), ("fp32",))}
     names = ["neubrdf"] if run.quick else [k for k in materials if k in load_all().names()]

@@ -7,9 +7,8 @@ material and the reference are each rendered at `spp` with `seed` and both score
 `REFERENCE_FACTOR` x spp with seed + 1 (its own error is about 1/4 of one render's, independent of both): the
 reference's score is the floor, what a perfect model gets; errors near it are noise, not the material. (Scoring
 the material against a same-seed reference while the floor compares two seeds made the floor worse than the model,
-e.g. SSIM 0.51 against 0.99, and meaningless.) The reference's negative values (measurement noise) count as 0, as
-in every fit's targets (`core.material.NonNegative`; rendered, they took the red out of cc_iris_purple_gem's
-centre and cost every fit of it image SSIM 0.98 instead of 0.995).
+e.g. SSIM 0.51 against 0.99, and meaningless.) The reference's negative values (measured noise) count as 0, as in
+every fit's targets (`core.material.NonNegative`; docs/render.md).
 
 Measured on MERL-like tables (128^2, 1024 spp): with the default "mis" strategy and independent numbers one render
 against another was SSIM 0.35 / MAE 0.042 at 64 spp (blue-metallic-paint2: a glossy lobe that cosine sampling of
