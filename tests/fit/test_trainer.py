@@ -263,3 +263,32 @@ def test_a_fit_that_ends_far_above_its_best_loss_says_so():
     history = [{"phase": "a", "step": 1, "loss": 1.0}, {"phase": "a", "step": 2, "loss": 1.9},
                {"phase": "b", "step": 3, "loss": 5.0}, {"phase": "b", "step": 4, "loss": 0.1}]
     assert ended_above_best(history, "m") == []
+
+
+def _records(losses, phase="fit", start=0, every=50):
+    return [{"phase": phase, "step": start + every * (i + 1), "loss": v} for i, v in enumerate(losses)]
+
+
+def test_the_end_of_a_fit_is_compared_with_its_lowest_record_after_the_warm_up():
+    """Issue 55: the first records of a phase (its first WARMUP_FRACTION of steps) average the loss of a model near
+    its initialisation, which a relative loss can score far below a sound fit's end; they are not its "lowest".
+    A blow-up after the warm-up still warns, in every phase from that phase's own start."""
+    from neumat.fit.trainer import WARMUP_FRACTION, ended_above_best
+
+    assert WARMUP_FRACTION * 1000 >= 50
+    # neumip-frame, robust loss, polished Metal027 crop (1000 steps, a record every 50): a transient, then a descent
+    transient = [1.305, 7.146, 7.956, 13.155, 9.042, 12.691, 7.997, 10.532, 8.609, 9.902, 8.588, 9.202, 7.863,
+                 6.858, 5.984, 4.697, 3.93, 3.574, 3.099, 2.687]
+    assert ended_above_best(_records(transient), "m") == []
+    # a blow-up: lowest at step 900, the end 4.5x above it
+    blowup = [40.0, 30.0, 25.0, 20.0, 18.0, 15.0, 14.0, 12.0, 11.0, 10.0, 9.0, 8.5, 8.0, 7.5, 7.0, 6.5, 6.2, 5.78,
+              12.0, 26.1]
+    (text,) = ended_above_best(_records(blowup), "m")
+    assert "ended at loss 26.1, 4.5x its lowest (5.78 at step 900)" in text
+    # a low first record does not hide a later blow-up: compared with the lowest after the warm-up
+    (text,) = ended_above_best(_records([0.5, 3.0, 2.0, 1.0, 1.0, 1.0, 1.2, 1.5, 2.5, 9.0]), "m")
+    assert "ended at loss 9, 9.0x its lowest (1 at step 200)" in text
+    # phases: the second one's warm-up counts from its own start (step 1000), not from 0
+    two = _records(blowup) + _records(transient, phase="refine", start=1000)
+    (text,) = ended_above_best(two, "m")
+    assert "phase 'fit' ended at loss 26.1" in text

@@ -49,7 +49,8 @@ class FitResult:
     steps: int
     recipe: Recipe | None = None
     warnings: list[str] = field(default_factory=list)
-    """What went wrong without stopping the fit: a phase that ended far above its best loss (`ENDS_ABOVE_BEST`)."""
+    """What went wrong without stopping the fit: a phase that ended far above its best loss after its warm-up
+    (`ENDS_ABOVE_BEST`, `WARMUP_FRACTION`)."""
 
 
 def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: int | None = None,
@@ -194,6 +195,11 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
 #: a phase whose last recorded loss is this many times its lowest says so: fits that blew up used to end silently
 ENDS_ABOVE_BEST = 2.0
 
+#: the records of a phase's first this fraction of steps are not a "lowest" to compare its end with: they average
+#: the loss of a model near its initialisation, which a relative loss can score far below where a sound fit ends
+#: (issue 55, neumip-frame on a polished metal: benchmarks/studies/multiscale/results/polished_metal_stability.md)
+WARMUP_FRACTION = 0.1
+
 
 class FitWarning(UserWarning):
     """A fit finished, but not well (it ended far above its best loss)."""
@@ -201,10 +207,16 @@ class FitWarning(UserWarning):
 
 def ended_above_best(history: list[dict], name: str) -> list[str]:
     """One message per phase of `history` whose last recorded loss is more than ENDS_ABOVE_BEST times its lowest
-    (phases with at least two finite, positive records)."""
+    record after the phase's first WARMUP_FRACTION of steps (phases with at least two finite, positive records
+    there; a phase starts where the one recorded before it ended)."""
     out = []
+    begin = 0
     for phase in dict.fromkeys(r["phase"] for r in history):
-        losses = [(r["loss"], r["step"]) for r in history if r["phase"] == phase and math.isfinite(r["loss"])]
+        records = [r for r in history if r["phase"] == phase]
+        end = records[-1]["step"]
+        settled = begin + WARMUP_FRACTION * (end - begin)
+        begin = end
+        losses = [(r["loss"], r["step"]) for r in records if r["step"] > settled and math.isfinite(r["loss"])]
         if len(losses) < 2 or min(losses)[0] <= 0:
             continue
         (best, at), last = min(losses), losses[-1][0]
