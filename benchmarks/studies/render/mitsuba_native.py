@@ -10,9 +10,9 @@ integrator, --depth), --res^2 pixels, --spp, llvm_ad_rgb. Rows: Mitsuba `roughco
 torch bridge with the NeuBRDF (evaluated mode, all it can run in); the native runtime in symbolic mode (the
 default) and in evaluated mode, and with its MLP as `drjit.nn` cooperative vectors (`mlp_form: coopvec`, the CUDA
 default) instead of LLVM's default constant-weight fma chains. Each time is the best of --repeats renders after a
-warm-up render that compiles the kernels, with the row's scene the only one alive (symbolic calls trace every live
-BSDF: with all scenes built at once, roughconductor took 7.7 s instead of 0.4 s); ratios are to `measured` symbolic
-and to `roughconductor` symbolic, measured in the same run. A second table (same run): a UV-mapped
+warm-up render that compiles the kernels, with the row's scene the only one alive (other live scenes slowed a
+Mitsuba BSDF's render by up to ~15 %); ratios are to `measured` symbolic and to `roughconductor` symbolic, measured
+in the same run. A second table (same run): a UV-mapped
 sphere on the same floor under the same map, Mitsuba `roughconductor` against the multiscale model (--multiscale,
 default the paper's configuration at its initialisation) and neural-appearance with its learned sampler
 (--neural-appearance, default its configuration at its initialisation) natively (symbolic and evaluated) and
@@ -87,8 +87,8 @@ def main() -> None:
                    {"type": "neumat", "filename": na, "native": False}, True)]
 
     def timed(i: int) -> tuple[float, np.ndarray]:
-        """Best of --repeats renders of case i after a warm-up render, its scene the only one alive: Mitsuba's
-        symbolic calls trace every live BSDF instance, so other rows' scenes would enter this row's kernels."""
+        """Best of --repeats renders of case i after a warm-up render, its scene the only one alive (module
+        docstring)."""
         _, bsdf, evaluated = cases[i]
         make = bunny_scene if i < first_uv else sphere_scene
         scene = make(mi, bsdf, args.res, args.spp, args.depth, data)
