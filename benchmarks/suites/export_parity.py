@@ -49,7 +49,7 @@ def run(run: harness.Run) -> None:
             spread = float(want.std())
             rows.append({"model": name, "target": fmt, "queries": n, "median": err.median(),
                          "p99": err.quantile(0.99), "max": err.max(), "torch std": spread})
-            if spread == 0:
+            if spread <= 1e-6 * float(want.abs().max()):  # constant up to float rounding
                 run.skip(f"a meaningful {fmt} parity of {name}", "its default config evaluates to a constant (its row "
                          "checks only that); the exporter's tests compare fitted or randomised models")
     run.table("parity", "Export against torch (relative error)", rows)
