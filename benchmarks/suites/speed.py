@@ -26,8 +26,8 @@ DESCRIPTION = ("evaluations / sample+pdf per CPU second, FLOPs, % of sgemm, cost
                "training step time of every model")
 BUDGET = {
     "quick": {"ours": "ggx, nbrdf, neubrdf and neural-appearance at batches of 2^10 and 2^12 queries, best of 3; "
-                      "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL at fp32 and fp16 "
-                      "beside GLSL GGX, 2^16 queries); training steps of nbrdf and a small neubrdf at batches 2^8 "
+                      "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL fp32 beside GLSL "
+                      "GGX and Dr.Jit fp32 at 2^16 queries, Slang fp16 at 2^13); training steps of nbrdf and a small neubrdf at batches 2^8 "
                       "and 2^10",
               "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
               "expected_wall": "about 30 s"},
@@ -183,14 +183,17 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
                 except Exception as e:  # noqa: BLE001  (a model without this export: recorded, not fatal)
                     run.skip(f"{fmt} export of {name}", f"{type(e).__name__}: {str(e).splitlines()[0][:120]}")
         ggx_rate = None
+        # quick: Slang's CPU device at an eighth of the queries (it runs NeuBRDF at ~5e4 evaluations/s: 2^16
+        # queries were two thirds of the quick run)
+        n_fmt = n // 8 if run.quick and fmt == "slang" else n
         for name, precision, exported, m in jobs:
-            q = queries(m, n, run.seed)
+            q = queries(m, n_fmt, run.seed)
             wall = rate(exported, q)
             cpu = rate(exported, q, clock="cpu", repeats=run.repeats if run.quick else max(run.repeats, 5))
             flops = int(m.flops()) if name in names and callable(getattr(m, "flops", None)) else None
             if name == "ggx:roughness=0.2":
                 ggx_rate = cpu
-            rows.append({"material": name, "target": target, "precision": precision, "queries": n,
+            rows.append({"material": name, "target": target, "precision": precision, "queries": n_fmt,
                          "evals/wall s": wall, "evals/cpu s": cpu,
                          "% sgemm": None if flops is None else 100 * flops * cpu / sgemm,
                          "x GGX (glsl)": None if ggx_rate is None or name.startswith("harness") else ggx_rate / cpu,

@@ -111,7 +111,7 @@ CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
 def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3) -> float:
     """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of `repeats` each, after a
-    warm-up on 64), so that fixed costs do not count; seconds of `clock` ("wall" or "cpu": this process's CPU
+    warm-up call on 64 and on each size), so that fixed costs do not count; seconds of `clock` ("wall" or "cpu": this process's CPU
     seconds, `CLOCKS`). NaN when the larger batch ran no slower (overheads dominate: use more queries)."""
     if clock not in CLOCKS:
         raise InputError(f"{who} clock: expected one of {', '.join(CLOCKS)}, got {clock!r}")
@@ -119,6 +119,8 @@ def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3
     if n < 64:
         raise InputError(f"{who}: expected at least 64 queries, got {n}")
     run(q[:64])  # driver start-up, compilation
+    run(q[:n // 8])  # and whatever a new batch size compiles or allocates, at both sizes
+    run(q)
 
     def best_of(m: int) -> float:
         return best_time(lambda: run(q[:m]), repeats, warmup=False, clock=CLOCKS[clock])
