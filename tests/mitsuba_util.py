@@ -63,11 +63,16 @@ def bsdf_chi2_test(mi, bsdf, theta: float, uv=None, sample_count: int = 200_000,
                                  sample_dim=3, sample_count=sample_count, res=res, ires=8)
 
 
-def sphere_scene(mi, bsdf, spp: int = 16, size: int = 32):
-    """A sphere with `bsdf` on a diffuse floor under a sun and a constant sky, path traced to depth 4: the scene
-    the native-plugin tests render natively and through the bridge."""
+#: sphere_scene's default lights: a sun and a constant sky
+SUN_AND_SKY = {"sun": {"type": "directional", "direction": [0.3, -1, -0.4], "irradiance": 3.0},
+               "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 0.9]}}}
+
+
+def sphere_scene(mi, bsdf, spp: int = 16, size: int = 32, depth: int = 4, lights: dict | None = None):
+    """A sphere with `bsdf` on a diffuse floor under `lights` (default SUN_AND_SKY), path traced to `depth`: the
+    scene the plugin tests render natively, through the bridge and with Mitsuba's own BSDFs."""
     return mi.load_dict({
-        "type": "scene", "integrator": {"type": "path", "max_depth": 4},
+        "type": "scene", "integrator": {"type": "path", "max_depth": depth},
         "sensor": {"type": "perspective", "fov": 30,
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
@@ -75,5 +80,4 @@ def sphere_scene(mi, bsdf, spp: int = 16, size: int = 32):
         "sphere": {"type": "sphere", "bsdf": bsdf},
         "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90)
                   .scale(3), "bsdf": {"type": "diffuse"}},
-        "sun": {"type": "directional", "direction": [0.3, -1, -0.4], "irradiance": 3.0},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 0.9]}}})
+        **(SUN_AND_SKY if lights is None else lights)})

@@ -9,7 +9,7 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.material import Material
 from neumat.core.query import Query
-from mitsuba_util import bsdf_chi2_test, mi_vector, to_torch
+from mitsuba_util import bsdf_chi2_test, mi_vector, sphere_scene, to_torch
 from neumat.catalog.modelfile import save_model
 from neumat.io.texture_set import TextureSet
 from neumat.methods.neural_appearance.model import NeuralAppearance
@@ -147,16 +147,8 @@ def test_mitsuba_chi2_accepts_the_plugin_sampler(mi, material, theta):
 
 
 def _scene(mi, bsdf, spp: int, envmap: str, size: int = 48):
-    return mi.load_dict({
-        "type": "scene", "integrator": {"type": "path", "max_depth": 3},
-        "sensor": {"type": "perspective", "fov": 30,
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent", "sample_count": spp}},
-        "sphere": {"type": "sphere", "bsdf": bsdf},
-        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90)
-                  .scale(3), "bsdf": {"type": "diffuse"}},
-        "env": {"type": "envmap", "filename": envmap}})
+    """`sphere_scene` under the environment map `envmap`, depth 3."""
+    return sphere_scene(mi, bsdf, spp, size, depth=3, lights={"env": {"type": "envmap", "filename": envmap}})
 
 
 def _blocks(img: torch.Tensor, k: int = 4) -> torch.Tensor:
