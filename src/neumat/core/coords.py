@@ -4,10 +4,11 @@ Angles in radians. theta is measured from +z, phi from +x towards +y, phi in [0,
 """
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
+
+from .tensors import cached_tensor
 
 TWO_PI = 2 * math.pi
 
@@ -55,17 +56,10 @@ def hd_vectors(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.
     h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True).clamp(min=1e-12)
     hxy = h[:, :2]
     s = torch.linalg.vector_norm(hxy, dim=-1, keepdim=True)                        # sin theta_h (N, 1)
-    u = torch.where(s > 0, hxy / s.clamp(min=torch.finfo(s.dtype).tiny), _x_axis(h.dtype, h.device))
+    u = torch.where(s > 0, hxy / s.clamp(min=torch.finfo(s.dtype).tiny), cached_tensor((1.0, 0.0), h.dtype, h.device))
     t = torch.cat((h[:, 2:] * u, -s), -1)
     frame = torch.stack((t, torch.linalg.cross(h, t), h), 1)                       # rows t, b, h (N, 3, 3)
     return h, torch.bmm(frame, wi.unsqueeze(-1)).squeeze(-1)
-
-
-@functools.lru_cache(maxsize=16)
-def _x_axis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """(1, 0): the direction phi = 0 of the plane, cached per dtype and device (hot paths use it per call)."""
-    with torch.inference_mode(False):  # a plain tensor even if first built in inference mode
-        return torch.tensor([1.0, 0.0], dtype=dtype, device=device)
 
 
 def hd_to_io(h: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -132,8 +132,9 @@ def check_sample_u(q: Query, u) -> torch.Tensor:
 
 
 def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-    """Mask (N,) of queries with both directions strictly above the surface."""
-    return (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    """Mask (N,) of queries with both directions strictly above the surface (one minimum and one comparison:
+    models mask every evaluation with it)."""
+    return torch.minimum(wi[:, 2], wo[:, 2]) > 0
 
 
 def sample_from_direction(material: Material, q: Query, u: torch.Tensor) -> Sample:

@@ -18,6 +18,7 @@ import torch
 
 from neumat.core.checks import check_directions, check_finite, check_int
 from neumat.core.errors import InputError
+from neumat.core.tensors import cached_tensor
 
 # face layout constants of the 12 base pixels (healpix_base.cc)
 _JRLL = (2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4)
@@ -113,9 +114,8 @@ def _loc2pix_constants(n: int, dtype: torch.dtype, device: torch.device) -> dict
               "2/pi": 2 / math.pi, "4.0": 4.0}
     ints = {"1": 1, "2": 2, "4": 4, "n+1": n + 1, "1-n": 1 - n, "4n": 4 * n, "ncap": 2 * n * (n - 1),
             "npix": 12 * n * n}
-    with torch.inference_mode(False):  # plain tensors even if first built in inference mode (autograd may save them)
-        out = {k: torch.tensor(v, dtype=dtype, device=device) for k, v in floats.items()}
-        out.update({k: torch.tensor(v, dtype=itype, device=device) for k, v in ints.items()})
+    out = {k: cached_tensor(float(v), dtype, device) for k, v in floats.items()}
+    out.update({k: cached_tensor(v, itype, device) for k, v in ints.items()})
     out["itype"] = itype
     return out
 

@@ -1,6 +1,8 @@
 """A tiny fully connected network with a FLOP count, for neural material decoders."""
 from __future__ import annotations
 
+import itertools
+
 import torch
 from torch import nn
 
@@ -59,7 +61,12 @@ class MLP(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[-1] != self.dims[0]:
             raise InputError(f"MLP input: expected last dimension {self.dims[0]}, got {tuple(x.shape)}")
-        for layer in self.net:  # the layers' own forward: a module call per layer costs as much as a small layer
+        return self.run_layers(x)
+
+    def run_layers(self, x: torch.Tensor, start: int = 0) -> torch.Tensor:
+        """x through the layers of `net` from index `start` on, unchecked, each by its own forward: a module call
+        per layer costs as much as a small layer (runtimes that compute the first layer themselves start at 1)."""
+        for layer in itertools.islice(self.net, start, None):
             x = layer.forward(x)
         return x
 

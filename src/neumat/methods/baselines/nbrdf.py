@@ -21,6 +21,7 @@ from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.coords import hd_vectors
 from neumat.core.errors import InputError
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
@@ -136,7 +137,7 @@ class NBRDF(LearnedMaterial):
         dtype = self.mlp.net[0].weight.dtype
         x = self.mlp(self.inputs(q.wi.to(dtype), q.wo.to(dtype)))
         f = torch.relu(torch.exp(x) - 1) if self.cfg.output == "exp_minus_one" else torch.exp(x)
-        f = torch.where(torch.minimum(q.wi[:, 2:], q.wo[:, 2:]) > 0, f, 0.0)  # 0 unless both directions are up
+        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0)
         return f.to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:

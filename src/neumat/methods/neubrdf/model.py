@@ -10,7 +10,6 @@ up on the north grid S+, `wo` mirrored to (pi - theta, phi) on the south grid S-
 """
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -20,7 +19,9 @@ from torch import nn
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
+from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.core.tensors import cached_tensor
 from neumat.models.base import LearnedMaterial
 from neumat.methods.baselines.nbrdf import NBRDF
 from neumat.nn import healpix as hpx
@@ -33,15 +34,6 @@ from neumat.nn.row_adam import RowAdam, grid_optimizer
 
 #: values of `Config.direction_inputs` and the number of MLP inputs each adds
 DIRECTION_INPUTS = {"none": 0, "hd": 6, "hd_warp": 6}
-
-
-@functools.lru_cache(maxsize=16)
-def _south_offset(nside: int, device: torch.device) -> torch.Tensor:
-    """(0, 12 n^2) as a (2, 1) column of ring pixel indices: added to the (wi, wo) pixel rows, the wo pixels index
-    the S- half of the runtime table (cached: the runtime eval adds it per call)."""
-    itype = torch.int32 if 12 * nside * nside < 2 ** 31 else torch.int64
-    with torch.inference_mode(False):  # a plain tensor even if first built in inference mode
-        return torch.tensor([[0], [12 * nside * nside]], dtype=itype, device=device)
 
 
 def check_direction_inputs(kind: str, who: str) -> None:
@@ -310,7 +302,7 @@ class NeuBRDF(LearnedMaterial):
             f = self._runtime_eval(q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype))
         else:
             f = torch.exp(self.mlp(self.features(q)))
-        f = torch.where(torch.minimum(q.wi[:, 2:], q.wo[:, 2:]) > 0, f, 0.0)  # 0 unless both directions are up
+        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0)
         return f.to(q.dtype)
 
     def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:
@@ -321,7 +313,6 @@ class NeuBRDF(LearnedMaterial):
         rest of the MLP; with `Config.direction_inputs`, their first-layer columns times the inputs are added
         before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
-        rest = list(self.mlp.net)[1:]  # called by their own forward: module calls cost as much as these small layers
         # the direction inputs' first-layer columns (the last ones), (extra, hidden)
         kind = self.cfg.direction_inputs
         extra = DIRECTION_INPUTS[kind]
@@ -339,12 +330,12 @@ class NeuBRDF(LearnedMaterial):
             else:
                 pair = (wi, wo) if c == m else (wi[s:s + c], wo[s:s + c])
                 x, y, z = torch.cat(pair).t().contiguous()  # coordinate rows of wi, then wo
-                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c).add_(_south_offset(n, wi.device))  # wo: the S- half
+                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c)
+                pix.add_(cached_tensor(((0,), (12 * n * n,)), pix.dtype, pix.device))  # wo: the S- half
                 h = nn.functional.embedding_bag(pix.t(), self._runtime_table, mode="sum")
             if hd_weight is not None:
                 h.addmm_(direction_inputs(kind, wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
-            for layer in rest:
-                h = layer.forward(h)
+            h = self.mlp.run_layers(h, 1)
             if out is None:  # one chunk
                 return torch.exp(h)
             torch.exp(h, out=out[s:s + c])
