@@ -200,7 +200,7 @@ class Marginal2D:
         for table in channels:
             v = torch.take(table, rows)
             vals.append(v[0] if sl.shape[0] == 1 else (v * wts[:, None, :]).sum(0))  # one slice: weight 1
-        return list(torch.stack(vals, 1).unbind(0)) if len(vals) > 1 else [v[None] for v in vals[0].unbind(0)]
+        return list(torch.stack(vals, 1).unbind(0))
 
     def eval(self, pos: torch.Tensor, params: list[torch.Tensor], slices=None) -> torch.Tensor:
         """Bilinear value at pos (N, 2) for parameters (each (N,)): (N, K). slices: `slices(params)` if known."""
