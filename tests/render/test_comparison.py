@@ -10,8 +10,10 @@ import torch
 from neumat import InputError
 from neumat.catalog.open_material import open_material
 from neumat.core.material import Material, NonNegative
+from neumat.core.query import Query
 from neumat.render.comparison import comparison_images, image_comparison, reference_renders
 from neumat.render.render import render
+from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 
 @pytest.mark.parametrize("strategy, sampler, tol", [("mis-lobes", "random", 0.02), ("mis-lobes", "sobol", 0.002),
@@ -79,8 +81,6 @@ def test_the_reference_is_scored_with_its_negative_values_read_as_zero():
 
 def test_non_negative_clamps_values_and_sample_weights_and_keeps_the_rest():
     ref, g = RedNoise(), torch.Generator().manual_seed(0)
-    from neumat.core.query import Query
-    from neumat.warp.hemisphere import sample_cosine_hemisphere
     wi, wo = (sample_cosine_hemisphere(torch.rand(256, 2, generator=g)) for _ in range(2))
     q, u = Query(wi, wo), torch.rand(256, 2, generator=g)
     m = NonNegative(ref)
