@@ -40,6 +40,11 @@ def test_texture_stats_prints_the_library_statistics(tmp_path):
     ref = texture_statistics(load_texture_set(folder, crop=16), (1, 4), samples=2)
     assert got == json.loads(json.dumps(ref))
     assert got["size"] == [16, 16] and set(got["separability_rank"]) == {"1", "4"}
+    moved = runner.invoke(app, ["data", "texture-stats", str(folder), "--footprints", "1", "--samples", "2",
+                                "--crop", "16", "--crop-origin", "8,12", "--json"])
+    assert moved.exit_code == 0, moved.output
+    ref = texture_statistics(load_texture_set(folder, crop=16, crop_origin=(8, 12)), (1,), samples=2)
+    assert json.loads(moved.stdout) == json.loads(json.dumps(ref)) and json.loads(moved.stdout) != got
     table = runner.invoke(app, ["data", "texture-stats", str(folder), "--footprints", "2", "--samples", "2"])
     assert table.exit_code == 0 and "separability rank at 2 texel(s)" in output_text(table)
 
@@ -49,6 +54,8 @@ def test_texture_stats_prints_the_library_statistics(tmp_path):
     (["texture-stats", "FOLDER", "--footprints", "1,a"], "--footprints: expected numbers"),
     (["texture-stats", "FOLDER", "--footprints", "0"], "expected positive numbers"),
     (["texture-stats", "nowhere"], "does not exist"),
+    (["texture-stats", "FOLDER", "--crop", "8", "--crop-origin", "1;2"], "--crop-origin: expected ROW,COL"),
+    (["texture-stats", "FOLDER", "--crop-origin", "1,2"], "crop_origin"),
 ])
 def test_bad_input_is_one_clear_error(tmp_path, args, message):
     folder = tmp_path / "set"

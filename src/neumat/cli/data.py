@@ -69,7 +69,10 @@ def texture_set(kind: str = typer.Argument(..., help="scratches, brushed, foil, 
 
 @app.command("texture-stats")
 def texture_stats(folder: Path = typer.Argument(..., help="texture-set folder"),
-                  crop: int = typer.Option(None, min=1, help="the top-left CROP x CROP texels at full resolution"),
+                  crop: int = typer.Option(None, min=1, help="the CROP x CROP texels at full resolution from the "
+                                                             "top-left corner or from --crop-origin"),
+                  crop_origin: str = typer.Option(None, "--crop-origin", help="ROW,COL of the crop's first texel "
+                                                  "(as `neumat fit --source-option crop_origin=ROW,COL`)"),
                   max_size: int = typer.Option(None, "--max-size", min=1, help="downscale to at most this size"),
                   footprints: str = typer.Option("1,4,16", help="footprints (texels) of the separability rank"),
                   samples: int = typer.Option(16, min=1, help="footprint samples per filtered value"),
@@ -89,7 +92,14 @@ def texture_stats(folder: Path = typer.Argument(..., help="texture-set folder"),
             raise InputError(f"--footprints: expected numbers separated by commas, got {footprints!r}") from None
         if not sizes or any(not f > 0 for f in sizes):
             raise InputError(f"--footprints: expected positive numbers of texels, got {footprints!r}")
-        stats = texture_statistics(load_texture_set(folder, max_size=max_size, crop=crop), sizes, samples=samples)
+        origin = None
+        if crop_origin is not None:
+            try:
+                origin = tuple(int(v) for v in crop_origin.split(","))
+            except ValueError:
+                raise InputError(f"--crop-origin: expected ROW,COL (two integers), got {crop_origin!r}") from None
+        stats = texture_statistics(load_texture_set(folder, max_size=max_size, crop=crop, crop_origin=origin), sizes,
+                                   samples=samples)
         if json:
             print_json(stats)
             return

@@ -1,0 +1,69 @@
+"""Tables of the selection-free protocol (`selection_free.py`): per crop (its statistics, each model's mean FLIP
+over the scale series per seed, the gated / tripleplane ratio), per model (stability: final / lowest loss), and the
+gated model's win rate by regime."""
+from __future__ import annotations
+
+import statistics
+
+
+def _key(r: dict) -> tuple:
+    return r["name"], tuple(r["origin"])
+
+
+def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = "tripleplane") -> str:
+    ok = [r for r in rows if r["status"] == "ok"]
+    by = {}
+    for r in ok:
+        by.setdefault((_key(r), r["model"], r.get("steps")), {})[r["seed"]] = r
+    budgets = sorted({r.get("steps") for r in ok}, key=lambda s: -1 if s is None else s)
+    lines = []
+    for steps in budgets:
+        label = "the recipe's steps" if steps is None else f"{steps} steps"
+        lines += [f"## {a} against {b}, {label}", "",
+                  "| crop | tilt deg | rough mean | rough std | rank 1/4/16 | seed | " f"{a} FLIP | {b} FLIP | ratio |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        wins = total = 0
+        ratios = []
+        for c in crops:
+            k = (c["name"], tuple(c["origin"]))
+            ra, rb = by.get((k, a, steps), {}), by.get((k, b, steps), {})
+            s = c["stats"]
+            rank = "/".join(str(s["separability_rank"].get(f, "-")) for f in ("1", "4", "16"))
+            for seed in sorted(set(ra) & set(rb)):
+                fa, fb = ra[seed]["scales"]["flip_mean"], rb[seed]["scales"]["flip_mean"]
+                wins += fa < fb
+                total += 1
+                ratios.append(fa / fb)
+                lines.append(f"| {c['name']} {c['origin'][0]},{c['origin'][1]} | {s['tilt_deg']:.1f} | "
+                             f"{s['roughness_mean']:.2f} | {s['roughness_std']:.3f} | {rank} | {seed} | {fa:.4f} | "
+                             f"{fb:.4f} | {fa / fb:.3f} |")
+        if total:
+            lines += ["", f"{a} below {b} on {wins} of {total} (crop, seed) pairs ({100 * wins / total:.0f} %); "
+                          f"median ratio {statistics.median(ratios):.3f}", ""]
+    lines += ["## Stability: final loss / lowest loss after the first 10 % of steps (worst per model)", "",
+              "| model | steps | fits | worst final/lowest | at | warned fits |", "|---|---|---|---|---|---|"]
+    for (model, steps) in sorted({(r["model"], r.get("steps") or 0) for r in ok}):
+        rs = [r for r in ok if r["model"] == model and (r.get("steps") or 0) == steps]
+        worst = max(rs, key=lambda r: r["final_loss"] / r["best_loss"])
+        lines.append(f"| {model} | {steps or 'recipe'} | {len(rs)} | {worst['final_loss'] / worst['best_loss']:.2f} | "
+                     f"{worst['name']} {worst['origin']} s{worst['seed']} | {sum(bool(r['warning']) for r in rs)} |")
+    lines += ["", "## Every latent-texture model against tripleplane (mean FLIP ratio per crop and seed)", "",
+              "| model | steps | pairs | median ratio | worst ratio | at | pairs above 1.5x |", "|---|---|---|---|---|---|---|"]
+    for (model, steps) in sorted({(r["model"], r.get("steps") or 0) for r in ok if r["model"] != b}):
+        rat = []
+        for r in ok:
+            if r["model"] != model or (r.get("steps") or 0) != steps:
+                continue
+            t = by.get((_key(r), b, r.get("steps")), {}).get(r["seed"])
+            if t is not None:
+                rat.append((r["scales"]["flip_mean"] / t["scales"]["flip_mean"], r))
+        if rat:
+            worst = max(rat, key=lambda x: x[0])
+            lines.append(f"| {model} | {steps or 'recipe'} | {len(rat)} | {statistics.median(x[0] for x in rat):.3f} | "
+                         f"{worst[0]:.2f} | {worst[1]['name']} {worst[1]['origin']} s{worst[1]['seed']} | "
+                         f"{sum(x[0] > 1.5 for x in rat)} |")
+    errors = [r for r in rows if r["status"] != "ok"]
+    if errors:
+        lines += ["", "Failed jobs: " + "; ".join(f"{r['name']} {r['origin']} {r['model']} s{r['seed']}: {r['error']}"
+                                                   for r in errors)]
+    return "\n".join(lines)
