@@ -93,3 +93,27 @@ def test_eval_scales_scores_a_texture_set_fit_across_texture_scales(shared_data,
     bad = CliRunner().invoke(app, ["eval", str(out), "--against", "lambert:albedo=0.5", "--scales", "2",
                                    "--resolution", "8", "--no-image", "--n-configs", "256"])
     assert bad.exit_code != 0 and "textured reference" in bad.output
+
+
+def test_fit_without_a_model_picks_the_sources_default(tmp_path):
+    """No --model: a texture-set folder fits the recommended SVBRDF model (and says so), a BRDF spec NeuBRDF, a BTF
+    SparseBTF, observations NeuPreSS, several sources the shared NeuBRDF; a missing file is one error line."""
+    import pytest
+
+    from neumat.cli.fitting import default_model
+    from neumat.core.errors import InputError
+
+    folder = tmp_path / "foil"
+    assert CliRunner().invoke(app, ["data", "texture-set", "foil", "-o", str(folder), "--size", "16"]).exit_code == 0
+    out = tmp_path / "foil.nmat"
+    result = CliRunner().invoke(app, ["fit", str(folder), "-o", str(out), "--steps", "2", "--set", "batch_size=64"])
+    assert result.exit_code == 0, result.output
+    assert "model multiscale: the default for this source" in result.output and load_model(out).name == "multiscale"
+    (tmp_path / "a.nbtf").write_bytes(b"")
+    assert default_model([str(folder)]) == "multiscale"
+    assert default_model(["ggx:roughness=0.2"]) == "neubrdf"
+    assert default_model([str(tmp_path / "a.nbtf")]) == "sparse-btf"
+    assert default_model([str(tmp_path / "obs.npz")]) == "neupress"
+    assert default_model(["ggx:roughness=0.2", "ggx:roughness=0.4"]) == "shared-neubrdf"
+    with pytest.raises(InputError, match="does not exist"):
+        default_model([str(tmp_path / "missing.binary")])

@@ -10,7 +10,7 @@ JSON line to OUT/jobs.jsonl, so a rerun with the same OUT resumes. `--report` pr
 tables from OUT/jobs.jsonl.
 
 Usage: python -m benchmarks.studies.multiscale.selection_free OUT [--workers 2] [--models multiscale,tripleplane]
-       [--seeds 0,1] [--steps N] [--report]
+       [--seeds 0,1] [--steps N] [--set KEY=VALUE ... --variant NAME] [--only SET,...] [--report]
 """
 from __future__ import annotations
 
@@ -72,17 +72,19 @@ def crop_stats(crop: dict) -> dict:
     return texture_statistics(ts, footprints=(1, 4, 16))
 
 
-def run_job(job: dict, steps: int | None) -> dict:
+def run_job(job: dict, steps: int | None, overrides: list[str], samples: int) -> dict:
     """Fit and score one (crop, model, seed); the row of jobs.jsonl."""
     src_opts = ["--source-option", f"crop={CROP}", "--source-option",
                 f"crop_origin={job['origin'][0]},{job['origin'][1]}"]
     env = dict(os.environ, OMP_NUM_THREADS="1")
     with tempfile.TemporaryDirectory(prefix="neumat-sf-") as tmp:
         nmat, ckpt = Path(tmp) / "m.nmat", Path(tmp) / "m.ckpt"
-        cmd = [neumat(), "fit", job["set"], "--model", job["model"], *src_opts, "--source-option", "samples=8",
+        cmd = [neumat(), "fit", job["set"], "--model", job["model"], *src_opts, "--source-option", f"samples={samples}",
                "--seed", str(job["seed"]), "-o", str(nmat), "--checkpoint", str(ckpt), "--threads", "1", "-q"]
         if steps is not None:
             cmd += ["--steps", str(steps)]
+        for kv in overrides:
+            cmd += ["--set", kv]
         t0 = time.time()
         fit = subprocess.run(cmd, capture_output=True, text=True, env=env)
         fit_s = time.time() - t0
@@ -110,7 +112,12 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--models", default="multiscale,tripleplane")
     parser.add_argument("--seeds", default="0,1")
     parser.add_argument("--steps", type=int, default=None, help="override the recipe's steps (budget study)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        help="KEY=VALUE passed to `neumat fit --set` (controlled experiments; name them with --variant)")
+    parser.add_argument("--variant", default=None, help="the label of this --set / --samples combination")
+    parser.add_argument("--samples", type=int, default=8, help="footprint samples of the training targets")
     parser.add_argument("--only", default=None, help="comma-separated set names to restrict to")
+    parser.add_argument("--crops-per-set", type=int, default=None, help="only the first N crops of each set")
     parser.add_argument("--report", action="store_true")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -130,17 +137,21 @@ def main(argv: list[str]) -> int:
     if jobs_file.exists():
         for line in jobs_file.read_text().splitlines():
             r = json.loads(line)
-            done.add((r["name"], tuple(r["origin"]), r["model"], r["seed"], r.get("steps")))
+            done.add((r["name"], tuple(r["origin"]), r["model"], r["seed"], r.get("steps"), r.get("variant")))
     only = set(args.only.split(",")) if args.only else None
+    if args.crops_per_set is not None:
+        cs = [c for c in cs if [d["origin"] for d in cs if d["name"] == c["name"]].index(c["origin"]) < args.crops_per_set]
     jobs = [{"set": c["set"], "name": c["name"], "origin": c["origin"], "model": m, "seed": int(s),
-             "steps": args.steps}
+             "steps": args.steps, "variant": args.variant}
             for s in args.seeds.split(",") for c in cs for m in args.models.split(",")
             if (only is None or c["name"] in only)
-            and (c["name"], tuple(c["origin"]), m, int(s), args.steps) not in done]
+            and (c["name"], tuple(c["origin"]), m, int(s), args.steps, args.variant) not in done]
+    if (args.overrides or args.samples != 8) and args.variant is None:
+        parser.error("--set and --samples need a --variant label")
     print(f"{len(jobs)} jobs to run", file=sys.stderr)
 
     def one(job):
-        row = run_job(job, args.steps)
+        row = run_job(job, args.steps, args.overrides, args.samples)
         with open(jobs_file, "a") as f:
             f.write(json.dumps(row) + "\n")
         print(f"{job['name']} {job['origin']} {job['model']} seed {job['seed']}: {row['status']} "

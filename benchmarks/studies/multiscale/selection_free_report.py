@@ -10,15 +10,23 @@ def _key(r: dict) -> tuple:
     return r["name"], tuple(r["origin"])
 
 
+def _run(r: dict) -> tuple:
+    """What a row's fit was: (steps, variant), (0, "") for the default recipe."""
+    return r.get("steps") or 0, r.get("variant") or ""
+
+
+def _label(run: tuple) -> str:
+    return " ".join([f"{run[0]} steps" if run[0] else "the recipe's steps", run[1]]).strip()
+
+
 def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = "tripleplane") -> str:
     ok = [r for r in rows if r["status"] == "ok"]
     by = {}
     for r in ok:
-        by.setdefault((_key(r), r["model"], r.get("steps")), {})[r["seed"]] = r
-    budgets = sorted({r.get("steps") for r in ok}, key=lambda s: -1 if s is None else s)
+        by.setdefault((_key(r), r["model"], _run(r)), {})[r["seed"]] = r
     lines = []
-    for steps in budgets:
-        label = "the recipe's steps" if steps is None else f"{steps} steps"
+    for run in sorted({_run(r) for r in ok}, key=str):
+        label = _label(run)
         lines += [f"## {a} against {b}, {label}", "",
                   "| crop | tilt deg | rough mean | rough std | rank 1/4/16 | seed | " f"{a} FLIP | {b} FLIP | ratio |",
                   "|---|---|---|---|---|---|---|---|---|"]
@@ -26,7 +34,7 @@ def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = 
         ratios = []
         for c in crops:
             k = (c["name"], tuple(c["origin"]))
-            ra, rb = by.get((k, a, steps), {}), by.get((k, b, steps), {})
+            ra, rb = by.get((k, a, run), {}), by.get((k, b, run), {})
             s = c["stats"]
             rank = "/".join(str(s["separability_rank"].get(f, "-")) for f in ("1", "4", "16"))
             for seed in sorted(set(ra) & set(rb)):
@@ -41,25 +49,25 @@ def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = 
             lines += ["", f"{a} below {b} on {wins} of {total} (crop, seed) pairs ({100 * wins / total:.0f} %); "
                           f"median ratio {statistics.median(ratios):.3f}", ""]
     lines += ["## Stability: final loss / lowest loss after the first 10 % of steps (worst per model)", "",
-              "| model | steps | fits | worst final/lowest | at | warned fits |", "|---|---|---|---|---|---|"]
-    for (model, steps) in sorted({(r["model"], r.get("steps") or 0) for r in ok}):
-        rs = [r for r in ok if r["model"] == model and (r.get("steps") or 0) == steps]
+              "| model | fit | fits | worst final/lowest | at | warned fits |", "|---|---|---|---|---|---|"]
+    for (model, run) in sorted({(r["model"], _run(r)) for r in ok}, key=str):
+        rs = [r for r in ok if r["model"] == model and _run(r) == run]
         worst = max(rs, key=lambda r: r["final_loss"] / r["best_loss"])
-        lines.append(f"| {model} | {steps or 'recipe'} | {len(rs)} | {worst['final_loss'] / worst['best_loss']:.2f} | "
+        lines.append(f"| {model} | {_label(run)} | {len(rs)} | {worst['final_loss'] / worst['best_loss']:.2f} | "
                      f"{worst['name']} {worst['origin']} s{worst['seed']} | {sum(bool(r['warning']) for r in rs)} |")
     lines += ["", "## Every latent-texture model against tripleplane (mean FLIP ratio per crop and seed)", "",
-              "| model | steps | pairs | median ratio | worst ratio | at | pairs above 1.5x |", "|---|---|---|---|---|---|---|"]
-    for (model, steps) in sorted({(r["model"], r.get("steps") or 0) for r in ok if r["model"] != b}):
+              "| model | fit | pairs | median ratio | worst ratio | at | pairs above 1.5x |", "|---|---|---|---|---|---|---|"]
+    for (model, run) in sorted({(r["model"], _run(r)) for r in ok if r["model"] != b}, key=str):
         rat = []
         for r in ok:
-            if r["model"] != model or (r.get("steps") or 0) != steps:
+            if r["model"] != model or _run(r) != run:
                 continue
-            t = by.get((_key(r), b, r.get("steps")), {}).get(r["seed"])
+            t = by.get((_key(r), b, run), {}).get(r["seed"])
             if t is not None:
                 rat.append((r["scales"]["flip_mean"] / t["scales"]["flip_mean"], r))
         if rat:
             worst = max(rat, key=lambda x: x[0])
-            lines.append(f"| {model} | {steps or 'recipe'} | {len(rat)} | {statistics.median(x[0] for x in rat):.3f} | "
+            lines.append(f"| {model} | {_label(run)} | {len(rat)} | {statistics.median(x[0] for x in rat):.3f} | "
                          f"{worst[0]:.2f} | {worst[1]['name']} {worst[1]['origin']} s{worst[1]['seed']} | "
                          f"{sum(x[0] > 1.5 for x in rat)} |")
     errors = [r for r in rows if r["status"] != "ok"]

@@ -27,7 +27,11 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                                              ".json), a texture-set folder, a BTF (.nbtf, .btf), translucent "
                                              "observations (.npz) or an analytic spec; several for models that "
                                              "fit a set (shared-neubrdf)"),
-        model: str = typer.Option("neubrdf", "--model", "-m", help="registered model name (`neumat list`)"),
+        model: str = typer.Option(None, "--model", "-m",
+                                  help="registered model name (`neumat list`); default: the recommended model for "
+                                       "the source (neumat.cli.fitting.DEFAULT_MODELS: neubrdf for a BRDF, "
+                                       "multiscale for a texture-set folder, sparse-btf for a BTF, neupress for "
+                                       "translucent observations, shared-neubrdf for several BRDFs)"),
         preset: str = typer.Option(None, "--preset", help=PRESET_HELP),
         recipe_alias: str = typer.Option(None, "--recipe", hidden=True, help="the same as --preset (old name)"),
         set_: list[str] = typer.Option(None, "--set", help="key=value: model.KEY (config field), recipe.KEY "
@@ -53,7 +57,10 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     training state lives only in --checkpoint. Models trained in stages run them as phases of the same fit."""
 
     def go():
-        run_fit(model, sources, chosen_preset(preset, recipe_alias), parse_overrides(set_), out, steps=steps,
+        chosen = model or default_model(sources)
+        if model is None and not quiet:
+            print(f"model {chosen}: the default for this source (`neumat list` for the others; --model NAME)")
+        run_fit(chosen, sources, chosen_preset(preset, recipe_alias), parse_overrides(set_), out, steps=steps,
                 device=device, seed=seed, checkpoint=checkpoint, resume=resume, quiet=quiet,
                 source_options=parse_overrides(source_option, "--source-option"))
     with torch_threads(threads):
@@ -98,6 +105,29 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
           "bytes stored at fp16)")
     if row:
         print_table(f"{model} fit report", [row])
+
+
+#: the model `neumat fit` fits when --model is not given, by what the source is (a `neumat.catalog.sources` key,
+#: "observations" for a translucent object's .npz, "several" for a set of sources): each kind's best model we
+#: measured (docs/multiscale.md: the gated model below tripleplane on every crop of the selection-free protocol)
+DEFAULT_MODELS = {"several": "shared-neubrdf", "observations": "neupress", "folder": "multiscale",
+                  ".nbtf": "sparse-btf", ".btf": "sparse-btf"}
+#: ... and for every other source (a measured or analytic BRDF, a model file, a layered description)
+DEFAULT_BRDF_MODEL = "neubrdf"
+
+
+def default_model(sources: list[str]) -> str:
+    """DEFAULT_MODELS' model for `sources` (InputError for a missing or unsupported file)."""
+    from ..catalog.open_material import material_source
+    from ..catalog.sources import load_sources
+
+    if len(sources) > 1:
+        return DEFAULT_MODELS["several"]
+    if Path(sources[0]).suffix.lower() == ".npz":
+        return DEFAULT_MODELS["observations"]
+    source, _ = material_source(sources[0])
+    key = next(k for k, v in load_sources().items() if v is source)
+    return DEFAULT_MODELS.get(key, DEFAULT_BRDF_MODEL)
 
 
 def chosen_preset(preset: str | None, recipe_alias: str | None = None) -> str:
