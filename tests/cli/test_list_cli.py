@@ -23,6 +23,10 @@ def test_list_json_has_every_model_with_a_recipe():
     assert {".binary", ".bsdf", ".nmat", ".nbtf", ".json", "folder", "spec"} <= {s["key"] for s in data["sources"]}
     assert {e["name"] for e in data["exporters"]} == {"drjit", "glsl", "slang", "web"}
     assert set(data["source_kinds"]) >= {m for ms in models.values() for m in ms["source_kinds"]}
+    # the texture-set and BRDF defaults (neumat.cli.fitting.DEFAULT_MODELS) say why in their "measured" line
+    assert models["multiscale"]["measured"].startswith("the default for texture sets")
+    assert models["neubrdf"]["measured"].startswith("the default for BRDFs")
+    assert "scratches" in models["tripleplane"]["measured"] and models["ggx"]["measured"] == ""
 
 
 def test_list_tables_fit_80_columns():

@@ -20,7 +20,7 @@ def catalogue() -> dict:
     from ..export.glsl import glsl_models
     from ..export.registry import load_formats
     from ..fit.preset import presets_for
-    from ..fit.method import recipe_for
+    from ..fit.method import method_for, recipe_for
     from ..models.base import SOURCE_KINDS
     from ..models.registry import load_all
 
@@ -40,7 +40,8 @@ def catalogue() -> dict:
                      "recipe": recipe is not None, "presets": list(presets_for(name)) if recipe else [],
                      "steps": recipe.steps if recipe else None, "batch_size": recipe.batch_size if recipe else None,
                      "phase_split": list(recipe.phase_split) if recipe else None,
-                     "exports": [f for f in formats.names() if name in takes[f]]})
+                     "exports": [f for f in formats.names() if name in takes[f]],
+                     "measured": method_for(name).measured if recipe else ""})
     sources = [{"key": key, "kind": s.kind} for key, s in load_sources().items()]
     exporters = [{"name": n, "description": formats.get(n).description} for n in formats.names()]
     return {"models": rows, "sources": sources, "source_kinds": dict(SOURCE_KINDS), "exporters": exporters}
@@ -103,7 +104,9 @@ def list_all(model: str = typer.Argument(None, help="a registered model: list it
              "recipe": f"{m['steps']} x {m['batch_size']}" if m["recipe"] else "none",
              "--preset": ", ".join(m["presets"]) or "-",
              "exports": ", ".join(m["exports"]) or "-"} for m in data["models"]])
-        print_table("what each model is", [{"model": m["name"], "paper": m["paper"]} for m in data["models"]])
+        print_table("what each model is", [{"model": m["name"], "paper": m["paper"],
+                                            "measured here (when to choose it)": m["measured"] or "-"}
+                                           for m in data["models"]])
         print_table("material sources (file suffix, folder or spec)",
                     [{"source": s["key"], "kind": s["kind"]} for s in data["sources"]])
         print_table("kinds of training source", [{"kind": k, "what": v} for k, v in data["source_kinds"].items()])

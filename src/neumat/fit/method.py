@@ -27,7 +27,8 @@ class Method:
     are spelled from it), None when it has no shader; drjit(model): its Dr.Jit runtime translator (model -> (manifest,
 arrays) for `neumat.export.drjit.runtime`: Mitsuba renders it natively), None when it has none; small: a tiny config for the conformance suite; prepare:
     what a fresh small model needs before it evaluates (set by training from the source); report(model, source,
-    result): (metrics saved in the .nmat, a table row) a fit reports beyond its loss (held-back error, ...)."""
+    result): (metrics saved in the .nmat, a table row) a fit reports beyond its loss (held-back error, ...);
+    measured: when to choose it, in one line, from our benchmarks (`neumat list` shows it)."""
 
     name: str
     model: type | None
@@ -41,6 +42,7 @@ arrays) for `neumat.export.drjit.runtime`: Mitsuba renders it natively), None wh
     small: Mapping[str, Any] = field(default_factory=dict)
     prepare: Callable | None = None
     report: Callable | None = None
+    measured: str = ""
 
 
 #: model name -> Method

@@ -24,6 +24,16 @@ PRESETS = {"recommended": Preset(
     "beyond): no blow-up on polished metal, as good as Eq. 10 on rough sets",
     overrides={"recipe.loss": "relative_l2_robust"})}
 
+#: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe;
+#: benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
+MEASURED = {
+    "multiscale": "the default for texture sets: mean FLIP over 9 scales below tripleplane's on every crop of the "
+                  "shared sets (24 random crops x 2 seeds) and on foil, chainmail and polished metal; behind it on "
+                  "sub-texel scratches and brushed grooves",
+    "tripleplane": "ahead of the gated model only on sub-texel scratches and brushed grooves at the CPU recipe; "
+                   "behind it on every shared-set crop",
+}
+
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
 DRJIT = {"multiscale": drjit_translate, "tripleplane": drjit_translate, "neumip": translate_neumip,
          "neumip-offset": translate_neumip, "neumip-frame": translate_neumip, "nbrdf-uv": translate_neumip,
@@ -39,4 +49,4 @@ for name, model, glsl, small in (
         ("ggx-mipmap", GGXMipmap, None, dict(spatial_size=8))):
     register_method(Method(name, model, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE}, options=train.Options,
                            phases=train.phases, config_for_source=train.config_for_source, glsl=glsl, small=small,
-                           drjit=DRJIT.get(name), presets=PRESETS))
+                           drjit=DRJIT.get(name), presets=PRESETS, measured=MEASURED.get(name, "")))
