@@ -292,3 +292,22 @@ def test_the_end_of_a_fit_is_compared_with_its_lowest_record_after_the_warm_up()
     two = _records(blowup) + _records(transient, phase="refine", start=1000)
     (text,) = ended_above_best(two, "m")
     assert "phase 'fit' ended at loss 26.1" in text
+
+
+def test_a_loss_spike_that_stalls_the_fit_says_so():
+    """Issue 55: neumip-frame on a Metal027 crop spiked from 1.6 to 2.3e5 at step 200 and stalled near 2.0 (NeuMIP
+    reaches 0.03) without ending above its lowest; a record SPIKE times the lowest before it in its phase warns,
+    naming the step and the fix; the transient of a sound fit and a spike in another phase's start do not."""
+    from neumat.fit.trainer import SPIKE, ended_above_best, loss_spikes
+
+    stalled = [0.915, 2.999, 1.633, 231105.46, 3.208, 2.423, 2.284, 2.138, 2.104, 2.055, 2.056, 2.072, 1.953, 1.99,
+               2.037, 2.001, 1.969, 1.941, 1.977, 1.985]
+    assert ended_above_best(_records(stalled), "m") == []
+    (text,) = loss_spikes(_records(stalled), "m")
+    assert "phase 'fit' spiked to loss 2.311e+05 at step 200, 2.53e+05x its lowest before (0.915)" in text
+    assert "recipe.grad_clip=1" in text
+    transient = [1.305, 7.146, 7.956, 13.155, 9.042, 12.691, 7.997, 10.532, 8.609, 9.902, 8.588, 9.202, 7.863]
+    assert loss_spikes(_records(transient), "m") == []
+    phases = _records([1e-6, 1e-6]) + _records([SPIKE * 2e-6, 1.0], phase="refine", start=100)
+    assert loss_spikes(phases, "m") == []
+    assert loss_spikes(_records([1.0, float("nan"), 0.0, SPIKE * 1.01]), "m")[0].startswith("fit m: phase 'fit' spiked")

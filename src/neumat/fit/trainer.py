@@ -185,7 +185,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     if ema is not None:
         model.load_state_dict(ema.state_dict())
     model.train(False)
-    problems = ended_above_best(state["history"], name)
+    problems = ended_above_best(state["history"], name) + loss_spikes(state["history"], name)
     for text in problems:
         warnings.warn(text, FitWarning, stacklevel=2)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
@@ -201,8 +201,15 @@ ENDS_ABOVE_BEST = 2.0
 WARMUP_FRACTION = 0.1
 
 
+#: a record this many times the lowest before it in its phase is a spike: one step's huge gradient inflates Adam's
+#: second moment, and with beta2 0.999 the learning then stalls for hundreds of steps, far above where it was,
+#: without ending above its lowest (issue 55: neumip-frame on Metal027 crops, 1.6 -> 2.3e5 -> stuck at 2.0,
+#: benchmarks/studies/multiscale/results/selection_free.md)
+SPIKE = 1000.0
+
+
 class FitWarning(UserWarning):
-    """A fit finished, but not well (it ended far above its best loss)."""
+    """A fit finished, but not well (it ended far above its best loss, or its loss spiked on the way)."""
 
 
 def ended_above_best(history: list[dict], name: str) -> list[str]:
@@ -224,6 +231,25 @@ def ended_above_best(history: list[dict], name: str) -> list[str]:
             out.append(f"fit {name}: phase {phase!r} ended at loss {last:.4g}, {last / best:.1f}x its lowest "
                        f"({best:.4g} at step {at}): the fit became unstable; try a lower learning rate "
                        "(--set lr=...) or another seed")
+    return out
+
+
+def loss_spikes(history: list[dict], name: str) -> list[str]:
+    """One message per phase of `history` with a record more than SPIKE times the lowest finite, positive record
+    before it in that phase (the largest such spike of the phase)."""
+    out = []
+    for phase in dict.fromkeys(r["phase"] for r in history):
+        lowest, worst = math.inf, None
+        for r in (r for r in history if r["phase"] == phase and math.isfinite(r["loss"])):
+            if r["loss"] > SPIKE * lowest and (worst is None or r["loss"] / lowest > worst[0]):
+                worst = (r["loss"] / lowest, r, lowest)
+            if r["loss"] > 0:
+                lowest = min(lowest, r["loss"])
+        if worst is not None:
+            ratio, r, before = worst
+            out.append(f"fit {name}: phase {phase!r} spiked to loss {r['loss']:.4g} at step {r['step']}, "
+                       f"{ratio:.3g}x its lowest before ({before:.4g}); a spike can stall Adam for hundreds of "
+                       "steps: if the fit ended poorly, try --set recipe.grad_clip=1")
     return out
 
 
