@@ -78,8 +78,13 @@ def _isqrt(x: torch.Tensor) -> torch.Tensor:
 def _loc2pix(n: int, z: torch.Tensor, sth: torch.Tensor, tt: torch.Tensor) -> torch.Tensor:
     """Ring pixel (int32, or int64 past 2^31 pixels) of points with cos(theta) = z, sin(theta) = sth and
     tt = phi / (pi / 2) in [0, 4), all contiguous (healpy loc2pix; the polar caps use the sin(theta) form,
-    accurate near the poles). Written with few, mostly in-place tensor operations, their constants as cached
-    0-dim tensors (a Python number is wrapped into a tensor on every operation): it is a hot path."""
+    accurate near the poles). A hot path, written with few, mostly in-place tensor operations and their
+    constants as cached 0-dim tensors (a Python number is wrapped into a tensor on every operation). The
+    floating-point steps are healpy's; the integer ones are healpy's simplified:
+    - belt: healpy's ring ir = n + 1 + jp - jm and shift kshift = 1 - (ir & 1) make jp + jm - n + 1 + kshift
+      odd, so its half is (jp + jm + 1 - n) >> 1 without kshift, and ncap + 4 n (ir - 1) = ncap + 4 n^2 +
+      4 n (jp - jm);
+    - caps: 2 ir (ir - 1) + ip (north) and npix - 2 ir (ir + 1) + ip (south) share ip - 2 ir."""
     c = _loc2pix_constants(n, z.dtype, z.device)
     za = z.abs()
     # equatorial belt: jp, jm index the pixel along the two families of boundary lines
@@ -87,21 +92,18 @@ def _loc2pix(n: int, z: torch.Tensor, sth: torch.Tensor, tt: torch.Tensor) -> to
     temp2 = z.mul(c["3n/4"])
     jp = torch.sub(temp1, temp2).to(c["itype"])
     jm = temp1.add_(temp2).to(c["itype"])
-    ir = torch.sub(jp, jm).add_(c["n+1"])  # ring number counted from z = 2/3
-    kshift = torch.bitwise_and(ir, c["1"]).neg_().add_(c["1"])
-    pix_eq = jp.add_(jm).add_(kshift).add_(c["1-n"]).bitwise_right_shift_(c["1"]).remainder_(c["4n"])
-    pix_eq.add_(ir.sub_(c["1"]).mul_(c["4n"])).add_(c["ncap"])
+    pix_eq = torch.add(jp, jm).add_(c["1-n"]).bitwise_right_shift_(c["1"]).remainder_(c["4n"])
+    pix_eq.add_(jp.sub_(jm), alpha=4 * n).add_(c["ncap+4n^2"])
     # polar caps
     tp = torch.frac(tt)
     tmp = sth.mul(c["n"]).div_(za.add(c["1.0"]).mul_(c["1/3"]).sqrt_())
     jp = torch.mul(tp, tmp).to(c["itype"])
-    jm = tp.neg_().add_(c["1.0"]).mul_(tmp).to(c["itype"])
+    jm = torch.sub(c["1.0"], tp).mul_(tmp).to(c["itype"])
     ir = jp.add_(jm).add_(c["1"])
-    ip = torch.minimum(tt.mul(ir).to(c["itype"]), ir.mul(c["4"]).sub_(c["1"]))
-    two_ir = ir.mul(c["2"])
-    north = ir.sub(c["1"]).mul_(two_ir).add_(ip)
-    south = ir.add_(c["1"]).mul_(two_ir).neg_().add_(c["npix"]).add_(ip)
-    pix_cap = torch.where(z > c["0.0"], north, south)
+    ip = torch.minimum(tt.mul(ir).to(c["itype"]), torch.add(c["-1"], ir, alpha=4))
+    ir_squared = ir * ir
+    ip.sub_(ir, alpha=2)
+    pix_cap = torch.where(z > c["0.0"], ip.add(ir_squared, alpha=2), ip.sub_(ir_squared, alpha=2).add_(c["npix"]))
     return torch.where(za <= c["2/3"], pix_eq, pix_cap)
 
 
@@ -112,7 +114,7 @@ def _loc2pix_constants(n: int, dtype: torch.dtype, device: torch.device) -> dict
     itype = torch.int32 if 12 * n * n < 2 ** 31 else torch.int64
     floats = {"n": n, "n/2": 0.5 * n, "3n/4": 0.75 * n, "1.0": 1.0, "1/3": 1 / 3, "0.0": 0.0, "2/3": 2 / 3,
               "2/pi": 2 / math.pi, "4.0": 4.0}
-    ints = {"1": 1, "2": 2, "4": 4, "n+1": n + 1, "1-n": 1 - n, "4n": 4 * n, "ncap": 2 * n * (n - 1),
+    ints = {"1": 1, "-1": -1, "1-n": 1 - n, "4n": 4 * n, "ncap+4n^2": 2 * n * (n - 1) + 4 * n * n,
             "npix": 12 * n * n}
     out = {k: cached_tensor(float(v), dtype, device) for k, v in floats.items()}
     out.update({k: cached_tensor(v, itype, device) for k, v in ints.items()})
@@ -154,8 +156,7 @@ def vec2pix_xyz(nside: int, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -
     """Ring pixel (N,) int32 (int64 past 2^31 pixels) of unit vectors given as contiguous coordinate
     arrays x, y, z (N,); unchecked, the fastest form (strided coordinates slow atan2 down ~7x)."""
     c = _loc2pix_constants(nside, x.dtype, x.device)
-    tt = torch.atan2(y, x).mul_(c["2/pi"])
-    tt = torch.where(tt < c["0.0"], tt + c["4.0"], tt)
+    tt = torch.atan2(y, x).mul_(c["2/pi"]).remainder_(c["4.0"])  # tt + 4 where tt < 0
     tt.masked_fill_(tt >= c["4.0"], 0.0)  # a Python number: a tensor value would cost a host sync
     return _loc2pix(nside, z, torch.sqrt(x * x + y * y), tt)
 

@@ -21,7 +21,7 @@ from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
-from neumat.core.tensors import cached_tensor
+from neumat.core.tensors import cached_tensor, inference_call
 from neumat.models.base import LearnedMaterial
 from neumat.methods.baselines.nbrdf import NBRDF
 from neumat.nn import healpix as hpx
@@ -299,11 +299,18 @@ class NeuBRDF(LearnedMaterial):
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NeuBRDF.eval")
         if self._runtime_table is not None and self.texture is None and not torch.is_grad_enabled():
-            f = self._runtime_eval(q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype))
-        else:
-            f = torch.exp(self.mlp(self.features(q)))
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0)
-        return f.to(q.dtype)
+            return inference_call(self._masked_runtime_eval, q.wi, q.wo)
+        f = torch.exp(self.mlp(self.features(q)))
+        return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0).to(q.dtype)
+
+    def _masked_runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        """`eval` of the runtime form (`_runtime_eval`, 0 below the horizon), without the dtype conversions
+        where there are none to make (a batch of one costs about as many microseconds as tensor operations)."""
+        dtype = self.vertex_dirs.dtype
+        out_dtype = wi.dtype
+        f = self._runtime_eval(wi, wo) if dtype == out_dtype else self._runtime_eval(wi.to(dtype), wo.to(dtype))
+        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, cached_tensor(0.0, f.dtype, f.device))
+        return f if dtype == out_dtype else f.to(out_dtype)
 
     def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:
         """exp(MLP) from the runtime table, (N, 3), on chunks that stay in cache. Uniform weights: one pixel
@@ -329,10 +336,10 @@ class NeuBRDF(LearnedMaterial):
                                                 mode="sum").add_(self.mlp.net[0].bias)
             else:
                 pair = (wi, wo) if c == m else (wi[s:s + c], wo[s:s + c])
-                x, y, z = torch.cat(pair).t().contiguous()  # coordinate rows of wi, then wo
-                pix = hpx.vec2pix_xyz(n, x, y, z).view(2, c)
-                pix.add_(cached_tensor(((0,), (12 * n * n,)), pix.dtype, pix.device))  # wo: the S- half
-                h = nn.functional.embedding_bag(pix.t(), self._runtime_table, mode="sum")
+                x, y, z = torch.cat(pair, -1).view(2 * c, 3).t().contiguous()  # coordinate rows of wi0, wo0, wi1 ..
+                pix = hpx.vec2pix_xyz(n, x, y, z).view(c, 2)
+                pix.add_(cached_tensor((0, 12 * n * n), pix.dtype, pix.device))  # wo: the S- half
+                h = nn.functional.embedding_bag(pix, self._runtime_table, mode="sum")
             if hd_weight is not None:
                 h.addmm_(direction_inputs(kind, wi[s:s + c], wo[s:s + c]).to(h.dtype), hd_weight)
             h = self.mlp.run_layers(h, 1)
