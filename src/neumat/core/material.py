@@ -8,6 +8,7 @@ from torch import nn
 
 from .errors import InputError
 from .query import Query, Sample
+from .tensors import cached_tensor
 
 
 class Material:
@@ -135,6 +136,12 @@ def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     """Mask (N,) of queries with both directions strictly above the surface (one minimum and one comparison:
     models mask every evaluation with it)."""
     return torch.minimum(wi[:, 2], wo[:, 2]) > 0
+
+
+def zero_below_horizon(f: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """f (N, C) with 0 where wi or wo is not strictly above the surface (`upper_hemisphere`): how every model's
+    evaluation ends; the zero is one cached 0-dim tensor, not a zeros_like allocation per call."""
+    return torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, cached_tensor(0.0, f.dtype, f.device))
 
 
 def sample_from_direction(material: Material, q: Query, u: torch.Tensor) -> Sample:

@@ -19,7 +19,7 @@ import torch
 
 from ..core.checks import check_directions, check_finite
 from ..core.errors import DataFormatError, InputError
-from ..core.material import Material, upper_hemisphere
+from ..core.material import Material, zero_below_horizon
 from ..core.query import Query
 from ..io.btf import BTFTable, read_btf_table
 from ..io.ubo2014 import read_ubo2014_table
@@ -173,7 +173,7 @@ class TabulatedBTF(Material):
         vals = self.data[idx_l, idx_v, idx_r, idx_c].float()                  # (N, kl, kv, 4, 3)
         w = lw[:, :, None, None] * vw[:, None, :, None] * sw[:, None, None, :]
         f = (vals * w.unsqueeze(-1)).sum(dim=(1, 2, 3))
-        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, torch.zeros_like(f))
+        f = zero_below_horizon(f, wi, wo)
         return f.to(q.wi.device, q.wi.dtype)
 
     def describe(self) -> str:

@@ -23,7 +23,7 @@ import torch
 
 from ..core.coords import io_to_rusinkiewicz
 from ..core.errors import InputError
-from ..core.material import Material, check_sample_u, sample_weight, upper_hemisphere
+from ..core.material import Material, check_sample_u, sample_weight, upper_hemisphere, zero_below_horizon
 from ..core.query import Query, Sample
 from ..io.merl import MERL_DIMS, MERL_SCALE, read_merl
 from ..io.rgl import RglData, read_rgl
@@ -77,7 +77,7 @@ class MerlMaterial(Material):
             i_d = x_d.long().clamp(0, MERL_DIMS[1] - 1)
             i_p = x_p.long().clamp(0, MERL_DIMS[2] - 1)
             f = vals[(i_h * MERL_DIMS[1] + i_d) * MERL_DIMS[2] + i_p]
-        return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
+        return zero_below_horizon(f, q.wi, q.wo)
 
     @staticmethod
     def _trilinear(vals: torch.Tensor, x_h, x_d, x_p) -> torch.Tensor:

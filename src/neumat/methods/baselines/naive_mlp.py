@@ -13,7 +13,7 @@ from torch import nn
 
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
-from neumat.core.material import upper_hemisphere
+from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
@@ -65,7 +65,7 @@ class NaiveMLP(LearnedMaterial):
         q.require("wo", who="NaiveMLP.eval")
         dtype = self.mlp.linears()[0].weight.dtype
         f = torch.exp(self.mlp(torch.cat([q.wi, q.wo], -1).to(dtype)))
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
+        f = zero_below_horizon(f, q.wi, q.wo)
         return f.to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:

@@ -21,9 +21,9 @@ from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.coords import hd_vectors
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
+from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import cached_tensor, inference_call
+from neumat.core.tensors import inference_call
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -145,7 +145,7 @@ class NBRDF(LearnedMaterial):
         out_dtype = wi.dtype
         x = self.mlp.run_layers(self.inputs(wi, wo) if dtype == out_dtype else self.inputs(wi.to(dtype), wo.to(dtype)))
         f = torch.relu(torch.expm1(x)) if self.cfg.output == "exp_minus_one" else torch.exp(x)
-        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, cached_tensor(0.0, f.dtype, f.device))
+        f = zero_below_horizon(f, wi, wo)
         return f if dtype == out_dtype else f.to(out_dtype)
 
     def forward(self, q: Query) -> torch.Tensor:

@@ -19,7 +19,7 @@ from torch import nn
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
+from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
@@ -180,7 +180,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         f = torch.exp(self.mlp(self.latents(q)))
-        return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f)).to(q.dtype)
+        return zero_below_horizon(f, q.wi, q.wo).to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)

@@ -19,7 +19,7 @@ from torch import nn
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
+from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.multiscale import preconditioned_noise
@@ -214,7 +214,7 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
             wi, wo = self.frame(z_s, wi, wo)
         directions = torch.cat(half_difference(wi, wo) if self.cfg.directions == "rusinkiewicz" else (wi, wo), -1)
         f = torch.exp(self.mlp(torch.cat([z_s, directions], -1)))
-        return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f)).to(q.dtype)
+        return zero_below_horizon(f, q.wi, q.wo).to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)

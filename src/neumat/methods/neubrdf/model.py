@@ -19,7 +19,7 @@ from torch import nn
 from neumat.core.checks import check_directions, check_int, check_memory
 from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import upper_hemisphere
+from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.core.tensors import cached_tensor, inference_call
 from neumat.models.base import LearnedMaterial
@@ -301,7 +301,7 @@ class NeuBRDF(LearnedMaterial):
         if self._runtime_table is not None and self.texture is None and not torch.is_grad_enabled():
             return inference_call(self._masked_runtime_eval, q.wi, q.wo)
         f = torch.exp(self.mlp(self.features(q)))
-        return torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, 0.0).to(q.dtype)
+        return zero_below_horizon(f, q.wi, q.wo).to(q.dtype)
 
     def _masked_runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """`eval` of the runtime form (`_runtime_eval`, 0 below the horizon), without the dtype conversions
@@ -309,7 +309,7 @@ class NeuBRDF(LearnedMaterial):
         dtype = self.vertex_dirs.dtype
         out_dtype = wi.dtype
         f = self._runtime_eval(wi, wo) if dtype == out_dtype else self._runtime_eval(wi.to(dtype), wo.to(dtype))
-        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, cached_tensor(0.0, f.dtype, f.device))
+        f = zero_below_horizon(f, wi, wo)
         return f if dtype == out_dtype else f.to(out_dtype)
 
     def _runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor, chunk: int = 2 ** 13) -> torch.Tensor:

@@ -22,7 +22,7 @@ from torch import nn
 from neumat.core.checks import check_directions, check_int, check_memory, check_shape
 from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import Material, zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.neubrdf.model import (DIRECTION_INPUTS, capped_levels, check_direction_inputs, direction_inputs,
@@ -222,7 +222,7 @@ class SharedNeuBRDF(LearnedMaterial):
         if self.cfg.direction_inputs != "none":
             parts.append(direction_inputs(self.cfg.direction_inputs, wi, wo))
         f = torch.exp(self.mlp(torch.cat(parts, -1)))
-        f = torch.where(upper_hemisphere(q.wi, q.wo).unsqueeze(-1), f, torch.zeros_like(f))
+        f = zero_below_horizon(f, q.wi, q.wo)
         return f.to(q.dtype)
 
     @torch.no_grad()

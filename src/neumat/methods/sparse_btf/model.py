@@ -20,7 +20,7 @@ from torch import nn
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import DataFormatError, InputError
-from neumat.core.material import upper_hemisphere
+from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.sparse_btf.btf_size import btf_table_size, check_btf_table_size
@@ -355,7 +355,7 @@ class SparseBTF(LearnedMaterial):
             rgb = model_space_to_rgb(yuv, self.cfg.log_eps)
             wts = sw[:, :, None, None] * lw[:, None, :, None] * vw[:, None, None, :]
             f = (rgb * wts[..., None]).sum((1, 2, 3))
-        f = torch.where(upper_hemisphere(wi, wo).unsqueeze(-1), f, torch.zeros_like(f))
+        f = zero_below_horizon(f, wi, wo)
         return f.to(q.wi.device, q.wi.dtype)
 
     # ------------------------------------------------------------------------------------ inter-BTF blending
