@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -74,6 +73,8 @@ def crop_stats(crop: dict) -> dict:
 
 def run_job(job: dict, steps: int | None, overrides: list[str], samples: int) -> dict:
     """Fit and score one (crop, model, seed); the row of jobs.jsonl."""
+    from neumat.fit.trainer import WARMUP_FRACTION
+
     src_opts = ["--source-option", f"crop={CROP}", "--source-option",
                 f"crop_origin={job['origin'][0]},{job['origin'][1]}"]
     env = dict(os.environ, OMP_NUM_THREADS="1")
@@ -92,7 +93,7 @@ def run_job(job: dict, steps: int | None, overrides: list[str], samples: int) ->
             return {**job, "status": "error", "error": (fit.stderr.strip().splitlines() or ["?"])[-1]}
         history = torch.load(ckpt, weights_only=False)["history"]
         losses = [r["loss"] for r in history]
-        settled = losses[len(losses) // 10:]  # the trainer's WARMUP_FRACTION
+        settled = losses[int(len(losses) * WARMUP_FRACTION):]  # as the trainer's FitWarning reads a fit
         ev = subprocess.run([neumat(), "eval", str(nmat), "--against", job["set"], *src_opts, "--source-option",
                              "samples=64", "--scales", "9", "--resolution", "48", "--no-image", "--json",
                              "--threads", "1", "-q"], capture_output=True, text=True, env=env)
