@@ -64,7 +64,12 @@ class Config:
     init_std: float = 1.0
     """Standard deviation of the (preconditioned) spatial latents at initialisation."""
     init_log_value: float = -2.0
-    """Initial bias of the MLP output (log f), as the gated model."""
+    """Initial bias of the MLP output (log f), as the gated model; replaced by the data's scale with
+    `init_from_data`."""
+    init_from_data: bool = True
+    """Start the MLP's output biases at log of the median target of the fit's first batch, per channel
+    (`init_from_targets`): at -2 a fit first spends 250-450 of the CPU recipe's 1000 steps overpredicting
+    (NOTES.md, "output initialisation")."""
     level_selection: str = "trilinear"
     """How a fractional mip level is read: "trilinear" (the latents of the two levels blended) or "roulette"
     (Zeltner et al. 2024 Sec. 4.1: one of the two, the coarser with probability t, its fractional weight).
@@ -152,6 +157,17 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         """Adam with the fused kernel (`spatial_latent.fused_adam`: the same update, a fifth of the time per step
         on a 1K pyramid)."""
         return fused_adam(self, lr, betas, eps)
+
+    @torch.no_grad()
+    def init_from_targets(self, target: torch.Tensor) -> None:
+        """With `init_from_data`, the MLP's first three output biases become log(median) per channel of `target`
+        (N, 3) (clamped to >= 1e-4): the fit starts at the data's scale (trainer hook, before the first step)."""
+        if not self.cfg.init_from_data:
+            return
+        if target.ndim != 2 or target.shape[1] < 3:
+            raise InputError(f"{self.name}.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
+        bias = self.mlp.linears()[-1].bias
+        bias[:3] = target[:, :3].median(0).values.clamp(min=1e-4).log().to(bias)
 
     @property
     def outputs(self) -> int:

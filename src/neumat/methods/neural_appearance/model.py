@@ -37,6 +37,9 @@ class Config(neumip.Config):
     spatial_size: int = 256
     hidden: int = 32
     hidden_layers: int = 2
+    init_from_data: bool = False
+    """Its encoder-driven training starts at init_log_value; the data-scale start is measured on the NeuMIP
+    family only."""
     shading_frame: bool = True
     frames: int = 2
     spatial_precondition: float = 0.0
