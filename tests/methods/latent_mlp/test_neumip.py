@@ -62,19 +62,23 @@ def test_bad_config_raises():
     assert build_model({"type": "neumip-frame", "spatial_size": 8, "frame_weight_scale": 1.0}).frame.weight_scale == 1.0
 
 
-@pytest.mark.parametrize("name", ["neumip", "neumip-frame", "nbrdf-uv"])
-def test_a_fit_starts_at_the_data_scale(name):
-    """init_from_data (the default): the output biases become log of the median target per channel, so the first
-    prediction is the data's scale (at -2 a fit spent up to 450 of 1000 steps overpredicting); off: -2 stays."""
+@pytest.mark.parametrize("name, default", [("neumip", True), ("neumip-frame", True), ("nbrdf-uv", True),
+                                           ("multiscale", False), ("tripleplane", False)])
+def test_a_fit_starts_at_the_data_scale(name, default):
+    """init_from_data (the NeuMIP family's default): the output biases become log of the median target per channel,
+    so the first prediction is the data's scale (at -2 a fit spent up to 450 of 1000 steps overpredicting); off:
+    -2 stays."""
     torch.manual_seed(2)
     target = torch.tensor([1e-2, 5e-2, 3.0]) * torch.rand(4096, 3) * 2
-    m = build_model({"type": name, **SMALL})
+    small = SMALL if name.startswith(("neumip", "nbrdf")) else {"spatial_size": 16}
+    assert build_model({"type": name, **small}).cfg.init_from_data is default
+    m = build_model({"type": name, **small, "init_from_data": True})
     m.init_from_targets(target)
     torch.testing.assert_close(m.mlp.linears()[-1].bias[:3], target.median(0).values.log())
     q = _queries(256)
     ratio = m.eval(q).median(0).values / target.median(0).values
     assert bool((ratio > 0.2).all() and (ratio < 5).all()), ratio
-    off = build_model({"type": name, **SMALL, "init_from_data": False})
+    off = build_model({"type": name, **small, "init_from_data": False})
     off.init_from_targets(target)
     assert bool((off.mlp.linears()[-1].bias == -2.0).all())
     with pytest.raises(InputError, match="expected targets"):

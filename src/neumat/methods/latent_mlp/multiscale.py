@@ -78,6 +78,10 @@ class Config:
     """Initial bias of the MLP output (log f): exp(-2) = 0.14 is on the scale of diffuse BRDF values. The
     paper does not state its initialisation; starting near 1 leaves the prediction-relative loss on a
     plateau (relative error ~1, small gradients) for the first few hundred steps."""
+    init_from_data: bool = False
+    """Start the MLP's output biases at log of the median target of the fit's first batch, per channel
+    (`init_from_targets`), instead of init_log_value (the NeuMIP family's default; NOTES.md, "output
+    initialisation")."""
 
 
 def _check_config(c: Config) -> None:
@@ -90,6 +94,17 @@ def _check_config(c: Config) -> None:
     check_number(c.init_log_value, "multiscale.init_log_value")
     for name in ("spatial_precondition", "angular_precondition", "init_std", "frame_weight_scale"):
         check_number(getattr(c, name), f"multiscale.{name}", 0)
+
+
+@torch.no_grad()
+def start_at_data_scale(mlp: MLP, target: torch.Tensor, who: str) -> None:
+    """The first three output biases of `mlp` (log f) become log(median) per channel of `target` (N, >= 3),
+    clamped to >= 1e-4: an exp-output decoder's first predictions sit at the data's scale rather than
+    overpredicting a dark material (the relative loss's plateau at relative error ~1)."""
+    if target.ndim != 2 or target.shape[1] < 3:
+        raise InputError(f"{who}.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
+    bias = mlp.linears()[-1].bias
+    bias[:3] = target[:, :3].median(0).values.clamp(min=1e-4).log().to(bias)
 
 
 def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) -> torch.Tensor:
@@ -151,6 +166,11 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         """Adam with the fused kernel (`spatial_latent.fused_adam`: the same update, a fifth of the time per step
         on a 1K pyramid)."""
         return fused_adam(self, lr, betas, eps)
+
+    def init_from_targets(self, target: torch.Tensor) -> None:
+        """With `init_from_data`, the fit starts at the data's scale (`start_at_data_scale`; trainer hook)."""
+        if self.cfg.init_from_data:
+            start_at_data_scale(self.mlp, target, self.name)
 
     def latents(self, q: Query) -> torch.Tensor:
         """MLP input: [z_h, z_d] (N, D_h + D_d), or [z_h, z_d, z_s] without gating."""

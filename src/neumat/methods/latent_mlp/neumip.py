@@ -22,7 +22,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
-from neumat.methods.latent_mlp.multiscale import preconditioned_noise
+from neumat.methods.latent_mlp.multiscale import preconditioned_noise, start_at_data_scale
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn.angular_texture import half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
@@ -158,16 +158,11 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         on a 1K pyramid)."""
         return fused_adam(self, lr, betas, eps)
 
-    @torch.no_grad()
     def init_from_targets(self, target: torch.Tensor) -> None:
-        """With `init_from_data`, the MLP's first three output biases become log(median) per channel of `target`
-        (N, 3) (clamped to >= 1e-4): the fit starts at the data's scale (trainer hook, before the first step)."""
-        if not self.cfg.init_from_data:
-            return
-        if target.ndim != 2 or target.shape[1] < 3:
-            raise InputError(f"{self.name}.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
-        bias = self.mlp.linears()[-1].bias
-        bias[:3] = target[:, :3].median(0).values.clamp(min=1e-4).log().to(bias)
+        """With `init_from_data`, the fit starts at the data's scale (`multiscale.start_at_data_scale`; trainer
+        hook, before the first step)."""
+        if self.cfg.init_from_data:
+            start_at_data_scale(self.mlp, target, self.name)
 
     @property
     def outputs(self) -> int:
