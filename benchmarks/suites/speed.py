@@ -145,12 +145,14 @@ def _sample_rate(run: harness.Run, material, n: int) -> float:
 
 
 def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm: float) -> None:
-    """GLSL on llvmpipe (EGL) at both precisions, beside GLSL GGX and the harness's floor (a shader returning
-    wi + wo), and Slang on slangpy's CPU device, where the package exports the model: marginal rates per wall and
+    """GLSL on llvmpipe (EGL) at both precisions and Slang on slangpy's CPU device, each beside GGX and the
+    harness's floor (a shader returning wi + wo) in the same target, where the package exports the model:
+    marginal rates per wall and
     per CPU second of this process (llvmpipe's thread included), % of the sgemm bound, cost against GLSL GGX and
     against the model's torch runtime per CPU second."""
     from neumat.export.glsl_common import GLSLExport
     from neumat.export.registry import load_formats
+    from neumat.export.slang import slang_from_glsl
     from neumat.testing.drjit_parity import drjit_available, drjit_evals_per_second
     from neumat.testing.glsl_ggx import ggx_glsl
     from neumat.testing.parity import glsl_evals_per_second, opengl_available
@@ -170,11 +172,12 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
             run.skip(f"{fmt} export rates", f"{target} is not available on this machine")
             continue
         jobs = []
-        if fmt == "glsl":
+        if fmt in ("glsl", "slang"):  # GGX and the harness's floor in the same target, from their GLSL
             ggx = materials["ggx:roughness=0.2"]
-            jobs += [("ggx:roughness=0.2", "fp32", ggx_glsl(ggx), ggx),
-                     ("harness floor (wi + wo)", "fp32",
-                      GLSLExport("vec3 neumat_eval(vec3 wi, vec3 wo) { return wi + wo; }", {}, False), ggx)]
+            floor = GLSLExport("// harness floor\nvec3 neumat_eval(vec3 wi, vec3 wo) { return wi + wo; }", {}, False)
+            spell = (lambda g, name: g) if fmt == "glsl" else slang_from_glsl
+            jobs += [("ggx:roughness=0.2", "fp32", spell(ggx_glsl(ggx), "ggx"), ggx),
+                     ("harness floor (wi + wo)", "fp32", spell(floor, "floor"), ggx)]
         for name in names:
             m = materials[name]
             for precision in precisions:
@@ -196,14 +199,14 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
             rows.append({"material": name, "target": target, "precision": precision, "queries": n_fmt,
                          "evals/wall s": wall, "evals/cpu s": cpu,
                          "% sgemm": None if flops is None else 100 * flops * cpu / sgemm,
-                         "x GGX (glsl)": None if ggx_rate is None or name.startswith("harness") else ggx_rate / cpu,
+                         "x GGX": None if ggx_rate is None or name.startswith("harness") else ggx_rate / cpu,
                          "x torch": torch_rates[name] / cpu if name in torch_rates else None})
     run.table("exports", "Export targets (one thread where the target honours it)", rows,
               "marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
               "compilation and uploads do not count), per wall second (best of the run's repeats) and per CPU "
               "second of this process (best of at least 5; llvmpipe's thread counted, a loaded machine's waits "
               "not); llvmpipe with LP_NUM_THREADS = the run's threads; '% sgemm' from the CPU rate and the model's "
-              "FLOPs; 'x GGX (glsl)' = GLSL GGX's CPU rate / the row's (same harness); 'x torch' = the torch "
+              "FLOPs; 'x GGX' = GGX's CPU rate in the same target and harness / the row's; 'x torch' = the torch "
               "runtime's evals/cpu s at the same batch (table above) / the row's; the floor row is the harness's "
               "own cost (query upload, one fragment, read-back)")
 

@@ -343,18 +343,24 @@ def export_slang(model, precision: str = "fp16") -> SlangExport:
     if directions != "cartesian":
         raise InputError(f"export_slang: {model.name} with {directions!r} directions has no Slang export "
                          "(cartesian only)")
-    glsl: GLSLExport = load_formats().get("glsl").export(model, precision)
+    return slang_from_glsl(load_formats().get("glsl").export(model, precision), model.name)
+
+
+def slang_from_glsl(glsl: GLSLExport, name: str) -> SlangExport:
+    """The Slang module and buffers that spell a GLSL export (named `name` in its header and manifest): the body
+    translated (`glsl_to_slang`), `NeumatMaterial` with the methods the GLSL entry points provide, and
+    `neumat_batch`. Also how the speed suite builds Slang GGX and its harness floor from their GLSL."""
     entries = [e for e in ENTRY_CODES if e in {_GLSL_ENTRIES.get(sig) for sig in glsl.entry_points()}]
-    interfaces = [name for name, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
+    interfaces = [iface for iface, (_, methods) in _INTERFACES.items() if set(methods) <= set(entries)]
     # textures the export declares but does not carry (a neupress export's environment) are bound at run time
     runtime = tuple(t for t in re.findall(r"^uniform sampler2DArray (\w+);", glsl.source, flags=re.M)
                     if t not in glsl.textures)
     body = glsl_to_slang(glsl.source.split("\n", 1)[1], glsl.textures, runtime)
-    header = (f"// neumat Slang module of a '{model.name}' model (methods: {', '.join(entries)}); see "
+    header = (f"// neumat Slang module of a '{name}' model (methods: {', '.join(entries)}); see "
               "neumat.export.slang.\n// Bind the StructuredBuffer<float4> globals listed in manifest.json"
               + "".join(f", and {t} with {t}_width, {t}_height at run time" for t in runtime) + ".\n")
     source = header + body + "\n" + _interfaces() + _material(entries, interfaces) + _kernel(entries)
-    return SlangExport(source, dict(glsl.textures), entries, interfaces, model.name, glsl.precision,
+    return SlangExport(source, dict(glsl.textures), entries, interfaces, name, glsl.precision,
                        glsl.storage_bytes(), list(runtime))
 
 
