@@ -63,9 +63,9 @@ def test_bad_config_raises():
 
 
 @pytest.mark.parametrize("name, default", [("neumip", True), ("neumip-frame", True), ("nbrdf-uv", True),
-                                           ("multiscale", False), ("tripleplane", False)])
+                                           ("multiscale", True), ("tripleplane", True)])
 def test_a_fit_starts_at_the_data_scale(name, default):
-    """init_from_data (the NeuMIP family's default): the output biases become log of the median target per channel,
+    """init_from_data (the default of every latent-texture model): the output biases become log of the median target per channel,
     so the first prediction is the data's scale (at -2 a fit spent up to 450 of 1000 steps overpredicting); off:
     -2 stays."""
     torch.manual_seed(2)
