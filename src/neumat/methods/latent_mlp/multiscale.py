@@ -75,9 +75,10 @@ class Config:
     init_std: float = 1.0
     """Standard deviation of the (preconditioned) spatial latents and of z_h, z_d at initialisation."""
     init_log_value: float = -2.0
-    """Initial bias of the MLP output (log f): exp(-2) = 0.14 is on the scale of diffuse BRDF values. The
-    paper does not state its initialisation; starting near 1 leaves the prediction-relative loss on a
-    plateau (relative error ~1, small gradients) for the first few hundred steps."""
+    """Initial bias of the MLP output (log f) until a fit's first batch replaces it (`init_from_data`): exp(-2)
+    = 0.14 is on the scale of diffuse BRDF values. The paper does not state its initialisation; starting near 1
+    leaves the prediction-relative loss on a plateau (relative error ~1, small gradients) for the first few
+    hundred steps."""
     init_from_data: bool = True
     """Start the MLP's output biases at log of the median target of the fit's first batch, per channel
     (`init_from_targets`), instead of init_log_value: at -2 the CPU recipe's fits lost a quarter to a half of
