@@ -27,17 +27,30 @@ def _bench(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
                           timeout=600)
 
 
-def test_list_names_every_suite_with_its_budget():
-    out = _bench("--list")
-    assert out.returncode == 0, out.stderr
+def _main(capsys, *args: str) -> tuple[int, str, str]:
+    """`python -m benchmarks ARGS` in this process: (exit status, stdout, stderr)."""
+    from benchmarks.__main__ import main
+
+    try:
+        status = main(list(args))
+    except SystemExit as e:  # argparse's refusals
+        status = e.code
+    out = capsys.readouterr()
+    return status, out.out, out.err
+
+
+def test_list_names_every_suite_with_its_budget(capsys):
+    status, out, _ = _main(capsys, "--list")
+    assert status == 0
     for name in SUITES:
-        assert re.search(rf"^{re.escape(name)}\s", out.stdout, re.M), name
-    assert out.stdout.count("on 2 cores") == len(SUITES)
+        assert re.search(rf"^{re.escape(name)}\s", out, re.M), name
+    assert out.count("on 2 cores") == len(SUITES)
 
 
-def test_unknown_suite_and_bad_out_are_refused(tmp_path):
-    assert "invalid choice: 'nope'" in _bench("nope").stderr
-    assert "expected a .json path" in _bench("speed", "--out", str(tmp_path / "x.txt")).stderr
+def test_unknown_suite_and_bad_out_are_refused(capsys, tmp_path):
+    assert "invalid choice: 'nope'" in _main(capsys, "nope")[2]
+    status, _, err = _main(capsys, "speed", "--out", str(tmp_path / "x.txt"))
+    assert status == 2 and "expected a .json path" in err
 
 
 @pytest.mark.parametrize("suite", SUITES)
@@ -125,18 +138,25 @@ def _no_training_loop(path: Path) -> None:
         assert not re.search(pattern, text), (path, pattern)
 
 
-def test_neumat_bench_runs_the_suite_entry_point(tmp_path):
-    """`neumat bench` is `python -m benchmarks` of the source repository: --list names every suite, a quick run
-    writes the same schema-checked JSON."""
+def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
+    """`neumat bench` is `python -m benchmarks` of the source repository: --list names every suite (run for real);
+    a suite's options reach the entry point as its own (the quick runs above check what it writes)."""
     from typer.testing import CliRunner
 
+    from neumat.cli import bench
     from neumat.cli.main import app
 
     listed = subprocess.run([sys.executable, "-m", "neumat", "bench", "--list"], capture_output=True, text=True,
                             timeout=120)
     assert listed.returncode == 0, listed.stderr
     assert all(line.split()[0] in SUITES for line in listed.stdout.splitlines() if line and not line[0].isspace())
+    calls = []
+    monkeypatch.setattr(bench.subprocess, "run", lambda argv, **kw: calls.append((argv, kw)) or
+                        subprocess.CompletedProcess(argv, 0))
     out = tmp_path / "e.json"
-    result = CliRunner().invoke(app, ["bench", "sparsebtf", "--quick", "--out", str(out)])
+    result = CliRunner().invoke(app, ["bench", "sparsebtf", "--quick", "--out", str(out), "--seed", "3"])
     assert result.exit_code == 0, result.output
-    assert json.loads(out.read_text())["suite"] == "sparsebtf"
+    (argv, kw), = calls
+    assert argv == [sys.executable, "-m", "benchmarks", "sparsebtf", "--quick", "--out", str(out.resolve()),
+                    "--seed", "3", "--threads", "1"]
+    assert kw["cwd"] == ROOT
