@@ -70,8 +70,28 @@ def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = 
             lines.append(f"| {model} | {_label(run)} | {len(rat)} | {statistics.median(x[0] for x in rat):.3f} | "
                          f"{worst[0]:.2f} | {worst[1]['name']} {worst[1]['origin']} s{worst[1]['seed']} | "
                          f"{sum(x[0] > 1.5 for x in rat)} |")
+    lines += _ordering(ok, by)
     errors = [r for r in rows if r["status"] != "ok"]
     if errors:
         lines += ["", "Failed jobs: " + "; ".join(f"{r['name']} {r['origin']} {r['model']} s{r['seed']}: {r['error']}"
                                                    for r in errors)]
     return "\n".join(lines)
+
+
+def _ordering(ok: list[dict], by: dict) -> list[str]:
+    """Per fit kind: every model's mean FLIP averaged over the (crop, seed) pairs that every model of that kind ran,
+    best first (the form of the paper's Table 6, on crops nobody chose)."""
+    out = []
+    for run in sorted({_run(r) for r in ok}, key=str):
+        models = sorted({r["model"] for r in ok if _run(r) == run})
+        if len(models) < 3:
+            continue
+        pairs = {(_key(r), r["seed"]) for r in ok if _run(r) == run}
+        common = [p for p in pairs if all(p[1] in by.get((p[0], m, run), {}) for m in models)]
+        if not common:
+            continue
+        means = {m: statistics.mean(by[(k, m, run)][s]["scales"]["flip_mean"] for k, s in common) for m in models}
+        out += ["", f"## Every model, {_label(run)}: mean FLIP over the {len(common)} (crop, seed) pairs all ran", "",
+                "| model | mean FLIP |", "|---|---|"]
+        out += [f"| {m} | {v:.4f} |" for m, v in sorted(means.items(), key=lambda x: x[1])]
+    return out
