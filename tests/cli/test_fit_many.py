@@ -58,7 +58,7 @@ def _rows(out: Path) -> dict[str, dict]:
 @pytest.mark.parametrize("engine", ["local", pytest.param("ray", marks=pytest.mark.slow)])
 def test_three_good_sources_and_a_corrupt_one_then_a_rerun_fits_only_the_failed(app, tmp_path, request, engine):
     """The same rows from both engines; the Ray run (about 3 minutes of Ray start-up on a loaded 2-core machine) is
-    `slow`, and Ray stays in the default run through the killed-worker tests below."""
+    `slow`, as are the killed-worker tests below (`make test-slow`)."""
     if engine == "ray":
         request.getfixturevalue("ray_2cpu")
     sources = _teachers(tmp_path / "src", 3)
@@ -236,6 +236,8 @@ def test_a_killed_worker_loses_only_its_task_which_is_retried(ray_2cpu, tmp_path
     assert progress.done == 2 and progress.failed == 0
 
 
+@pytest.mark.slow  # 10-20 s idle, ~80 s on a 2-core machine under two busy loops (a Ray cluster's start): an eighth
+# of the default run there; the default run keeps Ray through the unreachable-address test below
 def test_a_task_killed_every_time_gets_an_error_row(ray_2cpu, tmp_path):
     ray_2cpu.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     source = _teachers(tmp_path / "src", 1)[0]
