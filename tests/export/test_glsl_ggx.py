@@ -32,7 +32,7 @@ def _queries(n: int) -> Query:
                  sample_cosine_hemisphere(torch.rand(n, 2, generator=g)))
 
 
-@pytest.mark.skipif(not slang_available("cpu"), reason="slangpy's CPU device is not available (slangpy, a C++ compiler)")
+@pytest.mark.skipif(not slang_available("cpu"), reason="no slangpy CPU device (slangpy, a C++ compiler)")
 @pytest.mark.parametrize("spec", ["ggx:roughness=0.2", "ggx:alpha_x=0.1,alpha_y=0.4"])
 def test_slang_ggx_and_the_floor_match_torch(spec):
     material = open_material(spec)

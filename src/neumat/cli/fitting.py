@@ -109,8 +109,8 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
 
 #: the model `neumat fit` fits when --model is not given, by what the source is (a `neumat.catalog.sources` key,
 #: "observations" for a translucent object's .npz, "several" for a set of sources): each kind's best model we
-#: measured (docs/multiscale.md: the gated model below tripleplane on all 48 shared-set crops x seeds of the
-#: selection-free protocol)
+#: measured (docs/multiscale.md: the gated model below tripleplane on 44 of 48 shared-set crops x seeds of the
+#: selection-free protocol, and below every other latent-texture model on average)
 DEFAULT_MODELS = {"several": "shared-neubrdf", "observations": "neupress", "folder": "multiscale",
                   ".nbtf": "sparse-btf", ".btf": "sparse-btf"}
 #: ... and for every other source (a measured or analytic BRDF, a model file, a layered description)

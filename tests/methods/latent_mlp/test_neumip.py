@@ -65,9 +65,9 @@ def test_bad_config_raises():
 @pytest.mark.parametrize("name, default", [("neumip", True), ("neumip-frame", True), ("nbrdf-uv", True),
                                            ("multiscale", True), ("tripleplane", True)])
 def test_a_fit_starts_at_the_data_scale(name, default):
-    """init_from_data (the default of every latent-texture model): the output biases become log of the median target per channel,
-    so the first prediction is the data's scale (at -2 a fit spent up to 450 of 1000 steps overpredicting); off:
-    -2 stays."""
+    """init_from_data (the default of every latent-texture model): the output biases become log of the median
+    target per channel, so the first prediction is the data's scale (at -2 a fit spent up to 450 of 1000 steps
+    overpredicting); off: -2 stays."""
     torch.manual_seed(2)
     target = torch.tensor([1e-2, 5e-2, 3.0]) * torch.rand(4096, 3) * 2
     small = SMALL if name.startswith(("neumip", "nbrdf")) else {"spatial_size": 16}

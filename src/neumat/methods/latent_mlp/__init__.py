@@ -30,11 +30,14 @@ PRESETS = {"recommended": Preset(
 #: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe;
 #: benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
-    "multiscale": "the default for texture sets: mean FLIP over 9 scales below tripleplane's on every crop of the "
-                  "shared sets (24 random crops x 2 seeds), on foil and chainmail; behind it on sub-texel scratches "
-                  "and brushed grooves at 1000 steps (4-26 % higher FLIP; scratches flip by 3000 steps)",
-    "tripleplane": "ahead of the gated model only on sub-texel scratches and brushed grooves at the CPU recipe's "
-                   "1000 steps; behind it on every shared-set crop",
+    "multiscale": "the default for texture sets: mean FLIP over 9 scales below tripleplane's on 44 of 48 random "
+                  "shared-set crops x seeds (median ratio 0.96) and the best of all latent-texture models; "
+                  "tripleplane ahead on a few Wood092 crops (up to 1.10x) and sub-texel scratches and brushed "
+                  "grooves (1.07-1.16x) at 1000 steps",
+    "tripleplane": "second to the gated model on random shared-set crops (ahead on 4 of 48, up to 1.10x); ahead on "
+                   "sub-texel scratches and brushed grooves at the CPU recipe's 1000 steps",
+    "neumip-frame": "third on random shared-set crops (median 1.06x tripleplane's FLIP); on a near-mirror "
+                    "(alpha 0.008) 1.9x at 1000 steps, below it at 3000 (--steps 3000)",
 }
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
