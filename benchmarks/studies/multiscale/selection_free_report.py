@@ -80,10 +80,14 @@ def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = 
 
 def _ordering(ok: list[dict], by: dict) -> list[str]:
     """Per fit kind: every model's mean FLIP averaged over the (crop, seed) pairs that every model of that kind ran,
-    best first (the form of the paper's Table 6, on crops nobody chose)."""
+    best first (the form of the paper's Table 6, on crops nobody chose); models with fewer than half the pairs of
+    the most-run one are left out (named)."""
     out = []
     for run in sorted({_run(r) for r in ok}, key=str):
-        models = sorted({r["model"] for r in ok if _run(r) == run})
+        count = {m: sum(1 for r in ok if _run(r) == run and r["model"] == m) for m in {r["model"] for r in ok}}
+        most = max(count.values())
+        models = sorted(m for m, n in count.items() if n and 2 * n >= most)
+        partial = sorted(m for m, n in count.items() if n and 2 * n < most)
         if len(models) < 3:
             continue
         pairs = {(_key(r), r["seed"]) for r in ok if _run(r) == run}
@@ -94,4 +98,6 @@ def _ordering(ok: list[dict], by: dict) -> list[str]:
         out += ["", f"## Every model, {_label(run)}: mean FLIP over the {len(common)} (crop, seed) pairs all ran", "",
                 "| model | mean FLIP |", "|---|---|"]
         out += [f"| {m} | {v:.4f} |" for m, v in sorted(means.items(), key=lambda x: x[1])]
+        if partial:
+            out += ["", "Left out (fewer than half the pairs): " + ", ".join(f"{m} ({count[m]})" for m in partial)]
     return out

@@ -38,8 +38,8 @@ class Config(neumip.Config):
     hidden: int = 32
     hidden_layers: int = 2
     init_from_data: bool = False
-    """Its encoder-driven training starts at init_log_value; the data-scale start is measured on the NeuMIP
-    family only."""
+    """Its encoder-driven training starts at init_log_value; the data-scale start was measured on the other
+    latent-texture models only."""
     shading_frame: bool = True
     frames: int = 2
     spatial_precondition: float = 0.0
