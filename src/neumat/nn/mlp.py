@@ -36,6 +36,12 @@ def _make_activation(name: str, where: str) -> nn.Module:
     return ACTIVATIONS[name]()
 
 
+def log_median(target: torch.Tensor) -> torch.Tensor:
+    """log of the per-channel median (C,) of target values (N, C), clamped to >= 1e-4 first: where an
+    exp-output decoder starts so that its first predictions sit at the data's scale."""
+    return target.median(0).values.clamp(min=1e-4).log()
+
+
 class MLP(nn.Module):
     """in_dim -> [hidden] * n_hidden_layers -> out_dim, `activation` after each hidden layer and
     `out_activation` (None for linear) after the last. forward: (..., in_dim) -> (..., out_dim)."""

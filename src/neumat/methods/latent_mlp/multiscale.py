@@ -26,7 +26,7 @@ from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
-from neumat.nn.mlp import MLP
+from neumat.nn.mlp import MLP, log_median
 from neumat.nn.preconditioner import FrequencyPreconditioner, preconditioner_kernel
 from neumat.nn.radial_warp import RadialWarp
 from neumat.nn.shading_frames import ShadingFrame, lift_to_hemisphere
@@ -105,7 +105,7 @@ def start_at_data_scale(mlp: MLP, target: torch.Tensor, who: str) -> None:
     if target.ndim != 2 or target.shape[1] < 3:
         raise InputError(f"{who}.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
     bias = mlp.linears()[-1].bias
-    bias[:3] = target[:, :3].median(0).values.clamp(min=1e-4).log().to(bias)
+    bias[:3] = log_median(target[:, :3]).to(bias)
 
 
 def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) -> torch.Tensor:

@@ -28,7 +28,7 @@ from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
 from neumat.nn.codebook_kmeans import vq_from_dense
 from neumat.nn.latent_texture import bilinear, trilinear
-from neumat.nn.mlp import MLP
+from neumat.nn.mlp import MLP, log_median
 from neumat.nn.packing import pack_bits, unpack_bits
 from neumat.nn.row_adam import RowAdam, grid_optimizer
 
@@ -358,7 +358,7 @@ class NeuBRDF(LearnedMaterial):
         median, constant. Why: see `neumat.methods.neubrdf.train`."""
         if target.ndim != 2 or target.shape[1] != 3:
             raise InputError(f"NeuBRDF.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
-        self.mlp.start_constant(target.median(0).values.clamp(min=1e-4).log())
+        self.mlp.start_constant(log_median(target))
         self._drop_runtime()
 
     def optimizer(self, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8) -> RowAdam:

@@ -30,7 +30,7 @@ from neumat.methods.neubrdf.model import (DIRECTION_INPUTS, capped_levels, check
                                    unpack_levels, used_slot_mask)
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, VQFeatures, float_bits, storage_bytes
-from neumat.nn.mlp import MLP
+from neumat.nn.mlp import MLP, log_median
 from neumat.nn.row_adam import RowAdam, grid_optimizer
 
 
@@ -230,7 +230,7 @@ class SharedNeuBRDF(LearnedMaterial):
         """Trainer hook: start at the per-channel median of `target` (N, 3) (all materials), as NeuBRDF."""
         if target.ndim != 2 or target.shape[1] != 3:
             raise InputError(f"SharedNeuBRDF.init_from_targets: expected targets (N, 3), got {tuple(target.shape)}")
-        self.mlp.start_constant(target.median(0).values.clamp(min=1e-4).log())
+        self.mlp.start_constant(log_median(target))
 
     def eval_material(self, i: int, q: Query) -> torch.Tensor:
         """BRDF value (N, 3) of material i at the plain query q."""
