@@ -205,6 +205,15 @@ def test_fit_without_options_runs_the_recommended_preset_and_says_so(app, teache
     assert h["recipe"]["lr_decay_every"] == recipes["cpu"].lr_decay_every
 
 
+def test_the_preset_line_names_the_steps_given(app, teacher, tmp_path):
+    """--steps shortens the fit, and the line printed before it starts says so (it once named the recipe's)."""
+    res = CliRunner().invoke(app, ["fit", teacher, *SMALL, "--steps", "3", "--device", "cpu",
+                                   "-o", str(tmp_path / "s.nmat")])
+    assert res.exit_code == 0, res.output
+    assert "preset recommended" in output_text(res) and "3 steps x 256" in output_text(res)
+    assert read_header(tmp_path / "s.nmat")["recipe"]["steps"] == 3
+
+
 def test_cpu_recipe_with_direction_inputs_fits_quantises_and_exports(app, tmp_path, monkeypatch):
     """--set direction_inputs=hd through the CPU recipe's phases (coarse, dense, k-means, VQ; steps shortened):
     the file is the codebook model with the 6 inputs, it evaluates as written, and its GLSL export carries them."""

@@ -85,7 +85,7 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
     src = open_training_source(model, sources, source_options or {})
     m, resolved = build_fit(model, preset, device=dev, source=src, overrides=overrides, seed=seed)
     if not quiet:
-        print(preset_note(model, resolved))
+        print(preset_note(model, resolved, steps))
     with warnings.catch_warnings():  # said once below, as one line
         warnings.simplefilter("ignore", FitWarning)
         result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
@@ -141,11 +141,13 @@ def chosen_preset(preset: str | None, recipe_alias: str | None = None) -> str:
     return preset or recipe_alias or DEFAULT_PRESET
 
 
-def preset_note(model: str, resolved) -> str:
-    """The line a fit prints before it starts: the preset it uses and how to get the paper's exact model."""
+def preset_note(model: str, resolved, steps: int | None = None) -> str:
+    """The line a fit prints before it starts: the preset it uses, the steps it will run (`steps` when --steps
+    overrides the recipe's) and how to get the paper's exact model."""
     paper = ("" if resolved.preset in ("paper", "cpu") else
              "; the paper's exact model: --preset paper (its recipe, sized for a GPU) or --preset cpu")
-    return f"{model}: {resolved.describe()}, {resolved.recipe.steps} steps x {resolved.recipe.batch_size}{paper}"
+    n = resolved.recipe.steps if steps is None else steps
+    return f"{model}: {resolved.describe()}, {n} steps x {resolved.recipe.batch_size}{paper}"
 
 
 def resolve_device(device: str | None):
