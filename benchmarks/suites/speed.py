@@ -63,7 +63,8 @@ def run(run: harness.Run) -> None:
                          "% sgemm": None if flops is None else 100 * flops * rate / sgemm,
                          "x GGX": ggx[n] / rate})
     run.table("eval", "Evaluation and sampling rates (runtime form, one thread)", rows,
-              "models at their default (paper) config; dipole-bssrdf with its quadrature on a sphere of radius 0.5")
+              "models at their default (paper) config, called without autograd (torch.no_grad) as renderers call "
+              "them; dipole-bssrdf with its quadrature on a sphere of radius 0.5")
     _fixed_costs(run, materials)
     export_n = 2 ** 16
     torch_rates = {r["material"]: r["evals/cpu s"] for r in rows if r["queries"] == export_n}
@@ -81,8 +82,8 @@ def _fixed_costs(run: harness.Run, materials: dict) -> None:
     rows = []
     for name, m in materials.items():
         q1, q64 = queries(m, 1, run.seed), queries(m, 64, run.seed)
-        rows.append({"what": f"{name}.eval", "us/call at 1": 1e6 * run.time(lambda: m.eval(q1)),
-                     "us/call at 64": 1e6 * run.time(lambda: m.eval(q64))})
+        rows.append({"what": f"{name}.eval", "us/call at 1": 1e6 * _runtime_time(run, lambda: m.eval(q1)),
+                     "us/call at 64": 1e6 * _runtime_time(run, lambda: m.eval(q64))})
     q = queries(materials["ggx"] if "ggx" in materials else next(iter(materials.values())), 1, run.seed)
     rows.append({"what": "Query(wi, wo) (checked)", "us/call at 1": 1e6 * run.time(lambda: Query(q.wi, q.wo)),
                  "us/call at 64": None})
@@ -131,7 +132,16 @@ def queries(material, n: int, seed: int = 0) -> Query:
 
 def _eval_rate(run: harness.Run, material, n: int) -> float:
     q = queries(material, n, run.seed)
-    return n / run.time(lambda: material.eval(q))
+    return n / _runtime_time(run, lambda: material.eval(q))
+
+
+def _runtime_time(run: harness.Run, fn) -> float:
+    """run.time(fn) with autograd off, as a renderer calls a shipped model (neumat.render and the Mitsuba
+    integrations evaluate under torch.no_grad; models keep what they derive from their parameters only then)."""
+    def call():
+        with torch.no_grad():
+            fn()
+    return run.time(call)
 
 
 def _sample_rate(run: harness.Run, material, n: int) -> float:
@@ -141,7 +151,7 @@ def _sample_rate(run: harness.Run, material, n: int) -> float:
     def sample_and_pdf():
         s = material.sample(q, u)
         material.pdf(replace(q, wo=s.wo))
-    return n / run.time(sample_and_pdf)
+    return n / _runtime_time(run, sample_and_pdf)
 
 
 def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm: float) -> None:

@@ -1,7 +1,7 @@
 import torch
 
 from neumat.core.query import Query
-from neumat.core.tensors import inference_call
+from neumat.core.tensors import derived_from, inference_call
 from neumat.methods.baselines.nbrdf import NBRDF
 
 
@@ -33,3 +33,49 @@ def test_no_grad_eval_output_can_join_a_graph_later():
     loss = ((model.eval(q) - target) * target).sum()  # mul saves target for backward
     loss.backward()
     assert model.mlp.linears()[0].weight.grad is not None
+
+
+class _Owner:
+    """Counts how often the derived tensor is built."""
+
+    def __init__(self, p: torch.Tensor) -> None:
+        self.p, self.builds = p, 0
+
+    def squared(self) -> torch.Tensor:
+        def make():
+            self.builds += 1
+            return self.p * self.p
+        return derived_from(self, "squared", [self.p], make)
+
+
+def test_derived_from_builds_once_while_the_parameter_is_unchanged():
+    owner = _Owner(torch.nn.Parameter(torch.tensor([1.0, 2.0])))
+    with torch.no_grad():
+        a, b = owner.squared(), owner.squared()
+    assert a is b and owner.builds == 1 and not a.requires_grad
+    with torch.inference_mode():  # kept from before, still a plain tensor
+        assert owner.squared() is a and not a.is_inference()
+
+
+def test_derived_from_rebuilds_after_a_step_an_in_place_update_or_a_new_dtype():
+    p = torch.nn.Parameter(torch.tensor([1.0, 2.0]))
+    owner = _Owner(p)
+    with torch.no_grad():
+        owner.squared()
+    p.grad = torch.tensor([1.0, 1.0])
+    torch.optim.Adam([p], lr=0.5, fused=True).step()  # in place, and the fused kernel leaves p._version as it was
+    with torch.no_grad():
+        assert torch.allclose(owner.squared(), torch.tensor([0.25, 2.25])) and owner.builds == 2
+        p.copy_(torch.tensor([3.0, 4.0]))
+        assert torch.equal(owner.squared(), torch.tensor([9.0, 16.0])) and owner.builds == 3
+        owner.p = p.double()
+        assert owner.squared().dtype == torch.float64 and owner.builds == 4
+
+
+def test_derived_from_keeps_the_gradient_when_one_is_wanted():
+    p = torch.nn.Parameter(torch.tensor([1.0, 2.0]))
+    owner = _Owner(p)
+    with torch.no_grad():
+        owner.squared()
+    owner.squared().sum().backward()  # autograd on: built afresh, in the graph
+    assert owner.builds == 2 and torch.equal(p.grad, torch.tensor([2.0, 4.0]))

@@ -71,11 +71,34 @@ def report(crops: list[dict], rows: list[dict], a: str = "multiscale", b: str = 
                          f"{worst[0]:.2f} | {worst[1]['name']} {worst[1]['origin']} s{worst[1]['seed']} | "
                          f"{sum(x[0] > 1.5 for x in rat)} |")
     lines += _ordering(ok, by)
+    lines += _against_default(ok, by)
     errors = [r for r in rows if r["status"] != "ok"]
     if errors:
         lines += ["", "Failed jobs: " + "; ".join(f"{r['name']} {r['origin']} {r['model']} s{r['seed']}: {r['error']}"
                                                    for r in errors)]
     return "\n".join(lines)
+
+
+def _against_default(ok: list[dict], by: dict) -> list[str]:
+    """Per model and fit kind other than the default recipe: its mean FLIP against the same model's at the default
+    recipe on the same (crop, seed) pairs (the controlled experiments' table: a ratio below 1 is the variant
+    better)."""
+    out = []
+    for (model, run) in sorted({(r["model"], _run(r)) for r in ok if _run(r) != (0, "")}, key=str):
+        rat = [(r["scales"]["flip_mean"] / d["scales"]["flip_mean"], r) for r in ok
+               if r["model"] == model and _run(r) == run
+               and (d := by.get((_key(r), model, (0, "")), {}).get(r["seed"])) is not None]
+        if not rat:
+            continue
+        if not out:
+            out += ["", "## Each variant against the default recipe, same model, crop and seed (ratio of mean FLIP)",
+                    "", "| model | fit | pairs | median ratio | better | best | worst | at |",
+                    "|---|---|---|---|---|---|---|---|"]
+        worst = max(rat, key=lambda x: x[0])
+        out.append(f"| {model} | {_label(run)} | {len(rat)} | {statistics.median(x[0] for x in rat):.3f} | "
+                   f"{sum(x[0] < 1 for x in rat)} | {min(x[0] for x in rat):.2f} | {worst[0]:.2f} | "
+                   f"{worst[1]['name']} {worst[1]['origin']} s{worst[1]['seed']} |")
+    return out
 
 
 def _ordering(ok: list[dict], by: dict) -> list[str]:

@@ -20,6 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..core.checks import check_int
+from ..core.tensors import derived_from
 
 _EPS = 1e-12
 
@@ -77,7 +78,11 @@ class AngularTexture(nn.Module):
         return self.raw if self.precondition is None else self.precondition(self.raw)
 
     def padded(self) -> torch.Tensor:
-        """(C, R, P + 2) texture with the pole row set to texel (0, 0) and one circular column each side."""
+        """(C, R, P + 2) texture with the pole row set to texel (0, 0) and one circular column each side; built
+        once while the texture is unchanged and no gradient is wanted (`derived_from`)."""
+        return derived_from(self, "padded", [self.raw], self._pad)
+
+    def _pad(self) -> torch.Tensor:
         tex = self.texture()
         rows = torch.cat([tex[:, :1, :1].expand(-1, 1, self.angular), tex[:, 1:]], 1)
         return torch.cat([rows[:, :, -1:], rows, rows[:, :, :1]], 2)

@@ -16,6 +16,7 @@ from torch import nn
 
 from ..core.checks import check_finite, check_int, check_shape
 from ..core.errors import InputError
+from ..core.tensors import derived_from
 from .preconditioner import FrequencyPreconditioner, flat_levels
 
 
@@ -275,7 +276,11 @@ class LatentPyramid(nn.Module):
 
     def atlas(self) -> torch.Tensor:
         """`build_atlas` of `levels()` (all preconditioned at once when the preconditioner can): what the
-        filtered and trilinear lookups read."""
+        filtered and trilinear lookups read; built once while the levels are unchanged and no gradient is
+        wanted (`derived_from`)."""
+        return derived_from(self, "atlas", list(self.raw), self._build_atlas)
+
+    def _build_atlas(self) -> torch.Tensor:
         if isinstance(self.precondition, FrequencyPreconditioner):
             return build_atlas(self.precondition.many(list(self.raw)))
         return build_atlas(self.levels())
@@ -288,7 +293,8 @@ class LatentPyramid(nn.Module):
         if lod is not None:
             return trilinear_flat(None, [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
                                   level_u=level_u, atlas=self.atlas())
-        finest = self.raw[0] if self.precondition is None else self.precondition(self.raw[0])
+        finest = self.raw[0] if self.precondition is None else derived_from(
+            self, "finest", [self.raw[0]], lambda: self.precondition(self.raw[0]))
         return bilinear(finest, uv)
 
     def level_fraction(self, footprint: torch.Tensor | None, lod: torch.Tensor | None, n: int,

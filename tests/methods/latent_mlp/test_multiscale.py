@@ -164,7 +164,7 @@ def test_fit_small_svbrdf_on_cpu(shared_data):
 def test_flop_count_matches_measured_matrix_products():
     """The matrix-product part of the analytic count (MLP, frame and warp decoders) equals torch's FLOP counter
     per query: the counter's total grows by that much per query (the spatial preconditioner's block-diagonal
-    product is per batch, not per query); the gating products are elementwise multiply-adds on the texture
+    product builds the atlas once, kept by the first call); the gating products are elementwise multiply-adds on the texture
     reads (2 D_s (D_h + D_d)), not seen by the counter; the rest (activations, exp, texture reads, warps, frame
     maths) is stated per block."""
     from neumat.metrics.flops import measured_matmul_flops, model_flops
@@ -175,7 +175,8 @@ def test_flop_count_matches_measured_matrix_products():
     gating = 2 * (c.half_channels + c.diff_channels) * c.spatial_channels
     decoders = 2 * c.spatial_channels * 6 + 2 * 2 * c.spatial_channels * 2 * c.warp_terms
     total = lambda n: measured_matmul_flops(m, _queries(n)) * n  # noqa: E731
-    assert total(128) - total(64) == 64 * (mlp + decoders)
+    first = total(64)
+    assert total(128) - total(64) == 64 * (mlp + decoders) and first > total(64)
     assert model_flops(m) > mlp + gating + decoders
 
 
@@ -226,3 +227,29 @@ def test_own_optimizer_is_adam_with_the_same_update():
         opt_b.step()
     for pa, pb in zip(a.parameters(), b.parameters()):
         torch.testing.assert_close(pa, pb, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["multiscale", "tripleplane", "neumip"])
+def test_eval_without_autograd_reuses_textures_until_a_step_changes_them(name):
+    """Without autograd an evaluation keeps the preconditioned atlas and padded angular textures it derives
+    (`core.tensors.derived_from`); an optimiser step changes them, and the next evaluation sees the new values:
+    every evaluation equals one with autograd on, which always derives afresh."""
+    torch.manual_seed(0)
+    small = SMALL if name != "neumip" else {"spatial_size": 16}
+    model = build_model({"type": name, **small})
+    q, q_lod, q_fine = _queries(64), _queries(64, footprint=False), _queries(64, footprint=False)
+    q_lod = Query(q_lod.wi, q_lod.wo, uv=q_lod.uv, lod=torch.rand(64) * 3)
+    opt = model.optimizer(1e-2, (0.9, 0.999), 1e-8) or torch.optim.Adam(model.parameters(), 1e-2)
+    before = []
+    for _ in range(2):
+        for query in (q, q_lod, q_fine):
+            with torch.no_grad():
+                kept = model.eval(query)
+                assert torch.equal(model.eval(query), kept)
+            assert torch.allclose(kept, model.eval(query).detach(), rtol=1e-6, atol=0)
+        with torch.no_grad():
+            before.append(model.eval(q))
+        opt.zero_grad()
+        model.eval(q).sum().backward()
+        opt.step()
+    assert not torch.allclose(before[0], before[1])  # the step changed what the kept textures give
