@@ -225,3 +225,22 @@ def test_latent_texture_recommended_preset_trains_with_the_robust_loss_and_paper
             assert resolve_preset(name, preset).recipe.loss == "relative_l2_mix", (name, preset)
             assert resolve_preset(name, preset).recipe.grad_clip == 0, (name, preset)
         assert resolve_preset(name, overrides={"loss": "relative_l2_mix"}).recipe.loss == "relative_l2_mix", name
+
+
+def test_by_recipe_overrides_apply_only_on_their_base_recipe(monkeypatch):
+    """A preset's `by_recipe` overrides join its own where the fit runs that base recipe (the CPU recipe on a CPU
+    device) and nowhere else; the caller's overrides still come last, and unknown keys are refused as anywhere."""
+    from neumat.fit.method import method_for
+    from neumat.fit.preset import Preset
+
+    presets = method_for("nbrdf").presets
+    monkeypatch.setitem(presets, "trial", Preset("a trial", overrides={"recipe.steps": 7},
+                                                 by_recipe={"cpu": {"recipe.lr": 0.25}}))
+    on_cpu = resolve_preset("nbrdf", "trial", device="cpu")
+    assert (on_cpu.recipe.lr, on_cpu.recipe.steps) == (0.25, 7) and on_cpu.applied["recipe.lr"] == 0.25
+    on_gpu = resolve_preset("nbrdf", "trial", device=torch.device("cuda"))
+    assert on_gpu.recipe_name == "paper" and on_gpu.recipe.lr == recipe_for("nbrdf", "paper").lr
+    assert resolve_preset("nbrdf", "trial", device="cpu", overrides={"lr": 0.5}).recipe.lr == 0.5
+    monkeypatch.setitem(presets, "bad", Preset("a bad one", by_recipe={"cpu": {"recipe.lrr": 1.0}}))
+    with pytest.raises(InputError, match="unknown key 'recipe.lrr'"):
+        resolve_preset("nbrdf", "bad", device="cpu")

@@ -81,6 +81,8 @@ class FitJob:
                 preset = preset_named(self.model, self.preset)
                 options["preset"] = {"recipe": preset.recipe, "overrides": dict(preset.overrides),
                                      "by_source": {k: dict(v) for k, v in preset.by_source.items()}}
+                if preset.by_recipe:  # only then: rows written before by_recipe existed keep their key
+                    options["preset"]["by_recipe"] = {k: dict(v) for k, v in preset.by_recipe.items()}
         return options
 
 

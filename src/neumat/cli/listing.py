@@ -48,7 +48,7 @@ def catalogue() -> dict:
 
 
 def model_catalogue(model: str) -> dict:
-    """{"model", "paper", "default_preset", "presets": [{name, doc, recipe, overrides, by_source}], "keys": [{key,
+    """{"model", "paper", "default_preset", "presets": [{name, doc, recipe, overrides, by_recipe, by_source}], "keys": [{key,
     type, default, range, doc}]} of one model, as `neumat list MODEL --json` prints it."""
     import dataclasses
 
@@ -60,7 +60,8 @@ def model_catalogue(model: str) -> dict:
 
     cls = model_class(model)
     presets = [{"name": n, "doc": p.doc, "recipe": p.recipe or "cpu on a CPU, paper on a GPU",
-                "overrides": dict(p.overrides), "by_source": {k: dict(v) for k, v in p.by_source.items()}}
+                "overrides": dict(p.overrides), "by_recipe": {k: dict(v) for k, v in p.by_recipe.items()},
+                "by_source": {k: dict(v) for k, v in p.by_source.items()}}
                for n, p in presets_for(model).items()]
     docs = {"model": field_docs(cls.Config), "recipe": field_docs(Recipe),
             "option": field_docs(options_class(model)) if options_class(model) else {}}
@@ -89,6 +90,8 @@ def list_all(model: str = typer.Argument(None, help="a registered model: list it
             print_table(f"{model}: presets (neumat fit --preset NAME; default {data['default_preset']})", [
                 {"preset": p["name"], "recipe": p["recipe"],
                  "sets": "; ".join([", ".join(f"{k}={v}" for k, v in p["overrides"].items())]
+                                   + [f"with recipe {name}: " + ", ".join(f"{k}={v}" for k, v in o.items())
+                                      for name, o in p["by_recipe"].items()]
                                    + [f"on {kind}: " + ", ".join(f"{k}={v}" for k, v in o.items())
                                       for kind, o in p["by_source"].items()]).strip("; ") or "-",
                  "what": p["doc"]} for p in data["presets"]], width=200)

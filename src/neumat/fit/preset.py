@@ -25,13 +25,15 @@ NAMESPACES = ("model", "recipe", "option")
 @dataclass(frozen=True)
 class Preset:
     """A named setting: `recipe` is the base recipe ("paper", "cpu" or a named one; None: "cpu" on a CPU device,
-    "paper" elsewhere); `overrides` map namespaced keys to values; `by_source` adds overrides for one kind of
-    training source (`source_kind`)."""
+    "paper" elsewhere); `overrides` map namespaced keys to values; `by_recipe` adds overrides for one base recipe
+    (a setting measured at the CPU recipe's budget need not hold at the paper's); `by_source` adds overrides for
+    one kind of training source (`source_kind`)."""
 
     doc: str
     recipe: str | None = None
     overrides: Mapping[str, Any] = field(default_factory=dict)
     by_source: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    by_recipe: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 @dataclass
@@ -153,7 +155,8 @@ def qualify(model: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
 def resolve_preset(model: str, preset: str = DEFAULT_PRESET, *, device: Any = "cpu", source: Any = None,
                    overrides: Mapping[str, Any] | None = None, seed: int | None = None) -> Resolved:
     """The model config and recipe of a fit of model `model` with `preset` on `device` (a torch device or its
-    type), for `source` (its kind picks the preset's `by_source` overrides), with the caller's `overrides`
+    type), for `source` (its kind picks the preset's `by_source` overrides; the base recipe its `by_recipe`
+    ones), with the caller's `overrides`
     (namespaced or unambiguous bare keys) on top and `seed` (the recipe's) last. Everything is checked."""
     from ..models.registry import model_class
 
@@ -161,6 +164,7 @@ def resolve_preset(model: str, preset: str = DEFAULT_PRESET, *, device: Any = "c
     device_type = getattr(device, "type", str(device).split(":")[0])
     recipe_name = p.recipe or ("cpu" if device_type == "cpu" else "paper")
     mine = qualify(model, dict(p.overrides))
+    mine.update(qualify(model, dict(p.by_recipe.get(recipe_name, {}))))
     if source is not None:
         mine.update(qualify(model, dict(p.by_source.get(source_kind(source), {}))))
     applied = {**mine, **qualify(model, dict(overrides or {}))}

@@ -28,10 +28,20 @@ def texel_coords(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tenso
 def bilinear(tex: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     """Bilinear lookup with wrap tiling: tex (C, H, W), uv (N, 2) -> (N, C); differentiable in tex.
     One fused `grid_sample` over the texture padded circularly by one texel (corner-aligned grid)."""
-    c, h, w = tex.shape
-    x, y = texel_coords(torch.remainder(uv.to(tex.dtype), 1.0), h, w)  # in [-1/2, W - 1/2], [-1/2, H - 1/2]
+    return bilinear_padded(wrap_padded(tex), uv)
+
+
+def wrap_padded(tex: torch.Tensor) -> torch.Tensor:
+    """tex (C, H, W) padded circularly by one texel, (1, C, H + 2, W + 2): what `bilinear_padded` reads (a copy
+    of the whole texture, so a caller that looks up the same texture often keeps it)."""
+    return F.pad(tex.unsqueeze(0), (1, 1, 1, 1), mode="circular")
+
+
+def bilinear_padded(padded: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """`bilinear` of the texture that `wrap_padded` padded: (N, C)."""
+    c, h, w = padded.shape[1], padded.shape[2] - 2, padded.shape[3] - 2
+    x, y = texel_coords(torch.remainder(uv.to(padded.dtype), 1.0), h, w)  # in [-1/2, W - 1/2], [-1/2, H - 1/2]
     grid = torch.stack([(x + 1) * (2 / (w + 1)) - 1, (y + 1) * (2 / (h + 1)) - 1], -1)
-    padded = F.pad(tex.unsqueeze(0), (1, 1, 1, 1), mode="circular")
     out = F.grid_sample(padded, grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="border", align_corners=True)
     return out.view(c, -1).t().contiguous()  # row-major: per-row reductions (e.g. norms) of slices stay fast
 
@@ -293,9 +303,9 @@ class LatentPyramid(nn.Module):
         if lod is not None:
             return trilinear_flat(None, [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
                                   level_u=level_u, atlas=self.atlas())
-        finest = self.raw[0] if self.precondition is None else derived_from(
-            self, "finest", [self.raw[0]], lambda: self.precondition(self.raw[0]))
-        return bilinear(finest, uv)
+        padded = derived_from(self, "finest", [self.raw[0]], lambda: wrap_padded(
+            self.raw[0] if self.precondition is None else self.precondition(self.raw[0])))
+        return bilinear_padded(padded, uv)
 
     def level_fraction(self, footprint: torch.Tensor | None, lod: torch.Tensor | None, n: int,
                        device=None) -> torch.Tensor:

@@ -116,6 +116,20 @@ def test_cpu_recipe_is_the_papers_first_steps():
         assert recipe_for(name, "cpu") == cpu, name
 
 
+def test_the_default_fit_on_a_cpu_runs_at_the_measured_learning_rate():
+    """Without options every latent-texture model fits on a CPU at lr 1e-2 (selection_free.md: lower mean FLIP
+    for every model at the CPU recipe's 1000 steps), with the robust loss and clipping; on a GPU (the paper's
+    500k steps) and in the paper / cpu presets at the paper's 3e-3."""
+    from neumat.fit.preset import resolve_preset
+
+    for name in ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv"):
+        r = resolve_preset(name, device="cpu")
+        assert (r.recipe_name, r.recipe.lr, r.recipe.loss, r.recipe.grad_clip) == \
+            ("cpu", 1e-2, "relative_l2_robust", 1.0), name
+        assert resolve_preset(name, device=torch.device("cuda")).recipe.lr == 3e-3, name
+        assert resolve_preset(name, "cpu", device="cpu").recipe.lr == 3e-3, name
+
+
 def test_recipe_and_loss_follow_the_paper():
     r = recipe_for("multiscale")
     assert (r.lr, tuple(r.betas), r.eps, r.lr_decay, r.lr_decay_every, r.ema) == (3e-3, (0.99, 0.999), 1e-15, 0.9,
