@@ -25,7 +25,8 @@ NAME = "speed"
 DESCRIPTION = ("evaluations / sample+pdf per CPU second, FLOPs, % of sgemm, cost against GGX, export rates and "
                "training step time of every model")
 BUDGET = {
-    "quick": {"ours": "ggx, nbrdf, neubrdf and neural-appearance at batches of 2^10 and 2^12 queries, best of 3; "
+    "quick": {"ours": "ggx, nbrdf, neubrdf, neural-appearance and multiscale at batches of 2^10 and 2^12 queries, "
+                      "best of 3; "
                       "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL fp32 beside GLSL "
                       "GGX and Dr.Jit fp32 at 2^16 queries, Slang fp16 at 2^13); training steps of nbrdf and a small neubrdf at batches 2^8 "
                       "and 2^10",
@@ -37,8 +38,9 @@ BUDGET = {
              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
              "expected_wall": "about 40 min on one thread"},
 }
-#: the models a quick run times (the others' paper-sized latent textures take seconds per batch)
-QUICK_MODELS = ("ggx", "nbrdf", "neubrdf", "neural-appearance")
+#: the models a quick run times: one of each family that evaluates in milliseconds (every latent-texture model builds
+#: a paper-sized 1024^2 pyramid first, about 1.5 s; one stands for the family)
+QUICK_MODELS = ("ggx", "nbrdf", "neubrdf", "neural-appearance", "multiscale")
 
 
 def run(run: harness.Run) -> None:
