@@ -112,7 +112,8 @@ CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3) -> float:
     """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of `repeats` each, after a
     warm-up call on 64 and on each size), so that fixed costs do not count; seconds of `clock` ("wall" or "cpu": this process's CPU
-    seconds, `CLOCKS`). NaN when the larger batch ran no slower (overheads dominate: use more queries)."""
+    seconds, `CLOCKS`). A loaded machine's noise can make the larger batch look no slower: then it measures
+    again with twice the repeats, up to twice; NaN when it still does (overheads dominate: use more queries)."""
     if clock not in CLOCKS:
         raise InputError(f"{who} clock: expected one of {', '.join(CLOCKS)}, got {clock!r}")
     n = len(q.wi)
@@ -122,11 +123,14 @@ def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3
     run(q[:n // 8])  # and whatever a new batch size compiles or allocates, at both sizes
     run(q)
 
-    def best_of(m: int) -> float:
-        return best_time(lambda: run(q[:m]), repeats, warmup=False, clock=CLOCKS[clock])
+    def best_of(m: int, r: int) -> float:
+        return best_time(lambda: run(q[:m]), r, warmup=False, clock=CLOCKS[clock])
 
-    marginal = best_of(n) - best_of(n // 8)
-    return (n - n // 8) / marginal if marginal > 0 else float("nan")
+    for r in (repeats, 2 * repeats, 4 * repeats):
+        marginal = best_of(n, r) - best_of(n // 8, r)
+        if marginal > 0:
+            return (n - n // 8) / marginal
+    return float("nan")
 
 
 def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, backend: str | None = "egl",
