@@ -29,8 +29,9 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                                              "fit a set (shared-neubrdf)"),
         model: str = typer.Option(None, "--model", "-m",
                                   help="registered model name (`neumat list`); default: the recommended model for "
-                                       "the source (neumat.cli.fitting.DEFAULT_MODELS: neubrdf for a BRDF, "
-                                       "multiscale for a texture-set folder, sparse-btf for a BTF, neupress for "
+                                       "the source (neumat.cli.fitting.default_model: neubrdf for a BRDF, "
+                                       "multiscale for a texture-set folder (tripleplane for a flat dielectric: "
+                                       "neumat.methods.latent_mlp.regime), sparse-btf for a BTF, neupress for "
                                        "translucent observations, shared-neubrdf for several BRDFs)"),
         preset: str = typer.Option(None, "--preset", help=PRESET_HELP),
         recipe_alias: str = typer.Option(None, "--recipe", hidden=True, help="the same as --preset (old name)"),
@@ -57,12 +58,16 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
     training state lives only in --checkpoint. Models trained in stages run them as phases of the same fit."""
 
     def go():
-        chosen = model or default_model(sources)
-        if model is None and not quiet:
-            print(f"model {chosen}: the default for this source (`neumat list` for the others; --model NAME)")
-        run_fit(chosen, sources, chosen_preset(preset, recipe_alias), parse_overrides(set_), out, steps=steps,
-                device=device, seed=seed, checkpoint=checkpoint, resume=resume, quiet=quiet,
-                source_options=parse_overrides(source_option, "--source-option"))
+        options = parse_overrides(source_option, "--source-option")
+        preset_name = chosen_preset(preset, recipe_alias)
+        chosen = model
+        if model is None:
+            chosen, why = default_model(sources, options, preset_name, resolve_device(device).type)
+            if not quiet:
+                print(f"model {chosen}: the default for this source{why} (`neumat list` for the others; "
+                      "--model NAME)")
+        run_fit(chosen, sources, preset_name, parse_overrides(set_), out, steps=steps,
+                device=device, seed=seed, checkpoint=checkpoint, resume=resume, quiet=quiet, source_options=options)
     with torch_threads(threads):
         run_command(go)
 
@@ -109,26 +114,34 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
 
 #: the model `neumat fit` fits when --model is not given, by what the source is (a `neumat.catalog.sources` key,
 #: "observations" for a translucent object's .npz, "several" for a set of sources): each kind's best model we
-#: measured (docs/multiscale.md: the gated model below tripleplane on 44 of 48 shared-set crops x seeds of the
-#: selection-free protocol, and below every other latent-texture model on average)
-DEFAULT_MODELS = {"several": "shared-neubrdf", "observations": "neupress", "folder": "multiscale",
-                  ".nbtf": "sparse-btf", ".btf": "sparse-btf"}
+#: measured; a texture-set folder ("folder") gets the gated model or tripleplane by its statistics
+#: (`neumat.methods.latent_mlp.regime`)
+DEFAULT_MODELS = {"several": "shared-neubrdf", "observations": "neupress", ".nbtf": "sparse-btf",
+                  ".btf": "sparse-btf"}
 #: ... and for every other source (a measured or analytic BRDF, a model file, a layered description)
 DEFAULT_BRDF_MODEL = "neubrdf"
 
 
-def default_model(sources: list[str]) -> str:
-    """DEFAULT_MODELS' model for `sources` (InputError for a missing or unsupported file)."""
-    from ..catalog.open_material import material_source
-    from ..catalog.sources import load_sources
+def default_model(sources: list[str], options: dict | None = None, preset: str | None = None,
+                  device_type: str = "cpu") -> tuple[str, str]:
+    """The model `neumat fit` fits to `sources` without --model (DEFAULT_MODELS; a texture-set folder, read with
+    the reader `options` such as its crop, by `regime.model_for_texture_set` for `preset` on a `device_type`
+    device) and why, as ": REASON" or "" (InputError for a missing or unsupported file)."""
+    from ..catalog.open_material import material_source, open_material
+    from ..catalog.sources import FOLDER, load_sources
+    from ..methods.latent_mlp.regime import model_for_texture_set
 
     if len(sources) > 1:
-        return DEFAULT_MODELS["several"]
+        return DEFAULT_MODELS["several"], ""
     if Path(sources[0]).suffix.lower() == ".npz":
-        return DEFAULT_MODELS["observations"]
+        return DEFAULT_MODELS["observations"], ""
     source, _ = material_source(sources[0])
     key = next(k for k, v in load_sources().items() if v is source)
-    return DEFAULT_MODELS.get(key, DEFAULT_BRDF_MODEL)
+    if key == FOLDER:
+        name, why = model_for_texture_set(open_material(sources[0], **(options or {})).textures,
+                                          chosen_preset(preset), device_type)
+        return name, f": {why}"
+    return DEFAULT_MODELS.get(key, DEFAULT_BRDF_MODEL), ""
 
 
 def chosen_preset(preset: str | None, recipe_alias: str | None = None) -> str:

@@ -71,13 +71,18 @@ def noise_corrected_rank(a: torch.Tensor, b: torch.Tensor, energy: float = 0.99)
     return min(int((s2.cumsum(0) < energy * signal).sum()) + 1, len(s2))
 
 
+def normal_tilt_deg(textures: TextureSet) -> torch.Tensor:
+    """Each texel's normal-map tilt: degrees between its shading normal and the geometric normal, (H, W)."""
+    return torch.rad2deg(torch.acos(textures.normal.float()[..., 2].clamp(-1, 1)))
+
+
 def texture_statistics(textures: TextureSet, footprints: tuple[float, ...] = (1, 4, 16), pairs: int = 32,
                        samples: int = 16, energy: float = 0.99, seed: int = 0) -> dict:
     """The regime of `textures`: size, normal tilt (degrees from the geometric normal: mean and 95th
     percentile), roughness (mean, standard deviation, 5-95 % range), mean metalness, and the separability rank
     at each footprint in texels (module docstring; footprints larger than the set are left out)."""
-    n, r = textures.normal.float(), textures.roughness.float().flatten()
-    tilt = torch.rad2deg(torch.acos(n[..., 2].clamp(-1, 1))).flatten()
+    r = textures.roughness.float().flatten()
+    tilt = normal_tilt_deg(textures).flatten()
     q = torch.quantile(r, torch.tensor([0.05, 0.95], device=r.device))
     size = max(textures.size)
     return {"name": textures.name, "size": list(textures.size), "tilt_deg": float(tilt.mean()),

@@ -1,0 +1,112 @@
+"""Controlled comparisons on the selection-free protocol's rows (`selection_free.py`): one recipe variant against
+another per model, split into the tuning pairs (each set's first crop, seed 0) and the held-out ones (its other
+crops, seed 1), and the texture-set default (`neumat.methods.latent_mlp.regime`) against the better of the gated
+model and tripleplane per (crop, seed).
+
+Usage: python -m benchmarks.studies.multiscale.selection_free_compare CROPS.json JOBS.jsonl [JOBS.jsonl ...]
+       [--against BASE:VARIANT ...] [--regime VARIANT ...]
+(a variant is a row's `variant` label, "" for the recipe as it ran; several JOBS files are read as one)."""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+
+from neumat.methods.latent_mlp.regime import DIELECTRIC_METALNESS, FLAT_TILT_DEG
+
+MODELS = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv", "ggx-mipmap")
+
+
+def _index(crops: list[dict], rows: list[dict]) -> tuple[dict, dict]:
+    """{(set, origin, model, seed, variant): row} of the finished default-step fits, {set: first crop origin}."""
+    first: dict = {}
+    for c in crops:
+        first.setdefault(c["name"], tuple(c["origin"]))
+    by = {(r["name"], tuple(r["origin"]), r["model"], r["seed"], r.get("variant") or ""): r
+          for r in rows if r["status"] == "ok" and not r.get("steps")}
+    return by, first
+
+
+def _flip(r: dict) -> float:
+    return r["scales"]["flip_mean"]
+
+
+def against(crops: list[dict], rows: list[dict], base: str, variant: str) -> str:
+    """Per model: on how many (crop, seed) pairs `variant` has the lower mean FLIP than `base`, the median and range
+    of variant / base, and the worst fit's final / lowest loss under `variant`."""
+    by, first = _index(crops, rows)
+    lines = [f"| model | pairs | lower with {variant or 'the base'} | median ratio | range | worst final/lowest |",
+             "|---|---|---|---|---|---|"]
+    every = []
+    for model in MODELS:
+        for part, held in (("tuning", False), ("held out", True)):
+            pairs = [(k, r) for k, r in by.items() if k[2] == model and k[4] == variant
+                     and (k[0], k[1], model, k[3], base) in by and (k[3] != 0 or first[k[0]] != k[1]) == held]
+            if not pairs:
+                continue
+            ratios = [_flip(r) / _flip(by[(k[0], k[1], model, k[3], base)]) for k, r in pairs]
+            worst = max(r["final_loss"] / r["best_loss"] for _, r in pairs)
+            every += ratios
+            lines.append(f"| {model} ({part}) | {len(ratios)} | {sum(x < 1 for x in ratios)} | "
+                         f"{statistics.median(ratios):.3f} | {min(ratios):.2f}-{max(ratios):.2f} | {worst:.2f} |")
+    if every:
+        lines += ["", f"All models: lower on {sum(x < 1 for x in every)} of {len(every)} pairs, median ratio "
+                      f"{statistics.median(every):.3f}"]
+    return "\n".join(lines)
+
+
+def regime(crops: list[dict], rows: list[dict], variant: str) -> str:
+    """Per (crop, seed): the gated / tripleplane mean FLIP ratio under `variant`, the crop's mean normal tilt and
+    metalness, the model the texture-set rule picks and whether it is the better one; then the rule's regret (its
+    pick's FLIP over the better one's) against always fitting the gated model."""
+    by, first = _index(crops, rows)
+    stats = {(c["name"], tuple(c["origin"])): c["stats"] for c in crops}
+    lines = ["| crop | seed | pair | tilt deg | metalness | gated / tripleplane | rule picks | the better |",
+             "|---|---|---|---|---|---|---|---|"]
+    right = total = 0
+    regret, regret_gated = [], []
+    for k, g in sorted(by.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][3])):
+        t = by.get((k[0], k[1], "tripleplane", k[3], variant))
+        if k[2] != "multiscale" or k[4] != variant or t is None:
+            continue
+        s = stats[(k[0], k[1])]
+        flat = s["tilt_deg"] < FLAT_TILT_DEG and s["metalness_mean"] < DIELECTRIC_METALNESS
+        ratio = _flip(g) / _flip(t)
+        good = (ratio >= 1) == flat
+        right += good
+        total += 1
+        best = min(_flip(g), _flip(t))
+        regret.append((_flip(t) if flat else _flip(g)) / best)
+        regret_gated.append(_flip(g) / best)
+        held = "held out" if (k[3] != 0 or first[k[0]] != k[1]) else "tuning"
+        lines.append(f"| {k[0]} {k[1][0]},{k[1][1]} | {k[3]} | {held} | {s['tilt_deg']:.1f} | "
+                     f"{s['metalness_mean']:.2f} | {ratio:.3f} | {'tripleplane' if flat else 'multiscale'} | "
+                     f"{'yes' if good else 'no'} |")
+    if not total:
+        return f"no (crop, seed) pair ran both models under {variant!r}"
+    lines += ["", f"The rule picks the better model on {right} of {total} pairs; its pick's mean FLIP over the "
+                  f"better one's: mean {statistics.mean(regret):.3f}, worst {max(regret):.3f} (always the gated "
+                  f"model: mean {statistics.mean(regret_gated):.3f}, worst {max(regret_gated):.3f})"]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("crops")
+    ap.add_argument("jobs", nargs="+")
+    ap.add_argument("--against", action="append", default=[], help="BASE:VARIANT, e.g. lr1e-2:lr1e-2-precond0")
+    ap.add_argument("--regime", action="append", default=[], help="variant label to score the rule under")
+    a = ap.parse_args()
+    crops = json.load(open(a.crops))
+    rows = [json.loads(line) for path in a.jobs for line in open(path) if line.strip()]
+    for pair in a.against:
+        base, _, variant = pair.partition(":")
+        print(f"### {variant or 'the base recipe'} against {base or 'the base recipe'}\n")
+        print(against(crops, rows, base, variant) + "\n")
+    for variant in a.regime:
+        print(f"### The texture-set default under {variant or 'the base recipe'}\n")
+        print(regime(crops, rows, variant) + "\n")
+
+
+if __name__ == "__main__":
+    main()

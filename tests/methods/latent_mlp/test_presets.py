@@ -1,0 +1,25 @@
+"""The latent-texture models' recommended preset: on a CPU the measured CPU settings (lr 1e-2, and no spatial
+preconditioner where that was measured better), on a GPU the paper's rate and preconditioner; paper and cpu keep
+the paper's."""
+import neumat.methods  # noqa: F401  (registers the models)
+from neumat.fit.preset import resolve_preset
+from neumat.methods.latent_mlp import UNPRECONDITIONED_ON_CPU
+
+MODELS = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv", "ggx-mipmap")
+
+
+def test_recommended_on_a_cpu_and_elsewhere():
+    for name in MODELS:
+        cpu = resolve_preset(name, "recommended", device="cpu")
+        gpu = resolve_preset(name, "recommended", device="cuda")
+        paper = resolve_preset(name, "paper")
+        assert cpu.recipe_name == "cpu" and cpu.recipe.lr == 1e-2, name
+        assert gpu.recipe_name == "paper" and gpu.recipe.lr == paper.recipe.lr == 3e-3, name
+        assert cpu.recipe.loss == gpu.recipe.loss == "relative_l2_robust" and cpu.recipe.grad_clip == 1.0, name
+        assert resolve_preset(name, "cpu").recipe.lr == 3e-3, name
+        expected = 0.0 if name in UNPRECONDITIONED_ON_CPU else 10.0
+        assert cpu.config.spatial_precondition == expected, name
+        assert gpu.config.spatial_precondition == paper.config.spatial_precondition == 10.0, name
+        # a user's --set wins over the preset's
+        assert resolve_preset(name, "recommended", device="cpu",
+                              overrides={"model.spatial_precondition": 3.0}).config.spatial_precondition == 3.0
