@@ -49,7 +49,7 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
 def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str],
                      after: Callable[[dict], dict] | None = None) -> list[dict] | None:
     """fit-many rows of `models` on every shared texture set at the paper's models' CPU path (256^2 texels, two
-    seeds), or of `quick_models` on one set at 32^2 for 10 steps in a quick run; None (the run says why) without
+    seeds), or of `quick_models` on one set at 32^2 for 10 steps with 8-sample footprint targets in a quick run; None (the run says why) without
     shared data."""
     data = shared_data_dir()
     if data is None:
@@ -59,7 +59,8 @@ def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str
     if run.quick:
         return fit_many(run, sets[-1:], quick_models,
                         ["--preset", "cpu", "--steps", "10", "--set", "batch_size=256", "--source-option",
-                         "max_size=32", "--n-configs", "4096", "--image-spp", "2", "--image-resolution", "32"],
+                         "max_size=32", "--source-option", "samples=8", "--n-configs", "4096", "--image-spp", "2",
+                         "--image-resolution", "32"],
                         [run.seed], after)
     return fit_many(run, sets, models, ["--preset", "cpu", "--source-option", "max_size=256", "--n-configs",
                                         str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"],

@@ -203,8 +203,8 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
         n_fmt = n // 32 if run.quick and fmt == "slang" else n
         for name, precision, exported, m in jobs:
             q = queries(m, n_fmt, run.seed)
-            wall = rate(exported, q)
-            cpu = rate(exported, q, clock="cpu", repeats=run.repeats if run.quick else max(run.repeats, 5))
+            both = rate(exported, q, clock="both", repeats=run.repeats if run.quick else max(run.repeats, 5))
+            wall, cpu = both["wall"], both["cpu"]
             flops = int(m.flops()) if name in names and callable(getattr(m, "flops", None)) else None
             if name == "ggx:roughness=0.2":
                 ggx_rate = cpu
@@ -215,9 +215,9 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
                          "x torch": torch_rates[name] / cpu if name in torch_rates else None})
     run.table("exports", "Export targets (one thread where the target honours it)", rows,
               "marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
-              "compilation and uploads do not count), per wall second (best of the run's repeats) and per CPU "
-              "second of this process (best of at least 5; llvmpipe's thread counted, a loaded machine's waits "
-              "not); llvmpipe with LP_NUM_THREADS = the run's threads; '% sgemm' from the CPU rate and the model's "
+              "compilation and uploads do not count), per wall second and per CPU second of this process, both "
+              "read around the same calls (best of the run's repeats, at least 5 in a full run; llvmpipe's thread "
+              "counted in CPU seconds, a loaded machine's waits not); llvmpipe with LP_NUM_THREADS = the run's threads; '% sgemm' from the CPU rate and the model's "
               "FLOPs; 'x GGX' = GGX's CPU rate in the same target and harness / the row's; 'x torch' = the torch "
               "runtime's evals/cpu s at the same batch (table above) / the row's; the floor row is the harness's "
               "own cost (query upload, one fragment, read-back)")

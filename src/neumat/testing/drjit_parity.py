@@ -49,8 +49,9 @@ def drjit_eval(exported, q: Query) -> torch.Tensor:
     return torch.from_numpy(np.array(out, dtype=np.float32).T.copy()).to(q.wi.device)
 
 
-def drjit_evals_per_second(exported, q: Query, clock: str = "wall", repeats: int = 3) -> float:
+def drjit_evals_per_second(exported, q: Query, clock: str = "wall", repeats: int = 3) -> float | dict[str, float]:
     """Evaluations per second of the runtime on Dr.Jit's LLVM backend with its current thread count, the
-    `marginal_rate` (kernel compilation and transfers do not count), per wall or CPU second."""
+    `marginal_rate` (kernel compilation and transfers do not count), per wall or CPU second (`clock` "both": a
+    dict of the two)."""
     rt = _runtime(exported)
     return marginal_rate(lambda part: drjit_eval(rt, part), q, "drjit_evals_per_second", clock, repeats)

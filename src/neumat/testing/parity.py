@@ -16,7 +16,7 @@ import torch
 from ..core.errors import InputError
 from ..core.query import Query
 from ..export.glsl_common import GLSL_VERSION, GLSLExport
-from .timing import best_time
+from .timing import best_times
 
 _VERTEX = GLSL_VERSION + """
 in vec2 position;
@@ -98,10 +98,10 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
 
 
 def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "egl", clock: str = "wall",
-                          repeats: int = 3) -> float:
+                          repeats: int = 3) -> float | dict[str, float]:
     """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine), the
     `marginal_rate` (context creation, compilation and uploads do not count); per wall or per CPU second of this
-    process (`clock` "cpu": llvmpipe's threads included, a loaded machine's waits not)."""
+    process (`clock` "cpu": llvmpipe's threads included, a loaded machine's waits not; "both": a dict of the two)."""
     return marginal_rate(lambda part: glsl_eval(export, part, backend), q, "glsl_evals_per_second", clock, repeats)
 
 
@@ -109,28 +109,31 @@ def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "e
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
 
-def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3) -> float:
+def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3) -> float | dict[str, float]:
     """Queries per second of run(q[:m]) between m = len(q) / 8 and len(q) (best of `repeats` each, after a
-    warm-up call on 64 and on each size), so that fixed costs do not count; seconds of `clock` ("wall" or "cpu": this process's CPU
-    seconds, `CLOCKS`). A loaded machine's noise can make the larger batch look no slower: then it measures
+    warm-up call on 64 and on each size), so that fixed costs do not count; seconds of `clock` ("wall" or "cpu": this
+    process's CPU seconds, `CLOCKS`), or "both": {"wall": rate, "cpu": rate} read around the same calls (half the
+    runs of two measurements). A loaded machine's noise can make the larger batch look no slower: then it measures
     again with twice the repeats, up to twice; NaN when it still does (overheads dominate: use more queries)."""
-    if clock not in CLOCKS:
-        raise InputError(f"{who} clock: expected one of {', '.join(CLOCKS)}, got {clock!r}")
+    if clock not in CLOCKS and clock != "both":
+        raise InputError(f"{who} clock: expected one of {', '.join(CLOCKS)} or both, got {clock!r}")
     n = len(q.wi)
     if n < 64:
         raise InputError(f"{who}: expected at least 64 queries, got {n}")
     run(q[:64])  # driver start-up, compilation
     run(q[:n // 8])  # and whatever a new batch size compiles or allocates, at both sizes
     run(q)
-
-    def best_of(m: int, r: int) -> float:
-        return best_time(lambda: run(q[:m]), r, warmup=False, clock=CLOCKS[clock])
-
+    clocks = CLOCKS if clock == "both" else {clock: CLOCKS[clock]}
+    rates = dict.fromkeys(clocks, float("nan"))
     for r in (repeats, 2 * repeats, 4 * repeats):
-        marginal = best_of(n, r) - best_of(n // 8, r)
-        if marginal > 0:
-            return (n - n // 8) / marginal
-    return float("nan")
+        large = best_times(lambda: run(q), r, clocks)
+        small = best_times(lambda: run(q[:n // 8]), r, clocks)
+        for name in clocks:
+            if large[name] > small[name] and rates[name] != rates[name]:  # still NaN: this clock's first success
+                rates[name] = (n - n // 8) / (large[name] - small[name])
+        if all(x == x for x in rates.values()):
+            break
+    return rates if clock == "both" else rates[clock]
 
 
 def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, backend: str | None = "egl",
