@@ -48,12 +48,12 @@ def recommended(model: str) -> Preset:
 #: benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
     "multiscale": "the default for texture sets with normal detail or metal (on a CPU; `neumat.methods.latent_mlp."
-                  "regime`): at the CPU default, mean FLIP over 9 scales below tripleplane's on 15 of 15 random "
-                  "crops x seeds where normals vary (0.65-0.95x) and on 5 of 7 flat-metal ones (0.93-1.05x); the "
+                  "regime`): at the CPU default, mean FLIP over 9 scales below tripleplane's on 30 of 30 random "
+                  "crops x seeds where normals vary (0.65-0.95x) and on 8 of 12 flat-metal ones (0.93-1.05x); the "
                   "lowest mean FLIP of all latent-texture models over random crops",
     "tripleplane": "the default for flat dielectric texture sets on a CPU (mean normal tilt < 5 degrees, metalness "
                    "< 0.5): ahead of the gated model on flat wood (it scores 1.17-1.39x tripleplane's FLIP), level "
-                   "on flat leather (0.97-1.04x); behind it wherever normals vary (fabric, paper, plaster, sub-texel "
+                   "on flat leather (0.97-1.06x); behind it wherever normals vary (fabric, paper, plaster, sub-texel "
                    "scratches, foil, chainmail)",
 }
 
