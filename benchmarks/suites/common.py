@@ -49,8 +49,8 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
 def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str],
                      after: Callable[[dict], dict] | None = None) -> list[dict] | None:
     """fit-many rows of `models` on every shared texture set at the paper's models' CPU path (256^2 texels, two
-    seeds), or of `quick_models` on one set at 32^2 for 10 steps with 8-sample footprint targets in a quick run; None (the run says why) without
-    shared data."""
+    seeds), or of `quick_models` on one set at 32^2 for 10 steps with 8-sample footprint targets in a quick run;
+    None (the run says why) without shared data."""
     data = shared_data_dir()
     if data is None:
         run.skip("every fit", "no texture sets: shared data absent (neumat.io.shared_data)")

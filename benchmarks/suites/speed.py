@@ -217,7 +217,8 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
               "marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
               "compilation and uploads do not count), per wall second and per CPU second of this process, both "
               "read around the same calls (best of the run's repeats, at least 5 in a full run; llvmpipe's thread "
-              "counted in CPU seconds, a loaded machine's waits not); llvmpipe with LP_NUM_THREADS = the run's threads; '% sgemm' from the CPU rate and the model's "
+              "counted in CPU seconds, a loaded machine's waits not); llvmpipe with LP_NUM_THREADS = the run's "
+              "threads; '% sgemm' from the CPU rate and the model's "
               "FLOPs; 'x GGX' = GGX's CPU rate in the same target and harness / the row's; 'x torch' = the torch "
               "runtime's evals/cpu s at the same batch (table above) / the row's; the floor row is the harness's "
               "own cost (query upload, one fragment, read-back)")

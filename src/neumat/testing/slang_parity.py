@@ -147,8 +147,8 @@ def slang_eval(export: SlangExport | SlangKernel, q: Query, entry: str | None = 
 def slang_evals_per_second(export: SlangExport | SlangKernel, q: Query, clock: str = "wall",
                            repeats: int = 3) -> float | dict[str, float]:
     """Evaluations per second of `slang_eval(export, q)` (eval with q's footprint, else eval_lod), the
-    `neumat.testing.parity.marginal_rate` (compilation and uploads do not count) per wall or CPU second (`clock` "both": a dict of
-    the two)."""
+    `neumat.testing.parity.marginal_rate` (compilation and uploads do not count) per wall or CPU second (`clock`
+    "both": a dict of the two)."""
     from .parity import marginal_rate
 
     kernel = export if isinstance(export, SlangKernel) else SlangKernel(export)

@@ -72,4 +72,5 @@ for name, model, glsl, small in (
         ("ggx-mipmap", GGXMipmap, None, dict(spatial_size=8))):
     register_method(Method(name, model, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE}, options=train.Options,
                            phases=train.phases, config_for_source=train.config_for_source, glsl=glsl, small=small,
-                           drjit=DRJIT.get(name), presets={"recommended": recommended(name)}, measured=MEASURED.get(name, "")))
+                           drjit=DRJIT.get(name), presets={"recommended": recommended(name)},
+                           measured=MEASURED.get(name, "")))
