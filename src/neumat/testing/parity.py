@@ -8,6 +8,7 @@ its query (wi, wo, uv, footprint or lod) from float textures with `texelFetch`, 
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -129,9 +130,9 @@ def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3
         large = best_times(lambda: run(q), r, clocks)
         small = best_times(lambda: run(q[:n // 8]), r, clocks)
         for name in clocks:
-            if large[name] > small[name] and rates[name] != rates[name]:  # still NaN: this clock's first success
+            if large[name] > small[name] and math.isnan(rates[name]):  # this clock's first success
                 rates[name] = (n - n // 8) / (large[name] - small[name])
-        if all(x == x for x in rates.values()):
+        if not any(math.isnan(x) for x in rates.values()):
             break
     return rates if clock == "both" else rates[clock]
 

@@ -28,14 +28,8 @@ def best_time(fn: Callable[[], object], repeats: int = 3, warmup: bool = True,
     """Seconds of the fastest of `repeats` calls of fn() (after one untimed warm-up call unless `warmup` is
     False), without gradients: the least disturbed run on a shared machine. `clock`: wall (None:
     time.perf_counter) or, say, `time.process_time` (CPU seconds of every thread of this process: a loaded machine's waits do not count)."""
-    clock = clock or time.perf_counter
     check_int(repeats, "best_time repeats", 1)
-    with torch.no_grad():
-        if warmup:
+    if warmup:
+        with torch.no_grad():
             fn()
-        times = []
-        for _ in range(repeats):
-            start = clock()
-            fn()
-            times.append(clock() - start)
-    return min(times)
+    return best_times(fn, repeats, {"clock": clock or time.perf_counter})["clock"]
