@@ -1,4 +1,4 @@
-"""Entry point: `python -m benchmarks --list | SUITE [--quick] [--json] [--out FILE.json]`."""
+"""Entry point: `python -m benchmarks --list | SUITE [--quick] [--json] [--out FILE.json] [--work DIR] [--workers N]`."""
 from __future__ import annotations
 
 import argparse
@@ -23,6 +23,11 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of every fit and query set")
     parser.add_argument("--repeats", type=int, default=None, help="timing samples, best taken (default: 3 quick, "
                                                                   "7 full)")
+    parser.add_argument("--work", type=Path, help="keep the suite's fits here (fit-many folders, generated data): "
+                                                  "the same command again resumes, refitting only what is missing "
+                                                  "(for full runs longer than a sitting; default: a temporary folder)")
+    parser.add_argument("--workers", type=int, default=1, help="fits run at a time (fit-many's Ray engine, "
+                                                               "--threads each; default 1: one after another)")
     args = parser.parse_args(argv)
     if args.list:
         for name in SUITES:
@@ -34,8 +39,11 @@ def main(argv: list[str]) -> int:
         parser.error("name a suite (or --list)")
     if args.out is not None and args.out.suffix != ".json":
         parser.error(f"--out {args.out}: expected a .json path")
+    if args.workers < 1:
+        parser.error(f"--workers {args.workers}: expected at least 1")
     repeats = args.repeats or (3 if args.quick else 7)
-    run = harness.Run(load(args.suite), args.quick, args.seed, args.threads, repeats, argv)
+    run = harness.Run(load(args.suite), args.quick, args.seed, args.threads, repeats, argv, work=args.work,
+                      workers=args.workers)
     doc = run.execute()
     if args.out is not None:
         harness.write(doc, args.out)

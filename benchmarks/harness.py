@@ -3,7 +3,9 @@ as JSON (benchmarks/schema.json) and the Markdown page rendered from them; one p
 are taken and recorded the same way."""
 from __future__ import annotations
 
+import contextlib
 import datetime
+import hashlib
 import importlib.metadata
 import json
 import math
@@ -12,9 +14,10 @@ import platform
 import random
 import shlex
 import subprocess
+import tempfile
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -119,8 +122,10 @@ def _version(package: str) -> str | None:
 class Run:
     """One suite run: its options, the tables and skips it records, and the results document built from them."""
 
-    def __init__(self, suite, quick: bool, seed: int, threads: int, repeats: int, argv: list[str]) -> None:
+    def __init__(self, suite, quick: bool, seed: int, threads: int, repeats: int, argv: list[str],
+                 work: Path | None = None, workers: int = 1) -> None:
         self.suite, self.quick, self.seed, self.threads, self.repeats = suite, quick, seed, threads, repeats
+        self.work, self.workers = work, workers
         self.command = shlex.join(["python", "-m", "benchmarks", *argv])
         self.tables: list[dict] = []
         self.skipped: list[dict] = []
@@ -136,6 +141,19 @@ class Run:
         columns = list(dict.fromkeys(k for row in rows for k in row))
         self.tables.append({"name": name, "title": title, "columns": columns, "rows": [_plain(r) for r in rows],
                             "notes": notes})
+
+    @contextlib.contextmanager
+    def folder(self, *key: object) -> Iterator[Path]:
+        """A folder for the part of the run that `key` names: under --work it is kept (the same key gives the same
+        folder, so a rerun finds what it holds), else a temporary one, removed after."""
+        if self.work is None:
+            with tempfile.TemporaryDirectory(prefix=f"neumat-{self.suite.NAME}-") as tmp:
+                yield Path(tmp)
+            return
+        digest = hashlib.sha1(json.dumps([self.suite.NAME, self.quick, *key], default=str).encode()).hexdigest()
+        path = self.work / f"{self.suite.NAME}-{'quick' if self.quick else 'full'}-{digest[:12]}"
+        path.mkdir(parents=True, exist_ok=True)
+        yield path
 
     def skip(self, what: str, reason: str) -> None:
         """Record something the run could not measure here, and why."""

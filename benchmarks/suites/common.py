@@ -6,7 +6,6 @@ import contextlib
 import json
 import statistics
 import sys
-import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -23,14 +22,19 @@ METRICS = ("log_err", "rmse_hdr", "img_mae", "img_ssim", "img_flip", "img_floor_
 
 def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],
              after: Callable[[dict], dict] | None = None) -> list[dict]:
-    """fit-many's result rows of every (source, model) for each seed (a "seed" key added); a failed job's row
+    """fit-many's result rows of every (source, model) for each seed (a "seed" key added), `run.workers` fits at
+    a time, in folders kept under --work when given (so a rerun resumes: fit-many keeps what matches); a failed job's row
     has status "error" and its message, and the run records it as skipped. `after(row)` runs on each fitted row
     while its .nmat still exists (row["nmat"]); what it returns is added to the row."""
     rows = []
+    engine = ["--engine", "local"] if run.workers == 1 else ["--engine", "ray", "--workers", str(run.workers)]
+    if run.work is not None:
+        run.protocol["fits"] = (f"fit-many folders kept under {run.work} (a rerun resumes); wall and CPU seconds are "
+                                f"this sitting's, each row's 'fit s' its own fit's; {run.workers} fit(s) at a time")
     for seed in seeds:
-        with tempfile.TemporaryDirectory(prefix="neumat-bench-") as out:
+        with run.folder("fit-many", sources, models, options, seed) as out:
             args = ["fit-many", *sources, *[a for m in models for a in ("-m", m)], *options, "--seed", str(seed),
-                    "--threads", str(run.threads), "--engine", "local", "-q", "-o", out]
+                    "--threads", str(run.threads), *engine, "-q", "-o", str(out)]
             try:  # fit-many's progress goes to stderr: stdout stays the suite's table or JSON
                 with contextlib.redirect_stdout(sys.stderr):
                     app(args, standalone_mode=False)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import sys
-import tempfile
 from pathlib import Path
 
 from neumat.cli.main import app
@@ -28,17 +27,23 @@ def run(run: harness.Run) -> None:
     """Generate the BTFs, fit both models and tabulate."""
     classes, size, spp = (CLASSES[:1], 20, 1) if run.quick else (CLASSES, 40, 4)
     directions = ["--directions", "rings:3x30"] if run.quick else []  # hemi151 (the full runs') is 64x the data
-    with tempfile.TemporaryDirectory(prefix="neumat-btf-") as folder:
-        sources = []
-        for kind in classes:
-            path = Path(folder) / f"{kind}.nbtf"
-            with contextlib.redirect_stdout(sys.stderr):
-                app(["data", "btf-generate", f"procedural:{kind}", "-o", str(path), "--size", str(size), "--spp", str(spp),
-                     *directions, "-q"], standalone_mode=False)
-            sources.append(str(path))
+    with run.folder("btf-generate", classes, size, spp, directions) as folder:
+        sources = [str(_generated(folder, kind, size, spp, directions)) for kind in classes]
         quick = ["--set", "sparse-btf:num_dictionaries=2", "--set", "sparse-btf:steps=2", "--n-configs", "4096"]
         options = (quick if run.quick else ["--n-configs", str(2 ** 18)]) + ["--image-spp", "0"]
         rows = fit_many(run, sources, ["sparse-btf", "pca-btf"], options,
                         [run.seed] if run.quick else [run.seed, run.seed + 1])
     run.table("fits", "Generated BTFs x models (bytes: each model's own size; PCA's rank follows SparseBTF's bytes "
                       "in the pca-btf recipe)", quality_rows(rows))
+
+
+def _generated(folder: Path, kind: str, size: int, spp: int, directions: list[str]) -> Path:
+    """folder/<kind>.nbtf, generated unless a finished one is there (a --work folder keeps it for reruns)."""
+    path = folder / f"{kind}.nbtf"
+    if not path.exists():
+        partial = folder / f"{kind}.partial.nbtf"
+        with contextlib.redirect_stdout(sys.stderr):
+            app(["data", "btf-generate", f"procedural:{kind}", "-o", str(partial), "--size", str(size), "--spp",
+                 str(spp), *directions, "-q"], standalone_mode=False)
+        partial.rename(path)
+    return path

@@ -160,3 +160,29 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
     assert argv == [sys.executable, "-m", "benchmarks", "sparsebtf", "--quick", "--out", str(out.resolve()),
                     "--seed", "3", "--threads", "1"]
     assert kw["cwd"] == ROOT
+    calls.clear()
+    result = CliRunner().invoke(app, ["bench", "sparsebtf", "--work", str(tmp_path / "w"), "--workers", "2"])
+    assert result.exit_code == 0, result.output
+    assert calls[0][0][-4:] == ["--work", str((tmp_path / "w").resolve()), "--workers", "2"]
+
+
+def test_a_rerun_with_work_resumes_the_kept_fits(tmp_path):
+    """With --work the generated BTF and the fit-many folders stay, and the same command again refits nothing:
+    the same rows, the fitted files untouched."""
+    work = tmp_path / "work"
+    first = _bench("sparsebtf", "--quick", "--json", "--work", str(work))
+    assert first.returncode == 0, first.stderr[-3000:]
+    fitted = {p: p.stat().st_mtime_ns for p in work.rglob("*.nmat")}
+    generated = list(work.rglob("*.nbtf"))
+    assert len(fitted) == 2 and [p.name for p in generated] == ["bumps.nbtf"]
+    second = _bench("sparsebtf", "--quick", "--json", "--work", str(work))
+    assert second.returncode == 0, second.stderr[-3000:]
+    assert "already done (kept), 0 to fit" in second.stderr
+    assert {p: p.stat().st_mtime_ns for p in work.rglob("*.nmat")} == fitted
+    assert json.loads(second.stdout)["tables"] == json.loads(first.stdout)["tables"]
+    assert "a rerun resumes" in json.loads(second.stdout)["protocol"]["fits"]
+
+
+def test_workers_below_one_are_refused(capsys):
+    status, _, err = _main(capsys, "sparsebtf", "--workers", "0")
+    assert status == 2 and "--workers 0: expected at least 1" in err

@@ -31,12 +31,16 @@ def bench(suite: str = typer.Argument(None, help="the suite to run (--list names
           out: Path = typer.Option(None, "--out", help="write the results JSON (and its folder's README.md) here"),
           seed: int = typer.Option(0, help="seed of every fit and query set"),
           threads: int = typer.Option(1, "--threads", min=1, help="CPU threads (default 1)"),
+          work: Path = typer.Option(None, "--work", help="keep the suite's fits here: the same command again "
+                                                         "resumes (full runs longer than a sitting)"),
+          workers: int = typer.Option(1, "--workers", min=1, help="fits run at a time (default 1)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output (the suite's stderr)")) -> None:
     """Run a benchmark suite: JSON results naming the command, commit and machine, and a Markdown table."""
     def go():
         args = (["--list"] if list_ else []) + ([suite] if suite else []) + (["--quick"] if quick else []) \
             + (["--json"] if json_ else []) + (["--out", str(out.resolve())] if out else []) \
-            + ["--seed", str(seed), "--threads", str(threads)]
+            + ["--seed", str(seed), "--threads", str(threads)] + (["--work", str(work.resolve())] if work else []) \
+            + (["--workers", str(workers)] if workers != 1 else [])
         done = subprocess.run([sys.executable, "-m", "benchmarks", *args], cwd=benchmarks_root(),
                               stderr=subprocess.DEVNULL if quiet else None)
         if done.returncode:
