@@ -1,9 +1,15 @@
 """neubrdf: NeuBRDF (Gokbudak et al. 2024) Tables 3 and 4 on our data, and sparse-measurement pruning, all through
 `neumat fit-many` on the CPU path: RGL files (Table 3: against NBRDF and fitted GGX), the 25 MERL-like tables of
 the shared NBRDF networks (Table 4), the RGL files again with replayed measurements and a pruned grid. NeuBRDF
-runs twice: at the default preset (recommended) and as the paper's exact model (preset cpu)."""
+runs twice: at the default preset (recommended) and as the paper's exact model (preset cpu). Shared codebooks (Sec.
+3.3) through `neumat fit-clusters` on the MERL-like tables, each member beside its own fit of Table 4."""
 from __future__ import annotations
 
+import contextlib
+import json
+import sys
+
+from neumat.cli.main import app
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
@@ -20,17 +26,25 @@ FULL_EVAL = ["--n-configs", str(2 ** 18), "--image-spp", "64", "--image-resoluti
 PAPER_MODEL = ["--preset", "cpu"]
 QUICK = ["--preset", "cpu", "--steps", "30", "--set", "neubrdf:nside=4", "--set", "neubrdf:index_bits=4",
          "--set", "batch_size=1024", "--n-configs", "4096", "--image-spp", "4", "--image-resolution", "32"]
+#: fit-clusters of a full run: the clusters of the shared-codebook study (k 6 over the 25 MERL-like tables), at the
+#: default preset and Table 4's evaluation queries
+CLUSTERS = ["-k", "6", "--n-configs", str(2 ** 18)]
+QUICK_CLUSTERS = ["-k", "1", "--preset", "cpu", "--steps", "30", "--set", "nside=4", "--set", "index_bits=4", "--set",
+                  "batch_size=1024", "--set", "cluster_steps=20", "--set", "cluster_resolution=8", "--n-configs",
+                  "4096"]
 BUDGET = {
     "quick": {"ours": "neubrdf (N_side 4, b 4) and nbrdf, 30 steps x 1024 on analytic GGX and paper_white, one seed; "
-                      "images 32^2 at 4 spp",
+                      "images 32^2 at 4 spp; the two in one shared-neubrdf cluster",
               "paper": paper_budget(TABLE4_MODELS) + " on a GPU",
               "expected_wall": "about 15 s"},
     "full": {"ours": f"CPU recipes: {recipe_budget(TABLE3_MODELS)}; Table 3: 5 RGL files x 3 models, Table 4: 25 "
                      "MERL-like tables x 2 models, pruning: 5 RGL files x neubrdf; seeds 0 and 1 (140 fits); images "
-                     "128^2 at 64 spp",
+                     "128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the default "
+                     "preset, seed 0",
              "paper": paper_budget(TABLE4_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 15 h one fit after another (fit-many --engine local, one thread)"},
+             "expected_wall": "about 17 h one fit after another (fit-many --engine local, one thread; --workers 2: "
+                              "about half)"},
 }
 
 
@@ -48,9 +62,12 @@ def run(run: harness.Run) -> None:
         rgl = [str(p) for p in sorted((data / "rgl").glob("*_rgb.bsdf"))]
         merl = [str(p) for p in sorted((data / "merl" / "nbrdf_fits").glob("*.h5"))]
     if run.quick:
-        rows = fit_many(run, ["ggx:roughness=0.2", *rgl[-1:]], TABLE4_MODELS, QUICK, seeds)
+        sources = ["ggx:roughness=0.2", *rgl[-1:]]
+        rows = fit_many(run, sources, TABLE4_MODELS, QUICK, seeds)
         run.table("table3", "Quick: tiny fits (numbers mean nothing; the suite runs)", quality_rows(rows))
         run.table("summary", "Quick: per-model means", summary_rows(rows))
+        run.table("sharing", "Quick: the sources in one shared-neubrdf cluster",
+                  _sharing(run, sources, QUICK_CLUSTERS, run.seed, rows))
         run.skip("Table 4 (MERL-like) and pruning", "--quick")
         return
     _full(run, rgl, merl, seeds)
@@ -77,5 +94,28 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     pruned = fit_many(run, rgl, ["neubrdf"], ["--preset", "paper", *FULL_EVAL, "--set", "queries=replay",
                                               "--set", "prune=true"], seeds[:1])
     run.table("pruning", "Pruning: NeuBRDF on replayed RGL measurements, pruned grid", quality_rows(pruned))
-    run.skip("shared codebooks (Sec. 3.3)", "shared-neubrdf fits a set of materials, which fit-many does not take; "
-             "last measured by benchmarks/studies/neubrdf/neubrdf_shared_prune.py")
+    run.table("sharing", "Shared codebooks (Sec. 3.3): fit-clusters -k 6 of the MERL-like tables, each member "
+                         "beside its own NeuBRDF fit of Table 4 (same seed, same queries)",
+              _sharing(run, merl, CLUSTERS, seeds[0], rows4))
+
+
+def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int, own: list[dict]) -> list[dict]:
+    """One row per source of a `neumat fit-clusters` run (kept under --work: a finished one is read back): its
+    cluster, bytes (its index grid and a share of the cluster's codebook and MLP) and reflectance errors, beside
+    its own default-preset NeuBRDF fit's in `own` (fit-many rows)."""
+    with run.folder("fit-clusters", sources, options, seed) as out:
+        if not (out / "clusters.json").exists():
+            with contextlib.redirect_stdout(sys.stderr):
+                app(["fit-clusters", *sources, *options, "--seed", str(seed), "--threads", str(run.threads), "-q",
+                     "-o", str(out)], standalone_mode=False)
+        doc = json.loads((out / "clusters.json").read_text())
+    alone = {r["name"]: r for r in own if r["model"] == "neubrdf" and r["seed"] == seed and r["status"] == "ok"}
+    size = {c["cluster"]: len(c["members"]) for c in doc["clusters"]}
+    rows = []
+    for m in doc["materials"].values():
+        a = alone.get(m["name"], {})
+        rows.append({"source": m["name"], "cluster": m["cluster"], "cluster size": size[m["cluster"]],
+                     "log_err": m["metrics"]["log_err"], "rmse_hdr": m["metrics"]["rmse_hdr"],
+                     "bytes": m["bytes_fp16"], "own log_err": a.get("metrics", {}).get("log_err"),
+                     "own rmse_hdr": a.get("metrics", {}).get("rmse_hdr"), "own bytes": a.get("bytes_fp16")})
+    return rows

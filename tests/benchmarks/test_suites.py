@@ -73,6 +73,20 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_speed(doc)
     if suite in ("speed", "export-parity"):
         _check_drjit_rows(doc)
+    if suite == "neubrdf":
+        _check_sharing(doc)
+
+
+def _check_sharing(doc: dict) -> None:
+    """fit-clusters' members beside their own fits: every source once, in one cluster of all of them (-k 1), each
+    member's bytes below its own fit's (the codebook and MLP are shared) and its errors finite."""
+    rows = next(t for t in doc["tables"] if t["name"] == "sharing")["rows"]
+    own = {r["source"] for r in next(t for t in doc["tables"] if t["name"] == "table3")["rows"]}
+    assert {r["source"] for r in rows} == own and len(rows) == len(own) == 2
+    for r in rows:
+        assert r["cluster"] == 0 and r["cluster size"] == 2
+        assert r["own log_err"] is not None and r["log_err"] is not None
+        assert r["bytes"] < r["own bytes"]
 
 
 def _check_drjit_rows(doc: dict) -> None:
