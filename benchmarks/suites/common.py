@@ -20,6 +20,13 @@ METRICS = ("log_err", "rmse_hdr", "img_mae", "img_ssim", "img_flip", "img_floor_
            "img_floor_flip")
 
 
+def cli(args: list[str]) -> None:
+    """Run a `neumat` command in this process, its output on stderr (stdout stays the suite's table or JSON);
+    SystemExit of a failed command propagates."""
+    with contextlib.redirect_stdout(sys.stderr):
+        app(args, standalone_mode=False)
+
+
 def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],
              after: Callable[[dict], dict] | None = None) -> list[dict]:
     """fit-many's result rows of every (source, model) for each seed (a "seed" key added), `run.workers` fits at

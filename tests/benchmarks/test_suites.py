@@ -75,6 +75,23 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_drjit_rows(doc)
     if suite == "neubrdf":
         _check_sharing(doc)
+    if suite == "neupress":
+        _check_neupress_images(doc)
+
+
+def _check_neupress_images(doc: dict) -> None:
+    """The image table where Mitsuba runs: the floor row, then each model of the fitted seed, each scored (finite
+    FLIP in [0, 1], object FLIP too, held-out errors); without LLVM it is skipped with the reason."""
+    from neumat.testing.drjit_parity import drjit_available
+    if not drjit_available():
+        assert any(s["what"] == "image table" for s in doc["skipped"])
+        return
+    rows = next(t for t in doc["tables"] if t["name"] == "images")["rows"]
+    assert [(r["model"], r["seed"]) for r in rows] == [("reference, another seed (floor)", None),
+                                                       ("neupress", 0), ("dipole-bssrdf", 0)]
+    for r in rows:
+        assert 0 < r["FLIP"] < 1 and 0 < r["object FLIP"] < 1 and r["MSE"] > 0, r
+    assert all(r["held-out mean"] > 0 and r["held-out median"] > 0 for r in rows[1:])
 
 
 def _check_sharing(doc: dict) -> None:

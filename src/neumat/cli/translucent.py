@@ -231,8 +231,7 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
 
         from ..core.errors import InputError
         from ..io.images import write_image, write_image_ldr
-        from ..metrics.image import image_metrics, masked_flip
-        from ..render.translucent import (APPEARANCES, STRATEGIES, object_mask, render_translucent,
+        from ..render.translucent import (APPEARANCES, STRATEGIES, image_scores, object_mask, render_translucent,
                                           render_translucent_reference)
         from ..viz.compare import compare_image
 
@@ -260,16 +259,9 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
         ref_seconds = (time.perf_counter() - t) / 2
         reference = references[0]
         mask = object_mask(obj, camera, resolution).numpy()
-
-        def scores_of(test):
-            scores = image_metrics(reference.numpy(), test.numpy(), tonemap="aces")
-            scores["mse"] = float(((test - reference) ** 2).mean())
-            scores["object_flip"] = masked_flip(reference.numpy(), test.numpy(), mask, tonemap="aces")
-            return scores
-
         name = f"NeuPreSS, {appearance}, {strategy}, {spp} spp"
         floor = f"reference, another seed ({reference_spp} spp)"
-        scores = {name: scores_of(img), floor: scores_of(references[1])}
+        scores = {name: image_scores(reference, img, mask), floor: image_scores(reference, references[1], mask)}
         shown = {k: {"flip": v["flip"], "object_flip": v["object_flip"], "mse": v["mse"]} for k, v in scores.items()}
         write_image_ldr(out, compare_image(reference, {name: img, floor: references[1]}, shown, tonemap="aces"))
         print_table(f"wrote {out}: against a {reference_spp}-spp path-traced reference ({ref_seconds:.0f} s); the "

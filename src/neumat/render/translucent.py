@@ -67,6 +67,18 @@ def default_strategy(model) -> str:
     return "mis" if hasattr(model, "sample_incident") and hasattr(model, "incident_pdf") else "light"
 
 
+def image_scores(reference: torch.Tensor, test: torch.Tensor, mask: np.ndarray) -> dict[str, float]:
+    """The translucent image table's scores of `test` against `reference` under the ACES tone map: the image
+    metrics (FLIP, SSIM, ...), MSE of the radiance, and FLIP over the object's pixels (`mask`), where the learned
+    term is (the background is the same in both)."""
+    from ..metrics.image import image_metrics, masked_flip
+
+    scores = image_metrics(reference.numpy(), test.numpy(), tonemap="aces")
+    scores["mse"] = float(((test - reference) ** 2).mean())
+    scores["object_flip"] = masked_flip(reference.numpy(), test.numpy(), mask, tonemap="aces")
+    return scores
+
+
 def render_translucent(model, obj: TranslucentObject, env: EnvironmentMap, camera: Camera, resolution: int,
                        spp: int = 16, strategy: str | None = None, seed: int = 0, batch: int = 1 << 15,
                        appearance: str = "subsurface") -> torch.Tensor:
