@@ -72,7 +72,7 @@ def run(run: harness.Run) -> None:
     _images(run, seeds)
 
 
-#: the image table's object, traced data, fits and rendering: (full, quick)
+#: the image table's object, traced data, fits and rendering, full and quick
 IMAGE_SETUP = {
     "full": {"scene": "mesh:{data}/mesh/stanford_bunny_35k.ply", "trace": [], "test": ["--images", "400",
              "--resolution", "4", "--spp", "4096"], "fit": {}, "light": "{data}/envmap/venice_sunset_1k.hdr",
@@ -114,7 +114,7 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
                                       str(run.seed), "-q", "-o", str(out)]))
         _kept(test, lambda out: cli(["translucent", "trace", "--scene", scene, *media, *setup["test"], "--seed",
                                      str(TEST_SEED), "-q", "-o", str(out)]))
-        scorer = _Scorer(run, folder, train, test, light, setup)
+        scorer = _Scorer(folder, train, test, light, setup)
         rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
         for seed in seeds:
             for name in MODELS:
@@ -145,7 +145,7 @@ def _kept(path: Path, make) -> Path:
 class _Scorer:
     """Scores models of one traced object: held-out error on the test set and the image against the reference."""
 
-    def __init__(self, run: harness.Run, folder: Path, train: Path, test: Path, light: str, setup: dict) -> None:
+    def __init__(self, folder: Path, train: Path, test: Path, light: str, setup: dict) -> None:
         from neumat.core.config import config_from_dict
         from neumat.fit.translucent_observations import Observations
         from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
