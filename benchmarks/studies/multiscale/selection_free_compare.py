@@ -1,10 +1,11 @@
 """Controlled comparisons on the selection-free protocol's rows (`selection_free.py`): one recipe variant against
 another per model, split into the tuning pairs (each set's first crop, seed 0) and the held-out ones (its other
-crops, seed 1), and the texture-set default (`neumat.methods.latent_mlp.regime`) against the better of the gated
-model and tripleplane per (crop, seed).
+crops, seed 1), the texture-set default (`neumat.methods.latent_mlp.regime`) against the better of the gated
+model and tripleplane per (crop, seed), and every model's FLIP over tripleplane's (issue 55's 1.5x criterion),
+at the default steps or at a step budget beside tripleplane's at the default and at the same budget.
 
 Usage: python -m benchmarks.studies.multiscale.selection_free_compare CROPS.json JOBS.jsonl [JOBS.jsonl ...]
-       [--against BASE:VARIANT ...] [--regime VARIANT ...]
+       [--against BASE:VARIANT ...] [--regime VARIANT ...] [--ratio VARIANT[@STEPS] ...]
 (a variant is a row's `variant` label, "" for the recipe as it ran; several JOBS files are read as one)."""
 from __future__ import annotations
 
@@ -17,13 +18,14 @@ from neumat.methods.latent_mlp.regime import DIELECTRIC_METALNESS, FLAT_TILT_DEG
 MODELS = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv", "ggx-mipmap")
 
 
-def _index(crops: list[dict], rows: list[dict]) -> tuple[dict, dict]:
-    """{(set, origin, model, seed, variant): row} of the finished default-step fits, {set: first crop origin}."""
+def _index(crops: list[dict], rows: list[dict], steps: int | None = None) -> tuple[dict, dict]:
+    """{(set, origin, model, seed, variant): row} of the finished fits at `steps` (None: the recipe's), {set: first
+    crop origin}."""
     first: dict = {}
     for c in crops:
         first.setdefault(c["name"], tuple(c["origin"]))
     by = {(r["name"], tuple(r["origin"]), r["model"], r["seed"], r.get("variant") or ""): r
-          for r in rows if r["status"] == "ok" and not r.get("steps")}
+          for r in rows if r["status"] == "ok" and (r.get("steps") or None) == steps}
     return by, first
 
 
@@ -90,12 +92,43 @@ def regime(crops: list[dict], rows: list[dict], variant: str) -> str:
     return "\n".join(lines)
 
 
+def ratio(crops: list[dict], rows: list[dict], variant: str, steps: int | None = None) -> str:
+    """Per (crop, seed, model) that ran under `variant` at `steps`: its mean FLIP over tripleplane's at the default
+    steps and, with `steps`, at the same steps; then per model the pairs above 1.5x."""
+    at, _ = _index(crops, rows, steps)
+    default, _ = _index(crops, rows)
+    lines = ["| crop | seed | model | FLIP | / tripleplane (default steps) | / tripleplane (same steps) |",
+             "|---|---|---|---|---|---|"]
+    over: dict = {}
+    for k, r in sorted(at.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1], kv[0][3])):
+        if k[4] != variant or k[2] == "tripleplane":
+            continue
+        t_default = default.get((k[0], k[1], "tripleplane", k[3], variant))
+        t_same = at.get((k[0], k[1], "tripleplane", k[3], variant)) if steps else t_default
+        if t_default is None and t_same is None:
+            continue
+        r_default = _flip(r) / _flip(t_default) if t_default else None
+        r_same = _flip(r) / _flip(t_same) if t_same else None
+        n, worse = over.get(k[2], (0, 0))
+        over[k[2]] = (n + 1, worse + any(x is not None and x > 1.5 for x in (r_default if steps is None else r_same,)))
+        cell = lambda x: "-" if x is None else f"{x:.2f}"
+        lines.append(f"| {k[0]} {k[1][0]},{k[1][1]} | {k[3]} | {k[2]} | {_flip(r):.4f} | {cell(r_default)} | "
+                     f"{cell(r_same)} |")
+    if not over:
+        return f"no fit under {variant!r} at {steps or 'the default'} steps beside a tripleplane fit"
+    lines += [""] + [f"{m}: above 1.5x tripleplane ({'same' if steps else 'default'} steps) on {w} of {n} pairs"
+                     for m, (n, w) in over.items()]
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("crops")
     ap.add_argument("jobs", nargs="+")
     ap.add_argument("--against", action="append", default=[], help="BASE:VARIANT, e.g. lr1e-2:lr1e-2-precond0")
     ap.add_argument("--regime", action="append", default=[], help="variant label to score the rule under")
+    ap.add_argument("--ratio", action="append", default=[], help="VARIANT[@STEPS]: every model's FLIP over "
+                                                                 "tripleplane's")
     a = ap.parse_args()
     crops = json.load(open(a.crops))
     rows = [json.loads(line) for path in a.jobs for line in open(path) if line.strip()]
@@ -106,6 +139,10 @@ def main() -> None:
     for variant in a.regime:
         print(f"### The texture-set default under {variant or 'the base recipe'}\n")
         print(regime(crops, rows, variant) + "\n")
+    for spec in a.ratio:
+        variant, _, steps = spec.partition("@")
+        print(f"### Over tripleplane under {variant or 'the base recipe'} at {steps or 'the default'} steps\n")
+        print(ratio(crops, rows, variant, int(steps) if steps else None) + "\n")
 
 
 if __name__ == "__main__":
