@@ -58,13 +58,14 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     if suite in NEEDS_DATA and shared_data_dir() is None:
         pytest.skip("shared data absent: the suite's sources are the shared texture sets")
     out = tmp_path / suite / "quick.json"
-    run = _bench(suite, "--quick", "--json", "--out", str(out))
+    work = ["--work", str(out.parent / "work")] if suite == "sparsebtf" else []  # then rerun: it must resume
+    run = _bench(suite, "--quick", "--json", "--out", str(out), *work)
     assert run.returncode == 0, run.stderr[-3000:]
     doc = json.loads(run.stdout)
     jsonschema.validate(doc, SCHEMA)
     assert doc == json.loads(out.read_text())
     assert doc["suite"] == suite and doc["mode"] == "quick"
-    assert doc["command"] == f"python -m benchmarks {suite} --quick --json --out {out}"
+    assert doc["command"] == " ".join(["python -m benchmarks", suite, "--quick --json --out", str(out), *work])
     assert re.fullmatch(r"[0-9a-f]{40}", doc["machine"]["commit"]) and doc["machine"]["threads"] == 1
     assert any(t["rows"] for t in doc["tables"]), doc["skipped"]
     page = (out.parent / "README.md").read_text()
@@ -77,6 +78,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_sharing(doc)
     if suite == "neupress":
         _check_neupress_images(doc)
+    if work:
+        _check_resume(out, doc)
 
 
 def _check_neupress_images(doc: dict) -> None:
@@ -197,21 +200,18 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
     assert calls[0][0][-4:] == ["--work", str((tmp_path / "w").resolve()), "--workers", "2"]
 
 
-def test_a_rerun_with_work_resumes_the_kept_fits(tmp_path):
-    """With --work the generated BTF and the fit-many folders stay, and the same command again refits nothing:
-    the same rows, the fitted files untouched."""
-    work = tmp_path / "work"
-    first = _bench("sparsebtf", "--quick", "--json", "--work", str(work))
-    assert first.returncode == 0, first.stderr[-3000:]
-    fitted = {p: p.stat().st_mtime_ns for p in work.rglob("*.nmat")}
-    generated = list(work.rglob("*.nbtf"))
-    assert len(fitted) == 2 and [p.name for p in generated] == ["bumps.nbtf"]
-    second = _bench("sparsebtf", "--quick", "--json", "--work", str(work))
-    assert second.returncode == 0, second.stderr[-3000:]
-    assert "already done (kept), 0 to fit" in second.stderr
-    assert {p: p.stat().st_mtime_ns for p in work.rglob("*.nmat")} == fitted
-    assert json.loads(second.stdout)["tables"] == json.loads(first.stdout)["tables"]
-    assert "a rerun resumes" in json.loads(second.stdout)["protocol"]["fits"]
+def _check_resume(out: Path, first: dict) -> None:
+    """The same command again with the --work folder it ran with refits nothing: the same rows, the generated BTF
+    and fitted files untouched."""
+    work = out.parent / "work"
+    fitted = {p: p.stat().st_mtime_ns for p in work.rglob("*") if p.suffix in (".nmat", ".nbtf")}
+    assert sorted(p.suffix for p in fitted) == [".nbtf", ".nmat", ".nmat"]
+    again = _bench("sparsebtf", "--quick", "--json", "--work", str(work))
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "already done (kept), 0 to fit" in again.stderr
+    assert {p: p.stat().st_mtime_ns for p in work.rglob("*") if p.suffix in (".nmat", ".nbtf")} == fitted
+    assert json.loads(again.stdout)["tables"] == first["tables"]
+    assert "a rerun resumes" in first["protocol"]["fits"]
 
 
 def test_workers_below_one_are_refused(capsys):
