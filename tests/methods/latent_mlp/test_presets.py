@@ -1,9 +1,9 @@
-"""The latent-texture models' recommended preset: on a CPU the measured CPU settings (lr 1e-2, and no spatial
-preconditioner where that was measured better), on a GPU the paper's rate and preconditioner; paper and cpu keep
+"""The latent-texture models' recommended preset: on a CPU the measured CPU settings (lr 1e-2, no spatial
+preconditioner and the short-run optimiser where those were measured better), on a GPU the paper's rate and preconditioner; paper and cpu keep
 the paper's."""
 import neumat.methods  # noqa: F401  (registers the models)
 from neumat.fit.preset import resolve_preset
-from neumat.methods.latent_mlp import UNPRECONDITIONED_ON_CPU
+from neumat.methods.latent_mlp import SHORT_RUN_OPTIMISER_ON_CPU, UNPRECONDITIONED_ON_CPU
 
 MODELS = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv", "ggx-mipmap")
 
@@ -20,6 +20,10 @@ def test_recommended_on_a_cpu_and_elsewhere():
         expected = 0.0 if name in UNPRECONDITIONED_ON_CPU else 10.0
         assert cpu.config.spatial_precondition == expected, name
         assert gpu.config.spatial_precondition == paper.config.spatial_precondition == 10.0, name
+        short = name in SHORT_RUN_OPTIMISER_ON_CPU
+        assert (tuple(cpu.recipe.betas), cpu.recipe.ema) == (((0.9, 0.999), 0.02) if short else ((0.99, 0.999), 0.005))
+        assert (tuple(gpu.recipe.betas), gpu.recipe.ema) == (tuple(paper.recipe.betas), paper.recipe.ema) \
+            == ((0.99, 0.999), 0.005), name
         # a user's --set wins over the preset's
         assert resolve_preset(name, "recommended", device="cpu",
                               overrides={"model.spatial_precondition": 3.0}).config.spatial_precondition == 3.0

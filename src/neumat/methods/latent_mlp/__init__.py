@@ -21,6 +21,11 @@ from neumat.methods.latent_mlp.tripleplane import TriplePlane
 #: tuning and held-out pairs; ggx-mipmap fits worse without it (3 of 11 pairs, median 1.10x) and keeps it
 #: (selection_free.md, "Learning rate 1e-2 and the texture-set default")
 UNPRECONDITIONED_ON_CPU = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv")
+#: the CPU recipe's optimiser for these models: Adam's first moment and the weights' EMA on a 1000-step horizon
+#: (beta1 0.9, EMA weight 0.02) instead of the paper's 500k-step ones (0.99, 0.005), which lag the weights that the
+#: fit's last few hundred steps reach (selection_free.md, "A short-run optimiser")
+SHORT_RUN_OPTIMISER_ON_CPU = UNPRECONDITIONED_ON_CPU
+SHORT_RUN_OPTIMISER = {"recipe.betas": (0.9, 0.999), "recipe.ema": 0.02}
 
 
 def recommended(model: str) -> Preset:
@@ -28,19 +33,24 @@ def recommended(model: str) -> Preset:
     `relative_l2_robust` (Eq. 10 up to relative residual 10, a log tail beyond) instead of Eq. 10 and the gradient's
     global norm clipped at 1 (the typical norm is 0.5-3; one step's norm of ~900 stalled Adam); on the CPU recipe
     (1000 steps, 0.2 % of the paper's) at learning rate 1e-2 instead of the paper's 3e-3, which every model fits
-    better in so few steps, and without the spatial preconditioner where that was measured better
-    (UNPRECONDITIONED_ON_CPU); "paper" and "cpu" keep Eq. 10 (`relative_l2_mix`) unclipped at 3e-3.
+    better in so few steps, without the spatial preconditioner where that was measured better
+    (UNPRECONDITIONED_ON_CPU), and with the short-run optimiser (SHORT_RUN_OPTIMISER_ON_CPU); "paper" and "cpu"
+    keep Eq. 10 (`relative_l2_mix`) unclipped at 3e-3 with the paper's Adam and EMA.
     Evidence: benchmarks/studies/multiscale/results/polished_metal_stability.md (last section), selection_free.md
     and NOTES.md's decision table."""
     cpu = {"recipe.lr": 1e-2}
     plain = model in UNPRECONDITIONED_ON_CPU
     if plain:
         cpu["model.spatial_precondition"] = 0.0
+    short = model in SHORT_RUN_OPTIMISER_ON_CPU
+    if short:
+        cpu.update(SHORT_RUN_OPTIMISER)
     return Preset(
         "the paper's model, sized to the device, with the robust loss (Eq. 10 up to relative residual 10, a log "
         "tail beyond) and gradients clipped at norm 1 (no blow-up on polished metal or stall after a loss spike); "
-        "on a CPU at learning rate 1e-2" + (" without the spatial preconditioner" if plain else "") + " (a lower mean "
-        "FLIP on every crop measured than with the paper's settings at the CPU recipe's 1000 steps)",
+        "on a CPU at learning rate 1e-2" + (" without the spatial preconditioner" if plain else "")
+        + (", Adam beta1 0.9 and EMA weight 0.02" if short else "") + " (a lower mean FLIP on every crop measured "
+        "than with the paper's settings at the CPU recipe's 1000 steps)",
         overrides={"recipe.loss": "relative_l2_robust", "recipe.grad_clip": 1.0}, by_recipe={"cpu": cpu})
 
 
@@ -48,13 +58,13 @@ def recommended(model: str) -> Preset:
 #: benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
     "multiscale": "the default for texture sets with normal detail or metal (on a CPU; `neumat.methods.latent_mlp."
-                  "regime`): at the CPU default, mean FLIP over 9 scales below tripleplane's on 30 of 30 random "
-                  "crops x seeds where normals vary (0.65-0.95x) and on 8 of 12 flat-metal ones (0.93-1.05x); the "
+                  "regime`): at the CPU default, mean FLIP over 9 scales below tripleplane's on 7 of 10 random "
+                  "crops x seeds where normals vary (0.73-1.03x) and on 3 of 5 flat-metal ones (0.81-1.10x); the "
                   "lowest mean FLIP of all latent-texture models over random crops",
     "tripleplane": "the default for flat dielectric texture sets on a CPU (mean normal tilt < 5 degrees, metalness "
-                   "< 0.5): ahead of the gated model on flat wood (it scores 1.17-1.39x tripleplane's FLIP), level "
-                   "on flat leather (0.97-1.06x); behind it wherever normals vary (fabric, paper, plaster, sub-texel "
-                   "scratches, foil, chainmail)",
+                   "< 0.5): ahead of the gated model on flat wood and leather (it scores 1.05-1.26x tripleplane's "
+                   "FLIP); behind it on most crops where normals vary (fabric, paper, sub-texel scratches, "
+                   "chainmail)",
 }
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
