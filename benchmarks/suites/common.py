@@ -30,8 +30,8 @@ def cli(args: list[str]) -> None:
 def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],
              after: Callable[[dict], dict] | None = None) -> list[dict]:
     """fit-many's result rows of every (source, model) for each seed (a "seed" key added), `run.workers` fits at
-    a time, in folders kept under --work when given (so a rerun resumes: fit-many keeps what matches); a failed job's row
-    has status "error" and its message, and the run records it as skipped. `after(row)` runs on each fitted row
+    a time, in folders kept under --work when given (a rerun resumes: fit-many keeps what matches); a failed job's
+    row has status "error" and its message, and the run records it as skipped. `after(row)` runs on each fitted row
     while its .nmat still exists (row["nmat"]); what it returns is added to the row."""
     rows = []
     engine = ["--engine", "local"] if run.workers == 1 else ["--engine", "ray", "--workers", str(run.workers)]
@@ -42,9 +42,8 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
         with run.folder("fit-many", sources, models, options, seed) as out:
             args = ["fit-many", *sources, *[a for m in models for a in ("-m", m)], *options, "--seed", str(seed),
                     "--threads", str(run.threads), *engine, "-q", "-o", str(out)]
-            try:  # fit-many's progress goes to stderr: stdout stays the suite's table or JSON
-                with contextlib.redirect_stdout(sys.stderr):
-                    app(args, standalone_mode=False)
+            try:
+                cli(args)
             except SystemExit as stop:  # exit status 1: some job failed; its row says why
                 if stop.code not in (0, 1, None):
                     raise

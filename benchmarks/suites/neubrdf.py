@@ -5,15 +5,12 @@ runs twice: at the default preset (recommended) and as the paper's exact model (
 3.3) through `neumat fit-clusters` on the MERL-like tables, each member beside its own fit of Table 4."""
 from __future__ import annotations
 
-import contextlib
 import json
-import sys
 
-from neumat.cli.main import app
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
-from .common import fit_many, paper_budget, quality_rows, recipe_budget, summary_rows
+from .common import cli, fit_many, paper_budget, quality_rows, recipe_budget, summary_rows
 
 NAME = "neubrdf"
 DESCRIPTION = ("NeuBRDF's Tables 3 (RGL) and 4 (MERL-like) against NBRDF and GGX, and pruning, through neumat "
@@ -105,9 +102,8 @@ def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int
     its own default-preset NeuBRDF fit's in `own` (fit-many rows)."""
     with run.folder("fit-clusters", sources, options, seed) as out:
         if not (out / "clusters.json").exists():
-            with contextlib.redirect_stdout(sys.stderr):
-                app(["fit-clusters", *sources, *options, "--seed", str(seed), "--threads", str(run.threads), "-q",
-                     "-o", str(out)], standalone_mode=False)
+            cli(["fit-clusters", *sources, *options, "--seed", str(seed), "--threads", str(run.threads), "-q", "-o",
+                 str(out)])
         doc = json.loads((out / "clusters.json").read_text())
     alone = {r["name"]: r for r in own if r["model"] == "neubrdf" and r["seed"] == seed and r["status"] == "ok"}
     size = {c["cluster"]: len(c["members"]) for c in doc["clusters"]}

@@ -3,8 +3,6 @@ response, and the image table (issue 51's protocol) on an object traced by Mitsu
 (`neumat translucent trace`, `neumat fit`), rendered under an environment map against a path-traced reference."""
 from __future__ import annotations
 
-import contextlib
-import sys
 from pathlib import Path
 
 import numpy as np

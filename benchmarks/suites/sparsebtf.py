@@ -2,14 +2,10 @@
 could be obtained), through `neumat fit-many`."""
 from __future__ import annotations
 
-import contextlib
-import sys
 from pathlib import Path
 
-from neumat.cli.main import app
-
 from .. import harness
-from .common import fit_many, quality_rows
+from .common import cli, fit_many, quality_rows
 
 NAME = "sparsebtf"
 DESCRIPTION = "SparseBTF against PCA at equal bytes on generated procedural BTFs, through fit-many"
@@ -42,8 +38,7 @@ def _generated(folder: Path, kind: str, size: int, spp: int, directions: list[st
     path = folder / f"{kind}.nbtf"
     if not path.exists():
         partial = folder / f"{kind}.partial.nbtf"
-        with contextlib.redirect_stdout(sys.stderr):
-            app(["data", "btf-generate", f"procedural:{kind}", "-o", str(partial), "--size", str(size), "--spp",
-                 str(spp), *directions, "-q"], standalone_mode=False)
+        cli(["data", "btf-generate", f"procedural:{kind}", "-o", str(partial), "--size", str(size), "--spp", str(spp),
+             *directions, "-q"])
         partial.rename(path)
     return path
