@@ -99,7 +99,7 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
 def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int, own: list[dict]) -> list[dict]:
     """One row per source of a `neumat fit-clusters` run (kept under --work: a finished one is read back): its
     cluster, bytes (its index grid and a share of the cluster's codebook and MLP) and reflectance errors, beside
-    its own default-preset NeuBRDF fit's in `own` (fit-many rows)."""
+    its own NeuBRDF fit's in `own` (fit-many rows of model "neubrdf": the default preset in a full run)."""
     with run.folder("fit-clusters", sources, options, seed) as out:
         if not (out / "clusters.json").exists():
             cli(["fit-clusters", *sources, *options, "--seed", str(seed), "--threads", str(run.threads), "-q", "-o",
