@@ -92,6 +92,10 @@ def regime(crops: list[dict], rows: list[dict], variant: str) -> str:
     return "\n".join(lines)
 
 
+def _cell(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
 def ratio(crops: list[dict], rows: list[dict], variant: str, steps: int | None = None) -> str:
     """Per (crop, seed, model) that ran under `variant` at `steps`: its mean FLIP over tripleplane's at the default
     steps and, with `steps`, at the same steps; then per model the pairs above 1.5x."""
@@ -110,10 +114,9 @@ def ratio(crops: list[dict], rows: list[dict], variant: str, steps: int | None =
         r_default = _flip(r) / _flip(t_default) if t_default else None
         r_same = _flip(r) / _flip(t_same) if t_same else None
         n, worse = over.get(k[2], (0, 0))
-        over[k[2]] = (n + 1, worse + any(x is not None and x > 1.5 for x in (r_default if steps is None else r_same,)))
-        cell = lambda x: "-" if x is None else f"{x:.2f}"
-        lines.append(f"| {k[0]} {k[1][0]},{k[1][1]} | {k[3]} | {k[2]} | {_flip(r):.4f} | {cell(r_default)} | "
-                     f"{cell(r_same)} |")
+        over[k[2]] = (n + 1, worse + (r_same is not None and r_same > 1.5))  # r_same is r_default without steps
+        lines.append(f"| {k[0]} {k[1][0]},{k[1][1]} | {k[3]} | {k[2]} | {_flip(r):.4f} | {_cell(r_default)} | "
+                     f"{_cell(r_same)} |")
     if not over:
         return f"no fit under {variant!r} at {steps or 'the default'} steps beside a tripleplane fit"
     lines += [""] + [f"{m}: above 1.5x tripleplane ({'same' if steps else 'default'} steps) on {w} of {n} pairs"
