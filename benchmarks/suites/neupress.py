@@ -144,17 +144,12 @@ class _Scorer:
     """Scores models of one traced object: held-out error on the test set and the image against the reference."""
 
     def __init__(self, folder: Path, train: Path, test: Path, light: str, setup: dict) -> None:
-        from neumat.core.config import config_from_dict
-        from neumat.fit.translucent_observations import Observations
-        from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
-        from neumat.render.envmaps import downsample_envmap, read_envmap, sky_envmap
-        from neumat.render.lights import EnvironmentMap
+        from neumat.fit.translucent_observations import Observations, traced_object
+        from neumat.render.lights import environment_by_name
         from neumat.render.translucent import object_mask, orbit_camera, render_translucent_reference
 
-        described = Observations.load_source(train)["object"]  # the object `translucent trace` wrote down
-        self.setup, self.obj = setup, TranslucentObject(config_from_dict(TranslucentConfig, described), spp=1, seed=0)
-        self.env = EnvironmentMap(downsample_envmap(sky_envmap(width=128) if light == "sky" else read_envmap(light),
-                                                    128))
+        self.setup, self.obj = setup, traced_object(train)
+        self.env = environment_by_name(light, 128)
         self.camera = orbit_camera(self.obj, setup["resolution"])
         self.mask = object_mask(self.obj, self.camera, setup["resolution"]).numpy()
         self.references = []

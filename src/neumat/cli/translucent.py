@@ -417,26 +417,17 @@ def _neupress(path: Path, device: str):
 
 def _translucent_object(observations: Path, seed: int = 0):
     """The TranslucentObject an observations file of `translucent trace` names."""
-    from ..core.config import config_from_dict
-    from ..core.errors import InputError
-    from ..fit.translucent_observations import Observations
-    from ..reflectance.translucent import TranslucentConfig, TranslucentObject
+    from ..fit.translucent_observations import traced_object
 
     _check_suffix(observations, ".npz", "OBSERVATIONS")
-    source = Observations.load_source(observations)
-    if source is None or "object" not in source:
-        raise InputError(f"{observations}: no object description (write it with `neumat translucent trace`)")
-    return TranslucentObject(config_from_dict(TranslucentConfig, source["object"]), spp=1, seed=seed)
+    return traced_object(observations, seed)
 
 
 def _environment(light: str, env_width: int):
-    """The EnvironmentMap of a --light value, box-filtered to `env_width`, as `translucent render` builds it."""
-    from ..render.envmaps import downsample_envmap, read_envmap, sky_envmap
-    from ..render.lights import EnvironmentMap
+    """The EnvironmentMap of a --light value, box-filtered to `env_width`."""
+    from ..render.lights import environment_by_name
 
-    envmap = environment_map(light)
-    image = sky_envmap(width=env_width) if envmap == "sky" else read_envmap(envmap)
-    return EnvironmentMap(downsample_envmap(image, env_width))
+    return environment_by_name(environment_map(light), env_width)
 
 
 def _view_bins(text: str) -> tuple[int, int]:

@@ -17,7 +17,7 @@ import torch
 from ..core.checks import check_int
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal
-from ..reflectance.translucent import TranslucentObject
+from ..reflectance.translucent import TranslucentConfig, TranslucentObject
 from ..warp.sphere import sample_uniform_sphere
 
 
@@ -222,3 +222,14 @@ def collect_observations(obj: TranslucentObject, images: int, resolution: int = 
     if not parts["x"]:
         raise InputError("collect_observations: no view hit the object")
     return Observations(**{name: torch.cat(ts) for name, ts in parts.items()})
+
+
+def traced_object(path: str | Path, seed: int = 0) -> TranslucentObject:
+    """The TranslucentObject an observations file of `neumat translucent trace` describes (one path per query: for
+    rendering and scoring against it); InputError when the file describes none."""
+    from ..core.config import config_from_dict
+
+    source = Observations.load_source(path)
+    if source is None or "object" not in source:
+        raise InputError(f"{path}: no object description (write it with `neumat translucent trace`)")
+    return TranslucentObject(config_from_dict(TranslucentConfig, source["object"]), spp=1, seed=seed)

@@ -24,7 +24,7 @@ from ..core.errors import InputError
 from ..color.tonemap import LUMINANCE
 from ..warp.sphere import sample_uniform_sphere
 from ..warp.alias import AliasTable
-from .envmaps import read_envmap, sky_envmap
+from .envmaps import downsample_envmap, read_envmap, sky_envmap
 from .spec import as_float, as_vector, check_options, parse_option_value, parse_spec, unknown_name
 
 LIGHT_FORMS = ["point[:x/y/z]", "dir[:x/y/z]", "const:VALUE", "env:PATH", "env:sky"]
@@ -255,3 +255,9 @@ def make_light(spec: str, device=None) -> Light:
         check_options(opts, _ENV_OPTIONS, f"light {spec!r}")
         return EnvironmentMap(read_envmap(s.arg), scale, rotation, device, name=f"environment map {s.arg}")
     raise unknown_name("light", s.name, LIGHT_FORMS)
+
+
+def environment_by_name(name: str, width: int) -> EnvironmentMap:
+    """The EnvironmentMap of "sky" or an equirectangular map's path, box-filtered to `width` texels across (how the
+    translucent renders light an object: `neumat translucent render`, the neupress benchmark)."""
+    return EnvironmentMap(downsample_envmap(sky_envmap(width=width) if name == "sky" else read_envmap(name), width))
