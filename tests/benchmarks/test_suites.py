@@ -144,6 +144,12 @@ def _check_speed(doc: dict) -> None:
     training = next(t for t in doc["tables"] if t["name"] == "training")["rows"]
     assert {r["phase"] for r in training if r["model"] == "neubrdf"} == {"coarse", "dense", "vq"}
     assert all(r["cpu s/step"] > 0 for r in training)
+    if shared_data_dir() is not None:  # multiscale on two crops, the larger's step over the smaller's
+        crop = {(r["batch"], r["phase"]): r["cpu s/step"] for r in training if r.get("texels") == "32^2"}
+        larger = [r for r in training if r.get("texels") == "64^2"]
+        assert crop and len(larger) == 1 and {r["model"] for r in larger} == {"multiscale"}
+        r = larger[0]
+        assert r["x 32^2"] == pytest.approx(r["cpu s/step"] / crop[(r["batch"], r["phase"])], rel=1e-3)
 
 
 def test_committed_results_match_the_schema_and_name_their_command():

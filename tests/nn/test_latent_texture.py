@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from neumat.core.errors import InputError
-from neumat.nn.latent_texture import (LatentPyramid, bilinear, box_pyramid, check_footprint, filter_anisotropic,
+from neumat.nn.latent_texture import (LatentPyramid, bilinear, bilinear_maps, box_pyramid, check_footprint, filter_anisotropic,
                                       footprint_axes, isotropic_footprint, trilinear)
 
 
@@ -167,3 +167,22 @@ def test_build_atlas_matches_the_gathered_atlas_values_and_gradients():
         torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
         for a, b in zip(grads, wants):
             torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_bilinear_maps_equals_bilinear_and_keeps_its_padded_copy_until_the_maps_change():
+    class Owner:
+        pass
+    owner, g = Owner(), torch.Generator().manual_seed(3)
+    maps = torch.rand(5, 33, 17, generator=g)
+    for dtype in (torch.float32, torch.float64):
+        uv = torch.rand(4000, 2, generator=g, dtype=dtype) * 3 - 1  # outside [0, 1)^2 too: wrap tiling
+        assert torch.equal(bilinear_maps(owner, maps, uv), bilinear(maps.to(dtype), uv))
+    kept = dict(owner._padded_maps)
+    assert len(kept) == 2  # one per dtype
+    bilinear_maps(owner, maps, uv)
+    assert all(owner._padded_maps[k][2] is kept[k][2] for k in kept)  # reused, not rebuilt
+    maps.mul_(2)  # an in-place change is seen
+    assert torch.equal(bilinear_maps(owner, maps, uv), bilinear(maps.to(torch.float64), uv))
+    leaf = maps.clone().requires_grad_()  # maps that want a gradient are looked up directly, with autograd
+    bilinear_maps(owner, leaf, uv.float()).sum().backward()
+    assert leaf.grad is not None and leaf.grad.abs().sum() > 0

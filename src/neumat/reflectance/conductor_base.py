@@ -21,7 +21,7 @@ from ..core.errors import InputError
 from ..core.frames import normal_map_frame, to_local, to_world
 from ..core.material import Material, sample_from_direction
 from ..core.query import Query, Sample
-from ..nn.latent_texture import bilinear
+from ..nn.latent_texture import bilinear_maps
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .analytic import CONDUCTORS
@@ -87,7 +87,7 @@ class TexturedConductor(Material):
 
     def _at(self, uv: torch.Tensor):
         """alpha (N,) and shading frame (t, b, n) at uv (N, 2)."""
-        p = bilinear(self.maps.to(uv.device, uv.dtype), uv)
+        p = bilinear_maps(self, self.maps, uv)
         n = p[:, 1:4] / p[:, 1:4].norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return p[:, 0].clamp(min=ALPHA_MIN), normal_map_frame(n)
 

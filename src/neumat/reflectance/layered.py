@@ -18,7 +18,7 @@ from ..core.errors import InputError
 from ..core.frames import normal_map_frame, to_local, to_world
 from ..core.material import Material, sample_from_direction
 from ..core.query import Query, Sample
-from ..nn.latent_texture import bilinear
+from ..nn.latent_texture import bilinear_maps
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .coat_albedo import ALPHA_MIN, CoatAlbedo
@@ -196,7 +196,7 @@ class LayeredMaterial(Material):
 
     def _coat_at(self, i: int, uv: torch.Tensor):
         """alpha (N,), weight (N,) and frame (t, b, n) of coat i at uv (N, 2)."""
-        p = bilinear(self.maps[i].to(uv.device, uv.dtype), uv)
+        p = bilinear_maps(self, self.maps[i], uv)
         n = p[:, 2:5] / p[:, 2:5].norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return p[:, 0], p[:, 1], normal_map_frame(n)
 
@@ -214,7 +214,7 @@ class LayeredMaterial(Material):
 
     def _sheen_at(self, uv: torch.Tensor):
         """Sheen alpha (N,) and weight (N,) at uv (N, 2)."""
-        p = bilinear(self.sheen_maps.to(uv.device, uv.dtype), uv)
+        p = bilinear_maps(self, self.sheen_maps, uv)
         return p[:, 0], p[:, 1]
 
     # ------------------------------------------------------------------------------ point value

@@ -15,7 +15,7 @@ from ..core.frames import normal_map_frame, to_local, to_world
 from ..core.material import Material, sample_from_direction
 from ..core.query import Query, Sample
 from ..io.texture_set import TextureSet, load_texture_set
-from ..nn.latent_texture import bilinear
+from ..nn.latent_texture import bilinear_maps
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .footprint_filter import filtered_eval, query_footprint
 from .lean import NormalGroup
@@ -81,7 +81,7 @@ class SVBRDF(Material):
     def parameters_at(self, uv: torch.Tensor) -> dict[str, torch.Tensor]:
         """Bilinear map values at uv (N, 2): base_color (N, 3), normal (N, 3) unit, roughness, metallic (N,), in
         the dtype of uv (the query's: a float64 query on float32 maps is answered in float64)."""
-        m = bilinear(self.maps.to(uv.device, uv.dtype), uv)
+        m = bilinear_maps(self, self.maps, uv)
         n = m[:, 3:6]
         n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return {"base_color": m[:, 0:3], "normal": n, "roughness": m[:, 6], "metallic": m[:, 7]}
