@@ -1,7 +1,8 @@
 """speed: every registered model in its shipped runtime form, analytic GGX and a measured RGL table: FLOPs per
 query, evaluations and sample+pdf per CPU second at three batch sizes, % of this core's fp32 sgemm rate, cost
 against GGX in the same process, the GLSL (llvmpipe), Slang (slangpy CPU) and Dr.Jit runtime (LLVM) exports' rates, and training step
-CPU time per phase at two batch sizes through the library's trainer (issue 49 item 1; measures, asserts nothing)."""
+CPU time per phase at two batch sizes through the library's trainer, texture-set models at two texture sizes (issue 49
+item 1; measures, asserts nothing)."""
 from __future__ import annotations
 
 import statistics
