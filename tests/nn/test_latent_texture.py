@@ -177,10 +177,16 @@ def test_bilinear_maps_equals_bilinear_and_keeps_its_padded_copy_until_the_maps_
     for dtype in (torch.float32, torch.float64):
         uv = torch.rand(4000, 2, generator=g, dtype=dtype) * 3 - 1  # outside [0, 1)^2 too: wrap tiling
         assert torch.equal(bilinear_maps(owner, maps, uv), bilinear(maps.to(dtype), uv))
-    kept = dict(owner._padded_maps)
+    kept = dict(owner._derived_tensors)
     assert len(kept) == 2  # one per dtype
     bilinear_maps(owner, maps, uv)
-    assert all(owner._padded_maps[k][2] is kept[k][2] for k in kept)  # reused, not rebuilt
+    bilinear_maps(owner, maps, uv.float())
+    assert all(owner._derived_tensors[k][1] is kept[k][1] for k in kept)  # reused, not rebuilt
+    step = torch.nn.Parameter(torch.zeros(1))  # a training step on a model's parameters leaves a source's maps kept
+    step.grad = torch.ones(1)
+    torch.optim.SGD([step], lr=1.0).step()
+    bilinear_maps(owner, maps, uv)
+    assert all(owner._derived_tensors[k][1] is kept[k][1] for k in kept)
     maps.mul_(2)  # an in-place change is seen
     assert torch.equal(bilinear_maps(owner, maps, uv), bilinear(maps.to(torch.float64), uv))
     leaf = maps.clone().requires_grad_()  # maps that want a gradient are looked up directly, with autograd

@@ -39,21 +39,13 @@ def wrap_padded(tex: torch.Tensor) -> torch.Tensor:
 
 def bilinear_maps(owner: object, maps: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     """`bilinear` of fixed data maps (C, H, W) (a source's PBR maps) at uv (N, 2), in uv's dtype and device: the
-    padded copy is made once per dtype and device and kept on `owner` (unless maps needs a gradient), in
-    channels-last order so a lookup reads a texel's channels together. Why: a source's lookups otherwise pad its
-    whole texture on every call and miss the cache once per channel (a 1K set: 47 ms per 65k lookups, 7 ms
-    kept); same values as `bilinear`."""
-    if maps.requires_grad and torch.is_grad_enabled():
-        return bilinear(maps.to(uv.device, uv.dtype), uv)
-    key = (maps.data_ptr(), uv.dtype, uv.device)
-    stamp = (maps._version, tuple(maps.shape), tuple(maps.stride()), maps.dtype)
-    kept = owner.__dict__.setdefault("_padded_maps", {})
-    hit = kept.get(key)  # (stamp, maps itself: held so that its address is not reused, padded copy)
-    if hit is None or hit[0] != stamp:
-        with torch.inference_mode(False), torch.no_grad():
-            padded = wrap_padded(maps.detach().to(uv.device, uv.dtype)).contiguous(memory_format=torch.channels_last)
-        hit = kept[key] = (stamp, maps, padded)
-    return bilinear_padded(hit[2], uv)
+    padded copy is made once per dtype and device and kept on `owner` (`derived_from`; made every call when maps
+    needs a gradient), in channels-last order so a lookup reads a texel's channels together. Why: a source's lookups
+    otherwise pad its whole texture on every call and miss the cache once per channel (a 1K set: 47 ms per 65k
+    lookups, 7 ms kept); same values as `bilinear`."""
+    padded = derived_from(owner, f"padded maps {maps.data_ptr()} {uv.dtype} {uv.device}", [maps], lambda: wrap_padded(
+        maps.to(uv.device, uv.dtype)).contiguous(memory_format=torch.channels_last), optimised=False)
+    return bilinear_padded(padded, uv)
 
 
 def bilinear_padded(padded: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
