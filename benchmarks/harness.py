@@ -14,6 +14,7 @@ import platform
 import random
 import shlex
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -131,6 +132,12 @@ class Run:
         self.skipped: list[dict] = []
         self.protocol: dict[str, str] = {}
         self.min_seconds = 0.005 if quick else 0.05
+        self.started = time.perf_counter()
+
+    def progress(self, text: str) -> None:
+        """One line on stderr with the wall time so far: a full run takes hours, and says where it is."""
+        minutes, seconds = divmod(int(time.perf_counter() - self.started), 60)
+        print(f"[{minutes:3d}:{seconds:02d}] {self.suite.NAME}: {text}", file=sys.stderr, flush=True)
 
     def time(self, fn: Callable[[], object], grad: bool = False) -> float:
         """`cpu_seconds` at this run's repeats and sample length."""
@@ -141,6 +148,7 @@ class Run:
         columns = list(dict.fromkeys(k for row in rows for k in row))
         self.tables.append({"name": name, "title": title, "columns": columns, "rows": [_plain(r) for r in rows],
                             "notes": notes})
+        self.progress(f"table '{name}' done ({len(rows)} rows)")
 
     @contextlib.contextmanager
     def folder(self, *key: object) -> Iterator[Path]:
@@ -158,12 +166,13 @@ class Run:
     def skip(self, what: str, reason: str) -> None:
         """Record something the run could not measure here, and why."""
         self.skipped.append({"what": what, "reason": reason})
+        self.progress(f"skipped {what}: {reason}")
 
     def execute(self) -> dict:
         """Pin threads, seed, run the suite and return its results document."""
         pin_threads(self.threads)
         seed_all(self.seed)
-        started = time.perf_counter()
+        self.started = started = time.perf_counter()
         cpu0 = time.process_time()
         self.suite.run(self)
         mode = "quick" if self.quick else "full"

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import statistics
 import time
+import warnings
 from dataclasses import replace
 
 import torch
@@ -14,7 +15,7 @@ import torch
 from neumat.catalog.open_material import open_material
 from neumat.core.query import Query
 from neumat.fit.preset import build_fit
-from neumat.fit.trainer import fit
+from neumat.fit.trainer import FitWarning, fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import load_all
 from neumat.warp.hemisphere import sample_cosine_hemisphere
@@ -63,6 +64,7 @@ def run(run: harness.Run) -> None:
     ggx = {n: _eval_rate(run, materials["ggx:roughness=0.2"], n) for n in sizes}
     rows = []
     for name, m in materials.items():
+        run.progress(f"evaluation rates of {name}")
         flops = int(m.flops()) if callable(getattr(m, "flops", None)) else None
         rate = None
         for n in sizes:
@@ -212,6 +214,7 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
         # it was two thirds of the quick run)
         n_fmt = n // 32 if run.quick and fmt == "slang" else n
         for name, precision, exported, m in jobs:
+            run.progress(f"{target}: {name} ({precision})")
             q = queries(m, n_fmt, run.seed)
             both = rate(exported, q, clock="both", repeats=run.repeats if run.quick else max(run.repeats, 5))
             wall, cpu = both["wall"], both["cpu"]
@@ -271,6 +274,7 @@ def _training(run: harness.Run) -> None:
                 run.skip(f"training steps of {n}", f"source kind {load_all().get(n).source_kinds[0]!r} not timed")
     rows = []
     for name, overrides in jobs:
+        run.progress(f"training steps of {name}")
         kind = load_all().get(name).source_kinds[0]
         if kind == "svbrdf" and svbrdf is None:
             run.skip(f"training steps of {name}", "no SVBRDF texture set: shared data absent")
@@ -307,8 +311,10 @@ def step_seconds(name: str, overrides: dict, source, batch: int, per_phase: int,
     fractions = [f for f in (_phase_fractions(recipe) or [1.0]) if f > 0]
     steps = int(per_phase / min(fractions)) + 1
     marks = []
-    fit(model, source, replace(recipe, batch_size=batch, steps=steps, log_every=1, checkpoint_every=10 ** 9),
-        progress=False, callback=lambda r: marks.append((r["phase"], r["step"], time.process_time())))
+    with warnings.catch_warnings():  # a few dozen steps are timed, not judged: their loss curve means nothing
+        warnings.simplefilter("ignore", FitWarning)
+        fit(model, source, replace(recipe, batch_size=batch, steps=steps, log_every=1, checkpoint_every=10 ** 9),
+            progress=False, callback=lambda r: marks.append((r["phase"], r["step"], time.process_time())))
     per_phase_times: dict[str, list[float]] = {}
     for (p0, s0, t0), (p1, s1, t1) in zip(marks, marks[1:]):
         if p0 == p1 and s1 == s0 + 1:

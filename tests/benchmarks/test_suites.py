@@ -69,6 +69,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     assert doc["command"] == " ".join(["python -m benchmarks", suite, "--quick --json --out", str(out), *extra])
     assert re.fullmatch(r"[0-9a-f]{40}", doc["machine"]["commit"]) and doc["machine"]["threads"] == 1
     assert any(t["rows"] for t in doc["tables"]), doc["skipped"]
+    for table in doc["tables"]:  # progress on stderr, a line per table, for runs that take hours
+        assert re.search(rf"\[ *\d+:\d\d\] {suite}: table '{table['name']}' done", run.stderr), run.stderr[-2000:]
     page = (out.parent / "README.md").read_text()
     assert doc["command"] in page and f"# {suite} (quick)" in page
     if suite == "speed":
