@@ -17,7 +17,7 @@ from torch import nn
 
 from ..core.config import bounded
 from ..core.errors import InputError
-from .phase import FitContext, Phase, model_name
+from .phase import FitContext, Phase, loss_module, model_name
 from .translucent_observations import Observations
 from .translucent_online import OnlineObservations
 
@@ -159,12 +159,16 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
                       train: Observations, validation: Observations | None,
                       penalty: Callable[[], dict[str, torch.Tensor]] | None = None,
                       online: OnlineObservations | None = None, online_from: int | None = None) -> Phase:
-    """`steps` steps of the mean squared error of predict(o) against o.value on `recipe.batch_size` observations
-    drawn (with ctx.generator) from `train`, plus the losses `penalty()` returns (a regulariser) if given; early
-    stopping on the validation MSE of `validation` unless it is None (both from `split_observations`). With
-    `online` (from `online_source`), the steps from `online_from` on train on fresh batches `online.draw(step)`."""
+    """`steps` steps of the recipe's loss (`recipe.loss`; "l2": the mean squared error) of predict(o) against
+    o.value on `recipe.batch_size` observations drawn (with ctx.generator) from `train`, plus the losses
+    `penalty()` returns (a regulariser) if given; early stopping on the validation MSE of `validation` unless it
+    is None (both from `split_observations`). With `online` (from `online_source`), the steps from `online_from` on
+    train on fresh batches `online.draw(step)`."""
     recipe = ctx.recipe
     gen = ctx.generator
+    loss = loss_module(ctx)
+    named = ctx.loss if ctx.loss is not None else recipe.loss
+    key = "mse" if named == "l2" else named if isinstance(named, str) else "objective"  # its record's name
 
     def batch_loss(step: int) -> torch.Tensor:
         if online is not None and step >= online_from:
@@ -172,10 +176,10 @@ def observation_phase(ctx: FitContext, name: str, steps: int, predict: Predict, 
         else:
             idx = torch.randint(len(train), (recipe.batch_size,), generator=gen, device=gen.device)
             o = train[idx.to(train.x.device)]
-        return ((predict(o) - o.value) ** 2).mean()
+        return loss(predict(o), o.value, None)  # no Query: the observation losses read values only
 
     def losses(step: int) -> dict[str, torch.Tensor]:
-        return {"mse": batch_loss(step), **(penalty() if penalty is not None else {})}
+        return {key: batch_loss(step), **(penalty() if penalty is not None else {})}
 
     slow_from = online_from if online is not None and online_from < steps else None
     if validation is None:

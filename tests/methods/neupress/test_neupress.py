@@ -104,6 +104,32 @@ def test_appearance_fit_reaches_a_known_function():
     assert float(mse) < 0.02 * float(test.value.var()), (float(mse), float(test.value.var()))
 
 
+def test_the_recipe_loss_is_what_the_observation_fit_descends(monkeypatch):
+    """recipe.loss names the step's loss: a recording loss registered for the test is called on every step with the
+    batch's predictions and values, and its value is the record ("l2" logs it as "mse", another loss by its name);
+    "l2" is the mean squared error."""
+    from neumat.fit.losses import LOSSES, L2Loss
+
+    calls = []
+
+    class Recording(L2Loss):
+        def forward(self, pred, target, q):
+            calls.append((pred.shape, target.shape, q))
+            return 3 * super().forward(pred, target, q)
+
+    monkeypatch.setitem(LOSSES._items, "recording", Recording)
+    data = _synthetic(512)
+    torch.manual_seed(0)
+    history = fit(NeuPreSS(**SMALL), data, _recipe(3, batch_size=64, loss="recording", log_every=1,
+                                                   validation_fraction=0), progress=False).history
+    assert calls == [(torch.Size([64, 3]), torch.Size([64, 3]), None)] * 3
+    assert all(r["recording"] == r["loss"] for r in history), history[0]  # the record's own and its total
+    torch.manual_seed(0)
+    history_l2 = fit(NeuPreSS(**SMALL), data, _recipe(3, batch_size=64, loss="l2", log_every=1,
+                                                      validation_fraction=0), progress=False).history
+    assert history[0]["loss"] == pytest.approx(3 * history_l2[0]["mse"], rel=1e-5)  # same batch, same weights
+
+
 def _recipe(appearance, sampler=0, **changes):
     """NeuPreSS's recipe with `appearance` + `sampler` steps and `changes` (recipe fields or options)."""
     r = recipe_for("neupress")
