@@ -83,6 +83,26 @@ def test_compare_image_writes_given_metrics():
     assert annotated.shape[1] == plain.shape[1] and annotated.shape[0] > plain.shape[0]   # wrapped lines
 
 
+def test_compare_image_wraps_a_long_label_within_its_panel():
+    """A model name wider than its panel wraps onto more lines above the panels instead of running over the FLIP
+    panel's label: every line fits the panel's width, the words are kept, and the row grows by whole lines."""
+    from PIL import ImageFont
+
+    from neumat.viz.compare import FONT_SIZE, label_lines
+
+    font = ImageFont.load_default(size=FONT_SIZE)
+    name = "today (1000 views x 64 paths, the paper's model) and_a_single_word_wider_than_any_panel_of_this_picture"
+    lines = label_lines(name, font, 120)
+    assert len(lines) >= 3 and all(font.getlength(line) <= 120 for line in lines), lines
+    assert "".join(lines).replace(" ", "") == name.replace(" ", "")
+    ref = gradient()
+    short, long = compare_image(ref, {"m": ref * 0.9}), compare_image(ref, {name: ref * 0.9})
+    scale = math.ceil(MIN_PANEL_WIDTH / ref.shape[1])
+    extra = len(label_lines(name, font, ref.shape[1] * scale)) - 1
+    line_h = font.getbbox("Ag")[3] + 4
+    assert long.shape[1] == short.shape[1] and long.shape[0] == short.shape[0] + extra * line_h and extra >= 1
+
+
 def test_compare_image_errors():
     ref = gradient()
     with pytest.raises(InputError, match="empty"):

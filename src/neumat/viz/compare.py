@@ -77,19 +77,41 @@ def _wrap(items: list[str], font, width: int) -> list[str]:
     return lines
 
 
+def label_lines(label: str, font, width: int) -> list[str]:
+    """A panel's label as lines no wider than `width` pixels (split at spaces; a word wider than the panel is
+    split where it overflows), so that a long model name does not run over the next panel's label."""
+    lines: list[str] = []
+    for word in label.split(" "):
+        if lines and font.getlength(lines[-1] + " " + word) <= width:
+            lines[-1] += " " + word
+            continue
+        while font.getlength(word) > width and len(word) > 1:
+            cut = 1  # the longest prefix that fits (at least one character)
+            while cut < len(word) and font.getlength(word[:cut + 1]) <= width:
+                cut += 1
+            lines.append(word[:cut])
+            word = word[cut:]
+        lines.append(word)
+    return lines
+
+
 def _row(panels: list[np.ndarray], labels: list[str], items: list[str], font) -> np.ndarray:
-    """Panels side by side with a label above each and the wrapped metric items below."""
+    """Panels side by side with a label above each (wrapped to its panel's width) and the wrapped metric items
+    below."""
     h, w = panels[0].shape[:2]
     line_h = font.getbbox("Ag")[3] + 4
     width = len(panels) * w + (len(panels) + 1) * PAD
     lines = _wrap(items, font, width - 2 * PAD)
-    height = PAD + line_h + h + PAD + len(lines) * line_h + PAD
+    label_rows = [label_lines(label, font, w) for label in labels]
+    top = max(len(rows) for rows in label_rows) * line_h
+    height = PAD + top + h + PAD + len(lines) * line_h + PAD
     canvas = Image.new("RGB", (width, height), BACKGROUND)
     draw = ImageDraw.Draw(canvas)
-    for k, (panel, label) in enumerate(zip(panels, labels)):
+    for k, (panel, rows) in enumerate(zip(panels, label_rows)):
         x = PAD + k * (w + PAD)
-        draw.text((x, PAD), label, fill=TEXT, font=font)
-        canvas.paste(Image.fromarray(panel), (x, PAD + line_h))
+        for j, text in enumerate(rows):
+            draw.text((x, PAD + j * line_h), text, fill=TEXT, font=font)
+        canvas.paste(Image.fromarray(panel), (x, PAD + top))
     for k, line in enumerate(lines):
-        draw.text((PAD, PAD + line_h + h + PAD + k * line_h), line, fill=TEXT, font=font)
+        draw.text((PAD, PAD + top + h + PAD + k * line_h), line, fill=TEXT, font=font)
     return np.asarray(canvas)
