@@ -33,7 +33,7 @@ def main(argv: list[str]) -> int:
         for name in SUITES:
             suite = load(name)
             print(f"{name:18s} {suite.DESCRIPTION}\n{'':18s} full: {suite.BUDGET['full']['ours']}; paper: "
-                  f"{suite.BUDGET['full']['paper']}; ~{suite.BUDGET['full']['expected_wall']} on 2 cores")
+                  f"{suite.BUDGET['full']['paper']}; {suite.BUDGET['full']['expected_wall']} on 2 cores")
         return 0
     if args.suite is None:
         parser.error("name a suite (or --list)")

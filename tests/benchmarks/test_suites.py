@@ -140,9 +140,10 @@ def _check_speed(doc: dict) -> None:
     exports = next((t["rows"] for t in doc["tables"] if t["name"] == "exports"), [])
     for target in {r["target"] for r in exports if not r["target"].startswith("drjit")}:
         at = {r["material"]: r for r in exports if r["target"] == target}
-        assert {"ggx:roughness=0.2", "harness floor (wi + wo)", "neubrdf"} <= set(at), target
+        assert {"ggx:roughness=0.2", "harness floor (wi + wo)"} <= set(at), target
         ggx = at["ggx:roughness=0.2"]["evals/cpu s"]
-        assert at["neubrdf"]["x GGX"] == pytest.approx(ggx / at["neubrdf"]["evals/cpu s"], rel=1e-3), target
+        if target.startswith("glsl"):  # quick: Slang times GGX and the floor only (its NeuBRDF compile: ~20 s)
+            assert at["neubrdf"]["x GGX"] == pytest.approx(ggx / at["neubrdf"]["evals/cpu s"], rel=1e-3), target
     training = next(t for t in doc["tables"] if t["name"] == "training")["rows"]
     assert {r["phase"] for r in training if r["model"] == "neubrdf"} == {"coarse", "dense", "vq"}
     assert all(r["cpu s/step"] > 0 for r in training)
