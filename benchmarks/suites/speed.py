@@ -121,10 +121,11 @@ def _materials(run: harness.Run) -> dict:
     return out
 
 
-def runtime_model(name: str, seed: int):
-    """Registered model `name` at its default (paper) config, seeded, in its runtime form and eval mode."""
+def runtime_model(name: str, seed: int, **config):
+    """Registered model `name` at its default (paper) config changed by `config`, seeded, in its runtime form and
+    eval mode."""
     torch.manual_seed(seed)
-    model = load_all().get(name)()
+    model = load_all().get(name)(**config)
     if name == "dipole-bssrdf":
         k = model.cfg.samples  # its surface quadrature, set from the object in training: a sphere of radius 0.5
         x = 0.5 * sample_uniform_sphere(torch.rand(k, 2))
