@@ -1,6 +1,6 @@
 """Phases of the translucent-object fits (NeuPreSS, the dipole and the UV baselines) for the one trainer
-(`neumat.fit.trainer.fit`): L2 on random minibatches of path-traced observations (`Observations`, from
-`neumat translucent trace`), with early stopping on a held-back fraction of them.
+(`neumat.fit.trainer.fit`): the recipe's loss (L2 unless it names another) on random minibatches of path-traced
+observations (`Observations`, from `neumat translucent trace`), with early stopping on a held-back fraction of them.
 
 The recipe options these phases read are `ObservationOptions`, the base of every translucent recipe's `Options`.
 
