@@ -43,7 +43,8 @@ BUDGET = {
                      "target; training steps of every BRDF / SVBRDF model at its CPU recipe, batches 2^10 and 2^13 (SVBRDF "
                      "models on a 64^2 crop, and on the whole 1K set at 2^13)",
              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
-             "expected_wall": "about 1 h on one thread (estimated: the last attempt, before the per-call cap, was stopped after 94 min in the evaluation table)"},
+             "expected_wall": "about 1.2 h on one thread (measured: 4,312 s wall, 2,145 CPU s, beside other jobs on "
+                              "the 2 cores; results/speed/full.json)"},
 }
 #: the models a quick run times: one of each family that evaluates in milliseconds (every latent-texture model builds
 #: a paper-sized 1024^2 pyramid first, about 1.5 s; one stands for the family)
