@@ -1,9 +1,12 @@
-"""Entry point: `python -m benchmarks --list | SUITE [--quick] [--json] [--out FILE.json] [--work DIR] [--workers N]`."""
+"""Entry point: `python -m benchmarks --list | SUITE [--quick] [--json] [--out FILE.json] [--work DIR]
+[--ledger FILE.jsonl] [--workers N | --shard I/N]`."""
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from . import harness
@@ -26,8 +29,15 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--work", type=Path, help="keep the suite's fits here (fit-many folders, generated data): "
                                                   "the same command again resumes, refitting only what is missing "
                                                   "(for full runs longer than a sitting; default: a temporary folder)")
-    parser.add_argument("--workers", type=int, default=1, help="fits run at a time (fit-many's Ray engine, "
-                                                               "--threads each; default 1: one after another)")
+    parser.add_argument("--ledger", type=Path, help="a JSON-lines file of finished jobs (fits): each is added as "
+                                                    "it ends, and a job it holds is not run again; commit it between "
+                                                    "sittings to spread a full run over several machines")
+    parser.add_argument("--workers", type=int, default=1, help="jobs run at a time: N shard processes (--threads each) "
+                                                               "fill the ledger, then this one builds the tables "
+                                                               "(default 1)")
+    parser.add_argument("--shard", type=_shard, default=(0, 1), metavar="I/N",
+                        help="run only the jobs of shard I of N (0 <= I < N) into --ledger; no --out: its tables "
+                             "are partial (what --workers starts)")
     args = parser.parse_args(argv)
     if args.list:
         for name in SUITES:
@@ -41,14 +51,47 @@ def main(argv: list[str]) -> int:
         parser.error(f"--out {args.out}: expected a .json path")
     if args.workers < 1:
         parser.error(f"--workers {args.workers}: expected at least 1")
+    if (args.workers > 1 or args.shard[1] > 1) and not getattr(load(args.suite), "SHARDS", False):
+        parser.error(f"--workers / --shard: suite {args.suite} has no independent fit jobs to share out")
+    if args.shard[1] > 1 and (args.ledger is None or args.out is not None or args.workers > 1):
+        parser.error("--shard: needs --ledger (where its jobs go), and takes neither --out nor --workers")
     repeats = args.repeats or (3 if args.quick else 7)
-    run = harness.Run(load(args.suite), args.quick, args.seed, args.threads, repeats, argv, work=args.work,
-                      workers=args.workers)
-    doc = run.execute()
+    with tempfile.TemporaryDirectory(prefix="neumat-bench-") as tmp:
+        ledger = args.ledger or (Path(tmp) / "ledger.jsonl" if args.workers > 1 else None)
+        if args.workers > 1:
+            _shards(args, ledger, repeats)
+        run = harness.Run(load(args.suite), args.quick, args.seed, args.threads, repeats, argv, work=args.work,
+                          ledger=ledger, shard=args.shard)
+        doc = run.execute()
     if args.out is not None:
         harness.write(doc, args.out)
     print(json.dumps(doc, indent=1) if args.json else harness.markdown(doc))
     return 0
+
+
+def _shard(text: str) -> tuple[int, int]:
+    """'I/N' -> (I, N)."""
+    try:
+        index, count = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected I/N (two integers), got {text!r}") from None
+    if not 0 <= index < count:
+        raise argparse.ArgumentTypeError(f"expected 0 <= I < N, got {text!r}")
+    return index, count
+
+
+def _shards(args: argparse.Namespace, ledger: Path, repeats: int) -> None:
+    """Run the suite's jobs in `args.workers` shard processes at once, each adding its jobs to `ledger`; the tables
+    are then built from the ledger (a shard that failed leaves its jobs to that last pass)."""
+    common = [args.suite, "--ledger", str(ledger.resolve()), "--seed", str(args.seed), "--threads", str(args.threads),
+              "--repeats", str(repeats)] + (["--quick"] if args.quick else []) \
+        + (["--work", str(args.work.resolve())] if args.work else [])
+    shards = [subprocess.Popen([sys.executable, "-m", "benchmarks", *common, "--shard", f"{i}/{args.workers}"],
+                               cwd=harness.ROOT, stdout=subprocess.DEVNULL) for i in range(args.workers)]
+    for i, shard in enumerate(shards):
+        if shard.wait():
+            print(f"shard {i}/{args.workers} exited with status {shard.returncode}: this process runs what it left",
+                  file=sys.stderr)
 
 
 if __name__ == "__main__":

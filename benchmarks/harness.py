@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import fcntl
 import hashlib
 import importlib.metadata
 import json
@@ -124,9 +125,11 @@ class Run:
     """One suite run: its options, the tables and skips it records, and the results document built from them."""
 
     def __init__(self, suite, quick: bool, seed: int, threads: int, repeats: int, argv: list[str],
-                 work: Path | None = None, workers: int = 1) -> None:
+                 work: Path | None = None, ledger: Path | None = None, shard: tuple[int, int] = (0, 1)) -> None:
         self.suite, self.quick, self.seed, self.threads, self.repeats = suite, quick, seed, threads, repeats
-        self.work, self.workers = work, workers
+        self.work, self.shard = work, shard
+        self.ledger = Ledger(ledger) if ledger is not None else None
+        self.reused: list[str] = []  # commits of the ledger entries this run took instead of running the job
         self.command = shlex.join(["python", "-m", "benchmarks", *argv])
         self.tables: list[dict] = []
         self.skipped: list[dict] = []
@@ -137,7 +140,8 @@ class Run:
     def progress(self, text: str) -> None:
         """One line on stderr with the wall time so far: a full run takes hours, and says where it is."""
         minutes, seconds = divmod(int(time.perf_counter() - self.started), 60)
-        print(f"[{minutes:3d}:{seconds:02d}] {self.suite.NAME}: {text}", file=sys.stderr, flush=True)
+        shard = f" [shard {self.shard[0]}/{self.shard[1]}]" if self.shard[1] > 1 else ""
+        print(f"[{minutes:3d}:{seconds:02d}] {self.suite.NAME}{shard}: {text}", file=sys.stderr, flush=True)
 
     def time(self, fn: Callable[[], object], grad: bool = False) -> float:
         """`cpu_seconds` at this run's repeats and sample length."""
@@ -162,6 +166,27 @@ class Run:
         path = self.work / f"{self.suite.NAME}-{'quick' if self.quick else 'full'}-{digest[:12]}"
         path.mkdir(parents=True, exist_ok=True)
         yield path
+
+    def job(self, what: str, key: dict, compute: Callable[[], dict], keep: Callable[[dict], bool]) -> dict | None:
+        """The result of the job that `key` (JSON-able) names: the ledger's entry when it holds one, else
+        compute()'s, added to the ledger when keep(result); None for a job another shard runs and the ledger does
+        not hold yet. One job at a time goes through here, so a full run survives being cut off at any point."""
+        digest = hashlib.sha256(json.dumps([self.suite.NAME, self.quick, key], sort_keys=True,
+                                           default=str).encode()).hexdigest()
+        if self.ledger is not None:
+            entry = self.ledger.get(digest)
+            if entry is not None:
+                self.reused.append(entry["commit"])
+                return entry["result"]
+        index, count = self.shard
+        if int(digest, 16) % count != index:
+            self.progress(f"{what}: left to shard {int(digest, 16) % count}/{count}")
+            return None
+        self.progress(f"{what}: running")
+        result = compute()
+        if self.ledger is not None and keep(result):
+            self.ledger.add(digest, what, result, self.command)
+        return result
 
     def skip(self, what: str, reason: str) -> None:
         """Record something the run could not measure here, and why."""
@@ -189,11 +214,57 @@ class Run:
                         "repeats": self.repeats, "min_seconds": self.min_seconds,
                         "floor_seconds": timer_floor(self.repeats, self.min_seconds)},
             "protocol": self.protocol,
+            **({"ledger": {"path": _relative(self.ledger.path), "entries_reused": len(self.reused),
+                           "their_commits": sorted(set(self.reused))}} if self.ledger is not None else {}),
             "tables": self.tables,
             "skipped": self.skipped,
             "wall_seconds": round(time.perf_counter() - started, 2),
             "cpu_seconds": round(time.process_time() - cpu0, 2),
         }
+
+
+class Ledger:
+    """A JSON-lines file of finished jobs (`Run.job`), one line each: its key's digest, what it was, the command,
+    commit and date that made it and its result. Shards append to one ledger at once (each line one locked write);
+    committed between sittings, it carries a full run of many hours across machines. A line cut off by a killed
+    run is ignored."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def get(self, digest: str) -> dict | None:
+        """The newest entry of `digest` (read afresh: another shard may have added it), or None."""
+        found = None
+        if self.path.exists():
+            for line in self.path.read_text().splitlines():
+                try:
+                    entry = json.loads(line)
+                except json.JSONDecodeError:
+                    continue
+                if isinstance(entry, dict) and entry.get("key") == digest:
+                    found = entry
+        return found
+
+    def add(self, digest: str, what: str, result: dict, command: str) -> None:
+        """Append one entry."""
+        entry = {"key": digest, "what": what, "command": command, "commit": _git("rev-parse", "HEAD"),
+                 "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                 "result": result}
+        line = json.dumps(entry, default=str) + "\n"
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a") as f:
+            fcntl.flock(f, fcntl.LOCK_EX)
+            f.write(line)
+            f.flush()
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _relative(path: Path) -> str:
+    """`path` relative to the repository root where it lies inside it (results name no machine's folders)."""
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
 
 
 def _plain(row: dict) -> dict:
@@ -235,6 +306,10 @@ def markdown(doc: dict) -> str:
              f"{doc['harness']['min_seconds']} s); its floor: {doc['harness']['floor_seconds']:.3g} s per call."]
     for key, text in doc["protocol"].items():
         lines += ["", f"Protocol ({key}): {text}"]
+    if "ledger" in doc:
+        ledger = doc["ledger"]
+        lines += ["", f"Ledger `{ledger['path']}`: {ledger['entries_reused']} of the jobs taken from it, made at "
+                      f"commit(s) {', '.join(f'`{c[:12]}`' for c in ledger['their_commits']) or '-'}."]
     for t in doc["tables"]:
         lines += ["", f"## {t['title']}", ""]
         if t["notes"]:

@@ -1,5 +1,6 @@
 """The named suites: name -> module. Each module defines NAME, DESCRIPTION, BUDGET ({"quick"|"full": {"ours",
-"paper", "expected_wall"}}) and run(run: benchmarks.harness.Run), imported only when asked for."""
+"paper", "expected_wall"}}) and run(run: benchmarks.harness.Run), imported only when asked for; SHARDS = True where
+its work is independent fit jobs (`harness.Run.job`) that --workers / --shard may share out."""
 from __future__ import annotations
 
 import importlib

@@ -29,31 +29,62 @@ def cli(args: list[str]) -> None:
 
 def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],
              after: Callable[[dict], dict] | None = None) -> list[dict]:
-    """fit-many's result rows of every (source, model) for each seed (a "seed" key added), `run.workers` fits at
-    a time, in folders kept under --work when given (a rerun resumes: fit-many keeps what matches); a failed job's
-    row has status "error" and its message, and the run records it as skipped. `after(row)` runs on each fitted row
-    while its .nmat still exists (row["nmat"]); what it returns is added to the row."""
-    rows = []
-    engine = ["--engine", "local"] if run.workers == 1 else ["--engine", "ray", "--workers", str(run.workers)]
+    """fit-many's result rows of every (source, model) for each seed (a "seed" key added). Each is one job of the
+    run (`harness.Run.job`): from the run's ledger when it holds it, else a `neumat fit-many` of that source and model
+    alone (in a folder kept under --work when given), source after source so each source's reference images are
+    rendered once; a job of another shard not in the ledger yet is left out. A failed job's row has status "error"
+    and its message (never kept in the ledger: the next run tries again), and the run records it as skipped.
+    `after(row)` runs on each fitted row while its .nmat exists (row["nmat"]); what it returns is added to the row."""
+    from neumat.cli.fit_job import FitJob, source_sha256
+    from neumat.fit.preset import DEFAULT_PRESET
+
+    preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
     if run.work is not None:
         run.protocol["fits"] = (f"fit-many folders kept under {run.work} (a rerun resumes); wall and CPU seconds are "
-                                f"this sitting's, each row's 'fit s' its own fit's; {run.workers} fit(s) at a time")
+                                f"this sitting's, each row's 'fit s' its own fit's")
+    rows = []
     for seed in seeds:
-        with run.folder("fit-many", sources, models, options, seed) as out:
-            args = ["fit-many", *sources, *[a for m in models for a in ("-m", m)], *options, "--seed", str(seed),
-                    "--threads", str(run.threads), *engine, "-q", "-o", str(out)]
-            try:
-                cli(args)
-            except SystemExit as stop:  # exit status 1: some job failed; its row says why
-                if stop.code not in (0, 1, None):
-                    raise
-            for row in json.loads((Path(out) / "results.json").read_text())["rows"]:
+        for source in sources:
+            for model in models:
+                key = {"job": "fit-many", "source": Path(source).name, "source_sha256": source_sha256(source),
+                       "model": model, "options": options, "seed": seed,
+                       "preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256()}
+                row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
+                              lambda: _fit_one(run, source, model, _own(options, model, models), seed, after),
+                              keep=lambda r: r["status"] == "ok")
+                if row is None:
+                    continue
                 if row["status"] != "ok":
                     run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
-                elif after is not None:
-                    row = {**row, **after(row)}
                 rows.append({**row, "seed": seed})
     return rows
+
+
+def _own(options: list[str], model: str, models: list[str]) -> list[str]:
+    """`options` less the `--set OTHER:key=value` of the other models (fit-many refuses a model it does not fit)."""
+    others = tuple(f"{m}:" for m in models if m != model)
+    out, i = [], 0
+    while i < len(options):
+        if options[i] == "--set" and i + 1 < len(options) and options[i + 1].startswith(others):
+            i += 2
+            continue
+        out.append(options[i])
+        i += 1
+    return out
+
+
+def _fit_one(run: harness.Run, source: str, model: str, options: list[str], seed: int,
+             after: Callable[[dict], dict] | None) -> dict:
+    """The fit-many row of `model` fitted to `source`, with `after`'s additions when it fitted."""
+    with run.folder("fit-many", source, model, options, seed) as out:
+        try:
+            cli(["fit-many", source, "-m", model, *options, "--seed", str(seed), "--threads", str(run.threads),
+                 "--engine", "local", "-q", "-o", str(out)])
+        except SystemExit as stop:  # exit status 1: the job failed; its row says why
+            if stop.code not in (0, 1, None):
+                raise
+        row = json.loads((Path(out) / "results.json").read_text())["rows"][0]
+        return {**row, **after(row)} if row["status"] == "ok" and after is not None else row
 
 
 def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str],

@@ -8,6 +8,8 @@ from .common import paper_budget, quality_rows, recipe_budget, summary_rows, tex
 NAME = "multiscale"
 DESCRIPTION = "the multi-scale gated SVBRDF against neumip, tripleplane, nbrdf-uv and ggx-mipmap, through fit-many"
 MODELS = ["multiscale", "neumip", "tripleplane", "nbrdf-uv", "ggx-mipmap"]
+#: its fits are independent jobs: --workers / --shard share them out
+SHARDS = True
 BUDGET = {
     "quick": {"ours": "multiscale and ggx-mipmap, 10 steps x 256 on Wood092_1K at 32^2 texels with 8-sample "
                        "footprint targets, one seed; scale series of 3 scales at 16^2 pixels",

@@ -6,7 +6,10 @@ runs twice: at the default preset (recommended) and as the paper's exact model (
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+from neumat.cli.fit_job import FitJob, source_sha256
+from neumat.fit.preset import DEFAULT_PRESET
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
@@ -29,6 +32,8 @@ CLUSTERS = ["-k", "6", "--n-configs", str(2 ** 18)]
 QUICK_CLUSTERS = ["-k", "1", "--preset", "cpu", "--steps", "30", "--set", "nside=4", "--set", "index_bits=4", "--set",
                   "batch_size=1024", "--set", "cluster_steps=20", "--set", "cluster_resolution=8", "--n-configs",
                   "4096"]
+#: its fits are independent jobs: --workers / --shard share them out
+SHARDS = True
 BUDGET = {
     "quick": {"ours": "neubrdf (N_side 4, b 4) and nbrdf, 30 steps x 1024 on analytic GGX and paper_white, one seed; "
                       "images 32^2 at 4 spp; the two in one shared-neubrdf cluster",
@@ -40,8 +45,7 @@ BUDGET = {
                      "preset, seed 0",
              "paper": paper_budget(TABLE4_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 17 h one fit after another (fit-many --engine local, one thread; --workers 2: "
-                              "about half)"},
+             "expected_wall": "about 17 h one fit after another (one thread; --workers 2: about half)"},
 }
 
 
@@ -97,14 +101,23 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
 
 
 def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int, own: list[dict]) -> list[dict]:
-    """One row per source of a `neumat fit-clusters` run (kept under --work: a finished one is read back): its
-    cluster, bytes (its index grid and a share of the cluster's codebook and MLP) and reflectance errors, beside
-    its own NeuBRDF fit's in `own` (fit-many rows of model "neubrdf": the default preset in a full run)."""
-    with run.folder("fit-clusters", sources, options, seed) as out:
-        if not (out / "clusters.json").exists():
-            cli(["fit-clusters", *sources, *options, "--seed", str(seed), "--threads", str(run.threads), "-q", "-o",
-                 str(out)])
-        doc = json.loads((out / "clusters.json").read_text())
+    """One row per source of a `neumat fit-clusters` run (one job of the run: from its ledger or a --work folder
+    when either holds it; no rows in a shard that leaves it to another): its cluster, bytes (its index grid and a
+    share of the cluster's codebook and MLP) and reflectance errors, beside its own NeuBRDF fit's in `own`
+    (fit-many rows of model "neubrdf": the default preset in a full run)."""
+    def clusters() -> dict:
+        with run.folder("fit-clusters", sources, options, seed) as out:
+            if not (out / "clusters.json").exists():
+                cli(["fit-clusters", *sources, *options, "--seed", str(seed), "--threads", str(run.threads), "-q",
+                     "-o", str(out)])
+            return json.loads((out / "clusters.json").read_text())
+
+    preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
+    key = {"job": "fit-clusters", "sources": {Path(s).name: source_sha256(s) for s in sources}, "options": options,
+           "seed": seed, "preset": FitJob(source="", name="", model="neubrdf", out_dir="", preset=preset).fit_sha256()}
+    doc = run.job(f"fit-clusters of {len(sources)} sources (seed {seed})", key, clusters, keep=lambda _: True)
+    if doc is None:
+        return []
     alone = {r["name"]: r for r in own if r["model"] == "neubrdf" and r["seed"] == seed and r["status"] == "ok"}
     size = {c["cluster"]: len(c["members"]) for c in doc["clusters"]}
     rows = []

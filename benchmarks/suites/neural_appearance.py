@@ -8,6 +8,8 @@ from .common import paper_budget, quality_rows, recipe_budget, summary_rows, tex
 NAME = "neural-appearance"
 DESCRIPTION = "neural-appearance against neumip-frame and ggx-mipmap on the texture sets, through fit-many"
 MODELS = ["neural-appearance", "neumip-frame", "ggx-mipmap"]
+#: its fits are independent jobs: --workers / --shard share them out
+SHARDS = True
 BUDGET = {
     "quick": {"ours": "neural-appearance, 10 steps x 256 on Wood092_1K at 32^2 texels with 8-sample footprint "
                        "targets, one seed; sampler variance at 4 points x 64 samples",

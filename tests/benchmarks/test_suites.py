@@ -60,6 +60,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     out = tmp_path / suite / "quick.json"
     extra = ["--work", str(out.parent / "work")] if suite == "sparsebtf" else []  # then rerun: it must resume
     extra += ["--repeats", "1"] if suite == "speed" else []  # the schema and the arithmetic, not the rates: one sample
+    if suite == "neubrdf":  # two shard processes fill a ledger; then a rerun must take every job from it
+        extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
     run = _bench(suite, "--quick", "--json", "--out", str(out), *extra)
     assert run.returncode == 0, run.stderr[-3000:]
     doc = json.loads(run.stdout)
@@ -79,6 +81,7 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_drjit_rows(doc)
     if suite == "neubrdf":
         _check_sharing(doc)
+        _check_ledger(out, doc, run.stderr)
     if suite == "neupress":
         _check_neupress_images(doc)
     if suite == "sparsebtf":
@@ -110,6 +113,20 @@ def _check_sharing(doc: dict) -> None:
         assert r["cluster"] == 0 and r["cluster size"] == 2
         assert r["own log_err"] is not None and r["log_err"] is not None
         assert r["bytes"] < r["own bytes"]
+
+
+def _check_ledger(out: Path, first: dict, stderr: str) -> None:
+    """Both shards ran jobs (4 fits and the clusters), each job once; the same command again without --workers
+    runs none: every job from the ledger, the same tables, the ledger's commits named."""
+    ledger = out.parent / "ledger.jsonl"
+    entries = [json.loads(line) for line in ledger.read_text().splitlines()]
+    assert len(entries) == len({e["key"] for e in entries}) == 5
+    assert re.search(r"\[shard 0/2\]: .*: running", stderr) and re.search(r"\[shard 1/2\]: .*: running", stderr)
+    assert first["ledger"]["entries_reused"] == 5 and first["ledger"]["their_commits"] == [first["machine"]["commit"]]
+    again = _bench("neubrdf", "--quick", "--json", "--ledger", str(ledger))
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert ": running" not in again.stderr
+    assert json.loads(again.stdout)["tables"] == first["tables"]
 
 
 def _check_drjit_rows(doc: dict) -> None:
@@ -161,8 +178,13 @@ def test_committed_results_match_the_schema_and_name_their_command():
         doc = json.loads(path.read_text())
         jsonschema.validate(doc, SCHEMA)
         assert doc["command"].startswith(f"python -m benchmarks {doc['suite']}"), path
+    for path in sorted((ROOT / "benchmarks" / "results").rglob("*.jsonl")):  # ledgers: every job with its command
+        for line in path.read_text().splitlines():
+            entry = json.loads(line)
+            assert entry["command"].startswith(f"python -m benchmarks {path.parent.name}"), path
+            assert re.fullmatch(r"[0-9a-f]{40}", entry["commit"]) and entry["result"], path
     assert not [p for p in (ROOT / "benchmarks" / "results").rglob("*") if p.is_file()
-                and p.suffix not in (".json", ".md")]
+                and p.suffix not in (".json", ".jsonl", ".md")]
 
 
 def test_no_sys_path_edit_and_no_training_loop_in_the_benchmarks():
@@ -205,9 +227,11 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
                     "--seed", "3", "--threads", "1"]
     assert kw["cwd"] == ROOT
     calls.clear()
-    result = CliRunner().invoke(app, ["bench", "sparsebtf", "--work", str(tmp_path / "w"), "--workers", "2"])
+    result = CliRunner().invoke(app, ["bench", "neubrdf", "--work", str(tmp_path / "w"), "--ledger",
+                                      str(tmp_path / "l.jsonl"), "--workers", "2"])
     assert result.exit_code == 0, result.output
-    assert calls[0][0][-4:] == ["--work", str((tmp_path / "w").resolve()), "--workers", "2"]
+    assert calls[0][0][-6:] == ["--work", str((tmp_path / "w").resolve()), "--ledger",
+                                str((tmp_path / "l.jsonl").resolve()), "--workers", "2"]
 
 
 def _check_resume(out: Path, first: dict) -> None:
@@ -227,3 +251,16 @@ def _check_resume(out: Path, first: dict) -> None:
 def test_workers_below_one_are_refused(capsys):
     status, _, err = _main(capsys, "sparsebtf", "--workers", "0")
     assert status == 2 and "--workers 0: expected at least 1" in err
+
+
+def test_shards_are_refused_where_they_cannot_work(capsys, tmp_path):
+    """--shard needs a ledger and writes no --out; suites without independent fit jobs take neither option."""
+    ledger = str(tmp_path / "l.jsonl")
+    for args, message in ((["neubrdf", "--shard", "0/2"], "needs --ledger"),
+                          (["neubrdf", "--shard", "0/2", "--ledger", ledger, "--out", str(tmp_path / "x.json")],
+                           "takes neither --out"),
+                          (["neubrdf", "--shard", "2/2", "--ledger", ledger], "expected 0 <= I < N"),
+                          (["neubrdf", "--shard", "x", "--ledger", ledger], "expected I/N"),
+                          (["neupress", "--workers", "2"], "suite neupress has no independent fit jobs")):
+        status, _, err = _main(capsys, *args)
+        assert status == 2 and message in err, (args, err)

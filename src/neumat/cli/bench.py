@@ -33,13 +33,17 @@ def bench(suite: str = typer.Argument(None, help="the suite to run (--list names
           threads: int = typer.Option(1, "--threads", min=1, help="CPU threads (default 1)"),
           work: Path = typer.Option(None, "--work", help="keep the suite's fits here: the same command again "
                                                          "resumes (full runs longer than a sitting)"),
-          workers: int = typer.Option(1, "--workers", min=1, help="fits run at a time (default 1)"),
+          ledger: Path = typer.Option(None, "--ledger", help="a JSON-lines file of finished fits: added to as each "
+                                                             "ends, not fitted again; commit it between sittings"),
+          workers: int = typer.Option(1, "--workers", min=1, help="fits run at a time, in shard processes (default "
+                                                                  "1)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output (the suite's stderr)")) -> None:
     """Run a benchmark suite: JSON results naming the command, commit and machine, and a Markdown table."""
     def go():
         args = (["--list"] if list_ else []) + ([suite] if suite else []) + (["--quick"] if quick else []) \
             + (["--json"] if json_ else []) + (["--out", str(out.resolve())] if out else []) \
             + ["--seed", str(seed), "--threads", str(threads)] + (["--work", str(work.resolve())] if work else []) \
+            + (["--ledger", str(ledger.resolve())] if ledger else []) \
             + (["--workers", str(workers)] if workers != 1 else [])
         done = subprocess.run([sys.executable, "-m", "benchmarks", *args], cwd=benchmarks_root(),
                               stderr=subprocess.DEVNULL if quiet else None)

@@ -1,0 +1,74 @@
+"""The harness's job ledger (`benchmarks.harness.Run.job`, `Ledger`): a job it holds is not run again, shards split
+the jobs so that each runs on exactly one, failed results are not kept, a cut-off line is ignored, and two
+processes appending at once lose nothing."""
+from __future__ import annotations
+
+import json
+import multiprocessing
+import types
+
+from benchmarks import harness
+
+SUITE = types.SimpleNamespace(NAME="toy")
+
+
+def _run(ledger=None, shard=(0, 1)) -> harness.Run:
+    return harness.Run(SUITE, False, 0, 1, 1, ["toy"], ledger=ledger, shard=shard)
+
+
+def test_a_job_in_the_ledger_is_not_run_again(tmp_path):
+    ledger = tmp_path / "l.jsonl"
+    calls = []
+    first = _run(ledger).job("a", {"x": 1}, lambda: calls.append(1) or {"v": 2.5}, keep=lambda r: True)
+    again = _run(ledger)
+    assert again.job("a", {"x": 1}, lambda: calls.append(1) or {"v": 9}, keep=lambda r: True) == first == {"v": 2.5}
+    assert calls == [1] and len(again.reused) == 1
+    entry = json.loads(ledger.read_text())
+    assert entry["what"] == "a" and entry["command"] == "python -m benchmarks toy" and len(entry["commit"]) >= 7
+    assert _run(ledger).job("a", {"x": 2}, lambda: {"v": 3}, keep=lambda r: True) == {"v": 3}  # another key
+
+
+def test_results_not_kept_are_run_again(tmp_path):
+    ledger = tmp_path / "l.jsonl"
+    assert _run(ledger).job("a", {}, lambda: {"status": "error"}, keep=lambda r: r["status"] == "ok")
+    assert not ledger.exists() or ledger.read_text() == ""
+
+
+def test_shards_split_the_jobs_and_the_last_pass_takes_all(tmp_path):
+    ledger = tmp_path / "l.jsonl"
+    keys = [{"i": i} for i in range(40)]
+    ran = {0: [], 1: [], 2: []}
+    for s in range(3):  # one after another: a later shard finds the earlier ones' jobs in the ledger
+        for k in keys:
+            _run(ledger, (s, 3)).job(str(k), k, lambda k=k, s=s: ran[s].append(k["i"]) or {"i": k["i"]},
+                                     keep=lambda r: True)
+    assert sorted(i for v in ran.values() for i in v) == list(range(40)) and all(ran.values())
+    final = _run(ledger)
+    assert [final.job(str(k), k, lambda: {"i": -1}, keep=lambda r: True)["i"] for k in keys] == list(range(40))
+    assert len(final.reused) == 40
+
+
+def test_a_line_cut_off_is_ignored(tmp_path):
+    ledger = tmp_path / "l.jsonl"
+    _run(ledger).job("a", {"x": 1}, lambda: {"v": 1}, keep=lambda r: True)
+    with open(ledger, "a") as f:
+        f.write('{"key": "')  # a run killed in the middle of its line
+    assert _run(ledger).job("a", {"x": 1}, lambda: {"v": 2}, keep=lambda r: True) == {"v": 1}
+    assert _run(ledger).job("b", {"x": 3}, lambda: {"v": 3}, keep=lambda r: True) == {"v": 3}
+
+
+def _append(path, start):
+    ledger = harness.Ledger(path)
+    for i in range(start, start + 200):
+        ledger.add(f"k{i}", "w", {"pad": "x" * 5000, "i": i}, "c")
+
+
+def test_two_processes_appending_at_once_lose_nothing(tmp_path):
+    path = tmp_path / "l.jsonl"
+    procs = [multiprocessing.get_context("fork").Process(target=_append, args=(path, s)) for s in (0, 200)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join()
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert sorted(r["result"]["i"] for r in rows) == list(range(400))
