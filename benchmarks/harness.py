@@ -225,7 +225,7 @@ class Run:
 
 class Ledger:
     """A JSON-lines file of finished jobs (`Run.job`), one line each: its key's digest, what it was, the command,
-    commit and date that made it and its result. Shards append to one ledger at once (each line one locked write);
+    commit (and whether the tree was dirty) and date that made it and its result. Shards append to one ledger at once (each line one locked write);
     committed between sittings, it carries a full run of many hours across machines. A line cut off by a killed
     run is ignored."""
 
@@ -248,6 +248,7 @@ class Ledger:
     def add(self, digest: str, what: str, result: dict, command: str) -> None:
         """Append one entry."""
         entry = {"key": digest, "what": what, "command": command, "commit": _git("rev-parse", "HEAD"),
+                 "dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                  "result": result}
         line = json.dumps(entry, default=str) + "\n"

@@ -89,9 +89,11 @@ TEST_SEED = 777
 def _images(run: harness.Run, seeds: list[int]) -> None:
     """The image table: trace, fit each model per seed, score the held-out set and the full appearance against
     the reference (the second reference's scores are the floor). Under --work the traces, references and fits
-    are kept and reused."""
+    are kept and reused (a fit while its model's default preset is unchanged)."""
+    from neumat.cli.fit_job import FitJob
     from neumat.core.errors import InputError
     from neumat.core.llvm import usable_libllvm
+    from neumat.fit.preset import DEFAULT_PRESET
     from neumat.io.shared_data import shared_data_dir
 
     setup = IMAGE_SETUP["quick" if run.quick else "full"]
@@ -115,8 +117,9 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
         scorer = _Scorer(folder, train, test, light, setup)
         rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
         for seed in seeds:
-            for name in MODELS:
-                nmat = folder / f"{name}-{seed}.nmat"
+            for name in MODELS:  # the preset's content in the name: a changed default fits again
+                preset = FitJob(source="", name="", model=name, out_dir="", preset=DEFAULT_PRESET).fit_sha256()
+                nmat = folder / f"{name}-{seed}-{preset[:12]}.nmat"
                 _kept(nmat, lambda out: cli(["fit", str(train), "--model", name, *setup["fit"].get(name, []), "--seed", str(seed),
                                              "--threads", str(run.threads), "-q", "-o", str(out)]))
                 rows.append({"model": name, "seed": seed, **scorer.model(nmat)})
