@@ -3,6 +3,7 @@ per-model summary with its seed spread, and budgets stated from the recipes them
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import statistics
 import sys
@@ -35,7 +36,7 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     rendered once; a job of another shard not in the ledger yet is left out. A failed job's row has status "error"
     and its message (never kept in the ledger: the next run tries again), and the run records it as skipped.
     `after(row)` runs on each fitted row while its .nmat exists (row["nmat"]); what it returns is added to the row."""
-    from neumat.cli.fit_job import FitJob, source_sha256
+    from neumat.cli.fit_job import FitJob
     from neumat.fit.preset import DEFAULT_PRESET
 
     preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
@@ -46,7 +47,7 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     for seed in seeds:
         for source in sources:
             for model in models:
-                key = {"job": "fit-many", "source": Path(source).name, "source_sha256": source_sha256(source),
+                key = {"job": "fit-many", "source": Path(source).name, "source_sha256": content_sha256(source),
                        "model": model, "options": options, "seed": seed,
                        "preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256()}
                 row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
@@ -58,6 +59,20 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
                     run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
                 rows.append({**row, "seed": seed})
     return rows
+
+
+def content_sha256(source: str) -> str:
+    """The hash a ledger key holds for a source: of a file's bytes, of a folder's files (names and bytes: a texture
+    set), else of the spec; never of a path, so the key is the same on every machine."""
+    from neumat.cli.fit_job import source_sha256
+
+    folder = Path(source)
+    if not folder.is_dir():
+        return source_sha256(source)
+    h = hashlib.sha256()
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        h.update(str(path.relative_to(folder)).encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
 
 
 def _own(options: list[str], model: str, models: list[str]) -> list[str]:

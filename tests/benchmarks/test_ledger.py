@@ -72,3 +72,21 @@ def test_two_processes_appending_at_once_lose_nothing(tmp_path):
         p.join()
     rows = [json.loads(line) for line in path.read_text().splitlines()]
     assert sorted(r["result"]["i"] for r in rows) == list(range(400))
+
+
+def test_a_source_folder_keys_by_its_content_not_its_path(tmp_path):
+    """A texture set copied elsewhere (another machine's shared data) keys the same; a changed byte does not."""
+    import shutil
+
+    from benchmarks.suites.common import content_sha256
+
+    a = tmp_path / "here" / "Set"
+    a.mkdir(parents=True)
+    (a / "col.jpg").write_bytes(b"\x01\x02")
+    (a / "rgh.jpg").write_bytes(b"\x03")
+    b = tmp_path / "there" / "Set"
+    shutil.copytree(a, b)
+    assert content_sha256(str(a)) == content_sha256(str(b))
+    (b / "rgh.jpg").write_bytes(b"\x04")
+    assert content_sha256(str(a)) != content_sha256(str(b))
+    assert content_sha256("ggx:roughness=0.2") == content_sha256("ggx:roughness=0.2")
