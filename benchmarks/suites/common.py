@@ -49,7 +49,8 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
             for model in models:
                 key = {"job": "fit-many", "source": Path(source).name, "source_sha256": content_sha256(source),
                        "model": model, "options": options, "seed": seed,
-                       "preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256()}
+                       "preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
+                       "recipes": recipes(model)}
                 row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
                               lambda: _fit_one(run, source, model, _own(options, model, models), seed, after),
                               keep=lambda r: r["status"] == "ok")
@@ -59,6 +60,14 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
                     run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
                 rows.append({**row, "seed": seed})
     return rows
+
+
+def recipes(model: str) -> dict:
+    """The content of `model`'s CPU and paper recipes (a preset starts from one of them): in a ledger key, so a
+    changed recipe default fits again."""
+    from neumat.core.config import config_to_dict
+
+    return {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")}
 
 
 def content_sha256(source: str) -> str:

@@ -90,3 +90,24 @@ def test_a_source_folder_keys_by_its_content_not_its_path(tmp_path):
     (b / "rgh.jpg").write_bytes(b"\x04")
     assert content_sha256(str(a)) != content_sha256(str(b))
     assert content_sha256("ggx:roughness=0.2") == content_sha256("ggx:roughness=0.2")
+
+
+def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
+    """fit_many's ledger key holds the model's recipe content: the same options after a changed
+    default are a new job, the unchanged ones are not (the fit itself replaced by a stub)."""
+    import dataclasses
+
+    from benchmarks.suites import common
+    from neumat.fit.method import recipe_for
+
+    fits = []
+    monkeypatch.setattr(common, "_fit_one", lambda run, source, model, options, seed, after:
+                        fits.append(model) or {"name": source, "model": model, "status": "ok"})
+    run = lambda: _run(tmp_path / "l.jsonl")  # noqa: E731
+    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    assert fits == ["nbrdf"]
+    changed = dataclasses.replace(recipe_for("nbrdf", "cpu"), steps=7)
+    monkeypatch.setattr(common, "recipe_for", lambda model, name: changed if name == "cpu" else recipe_for(model, name))
+    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    assert fits == ["nbrdf", "nbrdf"]
