@@ -58,10 +58,11 @@ def main(argv: list[str]) -> int:
     repeats = args.repeats or (3 if args.quick else 7)
     with tempfile.TemporaryDirectory(prefix="neumat-bench-") as tmp:
         ledger = args.ledger or (Path(tmp) / "ledger.jsonl" if args.workers > 1 else None)
+        scratch = Path(tmp) / "work" if args.workers > 1 and args.work is None else None
         if args.workers > 1:
-            _shards(args, ledger, repeats)
+            _shards(args, ledger, repeats, args.work or scratch)
         run = harness.Run(load(args.suite), args.quick, args.seed, args.threads, repeats, argv, work=args.work,
-                          ledger=ledger, shard=args.shard)
+                          ledger=ledger, shard=args.shard, scratch=scratch)
         doc = run.execute()
     if args.out is not None:
         harness.write(doc, args.out)
@@ -80,12 +81,12 @@ def _shard(text: str) -> tuple[int, int]:
     return index, count
 
 
-def _shards(args: argparse.Namespace, ledger: Path, repeats: int) -> None:
-    """Run the suite's jobs in `args.workers` shard processes at once, each adding its jobs to `ledger`; the tables
-    are then built from the ledger (a shard that failed leaves its jobs to that last pass)."""
+def _shards(args: argparse.Namespace, ledger: Path, repeats: int, work: Path) -> None:
+    """Run the suite's jobs in `args.workers` shard processes at once, each adding its jobs to `ledger` and sharing
+    `work` (what they make, e.g. generated sources, is made once); the tables are then built from the ledger (a
+    shard that failed leaves its jobs to that last pass)."""
     common = [args.suite, "--ledger", str(ledger.resolve()), "--seed", str(args.seed), "--threads", str(args.threads),
-              "--repeats", str(repeats)] + (["--quick"] if args.quick else []) \
-        + (["--work", str(args.work.resolve())] if args.work else [])
+              "--repeats", str(repeats), "--work", str(work.resolve())] + (["--quick"] if args.quick else [])
     shards = [subprocess.Popen([sys.executable, "-m", "benchmarks", *common, "--shard", f"{i}/{args.workers}"],
                                cwd=harness.ROOT, stdout=subprocess.DEVNULL) for i in range(args.workers)]
     for i, shard in enumerate(shards):

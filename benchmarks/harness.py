@@ -125,9 +125,10 @@ class Run:
     """One suite run: its options, the tables and skips it records, and the results document built from them."""
 
     def __init__(self, suite, quick: bool, seed: int, threads: int, repeats: int, argv: list[str],
-                 work: Path | None = None, ledger: Path | None = None, shard: tuple[int, int] = (0, 1)) -> None:
+                 work: Path | None = None, ledger: Path | None = None, shard: tuple[int, int] = (0, 1),
+                 scratch: Path | None = None) -> None:
         self.suite, self.quick, self.seed, self.threads, self.repeats = suite, quick, seed, threads, repeats
-        self.work, self.shard = work, shard
+        self.work, self.shard, self.scratch = work, shard, scratch
         self.ledger = Ledger(ledger) if ledger is not None else None
         self.reused: list[str] = []  # commits of the ledger entries this run took instead of running the job
         self.command = shlex.join(["python", "-m", "benchmarks", *argv])
@@ -157,13 +158,15 @@ class Run:
     @contextlib.contextmanager
     def folder(self, *key: object) -> Iterator[Path]:
         """A folder for the part of the run that `key` names: under --work it is kept (the same key gives the same
-        folder, so a rerun finds what it holds), else a temporary one, removed after."""
-        if self.work is None:
+        folder, so a rerun finds what it holds), else in the scratch folder the run's shards share (--workers),
+        else a temporary one, removed after."""
+        base = self.work or self.scratch
+        if base is None:
             with tempfile.TemporaryDirectory(prefix=f"neumat-{self.suite.NAME}-") as tmp:
                 yield Path(tmp)
             return
         digest = hashlib.sha1(json.dumps([self.suite.NAME, self.quick, *key], default=str).encode()).hexdigest()
-        path = self.work / f"{self.suite.NAME}-{'quick' if self.quick else 'full'}-{digest[:12]}"
+        path = base / f"{self.suite.NAME}-{'quick' if self.quick else 'full'}-{digest[:12]}"
         path.mkdir(parents=True, exist_ok=True)
         yield path
 

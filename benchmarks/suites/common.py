@@ -29,13 +29,17 @@ def cli(args: list[str]) -> None:
 
 
 def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],
-             after: Callable[[dict], dict] | None = None) -> list[dict]:
+             after: Callable[[dict], dict] | None = None, made: dict[str, tuple[str, Callable[[], None]]] | None = None
+             ) -> list[dict]:
     """fit-many's result rows of every (source, model) for each seed (a "seed" key added). Each is one job of the
     run (`harness.Run.job`): from the run's ledger when it holds it, else a `neumat fit-many` of that source and model
     alone (in a folder kept under --work when given), source after source so each source's reference images are
     rendered once; a job of another shard not in the ledger yet is left out. A failed job's row has status "error"
     and its message (never kept in the ledger: the next run tries again), and the run records it as skipped.
-    `after(row)` runs on each fitted row while its .nmat exists (row["nmat"]); what it returns is added to the row."""
+    `after(row)` runs on each fitted row while its .nmat exists (row["nmat"]); what it returns is added to the row.
+    `made` names sources that are made on demand: {source: (what makes it, a text for the key; make())}, make()
+    called before a job of that source runs (so jobs the ledger holds need no source), its text keying the job
+    instead of the file's hash. Shards take the sources in a rotated order, so they make different ones first."""
     from neumat.cli.fit_job import FitJob
     from neumat.fit.preset import DEFAULT_PRESET
 
@@ -43,23 +47,30 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     if run.work is not None:
         run.protocol["fits"] = (f"fit-many folders kept under {run.work} (a rerun resumes); wall and CPU seconds are "
                                 f"this sitting's, each row's 'fit s' its own fit's")
-    rows = []
+    made = made or {}
+    index, count = run.shard
+    start = index * len(sources) // count
+    order = sources[start:] + sources[:start]
+    rows = {}
     for seed in seeds:
-        for source in sources:
+        for source in order:
+            made_by, make = made.get(source, (None, None))
             for model in models:
-                key = {"job": "fit-many", "source": Path(source).name, "source_sha256": content_sha256(source),
+                key = {"job": "fit-many", "source": Path(source).name,
+                       "source_sha256": content_sha256(source) if made_by is None else made_by,
                        "model": model, "options": options, "seed": seed,
                        "preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
                        "recipes": recipes(model)}
                 row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
-                              lambda: _fit_one(run, source, model, _own(options, model, models), seed, after),
+                              lambda: (make and make()) or _fit_one(run, source, model, _own(options, model, models),
+                                                                    seed, after),
                               keep=lambda r: r["status"] == "ok")
                 if row is None:
                     continue
                 if row["status"] != "ok":
                     run.skip(f"{row['name']} x {row['model']} (seed {seed})", str(row.get("error", row["status"])))
-                rows.append({**row, "seed": seed})
-    return rows
+                rows[(seed, source, model)] = {**row, "seed": seed}
+    return [rows[k] for k in ((seed, s, m) for seed in seeds for s in sources for m in models) if k in rows]
 
 
 def recipes(model: str) -> dict:

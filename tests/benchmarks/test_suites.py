@@ -59,6 +59,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         pytest.skip("shared data absent: the suite's sources are the shared texture sets")
     out = tmp_path / suite / "quick.json"
     extra = ["--work", str(out.parent / "work")] if suite == "sparsebtf" else []  # then rerun: it must resume
+    if suite == "sparsebtf":  # two shards share the work folder: the BTF generated once, under a lock
+        extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
     extra += ["--repeats", "1"] if suite == "speed" else []  # the schema and the arithmetic, not the rates: one sample
     if suite == "neubrdf":  # two shard processes fill a ledger; then a rerun must take every job from it
         extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
@@ -85,7 +87,7 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     if suite == "neupress":
         _check_neupress_images(doc)
     if suite == "sparsebtf":
-        _check_resume(out, doc)
+        _check_resume(out, doc, run.stderr)
 
 
 def _check_neupress_images(doc: dict) -> None:
@@ -234,9 +236,10 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
                                 str((tmp_path / "l.jsonl").resolve()), "--workers", "2"]
 
 
-def _check_resume(out: Path, first: dict) -> None:
-    """The same command again with the --work folder it ran with refits nothing: the same rows, the generated BTF
-    and fitted files untouched."""
+def _check_resume(out: Path, first: dict, stderr: str) -> None:
+    """The two shards generated the BTF once; the same command again with the --work folder it ran with refits
+    nothing: the same rows, the generated BTF and fitted files untouched; with the ledger alone it runs no job and
+    generates no BTF."""
     work = out.parent / "work"
     fitted = {p: p.stat().st_mtime_ns for p in work.rglob("*") if p.suffix in (".nmat", ".nbtf")}
     assert sorted(p.suffix for p in fitted) == [".nbtf", ".nmat", ".nmat"]
@@ -246,6 +249,11 @@ def _check_resume(out: Path, first: dict) -> None:
     assert {p: p.stat().st_mtime_ns for p in work.rglob("*") if p.suffix in (".nmat", ".nbtf")} == fitted
     assert json.loads(again.stdout)["tables"] == first["tables"]
     assert "a rerun resumes" in first["protocol"]["fits"]
+    assert stderr.count(".partial.nbtf: ") == 1, stderr[-3000:]
+    ledger_only = _bench("sparsebtf", "--quick", "--json", "--ledger", str(out.parent / "ledger.jsonl"))
+    assert ledger_only.returncode == 0, ledger_only.stderr[-3000:]
+    assert ": running" not in ledger_only.stderr and ".partial.nbtf" not in ledger_only.stderr
+    assert json.loads(ledger_only.stdout)["tables"] == first["tables"]
 
 
 def test_workers_below_one_are_refused(capsys):
