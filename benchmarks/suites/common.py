@@ -40,10 +40,6 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     `made` names sources that are made on demand: {source: (what makes it, a text for the key; make())}, make()
     called before a job of that source runs (so jobs the ledger holds need no source), its text keying the job
     instead of the file's hash. Shards take the sources in a rotated order, so they make different ones first."""
-    from neumat.cli.fit_job import FitJob
-    from neumat.fit.preset import DEFAULT_PRESET
-
-    preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
     if run.work is not None:
         run.protocol["fits"] = (f"fit-many folders kept under {run.work} (a rerun resumes); wall and CPU seconds are "
                                 f"this sitting's, each row's 'fit s' its own fit's")
@@ -55,12 +51,10 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     for seed in seeds:
         for source in order:
             made_by, make = made.get(source, (None, None))
+            source_key = content_sha256(source) if made_by is None else made_by
             for model in models:
-                key = {"job": "fit-many", "source": Path(source).name,
-                       "source_sha256": content_sha256(source) if made_by is None else made_by,
-                       "model": model, "options": options, "seed": seed,
-                       "preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
-                       "recipes": recipes(model)}
+                key = {"job": "fit-many", "source": Path(source).name, "source_sha256": source_key, "model": model,
+                       "options": options, "seed": seed, **method_key(model, options)}
                 row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
                               lambda: (make and make()) or _fit_one(run, source, model, _own(options, model, models),
                                                                     seed, after),
@@ -73,12 +67,17 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     return [rows[k] for k in ((seed, s, m) for seed in seeds for s in sources for m in models) if k in rows]
 
 
-def recipes(model: str) -> dict:
-    """The content of `model`'s CPU and paper recipes (a preset starts from one of them): in a ledger key, so a
-    changed recipe default fits again."""
+def method_key(model: str, options: list[str]) -> dict:
+    """What a fit of `model` with these CLI options takes from the code's defaults, for a job's key: the hash of the
+    preset it names (`--preset`, else the default; `FitJob.fit_sha256`) and the content of the model's CPU and paper
+    recipes (a preset starts from one of them), so a changed default fits again."""
+    from neumat.cli.fit_job import FitJob
     from neumat.core.config import config_to_dict
+    from neumat.fit.preset import DEFAULT_PRESET
 
-    return {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")}
+    preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
+    return {"preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
+            "recipes": {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")}}
 
 
 def content_sha256(source: str) -> str:

@@ -8,12 +8,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from neumat.cli.fit_job import FitJob
-from neumat.fit.preset import DEFAULT_PRESET
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
-from .common import cli, content_sha256, fit_many, paper_budget, quality_rows, recipe_budget, recipes, summary_rows
+from .common import (cli, content_sha256, fit_many, method_key, paper_budget, quality_rows, recipe_budget,
+                     summary_rows)
 
 NAME = "neubrdf"
 DESCRIPTION = ("NeuBRDF's Tables 3 (RGL) and 4 (MERL-like) against NBRDF and GGX, and pruning, through neumat "
@@ -112,10 +111,8 @@ def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int
                      "-o", str(out)])
             return json.loads((out / "clusters.json").read_text())
 
-    preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
     key = {"job": "fit-clusters", "sources": {Path(s).name: content_sha256(s) for s in sources}, "options": options,
-           "seed": seed, "preset": FitJob(source="", name="", model="neubrdf", out_dir="", preset=preset).fit_sha256(),
-           "recipes": recipes("neubrdf")}
+           "seed": seed, **method_key("neubrdf", options)}
     doc = run.job(f"fit-clusters of {len(sources)} sources (seed {seed})", key, clusters, keep=lambda _: True)
     if doc is None:
         return []

@@ -15,7 +15,7 @@ from neumat.fit.translucent_observations import Observations
 from neumat.warp.sphere import sample_uniform_sphere
 
 from .. import harness
-from .common import cli, paper_budget, recipe_budget
+from .common import cli, method_key, paper_budget, recipe_budget
 
 NAME = "neupress"
 DESCRIPTION = "NeuPreSS and the dipole baselines: held-out error over held-out variance, through the trainer"
@@ -90,10 +90,8 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
     """The image table: trace, fit each model per seed, score the held-out set and the full appearance against
     the reference (the second reference's scores are the floor). Under --work the traces, references and fits
     are kept and reused (a fit while its model's default preset is unchanged)."""
-    from neumat.cli.fit_job import FitJob
     from neumat.core.errors import InputError
     from neumat.core.llvm import usable_libllvm
-    from neumat.fit.preset import DEFAULT_PRESET
     from neumat.io.shared_data import shared_data_dir
 
     setup = IMAGE_SETUP["quick" if run.quick else "full"]
@@ -118,7 +116,7 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
         rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
         for seed in seeds:
             for name in MODELS:  # the preset's content in the name: a changed default fits again
-                preset = FitJob(source="", name="", model=name, out_dir="", preset=DEFAULT_PRESET).fit_sha256()
+                preset = method_key(name, [])["preset"]
                 nmat = folder / f"{name}-{seed}-{preset[:12]}.nmat"
                 _kept(nmat, lambda out: cli(["fit", str(train), "--model", name, *setup["fit"].get(name, []), "--seed", str(seed),
                                              "--threads", str(run.threads), "-q", "-o", str(out)]))
