@@ -88,6 +88,7 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_neupress_images(doc)
     if suite == "sparsebtf":
         _check_resume(out, doc, run.stderr)
+        _check_equal_bytes(doc)
 
 
 def _check_neupress_images(doc: dict) -> None:
@@ -234,6 +235,18 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     assert calls[0][0][-6:] == ["--work", str((tmp_path / "w").resolve()), "--ledger",
                                 str((tmp_path / "l.jsonl").resolve()), "--workers", "2"]
+
+
+def _check_equal_bytes(doc: dict) -> None:
+    """PCA is compared at equal storage: it keeps the most components that fit SparseBTF's per-BTF bytes (its codes
+    at full capacity and its statistics) for the quick run's BTF (17 x 17 directions, 20 x 20 texels)."""
+    from neumat.methods.sparse_btf.model import Config, storage_bytes
+
+    rows = {r["model"]: r for r in next(t for t in doc["tables"] if t["name"] == "fits")["rows"]}
+    per_btf = storage_bytes(Config(n_light=17, n_view=17, height=20, width=20))["per_btf"]
+    component = 2 * (17 * 17 + 20 * 20)                   # one more principal component's bytes at fp16
+    assert rows["pca-btf"]["bytes"] <= per_btf < rows["pca-btf"]["bytes"] + component, rows
+    assert rows["sparse-btf"]["bytes"] > per_btf     # its total holds the dictionary ensemble too
 
 
 def _check_resume(out: Path, first: dict, stderr: str) -> None:

@@ -1,12 +1,18 @@
 """PCA baseline of BTFs (equal-storage comparison partner of SparseBTF)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 
 from neumat import InputError, Query
 from neumat.methods.sparse_btf.pca_solve import best_ranks, decompose, fit_pca
-from neumat.methods.sparse_btf.pca import rank_budget
+from neumat.catalog.modelfile import load_model, save_model
+from neumat.fit.method import recipe_for
+from neumat.fit.trainer import fit
+from neumat.methods.sparse_btf.pca import PCABTF, rank_budget
+from neumat.methods.sparse_btf.model import Config as SparseConfig, storage_bytes
 from neumat.methods.sparse_btf.dictionary import rgb_to_model_space
 from neumat.methods.sparse_btf.model import mse
 from neumat.reflectance.btf import TabulatedBTF
@@ -90,3 +96,39 @@ def test_fit_refuses_a_decomposition_of_another_btf_or_too_few_components():
         fit_pca(btf, (2, 1, 1), decomposition=decompose(synthetic_btf(8), log_eps=0.1))
     with pytest.raises(InputError, match="exceed"):
         fit_pca(btf, (4, 1, 1), decomposition=decompose(btf, max_rank=3))
+
+
+def test_without_ranks_it_takes_sparse_btfs_per_btf_bytes(tmp_path):
+    """The default model (no ranks): the most components within a SparseBTF's per-BTF bytes for the same BTF (the
+    paper's comparison at equal storage), split by least error; the same through the trainer's recipe, whose
+    budget_bytes option sets another budget; the chosen ranks travel with the saved model."""
+    btf = synthetic_btf(9, size=10)
+    model = fit_pca(btf)
+    sparse = storage_bytes(SparseConfig(n_light=N_DIRS, n_view=N_DIRS, height=10, width=10))["per_btf"]
+    one = 2 * (N_DIRS ** 2 + 10 ** 2)                     # a component's basis and coefficients at fp16
+    used = model.storage()["total"]
+    assert used <= sparse < used + one
+    assert model.cfg.ranks == best_ranks(decompose(btf).eigenvalues, sum(model.cfg.ranks))
+    assert model.cfg.ranks[0] > 0 and sum(model.cfg.ranks) > max(model.cfg.ranks)
+    solved = fit(PCABTF.for_btf(btf), btf, progress=False).model
+    assert solved.cfg.ranks == model.cfg.ranks
+    assert torch.equal(solved.basis, model.basis) and torch.equal(solved.coeffs, model.coeffs)
+    recipe = recipe_for("pca-btf")
+    small = fit(PCABTF.for_btf(btf), btf, replace(recipe, options={**recipe.options, "budget_bytes": 2000}),
+                progress=False).model
+    assert small.storage()["total"] <= 2000 < small.storage()["total"] + one
+    assert fit_pca(btf, budget_bytes=2000).cfg.ranks == small.cfg.ranks
+    save_model(model, tmp_path / "pca.nmat")
+    loaded = load_model(tmp_path / "pca.nmat")
+    assert loaded.cfg.ranks == model.cfg.ranks and torch.equal(loaded.decode().data, model.decode().data)
+
+
+def test_a_budget_it_cannot_meet_is_refused():
+    with pytest.raises(InputError, match="no SparseBTF size"):
+        fit_pca(synthetic_btf(9))                         # 8 x 8 texels: not a multiple of SparseBTF's patch
+    with pytest.raises(InputError, match="does not even hold"):
+        fit_pca(synthetic_btf(9), budget_bytes=100)
+    with pytest.raises(InputError, match="three non-negative integers"):
+        PCABTF.for_btf(synthetic_btf(9), ranks=(2, 1))
+    with pytest.raises(InputError, match="no ranks yet"):
+        PCABTF.for_btf(synthetic_btf(9)).load_components(decompose(synthetic_btf(9)), *([torch.zeros(N_DIRS, 3)] * 2))

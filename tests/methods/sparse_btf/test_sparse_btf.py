@@ -9,7 +9,7 @@ from safetensors.torch import load_file, save_file
 from neumat import DataFormatError, InputError, Query
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.io.modelfile import read_model_file
-from neumat.methods.sparse_btf.model import SparseBTF, _pairs_of_taps, mse
+from neumat.methods.sparse_btf.model import SparseBTF, _pairs_of_taps, mse, storage_bytes
 from neumat.methods.sparse_btf.dictionary_train import train_dictionary, train_ensemble
 from neumat.methods.sparse_btf.dictionary import (BTFDictionary, code_points, code_points_at_rates, decode_points,
                                              keep_largest, mode_product, model_space_to_rgb, prepare_btf, project,
@@ -261,6 +261,10 @@ def test_storage_accounting(trained):
     thr = SparseBTF.encode(synthetic_btf(14), trained, (400, 100, 100), error_threshold=1e-2)
     assert int(thr.counts.sum()) < 600 * points
     assert thr.storage()["coefficients"] == int(thr.counts.sum())
+    # capacity (storage_bytes without nnz: every data point at tau): what a coding at full tau takes, an upper bound
+    capacity = storage_bytes(model.cfg)
+    assert capacity == st
+    assert storage_bytes(thr.cfg)["per_btf"] > thr.storage()["per_btf"]
 
 
 def test_stored_float16_parts_keep_the_coding_error(trained):

@@ -414,23 +414,7 @@ class SparseBTF(LearnedMaterial):
     def storage(self, value_bytes: int = 2, index_bytes: int = 2, statistics_bytes: int = 4) -> dict:
         """Bytes of the representation (module docstring): per-BTF parts, the shared ensemble, totals.
         statistics_bytes: per stored mean / std (4 as the authors' files; 2 loses nothing measurable, docs/btf.md)."""
-        c = self.cfg
-        nnz = int(self.counts.long().sum())
-        n_points = self.counts.numel()
-        d = {
-            "coefficients": nnz,
-            "values": nnz * value_bytes,
-            "indices": nnz * 4 * index_bytes,
-            "membership": n_points * index_bytes,
-            "counts": n_points * index_bytes,
-            "statistics": 2 * (c.n_light * c.n_view if c.statistics == "image" else 1) * 3 * statistics_bytes,
-            "dictionary": 3 * c.num_dictionaries * (2 * c.patch ** 2 + c.n_light ** 2 + c.n_view ** 2) * value_bytes,
-        }
-        d["per_btf"] = d["values"] + d["indices"] + d["membership"] + d["counts"] + d["statistics"]
-        d["total"] = d["per_btf"] + d["dictionary"]
-        d["uncompressed_fp16"] = c.n_light * c.n_view * c.height * c.width * 3 * 2
-        d["compression_ratio"] = d["uncompressed_fp16"] / d["total"]
-        return d
+        return storage_bytes(self.cfg, int(self.counts.long().sum()), value_bytes, index_bytes, statistics_bytes)
 
     def size_bytes(self, precision: str = "fp16") -> int:
         """Total bytes (per-BTF codes + shared ensemble) with values stored at `precision`."""
@@ -459,6 +443,33 @@ class TapPairs(NamedTuple):
     """(M,): the query of every pair."""
     patch: torch.Tensor
     """(M,): the data point of every pair."""
+
+
+
+def storage_bytes(cfg: Config, nnz: int | None = None, value_bytes: int = 2, index_bytes: int = 2,
+                  statistics_bytes: int = 4) -> dict:
+    """Bytes of a SparseBTF of `cfg` holding `nnz` coded coefficients (None: its capacity, every data point at
+    tau; what it takes at most, known before coding, so a baseline can be sized to it): per-BTF parts, the shared
+    ensemble, totals (`SparseBTF.storage`)."""
+    c = cfg
+    n_patches = (c.height // c.patch) * (c.width // c.patch)
+    n_points = 3 * n_patches
+    if nnz is None:
+        nnz = n_patches * sum(c.tau)
+    d = {
+        "coefficients": nnz,
+        "values": nnz * value_bytes,
+        "indices": nnz * 4 * index_bytes,
+        "membership": n_points * index_bytes,
+        "counts": n_points * index_bytes,
+        "statistics": 2 * (c.n_light * c.n_view if c.statistics == "image" else 1) * 3 * statistics_bytes,
+        "dictionary": 3 * c.num_dictionaries * (2 * c.patch ** 2 + c.n_light ** 2 + c.n_view ** 2) * value_bytes,
+    }
+    d["per_btf"] = d["values"] + d["indices"] + d["membership"] + d["counts"] + d["statistics"]
+    d["total"] = d["per_btf"] + d["dictionary"]
+    d["uncompressed_fp16"] = c.n_light * c.n_view * c.height * c.width * 3 * 2
+    d["compression_ratio"] = d["uncompressed_fp16"] / d["total"]
+    return d
 
 
 def stored_codes(module: SparseBTF, state_dict: dict, prefix: str, local_metadata) -> None:

@@ -11,7 +11,8 @@ interpolation as `TabulatedBTF`, in linear RGB.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import numbers
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
@@ -38,8 +39,10 @@ class Config:
     """H texels."""
     width: int = 400
     """W texels."""
-    ranks: tuple[int, int, int] = (64, 16, 16)
-    """Principal components kept for Y, U, V."""
+    ranks: tuple[int, ...] = ()
+    """Principal components kept for Y, U, V; empty: chosen when solved, the most that fit the recipe's storage
+    budget (by default SparseBTF's per-BTF bytes: the paper's comparison at equal storage), split by least error
+    (`neumat.methods.sparse_btf.pca_solve.budget_ranks`)."""
     log_eps: float = 0.01
     """eps of the log transform."""
     neighbours: int = 3
@@ -63,15 +66,13 @@ class PCABTF(LearnedMaterial):
         for name in ("n_light", "n_view", "height", "width", "neighbours"):
             if getattr(cfg, name) < 1:
                 raise InputError(f"PCABTF.{name}: expected a positive integer, got {getattr(cfg, name)!r}")
-        if len(cfg.ranks) != 3 or any(r < 0 for r in cfg.ranks):
-            raise InputError(f"PCABTF.ranks: expected three non-negative integers, got {cfg.ranks!r}")
+        _check_ranks(cfg.ranks, allow_empty=True)
         self.cfg = cfg
-        lv, hw, r = cfg.n_light * cfg.n_view, cfg.height * cfg.width, max(max(cfg.ranks), 1)
+        lv = cfg.n_light * cfg.n_view
         self.register_buffer("light_dirs", torch.zeros(cfg.n_light, 3))
         self.register_buffer("view_dirs", torch.zeros(cfg.n_view, 3))
         self.register_buffer("mean", torch.zeros(3, lv))
-        self.register_buffer("basis", torch.zeros(3, lv, r))
-        self.register_buffer("coeffs", torch.zeros(3, hw, r))
+        self._size_components()
         self._runtime = False
         self.register_state_dict_post_hook(stored_components)
         self.register_load_state_dict_pre_hook(unpack_components)
@@ -86,12 +87,29 @@ class PCABTF(LearnedMaterial):
         """Raise InputError unless `btf` is a tabulated BTF of this model's size."""
         check_btf_table_size(btf, self.cfg, "pca-btf", "PCABTF.for_btf")
 
+    def set_ranks(self, ranks: tuple[int, int, int]) -> "PCABTF":
+        """Keep `ranks` components for Y, U, V from now on (a model built without ranks gets them when solved);
+        the components are zeroed until `load_components`. Returns self."""
+        _check_ranks(ranks, allow_empty=False)
+        self.cfg = replace(self.cfg, ranks=tuple(int(r) for r in ranks))
+        self._size_components()
+        return self
+
+    def _size_components(self) -> None:
+        c, dev = self.cfg, self.mean.device
+        r = max(max(c.ranks, default=0), 1)
+        self.register_buffer("basis", torch.zeros(3, c.n_light * c.n_view, r, device=dev))
+        self.register_buffer("coeffs", torch.zeros(3, c.height * c.width, r, device=dev))
+
     @torch.no_grad()
     def load_components(self, decomposition, light_dirs: torch.Tensor, view_dirs: torch.Tensor) -> "PCABTF":
         """Keep the leading cfg.ranks components of `decomposition` (a `Decomposition` of methods/sparse_btf/pca_solve.py, of a
         BTF of this size and log eps: mean (3, LV), eigenvalues, basis (3, LV, R), coeffs (3, HW, R)); returns
         self."""
         c = self.cfg
+        if not c.ranks:
+            raise InputError("PCABTF.load_components: the model has no ranks yet; choose them first (set_ranks, "
+                             "or fit it through its recipe, which picks them from a storage budget)")
         dec = decomposition
         lv, hw = c.n_light * c.n_view, c.height * c.width
         if dec.mean.shape[1] != lv or dec.coeffs.shape[1] != hw or dec.log_eps != c.log_eps:
@@ -168,7 +186,7 @@ class PCABTF(LearnedMaterial):
 
     def flops(self) -> int:
         k = self.cfg.neighbours
-        return int(4 * k * k * 3 * (2 * max(self.cfg.ranks) + 10))
+        return int(4 * k * k * 3 * (2 * max(self.cfg.ranks, default=0) + 10))
 
     def describe(self) -> str:
         c = self.cfg
@@ -177,12 +195,16 @@ class PCABTF(LearnedMaterial):
 
 def stored_components(module: PCABTF, state_dict: dict, prefix: str, local_metadata) -> None:
     """State-dict hook: basis and coefficients as `storage` counts them, each channel's first ranks[c] columns
-    side by side ("basis" (L V, sum ranks), "coeffs" (H W, sum ranks)) instead of padded to the largest rank;
-    fp16 with the mean in runtime mode. `unpack_components` inverts it (the padding is zero)."""
-    ranks = module.cfg.ranks
+    side by side ("basis" (L V, sum ranks), "coeffs" (H W, sum ranks)) instead of padded to the largest rank,
+    and "ranks" (3,) when the model has them, so a model built without ranks (chosen when solved) can load a
+    solved state, e.g. a fit's checkpoint; fp16 with the mean in runtime mode. `unpack_components` inverts it (the
+    padding is zero)."""
+    ranks = module.cfg.ranks or (0, 0, 0)                    # no ranks yet (an unsolved model): no columns
     for name in ("basis", "coeffs"):
         t = state_dict[prefix + name]
         state_dict[prefix + name] = torch.cat([t[c, :, :r] for c, r in enumerate(ranks)], -1)
+    if module.cfg.ranks:
+        state_dict[prefix + "ranks"] = torch.tensor(module.cfg.ranks, dtype=torch.int32)
     if module.is_runtime:
         for name in ("mean", "basis", "coeffs"):
             state_dict[prefix + name] = state_dict[prefix + name].half()
@@ -190,8 +212,15 @@ def stored_components(module: PCABTF, state_dict: dict, prefix: str, local_metad
 
 def unpack_components(module: PCABTF, state_dict: dict, prefix: str, local_metadata, strict, missing_keys,
                       unexpected_keys, error_msgs) -> None:
-    """Load-state-dict pre-hook inverting `stored_components` (DataFormatError when a stored matrix does not have
-    the config's sum of ranks columns)."""
+    """Load-state-dict pre-hook inverting `stored_components`: a model without ranks takes the stored ones
+    (DataFormatError when they differ from the model's, or a stored matrix does not have their sum of columns)."""
+    stored = state_dict.pop(prefix + "ranks", None)
+    if stored is not None:
+        stored = tuple(int(r) for r in stored.reshape(-1).tolist())
+        if not module.cfg.ranks and len(stored) == 3 and min(stored) >= 0:
+            module.set_ranks(stored)
+        elif stored != tuple(module.cfg.ranks):
+            raise DataFormatError(f"pca-btf: the stored state has ranks {stored}, the model {tuple(module.cfg.ranks)}")
     ranks = module.cfg.ranks
     for name in ("basis", "coeffs"):
         key = prefix + name
@@ -209,6 +238,13 @@ def unpack_components(module: PCABTF, state_dict: dict, prefix: str, local_metad
         state_dict[key] = padded
     if prefix + "mean" in state_dict:
         state_dict[prefix + "mean"] = state_dict[prefix + "mean"].float()
+
+
+def _check_ranks(ranks, allow_empty: bool) -> None:
+    if (len(ranks) != 3 and not (allow_empty and len(ranks) == 0)) or any(
+            not isinstance(r, numbers.Integral) or isinstance(r, bool) or r < 0 for r in ranks):
+        also = " (or none: chosen when solved)" if allow_empty else ""
+        raise InputError(f"PCABTF.ranks: expected three non-negative integers{also}, got {tuple(ranks)!r}")
 
 
 def rank_budget(budget: int, n_light: int, n_view: int, height: int, width: int, value_bytes: int = 2) -> int:

@@ -11,23 +11,48 @@ from dataclasses import dataclass
 import torch
 
 from neumat.core.errors import InputError
-from neumat.methods.sparse_btf.pca import PCABTF, Config
+from neumat.methods.sparse_btf.pca import PCABTF, Config, rank_budget
 from neumat.methods.sparse_btf.dictionary import rgb_to_model_space
 from neumat.reflectance.btf import TabulatedBTF
 from neumat.fit.method import recipe_for, typed_options
 
 
 def fit_pca(btf: TabulatedBTF, ranks: tuple[int, int, int] | None = None, log_eps: float | None = None,
-            neighbours: int | None = None, decomposition: "Decomposition | None" = None) -> PCABTF:
-    """Truncated PCA of `btf` with `ranks` components for Y, U, V (from `decomposition`, a `decompose` of
-    this BTF with at least max(ranks) components, when given). ranks, log_eps, neighbours default to
+            neighbours: int | None = None, decomposition: "Decomposition | None" = None,
+            budget_bytes: int = 0) -> PCABTF:
+    """Truncated PCA of `btf` with `ranks` components for Y, U, V, or, without ranks, the most that fit
+    `budget_bytes` (0: SparseBTF's per-BTF bytes for this BTF; `budget_ranks`); from `decomposition`, a
+    `decompose` of this BTF with enough components, when given. log_eps, neighbours default to
     `neumat.methods.sparse_btf.pca.Config`'s."""
     fields = {k: v for k, v in (("ranks", ranks), ("log_eps", log_eps), ("neighbours", neighbours)) if v is not None}
     if "ranks" in fields:
         fields["ranks"] = tuple(int(r) for r in fields["ranks"])
     model = PCABTF.for_btf(btf, **fields).to(btf.data.device)
-    dec = decomposition if decomposition is not None else decompose(btf, model.cfg.log_eps, max(model.cfg.ranks))
+    c = model.cfg
+    total = max(c.ranks) if c.ranks else budget_components(c, budget_bytes)
+    dec = decomposition if decomposition is not None else decompose(btf, c.log_eps, total)
+    if not c.ranks:
+        model.set_ranks(best_ranks(dec.eigenvalues, total))
     return model.load_components(dec, btf.light_dirs, btf.view_dirs)
+
+
+def budget_components(cfg: Config, budget_bytes: int = 0) -> int:
+    """The most principal components (Y, U, V together) a PCA-BTF of `cfg`'s size stores in `budget_bytes` at fp16;
+    0: in the per-BTF bytes of a SparseBTF of the same size at its default config and full capacity (codes and
+    statistics; its dictionary ensemble is shared by many BTFs), the paper's Table 5 comparison at equal storage."""
+    from neumat.methods.sparse_btf.model import Config as SparseConfig, storage_bytes
+
+    if budget_bytes < 0:
+        raise InputError(f"pca-btf budget_bytes: expected a byte count >= 0 (0: SparseBTF's), got {budget_bytes!r}")
+    size = dict(n_light=cfg.n_light, n_view=cfg.n_view, height=cfg.height, width=cfg.width)
+    if budget_bytes == 0:
+        sparse = SparseConfig(**size)
+        # SparseBTF codes whole patches: a BTF that is not a multiple of its patch has no SparseBTF size to match
+        if cfg.height % sparse.patch or cfg.width % sparse.patch:
+            raise InputError(f"pca-btf: a {cfg.height}x{cfg.width}-texel BTF has no SparseBTF size to match (not a "
+                             f"multiple of its {sparse.patch}-texel patch); give ranks or budget_bytes")
+        budget_bytes = storage_bytes(sparse)["per_btf"]
+    return rank_budget(budget_bytes, cfg.n_light, cfg.n_view, cfg.height, cfg.width)
 
 
 @dataclass

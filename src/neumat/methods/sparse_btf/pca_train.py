@@ -1,6 +1,7 @@
 """Training recipe of the PCA-BTF baseline (SparseBTF paper, Table 5): one solver phase of one step, the
 truncated PCA of the source BTF (`neumat.methods.sparse_btf.pca_solve.decompose`, then the model keeps its cfg.ranks leading
-components). `fit(PCABTF.for_btf(btf, ranks=...), btf)`; the source is one tabulated BTF
+components; a model built without ranks, the default, keeps the most that fit the option budget_bytes, by default
+SparseBTF's per-BTF bytes, split over Y, U, V by least error). `fit(PCABTF.for_btf(btf, ranks=...), btf)`; the source is one tabulated BTF
 (`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the truncation.
 
 `Options` are those of the solve (`decompose`). steps, batch_size, lr and the schedule are unused.
@@ -30,6 +31,10 @@ class Options:
     """Extra vectors of the randomised subspace iteration used otherwise."""
     power_iterations: int = bounded(6, ge=0)
     """Passes of that randomised subspace iteration."""
+    budget_bytes: int = bounded(0, ge=0)
+    """Storage of a model built without ranks (the default): the most components that fit in it, split over
+    Y, U, V by least error; 0: SparseBTF's per-BTF bytes for the same BTF (the paper's comparison at equal
+    storage; `neumat.methods.sparse_btf.pca_solve.budget_components`)."""
 
 
 RECIPE = Recipe(steps=1, batch_size=1, lr=1.0, log_every=1, options=config_to_dict(Options()))
@@ -46,7 +51,7 @@ def config_for_source(btf, options: dict | None = None) -> dict:
 def phases(ctx: FitContext) -> list[Phase]:
     from neumat.methods.sparse_btf.pca import PCABTF
     from neumat.reflectance.btf import TabulatedBTF
-    from neumat.methods.sparse_btf.pca_solve import decompose
+    from neumat.methods.sparse_btf.pca_solve import best_ranks, budget_components, decompose
 
     model, btf = ctx.model, ctx.source
     if not isinstance(model, PCABTF):
@@ -57,8 +62,11 @@ def phases(ctx: FitContext) -> list[Phase]:
         data = btf.data.to(ctx.device)
         table = TabulatedBTF(data, btf.light_dirs, btf.view_dirs, btf.neighbours, label=btf.label)
         o = ctx.opts
-        dec = decompose(table, model.cfg.log_eps, max(model.cfg.ranks), o.exact_limit, o.oversample,
-                        o.power_iterations)
+        chosen = not model.cfg.ranks
+        total = budget_components(model.cfg, o.budget_bytes) if chosen else max(model.cfg.ranks)
+        dec = decompose(table, model.cfg.log_eps, total, o.exact_limit, o.oversample, o.power_iterations)
+        if chosen:
+            model.set_ranks(best_ranks(dec.eigenvalues, total))
         model.load_components(dec, table.light_dirs, table.view_dirs)
         return {"mse": dec.residual(model.cfg.ranks)}
 
