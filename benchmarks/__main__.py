@@ -36,8 +36,9 @@ def main(argv: list[str]) -> int:
                                                                "fill the ledger, then this one builds the tables "
                                                                "(default 1)")
     parser.add_argument("--shard", type=_shard, default=(0, 1), metavar="I/N",
-                        help="run only the jobs of shard I of N (0 <= I < N) into --ledger; no --out: its tables "
-                             "are partial (what --workers starts)")
+                        help="one of N processes sharing --ledger (what --workers starts): it runs each job the "
+                             "ledger does not hold and no other shard on this machine is running, starting from "
+                             "source I of N; no --out: its tables are partial")
     args = parser.parse_args(argv)
     if args.list:
         for name in SUITES:

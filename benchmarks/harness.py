@@ -172,24 +172,43 @@ class Run:
 
     def job(self, what: str, key: dict, compute: Callable[[], dict], keep: Callable[[dict], bool]) -> dict | None:
         """The result of the job that `key` (JSON-able) names: the ledger's entry when it holds one, else
-        compute()'s, added to the ledger when keep(result); None for a job another shard runs and the ledger does
-        not hold yet. One job at a time goes through here, so a full run survives being cut off at any point."""
+        compute()'s, added to the ledger when keep(result); None, in a shard, for a job another shard is running.
+        Shards take jobs as they come (a lock per job, `_claim`), so one that draws the long fits does not leave the
+        others idle. One job at a time goes through here, so a full run survives being cut off at any point."""
         digest = hashlib.sha256(json.dumps([self.suite.NAME, self.quick, key], sort_keys=True,
                                            default=str).encode()).hexdigest()
-        if self.ledger is not None:
-            entry = self.ledger.get(digest)
-            if entry is not None:
-                self.reused.append(entry["commit"])
-                return entry["result"]
-        index, count = self.shard
-        if int(digest, 16) % count != index:
-            self.progress(f"{what}: left to shard {int(digest, 16) % count}/{count}")
-            return None
-        self.progress(f"{what}: running")
-        result = compute()
-        if self.ledger is not None and keep(result):
-            self.ledger.add(digest, what, result, self.command)
-        return result
+        if self.ledger is not None and (entry := self.ledger.get(digest)) is not None:
+            self.reused.append(entry["commit"])
+            return entry["result"]
+        with contextlib.ExitStack() as held:
+            if self.shard[1] > 1:
+                if not held.enter_context(self._claim(digest)):
+                    self.progress(f"{what}: another shard is running it")
+                    return None
+                if (entry := self.ledger.get(digest)) is not None:   # finished while this shard looked
+                    self.reused.append(entry["commit"])
+                    return entry["result"]
+            self.progress(f"{what}: running")
+            result = compute()
+            if self.ledger is not None and keep(result):
+                self.ledger.add(digest, what, result, self.command)
+            return result
+
+    @contextlib.contextmanager
+    def _claim(self, digest: str) -> Iterator[bool]:
+        """Whether this shard holds the job `digest` of its ledger, for as long as the context lasts: an exclusive
+        lock on a file per job in a folder of this machine's temporary directory named by the ledger's path; the
+        lock goes with the process, so a killed shard leaves no stale claim."""
+        folder = Path(tempfile.gettempdir()) / "neumat-bench-claims" / hashlib.sha1(
+            str(self.ledger.path.resolve()).encode()).hexdigest()[:16]
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(folder / digest, "w") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                yield False
+                return
+            yield True
 
     def skip(self, what: str, reason: str) -> None:
         """Record something the run could not measure here, and why."""
