@@ -53,11 +53,12 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
             made_by, make = made.get(source, (None, None))
             source_key = content_sha256(source) if made_by is None else made_by
             for model in models:
+                defaults = method_key(model, options)
                 key = {"job": "fit-many", "source": Path(source).name, "source_sha256": source_key, "model": model,
-                       "options": options, "seed": seed, **method_key(model, options)}
+                       "options": options, "seed": seed, **defaults}
                 row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
                               lambda: (make and make()) or _fit_one(run, source, model, _own(options, model, models),
-                                                                    seed, after),
+                                                                    seed, after, defaults),
                               keep=lambda r: r["status"] == "ok")
                 if row is None:
                     continue
@@ -108,9 +109,11 @@ def _own(options: list[str], model: str, models: list[str]) -> list[str]:
 
 
 def _fit_one(run: harness.Run, source: str, model: str, options: list[str], seed: int,
-             after: Callable[[dict], dict] | None) -> dict:
-    """The fit-many row of `model` fitted to `source`, with `after`'s additions when it fitted."""
-    with run.folder("fit-many", source, model, options, seed) as out:
+             after: Callable[[dict], dict] | None, defaults: dict) -> dict:
+    """The fit-many row of `model` fitted to `source`, with `after`'s additions when it fitted. Its folder (kept
+    under --work) is named by the code's `defaults` too (`method_key`): fit-many keeps a fit whose preset name and
+    overrides match, so after a recipe's default changed the old folder would hand back the old fit."""
+    with run.folder("fit-many", source, model, options, seed, defaults) as out:
         try:
             cli(["fit-many", source, "-m", model, *options, "--seed", str(seed), "--threads", str(run.threads),
                  "--engine", "local", "-q", "-o", str(out)])

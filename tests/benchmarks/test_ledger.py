@@ -8,6 +8,7 @@ import json
 import multiprocessing
 import time
 import types
+from pathlib import Path
 
 from benchmarks import harness
 
@@ -122,21 +123,28 @@ def test_a_source_folder_keys_by_its_content_not_its_path(tmp_path):
 
 
 def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
-    """fit_many's ledger key holds the model's recipe content: the same options after a changed
-    default are a new job, the unchanged ones are not (the fit itself replaced by a stub)."""
+    """fit_many's ledger key and its kept fit-many folder (--work) hold the model's recipe content: the same options
+    after a changed default are a new job fitted in a new folder (fit-many would keep the old folder's fit, whose
+    preset name and overrides match), the unchanged ones are not (fit-many itself replaced by a stub)."""
     import dataclasses
 
     from benchmarks.suites import common
     from neumat.fit.method import recipe_for
 
-    fits = []
-    monkeypatch.setattr(common, "_fit_one", lambda run, source, model, options, seed, after:
-                        fits.append(model) or {"name": source, "model": model, "status": "ok"})
-    run = lambda: _run(tmp_path / "l.jsonl")  # noqa: E731
+    folders = []
+
+    def fit_many_cli(args):
+        out = Path(args[args.index("-o") + 1])
+        folders.append(out)
+        (out / "results.json").write_text(json.dumps({"rows": [{"name": "s", "model": args[3], "status": "ok"}]}))
+
+    monkeypatch.setattr(common, "cli", fit_many_cli)
+    run = lambda: harness.Run(SUITE, False, 0, 1, 1, ["toy"], work=tmp_path / "work",  # noqa: E731
+                              ledger=tmp_path / "l.jsonl")
     common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
     common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
-    assert fits == ["nbrdf"]
+    assert len(folders) == 1
     changed = dataclasses.replace(recipe_for("nbrdf", "cpu"), steps=7)
     monkeypatch.setattr(common, "recipe_for", lambda model, name: changed if name == "cpu" else recipe_for(model, name))
     common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
-    assert fits == ["nbrdf", "nbrdf"]
+    assert len(folders) == 2 and folders[1] != folders[0] and folders[0].parent == folders[1].parent
