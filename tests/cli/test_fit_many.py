@@ -99,6 +99,37 @@ def test_changed_source_or_options_are_fitted_again(app, tmp_path):
     assert all(r["steps"] == 11 for r in _rows(out).values())
 
 
+def test_a_changed_default_is_fitted_again(app, tmp_path, monkeypatch):
+    """The same command after a recipe's default changed (e.g. an upgrade) fits again: the row holds a hash of the
+    recipe contents and model Config defaults it was fitted with; unchanged defaults keep it, and a row written
+    before that hash existed is kept too."""
+    import dataclasses
+
+    from neumat.fit.method import recipe_for
+
+    src = _teachers(tmp_path / "src", 1)
+    out = tmp_path / "out"
+    args = [*src, *FAST, "--engine", "local", "-o", str(out)]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    (row,) = _rows(out).values()
+    assert len(row["defaults_sha256"]) == 64
+    changed = dataclasses.replace(recipe_for("ggx", "cpu"), lr_min=1e-7)
+    monkeypatch.setattr("neumat.fit.method.recipe_for",
+                        lambda model, name="paper": changed if (model, name) == ("ggx", "cpu") else recipe_for(model, name))
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0 and "0 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
+    (refit,) = _rows(out).values()
+    assert refit["defaults_sha256"] != row["defaults_sha256"] and refit["nmat_sha256"]
+    res = CliRunner().invoke(app, args)
+    assert "1 already done (kept), 0 to fit" in " ".join(res.output.split()), res.output
+    results = json.loads((out / "results.json").read_text())
+    legacy = {k: v for k, v in refit.items() if k != "defaults_sha256"}
+    (out / "results.json").write_text(json.dumps(results | {"rows": [legacy]}))
+    monkeypatch.setattr("neumat.fit.method.recipe_for", recipe_for)
+    res = CliRunner().invoke(app, args)
+    assert "1 already done (kept), 0 to fit" in " ".join(res.output.split()), res.output
+
+
 def test_threads_set_torch_threads_for_each_job_only_and_keep_the_rows(app, tmp_path, monkeypatch):
     """--threads N: each job runs with N torch threads and restores the caller's afterwards; it changes no hash,
     so a rerun with another --threads keeps every row."""

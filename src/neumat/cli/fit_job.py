@@ -17,11 +17,11 @@ from ..fit.preset import DEFAULT_PRESET
 from .common import torch_threads
 
 #: the row keys, in the order results.json and results.md show them
-ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "nmat", "nmat_sha256",
-            "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker",
+ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "defaults_sha256",
+            "nmat", "nmat_sha256", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker",
             "warnings", "error")
 #: the row keys an evaluation of an already fitted model takes over from the fit's row
-FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings")
+FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings", "defaults_sha256")
 #: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
 #: evaluated under an older protocol are evaluated again
 IMAGE_PROTOCOL = "sphere/sky, mis-lobes, sobol, model and floor against the reference at 16x spp"
@@ -59,6 +59,20 @@ class FitJob:
     def fit_sha256(self) -> str:
         """Hash of everything that changes the fitted model (not its evaluation, the device nor the output)."""
         return _sha256(self._fit_options())
+
+    def defaults_sha256(self, device: str) -> str:
+        """Hash of what a fit on `device` takes from the code's defaults, not from its options: the contents of the
+        recipe its preset resolves to there and the model's Config defaults. fit_sha256 names the preset only, so
+        without this a resumed run would keep a fit made before a default changed (e.g. after an upgrade)."""
+        from ..core.config import config_to_dict
+        from ..fit.method import recipe_for
+        from ..fit.preset import preset_named
+        from ..models.registry import model_class
+
+        kind = str(device).split(":")[0]
+        recipe = preset_named(self.model, self.preset).recipe or ("cpu" if kind == "cpu" else "paper")
+        return _sha256({"recipe": config_to_dict(recipe_for(self.model, recipe)),
+                        "config": config_to_dict(model_class(self.model).Config())})
 
     def options_sha256(self) -> str:
         """Hash of everything that changes the fitted model or its metrics."""
@@ -158,7 +172,8 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     fitted = load_model(job.out, device=device)
     metrics = _checked(evaluate_against(fitted, src, job, device), job)
     return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
-            "recipe": config_to_dict(result.recipe), "metrics": metrics, "steps": result.steps,
+            "recipe": config_to_dict(result.recipe), "defaults_sha256": job.defaults_sha256(str(device)),
+            "metrics": metrics, "steps": result.steps,
             "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device),
             "warnings": result.warnings}
 

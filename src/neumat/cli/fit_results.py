@@ -43,14 +43,17 @@ def is_done(row: dict | None, job: FitJob, source_sha256: str) -> bool:
 
 def is_fitted(row: dict | None, job: FitJob, source_sha256: str) -> bool:
     """Whether `row` holds a model of `job` fitted with the same fit options (its evaluation may differ) to a
-    source of the same hash, whose .nmat is still the file it wrote: then only its evaluation needs redoing. Rows
-    written before fit_sha256 existed are recognised by their options hash of that time."""
+    source of the same hash, whose .nmat is still the file it wrote, and with the code's defaults of then (recipe
+    contents, model Config): then only its evaluation needs redoing. Rows written before fit_sha256 existed are
+    recognised by their options hash of that time."""
     if not row or row.get("status") != "ok":
         return False
     if row.get("fit_sha256") != job.fit_sha256() and row.get("options_sha256") != job.legacy_options_sha256():
         return False
     if row.get("source_sha256") != source_sha256 or not job.out.is_file():
         return False
+    if "defaults_sha256" in row and row["defaults_sha256"] != job.defaults_sha256(row.get("device") or "cpu"):
+        return False  # the code's defaults changed since (rows written before the hash existed are kept)
     return row.get("nmat_sha256") == file_sha256(job.out)
 
 
