@@ -114,8 +114,8 @@ def test_a_changed_default_is_fitted_again(app, tmp_path, monkeypatch):
     (row,) = _rows(out).values()
     assert len(row["defaults_sha256"]) == 64
     changed = dataclasses.replace(recipe_for("ggx", "cpu"), lr_min=1e-7)
-    monkeypatch.setattr("neumat.fit.method.recipe_for",
-                        lambda model, name="paper": changed if (model, name) == ("ggx", "cpu") else recipe_for(model, name))
+    monkeypatch.setattr("neumat.fit.method.recipe_for", lambda model, name="paper":
+                        changed if (model, name) == ("ggx", "cpu") else recipe_for(model, name))
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0 and "0 already done (kept), 1 to fit" in " ".join(res.output.split()), res.output
     (refit,) = _rows(out).values()

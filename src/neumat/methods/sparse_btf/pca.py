@@ -42,7 +42,7 @@ class Config:
     ranks: tuple[int, ...] = ()
     """Principal components kept for Y, U, V; empty: chosen when solved, the most that fit the recipe's storage
     budget (by default SparseBTF's per-BTF bytes: the paper's comparison at equal storage), split by least error
-    (`neumat.methods.sparse_btf.pca_solve.budget_ranks`)."""
+    (`neumat.methods.sparse_btf.pca_solve.budget_components`)."""
     log_eps: float = 0.01
     """eps of the log transform."""
     neighbours: int = 3

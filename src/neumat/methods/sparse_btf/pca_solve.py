@@ -21,7 +21,7 @@ def fit_pca(btf: TabulatedBTF, ranks: tuple[int, int, int] | None = None, log_ep
             neighbours: int | None = None, decomposition: "Decomposition | None" = None,
             budget_bytes: int = 0) -> PCABTF:
     """Truncated PCA of `btf` with `ranks` components for Y, U, V, or, without ranks, the most that fit
-    `budget_bytes` (0: SparseBTF's per-BTF bytes for this BTF; `budget_ranks`); from `decomposition`, a
+    `budget_bytes` (0: SparseBTF's per-BTF bytes for this BTF; `budget_components`); from `decomposition`, a
     `decompose` of this BTF with enough components, when given. log_eps, neighbours default to
     `neumat.methods.sparse_btf.pca.Config`'s."""
     fields = {k: v for k, v in (("ranks", ranks), ("log_eps", log_eps), ("neighbours", neighbours)) if v is not None}

@@ -1,8 +1,8 @@
 """Training recipe of the PCA-BTF baseline (SparseBTF paper, Table 5): one solver phase of one step, the
-truncated PCA of the source BTF (`neumat.methods.sparse_btf.pca_solve.decompose`, then the model keeps its cfg.ranks leading
-components; a model built without ranks, the default, keeps the most that fit the option budget_bytes, by default
-SparseBTF's per-BTF bytes, split over Y, U, V by least error). `fit(PCABTF.for_btf(btf, ranks=...), btf)`; the source is one tabulated BTF
-(`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the truncation.
+truncated PCA of the source BTF (`neumat.methods.sparse_btf.pca_solve.decompose`, then the model keeps its cfg.ranks
+leading components; a model built without ranks, the default, keeps the most that fit the option budget_bytes, by
+default SparseBTF's per-BTF bytes, split over Y, U, V by least error). `fit(PCABTF.for_btf(btf), btf)`; the source
+is one tabulated BTF (`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the truncation.
 
 `Options` are those of the solve (`decompose`). steps, batch_size, lr and the schedule are unused.
 
