@@ -113,10 +113,12 @@ def _fit_one(run: harness.Run, source: str, model: str, options: list[str], seed
     """The fit-many row of `model` fitted to `source`, with `after`'s additions when it fitted. Its folder (kept
     under --work) is named by the code's `defaults` too (`method_key`): fit-many keeps a fit whose preset name and
     overrides match, so after a recipe's default changed the old folder would hand back the old fit."""
+    shared = run.work or run.scratch  # the reference renderings, once for every job, seed and shard of the run
+    cache = ["--reference-cache", str(shared / "reference-renders")] if shared is not None else []
     with run.folder("fit-many", source, model, options, seed, defaults) as out:
         try:
             cli(["fit-many", source, "-m", model, *options, "--seed", str(seed), "--threads", str(run.threads),
-                 "--engine", "local", "-q", "-o", str(out)])
+                 "--engine", "local", "-q", "-o", str(out), *cache])
         except SystemExit as stop:  # exit status 1: the job failed; its row says why
             if stop.code not in (0, 1, None):
                 raise

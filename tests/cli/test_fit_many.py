@@ -130,6 +130,46 @@ def test_a_changed_default_is_fitted_again(app, tmp_path, monkeypatch):
     assert "1 already done (kept), 0 to fit" in " ".join(res.output.split()), res.output
 
 
+def test_reference_renderings_are_kept_for_later_runs_and_other_processes(app, tmp_path, monkeypatch):
+    """The image metrics' reference renderings are kept (OUT/reference-renders by default, --reference-cache for a
+    folder several runs share): a later run with another model renders no reference and scores against the same
+    one (the same floor); another source, or a changed source, gets its own file; an unreadable file is rendered
+    again."""
+    from neumat.cli import fit_job as fit_job_module
+    from neumat.render import comparison
+
+    src = _teachers(tmp_path / "src", 2)
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    fit_job_module._REFERENCE_RENDERS.clear()  # another test's teachers are the same files
+    rendered = []
+    real = comparison.reference_renders
+    monkeypatch.setattr(comparison, "reference_renders", lambda *a, **k: rendered.append(1) or real(*a, **k))
+    assert CliRunner().invoke(app, [src[0], *FAST, "--engine", "local", "-o", str(out)]).exit_code == 0
+    assert len(rendered) == 1 and len(list((out / "reference-renders").glob("*.pt"))) == 1
+    first = _rows(out)["teacher0"]["metrics"]
+    other = [src[0], *FAST, "-m", "nbrdf", "--steps", "2", "--engine", "local", "-o", str(out)]
+    fit_job_module._REFERENCE_RENDERS.clear()  # a new process: only the folder holds it
+    assert CliRunner().invoke(app, other).exit_code == 0
+    assert len(rendered) == 1
+    again = {r["model"]: r for r in json.loads((out / "results.json").read_text())["rows"]}["nbrdf"]["metrics"]
+    assert again["img_floor_mae"] == first["img_floor_mae"]
+    shared = [*FAST, "--engine", "local", "--reference-cache", str(cache)]
+    assert CliRunner().invoke(app, [src[1], *shared, "-o", str(tmp_path / "a")]).exit_code == 0
+    assert len(rendered) == 2 and len(list(cache.glob("*.pt"))) == 1
+    fit_job_module._REFERENCE_RENDERS.clear()
+    assert CliRunner().invoke(app, [src[1], *shared, "-o", str(tmp_path / "b")]).exit_code == 0
+    assert len(rendered) == 2                                # the other output folder found it in the shared one
+    save_model(GGXFit(init_alpha=0.7), src[1])               # the source changes: its renderings are new ones
+    fit_job_module._REFERENCE_RENDERS.clear()
+    assert CliRunner().invoke(app, [src[1], *shared, "-o", str(tmp_path / "b")]).exit_code == 0
+    assert len(rendered) == 3 and len(list(cache.glob("*.pt"))) == 2
+    for path in cache.glob("*.pt"):
+        path.write_bytes(b"cut off")
+    fit_job_module._REFERENCE_RENDERS.clear()
+    assert CliRunner().invoke(app, [src[1], *shared, "--steps", "3", "-o", str(tmp_path / "b")]).exit_code == 0
+    assert len(rendered) == 4
+
+
 def test_threads_set_torch_threads_for_each_job_only_and_keep_the_rows(app, tmp_path, monkeypatch):
     """--threads N: each job runs with N torch threads and restores the caller's afterwards; it changes no hash,
     so a rerun with another --threads keeps every row."""
@@ -207,7 +247,8 @@ def test_preset_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tm
 
     job = FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path), preset="paper")
     before = {k: v for k, v in asdict(job).items()
-              if k not in ("source", "name", "out_dir", "device", "preset", "evaluate_only", "threads")}
+              if k not in ("source", "name", "out_dir", "device", "preset", "evaluate_only", "threads",
+                           "reference_cache")}
     assert job.legacy_options_sha256() == hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()
     assert job.options_sha256() != FitJob(source="s", name="s", model="ggx", out_dir=str(tmp_path),
                                           preset="cpu").options_sha256()

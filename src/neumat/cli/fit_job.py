@@ -3,6 +3,7 @@
 a non-finite fit, memory) becomes the row's "error", so one bad source cannot stop a database run."""
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import math
@@ -34,7 +35,8 @@ class FitJob:
     errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
     preset: a preset of the model (`neumat.fit.preset`); evaluate_only: the model
     at `out` was fitted with these fit options before: only evaluate it; threads: torch intra-op threads of the
-    job (None: torch's default, all cores). The last two are not part of the hashes."""
+    job (None: torch's default, all cores); reference_cache: a folder where the sources' reference renderings are
+    kept (`reference_renders`). The last three are not part of the hashes."""
 
     source: str
     name: str
@@ -51,6 +53,7 @@ class FitJob:
     preset: str = DEFAULT_PRESET
     evaluate_only: bool = False
     threads: int | None = None
+    reference_cache: str | None = None
 
     @property
     def out(self) -> Path:
@@ -193,19 +196,73 @@ def evaluate_against(model, reference, job: FitJob, device) -> dict[str, float]:
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
     if job.image_spp > 0:
-        from ..render.comparison import image_comparison, reference_renders
+        from ..render.comparison import image_comparison
 
-        key = (job.source, source_sha256(job.source), job.source_options and json.dumps(job.source_options,
-               sort_keys=True), job.image_spp, job.image_resolution, str(device))
-        if _REFERENCE_RENDERS.get("key") != key:  # the models of one source follow each other: render it once
-            _REFERENCE_RENDERS.clear()
-            _REFERENCE_RENDERS.update(key=key, renders=reference_renders(reference, job.image_spp,
-                                                                         job.image_resolution, 0, device))
+        renders = reference_renders_of(reference, job, device)
         img = image_comparison(model, reference, job.image_spp, job.image_resolution, seed=0, device=device,
-                               renders=_REFERENCE_RENDERS["renders"])
+                               renders=renders)
         out.update({f"img_{k}": float(v) for k, v in img.items()})
     return out
 
 
-#: the last source's reference renderings in this process (key: source, its hash and options, spp, size, device)
+def reference_renders_of(reference, job: FitJob, device) -> tuple:
+    """`neumat.render.comparison.reference_renders` of the job's source at its image settings: the last source's
+    from this process's memory (the models of one source follow each other), else from job.reference_cache when it
+    holds them, else rendered (and kept there). The reference at 16x spp dominates an evaluation's time (half an
+    hour of CPU for a 256^2 texture set at 128^2 x 1024 spp, measured on a loaded core), and shards of a benchmark
+    run, its seeds and later runs with other models need the same renderings; processes sharing the folder render
+    each once (a lock per file). The file is named by the source's hash and options, the settings, the device type
+    and the code that renders and evaluates it."""
+    import torch
+
+    from ..io.atomic import atomic_write
+    from ..render.comparison import reference_renders
+
+    key = json.dumps([source_sha256(job.source), job.source_options, job.image_spp, job.image_resolution,
+                      str(device).split(":")[0], _rendering_code_sha256(reference)], sort_keys=True, default=str)
+    if _REFERENCE_RENDERS.get("key") == key:
+        return _REFERENCE_RENDERS["renders"]
+
+    def render() -> tuple:
+        return reference_renders(reference, job.image_spp, job.image_resolution, 0, device)
+
+    if job.reference_cache is None:
+        renders = render()
+    else:
+        folder = Path(job.reference_cache)
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{hashlib.sha256(key.encode()).hexdigest()[:32]}.pt"
+        with open(path.with_suffix(".lock"), "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                renders = tuple(torch.load(path, map_location="cpu", weights_only=True)) if path.is_file() else None
+            except Exception:  # noqa: BLE001 - an unreadable cache file is rendered again and replaced
+                renders = None
+            if renders is None:
+                renders = render()
+                atomic_write(path, lambda tmp: torch.save([r.cpu() for r in renders], tmp))
+        renders = tuple(r.to(device) for r in renders)
+    _REFERENCE_RENDERS.clear()
+    _REFERENCE_RENDERS.update(key=key, renders=renders)
+    return renders
+
+
+def _rendering_code_sha256(reference) -> str:
+    """Hash of the renderer's source files (neumat/render/*.py) and of the modules of the reference's classes: a
+    cached reference rendering is not reused by code that would render or evaluate it differently."""
+    import inspect
+
+    package = Path(__file__).parent.parent
+    files = set((package / "render").glob("*.py"))
+    for cls in type(reference).__mro__:
+        path = Path(inspect.getfile(cls)) if cls.__module__.startswith("neumat.") else None
+        if path is not None:
+            files.add(path)
+    h = hashlib.sha256()
+    for path in sorted(files):
+        h.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
+
+
+#: the last source's reference renderings in this process (`reference_renders_of`)
 _REFERENCE_RENDERS: dict = {}

@@ -55,6 +55,10 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                                                     "$RAY_ADDRESS, else a local instance)"),
              retries: int = typer.Option(2, min=0, help="times a task whose Ray worker died is run again"),
              threads: int = typer.Option(None, min=1, help=THREADS_HELP),
+             reference_cache: Path = typer.Option(None, "--reference-cache",
+                                                  help="folder that keeps each source's reference renderings of the "
+                                                       "image metrics, for later runs and other processes (default: "
+                                                       "OUT/reference-renders)"),
              quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per job (the summary stays)"),
              out: Path = typer.Option(..., "-o", "--out", help="output folder: <source>.<model>.nmat, "
                                                                "results.json, results.md")) -> None:
@@ -98,7 +102,8 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         presets = model_presets([*(recipe_alias or []), *(preset or [])], model)
         common = dict(out_dir=str(out), steps=steps, seed=seed, device=device,
                       source_options=parse_overrides(source_option, "--source-option"), eval_n=eval_n,
-                      image_spp=image_spp, image_resolution=image_resolution, threads=threads)
+                      image_spp=image_spp, image_resolution=image_resolution, threads=threads,
+                      reference_cache=str(reference_cache or out / "reference-renders"))
         jobs = [FitJob(source=s, name=n, model=m, overrides=overrides[m], preset=presets[m], **common)
                 for s, n in named.items() for m in model]
         results = out / "results.json"
