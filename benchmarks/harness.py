@@ -86,7 +86,7 @@ def machine() -> dict:
     """Where and with what a run was made: commit, versions, threads, CPU model, device, load."""
     return {
         "commit": _git("rev-parse", "HEAD"),
-        "dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+        "dirty": _dirty(),
         "host": platform.node(),
         "cpu": _cpu_model(),
         "cores": os.cpu_count(),
@@ -97,6 +97,12 @@ def machine() -> dict:
         "versions": {p: _version(p) for p in PACKAGES},
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
+
+
+def _dirty() -> bool:
+    """Whether the code differs from its commit: tracked files changed outside benchmarks/results (a ledger that a
+    run appends to, or results it writes, are not the code that made them)."""
+    return bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)benchmarks/results"))
 
 
 def _git(*args: str) -> str:
@@ -270,7 +276,7 @@ class Ledger:
     def add(self, digest: str, what: str, result: dict, command: str) -> None:
         """Append one entry."""
         entry = {"key": digest, "what": what, "command": command, "commit": _git("rev-parse", "HEAD"),
-                 "dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+                 "dirty": _dirty(),
                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                  "result": result}
         line = json.dumps(entry, default=str) + "\n"

@@ -148,3 +148,26 @@ def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
     monkeypatch.setattr(common, "recipe_for", lambda model, name: changed if name == "cpu" else recipe_for(model, name))
     common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
     assert len(folders) == 2 and folders[1] != folders[0] and folders[0].parent == folders[1].parent
+
+
+def test_a_changed_ledger_or_result_does_not_make_the_code_dirty(tmp_path, monkeypatch):
+    """A ledger the run appends to (committed under benchmarks/results) is not a change of the code: entries and
+    results made with an unchanged tree say dirty false; a changed source file says true."""
+    import subprocess
+
+    def git(*args):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=tmp_path, check=True,
+                       capture_output=True)
+
+    (tmp_path / "benchmarks" / "results").mkdir(parents=True)
+    (tmp_path / "benchmarks" / "results" / "full.jsonl").write_text("{}\n")
+    (tmp_path / "code.py").write_text("x = 1\n")
+    git("init", "-q")
+    git("add", "-A")
+    git("commit", "-qm", "c")
+    monkeypatch.setattr(harness, "ROOT", tmp_path)
+    assert harness._dirty() is False
+    (tmp_path / "benchmarks" / "results" / "full.jsonl").write_text("{}\n{}\n")
+    assert harness._dirty() is False
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert harness._dirty() is True
