@@ -3,7 +3,6 @@ per-model summary with its seed spread, and budgets stated from the recipes them
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import statistics
 import sys
@@ -83,16 +82,11 @@ def method_key(model: str, options: list[str]) -> dict:
 
 def content_sha256(source: str) -> str:
     """The hash a ledger key holds for a source: of a file's bytes, of a folder's files (names and bytes: a texture
-    set), else of the spec; never of a path, so the key is the same on every machine."""
+    set), else of the spec (`neumat.catalog.modelfile.source_info`); never of a path, so the key is the same on
+    every machine."""
     from neumat.cli.fit_job import source_sha256
 
-    folder = Path(source)
-    if not folder.is_dir():
-        return source_sha256(source)
-    h = hashlib.sha256()
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
-        h.update(str(path.relative_to(folder)).encode() + b"\0" + path.read_bytes())
-    return h.hexdigest()
+    return source_sha256(source)
 
 
 def _own(options: list[str], model: str, models: list[str]) -> list[str]:

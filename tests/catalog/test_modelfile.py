@@ -81,6 +81,26 @@ def test_header_contents(tmp_path, gen):
     assert source_info(m)["sha256"] != source_info(_trained_like("dense", gen))["sha256"]
 
 
+def test_a_folder_source_is_hashed_by_its_files(tmp_path):
+    """A texture set (a folder) is fingerprinted by its files' names and bytes: moved, the same source; a map
+    edited in place, another one (a path hash kept fit-many's old fits and cached reference renderings of it)."""
+    import shutil
+
+    here = tmp_path / "a" / "Set"
+    here.mkdir(parents=True)
+    (here / "color.png").write_bytes(b"\x01\x02")
+    (here / "sub").mkdir()
+    (here / "sub" / "roughness.png").write_bytes(b"\x03")
+    info = source_info(str(here))
+    assert info["name"] == "Set" and len(info["sha256"]) == 64
+    shutil.copytree(here, tmp_path / "b" / "Set")
+    assert source_info(str(tmp_path / "b" / "Set"))["sha256"] == info["sha256"]
+    (here / "sub" / "roughness.png").write_bytes(b"\x04")
+    assert source_info(str(here))["sha256"] != info["sha256"]
+    (here / "sub" / "roughness.png").rename(here / "roughness.png")  # same bytes, another name: another set
+    assert source_info(str(here))["sha256"] not in (info["sha256"], source_info(str(tmp_path / "b" / "Set"))["sha256"])
+
+
 def test_load_to_device_and_eval_mode(tmp_path, gen):
     m = _trained_like("dense", gen)
     loaded = load_model(save_model(m, tmp_path / "m.nmat"), device="cpu")

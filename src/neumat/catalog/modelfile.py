@@ -29,9 +29,10 @@ RENAMED_MODELS = {"zeltner": "neumip-frame"}  # the Zeltner-style baseline of Ti
 
 
 def source_info(source: Any) -> dict:
-    """{"name", "sha256"} of a training source: a file (hash of its bytes), a spec string (hash of the
-    text), a Material (hash of its float32 values at 4096 fixed queries) or a list of those (names joined,
-    hash of their hashes)."""
+    """{"name", "sha256"} of a training source: a file (hash of its bytes), a folder such as a texture set (hash
+    of its files' relative names and bytes, so an edited map is another source and a moved folder the same one), a
+    spec string (hash of the text), a Material (hash of its float32 values at 4096 fixed queries) or a list of those
+    (names joined, hash of their hashes)."""
     if isinstance(source, (list, tuple)):  # a set of sources fitted jointly
         parts = [source_info(s) for s in source]
         return {"name": " + ".join(p["name"] for p in parts),
@@ -43,6 +44,11 @@ def source_info(source: Any) -> dict:
             with open(path, "rb") as f:
                 for block in iter(lambda: f.read(1 << 20), b""):
                     h.update(block)
+            return {"name": path.name, "sha256": h.hexdigest()}
+        if path.is_dir():
+            h = hashlib.sha256()
+            for file in sorted(p for p in path.rglob("*") if p.is_file()):
+                h.update(str(file.relative_to(path)).encode() + b"\0" + file.read_bytes())
             return {"name": path.name, "sha256": h.hexdigest()}
         return {"name": str(source), "sha256": hashlib.sha256(str(source).encode()).hexdigest()}
     if not callable(getattr(source, "eval", None)):
