@@ -1,5 +1,5 @@
 """Entry point: `python -m benchmarks --list | SUITE [--quick] [--json] [--out FILE.json] [--work DIR]
-[--ledger FILE.jsonl] [--workers N | --shard I/N]`."""
+[--ledger FILE.jsonl] [--workers N | --shard I/N]`, or `python -m benchmarks compare COMMITTED.json RERUN.json`."""
 from __future__ import annotations
 
 import argparse
@@ -14,7 +14,12 @@ from .suites import SUITES, load
 
 
 def main(argv: list[str]) -> int:
-    """Run one suite and print its table (or its JSON); returns the exit status."""
+    """Run one suite and print its table (or its JSON), or compare two results files (`compare`); returns the exit
+    status."""
+    if argv[:1] == ["compare"]:
+        from . import compare
+
+        return compare.main(argv[1:])
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
     parser.add_argument("suite", nargs="?", choices=SUITES, help="the suite to run")
     parser.add_argument("--list", action="store_true", help="name every suite with its budget, and exit")
