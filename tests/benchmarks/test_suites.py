@@ -209,7 +209,8 @@ def _no_training_loop(path: Path) -> None:
 
 def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
     """`neumat bench` is `python -m benchmarks` of the source repository: --list names every suite (run for real);
-    a suite's options reach the entry point as its own (the quick runs above check what it writes)."""
+    a suite's options reach the entry point as its own (the quick runs above check what it writes); `compare` takes
+    exactly two files."""
     from typer.testing import CliRunner
 
     from neumat.cli import bench
@@ -235,6 +236,13 @@ def test_neumat_bench_runs_the_suite_entry_point(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     assert calls[0][0][-6:] == ["--work", str((tmp_path / "w").resolve()), "--ledger",
                                 str((tmp_path / "l.jsonl").resolve()), "--workers", "2"]
+    calls.clear()
+    result = CliRunner().invoke(app, ["bench", "compare", str(tmp_path / "a.json"), str(tmp_path / "b.json")])
+    assert result.exit_code == 0, result.output
+    assert calls[0][0][3:] == ["compare", str((tmp_path / "a.json").resolve()), str((tmp_path / "b.json").resolve())]
+    for wrong in (["compare", str(tmp_path / "a.json")], ["sparsebtf", str(tmp_path / "a.json")]):
+        result = CliRunner().invoke(app, ["bench", *wrong])
+        assert result.exit_code == 2 and "two files are compared" in result.output, result.output
 
 
 def _check_equal_bytes(doc: dict) -> None:

@@ -24,7 +24,8 @@ def benchmarks_root() -> Path:
     return root
 
 
-def bench(suite: str = typer.Argument(None, help="the suite to run (--list names them)"),
+def bench(suite: str = typer.Argument(None, help="the suite to run (--list names them), or compare"),
+          files: list[Path] = typer.Argument(None, help="compare: the committed results JSON and a rerun's"),
           list_: bool = typer.Option(False, "--list", help="name every suite with its budget, and exit"),
           quick: bool = typer.Option(False, "--quick", help="the seconds-long smoke version of the suite"),
           json_: bool = typer.Option(False, "--json", help="print the results JSON instead of the Markdown"),
@@ -38,13 +39,22 @@ def bench(suite: str = typer.Argument(None, help="the suite to run (--list names
           workers: int = typer.Option(1, "--workers", min=1, help="fits run at a time, in shard processes (default "
                                                                   "1)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output (the suite's stderr)")) -> None:
-    """Run a benchmark suite: JSON results naming the command, commit and machine, and a Markdown table."""
+    """Run a benchmark suite: JSON results naming the command, commit and machine, and a Markdown table; or
+    `neumat bench compare COMMITTED.json RERUN.json`: whether a rerun's quality numbers lie within the committed
+    run's seed spread (exit status 1 names what does not)."""
     def go():
-        args = (["--list"] if list_ else []) + ([suite] if suite else []) + (["--quick"] if quick else []) \
-            + (["--json"] if json_ else []) + (["--out", str(out.resolve())] if out else []) \
-            + ["--seed", str(seed), "--threads", str(threads)] + (["--work", str(work.resolve())] if work else []) \
-            + (["--ledger", str(ledger.resolve())] if ledger else []) \
-            + (["--workers", str(workers)] if workers != 1 else [])
+        if suite == "compare" or files:
+            if suite != "compare" or len(files or []) != 2:
+                raise InputError("neumat bench: two files are compared (neumat bench compare COMMITTED.json "
+                                 "RERUN.json); a suite takes none")
+            args = ["compare", *(str(f.resolve()) for f in files)]
+        else:
+            args = (["--list"] if list_ else []) + ([suite] if suite else []) + (["--quick"] if quick else []) \
+                + (["--json"] if json_ else []) + (["--out", str(out.resolve())] if out else []) \
+                + ["--seed", str(seed), "--threads", str(threads)] \
+                + (["--work", str(work.resolve())] if work else []) \
+                + (["--ledger", str(ledger.resolve())] if ledger else []) \
+                + (["--workers", str(workers)] if workers != 1 else [])
         done = subprocess.run([sys.executable, "-m", "benchmarks", *args], cwd=benchmarks_root(),
                               stderr=subprocess.DEVNULL if quiet else None)
         if done.returncode:
