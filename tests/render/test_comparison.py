@@ -94,3 +94,31 @@ def test_non_negative_clamps_values_and_sample_weights_and_keeps_the_rest():
 def test_unknown_sampler_is_refused():
     with pytest.raises(InputError, match="sampler: expected one of random, sobol"):
         render(open_material("lambert"), spp=1, resolution=8, sampler="halton")
+
+
+def test_the_converged_reference_spends_the_floors_footprint_positions_per_pixel(monkeypatch):
+    """A Monte Carlo footprint filter (a texture set's SVBRDF) renders the 16x-spp reference with 1/16 of its
+    positions an evaluation (as many per pixel as the floor), from a copy: the material keeps its count and its
+    generator; its expectation is unchanged (a plane at 64 spp: the two means within 1 %); materials without the
+    filter are rendered as they are."""
+    from neumat.reflectance.procedural_texture import procedural_texture_set
+    from neumat.reflectance.svbrdf import SVBRDF
+    from neumat.render import comparison
+    from neumat.render.comparison import REFERENCE_FACTOR, per_pixel_footprint_budget
+
+    svbrdf = SVBRDF(procedural_texture_set("bumps", size=16), samples=64)
+    state = svbrdf.generator.get_state()
+    fewer = per_pixel_footprint_budget(svbrdf, REFERENCE_FACTOR)
+    assert fewer.samples == 4 and svbrdf.samples == 64 and fewer.maps is svbrdf.maps
+    assert fewer.generator is not svbrdf.generator and torch.equal(svbrdf.generator.get_state(), state)
+    assert per_pixel_footprint_budget(SVBRDF(procedural_texture_set("bumps", size=8), samples=8), 100).samples == 1
+    ggx = open_material("ggx:roughness=0.3")
+    assert per_pixel_footprint_budget(ggx, REFERENCE_FACTOR) is ggx
+    used = []
+    real = comparison.comparison_images
+    monkeypatch.setattr(comparison, "comparison_images", lambda materials, spp, *a, **k: used.append(
+        (spp, materials["ref"].material.samples)) or real(materials, spp, *a, **k))
+    reference_renders(svbrdf, 2, 8)
+    assert used == [(2 * REFERENCE_FACTOR, 4), (2, 64)]
+    means = [render(m, scene="plane", spp=64, resolution=16, seed=0).mean() for m in (svbrdf, fewer)]
+    assert abs(float(means[0] / means[1]) - 1) < 0.01

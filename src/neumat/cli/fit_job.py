@@ -25,7 +25,8 @@ ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha25
 FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings", "defaults_sha256")
 #: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
 #: evaluated under an older protocol are evaluated again
-IMAGE_PROTOCOL = "sphere/sky, mis-lobes, sobol, model and floor against the reference at 16x spp"
+IMAGE_PROTOCOL = ("sphere/sky, mis-lobes, sobol, model and floor against the reference at 16x spp, its Monte Carlo "
+                  "footprint filter at 1/16 of its positions")
 
 
 @dataclass(frozen=True)
