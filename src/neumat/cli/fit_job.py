@@ -19,8 +19,8 @@ from .common import torch_threads
 
 #: the row keys, in the order results.json and results.md show them
 ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "defaults_sha256",
-            "nmat", "nmat_sha256", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds", "device", "worker",
-            "warnings", "error")
+            "nmat", "nmat_sha256", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds",
+            "device", "worker", "warnings", "error")
 #: the row keys an evaluation of an already fitted model takes over from the fit's row
 FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings", "defaults_sha256")
 #: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
@@ -209,10 +209,10 @@ def evaluate_against(model, reference, job: FitJob, device) -> dict[str, float]:
 def reference_renders_of(reference, job: FitJob, device) -> tuple:
     """`neumat.render.comparison.reference_renders` of the job's source at its image settings: the last source's
     from this process's memory (the models of one source follow each other), else from job.reference_cache when it
-    holds them, else rendered (and kept there). The reference at 16x spp dominates an evaluation's time (half an
-    hour of CPU for a 256^2 texture set at 128^2 x 1024 spp, measured on a loaded core), and shards of a benchmark
-    run, its seeds and later runs with other models need the same renderings; processes sharing the folder render
-    each once (a lock per file). The file is named by the source's hash and options, the settings, the device type
+    holds them, else rendered (and kept there). They dominate the evaluation of a fast model (a 256^2 texture set at
+    128^2 and 64 spp: about 6 CPU minutes for the 16x reference and the floor), and shards of a benchmark run, its
+    seeds and later runs with other models need the same renderings; processes sharing the folder render each once
+    (a lock per file). The file is named by the source's hash and options, the settings, the device type
     and the code that renders and evaluates it."""
     import torch
 
