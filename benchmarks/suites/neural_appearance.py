@@ -18,7 +18,9 @@ BUDGET = {
                      "and 1 (36 fits); sphere images 128^2 at 64 spp; sampler variance of each neural-appearance fit at 64 "
                      "texture points x 1024 samples x 3 elevations",
              "paper": paper_budget(MODELS[:1]) + " on a GPU (the paper's own layered materials, not available)",
-             "expected_wall": "about 5 h one fit after another (one thread)"},
+             "expected_wall": "about 12 h one job after another (one thread; measured on a loaded core: a "
+                              "neural-appearance fit 26 min, a neumip-frame fit 13 min, each set's reference "
+                              "renderings about 6 min, once per run); --workers 2: about half"},
 }
 
 
