@@ -42,17 +42,20 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     if run.work is not None:
         run.protocol["fits"] = (f"fit-many folders kept under {run.work} (a rerun resumes); wall and CPU seconds are "
                                 f"this sitting's, each row's 'fit s' its own fit's")
+    from neumat.cli.fit_job import source_sha256  # of a file's bytes, a folder's files or a spec: never a path
+
     made = made or {}
     index, count = run.shard
     start = index * len(sources) // count
     order = sources[start:] + sources[:start]
+    defaults_of = {model: method_key(model, options) for model in models}
     rows = {}
     for seed in seeds:
         for source in order:
             made_by, make = made.get(source, (None, None))
-            source_key = content_sha256(source) if made_by is None else made_by
+            source_key = source_sha256(source) if made_by is None else made_by
             for model in models:
-                defaults = method_key(model, options)
+                defaults = defaults_of[model]
                 key = {"job": "fit-many", "source": Path(source).name, "source_sha256": source_key, "model": model,
                        "options": options, "seed": seed, **defaults}
                 row = run.job(f"{Path(source).name} x {model} (seed {seed})", key,
@@ -78,15 +81,6 @@ def method_key(model: str, options: list[str]) -> dict:
     preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
     return {"preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
             "recipes": {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")}}
-
-
-def content_sha256(source: str) -> str:
-    """The hash a ledger key holds for a source: of a file's bytes, of a folder's files (names and bytes: a texture
-    set), else of the spec (`neumat.catalog.modelfile.source_info`); never of a path, so the key is the same on
-    every machine."""
-    from neumat.cli.fit_job import source_sha256
-
-    return source_sha256(source)
 
 
 def _own(options: list[str], model: str, models: list[str]) -> list[str]:

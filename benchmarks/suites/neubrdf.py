@@ -8,11 +8,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from neumat.cli.fit_job import source_sha256
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
-from .common import (cli, content_sha256, fit_many, method_key, paper_budget, quality_rows, recipe_budget,
-                     summary_rows)
+from .common import cli, fit_many, method_key, paper_budget, quality_rows, recipe_budget, summary_rows
 
 NAME = "neubrdf"
 DESCRIPTION = ("NeuBRDF's Tables 3 (RGL) and 4 (MERL-like) against NBRDF and GGX, and pruning, through neumat "
@@ -111,7 +111,7 @@ def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int
                      "-o", str(out)])
             return json.loads((out / "clusters.json").read_text())
 
-    key = {"job": "fit-clusters", "sources": {Path(s).name: content_sha256(s) for s in sources}, "options": options,
+    key = {"job": "fit-clusters", "sources": {Path(s).name: source_sha256(s) for s in sources}, "options": options,
            "seed": seed, **method_key("neubrdf", options)}
     doc = run.job(f"fit-clusters of {len(sources)} sources (seed {seed})", key, clusters, keep=lambda _: True)
     if doc is None:

@@ -108,7 +108,7 @@ def test_a_source_folder_keys_by_its_content_not_its_path(tmp_path):
     """A texture set copied elsewhere (another machine's shared data) keys the same; a changed byte does not."""
     import shutil
 
-    from benchmarks.suites.common import content_sha256
+    from neumat.cli.fit_job import source_sha256  # what fit_many's ledger keys hold
 
     a = tmp_path / "here" / "Set"
     a.mkdir(parents=True)
@@ -116,10 +116,10 @@ def test_a_source_folder_keys_by_its_content_not_its_path(tmp_path):
     (a / "rgh.jpg").write_bytes(b"\x03")
     b = tmp_path / "there" / "Set"
     shutil.copytree(a, b)
-    assert content_sha256(str(a)) == content_sha256(str(b))
+    assert source_sha256(str(a)) == source_sha256(str(b))
     (b / "rgh.jpg").write_bytes(b"\x04")
-    assert content_sha256(str(a)) != content_sha256(str(b))
-    assert content_sha256("ggx:roughness=0.2") == content_sha256("ggx:roughness=0.2")
+    assert source_sha256(str(a)) != source_sha256(str(b))
+    assert source_sha256("ggx:roughness=0.2") == source_sha256("ggx:roughness=0.2")
 
 
 def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
