@@ -28,12 +28,23 @@ def fit_pca(btf: TabulatedBTF, ranks: tuple[int, int, int] | None = None, log_ep
     if "ranks" in fields:
         fields["ranks"] = tuple(int(r) for r in fields["ranks"])
     model = PCABTF.for_btf(btf, **fields).to(btf.data.device)
+    solve_into(model, btf, budget_bytes, decomposition)
+    return model
+
+
+def solve_into(model: PCABTF, btf: TabulatedBTF, budget_bytes: int = 0, decomposition: "Decomposition | None" = None,
+               **decompose_options) -> "Decomposition":
+    """Load `model`'s components from the principal components of `btf` (`decomposition` when given, else
+    `decompose` with `decompose_options`), choosing its ranks first when it has none (the most that fit
+    `budget_bytes`, split by least error); returns the decomposition. What `fit_pca` and the recipe's solver
+    phase (methods/sparse_btf/pca_train.py) both run."""
     c = model.cfg
     total = max(c.ranks) if c.ranks else budget_components(c, budget_bytes)
-    dec = decomposition if decomposition is not None else decompose(btf, c.log_eps, total)
+    dec = decomposition if decomposition is not None else decompose(btf, c.log_eps, total, **decompose_options)
     if not c.ranks:
         model.set_ranks(best_ranks(dec.eigenvalues, total))
-    return model.load_components(dec, btf.light_dirs, btf.view_dirs)
+    model.load_components(dec, btf.light_dirs, btf.view_dirs)
+    return dec
 
 
 def budget_components(cfg: Config, budget_bytes: int = 0) -> int:

@@ -51,7 +51,7 @@ def config_for_source(btf, options: dict | None = None) -> dict:
 def phases(ctx: FitContext) -> list[Phase]:
     from neumat.methods.sparse_btf.pca import PCABTF
     from neumat.reflectance.btf import TabulatedBTF
-    from neumat.methods.sparse_btf.pca_solve import best_ranks, budget_components, decompose
+    from neumat.methods.sparse_btf.pca_solve import solve_into
 
     model, btf = ctx.model, ctx.source
     if not isinstance(model, PCABTF):
@@ -62,12 +62,8 @@ def phases(ctx: FitContext) -> list[Phase]:
         data = btf.data.to(ctx.device)
         table = TabulatedBTF(data, btf.light_dirs, btf.view_dirs, btf.neighbours, label=btf.label)
         o = ctx.opts
-        chosen = not model.cfg.ranks
-        total = budget_components(model.cfg, o.budget_bytes) if chosen else max(model.cfg.ranks)
-        dec = decompose(table, model.cfg.log_eps, total, o.exact_limit, o.oversample, o.power_iterations)
-        if chosen:
-            model.set_ranks(best_ranks(dec.eigenvalues, total))
-        model.load_components(dec, table.light_dirs, table.view_dirs)
+        dec = solve_into(model, table, o.budget_bytes, exact_limit=o.exact_limit, oversample=o.oversample,
+                         power_iterations=o.power_iterations)
         return {"mse": dec.residual(model.cfg.ranks)}
 
     return [Phase("solve", 1, solve)]
