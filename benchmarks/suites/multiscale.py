@@ -1,5 +1,5 @@
 """multiscale: the multi-scale gated SVBRDF (Timonen et al. 2025) against its FLOP-matched baselines on the shared
-texture sets, through `neumat fit-many` at the CPU recipes (Tables 4 and 6 on our data)."""
+texture sets, through `neumat fit-many` at the default presets (Tables 4 and 6 on our data)."""
 from __future__ import annotations
 
 from .. import harness
@@ -14,7 +14,8 @@ BUDGET = {
     "quick": {"ours": "multiscale and ggx-mipmap, 10 steps x 256 on Wood092_1K at 32^2 texels with 8-sample "
                        "footprint targets, one seed; scale series of 3 scales at 16^2 pixels",
               "paper": paper_budget(MODELS) + " on a GPU", "expected_wall": "about 10 s"},
-    "full": {"ours": f"CPU recipes: {recipe_budget(MODELS)}; 6 texture sets at 256^2 texels x 5 models, seeds 0 and "
+    "full": {"ours": f"default presets (CPU recipes {recipe_budget(MODELS)}); "
+                     "6 texture sets at 256^2 texels x 5 models, seeds 0 and "
                      "1 (60 fits); sphere images 128^2 at 64 spp; the scale series (9 scales x 4 lights x 3 tilts, 48^2 pixels) "
                      "of every fit",
              "paper": paper_budget(MODELS) + " on a GPU, at the sets' full resolution",

@@ -1,5 +1,5 @@
 """neural-appearance: Real-Time Neural Appearance Models (Zeltner et al. 2024) against the neumip-frame and
-ggx-mipmap baselines on the shared texture sets, through `neumat fit-many` at the CPU recipes (its image table)."""
+ggx-mipmap baselines on the shared texture sets, through `neumat fit-many` at the default presets (its image table)."""
 from __future__ import annotations
 
 from .. import harness
@@ -14,7 +14,8 @@ BUDGET = {
     "quick": {"ours": "neural-appearance, 10 steps x 256 on Wood092_1K at 32^2 texels with 8-sample footprint "
                        "targets, one seed; sampler variance at 4 points x 64 samples",
               "paper": paper_budget(MODELS[:1]) + " on a GPU", "expected_wall": "about 5 s"},
-    "full": {"ours": f"CPU recipes: {recipe_budget(MODELS)}; 6 texture sets at 256^2 texels x 3 models, seeds 0 "
+    "full": {"ours": f"default presets (CPU recipes {recipe_budget(MODELS)}); "
+                     "6 texture sets at 256^2 texels x 3 models, seeds 0 "
                      "and 1 (36 fits); sphere images 128^2 at 64 spp; sampler variance of each neural-appearance fit at 64 "
                      "texture points x 1024 samples x 3 elevations",
              "paper": paper_budget(MODELS[:1]) + " on a GPU (the paper's own layered materials, not available)",
