@@ -1,10 +1,12 @@
 """Per-call cost of small tensor work on hot paths: constant tensors built once per value, dtype and device (a
 Python number in a tensor operation is wrapped into a new tensor on every call), tensors derived from parameters
-built once while the parameters stay unchanged, and calls run in inference mode when autograd is off."""
+built once while the parameters stay unchanged, calls run in inference mode when autograd is off, and element-wise
+chains run on cache-sized slices of rows."""
 from __future__ import annotations
 
 import functools
-from typing import Callable, Sequence
+from dataclasses import fields
+from typing import Any, Callable, Sequence
 
 import torch
 from torch.optim.optimizer import register_optimizer_step_post_hook
@@ -65,3 +67,17 @@ def inference_call(fn: Callable[..., torch.Tensor], *args) -> torch.Tensor:
     with torch.inference_mode():
         out = fn(*args)
     return out.clone()
+
+
+def by_rows(fn: Callable[..., Any], chunk: int, *tensors: torch.Tensor) -> Any:
+    """fn(*tensors) evaluated on consecutive slices of at most `chunk` rows, the results (tensors, or dataclasses
+    of tensors such as `Sample`) concatenated along rows. Why: an element-wise chain over N rows makes N-sized
+    temporaries that leave the cache once N is large; on slices that stay in cache the cost per row does not grow
+    with N (issue 49: GGX 1.5-3x slower per query at 2^20 than at 2^16). Autograd flows through the slices."""
+    n = tensors[0].shape[0]
+    if n <= chunk:
+        return fn(*tensors)
+    parts = [fn(*(t[s:s + chunk] for t in tensors)) for s in range(0, n, chunk)]
+    if isinstance(parts[0], torch.Tensor):
+        return torch.cat(parts)
+    return type(parts[0])(**{f.name: torch.cat([getattr(p, f.name) for p in parts]) for f in fields(parts[0])})

@@ -20,6 +20,7 @@ import torch
 from ..core.errors import InputError, UnknownNameError
 from ..core.material import Material, check_sample_u, sample_weight
 from ..core.query import Query, Sample
+from ..core.tensors import by_rows
 from ..warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from ..warp.ggx_distribution import ggx_ndf, smith_g1
 from ..warp.hemisphere import sample_cosine_hemisphere
@@ -107,20 +108,25 @@ class AnalyticMaterial(Material):
         """Parameters as written in the spec string (name -> float, RGB tuple or name)."""
         raise NotImplementedError
 
+    #: rows per slice of eval, pdf and sample (`by_rows`): the cost per query stays flat up to 2^20 queries
+    chunk = 2 ** 14
+
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF (N, 3), cosine excluded; 0 unless both directions are above the surface."""
         q.require("wo", who=type(self).__name__)
-        return self._eval(q.wi, q.wo)
+        return by_rows(self._eval, self.chunk, q.wi, q.wo)
 
     def pdf(self, q: Query) -> torch.Tensor:
         """Solid-angle density (N,) of `sample` at q.wo given q.wi."""
         q.require("wo", who=type(self).__name__)
-        return self._pdf(q.wi, q.wo)
+        return by_rows(self._pdf, self.chunk, q.wi, q.wo)
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Draw wo given q.wi and u (N, 2) in [0, 1)^2; pdf and weight are 0 where sampling failed."""
         check_sample_u(q, u)
-        wi = q.wi
+        return by_rows(self._sample, self.chunk, q.wi, u)
+
+    def _sample(self, wi: torch.Tensor, u: torch.Tensor) -> Sample:
         up = (wi[:, 2] > 0).unsqueeze(-1)
         normal = torch.tensor([0.0, 0.0, 1.0], dtype=wi.dtype, device=wi.device)
         wo = self._draw(torch.where(up, wi, normal), u.to(wi.dtype))
