@@ -93,6 +93,19 @@ def test_eval_shape_finite_horizon_and_dtype(name, dtype):
         assert below.any() and bool((f[below] == 0).all())
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_eval_on_slices_of_rows_equals_one_call(name):
+    """A model whose eval works on slices of `eval_chunk` rows (issue 49: flat cost per query up to 2^20) gives
+    what one call over all rows gives, up to rounding (a short slice runs the vector kernels' scalar tails)."""
+    model = _model(name, torch.float64).train(False)
+    q = _queries(model, dtype=torch.float64)
+    with torch.no_grad():
+        whole = model.eval(q)
+        model.eval_chunk = 37  # 512 rows: 14 slices, the last one shorter
+        sliced = model.eval(q)
+    torch.testing.assert_close(sliced, whole, rtol=1e-12, atol=1e-14)
+
+
 def _texture_set(folder):
     folder.mkdir()
     rng = np.random.default_rng(0)

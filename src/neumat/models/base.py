@@ -36,6 +36,9 @@ class LearnedMaterial(nn.Module, Material):
     Config: ClassVar[type]
     paper: ClassVar[str] = ""
     source_kinds: ClassVar[tuple[str, ...]] = ("brdf",)
+    #: rows per slice of an eval over many queries (`neumat.core.tensors.by_rows`): the temporaries of a slice stay
+    #: in cache, so the cost per query does not grow from 2^16 to 2^20 queries (issue 49)
+    eval_chunk: ClassVar[int] = 2 ** 13
 
     def on_step(self, step: int, total_steps: int) -> None:
         """Called before every training step (step is 0-based)."""

@@ -15,6 +15,7 @@ from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -63,6 +64,9 @@ class NaiveMLP(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NaiveMLP.eval")
+        return by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _eval_rows(self, q: Query) -> torch.Tensor:
         dtype = self.mlp.linears()[0].weight.dtype
         f = torch.exp(self.mlp(torch.cat([q.wi, q.wo], -1).to(dtype)))
         f = zero_below_horizon(f, q.wi, q.wo)

@@ -23,7 +23,7 @@ from neumat.core.coords import hd_vectors
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import inference_call
+from neumat.core.tensors import by_rows, inference_call
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
@@ -135,7 +135,10 @@ class NBRDF(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NBRDF.eval")
-        return inference_call(self._eval, q.wi, q.wo)
+        return inference_call(self._eval_by_rows, q.wi, q.wo)
+
+    def _eval_by_rows(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        return by_rows(self._eval, self.eval_chunk, wi, wo)
 
     def _eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """`eval` of directions wi, wo (N, 3), in few tensor operations (a batch of one costs about as many

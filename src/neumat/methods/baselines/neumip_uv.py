@@ -20,6 +20,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.frames import frame_from_normal_tangent, to_local
 from neumat.core.query import Query
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
@@ -115,6 +116,9 @@ class NeuMIPUV(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat (N, 3), clamped at 0."""
         q.require("x", "wo", "n", who="NeuMIPUV.eval")
+        return by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _eval_rows(self, q: Query) -> torch.Tensor:
         dtype = self.centre.dtype
         return self.raw(q.wi.to(dtype), q.x.to(dtype), q.wo.to(dtype), q.n.to(dtype)).clamp(min=0).to(q.dtype)
 

@@ -21,6 +21,7 @@ from neumat.core.errors import InputError
 from neumat.core.frames import frame_from_normal_tangent, to_local
 from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid, check_footprint
@@ -104,6 +105,9 @@ class GGXMipmap(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded (module docstring)."""
         q.require("wo", who="ggx-mipmap.eval")
+        return by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _eval_rows(self, q: Query) -> torch.Tensor:
         p = self.parameters_at(q)
         n, t = p["normal"], p["tangent"]
         b = torch.cross(n, t, dim=-1)

@@ -21,6 +21,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
@@ -200,6 +201,9 @@ class MultiScale(LearnedMaterial, SpatialLatent):
 
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
+        return by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _eval_rows(self, q: Query) -> torch.Tensor:
         f = torch.exp(self.mlp(self.latents(q)))
         return zero_below_horizon(f, q.wi, q.wo).to(q.dtype)
 

@@ -21,6 +21,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.multiscale import preconditioned_noise, start_at_data_scale
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
@@ -172,7 +173,7 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         q.require("wo", who=f"{self.name}.eval")
-        return self.filtered_outputs(q)[:, :3]
+        return by_rows(lambda rows: self.filtered_outputs(rows)[:, :3], self.eval_chunk, q)
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
