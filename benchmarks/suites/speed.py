@@ -307,20 +307,37 @@ def _training(run: harness.Run) -> None:
 
 def step_seconds(name: str, overrides: dict, source, batch: int, per_phase: int, seed: int) -> list[tuple]:
     """[(phase, median CPU seconds per step)] of a fit of `name` through `neumat.fit.trainer.fit` at its CPU recipe
-    with `batch`, long enough that every phase of the recipe gets about `per_phase` steps or more."""
+    with `batch`, long enough that every phase of the recipe gets about `per_phase` steps or more. A step is timed
+    from the start of one (the trainer's `model.on_step` call) to the start of the next, with no history record or
+    rollback snapshot between them (a snapshot copies the model and its optimiser state: on a 1K latent texture a
+    good share of a step)."""
     model, setting = build_fit(name, "cpu", source=source, overrides=overrides, seed=seed)
     recipe = setting.recipe
     fractions = [f for f in (_phase_fractions(recipe) or [1.0]) if f > 0]
     steps = int(per_phase / min(fractions)) + 1
-    marks = []
+    starts: list[tuple[int, float]] = []
+    on_step = model.on_step
+
+    def timed(step: int, total: int) -> None:
+        starts.append((step, time.process_time()))
+        on_step(step, total)
+
+    model.on_step = timed
     with warnings.catch_warnings():  # a few dozen steps are timed, not judged: their loss curve means nothing
         warnings.simplefilter("ignore", FitWarning)
-        fit(model, source, replace(recipe, batch_size=batch, steps=steps, log_every=1, checkpoint_every=10 ** 9),
-            progress=False, callback=lambda r: marks.append((r["phase"], r["step"], time.process_time())))
+        history = fit(model, source, replace(recipe, batch_size=batch, steps=steps, log_every=10 ** 9,
+                                              checkpoint_every=10 ** 9), progress=False).history
+    ends = [(r["step"], r["phase"]) for r in history]  # one record at the end of each phase
+
+    def phase_of(step: int) -> tuple[int, str]:
+        return next((end, phase) for end, phase in ends if step < end)
+
     per_phase_times: dict[str, list[float]] = {}
-    for (p0, s0, t0), (p1, s1, t1) in zip(marks, marks[1:]):
-        if p0 == p1 and s1 == s0 + 1:
-            per_phase_times.setdefault(p1, []).append(t1 - t0)
+    for (s0, t0), (s1, t1) in zip(starts, starts[1:]):
+        end, phase = phase_of(s0)
+        first = s0 == 0 or phase_of(s0 - 1)[0] != end  # a phase's first step: warm-up, not timed
+        if s1 == s0 + 1 < end and not first:
+            per_phase_times.setdefault(phase, []).append(t1 - t0)
     return [(p, statistics.median(ts)) for p, ts in per_phase_times.items()]
 
 

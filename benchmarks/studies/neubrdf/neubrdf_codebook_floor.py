@@ -3,14 +3,15 @@ into 2^b codewords (`NeuBRDF.quantize_from_dense`, plain k-means, and with --wei
 by the CPU recipe's loss sensitivity, `neumat.methods.neubrdf.feature_sensitivity`) and score each codebook model, in the
 training form and shipped (runtime, 1/4 weights), against the dense grid: held-out log error and relative error
 (2^16 cosine queries, seed 7) and the Table 3 image protocol (`neumat.render.comparison`: sphere under the sky,
-128^2, 512 spp; floor = the reference at the next seed). --vq-steps then trains the first size's plain k-means start
-(8 candidates per slot) in blocks of VQ steps (the `train` loop of neubrdf_codebook_gap.py: loss log_cos, lr 2.5e-3
-halved at 1/2 and 3/4 of each block, EMA 0.01), scored after each block.
+128^2, 512 spp; floor = the reference at the next seed). The former option --vq-steps (blocks of VQ steps from the
+plain k-means start, trained by neubrdf_codebook_gap.py's own loop) was removed with that script; the version that
+ran results/neubrdf_table3_codebook.md section 4 is at commit 906d5d7 (then in benchmarks/):
+`git show 906d5d7:benchmarks/neubrdf_codebook_floor.py`, beside `git show 906d5d7:benchmarks/neubrdf_codebook_gap.py`.
 
     neumat fit SOURCE --model neubrdf --recipe cpu --set features=dense --set dense_warmup=0 --set vq_candidates=0 \\
         -o dense.nmat
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/studies/neubrdf/neubrdf_codebook_floor.py dense.nmat SOURCE \\
-        [--bits 9 10 12] [--weights uniform sensitivity] [--vq-steps 250 750]
+        [--bits 9 10 12] [--weights uniform sensitivity]
 """
 from __future__ import annotations
 
@@ -21,14 +22,11 @@ from dataclasses import replace
 
 import torch
 
-from .neubrdf_codebook_gap import train
 from neumat.catalog.modelfile import load_model
 from neumat.catalog.open_material import open_material
 from neumat.methods.neubrdf.feature_sensitivity import feature_sensitivity
 from neumat.fit.phase import FitContext
-from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.method import recipe_for
-from neumat.methods.neubrdf.train import SENSITIVITY_BATCHES
 from neumat.metrics.hdr import reflectance_errors
 from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.render.comparison import image_comparison, reference_renders
@@ -50,8 +48,6 @@ def main() -> None:
     ap.add_argument("source", help="the material it was fitted to")
     ap.add_argument("--bits", type=int, nargs="+", default=[9, 10, 12])
     ap.add_argument("--weights", nargs="+", default=["uniform"], choices=["uniform", "sensitivity"])
-    ap.add_argument("--vq-steps", type=int, nargs="*", default=[], help="blocks of VQ steps after the first size's "
-                    "plain k-means (8 candidates per slot)")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--spp", type=int, default=512)
     a = ap.parse_args()
@@ -75,20 +71,12 @@ def main() -> None:
         recipe = recipe_for("neubrdf", "cpu")
         ctx = FitContext(model=model, source=source, recipe=recipe, device=torch.device("cpu"),
                          generator=torch.Generator().manual_seed(recipe.seed))
-        weights["sensitivity"] = feature_sensitivity(ctx, SENSITIVITY_BATCHES, recipe.seed + 2)
+        weights["sensitivity"] = feature_sensitivity(ctx, ctx.opts.sensitivity_batches, recipe.seed + 2)
     for b in a.bits:
         for name in a.weights:
             t0 = time.perf_counter()
             vq = copy.deepcopy(model).quantize_from_dense(index_bits=b, weights=weights[name])
             row(f"{2 ** b} codewords, {name} k-means", vq.train(False), f"{time.perf_counter() - t0:.0f}")
-    if a.vq_steps:
-        vq = copy.deepcopy(model).quantize_from_dense(index_bits=a.bits[0], candidates=8)
-        row(f"{2 ** a.bits[0]} codewords, uniform k-means, 8 candidates per slot", vq.train(False))
-        draw, gen, done = QUERY_SAMPLERS.get("cosine")(source), torch.Generator().manual_seed(0), 0
-        for steps in a.vq_steps:
-            train(vq, source, draw, gen, steps, 2.5e-3)
-            done += steps
-            row(f"+ {done} VQ steps", vq)
 
 
 if __name__ == "__main__":
