@@ -100,7 +100,7 @@ def test_fine_bias_and_elongation_std_are_recipe_options_that_reach_the_draws(mo
     import neumat.methods.latent_mlp.train as multiscale
     with pytest.raises(InputError, match=r"option.fine_bias: expected a value > 0, got 0"):
         resolve_preset("tripleplane", "paper", overrides={"option.fine_bias": 0})
-    assert recipe_for("neumip", "cpu").options == {"fine_bias": 5.0, "elongation_std": 0.2}
+    assert recipe_for("neumip", "cpu").options == {"fine_bias": 5.0, "elongation_std": 0.2, "target_samples": 0}
     built = []
 
     class Recording:
@@ -118,3 +118,34 @@ def test_fine_bias_and_elongation_std_are_recipe_options_that_reach_the_draws(mo
     eig = torch.linalg.eigvalsh(q.footprint.double())
     want = (1 / q.wo[:, 2].clamp(min=0.01)).double()
     assert torch.allclose((eig[:, 1] / eig[:, 0]).sqrt(), torch.maximum(want, 1 / want), rtol=1e-4)
+
+
+def test_target_samples_filter_the_fits_targets_with_that_many_footprint_positions(monkeypatch):
+    """Option target_samples: the fit's source is a copy estimating each footprint with that many positions (the
+    same estimate as a source built with that count, drawn from the same generator); the user's source keeps its
+    own; 0 keeps the source's count, and a source without footprint filtering is used as it is."""
+    import neumat.methods.latent_mlp.train as train
+    from neumat.fit.footprint_queries import with_target_samples
+    from neumat.fit.method import recipe_for
+    from neumat.fit.phase import FitContext
+    from neumat.models.registry import build_model
+
+    source = _svbrdf(8)
+    copy = with_target_samples(source, 5)
+    assert copy.samples == 5 and source.samples == 1 and with_target_samples(source, 0) is source
+    lambert = Lambert()
+    assert with_target_samples(lambert, 5) is lambert
+    q = QUERY_SAMPLERS.get("footprint")(source)(64, torch.Generator().manual_seed(2), "cpu")
+    reference = _svbrdf(8)
+    reference.samples = 5
+    for material in (copy, reference):
+        material.generator.manual_seed(3)
+    assert torch.equal(copy.eval(q), reference.eval(q))
+    seen = []
+    monkeypatch.setattr(train, "online_phase", lambda ctx, *a, **k: seen.append(ctx.source.samples))
+    recipe = recipe_for("multiscale", "cpu")
+    recipe.options.update(target_samples=5)
+    ctx = FitContext(build_model({"type": "multiscale"}), source, recipe, torch.device("cpu"),
+                     torch.Generator().manual_seed(0), resuming=True)
+    train.phases(ctx)
+    assert seen == [5] and source.samples == 1

@@ -80,8 +80,10 @@ def run_job(job: dict, steps: int | None, overrides: list[str], samples: int) ->
     env = dict(os.environ, OMP_NUM_THREADS="1")
     with tempfile.TemporaryDirectory(prefix="neumat-sf-") as tmp:
         nmat, ckpt = Path(tmp) / "m.nmat", Path(tmp) / "m.ckpt"
+        # the targets' footprint positions: the source's count and the recipe option that would override it
         cmd = [neumat(), "fit", job["set"], "--model", job["model"], *src_opts, "--source-option", f"samples={samples}",
-               "--seed", str(job["seed"]), "-o", str(nmat), "--checkpoint", str(ckpt), "--threads", "1", "-q"]
+               "--set", f"option.target_samples={samples}", "--seed", str(job["seed"]), "-o", str(nmat),
+               "--checkpoint", str(ckpt), "--threads", "1", "-q"]
         if steps is not None:
             cmd += ["--steps", str(steps)]
         for kv in overrides:

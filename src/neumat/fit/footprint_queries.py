@@ -8,6 +8,7 @@ Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.fit.footprint_q
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -39,6 +40,21 @@ class FootprintOptions:
     """Exponent B of the fine-level bias of the footprint scales (larger: fine footprints drawn more often)."""
     elongation_std: float = bounded(ELONGATION_STD, ge=0)
     """Standard deviation of z2 in the footprints' elongation (1 + z2) / cos theta_o."""
+    target_samples: int = bounded(0, ge=0)
+    """Monte Carlo positions per footprint of each training target (`with_target_samples`); 0: the source's own
+    (a texture set's default, the paper's 256). Why: on a CPU the 256-position targets are most of a step's time,
+    and a target's noise averages out over the steps (unbiased estimates, an L2-type loss)."""
+
+
+def with_target_samples(source: Material, samples: int) -> Material:
+    """`source`, or with `samples` > 0 a shallow copy whose footprint estimates use `samples` positions (a source
+    that filters footprints by Monte Carlo has a `samples` attribute: `neumat.reflectance.svbrdf.SVBRDF`,
+    layered and conductor sets); a source without footprint filtering is returned as it is."""
+    if samples <= 0 or not hasattr(source, "samples"):
+        return source
+    out = copy.copy(source)
+    out.samples = int(samples)
+    return out
 
 
 def footprint_scale(e3: torch.Tensor, l_min: float = L_MIN, l_max: float = L_MAX,

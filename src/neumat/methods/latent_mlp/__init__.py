@@ -26,6 +26,12 @@ UNPRECONDITIONED_ON_CPU = ("multiscale", "tripleplane", "neumip", "neumip-frame"
 #: fit's last few hundred steps reach (selection_free.md, "A short-run optimiser")
 SHORT_RUN_OPTIMISER_ON_CPU = UNPRECONDITIONED_ON_CPU
 SHORT_RUN_OPTIMISER = {"recipe.betas": (0.9, 0.999), "recipe.ema": 0.02}
+#: the CPU recipe's budget for these models: 4000 steps on 32-position footprint targets instead of 1000 on the
+#: source's 256 (the paper's): the 256-position targets were 85-90 % of a step (0.66 s of a 1K set's step at 2^12
+#: queries against 0.20 s at 32), and at 1000 steps they fit no better than 8-position ones (mean FLIP within 4 %);
+#: the time goes to steps instead (a 1K set: about 13 min against 11; selection_free.md, "Where the CPU's time goes")
+LONG_RUN_ON_CPU = UNPRECONDITIONED_ON_CPU
+LONG_RUN = {"recipe.steps": 4000, "option.target_samples": 32}
 
 
 def recommended(model: str) -> Preset:
@@ -45,12 +51,16 @@ def recommended(model: str) -> Preset:
     short = model in SHORT_RUN_OPTIMISER_ON_CPU
     if short:
         cpu.update(SHORT_RUN_OPTIMISER)
+    long = model in LONG_RUN_ON_CPU
+    if long:
+        cpu.update(LONG_RUN)
     return Preset(
         "the paper's model, sized to the device, with the robust loss (Eq. 10 up to relative residual 10, a log "
         "tail beyond) and gradients clipped at norm 1 (no blow-up on polished metal or stall after a loss spike); "
         "on a CPU at learning rate 1e-2" + (" without the spatial preconditioner" if plain else "")
-        + (", Adam beta1 0.9 and EMA weight 0.02" if short else "") + " (a lower mean FLIP on every crop measured "
-        "than with the paper's settings at the CPU recipe's 1000 steps)",
+        + (", Adam beta1 0.9 and EMA weight 0.02" if short else "")
+        + (", 4000 steps on 32-sample footprint targets instead of 1000 on 256" if long else "")
+        + " (a lower mean FLIP on every crop measured than with the paper's settings at the CPU recipe)",
         overrides={"recipe.loss": "relative_l2_robust", "recipe.grad_clip": 1.0}, by_recipe={"cpu": cpu})
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from neumat.core.config import config_to_dict
-from neumat.fit.footprint_queries import FootprintOptions
+from neumat.fit.footprint_queries import FootprintOptions, with_target_samples
 from neumat.fit.phase import FitContext, Phase, online_phase
 from neumat.fit.query_samplers import QUERY_SAMPLERS
 from neumat.fit.recipe import Recipe, latent_size_for_source
@@ -32,10 +32,11 @@ HOMOGENEOUS_RECIPE = Recipe(steps=100_000, batch_size=1 << 18, lr=3e-3, betas=(0
 
 def phases(ctx: FitContext) -> list[Phase]:
     """One online phase; the "footprint" and "footprint-uv" samplers draw with the options fine_bias and
-    elongation_std."""
+    elongation_std; targets are filtered with the option target_samples."""
+    o = ctx.opts
+    ctx = replace(ctx, source=with_target_samples(ctx.source, o.target_samples))
     name = ctx.queries if ctx.queries is not None else ctx.recipe.queries
     if name in ("footprint", "footprint-uv"):
-        o = ctx.opts
         draw = QUERY_SAMPLERS.get(name)(ctx.source, ctx.model, fine_bias=o.fine_bias, elongation_std=o.elongation_std)
         ctx = replace(ctx, queries=draw)
     return [online_phase(ctx)]

@@ -17,7 +17,7 @@ from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.methods.neural_appearance.directional_blur import blur_angle, blurred_eval
-from neumat.fit.footprint_queries import FootprintOptions, footprint_queries
+from neumat.fit.footprint_queries import FootprintOptions, footprint_queries, with_target_samples
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
 from neumat.methods.neural_appearance.proxy_train import proxy_kl_loss
 from neumat.models.half_precision import snap_to_half_, with_half_parameters
@@ -105,6 +105,7 @@ def phases(ctx: FitContext) -> list[Phase]:
     draw_filtered = footprint_queries(source, texel_relative=False, fine_bias=o.fine_bias,
                                       elongation_std=o.elongation_std)
     draw_directions = query_draw(ctx)
+    targets = with_target_samples(source, o.target_samples)  # the BRDF targets' footprint samples
     albedo = model.cfg.albedo
 
     def target_of(q: Query, step: int) -> torch.Tensor:
@@ -112,7 +113,7 @@ def phases(ctx: FitContext) -> list[Phase]:
         both phases."""
         angle = blur_angle(step, total_steps, o.blur_degrees, o.blur_until)
         with torch.no_grad():
-            return blurred_eval(source, q, angle, o.blur_samples, gen)
+            return blurred_eval(targets, q, angle, o.blur_samples, gen)
 
     def albedo_estimate(q: Query) -> torch.Tensor:
         """One-sample estimates (N, 3) of the source's albedo at q's x and wo: f(w', wo) cos(theta') / p(w'), w'
