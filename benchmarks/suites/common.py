@@ -166,6 +166,19 @@ def recipe_budget(models: list[str], steps: int | None = None) -> str:
     return "; ".join(f"{m} {steps or recipe_for(m, 'cpu').steps} x {recipe_for(m, 'cpu').batch_size}" for m in models)
 
 
+def default_budget(models: list[str]) -> str:
+    """'model steps x batch' of each model's default preset on a CPU, with its targets' footprint samples where the
+    preset sets them (option target_samples)."""
+    from neumat.fit.preset import resolve_preset
+
+    parts = []
+    for m in models:
+        r = resolve_preset(m, device="cpu").recipe
+        samples = r.options.get("target_samples")
+        parts.append(f"{m} {r.steps} x {r.batch_size}" + (f" ({samples}-sample targets)" if samples else ""))
+    return "; ".join(parts)
+
+
 def paper_budget(models: list[str]) -> str:
     """'model: steps x batch' of each model's paper recipe."""
     return "; ".join(f"{m} {recipe_for(m, 'paper').steps} x {recipe_for(m, 'paper').batch_size}" for m in models)

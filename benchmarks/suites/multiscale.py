@@ -3,7 +3,7 @@ texture sets, through `neumat fit-many` at the default presets (Tables 4 and 6 o
 from __future__ import annotations
 
 from .. import harness
-from .common import paper_budget, quality_rows, recipe_budget, summary_rows, texture_set_fits
+from .common import default_budget, paper_budget, quality_rows, summary_rows, texture_set_fits
 
 NAME = "multiscale"
 DESCRIPTION = "the multi-scale gated SVBRDF against neumip, tripleplane, nbrdf-uv and ggx-mipmap, through fit-many"
@@ -14,7 +14,7 @@ BUDGET = {
     "quick": {"ours": "multiscale and ggx-mipmap, 10 steps x 256 on Wood092_1K at 32^2 texels with 8-sample "
                        "footprint targets, one seed; scale series of 3 scales at 16^2 pixels",
               "paper": paper_budget(MODELS) + " on a GPU", "expected_wall": "about 10 s"},
-    "full": {"ours": f"default presets (CPU recipes {recipe_budget(MODELS)}); "
+    "full": {"ours": f"default presets on a CPU: {default_budget(MODELS)}; "
                      "6 texture sets at 256^2 texels x 5 models, seeds 0 and "
                      "1 (60 fits); sphere images 128^2 at 64 spp; the scale series (9 scales x 4 lights x 3 tilts, 48^2 pixels) "
                      "of every fit",

@@ -3,7 +3,7 @@ ggx-mipmap baselines on the shared texture sets, through `neumat fit-many` at th
 from __future__ import annotations
 
 from .. import harness
-from .common import paper_budget, quality_rows, recipe_budget, summary_rows, texture_set_fits
+from .common import default_budget, paper_budget, quality_rows, summary_rows, texture_set_fits
 
 NAME = "neural-appearance"
 DESCRIPTION = "neural-appearance against neumip-frame and ggx-mipmap on the texture sets, through fit-many"
@@ -14,7 +14,7 @@ BUDGET = {
     "quick": {"ours": "neural-appearance, 10 steps x 256 on Wood092_1K at 32^2 texels with 8-sample footprint "
                        "targets, one seed; sampler variance at 4 points x 64 samples",
               "paper": paper_budget(MODELS[:1]) + " on a GPU", "expected_wall": "about 5 s"},
-    "full": {"ours": f"default presets (CPU recipes {recipe_budget(MODELS)}); "
+    "full": {"ours": f"default presets on a CPU: {default_budget(MODELS)}; "
                      "6 texture sets at 256^2 texels x 3 models, seeds 0 "
                      "and 1 (36 fits); sphere images 128^2 at 64 spp; sampler variance of each neural-appearance fit at 64 "
                      "texture points x 1024 samples x 3 elevations",
