@@ -306,6 +306,8 @@ def test_a_loss_spike_that_stalls_the_fit_says_so():
     (text,) = loss_spikes(_records(stalled), "m")
     assert "phase 'fit' spiked to loss 2.311e+05 at step 200, 2.53e+05x its lowest before (0.915)" in text
     assert "recipe.grad_clip=1" in text
+    (clipped,) = loss_spikes(_records(stalled), "m", grad_clip=1.0)
+    assert "grad_clip" not in clipped.split("try ")[1].split(";")[0] and "clipped at norm 1)" in clipped
     transient = [1.305, 7.146, 7.956, 13.155, 9.042, 12.691, 7.997, 10.532, 8.609, 9.902, 8.588, 9.202, 7.863]
     assert loss_spikes(_records(transient), "m") == []
     phases = _records([1e-6, 1e-6]) + _records([SPIKE * 2e-6, 1.0], phase="refine", start=100)

@@ -185,7 +185,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     if ema is not None:
         model.load_state_dict(ema.state_dict())
     model.train(False)
-    problems = ended_above_best(state["history"], name) + loss_spikes(state["history"], name)
+    problems = ended_above_best(state["history"], name) + loss_spikes(state["history"], name, recipe.grad_clip)
     for text in problems:
         warnings.warn(text, FitWarning, stacklevel=2)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
@@ -234,9 +234,10 @@ def ended_above_best(history: list[dict], name: str) -> list[str]:
     return out
 
 
-def loss_spikes(history: list[dict], name: str) -> list[str]:
+def loss_spikes(history: list[dict], name: str, grad_clip: float = 0.0) -> list[str]:
     """One message per phase of `history` with a record more than SPIKE times the lowest finite, positive record
-    before it in that phase (the largest such spike of the phase)."""
+    before it in that phase (the largest such spike of the phase); its advice: clipping the gradient, unless the
+    fit clipped already (`grad_clip` > 0), then a lower learning rate."""
     out = []
     for phase in dict.fromkeys(r["phase"] for r in history):
         lowest, worst = math.inf, None
@@ -249,7 +250,9 @@ def loss_spikes(history: list[dict], name: str) -> list[str]:
             ratio, r, before = worst
             out.append(f"fit {name}: phase {phase!r} spiked to loss {r['loss']:.4g} at step {r['step']}, "
                        f"{ratio:.3g}x its lowest before ({before:.4g}); a spike can stall Adam for hundreds of "
-                       "steps: if the fit ended poorly, try --set recipe.grad_clip=1")
+                       "steps: if the fit ended poorly, try "
+                       + (f"a lower learning rate (--set recipe.lr=...; gradients were clipped at norm {grad_clip:g})"
+                          if grad_clip > 0 else "--set recipe.grad_clip=1"))
     return out
 
 
