@@ -20,7 +20,8 @@ RECIPE = Recipe(steps=500_000, batch_size=1 << 16, lr=3e-3, betas=(0.99, 0.999),
                 lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint",
                 options=config_to_dict(Options()))
 
-#: RECIPE's first 1000 steps at 2^12 queries: about 10 minutes on one CPU core for a 1K set (module docstring)
+#: RECIPE's first 1000 steps at 2^12 queries on the source's targets (the recommended preset trains longer on cheaper
+#: targets: `LONG_RUN` in __init__.py)
 CPU_RECIPE = Recipe(steps=1000, batch_size=1 << 12, lr=3e-3, betas=(0.99, 0.999), eps=1e-15, lr_decay=0.9,
                     lr_decay_every=10_000, ema=0.005, loss="relative_l2_mix", queries="footprint", checkpoint_every=200,
                     options=config_to_dict(Options()))
