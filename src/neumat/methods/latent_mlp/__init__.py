@@ -28,7 +28,7 @@ SHORT_RUN_OPTIMISER_ON_CPU = UNPRECONDITIONED_ON_CPU
 SHORT_RUN_OPTIMISER = {"recipe.betas": (0.9, 0.999), "recipe.ema": 0.02}
 #: the CPU recipe's budget for these models: 4000 steps on 32-position footprint targets instead of 1000 on the
 #: source's 256 (the paper's): the 256-position targets were 85-90 % of a step (0.66 s of a 1K set's step at 2^12
-#: queries against 0.20 s at 32), and at 1000 steps they fit no better than 8-position ones (mean FLIP within 4 %);
+#: queries against 0.20 s at 32), and at 1000 steps they fit no better than 8-position ones (mean FLIP within 6 %);
 #: the time goes to steps instead (a 1K set: about 13 min against 11; selection_free.md, "Where the CPU's time goes")
 LONG_RUN_ON_CPU = UNPRECONDITIONED_ON_CPU
 LONG_RUN = {"recipe.steps": 4000, "option.target_samples": 32}
