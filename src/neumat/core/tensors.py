@@ -71,9 +71,10 @@ def inference_call(fn: Callable[..., torch.Tensor], *args) -> torch.Tensor:
 
 def by_rows(fn: Callable[..., Any], chunk: int, *tensors: Any) -> Any:
     """fn(*tensors) evaluated on consecutive slices of at most `chunk` rows of `tensors` (tensors or `Query`s), the
-    results (tensors, or dataclasses of tensors such as `Sample`) concatenated along rows. Why: an element-wise chain over N rows makes N-sized
-    temporaries that leave the cache once N is large; on slices that stay in cache the cost per row does not grow
-    with N (issue 49: GGX 1.5-3x slower per query at 2^20 than at 2^16). Autograd flows through the slices."""
+    results (tensors, or dataclasses of tensors such as `Sample`) concatenated along rows. Why: an element-wise
+    chain over N rows makes N-sized temporaries that leave the cache once N is large; on slices that stay in cache
+    the cost per row does not grow with N (issue 49: GGX 1.5-3x slower per query at 2^20 than at 2^16). Autograd
+    flows through the slices."""
     n = len(tensors[0])
     if n <= chunk:
         return fn(*tensors)

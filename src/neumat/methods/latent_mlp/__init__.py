@@ -69,7 +69,8 @@ def recommended(model: str) -> Preset:
 MEASURED = {
     "multiscale": "the default for texture sets with normal detail or metal (on a CPU; `neumat.methods.latent_mlp."
                   "regime`): at the session-47 CPU default (1000 steps), mean FLIP over 9 scales below "
-                  "tripleplane's on 7 of 10 random crops x seeds where normals vary (0.73-1.03x) and on 3 of 5 flat-metal ones (0.81-1.10x); the "
+                  "tripleplane's on 7 of 10 random crops x seeds where normals vary (0.73-1.03x) and on 3 of 5 "
+                  "flat-metal ones (0.81-1.10x); the "
                   "lowest mean FLIP of all latent-texture models over random crops",
     "tripleplane": "the default for flat dielectric texture sets on a CPU (mean normal tilt < 5 degrees, metalness "
                    "< 0.5): ahead of the gated model on flat wood and leather (it scores 1.05-1.26x tripleplane's "
