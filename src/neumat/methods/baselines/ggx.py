@@ -22,6 +22,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import sample_weight, upper_hemisphere
 from neumat.core.query import Query, Sample
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
@@ -172,23 +173,18 @@ class GGXFit(LearnedMaterial):
             self._constants = (key, out)
         return out
 
-    def eval(self, q: Query, chunk: int = 2 ** 14) -> torch.Tensor:
-        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon. Evaluated on chunks of `chunk`
-        queries, whose temporaries stay in cache (the cost per query does not grow with N)."""
+    #: rows per slice of eval (`by_rows`): its element-wise chain is short, so larger slices than the default pay
+    eval_chunk = 2 ** 14
+
+    def eval(self, q: Query, chunk: int | None = None) -> torch.Tensor:
+        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon. Evaluated on slices of `chunk`
+        queries (default `eval_chunk`), whose temporaries stay in cache (the cost per query does not grow with N)."""
         q.require("wo", who="GGXFit.eval")
         dtype = self.raw_alpha.dtype
-        wi, wo = q.wi.to(dtype), q.wo.to(dtype)
         consts = self._eval_constants(dtype)
-        n = wi.shape[0]
-        if n <= chunk:
-            return _ggx_eval(wi, wo, *consts).to(q.dtype)
-        if torch.is_grad_enabled():
-            return torch.cat([_ggx_eval(wi[s:s + chunk], wo[s:s + chunk], *consts)
-                              for s in range(0, n, chunk)]).to(q.dtype)
-        out = torch.empty(n, 3, dtype=dtype, device=wi.device)
-        for s in range(0, n, chunk):
-            out[s:s + chunk] = _ggx_eval(wi[s:s + chunk], wo[s:s + chunk], *consts)
-        return out.to(q.dtype)
+        f = by_rows(lambda wi, wo: _ggx_eval(wi, wo, *consts), chunk or self.eval_chunk, q.wi.to(dtype),
+                    q.wo.to(dtype))
+        return f.to(q.dtype)
 
     def forward(self, q: Query) -> torch.Tensor:
         return self.eval(q)
