@@ -96,7 +96,16 @@ def machine() -> dict:
         "python": platform.python_version(),
         "versions": {p: _version(p) for p in PACKAGES},
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "cpu_kernels": _cpu_kernels(),
     }
+
+
+def _cpu_kernels() -> str:
+    """Whether models evaluated through `neumat.nn.cpu_kernels` in this run ("on", or "off: " and why)."""
+    from neumat.nn import cpu_kernels
+
+    why = cpu_kernels.unavailable()
+    return "on" if why is None else f"off: {why}"
 
 
 def _dirty() -> bool:
@@ -328,7 +337,9 @@ def markdown(doc: dict) -> str:
              f"    {doc['command']}", "",
              f"commit `{m['commit'][:12]}`{' (dirty)' if m['dirty'] else ''}, {m['date']}, {m['host']}: {m['cpu']}, "
              f"{m['threads']} thread(s) of {m['cores']} cores, device {m['device']}, load {m['load']}; "
-             f"torch {m['versions']['torch']}. Wall {doc['wall_seconds']} s, CPU {doc['cpu_seconds']} s.", "",
+             f"torch {m['versions']['torch']}"
+             + (f", CPU kernels {m['cpu_kernels']}" if "cpu_kernels" in m else "")
+             + f". Wall {doc['wall_seconds']} s, CPU {doc['cpu_seconds']} s.", "",
              f"Budget: {budget['ours']}. Paper: {budget['paper']}. Expected wall time on 2 cores: "
              f"{budget['expected_wall']}.", "",
              f"Timer: {doc['harness']['timer']} (N = {doc['harness']['repeats']}, min "

@@ -25,6 +25,7 @@ from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows, inference_call
 from neumat.models.base import LearnedMaterial
+from neumat.nn import cpu_kernels
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
 
@@ -135,6 +136,11 @@ class NBRDF(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NBRDF.eval")
+        if cpu_kernels.usable(q.wi, q.wo, self.mlp.net[0].weight):
+            mlp = cpu_kernels.packed(self, self.mlp.net)
+            if mlp is not None:  # one fused C call (neumat.nn.cpu_kernels); the same values as the torch path
+                return cpu_kernels.nbrdf_eval(mlp, q.wi, q.wo, self.cfg.half == "theta", self.cfg.fold_phi_d,
+                                              self.cfg.output == "exp_minus_one")
         return inference_call(self._eval_by_rows, q.wi, q.wo)
 
     def _eval_by_rows(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:

@@ -24,6 +24,7 @@ from neumat.core.query import Query
 from neumat.core.tensors import cached_tensor, inference_call
 from neumat.models.base import LearnedMaterial
 from neumat.methods.baselines.nbrdf import NBRDF
+from neumat.nn import cpu_kernels
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, LowBitFeatures, VQFeatures, float_bits, storage_bytes
 from neumat.nn.codebook_kmeans import vq_from_dense
@@ -299,9 +300,26 @@ class NeuBRDF(LearnedMaterial):
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NeuBRDF.eval")
         if self._runtime_table is not None and self.texture is None and not torch.is_grad_enabled():
+            fast = self._kernel_eval(q.wi, q.wo)
+            if fast is not None:
+                return fast
             return inference_call(self._masked_runtime_eval, q.wi, q.wo)
         f = torch.exp(self.mlp(self.features(q)))
         return zero_below_horizon(f, q.wi, q.wo).to(q.dtype)
+
+    def _kernel_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor | None:
+        """The runtime form's `eval` as one fused C call (`neumat.nn.cpu_kernels`; the same values as
+        `_masked_runtime_eval`), or None where the kernel does not apply: other weights or inputs than the paper's
+        (inverse-distance corners, direction inputs), other dtypes, no compiler."""
+        table = self._runtime_table
+        if self.cfg.interpolation != "uniform" or self.cfg.direction_inputs != "none" or \
+                not cpu_kernels.usable(wi, wo, table) or len(self.mlp.net) < 3:
+            return None
+        first = cpu_kernels.activation_code(self.mlp.net[1])
+        mlp = cpu_kernels.packed(self, self.mlp.net, start=2)
+        if first is None or mlp is None:
+            return None
+        return cpu_kernels.neubrdf_eval(mlp, wi, wo, self.cfg.nside, table, first)
 
     def _masked_runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """`eval` of the runtime form (`_runtime_eval`, 0 below the horizon), without the dtype conversions

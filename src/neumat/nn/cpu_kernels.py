@@ -1,0 +1,267 @@
+"""Fused CPU kernels for small-MLP evaluation without autograd (`cpu_kernels.c`), compiled at first use.
+
+Why: a small decoder's evaluation in torch is some 30 to 60 tensor operations (1 to 2 us of dispatch each) over
+layers too narrow for sgemm to run near its speed; one C call per batch costs a few microseconds and keeps each block
+of rows in registers (issue 49: NBRDF 2.8x the torch rate at 2^16 queries, 65 -> 4 us per call of one query).
+
+The source is compiled with the system's C compiler (`$CC`, else `cc`) for this CPU (`-O3 -march=native`) into
+`$NEUMAT_CACHE_DIR` (default `~/.cache/neumat`)/cpu_kernels/<hash>/, once per source, compiler and CPU. Where no
+compiler works, or `NEUMAT_CPU_KERNELS=0`, `library()` is None and callers keep their torch path (`unavailable()`
+says why). Callers use a kernel only for float32 CPU tensors with autograd off; results match the torch path
+within float32 rounding (tests/nn/test_cpu_kernels.py)."""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import torch
+from torch import nn
+
+SOURCE = Path(__file__).with_name("cpu_kernels.c")
+FLAGS = ("-O3", "-march=native", "-mprefer-vector-width=512", "-fno-math-errno", "-fno-trapping-math", "-fPIC",
+         "-shared")
+MAX_WIDTH = 256
+"""Widest layer (padded to a multiple of 4) the kernels' block buffers hold (`MAX_WIDTH` in the C source)."""
+ACTIVATION_CODES = {nn.ReLU: 1, nn.LeakyReLU: 2}
+"""Hidden activations the kernels implement (leaky ReLU at torch's default slope 0.01 only)."""
+PARALLEL_ROWS = 1 << 14
+"""Rows from which a call is split over torch's intra-op thread count (ctypes releases the GIL)."""
+
+_lock = threading.Lock()
+_state: dict = {}
+
+
+def _cpu_signature() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "Features")):
+                return line
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _cache_dir() -> Path:
+    return Path(os.environ.get("NEUMAT_CACHE_DIR") or Path.home() / ".cache" / "neumat") / "cpu_kernels"
+
+
+def _compile() -> ctypes.CDLL:
+    cc = os.environ.get("CC") or "cc"
+    if shutil.which(cc) is None:
+        raise RuntimeError(f"no C compiler ({cc!r} not found; set CC)")
+    version = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=30).stdout
+    key = hashlib.sha256("\0".join([SOURCE.read_text(), cc, version, *FLAGS, _cpu_signature()]).encode())
+    folder = _cache_dir() / key.hexdigest()[:16]
+    lib = folder / "libneumat_cpu_kernels.so"
+    if not lib.exists():
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, suffix=".so", delete=False) as tmp:
+            partial = Path(tmp.name)
+        try:
+            done = subprocess.run([cc, *FLAGS, "-o", str(partial), str(SOURCE), "-lm"], capture_output=True,
+                                  text=True, timeout=120)
+            if done.returncode != 0:
+                raise RuntimeError(f"{cc} failed: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
+            partial.replace(lib)  # atomic: a concurrent process sees the whole library or none
+        finally:
+            partial.unlink(missing_ok=True)
+    return ctypes.CDLL(str(lib))
+
+
+def library() -> ctypes.CDLL | None:
+    """The compiled kernels, or None where they cannot be built or are switched off (`unavailable`)."""
+    if "lib" not in _state:
+        with _lock:
+            if "lib" not in _state:
+                if os.environ.get("NEUMAT_CPU_KERNELS", "1") == "0":
+                    _state["lib"], _state["why"] = None, "switched off by NEUMAT_CPU_KERNELS=0"
+                else:
+                    try:
+                        _state["lib"], _state["why"] = _compile(), None
+                    except (OSError, RuntimeError, subprocess.SubprocessError) as e:
+                        _state["lib"], _state["why"] = None, str(e).splitlines()[0]
+    return _state["lib"]
+
+
+def unavailable() -> str | None:
+    """Why `library()` is None (None when the kernels are there)."""
+    library()
+    return _state["why"]
+
+
+def reset() -> None:
+    """Forget the loaded library and its reason, so that the next `library()` looks again (tests)."""
+    with _lock:
+        _state.clear()
+
+
+def usable(*tensors: torch.Tensor) -> bool:
+    """Whether a kernel may evaluate these inputs: the kernels exist, autograd is off, all are float32 on the CPU."""
+    if torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
+        return False
+    if any(t.dtype != torch.float32 or t.device.type != "cpu" for t in tensors):
+        return False
+    return library() is not None
+
+
+class PackedMLP:
+    """An `neumat.nn.mlp.MLP`'s Linear / activation chain as the kernels read it: float32 weights, each layer's rows
+    (and the next layer's columns) zero-padded to a multiple of 4, pointer arrays. None from `pack` where the chain
+    is not one the kernels implement (another activation, an output activation, a layer wider than MAX_WIDTH)."""
+
+    def __init__(self, weights: list[torch.Tensor], biases: list[torch.Tensor], hidden_act: int, out_dim: int):
+        self.weights, self.biases = weights, biases  # kept alive: the pointer arrays point into them
+        self.layers = len(weights)
+        self.dims = (ctypes.c_int * (self.layers + 1))(weights[0].shape[1], *(w.shape[0] for w in weights))
+        pointers = ctypes.c_void_p * self.layers
+        self.w = pointers(*(w.data_ptr() for w in weights))
+        self.b = pointers(*(b.data_ptr() for b in biases))
+        self.hidden_act = hidden_act
+        self.out_dim = out_dim
+
+    @staticmethod
+    def pack(layers: list[nn.Module] | nn.Sequential) -> "PackedMLP | None":
+        """The chain Linear, activation, ..., Linear of `layers` packed, or None (class docstring)."""
+        layers = list(layers)
+        linears = [m for m in layers if isinstance(m, nn.Linear)]
+        acts = [m for m in layers if not isinstance(m, nn.Linear)]
+        if not linears or layers[-1] is not linears[-1] or len(acts) != len(linears) - 1:
+            return None
+        if any(not isinstance(layers[2 * i + 1], type(acts[0])) for i in range(len(acts))):
+            return None
+        code = activation_code(acts[0]) if acts else 1
+        if code is None or any(activation_code(a) != code for a in acts):
+            return None
+        weights, biases, cols = [], [], linears[0].in_features
+        for lin in linears:
+            rows = -(-lin.out_features // 4) * 4
+            if rows > MAX_WIDTH or cols > MAX_WIDTH:
+                return None
+            w = torch.zeros(rows, cols)
+            w[:lin.out_features, :lin.in_features] = lin.weight.detach().float().cpu()
+            b = torch.zeros(rows)
+            if lin.bias is not None:
+                b[:lin.out_features] = lin.bias.detach().float().cpu()
+            weights.append(w)
+            biases.append(b)
+            cols = rows
+        return PackedMLP(weights, biases, code, linears[-1].out_features)
+
+
+def activation_code(module: nn.Module) -> int | None:
+    """The kernels' code of a hidden activation module (`ACTIVATION_CODES`), None where they lack it."""
+    code = ACTIVATION_CODES.get(type(module))
+    return None if code == 2 and module.negative_slope != 0.01 else code
+
+
+def packed(owner: nn.Module, net: nn.Sequential, start: int = 0) -> PackedMLP | None:
+    """`PackedMLP.pack(net[start:])`, kept on `owner` while `net`'s parameters are the same tensors, unchanged
+    (storage and in-place version: copy_, load_state_dict and optimiser steps bump it). Checked on every call in a
+    few microseconds (module attribute lookups would cost more than the kernel's call)."""
+    kept = owner.__dict__.setdefault("_packed_mlps", {}).get(start)
+    if kept is not None and kept[0] is net and _stamp(kept[1]) == kept[2]:
+        return kept[3]
+    layers = list(net)[start:]
+    linears = [m for m in layers if isinstance(m, nn.Linear)]
+    value = PackedMLP.pack(layers)
+    owner.__dict__["_packed_mlps"][start] = (net, linears, _stamp(linears), value)
+    return value
+
+
+def _stamp(linears: list[nn.Linear]) -> list:
+    return [(id(p), p.data_ptr(), p._version) for lin in linears for p in lin._parameters.values() if p is not None]
+
+
+_pool: list[ThreadPoolExecutor] = []
+
+
+def by_threads(run, n: int) -> None:
+    """run(start, stop) over row ranges covering 0..n: one range below PARALLEL_ROWS rows or on one torch thread,
+    else one per torch intra-op thread, run concurrently (each call releases the GIL inside the C kernel)."""
+    threads = torch.get_num_threads()
+    if n < PARALLEL_ROWS or threads <= 1:
+        run(0, n)
+        return
+    if not _pool or _pool[0]._max_workers != threads:
+        _pool[:] = [ThreadPoolExecutor(threads, thread_name_prefix="neumat-cpu-kernels")]
+    step = -(-n // threads)
+    list(_pool[0].map(lambda s: run(s, min(s + step, n)), range(0, n, step)))
+
+
+def _check(status: int) -> None:
+    if status != 0:
+        raise MemoryError("neumat.nn.cpu_kernels: no memory for a kernel's block buffers (192 KB)")
+
+
+def _ptr(t: torch.Tensor, row: int = 0) -> ctypes.c_void_p:
+    return ctypes.c_void_p(t.data_ptr() + row * t.stride(0) * t.element_size())
+
+
+def nbrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, half_theta: bool, fold: bool,
+               exp_minus_one: bool) -> torch.Tensor:
+    """NBRDF's evaluation (`neumat.methods.baselines.nbrdf`) of float32 directions (N, 3): (N, out_dim)."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    out = torch.empty(len(wi), mlp.out_dim)
+    fn = lib.nbrdf_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), mlp.layers, mlp.dims, mlp.w, mlp.b,
+                  mlp.hidden_act, int(half_theta), int(fold), int(exp_minus_one), mlp.out_dim, _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
+def neubrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, nside: int, table: torch.Tensor,
+                 first_act: int) -> torch.Tensor:
+    """NeuBRDF's runtime form (`neumat.methods.neubrdf.model`, uniform corner weights, no direction inputs) of
+    float32 directions (N, 3): (N, out_dim). table: the first-layer table (24 nside^2, hidden), float32;
+    first_act: the code of the activation after the first layer; mlp: the layers after it."""
+    lib = library()
+    wi, wo, table = wi.contiguous(), wo.contiguous(), table.contiguous()
+    out = torch.empty(len(wi), mlp.out_dim)
+    fn = lib.neubrdf_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), nside, _ptr(table), table.shape[1],
+                  first_act, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
+def mlp_forward(mlp: PackedMLP, x: torch.Tensor) -> torch.Tensor:
+    """The packed MLP of float32 rows x (N, in): (N, out_dim)."""
+    lib = library()
+    x = x.contiguous()
+    out = torch.empty(len(x), mlp.out_dim)
+    fn = lib.mlp_forward
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(x, start), ctypes.c_long(stop - start), mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act,
+                  mlp.out_dim, _ptr(out, start)))
+    by_threads(run, len(x))
+    return out
+
+
+def ring_pixels(nside: int, xyz: torch.Tensor) -> torch.Tensor:
+    """The kernels' HEALPix ring pixels (N,) int32 of float32 unit vectors (N, 3) (tests)."""
+    xyz = xyz.float().contiguous()
+    out = torch.empty(len(xyz), dtype=torch.int32)
+    library().ring_pixels_of(_ptr(xyz), ctypes.c_long(len(xyz)), nside, _ptr(out))
+    return out
+
+
+def exp_values(x: torch.Tensor, minus_one: bool) -> torch.Tensor:
+    """The kernels' exp (or expm1) of float32 values (tests)."""
+    x = x.float().contiguous()
+    out = torch.empty_like(x)
+    library().exp_values(_ptr(x), ctypes.c_long(x.numel()), int(minus_one), _ptr(out))
+    return out

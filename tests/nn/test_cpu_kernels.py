@@ -1,0 +1,227 @@
+"""neumat.nn.cpu_kernels: the fused C kernels against float64 and the torch paths they replace, and their fallback."""
+import math
+
+import pytest
+import torch
+from torch import nn
+
+from neumat.core.query import Query
+from neumat.methods.baselines.nbrdf import NBRDF
+from neumat.nn import cpu_kernels
+from neumat.nn.mlp import MLP
+
+needs_kernels = pytest.mark.skipif(cpu_kernels.library() is None,
+                                   reason=f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+
+
+@pytest.fixture
+def fresh_kernels(monkeypatch, tmp_path):
+    """A library state to change (environment, cache folder), restored after the test."""
+    monkeypatch.setenv("NEUMAT_CACHE_DIR", str(tmp_path))
+    cpu_kernels.reset()
+    yield monkeypatch
+    cpu_kernels.reset()
+
+
+def test_switched_off_by_the_environment(fresh_kernels):
+    fresh_kernels.setenv("NEUMAT_CPU_KERNELS", "0")
+    assert cpu_kernels.library() is None
+    assert "NEUMAT_CPU_KERNELS=0" in cpu_kernels.unavailable()
+    assert not cpu_kernels.usable(torch.zeros(2, 3))
+
+
+def test_without_a_compiler_models_keep_the_torch_path(fresh_kernels):
+    fresh_kernels.setenv("CC", "/nonexistent/cc")
+    assert cpu_kernels.library() is None
+    assert "no C compiler" in cpu_kernels.unavailable()
+    model = NBRDF(init_range=0.5)
+    wi = torch.tensor([[0.0, 0.0, 1.0]])
+    with torch.no_grad():
+        assert torch.isfinite(model.eval(Query(wi, wi))).all()
+
+
+def test_a_failing_compiler_is_named(fresh_kernels):
+    fresh_kernels.setenv("CC", "false")
+    assert cpu_kernels.library() is None
+    assert "false failed" in cpu_kernels.unavailable()
+
+
+@needs_kernels
+@pytest.mark.parametrize("minus_one", [False, True])
+def test_exp_and_expm1_within_float32_rounding_of_float64(minus_one):
+    x = torch.cat([torch.linspace(-87, 88, 20001), torch.linspace(-1, 1, 20001), torch.logspace(-30, -1, 200),
+                   -torch.logspace(-30, -1, 200), torch.tensor([0.0, 0.5, -0.5, 0.49999997, -0.49999997])])
+    got = cpu_kernels.exp_values(x, minus_one).double()
+    ref = torch.expm1(x.double()) if minus_one else torch.exp(x.double())
+    rel = (got - ref).abs() / ref.abs().clamp(min=1e-300)
+    assert rel.max() < 4 * 2.0 ** -23, (x[rel.argmax()], got[rel.argmax()], ref[rel.argmax()])
+
+
+def _random_mlp(in_dim, hidden, layers, out_dim, activation, seed):
+    torch.manual_seed(seed)
+    mlp = MLP(in_dim, hidden, layers, out_dim, activation)
+    with torch.no_grad():
+        for lin in mlp.linears():
+            lin.weight.uniform_(-1 / math.sqrt(lin.in_features), 1 / math.sqrt(lin.in_features))
+            lin.bias.uniform_(-0.5, 0.5)
+    return mlp
+
+
+@needs_kernels
+@pytest.mark.parametrize("dims", [(6, 21, 2, 3), (1, 1, 1, 1), (17, 64, 3, 7), (40, 200, 1, 5), (3, 8, 0, 2)])
+@pytest.mark.parametrize("activation", ["relu", "leaky_relu"])
+@pytest.mark.parametrize("n", [1, 63, 64, 65, 1000])
+def test_mlp_forward_equals_torch(dims, activation, n):
+    mlp = _random_mlp(*dims, activation, seed=n)
+    x = torch.randn(n, dims[0], generator=torch.Generator().manual_seed(1))
+    packed = cpu_kernels.PackedMLP.pack(mlp.net)
+    with torch.no_grad():
+        torch.testing.assert_close(cpu_kernels.mlp_forward(packed, x), mlp(x), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("net", [
+    MLP(4, 8, 2, 3, "silu").net,                     # an activation the kernels lack
+    MLP(4, 8, 2, 3, "relu", out_activation="exp").net,  # an output activation
+    MLP(4, 300, 1, 3, "relu").net,                   # wider than the block buffers
+    nn.Sequential(nn.Linear(4, 8), nn.LeakyReLU(0.2), nn.Linear(8, 3)),  # another slope
+    nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.LeakyReLU(), nn.Linear(8, 3)),  # not Linear / activation pairs
+])
+def test_chains_the_kernels_do_not_implement_are_refused(net):
+    assert cpu_kernels.PackedMLP.pack(net) is None
+
+
+def _directions(n, seed):
+    """Unit directions over the whole sphere (some below the horizon) plus the awkward cases: normal incidence,
+    wi = wo, mirror pairs (h at the pole), grazing."""
+    g = torch.Generator().manual_seed(seed)
+    wi = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    wo = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    wi[:, 2] = wi[:, 2].abs() * torch.where(torch.rand(n, generator=g) < 0.9, 1.0, -1.0)
+    wo[:, 2] = wo[:, 2].abs()
+    special = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])
+    k = min(len(special), n)
+    wi[:k] = special[:k]
+    wo[:k] = torch.tensor([[0.0, 0.0, 1.0], [-0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.0, 1.0, 1e-3]])[:k]
+    return wi, torch.nn.functional.normalize(wo, dim=-1)
+
+
+@needs_kernels
+@pytest.mark.parametrize("config", [{}, {"output": "exp"}, {"half": "theta", "fold_phi_d": True},
+                                    {"hidden": 64, "hidden_layers": 3}])
+@pytest.mark.parametrize("n", [1, 5, 64, 1000, 20000])
+def test_nbrdf_eval_equals_its_torch_path(config, n, monkeypatch):
+    model = NBRDF(init_range=0.3, **config)
+    q = Query(*_directions(n, seed=n))
+    with torch.no_grad():
+        got = model.eval(q)
+        monkeypatch.setenv("NEUMAT_CPU_KERNELS", "0")
+        cpu_kernels.reset()
+        try:
+            ref = model.eval(q)
+        finally:
+            monkeypatch.delenv("NEUMAT_CPU_KERNELS")
+            cpu_kernels.reset()
+    assert not torch.equal(got, ref) or n < 64  # the kernel ran (its sums are ordered otherwise)
+    torch.testing.assert_close(got, ref, rtol=2e-5, atol=1e-6)
+    assert (got[q.wi[:, 2] <= 0] == 0).all()
+
+
+@needs_kernels
+def test_nbrdf_eval_split_over_threads_equals_one_thread():
+    model = NBRDF(init_range=0.3)
+    q = Query(*_directions(3 * cpu_kernels.PARALLEL_ROWS + 7, seed=3))
+    threads = torch.get_num_threads()
+    with torch.no_grad():
+        try:
+            torch.set_num_threads(1)
+            one = model.eval(q)
+            torch.set_num_threads(3)
+            three = model.eval(q)
+        finally:
+            torch.set_num_threads(threads)
+    assert torch.equal(one, three)
+
+
+@needs_kernels
+def test_nbrdf_kernel_sees_weight_changes_and_leaves_autograd_to_torch():
+    model = NBRDF(init_range=0.3)
+    q = Query(*_directions(100, seed=4))
+    with torch.no_grad():
+        before = model.eval(q)
+        model.mlp.linears()[-1].bias.add_(0.5)  # in place: a new version
+        after = model.eval(q)
+        model.mlp.linears()[-1].bias = nn.Parameter(model.mlp.linears()[-1].bias - 0.5)  # a new tensor
+        again = model.eval(q)
+    assert not torch.allclose(before, after)
+    torch.testing.assert_close(again, before, rtol=1e-6, atol=1e-7)
+    out = model.eval(q)  # autograd on: the torch path, gradients reach the weights
+    out.sum().backward()
+    assert model.mlp.linears()[0].weight.grad is not None
+
+
+def _sphere_and_edges(n, seed):
+    """Unit vectors over the sphere and on HEALPix's edges: the poles, the equator, z = +-2/3 (belt and caps
+    meet), x or y = 0 (phi at a quadrant), below the horizon."""
+    g = torch.Generator().manual_seed(seed)
+    v = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    z = torch.tensor([1.0, -1.0, 0.0, 2 / 3, -2 / 3, 0.5, -0.999])
+    phi = torch.tensor([0.0, math.pi / 2, math.pi, -math.pi / 2, 0.3, math.pi / 4])
+    zz, pp = torch.meshgrid(z, phi, indexing="ij")
+    s = torch.sqrt(1 - zz ** 2)
+    edges = torch.stack([s * torch.cos(pp), s * torch.sin(pp), zz], -1).reshape(-1, 3)
+    return torch.cat([edges, v]).float()
+
+
+@needs_kernels
+@pytest.mark.parametrize("nside", [1, 2, 5, 64, 512])
+def test_ring_pixels_equal_healpix_vec2pix(nside):
+    from neumat.nn import healpix as hpx
+
+    v = _sphere_and_edges(200000, seed=nside)
+    ref = hpx.vec2pix_xyz(nside, *v.t().contiguous())
+    got = cpu_kernels.ring_pixels(nside, v)
+    differ = int((got != ref.to(torch.int32)).sum())
+    # float32 atan2 rounds an ulp apart from torch's now and then, which moves a direction on a pixel edge to the
+    # neighbour: 1e-6 of 2M random directions at N_side 64, 1.1e-5 at 512, 8.5e-5 at 4096 (a wrong step: most)
+    assert differ <= 1e-4 * len(v), f"{differ} of {len(v)} pixels differ"
+
+
+def _neubrdf_runtime(seed, **config):
+    from neumat.methods.neubrdf.model import NeuBRDF
+
+    torch.manual_seed(seed)
+    model = NeuBRDF(**config)
+    with torch.no_grad():  # weights far from the paper's init, so that every layer matters
+        for p in model.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    return model.runtime().eval()
+
+
+@needs_kernels
+@pytest.mark.parametrize("config", [{"nside": 8}, {"nside": 4, "hidden": 20, "hidden_layers": 3},
+                                    {"nside": 16, "activation": "relu"}])
+@pytest.mark.parametrize("n", [1, 64, 65, 5000])
+def test_neubrdf_runtime_eval_equals_its_torch_path(config, n, monkeypatch):
+    model = _neubrdf_runtime(0, **config)
+    q = Query(*_directions(n, seed=n))
+    with torch.no_grad():
+        assert model._kernel_eval(q.wi, q.wo) is not None, "the kernel does not apply to this runtime model"
+        got = model.eval(q)
+        monkeypatch.setenv("NEUMAT_CPU_KERNELS", "0")
+        cpu_kernels.reset()
+        try:
+            ref = model.eval(q)
+        finally:
+            monkeypatch.delenv("NEUMAT_CPU_KERNELS")
+            cpu_kernels.reset()
+    torch.testing.assert_close(got, ref, rtol=2e-5, atol=1e-6)
+    assert (got[q.wi[:, 2] <= 0] == 0).all()
+
+
+def test_neubrdf_kernel_declines_what_it_does_not_implement():
+    for config in ({"nside": 4, "runtime_interpolation": "idw"}, {"nside": 4, "direction_inputs": "hd"},
+                   {"nside": 4, "activation": "silu"}):
+        model = _neubrdf_runtime(0, **config)
+        wi = torch.tensor([[0.0, 0.0, 1.0]])
+        with torch.no_grad():
+            assert model._kernel_eval(wi, wi) is None, config
