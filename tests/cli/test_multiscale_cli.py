@@ -150,3 +150,17 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     assert default_model(["ggx:roughness=0.2", "ggx:roughness=0.4"]) == ("shared-neubrdf", "")
     with pytest.raises(InputError, match="does not exist"):
         default_model([str(tmp_path / "missing.binary")])
+
+
+def test_fit_says_when_the_recipe_filters_targets_with_another_sample_count(shared_data, tmp_path):
+    """The recommended CPU recipe trains on 32-position footprint targets (option target_samples): a fit given
+    --source-option samples=2 says that it trains on 32 and how to train on 2; with that override it is silent."""
+    folder = str(shared_data / "svbrdf" / "Wood092_1K")
+    args = ["fit", folder, "--model", "tripleplane", "-o", str(tmp_path / "w.nmat"), "--steps", "1", "--device",
+            "cpu", "--set", "batch_size=16", "--source-option", "crop=16", "--source-option", "samples=2"]
+    said = CliRunner().invoke(app, args)
+    assert said.exit_code == 0, said.output
+    assert "filtered with 32 footprint positions" in said.output
+    assert "--set option.target_samples=2" in said.output
+    silent = CliRunner().invoke(app, [*args, "--set", "option.target_samples=2"])
+    assert silent.exit_code == 0 and "footprint positions" not in silent.output, silent.output

@@ -31,3 +31,36 @@ def test_announced_time_is_within_2x_of_the_real_one(capsys):
     seconds, steps = re.search(r"about (\d+) s to go for (\d+) more steps", line[0]).groups()
     remaining = int(steps) / 80 * total  # the real time those steps took (steps cost alike here)
     assert int(steps) < 80 and 0.5 * remaining <= max(int(seconds), 1) <= 2 * remaining + 1, (line, total)
+
+
+class PhasedNeuBRDF(NeuBRDF):
+    """A NeuBRDF whose steps after the first 40 % (the recommended recipe's coarse phase) take 3x longer; `started`
+    holds when each step began (a class attribute: the weights' EMA copy shares it)."""
+
+    started: dict = {}
+
+    def on_step(self, step: int, total_steps: int) -> None:
+        PhasedNeuBRDF.started.setdefault(step, time.perf_counter())
+        time.sleep(0.005 if step < 0.4 * total_steps else 0.015)
+
+
+def test_each_phase_announces_its_own_estimate(capsys):
+    """A fit of several phases announces an estimate in each, measured on that phase's steps; all but the last say
+    which phases are still to be measured; the last one's estimate holds within 2x."""
+    import torch
+
+    from neumat.fit.preset import build_fit
+
+    _, resolved = build_fit("neubrdf", "recommended", device=torch.device("cpu"), source=None, overrides={}, seed=0)
+    recipe = replace(resolved.recipe, steps=120, batch_size=64, log_every=10)
+    model = PhasedNeuBRDF(nside=2, index_bits=2, hidden=4, features="dense")
+    PhasedNeuBRDF.started.clear()
+    fit(model, parse_spec("plastic:roughness=0.3"), recipe, progress=True)
+    end = time.perf_counter()
+    lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
+    assert len(lines) == 3, lines  # coarse, dense, vq
+    assert "of phase 'coarse', at its speed; 'dense', 'vq' measured when they start" in lines[0]
+    assert "'vq' measured when it starts" in lines[1] and "measured when" not in lines[2]
+    seconds, steps = re.search(r"about (\d+) s to go for (\d+) more steps", lines[2]).groups()
+    remaining = end - PhasedNeuBRDF.started[120 - int(steps)]  # from the step the last estimate was announced at
+    assert 0.5 * remaining <= max(int(seconds), 1) <= 2 * remaining + 1, (lines, remaining)

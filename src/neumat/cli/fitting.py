@@ -91,6 +91,9 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
     m, resolved = build_fit(model, preset, device=dev, source=src, overrides=overrides, seed=seed)
     if not quiet:
         print(preset_note(model, resolved, steps))
+        note = target_samples_note(resolved.recipe.options, source_options or {}, src)
+        if note:
+            print(note)
     with warnings.catch_warnings():  # said once below, as one line
         warnings.simplefilter("ignore", FitWarning)
         result = fit_model(m, src, resolved.recipe, steps=steps, device=dev, progress=not quiet,
@@ -161,6 +164,18 @@ def preset_note(model: str, resolved, steps: int | None = None) -> str:
              "; the paper's exact model: --preset paper (its recipe, sized for a GPU) or --preset cpu")
     n = resolved.recipe.steps if steps is None else steps
     return f"{model}: {resolved.describe()}, {n} steps x {resolved.recipe.batch_size}{paper}"
+
+
+def target_samples_note(options: dict, source_options: dict, source) -> str:
+    """The line a fit prints when the recipe option target_samples replaces a --source-option samples=N for the
+    training targets ("" otherwise): the user asked for N footprint positions and the fit trains on another
+    count (`neumat.fit.footprint_queries.with_target_samples`)."""
+    target, given = int(options.get("target_samples", 0) or 0), source_options.get("samples")
+    if target <= 0 or given is None or not hasattr(source, "samples") or int(given) == target:
+        return ""
+    return (f"note: the training targets are filtered with {target} footprint positions (recipe option "
+            f"target_samples), not --source-option samples={given}; --set option.target_samples={given} trains on "
+            f"{given}")
 
 
 def resolve_device(device: str | None):

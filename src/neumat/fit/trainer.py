@@ -104,8 +104,10 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     with _Progress(progress, total, state["step"], name) as bar:
         guard = NonFiniteGuard(model, ema, name, state.pop("guard"), report=bar.note)
         begin = 0
-        for phase in phases:
+        for index, phase in enumerate(phases):
             end = begin + phase.steps
+            if state["step"] < end:  # each phase's steps cost their own: its estimate is measured in it
+                bar.start_phase(phase.name, [p.name for p in phases[index + 1:]])
             if phase.start is not None:
                 phase.start()
             if state["step"] >= end:
@@ -370,6 +372,7 @@ class _Progress:
         self.terminal = enabled and sys.stderr.isatty()
         self.t0 = self.last_line = time.perf_counter()
         self.start, self.warned, self.t_warm = start, False, self.t0
+        self.phase_note = ""
         if self.terminal:
             from rich.console import Console
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
@@ -394,6 +397,14 @@ class _Progress:
             return estimate
         rate = (time.perf_counter() - self.t_warm) / max(self.done - self.start, 1)
         return rate * (self.total - self.done)
+
+    def start_phase(self, name: str, later: list[str]) -> None:
+        """A phase begins (`name`, with phases `later` after it): its estimate is measured on its own steps and
+        says that the later phases are measured when they start (NeuBRDF's coarse steps cost half its VQ ones)."""
+        self.remeasure()
+        when = "it starts" if len(later) == 1 else "they start"
+        self.phase_note = "" if not later else \
+            f" of phase {name!r}, at its speed; {', '.join(map(repr, later))} measured when {when}"
 
     def remeasure(self) -> None:
         """Measure the time estimate again from the next step on and announce it once more (the steps from here
@@ -420,7 +431,7 @@ class _Progress:
             eta = self.estimate()
             hint = "; pass --steps for a shorter run" if eta > LONG_FIT_SECONDS else ""
             self.note(f"fit {self.name}: about {_duration(eta)} to go for {self.total - self.done} more steps "
-                      f"(measured on the last {counted}){hint}")
+                      f"(measured on the last {counted}{self.phase_note}){hint}")
 
     def note(self, message: str) -> None:
         """Say `message` (an event of the fit, e.g. a rollback) on a line of its own, above the bar on a terminal;
