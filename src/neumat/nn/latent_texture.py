@@ -57,6 +57,12 @@ def bilinear_padded(padded: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     return out.view(c, -1).t().contiguous()  # row-major: per-row reductions (e.g. norms) of slices stay fast
 
 
+def _kept_channels_last(tex: torch.Tensor) -> torch.Tensor:
+    """A derived texture (1, C, H, W) as `derived_from` keeps it: without autograd in channels-last order, so that a
+    lookup reads each texel's channels from one cache line (`bilinear_maps`; the same values), else as it is."""
+    return tex if torch.is_grad_enabled() else tex.contiguous(memory_format=torch.channels_last)
+
+
 def box_pyramid(tex: torch.Tensor) -> list[torch.Tensor]:
     """Mip levels of tex (C, H, W) down to 1 x 1 by 2 x 2 box averaging (odd sizes: the last texel row /
     column is averaged in with the area-weighted resize). Level 0 is `tex` itself."""
@@ -299,7 +305,7 @@ class LatentPyramid(nn.Module):
         """`build_atlas` of `levels()` (all preconditioned at once when the preconditioner can): what the
         filtered and trilinear lookups read; built once while the levels are unchanged and no gradient is
         wanted (`derived_from`)."""
-        return derived_from(self, "atlas", list(self.raw), self._build_atlas)
+        return derived_from(self, "atlas", list(self.raw), lambda: _kept_channels_last(self._build_atlas()))
 
     def _build_atlas(self) -> torch.Tensor:
         if isinstance(self.precondition, FrequencyPreconditioner):
@@ -314,8 +320,8 @@ class LatentPyramid(nn.Module):
         if lod is not None:
             return trilinear_flat(None, [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
                                   level_u=level_u, atlas=self.atlas())
-        padded = derived_from(self, "finest", [self.raw[0]], lambda: wrap_padded(
-            self.raw[0] if self.precondition is None else self.precondition(self.raw[0])))
+        padded = derived_from(self, "finest", [self.raw[0]], lambda: _kept_channels_last(wrap_padded(
+            self.raw[0] if self.precondition is None else self.precondition(self.raw[0]))))
         return bilinear_padded(padded, uv)
 
     def level_fraction(self, footprint: torch.Tensor | None, lod: torch.Tensor | None, n: int,
