@@ -69,7 +69,7 @@ def _random_mlp(in_dim, hidden, layers, out_dim, activation, seed):
 
 @needs_kernels
 @pytest.mark.parametrize("dims", [(6, 21, 2, 3), (1, 1, 1, 1), (17, 64, 3, 7), (40, 200, 1, 5), (3, 8, 0, 2)])
-@pytest.mark.parametrize("activation", ["relu", "leaky_relu"])
+@pytest.mark.parametrize("activation", ["relu", "leaky_relu", "silu"])
 @pytest.mark.parametrize("n", [1, 63, 64, 65, 1000])
 def test_mlp_forward_equals_torch(dims, activation, n):
     mlp = _random_mlp(*dims, activation, seed=n)
@@ -80,7 +80,7 @@ def test_mlp_forward_equals_torch(dims, activation, n):
 
 
 @pytest.mark.parametrize("net", [
-    MLP(4, 8, 2, 3, "silu").net,                     # an activation the kernels lack
+    MLP(4, 8, 2, 3, "tanh").net,                     # an activation the kernels lack
     MLP(4, 8, 2, 3, "relu", out_activation="exp").net,  # an output activation
     MLP(4, 300, 1, 3, "relu").net,                   # wider than the block buffers
     nn.Sequential(nn.Linear(4, 8), nn.LeakyReLU(0.2), nn.Linear(8, 3)),  # another slope
@@ -199,7 +199,7 @@ def _neubrdf_runtime(seed, **config):
 
 @needs_kernels
 @pytest.mark.parametrize("config", [{"nside": 8}, {"nside": 4, "hidden": 20, "hidden_layers": 3},
-                                    {"nside": 16, "activation": "relu"}])
+                                    {"nside": 16, "activation": "relu"}, {"nside": 4, "activation": "silu"}])
 @pytest.mark.parametrize("n", [1, 64, 65, 5000])
 def test_neubrdf_runtime_eval_equals_its_torch_path(config, n, monkeypatch):
     model = _neubrdf_runtime(0, **config)
@@ -220,8 +220,90 @@ def test_neubrdf_runtime_eval_equals_its_torch_path(config, n, monkeypatch):
 
 def test_neubrdf_kernel_declines_what_it_does_not_implement():
     for config in ({"nside": 4, "runtime_interpolation": "idw"}, {"nside": 4, "direction_inputs": "hd"},
-                   {"nside": 4, "activation": "silu"}):
+                   {"nside": 4, "activation": "tanh"}):
         model = _neubrdf_runtime(0, **config)
         wi = torch.tensor([[0.0, 0.0, 1.0]])
         with torch.no_grad():
             assert model._kernel_eval(wi, wi) is None, config
+
+
+def _multiscale_runtime(seed, **config):
+    from neumat.methods.latent_mlp.multiscale import MultiScale
+
+    torch.manual_seed(seed)
+    model = MultiScale(spatial_size=16, **config)
+    with torch.no_grad():  # the frame and warp decoders start at zero weights: give every part a say
+        for p in model.parameters():
+            p.add_(0.2 * torch.randn_like(p))
+    return model.runtime().eval()
+
+
+def _texture_queries(n, seed, mode):
+    g = torch.Generator().manual_seed(seed)
+    wi, wo = _directions(n, seed)
+    uv = torch.rand(n, 2, generator=g) * 3 - 1  # outside [0, 1) too: the texture tiles
+    if mode == "lod":
+        return Query(wi, wo, uv=uv, lod=torch.rand(n, generator=g) * 5)
+    if mode == "footprint":
+        a = torch.randn(n, 2, 2, generator=g) * 0.05
+        return Query(wi, wo, uv=uv, footprint=a @ a.transpose(1, 2) + 1e-6 * torch.eye(2))
+    return Query(wi, wo, uv=uv)
+
+
+@needs_kernels
+@pytest.mark.parametrize("config", [{}, {"shading_frame": False}, {"radial_warps": False, "hidden_layers": 2}])
+@pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
+@pytest.mark.parametrize("n", [1, 65, 3000])
+def test_multiscale_eval_equals_its_torch_path(config, mode, n, monkeypatch):
+    model = _multiscale_runtime(0, **config)
+    q = _texture_queries(n, n, mode)
+    with torch.no_grad():
+        assert model._kernel_eval(q) is not None, "the kernel does not apply"
+        got = model.eval(q)
+        monkeypatch.setenv("NEUMAT_CPU_KERNELS", "0")
+        cpu_kernels.reset()
+        try:
+            ref = model.eval(q)
+        finally:
+            monkeypatch.delenv("NEUMAT_CPU_KERNELS")
+            cpu_kernels.reset()
+    _as_accurate_as_torch(model, q, got, ref)
+    assert (got[q.wi[:, 2] <= 0] == 0).all()
+
+
+def _as_accurate_as_torch(model, q, got, ref):
+    """got (the kernel) is as close to the model's float64 values as the float32 torch path ref is, up to 4x, or
+    within 2e-5: near the rim of the disk a lift's square root amplifies rounding (both paths round there)."""
+    import copy
+
+    exact = copy.deepcopy(model).double()
+    with torch.no_grad():
+        truth = exact.eval(Query(q.wi.double(), q.wo.double(), uv=q.uv.double(),
+                                 lod=None if q.lod is None else q.lod.double(),
+                                 footprint=None if q.footprint is None else q.footprint.double()))
+    scale = truth.abs() + 1e-6
+    err_kernel = ((got.double() - truth).abs() / scale).max()
+    err_torch = ((ref.double() - truth).abs() / scale).max()
+    assert err_kernel <= 4 * err_torch + 2e-5, (float(err_kernel), float(err_torch))
+
+
+def test_multiscale_kernel_declines_what_it_does_not_implement():
+    for config in ({"gating": False}, {"homogeneous": True}):
+        model = _multiscale_runtime(0, **config)
+        q = _texture_queries(4, 0, "none")
+        with torch.no_grad():
+            assert model._kernel_eval(q) is None, config
+
+
+@needs_kernels
+def test_a_model_evaluated_by_a_kernel_still_copies_and_pickles(tmp_path):
+    """The packed weights are kept outside the model: deepcopy (the trainer's EMA) and torch.save still work."""
+    import copy
+
+    model = NBRDF(init_range=0.3)
+    q = Query(*_directions(70, seed=5))
+    with torch.no_grad():
+        before = model.eval(q)
+        twin = copy.deepcopy(model)
+        torch.save(model, tmp_path / "m.pt")
+        torch.testing.assert_close(twin.eval(q), before)

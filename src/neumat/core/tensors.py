@@ -29,6 +29,11 @@ def _count_step(optimizer, args, kwargs) -> None:
     _optimiser_steps[0] += 1
 
 
+def optimiser_steps() -> int:
+    """Optimiser steps taken in this process so far: part of the stamp of anything derived from parameters."""
+    return _optimiser_steps[0]
+
+
 register_optimizer_step_post_hook(_count_step)
 
 

@@ -27,10 +27,13 @@ def model_flops(model) -> int:
 
 
 def measured_matmul_flops(model, query: Query) -> float:
-    """Matrix-product FLOPs per query of one `model.eval(query)` call (torch's FLOP counter)."""
+    """Matrix-product FLOPs per query of one `model.eval(query)` call on its torch path (torch's FLOP counter; a
+    fused CPU kernel's products are not torch's to count)."""
+    from ..nn import cpu_kernels
+
     if len(query) == 0:
         raise InputError("measured_matmul_flops: the query batch is empty")
-    with torch.no_grad(), FlopCounterMode(display=False) as counter:
+    with torch.no_grad(), cpu_kernels.switched_off(), FlopCounterMode(display=False) as counter:
         model.eval(query)
     return counter.get_total_flops() / len(query)
 
@@ -91,6 +94,8 @@ def paper_flops_of(fn, *inputs, batch: int) -> float:
 def paper_flops(model, query: Query) -> float:
     """FLOPs per query of `model.eval`, counted as the paper does (src/neumat/methods/latent_mlp/NOTES.md): the count over the query
     batch twice minus the count over it once, over its size, without the spatial texture fetch."""
+    from ..nn import cpu_kernels
+
     n = len(query)
     if n == 0:
         raise InputError("paper_flops: the query batch is empty")
@@ -109,7 +114,7 @@ def paper_flops(model, query: Query) -> float:
         totals = []
         for q in (query, double):
             counter.total = 0
-            with torch.no_grad(), counter:
+            with torch.no_grad(), cpu_kernels.switched_off(), counter:  # torch's operations, to count
                 model.eval(q)
             totals.append(counter.total)
     finally:

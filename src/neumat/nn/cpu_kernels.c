@@ -13,11 +13,38 @@
 #define BLOCK 64
 #define MAX_WIDTH 256
 
-enum { ACT_NONE = 0, ACT_RELU = 1, ACT_LEAKY_RELU = 2 };
+enum { ACT_NONE = 0, ACT_RELU = 1, ACT_LEAKY_RELU = 2, ACT_SILU = 3 };
 
-/* the slope below 0 of an activation: max(v, 0) is v >= 0 ? v : 0 v, leaky ReLU's 0.01 v, none's v */
+/* the slope below 0 of an activation: max(v, 0) is v >= 0 ? v : 0 v, leaky ReLU's 0.01 v, none's v (SiLU:
+   computed apart) */
 static inline float negative_slope(int kind) {
     return kind == ACT_RELU ? 0.f : (kind == ACT_LEAKY_RELU ? 0.01f : 1.f);
+}
+
+/* exp and expm1 in float32 without branches (so that they vectorise): x = n ln 2 + r, |r| <= ln 2 / 2, exp(r) by
+   its Taylor series to r^8 (relative error < 1e-8 there, below float32's rounding); expm1 of |x| < 1/2 by its own
+   series to x^9 (no cancellation), else exp(x) - 1. Inputs clamped to [-87, 88] (exp's float32 range). */
+static inline float taylor_expm1(float r) {
+    float p = 1.f / 362880.f;
+    p = p * r + 1.f / 40320.f; p = p * r + 1.f / 5040.f; p = p * r + 1.f / 720.f; p = p * r + 1.f / 120.f;
+    p = p * r + 1.f / 24.f; p = p * r + 1.f / 6.f; p = p * r + 0.5f; p = p * r + 1.f;
+    return p * r;
+}
+
+static inline float fast_exp(float x) {
+    x = x < -87.f ? -87.f : (x > 88.f ? 88.f : x);
+    float n = rintf(x * 1.4426950408889634f);
+    float r = x - n * 0.693145751953125f - n * 1.428606765330187e-06f;
+    int32_t bits = ((int32_t)n + 127) << 23;
+    float scale;
+    memcpy(&scale, &bits, sizeof scale);
+    return (taylor_expm1(r) + 1.f) * scale;
+}
+
+static inline float fast_expm1(float x) {
+    float small = taylor_expm1(x);
+    float large = fast_exp(x) - 1.f;
+    return x > -0.5f && x < 0.5f ? small : large;
 }
 
 /* y[o][k] = act(sum_i W[o][i] x[i][k] + b[o]) for o < out (a multiple of 4), k < BLOCK: 4 outputs at a time,
@@ -48,7 +75,10 @@ static void dense(const float *restrict W, const float *restrict b, const float 
             yo[v] = a0[v]; yo[NV + v] = a1[v]; yo[2 * NV + v] = a2[v]; yo[3 * NV + v] = a3[v];
         }
         float *yf = y + o * BLOCK;
-        for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
+        if (kind == ACT_SILU)
+            for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
+        else
+            for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
     }
 }
 
@@ -66,32 +96,6 @@ static float *mlp_block(float *buf0, float *buf1, int layers, const int *dims, c
         float *t = x; x = y; y = t;
     }
     return x;
-}
-
-/* exp and expm1 in float32 without branches (so that they vectorise): x = n ln 2 + r, |r| <= ln 2 / 2, exp(r) by
-   its Taylor series to r^8 (relative error < 1e-8 there, below float32's rounding); expm1 of |x| < 1/2 by its own
-   series to x^9 (no cancellation), else exp(x) - 1. Inputs clamped to [-87, 88] (exp's float32 range). */
-static inline float taylor_expm1(float r) {
-    float p = 1.f / 362880.f;
-    p = p * r + 1.f / 40320.f; p = p * r + 1.f / 5040.f; p = p * r + 1.f / 720.f; p = p * r + 1.f / 120.f;
-    p = p * r + 1.f / 24.f; p = p * r + 1.f / 6.f; p = p * r + 0.5f; p = p * r + 1.f;
-    return p * r;
-}
-
-static inline float fast_exp(float x) {
-    x = x < -87.f ? -87.f : (x > 88.f ? 88.f : x);
-    float n = rintf(x * 1.4426950408889634f);
-    float r = x - n * 0.693145751953125f - n * 1.428606765330187e-06f;
-    int32_t bits = ((int32_t)n + 127) << 23;
-    float scale;
-    memcpy(&scale, &bits, sizeof scale);
-    return (taylor_expm1(r) + 1.f) * scale;
-}
-
-static inline float fast_expm1(float x) {
-    float small = taylor_expm1(x);
-    float large = fast_exp(x) - 1.f;
-    return x > -0.5f && x < 0.5f ? small : large;
 }
 
 /* NBRDF (Sztrajman et al. 2021) of directions wi, wo (n x 3, float32): h = normalize(wi + wo), d = wi in the
@@ -226,7 +230,7 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
             const float *ti = table + (long)pix_i[cur][k] * hidden, *to = table + (south + pix_o[cur][k]) * hidden;
             for (int i = 0; i < hidden; ++i) {
                 float v = ti[i] + to[i];
-                buf0[i * BLOCK + k] = v >= 0.f ? v : slope * v;
+                buf0[i * BLOCK + k] = first_act == ACT_SILU ? v / (1.f + fast_exp(-v)) : (v >= 0.f ? v : slope * v);
             }
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
@@ -234,6 +238,246 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
         for (int k = 0; k < m; ++k)
             for (int j = 0; j < out_dim; ++j)
                 out[out_dim * (s + k) + j] = up[cur][k] > 0.f ? res[j * BLOCK + k] : 0.f;
+    }
+    free(work);
+    return 0;
+}
+
+/* atan2 and log in float32 without branches (so that a block's loop vectorises): atan by Cephes' atanf
+   (reduction to |x| <= tan(pi / 8), a degree-4 polynomial in x^2; about 1 ulp), log by the exponent's bits and
+   log1p of the mantissa in [sqrt(1/2), sqrt(2)) by the series of atanh (relative error < 1e-7) */
+static inline float fast_atan(float x) {
+    float ax = fabsf(x);
+    float base = ax > 2.414213562373095f ? 1.5707963267948966f : (ax > 0.4142135623730950f ? 0.7853981633974483f : 0.f);
+    float t = ax > 2.414213562373095f ? -1.f / (ax > 1.f ? ax : 1.f)
+              : (ax > 0.4142135623730950f ? (ax - 1.f) / (ax + 1.f) : ax);
+    float z = t * t;
+    float y = base + ((((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z
+                       - 3.33329491539e-1f) * z * t + t);
+    return copysignf(y, x);
+}
+
+static inline float fast_atan2(float y, float x) {
+    float a = fast_atan(y / (x != 0.f ? x : 1.f));
+    float off = x < 0.f ? copysignf(3.141592653589793f, y) : 0.f;
+    float axis = y != 0.f ? copysignf(1.5707963267948966f, y) : 0.f;
+    return x != 0.f ? a + off : axis;
+}
+
+static inline float fast_log(float x) {
+    int32_t bits;
+    memcpy(&bits, &x, sizeof bits);
+    int32_t e = ((bits >> 23) & 255) - 127;
+    int32_t mbits = (bits & 0x007fffff) | 0x3f800000;
+    float m;
+    memcpy(&m, &mbits, sizeof m);                /* in [1, 2) */
+    int high = m > 1.41421356f;
+    m = high ? 0.5f * m : m;
+    e += high;
+    float f = (m - 1.f) / (m + 1.f), f2 = f * f;  /* log m = 2 atanh f, |f| < 0.172 */
+    float p = f2 * (1.f / 9.f) + 1.f / 7.f;
+    p = p * f2 + 1.f / 5.f; p = p * f2 + 1.f / 3.f; p = p * f2 + 1.f;
+    return 2.f * f * p + (float)e * 0.6931471805599453f;
+}
+
+/* remainder(x, period) as torch computes it for float32 (fmod, plus the period where the sign differs), for x in
+   [-period, period] as atan2 gives (here fmod is x itself, or 0 at +-period) */
+static inline float remainder_near(float x, float period) {
+    float m = x == period || x == -period ? 0.f : x;
+    return m < 0.f ? m + period : m;
+}
+
+/* a polar texture's bilinear read (neumat.nn.angular_texture.AngularTexture.read: grid_sample, corner-aligned,
+   border) at texel coordinates (ix, iy) already clamped: tex is the padded texture channels-last,
+   (R, P + 2, C); out (C) */
+static inline void angular_read(const float *tex, int R, int W, int C, float ix, float iy, float *out) {
+    int x0 = (int)ix, y0 = (int)iy;   /* ix, iy >= 0: truncation is floor */
+    float fx = ix - (float)x0, fy = iy - (float)y0;
+    int x1 = x0 + 1 < W ? x0 + 1 : x0, y1 = y0 + 1 < R ? y0 + 1 : y0;
+    const float *a = tex + ((long)y0 * W + x0) * C, *b = tex + ((long)y0 * W + x1) * C;
+    const float *c = tex + ((long)y1 * W + x0) * C, *d = tex + ((long)y1 * W + x1) * C;
+    float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
+    for (int k = 0; k < C; ++k) out[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
+}
+
+/* texel coordinates (ix, iy) (BLOCK each), clamped as grid_sample's border padding, of polar points (r, phi)
+   (BLOCK each) in a texture of R radii and P azimuths (period: 2 pi or pi), as AngularTexture.read and
+   grid_sample compute them */
+static inline void polar_texels(const float *r, const float *phi, int R, int P, double period, float *ix, float *iy) {
+    const int W = P + 2;
+    const float scale = (float)((double)P / period), step = (float)(2.0 / (double)(P + 1)), per = (float)period;
+    for (int k = 0; k < BLOCK; ++k) {
+        float column = remainder_near(phi[k], per) * scale + 0.5f;
+        float gx = column * step - 1.f, gy = (r[k] < 0.f ? 0.f : (r[k] > 1.f ? 1.f : r[k])) * 2.f - 1.f;
+        float x = (gx + 1.f) / 2.f * (float)(W - 1), y = (gy + 1.f) / 2.f * (float)(R - 1);
+        ix[k] = x < 0.f ? 0.f : (x > (float)(W - 1) ? (float)(W - 1) : x);
+        iy[k] = y < 0.f ? 0.f : (y > (float)(R - 1) ? (float)(R - 1) : y);
+    }
+}
+
+/* rows (count x BLOCK) = bias + weight (count x ds) z (ds x BLOCK): a small decode layer on a block */
+static void decode_block(const float *w, const float *bias, const float *zt, int ds, int count, float *rows) {
+    for (int j = 0; j < count; ++j) {
+        float *o = rows + j * BLOCK;
+        for (int k = 0; k < BLOCK; ++k) o[k] = bias[j];
+        for (int i = 0; i < ds; ++i) {
+            const float c = w[j * ds + i], *zi = zt + i * BLOCK;
+            for (int k = 0; k < BLOCK; ++k) o[k] += c * zi[k];
+        }
+    }
+}
+
+/* radii r (BLOCK) warped in place: sum_k softmax(logits)_k r^(0.5 + softplus(raw_k)), r clamped to [1e-9, 1],
+   with logits and raw exponents decoded per row (p: 2 terms x BLOCK) (neumat.nn.radial_warp.warp_radius) */
+static void warp_block(float *r, const float *p, int terms) {
+    float top[BLOCK], total[BLOCK], lr[BLOCK], out[BLOCK];
+    for (int k = 0; k < BLOCK; ++k) {
+        top[k] = p[k];
+        total[k] = out[k] = 0.f;
+        float rr = r[k] < 1e-9f ? 1e-9f : (r[k] > 1.f ? 1.f : r[k]);
+        lr[k] = fast_log(rr);
+    }
+    for (int t = 1; t < terms; ++t)
+        for (int k = 0; k < BLOCK; ++k) top[k] = p[t * BLOCK + k] > top[k] ? p[t * BLOCK + k] : top[k];
+    for (int t = 0; t < terms; ++t)
+        for (int k = 0; k < BLOCK; ++k) total[k] += fast_exp(p[t * BLOCK + k] - top[k]);
+    for (int t = 0; t < terms; ++t)
+        for (int k = 0; k < BLOCK; ++k) {
+            float raw = p[(terms + t) * BLOCK + k];
+            float alpha = 0.5f + (raw > 20.f ? raw : fast_log(1.f + fast_exp(raw)));
+            out[k] += fast_exp(p[t * BLOCK + k] - top[k]) / total[k] * fast_exp(alpha * lr[k]);
+        }
+    memcpy(r, out, sizeof out);
+}
+
+/* z (ds) at uv of a latent texture padded circularly by one texel, channels-last (h + 2, w + 2, ds): the
+   bilinear read of neumat.nn.latent_texture.bilinear_padded (grid_sample, corner-aligned, border), float32 step
+   by step as there, without fused multiply-adds (a texel coordinate is a large multiple of uv: with them the
+   read differed from torch's in the fifth digit on a 1K texture) */
+__attribute__((optimize("fp-contract=off"), noinline))
+static void latent_read(const float *tex, int h, int w, int ds, float u, float v, float *z) {
+    u = fmodf(u, 1.f); u = u < 0.f ? u + 1.f : u;
+    v = fmodf(v, 1.f); v = v < 0.f ? v + 1.f : v;
+    float x = u * (float)w - 0.5f, y = (1.f - v) * (float)h - 0.5f;
+    float gx = (x + 1.f) * (float)(2.0 / (double)(w + 1)) - 1.f, gy = (y + 1.f) * (float)(2.0 / (double)(h + 1)) - 1.f;
+    const int W = w + 2, H = h + 2;
+    float ix = (gx + 1.f) / 2.f * (float)(W - 1), iy = (gy + 1.f) / 2.f * (float)(H - 1);
+    ix = ix < 0.f ? 0.f : (ix > (float)(W - 1) ? (float)(W - 1) : ix);
+    iy = iy < 0.f ? 0.f : (iy > (float)(H - 1) ? (float)(H - 1) : iy);
+    int x0 = (int)ix, y0 = (int)iy;
+    float fx = ix - (float)x0, fy = iy - (float)y0;
+    int x1 = x0 + 1 < W ? x0 + 1 : x0, y1 = y0 + 1 < H ? y0 + 1 : y0;
+    const float *a = tex + ((long)y0 * W + x0) * ds, *b = tex + ((long)y0 * W + x1) * ds;
+    const float *c = tex + ((long)y1 * W + x0) * ds, *d = tex + ((long)y1 * W + x1) * ds;
+    float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
+    for (int k = 0; k < ds; ++k) z[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
+}
+
+/* The multi-scale gated model's decoder (Timonen et al. 2025; neumat.methods.latent_mlp.multiscale, gating on)
+   from spatial latents z (n x ds), or, with `spatial`, z read at uv (n x 2) from the padded finest level
+   (channels-last, (sh + 2, sw + 2, ds): queries without footprint), and directions wi, wo (n x 3): the shading
+   frame (frame_w: 6 x ds, already times its weight scale; NULL: none), half and difference vectors, disk polar
+   coordinates, radial warps (warp_*: 2 terms x ds; NULL: none), the two polar textures (channels-last, channels
+   ds x dh and ds x dd, the model's channel c x ds + i at i x dh + c) gated by z, the MLP on [z_h, z_d], exp; 0
+   where wi.z or wo.z <= 0. out: n x out_dim. The geometry runs on blocks of rows (vectorised), the texture reads
+   and gating row by row. Returns 1 without memory, 2 for sizes beyond its buffers. */
+int multiscale_eval(const float *z, const float *uv, const float *spatial, int sh, int sw,
+                    const float *wi, const float *wo, long n, int ds,
+                    const float *frame_w, const float *frame_b, int terms, const float *warp_h_w,
+                    const float *warp_h_b, const float *warp_d_w, const float *warp_d_b,
+                    const float *tex_h, int dh, const float *tex_d, int dd, int R, int P,
+                    int layers, const int *dims, const float *const *W, const float *const *b, int hidden_act,
+                    int out_dim, float *out) {
+    const double two_pi = 6.283185307179586, pi = 3.141592653589793;
+    if (ds > 64 || dh * ds > 1024 || dd * ds > 1024 || terms > 8 || dh + dd > MAX_WIDTH) return 2;
+    float *work = work_buffers();
+    if (!work) return 1;
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;  /* zt: ds x BLOCK */
+    /* a block's directions' components, polar coordinates, decoded rows (16 x BLOCK) and texel coordinates */
+    float vix[BLOCK], viy[BLOCK], viz[BLOCK], vox[BLOCK], voy[BLOCK], voz[BLOCK];
+    float r_h[BLOCK], r_d[BLOCK], phi_h[BLOCK], phi_d[BLOCK], p[16 * BLOCK], tc[4 * BLOCK];
+    float read_h[1024], read_d[1024];
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        for (int k = 0; k < BLOCK; ++k) {
+            long row = s + (k < m ? k : 0);
+            float zr[64];
+            if (spatial) latent_read(spatial, sh, sw, ds, uv[2 * row], uv[2 * row + 1], zr);
+            else memcpy(zr, z + row * ds, ds * sizeof(float));
+            for (int i = 0; i < ds; ++i) zt[i * BLOCK + k] = zr[i];
+            vix[k] = wi[3 * row]; viy[k] = wi[3 * row + 1]; viz[k] = wi[3 * row + 2];
+            vox[k] = wo[3 * row]; voy[k] = wo[3 * row + 1]; voz[k] = wo[3 * row + 2];
+        }
+        if (frame_w) {
+            decode_block(frame_w, frame_b, zt, ds, 6, p);
+            for (int k = 0; k < BLOCK; ++k) {
+                float nx = p[k], ny = p[BLOCK + k], nz = p[2 * BLOCK + k];
+                float nn = sqrtf(nx * nx + ny * ny + nz * nz);
+                nn = nn > 1e-12f ? nn : 1e-12f;
+                nx /= nn; ny /= nn; nz /= nn;
+                float ux = p[3 * BLOCK + k], uy = p[4 * BLOCK + k], uz = p[5 * BLOCK + k];
+                float dot = ux * nx + uy * ny + uz * nz;
+                float tx = ux - dot * nx, ty = uy - dot * ny, tz = uz - dot * nz;
+                float tn = sqrtf(tx * tx + ty * ty + tz * tz);
+                tn = tn > 1e-12f ? tn : 1e-12f;
+                tx /= tn; ty /= tn; tz /= tn;
+                float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
+                float a0 = vix[k], a1 = viy[k], a2 = viz[k], c0 = vox[k], c1 = voy[k], c2 = voz[k];
+                vix[k] = a0 * tx + a1 * ty + a2 * tz; viy[k] = a0 * bx + a1 * by + a2 * bz;
+                vox[k] = c0 * tx + c1 * ty + c2 * tz; voy[k] = c0 * bx + c1 * by + c2 * bz;
+            }
+        }
+        for (int k = 0; k < BLOCK; ++k) {  /* lift, half and difference vectors, disk polar coordinates */
+            float li = 1.f - (vix[k] * vix[k] + viy[k] * viy[k]), lo = 1.f - (vox[k] * vox[k] + voy[k] * voy[k]);
+            float iz = sqrtf(li > 1e-10f ? li : 1e-10f), oz = sqrtf(lo > 1e-10f ? lo : 1e-10f);
+            float hx = vix[k] + vox[k], hy = viy[k] + voy[k], hz = iz + oz;
+            float hn = sqrtf(hx * hx + hy * hy + hz * hz);
+            hn = hn > 1e-12f ? hn : 1e-12f;
+            hx /= hn; hy /= hn; hz /= hn;
+            float s2 = hx * hx + hy * hy;
+            int pole = s2 < 1e-14f;
+            float sq = sqrtf(pole ? 1.f : s2);
+            float cp = pole ? 1.f : hx / sq, sp = pole ? 0.f : hy / sq, st = pole ? 0.f : sq, ct = hz;
+            float x = cp * vix[k] + sp * viy[k], y = -sp * vix[k] + cp * viy[k];
+            float dx = ct * x - st * iz, dy = y;
+            float rh2 = hx * hx + hy * hy, rd2 = dx * dx + dy * dy;
+            int ph = rh2 < 1e-14f, pd = rd2 < 1e-14f;
+            float rh = sqrtf(ph ? 1.f : rh2), rd = sqrtf(pd ? 1.f : rd2);
+            r_h[k] = ph ? 0.f : (rh < 1.f ? rh : 1.f);
+            r_d[k] = pd ? 0.f : (rd < 1.f ? rd : 1.f);
+            phi_h[k] = ph ? 0.f : hy; vix[k] = ph ? 1.f : hx;  /* atan2's arguments (wi is no longer needed) */
+            phi_d[k] = pd ? 0.f : dy; viy[k] = pd ? 1.f : dx;
+        }
+        for (int k = 0; k < BLOCK; ++k) {
+            phi_h[k] = remainder_near(fast_atan2(phi_h[k], vix[k]), (float)two_pi);
+            phi_d[k] = remainder_near(fast_atan2(phi_d[k], viy[k]), (float)pi);
+        }
+        if (warp_h_w) {
+            decode_block(warp_h_w, warp_h_b, zt, ds, 2 * terms, p);
+            warp_block(r_h, p, terms);
+            decode_block(warp_d_w, warp_d_b, zt, ds, 2 * terms, p);
+            warp_block(r_d, p, terms);
+        }
+        polar_texels(r_h, phi_h, R, P, two_pi, tc, tc + BLOCK);  /* texel (x, y) of the half, then the diff texture */
+        polar_texels(r_d, phi_d, R, P, pi, tc + 2 * BLOCK, tc + 3 * BLOCK);
+        for (int k = 0; k < BLOCK; ++k) {
+            angular_read(tex_h, R, P + 2, dh * ds, tc[k], tc[BLOCK + k], read_h);
+            angular_read(tex_d, R, P + 2, dd * ds, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
+            float gate[MAX_WIDTH];  /* z_h then z_d: the reads' channels are (D_s, channels), channel fastest */
+            for (int c = 0; c < dh + dd; ++c) gate[c] = 0.f;
+            for (int i = 0; i < ds; ++i) {
+                const float zi = zt[i * BLOCK + k];
+                for (int c = 0; c < dh; ++c) gate[c] += read_h[i * dh + c] * zi;
+                for (int c = 0; c < dd; ++c) gate[dh + c] += read_d[i * dd + c] * zi;
+            }
+            for (int c = 0; c < dh + dd; ++c) buf0[c * BLOCK + k] = gate[c];
+        }
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        for (int k = 0; k < m; ++k) {
+            long row = s + k;
+            int up = wi[3 * row + 2] > 0.f && wo[3 * row + 2] > 0.f;
+            for (int j = 0; j < out_dim; ++j) out[out_dim * row + j] = up ? fast_exp(y[j * BLOCK + k]) : 0.f;
+        }
     }
     free(work);
     return 0;

@@ -1,8 +1,10 @@
-"""Fused CPU kernels for small-MLP evaluation without autograd (`cpu_kernels.c`), compiled at first use.
+"""Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
+NeuBRDF's runtime form, the gated multi-scale model's decoder, and the small MLPs they end in.
 
-Why: a small decoder's evaluation in torch is some 30 to 60 tensor operations (1 to 2 us of dispatch each) over
-layers too narrow for sgemm to run near its speed; one C call per batch costs a few microseconds and keeps each block
-of rows in registers (issue 49: NBRDF 2.8x the torch rate at 2^16 queries, 65 -> 4 us per call of one query).
+Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
+pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
+microseconds and keeps each block of rows in registers (issue 49: NBRDF 8x and the multi-scale model 5x the torch
+rate at 2^16 queries; measurements in the methods' NOTES.md).
 
 The source is compiled with the system's C compiler (`$CC`, else `cc`) for this CPU (`-O3 -march=native`) into
 `$NEUMAT_CACHE_DIR` (default `~/.cache/neumat`)/cpu_kernels/<hash>/, once per source, compiler and CPU. Where no
@@ -11,6 +13,7 @@ says why). Callers use a kernel only for float32 CPU tensors with autograd off; 
 within float32 rounding (tests/nn/test_cpu_kernels.py)."""
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import os
@@ -19,18 +22,21 @@ import shutil
 import subprocess
 import tempfile
 import threading
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import torch
 from torch import nn
 
+from neumat.core.tensors import optimiser_steps
+
 SOURCE = Path(__file__).with_name("cpu_kernels.c")
 FLAGS = ("-O3", "-march=native", "-mprefer-vector-width=512", "-fno-math-errno", "-fno-trapping-math", "-fPIC",
          "-shared")
 MAX_WIDTH = 256
 """Widest layer (padded to a multiple of 4) the kernels' block buffers hold (`MAX_WIDTH` in the C source)."""
-ACTIVATION_CODES = {nn.ReLU: 1, nn.LeakyReLU: 2}
+ACTIVATION_CODES = {nn.ReLU: 1, nn.LeakyReLU: 2, nn.SiLU: 3}
 """Hidden activations the kernels implement (leaky ReLU at torch's default slope 0.01 only)."""
 PARALLEL_ROWS = 1 << 14
 """Rows from which a call is split over torch's intra-op thread count (ctypes releases the GIL)."""
@@ -103,9 +109,24 @@ def reset() -> None:
         _state.clear()
 
 
+@contextlib.contextmanager
+def switched_off():
+    """Within: every model evaluates on its torch path (export parity compares a shader with the formulas it was
+    translated from; a kernel's own rounding is tested against float64 apart)."""
+    _off.depth = getattr(_off, "depth", 0) + 1
+    try:
+        yield
+    finally:
+        _off.depth -= 1
+
+
+_off = threading.local()
+
+
 def usable(*tensors: torch.Tensor) -> bool:
-    """Whether a kernel may evaluate these inputs: the kernels exist, autograd is off, all are float32 on the CPU."""
-    if torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
+    """Whether a kernel may evaluate these inputs: the kernels exist and are not `switched_off`, autograd is off,
+    all are float32 on the CPU."""
+    if getattr(_off, "depth", 0) or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
         return False
     if any(t.dtype != torch.float32 or t.device.type != "cpu" for t in tensors):
         return False
@@ -163,21 +184,29 @@ def activation_code(module: nn.Module) -> int | None:
 
 
 def packed(owner: nn.Module, net: nn.Sequential, start: int = 0) -> PackedMLP | None:
-    """`PackedMLP.pack(net[start:])`, kept on `owner` while `net`'s parameters are the same tensors, unchanged
-    (storage and in-place version: copy_, load_state_dict and optimiser steps bump it). Checked on every call in a
-    few microseconds (module attribute lookups would cost more than the kernel's call)."""
-    kept = owner.__dict__.setdefault("_packed_mlps", {}).get(start)
+    """`PackedMLP.pack(net[start:])`, kept for `owner` while `net`'s parameters are the same tensors, unchanged
+    (`_stamp`). Checked on every call in a few microseconds (module attribute lookups would cost more than the
+    kernel's call)."""
+    kept_by_start = _packed.setdefault(owner, {})
+    kept = kept_by_start.get(start)
     if kept is not None and kept[0] is net and _stamp(kept[1]) == kept[2]:
         return kept[3]
     layers = list(net)[start:]
     linears = [m for m in layers if isinstance(m, nn.Linear)]
     value = PackedMLP.pack(layers)
-    owner.__dict__["_packed_mlps"][start] = (net, linears, _stamp(linears), value)
+    kept_by_start[start] = (net, linears, _stamp(linears), value)
     return value
 
 
+#: what `packed` keeps, per owner (outside the module: ctypes pointers cannot be copied or pickled with it)
+_packed: "weakref.WeakKeyDictionary[nn.Module, dict]" = weakref.WeakKeyDictionary()
+
+
 def _stamp(linears: list[nn.Linear]) -> list:
-    return [(id(p), p.data_ptr(), p._version) for lin in linears for p in lin._parameters.values() if p is not None]
+    """What the packed copy depends on: each parameter's identity, storage and version, and the optimiser steps
+    taken (a fused step updates in place without bumping versions: `neumat.core.tensors.derived_from`)."""
+    return [optimiser_steps()] + [(id(p), p.data_ptr(), p._version)
+                                  for lin in linears for p in lin._parameters.values() if p is not None]
 
 
 _pool: list[ThreadPoolExecutor] = []
@@ -233,6 +262,46 @@ def neubrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, nside: int,
     def run(start: int, stop: int) -> None:
         _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), nside, _ptr(table), table.shape[1],
                   first_act, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
+def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.Tensor], wi: torch.Tensor,
+                    wo: torch.Tensor,
+                    frame: tuple[torch.Tensor, torch.Tensor] | None,
+                    warps: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,
+                    tex_h: torch.Tensor, tex_d: torch.Tensor, half_channels: int, diff_channels: int) -> torch.Tensor:
+    """The multi-scale gated model's decoder (`neumat.methods.latent_mlp.multiscale`, gating on) of float32
+    spatial latents z (N, D_s), or z = (uv (N, 2), the padded finest latent level channels-last (1, D_s, h + 2,
+    w + 2)) to read them bilinearly, and directions (N, 3): (N, out_dim). frame: its decode layer's (weight x weight
+    scale (6, D_s), bias (6,)) or None; warps: (weight, bias) of the half and the difference warp ((2 K, D_s),
+    (2 K,)) or None; tex_h, tex_d: the padded polar textures channels-last, their channels ordered (D_s,
+    channels): (R, P + 2, D_s x channels)."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    null = ctypes.c_void_p(None)
+    if isinstance(z, tuple):  # read here: uv and the padded level, (H + 2, W + 2, D_s) in memory
+        uv, level = z[0].contiguous(), z[1].permute(0, 2, 3, 1).contiguous()
+        ds, sh, sw = level.shape[3], level.shape[1] - 2, level.shape[2] - 2
+        z, read = null, (_ptr(level), sh, sw)
+    else:
+        z = z.contiguous()
+        ds, uv, read = z.shape[1], None, (null, 0, 0)
+    rows, cols = tex_h.shape[:2]
+    terms = 0 if warps is None else warps[0].shape[0] // 2
+    frame_w, frame_b = (null, null) if frame is None else (_ptr(frame[0]), _ptr(frame[1]))
+    warp = [null] * 4 if warps is None else [_ptr(t) for t in warps]
+    out = torch.empty(len(wi), mlp.out_dim)
+    fn = lib.multiscale_eval
+
+    def run(start: int, stop: int) -> None:
+        latents = (null, _ptr(uv, start)) if uv is not None else (_ptr(z, start), null)
+        status = fn(*latents, *read, _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ds, frame_w,
+                    frame_b, terms, *warp, _ptr(tex_h), half_channels, _ptr(tex_d), diff_channels, rows, cols - 2,
+                    mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
+        if status == 2:
+            raise ValueError("neumat.nn.cpu_kernels.multiscale_eval: a size beyond the kernel's buffers")
+        _check(status)
     by_threads(run, len(wi))
     return out
 

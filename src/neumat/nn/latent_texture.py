@@ -320,9 +320,13 @@ class LatentPyramid(nn.Module):
         if lod is not None:
             return trilinear_flat(None, [t.shape[1:] for t in self.raw], uv, lod.to(uv.dtype),
                                   level_u=level_u, atlas=self.atlas())
-        padded = derived_from(self, "finest", [self.raw[0]], lambda: _kept_channels_last(wrap_padded(
+        return bilinear_padded(self.finest_padded(), uv)
+
+    def finest_padded(self) -> torch.Tensor:
+        """The finest level, preconditioned and `wrap_padded` (1, C, H + 2, W + 2): what a lookup without footprint
+        or lod reads; kept while unchanged and no gradient is wanted (`derived_from`, channels-last)."""
+        return derived_from(self, "finest", [self.raw[0]], lambda: _kept_channels_last(wrap_padded(
             self.raw[0] if self.precondition is None else self.precondition(self.raw[0]))))
-        return bilinear_padded(padded, uv)
 
     def level_fraction(self, footprint: torch.Tensor | None, lod: torch.Tensor | None, n: int,
                        device=None) -> torch.Tensor:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from ..nn import cpu_kernels
 from .parity import glsl_eval, neupress_parity
 
 
@@ -46,7 +47,7 @@ def export_check(fmt: str, exported, model, n: int, precision: str) -> list[str]
         return [f"{what} vs torch{where}: S_hat max difference {d['translucent']:.2e} of its largest value, sigma "
                 f"max relative difference {d['sigma']:.2e}"]
     q = footprint_queries(model, model)(n, torch.Generator().manual_seed(0), torch.device("cpu"))
-    with torch.no_grad():
+    with torch.no_grad(), cpu_kernels.switched_off():  # the formulas the export was translated from
         ref = model.eval(q)
         half = half_rounded(model).eval(q) if precision == "fp16" else None
     if fmt == "glsl":

@@ -21,9 +21,10 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import by_rows
+from neumat.core.tensors import by_rows, derived_from
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
+from neumat.nn import cpu_kernels
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
@@ -116,6 +117,13 @@ def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) ->
     return torch.randn(shape) * (std / gain)
 
 
+def _kernel_texture(padded: torch.Tensor, channels: int, spatial: int) -> torch.Tensor:
+    """A padded polar texture (channels x spatial, R, P + 2) as `cpu_kernels.multiscale_eval` reads it: channels-last,
+    the channel c x spatial + i moved to i x channels + c (the gating's sum over i then runs along rows)."""
+    r, w = padded.shape[1:]
+    return padded.view(channels, spatial, r, w).permute(2, 3, 1, 0).contiguous()
+
+
 class MultiScale(LearnedMaterial, SpatialLatent):
     """The gated multi-scale model (see module docstring). eval(q) -> (N, 3)."""
 
@@ -201,7 +209,42 @@ class MultiScale(LearnedMaterial, SpatialLatent):
 
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
-        return by_rows(self._eval_rows, self.eval_chunk, q)
+        fast = self._kernel_eval(q)
+        return fast if fast is not None else by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _kernel_eval(self, q: Query) -> torch.Tensor | None:
+        """`eval` with everything after the spatial read (frame, warps, polar textures, gating, MLP), and for
+        queries without footprint or lod the finest level's read too, in one fused C call
+        (`neumat.nn.cpu_kernels.multiscale_eval`; the torch path's values within float32 rounding), or None where
+        it does not apply: autograd, other dtypes, no compiler, a configuration without gating or spatial
+        texture. Why: the torch path is some 150 small tensor operations (1.2e6 evaluations per second)."""
+        c = self.cfg
+        if self.spatial is None or not c.gating or q.wo is None or (self.frame is not None and self.frame.frames != 1) \
+                or not cpu_kernels.usable(q.wi, q.wo, self.half_texture.raw):
+            return None
+        mlp = cpu_kernels.packed(self, self.mlp.net)
+        if mlp is None:
+            return None
+        q.require("uv", who="multiscale (spatially varying)")
+        if q.footprint is None and q.lod is None:  # the finest level's bilinear read, in the kernel too
+            z = (q.uv, self.spatial.finest_padded())
+            if z[1].dtype != torch.float32 or z[0].dtype != torch.float32:
+                return None
+        else:
+            z = by_rows(self.spatial_latent, self.eval_chunk, q)
+            if z.dtype != torch.float32:
+                return None
+        frame = None if self.frame is None else derived_from(
+            self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias],
+            lambda: (self.frame.decode.weight * self.frame.weight_scale, self.frame.decode.bias.clone()))
+        warps = None if self.warp_h is None else (self.warp_h.decode.weight, self.warp_h.decode.bias,
+                                                  self.warp_d.decode.weight, self.warp_d.decode.bias)
+        tex = [derived_from(self, f"kernel {name}", [t.raw],
+                            lambda t=t, k=k: _kernel_texture(t.padded(), k, c.spatial_channels))
+               for name, t, k in (("half", self.half_texture, c.half_channels),
+                                  ("diff", self.diff_texture, c.diff_channels))]
+        return cpu_kernels.multiscale_eval(mlp, z, q.wi, q.wo, frame, warps, *tex, c.half_channels,
+                                           c.diff_channels)
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
         f = torch.exp(self.mlp(self.latents(q)))
