@@ -18,6 +18,7 @@ from neumat.fit.preset import build_fit
 from neumat.fit.trainer import FitWarning, fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import load_all
+from neumat.nn import cpu_kernels
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 from neumat.warp.sphere import sample_uniform_sphere
 
@@ -73,14 +74,17 @@ def run(run: harness.Run) -> None:
                 run.skip(f"{name} at {n} queries", f"one call would take about {n / rate:.0f} CPU s (at "
                          f"{rate:.3g} evaluations per CPU s), over the suite's {MAX_SECONDS_PER_CALL:g} s per call")
                 continue
+            before = cpu_kernels.calls[0]
             rate = ggx[n] if name == "ggx:roughness=0.2" else _eval_rate(run, m, n)
-            rows.append({"material": name, "queries": n, "flops/query": flops, "evals/cpu s": rate,
+            path = "C kernel" if cpu_kernels.calls[0] > before else "torch"
+            rows.append({"material": name, "queries": n, "path": path, "flops/query": flops, "evals/cpu s": rate,
                          "sample+pdf/cpu s": _sample_rate(run, m, n) if m.can_sample else None,
                          "% sgemm": None if flops is None else 100 * flops * rate / sgemm,
                          "x GGX": ggx[n] / rate})
     run.table("eval", "Evaluation and sampling rates (runtime form, one thread)", rows,
               "models at their default (paper) config, called without autograd (torch.no_grad) as renderers call "
-              "them; dipole-bssrdf with its quadrature on a sphere of radius 0.5")
+              "them; dipole-bssrdf with its quadrature on a sphere of radius 0.5; 'path': the model's torch "
+              "operations or a fused C kernel (neumat.nn.cpu_kernels)")
     _fixed_costs(run, materials)
     export_n = 2 ** 16
     torch_rates = {r["material"]: r["evals/cpu s"] for r in rows if r["queries"] == export_n}

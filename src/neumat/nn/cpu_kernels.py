@@ -212,9 +212,15 @@ def _stamp(linears: list[nn.Linear]) -> list:
 _pool: list[ThreadPoolExecutor] = []
 
 
+#: kernel calls made in this process (`by_threads` counts them): a benchmark reads it to say which rows were
+#: measured on a fused kernel
+calls = [0]
+
+
 def by_threads(run, n: int) -> None:
     """run(start, stop) over row ranges covering 0..n: one range below PARALLEL_ROWS rows or on one torch thread,
     else one per torch intra-op thread, run concurrently (each call releases the GIL inside the C kernel)."""
+    calls[0] += 1
     threads = torch.get_num_threads()
     if n < PARALLEL_ROWS or threads <= 1:
         run(0, n)
