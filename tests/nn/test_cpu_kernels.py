@@ -307,3 +307,12 @@ def test_a_model_evaluated_by_a_kernel_still_copies_and_pickles(tmp_path):
         twin = copy.deepcopy(model)
         torch.save(model, tmp_path / "m.pt")
         torch.testing.assert_close(twin.eval(q), before)
+
+
+def test_a_damaged_cached_library_is_built_again(fresh_kernels):
+    if cpu_kernels.library() is None:
+        pytest.skip(f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+    built = next(cpu_kernels._cache_dir().rglob("*.so"))
+    built.write_bytes(b"not a library")
+    cpu_kernels.reset()
+    assert cpu_kernels.library() is not None, cpu_kernels.unavailable()

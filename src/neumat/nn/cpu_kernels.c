@@ -105,6 +105,7 @@ static float *mlp_block(float *buf0, float *buf1, int layers, const int *dims, c
 int nbrdf_eval(const float *wi, const float *wo, long n, int layers, const int *dims, const float *const *W,
                const float *const *b, int hidden_act, int half_theta, int fold, int exp_minus_one, int out_dim,
                float *out) {
+    if (out_dim >= MAX_WIDTH) return 2;  /* res holds the outputs and the horizon flags */
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK;

@@ -59,7 +59,7 @@ def _cache_dir() -> Path:
     return Path(os.environ.get("NEUMAT_CACHE_DIR") or Path.home() / ".cache" / "neumat") / "cpu_kernels"
 
 
-def _compile() -> ctypes.CDLL:
+def _compile(retry: bool = True) -> ctypes.CDLL:
     cc = os.environ.get("CC") or "cc"
     if shutil.which(cc) is None:
         raise RuntimeError(f"no C compiler ({cc!r} not found; set CC)")
@@ -79,7 +79,13 @@ def _compile() -> ctypes.CDLL:
             partial.replace(lib)  # atomic: a concurrent process sees the whole library or none
         finally:
             partial.unlink(missing_ok=True)
-    return ctypes.CDLL(str(lib))
+    try:
+        return ctypes.CDLL(str(lib))
+    except OSError:
+        if not retry:
+            raise
+        lib.unlink(missing_ok=True)  # a damaged cached copy (an interrupted disk write): built again, once
+        return _compile(retry=False)
 
 
 def library() -> ctypes.CDLL | None:
@@ -313,7 +319,8 @@ def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.
 
 
 def mlp_forward(mlp: PackedMLP, x: torch.Tensor) -> torch.Tensor:
-    """The packed MLP of float32 rows x (N, in): (N, out_dim)."""
+    """The packed MLP of float32 rows x (N, in): (N, out_dim) (the block MLP every kernel ends in, alone: tests
+    hold it against torch at any width and activation)."""
     lib = library()
     x = x.contiguous()
     out = torch.empty(len(x), mlp.out_dim)
