@@ -227,11 +227,11 @@ def test_neubrdf_kernel_declines_what_it_does_not_implement():
             assert model._kernel_eval(wi, wi) is None, config
 
 
-def _multiscale_runtime(seed, **config):
+def _multiscale_runtime(seed, model_class=None, **config):
     from neumat.methods.latent_mlp.multiscale import MultiScale
 
     torch.manual_seed(seed)
-    model = MultiScale(spatial_size=16, **config)
+    model = (model_class or MultiScale)(spatial_size=16, **config)
     with torch.no_grad():  # the frame and warp decoders start at zero weights: give every part a say
         for p in model.parameters():
             p.add_(0.2 * torch.randn_like(p))
@@ -251,11 +251,14 @@ def _texture_queries(n, seed, mode):
 
 
 @needs_kernels
-@pytest.mark.parametrize("config", [{}, {"shading_frame": False}, {"radial_warps": False, "hidden_layers": 2}])
+@pytest.mark.parametrize("config", [{}, {"shading_frame": False}, {"radial_warps": False, "hidden_layers": 2},
+                                    {"tripleplane": True}])
 @pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
 @pytest.mark.parametrize("n", [1, 65, 3000])
 def test_multiscale_eval_equals_its_torch_path(config, mode, n, monkeypatch):
-    model = _multiscale_runtime(0, **config)
+    from neumat.methods.latent_mlp.tripleplane import TriplePlane
+
+    model = _multiscale_runtime(0, TriplePlane) if config.get("tripleplane") else _multiscale_runtime(0, **config)
     q = _texture_queries(n, n, mode)
     with torch.no_grad():
         assert model._kernel_eval(q) is not None, "the kernel does not apply"
@@ -288,7 +291,7 @@ def _as_accurate_as_torch(model, q, got, ref):
 
 
 def test_multiscale_kernel_declines_what_it_does_not_implement():
-    for config in ({"gating": False}, {"homogeneous": True}):
+    for config in ({"homogeneous": True},):
         model = _multiscale_runtime(0, **config)
         q = _texture_queries(4, 0, "none")
         with torch.no_grad():
@@ -316,3 +319,29 @@ def test_a_damaged_cached_library_is_built_again(fresh_kernels):
     built.write_bytes(b"not a library")
     cpu_kernels.reset()
     assert cpu_kernels.library() is not None, cpu_kernels.unavailable()
+
+
+@needs_kernels
+@pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
+@pytest.mark.parametrize("n", [1, 65, 3000])
+def test_neumip_eval_equals_its_torch_path(mode, n, monkeypatch):
+    from neumat.methods.latent_mlp.neumip import NeuMIP
+
+    model = _multiscale_runtime(0, NeuMIP)
+    q = _texture_queries(n, n, mode)
+    with torch.no_grad():
+        assert model._kernel_eval(q) is not None, "the kernel does not apply"
+        got = model.eval(q)
+        with cpu_kernels.switched_off():
+            ref = model.eval(q)
+    _as_accurate_as_torch(model, q, got, ref)
+    assert (got[q.wi[:, 2] <= 0] == 0).all()
+
+
+def test_neumip_kernel_declines_its_variants():
+    from neumat.models.registry import build_model
+
+    for name in ("neumip-offset", "neumip-frame", "nbrdf-uv"):
+        model = build_model({"type": name, "spatial_size": 16}).runtime().eval()
+        with torch.no_grad():
+            assert model._kernel_eval(_texture_queries(4, 0, "none")) is None, name

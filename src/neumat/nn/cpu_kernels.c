@@ -351,20 +351,31 @@ static void warp_block(float *r, const float *p, int terms) {
     memcpy(r, out, sizeof out);
 }
 
-/* z (ds) at uv of a latent texture padded circularly by one texel, channels-last (h + 2, w + 2, ds): the
-   bilinear read of neumat.nn.latent_texture.bilinear_padded (grid_sample, corner-aligned, border), float32 step
-   by step as there, without fused multiply-adds (a texel coordinate is a large multiple of uv: with them the
-   read differed from torch's in the fifth digit on a 1K texture) */
+/* texel coordinates (ix, iy) (BLOCK each) of uv (rows s .. s + BLOCK - 1; past n, row s again) in a latent texture
+   of h x w texels padded circularly by one: neumat.nn.latent_texture.bilinear_padded's grid, unnormalised and
+   clamped as grid_sample's border padding does, float32 step by step as there, without fused multiply-adds (a
+   texel coordinate is a large multiple of uv: with them the read differed from torch's in the fifth digit on a
+   1K texture) */
 __attribute__((optimize("fp-contract=off"), noinline))
-static void latent_read(const float *tex, int h, int w, int ds, float u, float v, float *z) {
-    u = fmodf(u, 1.f); u = u < 0.f ? u + 1.f : u;
-    v = fmodf(v, 1.f); v = v < 0.f ? v + 1.f : v;
-    float x = u * (float)w - 0.5f, y = (1.f - v) * (float)h - 0.5f;
-    float gx = (x + 1.f) * (float)(2.0 / (double)(w + 1)) - 1.f, gy = (y + 1.f) * (float)(2.0 / (double)(h + 1)) - 1.f;
+static void latent_texels(const float *uv, long s, long n, int h, int w, float *ix, float *iy) {
+    const float sx = (float)(2.0 / (double)(w + 1)), sy = (float)(2.0 / (double)(h + 1));
+    const float wx = (float)(w + 1), wy = (float)(h + 1);
+    for (int k = 0; k < BLOCK; ++k) {
+        long row = s + k < n ? s + k : s;
+        float u = uv[2 * row], v = uv[2 * row + 1];
+        u -= floorf(u);  /* torch.remainder(u, 1): fmod (exact), + 1 below 0 (one rounding, as here) */
+        v -= floorf(v);
+        float x = u * (float)w - 0.5f, y = (1.f - v) * (float)h - 0.5f;
+        float gx = (x + 1.f) * sx - 1.f, gy = (y + 1.f) * sy - 1.f;
+        float tx = (gx + 1.f) / 2.f * wx, ty = (gy + 1.f) / 2.f * wy;
+        ix[k] = tx < 0.f ? 0.f : (tx > wx ? wx : tx);
+        iy[k] = ty < 0.f ? 0.f : (ty > wy ? wy : ty);
+    }
+}
+
+/* z (ds) bilinear at texel coordinates (ix, iy) of a padded latent texture, channels-last (h + 2, w + 2, ds) */
+static inline void latent_read(const float *tex, int h, int w, int ds, float ix, float iy, float *z) {
     const int W = w + 2, H = h + 2;
-    float ix = (gx + 1.f) / 2.f * (float)(W - 1), iy = (gy + 1.f) / 2.f * (float)(H - 1);
-    ix = ix < 0.f ? 0.f : (ix > (float)(W - 1) ? (float)(W - 1) : ix);
-    iy = iy < 0.f ? 0.f : (iy > (float)(H - 1) ? (float)(H - 1) : iy);
     int x0 = (int)ix, y0 = (int)iy;
     float fx = ix - (float)x0, fy = iy - (float)y0;
     int x1 = x0 + 1 < W ? x0 + 1 : x0, y1 = y0 + 1 < H ? y0 + 1 : y0;
@@ -380,17 +391,18 @@ static void latent_read(const float *tex, int h, int w, int ds, float u, float v
    frame (frame_w: 6 x ds, already times its weight scale; NULL: none), half and difference vectors, disk polar
    coordinates, radial warps (warp_*: 2 terms x ds; NULL: none), the two polar textures (channels-last, channels
    ds x dh and ds x dd, the model's channel c x ds + i at i x dh + c) gated by z, the MLP on [z_h, z_d], exp; 0
-   where wi.z or wo.z <= 0. out: n x out_dim. The geometry runs on blocks of rows (vectorised), the texture reads
+   where wi.z or wo.z <= 0. Not `gated` (tripleplane): textures of dh and dd channels, the MLP on [a_h, a_d, z]. out: n x out_dim. The geometry runs on blocks of rows (vectorised), the texture reads
    and gating row by row. Returns 1 without memory, 2 for sizes beyond its buffers. */
 int multiscale_eval(const float *z, const float *uv, const float *spatial, int sh, int sw,
                     const float *wi, const float *wo, long n, int ds,
                     const float *frame_w, const float *frame_b, int terms, const float *warp_h_w,
                     const float *warp_h_b, const float *warp_d_w, const float *warp_d_b,
-                    const float *tex_h, int dh, const float *tex_d, int dd, int R, int P,
+                    int gated, const float *tex_h, int dh, const float *tex_d, int dd, int R, int P,
                     int layers, const int *dims, const float *const *W, const float *const *b, int hidden_act,
                     int out_dim, float *out) {
     const double two_pi = 6.283185307179586, pi = 3.141592653589793;
-    if (ds > 64 || dh * ds > 1024 || dd * ds > 1024 || terms > 8 || dh + dd > MAX_WIDTH) return 2;
+    const int gate = gated ? ds : 1;  /* the textures' channels: channels x D_s gated, the channels alone not */
+    if (ds > 64 || dh * gate > 1024 || dd * gate > 1024 || terms > 8 || dh + dd + ds > MAX_WIDTH) return 2;
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;  /* zt: ds x BLOCK */
@@ -398,12 +410,14 @@ int multiscale_eval(const float *z, const float *uv, const float *spatial, int s
     float vix[BLOCK], viy[BLOCK], viz[BLOCK], vox[BLOCK], voy[BLOCK], voz[BLOCK];
     float r_h[BLOCK], r_d[BLOCK], phi_h[BLOCK], phi_d[BLOCK], p[16 * BLOCK], tc[4 * BLOCK];
     float read_h[1024], read_d[1024];
+    float lx[BLOCK], ly[BLOCK];  /* texel coordinates of the block's latent reads */
     for (long s = 0; s < n; s += BLOCK) {
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        if (spatial) latent_texels(uv, s, n, sh, sw, lx, ly);
         for (int k = 0; k < BLOCK; ++k) {
             long row = s + (k < m ? k : 0);
             float zr[64];
-            if (spatial) latent_read(spatial, sh, sw, ds, uv[2 * row], uv[2 * row + 1], zr);
+            if (spatial) latent_read(spatial, sh, sw, ds, lx[k], ly[k], zr);
             else memcpy(zr, z + row * ds, ds * sizeof(float));
             for (int i = 0; i < ds; ++i) zt[i * BLOCK + k] = zr[i];
             vix[k] = wi[3 * row]; viy[k] = wi[3 * row + 1]; viz[k] = wi[3 * row + 2];
@@ -462,8 +476,14 @@ int multiscale_eval(const float *z, const float *uv, const float *spatial, int s
         polar_texels(r_h, phi_h, R, P, two_pi, tc, tc + BLOCK);  /* texel (x, y) of the half, then the diff texture */
         polar_texels(r_d, phi_d, R, P, pi, tc + 2 * BLOCK, tc + 3 * BLOCK);
         for (int k = 0; k < BLOCK; ++k) {
-            angular_read(tex_h, R, P + 2, dh * ds, tc[k], tc[BLOCK + k], read_h);
-            angular_read(tex_d, R, P + 2, dd * ds, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
+            angular_read(tex_h, R, P + 2, dh * gate, tc[k], tc[BLOCK + k], read_h);
+            angular_read(tex_d, R, P + 2, dd * gate, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
+            if (!gated) {  /* tripleplane: the MLP reads [a_h, a_d, z] */
+                for (int c = 0; c < dh; ++c) buf0[c * BLOCK + k] = read_h[c];
+                for (int c = 0; c < dd; ++c) buf0[(dh + c) * BLOCK + k] = read_d[c];
+                for (int i = 0; i < ds; ++i) buf0[(dh + dd + i) * BLOCK + k] = zt[i * BLOCK + k];
+                continue;
+            }
             float gate[MAX_WIDTH];  /* z_h then z_d: the reads' channels are (D_s, channels), channel fastest */
             for (int c = 0; c < dh + dd; ++c) gate[c] = 0.f;
             for (int i = 0; i < ds; ++i) {
@@ -472,6 +492,42 @@ int multiscale_eval(const float *z, const float *uv, const float *spatial, int s
                 for (int c = 0; c < dd; ++c) gate[dh + c] += read_d[i * dd + c] * zi;
             }
             for (int c = 0; c < dh + dd; ++c) buf0[c * BLOCK + k] = gate[c];
+        }
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        for (int k = 0; k < m; ++k) {
+            long row = s + k;
+            int up = wi[3 * row + 2] > 0.f && wo[3 * row + 2] > 0.f;
+            for (int j = 0; j < out_dim; ++j) out[out_dim * row + j] = up ? fast_exp(y[j * BLOCK + k]) : 0.f;
+        }
+    }
+    free(work);
+    return 0;
+}
+
+/* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip, Cartesian directions, no offset module or
+   shading frame): the MLP on [z, wi, wo], exp, 0 where wi.z or wo.z <= 0, from spatial latents z (n x ds) or,
+   with `spatial`, z read at uv from the padded finest level as multiscale_eval does. out: n x out_dim. */
+int neumip_eval(const float *z, const float *uv, const float *spatial, int sh, int sw, const float *wi,
+                const float *wo, long n, int ds, int layers, const int *dims, const float *const *W,
+                const float *const *b, int hidden_act, int out_dim, float *out) {
+    if (ds > 64 || ds + 6 > MAX_WIDTH) return 2;
+    float *work = work_buffers();
+    if (!work) return 1;
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK;
+    float lx[BLOCK], ly[BLOCK];  /* texel coordinates of the block's latent reads */
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        if (spatial) latent_texels(uv, s, n, sh, sw, lx, ly);
+        for (int k = 0; k < BLOCK; ++k) {
+            long row = s + (k < m ? k : 0);
+            float zr[64];
+            if (spatial) latent_read(spatial, sh, sw, ds, lx[k], ly[k], zr);
+            else memcpy(zr, z + row * ds, ds * sizeof(float));
+            for (int i = 0; i < ds; ++i) buf0[i * BLOCK + k] = zr[i];
+            for (int j = 0; j < 3; ++j) {
+                buf0[(ds + j) * BLOCK + k] = wi[3 * row + j];
+                buf0[(ds + 3 + j) * BLOCK + k] = wo[3 * row + j];
+            }
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         for (int k = 0; k < m; ++k) {

@@ -282,37 +282,73 @@ def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.
                     wo: torch.Tensor,
                     frame: tuple[torch.Tensor, torch.Tensor] | None,
                     warps: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,
-                    tex_h: torch.Tensor, tex_d: torch.Tensor, half_channels: int, diff_channels: int) -> torch.Tensor:
+                    tex_h: torch.Tensor, tex_d: torch.Tensor, half_channels: int, diff_channels: int,
+                    gated: bool = True) -> torch.Tensor:
     """The multi-scale gated model's decoder (`neumat.methods.latent_mlp.multiscale`, gating on) of float32
     spatial latents z (N, D_s), or z = (uv (N, 2), the padded finest latent level channels-last (1, D_s, h + 2,
     w + 2)) to read them bilinearly, and directions (N, 3): (N, out_dim). frame: its decode layer's (weight x weight
     scale (6, D_s), bias (6,)) or None; warps: (weight, bias) of the half and the difference warp ((2 K, D_s),
     (2 K,)) or None; tex_h, tex_d: the padded polar textures channels-last, their channels ordered (D_s,
-    channels): (R, P + 2, D_s x channels)."""
+    channels): (R, P + 2, D_s x channels). Not `gated` (tripleplane): textures of the channels alone, the MLP
+    reads [a_h, a_d, z]."""
     lib = library()
     wi, wo = wi.contiguous(), wo.contiguous()
     null = ctypes.c_void_p(None)
-    if isinstance(z, tuple):  # read here: uv and the padded level, (H + 2, W + 2, D_s) in memory
-        uv, level = z[0].contiguous(), z[1].permute(0, 2, 3, 1).contiguous()
-        ds, sh, sw = level.shape[3], level.shape[1] - 2, level.shape[2] - 2
-        z, read = null, (_ptr(level), sh, sw)
-    else:
-        z = z.contiguous()
-        ds, uv, read = z.shape[1], None, (null, 0, 0)
+    ds, uv, z, read, keep = _latents(z, null)
     rows, cols = tex_h.shape[:2]
+    gate = ds if gated else 1
+    if tex_h.shape[2] != half_channels * gate or tex_d.shape != (rows, cols, diff_channels * gate) \
+            or not (tex_h.is_contiguous() and tex_d.is_contiguous()):
+        raise ValueError(f"neumat.nn.cpu_kernels.multiscale_eval: textures {tuple(tex_h.shape)}, "
+                         f"{tuple(tex_d.shape)} for {half_channels} / {diff_channels} channels x {gate}")
     terms = 0 if warps is None else warps[0].shape[0] // 2
-    frame_w, frame_b = (null, null) if frame is None else (_ptr(frame[0]), _ptr(frame[1]))
-    warp = [null] * 4 if warps is None else [_ptr(t) for t in warps]
+    small = [t.contiguous() for t in (frame or ()) + (warps or ())]  # kept alive through the call
+    frame_w, frame_b = (null, null) if frame is None else (_ptr(small[0]), _ptr(small[1]))
+    warp = [null] * 4 if warps is None else [_ptr(t) for t in small[-4:]]
     out = torch.empty(len(wi), mlp.out_dim)
     fn = lib.multiscale_eval
 
     def run(start: int, stop: int) -> None:
         latents = (null, _ptr(uv, start)) if uv is not None else (_ptr(z, start), null)
         status = fn(*latents, *read, _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ds, frame_w,
-                    frame_b, terms, *warp, _ptr(tex_h), half_channels, _ptr(tex_d), diff_channels, rows, cols - 2,
+                    frame_b, terms, *warp, int(gated), _ptr(tex_h), half_channels, _ptr(tex_d), diff_channels, rows,
+                    cols - 2,
                     mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
         if status == 2:
             raise ValueError("neumat.nn.cpu_kernels.multiscale_eval: a size beyond the kernel's buffers")
+        _check(status)
+    by_threads(run, len(wi))
+    return out
+
+
+def _latents(z, null):
+    """The kernels' latent arguments of z (N, D_s), or of (uv (N, 2), the padded finest level channels-last (1,
+    D_s, h + 2, w + 2)) read in the kernel: (D_s, uv or None, z or None, (level pointer, h, w), tensors to keep)."""
+    if isinstance(z, tuple):
+        uv, level = z[0].contiguous(), z[1].permute(0, 2, 3, 1).contiguous()  # (1, h + 2, w + 2, D_s) in memory
+        return level.shape[3], uv, None, (_ptr(level), level.shape[1] - 2, level.shape[2] - 2), level
+    z = z.contiguous()
+    return z.shape[1], None, z, (null, 0, 0), z
+
+
+def neumip_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.Tensor], wi: torch.Tensor,
+                wo: torch.Tensor) -> torch.Tensor:
+    """NeuMIP's decoder (`neumat.methods.latent_mlp.neumip`, Cartesian directions, no offset module or frame) of
+    float32 latents z (N, D_s) or (uv, padded finest level) as `multiscale_eval` takes them, and directions (N, 3):
+    exp(MLP([z, wi, wo])) (N, out_dim), 0 below the horizon."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    null = ctypes.c_void_p(None)
+    ds, uv, z, read, keep = _latents(z, null)
+    out = torch.empty(len(wi), mlp.out_dim)
+    fn = lib.neumip_eval
+
+    def run(start: int, stop: int) -> None:
+        latents = (null, _ptr(uv, start)) if uv is not None else (_ptr(z, start), null)
+        status = fn(*latents, *read, _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ds, mlp.layers,
+                    mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
+        if status == 2:
+            raise ValueError("neumat.nn.cpu_kernels.neumip_eval: a size beyond the kernel's buffers")
         _check(status)
     by_threads(run, len(wi))
     return out

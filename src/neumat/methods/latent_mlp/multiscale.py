@@ -121,7 +121,7 @@ def _kernel_texture(padded: torch.Tensor, channels: int, spatial: int) -> torch.
     """A padded polar texture (channels x spatial, R, P + 2) as `cpu_kernels.multiscale_eval` reads it: channels-last,
     the channel c x spatial + i moved to i x channels + c (the gating's sum over i then runs along rows)."""
     r, w = padded.shape[1:]
-    return padded.view(channels, spatial, r, w).permute(2, 3, 1, 0).contiguous()
+    return padded.view(channels, spatial, r, w).permute(2, 3, 1, 0).contiguous().view(r, w, spatial * channels)
 
 
 class MultiScale(LearnedMaterial, SpatialLatent):
@@ -216,10 +216,11 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         """`eval` with everything after the spatial read (frame, warps, polar textures, gating, MLP), and for
         queries without footprint or lod the finest level's read too, in one fused C call
         (`neumat.nn.cpu_kernels.multiscale_eval`; the torch path's values within float32 rounding), or None where
-        it does not apply: autograd, other dtypes, no compiler, a configuration without gating or spatial
-        texture. Why: the torch path is some 150 small tensor operations (1.2e6 evaluations per second)."""
+        it does not apply: autograd, other dtypes, no compiler, no spatial texture (homogeneous). Without gating
+        (tripleplane) the MLP reads the concatenated latents. Why: the torch path is some 150 small tensor
+        operations (1.2e6 evaluations per second)."""
         c = self.cfg
-        if self.spatial is None or not c.gating or q.wo is None or (self.frame is not None and self.frame.frames != 1) \
+        if self.spatial is None or q.wo is None or (self.frame is not None and self.frame.frames != 1) \
                 or not cpu_kernels.usable(q.wi, q.wo, self.half_texture.raw):
             return None
         mlp = cpu_kernels.packed(self, self.mlp.net)
@@ -239,12 +240,12 @@ class MultiScale(LearnedMaterial, SpatialLatent):
             lambda: (self.frame.decode.weight * self.frame.weight_scale, self.frame.decode.bias.clone()))
         warps = None if self.warp_h is None else (self.warp_h.decode.weight, self.warp_h.decode.bias,
                                                   self.warp_d.decode.weight, self.warp_d.decode.bias)
-        tex = [derived_from(self, f"kernel {name}", [t.raw],
-                            lambda t=t, k=k: _kernel_texture(t.padded(), k, c.spatial_channels))
+        gate = c.spatial_channels if c.gating else 1
+        tex = [derived_from(self, f"kernel {name}", [t.raw], lambda t=t, k=k: _kernel_texture(t.padded(), k, gate))
                for name, t, k in (("half", self.half_texture, c.half_channels),
                                   ("diff", self.diff_texture, c.diff_channels))]
         return cpu_kernels.multiscale_eval(mlp, z, q.wi, q.wo, frame, warps, *tex, c.half_channels,
-                                           c.diff_channels)
+                                           c.diff_channels, gated=c.gating)
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
         f = torch.exp(self.mlp(self.latents(q)))

@@ -25,6 +25,7 @@ from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.multiscale import preconditioned_noise, start_at_data_scale
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
+from neumat.nn import cpu_kernels
 from neumat.nn.angular_texture import half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
@@ -173,7 +174,34 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         q.require("wo", who=f"{self.name}.eval")
+        fast = self._kernel_eval(q)
+        if fast is not None:
+            return fast
         return by_rows(lambda rows: self.filtered_outputs(rows)[:, :3], self.eval_chunk, q)
+
+    def _kernel_eval(self, q: Query) -> torch.Tensor | None:
+        """`eval` as one fused C call after the spatial read (`neumat.nn.cpu_kernels.neumip_eval`; for queries
+        without footprint or lod the finest level's read in it too), or None where it does not apply: autograd,
+        other dtypes, no compiler, the offset module, a shading frame, Rusinkiewicz directions, roulette levels,
+        more outputs than 3."""
+        c = self.cfg
+        if self.offset_mlp is not None or self.frame is not None or c.directions != "cartesian" \
+                or c.level_selection != "trilinear" or self.outputs != 3 \
+                or not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
+            return None
+        mlp = cpu_kernels.packed(self, self.mlp.net)
+        if mlp is None:
+            return None
+        q.require("uv", who=f"{self.name} (spatially varying)")
+        if q.footprint is None and q.lod is None:
+            if q.uv.dtype != torch.float32:
+                return None
+            z = (q.uv, self.spatial.finest_padded())
+        else:
+            z = by_rows(self.spatial_latent, self.eval_chunk, q)
+            if z.dtype != torch.float32:
+                return None
+        return cpu_kernels.neumip_eval(mlp, z, q.wi, q.wo)
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
