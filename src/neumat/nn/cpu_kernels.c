@@ -385,16 +385,105 @@ static inline void latent_read(const float *tex, int h, int w, int ds, float ix,
     for (int k = 0; k < ds; ++k) z[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
 }
 
+/* Where a kernel's spatial latents z come from (neumat.nn.latent_texture.LatentPyramid.forward's three lookups):
+   0: given, z (n x ds); 1: the padded finest level `finest` ((h + 2, w + 2, ds), channels-last) at uv, without
+   footprint or lod; 2: trilinear in the atlas of padded levels ((Ha, Wa, ds), channels-last; level l of size
+   (size[2 l], size[2 l + 1]) = (W_l, H_l) at origin (origin[2 l], origin[2 l + 1])) at uv and lod; 3: the
+   anisotropic filter of a footprint (n x 2 x 2, uv^2) of up to max_probes trilinear probes in that atlas. The
+   pointers of per-row data start at the call's first row. */
+typedef struct {
+    int mode;
+    const float *z, *uv, *lod, *footprint;
+    const float *finest;
+    int h, w;
+    const float *atlas;
+    int Wa, Ha, levels, max_probes;
+    const int *size;
+    const float *origin;
+} Latents;
+
+/* trilinear_flat of one lookup: acc (ds) += the bilinear reads of the two levels around lod (clamped to the
+   pyramid) at uv, blended by (1 - t, t) times scale; float32 step by step as there, without fused multiply-adds */
+__attribute__((optimize("fp-contract=off"), noinline))
+static void atlas_trilinear(const Latents *L, int ds, float u, float v, float lod, float scale, float *acc) {
+    const float top = (float)(L->levels - 1);
+    lod = lod < 0.f ? 0.f : (lod > top ? top : lod);
+    const float lo = floorf(lod), t = lod - lo;
+    const int l0 = (int)lo, l1 = l0 + 1 < L->levels ? l0 + 1 : L->levels - 1;
+    u -= floorf(u);  /* torch.remainder(u, 1) */
+    v -= floorf(v);
+    const float fv = 1.f - v, sx = 2.f / (float)(L->Wa - 1), sy = 2.f / (float)(L->Ha - 1);
+    const float w0 = (1.f - t) * scale, w1 = t * scale;
+    float r[2][64];
+    for (int e = 0; e < 2; ++e) {
+        const int l = e ? l1 : l0;
+        float tx = u * (float)L->size[2 * l] - 0.5f, ty = fv * (float)L->size[2 * l + 1] - 0.5f;
+        float gx = (tx + L->origin[2 * l]) * sx - 1.f, gy = (ty + L->origin[2 * l + 1]) * sy - 1.f;
+        float ix = (gx + 1.f) / 2.f * (float)(L->Wa - 1), iy = (gy + 1.f) / 2.f * (float)(L->Ha - 1);
+        ix = ix < 0.f ? 0.f : (ix > (float)(L->Wa - 1) ? (float)(L->Wa - 1) : ix);
+        iy = iy < 0.f ? 0.f : (iy > (float)(L->Ha - 1) ? (float)(L->Ha - 1) : iy);
+        int x0 = (int)ix, y0 = (int)iy;
+        float fx = ix - (float)x0, fy = iy - (float)y0;
+        int x1 = x0 + 1 < L->Wa ? x0 + 1 : x0, y1 = y0 + 1 < L->Ha ? y0 + 1 : y0;
+        const float *a = L->atlas + ((long)y0 * L->Wa + x0) * ds, *b = L->atlas + ((long)y0 * L->Wa + x1) * ds;
+        const float *c = L->atlas + ((long)y1 * L->Wa + x0) * ds, *d = L->atlas + ((long)y1 * L->Wa + x1) * ds;
+        float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
+        for (int k = 0; k < ds; ++k) r[e][k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
+    }
+    for (int k = 0; k < ds; ++k) acc[k] = acc[k] + (r[0][k] * w0 + r[1][k] * w1);
+}
+
+/* filter_anisotropic of one lookup at uv with the footprint fp (2 x 2, uv^2) (neumat.nn.latent_texture: probes
+   along the major axis, each a trilinear read of weight 1 / probes); z (ds) */
+__attribute__((optimize("fp-contract=off"), noinline))
+static void atlas_anisotropic(const Latents *L, int ds, float u, float v, const float *fp, float *z) {
+    const float W = (float)L->size[0], H = (float)L->size[1];
+    float a = fp[0] * W * W, b = fp[1] * W * H, c = fp[3] * H * H;  /* the covariance in level-0 texels^2 */
+    float mean = (a + c) / 2.f, diff = (a - c) / 2.f, half = sqrtf(diff * diff + b * b);
+    float theta = 0.5f * atan2f(2.f * b, a - c);
+    float up = mean + half, down = mean - half;
+    float major = sqrtf(up > 0.f ? up : 0.f), minor = sqrtf(down > 0.f ? down : 0.f);
+    minor = minor > 1e-12f ? minor : 1e-12f;
+    float count = ceilf(major / minor);
+    count = count < 1.f ? 1.f : (count > (float)L->max_probes ? (float)L->max_probes : count);
+    float per = major / (float)L->max_probes, sigma = minor > per ? minor : per;
+    float two_sigma = 2.f * sigma;
+    float lod = log2f(two_sigma > 1e-12f ? two_sigma : 1e-12f);
+    float spread = 12.f * (major * major - sigma * sigma), pairs = count * count - 1.f;
+    float spacing = sqrtf((spread > 0.f ? spread : 0.f) / (pairs > 1.f ? pairs : 1.f));
+    float ax = cosf(theta), ay = sinf(theta), weight = 1.f / count, centre = (count - 1.f) / 2.f;
+    for (int k = 0; k < ds; ++k) z[k] = 0.f;
+    for (int p = 0; p < (int)count; ++p) {
+        float offset = ((float)p - centre) * spacing;
+        atlas_trilinear(L, ds, u + offset * ax / W, v + offset * ay / H, lod, weight, z);
+    }
+}
+
+/* the block's latents zt (ds x BLOCK; rows s .. s + BLOCK - 1, past n row s again) from L */
+static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
+    float lx[BLOCK], ly[BLOCK], zr[64];
+    if (L->mode == 1) latent_texels(L->uv, s, n, L->h, L->w, lx, ly);
+    for (int k = 0; k < BLOCK; ++k) {
+        long row = s + k < n ? s + k : s;
+        if (L->mode == 0) memcpy(zr, L->z + row * ds, ds * sizeof(float));
+        else if (L->mode == 1) latent_read(L->finest, L->h, L->w, ds, lx[k], ly[k], zr);
+        else if (L->mode == 2) {
+            for (int i = 0; i < ds; ++i) zr[i] = 0.f;
+            atlas_trilinear(L, ds, L->uv[2 * row], L->uv[2 * row + 1], L->lod[row], 1.f, zr);
+        } else atlas_anisotropic(L, ds, L->uv[2 * row], L->uv[2 * row + 1], L->footprint + 4 * row, zr);
+        for (int i = 0; i < ds; ++i) zt[i * BLOCK + k] = zr[i];
+    }
+}
+
 /* The multi-scale gated model's decoder (Timonen et al. 2025; neumat.methods.latent_mlp.multiscale, gating on)
-   from spatial latents z (n x ds), or, with `spatial`, z read at uv (n x 2) from the padded finest level
-   (channels-last, (sh + 2, sw + 2, ds): queries without footprint), and directions wi, wo (n x 3): the shading
-   frame (frame_w: 6 x ds, already times its weight scale; NULL: none), half and difference vectors, disk polar
-   coordinates, radial warps (warp_*: 2 terms x ds; NULL: none), the two polar textures (channels-last, channels
-   ds x dh and ds x dd, the model's channel c x ds + i at i x dh + c) gated by z, the MLP on [z_h, z_d], exp; 0
-   where wi.z or wo.z <= 0. Not `gated` (tripleplane): textures of dh and dd channels, the MLP on [a_h, a_d, z]. out: n x out_dim. The geometry runs on blocks of rows (vectorised), the texture reads
-   and gating row by row. Returns 1 without memory, 2 for sizes beyond its buffers. */
-int multiscale_eval(const float *z, const float *uv, const float *spatial, int sh, int sw,
-                    const float *wi, const float *wo, long n, int ds,
+   from spatial latents z (`latents`: given or read) and directions wi, wo (n x 3): the shading frame (frame_w:
+   6 x ds, already times its weight scale; NULL: none), half and difference vectors, disk polar coordinates,
+   radial warps (warp_*: 2 terms x ds; NULL: none), the two polar textures (channels-last, channels ds x dh and
+   ds x dd, the model's channel c x ds + i at i x dh + c) gated by z, the MLP on [z_h, z_d], exp; 0 where wi.z or
+   wo.z <= 0. Not `gated` (tripleplane): textures of dh and dd channels, the MLP on [a_h, a_d, z]. out: n x
+   out_dim. The geometry runs on blocks of rows (vectorised), the texture reads and gating row by row. Returns 1
+   without memory, 2 for sizes beyond its buffers. */
+int multiscale_eval(const Latents *latents, const float *wi, const float *wo, long n, int ds,
                     const float *frame_w, const float *frame_b, int terms, const float *warp_h_w,
                     const float *warp_h_b, const float *warp_d_w, const float *warp_d_b,
                     int gated, const float *tex_h, int dh, const float *tex_d, int dd, int R, int P,
@@ -410,16 +499,11 @@ int multiscale_eval(const float *z, const float *uv, const float *spatial, int s
     float vix[BLOCK], viy[BLOCK], viz[BLOCK], vox[BLOCK], voy[BLOCK], voz[BLOCK];
     float r_h[BLOCK], r_d[BLOCK], phi_h[BLOCK], phi_d[BLOCK], p[16 * BLOCK], tc[4 * BLOCK];
     float read_h[1024], read_d[1024];
-    float lx[BLOCK], ly[BLOCK];  /* texel coordinates of the block's latent reads */
     for (long s = 0; s < n; s += BLOCK) {
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
-        if (spatial) latent_texels(uv, s, n, sh, sw, lx, ly);
+        latents_block(latents, s, n, ds, zt);
         for (int k = 0; k < BLOCK; ++k) {
             long row = s + (k < m ? k : 0);
-            float zr[64];
-            if (spatial) latent_read(spatial, sh, sw, ds, lx[k], ly[k], zr);
-            else memcpy(zr, z + row * ds, ds * sizeof(float));
-            for (int i = 0; i < ds; ++i) zt[i * BLOCK + k] = zr[i];
             vix[k] = wi[3 * row]; viy[k] = wi[3 * row + 1]; viz[k] = wi[3 * row + 2];
             vox[k] = wo[3 * row]; voy[k] = wo[3 * row + 1]; voz[k] = wo[3 * row + 2];
         }
@@ -505,25 +589,21 @@ int multiscale_eval(const float *z, const float *uv, const float *spatial, int s
 }
 
 /* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip, Cartesian directions, no offset module or
-   shading frame): the MLP on [z, wi, wo], exp, 0 where wi.z or wo.z <= 0, from spatial latents z (n x ds) or,
-   with `spatial`, z read at uv from the padded finest level as multiscale_eval does. out: n x out_dim. */
-int neumip_eval(const float *z, const float *uv, const float *spatial, int sh, int sw, const float *wi,
-                const float *wo, long n, int ds, int layers, const int *dims, const float *const *W,
-                const float *const *b, int hidden_act, int out_dim, float *out) {
+   shading frame): the MLP on [z, wi, wo], exp, 0 where wi.z or wo.z <= 0, with z from `latents`. out: n x
+   out_dim. */
+int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n, int ds, int layers,
+                const int *dims, const float *const *W, const float *const *b, int hidden_act, int out_dim,
+                float *out) {
     if (ds > 64 || ds + 6 > MAX_WIDTH) return 2;
     float *work = work_buffers();
     if (!work) return 1;
-    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK;
-    float lx[BLOCK], ly[BLOCK];  /* texel coordinates of the block's latent reads */
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;  /* zt: ds x BLOCK */
     for (long s = 0; s < n; s += BLOCK) {
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
-        if (spatial) latent_texels(uv, s, n, sh, sw, lx, ly);
+        latents_block(latents, s, n, ds, zt);
         for (int k = 0; k < BLOCK; ++k) {
             long row = s + (k < m ? k : 0);
-            float zr[64];
-            if (spatial) latent_read(spatial, sh, sw, ds, lx[k], ly[k], zr);
-            else memcpy(zr, z + row * ds, ds * sizeof(float));
-            for (int i = 0; i < ds; ++i) buf0[i * BLOCK + k] = zr[i];
+            for (int i = 0; i < ds; ++i) buf0[i * BLOCK + k] = zt[i * BLOCK + k];
             for (int j = 0; j < 3; ++j) {
                 buf0[(ds + j) * BLOCK + k] = wi[3 * row + j];
                 buf0[(ds + 3 + j) * BLOCK + k] = wo[3 * row + j];

@@ -278,15 +278,13 @@ def neubrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, nside: int,
     return out
 
 
-def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.Tensor], wi: torch.Tensor,
-                    wo: torch.Tensor,
+def multiscale_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: torch.Tensor,
                     frame: tuple[torch.Tensor, torch.Tensor] | None,
                     warps: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,
                     tex_h: torch.Tensor, tex_d: torch.Tensor, half_channels: int, diff_channels: int,
                     gated: bool = True) -> torch.Tensor:
     """The multi-scale gated model's decoder (`neumat.methods.latent_mlp.multiscale`, gating on) of float32
-    spatial latents z (N, D_s), or z = (uv (N, 2), the padded finest latent level channels-last (1, D_s, h + 2,
-    w + 2)) to read them bilinearly, and directions (N, 3): (N, out_dim). frame: its decode layer's (weight x weight
+    directions (N, 3) and the spatial latents `latents`: (N, out_dim). frame: its decode layer's (weight x weight
     scale (6, D_s), bias (6,)) or None; warps: (weight, bias) of the half and the difference warp ((2 K, D_s),
     (2 K,)) or None; tex_h, tex_d: the padded polar textures channels-last, their channels ordered (D_s,
     channels): (R, P + 2, D_s x channels). Not `gated` (tripleplane): textures of the channels alone, the MLP
@@ -294,7 +292,7 @@ def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.
     lib = library()
     wi, wo = wi.contiguous(), wo.contiguous()
     null = ctypes.c_void_p(None)
-    ds, uv, z, read, keep = _latents(z, null)
+    ds = latents.channels
     rows, cols = tex_h.shape[:2]
     gate = ds if gated else 1
     if tex_h.shape[2] != half_channels * gate or tex_d.shape != (rows, cols, diff_channels * gate) \
@@ -309,11 +307,10 @@ def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.
     fn = lib.multiscale_eval
 
     def run(start: int, stop: int) -> None:
-        latents = (null, _ptr(uv, start)) if uv is not None else (_ptr(z, start), null)
-        status = fn(*latents, *read, _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ds, frame_w,
-                    frame_b, terms, *warp, int(gated), _ptr(tex_h), half_channels, _ptr(tex_d), diff_channels, rows,
-                    cols - 2,
-                    mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
+        status = fn(ctypes.byref(latents.at(start)), _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
+                    ds, frame_w, frame_b, terms, *warp, int(gated), _ptr(tex_h), half_channels, _ptr(tex_d),
+                    diff_channels, rows, cols - 2, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim,
+                    _ptr(out, start))
         if status == 2:
             raise ValueError("neumat.nn.cpu_kernels.multiscale_eval: a size beyond the kernel's buffers")
         _check(status)
@@ -321,32 +318,80 @@ def multiscale_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.
     return out
 
 
-def _latents(z, null):
-    """The kernels' latent arguments of z (N, D_s), or of (uv (N, 2), the padded finest level channels-last (1,
-    D_s, h + 2, w + 2)) read in the kernel: (D_s, uv or None, z or None, (level pointer, h, w), tensors to keep)."""
-    if isinstance(z, tuple):
-        uv, level = z[0].contiguous(), z[1].permute(0, 2, 3, 1).contiguous()  # (1, h + 2, w + 2, D_s) in memory
-        return level.shape[3], uv, None, (_ptr(level), level.shape[1] - 2, level.shape[2] - 2), level
-    z = z.contiguous()
-    return z.shape[1], None, z, (null, 0, 0), z
+class _Latents(ctypes.Structure):
+    """The C struct `Latents` (cpu_kernels.c): where a kernel's spatial latents come from."""
+    _fields_ = [("mode", ctypes.c_int), ("z", ctypes.c_void_p), ("uv", ctypes.c_void_p), ("lod", ctypes.c_void_p),
+                ("footprint", ctypes.c_void_p), ("finest", ctypes.c_void_p), ("h", ctypes.c_int), ("w", ctypes.c_int),
+                ("atlas", ctypes.c_void_p), ("Wa", ctypes.c_int), ("Ha", ctypes.c_int), ("levels", ctypes.c_int),
+                ("max_probes", ctypes.c_int), ("size", ctypes.c_void_p), ("origin", ctypes.c_void_p)]
 
 
-def neumip_eval(mlp: PackedMLP, z: torch.Tensor | tuple[torch.Tensor, torch.Tensor], wi: torch.Tensor,
-                wo: torch.Tensor) -> torch.Tensor:
+class LatentSource:
+    """A query's spatial latents as a kernel reads them from a `neumat.nn.latent_texture.LatentPyramid`: the
+    finest level at uv (no footprint or lod), the trilinear lookup of the atlas at a lod, or the anisotropic
+    filter of a footprint (the pyramid's three lookups, float32 step by step as there); or latents z (N, D_s)
+    given. Holds the tensors the pointers point into."""
+
+    def __init__(self, pyramid=None, uv: torch.Tensor | None = None, lod: torch.Tensor | None = None,
+                 footprint: torch.Tensor | None = None, z: torch.Tensor | None = None) -> None:
+        from neumat.nn.latent_texture import atlas_layout
+
+        self.rows: dict[str, tuple[torch.Tensor, int]] = {}  # per-row tensors and their floats per row
+        self.struct = _Latents()
+        if z is not None:
+            self.struct.mode, self.channels = 0, z.shape[1]
+            self._row("z", z, z.shape[1])
+            return
+        self.channels = pyramid.raw[0].shape[0]
+        self._row("uv", uv, 2)
+        if lod is None and footprint is None:
+            level = pyramid.finest_padded().permute(0, 2, 3, 1).contiguous()  # (1, h + 2, w + 2, D_s) in memory
+            self.keep = [level]
+            self.struct.mode, self.struct.finest = 1, level.data_ptr()
+            self.struct.h, self.struct.w = level.shape[1] - 2, level.shape[2] - 2
+            return
+        atlas = pyramid.atlas().permute(0, 2, 3, 1).contiguous()  # (1, Ha, Wa, D_s) in memory
+        layout = atlas_layout(tuple(tuple(int(v) for v in t.shape[1:]) for t in pyramid.raw), torch.device("cpu"))
+        size = layout["size"].to(torch.int32).contiguous()
+        origin = layout["origin"].to(torch.float32).contiguous()
+        self.keep = [atlas, size, origin]
+        st = self.struct
+        st.atlas, st.Ha, st.Wa = atlas.data_ptr(), atlas.shape[1], atlas.shape[2]
+        st.levels, st.max_probes, st.size, st.origin = len(pyramid.raw), pyramid.max_probes, size.data_ptr(), \
+            origin.data_ptr()
+        if footprint is None:
+            st.mode = 2
+            self._row("lod", lod, 1)
+        else:
+            st.mode = 3
+            self._row("footprint", footprint, 4)
+
+    def _row(self, name: str, t: torch.Tensor, per_row: int) -> None:
+        if t.dtype != torch.float32:
+            raise ValueError(f"neumat.nn.cpu_kernels.LatentSource: {name} is {t.dtype}, not float32")
+        self.rows[name] = (t.contiguous(), per_row)
+
+    def at(self, start: int) -> _Latents:
+        """The struct for rows from `start` on (its per-row pointers moved there)."""
+        st = _Latents.from_buffer_copy(self.struct)
+        for name, (t, per_row) in self.rows.items():
+            setattr(st, name, t.data_ptr() + 4 * per_row * start)
+        return st
+
+
+def neumip_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     """NeuMIP's decoder (`neumat.methods.latent_mlp.neumip`, Cartesian directions, no offset module or frame) of
-    float32 latents z (N, D_s) or (uv, padded finest level) as `multiscale_eval` takes them, and directions (N, 3):
-    exp(MLP([z, wi, wo])) (N, out_dim), 0 below the horizon."""
+    float32 directions (N, 3) and the spatial latents `latents`: exp(MLP([z, wi, wo])) (N, out_dim), 0 below the
+    horizon."""
     lib = library()
     wi, wo = wi.contiguous(), wo.contiguous()
-    null = ctypes.c_void_p(None)
-    ds, uv, z, read, keep = _latents(z, null)
     out = torch.empty(len(wi), mlp.out_dim)
     fn = lib.neumip_eval
 
     def run(start: int, stop: int) -> None:
-        latents = (null, _ptr(uv, start)) if uv is not None else (_ptr(z, start), null)
-        status = fn(*latents, *read, _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ds, mlp.layers,
-                    mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
+        status = fn(ctypes.byref(latents.at(start)), _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
+                    latents.channels, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim,
+                    _ptr(out, start))
         if status == 2:
             raise ValueError("neumat.nn.cpu_kernels.neumip_eval: a size beyond the kernel's buffers")
         _check(status)

@@ -27,7 +27,7 @@ from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn import cpu_kernels
 from neumat.nn.angular_texture import AngularTexture, disk_polar, half_difference
 from neumat.nn.codebook import float_bits, storage_bytes
-from neumat.nn.latent_texture import LatentPyramid
+from neumat.nn.latent_texture import LatentPyramid, check_footprint
 from neumat.nn.mlp import MLP, log_median
 from neumat.nn.preconditioner import FrequencyPreconditioner, preconditioner_kernel
 from neumat.nn.radial_warp import RadialWarp
@@ -115,6 +115,17 @@ def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) ->
     about `std` (the filter's mean squared gain divided out)."""
     gain = preconditioner_kernel(shape[-2], shape[-1], strength).square().mean().sqrt().item() if strength else 1.0
     return torch.randn(shape) * (std / gain)
+
+
+def kernel_latents(model, q: Query) -> "cpu_kernels.LatentSource | None":
+    """The spatial latents of a model with a `LatentPyramid` `spatial`, read at q.uv with q's footprint or lod, as
+    a fused kernel reads them (`cpu_kernels.LatentSource`), or None for other than float32 inputs. The footprint is
+    checked as the torch path checks it."""
+    q.require("uv", who=f"{model.name} (spatially varying)")
+    footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
+    if any(t is not None and t.dtype != torch.float32 for t in (q.uv, q.lod, footprint)):
+        return None
+    return cpu_kernels.LatentSource(model.spatial, q.uv, q.lod if footprint is None else None, footprint)
 
 
 def _kernel_texture(padded: torch.Tensor, channels: int, spatial: int) -> torch.Tensor:
@@ -213,8 +224,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         return fast if fast is not None else by_rows(self._eval_rows, self.eval_chunk, q)
 
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
-        """`eval` with everything after the spatial read (frame, warps, polar textures, gating, MLP), and for
-        queries without footprint or lod the finest level's read too, in one fused C call
+        """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
         (`neumat.nn.cpu_kernels.multiscale_eval`; the torch path's values within float32 rounding), or None where
         it does not apply: autograd, other dtypes, no compiler, no spatial texture (homogeneous). Without gating
         (tripleplane) the MLP reads the concatenated latents. Why: the torch path is some 150 small tensor
@@ -226,15 +236,9 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         mlp = cpu_kernels.packed(self, self.mlp.net)
         if mlp is None:
             return None
-        q.require("uv", who="multiscale (spatially varying)")
-        if q.footprint is None and q.lod is None:  # the finest level's bilinear read, in the kernel too
-            z = (q.uv, self.spatial.finest_padded())
-            if z[1].dtype != torch.float32 or z[0].dtype != torch.float32:
-                return None
-        else:
-            z = by_rows(self.spatial_latent, self.eval_chunk, q)
-            if z.dtype != torch.float32:
-                return None
+        latents = kernel_latents(self, q)
+        if latents is None:
+            return None
         frame = None if self.frame is None else derived_from(
             self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias],
             lambda: (self.frame.decode.weight * self.frame.weight_scale, self.frame.decode.bias.clone()))
@@ -244,7 +248,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         tex = [derived_from(self, f"kernel {name}", [t.raw], lambda t=t, k=k: _kernel_texture(t.padded(), k, gate))
                for name, t, k in (("half", self.half_texture, c.half_channels),
                                   ("diff", self.diff_texture, c.diff_channels))]
-        return cpu_kernels.multiscale_eval(mlp, z, q.wi, q.wo, frame, warps, *tex, c.half_channels,
+        return cpu_kernels.multiscale_eval(mlp, latents, q.wi, q.wo, frame, warps, *tex, c.half_channels,
                                            c.diff_channels, gated=c.gating)
 
     def _eval_rows(self, q: Query) -> torch.Tensor:

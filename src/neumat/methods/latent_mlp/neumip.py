@@ -23,7 +23,7 @@ from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
-from neumat.methods.latent_mlp.multiscale import preconditioned_noise, start_at_data_scale
+from neumat.methods.latent_mlp.multiscale import kernel_latents, preconditioned_noise, start_at_data_scale
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn import cpu_kernels
 from neumat.nn.angular_texture import half_difference
@@ -180,8 +180,8 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         return by_rows(lambda rows: self.filtered_outputs(rows)[:, :3], self.eval_chunk, q)
 
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
-        """`eval` as one fused C call after the spatial read (`neumat.nn.cpu_kernels.neumip_eval`; for queries
-        without footprint or lod the finest level's read in it too), or None where it does not apply: autograd,
+        """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
+        (`neumat.nn.cpu_kernels.neumip_eval`), or None where it does not apply: autograd,
         other dtypes, no compiler, the offset module, a shading frame, Rusinkiewicz directions, roulette levels,
         more outputs than 3."""
         c = self.cfg
@@ -192,16 +192,8 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         mlp = cpu_kernels.packed(self, self.mlp.net)
         if mlp is None:
             return None
-        q.require("uv", who=f"{self.name} (spatially varying)")
-        if q.footprint is None and q.lod is None:
-            if q.uv.dtype != torch.float32:
-                return None
-            z = (q.uv, self.spatial.finest_padded())
-        else:
-            z = by_rows(self.spatial_latent, self.eval_chunk, q)
-            if z.dtype != torch.float32:
-                return None
-        return cpu_kernels.neumip_eval(mlp, z, q.wi, q.wo)
+        latents = kernel_latents(self, q)
+        return None if latents is None else cpu_kernels.neumip_eval(mlp, latents, q.wi, q.wo)
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
