@@ -345,3 +345,30 @@ def test_neumip_kernel_declines_its_variants():
         model = build_model({"type": name, "spatial_size": 16}).runtime().eval()
         with torch.no_grad():
             assert model._kernel_eval(_texture_queries(4, 0, "none")) is None, name
+
+
+@needs_kernels
+def test_threads_work_in_a_forked_child():
+    """A child forked after the kernels' thread pool exists (fit-many's and the renderers' worker processes) still
+    evaluates on threads: the call finishes and equals the parent's."""
+    import multiprocessing
+
+    model = NBRDF(init_range=0.3)
+    q = Query(*_directions(2 * cpu_kernels.PARALLEL_ROWS, seed=6))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with torch.no_grad():
+            parent = model.eval(q)  # makes the pool
+        ctx = multiprocessing.get_context("fork")
+        with ctx.Pool(1) as pool:
+            child = pool.apply_async(_eval_in_child, (model, q)).get(timeout=60)
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(child, parent)
+
+
+def _eval_in_child(model, q):
+    torch.set_num_threads(2)
+    with torch.no_grad():
+        return model.eval(q)
