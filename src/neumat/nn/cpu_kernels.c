@@ -1,4 +1,5 @@
-/* Fused CPU kernels of small-MLP evaluations (neumat.nn.cpu_kernels compiles this file at first use).
+/* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
+   NeuMIP in one call per batch (neumat.nn.cpu_kernels compiles this file at first use and says where each applies).
 
    Rows are processed in blocks of BLOCK, transposed so that each feature's BLOCK values are contiguous: a dense
    layer is then, per group of 4 outputs, 4 x BLOCK accumulators updated by one broadcast weight times one
