@@ -215,7 +215,7 @@ def _stamp(linears: list[nn.Linear]) -> list:
                                   for lin in linears for p in lin._parameters.values() if p is not None]
 
 
-_pool: list[ThreadPoolExecutor] = []
+_pool: list = []  # [the executor, (its threads, the process that made it)]
 
 
 #: kernel calls made in this process (`by_threads` counts them): a benchmark reads it to say which rows were
@@ -231,8 +231,8 @@ def by_threads(run, n: int) -> None:
     if n < PARALLEL_ROWS or threads <= 1:
         run(0, n)
         return
-    if not _pool or _pool[0]._max_workers != threads:
-        _pool[:] = [ThreadPoolExecutor(threads, thread_name_prefix="neumat-cpu-kernels")]
+    if not _pool or _pool[1] != (threads, os.getpid()):  # a forked child has the pool but not its threads
+        _pool[:] = [ThreadPoolExecutor(threads, thread_name_prefix="neumat-cpu-kernels"), (threads, os.getpid())]
     step = -(-n // threads)
     list(_pool[0].map(lambda s: run(s, min(s + step, n)), range(0, n, step)))
 
