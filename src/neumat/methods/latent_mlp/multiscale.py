@@ -239,17 +239,23 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         latents = kernel_latents(self, q)
         if latents is None:
             return None
-        frame = None if self.frame is None else derived_from(
-            self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias],
-            lambda: (self.frame.decode.weight * self.frame.weight_scale, self.frame.decode.bias.clone()))
         warps = None if self.warp_h is None else (self.warp_h.decode.weight, self.warp_h.decode.bias,
                                                   self.warp_d.decode.weight, self.warp_d.decode.bias)
-        gate = c.spatial_channels if c.gating else 1
-        tex = [derived_from(self, f"kernel {name}", [t.raw], lambda t=t, k=k: _kernel_texture(t.padded(), k, gate))
-               for name, t, k in (("half", self.half_texture, c.half_channels),
-                                  ("diff", self.diff_texture, c.diff_channels))]
-        return cpu_kernels.multiscale_eval(mlp, latents, q.wi, q.wo, frame, warps, *tex, c.half_channels,
+        frame = [] if self.frame is None else [self.frame.decode.weight, self.frame.decode.bias]
+        kept = derived_from(self, "kernel inputs", [self.half_texture.raw, self.diff_texture.raw, *frame],
+                            self._kernel_inputs)  # one stamp: each costs microseconds per call
+        return cpu_kernels.multiscale_eval(mlp, latents, q.wi, q.wo, kept[0], warps, *kept[1:], c.half_channels,
                                            c.diff_channels, gated=c.gating)
+
+    def _kernel_inputs(self) -> tuple:
+        """What the fused kernel reads besides the MLP and warps: the frame's decode layer (weights times their
+        scale, bias) or None, and the two padded polar textures in its layout (`_kernel_texture`)."""
+        c = self.cfg
+        gate = c.spatial_channels if c.gating else 1
+        frame = None if self.frame is None else (self.frame.decode.weight * self.frame.weight_scale,
+                                                 self.frame.decode.bias.clone())
+        return (frame, _kernel_texture(self.half_texture.padded(), c.half_channels, gate),
+                _kernel_texture(self.diff_texture.padded(), c.diff_channels, gate))
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
         f = torch.exp(self.mlp(self.latents(q)))
