@@ -327,12 +327,13 @@ def test_a_damaged_cached_library_is_built_again(fresh_kernels):
 
 
 @needs_kernels
+@pytest.mark.parametrize("name", ["neumip", "nbrdf-uv", "neumip-frame"])
 @pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
 @pytest.mark.parametrize("n", [1, 65, 3000])
-def test_neumip_eval_equals_its_torch_path(mode, n, monkeypatch):
-    from neumat.methods.latent_mlp.neumip import NeuMIP
+def test_neumip_eval_equals_its_torch_path(name, mode, n):
+    from neumat.models.registry import model_class
 
-    model = _multiscale_runtime(0, NeuMIP)
+    model = _multiscale_runtime(0, model_class(name))
     q = _texture_queries(n, n, mode)
     with torch.no_grad():
         assert model._kernel_eval(q) is not None, "the kernel does not apply"
@@ -346,7 +347,7 @@ def test_neumip_eval_equals_its_torch_path(mode, n, monkeypatch):
 def test_neumip_kernel_declines_its_variants():
     from neumat.models.registry import build_model
 
-    for name in ("neumip-offset", "neumip-frame", "nbrdf-uv"):
+    for name in ("neumip-offset",):
         model = build_model({"type": name, "spatial_size": 16}).runtime().eval()
         with torch.no_grad():
             assert model._kernel_eval(_texture_queries(4, 0, "none")) is None, name

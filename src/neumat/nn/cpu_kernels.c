@@ -1,5 +1,6 @@
 /* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
-   NeuMIP in one call per batch (neumat.nn.cpu_kernels compiles this file at first use and says where each applies).
+   NeuMIP (with nbrdf-uv and neumip-frame) in one call per batch (neumat.nn.cpu_kernels compiles this file at first
+   use; the models say where each applies).
 
    Rows are processed in blocks of BLOCK, transposed so that each feature's BLOCK values are contiguous: a dense
    layer is then, per group of 4 outputs, 4 x BLOCK accumulators updated by one broadcast weight times one
@@ -589,12 +590,54 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
     return 0;
 }
 
-/* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip, Cartesian directions, no offset module or
-   shading frame): the MLP on [z, wi, wo], exp, 0 where wi.z or wo.z <= 0, with z from `latents`. out: n x
-   out_dim. */
-int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n, int ds, int layers,
-                const int *dims, const float *const *W, const float *const *b, int hidden_act, int out_dim,
-                float *out) {
+/* wi and wo (3 each) in the shading frame decoded from z (ds) by frame_w (6 x ds, already times its weight scale)
+   and frame_b, lifted to the hemisphere (neumat.nn.shading_frames, one frame) */
+static void to_frame(const float *frame_w, const float *frame_b, const float *z, int ds, float *wi, float *wo) {
+    float v[6];
+    for (int j = 0; j < 6; ++j) {
+        float acc = frame_b[j];
+        for (int i = 0; i < ds; ++i) acc += frame_w[j * ds + i] * z[i];
+        v[j] = acc;
+    }
+    float nn = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    nn = nn > 1e-12f ? nn : 1e-12f;
+    float nx = v[0] / nn, ny = v[1] / nn, nz = v[2] / nn;
+    float dot = v[3] * nx + v[4] * ny + v[5] * nz;
+    float tx = v[3] - dot * nx, ty = v[4] - dot * ny, tz = v[5] - dot * nz;
+    float tn = sqrtf(tx * tx + ty * ty + tz * tz);
+    tn = tn > 1e-12f ? tn : 1e-12f;
+    tx /= tn; ty /= tn; tz /= tn;
+    float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
+    float *w[2] = {wi, wo};
+    for (int e = 0; e < 2; ++e) {
+        float x = w[e][0] * tx + w[e][1] * ty + w[e][2] * tz, y = w[e][0] * bx + w[e][1] * by + w[e][2] * bz;
+        float l = 1.f - (x * x + y * y);
+        w[e][0] = x; w[e][1] = y; w[e][2] = sqrtf(l > 1e-10f ? l : 1e-10f);
+    }
+}
+
+/* the Rusinkiewicz half and difference vectors h, d of wi, wo (neumat.nn.angular_texture.half_difference) */
+static void half_difference(const float *wi, const float *wo, float *h, float *d) {
+    float hx = wi[0] + wo[0], hy = wi[1] + wo[1], hz = wi[2] + wo[2];
+    float hn = sqrtf(hx * hx + hy * hy + hz * hz);
+    hn = hn > 1e-12f ? hn : 1e-12f;
+    hx /= hn; hy /= hn; hz /= hn;
+    float s2 = hx * hx + hy * hy;
+    int pole = s2 < 1e-14f;
+    float sq = sqrtf(pole ? 1.f : s2);
+    float cp = pole ? 1.f : hx / sq, sp = pole ? 0.f : hy / sq, st = pole ? 0.f : sq, ct = hz;
+    float x = cp * wi[0] + sp * wi[1], y = -sp * wi[0] + cp * wi[1];
+    h[0] = hx; h[1] = hy; h[2] = hz;
+    d[0] = ct * x - st * wi[2]; d[1] = y; d[2] = st * x + ct * wi[2];
+}
+
+/* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip without offset module, one shading frame at
+   most): the MLP on [z, wi, wo], or with `rusinkiewicz` on [z, h, d], with wi and wo first moved into the shading
+   frame decoded from z (frame_w: 6 x ds, already times its weight scale; NULL: none); exp, 0 where wi.z or wo.z
+   <= 0 (the directions as given); z from `latents`. out: n x out_dim. */
+int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n, int ds, const float *frame_w,
+                const float *frame_b, int rusinkiewicz, int layers, const int *dims, const float *const *W,
+                const float *const *b, int hidden_act, int out_dim, float *out) {
     if (ds > 64 || ds + 6 > MAX_WIDTH) return 2;
     float *work = work_buffers();
     if (!work) return 1;
@@ -604,11 +647,14 @@ int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n
         latents_block(latents, s, n, ds, zt);
         for (int k = 0; k < BLOCK; ++k) {
             long row = s + (k < m ? k : 0);
-            for (int i = 0; i < ds; ++i) buf0[i * BLOCK + k] = zt[i * BLOCK + k];
-            for (int j = 0; j < 3; ++j) {
-                buf0[(ds + j) * BLOCK + k] = wi[3 * row + j];
-                buf0[(ds + 3 + j) * BLOCK + k] = wo[3 * row + j];
-            }
+            float a[3] = {wi[3 * row], wi[3 * row + 1], wi[3 * row + 2]};
+            float c[3] = {wo[3 * row], wo[3 * row + 1], wo[3 * row + 2]};
+            float zr[64], dirs[6];
+            for (int i = 0; i < ds; ++i) { zr[i] = zt[i * BLOCK + k]; buf0[i * BLOCK + k] = zr[i]; }
+            if (frame_w) to_frame(frame_w, frame_b, zr, ds, a, c);
+            if (rusinkiewicz) half_difference(a, c, dirs, dirs + 3);
+            else { memcpy(dirs, a, sizeof a); memcpy(dirs + 3, c, sizeof c); }
+            for (int j = 0; j < 6; ++j) buf0[(ds + j) * BLOCK + k] = dirs[j];
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         for (int k = 0; k < m; ++k) {

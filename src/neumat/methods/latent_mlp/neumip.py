@@ -21,7 +21,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import by_rows
+from neumat.core.tensors import by_rows, derived_from
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.multiscale import kernel_latents, preconditioned_noise, start_at_data_scale
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
@@ -181,11 +181,11 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
 
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
         """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
-        (`neumat.nn.cpu_kernels.neumip_eval`), or None where it does not apply: autograd,
-        other dtypes, no compiler, the offset module, a shading frame, Rusinkiewicz directions, roulette levels,
+        (`neumat.nn.cpu_kernels.neumip_eval`: NeuMIP, nbrdf-uv, neumip-frame), or None where it does not apply:
+        autograd, other dtypes, no compiler, the offset module, more than one shading frame, roulette levels,
         more outputs than 3."""
         c = self.cfg
-        if self.offset_mlp is not None or self.frame is not None or c.directions != "cartesian" \
+        if self.offset_mlp is not None or (self.frame is not None and self.frame.frames != 1) \
                 or c.level_selection != "trilinear" or self.outputs != 3 \
                 or not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
             return None
@@ -193,7 +193,12 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         if mlp is None:
             return None
         latents = kernel_latents(self, q)
-        return None if latents is None else cpu_kernels.neumip_eval(mlp, latents, q.wi, q.wo)
+        if latents is None:
+            return None
+        frame = None if self.frame is None else derived_from(
+            self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias],
+            lambda: (self.frame.decode.weight * self.frame.weight_scale, self.frame.decode.bias.clone()))
+        return cpu_kernels.neumip_eval(mlp, latents, q.wi, q.wo, frame, c.directions == "rusinkiewicz")
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
