@@ -327,7 +327,7 @@ def test_a_damaged_cached_library_is_built_again(fresh_kernels):
 
 
 @needs_kernels
-@pytest.mark.parametrize("name", ["neumip", "nbrdf-uv", "neumip-frame"])
+@pytest.mark.parametrize("name", ["neumip", "nbrdf-uv", "neumip-frame", "neural-appearance"])
 @pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
 @pytest.mark.parametrize("n", [1, 65, 3000])
 def test_neumip_eval_equals_its_torch_path(name, mode, n):

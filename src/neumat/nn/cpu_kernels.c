@@ -1,6 +1,6 @@
 /* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
-   NeuMIP (with nbrdf-uv and neumip-frame) in one call per batch (neumat.nn.cpu_kernels compiles this file at first
-   use; the models say where each applies).
+   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder) in one call per batch
+   (neumat.nn.cpu_kernels compiles this file at first use; the models say where each applies).
 
    Rows are processed in blocks of BLOCK, transposed so that each feature's BLOCK values are contiguous: a dense
    layer is then, per group of 4 outputs, 4 x BLOCK accumulators updated by one broadcast weight times one
@@ -590,13 +590,14 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
     return 0;
 }
 
-/* wi and wo (3 each) in the shading frame decoded from z (ds) by frame_w (6 x ds, already times its weight scale)
-   and frame_b, lifted to the hemisphere (neumat.nn.shading_frames, one frame) */
-static void to_frame(const float *frame_w, const float *frame_b, const float *z, int ds, float *wi, float *wo) {
+/* wi and wo (3 each) in shading frame f decoded from z (ds) by frame_w (6 frames x ds, already times its weight
+   scale) and frame_b, lifted to the hemisphere (neumat.nn.shading_frames): into wi_f, wo_f */
+static void to_frame(const float *frame_w, const float *frame_b, int f, const float *z, int ds, const float *wi,
+                     const float *wo, float *wi_f, float *wo_f) {
     float v[6];
     for (int j = 0; j < 6; ++j) {
-        float acc = frame_b[j];
-        for (int i = 0; i < ds; ++i) acc += frame_w[j * ds + i] * z[i];
+        float acc = frame_b[6 * f + j];
+        for (int i = 0; i < ds; ++i) acc += frame_w[(6 * f + j) * ds + i] * z[i];
         v[j] = acc;
     }
     float nn = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
@@ -608,11 +609,12 @@ static void to_frame(const float *frame_w, const float *frame_b, const float *z,
     tn = tn > 1e-12f ? tn : 1e-12f;
     tx /= tn; ty /= tn; tz /= tn;
     float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
-    float *w[2] = {wi, wo};
+    const float *w[2] = {wi, wo};
+    float *o[2] = {wi_f, wo_f};
     for (int e = 0; e < 2; ++e) {
         float x = w[e][0] * tx + w[e][1] * ty + w[e][2] * tz, y = w[e][0] * bx + w[e][1] * by + w[e][2] * bz;
         float l = 1.f - (x * x + y * y);
-        w[e][0] = x; w[e][1] = y; w[e][2] = sqrtf(l > 1e-10f ? l : 1e-10f);
+        o[e][0] = x; o[e][1] = y; o[e][2] = sqrtf(l > 1e-10f ? l : 1e-10f);
     }
 }
 
@@ -631,14 +633,16 @@ static void half_difference(const float *wi, const float *wo, float *h, float *d
     d[0] = ct * x - st * wi[2]; d[1] = y; d[2] = st * x + ct * wi[2];
 }
 
-/* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip without offset module, one shading frame at
-   most): the MLP on [z, wi, wo], or with `rusinkiewicz` on [z, h, d], with wi and wo first moved into the shading
-   frame decoded from z (frame_w: 6 x ds, already times its weight scale; NULL: none); exp, 0 where wi.z or wo.z
-   <= 0 (the directions as given); z from `latents`. out: n x out_dim. */
-int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n, int ds, const float *frame_w,
-                const float *frame_b, int rusinkiewicz, int layers, const int *dims, const float *const *W,
-                const float *const *b, int hidden_act, int out_dim, float *out) {
-    if (ds > 64 || ds + 6 > MAX_WIDTH) return 2;
+/* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip without offset module; neural-appearance's
+   BRDF decoder): the MLP on [z, wi, wo], or with `rusinkiewicz` on [z, h, d], with wi and wo first moved into
+   each of `frames` shading frames decoded from z (frame_w: 6 frames x ds, already times its weight scale; 0
+   frames: none), then [z, wi in every frame, wo in every frame]; exp, 0 where wi.z or wo.z <= 0 (the directions
+   as given); z from `latents`. out: n x out_dim. */
+int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n, int ds, int frames,
+                const float *frame_w, const float *frame_b, int rusinkiewicz, int layers, const int *dims,
+                const float *const *W, const float *const *b, int hidden_act, int out_dim, float *out) {
+    const int dirs_n = 6 * (frames > 1 ? frames : 1);
+    if (ds > 64 || frames > 4 || ds + dirs_n > MAX_WIDTH) return 2;
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;  /* zt: ds x BLOCK */
@@ -649,12 +653,20 @@ int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n
             long row = s + (k < m ? k : 0);
             float a[3] = {wi[3 * row], wi[3 * row + 1], wi[3 * row + 2]};
             float c[3] = {wo[3 * row], wo[3 * row + 1], wo[3 * row + 2]};
-            float zr[64], dirs[6];
+            float zr[64], dirs[24];
             for (int i = 0; i < ds; ++i) { zr[i] = zt[i * BLOCK + k]; buf0[i * BLOCK + k] = zr[i]; }
-            if (frame_w) to_frame(frame_w, frame_b, zr, ds, a, c);
-            if (rusinkiewicz) half_difference(a, c, dirs, dirs + 3);
-            else { memcpy(dirs, a, sizeof a); memcpy(dirs + 3, c, sizeof c); }
-            for (int j = 0; j < 6; ++j) buf0[(ds + j) * BLOCK + k] = dirs[j];
+            if (frames == 0) {
+                memcpy(dirs, a, sizeof a); memcpy(dirs + 3, c, sizeof c);
+            } else {  /* wi in frames 0 .. F - 1, then wo in them */
+                for (int f = 0; f < frames; ++f) to_frame(frame_w, frame_b, f, zr, ds, a, c, dirs + 3 * f,
+                                                          dirs + 3 * (frames + f));
+            }
+            if (rusinkiewicz) {  /* one frame at most: h, d of (wi, wo) */
+                float h[3], d[3];
+                half_difference(dirs, dirs + 3, h, d);
+                memcpy(dirs, h, sizeof h); memcpy(dirs + 3, d, sizeof d);
+            }
+            for (int j = 0; j < dirs_n; ++j) buf0[(ds + j) * BLOCK + k] = dirs[j];
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         for (int k = 0; k < m; ++k) {

@@ -1,5 +1,6 @@
 """Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
-NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv and neumip-frame.
+NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame and
+neural-appearance's BRDF decoder.
 
 Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
 pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
@@ -383,20 +384,22 @@ def neumip_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: tor
                 frame: tuple[torch.Tensor, torch.Tensor] | None = None, rusinkiewicz: bool = False) -> torch.Tensor:
     """NeuMIP's decoder (`neumat.methods.latent_mlp.neumip`, no offset module) of float32 directions (N, 3) and the
     spatial latents `latents`: exp(MLP([z, wi, wo])), or with `rusinkiewicz` MLP([z, h, d]) (nbrdf-uv), the
-    directions first in the shading frame `frame` (its decode layer's weight x weight scale (6, D_s), bias (6,))
-    if given (neumip-frame); (N, out_dim), 0 below the horizon."""
+    directions first in the shading frames `frame` (their decode layer's weight x weight scale (6 F, D_s), bias
+    (6 F,)) if given (neumip-frame, neural-appearance: [z, wi in each frame, wo in each]); (N, out_dim), 0 below
+    the horizon."""
     lib = library()
     wi, wo = wi.contiguous(), wo.contiguous()
     null = ctypes.c_void_p(None)
     small = [t.contiguous() for t in frame or ()]  # kept alive through the call
     frame_w, frame_b = (null, null) if frame is None else (_ptr(small[0]), _ptr(small[1]))
+    frames = 0 if frame is None else frame[1].shape[0] // 6
     out = torch.empty(len(wi), mlp.out_dim)
     fn = lib.neumip_eval
 
     def run(start: int, stop: int) -> None:
         status = fn(ctypes.byref(latents.at(start)), _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
-                    latents.channels, frame_w, frame_b, int(rusinkiewicz), mlp.layers, mlp.dims, mlp.w, mlp.b,
-                    mlp.hidden_act, mlp.out_dim, _ptr(out, start))
+                    latents.channels, frames, frame_w, frame_b, int(rusinkiewicz), mlp.layers, mlp.dims, mlp.w,
+                    mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
         if status == 2:
             raise ValueError("neumat.nn.cpu_kernels.neumip_eval: a size beyond the kernel's buffers")
         _check(status)

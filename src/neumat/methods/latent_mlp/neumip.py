@@ -181,11 +181,11 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
 
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
         """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
-        (`neumat.nn.cpu_kernels.neumip_eval`: NeuMIP, nbrdf-uv, neumip-frame), or None where it does not apply:
-        autograd, other dtypes, no compiler, the offset module, more than one shading frame, roulette levels,
-        more outputs than 3."""
+        (`neumat.nn.cpu_kernels.neumip_eval`: NeuMIP, nbrdf-uv, neumip-frame, neural-appearance's BRDF), or None
+        where it does not apply: autograd, other dtypes, no compiler, the offset module, more than 4 shading
+        frames, roulette levels, more outputs than 3."""
         c = self.cfg
-        if self.offset_mlp is not None or (self.frame is not None and self.frame.frames != 1) \
+        if self.offset_mlp is not None or (self.frame is not None and self.frame.frames > 4) \
                 or c.level_selection != "trilinear" or self.outputs != 3 \
                 or not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
             return None
