@@ -296,7 +296,7 @@ def _as_accurate_as_torch(model, q, got, ref):
 
 
 def test_multiscale_kernel_declines_what_it_does_not_implement():
-    for config in ({"homogeneous": True},):
+    for config in ({"homogeneous": True}, {"spatial_channels": 80, "half_channels": 2, "diff_channels": 2}):
         model = _multiscale_runtime(0, **config)
         q = _texture_queries(4, 0, "none")
         with torch.no_grad():

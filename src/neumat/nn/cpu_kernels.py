@@ -279,6 +279,19 @@ def neubrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, nside: int,
     return out
 
 
+def multiscale_fits(spatial: int, half: int, diff: int, gate: int, terms: int) -> bool:
+    """Whether `multiscale_eval`'s buffers hold a model of these sizes (spatial, half and difference channels, the
+    polar textures' factor `gate`: D_s gated, 1 not, warp terms), as its C checks; a larger one keeps its torch
+    path."""
+    return spatial <= 64 and half * gate <= 1024 and diff * gate <= 1024 and terms <= 8 \
+        and half + diff + spatial <= MAX_WIDTH
+
+
+def neumip_fits(spatial: int, frames: int) -> bool:
+    """Whether `neumip_eval`'s buffers hold a model of `spatial` latent channels and `frames` shading frames."""
+    return spatial <= 64 and frames <= 4 and spatial + 6 * frames <= MAX_WIDTH
+
+
 def multiscale_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: torch.Tensor,
                     frame: tuple[torch.Tensor, torch.Tensor] | None,
                     warps: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,

@@ -230,7 +230,10 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         (tripleplane) the MLP reads the concatenated latents. Why: the torch path is some 150 small tensor
         operations (1.2e6 evaluations per second)."""
         c = self.cfg
+        gate = c.spatial_channels if c.gating else 1
         if self.spatial is None or q.wo is None or (self.frame is not None and self.frame.frames != 1) \
+                or not cpu_kernels.multiscale_fits(c.spatial_channels, c.half_channels, c.diff_channels, gate,
+                                                   c.warp_terms) \
                 or not cpu_kernels.usable(q.wi, q.wo, self.half_texture.raw):
             return None
         mlp = cpu_kernels.packed(self, self.mlp.net)

@@ -186,6 +186,7 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         frames, roulette levels, more outputs than 3."""
         c = self.cfg
         if self.offset_mlp is not None or (self.frame is not None and self.frame.frames > 4) \
+                or not cpu_kernels.neumip_fits(c.spatial_channels, 1 if self.frame is None else self.frame.frames) \
                 or c.level_selection != "trilinear" or self.outputs != 3 \
                 or not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
             return None
