@@ -199,7 +199,9 @@ def _neubrdf_runtime(seed, **config):
 
 @needs_kernels
 @pytest.mark.parametrize("config", [{"nside": 8}, {"nside": 4, "hidden": 20, "hidden_layers": 3},
-                                    {"nside": 16, "activation": "relu"}, {"nside": 4, "activation": "silu"}])
+                                    {"nside": 16, "activation": "relu"}, {"nside": 4, "activation": "silu"},
+                                    {"nside": 8, "direction_inputs": "hd"},
+                                    {"nside": 8, "direction_inputs": "hd_warp", "features": "dense"}])
 @pytest.mark.parametrize("n", [1, 64, 65, 5000])
 def test_neubrdf_runtime_eval_equals_its_torch_path(config, n, monkeypatch):
     model = _neubrdf_runtime(0, **config)
@@ -219,8 +221,7 @@ def test_neubrdf_runtime_eval_equals_its_torch_path(config, n, monkeypatch):
 
 
 def test_neubrdf_kernel_declines_what_it_does_not_implement():
-    for config in ({"nside": 4, "runtime_interpolation": "idw"}, {"nside": 4, "direction_inputs": "hd"},
-                   {"nside": 4, "activation": "tanh"}):
+    for config in ({"nside": 4, "runtime_interpolation": "idw"}, {"nside": 4, "activation": "tanh"}):
         model = _neubrdf_runtime(0, **config)
         wi = torch.tensor([[0.0, 0.0, 1.0]])
         with torch.no_grad():

@@ -192,6 +192,29 @@ static void ring_pixels(const float *x, const float *y, const float *z, int nsid
    direction inputs) of directions wi, wo (n x 3, float32): the first layer's pre-activations as the sum of the
    table rows of wi's ring pixel and of wo's (offset by 12 nside^2: the S- half), `first_act`, the MLP's other
    layers, exp; 0 where wi.z or wo.z <= 0. table: (24 nside^2) x hidden. out: n x out_dim. */
+/* NeuBRDF's direction inputs (neumat.methods.neubrdf.model.direction_inputs) of one (wi, wo): NBRDF's (h, d)
+   (neumat.core.coords.hd_vectors), with `warp` (h.x, h.y) rescaled to length sqrt(theta_h / (pi / 2)) */
+static void hd_inputs(const float *wi, const float *wo, int warp, float *in) {
+    float ix = wi[0], iy = wi[1], iz = wi[2];
+    float hx = ix + wo[0], hy = iy + wo[1], hz = iz + wo[2];
+    float norm = sqrtf(hx * hx + hy * hy + hz * hz);
+    norm = norm > 1e-12f ? norm : 1e-12f;
+    hx /= norm; hy /= norm; hz /= norm;
+    float st = sqrtf(hx * hx + hy * hy);
+    float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
+    float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
+    float tx = hz * ux, ty = hz * uy, tz = -st;
+    float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
+    in[3] = tx * ix + ty * iy + tz * iz; in[4] = bx * ix + by * iy + bz * iz; in[5] = hx * ix + hy * iy + hz * iz;
+    float scale = 1.f;
+    if (warp) {
+        float s2 = sqrtf(hx * hx + hy * hy);
+        float radius = sqrtf(atan2f(s2, hz) / (float)(0.5 * 3.141592653589793));
+        scale = s2 > 0.f ? radius / (s2 > 1e-30f ? s2 : 1e-30f) : 0.f;
+    }
+    in[0] = hx * scale; in[1] = hy * scale; in[2] = hz;
+}
+
 /* the ring pixels of a block's wi and wo (rows s .. s + BLOCK - 1; past n, row s again), whether each row is above
    the horizon, and a prefetch of the table rows they will read (the table is far larger than the caches) */
 static void block_pixels(const float *wi, const float *wo, long s, long n, int nside, const float *table, int hidden,
@@ -216,8 +239,9 @@ static void block_pixels(const float *wi, const float *wo, long s, long n, int n
 }
 
 int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const float *table, int hidden,
-                 int first_act, int layers, const int *dims, const float *const *W, const float *const *b,
-                 int hidden_act, int out_dim, float *out) {
+                 const float *dir_w, int dir_warp, int first_act, int layers, const int *dims, const float *const *W,
+                 const float *const *b, int hidden_act, int out_dim, float *out) {
+    if (hidden > MAX_WIDTH) return 2;
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK, up[2][BLOCK];
@@ -231,8 +255,17 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
             block_pixels(wi, wo, s + BLOCK, n, nside, table, hidden, pix_i[cur ^ 1], pix_o[cur ^ 1], up[cur ^ 1]);
         for (int k = 0; k < BLOCK; ++k) {
             const float *ti = table + (long)pix_i[cur][k] * hidden, *to = table + (south + pix_o[cur][k]) * hidden;
+            float pre[MAX_WIDTH];
+            for (int i = 0; i < hidden; ++i) pre[i] = ti[i] + to[i];
+            if (dir_w) {  /* Config.direction_inputs: (h, d), or with dir_warp (h.xy rescaled, h.z, d) */
+                long r = s + k < n ? s + k : s;
+                float in[6];
+                hd_inputs(wi + 3 * r, wo + 3 * r, dir_warp, in);
+                for (int j = 0; j < 6; ++j)
+                    for (int i = 0; i < hidden; ++i) pre[i] += in[j] * dir_w[j * hidden + i];
+            }
             for (int i = 0; i < hidden; ++i) {
-                float v = ti[i] + to[i];
+                float v = pre[i];
                 buf0[i * BLOCK + k] = first_act == ACT_SILU ? v / (1.f + fast_exp(-v)) : (v >= 0.f ? v : slope * v);
             }
         }

@@ -239,6 +239,9 @@ def by_threads(run, n: int) -> None:
 
 
 def _check(status: int) -> None:
+    """The kernels' return codes: 0 done, 1 no memory for the block buffers, 2 a size beyond them."""
+    if status == 2:
+        raise ValueError("neumat.nn.cpu_kernels: a size beyond the kernel's buffers")
     if status != 0:
         raise MemoryError("neumat.nn.cpu_kernels: no memory for a kernel's block buffers (192 KB)")
 
@@ -263,18 +266,25 @@ def nbrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, half_theta: b
 
 
 def neubrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, nside: int, table: torch.Tensor,
-                 first_act: int) -> torch.Tensor:
-    """NeuBRDF's runtime form (`neumat.methods.neubrdf.model`, uniform corner weights, no direction inputs) of
-    float32 directions (N, 3): (N, out_dim). table: the first-layer table (24 nside^2, hidden), float32;
-    first_act: the code of the activation after the first layer; mlp: the layers after it."""
+                 first_act: int, directions: torch.Tensor | None = None, warp: bool = False) -> torch.Tensor:
+    """NeuBRDF's runtime form (`neumat.methods.neubrdf.model`, uniform corner weights) of float32 directions (N,
+    3): (N, out_dim). table: the first-layer table (24 nside^2, hidden), float32; directions: the first layer's
+    columns of `Config.direction_inputs` (hidden, 6), None without them, `warp` for "hd_warp"; first_act: the
+    code of the activation after the first layer; mlp: the layers after it."""
     lib = library()
     wi, wo, table = wi.contiguous(), wo.contiguous(), table.contiguous()
+    dir_w = None if directions is None else directions.detach().float().t().contiguous()  # (6, hidden)
+    if dir_w is not None and dir_w.shape != (6, table.shape[1]):
+        raise ValueError(f"neumat.nn.cpu_kernels.neubrdf_eval: direction columns {tuple(dir_w.shape)} for a "
+                         f"first layer of {table.shape[1]}")
+    dir_ptr = ctypes.c_void_p(None) if dir_w is None else _ptr(dir_w)
     out = torch.empty(len(wi), mlp.out_dim)
     fn = lib.neubrdf_eval
 
     def run(start: int, stop: int) -> None:
         _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), nside, _ptr(table), table.shape[1],
-                  first_act, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start)))
+                  dir_ptr, int(warp), first_act, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim,
+                  _ptr(out, start)))
     by_threads(run, len(wi))
     return out
 
@@ -325,8 +335,6 @@ def multiscale_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo:
                     ds, frame_w, frame_b, terms, *warp, int(gated), _ptr(tex_h), half_channels, _ptr(tex_d),
                     diff_channels, rows, cols - 2, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim,
                     _ptr(out, start))
-        if status == 2:
-            raise ValueError("neumat.nn.cpu_kernels.multiscale_eval: a size beyond the kernel's buffers")
         _check(status)
     by_threads(run, len(wi))
     return out
@@ -413,8 +421,6 @@ def neumip_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: tor
         status = fn(ctypes.byref(latents.at(start)), _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
                     latents.channels, frames, frame_w, frame_b, int(rusinkiewicz), mlp.layers, mlp.dims, mlp.w,
                     mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
-        if status == 2:
-            raise ValueError("neumat.nn.cpu_kernels.neumip_eval: a size beyond the kernel's buffers")
         _check(status)
     by_threads(run, len(wi))
     return out

@@ -309,17 +309,19 @@ class NeuBRDF(LearnedMaterial):
 
     def _kernel_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor | None:
         """The runtime form's `eval` as one fused C call (`neumat.nn.cpu_kernels`; the same values as
-        `_masked_runtime_eval`), or None where the kernel does not apply: other weights or inputs than the paper's
-        (inverse-distance corners, direction inputs), other dtypes, no compiler."""
+        `_masked_runtime_eval` within float32 rounding), or None where the kernel does not apply: inverse-distance
+        corner weights, other dtypes, no compiler."""
         table = self._runtime_table
-        if self.cfg.interpolation != "uniform" or self.cfg.direction_inputs != "none" or \
-                not cpu_kernels.usable(wi, wo, table) or len(self.mlp.net) < 3:
+        if self.cfg.interpolation != "uniform" or not cpu_kernels.usable(wi, wo, table) or len(self.mlp.net) < 3:
             return None
         first = cpu_kernels.activation_code(self.mlp.net[1])
         mlp = cpu_kernels.packed(self, self.mlp.net, start=2)
         if first is None or mlp is None:
             return None
-        return cpu_kernels.neubrdf_eval(mlp, wi, wo, self.cfg.nside, table, first)
+        kind = self.cfg.direction_inputs
+        extra = DIRECTION_INPUTS[kind]
+        columns = self.mlp.net[0].weight[:, -extra:] if extra else None
+        return cpu_kernels.neubrdf_eval(mlp, wi, wo, self.cfg.nside, table, first, columns, kind == "hd_warp")
 
     def _masked_runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """`eval` of the runtime form (`_runtime_eval`, 0 below the horizon), without the dtype conversions
