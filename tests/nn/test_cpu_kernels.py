@@ -380,3 +380,14 @@ def _eval_in_child(model, q):
     torch.set_num_threads(2)
     with torch.no_grad():
         return model.eval(q)
+
+
+def test_the_kernels_build_where_a_compiler_exists():
+    """Where the machine has a C compiler the kernels must build (else every kernel test above skips and a broken
+    source would pass unseen); only NEUMAT_CPU_KERNELS=0 or no compiler may leave them out."""
+    import os
+    import shutil
+
+    if os.environ.get("NEUMAT_CPU_KERNELS", "1") == "0" or shutil.which(os.environ.get("CC") or "cc") is None:
+        pytest.skip("no C compiler here, or the kernels switched off: nothing to build")
+    assert cpu_kernels.library() is not None, cpu_kernels.unavailable()

@@ -49,6 +49,43 @@ static inline float fast_expm1(float x) {
     return x > -0.5f && x < 0.5f ? small : large;
 }
 
+/* atan2 and log in float32 without branches (so that a block's loop vectorises): atan by Cephes' atanf
+   (reduction to |x| <= tan(pi / 8), a degree-4 polynomial in x^2; about 1 ulp), log by the exponent's bits and
+   log1p of the mantissa in [sqrt(1/2), sqrt(2)) by the series of atanh (relative error < 1e-7) */
+static inline float fast_atan(float x) {
+    float ax = fabsf(x);
+    float base = ax > 2.414213562373095f ? 1.5707963267948966f : (ax > 0.4142135623730950f ? 0.7853981633974483f : 0.f);
+    float t = ax > 2.414213562373095f ? -1.f / (ax > 1.f ? ax : 1.f)
+              : (ax > 0.4142135623730950f ? (ax - 1.f) / (ax + 1.f) : ax);
+    float z = t * t;
+    float y = base + ((((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z
+                       - 3.33329491539e-1f) * z * t + t);
+    return copysignf(y, x);
+}
+
+static inline float fast_atan2(float y, float x) {
+    float a = fast_atan(y / (x != 0.f ? x : 1.f));
+    float off = x < 0.f ? copysignf(3.141592653589793f, y) : 0.f;
+    float axis = y != 0.f ? copysignf(1.5707963267948966f, y) : 0.f;
+    return x != 0.f ? a + off : axis;
+}
+
+static inline float fast_log(float x) {
+    int32_t bits;
+    memcpy(&bits, &x, sizeof bits);
+    int32_t e = ((bits >> 23) & 255) - 127;
+    int32_t mbits = (bits & 0x007fffff) | 0x3f800000;
+    float m;
+    memcpy(&m, &mbits, sizeof m);                /* in [1, 2) */
+    int high = m > 1.41421356f;
+    m = high ? 0.5f * m : m;
+    e += high;
+    float f = (m - 1.f) / (m + 1.f), f2 = f * f;  /* log m = 2 atanh f, |f| < 0.172 */
+    float p = f2 * (1.f / 9.f) + 1.f / 7.f;
+    p = p * f2 + 1.f / 5.f; p = p * f2 + 1.f / 3.f; p = p * f2 + 1.f;
+    return 2.f * f * p + (float)e * 0.6931471805599453f;
+}
+
 /* y[o][k] = act(sum_i W[o][i] x[i][k] + b[o]) for o < out (a multiple of 4), k < BLOCK: 4 outputs at a time,
    their 4 x BLOCK sums held in vector registers (GCC / Clang vector extensions, split by the compiler to the
    machine's SIMD width) while the inputs stream past. x and y are 64-byte aligned. */
@@ -192,27 +229,29 @@ static void ring_pixels(const float *x, const float *y, const float *z, int nsid
    direction inputs) of directions wi, wo (n x 3, float32): the first layer's pre-activations as the sum of the
    table rows of wi's ring pixel and of wo's (offset by 12 nside^2: the S- half), `first_act`, the MLP's other
    layers, exp; 0 where wi.z or wo.z <= 0. table: (24 nside^2) x hidden. out: n x out_dim. */
-/* NeuBRDF's direction inputs (neumat.methods.neubrdf.model.direction_inputs) of one (wi, wo): NBRDF's (h, d)
-   (neumat.core.coords.hd_vectors), with `warp` (h.x, h.y) rescaled to length sqrt(theta_h / (pi / 2)) */
-static void hd_inputs(const float *wi, const float *wo, int warp, float *in) {
-    float ix = wi[0], iy = wi[1], iz = wi[2];
-    float hx = ix + wo[0], hy = iy + wo[1], hz = iz + wo[2];
-    float norm = sqrtf(hx * hx + hy * hy + hz * hz);
-    norm = norm > 1e-12f ? norm : 1e-12f;
-    hx /= norm; hy /= norm; hz /= norm;
-    float st = sqrtf(hx * hx + hy * hy);
-    float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
-    float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
-    float tx = hz * ux, ty = hz * uy, tz = -st;
-    float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
-    in[3] = tx * ix + ty * iy + tz * iz; in[4] = bx * ix + by * iy + bz * iz; in[5] = hx * ix + hy * iy + hz * iz;
-    float scale = 1.f;
-    if (warp) {
-        float s2 = sqrtf(hx * hx + hy * hy);
-        float radius = sqrtf(atan2f(s2, hz) / (float)(0.5 * 3.141592653589793));
-        scale = s2 > 0.f ? radius / (s2 > 1e-30f ? s2 : 1e-30f) : 0.f;
+/* NeuBRDF's direction inputs (neumat.methods.neubrdf.model.direction_inputs) of a block's rows s .. s + BLOCK - 1
+   (past n, row s again): NBRDF's (h, d) (neumat.core.coords.hd_vectors), with `warp` (h.x, h.y) rescaled to
+   length sqrt(theta_h / (pi / 2)); in: 6 x BLOCK. Branch-free (atan2 by fast_atan2), so that it vectorises. */
+static void hd_inputs_block(const float *wi, const float *wo, long s, long n, int warp, float *in) {
+    for (int k = 0; k < BLOCK; ++k) {
+        long r = s + k < n ? s + k : s;
+        float ix = wi[3 * r], iy = wi[3 * r + 1], iz = wi[3 * r + 2];
+        float hx = ix + wo[3 * r], hy = iy + wo[3 * r + 1], hz = iz + wo[3 * r + 2];
+        float norm = sqrtf(hx * hx + hy * hy + hz * hz);
+        norm = norm > 1e-12f ? norm : 1e-12f;
+        hx /= norm; hy /= norm; hz /= norm;
+        float st = sqrtf(hx * hx + hy * hy);
+        float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
+        float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
+        float tx = hz * ux, ty = hz * uy, tz = -st;
+        float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
+        in[3 * BLOCK + k] = tx * ix + ty * iy + tz * iz;
+        in[4 * BLOCK + k] = bx * ix + by * iy + bz * iz;
+        in[5 * BLOCK + k] = hx * ix + hy * iy + hz * iz;
+        float radius = sqrtf(fast_atan2(st, hz) / 1.5707963267948966f);
+        float scale = warp ? (st > 0.f ? radius / (st > 1e-30f ? st : 1e-30f) : 0.f) : 1.f;
+        in[k] = hx * scale; in[BLOCK + k] = hy * scale; in[2 * BLOCK + k] = hz;
     }
-    in[0] = hx * scale; in[1] = hy * scale; in[2] = hz;
 }
 
 /* the ring pixels of a block's wi and wo (rows s .. s + BLOCK - 1; past n, row s again), whether each row is above
@@ -246,6 +285,7 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK, up[2][BLOCK];
     int32_t pix_i[2][BLOCK], pix_o[2][BLOCK];
+    float din[6 * BLOCK];  /* the block's direction inputs */
     const float slope = negative_slope(first_act);
     const long south = 12L * nside * nside;
     if (n > 0) block_pixels(wi, wo, 0, n, nside, table, hidden, pix_i[0], pix_o[0], up[0]);
@@ -253,17 +293,16 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
         if (s + BLOCK < n)  /* the next block's rows are fetched while this one runs its MLP */
             block_pixels(wi, wo, s + BLOCK, n, nside, table, hidden, pix_i[cur ^ 1], pix_o[cur ^ 1], up[cur ^ 1]);
+        if (dir_w) hd_inputs_block(wi, wo, s, n, dir_warp, din);
         for (int k = 0; k < BLOCK; ++k) {
             const float *ti = table + (long)pix_i[cur][k] * hidden, *to = table + (south + pix_o[cur][k]) * hidden;
             float pre[MAX_WIDTH];
             for (int i = 0; i < hidden; ++i) pre[i] = ti[i] + to[i];
-            if (dir_w) {  /* Config.direction_inputs: (h, d), or with dir_warp (h.xy rescaled, h.z, d) */
-                long r = s + k < n ? s + k : s;
-                float in[6];
-                hd_inputs(wi + 3 * r, wo + 3 * r, dir_warp, in);
-                for (int j = 0; j < 6; ++j)
-                    for (int i = 0; i < hidden; ++i) pre[i] += in[j] * dir_w[j * hidden + i];
-            }
+            if (dir_w)  /* Config.direction_inputs: (h, d), or with dir_warp (h.xy rescaled, h.z, d) */
+                for (int j = 0; j < 6; ++j) {
+                    const float v = din[j * BLOCK + k];
+                    for (int i = 0; i < hidden; ++i) pre[i] += v * dir_w[j * hidden + i];
+                }
             for (int i = 0; i < hidden; ++i) {
                 float v = pre[i];
                 buf0[i * BLOCK + k] = first_act == ACT_SILU ? v / (1.f + fast_exp(-v)) : (v >= 0.f ? v : slope * v);
@@ -277,43 +316,6 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
     }
     free(work);
     return 0;
-}
-
-/* atan2 and log in float32 without branches (so that a block's loop vectorises): atan by Cephes' atanf
-   (reduction to |x| <= tan(pi / 8), a degree-4 polynomial in x^2; about 1 ulp), log by the exponent's bits and
-   log1p of the mantissa in [sqrt(1/2), sqrt(2)) by the series of atanh (relative error < 1e-7) */
-static inline float fast_atan(float x) {
-    float ax = fabsf(x);
-    float base = ax > 2.414213562373095f ? 1.5707963267948966f : (ax > 0.4142135623730950f ? 0.7853981633974483f : 0.f);
-    float t = ax > 2.414213562373095f ? -1.f / (ax > 1.f ? ax : 1.f)
-              : (ax > 0.4142135623730950f ? (ax - 1.f) / (ax + 1.f) : ax);
-    float z = t * t;
-    float y = base + ((((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z
-                       - 3.33329491539e-1f) * z * t + t);
-    return copysignf(y, x);
-}
-
-static inline float fast_atan2(float y, float x) {
-    float a = fast_atan(y / (x != 0.f ? x : 1.f));
-    float off = x < 0.f ? copysignf(3.141592653589793f, y) : 0.f;
-    float axis = y != 0.f ? copysignf(1.5707963267948966f, y) : 0.f;
-    return x != 0.f ? a + off : axis;
-}
-
-static inline float fast_log(float x) {
-    int32_t bits;
-    memcpy(&bits, &x, sizeof bits);
-    int32_t e = ((bits >> 23) & 255) - 127;
-    int32_t mbits = (bits & 0x007fffff) | 0x3f800000;
-    float m;
-    memcpy(&m, &mbits, sizeof m);                /* in [1, 2) */
-    int high = m > 1.41421356f;
-    m = high ? 0.5f * m : m;
-    e += high;
-    float f = (m - 1.f) / (m + 1.f), f2 = f * f;  /* log m = 2 atanh f, |f| < 0.172 */
-    float p = f2 * (1.f / 9.f) + 1.f / 7.f;
-    p = p * f2 + 1.f / 5.f; p = p * f2 + 1.f / 3.f; p = p * f2 + 1.f;
-    return 2.f * f * p + (float)e * 0.6931471805599453f;
 }
 
 /* remainder(x, period) as torch computes it for float32 (fmod, plus the period where the sign differs), for x in
