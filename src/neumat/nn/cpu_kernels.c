@@ -137,6 +137,24 @@ static float *mlp_block(float *buf0, float *buf1, int layers, const int *dims, c
     return x;
 }
 
+/* NBRDF's half and difference vectors of one (wi, wo) (neumat.core.coords.hd_vectors): h = normalize(wi + wo)
+   (h[3]), d = wi in the frame (t, b, h), t = (h_z u, -sin theta_h), u = h.xy / sin theta_h ((1, 0) at the pole)
+   (d[3]); returns sin theta_h. Inline and branch-free, so that callers' loops over a block vectorise. */
+static inline float hd_vectors(float ix, float iy, float iz, float ox, float oy, float oz, float *h, float *d) {
+    float hx = ix + ox, hy = iy + oy, hz = iz + oz;
+    float norm = sqrtf(hx * hx + hy * hy + hz * hz);
+    norm = norm > 1e-12f ? norm : 1e-12f;
+    hx /= norm; hy /= norm; hz /= norm;
+    float st = sqrtf(hx * hx + hy * hy);
+    float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
+    float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
+    float tx = hz * ux, ty = hz * uy, tz = -st;
+    float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
+    h[0] = hx; h[1] = hy; h[2] = hz;
+    d[0] = tx * ix + ty * iy + tz * iz; d[1] = bx * ix + by * iy + bz * iz; d[2] = hx * ix + hy * iy + hz * iz;
+    return st;
+}
+
 /* NBRDF (Sztrajman et al. 2021) of directions wi, wo (n x 3, float32): h = normalize(wi + wo), d = wi in the
    frame (t, b, h) of neumat.core.coords.hd_vectors; half_theta: h -> (sin theta_h, 0, cos theta_h); fold: d ->
    (-dx, -dy, dz) where dy < 0; the MLP; then max(expm1(y), 0) (exp_minus_one) or exp(y); 0 where wi.z or wo.z
@@ -158,23 +176,15 @@ int nbrdf_eval(const float *wi, const float *wo, long n, int layers, const int *
             pi = tail_i; po = tail_o;
         }
         for (int k = 0; k < BLOCK; ++k) {
-            float ix = pi[3 * k], iy = pi[3 * k + 1], iz = pi[3 * k + 2];
-            float hx = ix + po[3 * k], hy = iy + po[3 * k + 1], hz = iz + po[3 * k + 2];
-            float norm = sqrtf(hx * hx + hy * hy + hz * hz);
-            norm = norm > 1e-12f ? norm : 1e-12f;
-            hx /= norm; hy /= norm; hz /= norm;
-            float st = sqrtf(hx * hx + hy * hy);
-            float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
-            float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
-            float tx = hz * ux, ty = hz * uy, tz = -st;
-            float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
-            float dx = tx * ix + ty * iy + tz * iz, dy = bx * ix + by * iy + bz * iz, dz = hx * ix + hy * iy + hz * iz;
-            float flip = fold && dy < 0.f ? -1.f : 1.f;
-            buf0[k] = half_theta ? st : hx;
-            buf0[BLOCK + k] = half_theta ? 0.f : hy;
-            buf0[2 * BLOCK + k] = hz;
-            buf0[3 * BLOCK + k] = flip * dx; buf0[4 * BLOCK + k] = flip * dy; buf0[5 * BLOCK + k] = dz;
-            res[out_dim * BLOCK + k] = iz > 0.f && po[3 * k + 2] > 0.f ? 1.f : 0.f;  /* above the horizon */
+            float h[3], d[3];
+            float st = hd_vectors(pi[3 * k], pi[3 * k + 1], pi[3 * k + 2], po[3 * k], po[3 * k + 1], po[3 * k + 2],
+                                  h, d);
+            float flip = fold && d[1] < 0.f ? -1.f : 1.f;
+            buf0[k] = half_theta ? st : h[0];
+            buf0[BLOCK + k] = half_theta ? 0.f : h[1];
+            buf0[2 * BLOCK + k] = h[2];
+            buf0[3 * BLOCK + k] = flip * d[0]; buf0[4 * BLOCK + k] = flip * d[1]; buf0[5 * BLOCK + k] = d[2];
+            res[out_dim * BLOCK + k] = pi[3 * k + 2] > 0.f && po[3 * k + 2] > 0.f ? 1.f : 0.f;  /* above the horizon */
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         if (exp_minus_one)
@@ -225,32 +235,18 @@ static void ring_pixels(const float *x, const float *y, const float *z, int nsid
     }
 }
 
-/* NeuBRDF's runtime form (Dou, Zheng et al. 2024; neumat.methods.neubrdf.model, uniform corner weights, no
-   direction inputs) of directions wi, wo (n x 3, float32): the first layer's pre-activations as the sum of the
-   table rows of wi's ring pixel and of wo's (offset by 12 nside^2: the S- half), `first_act`, the MLP's other
-   layers, exp; 0 where wi.z or wo.z <= 0. table: (24 nside^2) x hidden. out: n x out_dim. */
 /* NeuBRDF's direction inputs (neumat.methods.neubrdf.model.direction_inputs) of a block's rows s .. s + BLOCK - 1
    (past n, row s again): NBRDF's (h, d) (neumat.core.coords.hd_vectors), with `warp` (h.x, h.y) rescaled to
    length sqrt(theta_h / (pi / 2)); in: 6 x BLOCK. Branch-free (atan2 by fast_atan2), so that it vectorises. */
 static void hd_inputs_block(const float *wi, const float *wo, long s, long n, int warp, float *in) {
     for (int k = 0; k < BLOCK; ++k) {
         long r = s + k < n ? s + k : s;
-        float ix = wi[3 * r], iy = wi[3 * r + 1], iz = wi[3 * r + 2];
-        float hx = ix + wo[3 * r], hy = iy + wo[3 * r + 1], hz = iz + wo[3 * r + 2];
-        float norm = sqrtf(hx * hx + hy * hy + hz * hz);
-        norm = norm > 1e-12f ? norm : 1e-12f;
-        hx /= norm; hy /= norm; hz /= norm;
-        float st = sqrtf(hx * hx + hy * hy);
-        float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
-        float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
-        float tx = hz * ux, ty = hz * uy, tz = -st;
-        float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
-        in[3 * BLOCK + k] = tx * ix + ty * iy + tz * iz;
-        in[4 * BLOCK + k] = bx * ix + by * iy + bz * iz;
-        in[5 * BLOCK + k] = hx * ix + hy * iy + hz * iz;
-        float radius = sqrtf(fast_atan2(st, hz) / 1.5707963267948966f);
+        float h[3], d[3];
+        float st = hd_vectors(wi[3 * r], wi[3 * r + 1], wi[3 * r + 2], wo[3 * r], wo[3 * r + 1], wo[3 * r + 2], h, d);
+        float radius = sqrtf(fast_atan2(st, h[2]) / 1.5707963267948966f);
         float scale = warp ? (st > 0.f ? radius / (st > 1e-30f ? st : 1e-30f) : 0.f) : 1.f;
-        in[k] = hx * scale; in[BLOCK + k] = hy * scale; in[2 * BLOCK + k] = hz;
+        in[k] = h[0] * scale; in[BLOCK + k] = h[1] * scale; in[2 * BLOCK + k] = h[2];
+        in[3 * BLOCK + k] = d[0]; in[4 * BLOCK + k] = d[1]; in[5 * BLOCK + k] = d[2];
     }
 }
 
@@ -277,6 +273,11 @@ static void block_pixels(const float *wi, const float *wo, long s, long n, int n
     }
 }
 
+/* NeuBRDF's runtime form (Dou, Zheng et al. 2024; neumat.methods.neubrdf.model, uniform corner weights) of
+   directions wi, wo (n x 3, float32): the first layer's pre-activations as the sum of the table rows of wi's ring
+   pixel and of wo's (offset by 12 nside^2: the S- half), plus with dir_w (6 x hidden: the first layer's columns of
+   Config.direction_inputs) those of hd_inputs_block, `first_act`, the MLP's other layers, exp; 0 where wi.z or
+   wo.z <= 0. table: (24 nside^2) x hidden. out: n x out_dim. */
 int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const float *table, int hidden,
                  const float *dir_w, int dir_warp, int first_act, int layers, const int *dims, const float *const *W,
                  const float *const *b, int hidden_act, int out_dim, float *out) {
@@ -318,24 +319,58 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
     return 0;
 }
 
+/* the shading frame (neumat.nn.shading_frames.frame_from_vectors) of a decoded normal (nx, ny, nz) and tangent
+   (ux, uy, uz): the unit tangent t and bitangent b = n x t (3 each) that wi, wo are expressed in */
+static inline void shading_frame(float nx, float ny, float nz, float ux, float uy, float uz, float *t, float *b) {
+    float nn = sqrtf(nx * nx + ny * ny + nz * nz);
+    nn = nn > 1e-12f ? nn : 1e-12f;
+    nx /= nn; ny /= nn; nz /= nn;
+    float dot = ux * nx + uy * ny + uz * nz;
+    float tx = ux - dot * nx, ty = uy - dot * ny, tz = uz - dot * nz;
+    float tn = sqrtf(tx * tx + ty * ty + tz * tz);
+    tn = tn > 1e-12f ? tn : 1e-12f;
+    t[0] = tx / tn; t[1] = ty / tn; t[2] = tz / tn;
+    b[0] = ny * t[2] - nz * t[1]; b[1] = nz * t[0] - nx * t[2]; b[2] = nx * t[1] - ny * t[0];
+}
+
+/* the z of (x, y) lifted to the hemisphere: sqrt(max(1 - x^2 - y^2, 1e-10)) (shading_frames.lift_to_hemisphere) */
+static inline float lift_z(float x, float y) {
+    float l = 1.f - (x * x + y * y);
+    return sqrtf(l > 1e-10f ? l : 1e-10f);
+}
+
+/* the Rusinkiewicz half and difference vectors h, d of wi, wo (neumat.nn.angular_texture.half_difference) */
+static inline void half_difference(const float *wi, const float *wo, float *h, float *d) {
+    float hx = wi[0] + wo[0], hy = wi[1] + wo[1], hz = wi[2] + wo[2];
+    float hn = sqrtf(hx * hx + hy * hy + hz * hz);
+    hn = hn > 1e-12f ? hn : 1e-12f;
+    hx /= hn; hy /= hn; hz /= hn;
+    float s2 = hx * hx + hy * hy;
+    int pole = s2 < 1e-14f;
+    float sq = sqrtf(pole ? 1.f : s2);
+    float cp = pole ? 1.f : hx / sq, sp = pole ? 0.f : hy / sq, st = pole ? 0.f : sq, ct = hz;
+    float x = cp * wi[0] + sp * wi[1], y = -sp * wi[0] + cp * wi[1];
+    h[0] = hx; h[1] = hy; h[2] = hz;
+    d[0] = ct * x - st * wi[2]; d[1] = y; d[2] = st * x + ct * wi[2];
+}
+
+/* out (C) bilinear at texel coordinates (ix, iy) (>= 0, clamped) of a texture channels-last (H, W, C): grid_sample's
+   corner-aligned read; the polar textures, the padded finest latent level and the level atlas */
+static inline void bilinear_read(const float *tex, int H, int W, int C, float ix, float iy, float *out) {
+    int x0 = (int)ix, y0 = (int)iy;   /* ix, iy >= 0: truncation is floor */
+    float fx = ix - (float)x0, fy = iy - (float)y0;
+    int x1 = x0 + 1 < W ? x0 + 1 : x0, y1 = y0 + 1 < H ? y0 + 1 : y0;
+    const float *a = tex + ((long)y0 * W + x0) * C, *b = tex + ((long)y0 * W + x1) * C;
+    const float *c = tex + ((long)y1 * W + x0) * C, *d = tex + ((long)y1 * W + x1) * C;
+    float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
+    for (int k = 0; k < C; ++k) out[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
+}
+
 /* remainder(x, period) as torch computes it for float32 (fmod, plus the period where the sign differs), for x in
    [-period, period] as atan2 gives (here fmod is x itself, or 0 at +-period) */
 static inline float remainder_near(float x, float period) {
     float m = x == period || x == -period ? 0.f : x;
     return m < 0.f ? m + period : m;
-}
-
-/* a polar texture's bilinear read (neumat.nn.angular_texture.AngularTexture.read: grid_sample, corner-aligned,
-   border) at texel coordinates (ix, iy) already clamped: tex is the padded texture channels-last,
-   (R, P + 2, C); out (C) */
-static inline void angular_read(const float *tex, int R, int W, int C, float ix, float iy, float *out) {
-    int x0 = (int)ix, y0 = (int)iy;   /* ix, iy >= 0: truncation is floor */
-    float fx = ix - (float)x0, fy = iy - (float)y0;
-    int x1 = x0 + 1 < W ? x0 + 1 : x0, y1 = y0 + 1 < R ? y0 + 1 : y0;
-    const float *a = tex + ((long)y0 * W + x0) * C, *b = tex + ((long)y0 * W + x1) * C;
-    const float *c = tex + ((long)y1 * W + x0) * C, *d = tex + ((long)y1 * W + x1) * C;
-    float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
-    for (int k = 0; k < C; ++k) out[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
 }
 
 /* texel coordinates (ix, iy) (BLOCK each), clamped as grid_sample's border padding, of polar points (r, phi)
@@ -410,18 +445,6 @@ static void latent_texels(const float *uv, long s, long n, int h, int w, float *
     }
 }
 
-/* z (ds) bilinear at texel coordinates (ix, iy) of a padded latent texture, channels-last (h + 2, w + 2, ds) */
-static inline void latent_read(const float *tex, int h, int w, int ds, float ix, float iy, float *z) {
-    const int W = w + 2, H = h + 2;
-    int x0 = (int)ix, y0 = (int)iy;
-    float fx = ix - (float)x0, fy = iy - (float)y0;
-    int x1 = x0 + 1 < W ? x0 + 1 : x0, y1 = y0 + 1 < H ? y0 + 1 : y0;
-    const float *a = tex + ((long)y0 * W + x0) * ds, *b = tex + ((long)y0 * W + x1) * ds;
-    const float *c = tex + ((long)y1 * W + x0) * ds, *d = tex + ((long)y1 * W + x1) * ds;
-    float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
-    for (int k = 0; k < ds; ++k) z[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
-}
-
 /* Where a kernel's spatial latents z come from (neumat.nn.latent_texture.LatentPyramid.forward's three lookups):
    0: given, z (n x ds); 1: the padded finest level `finest` ((h + 2, w + 2, ds), channels-last) at uv, without
    footprint or lod; 2: trilinear in the atlas of padded levels ((Ha, Wa, ds), channels-last; level l of size
@@ -459,13 +482,7 @@ static void atlas_trilinear(const Latents *L, int ds, float u, float v, float lo
         float ix = (gx + 1.f) / 2.f * (float)(L->Wa - 1), iy = (gy + 1.f) / 2.f * (float)(L->Ha - 1);
         ix = ix < 0.f ? 0.f : (ix > (float)(L->Wa - 1) ? (float)(L->Wa - 1) : ix);
         iy = iy < 0.f ? 0.f : (iy > (float)(L->Ha - 1) ? (float)(L->Ha - 1) : iy);
-        int x0 = (int)ix, y0 = (int)iy;
-        float fx = ix - (float)x0, fy = iy - (float)y0;
-        int x1 = x0 + 1 < L->Wa ? x0 + 1 : x0, y1 = y0 + 1 < L->Ha ? y0 + 1 : y0;
-        const float *a = L->atlas + ((long)y0 * L->Wa + x0) * ds, *b = L->atlas + ((long)y0 * L->Wa + x1) * ds;
-        const float *c = L->atlas + ((long)y1 * L->Wa + x0) * ds, *d = L->atlas + ((long)y1 * L->Wa + x1) * ds;
-        float wa = (1.f - fx) * (1.f - fy), wb = fx * (1.f - fy), wc = (1.f - fx) * fy, wd = fx * fy;
-        for (int k = 0; k < ds; ++k) r[e][k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
+        bilinear_read(L->atlas, L->Ha, L->Wa, ds, ix, iy, r[e]);
     }
     for (int k = 0; k < ds; ++k) acc[k] = acc[k] + (r[0][k] * w0 + r[1][k] * w1);
 }
@@ -503,7 +520,7 @@ static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
     for (int k = 0; k < BLOCK; ++k) {
         long row = s + k < n ? s + k : s;
         if (L->mode == 0) memcpy(zr, L->z + row * ds, ds * sizeof(float));
-        else if (L->mode == 1) latent_read(L->finest, L->h, L->w, ds, lx[k], ly[k], zr);
+        else if (L->mode == 1) bilinear_read(L->finest, L->h + 2, L->w + 2, ds, lx[k], ly[k], zr);
         else if (L->mode == 2) {
             for (int i = 0; i < ds; ++i) zr[i] = 0.f;
             atlas_trilinear(L, ds, L->uv[2 * row], L->uv[2 * row + 1], L->lod[row], 1.f, zr);
@@ -546,36 +563,20 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
         }
         if (frame_w) {
             decode_block(frame_w, frame_b, zt, ds, 6, p);
-            for (int k = 0; k < BLOCK; ++k) {
-                float nx = p[k], ny = p[BLOCK + k], nz = p[2 * BLOCK + k];
-                float nn = sqrtf(nx * nx + ny * ny + nz * nz);
-                nn = nn > 1e-12f ? nn : 1e-12f;
-                nx /= nn; ny /= nn; nz /= nn;
-                float ux = p[3 * BLOCK + k], uy = p[4 * BLOCK + k], uz = p[5 * BLOCK + k];
-                float dot = ux * nx + uy * ny + uz * nz;
-                float tx = ux - dot * nx, ty = uy - dot * ny, tz = uz - dot * nz;
-                float tn = sqrtf(tx * tx + ty * ty + tz * tz);
-                tn = tn > 1e-12f ? tn : 1e-12f;
-                tx /= tn; ty /= tn; tz /= tn;
-                float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
+            for (int k = 0; k < BLOCK; ++k) {  /* x, y in the frame (the lift below gives z) */
+                float t[3], b[3];
+                shading_frame(p[k], p[BLOCK + k], p[2 * BLOCK + k], p[3 * BLOCK + k], p[4 * BLOCK + k],
+                              p[5 * BLOCK + k], t, b);
                 float a0 = vix[k], a1 = viy[k], a2 = viz[k], c0 = vox[k], c1 = voy[k], c2 = voz[k];
-                vix[k] = a0 * tx + a1 * ty + a2 * tz; viy[k] = a0 * bx + a1 * by + a2 * bz;
-                vox[k] = c0 * tx + c1 * ty + c2 * tz; voy[k] = c0 * bx + c1 * by + c2 * bz;
+                vix[k] = a0 * t[0] + a1 * t[1] + a2 * t[2]; viy[k] = a0 * b[0] + a1 * b[1] + a2 * b[2];
+                vox[k] = c0 * t[0] + c1 * t[1] + c2 * t[2]; voy[k] = c0 * b[0] + c1 * b[1] + c2 * b[2];
             }
         }
         for (int k = 0; k < BLOCK; ++k) {  /* lift, half and difference vectors, disk polar coordinates */
-            float li = 1.f - (vix[k] * vix[k] + viy[k] * viy[k]), lo = 1.f - (vox[k] * vox[k] + voy[k] * voy[k]);
-            float iz = sqrtf(li > 1e-10f ? li : 1e-10f), oz = sqrtf(lo > 1e-10f ? lo : 1e-10f);
-            float hx = vix[k] + vox[k], hy = viy[k] + voy[k], hz = iz + oz;
-            float hn = sqrtf(hx * hx + hy * hy + hz * hz);
-            hn = hn > 1e-12f ? hn : 1e-12f;
-            hx /= hn; hy /= hn; hz /= hn;
-            float s2 = hx * hx + hy * hy;
-            int pole = s2 < 1e-14f;
-            float sq = sqrtf(pole ? 1.f : s2);
-            float cp = pole ? 1.f : hx / sq, sp = pole ? 0.f : hy / sq, st = pole ? 0.f : sq, ct = hz;
-            float x = cp * vix[k] + sp * viy[k], y = -sp * vix[k] + cp * viy[k];
-            float dx = ct * x - st * iz, dy = y;
+            float a[3] = {vix[k], viy[k], lift_z(vix[k], viy[k])}, c[3] = {vox[k], voy[k], lift_z(vox[k], voy[k])};
+            float h[3], d[3];
+            half_difference(a, c, h, d);
+            float hx = h[0], hy = h[1], dx = d[0], dy = d[1];
             float rh2 = hx * hx + hy * hy, rd2 = dx * dx + dy * dy;
             int ph = rh2 < 1e-14f, pd = rd2 < 1e-14f;
             float rh = sqrtf(ph ? 1.f : rh2), rd = sqrtf(pd ? 1.f : rd2);
@@ -597,8 +598,8 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
         polar_texels(r_h, phi_h, R, P, two_pi, tc, tc + BLOCK);  /* texel (x, y) of the half, then the diff texture */
         polar_texels(r_d, phi_d, R, P, pi, tc + 2 * BLOCK, tc + 3 * BLOCK);
         for (int k = 0; k < BLOCK; ++k) {
-            angular_read(tex_h, R, P + 2, dh * gate, tc[k], tc[BLOCK + k], read_h);
-            angular_read(tex_d, R, P + 2, dd * gate, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
+            bilinear_read(tex_h, R, P + 2, dh * gate, tc[k], tc[BLOCK + k], read_h);
+            bilinear_read(tex_d, R, P + 2, dd * gate, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
             if (!gated) {  /* tripleplane: the MLP reads [a_h, a_d, z] */
                 for (int c = 0; c < dh; ++c) buf0[c * BLOCK + k] = read_h[c];
                 for (int c = 0; c < dd; ++c) buf0[(dh + c) * BLOCK + k] = read_d[c];
@@ -629,43 +630,20 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
    scale) and frame_b, lifted to the hemisphere (neumat.nn.shading_frames): into wi_f, wo_f */
 static void to_frame(const float *frame_w, const float *frame_b, int f, const float *z, int ds, const float *wi,
                      const float *wo, float *wi_f, float *wo_f) {
-    float v[6];
+    float v[6], t[3], b[3];
     for (int j = 0; j < 6; ++j) {
         float acc = frame_b[6 * f + j];
         for (int i = 0; i < ds; ++i) acc += frame_w[(6 * f + j) * ds + i] * z[i];
         v[j] = acc;
     }
-    float nn = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    nn = nn > 1e-12f ? nn : 1e-12f;
-    float nx = v[0] / nn, ny = v[1] / nn, nz = v[2] / nn;
-    float dot = v[3] * nx + v[4] * ny + v[5] * nz;
-    float tx = v[3] - dot * nx, ty = v[4] - dot * ny, tz = v[5] - dot * nz;
-    float tn = sqrtf(tx * tx + ty * ty + tz * tz);
-    tn = tn > 1e-12f ? tn : 1e-12f;
-    tx /= tn; ty /= tn; tz /= tn;
-    float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
+    shading_frame(v[0], v[1], v[2], v[3], v[4], v[5], t, b);
     const float *w[2] = {wi, wo};
     float *o[2] = {wi_f, wo_f};
     for (int e = 0; e < 2; ++e) {
-        float x = w[e][0] * tx + w[e][1] * ty + w[e][2] * tz, y = w[e][0] * bx + w[e][1] * by + w[e][2] * bz;
-        float l = 1.f - (x * x + y * y);
-        o[e][0] = x; o[e][1] = y; o[e][2] = sqrtf(l > 1e-10f ? l : 1e-10f);
+        o[e][0] = w[e][0] * t[0] + w[e][1] * t[1] + w[e][2] * t[2];
+        o[e][1] = w[e][0] * b[0] + w[e][1] * b[1] + w[e][2] * b[2];
+        o[e][2] = lift_z(o[e][0], o[e][1]);
     }
-}
-
-/* the Rusinkiewicz half and difference vectors h, d of wi, wo (neumat.nn.angular_texture.half_difference) */
-static void half_difference(const float *wi, const float *wo, float *h, float *d) {
-    float hx = wi[0] + wo[0], hy = wi[1] + wo[1], hz = wi[2] + wo[2];
-    float hn = sqrtf(hx * hx + hy * hy + hz * hz);
-    hn = hn > 1e-12f ? hn : 1e-12f;
-    hx /= hn; hy /= hn; hz /= hn;
-    float s2 = hx * hx + hy * hy;
-    int pole = s2 < 1e-14f;
-    float sq = sqrtf(pole ? 1.f : s2);
-    float cp = pole ? 1.f : hx / sq, sp = pole ? 0.f : hy / sq, st = pole ? 0.f : sq, ct = hz;
-    float x = cp * wi[0] + sp * wi[1], y = -sp * wi[0] + cp * wi[1];
-    h[0] = hx; h[1] = hy; h[2] = hz;
-    d[0] = ct * x - st * wi[2]; d[1] = y; d[2] = st * x + ct * wi[2];
 }
 
 /* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip without offset module; neural-appearance's
