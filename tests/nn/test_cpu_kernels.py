@@ -109,18 +109,13 @@ def _directions(n, seed):
 @pytest.mark.parametrize("config", [{}, {"output": "exp"}, {"half": "theta", "fold_phi_d": True},
                                     {"hidden": 64, "hidden_layers": 3}])
 @pytest.mark.parametrize("n", [1, 5, 64, 1000, 20000])
-def test_nbrdf_eval_equals_its_torch_path(config, n, monkeypatch):
+def test_nbrdf_eval_equals_its_torch_path(config, n):
     model = NBRDF(init_range=0.3, **config)
     q = Query(*_directions(n, seed=n))
     with torch.no_grad():
         got = model.eval(q)
-        monkeypatch.setenv("NEUMAT_CPU_KERNELS", "0")
-        cpu_kernels.reset()
-        try:
+        with cpu_kernels.switched_off():
             ref = model.eval(q)
-        finally:
-            monkeypatch.delenv("NEUMAT_CPU_KERNELS")
-            cpu_kernels.reset()
     assert not torch.equal(got, ref) or n < 64  # the kernel ran (its sums are ordered otherwise)
     torch.testing.assert_close(got, ref, rtol=2e-5, atol=1e-6)
     assert (got[q.wi[:, 2] <= 0] == 0).all()
@@ -203,19 +198,14 @@ def _neubrdf_runtime(seed, **config):
                                     {"nside": 8, "direction_inputs": "hd"},
                                     {"nside": 8, "direction_inputs": "hd_warp", "features": "dense"}])
 @pytest.mark.parametrize("n", [1, 64, 65, 5000])
-def test_neubrdf_runtime_eval_equals_its_torch_path(config, n, monkeypatch):
+def test_neubrdf_runtime_eval_equals_its_torch_path(config, n):
     model = _neubrdf_runtime(0, **config)
     q = Query(*_directions(n, seed=n))
     with torch.no_grad():
         assert model._kernel_eval(q.wi, q.wo) is not None, "the kernel does not apply to this runtime model"
         got = model.eval(q)
-        monkeypatch.setenv("NEUMAT_CPU_KERNELS", "0")
-        cpu_kernels.reset()
-        try:
+        with cpu_kernels.switched_off():
             ref = model.eval(q)
-        finally:
-            monkeypatch.delenv("NEUMAT_CPU_KERNELS")
-            cpu_kernels.reset()
     torch.testing.assert_close(got, ref, rtol=2e-5, atol=1e-6)
     assert (got[q.wi[:, 2] <= 0] == 0).all()
 
@@ -256,7 +246,7 @@ def _texture_queries(n, seed, mode):
                                     {"tripleplane": True}])
 @pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
 @pytest.mark.parametrize("n", [1, 65, 3000])
-def test_multiscale_eval_equals_its_torch_path(config, mode, n, monkeypatch):
+def test_multiscale_eval_equals_its_torch_path(config, mode, n):
     from neumat.methods.latent_mlp.tripleplane import TriplePlane
 
     model = _multiscale_runtime(0, TriplePlane) if config.get("tripleplane") else _multiscale_runtime(0, **config)
@@ -264,13 +254,8 @@ def test_multiscale_eval_equals_its_torch_path(config, mode, n, monkeypatch):
     with torch.no_grad():
         assert model._kernel_eval(q) is not None, "the kernel does not apply"
         got = model.eval(q)
-        monkeypatch.setenv("NEUMAT_CPU_KERNELS", "0")
-        cpu_kernels.reset()
-        try:
+        with cpu_kernels.switched_off():
             ref = model.eval(q)
-        finally:
-            monkeypatch.delenv("NEUMAT_CPU_KERNELS")
-            cpu_kernels.reset()
     _as_accurate_as_torch(model, q, got, ref)
     assert (got[q.wi[:, 2] <= 0] == 0).all()
 

@@ -117,6 +117,21 @@ def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) ->
     return torch.randn(shape) * (std / gain)
 
 
+def kernel_parts(model, q: Query) -> "tuple[cpu_kernels.PackedMLP, cpu_kernels.LatentSource] | None":
+    """What every latent model's fused kernel reads besides its own inputs: its MLP packed and the query's spatial
+    latents (`kernel_latents`), or None where either is not to be had (another activation, other dtypes)."""
+    mlp = cpu_kernels.packed(model, model.mlp.net)
+    latents = None if mlp is None else kernel_latents(model, q)
+    return None if latents is None else (mlp, latents)
+
+
+def kernel_frame(frame: ShadingFrame | None) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """A shading frame's decode layer as the fused kernels read it: (weight x weight scale, bias), or None."""
+    if frame is None:
+        return None
+    return frame.decode.weight * frame.weight_scale, frame.decode.bias.clone()
+
+
 def kernel_latents(model, q: Query) -> "cpu_kernels.LatentSource | None":
     """The spatial latents of a model with a `LatentPyramid` `spatial`, read at q.uv with q's footprint or lod, as
     a fused kernel reads them (`cpu_kernels.LatentSource`), or None for other than float32 inputs. The footprint is
@@ -236,12 +251,10 @@ class MultiScale(LearnedMaterial, SpatialLatent):
                                                    c.warp_terms) \
                 or not cpu_kernels.usable(q.wi, q.wo, self.half_texture.raw):
             return None
-        mlp = cpu_kernels.packed(self, self.mlp.net)
-        if mlp is None:
+        parts = kernel_parts(self, q)
+        if parts is None:
             return None
-        latents = kernel_latents(self, q)
-        if latents is None:
-            return None
+        mlp, latents = parts
         warps = None if self.warp_h is None else (self.warp_h.decode.weight, self.warp_h.decode.bias,
                                                   self.warp_d.decode.weight, self.warp_d.decode.bias)
         frame = [] if self.frame is None else [self.frame.decode.weight, self.frame.decode.bias]
@@ -255,9 +268,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         scale, bias) or None, and the two padded polar textures in its layout (`_kernel_texture`)."""
         c = self.cfg
         gate = c.spatial_channels if c.gating else 1
-        frame = None if self.frame is None else (self.frame.decode.weight * self.frame.weight_scale,
-                                                 self.frame.decode.bias.clone())
-        return (frame, _kernel_texture(self.half_texture.padded(), c.half_channels, gate),
+        return (kernel_frame(self.frame), _kernel_texture(self.half_texture.padded(), c.half_channels, gate),
                 _kernel_texture(self.diff_texture.padded(), c.diff_channels, gate))
 
     def _eval_rows(self, q: Query) -> torch.Tensor:

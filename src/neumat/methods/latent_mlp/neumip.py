@@ -23,7 +23,8 @@ from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows, derived_from
 from neumat.models.base import LearnedMaterial
-from neumat.methods.latent_mlp.multiscale import kernel_latents, preconditioned_noise, start_at_data_scale
+from neumat.methods.latent_mlp.multiscale import (kernel_frame, kernel_parts, preconditioned_noise,
+                                                  start_at_data_scale)
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn import cpu_kernels
 from neumat.nn.angular_texture import half_difference
@@ -185,21 +186,17 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         where it does not apply: autograd, other dtypes, no compiler, the offset module, more than 4 shading
         frames, roulette levels, more outputs than 3."""
         c = self.cfg
-        if self.offset_mlp is not None or (self.frame is not None and self.frame.frames > 4) \
+        if self.offset_mlp is not None \
                 or not cpu_kernels.neumip_fits(c.spatial_channels, 1 if self.frame is None else self.frame.frames) \
                 or c.level_selection != "trilinear" or self.outputs != 3 \
                 or not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
             return None
-        mlp = cpu_kernels.packed(self, self.mlp.net)
-        if mlp is None:
-            return None
-        latents = kernel_latents(self, q)
-        if latents is None:
+        parts = kernel_parts(self, q)
+        if parts is None:
             return None
         frame = None if self.frame is None else derived_from(
-            self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias],
-            lambda: (self.frame.decode.weight * self.frame.weight_scale, self.frame.decode.bias.clone()))
-        return cpu_kernels.neumip_eval(mlp, latents, q.wi, q.wo, frame, c.directions == "rusinkiewicz")
+            self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias], lambda: kernel_frame(self.frame))
+        return cpu_kernels.neumip_eval(*parts, q.wi, q.wo, frame, c.directions == "rusinkiewicz")
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
