@@ -281,6 +281,42 @@ def _as_accurate_as_torch(model, q, got, ref):
     assert err_kernel.max() <= max(4 * err_torch.max(), 1e-3), (float(err_kernel.max()), float(err_torch.max()))
 
 
+@needs_kernels
+@pytest.mark.parametrize("mode", ["none", "footprint"])
+def test_multiscale_kernel_sees_every_kind_of_parameter_change(mode):
+    """What the kernel keeps (packed MLP, textures in its layout, the pyramid's tables) follows the parameters: an
+    in-place change, a fused optimiser step (no version bump), a new Parameter assigned, load_state_dict."""
+    model = _multiscale_runtime(3)
+    twin = _multiscale_runtime(4)
+    q = _texture_queries(50, 6, mode)
+
+    def both():
+        with torch.no_grad():
+            fast = model.eval(q)
+            with cpu_kernels.switched_off():
+                slow = model.eval(q)
+        torch.testing.assert_close(fast, slow, rtol=2e-4, atol=1e-6)
+        return fast
+
+    before = both()
+    with torch.no_grad():
+        model.spatial.raw[0].mul_(0.5)
+    changed = both()
+    assert not torch.allclose(changed, before)
+    model.train()
+    opt = model.optimizer(1e-2, (0.9, 0.99), 1e-8)
+    model.eval(q).sum().backward()
+    opt.step()
+    model.eval()
+    stepped = both()
+    assert not torch.allclose(stepped, changed)
+    model.mlp.linears()[-1].bias = nn.Parameter(model.mlp.linears()[-1].bias.detach() + 1.0)
+    assert not torch.allclose(both(), stepped)
+    model.load_state_dict(twin.state_dict())
+    with torch.no_grad():
+        torch.testing.assert_close(model.eval(q), twin.eval(q))
+
+
 def test_multiscale_kernel_declines_what_it_does_not_implement():
     for config in ({"homogeneous": True}, {"spatial_channels": 80, "half_channels": 2, "diff_channels": 2}):
         model = _multiscale_runtime(0, **config)

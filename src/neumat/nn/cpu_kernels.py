@@ -26,11 +26,12 @@ import threading
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import torch
 from torch import nn
 
-from neumat.core.tensors import optimiser_steps
+from neumat.core.tensors import module_stamp
 
 SOURCE = Path(__file__).with_name("cpu_kernels.c")
 FLAGS = ("-O3", "-march=native", "-mprefer-vector-width=512", "-fno-math-errno", "-fno-trapping-math", "-fPIC",
@@ -190,30 +191,25 @@ def activation_code(module: nn.Module) -> int | None:
     return None if code == 2 and module.negative_slope != 0.01 else code
 
 
-def packed(owner: nn.Module, net: nn.Sequential, start: int = 0) -> PackedMLP | None:
-    """`PackedMLP.pack(net[start:])`, kept for `owner` while `net`'s parameters are the same tensors, unchanged
-    (`_stamp`). Checked on every call in a few microseconds (module attribute lookups would cost more than the
-    kernel's call)."""
-    kept_by_start = _packed.setdefault(owner, {})
-    kept = kept_by_start.get(start)
-    if kept is not None and kept[0] is net and _stamp(kept[1]) == kept[2]:
-        return kept[3]
-    layers = list(net)[start:]
-    linears = [m for m in layers if isinstance(m, nn.Linear)]
-    value = PackedMLP.pack(layers)
-    kept_by_start[start] = (net, linears, _stamp(linears), value)
+def prepared(owner: nn.Module, make: Callable[[], object]) -> object:
+    """make(): what `owner`'s kernel reads besides the query (its MLP packed, tables in the kernel's layout), or None
+    where the kernel does not apply to it; kept while `owner`'s parameters and buffers are unchanged
+    (`neumat.core.tensors.module_stamp`) and its `cfg` is the same object. Call it with autograd off (`usable`).
+    Why: everything here is derived from the parameters, and re-deriving or even re-checking it tensor by tensor
+    on every call costs more than a small batch's kernel. Kept outside the module (ctypes pointers cannot be
+    copied or pickled with it)."""
+    stamp, cfg = module_stamp(owner), owner.__dict__.get("cfg")
+    kept = _prepared.get(owner)
+    if kept is not None and kept[1] is cfg and kept[0] == stamp:
+        return kept[2]
+    with torch.inference_mode(False), torch.no_grad():
+        value = make()
+    _prepared[owner] = (stamp, cfg, value)
     return value
 
 
-#: what `packed` keeps, per owner (outside the module: ctypes pointers cannot be copied or pickled with it)
-_packed: "weakref.WeakKeyDictionary[nn.Module, dict]" = weakref.WeakKeyDictionary()
-
-
-def _stamp(linears: list[nn.Linear]) -> list:
-    """What the packed copy depends on: each parameter's identity, storage and version, and the optimiser steps
-    taken (a fused step updates in place without bumping versions: `neumat.core.tensors.derived_from`)."""
-    return [optimiser_steps()] + [(id(p), p.data_ptr(), p._version)
-                                  for lin in linears for p in lin._parameters.values() if p is not None]
+#: what `prepared` keeps, per owner
+_prepared: "weakref.WeakKeyDictionary[nn.Module, tuple]" = weakref.WeakKeyDictionary()
 
 
 _pool: list = []  # [the executor, (its threads, the process that made it)]
@@ -348,38 +344,63 @@ class _Latents(ctypes.Structure):
                 ("max_probes", ctypes.c_int), ("size", ctypes.c_void_p), ("origin", ctypes.c_void_p)]
 
 
+class PyramidTables:
+    """A `neumat.nn.latent_texture.LatentPyramid`'s levels as the kernels read them, each made at its first use: the
+    finest level padded, channels-last (1, h + 2, w + 2, D_s); the atlas channels-last (1, Ha, Wa, D_s) with each
+    level's size (L, 2) int32 and origin (L, 2) float32. Kept in a model's `prepared` bundle, so they are made once
+    while the pyramid is unchanged."""
+
+    def __init__(self, pyramid) -> None:
+        self.pyramid = pyramid
+        self.channels = pyramid.raw[0].shape[0]
+        self._finest = self._atlas = None
+
+    def finest(self) -> torch.Tensor:
+        if self._finest is None:
+            with torch.inference_mode(False), torch.no_grad():
+                self._finest = self.pyramid.finest_padded().permute(0, 2, 3, 1).contiguous()
+        return self._finest
+
+    def atlas(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        if self._atlas is None:
+            from neumat.nn.latent_texture import atlas_layout
+
+            with torch.inference_mode(False), torch.no_grad():
+                raw = self.pyramid.raw
+                layout = atlas_layout(tuple(tuple(int(v) for v in t.shape[1:]) for t in raw), torch.device("cpu"))
+                self._atlas = (self.pyramid.atlas().permute(0, 2, 3, 1).contiguous(),
+                               layout["size"].to(torch.int32).contiguous(),
+                               layout["origin"].to(torch.float32).contiguous())
+        return self._atlas
+
+
 class LatentSource:
-    """A query's spatial latents as a kernel reads them from a `neumat.nn.latent_texture.LatentPyramid`: the
-    finest level at uv (no footprint or lod), the trilinear lookup of the atlas at a lod, or the anisotropic
-    filter of a footprint (the pyramid's three lookups, float32 step by step as there); or latents z (N, D_s)
-    given. Holds the tensors the pointers point into."""
+    """A query's spatial latents as a kernel reads them from a pyramid's `PyramidTables`: the finest level at uv (no
+    footprint or lod), the trilinear lookup of the atlas at a lod, or the anisotropic filter of a footprint (the
+    pyramid's three lookups, float32 step by step as there); or latents z (N, D_s) given. Holds the tensors the
+    pointers point into."""
 
-    def __init__(self, pyramid=None, uv: torch.Tensor | None = None, lod: torch.Tensor | None = None,
-                 footprint: torch.Tensor | None = None, z: torch.Tensor | None = None) -> None:
-        from neumat.nn.latent_texture import atlas_layout
-
+    def __init__(self, tables: PyramidTables | None = None, uv: torch.Tensor | None = None,
+                 lod: torch.Tensor | None = None, footprint: torch.Tensor | None = None,
+                 z: torch.Tensor | None = None) -> None:
         self.rows: dict[str, tuple[torch.Tensor, int]] = {}  # per-row tensors and their floats per row
         self.struct = _Latents()
         if z is not None:
             self.struct.mode, self.channels = 0, z.shape[1]
             self._row("z", z, z.shape[1])
             return
-        self.channels = pyramid.raw[0].shape[0]
+        self.channels = tables.channels
         self._row("uv", uv, 2)
-        if lod is None and footprint is None:
-            level = pyramid.finest_padded().permute(0, 2, 3, 1).contiguous()  # (1, h + 2, w + 2, D_s) in memory
-            self.keep = [level]
-            self.struct.mode, self.struct.finest = 1, level.data_ptr()
-            self.struct.h, self.struct.w = level.shape[1] - 2, level.shape[2] - 2
-            return
-        atlas = pyramid.atlas().permute(0, 2, 3, 1).contiguous()  # (1, Ha, Wa, D_s) in memory
-        layout = atlas_layout(tuple(tuple(int(v) for v in t.shape[1:]) for t in pyramid.raw), torch.device("cpu"))
-        size = layout["size"].to(torch.int32).contiguous()
-        origin = layout["origin"].to(torch.float32).contiguous()
-        self.keep = [atlas, size, origin]
         st = self.struct
+        if lod is None and footprint is None:
+            level = tables.finest()
+            self.keep = [level]
+            st.mode, st.finest, st.h, st.w = 1, level.data_ptr(), level.shape[1] - 2, level.shape[2] - 2
+            return
+        atlas, size, origin = tables.atlas()
+        self.keep = [atlas, size, origin]
         st.atlas, st.Ha, st.Wa = atlas.data_ptr(), atlas.shape[1], atlas.shape[2]
-        st.levels, st.max_probes, st.size, st.origin = len(pyramid.raw), pyramid.max_probes, size.data_ptr(), \
+        st.levels, st.max_probes, st.size, st.origin = len(size), tables.pyramid.max_probes, size.data_ptr(), \
             origin.data_ptr()
         if footprint is None:
             st.mode = 2

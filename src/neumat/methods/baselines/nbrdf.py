@@ -137,7 +137,7 @@ class NBRDF(LearnedMaterial):
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NBRDF.eval")
         if cpu_kernels.usable(q.wi, q.wo, self.mlp.net[0].weight):
-            mlp = cpu_kernels.packed(self, self.mlp.net)
+            mlp = cpu_kernels.prepared(self, lambda: cpu_kernels.PackedMLP.pack(self.mlp.net))
             if mlp is not None:  # one fused C call (neumat.nn.cpu_kernels); the same values as the torch path
                 return cpu_kernels.nbrdf_eval(mlp, q.wi, q.wo, self.cfg.half == "theta", self.cfg.fold_phi_d,
                                               self.cfg.output == "exp_minus_one")

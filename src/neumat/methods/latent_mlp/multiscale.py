@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -21,7 +22,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import by_rows, derived_from
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn import cpu_kernels
@@ -117,30 +118,33 @@ def preconditioned_noise(shape: tuple[int, ...], std: float, strength: float) ->
     return torch.randn(shape) * (std / gain)
 
 
-def kernel_parts(model, q: Query) -> "tuple[cpu_kernels.PackedMLP, cpu_kernels.LatentSource] | None":
-    """What every latent model's fused kernel reads besides its own inputs: its MLP packed and the query's spatial
-    latents (`kernel_latents`), or None where either is not to be had (another activation, other dtypes)."""
-    mlp = cpu_kernels.packed(model, model.mlp.net)
-    latents = None if mlp is None else kernel_latents(model, q)
-    return None if latents is None else (mlp, latents)
+def kernel_bundle(model, **extra) -> SimpleNamespace | None:
+    """What every latent model's fused kernel reads besides the query, made once per parameter state through
+    `cpu_kernels.prepared`: `mlp` (its MLP packed), `tables` (its pyramid's `cpu_kernels.PyramidTables`), `frame`
+    (`kernel_frame`) and `extra`'s; None where the kernels do not implement its MLP (another activation)."""
+    mlp = cpu_kernels.PackedMLP.pack(model.mlp.net)
+    if mlp is None:
+        return None
+    return SimpleNamespace(mlp=mlp, tables=cpu_kernels.PyramidTables(model.spatial), frame=kernel_frame(model.frame),
+                           **extra)
 
 
 def kernel_frame(frame: ShadingFrame | None) -> tuple[torch.Tensor, torch.Tensor] | None:
     """A shading frame's decode layer as the fused kernels read it: (weight x weight scale, bias), or None."""
     if frame is None:
         return None
-    return frame.decode.weight * frame.weight_scale, frame.decode.bias.clone()
+    return (frame.decode.weight * frame.weight_scale).contiguous(), frame.decode.bias.detach().clone()
 
 
-def kernel_latents(model, q: Query) -> "cpu_kernels.LatentSource | None":
-    """The spatial latents of a model with a `LatentPyramid` `spatial`, read at q.uv with q's footprint or lod, as
-    a fused kernel reads them (`cpu_kernels.LatentSource`), or None for other than float32 inputs. The footprint is
-    checked as the torch path checks it."""
+def kernel_latents(model, tables: "cpu_kernels.PyramidTables", q: Query) -> "cpu_kernels.LatentSource | None":
+    """The spatial latents of a model with a `LatentPyramid`, read at q.uv with q's footprint or lod, as a fused
+    kernel reads them (`cpu_kernels.LatentSource` of the pyramid's `tables`), or None for other than float32 inputs.
+    The footprint is checked as the torch path checks it."""
     q.require("uv", who=f"{model.name} (spatially varying)")
     footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
     if any(t is not None and t.dtype != torch.float32 for t in (q.uv, q.lod, footprint)):
         return None
-    return cpu_kernels.LatentSource(model.spatial, q.uv, q.lod if footprint is None else None, footprint)
+    return cpu_kernels.LatentSource(tables, q.uv, q.lod if footprint is None else None, footprint)
 
 
 def _kernel_texture(padded: torch.Tensor, channels: int, spatial: int) -> torch.Tensor:
@@ -241,35 +245,33 @@ class MultiScale(LearnedMaterial, SpatialLatent):
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
         """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
         (`neumat.nn.cpu_kernels.multiscale_eval`; the torch path's values within float32 rounding), or None where
-        it does not apply: autograd, other dtypes, no compiler, no spatial texture (homogeneous). Without gating
-        (tripleplane) the MLP reads the concatenated latents. Why: the torch path is some 150 small tensor
-        operations (1.2e6 evaluations per second)."""
+        it does not apply: autograd, other dtypes, no compiler, no spatial texture (homogeneous), sizes beyond the
+        kernel's buffers. Without gating (tripleplane) the MLP reads the concatenated latents. Why: the torch path
+        is some 150 small tensor operations (1.2e6 evaluations per second)."""
+        if self.spatial is None or q.wo is None or not cpu_kernels.usable(q.wi, q.wo, self.half_texture.raw):
+            return None
+        k = cpu_kernels.prepared(self, self._kernel_bundle)
+        latents = None if k is None else kernel_latents(self, k.tables, q)
+        if latents is None:
+            return None
         c = self.cfg
-        gate = c.spatial_channels if c.gating else 1
-        if self.spatial is None or q.wo is None or (self.frame is not None and self.frame.frames != 1) \
-                or not cpu_kernels.multiscale_fits(c.spatial_channels, c.half_channels, c.diff_channels, gate,
-                                                   c.warp_terms) \
-                or not cpu_kernels.usable(q.wi, q.wo, self.half_texture.raw):
-            return None
-        parts = kernel_parts(self, q)
-        if parts is None:
-            return None
-        mlp, latents = parts
-        warps = None if self.warp_h is None else (self.warp_h.decode.weight, self.warp_h.decode.bias,
-                                                  self.warp_d.decode.weight, self.warp_d.decode.bias)
-        frame = [] if self.frame is None else [self.frame.decode.weight, self.frame.decode.bias]
-        kept = derived_from(self, "kernel inputs", [self.half_texture.raw, self.diff_texture.raw, *frame],
-                            self._kernel_inputs)  # one stamp: each costs microseconds per call
-        return cpu_kernels.multiscale_eval(mlp, latents, q.wi, q.wo, kept[0], warps, *kept[1:], c.half_channels,
-                                           c.diff_channels, gated=c.gating)
+        return cpu_kernels.multiscale_eval(k.mlp, latents, q.wi, q.wo, k.frame, k.warps, k.tex_h, k.tex_d,
+                                           c.half_channels, c.diff_channels, gated=c.gating)
 
-    def _kernel_inputs(self) -> tuple:
-        """What the fused kernel reads besides the MLP and warps: the frame's decode layer (weights times their
-        scale, bias) or None, and the two padded polar textures in its layout (`_kernel_texture`)."""
+    def _kernel_bundle(self) -> SimpleNamespace | None:
+        """`kernel_bundle` with the warps' decode layers and the two padded polar textures in the kernel's layout
+        (`_kernel_texture`), or None where the model's sizes exceed the kernel's buffers."""
         c = self.cfg
         gate = c.spatial_channels if c.gating else 1
-        return (kernel_frame(self.frame), _kernel_texture(self.half_texture.padded(), c.half_channels, gate),
-                _kernel_texture(self.diff_texture.padded(), c.diff_channels, gate))
+        if (self.frame is not None and self.frame.frames != 1) \
+                or not cpu_kernels.multiscale_fits(c.spatial_channels, c.half_channels, c.diff_channels, gate,
+                                                   c.warp_terms):
+            return None
+        warps = None if self.warp_h is None else tuple(
+            t.detach().contiguous() for w in (self.warp_h, self.warp_d) for t in (w.decode.weight, w.decode.bias))
+        return kernel_bundle(self, warps=warps,
+                             tex_h=_kernel_texture(self.half_texture.padded(), c.half_channels, gate),
+                             tex_d=_kernel_texture(self.diff_texture.padded(), c.diff_channels, gate))
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
         f = torch.exp(self.mlp(self.latents(q)))

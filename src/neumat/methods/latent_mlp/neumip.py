@@ -12,6 +12,7 @@ Details: src/neumat/methods/latent_mlp/NOTES.md, section `neumat.methods.latent_
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -21,9 +22,9 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import by_rows, derived_from
+from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
-from neumat.methods.latent_mlp.multiscale import (kernel_frame, kernel_parts, preconditioned_noise,
+from neumat.methods.latent_mlp.multiscale import (kernel_bundle, kernel_latents, preconditioned_noise,
                                                   start_at_data_scale)
 from neumat.methods.latent_mlp.spatial_latent import SpatialLatent, fused_adam
 from neumat.nn import cpu_kernels
@@ -185,18 +186,22 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         (`neumat.nn.cpu_kernels.neumip_eval`: NeuMIP, nbrdf-uv, neumip-frame, neural-appearance's BRDF), or None
         where it does not apply: autograd, other dtypes, no compiler, the offset module, more than 4 shading
         frames, roulette levels, more outputs than 3."""
+        if not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
+            return None
+        k = cpu_kernels.prepared(self, self._kernel_bundle)
+        latents = None if k is None else kernel_latents(self, k.tables, q)
+        if latents is None:
+            return None
+        return cpu_kernels.neumip_eval(k.mlp, latents, q.wi, q.wo, k.frame, self.cfg.directions == "rusinkiewicz")
+
+    def _kernel_bundle(self) -> SimpleNamespace | None:
+        """`kernel_bundle`, or None for the variants the kernel lacks (`_kernel_eval`)."""
         c = self.cfg
         if self.offset_mlp is not None \
                 or not cpu_kernels.neumip_fits(c.spatial_channels, 1 if self.frame is None else self.frame.frames) \
-                or c.level_selection != "trilinear" or self.outputs != 3 \
-                or not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
+                or c.level_selection != "trilinear" or self.outputs != 3:
             return None
-        parts = kernel_parts(self, q)
-        if parts is None:
-            return None
-        frame = None if self.frame is None else derived_from(
-            self, "kernel frame", [self.frame.decode.weight, self.frame.decode.bias], lambda: kernel_frame(self.frame))
-        return cpu_kernels.neumip_eval(*parts, q.wi, q.wo, frame, c.directions == "rusinkiewicz")
+        return kernel_bundle(self)
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a

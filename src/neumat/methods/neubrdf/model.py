@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -312,16 +313,25 @@ class NeuBRDF(LearnedMaterial):
         `_masked_runtime_eval` within float32 rounding), or None where the kernel does not apply: inverse-distance
         corner weights, other dtypes, no compiler."""
         table = self._runtime_table
-        if self.cfg.interpolation != "uniform" or not cpu_kernels.usable(wi, wo, table) or len(self.mlp.net) < 3:
+        if self.cfg.interpolation != "uniform" or not cpu_kernels.usable(wi, wo, table):
             return None
-        first = cpu_kernels.activation_code(self.mlp.net[1])
-        mlp = cpu_kernels.packed(self, self.mlp.net, start=2)
-        if first is None or mlp is None:
+        k = cpu_kernels.prepared(self, self._kernel_bundle)
+        if k is None:
             return None
-        kind = self.cfg.direction_inputs
-        extra = DIRECTION_INPUTS[kind]
-        columns = self.mlp.net[0].weight[:, -extra:] if extra else None
-        return cpu_kernels.neubrdf_eval(mlp, wi, wo, self.cfg.nside, table, first, columns, kind == "hd_warp")
+        return cpu_kernels.neubrdf_eval(k.mlp, wi, wo, self.cfg.nside, table, k.first, k.columns,
+                                        self.cfg.direction_inputs == "hd_warp")
+
+    def _kernel_bundle(self) -> SimpleNamespace | None:
+        """What `_kernel_eval` reads besides the table: the activation after the first layer (`first`), the layers
+        after it packed (`mlp`), the direction inputs' first-layer columns (`columns`, (hidden, 6) or None); None
+        where the kernels lack the activations."""
+        net = self.mlp.net
+        first = cpu_kernels.activation_code(net[1]) if len(net) >= 3 else None
+        mlp = None if first is None else cpu_kernels.PackedMLP.pack(list(net)[2:])
+        if mlp is None:
+            return None
+        extra = DIRECTION_INPUTS[self.cfg.direction_inputs]
+        return SimpleNamespace(first=first, mlp=mlp, columns=net[0].weight[:, -extra:].detach() if extra else None)
 
     def _masked_runtime_eval(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """`eval` of the runtime form (`_runtime_eval`, 0 below the horizon), without the dtype conversions
