@@ -529,6 +529,24 @@ static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
     }
 }
 
+/* one row's gated latents: out[c BLOCK] = sum_i read[i ch + c] z[i BLOCK] for c < ch (read: the polar texture's
+   channels (D_s, ch), channel fastest; z: the row's latents in a block). Eight channels at a time summed in a
+   register (a sum kept in memory waited on each store) */
+static inline void gate_row(const float *read, const float *z, int ds, int ch, float *out) {
+    typedef float vec8 __attribute__((vector_size(32), aligned(4)));
+    int c = 0;
+    for (; c + 8 <= ch; c += 8) {
+        vec8 acc = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
+        for (int i = 0; i < ds; ++i) acc += *(const vec8 *)(read + i * ch + c) * z[i * BLOCK];
+        for (int j = 0; j < 8; ++j) out[(c + j) * BLOCK] = acc[j];
+    }
+    for (; c < ch; ++c) {
+        float acc = 0.f;
+        for (int i = 0; i < ds; ++i) acc += read[i * ch + c] * z[i * BLOCK];
+        out[c * BLOCK] = acc;
+    }
+}
+
 /* The multi-scale gated model's decoder (Timonen et al. 2025; neumat.methods.latent_mlp.multiscale, gating on)
    from spatial latents z (`latents`: given or read) and directions wi, wo (n x 3): the shading frame (frame_w:
    6 x ds, already times its weight scale; NULL: none), half and difference vectors, disk polar coordinates,
@@ -606,14 +624,8 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
                 for (int i = 0; i < ds; ++i) buf0[(dh + dd + i) * BLOCK + k] = zt[i * BLOCK + k];
                 continue;
             }
-            float gate[MAX_WIDTH];  /* z_h then z_d: the reads' channels are (D_s, channels), channel fastest */
-            for (int c = 0; c < dh + dd; ++c) gate[c] = 0.f;
-            for (int i = 0; i < ds; ++i) {
-                const float zi = zt[i * BLOCK + k];
-                for (int c = 0; c < dh; ++c) gate[c] += read_h[i * dh + c] * zi;
-                for (int c = 0; c < dd; ++c) gate[dh + c] += read_d[i * dd + c] * zi;
-            }
-            for (int c = 0; c < dh + dd; ++c) buf0[c * BLOCK + k] = gate[c];
+            gate_row(read_h, zt + k, ds, dh, buf0 + k);  /* z_h, then z_d */
+            gate_row(read_d, zt + k, ds, dd, buf0 + dh * BLOCK + k);
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         for (int k = 0; k < m; ++k) {
