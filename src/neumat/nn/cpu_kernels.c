@@ -638,26 +638,6 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
     return 0;
 }
 
-/* wi and wo (3 each) in shading frame f decoded from z (ds) by frame_w (6 frames x ds, already times its weight
-   scale) and frame_b, lifted to the hemisphere (neumat.nn.shading_frames): into wi_f, wo_f */
-static void to_frame(const float *frame_w, const float *frame_b, int f, const float *z, int ds, const float *wi,
-                     const float *wo, float *wi_f, float *wo_f) {
-    float v[6], t[3], b[3];
-    for (int j = 0; j < 6; ++j) {
-        float acc = frame_b[6 * f + j];
-        for (int i = 0; i < ds; ++i) acc += frame_w[(6 * f + j) * ds + i] * z[i];
-        v[j] = acc;
-    }
-    shading_frame(v[0], v[1], v[2], v[3], v[4], v[5], t, b);
-    const float *w[2] = {wi, wo};
-    float *o[2] = {wi_f, wo_f};
-    for (int e = 0; e < 2; ++e) {
-        o[e][0] = w[e][0] * t[0] + w[e][1] * t[1] + w[e][2] * t[2];
-        o[e][1] = w[e][0] * b[0] + w[e][1] * b[1] + w[e][2] * b[2];
-        o[e][2] = lift_z(o[e][0], o[e][1]);
-    }
-}
-
 /* NeuMIP (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip without offset module; neural-appearance's
    BRDF decoder): the MLP on [z, wi, wo], or with `rusinkiewicz` on [z, h, d], with wi and wo first moved into
    each of `frames` shading frames decoded from z (frame_w: 6 frames x ds, already times its weight scale; 0
@@ -671,27 +651,43 @@ int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;  /* zt: ds x BLOCK */
+    float v[6 * BLOCK], p[24 * BLOCK];  /* the block's wi, wo by component; the frames' decoded rows */
     for (long s = 0; s < n; s += BLOCK) {
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
         latents_block(latents, s, n, ds, zt);
+        memcpy(buf0, zt, sizeof(float) * ds * BLOCK);
+        float *dirs = buf0 + ds * BLOCK;  /* the direction rows: wi in frames 0 .. F - 1, then wo in them */
         for (int k = 0; k < BLOCK; ++k) {
             long row = s + (k < m ? k : 0);
-            float a[3] = {wi[3 * row], wi[3 * row + 1], wi[3 * row + 2]};
-            float c[3] = {wo[3 * row], wo[3 * row + 1], wo[3 * row + 2]};
-            float zr[64], dirs[24];
-            for (int i = 0; i < ds; ++i) { zr[i] = zt[i * BLOCK + k]; buf0[i * BLOCK + k] = zr[i]; }
-            if (frames == 0) {
-                memcpy(dirs, a, sizeof a); memcpy(dirs + 3, c, sizeof c);
-            } else {  /* wi in frames 0 .. F - 1, then wo in them */
-                for (int f = 0; f < frames; ++f) to_frame(frame_w, frame_b, f, zr, ds, a, c, dirs + 3 * f,
-                                                          dirs + 3 * (frames + f));
+            for (int j = 0; j < 3; ++j) { v[j * BLOCK + k] = wi[3 * row + j]; v[(3 + j) * BLOCK + k] = wo[3 * row + j]; }
+        }
+        if (frames == 0) memcpy(dirs, v, sizeof(float) * 6 * BLOCK);
+        else {  /* the frames' decode layer on the block, then each frame's basis and both directions in it */
+            decode_block(frame_w, frame_b, zt, ds, 6 * frames, p);
+            for (int f = 0; f < frames; ++f) {
+                const float *q = p + 6 * f * BLOCK;
+                float *di = dirs + 3 * f * BLOCK, *dk = dirs + 3 * (frames + f) * BLOCK;
+                for (int k = 0; k < BLOCK; ++k) {
+                    float t[3], b[3];
+                    shading_frame(q[k], q[BLOCK + k], q[2 * BLOCK + k], q[3 * BLOCK + k], q[4 * BLOCK + k],
+                                  q[5 * BLOCK + k], t, b);
+                    for (int e = 0; e < 2; ++e) {
+                        const float *w = v + 3 * e * BLOCK;
+                        float *o = e ? dk : di;
+                        float x = w[k] * t[0] + w[BLOCK + k] * t[1] + w[2 * BLOCK + k] * t[2];
+                        float y = w[k] * b[0] + w[BLOCK + k] * b[1] + w[2 * BLOCK + k] * b[2];
+                        o[k] = x; o[BLOCK + k] = y; o[2 * BLOCK + k] = lift_z(x, y);
+                    }
+                }
             }
-            if (rusinkiewicz) {  /* one frame at most: h, d of (wi, wo) */
-                float h[3], d[3];
-                half_difference(dirs, dirs + 3, h, d);
-                memcpy(dirs, h, sizeof h); memcpy(dirs + 3, d, sizeof d);
+        }
+        if (rusinkiewicz) {  /* one frame at most: h, d of (wi, wo) */
+            for (int k = 0; k < BLOCK; ++k) {
+                float a[3] = {dirs[k], dirs[BLOCK + k], dirs[2 * BLOCK + k]};
+                float c[3] = {dirs[3 * BLOCK + k], dirs[4 * BLOCK + k], dirs[5 * BLOCK + k]}, h[3], d[3];
+                half_difference(a, c, h, d);
+                for (int j = 0; j < 3; ++j) { dirs[j * BLOCK + k] = h[j]; dirs[(3 + j) * BLOCK + k] = d[j]; }
             }
-            for (int j = 0; j < dirs_n; ++j) buf0[(ds + j) * BLOCK + k] = dirs[j];
         }
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         for (int k = 0; k < m; ++k) {
