@@ -86,9 +86,10 @@ static inline float fast_log(float x) {
     return 2.f * f * p + (float)e * 0.6931471805599453f;
 }
 
-/* y[o][k] = act(sum_i W[o][i] x[i][k] + b[o]) for o < out (a multiple of 4), k < BLOCK: 4 outputs at a time,
-   their 4 x BLOCK sums held in vector registers (GCC / Clang vector extensions, split by the compiler to the
-   machine's SIMD width) while the inputs stream past. x and y are 64-byte aligned. */
+/* y[o][k] = act(sum_i W[o][i] x[i][k] + b[o]) for o < out, k < BLOCK (W: out x in): 4 outputs at a time, their
+   4 x BLOCK sums held in vector registers (GCC / Clang vector extensions, split by the compiler to the machine's
+   SIMD width) while the inputs stream past; the last out % 4 one at a time (each a quarter of a group's
+   multiply-adds for the same loads). x and y are 64-byte aligned. */
 typedef float vec __attribute__((vector_size(64)));
 #define VLEN 16
 #define NV (BLOCK / VLEN)
@@ -96,7 +97,8 @@ typedef float vec __attribute__((vector_size(64)));
 static void dense(const float *restrict W, const float *restrict b, const float *restrict x, float *restrict y,
                   int in, int out, int kind) {
     const float slope = negative_slope(kind);
-    for (int o = 0; o < out; o += 4) {
+    int o = 0;
+    for (; o + 4 <= out; o += 4) {
         vec a0[NV], a1[NV], a2[NV], a3[NV];
         for (int v = 0; v < NV; ++v) {
             a0[v] = (vec){} + b[o]; a1[v] = (vec){} + b[o + 1]; a2[v] = (vec){} + b[o + 2]; a3[v] = (vec){} + b[o + 3];
@@ -118,6 +120,22 @@ static void dense(const float *restrict W, const float *restrict b, const float 
             for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
         else
             for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
+    }
+    for (; o < out; ++o) {
+        vec a[NV];
+        for (int v = 0; v < NV; ++v) a[v] = (vec){} + b[o];
+        const float *w = W + (long)o * in;
+        for (int i = 0; i < in; ++i) {
+            const vec *xi = (const vec *)(x + i * BLOCK);
+            for (int v = 0; v < NV; ++v) a[v] += w[i] * xi[v];
+        }
+        vec *yo = (vec *)(y + o * BLOCK);
+        for (int v = 0; v < NV; ++v) yo[v] = a[v];
+        float *yf = y + o * BLOCK;
+        if (kind == ACT_SILU)
+            for (int k = 0; k < BLOCK; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
+        else
+            for (int k = 0; k < BLOCK; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
     }
 }
 

@@ -142,14 +142,16 @@ def usable(*tensors: torch.Tensor) -> bool:
 
 
 class PackedMLP:
-    """An `neumat.nn.mlp.MLP`'s Linear / activation chain as the kernels read it: float32 weights, each layer's rows
-    (and the next layer's columns) zero-padded to a multiple of 4, pointer arrays. None from `pack` where the chain
-    is not one the kernels implement (another activation, an output activation, a layer wider than MAX_WIDTH)."""
+    """An `neumat.nn.mlp.MLP`'s Linear / activation chain as the kernels read it: float32 weights (out x in, each
+    layer's rows zero-padded in memory to a multiple of 4), the layers' true widths, pointer arrays. None from
+    `pack` where the chain is not one the kernels implement (another activation, an output activation, a layer
+    wider than MAX_WIDTH)."""
 
-    def __init__(self, weights: list[torch.Tensor], biases: list[torch.Tensor], hidden_act: int, out_dim: int):
+    def __init__(self, weights: list[torch.Tensor], biases: list[torch.Tensor], widths: list[int], hidden_act: int,
+                 out_dim: int):
         self.weights, self.biases = weights, biases  # kept alive: the pointer arrays point into them
         self.layers = len(weights)
-        self.dims = (ctypes.c_int * (self.layers + 1))(weights[0].shape[1], *(w.shape[0] for w in weights))
+        self.dims = (ctypes.c_int * (self.layers + 1))(*widths)
         pointers = ctypes.c_void_p * self.layers
         self.w = pointers(*(w.data_ptr() for w in weights))
         self.b = pointers(*(b.data_ptr() for b in biases))
@@ -169,20 +171,20 @@ class PackedMLP:
         code = activation_code(acts[0]) if acts else 1
         if code is None or any(activation_code(a) != code for a in acts):
             return None
-        weights, biases, cols = [], [], linears[0].in_features
+        weights, biases = [], []
         for lin in linears:
             rows = -(-lin.out_features // 4) * 4
-            if rows > MAX_WIDTH or cols > MAX_WIDTH:
+            if rows > MAX_WIDTH or lin.in_features > MAX_WIDTH:
                 return None
-            w = torch.zeros(rows, cols)
-            w[:lin.out_features, :lin.in_features] = lin.weight.detach().float().cpu()
+            w = torch.zeros(rows, lin.in_features)
+            w[:lin.out_features] = lin.weight.detach().float().cpu()
             b = torch.zeros(rows)
             if lin.bias is not None:
                 b[:lin.out_features] = lin.bias.detach().float().cpu()
             weights.append(w)
             biases.append(b)
-            cols = rows
-        return PackedMLP(weights, biases, code, linears[-1].out_features)
+        widths = [linears[0].in_features] + [lin.out_features for lin in linears]
+        return PackedMLP(weights, biases, widths, code, linears[-1].out_features)
 
 
 def activation_code(module: nn.Module) -> int | None:
