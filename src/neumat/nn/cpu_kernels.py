@@ -76,8 +76,9 @@ def _compile(retry: bool = True) -> ctypes.CDLL:
         try:
             done = subprocess.run([cc, *FLAGS, "-o", str(partial), str(SOURCE), "-lm"], capture_output=True,
                                   text=True, timeout=120)
-            if done.returncode != 0:
-                raise RuntimeError(f"{cc} failed: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
+            if done.returncode != 0:  # the first error line names the problem (the last is often a caret)
+                lines = done.stderr.strip().splitlines() or ["?"]
+                raise RuntimeError(f"{cc} failed: {next((x for x in lines if 'error' in x), lines[-1]).strip()}")
             partial.replace(lib)  # atomic: a concurrent process sees the whole library or none
         finally:
             partial.unlink(missing_ok=True)
