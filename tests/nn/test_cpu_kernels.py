@@ -181,6 +181,21 @@ def test_ring_pixels_equal_healpix_vec2pix(nside):
     assert differ <= 1e-4 * len(v), f"{differ} of {len(v)} pixels differ"
 
 
+@needs_kernels
+@pytest.mark.parametrize("nside", [1, 8, 64, 512])
+def test_ring_pixels_fast_atan2_path_equals_atan2f_everywhere(nside):
+    """The vectorised atan2 with its fallback near pixel edges gives the pixels of atan2f on every row: random
+    directions, and directions within 1e-7 of every vertex (where a pixel edge is nearest)."""
+    from neumat.nn import healpix as hpx
+
+    verts = hpx.vertex2vec(nside, torch.arange(hpx.nvertices(nside)), torch.float64)
+    g = torch.Generator().manual_seed(nside)
+    near = verts.repeat(4, 1) + 1e-7 * torch.randn(4 * len(verts), 3, generator=g, dtype=torch.float64)
+    v = torch.cat([_sphere_and_edges(500000, seed=nside), torch.nn.functional.normalize(near, dim=-1).float()])
+    fast, exact = cpu_kernels.ring_pixels(nside, v), cpu_kernels.ring_pixels(nside, v, exact_atan2=True)
+    assert torch.equal(fast, exact), f"{int((fast != exact).sum())} of {len(v)} pixels differ"
+
+
 def _neubrdf_runtime(seed, **config):
     from neumat.methods.neubrdf.model import NeuBRDF
 

@@ -220,37 +220,68 @@ int nbrdf_eval(const float *wi, const float *wo, long n, int layers, const int *
     return 0;
 }
 
-/* HEALPix ring pixel of unit vectors (x, y, z) (BLOCK each), float32 step by step as neumat.nn.healpix.vec2pix_xyz
-   (healpy's loc2pix; each product and sum rounded on its own: no fused multiply-adds here, so that a direction
-   falls in the pixel the torch path finds; atan2 may still differ by an ulp from torch's at a pixel edge). */
-__attribute__((optimize("fp-contract=off"), noinline))
-static void ring_pixels(const float *x, const float *y, const float *z, int nside, int32_t *pix) {
+/* distance of v to the nearest integer: how close a truncation below is to flipping */
+static inline float to_integer(float v) { return fabsf(v - rintf(v)); }
+
+/* the HEALPix ring pixel of the unit vector (x, y, z) given tt = atan2(y, x) 2 / pi, float32 step by step as
+   neumat.nn.healpix.vec2pix_xyz (healpy's loc2pix), and its margin: the least distance to an integer of the values
+   it truncates (and of tt, whose wrap and integer part it uses), so that a caller knows when an error in tt could
+   move the pixel. Branch-free and returned by value, so that a loop over a block vectorises. */
+typedef struct { int32_t pix; float margin; } RingPixel;
+
+static inline RingPixel ring_pixel(float x, float y, float z, float tt, int nside) {
     const float nf = (float)nside, half_n = 0.5f * (float)nside, three_quarter_n = 0.75f * (float)nside;
-    const float two_over_pi = (float)(2.0 / 3.14159265358979323846), third = (float)(1.0 / 3.0);
-    const float two_thirds = (float)(2.0 / 3.0);
-    const int32_t ncap_4n2 = 2 * nside * (nside - 1) + 4 * nside * nside, npix = 12 * nside * nside;
+    const float third = (float)(1.0 / 3.0), two_thirds = (float)(2.0 / 3.0);
+    const int32_t ncap_4n2 = 2 * nside * (nside - 1) + 4 * nside * nside, npix = 12 * nside * nside, m4 = 4 * nside;
+    float near = to_integer(tt);
+    tt = tt < 0.f ? tt + 4.f : tt;       /* torch.remainder(tt, 4) for tt in (-2, 2] */
+    tt = tt >= 4.f ? 0.f : tt;
+    float za = fabsf(z);
+    float temp1 = tt * nf + half_n, temp2 = z * three_quarter_n;
+    float lo = temp1 - temp2, hi = temp1 + temp2;
+    int32_t jp = (int32_t)lo, jm = (int32_t)hi;
+    int32_t e = (jp + jm + 1 - nside) >> 1;  /* in [0, 4 nside] for |z| <= 2 / 3: remainder by 4 nside */
+    e = e >= m4 ? e - m4 : (e < 0 ? e + m4 : e);
+    int32_t pix_eq = e + 4 * nside * (jp - jm) + ncap_4n2;
+    float tp = tt - truncf(tt);
+    float sth = sqrtf(x * x + y * y);
+    float tmp = sth * nf / sqrtf((za + 1.f) * third);
+    float up_ = tp * tmp, down = (1.f - tp) * tmp;
+    int32_t cp = (int32_t)up_, cm = (int32_t)down;
+    int32_t ir = cp + cm + 1;
+    float at = tt * (float)ir;
+    int32_t ip = (int32_t)at;
+    ip = ip < 4 * ir - 1 ? ip : 4 * ir - 1;
+    ip -= 2 * ir;
+    int32_t pix_cap = z > 0.f ? ip + 2 * ir * ir : ip - 2 * ir * ir + npix;
+    int eq = za <= two_thirds;
+    float d_lo = to_integer(lo), d_hi = to_integer(hi), d_up = to_integer(up_), d_down = to_integer(down);
+    float d_at = to_integer(at);
+    float m_eq = d_lo < d_hi ? d_lo : d_hi;  /* (not fminf: it does not vectorise) */
+    float m_cap = d_up < d_down ? d_up : d_down;
+    m_cap = m_cap < d_at ? m_cap : d_at;
+    float m = eq ? m_eq : m_cap;
+    return (RingPixel){eq ? pix_eq : pix_cap, near < m ? near : m};
+}
+
+/* HEALPix ring pixels of unit vectors (x, y, z) (BLOCK each), as neumat.nn.healpix.vec2pix_xyz finds them: each
+   product and sum rounded on its own (no fused multiply-adds here), atan2 by the vectorised fast_atan2 (within 5e-7
+   of atan2f), and every row whose truncated values lie within `slack` of an integer, where that error could move
+   the pixel, again with libm's atan2f (about 1 % of rows; atan2f may still differ by an ulp from torch's at a pixel
+   edge). Why: with atan2f on every row the loop could not vectorise, and was a third of NeuBRDF's kernel. */
+__attribute__((optimize("fp-contract=off"), noinline))
+static void ring_pixels(const float *x, const float *y, const float *z, int nside, int exact, int32_t *pix) {
+    const float two_over_pi = (float)(2.0 / 3.14159265358979323846);
+    /* tt's error times nside, over 30 times; `exact` (tests): every row again with atan2f */
+    const float slack = exact ? INFINITY : 1e-3f + 1e-5f * (float)nside;
+    float margin[BLOCK];
     for (int k = 0; k < BLOCK; ++k) {
-        float tt = atan2f(y[k], x[k]) * two_over_pi;
-        tt = tt < 0.f ? tt + 4.f : tt;       /* torch.remainder(tt, 4) for tt in (-2, 2] */
-        tt = tt >= 4.f ? 0.f : tt;
-        float za = fabsf(z[k]);
-        float temp1 = tt * nf + half_n, temp2 = z[k] * three_quarter_n;
-        int32_t jp = (int32_t)(temp1 - temp2), jm = (int32_t)(temp1 + temp2);
-        int32_t e = (jp + jm + 1 - nside) >> 1, m4 = 4 * nside;
-        e %= m4;
-        e = e < 0 ? e + m4 : e;
-        int32_t pix_eq = e + 4 * nside * (jp - jm) + ncap_4n2;
-        float tp = tt - truncf(tt);
-        float sth = sqrtf(x[k] * x[k] + y[k] * y[k]);
-        float tmp = sth * nf / sqrtf((za + 1.f) * third);
-        int32_t cp = (int32_t)(tp * tmp), cm = (int32_t)((1.f - tp) * tmp);
-        int32_t ir = cp + cm + 1;
-        int32_t ip = (int32_t)(tt * (float)ir);
-        ip = ip < 4 * ir - 1 ? ip : 4 * ir - 1;
-        ip -= 2 * ir;
-        int32_t pix_cap = z[k] > 0.f ? ip + 2 * ir * ir : ip - 2 * ir * ir + npix;
-        pix[k] = za <= two_thirds ? pix_eq : pix_cap;
+        RingPixel r = ring_pixel(x[k], y[k], z[k], fast_atan2(y[k], x[k]) * two_over_pi, nside);
+        pix[k] = r.pix;
+        margin[k] = r.margin;
     }
+    for (int k = 0; k < BLOCK; ++k)
+        if (margin[k] < slack) pix[k] = ring_pixel(x[k], y[k], z[k], atan2f(y[k], x[k]) * two_over_pi, nside).pix;
 }
 
 /* NeuBRDF's direction inputs (neumat.methods.neubrdf.model.direction_inputs) of a block's rows s .. s + BLOCK - 1
@@ -279,8 +310,8 @@ static void block_pixels(const float *wi, const float *wo, long s, long n, int n
         for (int j = 0; j < 3; ++j) { c[j * BLOCK + k] = wi[3 * r + j]; c[(3 + j) * BLOCK + k] = wo[3 * r + j]; }
         up[k] = wi[3 * r + 2] > 0.f && wo[3 * r + 2] > 0.f ? 1.f : 0.f;
     }
-    ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, pix_i);
-    ring_pixels(c + 3 * BLOCK, c + 4 * BLOCK, c + 5 * BLOCK, nside, pix_o);
+    ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, 0, pix_i);
+    ring_pixels(c + 3 * BLOCK, c + 4 * BLOCK, c + 5 * BLOCK, nside, 0, pix_o);
     for (int k = 0; k < BLOCK; ++k) {
         const char *ti = (const char *)(table + (long)pix_i[k] * hidden);
         const char *to = (const char *)(table + (south + pix_o[k]) * hidden);
@@ -777,14 +808,14 @@ int mlp_forward(const float *x, long n, int layers, const int *dims, const float
     return 0;
 }
 
-/* ring_pixels of n unit vectors xyz (n x 3) (tests against neumat.nn.healpix.vec2pix_xyz) */
-void ring_pixels_of(const float *xyz, long n, int nside, int32_t *pix) {
+/* ring_pixels of n unit vectors xyz (n x 3), `exact`: with atan2f on every row (tests) */
+void ring_pixels_of(const float *xyz, long n, int nside, int exact, int32_t *pix) {
     float c[3 * BLOCK];
     int32_t p[BLOCK];
     for (long s = 0; s < n; s += BLOCK) {
         for (int k = 0; k < BLOCK; ++k)
             for (int j = 0; j < 3; ++j) c[j * BLOCK + k] = xyz[3 * (s + k < n ? s + k : s) + j];
-        ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, p);
+        ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, exact, p);
         for (int k = 0; k < BLOCK && s + k < n; ++k) pix[s + k] = p[k];
     }
 }

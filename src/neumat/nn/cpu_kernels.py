@@ -465,11 +465,12 @@ def mlp_forward(mlp: PackedMLP, x: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def ring_pixels(nside: int, xyz: torch.Tensor) -> torch.Tensor:
-    """The kernels' HEALPix ring pixels (N,) int32 of float32 unit vectors (N, 3) (tests)."""
+def ring_pixels(nside: int, xyz: torch.Tensor, exact_atan2: bool = False) -> torch.Tensor:
+    """The kernels' HEALPix ring pixels (N,) int32 of float32 unit vectors (N, 3), or with `exact_atan2` with libm's
+    atan2f on every row instead of the vectorised one and its checked fallback (tests)."""
     xyz = xyz.float().contiguous()
     out = torch.empty(len(xyz), dtype=torch.int32)
-    library().ring_pixels_of(_ptr(xyz), ctypes.c_long(len(xyz)), nside, _ptr(out))
+    library().ring_pixels_of(_ptr(xyz), ctypes.c_long(len(xyz)), nside, int(exact_atan2), _ptr(out))
     return out
 
 
