@@ -155,6 +155,23 @@ static float *mlp_block(float *buf0, float *buf1, int layers, const int *dims, c
     return x;
 }
 
+/* out (m rows of out_dim, row-major) = v (out_dim x BLOCK, by output) where keep[k] > 0, else 0; rows of 3 (every
+   model's RGB) in a loop of constant stride that the compiler vectorises with shuffles (one scalar store per value
+   was a tenth of NBRDF's kernel) */
+static inline void write_rows(const float *v, const float *keep, int m, int out_dim, float *out) {
+    if (out_dim == 3) {
+        for (int k = 0; k < m; ++k) {
+            const int on = keep[k] > 0.f;
+            out[3 * k] = on ? v[k] : 0.f;
+            out[3 * k + 1] = on ? v[BLOCK + k] : 0.f;
+            out[3 * k + 2] = on ? v[2 * BLOCK + k] : 0.f;
+        }
+        return;
+    }
+    for (int k = 0; k < m; ++k)
+        for (int c = 0; c < out_dim; ++c) out[out_dim * k + c] = keep[k] > 0.f ? v[c * BLOCK + k] : 0.f;
+}
+
 /* NBRDF's half and difference vectors of one (wi, wo) (neumat.core.coords.hd_vectors): h = normalize(wi + wo)
    (h[3]), d = wi in the frame (t, b, h), t = (h_z u, -sin theta_h), u = h.xy / sin theta_h ((1, 0) at the pole)
    (d[3]); returns sin theta_h. Inline and branch-free, so that callers' loops over a block vectorise. */
@@ -212,9 +229,7 @@ int nbrdf_eval(const float *wi, const float *wo, long n, int layers, const int *
             }
         else
             for (int i = 0; i < out_dim * BLOCK; ++i) res[i] = fast_exp(y[i]);
-        for (int k = 0; k < m; ++k)
-            for (int c = 0; c < out_dim; ++c)
-                out[out_dim * (s + k) + c] = res[out_dim * BLOCK + k] > 0.f ? res[c * BLOCK + k] : 0.f;
+        write_rows(res, res + out_dim * BLOCK, m, out_dim, out + out_dim * s);
     }
     free(work);
     return 0;
@@ -614,13 +629,15 @@ static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
 /* rows s .. s + m - 1 of out (out_dim each) = exp(y) (y: out_dim x BLOCK), 0 where wi.z or wo.z <= 0: the exps over
    the block's whole rows (vectorised; one row at a time they were an eighth of a latent kernel's time) */
 static void store_exp(const float *y, int m, int out_dim, const float *wi, const float *wo, long s, float *out) {
-    float e[BLOCK];
-    for (int j = 0; j < out_dim; ++j) {
-        for (int k = 0; k < BLOCK; ++k) e[k] = fast_exp(y[j * BLOCK + k]);
-        for (int k = 0; k < m; ++k) {
-            const long row = s + k;
-            out[out_dim * row + j] = wi[3 * row + 2] > 0.f && wo[3 * row + 2] > 0.f ? e[k] : 0.f;
-        }
+    float e[4 * BLOCK], up[BLOCK];
+    for (int k = 0; k < m; ++k) up[k] = wi[3 * (s + k) + 2] > 0.f && wo[3 * (s + k) + 2] > 0.f ? 1.f : 0.f;
+    for (int j0 = 0; j0 < out_dim; j0 += 4) {  /* up to 4 outputs at a time */
+        const int count = out_dim - j0 < 4 ? out_dim - j0 : 4;
+        for (int i = 0; i < count * BLOCK; ++i) e[i] = fast_exp(y[j0 * BLOCK + i]);
+        if (count == out_dim) write_rows(e, up, m, out_dim, out + (long)out_dim * s);
+        else
+            for (int k = 0; k < m; ++k)
+                for (int j = 0; j < count; ++j) out[out_dim * (s + k) + j0 + j] = up[k] > 0.f ? e[j * BLOCK + k] : 0.f;
     }
 }
 
