@@ -178,11 +178,11 @@ static inline void write_rows(const float *v, const float *keep, int m, int out_
 static inline float hd_vectors(float ix, float iy, float iz, float ox, float oy, float oz, float *h, float *d) {
     float hx = ix + ox, hy = iy + oy, hz = iz + oz;
     float norm = sqrtf(hx * hx + hy * hy + hz * hz);
-    norm = norm > 1e-12f ? norm : 1e-12f;
-    hx /= norm; hy /= norm; hz /= norm;
+    const float inv = 1.f / (norm > 1e-12f ? norm : 1e-12f);  /* one division, not three (an ulp from torch's) */
+    hx *= inv; hy *= inv; hz *= inv;
     float st = sqrtf(hx * hx + hy * hy);
-    float sd = st > 1.17549435e-38f ? st : 1.17549435e-38f;
-    float ux = st > 0.f ? hx / sd : 1.f, uy = st > 0.f ? hy / sd : 0.f;
+    const float inv_s = 1.f / (st > 1.17549435e-38f ? st : 1.17549435e-38f);
+    float ux = st > 0.f ? hx * inv_s : 1.f, uy = st > 0.f ? hy * inv_s : 0.f;
     float tx = hz * ux, ty = hz * uy, tz = -st;
     float bx = hy * tz - hz * ty, by = hz * tx - hx * tz, bz = hx * ty - hy * tx;
     h[0] = hx; h[1] = hy; h[2] = hz;
