@@ -139,9 +139,10 @@ static void dense(const float *restrict W, const float *restrict b, const float 
     }
 }
 
-/* a call's block buffers, on the heap (192 KB: more than some threads' stacks hold); NULL when out of memory */
+/* a call's four block buffers (MAX_WIDTH x BLOCK each), on the heap (256 KB: more than some threads' stacks hold);
+   NULL when out of memory */
 static float *work_buffers(void) {
-    return aligned_alloc(64, 3 * sizeof(float) * MAX_WIDTH * BLOCK);
+    return aligned_alloc(64, 4 * sizeof(float) * MAX_WIDTH * BLOCK);
 }
 
 /* the MLP on one transposed block: x (dims[0] x BLOCK) in buf0; returns the buffer holding the output */
@@ -641,7 +642,7 @@ static void store_exp(const float *y, int m, int out_dim, const float *wi, const
     }
 }
 
-/* one row's gated latents: out[c BLOCK] = sum_i read[i ch + c] z[i BLOCK] for c < ch (read: the polar texture's
+/* one row's gated latents: out[c] = sum_i read[i ch + c] z[i BLOCK] for c < ch (read: the polar texture's
    channels (D_s, ch), channel fastest; z: the row's latents in a block). Eight channels at a time summed in a
    register (a sum kept in memory waited on each store) */
 static inline void gate_row(const float *read, const float *z, int ds, int ch, float *out) {
@@ -650,12 +651,12 @@ static inline void gate_row(const float *read, const float *z, int ds, int ch, f
     for (; c + 8 <= ch; c += 8) {
         vec8 acc = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
         for (int i = 0; i < ds; ++i) acc += *(const vec8 *)(read + i * ch + c) * z[i * BLOCK];
-        for (int j = 0; j < 8; ++j) out[(c + j) * BLOCK] = acc[j];
+        *(vec8 *)(out + c) = acc;
     }
     for (; c < ch; ++c) {
         float acc = 0.f;
         for (int i = 0; i < ds; ++i) acc += read[i * ch + c] * z[i * BLOCK];
-        out[c * BLOCK] = acc;
+        out[c] = acc;
     }
 }
 
@@ -679,6 +680,8 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;  /* zt: ds x BLOCK */
+    float *rows = work + 3 * MAX_WIDTH * BLOCK;  /* the MLP's inputs row by row (BLOCK x width), then transposed */
+    const int width = gated ? dh + dd : dh + dd + ds;
     /* a block's directions' components, polar coordinates, decoded rows (16 x BLOCK) and texel coordinates */
     float vix[BLOCK], viy[BLOCK], viz[BLOCK], vox[BLOCK], voy[BLOCK], voz[BLOCK];
     float r_h[BLOCK], r_d[BLOCK], phi_h[BLOCK], phi_d[BLOCK], p[16 * BLOCK], tc[4 * BLOCK];
@@ -730,15 +733,17 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
         for (int k = 0; k < BLOCK; ++k) {
             bilinear_read(tex_h, R, P + 2, dh * gate, tc[k], tc[BLOCK + k], read_h);
             bilinear_read(tex_d, R, P + 2, dd * gate, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
+            float *row = rows + k * width;
             if (!gated) {  /* tripleplane: the MLP reads [a_h, a_d, z] */
-                for (int c = 0; c < dh; ++c) buf0[c * BLOCK + k] = read_h[c];
-                for (int c = 0; c < dd; ++c) buf0[(dh + c) * BLOCK + k] = read_d[c];
-                for (int i = 0; i < ds; ++i) buf0[(dh + dd + i) * BLOCK + k] = zt[i * BLOCK + k];
+                memcpy(row, read_h, sizeof(float) * dh);
+                memcpy(row + dh, read_d, sizeof(float) * dd);
+                for (int i = 0; i < ds; ++i) row[dh + dd + i] = zt[i * BLOCK + k];
                 continue;
             }
-            gate_row(read_h, zt + k, ds, dh, buf0 + k);  /* z_h, then z_d */
-            gate_row(read_d, zt + k, ds, dd, buf0 + dh * BLOCK + k);
+            gate_row(read_h, zt + k, ds, dh, row);  /* z_h, then z_d */
+            gate_row(read_d, zt + k, ds, dd, row + dh);
         }
+        transpose_rows(rows, width, buf0);
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
         store_exp(y, m, out_dim, wi, wo, s, out);
     }
