@@ -364,7 +364,7 @@ def test_a_damaged_cached_library_is_built_again(fresh_kernels):
 
 
 @needs_kernels
-@pytest.mark.parametrize("name", ["neumip", "nbrdf-uv", "neumip-frame", "neural-appearance"])
+@pytest.mark.parametrize("name", ["neumip", "nbrdf-uv", "neumip-frame", "neumip-offset", "neural-appearance"])
 @pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
 @pytest.mark.parametrize("n", [1, 65, 3000])
 def test_neumip_eval_equals_its_torch_path(name, mode, n):
@@ -384,10 +384,10 @@ def test_neumip_eval_equals_its_torch_path(name, mode, n):
 def test_neumip_kernel_declines_its_variants():
     from neumat.models.registry import build_model
 
-    for name in ("neumip-offset",):
-        model = build_model({"type": name, "spatial_size": 16}).runtime().eval()
+    for config in ({"type": "neumip", "level_selection": "roulette"}, {"type": "neumip", "spatial_channels": 80}):
+        model = build_model({**config, "spatial_size": 16}).runtime().eval()
         with torch.no_grad():
-            assert model._kernel_eval(_texture_queries(4, 0, "none")) is None, name
+            assert model._kernel_eval(_texture_queries(4, 0, "none")) is None, config
 
 
 @needs_kernels

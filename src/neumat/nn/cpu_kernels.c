@@ -809,6 +809,36 @@ int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n
     return 0;
 }
 
+/* NeuMIP's offset module (Kuznetsov et al. 2021; neumat.methods.latent_mlp.neumip.NeuMIP.offset_uv): the
+   lookup point uv' = uv + (h wo.xy) / max(wo.z, min_cos), h = MLP_o([z_o, wo]) / size, z_o from `offset` (the
+   offset pyramid at the query's uv, with its footprint or lod; its uv is the uv here); uv_out: n x 2. */
+int neumip_offset_uv(const Latents *offset, const float *wo, long n, int channels, float size, float min_cos,
+                     int layers, const int *dims, const float *const *W, const float *const *b, int hidden_act,
+                     float *uv_out) {
+    if (channels > 64 || channels + 3 > MAX_WIDTH) return 2;
+    float *work = work_buffers();
+    if (!work) return 1;
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *zt = work + 2 * MAX_WIDTH * BLOCK;
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        latents_block(offset, s, n, channels, zt);
+        memcpy(buf0, zt, sizeof(float) * channels * BLOCK);
+        for (int k = 0; k < BLOCK; ++k) {
+            long row = s + (k < m ? k : 0);
+            for (int j = 0; j < 3; ++j) buf0[(channels + j) * BLOCK + k] = wo[3 * row + j];
+        }
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        for (int k = 0; k < m; ++k) {
+            const long row = s + k;
+            const float h = y[k] / size, c = wo[3 * row + 2] > min_cos ? wo[3 * row + 2] : min_cos;
+            uv_out[2 * row] = offset->uv[2 * row] + (h * wo[3 * row]) / c;
+            uv_out[2 * row + 1] = offset->uv[2 * row + 1] + (h * wo[3 * row + 1]) / c;
+        }
+    }
+    free(work);
+    return 0;
+}
+
 /* A plain MLP on rows x (n x dims[0], row-major): out (n x out_dim), the last layer without activation. */
 int mlp_forward(const float *x, long n, int layers, const int *dims, const float *const *W, const float *const *b,
                 int hidden_act, int out_dim, float *out) {

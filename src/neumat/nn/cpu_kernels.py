@@ -1,6 +1,6 @@
 """Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
-NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame and
-neural-appearance's BRDF decoder.
+NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame,
+neumip-offset and neural-appearance's BRDF decoder.
 
 Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
 pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
@@ -447,6 +447,23 @@ def neumip_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: tor
                     mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start))
         _check(status)
     by_threads(run, len(wi))
+    return out
+
+
+def neumip_offset_uv(mlp: PackedMLP, offset: LatentSource, wo: torch.Tensor, size: float,
+                     min_cos: float) -> torch.Tensor:
+    """NeuMIP's offset module (`neumat.methods.latent_mlp.neumip.NeuMIP.offset_uv`): the lookup points uv' (N, 2) of
+    float32 outgoing directions wo (N, 3), `offset` the offset pyramid's latents at the query's uv, `mlp` MLP_o."""
+    lib = library()
+    wo = wo.contiguous()
+    out = torch.empty(len(wo), 2)
+    fn = lib.neumip_offset_uv
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(ctypes.byref(offset.at(start)), _ptr(wo, start), ctypes.c_long(stop - start), offset.channels,
+                  ctypes.c_float(size), ctypes.c_float(min_cos), mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act,
+                  _ptr(out, start)))
+    by_threads(run, len(wo))
     return out
 
 

@@ -136,15 +136,17 @@ def kernel_frame(frame: ShadingFrame | None) -> tuple[torch.Tensor, torch.Tensor
     return (frame.decode.weight * frame.weight_scale).contiguous(), frame.decode.bias.detach().clone()
 
 
-def kernel_latents(model, tables: "cpu_kernels.PyramidTables", q: Query) -> "cpu_kernels.LatentSource | None":
-    """The spatial latents of a model with a `LatentPyramid`, read at q.uv with q's footprint or lod, as a fused
-    kernel reads them (`cpu_kernels.LatentSource` of the pyramid's `tables`), or None for other than float32 inputs.
-    The footprint is checked as the torch path checks it."""
+def kernel_latents(model, tables: "cpu_kernels.PyramidTables", q: Query,
+                   uv: torch.Tensor | None = None) -> "cpu_kernels.LatentSource | None":
+    """The spatial latents of a model with a `LatentPyramid`, read at q.uv (or `uv`) with q's footprint or lod, as
+    a fused kernel reads them (`cpu_kernels.LatentSource` of the pyramid's `tables`), or None for other than float32
+    inputs. The footprint is checked as the torch path checks it."""
     q.require("uv", who=f"{model.name} (spatially varying)")
     footprint = None if q.footprint is None else check_footprint(q.footprint, "Query.footprint")
     if any(t is not None and t.dtype != torch.float32 for t in (q.uv, q.lod, footprint)):
         return None
-    return cpu_kernels.LatentSource(tables, q.uv, q.lod if footprint is None else None, footprint)
+    return cpu_kernels.LatentSource(tables, q.uv if uv is None else uv, q.lod if footprint is None else None,
+                                    footprint)
 
 
 def _kernel_texture(padded: torch.Tensor, channels: int, spatial: int) -> torch.Tensor:

@@ -182,26 +182,38 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
         return by_rows(lambda rows: self.filtered_outputs(rows)[:, :3], self.eval_chunk, q)
 
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
-        """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
-        (`neumat.nn.cpu_kernels.neumip_eval`: NeuMIP, nbrdf-uv, neumip-frame, neural-appearance's BRDF), or None
-        where it does not apply: autograd, other dtypes, no compiler, the offset module, more than 4 shading
-        frames, roulette levels, more outputs than 3."""
+        """`eval` as fused C calls, the spatial read (finest level, lod or footprint) included
+        (`neumat.nn.cpu_kernels.neumip_eval`: NeuMIP, nbrdf-uv, neumip-frame, neural-appearance's BRDF; with the
+        offset module, its lookup points first by `cpu_kernels.neumip_offset_uv`), or None where it does not
+        apply: autograd, other dtypes, no compiler, more than 4 shading frames, roulette levels, more outputs than
+        3."""
         if not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
             return None
         k = cpu_kernels.prepared(self, self._kernel_bundle)
-        latents = None if k is None else kernel_latents(self, k.tables, q)
+        uv = None
+        if k is not None and k.offset_mlp is not None:
+            offset = kernel_latents(self, k.offset_tables, q)
+            if offset is None:
+                return None
+            uv = cpu_kernels.neumip_offset_uv(k.offset_mlp, offset, q.wo, self.cfg.spatial_size,
+                                              self.cfg.offset_min_cos)
+        latents = None if k is None else kernel_latents(self, k.tables, q, uv)
         if latents is None:
             return None
         return cpu_kernels.neumip_eval(k.mlp, latents, q.wi, q.wo, k.frame, self.cfg.directions == "rusinkiewicz")
 
     def _kernel_bundle(self) -> SimpleNamespace | None:
-        """`kernel_bundle`, or None for the variants the kernel lacks (`_kernel_eval`)."""
+        """`kernel_bundle` with the offset module's MLP packed and its pyramid's tables (None without it), or None
+        for the variants the kernel lacks (`_kernel_eval`)."""
         c = self.cfg
-        if self.offset_mlp is not None \
-                or not cpu_kernels.neumip_fits(c.spatial_channels, 1 if self.frame is None else self.frame.frames) \
+        if not cpu_kernels.neumip_fits(c.spatial_channels, 1 if self.frame is None else self.frame.frames) \
                 or c.level_selection != "trilinear" or self.outputs != 3:
             return None
-        return kernel_bundle(self)
+        offset_mlp = None if self.offset_mlp is None else cpu_kernels.PackedMLP.pack(self.offset_mlp.net)
+        if self.offset_mlp is not None and (offset_mlp is None or not cpu_kernels.neumip_fits(c.offset_channels, 0)):
+            return None
+        return kernel_bundle(self, offset_mlp=offset_mlp, offset_tables=None if offset_mlp is None else
+                             cpu_kernels.PyramidTables(self.offset_texture))
 
     def spatial_latent(self, q: Query, level_u: torch.Tensor | None = None) -> torch.Tensor:
         """z_s (N, D_s) of the query's uv and footprint (or lod); with Config.level_selection "roulette" a
