@@ -381,6 +381,27 @@ def test_neumip_eval_equals_its_torch_path(name, mode, n):
     assert (got[q.wi[:, 2] <= 0] == 0).all()
 
 
+@needs_kernels
+@pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
+@pytest.mark.parametrize("n", [1, 300])
+def test_ggx_mipmap_eval_equals_its_torch_path(mode, n):
+    from neumat.methods.latent_mlp.ggx_mipmap import GGXMipmap
+
+    model = _multiscale_runtime(1, GGXMipmap)
+    with torch.no_grad():  # rotations of the tangent all round, also on the angle-doubled vector's negative axis
+        model.spatial.raw[0][10:12] = torch.randn_like(model.spatial.raw[0][10:12])
+        model.spatial.raw[0][10, :2, :] = -1.0
+        model.spatial.raw[0][11, :2, :] = 0.0
+    q = _texture_queries(n, n + 7, mode)
+    with torch.no_grad():
+        assert model._kernel_eval(q) is not None, "the kernel does not apply"
+        got = model.eval(q)
+        with cpu_kernels.switched_off():
+            ref = model.eval(q)
+    _as_accurate_as_torch(model, q, got, ref)
+    assert (got[q.wi[:, 2] <= 0] == 0).all()
+
+
 def test_neumip_kernel_declines_its_variants():
     from neumat.models.registry import build_model
 

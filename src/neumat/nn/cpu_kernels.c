@@ -839,6 +839,72 @@ int neumip_offset_uv(const Latents *offset, const float *wo, long n, int channel
     return 0;
 }
 
+/* torch's softplus (beta 1, threshold 20) by the kernels' exp and log */
+static inline float softplus(float x) { return x > 20.f ? x : fast_log(1.f + fast_exp(x)); }
+
+/* The GGX parameter mip-map (neumat.methods.latent_mlp.ggx_mipmap): its 12 parameters from `latents` (albedo and
+   F0 through softplus, normal slopes, log alphas clamped to [1e-3, 2], the tangent's rotation as an angle-doubled
+   vector), a diffuse plus anisotropic GGX lobe with Schlick's Fresnel in the frame they give, times the cosine
+   ratio; 0 where wi.z, wo.z or either in the frame is <= 0. out: n x 3. The tangent's rotation by the half-angle
+   vector (no atan2, sin, cos), so that the loop over a block vectorises. */
+int ggx_mipmap_eval(const Latents *latents, const float *wi, const float *wo, long n, float *out) {
+    const float inv_pi = 0.3183098861837907f, tiny = 1.17549435e-38f;
+    float *work = work_buffers();
+    if (!work) return 1;
+    float *zt = work, *res = work + MAX_WIDTH * BLOCK, keep[BLOCK];
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        latents_block(latents, s, n, 12, zt);
+        for (int k = 0; k < BLOCK; ++k) {
+            const long row = s + (k < m ? k : 0);
+            float p[12];
+            for (int c = 0; c < 12; ++c) p[c] = zt[c * BLOCK + k];
+            float nx = p[6], ny = p[7], nz = 1.f, nn = sqrtf(nx * nx + ny * ny + nz * nz);
+            nx /= nn; ny /= nn; nz /= nn;
+            float tx = 1.f - nx * nx, ty = -nx * ny, tz = -nx * nz;  /* (1, 0, 0) made orthogonal to n */
+            float tl = sqrtf(fmaxf(tx * tx + ty * ty + tz * tz, 1e-24f));
+            tx /= tl; ty /= tl; tz /= tl;
+            float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
+            float a = p[10], c = p[11], r = sqrtf(a * a + c * c);  /* phi = atan2(c, a) / 2 */
+            float sgn = c < 0.f || (c == 0.f && signbit(c)) ? -1.f : 1.f;
+            float hx = a >= 0.f ? r + a : sgn * c, hy = a >= 0.f ? c : sgn * (r - a);
+            float hl = sqrtf(hx * hx + hy * hy);
+            float cphi = hl > 0.f ? hx / hl : 1.f, sphi = hl > 0.f ? hy / hl : 0.f;
+            float ux = cphi * tx + sphi * bx, uy = cphi * ty + sphi * by, uz = cphi * tz + sphi * bz;
+            float vx = ny * uz - nz * uy, vy = nz * ux - nx * uz, vz = nx * uy - ny * ux;
+            float ax = fminf(fmaxf(fast_exp(p[8]), 1e-3f), 2.f), ay = fminf(fmaxf(fast_exp(p[9]), 1e-3f), 2.f);
+            const float *w0 = wi + 3 * row, *w1 = wo + 3 * row;
+            float li[3] = {w0[0] * ux + w0[1] * uy + w0[2] * uz, w0[0] * vx + w0[1] * vy + w0[2] * vz,
+                           w0[0] * nx + w0[1] * ny + w0[2] * nz};
+            float lo[3] = {w1[0] * ux + w1[1] * uy + w1[2] * uz, w1[0] * vx + w1[1] * vy + w1[2] * vz,
+                           w1[0] * nx + w1[1] * ny + w1[2] * nz};
+            int up = w0[2] > 0.f && w1[2] > 0.f && li[2] > 0.f && lo[2] > 0.f;
+            keep[k] = up ? 1.f : 0.f;
+            if (!up) { li[0] = li[1] = lo[0] = lo[1] = 0.f; li[2] = lo[2] = 1.f; }
+            float qx = li[0] + lo[0], qy = li[1] + lo[1], qz = li[2] + lo[2];
+            float ql = fmaxf(sqrtf(qx * qx + qy * qy + qz * qz), 1e-12f);
+            qx /= ql; qy /= ql; qz /= ql;
+            float e = (qx / ax) * (qx / ax) + (qy / ay) * (qy / ay) + qz * qz;
+            float d = qz > 0.f ? 1.f / (3.141592653589793f * ax * ay * e * e) : 0.f;
+            float zi = fmaxf(li[2], 0.f), zo = fmaxf(lo[2], 0.f);
+            float ri = sqrtf(li[2] * li[2] + (ax * li[0]) * (ax * li[0]) + (ay * li[1]) * (ay * li[1]));
+            float ro = sqrtf(lo[2] * lo[2] + (ax * lo[0]) * (ax * lo[0]) + (ay * lo[1]) * (ay * lo[1]));
+            float g = (2.f * zi / fmaxf(zi + ri, tiny)) * (2.f * zo / fmaxf(zo + ro, tiny));
+            float spec = d * g / fmaxf(4.f * li[2] * lo[2], tiny);
+            float cd = fminf(fmaxf(li[0] * qx + li[1] * qy + li[2] * qz, 0.f), 1.f), f1 = 1.f - cd;
+            float f5 = f1 * f1 * f1 * f1 * f1;
+            float ratio = 0.5f * (li[2] / fmaxf(w0[2], 1e-6f) + lo[2] / fmaxf(w1[2], 1e-6f));
+            for (int j = 0; j < 3; ++j) {
+                float f0 = softplus(p[3 + j]);
+                res[j * BLOCK + k] = (softplus(p[j]) * inv_pi + (f0 + (1.f - f0) * f5) * spec) * ratio;
+            }
+        }
+        write_rows(res, keep, m, 3, out + 3 * s);
+    }
+    free(work);
+    return 0;
+}
+
 /* A plain MLP on rows x (n x dims[0], row-major): out (n x out_dim), the last layer without activation. */
 int mlp_forward(const float *x, long n, int layers, const int *dims, const float *const *W, const float *const *b,
                 int hidden_act, int out_dim, float *out) {

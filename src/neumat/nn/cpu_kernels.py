@@ -1,6 +1,6 @@
 """Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
 NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame,
-neumip-offset and neural-appearance's BRDF decoder.
+neumip-offset and neural-appearance's BRDF decoder, the GGX parameter mip-map.
 
 Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
 pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
@@ -464,6 +464,21 @@ def neumip_offset_uv(mlp: PackedMLP, offset: LatentSource, wo: torch.Tensor, siz
                   ctypes.c_float(size), ctypes.c_float(min_cos), mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act,
                   _ptr(out, start)))
     by_threads(run, len(wo))
+    return out
+
+
+def ggx_mipmap_eval(latents: LatentSource, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """The GGX parameter mip-map (`neumat.methods.latent_mlp.ggx_mipmap`) of float32 directions (N, 3) and its 12
+    filtered parameters `latents`: (N, 3), 0 below the horizon."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    out = torch.empty(len(wi), 3)
+    fn = lib.ggx_mipmap_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(ctypes.byref(latents.at(start)), _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
+                  _ptr(out, start)))
+    by_threads(run, len(wi))
     return out
 
 

@@ -23,6 +23,8 @@ from neumat.core.material import upper_hemisphere
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
+from neumat.methods.latent_mlp.multiscale import kernel_latents
+from neumat.nn import cpu_kernels
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid, check_footprint
 from neumat.nn.preconditioner import FrequencyPreconditioner
@@ -105,7 +107,18 @@ class GGXMipmap(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded (module docstring)."""
         q.require("wo", who="ggx-mipmap.eval")
-        return by_rows(self._eval_rows, self.eval_chunk, q)
+        fast = self._kernel_eval(q)
+        return fast if fast is not None else by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _kernel_eval(self, q: Query) -> torch.Tensor | None:
+        """`eval` as one fused C call, the parameter read (finest level, lod or footprint) included
+        (`neumat.nn.cpu_kernels.ggx_mipmap_eval`), or None where it does not apply (autograd, other dtypes, no
+        compiler). Why: the torch path is some 100 small tensor operations."""
+        if not cpu_kernels.usable(q.wi, q.wo, self.spatial.raw[0]):
+            return None
+        tables = cpu_kernels.prepared(self, lambda: cpu_kernels.PyramidTables(self.spatial))
+        latents = kernel_latents(self, tables, q)
+        return None if latents is None else cpu_kernels.ggx_mipmap_eval(latents, q.wi, q.wo)
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
         p = self.parameters_at(q)
