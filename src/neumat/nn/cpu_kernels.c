@@ -839,6 +839,61 @@ int neumip_offset_uv(const Latents *offset, const float *wo, long n, int channel
     return 0;
 }
 
+/* Fresnel reflectance at cos(wi, h) for `ggx_eval`'s modes: 1 conductor (complex IOR eta + i k per channel,
+   Mitsuba 3's form as neumat.reflectance.microfacet.fresnel_conductor), 2 dielectric (eta[0]: inside over outside),
+   3 Schlick (f0 per channel), 0 none; into f (3) */
+static inline void ggx_fresnel(int mode, float cos_d, const float *eta, const float *k, const float *f0, float *f) {
+    const float c = fminf(fmaxf(cos_d, 0.f), 1.f), c2 = c * c, s2 = 1.f - c2;
+    for (int j = 0; j < 3; ++j) {
+        if (mode == 1) {
+            float e2k2 = eta[j] * eta[j] - k[j] * k[j], four = 4.f * eta[j] * eta[j] * k[j] * k[j];
+            float t1 = e2k2 - s2, a2pb2 = sqrtf(t1 * t1 + four), a = sqrtf(fmaxf(0.5f * (a2pb2 + t1), 0.f));
+            float term1 = a2pb2 + c2, term2 = (2.f * c) * a, rs = (term1 - term2) / (term1 + term2);
+            float term3 = a2pb2 * c2 + s2 * s2, term4 = term2 * s2;
+            f[j] = 0.5f * (rs + rs * (term3 - term4) / (term3 + term4));
+        } else if (mode == 2) {
+            float e = cos_d >= 0.f ? eta[0] : 1.f / eta[0], ci = fminf(fabsf(cos_d), 1.f);
+            float st2 = (1.f - ci * ci) / (e * e), ct = sqrtf(fmaxf(1.f - st2, 0.f));
+            float rs = (ci - e * ct) / (ci + e * ct), rp = (e * ci - ct) / (e * ci + ct);
+            f[j] = st2 >= 1.f ? 1.f : 0.5f * (rs * rs + rp * rp);
+        } else if (mode == 3) {
+            float w = 1.f - c;
+            f[j] = f0[j] + (1.f - f0[j]) * (w * w * w * w * w);
+        } else f[j] = 1.f;
+    }
+}
+
+/* GGX reflection (neumat.reflectance.analytic.GGX) of directions wi, wo (n x 3): D(h) G1(wi) G1(wo) F(wi.h) /
+   (4 cos_i cos_o) with alphas (ax, ay) and Fresnel `mode` (ggx_fresnel); 0 unless both are above the surface.
+   out: n x 3. */
+int ggx_eval(const float *wi, const float *wo, long n, float ax, float ay, int mode, const float *eta, const float *k,
+             const float *f0, float *out) {
+    const float tiny = 1.17549435e-38f, inv_pi = 0.3183098861837907f;
+    float res[3 * BLOCK], keep[BLOCK];
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        for (int k2 = 0; k2 < BLOCK; ++k2) {
+            const long row = s + (k2 < m ? k2 : 0);
+            const float *a = wi + 3 * row, *b = wo + 3 * row;
+            float hx = a[0] + b[0], hy = a[1] + b[1], hz = a[2] + b[2];
+            float hl = fmaxf(sqrtf(hx * hx + hy * hy + hz * hz), 1e-12f);
+            hx /= hl; hy /= hl; hz /= hl;
+            float e = (hx / ax) * (hx / ax) + (hy / ay) * (hy / ay) + hz * hz;
+            float d = hz > 0.f ? inv_pi / (ax * ay * e * e) : 0.f;
+            float zi = fmaxf(a[2], 0.f), zo = fmaxf(b[2], 0.f);
+            float ri = sqrtf(a[2] * a[2] + (ax * a[0]) * (ax * a[0]) + (ay * a[1]) * (ay * a[1]));
+            float ro = sqrtf(b[2] * b[2] + (ax * b[0]) * (ax * b[0]) + (ay * b[1]) * (ay * b[1]));
+            float g = (2.f * zi / fmaxf(zi + ri, tiny)) * (2.f * zo / fmaxf(zo + ro, tiny));
+            float spec = d * g / fmaxf(4.f * a[2] * b[2], tiny), f[3];
+            ggx_fresnel(mode, a[0] * hx + a[1] * hy + a[2] * hz, eta, k, f0, f);
+            for (int j = 0; j < 3; ++j) res[j * BLOCK + k2] = f[j] * spec;
+            keep[k2] = a[2] > 0.f && b[2] > 0.f ? 1.f : 0.f;
+        }
+        write_rows(res, keep, m, 3, out + 3 * s);
+    }
+    return 0;
+}
+
 /* torch's softplus (beta 1, threshold 20) by the kernels' exp and log */
 static inline float softplus(float x) { return x > 20.f ? x : fast_log(1.f + fast_exp(x)); }
 

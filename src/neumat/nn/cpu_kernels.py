@@ -1,6 +1,6 @@
 """Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
 NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame,
-neumip-offset and neural-appearance's BRDF decoder, the GGX parameter mip-map.
+neumip-offset and neural-appearance's BRDF decoder, the GGX parameter mip-map, and analytic GGX.
 
 Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
 pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
@@ -464,6 +464,27 @@ def neumip_offset_uv(mlp: PackedMLP, offset: LatentSource, wo: torch.Tensor, siz
                   ctypes.c_float(size), ctypes.c_float(min_cos), mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act,
                   _ptr(out, start)))
     by_threads(run, len(wo))
+    return out
+
+
+#: `ggx_eval`'s Fresnel modes (`neumat.reflectance.analytic.GGX.fresnel`)
+GGX_FRESNEL = {"none": 0, "conductor": 1, "dielectric": 2, "schlick": 3}
+
+
+def ggx_eval(wi: torch.Tensor, wo: torch.Tensor, alpha_x: float, alpha_y: float, fresnel: str,
+             eta=(1.0, 1.0, 1.0), k=(0.0, 0.0, 0.0), f0=(0.0, 0.0, 0.0)) -> torch.Tensor:
+    """Analytic GGX reflection (`neumat.reflectance.analytic.GGX`) of float32 directions (N, 3) with scalar alphas:
+    (N, 3), 0 unless both directions are up. eta, k, f0: per channel (a dielectric reads eta[0])."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    rgb = [(ctypes.c_float * 3)(*(float(v) for v in x)) for x in (eta, k, f0)]
+    out = torch.empty(len(wi), 3)
+    fn = lib.ggx_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ctypes.c_float(alpha_x),
+                  ctypes.c_float(alpha_y), GGX_FRESNEL[fresnel], *rgb, _ptr(out, start)))
+    by_threads(run, len(wi))
     return out
 
 
