@@ -960,6 +960,148 @@ int ggx_mipmap_eval(const Latents *latents, const float *wi, const float *wo, lo
     return 0;
 }
 
+/* A `neumat.reflectance.measured.Marginal2D` table as `rgl_eval` reads it: S parameter slices of H x W cells, K
+   channels (channel c of slice s at data[c] + s H W), and where it warps, the conditional CDFs cond (S x H x
+   (W - 1)) and the marginal marg (S x (H - 1)) */
+typedef struct {
+    const float *data[3];
+    int H, W, K;
+    const float *cond, *marg;
+} Table2D;
+
+/* torch.lerp(a, b, w) */
+static inline float lerp(float a, float b, float w) { return w < 0.5f ? a + w * (b - a) : b - (b - a) * (1.f - w); }
+
+/* the value at flat index i of a table (S x size per slice) interpolated over the parameter slices sl (count) */
+static inline float sliced(const float *t, long size, const int *sl, const float *w, int count, long i) {
+    float v = 0.f;
+    for (int c = 0; c < count; ++c) v += t[sl[c] * size + i] * w[c];
+    return v;
+}
+
+/* the parameter slices of value p on a sorted grid vals (size), as Marginal2D._slices: (lower index, weight of
+   the upper one) */
+static inline void grid_step(const float *vals, int size, float p, int *i0, float *w1) {
+    int i = 0;
+    while (i < size && vals[i] < p) ++i;  /* torch.searchsorted (left) */
+    i = i < 1 ? 1 : (i > size - 1 ? size - 1 : i);
+    *i0 = i - 1;
+    float w = (p - vals[i - 1]) / (vals[i] - vals[i - 1]);
+    *w1 = w < 0.f ? 0.f : (w > 1.f ? 1.f : w);
+}
+
+/* a Marginal2D position's patch: cell (ix, iy) and the position in it (fx, fy), NaN taken as 0 */
+static inline void patch_of(const Table2D *t, float px, float py, int *ix, int *iy, float *fx, float *fy) {
+    px = isnan(px) ? 0.f : px; py = isnan(py) ? 0.f : py;
+    float x = fminf(fmaxf(px, 0.f), 1.f) * (float)(t->W - 1), y = fminf(fmaxf(py, 0.f), 1.f) * (float)(t->H - 1);
+    *ix = (int)x < t->W - 2 ? (int)x : t->W - 2;
+    *iy = (int)y < t->H - 2 ? (int)y : t->H - 2;
+    *fx = x - (float)*ix; *fy = y - (float)*iy;
+}
+
+/* Marginal2D.eval: channel values (K) at (px, py) over slices sl (count, weights w) */
+static inline void table_eval(const Table2D *t, float px, float py, const int *sl, const float *w, int count,
+                              float *out) {
+    int ix, iy;
+    float fx, fy;
+    patch_of(t, px, py, &ix, &iy, &fx, &fy);
+    const long size = (long)t->H * t->W, cell = (long)iy * t->W + ix;
+    for (int c = 0; c < t->K; ++c) {
+        const float *d = t->data[c];
+        float v00 = sliced(d, size, sl, w, count, cell), v10 = sliced(d, size, sl, w, count, cell + 1);
+        float v01 = sliced(d, size, sl, w, count, cell + t->W), v11 = sliced(d, size, sl, w, count, cell + t->W + 1);
+        out[c] = lerp(lerp(v00, v10, fx), lerp(v01, v11, fx), fy);
+    }
+}
+
+/* Marginal2D.invert (channel 0): the uniform coordinates (sx, sy) of a warped point (px, py) */
+static inline void table_invert(const Table2D *t, float px, float py, const int *sl, const float *w, int count,
+                                float *sx_out, float *sy_out) {
+    int ix, iy;
+    float fx, fy;
+    patch_of(t, px, py, &ix, &iy, &fx, &fy);
+    const long size = (long)t->H * t->W, cell = (long)iy * t->W + ix, wm = t->W - 1;
+    const float *d = t->data[0];
+    float v00 = sliced(d, size, sl, w, count, cell), v10 = sliced(d, size, sl, w, count, cell + 1);
+    float v01 = sliced(d, size, sl, w, count, cell + t->W), v11 = sliced(d, size, sl, w, count, cell + t->W + 1);
+    float c0 = lerp(v00, v01, fy), c1 = lerp(v10, v11, fy);
+    float sx = fx * lerp(c0, c1, 0.5f * fx) / (float)wm;
+    const long csize = (long)t->H * wm, row0 = (long)iy * wm, prev = ix > 0 ? ix - 1 : 0;
+    float b0 = sliced(t->cond, csize, sl, w, count, row0 + prev);
+    float b1 = sliced(t->cond, csize, sl, w, count, row0 + wm + prev);
+    float r0 = sliced(t->cond, csize, sl, w, count, row0 + wm - 1);
+    float r1 = sliced(t->cond, csize, sl, w, count, row0 + 2 * wm - 1);
+    if (ix > 0) sx += lerp(b0, b1, fy);
+    sx /= lerp(r0, r1, fy);
+    float sy = fy * lerp(r0, r1, 0.5f * fy) / (float)(t->H - 1);
+    if (iy > 0) sy += sliced(t->marg, t->H - 1, sl, w, count, iy - 1);
+    *sx_out = sx; *sy_out = sy;
+}
+
+/* elevation of a unit vector: atan2(sqrt(x^2 + y^2), z), as accurate near the pole as Mitsuba's 2 asin(|d - z| / 2)
+   and inline (libm's asinf and atan2f were half of `rgl_eval`'s time) */
+static inline float elevation(float x, float y, float z) { return fast_atan2(sqrtf(x * x + y * y), z); }
+
+/* a * -sign(b), the sign bit deciding (Dr.Jit's mulsign_neg) */
+static inline float mulsign_neg(float a, float b) { return signbit(b) ? a : -a; }
+
+/* An RGL measured BRDF (neumat.reflectance.measured.RglMaterial.eval, Mitsuba 3's `measured`): directions folded
+   into the measured azimuths (reduction 2 or 4), half vector, the VNDF warp inverted at it, RGB read at the warped
+   point over the (phi_i, theta_i) slices (phi_vals: n_phi, theta_vals: n_theta), times ndf / (4 sigma) with the
+   Jacobian, divided by cos(theta_o); 0 unless both directions are above the surface. out: n x 3. */
+int rgl_eval(const float *wi, const float *wo, long n, int isotropic, int reduction, int jacobian,
+             const float *phi_vals, int n_phi, const float *theta_vals, int n_theta, const Table2D *vndf,
+             const Table2D *rgb, const Table2D *ndf, const Table2D *sigma, float *out) {
+    const float two_over_pi = 0.6366197723675814f, pi = 3.141592653589793f, two_pi = 6.283185307179586f;
+    const int one_slice = 0;
+    const float one_weight = 1.f;
+    for (long r = 0; r < n; ++r) {
+        const float *a = wi + 3 * r, *b = wo + 3 * r;
+        if (!(fminf(a[2], b[2]) > 0.f)) { out[3 * r] = out[3 * r + 1] = out[3 * r + 2] = 0.f; continue; }
+        float i0 = a[0], i1 = a[1], i2 = a[2], o0 = b[0], o1 = b[1], o2 = b[2];
+        if (reduction >= 2) {
+            float sy = i1, sx = reduction == 4 ? i0 : sy;
+            i0 = mulsign_neg(i0, sx); i1 = mulsign_neg(i1, sy); o0 = mulsign_neg(o0, sx); o1 = mulsign_neg(o1, sy);
+        }
+        float mx = i0 + o0, my = i1 + o1, mz = i2 + o2, ml = fmaxf(sqrtf(mx * mx + my * my + mz * mz), 1e-30f);
+        mx /= ml; my /= ml; mz /= ml;
+        float theta_i = elevation(i0, i1, i2), phi_i = fast_atan2(i1, i0);
+        float theta_m = elevation(mx, my, mz), phi_m = fast_atan2(my, mx);
+        float um0 = sqrtf(theta_m * two_over_pi), um1 = ((isotropic ? phi_m - phi_i : phi_m) + pi) / two_pi;
+        um1 -= floorf(um1);
+        float uw0 = sqrtf(theta_i * two_over_pi), uw1 = (phi_i + pi) / two_pi;
+        /* the (phi_i, theta_i) slices, phi outermost (Marginal2D._slices' order) */
+        int sl[4] = {0, 0, 0, 0}, count = 1;
+        float w[4] = {1.f, 0.f, 0.f, 0.f};
+        if (n_phi > 1) {
+            int j; float t;
+            grid_step(phi_vals, n_phi, phi_i, &j, &t);
+            sl[0] = j * n_theta; sl[1] = (j + 1) * n_theta; w[0] = 1.f - t; w[1] = t; count = 2;
+        }
+        if (n_theta > 1) {
+            int j; float t;
+            grid_step(theta_vals, n_theta, theta_i, &j, &t);
+            for (int c = 0; c < count; ++c) {
+                sl[count + c] = sl[c] + j + 1; w[count + c] = w[c] * t;
+                sl[c] += j; w[c] *= 1.f - t;
+            }
+            count *= 2;
+        }
+        float sx, sy, spec[3];
+        table_invert(vndf, um0, um1, sl, w, count, &sx, &sy);
+        table_eval(rgb, sx, sy, sl, w, count, spec);
+        float scale = 1.f;
+        if (jacobian) {
+            float d, sg;
+            table_eval(ndf, um0, um1, &one_slice, &one_weight, 1, &d);
+            table_eval(sigma, uw0, uw1, &one_slice, &one_weight, 1, &sg);
+            scale = d / (4.f * sg);
+        }
+        for (int c = 0; c < 3; ++c) out[3 * r + c] = jacobian ? spec[c] * scale / b[2] : spec[c] / b[2];
+    }
+    return 0;
+}
+
 /* A plain MLP on rows x (n x dims[0], row-major): out (n x out_dim), the last layer without activation. */
 int mlp_forward(const float *x, long n, int layers, const int *dims, const float *const *W, const float *const *b,
                 int hidden_act, int out_dim, float *out) {

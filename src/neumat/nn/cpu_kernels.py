@@ -1,6 +1,7 @@
 """Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
 NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame,
-neumip-offset and neural-appearance's BRDF decoder, the GGX parameter mip-map, and analytic GGX.
+neumip-offset and neural-appearance's BRDF decoder, the GGX parameter mip-map, analytic GGX and the RGL measured
+BRDFs' evaluation.
 
 Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
 pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
@@ -499,6 +500,54 @@ def ggx_mipmap_eval(latents: LatentSource, wi: torch.Tensor, wo: torch.Tensor) -
     def run(start: int, stop: int) -> None:
         _check(fn(ctypes.byref(latents.at(start)), _ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
                   _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
+class _Table2D(ctypes.Structure):
+    """The C struct `Table2D` (cpu_kernels.c): a Marginal2D's float32 tables."""
+    _fields_ = [("data", ctypes.c_void_p * 3), ("H", ctypes.c_int), ("W", ctypes.c_int), ("K", ctypes.c_int),
+                ("cond", ctypes.c_void_p), ("marg", ctypes.c_void_p)]
+
+
+class RglTables:
+    """An RGL material's warps and tables (`neumat.reflectance.measured.RglMaterial`) as `rgl_eval` reads them:
+    float32, one flat array per channel; holds the tensors the structs point into."""
+
+    def __init__(self, material) -> None:
+        def table(m) -> _Table2D:
+            tabs = m._tables(torch.device("cpu"), torch.float32)
+            keep = [t.contiguous() for t in tabs["channels"]] + [tabs[n].contiguous() for n in ("cond", "marg")
+                                                                 if n in tabs]
+            self.keep += keep
+            st = _Table2D(H=m.h, W=m.w, K=len(tabs["channels"]))
+            for c, t in enumerate(keep[:st.K]):
+                st.data[c] = t.data_ptr()
+            st.cond = tabs["cond"].data_ptr() if "cond" in tabs else None
+            st.marg = tabs["marg"].data_ptr() if "marg" in tabs else None
+            return st
+
+        self.keep: list[torch.Tensor] = []
+        grid = material.vndf.param_values
+        self.phi, self.theta = grid[0].float().contiguous(), grid[1].float().contiguous()
+        self.vndf, self.rgb = table(material.vndf), table(material.rgb)
+        self.ndf, self.sigma = table(material.ndf), table(material.sigma)
+        self.isotropic, self.reduction, self.jacobian = material.isotropic, material.reduction, material.jacobian
+
+
+def rgl_eval(tables: RglTables, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+    """An RGL measured BRDF (`neumat.reflectance.measured.RglMaterial.eval`) of float32 directions (N, 3): (N, 3),
+    0 unless both are above the surface."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    out = torch.empty(len(wi), 3)
+    fn = lib.rgl_eval
+    t = tables
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), int(t.isotropic), t.reduction,
+                  int(t.jacobian), _ptr(t.phi), len(t.phi), _ptr(t.theta), len(t.theta), ctypes.byref(t.vndf),
+                  ctypes.byref(t.rgb), ctypes.byref(t.ndf), ctypes.byref(t.sigma), _ptr(out, start)))
     by_threads(run, len(wi))
     return out
 

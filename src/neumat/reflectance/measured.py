@@ -27,6 +27,7 @@ from ..core.material import Material, check_sample_u, sample_weight, upper_hemis
 from ..core.query import Query, Sample
 from ..io.merl import MERL_DIMS, MERL_SCALE, read_merl
 from ..io.rgl import RglData, read_rgl
+from ..nn import cpu_kernels
 
 
 class MerlMaterial(Material):
@@ -319,6 +320,7 @@ class RglMaterial(Material):
         self.vndf = Marginal2D(f["vndf"], params)
         self.luminance = Marginal2D(f["luminance"], params)
         self.rgb = Marginal2D(f["rgb"], params, normalize=False, channels=True, sampling=False)
+        self._kernel_tables = None  # `cpu_kernels.RglTables`, made at the first kernel evaluation
 
     @classmethod
     def from_file(cls, path: str | Path) -> "RglMaterial":
@@ -364,7 +366,14 @@ class RglMaterial(Material):
         return torch.where(active[:, None], spec, torch.zeros_like(spec))
 
     def eval(self, q: Query) -> torch.Tensor:
-        """BRDF (N, 3): the plugin value divided by cos(theta_o); 0 below the surface."""
+        """BRDF (N, 3): the plugin value divided by cos(theta_o); 0 below the surface. Without autograd, in float32
+        on the CPU, one fused C call (`neumat.nn.cpu_kernels.rgl_eval`; the torch path's values within float32
+        rounding): the torch path is some 150 small tensor operations and gathers."""
+        q.require("wo", who="RglMaterial")
+        if cpu_kernels.usable(q.wi, q.wo):
+            if self._kernel_tables is None:
+                self._kernel_tables = cpu_kernels.RglTables(self)
+            return cpu_kernels.rgl_eval(self._kernel_tables, q.wi, q.wo)
         f = self.eval_cos(q)
         cos_o = q.wo[:, 2:3]
         return torch.where(cos_o > 0, f / torch.where(cos_o > 0, cos_o, torch.ones_like(cos_o)), torch.zeros_like(f))
