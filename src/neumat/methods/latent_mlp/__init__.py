@@ -67,15 +67,15 @@ def recommended(model: str) -> Preset:
 #: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe;
 #: benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
-    "multiscale": "the default for texture sets with normal detail or metal (on a CPU; `neumat.methods.latent_mlp."
-                  "regime`): at the session-47 CPU default (1000 steps), mean FLIP over 9 scales below "
-                  "tripleplane's on 7 of 10 random crops x seeds where normals vary (0.73-1.03x) and on 3 of 5 "
-                  "flat-metal ones (0.81-1.10x); the "
-                  "lowest mean FLIP of all latent-texture models over random crops",
-    "tripleplane": "the default for flat dielectric texture sets on a CPU (mean normal tilt < 5 degrees, metalness "
-                   "< 0.5): ahead of the gated model on flat wood and leather (it scores 1.05-1.26x tripleplane's "
-                   "FLIP); behind it on most crops where normals vary (fabric, paper, sub-texel scratches, "
-                   "chainmail)",
+    "multiscale": "the default for texture sets with normal detail, and for near-mirrors (on a CPU; "
+                  "`neumat.methods.latent_mlp.regime`): at the current CPU default (4000 steps, 32-position "
+                  "targets), mean FLIP over 9 scales below tripleplane's on 21 of 30 random crops x seeds "
+                  "(median 0.935x; fabric, leather, paper, plaster, scratches, the polished plate 0.72x); the "
+                  "lowest mean FLIP of all latent-texture models over random crops at the session-47 default",
+    "tripleplane": "the default for flat, rough texture sets on a CPU (mean normal tilt < 3 degrees, roughness >= "
+                   "0.2): ahead of the gated model on flat metal and wood (Metal027: it scores 1.18-1.22x "
+                   "tripleplane's FLIP, Wood092 up to 1.10x) and the brushed metal (1.07x); behind it where "
+                   "normals vary (fabric, paper, plaster, scratches) and on the polished plate",
 }
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
