@@ -3,6 +3,7 @@ and the RGL warps (Marginal2D) against their own densities."""
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -428,3 +429,5 @@ def test_rgl_float32_kernel_matches_mitsuba(rgl_files, tmp_path, gen, reduction)
         tol = 1e-3 * (ref.abs() + 1e-3 * ref.abs().max())
         assert torch.all((got.double() * wo[:, 2:3].double() - ref).abs() <= tol), path.name
         assert (got[:30] == 0).all()
+        with torch.no_grad():  # the kernel's tables are kept outside the material: it still pickles
+            torch.testing.assert_close(pickle.loads(pickle.dumps(m)).eval(Query(wi, wo)), got)

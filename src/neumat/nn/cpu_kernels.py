@@ -535,6 +535,19 @@ class RglTables:
         self.isotropic, self.reduction, self.jacobian = material.isotropic, material.reduction, material.jacobian
 
 
+def rgl_tables(material) -> RglTables:
+    """`RglTables` of an RGL material, made at its first use and kept outside it (ctypes structs cannot be copied
+    or pickled with the material)."""
+    tables = _rgl_tables.get(material)
+    if tables is None:
+        tables = _rgl_tables[material] = RglTables(material)
+    return tables
+
+
+#: what `rgl_tables` keeps, per material
+_rgl_tables: "weakref.WeakKeyDictionary[object, RglTables]" = weakref.WeakKeyDictionary()
+
+
 def rgl_eval(tables: RglTables, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     """An RGL measured BRDF (`neumat.reflectance.measured.RglMaterial.eval`) of float32 directions (N, 3): (N, 3),
     0 unless both are above the surface."""

@@ -257,9 +257,13 @@ class GGX(AnalyticMaterial):
         float32 rounding): the torch path is some 40 small tensor operations, 0.2 ms for a call of one query."""
         q.require("wo", who=type(self).__name__)
         if cpu_kernels.usable(q.wi, q.wo):
-            rgb = {"conductor": {"eta": getattr(self, "eta", None), "k": getattr(self, "k", None)},
-                   "dielectric": {"eta": (getattr(self, "eta", None),) * 3},
-                   "schlick": {"f0": getattr(self, "f0", None)}, "none": {}}[self.fresnel]
+            rgb = {}
+            if self.fresnel == "conductor":
+                rgb = {"eta": self.eta, "k": self.k}
+            elif self.fresnel == "dielectric":
+                rgb = {"eta": (self.eta,) * 3}
+            elif self.fresnel == "schlick":
+                rgb = {"f0": self.f0}
             return cpu_kernels.ggx_eval(q.wi, q.wo, self.alpha_x, self.alpha_y, self.fresnel, **rgb)
         return super().eval(q)
 

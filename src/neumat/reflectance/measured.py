@@ -320,7 +320,6 @@ class RglMaterial(Material):
         self.vndf = Marginal2D(f["vndf"], params)
         self.luminance = Marginal2D(f["luminance"], params)
         self.rgb = Marginal2D(f["rgb"], params, normalize=False, channels=True, sampling=False)
-        self._kernel_tables = None  # `cpu_kernels.RglTables`, made at the first kernel evaluation
 
     @classmethod
     def from_file(cls, path: str | Path) -> "RglMaterial":
@@ -371,9 +370,7 @@ class RglMaterial(Material):
         rounding): the torch path is some 150 small tensor operations and gathers."""
         q.require("wo", who="RglMaterial")
         if cpu_kernels.usable(q.wi, q.wo):
-            if self._kernel_tables is None:
-                self._kernel_tables = cpu_kernels.RglTables(self)
-            return cpu_kernels.rgl_eval(self._kernel_tables, q.wi, q.wo)
+            return cpu_kernels.rgl_eval(cpu_kernels.rgl_tables(self), q.wi, q.wo)
         f = self.eval_cos(q)
         cos_o = q.wo[:, 2:3]
         return torch.where(cos_o > 0, f / torch.where(cos_o > 0, cos_o, torch.ones_like(cos_o)), torch.zeros_like(f))
