@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 #: columns that measure the machine, not the method: never judged
-MACHINE = re.compile(r"(^fit s$|second|/s\b|/cpu s|/wall s|us/|wall|gflop|% sgemm|x ggx|x torch|^time)", re.I)
+MACHINE = re.compile(r"(^fit s$|second|/s\b|/cpu s|/wall s|us/|wall|gflop|% sgemm|x ggx|x torch|x runtime|^time)", re.I)
 #: the least tolerance, relative to the committed value (module docstring)
 FLOOR = 1e-4
 #: columns that must be equal in a rerun (sizes and counts)

@@ -44,8 +44,8 @@ BUDGET = {
                      "target; training steps of every BRDF / SVBRDF model at its CPU recipe, batches 2^10 and 2^13 (SVBRDF "
                      "models on a 64^2 crop, and on the whole 1K set at 2^13)",
              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
-             "expected_wall": "about 1.2 h on one thread (measured: 4,312 s wall, 2,145 CPU s, beside other jobs on "
-                              "the 2 cores; results/speed/full.json)"},
+             "expected_wall": "about 15 min on one thread (measured: 868 s wall, 801 CPU s, beside another speed "
+                              "run on the 2 cores; results/speed/full.json)"},
 }
 #: the models a quick run times: one of each family that evaluates in milliseconds (every latent-texture model builds
 #: a paper-sized 1024^2 pyramid first, about 1.5 s; one stands for the family)
@@ -68,15 +68,14 @@ def run(run: harness.Run) -> None:
     for name, m in materials.items():
         run.progress(f"evaluation rates of {name}")
         flops = int(m.flops()) if callable(getattr(m, "flops", None)) else None
+        path = _path(m, run.seed)
         rate = None
         for n in sizes:
             if rate is not None and n / rate > MAX_SECONDS_PER_CALL:  # e.g. the dipole's 8192-point quadrature
                 run.skip(f"{name} at {n} queries", f"one call would take about {n / rate:.0f} CPU s (at "
                          f"{rate:.3g} evaluations per CPU s), over the suite's {MAX_SECONDS_PER_CALL:g} s per call")
                 continue
-            before = cpu_kernels.calls[0]
             rate = ggx[n] if name == "ggx:roughness=0.2" else _eval_rate(run, m, n)
-            path = "C kernel" if cpu_kernels.calls[0] > before else "torch"
             rows.append({"material": name, "queries": n, "path": path, "flops/query": flops, "evals/cpu s": rate,
                          "sample+pdf/cpu s": _sample_rate(run, m, n) if m.can_sample else None,
                          "% sgemm": None if flops is None else 100 * flops * rate / sgemm,
@@ -85,14 +84,57 @@ def run(run: harness.Run) -> None:
               "models at their default (paper) config, called without autograd (torch.no_grad) as renderers call "
               "them; dipole-bssrdf with its quadrature on a sphere of radius 0.5; 'path': the model's torch "
               "operations or a fused C kernel (neumat.nn.cpu_kernels)")
+    _texture_reads(run, materials, 2 ** 12 if run.quick else 2 ** 16, sgemm)
     _fixed_costs(run, materials)
     export_n = 2 ** 16
-    torch_rates = {r["material"]: r["evals/cpu s"] for r in rows if r["queries"] == export_n}
+    runtime_rates = {r["material"]: r["evals/cpu s"] for r in rows if r["queries"] == export_n}
     if run.quick:  # its batches stop below the exports' (a full run has every material at export_n but those capped)
         for name in ("ggx:roughness=0.2", "neubrdf"):
-            torch_rates[name] = _eval_rate(run, materials[name], export_n)
-    _exports(run, materials, export_n, torch_rates, sgemm)
+            runtime_rates[name] = _eval_rate(run, materials[name], export_n)
+    _exports(run, materials, export_n, runtime_rates, sgemm)
     _training(run)
+
+
+def _path(m, seed: int, q: Query | None = None) -> str:
+    """'C kernel' when an eval call of the material (on q's first 8 queries) runs a fused kernel (neumat.nn.cpu_kernels),
+    else 'torch'."""
+    q = queries(m, 8, seed) if q is None else q[:8]
+    before = cpu_kernels.calls[0]
+    with torch.no_grad():
+        m.eval(q)
+    return "C kernel" if cpu_kernels.calls[0] > before else "torch"
+
+
+#: the texture reads a renderer asks for: the finest level, a trilinear read at a fixed level of detail, an
+#: anisotropic footprint (the filter's axes 1e-3 and 3e-4 uv^2: two probes on a 1K texture)
+READS = {"finest level": {}, "lod 2.3": {"lod": 2.3},
+         "anisotropic footprint": {"footprint": ((1e-3, 0.0), (0.0, 3e-4))}}
+
+
+def _texture_reads(run: harness.Run, materials: dict, n: int, sgemm: float) -> None:
+    """Evaluation rate of each texture-reading model (uv, not a full sphere) at n queries for each of READS."""
+    rows = []
+    for name, m in materials.items():
+        if not m.spatially_varying or m.full_sphere:
+            continue
+        run.progress(f"texture reads of {name}")
+        base = queries(m, n, run.seed)
+        for read, extra in READS.items():
+            q = base
+            if "lod" in extra:
+                q = replace(base, lod=torch.full((n,), extra["lod"]))
+            elif "footprint" in extra:
+                q = replace(base, footprint=torch.tensor(extra["footprint"]).expand(n, 2, 2).contiguous())
+            rate = n / _runtime_time(run, lambda: m.eval(q))
+            flops = int(m.flops()) if callable(getattr(m, "flops", None)) else None
+            rows.append({"material": name, "queries": n, "read": read, "path": _path(m, run.seed, q),
+                         "evals/cpu s": rate,
+                         "% sgemm": None if flops is None else 100 * flops * rate / sgemm})
+    run.table("reads", "Texture reads (one thread)", rows,
+              "every uv-reading model at the speed suite's queries, reading its latent texture at the finest level, "
+              "trilinearly at lod 2.3, or through an anisotropic footprint diag(1e-3, 3e-4) uv^2 (what `neumat "
+              "render` passes; two probes on a 1K texture); '% sgemm' against the bound above, the model's FLOPs "
+              "not counting the extra texel reads")
 
 
 def _fixed_costs(run: harness.Run, materials: dict) -> None:
@@ -174,12 +216,12 @@ def _sample_rate(run: harness.Run, material, n: int) -> float:
     return n / _runtime_time(run, sample_and_pdf)
 
 
-def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm: float) -> None:
+def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, sgemm: float) -> None:
     """GLSL on llvmpipe (EGL) at both precisions and Slang on slangpy's CPU device, each beside GGX and the
     harness's floor (a shader returning wi + wo) in the same target, where the package exports the model:
     marginal rates per wall and
     per CPU second of this process (llvmpipe's thread included), % of the sgemm bound, cost against GLSL GGX and
-    against the model's torch runtime per CPU second."""
+    against the model's own runtime (torch or C kernel) per CPU second."""
     from neumat.export.glsl_common import GLSLExport
     from neumat.export.registry import load_formats
     from neumat.export.slang import slang_from_glsl
@@ -231,15 +273,16 @@ def _exports(run: harness.Run, materials: dict, n: int, torch_rates: dict, sgemm
                          "evals/wall s": wall, "evals/cpu s": cpu,
                          "% sgemm": None if flops is None else 100 * flops * cpu / sgemm,
                          "x GGX": None if ggx_rate is None or name.startswith("harness") else ggx_rate / cpu,
-                         "x torch": torch_rates[name] / cpu if name in torch_rates else None})
+                         "x runtime": runtime_rates[name] / cpu if name in runtime_rates else None})
     run.table("exports", "Export targets (one thread where the target honours it)", rows,
               "marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
               "compilation and uploads do not count), per wall second and per CPU second of this process, both "
               "read around the same calls (best of the run's repeats, at least 5 in a full run; llvmpipe's thread "
               "counted in CPU seconds, a loaded machine's waits not); llvmpipe with LP_NUM_THREADS = the run's "
               "threads; '% sgemm' from the CPU rate and the model's "
-              "FLOPs; 'x GGX' = GGX's CPU rate in the same target and harness / the row's; 'x torch' = the torch "
-              "runtime's evals/cpu s at the same batch (table above) / the row's; the floor row is the harness's "
+              "FLOPs; 'x GGX' = GGX's CPU rate in the same target and harness / the row's; 'x runtime' = the "
+              "package's own runtime (its torch operations or fused C kernel: the 'path' above) at the same batch, "
+              "evals/cpu s / the row's; the floor row is the harness's "
               "own cost (query upload, one fragment, read-back)")
 
 

@@ -13,8 +13,9 @@ import jsonschema
 import pytest
 
 from benchmarks import harness
-from benchmarks.suites import SUITES
+from benchmarks.suites import SUITES, speed
 from neumat.io.shared_data import shared_data_dir
+from neumat.nn import cpu_kernels
 
 ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = json.loads(harness.SCHEMA_PATH.read_text())
@@ -151,12 +152,18 @@ def _check_speed(doc: dict) -> None:
     assert gflops > 0.1
     rows = {(r["material"], r["queries"]): r for r in next(t for t in doc["tables"] if t["name"] == "eval")["rows"]}
     assert {m for m, _ in rows} >= {"ggx:roughness=0.2", "ggx", "nbrdf", "neubrdf"}
+    kernels = cpu_kernels.unavailable() is None
     for (material, n), r in rows.items():
         assert r["evals/cpu s"] > 0
+        if material in ("ggx:roughness=0.2", "nbrdf", "neubrdf"):  # each has a fused kernel: the column must say so
+            assert r["path"] == ("C kernel" if kernels else "torch"), (material, n)
         ggx = rows[("ggx:roughness=0.2", n)]["evals/cpu s"]
         assert r["x GGX"] == pytest.approx(ggx / r["evals/cpu s"], rel=1e-3)
         if r["flops/query"] is not None:
             assert r["% sgemm"] == pytest.approx(100 * r["flops/query"] * r["evals/cpu s"] / (gflops * 1e9), rel=1e-3)
+    reads = next(t for t in doc["tables"] if t["name"] == "reads")["rows"]
+    assert {(r["material"], r["read"]) for r in reads} >= {("multiscale", read) for read in speed.READS}
+    assert all(r["evals/cpu s"] > 0 and r["path"] == rows[(r["material"], r["queries"])]["path"] for r in reads)
     exports = next((t["rows"] for t in doc["tables"] if t["name"] == "exports"), [])
     for target in {r["target"] for r in exports if not r["target"].startswith("drjit")}:
         at = {r["material"]: r for r in exports if r["target"] == target}
