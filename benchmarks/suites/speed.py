@@ -18,6 +18,7 @@ from neumat.fit.preset import build_fit
 from neumat.fit.trainer import FitWarning, fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import load_all
+from neumat.reflectance.btf import direction_set
 from neumat.nn import cpu_kernels
 from neumat.warp.hemisphere import sample_cosine_hemisphere
 from neumat.warp.sphere import sample_uniform_sphere
@@ -173,6 +174,18 @@ def runtime_model(name: str, seed: int, **config):
     eval mode."""
     torch.manual_seed(seed)
     model = load_all().get(name)(**config)
+    if name == "sparse-btf":  # a default SparseBTF holds no codes nor directions: UBO2014's 151 directions, and
+        g = torch.Generator().manual_seed(seed)  # every data point its full budget tau of random coefficients
+        c = model.cfg
+        with torch.no_grad():
+            model.light_dirs.copy_(direction_set("ubo151"))
+            model.view_dirs.copy_(direction_set("ubo151"))
+            for ch, tau in enumerate(c.tau):
+                model.counts[ch] = tau
+                model.values[ch, :, :tau] = torch.randn(model.values.shape[1], tau, generator=g)
+                for mode, size in enumerate((c.patch, c.patch, c.n_light, c.n_view)):
+                    model.index[ch, :, :tau, mode] = torch.randint(size, (model.index.shape[1], tau), generator=g,
+                                                                   dtype=torch.int32)
     if name == "dipole-bssrdf":
         k = model.cfg.samples  # its surface quadrature, set from the object in training: a sphere of radius 0.5
         x = 0.5 * sample_uniform_sphere(torch.rand(k, 2))

@@ -1,5 +1,6 @@
 /* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
-   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder) in one call per batch
+   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder), analytic GGX, RGL measured tables and
+   SparseBTF in one call per batch
    (neumat.nn.cpu_kernels compiles this file at first use; the models say where each applies).
 
    Rows are processed in blocks of BLOCK, transposed so that each feature's BLOCK values are contiguous: a dense
@@ -1099,6 +1100,128 @@ int rgl_eval(const float *wi, const float *wo, long n, int isotropic, int reduct
         }
         for (int c = 0; c < 3; ++c) out[3 * r + c] = jacobian ? spec[c] * scale / b[2] : spec[c] / b[2];
     }
+    return 0;
+}
+
+/* the k (<= 8) bins of dirs (3 x count: all x, then y, then z) nearest to w and their normalised
+   inverse-angular-distance weights (neumat.reflectance.btf.angular_weights: the k largest dot products, the angle
+   as atan2(|w x d|, w . d), an exact hit (angle <= 1e-7) weight 1 and the others 0); dots: count floats of work */
+static void nearest_bins(const float *dirs, int count, const float *w, int k, int *idx, float *wt, float *dots) {
+    const float *dx = dirs, *dy = dirs + count, *dz = dirs + 2 * count;
+    for (int d = 0; d < count; ++d) dots[d] = w[0] * dx[d] + w[1] * dy[d] + w[2] * dz[d];  /* vectorised */
+    float best[8];
+    for (int a = 0; a < k; ++a) { best[a] = -INFINITY; idx[a] = 0; }
+    for (int d = 0; d < count; ++d) {
+        const float dot = dots[d];
+        if (!(dot > best[k - 1])) continue;
+        int a = k - 1;
+        for (; a > 0 && dot > best[a - 1]; --a) { best[a] = best[a - 1]; idx[a] = idx[a - 1]; }
+        best[a] = dot; idx[a] = d;
+    }
+    int exact = 0;
+    float total = 0.f;
+    for (int a = 0; a < k; ++a) {
+        const float ex = dx[idx[a]], ey = dy[idx[a]], ez = dz[idx[a]];
+        float cx = w[1] * ez - w[2] * ey, cy = w[2] * ex - w[0] * ez, cz = w[0] * ey - w[1] * ex;
+        float angle = atan2f(sqrtf(cx * cx + cy * cy + cz * cz), w[0] * ex + w[1] * ey + w[2] * ez);
+        exact |= angle <= 1e-7f;
+        wt[a] = angle;
+    }
+    for (int a = 0; a < k; ++a) {
+        wt[a] = exact ? (wt[a] <= 1e-7f ? 1.f : 0.f) : 1.f / (wt[a] > 1e-7f ? wt[a] : 1e-7f);
+        total += wt[a];
+    }
+    for (int a = 0; a < k; ++a) wt[a] /= total;
+}
+
+/* the four wrap-around bilinear taps of uv in an h x w texture (neumat.reflectance.btf.bilinear_taps): rows,
+   cols, weights; float32 step by step as there */
+__attribute__((optimize("fp-contract=off")))
+static void btf_taps(float u, float v, int h, int w, int *rows, int *cols, float *wt) {
+    float x = u * (float)w - 0.5f, y = (1.f - v) * (float)h - 0.5f;
+    float fx0 = floorf(x), fy0 = floorf(y), fx = x - fx0, fy = y - fy0;
+    long x0 = (long)fx0, y0 = (long)fy0;
+    long c0 = ((x0 % w) + w) % w, c1 = ((x0 + 1) % w + w) % w, r0 = ((y0 % h) + h) % h, r1 = ((y0 + 1) % h + h) % h;
+    cols[0] = cols[2] = (int)c0; cols[1] = cols[3] = (int)c1;
+    rows[0] = rows[1] = (int)r0; rows[2] = rows[3] = (int)r1;
+    wt[0] = (1.f - fx) * (1.f - fy); wt[1] = fx * (1.f - fy); wt[2] = (1.f - fx) * fy; wt[3] = fx * fy;
+}
+
+/* A SparseBTF (Kavoosi et al.; neumat.methods.sparse_btf.model, angular interpolation in coefficient space) of
+   directions wi, wo and uv (n x 3, n x 3, n x 2): per query its k nearest light and view bins, its four
+   bilinear taps grouped by data point (patch), and per channel c and data point of dictionary m the sum over
+   its count stored coefficients v_j of v_j S[i0, i1] r3[i2] r4[i3], S = sum over the point's taps of the tap
+   weight times U1[m][x1] (x) U2[m][x2], r3 and r4 the bins' weighted rows of U3[m] and U4[m]; then times the
+   bins' weighted std plus their weighted mean, YUV -> RGB (yuv_rgb, 3 x 3), exp minus eps, clamped at 0; 0
+   unless wi.z and wo.z > 0. Tables (each channel outermost): membership, counts (P), values (P x T), index (P x
+   T x 4), dict_1 / dict_2 (K x p x p), dict_3 (K x nl x nl), dict_4 (K x nv x nv); mean, std (nl x nv x 3); light_dirs, view_dirs: 3 x nl, 3 x nv.
+   One query at a time. Returns 2 for sizes beyond its buffers. */
+int sparse_btf_eval(const float *wi, const float *wo, const float *uv, long n, const float *light_dirs, int nl,
+                    const float *view_dirs, int nv, int k, int height, int width, int p, int K, int T,
+                    const int32_t *membership, const int32_t *counts, const float *values, const int32_t *index,
+                    const float *dict_1, const float *dict_2, const float *dict_3, const float *dict_4,
+                    const float *mean, const float *std, const float *yuv_rgb, float eps, float *out) {
+    if (k < 1 || k > 8 || p > 32 || nl > 4096 || nv > 4096) return 2;
+    const long patches = (long)(height / p) * (width / p);
+    float *rows = malloc(sizeof(float) * 2 * (nl + nv));
+    if (!rows) return 1;
+    float *r3 = rows, *r4 = rows + nl, *dots = rows + nl + nv, S[32 * 32];
+    for (long q = 0; q < n; ++q) {
+        const float *a = wi + 3 * q, *b = wo + 3 * q;
+        float *o = out + 3 * q;
+        if (!(a[2] > 0.f && b[2] > 0.f)) { o[0] = o[1] = o[2] = 0.f; continue; }
+        int li[8], vi[8], tr[4], tc[4], patch[4];
+        float lw[8], vw[8], tw[4], yuv[3];
+        nearest_bins(light_dirs, nl, a, k, li, lw, dots);
+        nearest_bins(view_dirs, nv, b, k, vi, vw, dots);
+        btf_taps(uv[2 * q], uv[2 * q + 1], height, width, tr, tc, tw);
+        for (int t = 0; t < 4; ++t) patch[t] = (tr[t] / p) * (width / p) + tc[t] / p;
+        for (int c = 0; c < 3; ++c) {
+            float z = 0.f, mu = 0.f, sd = 0.f;
+            for (int t = 0; t < 4; ++t) {
+                int first = 0;
+                while (patch[first] != patch[t]) ++first;
+                if (first != t) continue;  /* a data point's taps are summed at its first */
+                const long P = (long)c * patches + patch[t];
+                const int m = membership[P];
+                for (int e = 0; e < p * p; ++e) S[e] = 0.f;
+                for (int u = t; u < 4; ++u) {
+                    if (patch[u] != patch[t]) continue;
+                    const float *u1 = dict_1 + (((long)c * K + m) * p + tr[u] % p) * p;
+                    const float *u2 = dict_2 + (((long)c * K + m) * p + tc[u] % p) * p;
+                    for (int i0 = 0; i0 < p; ++i0) {
+                        const float f = tw[u] * u1[i0];
+                        for (int i1 = 0; i1 < p; ++i1) S[i0 * p + i1] += f * u2[i1];
+                    }
+                }
+                const float *d3 = dict_3 + ((long)c * K + m) * nl * nl, *d4 = dict_4 + ((long)c * K + m) * nv * nv;
+                for (int e = 0; e < nl; ++e) r3[e] = 0.f;
+                for (int e = 0; e < nv; ++e) r4[e] = 0.f;
+                for (int s = 0; s < k; ++s) {
+                    const float *row3 = d3 + (long)li[s] * nl, *row4 = d4 + (long)vi[s] * nv;
+                    for (int e = 0; e < nl; ++e) r3[e] += lw[s] * row3[e];
+                    for (int e = 0; e < nv; ++e) r4[e] += vw[s] * row4[e];
+                }
+                const float *val = values + P * T;
+                const int32_t *ix = index + P * T * 4;
+                for (int j = 0; j < counts[P]; ++j, ix += 4)
+                    z += val[j] * S[ix[0] * p + ix[1]] * r3[ix[2]] * r4[ix[3]];
+            }
+            for (int s = 0; s < k; ++s)
+                for (int e = 0; e < k; ++e) {
+                    const long bin = ((long)li[s] * nv + vi[e]) * 3 + c;
+                    const float w2 = lw[s] * vw[e];
+                    mu += mean[bin] * w2;
+                    sd += std[bin] * w2;
+                }
+            yuv[c] = z * sd + mu;
+        }
+        for (int c = 0; c < 3; ++c) {
+            float v = expf(yuv_rgb[3 * c] * yuv[0] + yuv_rgb[3 * c + 1] * yuv[1] + yuv_rgb[3 * c + 2] * yuv[2]) - eps;
+            o[c] = v > 0.f ? v : 0.f;
+        }
+    }
+    free(rows);
     return 0;
 }
 

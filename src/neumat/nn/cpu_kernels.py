@@ -27,6 +27,7 @@ import threading
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Callable
 
 import torch
@@ -563,6 +564,45 @@ def rgl_eval(tables: RglTables, wi: torch.Tensor, wo: torch.Tensor) -> torch.Ten
                   ctypes.byref(t.rgb), ctypes.byref(t.ndf), ctypes.byref(t.sigma), _ptr(out, start)))
     by_threads(run, len(wi))
     return out
+
+
+def sparse_btf_fits(neighbours: int, patch: int, n_light: int, n_view: int) -> bool:
+    """Whether `sparse_btf_eval`'s buffers hold a SparseBTF of these sizes, as its C checks; a larger one keeps its
+    torch path."""
+    return 1 <= neighbours <= 8 and patch <= 32 and n_light <= 4096 and n_view <= 4096
+
+
+def sparse_btf_eval(model, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor, yuv_rgb: torch.Tensor) -> torch.Tensor:
+    """A SparseBTF (`neumat.methods.sparse_btf.model.SparseBTF`, angular interpolation in coefficient space) of
+    float32 directions wi, wo (N, 3) and uv (N, 2): (N, 3), 0 unless both directions are above the surface.
+    yuv_rgb: the 3 x 3 matrix from the model's YUV to linear RGB."""
+    lib = library()
+    t = prepared(model, lambda: _sparse_btf_tables(model, yuv_rgb))
+    c = model.cfg
+    wi, wo, uv = wi.contiguous(), wo.contiguous(), uv.contiguous()
+    out = torch.empty(len(wi), 3)
+    fn = lib.sparse_btf_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), _ptr(uv, start), ctypes.c_long(stop - start), t.light, c.n_light,
+                  t.view, c.n_view, c.neighbours, c.height, c.width, c.patch, c.num_dictionaries, t.T, *t.codes,
+                  *t.dicts, t.mean, t.std, t.yuv_rgb, ctypes.c_float(c.log_eps), _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
+def _sparse_btf_tables(model, yuv_rgb: torch.Tensor) -> SimpleNamespace:
+    """What `sparse_btf_eval` reads: the model's tables contiguous (the direction sets transposed, 3 x count) and
+    their pointers."""
+    keep = {name: getattr(model, name).contiguous() for name in (
+        "membership", "counts", "values", "index", "dict_1", "dict_2", "dict_3", "dict_4", "mean", "std")}
+    keep.update(light=model.light_dirs.t().contiguous(), view=model.view_dirs.t().contiguous(),
+                yuv_rgb=yuv_rgb.float().contiguous())
+    ptr = {name: _ptr(v) for name, v in keep.items()}
+    return SimpleNamespace(keep=keep, T=keep["values"].shape[-1], light=ptr["light"], view=ptr["view"],
+                           codes=[ptr[n] for n in ("membership", "counts", "values", "index")],
+                           dicts=[ptr[f"dict_{i}"] for i in range(1, 5)], mean=ptr["mean"], std=ptr["std"],
+                           yuv_rgb=ptr["yuv_rgb"])
 
 
 def mlp_forward(mlp: PackedMLP, x: torch.Tensor) -> torch.Tensor:

@@ -23,9 +23,11 @@ from neumat.core.errors import DataFormatError, InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
+from neumat.nn import cpu_kernels
 from neumat.methods.sparse_btf.btf_size import btf_table_size, check_btf_table_size
 from neumat.methods.sparse_btf.dictionary import (
     STATISTICS,
+    YUV_TO_RGB,
     BTFDictionary,
     Codes,
     Ensemble,
@@ -324,12 +326,25 @@ class SparseBTF(LearnedMaterial):
         """Apparent BRDF (N, 3) at q (wi, wo, uv), `batch` queries at a time (default: 2^18 / max(tau) queries,
         which keeps the gathers in cache)."""
         q.require("uv", who="SparseBTF")
+        fast = self._kernel_eval(q)
+        if fast is not None:
+            return fast
         if batch is None:
             batch = max(64, (1 << 18) // max(self.cfg.tau))
         if batch < 1:
             raise InputError(f"SparseBTF.eval: batch must be at least 1, got {batch}")
         out = [self._eval_batch(q[s:s + batch]) for s in range(0, len(q), batch)]
         return torch.cat(out) if out else torch.zeros(0, 3, dtype=q.dtype, device=q.device)
+
+    def _kernel_eval(self, q: Query) -> torch.Tensor | None:
+        """`eval` as one fused C call (`neumat.nn.cpu_kernels.sparse_btf_eval`; the same values within float32
+        rounding), or None where it does not apply: angular interpolation in value space, other dtypes or devices,
+        sizes beyond its buffers, no compiler."""
+        c = self.cfg
+        if c.angular != "coefficient" or not cpu_kernels.usable(q.wi, q.wo, q.uv, self.values) \
+                or not cpu_kernels.sparse_btf_fits(c.neighbours, c.patch, c.n_light, c.n_view):
+            return None
+        return cpu_kernels.sparse_btf_eval(self, q.wi, q.wo, q.uv, YUV_TO_RGB)
 
     def _eval_batch(self, q: Query) -> torch.Tensor:
         dev = self.values.device
