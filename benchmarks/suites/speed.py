@@ -186,6 +186,16 @@ def runtime_model(name: str, seed: int, **config):
                 for mode, size in enumerate((c.patch, c.patch, c.n_light, c.n_view)):
                     model.index[ch, :, :tau, mode] = torch.randint(size, (model.index.shape[1], tau), generator=g,
                                                                    dtype=torch.int32)
+    if name == "pca-btf":  # a default PCABTF holds no components: those that fit SparseBTF's bytes for this size
+        g = torch.Generator().manual_seed(seed)  # (15, split as a least-error split of a measured BTF would,
+        c = model.cfg                            # mostly luminance), random, and UBO2014's directions
+        with torch.no_grad():
+            model.set_ranks((9, 3, 3))
+            model.light_dirs.copy_(direction_set("ubo151"))
+            model.view_dirs.copy_(direction_set("ubo151"))
+            for ch, r in enumerate(model.cfg.ranks):
+                model.basis[ch, :, :r] = torch.randn(c.n_light * c.n_view, r, generator=g) / c.n_light
+                model.coeffs[ch, :, :r] = torch.randn(c.height * c.width, r, generator=g)
     if name == "dipole-bssrdf":
         k = model.cfg.samples  # its surface quadrature, set from the object in training: a sphere of radius 0.5
         x = 0.5 * sample_uniform_sphere(torch.rand(k, 2))

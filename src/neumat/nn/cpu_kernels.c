@@ -1,6 +1,6 @@
 /* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
-   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder), analytic GGX, RGL measured tables and
-   SparseBTF in one call per batch
+   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder), analytic GGX, RGL measured tables,
+   SparseBTF and its PCA baseline in one call per batch
    (neumat.nn.cpu_kernels compiles this file at first use; the models say where each applies).
 
    Rows are processed in blocks of BLOCK, transposed so that each feature's BLOCK values are contiguous: a dense
@@ -1145,6 +1145,64 @@ static void btf_taps(float u, float v, int h, int w, int *rows, int *cols, float
     cols[0] = cols[2] = (int)c0; cols[1] = cols[3] = (int)c1;
     rows[0] = rows[1] = (int)r0; rows[2] = rows[3] = (int)r1;
     wt[0] = (1.f - fx) * (1.f - fy); wt[1] = fx * (1.f - fy); wt[2] = (1.f - fx) * fy; wt[3] = fx * fy;
+}
+
+/* A PCA-compressed BTF (neumat.methods.sparse_btf.pca.PCABTF, the SparseBTF paper's baseline) of directions wi, wo
+   and uv (n x 3, n x 3, n x 2): for each of the four bilinear taps and each pair of the k nearest light and view
+   bins, per channel c the dot product of the texel's coefficients (coeffs: 3 x texels x R) and the bin pair's
+   basis row (basis: 3 x nl nv x R; a channel of fewer components has zeros past them), plus the pair's mean (3 x
+   nl nv); YUV ->
+   RGB (yuv_rgb, 3 x 3), exp minus eps, clamped at 0, weighted by tap x light x view weights and summed; 0 unless
+   wi.z and wo.z > 0. Directions 3 x nl, 3 x nv. One query at a time. */
+int pca_btf_eval(const float *wi, const float *wo, const float *uv, long n, const float *light_dirs, int nl,
+                 const float *view_dirs, int nv, int k, int height, int width, int R, const float *coeffs,
+                 const float *basis, const float *mean, const float *yuv_rgb, float eps, float *out) {
+    if (k < 1 || k > 8) return 2;
+    float *dots = malloc(sizeof(float) * (nl > nv ? nl : nv));
+    if (!dots) return 1;
+    const long texels = (long)height * width, bins = (long)nl * nv;
+    for (long q = 0; q < n; ++q) {
+        const float *a = wi + 3 * q, *b = wo + 3 * q;
+        float *o = out + 3 * q;
+        o[0] = o[1] = o[2] = 0.f;
+        if (!(a[2] > 0.f && b[2] > 0.f)) continue;
+        int li[8], vi[8], tr[4], tc[4];
+        float lw[8], vw[8], tw[4];
+        nearest_bins(light_dirs, nl, a, k, li, lw, dots);
+        nearest_bins(view_dirs, nv, b, k, vi, vw, dots);
+        btf_taps(uv[2 * q], uv[2 * q + 1], height, width, tr, tc, tw);
+        float arg[3 * 4 * 64], wt[4 * 64];  /* per tap and bin pair: the exponents of R, G, B and the weight */
+        int m = 0;
+        for (int t = 0; t < 4; ++t) {
+            const long texel = (long)tr[t] * width + tc[t];
+            for (int s = 0; s < k; ++s)
+                for (int e = 0; e < k; ++e, ++m) {
+                    const long bin = (long)li[s] * nv + vi[e];
+                    float yuv[3];
+                    for (int c = 0; c < 3; ++c) {
+                        const float *x = coeffs + ((long)c * texels + texel) * R, *y = basis + ((long)c * bins + bin) * R;
+                        float acc = 0.f;
+                        for (int j = 0; j < R; ++j) acc += x[j] * y[j];
+                        yuv[c] = acc + mean[(long)c * bins + bin];
+                    }
+                    for (int c = 0; c < 3; ++c)
+                        arg[c * 4 * 64 + m] = yuv_rgb[3 * c] * yuv[0] + yuv_rgb[3 * c + 1] * yuv[1]
+                                              + yuv_rgb[3 * c + 2] * yuv[2];
+                    wt[m] = tw[t] * lw[s] * vw[e];
+                }
+        }
+        for (int c = 0; c < 3; ++c) {
+            const float *x = arg + c * 4 * 64;
+            float acc = 0.f;
+            for (int i = 0; i < m; ++i) {  /* vectorised */
+                float v = fast_exp(x[i]) - eps;
+                acc += (v > 0.f ? v : 0.f) * wt[i];
+            }
+            o[c] = acc;
+        }
+    }
+    free(dots);
+    return 0;
 }
 
 /* A SparseBTF (Kavoosi et al.; neumat.methods.sparse_btf.model, angular interpolation in coefficient space) of

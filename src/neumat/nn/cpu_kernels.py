@@ -605,6 +605,34 @@ def _sparse_btf_tables(model, yuv_rgb: torch.Tensor) -> SimpleNamespace:
                            yuv_rgb=ptr["yuv_rgb"])
 
 
+def pca_btf_eval(model, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor, yuv_rgb: torch.Tensor) -> torch.Tensor:
+    """A PCA-compressed BTF (`neumat.methods.sparse_btf.pca.PCABTF`) of float32 directions wi, wo (N, 3) and uv
+    (N, 2): (N, 3), 0 unless both directions are above the surface. yuv_rgb: the 3 x 3 matrix from the model's YUV
+    to linear RGB."""
+    lib = library()
+    t = prepared(model, lambda: _pca_btf_tables(model, yuv_rgb))
+    c = model.cfg
+    wi, wo, uv = wi.contiguous(), wo.contiguous(), uv.contiguous()
+    out = torch.empty(len(wi), 3)
+    fn = lib.pca_btf_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), _ptr(uv, start), ctypes.c_long(stop - start), t.light, c.n_light,
+                  t.view, c.n_view, c.neighbours, c.height, c.width, t.R, t.coeffs, t.basis, t.mean,
+                  t.yuv_rgb, ctypes.c_float(c.log_eps), _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
+def _pca_btf_tables(model, yuv_rgb: torch.Tensor) -> SimpleNamespace:
+    """What `pca_btf_eval` reads: the model's tables contiguous (the direction sets transposed, 3 x count) and their
+    pointers."""
+    keep = {"coeffs": model.coeffs.contiguous(), "basis": model.basis.contiguous(), "mean": model.mean.contiguous(),
+            "light": model.light_dirs.t().contiguous(), "view": model.view_dirs.t().contiguous(),
+            "yuv_rgb": yuv_rgb.float().contiguous()}
+    return SimpleNamespace(keep=keep, R=keep["basis"].shape[-1], **{name: _ptr(v) for name, v in keep.items()})
+
+
 def mlp_forward(mlp: PackedMLP, x: torch.Tensor) -> torch.Tensor:
     """The packed MLP of float32 rows x (N, in): (N, out_dim) (the block MLP every kernel ends in, alone: tests
     hold it against torch at any width and activation)."""

@@ -15,6 +15,7 @@ from neumat.methods.sparse_btf.pca import PCABTF, rank_budget
 from neumat.methods.sparse_btf.model import Config as SparseConfig, storage_bytes
 from neumat.methods.sparse_btf.dictionary import rgb_to_model_space
 from neumat.methods.sparse_btf.model import mse
+from neumat.nn import cpu_kernels
 from neumat.reflectance.btf import TabulatedBTF
 
 from btf_util import N_DIRS, SIZE, synthetic_btf
@@ -132,3 +133,30 @@ def test_a_budget_it_cannot_meet_is_refused():
         PCABTF.for_btf(synthetic_btf(9), ranks=(2, 1))
     with pytest.raises(InputError, match="no ranks yet"):
         PCABTF.for_btf(synthetic_btf(9)).load_components(decompose(synthetic_btf(9)), *([torch.zeros(N_DIRS, 3)] * 2))
+
+
+@pytest.mark.skipif(cpu_kernels.library() is None, reason=f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+def test_fused_kernel_equals_the_torch_formulas(gen):
+    """The C kernel (cpu_kernels.pca_btf_eval) against the torch path it replaces: a BTF that is not reciprocal,
+    ranks that differ by channel, uv far outside [0, 1) (wrap-around), rows below the horizon and on a bin."""
+    btf = synthetic_btf(5)
+    btf.data = btf.data * (1 + 0.5 * btf.light_dirs[:, 0] + 0.3 * btf.light_dirs[:, 1])[:, None, None, None, None]
+    model = fit_pca(btf, (6, 3, 2))
+    n = 3000
+    wi = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen) + torch.tensor([0, 0, 0.8]), dim=-1)
+    wo = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen) + torch.tensor([0, 0, 0.8]), dim=-1)
+    wi[:20], wo[20:40] = model.light_dirs[torch.arange(20) % N_DIRS], model.view_dirs[torch.arange(20) % N_DIRS]
+    q = Query(wi, wo, uv=torch.rand(n, 2, generator=gen) * 5 - 2)
+    before = cpu_kernels.calls[0]
+    fast = model.eval(q)
+    assert cpu_kernels.calls[0] == before + 1
+    with cpu_kernels.switched_off():
+        ref = model.eval(q)
+    below = (q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)
+    assert below.any() and (fast[below] == 0).all()
+    top = [(w @ d.T).topk(model.cfg.neighbours + 1, dim=-1).values for d, w in ((model.light_dirs, q.wi),
+                                                                               (model.view_dirs, q.wo))]
+    keep = ~below & (top[0][:, -2] - top[0][:, -1] > 1e-5) & (top[1][:, -2] - top[1][:, -1] > 1e-5)
+    assert keep.float().mean() > 0.5 and keep[:40].sum() > 10  # ties of the k-th bin may pick either: skipped
+    err = (fast - ref).abs()[keep] / ref.abs()[keep].clamp(min=1e-3)
+    assert float(err.max()) < 1e-5, float(err.max())

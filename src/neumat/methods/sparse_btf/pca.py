@@ -23,7 +23,8 @@ from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.methods.sparse_btf.btf_size import btf_table_size, check_btf_table_size
-from neumat.methods.sparse_btf.dictionary import model_space_to_rgb
+from neumat.methods.sparse_btf.dictionary import YUV_TO_RGB, model_space_to_rgb
+from neumat.nn import cpu_kernels
 from neumat.reflectance.btf import TabulatedBTF, angular_weights, bilinear_taps
 
 
@@ -139,6 +140,8 @@ class PCABTF(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         q.require("uv", who="PCABTF")
         c = self.cfg
+        if 1 <= c.neighbours <= 8 and cpu_kernels.usable(q.wi, q.wo, q.uv, self.basis):
+            return cpu_kernels.pca_btf_eval(self, q.wi, q.wo, q.uv, YUV_TO_RGB)  # the same within float32 rounding
         dev = self.basis.device
         wi, wo, uv = (t.to(dev, torch.float32) for t in (q.wi, q.wo, q.uv))
         li, lw = angular_weights(self.light_dirs, wi, c.neighbours)
