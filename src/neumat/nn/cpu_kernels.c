@@ -1,5 +1,6 @@
 /* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
-   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder), analytic GGX, RGL measured tables,
+   NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder; on a UV texture, NeuPreSS's baselines),
+   analytic GGX, RGL measured tables,
    SparseBTF and its PCA baseline in one call per batch
    (neumat.nn.cpu_kernels compiles this file at first use; the models say where each applies).
 
@@ -1100,6 +1101,61 @@ int rgl_eval(const float *wi, const float *wo, long n, int isotropic, int reduct
         }
         for (int c = 0; c < 3; ++c) out[3 * r + c] = jacobian ? spec[c] * scale / b[2] : spec[c] / b[2];
     }
+    return 0;
+}
+
+/* NeuMIP on the object's spherical UV texture (neumat.methods.baselines.neumip_uv, NeuPreSS's baselines) of
+   object-space wi, x, wo and unit normals nrm (n x 3 each): p = x - centre; uv = (atan2(p.y, p.x) / 2 pi + 0.5,
+   acos(p.z / |p|) / pi); the frame t along (-p.y, p.x, 0) (+x at the poles) made orthogonal to nrm, b = nrm x t;
+   z the bilinear read of the padded finest latent level (h + 2, w + 2, ds) at uv; the MLP on [z, wi, wo in the
+   frame], clamped at 0, or with `surface` softplus of it times max(wi's local z, 0). out: n x out_dim. */
+int neumip_uv_eval(const float *finest, int h, int w, int ds, const float *wi, const float *x, const float *wo,
+                   const float *nrm, long n, const float *centre, int surface, int layers, const int *dims,
+                   const float *const *W, const float *const *b, int hidden_act, int out_dim, float *out) {
+    if (ds > 64 || ds + 6 > MAX_WIDTH) return 2;
+    float *work = work_buffers();
+    if (!work) return 1;
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *rows = work + 2 * MAX_WIDTH * BLOCK;
+    float uv[2 * BLOCK], lx[BLOCK], ly[BLOCK], lz[BLOCK];
+    const float two_pi = 6.283185307179586f, pi = 3.141592653589793f;
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        float *dirs = buf0 + ds * BLOCK;  /* wi, then wo in the frame, by component */
+        for (int k = 0; k < BLOCK; ++k) {
+            long row = s + (k < m ? k : 0);
+            const float *q = x + 3 * row, *nn = nrm + 3 * row;
+            float px = q[0] - centre[0], py = q[1] - centre[1], pz = q[2] - centre[2];
+            float r = sqrtf(px * px + py * py + pz * pz);
+            float cz = pz / (r > 1e-12f ? r : 1e-12f);
+            uv[2 * k] = atan2f(py, px) / two_pi + 0.5f;
+            uv[2 * k + 1] = acosf(cz < -1.f ? -1.f : (cz > 1.f ? 1.f : cz)) / pi;
+            float tx = -py, ty = px, tz = 0.f;
+            if (sqrtf(tx * tx + ty * ty) < 1e-6f * (r > 1e-12f ? r : 1e-12f)) { tx = 1.f; ty = 0.f; }
+            float dot = tx * nn[0] + ty * nn[1] + tz * nn[2];
+            tx -= dot * nn[0]; ty -= dot * nn[1]; tz -= dot * nn[2];
+            float t2 = tx * tx + ty * ty + tz * tz, tl = sqrtf(t2 > 1e-24f ? t2 : 1e-24f);
+            tx /= tl; ty /= tl; tz /= tl;
+            float bx = nn[1] * tz - nn[2] * ty, by = nn[2] * tx - nn[0] * tz, bz = nn[0] * ty - nn[1] * tx;
+            for (int e = 0; e < 2; ++e) {
+                const float *v = (e ? wo : wi) + 3 * row;
+                float *o = dirs + 3 * e * BLOCK;
+                o[k] = v[0] * tx + v[1] * ty + v[2] * tz;
+                o[BLOCK + k] = v[0] * bx + v[1] * by + v[2] * bz;
+                o[2 * BLOCK + k] = v[0] * nn[0] + v[1] * nn[1] + v[2] * nn[2];
+            }
+        }
+        latent_texels(uv, 0, BLOCK, h, w, lx, ly);
+        for (int k = 0; k < BLOCK; ++k) bilinear_read(finest, h + 2, w + 2, ds, lx[k], ly[k], rows + k * ds);
+        transpose_rows(rows, ds, buf0);
+        memcpy(lz, dirs + 2 * BLOCK, sizeof lz);  /* wi's local z, for the surface form */
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        for (int k = 0; k < m; ++k)
+            for (int j = 0; j < out_dim; ++j) {
+                float v = y[j * BLOCK + k];
+                out[(s + k) * out_dim + j] = surface ? softplus(v) * (lz[k] > 0.f ? lz[k] : 0.f) : (v > 0.f ? v : 0.f);
+            }
+    }
+    free(work);
     return 0;
 }
 

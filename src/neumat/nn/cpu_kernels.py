@@ -452,6 +452,26 @@ def neumip_eval(mlp: PackedMLP, latents: LatentSource, wi: torch.Tensor, wo: tor
     return out
 
 
+def neumip_uv_eval(mlp: PackedMLP, tables: PyramidTables, wi: torch.Tensor, x: torch.Tensor, wo: torch.Tensor,
+                   normal: torch.Tensor, centre: torch.Tensor, surface: bool) -> torch.Tensor:
+    """NeuMIP on an object's spherical UV texture (`neumat.methods.baselines.neumip_uv`: neumip-uv, or with
+    `surface` surface-brdf-uv) of float32 object-space wi, x, wo and unit normals (N, 3): (N, out_dim), the MLP's
+    output clamped at 0 (surface: softplus of it times the cosine of wi, clamped at 0)."""
+    lib = library()
+    wi, x, wo, normal = wi.contiguous(), x.contiguous(), wo.contiguous(), normal.contiguous()
+    centre = centre.detach().float().contiguous()
+    level = tables.finest()
+    out = torch.empty(len(wi), mlp.out_dim)
+    fn = lib.neumip_uv_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(level), level.shape[1] - 2, level.shape[2] - 2, tables.channels, _ptr(wi, start), _ptr(x, start),
+                  _ptr(wo, start), _ptr(normal, start), ctypes.c_long(stop - start), _ptr(centre), int(surface),
+                  mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
 def neumip_offset_uv(mlp: PackedMLP, offset: LatentSource, wo: torch.Tensor, size: float,
                      min_cos: float) -> torch.Tensor:
     """NeuMIP's offset module (`neumat.methods.latent_mlp.neumip.NeuMIP.offset_uv`): the lookup points uv' (N, 2) of

@@ -1,5 +1,6 @@
 """NeuMIP on UV textures, the texture-space baseline of NeuPreSS: its UV projection and local frames, invariance
 under rotations about the projection axis, a fit to a known transport function, model files, bad input."""
+import copy
 import math
 
 import pytest
@@ -13,6 +14,7 @@ from neumat.fit.translucent_observations import Observations
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.methods.baselines.neumip_uv import NeuMIPUV, local_frame, sphere_uv
 from neumat.models.registry import build_model
+from neumat.nn import cpu_kernels
 from neumat.warp import sample_uniform_sphere
 
 
@@ -140,3 +142,36 @@ def test_surface_brdf_variant_receives_no_light_from_behind_and_fits_reflection(
     with torch.no_grad():
         err = float(((m.raw(test.wi, test.x, test.wo, test.n) - test.value) ** 2).mean())
     assert err < 0.05 * float(test.value.var()), err              # measured: 0.0022 of the variance
+
+
+@pytest.mark.skipif(cpu_kernels.library() is None, reason=f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+@pytest.mark.parametrize("name", ["neumip-uv", "surface-brdf-uv"])
+def test_fused_kernel_is_as_close_to_float64_as_the_torch_path(name):
+    """The C kernel (cpu_kernels.neumip_uv_eval) and the float32 torch path against the model in float64: points on
+    a sphere off the projection centre (the poles and the u seam included), normals tilted off it, directions on
+    the whole sphere; the kernel's worst error relative to its row's largest value within 2x the torch path's."""
+    torch.manual_seed(3)
+    model = build_model({"type": name, "spatial_size": 16})
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+        model.centre.copy_(torch.tensor([0.1, -0.2, 0.05]))
+    g = torch.Generator().manual_seed(4)
+    n = 4000
+    p = sample_uniform_sphere(torch.rand(n, 2, generator=g))
+    p[:4] = torch.tensor([[0, 0, 1.0], [0, 0, -1.0], [-1.0, 0, 0], [-1.0, -1e-8, 0]])
+    x = p + model.centre
+    normal = torch.nn.functional.normalize(p + 0.3 * torch.randn(n, 3, generator=g), dim=-1)
+    q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)), sample_uniform_sphere(torch.rand(n, 2, generator=g)),
+              x=x, n=normal)
+    with torch.no_grad():
+        before = cpu_kernels.calls[0]
+        fast = model.eval(q)
+        assert cpu_kernels.calls[0] == before + 1
+        with cpu_kernels.switched_off():
+            ref32 = model.eval(q)
+        ref = copy.deepcopy(model).double().eval(Query(q.wi.double(), q.wo.double(), x=x.double(), n=normal.double()))
+    scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-3)  # the channels share the MLP's rounding: the row's size
+    kernel, torch32 = float(((fast - ref) / scale).abs().max()), float(((ref32 - ref) / scale).abs().max())
+    assert (fast > 0).any() and (fast == 0).any()
+    assert kernel <= 2 * torch32, (kernel, torch32)

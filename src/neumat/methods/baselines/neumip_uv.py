@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -22,6 +23,7 @@ from neumat.core.frames import frame_from_normal_tangent, to_local
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
+from neumat.nn import cpu_kernels
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.latent_texture import LatentPyramid
 from neumat.nn.mlp import MLP
@@ -116,7 +118,19 @@ class NeuMIPUV(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat (N, 3), clamped at 0."""
         q.require("x", "wo", "n", who="NeuMIPUV.eval")
+        if cpu_kernels.usable(q.wi, q.x, q.wo, q.n, self.centre):
+            k = cpu_kernels.prepared(self, self._kernel_bundle)
+            if k is not None:  # the same values within float32 rounding
+                return cpu_kernels.neumip_uv_eval(k.mlp, k.tables, q.wi, q.x, q.wo, q.n, self.centre, self.cfg.surface)
         return by_rows(self._eval_rows, self.eval_chunk, q)
+
+    def _kernel_bundle(self) -> SimpleNamespace | None:
+        """What the fused kernel (`cpu_kernels.neumip_uv_eval`) reads: the MLP packed and the latent pyramid's
+        tables; None where the kernel lacks the sizes or the activation."""
+        mlp = cpu_kernels.PackedMLP.pack(self.mlp.net)
+        if mlp is None or not cpu_kernels.neumip_fits(self.cfg.spatial_channels, 0):
+            return None
+        return SimpleNamespace(mlp=mlp, tables=cpu_kernels.PyramidTables(self.spatial))
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
         dtype = self.centre.dtype
