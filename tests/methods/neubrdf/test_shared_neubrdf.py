@@ -246,3 +246,28 @@ def test_optimizer_updates_only_the_index_logits_of_the_batch(gen):
     assert moved.any() and not moved[:model.slots_per_material].any()  # material 0's rows untouched
     dense = SharedNeuBRDF(num_materials=2, features="dense", **SMALL)
     assert len(dense.optimizer(1e-2).param_groups) == 1
+
+
+def test_kept_corner_tables_follow_pruning_and_regridding_keeps_the_dtype(gen):
+    """The corner tables and the pruned flag, derived from the pruning levels once, are made again when the levels
+    change (an evaluation before pruning, then one after, equals a model pruned before any); a float64 model's
+    vertex directions stay float64 through a regrid (they became float32, and its lookups with them)."""
+    torch.manual_seed(0)
+    a, b = SharedNeuBRDF(num_materials=2, **SMALL), SharedNeuBRDF(num_materials=2, **SMALL)
+    b.load_state_dict(a.state_dict())
+    q, probe, other = _queries(400, gen), _queries(20, gen), _queries(10, gen)
+    before = a.eval_material(0, q)
+    for m in (a, b):
+        m.prune(1, probe.wi, probe.wo)
+    pruned_once = a.eval_material(0, q)  # material 0 unpruned yet, its table read
+    for m in (a, b):
+        m.prune(0, other.wi, other.wo)
+    assert torch.equal(pruned_once, before) and not torch.equal(a.eval_material(0, q), before)
+    for i in (0, 1):
+        torch.testing.assert_close(a.eval_material(i, q), b.eval_material(i, q), rtol=0, atol=0)
+    dense = SharedNeuBRDF(num_materials=2, features="dense", **SMALL).double()
+    dense.regrid(8)
+    assert dense.vertex_dirs.dtype == torch.float64
+    own = NeuBRDF(features="dense", **SMALL).double()
+    own.regrid(8)
+    assert own.vertex_dirs.dtype == torch.float64

@@ -520,7 +520,7 @@ class NeuBRDF(LearnedMaterial):
         self.cfg = cfg
         self.level_i = torch.zeros(12 * n * n, dtype=torch.int8, device=device)
         self.level_o = torch.zeros(12 * n * n, dtype=torch.int8, device=device)
-        self.vertex_dirs = hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32).to(device)
+        self.vertex_dirs = hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32).to(self.vertex_dirs)
         self._pruning = None
         self._drop_runtime()
 

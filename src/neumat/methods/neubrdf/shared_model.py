@@ -24,10 +24,12 @@ from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, zero_below_horizon
 from neumat.core.query import Query
+from neumat.core.tensors import derived_from
 from neumat.models.base import LearnedMaterial
 from neumat.methods.neubrdf.model import (DIRECTION_INPUTS, capped_levels, check_direction_inputs, direction_inputs,
                                    quantize_dense_grid, quantized_state, regridded_state, shipped_state,
                                    unpack_levels, used_slot_mask)
+from neumat.nn import cpu_kernels
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import DenseFeatures, VQFeatures, float_bits, storage_bytes
 from neumat.nn.mlp import MLP, log_median
@@ -176,11 +178,12 @@ class SharedNeuBRDF(LearnedMaterial):
         materials ids (N,)."""
         return self._lookup_both(ids, ((w, south),))[0]
 
-    def _lookup_both(self, ids: torch.Tensor, dirs) -> list[torch.Tensor]:
+    def _lookup_both(self, ids: torch.Tensor, dirs, kernel_pixels: bool = False) -> list[torch.Tensor]:
         """The interpolated features (N, k) of each (w (N, 3), south) of `dirs` for materials ids (N,), with one
-        feature-grid call for all corners (a VQ grid runs its straight-through step once, as NeuBRDF's)."""
+        feature-grid call for all corners (a VQ grid runs its straight-through step once, as NeuBRDF's);
+        `kernel_pixels`: see `_corners`."""
         pruned = self.pruned
-        corners = [self._corners(ids, w, south, pruned) for w, south in dirs]
+        corners = [self._corners(ids, w, south, pruned, kernel_pixels) for w, south in dirs]
         feats = self.grid(torch.cat([slots for _, slots, _ in corners]))  # (sum N, 4, k)
         out = []
         for (d, _, vid), f in zip(corners, feats.split([slots.shape[0] for _, slots, _ in corners])):
@@ -190,18 +193,35 @@ class SharedNeuBRDF(LearnedMaterial):
                 out.append((hpx.idw_weights(d, self.vertex_dirs[vid].to(d.dtype)).unsqueeze(-1) * f).sum(1))
         return out
 
-    def _corners(self, ids: torch.Tensor, w: torch.Tensor, south: bool, pruned: bool):
+    def _corners(self, ids: torch.Tensor, w: torch.Tensor, south: bool, pruned: bool, kernel_pixels: bool = False):
         """(the direction looked up (N, 3), grid slots (N, 4), vertex ids (N, 4)) of the corners read for w (N, 3)
-        on material ids' S+ or, mirrored, S- grid: at each pixel's pruning level, capped to stay on the grid."""
+        on material ids' S+ or, mirrored, S- grid: at each pixel's pruning level, capped to stay on the grid; the
+        corners from `_corner_table`. With `kernel_pixels` (evaluation) the pixels come from the C kernels' lookup
+        where it applies (float32 on the CPU; as NeuBRDF's kernel, a direction exactly on a pixel edge may fall on
+        the other side than torch's lookup puts it: regridding, which reads at vertices, keeps torch's)."""
         n = self.cfg.nside
         d = hpx.hemisphere_direction(w, south)
-        pix = hpx.vec2pix_unchecked(n, d)
-        level = 0
-        if pruned:
-            level = (self.level_o if south else self.level_i)[ids, pix].long()
-            level = torch.minimum(level, hpx.grid_level_cap(n, south).to(pix.device)[pix])
-        slots, vid = hpx.pixel_corner_slots(n, pix, south, level)
-        return d, slots + (ids * self.slots_per_material).unsqueeze(-1), vid
+        fast = kernel_pixels and cpu_kernels.usable(d)
+        pix = cpu_kernels.ring_pixels(n, d).long() if fast else hpx.vec2pix_unchecked(n, d)
+        slots, vid = self._corner_table(south, pruned)
+        at = (ids, pix) if pruned else (0, pix)
+        return d, slots[at] + (ids * self.slots_per_material).unsqueeze(-1), vid[at]
+
+    def _corner_table(self, south: bool, pruned: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """(slots, vertex ids), each (t or, unpruned, 1, 12 N_side^2, 4), of every ring pixel's corners on each
+        material's S+ or S- grid at its capped pruning level: derived from the levels once, instead of the HEALPix
+        corner arithmetic on every lookup (three quarters of a call of one query)."""
+        levels, n = self.level_o if south else self.level_i, self.cfg.nside
+
+        def make() -> torch.Tensor:
+            pix = torch.arange(12 * n * n, device=levels.device)
+            if not pruned:
+                return torch.stack(hpx.pixel_corner_slots(n, pix, south))[:, None]
+            level = torch.minimum(levels.long(), hpx.grid_level_cap(n, south).to(pix.device)[pix])
+            return torch.stack([torch.stack(hpx.pixel_corner_slots(n, pix, south, level[m]))
+                                for m in range(len(level))], 1)
+        table = derived_from(self, f"corners_{int(south)}_{int(pruned)}_{n}", [levels], make, optimised=False)
+        return table[0], table[1]
 
     def _material_ids(self, q: Query) -> torch.Tensor:
         if isinstance(q, MaterialQuery):
@@ -218,7 +238,7 @@ class SharedNeuBRDF(LearnedMaterial):
         q.require("wo", who="SharedNeuBRDF.eval")
         ids = self._material_ids(q)
         wi, wo = q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype)
-        parts = self._lookup_both(ids, ((wi, False), (wo, True)))
+        parts = self._lookup_both(ids, ((wi, False), (wo, True)), kernel_pixels=True)
         if self.cfg.direction_inputs != "none":
             parts.append(direction_inputs(self.cfg.direction_inputs, wi, wo))
         f = torch.exp(self.mlp(torch.cat(parts, -1)))
@@ -255,8 +275,10 @@ class SharedNeuBRDF(LearnedMaterial):
 
     @property
     def pruned(self) -> bool:
-        """Whether `prune` made some pixel of some material look up an ancestor level."""
-        return bool((self.level_i != 0).any()) or bool((self.level_o != 0).any())
+        """Whether `prune` made some pixel of some material look up an ancestor level (kept while the levels are
+        unchanged: two scans of t x 12 N_side^2 levels were a sixth of a call of one query)."""
+        return bool(derived_from(self, "pruned", [self.level_i, self.level_o],
+                                 lambda: (self.level_i != 0).any() | (self.level_o != 0).any(), optimised=False))
 
     def used_slots(self) -> torch.Tensor:
         """Mask (t x 2n,) of the slots some pixel of their material's (pruned) grids reads."""
@@ -308,7 +330,7 @@ class SharedNeuBRDF(LearnedMaterial):
         self.slots_per_material = 2 * hpx.hemisphere_size(n)
         self.level_i = torch.zeros(t, 12 * n * n, dtype=torch.int8, device=device)
         self.level_o = torch.zeros(t, 12 * n * n, dtype=torch.int8, device=device)
-        self.vertex_dirs = hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32).to(device)
+        self.vertex_dirs = hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32).to(self.vertex_dirs)
 
     # -------------------------------------------------------------------------- pruning, freezing
 
