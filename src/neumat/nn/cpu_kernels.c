@@ -1159,6 +1159,64 @@ int neumip_uv_eval(const float *finest, int h, int w, int ds, const float *wi, c
     return 0;
 }
 
+/* the unpolarised reflectance of a dielectric interface (eta inside / outside) lit from outside at cos ci in [0, 1]
+   (neumat.reflectance.microfacet.fresnel_dielectric; total internal reflection: 1) */
+static inline float fresnel_outside(float ci, float eta) {
+    float sin_t2 = (1.f - ci * ci) / (eta * eta);
+    float ct = sqrtf(sin_t2 < 1.f ? 1.f - sin_t2 : 0.f);
+    float rs = (ci - eta * ct) / (ci + eta * ct), rp = (eta * ci - ct) / (eta * ci + ct);
+    return sin_t2 >= 1.f ? 1.f : 0.5f * (rs * rs + rp * rp);
+}
+
+/* The dipole BSSRDF (Jensen et al. 2001; neumat.methods.baselines.dipole_bssrdf.DipoleBSSRDF.raw) of object-space
+   wi, x, wo and normals nrm at x (n x 3 each): out (n x 3) = (1 - F(n . wo)) [n . wo > 0] / pi times the sum over
+   the K surface points p_k (normal n_k, area A_k) of (1 - F(max(wi . n_k, 0))) max(wi . n_k, 0) A_k R_d(|x - p_k|)
+   per channel, F the unpolarised dielectric Fresnel reflectance at eta, R_d the dipole profile of sigma_a, sigma_s'
+   (3 per query, or with `shared` 3 for all).
+   Points and normals by component (3 x K: all x, then y, then z). The sum over points runs vectorised, one query
+   at a time; its terms in float32 as torch computes them, summed in another order. */
+int dipole_eval(const float *wi, const float *x, const float *wo, const float *nrm, long n, const float *sigma_a,
+                const float *sigma_s, int shared, const float *points, const float *normals, const float *areas, int K,
+                float eta, float f_dr, float *out) {
+    const float *px = points, *py = points + K, *pz = points + 2 * K;
+    const float *nx = normals, *ny = normals + K, *nz = normals + 2 * K;
+    const float a = (1.f + f_dr) / (1.f - f_dr);
+    for (long q = 0; q < n; ++q) {
+        const float *w = wi + 3 * q, *c = x + 3 * q;
+        const float *sa = sigma_a + (shared ? 0 : 3 * q), *ss = sigma_s + (shared ? 0 : 3 * q);
+        float tr[3], zr[3], zv[3], scale[3];
+        for (int ch = 0; ch < 3; ++ch) {
+            const float st = sa[ch] + ss[ch];
+            tr[ch] = sqrtf(3.f * sa[ch] * st);
+            zr[ch] = 1.f / st;
+            zv[ch] = zr[ch] * (1.f + 4.f * a / 3.f);
+            scale[ch] = ss[ch] / st / (4.f * 3.14159265358979f);
+        }
+        float s0 = 0.f, s1 = 0.f, s2 = 0.f;
+        for (int k = 0; k < K; ++k) {  /* vectorised */
+            float cos = w[0] * nx[k] + w[1] * ny[k] + w[2] * nz[k];
+            float ci = cos > 0.f ? (cos < 1.f ? cos : 1.f) : 0.f;
+            float weight = ci > 0.f ? (1.f - fresnel_outside(ci, eta)) * ci * areas[k] : 0.f;
+            float dx = c[0] - px[k], dy = c[1] - py[k], dz = c[2] - pz[k];
+            float r2 = dx * dx + dy * dy + dz * dz;
+            float prof[3];
+            for (int ch = 0; ch < 3; ++ch) {
+                float d2r = r2 + zr[ch] * zr[ch], d2v = r2 + zv[ch] * zv[ch];
+                float dr = sqrtf(d2r), dv = sqrtf(d2v);
+                float real = zr[ch] * (tr[ch] * dr + 1.f) * fast_exp(-tr[ch] * dr) / (d2r * dr);
+                float virt = zv[ch] * (tr[ch] * dv + 1.f) * fast_exp(-tr[ch] * dv) / (d2v * dv);
+                prof[ch] = real + virt;
+            }
+            s0 += weight * prof[0]; s1 += weight * prof[1]; s2 += weight * prof[2];
+        }
+        const float *v = wo + 3 * q, *m = nrm + 3 * q;
+        float co = m[0] * v[0] + m[1] * v[1] + m[2] * v[2];
+        float exit = co > 0.f ? (1.f - fresnel_outside(co < 1.f ? co : 1.f, eta)) / 3.14159265358979f : 0.f;
+        out[3 * q] = s0 * scale[0] * exit; out[3 * q + 1] = s1 * scale[1] * exit; out[3 * q + 2] = s2 * scale[2] * exit;
+    }
+    return 0;
+}
+
 /* the k (<= 8) bins of dirs (3 x count: all x, then y, then z) nearest to w and their normalised
    inverse-angular-distance weights (neumat.reflectance.btf.angular_weights: the k largest dot products, the angle
    as atan2(|w x d|, w . d), an exact hit (angle <= 1e-7) weight 1 and the others 0); dots: count floats of work */

@@ -472,6 +472,30 @@ def neumip_uv_eval(mlp: PackedMLP, tables: PyramidTables, wi: torch.Tensor, x: t
     return out
 
 
+def dipole_eval(model, wi: torch.Tensor, x: torch.Tensor, wo: torch.Tensor, normal: torch.Tensor,
+                sigma_a: torch.Tensor, sigma_s: torch.Tensor, f_dr: float) -> torch.Tensor:
+    """The dipole BSSRDF (`neumat.methods.baselines.dipole_bssrdf.DipoleBSSRDF.raw`) of float32 object-space wi, x,
+    wo and normals at x (N, 3), coefficients sigma_a, sigma_s' ((N, 3), or (3,) for all): (N, 3). f_dr: the
+    diffuse Fresnel reflectance at the model's index of refraction."""
+    lib = library()
+    t = prepared(model, lambda: SimpleNamespace(points=model.points.t().contiguous(),
+                                                normals=model.normals.t().contiguous(),
+                                                areas=model.areas.contiguous()))
+    wi, x, wo, normal = wi.contiguous(), x.contiguous(), wo.contiguous(), normal.contiguous()
+    sigma_a, sigma_s = sigma_a.detach().float().contiguous(), sigma_s.detach().float().contiguous()
+    shared = int(sigma_a.dim() == 1)
+    out = torch.empty(len(wi), 3)
+    fn = lib.dipole_eval
+
+    def run(start: int, stop: int) -> None:
+        row = 0 if shared else start
+        _check(fn(_ptr(wi, start), _ptr(x, start), _ptr(wo, start), _ptr(normal, start), ctypes.c_long(stop - start),
+                  _ptr(sigma_a, row), _ptr(sigma_s, row), shared, _ptr(t.points), _ptr(t.normals), _ptr(t.areas),
+                  len(t.areas), ctypes.c_float(model.cfg.ior), ctypes.c_float(f_dr), _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
 def neumip_offset_uv(mlp: PackedMLP, offset: LatentSource, wo: torch.Tensor, size: float,
                      min_cos: float) -> torch.Tensor:
     """NeuMIP's offset module (`neumat.methods.latent_mlp.neumip.NeuMIP.offset_uv`): the lookup points uv' (N, 2) of

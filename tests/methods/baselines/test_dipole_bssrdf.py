@@ -1,6 +1,7 @@
 """Dipole BSSRDF baseline: the profile against its closed-form plane integral, S_hat on a sphere against a
 direct sum, fitting recovers known coefficients (homogeneous) and a known coefficient field (textured, which the
 homogeneous model cannot), the texture's trilinear lookup and size, bad input."""
+import copy
 import math
 
 import pytest
@@ -13,6 +14,7 @@ from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
 from neumat.methods.baselines.dipole_bssrdf import DipoleBSSRDF, dipole_profile, dipole_total_reflectance
 from neumat.models.registry import build_model
+from neumat.nn import cpu_kernels
 from neumat.warp import sample_uniform_sphere
 
 
@@ -164,3 +166,31 @@ def test_textured_size_and_bad_config():
         recipe = recipe_for("dipole-bssrdf")
         recipe.options["smoothness"] = -1.0
         fit(m, obs, recipe, steps=1, progress=False)
+
+
+@pytest.mark.skipif(cpu_kernels.library() is None, reason=f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+@pytest.mark.parametrize("resolution", [1, 4])
+def test_fused_kernel_is_as_close_to_float64_as_the_torch_path(resolution):
+    """The C kernel (cpu_kernels.dipole_eval) and the float32 torch path against the model in float64, homogeneous
+    and textured (coefficients per query): views from outside and inside, light from every side; the kernel's worst
+    error relative to its row within 2x the torch path's."""
+    torch.manual_seed(2)
+    m = _sphere_model(samples=1024, init_sigma_a=0.1, init_sigma_s=3.0, texture_resolution=resolution)
+    if resolution > 1:
+        with torch.no_grad():
+            m.texture.copy_(0.5 * torch.randn(m.texture.shape))
+    g = torch.Generator().manual_seed(3)
+    x = sample_uniform_sphere(torch.rand(300, 2, generator=g))
+    q = Query(wi=sample_uniform_sphere(torch.rand(300, 2, generator=g)),
+              wo=sample_uniform_sphere(torch.rand(300, 2, generator=g)), x=x, n=x)
+    with torch.no_grad():
+        before = cpu_kernels.calls[0]
+        fast = m.eval(q)
+        assert cpu_kernels.calls[0] == before + 1
+        with cpu_kernels.switched_off():
+            ref32 = m.eval(q)
+        ref = copy.deepcopy(m).double().eval(Query(q.wi.double(), q.wo.double(), x=x.double(), n=x.double()))
+    scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-12)
+    kernel, torch32 = float(((fast - ref) / scale).abs().max()), float(((ref32 - ref) / scale).abs().max())
+    assert (fast == 0).any() and (fast > 0).any()
+    assert kernel <= 2 * torch32, (kernel, torch32)

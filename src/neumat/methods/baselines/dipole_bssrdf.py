@@ -23,6 +23,7 @@ from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
+from neumat.nn import cpu_kernels
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.reflectance.microfacet import fresnel_dielectric
 
@@ -173,6 +174,8 @@ class DipoleBSSRDF(LearnedMaterial):
         textured = self.textured
         sigma_a, sigma_s = self.coefficients(x if textured else None)  # at the exit points (module docstring)
         eta = float(self.cfg.ior)
+        if cpu_kernels.usable(wi, x, wo, n, sigma_a, sigma_s, self.points):  # the same within float32 rounding
+            return cpu_kernels.dipole_eval(self, wi, x, wo, n, sigma_a, sigma_s, diffuse_fresnel_reflectance(eta))
         cos_o = (n * wo).sum(-1)
         out_factor = (1 - fresnel_dielectric(cos_o.clamp(min=0), eta)) * (cos_o > 0) / math.pi
         chunks = []
