@@ -866,10 +866,10 @@ static inline void ggx_fresnel(int mode, float cos_d, const float *eta, const fl
 }
 
 /* GGX reflection (neumat.reflectance.analytic.GGX) of directions wi, wo (n x 3): D(h) G1(wi) G1(wo) F(wi.h) /
-   (4 cos_i cos_o) with alphas (ax, ay) and Fresnel `mode` (ggx_fresnel); 0 unless both are above the surface.
-   out: n x 3. */
+   (4 cos_i cos_o) with alphas (ax, ay) and Fresnel `mode` (ggx_fresnel), plus a Lambertian term diffuse_pi (3: the
+   albedo / pi; the fitted GGX baseline's); 0 unless both are above the surface. out: n x 3. */
 int ggx_eval(const float *wi, const float *wo, long n, float ax, float ay, int mode, const float *eta, const float *k,
-             const float *f0, float *out) {
+             const float *f0, const float *diffuse_pi, float *out) {
     const float tiny = 1.17549435e-38f, inv_pi = 0.3183098861837907f;
     float res[3 * BLOCK], keep[BLOCK];
     for (long s = 0; s < n; s += BLOCK) {
@@ -888,7 +888,7 @@ int ggx_eval(const float *wi, const float *wo, long n, float ax, float ay, int m
             float g = (2.f * zi / fmaxf(zi + ri, tiny)) * (2.f * zo / fmaxf(zo + ro, tiny));
             float spec = d * g / fmaxf(4.f * a[2] * b[2], tiny), f[3];
             ggx_fresnel(mode, a[0] * hx + a[1] * hy + a[2] * hz, eta, k, f0, f);
-            for (int j = 0; j < 3; ++j) res[j * BLOCK + k2] = f[j] * spec;
+            for (int j = 0; j < 3; ++j) res[j * BLOCK + k2] = f[j] * spec + diffuse_pi[j];
             keep[k2] = a[2] > 0.f && b[2] > 0.f ? 1.f : 0.f;
         }
         write_rows(res, keep, m, 3, out + 3 * s);

@@ -518,12 +518,13 @@ GGX_FRESNEL = {"none": 0, "conductor": 1, "dielectric": 2, "schlick": 3}
 
 
 def ggx_eval(wi: torch.Tensor, wo: torch.Tensor, alpha_x: float, alpha_y: float, fresnel: str,
-             eta=(1.0, 1.0, 1.0), k=(0.0, 0.0, 0.0), f0=(0.0, 0.0, 0.0)) -> torch.Tensor:
-    """Analytic GGX reflection (`neumat.reflectance.analytic.GGX`) of float32 directions (N, 3) with scalar alphas:
-    (N, 3), 0 unless both directions are up. eta, k, f0: per channel (a dielectric reads eta[0])."""
+             eta=(1.0, 1.0, 1.0), k=(0.0, 0.0, 0.0), f0=(0.0, 0.0, 0.0), diffuse_pi=(0.0, 0.0, 0.0)) -> torch.Tensor:
+    """Analytic GGX reflection (`neumat.reflectance.analytic.GGX`) of float32 directions (N, 3) with scalar alphas,
+    plus the Lambertian term diffuse_pi (albedo / pi; the fitted GGX baseline's): (N, 3), 0 unless both directions
+    are up. eta, k, f0, diffuse_pi: per channel (a dielectric reads eta[0])."""
     lib = library()
     wi, wo = wi.contiguous(), wo.contiguous()
-    rgb = [(ctypes.c_float * 3)(*(float(v) for v in x)) for x in (eta, k, f0)]
+    rgb = [(ctypes.c_float * 3)(*(float(v) for v in x)) for x in (eta, k, f0, diffuse_pi)]
     out = torch.empty(len(wi), 3)
     fn = lib.ggx_eval
 

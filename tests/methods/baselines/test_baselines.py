@@ -19,6 +19,7 @@ from neumat.methods.baselines.ggx import GGXFit
 from neumat.methods.baselines.naive_mlp import NaiveMLP
 from neumat.methods.baselines.nbrdf import NBRDF
 from neumat.models.registry import model_class
+from neumat.nn import cpu_kernels
 from neumat.reflectance.analytic import Plastic
 from neumat.reflectance.microfacet import fresnel_schlick, microfacet_brdf
 from neumat.testing.chi2 import chi2_material
@@ -164,8 +165,9 @@ def test_ggx_recovers_known_parameters(anisotropic, alpha):
 @pytest.mark.parametrize("anisotropic", [False, True])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_ggx_eval_matches_the_microfacet_formula_in_and_across_chunks(anisotropic, dtype, gen):
-    """GGXFit.eval (few-operation kernel, cached constants, chunks) = kd / pi + `microfacet_brdf` (Schlick), 0 below
-    the horizon, within float rounding; with and without autograd, on one chunk and across several."""
+    """GGXFit.eval (few-operation kernel, cached constants, chunks; float32 without autograd: the fused C kernel) =
+    kd / pi + `microfacet_brdf` (Schlick), 0 below the horizon, within float rounding; with and without autograd,
+    on one chunk and across several."""
     model = GGXFit(anisotropic=anisotropic).to(dtype)
     with torch.no_grad():
         model.raw_alpha.copy_(torch.tensor([-2.0, 0.5][: model.raw_alpha.numel()]))
@@ -184,7 +186,10 @@ def test_ggx_eval_matches_the_microfacet_formula_in_and_across_chunks(anisotropi
 
     tol = dict(rtol=4e-6, atol=0) if dtype == torch.float32 else dict(rtol=1e-13, atol=0)
     with torch.no_grad():
+        before = cpu_kernels.calls[0]
         torch.testing.assert_close(model.eval(q), expected(), **tol)
+        kernel = dtype == torch.float32 and cpu_kernels.library() is not None
+        assert cpu_kernels.calls[0] == before + kernel  # float32 without autograd: the fused kernel (its own test)
         torch.testing.assert_close(model.eval(q, chunk=256), expected(), **tol)
         model.raw_diffuse.add_(0.5)  # an in-place parameter update invalidates the cached constants
         torch.testing.assert_close(model.eval(q, chunk=1000), expected(), **tol)

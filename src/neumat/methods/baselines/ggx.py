@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -24,6 +25,7 @@ from neumat.core.material import sample_weight, upper_hemisphere
 from neumat.core.query import Query, Sample
 from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
+from neumat.nn import cpu_kernels
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.warp.ggx import ggx_reflection_pdf, sample_ggx_reflection
 from neumat.warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
@@ -177,10 +179,15 @@ class GGXFit(LearnedMaterial):
     eval_chunk = 2 ** 14
 
     def eval(self, q: Query, chunk: int | None = None) -> torch.Tensor:
-        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon. Evaluated on slices of `chunk`
-        queries (default `eval_chunk`), whose temporaries stay in cache (the cost per query does not grow with N)."""
+        """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon. Without autograd in float32 on the
+        CPU one fused C call (`neumat.nn.cpu_kernels.ggx_eval`, the analytic GGX's with the diffuse term); else on
+        slices of `chunk` queries (default `eval_chunk`), whose temporaries stay in cache."""
         q.require("wo", who="GGXFit.eval")
         dtype = self.raw_alpha.dtype
+        if cpu_kernels.usable(q.wi, q.wo, self.raw_alpha, self.raw_specular, self.raw_diffuse):  # as below in float32
+            k = cpu_kernels.prepared(self, lambda: SimpleNamespace(
+                alpha=self.alpha.tolist(), f0=self.specular.tolist(), diffuse_pi=(self.diffuse / math.pi).tolist()))
+            return cpu_kernels.ggx_eval(q.wi, q.wo, *k.alpha, "schlick", f0=k.f0, diffuse_pi=k.diffuse_pi)
         consts = self._eval_constants(dtype)
         f = by_rows(lambda wi, wo: _ggx_eval(wi, wo, *consts), chunk or self.eval_chunk, q.wi.to(dtype),
                     q.wo.to(dtype))
