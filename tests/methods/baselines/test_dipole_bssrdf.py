@@ -190,6 +190,7 @@ def test_fused_kernel_is_as_close_to_float64_as_the_torch_path(resolution):
         with cpu_kernels.switched_off():
             ref32 = m.eval(q)
         ref = copy.deepcopy(m).double().eval(Query(q.wi.double(), q.wo.double(), x=x.double(), n=x.double()))
+    assert m.eval(q).requires_grad  # with autograd on, the torch path: fits get their gradients
     scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-12)
     kernel, torch32 = float(((fast - ref) / scale).abs().max()), float(((ref32 - ref) / scale).abs().max())
     assert (fast == 0).any() and (fast > 0).any()

@@ -171,6 +171,7 @@ def test_fused_kernel_is_as_close_to_float64_as_the_torch_path(name):
         with cpu_kernels.switched_off():
             ref32 = model.eval(q)
         ref = copy.deepcopy(model).double().eval(Query(q.wi.double(), q.wo.double(), x=x.double(), n=normal.double()))
+    assert model.eval(q).requires_grad  # with autograd on, the torch path: training gets its gradients
     scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-3)  # the channels share the MLP's rounding: the row's size
     kernel, torch32 = float(((fast - ref) / scale).abs().max()), float(((ref32 - ref) / scale).abs().max())
     assert (fast > 0).any() and (fast == 0).any()
