@@ -1094,7 +1094,7 @@ int rgl_eval(const float *wi, const float *wo, long n, int isotropic, int reduct
         table_eval(rgb, sx, sy, sl, w, count, spec);
         float scale = 1.f;
         if (jacobian) {
-            float d, sg;
+            float d = 0.f, sg = 1.f;  /* table_eval sets both (its tables have one channel) */
             table_eval(ndf, um0, um1, &one_slice, &one_weight, 1, &d);
             table_eval(sigma, uw0, uw1, &one_slice, &one_weight, 1, &sg);
             scale = d / (4.f * sg);
