@@ -18,6 +18,7 @@ from neumat.fit.preset import build_fit
 from neumat.fit.trainer import FitWarning, fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import load_all
+from neumat.nn.latent_texture import LatentPyramid
 from neumat.reflectance.btf import direction_set
 from neumat.nn import cpu_kernels
 from neumat.warp.hemisphere import sample_cosine_hemisphere
@@ -113,10 +114,12 @@ READS = {"finest level": {}, "lod 2.3": {"lod": 2.3},
 
 
 def _texture_reads(run: harness.Run, materials: dict, n: int, sgemm: float) -> None:
-    """Evaluation rate of each texture-reading model (uv, not a full sphere) at n queries for each of READS."""
+    """Evaluation rate of each model that reads a latent pyramid at uv (not a full sphere; the BTF models interpolate
+    their texels whatever the lod) at n queries for each of READS."""
     rows = []
     for name, m in materials.items():
-        if not m.spatially_varying or m.full_sphere:
+        if m.full_sphere or not isinstance(m, torch.nn.Module) \
+                or not any(isinstance(sub, LatentPyramid) for sub in m.modules()):
             continue
         run.progress(f"texture reads of {name}")
         base = queries(m, n, run.seed)
@@ -132,7 +135,7 @@ def _texture_reads(run: harness.Run, materials: dict, n: int, sgemm: float) -> N
                          "evals/cpu s": rate,
                          "% sgemm": None if flops is None else 100 * flops * rate / sgemm})
     run.table("reads", "Texture reads (one thread)", rows,
-              "every uv-reading model at the speed suite's queries, reading its latent texture at the finest level, "
+              "every model reading a latent texture at uv, at the speed suite's queries: at the finest level, "
               "trilinearly at lod 2.3, or through an anisotropic footprint diag(1e-3, 3e-4) uv^2 (what `neumat "
               "render` passes; two probes on a 1K texture); '% sgemm' against the bound above, the model's FLOPs "
               "not counting the extra texel reads")
