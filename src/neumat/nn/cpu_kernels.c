@@ -1,6 +1,6 @@
 /* Fused CPU kernels that evaluate NBRDF, NeuBRDF's runtime form, the multi-scale gated model, tripleplane and
    NeuMIP (with nbrdf-uv, neumip-frame and neural-appearance's decoder; on a UV texture, NeuPreSS's baselines),
-   analytic GGX, RGL measured tables,
+   NeuPreSS's small batches, the dipole BSSRDF, analytic GGX, RGL measured tables,
    SparseBTF and its PCA baseline in one call per batch
    (neumat.nn.cpu_kernels compiles this file at first use; the models say where each applies).
 
@@ -1156,6 +1156,96 @@ int neumip_uv_eval(const float *finest, int h, int w, int ds, const float *wi, c
             }
     }
     free(work);
+    return 0;
+}
+
+/* sin and cos of a (|a| < 8192), branch-free (vectorisable): a reduced by multiples of pi / 2 in three parts (the
+   first exact in float32 for such multiples, Cephes' split), then Taylor polynomials on [-pi / 4, pi / 4] (within
+   about 1e-7 of sinf / cosf there), the quadrant picking sign and function */
+static inline void fast_sincos(float a, float *s, float *c) {
+    float k = rintf(a * 0.6366197723675814f);
+    float r = ((a - k * 1.5703125f) - k * 4.837512969970703125e-4f) - k * 7.54978995489188216e-8f;
+    float r2 = r * r;
+    float sr = r + r * r2 * (-1.6666667163e-1f + r2 * (8.3333337680e-3f + r2 * (-1.9841270114e-4f
+                                                                               + r2 * 2.7557314297e-6f)));
+    float cr = 1.f + r2 * (-0.5f + r2 * (4.1666667908e-2f + r2 * (-1.3888889225e-3f + r2 * 2.4801587642e-5f)));
+    int q = (int)k & 3;
+    *s = q == 0 ? sr : (q == 1 ? cr : (q == 2 ? -sr : -cr));
+    *c = q == 0 ? cr : (q == 1 ? -sr : (q == 2 ? -cr : sr));
+}
+
+/* y (out) = act(W x + b) for one row x (in), W (out x in) row-major: per output two 16-wide partial sums (a
+   float sum the compiler may not reorder into vectors itself), then the rest one by one; relu or none */
+static void matvec(const float *restrict W, const float *restrict b, const float *restrict x, float *restrict y,
+                   int in, int out, int relu) {
+    typedef float v16 __attribute__((vector_size(64), aligned(4)));
+    for (int o = 0; o < out; ++o) {
+        const float *w = W + (long)o * in;
+        v16 s0 = {0}, s1 = {0};
+        int i = 0;
+        for (; i + 32 <= in; i += 32) {
+            s0 += *(const v16 *)(w + i) * *(const v16 *)(x + i);
+            s1 += *(const v16 *)(w + i + 16) * *(const v16 *)(x + i + 16);
+        }
+        s0 += s1;
+        float acc = 0.f;
+        for (int k = 0; k < 16; ++k) acc += s0[k];
+        for (; i < in; ++i) acc += w[i] * x[i];
+        acc += b[o];
+        y[o] = relu && acc < 0.f ? 0.f : acc;
+    }
+}
+
+/* NeuPreSS's appearance network (neumat.methods.neupress.model.NeuPreSS.eval) of object-space wi, x, wo (n x 3),
+   one row at a time (for small batches: a call's cost is then its arithmetic, where torch pays each layer's
+   dispatch; large batches are torch's sgemm): v = [wi, wo encoded (`spherical`: theta / pi, phi / 2 pi; else the
+   vectors), (x - box_min) / box_size], the Fourier features [cos 2 pi G v, sin 2 pi G v] (Gt: G transposed, in_dim
+   x F; fast_sincos, vectorised over the features), the skip MLP (first: width x 2F; `hidden` layers of width x
+   width in pairs h <- relu(h + W2 relu(W1 h)) (with `skips`; else relu(W2 relu(W1 h))), an odd one left as relu(W
+   h)), the linear output (3 x width), clamped at 0. out: n x 3. */
+int neupress_rows(const float *wi, const float *x, const float *wo, long n, int spherical, const float *box_min,
+                  const float *box_size, const float *Gt, int F, int in_dim, const float *W_first,
+                  const float *b_first, int width, int hidden, const float *const *W, const float *const *b, int skips,
+                  const float *W_out, const float *b_out, float *out) {
+    const int d = spherical ? 2 : 3;
+    if (in_dim != 2 * d + 3) return 2;
+    float *buf = malloc(sizeof(float) * (2 * F + 3 * width + 16));
+    if (!buf) return 1;
+    float *feat = buf, *h = feat + 2 * F, *t1 = h + width, *t2 = t1 + width, v[16];
+    const float pi = 3.14159265358979f, two_pi = 6.28318530717959f;
+    for (long r = 0; r < n; ++r) {
+        for (int e = 0; e < 2; ++e) {
+            const float *w = (e ? wo : wi) + 3 * r;
+            if (spherical) {  /* neumat.core.coords.dir_to_spherical */
+                float z = w[2] < -1.f ? -1.f : (w[2] > 1.f ? 1.f : w[2]), phi = atan2f(w[1], w[0]);
+                v[e * d] = acosf(z) / pi;
+                v[e * d + 1] = (phi < 0.f ? phi + two_pi : phi) / two_pi;
+            } else
+                for (int j = 0; j < 3; ++j) v[e * d + j] = w[j];
+        }
+        for (int j = 0; j < 3; ++j) v[2 * d + j] = (x[3 * r + j] - box_min[j]) / box_size[j];
+        for (int f = 0; f < F; ++f) feat[f] = 0.f;
+        for (int j = 0; j < in_dim; ++j)
+            for (int f = 0; f < F; ++f) feat[f] += v[j] * Gt[(long)j * F + f];
+        for (int f = 0; f < F; ++f) fast_sincos(two_pi * feat[f], feat + F + f, feat + f);  /* vectorised */
+        matvec(W_first, b_first, feat, h, 2 * F, width, 1);
+        int l = 0;
+        for (; l + 2 <= hidden; l += 2) {
+            matvec(W[l], b[l], h, t1, width, width, 1);
+            matvec(W[l + 1], b[l + 1], t1, t2, width, width, 0);
+            for (int i = 0; i < width; ++i) {
+                float u = skips ? h[i] + t2[i] : t2[i];
+                h[i] = u > 0.f ? u : 0.f;
+            }
+        }
+        if (l < hidden) {
+            matvec(W[l], b[l], h, t1, width, width, 1);
+            memcpy(h, t1, sizeof(float) * width);
+        }
+        matvec(W_out, b_out, h, t1, width, 3, 0);
+        for (int j = 0; j < 3; ++j) out[3 * r + j] = t1[j] > 0.f ? t1[j] : 0.f;
+    }
+    free(buf);
     return 0;
 }
 

@@ -1,5 +1,6 @@
 """NeuPreSS: Fourier features, skip connections, eval / sampling shapes and checks, fitting the appearance
 module to a known function, and the sampler recovering a known lobe width."""
+import copy
 import math
 
 import pytest
@@ -14,6 +15,7 @@ from neumat.fit.translucent_fit import best_validation, observation_mse
 from neumat.fit.translucent_observations import Observations
 from neumat.methods.neupress.model import NeuPreSS
 from neumat.models.registry import build_model
+from neumat.nn import cpu_kernels
 from neumat.nn.fourier import FourierFeatures
 from neumat.nn.skip_mlp import SkipMLP
 from neumat.testing.chi2 import chi2_directions
@@ -259,3 +261,42 @@ def test_source_must_be_observations():
     m = NeuPreSS(**SMALL)
     with pytest.raises(InputError, match="Observations"):
         fit(m, build_model({"type": "naive-mlp"}), _recipe(2), progress=False)
+
+
+@pytest.mark.skipif(cpu_kernels.library() is None, reason=f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+@pytest.mark.parametrize("config", [{}, {"feature_mean": 18.0, "feature_std": 1.0},
+                                    {"direction_encoding": "cartesian", "skips": False, "layers": 6}])
+def test_small_batches_run_the_row_kernel_as_close_to_float64_as_torch(config):
+    """Batches up to cpu_kernels.NEUPRESS_ROWS without autograd run `neupress_rows` (one row at a time), larger ones
+    and autograd torch: the kernel's worst error relative to its row, against the model in float64, within 2x the
+    float32 torch path's over ten batches (the default and the paper's Fourier scale, the Cartesian plain variant)."""
+    torch.manual_seed(0)
+    m = NeuPreSS(width=64, features=64, **config)
+    with torch.no_grad():
+        for p in m.appearance.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    m.set_bounds(torch.tensor([-0.6, -0.5, -0.55]), torch.tensor([0.6, 0.5, 0.55]))
+    m64 = copy.deepcopy(m).double()
+    g = torch.Generator().manual_seed(1)
+    kernel = torch32 = 0.0
+    for _ in range(10):
+        n = cpu_kernels.NEUPRESS_ROWS
+        q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)), sample_uniform_sphere(torch.rand(n, 2, generator=g)),
+                  x=torch.rand(n, 3, generator=g) - 0.5)
+        with torch.no_grad():
+            before = cpu_kernels.calls[0]
+            fast = m.eval(q)
+            assert cpu_kernels.calls[0] == before + 1
+            with cpu_kernels.switched_off():
+                ref32 = m.eval(q)
+            ref = m64.eval(Query(q.wi.double(), q.wo.double(), x=q.x.double()))
+        scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-6)
+        kernel = max(kernel, float(((fast - ref) / scale).abs().max()))
+        torch32 = max(torch32, float(((ref32 - ref) / scale).abs().max()))
+    assert kernel <= 2 * torch32, (kernel, torch32)
+    assert m.eval(q).requires_grad  # autograd on: torch, with gradients
+    larger = Query(*(torch.cat([t, t]) for t in (q.wi, q.wo)), x=torch.cat([q.x, q.x]))
+    with torch.no_grad():
+        before = cpu_kernels.calls[0]
+        m.eval(larger)
+        assert cpu_kernels.calls[0] == before  # past NEUPRESS_ROWS: torch's sgemm

@@ -29,6 +29,7 @@ from neumat.core.errors import InputError
 from neumat.core.material import check_sample_u
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows
+from neumat.nn import cpu_kernels
 from neumat.models.base import LearnedMaterial
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.fourier import FourierFeatures
@@ -148,6 +149,8 @@ class NeuPreSS(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat(q.wi; q.x, q.wo), (N, 3) linear RGB per steradian, clamped at 0."""
         q.require("x", "wo", who="NeuPreSS.eval")
+        if len(q) <= cpu_kernels.NEUPRESS_ROWS and cpu_kernels.usable(q.wi, q.x, q.wo, *self.appearance.parameters()):
+            return cpu_kernels.neupress_rows(self, q.wi, q.x, q.wo)  # the same within float32 rounding
         return by_rows(lambda rows: torch.relu(self.raw(rows.wi, rows.x, rows.wo)).to(q.dtype), self.eval_chunk, q)
 
     def forward(self, q: Query) -> torch.Tensor:
