@@ -418,6 +418,85 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
     return 0;
 }
 
+/* NeuBRDF with inverse-distance corner weights (neumat.methods.neubrdf.shared_model: every material of a shared
+   model; one grid when t = 1) of directions wi, wo (n x 3): per row its material m (material[k], or `active` without
+   material ids), for wi on S+ and the mirrored wo on S- (z clamped at 0 first: healpix.hemisphere_direction) the
+   ring pixel, its 4 corner vertices (corners_i / corners_o: (t_c x 12 nside^2 x 4) vertex ids, t_c = t where
+   pruning made them per material, else 1), their normalised inverse great-circle distances (healpix.idw_weights,
+   distances clamped at 1e-7), and the first layer as the weighted sum of the 8 corner slots' rows of `table`
+   (t x slots_per_material rows, hidden: W_i f(s) for S+ slots, W_o f(s) for S- slots, S- slot = vertex +
+   south_offset) plus `bias`; then as neubrdf_eval: the direction inputs, the activation, the rest of the MLP, exp;
+   0 unless both directions are above the surface. */
+int neubrdf_idw_eval(const float *wi, const float *wo, long n, const int32_t *material, int active, int nside,
+                     const int32_t *corners_i, const int32_t *corners_o, int per_material, long slots_per_material,
+                     long south_offset, const float *vertex_dirs, const float *table, const float *bias, int hidden,
+                     const float *dir_w, int dir_warp, int first_act, int layers, const int *dims,
+                     const float *const *W, const float *const *b, int hidden_act, int out_dim, float *out) {
+    if (hidden > MAX_WIDTH) return 2;
+    float *work = work_buffers();
+    if (!work) return 1;
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK;
+    float c[6 * BLOCK], up[BLOCK], din[6 * BLOCK];
+    int32_t pix[2][BLOCK];
+    const long P = 12L * nside * nside;
+    const float slope = negative_slope(first_act);
+    for (long s = 0; s < n; s += BLOCK) {
+        int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
+        for (int k = 0; k < BLOCK; ++k) {
+            long r = s + k < m + s ? s + k : s;
+            for (int e = 0; e < 2; ++e) {
+                const float *w = (e ? wo : wi) + 3 * r;
+                float z = w[2] > 0.f ? w[2] : 0.f;
+                c[(3 * e) * BLOCK + k] = w[0]; c[(3 * e + 1) * BLOCK + k] = w[1];
+                c[(3 * e + 2) * BLOCK + k] = e ? -z : z;
+            }
+            up[k] = wi[3 * r + 2] > 0.f && wo[3 * r + 2] > 0.f ? 1.f : 0.f;
+        }
+        ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, 0, pix[0]);
+        ring_pixels(c + 3 * BLOCK, c + 4 * BLOCK, c + 5 * BLOCK, nside, 0, pix[1]);
+        if (dir_w) hd_inputs_block(wi, wo, s, n, dir_warp, din);
+        for (int k = 0; k < BLOCK; ++k) {
+            long r = s + k < m + s ? s + k : s;
+            const long mat = material ? material[r] : active;
+            float *pre = res + k * hidden;
+            for (int i = 0; i < hidden; ++i) pre[i] = bias[i];
+            for (int e = 0; e < 2; ++e) {
+                const int32_t *vid = (e ? corners_o : corners_i) + ((per_material ? mat : 0) * P + pix[e][k]) * 4;
+                const float dx = c[(3 * e) * BLOCK + k], dy = c[(3 * e + 1) * BLOCK + k], dz = c[(3 * e + 2) * BLOCK + k];
+                float wgt[4], total = 0.f;
+                for (int q = 0; q < 4; ++q) {
+                    const float *v = vertex_dirs + 3L * vid[q];
+                    float cx = dy * v[2] - dz * v[1], cy = dz * v[0] - dx * v[2], cz = dx * v[1] - dy * v[0];
+                    float dist = atan2f(sqrtf(cx * cx + cy * cy + cz * cz), dx * v[0] + dy * v[1] + dz * v[2]);
+                    wgt[q] = 1.f / (dist > 1e-7f ? dist : 1e-7f);
+                    total += wgt[q];
+                }
+                for (int q = 0; q < 4; ++q) {
+                    const float *row = table + (mat * slots_per_material + vid[q] + (e ? south_offset : 0)) * hidden;
+                    const float wq = wgt[q] / total;
+                    for (int i = 0; i < hidden; ++i) pre[i] += wq * row[i];
+                }
+            }
+            if (dir_w)
+                for (int j = 0; j < 6; ++j) {
+                    const float v = din[j * BLOCK + k];
+                    for (int i = 0; i < hidden; ++i) pre[i] += v * dir_w[j * hidden + i];
+                }
+        }
+        transpose_rows(res, hidden, buf0);
+        if (first_act == ACT_SILU)
+            for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] / (1.f + fast_exp(-buf0[j]));
+        else
+            for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] >= 0.f ? buf0[j] : slope * buf0[j];
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        for (int i = 0; i < out_dim * BLOCK; ++i) res[i] = fast_exp(y[i]);
+        for (int k = 0; k < m; ++k)
+            for (int j = 0; j < out_dim; ++j) out[out_dim * (s + k) + j] = up[k] > 0.f ? res[j * BLOCK + k] : 0.f;
+    }
+    free(work);
+    return 0;
+}
+
 /* the shading frame (neumat.nn.shading_frames.frame_from_vectors) of a decoded normal (nx, ny, nz) and tangent
    (ux, uy, uz): the unit tangent t and bitangent b = n x t (3 each) that wi, wo are expressed in */
 static inline void shading_frame(float nx, float ny, float nz, float ux, float uy, float uz, float *t, float *b) {

@@ -290,6 +290,32 @@ def neubrdf_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, nside: int,
     return out
 
 
+def neubrdf_idw_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, material: torch.Tensor | None, active: int,
+                     nside: int, corners: tuple[torch.Tensor, torch.Tensor], slots_per_material: int, south_offset: int,
+                     vertex_dirs: torch.Tensor, table: torch.Tensor, bias: torch.Tensor, first_act: int,
+                     directions: torch.Tensor | None = None, warp: bool = False) -> torch.Tensor:
+    """NeuBRDF with inverse-distance corner weights (the shared model's materials) of float32 directions (N, 3):
+    (N, out_dim). material: int32 (N,) per row, or None for `active`; corners: the S+ and S- vertex ids (t_c, 12
+    nside^2, 4) int32 (t_c = 1: one set for every material); table: the first layer's rows of every slot (t x
+    slots_per_material, hidden); bias: its bias; directions, warp, first_act, mlp: as `neubrdf_eval`."""
+    lib = library()
+    wi, wo = wi.contiguous(), wo.contiguous()
+    keep = None if material is None else material.to(torch.int32).contiguous()
+    dir_w = None if directions is None else directions.detach().float().t().contiguous()
+    dir_ptr = ctypes.c_void_p(None) if dir_w is None else _ptr(dir_w)
+    out = torch.empty(len(wi), mlp.out_dim)
+    fn = lib.neubrdf_idw_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
+                  ctypes.c_void_p(None) if keep is None else _ptr(keep, start), active, nside, _ptr(corners[0]), _ptr(corners[1]),
+                  int(corners[0].shape[0] > 1), ctypes.c_long(slots_per_material), ctypes.c_long(south_offset),
+                  _ptr(vertex_dirs), _ptr(table), _ptr(bias), table.shape[1], dir_ptr, int(warp), first_act,
+                  mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start)))
+    by_threads(run, len(wi))
+    return out
+
+
 def multiscale_fits(spatial: int, half: int, diff: int, gate: int, terms: int) -> bool:
     """Whether `multiscale_eval`'s buffers hold a model of these sizes (spatial, half and difference channels, the
     polar textures' factor `gate`: D_s gated, 1 not, warp terms), as its C checks; a larger one keeps its torch

@@ -17,6 +17,7 @@ from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.models.registry import model_class
 from neumat.methods.neubrdf.shared_targets import Clustering, JointSource, cluster_materials, fit_clusters, fit_shared
 from neumat.methods.neubrdf.shared_model import Config, MaterialQuery, SharedNeuBRDF, sharing_cost
+from neumat.nn import cpu_kernels
 from neumat.nn.conv_autoencoder import ConvAutoencoder, train_autoencoder
 from neumat.reflectance.analytic import GGX, Plastic
 from neumat.warp.hemisphere import sample_cosine_hemisphere
@@ -271,3 +272,39 @@ def test_kept_corner_tables_follow_pruning_and_regridding_keeps_the_dtype(gen):
     own = NeuBRDF(features="dense", **SMALL).double()
     own.regrid(8)
     assert own.vertex_dirs.dtype == torch.float64
+
+
+@pytest.mark.skipif(cpu_kernels.library() is None, reason=f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+@pytest.mark.parametrize("inputs", ["none", "hd_warp"])
+def test_fused_kernel_equals_the_torch_path(gen, inputs):
+    """Without autograd the shared model's inverse-distance evaluation is one C call (cpu_kernels.neubrdf_idw_eval):
+    equal to the torch path within float32 rounding on random features and MLP, one material pruned (per-material
+    corner tables), a MaterialQuery mixing both materials and a plain query on the active one, rows below the
+    horizon; a pixel on an edge may fall on the other side (float32 atan2 an ulp apart), so 99.9 % of rows."""
+    torch.manual_seed(1)
+    m = SharedNeuBRDF(num_materials=2, features="dense", direction_inputs=inputs, **SMALL)
+    with torch.no_grad():
+        m.grid.features.copy_(torch.randn(m.grid.features.shape, generator=gen))
+        for p in m.mlp.parameters():
+            p.add_(0.3 * torch.randn(p.shape, generator=gen))
+    probe = _queries(20, gen)
+    m.prune(1, probe.wi, probe.wo)
+    assert m.pruned
+    q = _queries(3000, gen)
+    wi, wo = q.wi.clone(), q.wo.clone()
+    wi[::17, 2] *= -1
+    wo[::19, 2] *= -1
+    ids = torch.randint(2, (3000,), generator=gen)
+    m.select(1)
+    for query in (MaterialQuery(wi, wo, material=ids), Query(wi, wo)):
+        with torch.no_grad():
+            before = cpu_kernels.calls[0]
+            fast = m.eval(query)
+            assert cpu_kernels.calls[0] == before + 1
+            with cpu_kernels.switched_off():
+                ref = m.eval(query)
+        below = (wi[:, 2] <= 0) | (wo[:, 2] <= 0)
+        assert (fast[below] == 0).all() and (ref[~below] > 0).all()
+        close = ((fast - ref).abs() <= 1e-5 * ref.abs() + 1e-7).all(-1)
+        assert close.float().mean() >= 0.999, float(close.float().mean())
+    assert m.eval(Query(wi, wo)).requires_grad  # autograd on: the torch path

@@ -15,6 +15,7 @@ t 2n b + p k 2^b bits; see `sharing_cost` for the bytes per material with and wi
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -236,6 +237,9 @@ class SharedNeuBRDF(LearnedMaterial):
         """BRDF value (N, 3), linear RGB, cosine excluded, 0 below the horizon; rows of a MaterialQuery on
         their material, a plain Query on the selected one."""
         q.require("wo", who="SharedNeuBRDF.eval")
+        fast = self._kernel_eval(q)
+        if fast is not None:
+            return fast
         ids = self._material_ids(q)
         wi, wo = q.wi.to(self.vertex_dirs.dtype), q.wo.to(self.vertex_dirs.dtype)
         parts = self._lookup_both(ids, ((wi, False), (wo, True)), kernel_pixels=True)
@@ -244,6 +248,45 @@ class SharedNeuBRDF(LearnedMaterial):
         f = torch.exp(self.mlp(torch.cat(parts, -1)))
         f = zero_below_horizon(f, q.wi, q.wo)
         return f.to(q.dtype)
+
+    def _kernel_eval(self, q: Query) -> torch.Tensor | None:
+        """`eval` as one fused C call (`neumat.nn.cpu_kernels.neubrdf_idw_eval`; the same values within float32
+        rounding), or None where it does not apply: autograd, other dtypes or devices, uniform corner weights, an
+        activation the kernels lack, no compiler."""
+        if self.cfg.interpolation != "idw" or not cpu_kernels.usable(q.wi, q.wo, self.vertex_dirs,
+                                                                     *self.mlp.parameters(), *self.grid.parameters()):
+            return None
+        k = cpu_kernels.prepared(self, self._kernel_bundle)
+        if k is None:
+            return None
+        ids = self._material_ids(q) if isinstance(q, MaterialQuery) else None
+        n = self.cfg.nside
+        return cpu_kernels.neubrdf_idw_eval(k.mlp, q.wi, q.wo, ids, self.active, n, k.corners,
+                                            self.slots_per_material, hpx.south_grid_offset(n), k.vertex_dirs,
+                                            k.table, k.bias, k.first, k.columns, self.cfg.direction_inputs == "hd_warp")
+
+    def _kernel_bundle(self) -> SimpleNamespace | None:
+        """What `_kernel_eval` reads: the first layer applied to every slot of every material (S+ slots by its wi
+        columns, S- slots by its wo columns), its bias and direction columns, the rest of the MLP packed, each
+        pixel's corner vertices (int32, per material where pruned) and the vertex directions; None where the kernels
+        lack the activations."""
+        net, c = self.mlp.net, self.cfg
+        first = cpu_kernels.activation_code(net[1]) if len(net) >= 3 else None
+        mlp = None if first is None else cpu_kernels.PackedMLP.pack(list(net)[2:])
+        if mlp is None:
+            return None
+        k, h = c.feature_dim, hpx.hemisphere_size(c.nside)
+        feats = self.grid(torch.arange(self.grid.num_vertices, device=self.vertex_dirs.device)).float()
+        feats = feats.view(c.num_materials, 2, h, k)
+        weight = net[0].weight.detach().float()
+        table = torch.stack([feats[:, 0] @ weight[:, :k].t(), feats[:, 1] @ weight[:, k:2 * k].t()], 1)
+        extra = DIRECTION_INPUTS[c.direction_inputs]
+        pruned = self.pruned
+        corners = tuple(self._corner_table(south, pruned)[1].to(torch.int32).contiguous() for south in (False, True))
+        return SimpleNamespace(first=first, mlp=mlp, table=table.reshape(-1, weight.shape[0]).contiguous(),
+                               bias=net[0].bias.detach().float().contiguous(), corners=corners,
+                               vertex_dirs=self.vertex_dirs.float().contiguous(),
+                               columns=weight[:, -extra:] if extra else None)
 
     @torch.no_grad()
     def init_from_targets(self, target: torch.Tensor) -> None:
