@@ -134,10 +134,14 @@ def switched_off():
 _off = threading.local()
 
 
-def usable(*tensors: torch.Tensor) -> bool:
-    """Whether a kernel may evaluate these inputs: the kernels exist and are not `switched_off`, autograd is off,
-    all are float32 on the CPU."""
-    if getattr(_off, "depth", 0) or (torch.is_grad_enabled() and any(t.requires_grad for t in tensors)):
+def usable(*tensors: torch.Tensor, owner: nn.Module | None = None) -> bool:
+    """Whether a kernel may evaluate these inputs: the kernels exist and are not `switched_off`, no gradient is
+    wanted of them (nor, with autograd on, of any parameter of `owner`: looked at only then, since walking a
+    module's parameters costs microseconds a call), all are float32 on the CPU."""
+    if getattr(_off, "depth", 0):
+        return False
+    if torch.is_grad_enabled() and (any(t.requires_grad for t in tensors)
+                                    or (owner is not None and any(p.requires_grad for p in owner.parameters()))):
         return False
     if any(t.dtype != torch.float32 or t.device.type != "cpu" for t in tensors):
         return False

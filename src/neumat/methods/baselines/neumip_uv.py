@@ -118,7 +118,7 @@ class NeuMIPUV(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat (N, 3), clamped at 0."""
         q.require("x", "wo", "n", who="NeuMIPUV.eval")
-        if cpu_kernels.usable(q.wi, q.x, q.wo, q.n, self.spatial.raw[0], *self.mlp.parameters()):
+        if cpu_kernels.usable(q.wi, q.x, q.wo, q.n, self.spatial.raw[0], owner=self):
             k = cpu_kernels.prepared(self, self._kernel_bundle)
             if k is not None:  # the same values within float32 rounding
                 return cpu_kernels.neumip_uv_eval(k.mlp, k.tables, q.wi, q.x, q.wo, q.n, self.centre, self.cfg.surface)

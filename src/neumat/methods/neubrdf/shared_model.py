@@ -253,8 +253,7 @@ class SharedNeuBRDF(LearnedMaterial):
         """`eval` as one fused C call (`neumat.nn.cpu_kernels.neubrdf_idw_eval`; the same values within float32
         rounding), or None where it does not apply: autograd, other dtypes or devices, uniform corner weights, an
         activation the kernels lack, no compiler."""
-        if self.cfg.interpolation != "idw" or not cpu_kernels.usable(q.wi, q.wo, self.vertex_dirs,
-                                                                     *self.mlp.parameters(), *self.grid.parameters()):
+        if self.cfg.interpolation != "idw" or not cpu_kernels.usable(q.wi, q.wo, self.vertex_dirs, owner=self):
             return None
         k = cpu_kernels.prepared(self, self._kernel_bundle)
         if k is None:

@@ -149,7 +149,8 @@ class NeuPreSS(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """S_hat(q.wi; q.x, q.wo), (N, 3) linear RGB per steradian, clamped at 0."""
         q.require("x", "wo", who="NeuPreSS.eval")
-        if len(q) <= cpu_kernels.NEUPRESS_ROWS and cpu_kernels.usable(q.wi, q.x, q.wo, *self.appearance.parameters()):
+        if len(q) <= cpu_kernels.NEUPRESS_ROWS and cpu_kernels.usable(q.wi, q.x, q.wo, self.box_min,
+                                                                      owner=self.appearance):
             return cpu_kernels.neupress_rows(self, q.wi, q.x, q.wo)  # the same within float32 rounding
         return by_rows(lambda rows: torch.relu(self.raw(rows.wi, rows.x, rows.wo)).to(q.dtype), self.eval_chunk, q)
 
