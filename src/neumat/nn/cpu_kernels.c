@@ -317,16 +317,14 @@ static void hd_inputs_block(const float *wi, const float *wo, long s, long n, in
     }
 }
 
-/* the ring pixels of a block's wi and wo (rows s .. s + BLOCK - 1; past n, row s again), whether each row is above
-   the horizon, and a prefetch of the table rows they will read (the table is far larger than the caches) */
+/* the ring pixels of a block's wi and wo (rows s .. s + BLOCK - 1; past n, row s again) and a prefetch of the table rows they will read (the table is far larger than the caches) */
 static void block_pixels(const float *wi, const float *wo, long s, long n, int nside, const float *table, int hidden,
-                         int32_t *pix_i, int32_t *pix_o, float *up) {
+                         int32_t *pix_i, int32_t *pix_o) {
     float c[6 * BLOCK];
     const long south = 12L * nside * nside;
     for (int k = 0; k < BLOCK; ++k) {
         long r = s + k < n ? s + k : s;
         for (int j = 0; j < 3; ++j) { c[j * BLOCK + k] = wi[3 * r + j]; c[(3 + j) * BLOCK + k] = wo[3 * r + j]; }
-        up[k] = wi[3 * r + 2] > 0.f && wo[3 * r + 2] > 0.f ? 1.f : 0.f;
     }
     ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, 0, pix_i);
     ring_pixels(c + 3 * BLOCK, c + 4 * BLOCK, c + 5 * BLOCK, nside, 0, pix_o);
@@ -371,6 +369,32 @@ static void transpose_rows(const float *restrict x, int cols, float *restrict y)
         for (int k = 0; k < BLOCK; ++k) y[(long)c0 * BLOCK + k] = x[(long)k * cols + c0];
 }
 
+/* pre (hidden) += the first layer's direction columns dir_w (6 x hidden) times a row's direction inputs (6, BLOCK
+   apart: hd_inputs_block's layout); Config.direction_inputs (h, d), or with warp (h.xy rescaled, h.z, d) */
+static inline void add_direction_columns(float *pre, const float *din, const float *dir_w, int hidden) {
+    for (int j = 0; j < 6; ++j) {
+        const float v = din[j * BLOCK];
+        for (int i = 0; i < hidden; ++i) pre[i] += v * dir_w[j * hidden + i];
+    }
+}
+
+static void store_exp(const float *y, int m, int out_dim, const float *wi, const float *wo, long s, float *out);
+
+/* the rest of NeuBRDF's network after the first layer's sums (res: BLOCK x hidden, row by row): into the MLP's rows,
+   activated (first_act), the layers after it, exp; rows s .. s + m - 1 of out, 0 unless wi.z and wo.z > 0 (both
+   NeuBRDF kernels) */
+static void neubrdf_rest(float *res, int hidden, float *buf0, float *buf1, int first_act, int layers, const int *dims,
+                         const float *const *W, const float *const *b, int hidden_act, int out_dim, const float *wi,
+                         const float *wo, long s, int m, float *out) {
+    const float slope = negative_slope(first_act);
+    transpose_rows(res, hidden, buf0);  /* into the MLP's rows, then activated along them */
+    if (first_act == ACT_SILU)
+        for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] / (1.f + fast_exp(-buf0[j]));
+    else
+        for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] >= 0.f ? buf0[j] : slope * buf0[j];
+    store_exp(mlp_block(buf0, buf1, layers, dims, W, b, hidden_act), m, out_dim, wi, wo, s, out);
+}
+
 /* NeuBRDF's runtime form (Dou, Zheng et al. 2024; neumat.methods.neubrdf.model, uniform corner weights) of
    directions wi, wo (n x 3, float32): the first layer's pre-activations as the sum of the table rows of wi's ring
    pixel and of wo's (offset by 12 nside^2: the S- half), plus with dir_w (6 x hidden: the first layer's columns of
@@ -382,37 +406,23 @@ int neubrdf_eval(const float *wi, const float *wo, long n, int nside, const floa
     if (hidden > MAX_WIDTH) return 2;
     float *work = work_buffers();
     if (!work) return 1;
-    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK, up[2][BLOCK];
+    float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK;
     int32_t pix_i[2][BLOCK], pix_o[2][BLOCK];
     float din[6 * BLOCK];  /* the block's direction inputs */
-    const float slope = negative_slope(first_act);
     const long south = 12L * nside * nside;
-    if (n > 0) block_pixels(wi, wo, 0, n, nside, table, hidden, pix_i[0], pix_o[0], up[0]);
+    if (n > 0) block_pixels(wi, wo, 0, n, nside, table, hidden, pix_i[0], pix_o[0]);
     for (long s = 0, cur = 0; s < n; s += BLOCK, cur ^= 1) {
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
         if (s + BLOCK < n)  /* the next block's rows are fetched while this one runs its MLP */
-            block_pixels(wi, wo, s + BLOCK, n, nside, table, hidden, pix_i[cur ^ 1], pix_o[cur ^ 1], up[cur ^ 1]);
+            block_pixels(wi, wo, s + BLOCK, n, nside, table, hidden, pix_i[cur ^ 1], pix_o[cur ^ 1]);
         if (dir_w) hd_inputs_block(wi, wo, s, n, dir_warp, din);
         for (int k = 0; k < BLOCK; ++k) {  /* the first layer's sums, row by row into res (BLOCK x hidden) */
             const float *ti = table + (long)pix_i[cur][k] * hidden, *to = table + (south + pix_o[cur][k]) * hidden;
             float *pre = res + k * hidden;
             for (int i = 0; i < hidden; ++i) pre[i] = ti[i] + to[i];
-            if (dir_w)  /* Config.direction_inputs: (h, d), or with dir_warp (h.xy rescaled, h.z, d) */
-                for (int j = 0; j < 6; ++j) {
-                    const float v = din[j * BLOCK + k];
-                    for (int i = 0; i < hidden; ++i) pre[i] += v * dir_w[j * hidden + i];
-                }
+            if (dir_w) add_direction_columns(pre, din + k, dir_w, hidden);
         }
-        transpose_rows(res, hidden, buf0);  /* into the MLP's rows, then activated along them */
-        if (first_act == ACT_SILU)
-            for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] / (1.f + fast_exp(-buf0[j]));
-        else
-            for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] >= 0.f ? buf0[j] : slope * buf0[j];
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
-        for (int i = 0; i < out_dim * BLOCK; ++i) res[i] = fast_exp(y[i]);
-        for (int k = 0; k < m; ++k)
-            for (int j = 0; j < out_dim; ++j)
-                out[out_dim * (s + k) + j] = up[cur][k] > 0.f ? res[j * BLOCK + k] : 0.f;
+        neubrdf_rest(res, hidden, buf0, buf1, first_act, layers, dims, W, b, hidden_act, out_dim, wi, wo, s, m, out);
     }
     free(work);
     return 0;
@@ -436,10 +446,9 @@ int neubrdf_idw_eval(const float *wi, const float *wo, long n, const int32_t *ma
     float *work = work_buffers();
     if (!work) return 1;
     float *buf0 = work, *buf1 = work + MAX_WIDTH * BLOCK, *res = work + 2 * MAX_WIDTH * BLOCK;
-    float c[6 * BLOCK], up[BLOCK], din[6 * BLOCK];
+    float c[6 * BLOCK], din[6 * BLOCK];
     int32_t pix[2][BLOCK];
     const long P = 12L * nside * nside;
-    const float slope = negative_slope(first_act);
     for (long s = 0; s < n; s += BLOCK) {
         int m = n - s < BLOCK ? (int)(n - s) : BLOCK;
         for (int k = 0; k < BLOCK; ++k) {
@@ -450,7 +459,6 @@ int neubrdf_idw_eval(const float *wi, const float *wo, long n, const int32_t *ma
                 c[(3 * e) * BLOCK + k] = w[0]; c[(3 * e + 1) * BLOCK + k] = w[1];
                 c[(3 * e + 2) * BLOCK + k] = e ? -z : z;
             }
-            up[k] = wi[3 * r + 2] > 0.f && wo[3 * r + 2] > 0.f ? 1.f : 0.f;
         }
         ring_pixels(c, c + BLOCK, c + 2 * BLOCK, nside, 0, pix[0]);
         ring_pixels(c + 3 * BLOCK, c + 4 * BLOCK, c + 5 * BLOCK, nside, 0, pix[1]);
@@ -477,21 +485,9 @@ int neubrdf_idw_eval(const float *wi, const float *wo, long n, const int32_t *ma
                     for (int i = 0; i < hidden; ++i) pre[i] += wq * row[i];
                 }
             }
-            if (dir_w)
-                for (int j = 0; j < 6; ++j) {
-                    const float v = din[j * BLOCK + k];
-                    for (int i = 0; i < hidden; ++i) pre[i] += v * dir_w[j * hidden + i];
-                }
+            if (dir_w) add_direction_columns(pre, din + k, dir_w, hidden);
         }
-        transpose_rows(res, hidden, buf0);
-        if (first_act == ACT_SILU)
-            for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] / (1.f + fast_exp(-buf0[j]));
-        else
-            for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] >= 0.f ? buf0[j] : slope * buf0[j];
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
-        for (int i = 0; i < out_dim * BLOCK; ++i) res[i] = fast_exp(y[i]);
-        for (int k = 0; k < m; ++k)
-            for (int j = 0; j < out_dim; ++j) out[out_dim * (s + k) + j] = up[k] > 0.f ? res[j * BLOCK + k] : 0.f;
+        neubrdf_rest(res, hidden, buf0, buf1, first_act, layers, dims, W, b, hidden_act, out_dim, wi, wo, s, m, out);
     }
     free(work);
     return 0;
