@@ -11,7 +11,7 @@ from neumat.methods.sparse_btf.model import SparseBTF
 from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 from neumat.testing.parity import glsl_eval, opengl_available
 
-from btf_util import N_DIRS, SIZE, synthetic_btf
+from btf_util import N_DIRS, SIZE, non_reciprocal_btf, synthetic_btf, unambiguous
 
 needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
 
@@ -22,14 +22,6 @@ def dictionary():
                             patch=4, max_iters=4, seed=0)
 
 
-def _btf(seed: int):
-    """A synthetic BTF made non-reciprocal (light and view bins play different roles), so that mixing them up
-    in the shader shows."""
-    btf = synthetic_btf(seed)
-    btf.data = btf.data * (1 + 0.5 * btf.light_dirs[:, 0] + 0.3 * btf.light_dirs[:, 1])[:, None, None, None, None]
-    return btf
-
-
 def _queries(n: int, seed: int) -> Query:
     """Directions on the whole sphere (some below the horizon) and uv well outside [0, 1] (wrap-around)."""
     g = torch.Generator().manual_seed(seed)
@@ -38,21 +30,10 @@ def _queries(n: int, seed: int) -> Query:
     return Query(wi, wo, uv=torch.rand(n, 2, generator=g) * 4 - 1.5)
 
 
-def _unambiguous(model: SparseBTF, q: Query, gap: float = 1e-5) -> torch.Tensor:
-    """Queries whose k-th and (k+1)-th nearest light and view bins are not tied (float rounding could swap a
-    tie between the two implementations, and k-nearest interpolation jumps there)."""
-    k = model.cfg.neighbours
-    keep = torch.ones(len(q), dtype=torch.bool)
-    for dirs, w in ((model.light_dirs, q.wi), (model.view_dirs, q.wo)):
-        top = (w @ dirs.T).topk(k + 1, dim=-1).values
-        keep &= (top[:, k - 1] - top[:, k]) > gap
-    return keep
-
-
 def _assert_parity(model: SparseBTF, q: Query) -> None:
     ref = model.eval(q)
     out = glsl_eval(export_glsl(model), q)
-    keep = _unambiguous(model, q)
+    keep = unambiguous(model, q)
     assert keep.float().mean() > 0.95
     below = (q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)
     assert below.any() and (out[below] == 0).all()
@@ -62,13 +43,13 @@ def _assert_parity(model: SparseBTF, q: Query) -> None:
 
 @needs_gl
 def test_shader_matches_eval_on_random_queries(dictionary):
-    model = SparseBTF.encode(_btf(10), dictionary, (40, 10, 10)).train(False)
+    model = SparseBTF.encode(non_reciprocal_btf(10), dictionary, (40, 10, 10)).train(False)
     _assert_parity(model, _queries(2000, 0))
 
 
 @needs_gl
 def test_shader_matches_eval_with_variable_coefficient_counts(dictionary):
-    model = SparseBTF.encode(_btf(11), dictionary, (60, 12, 12), error_threshold=0.05)
+    model = SparseBTF.encode(non_reciprocal_btf(11), dictionary, (60, 12, 12), error_threshold=0.05)
     counts = model.counts.float()
     assert counts.min() < counts.max()          # the error threshold stopped some data points early
     _assert_parity(model, _queries(1500, 1))
@@ -76,7 +57,7 @@ def test_shader_matches_eval_with_variable_coefficient_counts(dictionary):
 
 @needs_gl
 def test_shader_returns_table_entries_at_bins_and_texel_centres(dictionary, gen):
-    model = SparseBTF.encode(_btf(12), dictionary, (40, 10, 10))
+    model = SparseBTF.encode(non_reciprocal_btf(12), dictionary, (40, 10, 10))
     n = 200
     li, vi = torch.randint(0, N_DIRS, (2, n), generator=gen)
     rows, cols = torch.randint(0, SIZE, (2, n), generator=gen)
@@ -87,7 +68,7 @@ def test_shader_returns_table_entries_at_bins_and_texel_centres(dictionary, gen)
 
 
 def test_export_files_and_bad_input(dictionary, tmp_path):
-    model = SparseBTF.encode(_btf(13), dictionary, (40, 10, 10))
+    model = SparseBTF.encode(non_reciprocal_btf(13), dictionary, (40, 10, 10))
     exported = export_glsl(model)
     folder = exported.write(tmp_path / "sbtf")
     manifest = json.loads((folder / "manifest.json").read_text())
@@ -101,7 +82,7 @@ def test_export_files_and_bad_input(dictionary, tmp_path):
     model.values[0, 0, 0] = float("nan")
     with pytest.raises(InputError, match="non-finite"):
         export_glsl(model)
-    odd = SparseBTF.encode(_btf(13), dictionary, (40, 10, 10), neighbours=3)
+    odd = SparseBTF.encode(non_reciprocal_btf(13), dictionary, (40, 10, 10), neighbours=3)
     odd.cfg.neighbours = 5
     odd.view_dirs = odd.view_dirs[:4]
     odd.cfg.n_view = 4
