@@ -115,7 +115,11 @@ def _dirty() -> bool:
 
 
 def _git(*args: str) -> str:
-    out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+    """git's answer in the checkout, or "unknown" (no git, or a copy of the tree without its .git)."""
+    try:
+        out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+    except OSError:
+        return "unknown"
     return out.stdout.strip() if out.returncode == 0 else "unknown"
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import importlib
 
-SUITES = ("speed", "neubrdf", "multiscale", "neural-appearance", "neupress", "sparsebtf", "export-parity")
+SUITES = ("speed", "cuda", "neubrdf", "multiscale", "neural-appearance", "neupress", "sparsebtf", "export-parity")
 
 
 def load(name: str):

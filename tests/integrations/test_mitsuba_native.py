@@ -172,21 +172,28 @@ print(json.dumps(value.tolist()))
 
 
 @pytest.mark.cuda
-def test_native_bsdf_under_cuda_ad_rgb(mi, nmat):
-    """The same BSDF under cuda_ad_rgb (fp16 compute, cooperative vectors on tensor cores) against LLVM's fp32, within
-    the fp16 bound (1e-2 relative); in a subprocess, since a process holds one Mitsuba variant at a time here."""
+def test_native_bsdf_under_cuda_ad_rgb(nmat):
+    """The same BSDF under cuda_ad_rgb (fp16 compute, cooperative vectors on tensor cores) against the torch model in
+    float64 (times the light's cosine, as Mitsuba's eval), within the fp16 bound (1e-2 relative); in a subprocess, since a process holds one Mitsuba variant at a
+    time here. Needs no LLVM: a GPU machine without LLVM >= 16 runs it."""
     import json
+    from importlib.util import find_spec
+    from neumat.catalog.modelfile import load_model
+    from neumat.core.query import Query
+    if find_spec("mitsuba") is None:
+        pytest.skip("needs Mitsuba 3 (pip install mitsuba)")
     g = torch.Generator().manual_seed(7)
     wi, wo = _dirs(4096, g, below=0.0), _dirs(4096, g, below=0.0)
-    bsdf = mi.load_dict({"type": "neumat", "filename": str(nmat)})
-    si = _si(mi, wi)
-    expected = to_torch(bsdf.eval(mi.BSDFContext(), si, mi_vector(mi, wo)))
+    with torch.no_grad():
+        # Mitsuba's eval is the BRDF times the light's cosine; its si.wi is the viewer, the torch Query's wi
+        expected = load_model(nmat, device="cpu").double().eval(Query(wi.double(), wo.double())) * wo[:, 2:].double()
     env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
     run = subprocess.run([sys.executable, "-c", _CUDA.format(path=str(nmat))], capture_output=True, text=True,
                          env=env, timeout=600, input=json.dumps([wi.tolist(), wo.tolist()]))
     assert run.returncode == 0, run.stderr[-3000:]
     got = torch.tensor(json.loads(run.stdout.strip().splitlines()[-1]), dtype=torch.float64).T
-    assert float(((got - expected).abs() / expected.abs().clamp(min=1e-30)).max()) < 1e-2
+    assert float(expected.abs().min()) > 0  # every pair above the horizon: no vacuous zeros
+    assert float(((got - expected).abs() / expected.abs()).max()) < 1e-2
 
 
 @pytest.fixture(scope="module")

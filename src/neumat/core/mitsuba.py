@@ -11,17 +11,23 @@ from .errors import InputError
 from .llvm import VARIANT, configure_llvm
 
 
-def import_mitsuba():
-    """The `mitsuba` module with the llvm_ad_rgb variant set, after `neumat.core.llvm.configure_llvm` found an
-    LLVM its kernels compile with. Raises InputError when Mitsuba or such an LLVM is missing. Mitsuba is
-    imported only then: importing it loads Dr.Jit's LLVM (printing Dr.Jit's own complaint when there is none)."""
+def import_mitsuba(variant: str = VARIANT):
+    """The `mitsuba` module with `variant` set (default llvm_ad_rgb), after `neumat.core.llvm.configure_llvm` found
+    an LLVM its kernels compile with. Raises InputError when Mitsuba is missing, when the variant does not load, or,
+    for an LLVM variant, when no such LLVM exists; a CUDA variant needs none (a GPU machine without LLVM >= 16 runs
+    cuda_ad_rgb), though one is still chosen where present so a later LLVM variant finds it. Mitsuba is imported
+    only then: importing it loads Dr.Jit's LLVM (printing Dr.Jit's own complaint when there is none)."""
     if importlib.util.find_spec("mitsuba") is None:
         raise InputError("mesh scenes need Mitsuba 3 (pip install mitsuba)")
-    configure_llvm()
+    try:
+        configure_llvm()
+    except InputError:
+        if not variant.startswith("cuda_"):
+            raise
     try:
         import mitsuba as mi
-        if mi.variant() != VARIANT:
-            mi.set_variant(VARIANT)
+        if mi.variant() != variant:
+            mi.set_variant(variant)
     except Exception as e:  # the variant failing to load
-        raise InputError(f"mesh scenes need Mitsuba 3 with the {VARIANT} variant: {type(e).__name__}: {e}") from e
+        raise InputError(f"Mitsuba 3 with the {variant} variant failed to load: {type(e).__name__}: {e}") from e
     return mi

@@ -127,10 +127,13 @@ def is_native(bsdf_object) -> bool:
 # ------------------------------------------------------------------------------------------ variants
 
 def set_variant(variant: str):
+    from ..core.llvm import VARIANT
     from ..core.mitsuba import import_mitsuba
 
-    mi = import_mitsuba()
-    if not isinstance(variant, str) or variant not in mi.variants():
+    if not isinstance(variant, str):
+        raise InputError(f"variant: expected the name of a Mitsuba RGB variant, got {variant!r}")
+    mi = import_mitsuba(variant if variant.startswith("cuda_") else VARIANT)
+    if variant not in mi.variants():
         raise InputError(f"variant: expected one of the installed Mitsuba variants {mi.variants()}, got {variant!r}")
     check_rgb(variant)
     if mi.variant() != variant:

@@ -22,29 +22,35 @@ def drjit_available() -> bool:
     return True
 
 
-def _runtime(exported):
+def _runtime(exported, backend: str = "llvm"):
     from ..export.drjit.runtime import Runtime, load_runtime
 
     if isinstance(exported, Runtime):
         return exported
-    return load_runtime(exported.source() if hasattr(exported, "source") else exported, "llvm")
+    return load_runtime(exported.source() if hasattr(exported, "source") else exported, backend)
 
 
-def drjit_eval(exported, q: Query) -> torch.Tensor:
-    """Values (N, 3) (float32) of a `DrJitExport` (or a loaded runtime, or an export folder) at the queries q: uv
-    and the footprint where q has them (else the finest level)."""
-    import drjit as dr
-    from drjit.llvm.ad import Array3f, Float
-
-    rt = _runtime(exported)
-    cpu = lambda t: Float(np.ascontiguousarray(t.detach().cpu().float().numpy()))  # noqa: E731
-    vec = lambda w: Array3f(*(cpu(w[:, i]) for i in range(3)))  # noqa: E731
-    uv = None if q.uv is None else (cpu(q.uv[:, 0]), cpu(q.uv[:, 1]))
-    fp = None if q.footprint is None else tuple(cpu(q.footprint[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+def drjit_arrays(rt, q: Query) -> tuple:
+    """The arguments of `rt.eval` for the queries q, as arrays of the runtime's backend (uploaded once: a rate
+    measured on them times the runtime, not the transfers)."""
+    b = rt.backend
+    arr = lambda t: b.Float(np.ascontiguousarray(t.detach().cpu().float().numpy()))  # noqa: E731
+    vec = lambda w: b.Array3f(*(arr(w[:, i]) for i in range(3)))  # noqa: E731
     if getattr(rt, "translucent", False):  # NeuPreSS (program "neupress"): S_hat at the object-space position q.x
-        out = rt.eval(vec(q.wi), vec(q.wo), True, x=vec(q.x))
-    else:
-        out = rt.eval(vec(q.wi), vec(q.wo), True, uv, fp)
+        return (vec(q.wi), vec(q.wo), True), {"x": vec(q.x)}
+    uv = None if q.uv is None else (arr(q.uv[:, 0]), arr(q.uv[:, 1]))
+    fp = None if q.footprint is None else tuple(arr(q.footprint[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+    return (vec(q.wi), vec(q.wo), True, uv, fp), {}
+
+
+def drjit_eval(exported, q: Query, backend: str = "llvm") -> torch.Tensor:
+    """Values (N, 3) (float32) of a `DrJitExport` (or a loaded runtime, or an export folder; loaded on `backend`,
+    "llvm" or "cuda") at the queries q: uv and the footprint where q has them (else the finest level)."""
+    import drjit as dr
+
+    rt = _runtime(exported, backend)
+    args, kwargs = drjit_arrays(rt, q)
+    out = rt.eval(*args, **kwargs)
     dr.eval(out)
     return torch.from_numpy(np.array(out, dtype=np.float32).T.copy()).to(q.wi.device)
 
