@@ -62,6 +62,7 @@ def run(run: harness.Run) -> None:
     materials = speed._materials(run)
     _torch_rates(run, materials, dev)
     _drjit(run, materials, cuda)
+    _renders(run, materials, cuda)
     _paper_fit(run, dev)
 
 
@@ -202,6 +203,68 @@ def _drjit(run: harness.Run, materials: dict, cuda: bool) -> None:
               "vectors, the MLP in half precision; fp32: the same program in single precision); a call traces the "
               "program again and launches its cached kernel, so 'us/call' includes the trace; queries uploaded "
               f"once, outside the timing; 'err vs torch' = max |drjit - torch CPU| / max |torch| on {check_n} queries")
+
+
+#: the models a render times: one of each family with a native (Dr.Jit) BSDF in Mitsuba
+RENDERED = ("ggx", "nbrdf", "neubrdf", "multiscale", "neural-appearance")
+
+
+def _renders(run: harness.Run, materials: dict, cuda: bool) -> None:
+    """A sphere with each RENDERED model's native BSDF (`neumat.integrations.mitsuba_native`) on a diffuse floor
+    under a constant sky, path traced by Mitsuba (cuda_ad_rgb; llvm_ad_rgb without a GPU), beside Mitsuba's own
+    roughconductor in the same scene: wall seconds of a render after a first one that compiles its kernels."""
+    from neumat.catalog.modelfile import save_model
+    from neumat.core.errors import InputError
+    from neumat.integrations import mitsuba_native
+
+    import drjit as dr
+
+    variant = "cuda_ad_rgb" if cuda else "llvm_ad_rgb"
+    try:
+        mi = mitsuba_native.register(variant)
+    except (InputError, ImportError) as e:
+        run.skip("Mitsuba renders", f"{variant} unavailable: {str(e).splitlines()[0][:160]}")
+        return
+    size, spp = (32, 4) if run.quick else (512, 64)
+    names = ["neubrdf"] if run.quick else [n for n in RENDERED if n in materials]
+    bsdfs = {"mitsuba roughconductor (alpha 0.2)": {"type": "roughconductor", "alpha": 0.2}}
+    rows = []
+    with run.folder("renders") as folder:
+        for name in names:
+            path = save_model(materials[name], folder / f"{name}.nmat")
+            bsdfs[name] = {"type": "neumat", "filename": str(path)}
+        for name, spec in bsdfs.items():
+            run.progress(f"render ({variant}): {name}")
+            bsdf = mi.load_dict(spec)
+            native = name.startswith("mitsuba") or mitsuba_native.is_native(bsdf)
+            scene = mi.load_dict({
+                "type": "scene", "integrator": {"type": "path", "max_depth": 4},
+                "sensor": {"type": "perspective", "fov": 30,
+                           "to_world": mi.ScalarTransform4f().look_at(origin=[0, 1.5, 3.5], target=[0, 0, 0],
+                                                                      up=[0, 1, 0]),
+                           "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}},
+                           "sampler": {"type": "independent", "sample_count": spp}},
+                "sphere": {"type": "sphere", "bsdf": bsdf},
+                "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"},
+                          "to_world": mi.ScalarTransform4f().translate([0, -1, 0]).rotate([1, 0, 0], -90).scale(3)},
+                "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}})
+
+            def render():
+                image = mi.render(scene, seed=1)
+                dr.eval(image)
+                dr.sync_thread()
+                return image
+            t0 = time.perf_counter()
+            image = render()
+            first = time.perf_counter() - t0
+            seconds = _wall(render, torch.device("cpu"), max(2, run.repeats // 2))
+            rows.append({"bsdf": name, "native": native, "pixels": f"{size}^2", "spp": spp, "first s": first,
+                         "wall s": seconds, "Msamples/s": size * size * spp / seconds / 1e6,
+                         "mean": float(torch.tensor(image.numpy()).mean())})
+    run.table("render", f"Mitsuba renders ({variant})", rows,
+              "a sphere (the BSDF) on a diffuse floor under a constant sky, path tracer max_depth 4; 'first s' = "
+              "the first render (tracing and kernel compilation), 'wall s' = the best later one; 'native' = the "
+              "BSDF ran in Mitsuba's kernels (Dr.Jit runtime), not through the torch bridge")
 
 
 def _paper_fit(run: harness.Run, dev: torch.device) -> None:

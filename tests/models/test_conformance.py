@@ -4,6 +4,7 @@ the command line's path, round-trips a `.nmat` file bit for bit, and passes the 
 The same checks run on a GPU against the CPU (marker `cuda`). A method's small config is its `Method.small`."""
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import replace
 
@@ -292,3 +293,33 @@ def test_cuda_two_step_fit(name, tmp_path):
     res = CliRunner().invoke(app, ["fit", *_sources(kind, tmp_path), "--model", name, "--steps", "2", "-q",
                                    "--device", "cuda", *_set_args(name), "-o", str(tmp_path / "m.nmat")])
     assert res.exit_code == 0, res.output
+
+
+def _drjit_names() -> list[str]:
+    from neumat.export.drjit.format import drjit_models
+    return drjit_models()
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("compute", ["fp32", "fp16"])
+@pytest.mark.parametrize("name", _drjit_names())
+def test_drjit_coopvec_form_matches_torch(name, compute):
+    """The Dr.Jit runtime's cooperative-vector MLP (the form CUDA runs, here on LLVM) against the torch model: every
+    hidden activation has to exist on cooperative vectors (SiLU once did not, so 7 models failed on the GPU only);
+    fp16 within its rounding (a 10-bit mantissa through a few layers)."""
+    from mitsuba_util import mitsuba_or_skip
+    mitsuba_or_skip()
+    from neumat.export.drjit.format import export_drjit
+    from neumat.export.drjit.runtime import load_runtime
+    from neumat.testing.drjit_parity import drjit_eval
+    model = _model(name).runtime().eval()
+    q = _queries(model)
+    with torch.no_grad():
+        ours = model.eval(q).double()
+        ref = copy.deepcopy(model).double().eval(_queries(model, dtype=torch.float64))
+    scale = float(ref.abs().max())
+    assert scale > 0, "a model that is zero everywhere tests nothing"
+    got = drjit_eval(load_runtime(export_drjit(model, precision="fp32").source(), "llvm", compute, "coopvec"), q)
+    err = float((got.double() - ref).abs().max()) / scale
+    torch_err = float((ours - ref).abs().max()) / scale  # float32 rounding, amplified by an exp output
+    assert err < (2 * torch_err + 1e-6 if compute == "fp32" else 2e-2), (err, torch_err)

@@ -169,8 +169,8 @@ def _activation(name: str) -> Callable:
         return lambda x: dr.maximum(x, 0.01 * x)
     if name == "tanh":
         return dr.tanh
-    if name == "silu":  # x sigmoid(x)
-        return lambda x: x / (1 + dr.exp(-x))
+    if name == "silu":  # x sigmoid(x) = x (1 + tanh(x / 2)) / 2: tanh, products and sums, which cooperative
+        return lambda x: (0.5 * x) * (1.0 + dr.tanh(0.5 * x))  # vectors support (they have no negation or exp)
     raise InputError(f"drjit runtime: activation {name!r} has no Dr.Jit form (supported: {', '.join(ACTIVATIONS)})")
 
 
@@ -400,10 +400,22 @@ class DirectionMlp(Runtime):
                 flip = d[1] < 0
                 d = [dr.select(flip, -d[0], d[0]), dr.select(flip, -d[1], d[1]), d[2]]
             x = [*h, *d]
-        out = [dr.exp(v) for v in self.mlp(x)]
+        out = self.mlp(x)
         if self.output == "exp_minus_one":
-            out = [dr.maximum(v - 1, 0.0) for v in out]
+            out = [dr.maximum(expm1(v), 0.0) for v in out]
+        else:
+            out = [dr.exp(v) for v in out]
         return dr.select(ok, b.Array3f(*out), 0.0)
+
+
+def expm1(x):
+    """exp(x) - 1 without the cancellation of the plain difference near 0 (an NBRDF's dark values lost all but a
+    few bits there: 1e-7 absolute on values of 1e-4), Kahan's form: (u - 1) x / log(u), u = exp(x)."""
+    import drjit as dr
+
+    u = dr.exp(x)
+    um1 = u - 1
+    return dr.select(um1 == 0, x, dr.select(um1 == -1, -1.0, um1 * x / dr.log(u)))
 
 
 class Ggx(Runtime):

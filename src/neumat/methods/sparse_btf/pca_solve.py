@@ -149,6 +149,6 @@ def best_ranks(spectra: list[torch.Tensor], total: int) -> tuple[int, int, int]:
     counted per channel (every component costs the same, and each channel's eigenvalues fall)."""
     if total < 0:
         raise InputError(f"best_ranks: expected a non-negative component count, got {total!r}")
-    channel = torch.cat([torch.full((len(e),), c) for c, e in enumerate(spectra)])
+    channel = torch.cat([torch.full((len(e),), c, device=e.device) for c, e in enumerate(spectra)])
     order = torch.cat(spectra).argsort(descending=True, stable=True)[:total]
     return tuple(int((channel[order] == c).sum()) for c in range(3))
