@@ -178,11 +178,11 @@ def _activation(name: str) -> Callable:
 ACTIVATIONS = ("relu", "leaky_relu", "tanh", "silu")
 
 
-#: MLP forms: "literal" (weights as constants of the kernel, unrolled dr.fma; the default on LLVM) and "coopvec"
-#: (`drjit.nn` cooperative-vector products on packed weight buffers; the default on CUDA, where they use tensor
-#: cores). Measured on LLVM (one thread, NeuBRDF's 64-64-3 tail, 2^18 queries): literal 0.075 s, coopvec 0.090 s
-#: in a plain kernel; inside a symbolic call (Mitsuba's megakernel mode, `dr.switch`) literal 0.052 s, coopvec
-#: 0.549 s: there every weight of a packed buffer is read per lane.
+#: MLP forms: "literal" (weights as constants of the kernel, unrolled dr.fma; the default at fp32) and "coopvec"
+#: (`drjit.nn` cooperative-vector products on packed weight buffers; the default at fp16, on tensor cores under
+#: CUDA, whose packed layouts take half precision only). Measured on LLVM (one thread, NeuBRDF's 64-64-3 tail, 2^18
+#: queries): literal 0.075 s, coopvec 0.090 s in a plain kernel; inside a symbolic call (Mitsuba's megakernel mode,
+#: `dr.switch`) literal 0.052 s, coopvec 0.549 s: there every weight of a packed buffer is read per lane.
 FORMS = ("literal", "coopvec")
 
 
@@ -190,8 +190,8 @@ class Mlp:
     """Linear layers with an activation between them. weights: [(W (out, in), b (out,) or None), ...] numpy;
     compute "fp32" or "fp16"; form (`FORMS`): "literal" (fp32 only: the weights become constants of the kernel,
     each output an unrolled chain of dr.fma; Dr.Jit's LLVM backend compiles it into broadcast constants) or
-    "coopvec" (`drjit.nn.matvec` on packed buffers at the compute precision). Default: literal for fp32 on LLVM,
-    coopvec otherwise. `__call__(x, first_activation)`: x a list of Floats -> the outputs (fp32 Floats) before any
+    "coopvec" (`drjit.nn.matvec` on packed buffers at the compute precision; fp16 only on CUDA). Default: literal
+    for fp32, coopvec for fp16. `__call__(x, first_activation)`: x a list of Floats -> the outputs (fp32 Floats) before any
     output activation."""
 
     def __init__(self, b: Backend, weights: list, activation: str, compute: str = "fp32",
@@ -199,7 +199,10 @@ class Mlp:
         if compute not in COMPUTE:
             raise InputError(f"drjit runtime compute: expected one of {', '.join(COMPUTE)}, got {compute!r}")
         if form is None:
-            form = "literal" if compute == "fp32" and not b.is_cuda else "coopvec"
+            form = "literal" if compute == "fp32" else "coopvec"
+        if form == "coopvec" and compute == "fp32" and b.is_cuda:  # nn.pack's layouts need OptiX's conversion
+            raise InputError("drjit runtime: cooperative vectors on CUDA take half precision only (Dr.Jit's packed "
+                             "layouts); use compute fp16, or the literal form for fp32")
         if form not in FORMS or (form == "literal" and compute != "fp32"):
             raise InputError(f"drjit runtime MLP form: expected one of {', '.join(FORMS)} (literal for fp32 only), "
                              f"got {form!r} with compute {compute!r}")
@@ -532,8 +535,8 @@ def programs() -> dict[str, type]:
 def load_runtime(source, backend="llvm", compute: str | None = None, mlp_form: str | None = None) -> Runtime:
     """The Runtime of a drjit export. source: the export's folder or manifest.json, or (manifest, arrays) as a
     translator returns them; backend: see `backend_of` (e.g. `mitsuba.Float` for the current variant's);
-    compute: "fp32" or "fp16" (default: fp16 on CUDA, fp32 on LLVM); mlp_form: `FORMS` (default: literal for fp32
-    on LLVM, coopvec otherwise)."""
+    compute: "fp32" or "fp16" (default: fp16 on CUDA, fp32 on LLVM); mlp_form: `FORMS` (default: literal for fp32,
+    coopvec for fp16; programs may choose otherwise, as NeuPreSS's wide layers take coopvec at fp32 on LLVM)."""
     manifest, arrays = source if isinstance(source, tuple) else read_export(source)
     b = backend_of(backend)
     if compute is None:
