@@ -39,8 +39,8 @@ BUDGET = {
               "expected_wall": "about 20 s"},
     "full": {"ours": "every registered model at 2^16, 2^20 and 2^22 queries (a call projected over "
                      f"{MAX_SECONDS_PER_CALL:g} s skipped), best of the run's repeats per wall second after "
-                     f"torch.cuda.synchronize; agreement with the CPU on {CHECK_QUERIES} queries; the Dr.Jit runtime of "
-                     "every model with a drjit export at fp16 (fp32 too for nbrdf, neubrdf, multiscale and "
+                     f"torch.cuda.synchronize; agreement with the CPU on {CHECK_QUERIES} queries; the Dr.Jit "
+                     "runtime of every model with a drjit export at fp16 (fp32 too for nbrdf, neubrdf, multiscale and "
                      "neural-appearance) at 2^16 and 2^20; their native BSDFs rendered by Mitsuba (512^2, 64 spp); "
                      "NeuBRDF's paper recipe (20000 steps at 2^14) on paper_white (GGX without the shared data)",
              "paper": "NeuBRDF Table 5 (RTX 3090 / 4090 timings), Timonen et al. Table 6 (RTX 3080 / 4090)",

@@ -174,8 +174,9 @@ print(json.dumps(value.tolist()))
 @pytest.mark.cuda
 def test_native_bsdf_under_cuda_ad_rgb(nmat):
     """The same BSDF under cuda_ad_rgb (fp16 compute, cooperative vectors on tensor cores) against the torch model in
-    float64 (times the light's cosine, as Mitsuba's eval), within the fp16 bound (1e-2 relative); in a subprocess, since a process holds one Mitsuba variant at a
-    time here. Needs no LLVM: a GPU machine without LLVM >= 16 runs it."""
+    float64 (times the light's cosine, as Mitsuba's eval), within the fp16 bound (1e-2 relative); in a subprocess,
+    since a process holds one Mitsuba variant at a time here. Needs no LLVM: a GPU machine without LLVM >= 16 runs
+    it."""
     import json
     from importlib.util import find_spec
     from neumat.catalog.modelfile import load_model

@@ -22,12 +22,12 @@ def drjit_available() -> bool:
     return True
 
 
-def _runtime(exported, backend: str = "llvm"):
+def _runtime(exported):
     from ..export.drjit.runtime import Runtime, load_runtime
 
     if isinstance(exported, Runtime):
         return exported
-    return load_runtime(exported.source() if hasattr(exported, "source") else exported, backend)
+    return load_runtime(exported.source() if hasattr(exported, "source") else exported, "llvm")
 
 
 def drjit_arrays(rt, q: Query) -> tuple:
@@ -43,12 +43,12 @@ def drjit_arrays(rt, q: Query) -> tuple:
     return (vec(q.wi), vec(q.wo), True, uv, fp), {}
 
 
-def drjit_eval(exported, q: Query, backend: str = "llvm") -> torch.Tensor:
-    """Values (N, 3) (float32) of a `DrJitExport` (or a loaded runtime, or an export folder; loaded on `backend`,
-    "llvm" or "cuda") at the queries q: uv and the footprint where q has them (else the finest level)."""
+def drjit_eval(exported, q: Query) -> torch.Tensor:
+    """Values (N, 3) (float32) of a `DrJitExport` or an export folder (loaded on LLVM), or of a loaded runtime (on
+    its own backend), at the queries q: uv and the footprint where q has them (else the finest level)."""
     import drjit as dr
 
-    rt = _runtime(exported, backend)
+    rt = _runtime(exported)
     args, kwargs = drjit_arrays(rt, q)
     out = rt.eval(*args, **kwargs)
     dr.eval(out)

@@ -191,8 +191,8 @@ class Mlp:
     compute "fp32" or "fp16"; form (`FORMS`): "literal" (fp32 only: the weights become constants of the kernel,
     each output an unrolled chain of dr.fma; Dr.Jit's LLVM backend compiles it into broadcast constants) or
     "coopvec" (`drjit.nn.matvec` on packed buffers at the compute precision; fp16 only on CUDA). Default: literal
-    for fp32, coopvec for fp16. `__call__(x, first_activation)`: x a list of Floats -> the outputs (fp32 Floats) before any
-    output activation."""
+    for fp32, coopvec for fp16. `__call__(x, first_activation)`: x a list of Floats -> the outputs (fp32 Floats)
+    before any output activation."""
 
     def __init__(self, b: Backend, weights: list, activation: str, compute: str = "fp32",
                  form: str | None = None) -> None:
