@@ -1,6 +1,5 @@
 """NeuMIP on UV textures, the texture-space baseline of NeuPreSS: its UV projection and local frames, invariance
 under rotations about the projection axis, a fit to a known transport function, model files, bad input."""
-import copy
 import math
 
 import pytest
@@ -8,6 +7,7 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
+from neumat.testing.kernel_parity import kernel_and_torch_errors
 from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
@@ -164,15 +164,8 @@ def test_fused_kernel_is_as_close_to_float64_as_the_torch_path(name):
     normal = torch.nn.functional.normalize(p + 0.3 * torch.randn(n, 3, generator=g), dim=-1)
     q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)), sample_uniform_sphere(torch.rand(n, 2, generator=g)),
               x=x, n=normal)
-    with torch.no_grad():
-        before = cpu_kernels.calls[0]
-        fast = model.eval(q)
-        assert cpu_kernels.calls[0] == before + 1
-        with cpu_kernels.switched_off():
-            ref32 = model.eval(q)
-        ref = copy.deepcopy(model).double().eval(Query(q.wi.double(), q.wo.double(), x=x.double(), n=normal.double()))
+    q64 = Query(q.wi.double(), q.wo.double(), x=x.double(), n=normal.double())
+    fast, kernel, torch32 = kernel_and_torch_errors(model, q, q64, floor=1e-3)
     assert model.eval(q).requires_grad  # with autograd on, the torch path: training gets its gradients
-    scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-3)  # the channels share the MLP's rounding: the row's size
-    kernel, torch32 = float(((fast - ref) / scale).abs().max()), float(((ref32 - ref) / scale).abs().max())
     assert (fast > 0).any() and (fast == 0).any()
     assert kernel <= 2 * torch32, (kernel, torch32)

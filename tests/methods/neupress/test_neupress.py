@@ -1,6 +1,5 @@
 """NeuPreSS: Fourier features, skip connections, eval / sampling shapes and checks, fitting the appearance
 module to a known function, and the sampler recovering a known lobe width."""
-import copy
 import math
 
 import pytest
@@ -8,6 +7,7 @@ import torch
 
 from neumat import InputError
 from neumat.core.query import Query
+from neumat.testing.kernel_parity import kernel_and_torch_errors
 from neumat.methods.neupress.targets import light_grid, neupress_predict, sampler_kl
 from neumat.fit.method import recipe_for
 from neumat.fit.trainer import fit
@@ -276,23 +276,14 @@ def test_small_batches_run_the_row_kernel_as_close_to_float64_as_torch(config):
         for p in m.appearance.parameters():
             p.add_(0.05 * torch.randn_like(p))
     m.set_bounds(torch.tensor([-0.6, -0.5, -0.55]), torch.tensor([0.6, 0.5, 0.55]))
-    m64 = copy.deepcopy(m).double()
     g = torch.Generator().manual_seed(1)
     kernel = torch32 = 0.0
     for _ in range(10):
         n = cpu_kernels.NEUPRESS_ROWS
         q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)), sample_uniform_sphere(torch.rand(n, 2, generator=g)),
                   x=torch.rand(n, 3, generator=g) - 0.5)
-        with torch.no_grad():
-            before = cpu_kernels.calls[0]
-            fast = m.eval(q)
-            assert cpu_kernels.calls[0] == before + 1
-            with cpu_kernels.switched_off():
-                ref32 = m.eval(q)
-            ref = m64.eval(Query(q.wi.double(), q.wo.double(), x=q.x.double()))
-        scale = ref.abs().amax(1, keepdim=True).clamp(min=1e-6)
-        kernel = max(kernel, float(((fast - ref) / scale).abs().max()))
-        torch32 = max(torch32, float(((ref32 - ref) / scale).abs().max()))
+        _, k, t = kernel_and_torch_errors(m, q, Query(q.wi.double(), q.wo.double(), x=q.x.double()), floor=1e-6)
+        kernel, torch32 = max(kernel, k), max(torch32, t)
     assert kernel <= 2 * torch32, (kernel, torch32)
     assert m.eval(q).requires_grad  # autograd on: torch, with gradients
     larger = Query(*(torch.cat([t, t]) for t in (q.wi, q.wo)), x=torch.cat([q.x, q.x]))
