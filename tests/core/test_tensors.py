@@ -1,7 +1,7 @@
 import torch
 
 from neumat.core.query import Query
-from neumat.core.tensors import derived_from, inference_call
+from neumat.core.tensors import DEVICE_ROWS, by_rows, derived_from, inference_call
 from neumat.methods.baselines.nbrdf import NBRDF
 
 
@@ -79,3 +79,31 @@ def test_derived_from_keeps_the_gradient_when_one_is_wanted():
         owner.squared()
     owner.squared().sum().backward()  # autograd on: built afresh, in the graph
     assert owner.builds == 2 and torch.equal(p.grad, torch.tensor([2.0, 4.0]))
+
+
+def test_by_rows_slices_for_the_cpu_cache_only_on_the_cpu():
+    """CPU tensors go in slices of `chunk` rows; on any other device (here "meta", standing in for a GPU, where each
+    slice costs its kernels' launches) in slices of chunk * 128 rows, at most DEVICE_ROWS, and never fewer than
+    chunk; a Query is sliced by its wi's device."""
+    sizes = []
+
+    def fn(t):
+        sizes.append(len(t))
+        return t * 2
+
+    n = 3 * 2 ** 13 + 5
+    by_rows(fn, 2 ** 13, torch.ones(n, 3))
+    assert sizes == [2 ** 13] * 3 + [5]
+    sizes.clear()
+    out = by_rows(fn, 2 ** 13, torch.ones(n, 3, device="meta"))
+    assert sizes == [n] and out.device.type == "meta"
+    sizes.clear()
+    by_rows(fn, 2 ** 14, torch.ones(DEVICE_ROWS + 1, 3, device="meta"))
+    assert sizes == [DEVICE_ROWS, 1]
+    sizes.clear()
+    by_rows(fn, 512, torch.ones(2 ** 17, 3, device="meta"))  # NeuPreSS's CPU slices: 2^16 on a GPU
+    assert sizes == [2 ** 16, 2 ** 16]
+    sizes.clear()
+    up = torch.tensor([0.0, 0.0, 1.0]).expand(40, 3)
+    by_rows(lambda q: fn(q.wi), 16, Query(up, up))  # a Query (checked, so not on "meta"): its wi's device, the CPU
+    assert sizes == [16, 16, 8]

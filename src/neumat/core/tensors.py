@@ -102,14 +102,30 @@ def inference_call(fn: Callable[..., torch.Tensor], *args) -> torch.Tensor:
     return out.clone()
 
 
+#: on a GPU (any device but the CPU) `by_rows` slices are this many times the CPU's, up to DEVICE_ROWS: a GPU has
+#: no cache to fit and pays a launch per kernel per slice. With the CPU's slices the cuda suite measured the torch
+#: runtimes at a CPU's rates on an H200 (GGX 15 ns a query, time linear in the slices: 245 us for each of 64 slices
+#: of 2^14 rows, about 50 launches each; benchmarks/results/cuda/h200.json)
+DEVICE_SCALE = 128
+DEVICE_ROWS = 2 ** 20
+
+
+def rows_per_slice(chunk: int, device: torch.device) -> int:
+    """`chunk` on the CPU; on another device chunk * DEVICE_SCALE up to DEVICE_ROWS (at least chunk): a model whose
+    CPU slices are small for its wide temporaries (NeuPreSS: 512 rows) keeps proportionally smaller GPU slices."""
+    return chunk if device.type == "cpu" else max(chunk, min(chunk * DEVICE_SCALE, DEVICE_ROWS))
+
+
 def by_rows(fn: Callable[..., Any], chunk: int, *tensors: Any) -> Any:
-    """fn(*tensors) evaluated on consecutive slices of at most `chunk` rows of `tensors` (tensors or `Query`s), the
-    results (tensors, or dataclasses of tensors such as `Sample`) concatenated along rows. Why: an element-wise
-    chain over N rows makes N-sized temporaries that leave the cache once N is large; on slices that stay in cache
-    the cost per row does not grow with N (issue 49: GGX 1.5-3x slower per query at 2^20 than at 2^16). Autograd
-    flows through the slices; without it, tensor results are written into one preallocated output (no second copy
-    by a concatenation)."""
+    """fn(*tensors) evaluated on consecutive slices of at most `chunk` rows of `tensors` (tensors or `Query`s) on the
+    CPU (`rows_per_slice` on another device), the results (tensors, or dataclasses of tensors such as `Sample`)
+    concatenated along rows. Why: an element-wise chain over N rows makes N-sized temporaries that leave the cache
+    once N is large; on slices that stay in cache the cost per row does not grow with N (issue 49: GGX 1.5-3x slower
+    per query at 2^20 than at 2^16). Autograd flows through the slices; without it, tensor results are written into
+    one preallocated output (no second copy by a concatenation)."""
     n = len(tensors[0])
+    first_tensor = tensors[0] if isinstance(tensors[0], torch.Tensor) else tensors[0].wi
+    chunk = rows_per_slice(chunk, first_tensor.device)
     if n <= chunk:
         return fn(*tensors)
     first = fn(*(t[:chunk] for t in tensors))

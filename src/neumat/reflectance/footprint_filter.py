@@ -12,6 +12,7 @@ from typing import Callable
 import torch
 
 from ..core.query import Query
+from ..core.tensors import rows_per_slice
 from ..nn.latent_texture import check_footprint, isotropic_footprint
 
 
@@ -30,7 +31,7 @@ def filtered_eval(point_eval: Callable[[torch.Tensor, torch.Tensor, torch.Tensor
     """Mean of point_eval(wi, wo, x) (N, 3) over `samples` positions x ~ N(q.uv, cov) per query; cov (N, 2, 2).
     Positions come from `generator` (fresh ones every call)."""
     chol = torch.linalg.cholesky(cov.double()).to(q.dtype)
-    per_chunk = max(1, chunk // samples)
+    per_chunk = max(1, rows_per_slice(chunk, q.device) // samples)
     out = []
     for s in range(0, len(q), per_chunk):
         e = min(len(q), s + per_chunk)

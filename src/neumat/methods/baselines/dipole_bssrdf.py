@@ -21,6 +21,7 @@ import torch.nn.functional as F
 from neumat.core.checks import check_int, check_number
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
+from neumat.core.tensors import rows_per_slice
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
 from neumat.nn import cpu_kernels
@@ -179,8 +180,9 @@ class DipoleBSSRDF(LearnedMaterial):
         cos_o = (n * wo).sum(-1)
         out_factor = (1 - fresnel_dielectric(cos_o.clamp(min=0), eta)) * (cos_o > 0) / math.pi
         chunks = []
-        for s in range(0, x.shape[0], self.cfg.batch):
-            sl = slice(s, s + self.cfg.batch)
+        batch = rows_per_slice(self.cfg.batch, x.device)
+        for s in range(0, x.shape[0], batch):
+            sl = slice(s, s + batch)
             cos_k = wi[sl] @ self.normals.T  # (B, K)
             lit = cos_k.clamp(min=0)
             ft = 1 - fresnel_dielectric(lit.reshape(-1), eta).reshape(lit.shape)

@@ -22,7 +22,7 @@ from neumat.core.config import bounded, check_bounds, resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
-from neumat.core.tensors import cached_tensor, inference_call
+from neumat.core.tensors import cached_tensor, inference_call, rows_per_slice
 from neumat.models.base import LearnedMaterial
 from neumat.methods.baselines.nbrdf import NBRDF
 from neumat.nn import cpu_kernels
@@ -350,6 +350,7 @@ class NeuBRDF(LearnedMaterial):
         rest of the MLP; with `Config.direction_inputs`, their first-layer columns times the inputs are added
         before the activation. Directions below the horizon give finite values that the caller masks."""
         n, m = self.cfg.nside, wi.shape[0]
+        chunk = rows_per_slice(chunk, wi.device)
         # the direction inputs' first-layer columns (the last ones), (extra, hidden)
         kind = self.cfg.direction_inputs
         extra = DIRECTION_INPUTS[kind]

@@ -20,6 +20,7 @@ from torch import nn
 from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import DataFormatError, InputError
+from neumat.core.tensors import rows_per_slice
 from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.models.base import LearnedMaterial
@@ -330,7 +331,7 @@ class SparseBTF(LearnedMaterial):
         if fast is not None:
             return fast
         if batch is None:
-            batch = max(64, (1 << 18) // max(self.cfg.tau))
+            batch = rows_per_slice(max(64, (1 << 18) // max(self.cfg.tau)), q.device)
         if batch < 1:
             raise InputError(f"SparseBTF.eval: batch must be at least 1, got {batch}")
         out = [self._eval_batch(q[s:s + batch]) for s in range(0, len(q), batch)]
