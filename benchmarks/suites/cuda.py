@@ -297,7 +297,7 @@ def _paper_fit(run: harness.Run, dev: torch.device) -> None:
             progress=False, device=dev)
         probe_s = time.perf_counter() - t0
     projected = probe_s / probe * recipe.steps
-    rows.append({"what": f"first {probe} steps", "source": label, "steps": probe, "batch": recipe.batch_size,
+    rows.append({"what": f"{probe} steps after a warm-up", "source": label, "steps": probe, "batch": recipe.batch_size,
                  "wall s": probe_s, "ms/step": 1e3 * probe_s / probe, "final loss": None, "best loss": None})
     if projected > MAX_FIT_SECONDS:
         run.skip("the whole paper-recipe fit", f"projected {projected:.0f} s, over the suite's {MAX_FIT_SECONDS:g} s")
