@@ -170,3 +170,31 @@ def test_cli_refuses_without_llvm_16_in_one_line_naming_libllvm19(tmp_path, comm
     assert "apt install libllvm19" in r.stderr and {"empty search": "none in", "LLVM 15": "(LLVM 15) is older",
                                                     "missing file": "is not a file"}[setting] in r.stderr
     assert r.stdout == "" and sorted(p.name for p in tmp_path.iterdir()) == ["empty", "s.xml", "tri.ply"]
+
+
+_VARIANT_WITHOUT_LLVM = """
+from neumat.core.errors import InputError
+from neumat.core.mitsuba import import_mitsuba
+for variant in ("llvm_ad_rgb", "cuda_ad_rgb"):
+    try:
+        import_mitsuba(variant)
+        print(variant, "loaded")
+    except InputError as e:
+        print(variant, "refused:", str(e).splitlines()[0])
+"""
+
+
+def test_a_cuda_variant_needs_no_llvm(tmp_path):
+    """Without LLVM >= 16, import_mitsuba refuses an LLVM variant naming the fix, and goes on to load a CUDA variant
+    (which on a machine without a GPU fails for want of one, not of an LLVM): a GPU machine without LLVM renders
+    natively in cuda_ad_rgb."""
+    pytest.importorskip("mitsuba")
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    env.update(PYTHONPATH=SRC, NEUMAT_LIBLLVM_DIRS=str(tmp_path))
+    r = subprocess.run([sys.executable, "-c", _VARIANT_WITHOUT_LLVM], env=env, capture_output=True, text=True,
+                       timeout=120)
+    lines = dict(line.split(" ", 1) for line in r.stdout.strip().splitlines())
+    assert "no usable LLVM >= 16" in lines["llvm_ad_rgb"] and "libllvm19" in lines["llvm_ad_rgb"], lines
+    assert lines["cuda_ad_rgb"] == "loaded" or (
+        lines["cuda_ad_rgb"].startswith("refused: Mitsuba 3 with the cuda_ad_rgb variant failed to load")
+        and "LLVM >= 16" not in lines["cuda_ad_rgb"]), lines
