@@ -98,3 +98,31 @@ def test_argument_errors_come_before_mitsuba(tmp_path, without_llvm):
     r = CliRunner().invoke(app, ["mitsuba-render", str(scene), "-o", str(tmp_path / "x.png")])
     assert r.exit_code == 2 and "libllvm19" in _said(r), r.output  # the refusal itself
     assert [p.name for p in tmp_path.iterdir()] == ["scene.xml"]
+
+
+@pytest.mark.mitsuba
+def test_the_variant_option(tmp_path):
+    """--variant picks Mitsuba's variant: an unknown or non-RGB one is a one-line error naming the installed ones;
+    cuda_ad_rgb on a machine without a GPU is a one-line error too (in a subprocess: a failed variant switch must
+    not touch this process's Mitsuba), and renders where there is one."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    mitsuba_or_skip()
+    scene = tmp_path / "scene.xml"
+    scene.write_text(SCENE)
+    for variant, message in (("llvm_ad_rbg", "installedMitsubavariants"), ("llvm_ad_spectral", "unpolarisedRGBvariant")):
+        r = CliRunner().invoke(app, ["mitsuba-render", str(scene), "--variant", variant, "-o",
+                                     str(tmp_path / "x.png")])
+        assert r.exit_code == 2 and message in _said(r), (variant, r.output)
+    src = str(Path(__file__).resolve().parents[2] / "src")
+    r = subprocess.run([sys.executable, "-m", "neumat.cli.main", "mitsuba-render", str(scene), "--variant",
+                        "cuda_ad_rgb", "--spp", "4", "-o", str(tmp_path / "gpu.exr")], capture_output=True, text=True,
+                       timeout=300, env={**os.environ, "PYTHONPATH": src})
+    import torch
+    if torch.cuda.is_available():
+        assert r.returncode == 0 and (tmp_path / "gpu.exr").is_file(), r.stderr
+    else:
+        assert r.returncode == 2 and r.stderr.startswith("error: ") and "cuda_ad_rgb" in r.stderr, r.stderr
+        assert not (tmp_path / "gpu.exr").exists()

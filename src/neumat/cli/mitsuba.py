@@ -19,6 +19,9 @@ def mitsuba_render(scene_arg: Path = typer.Argument(..., metavar="SCENE", help="
                                                     help="scene parameter NAME=VALUE (the XML's $NAME), repeatable"),
                    spp: int = typer.Option(None, min=1, help="samples per pixel (default: the scene's sampler)"),
                    seed: int = typer.Option(0, **SEED_RANGE),
+                   variant: str = typer.Option("llvm_ad_rgb", help="Mitsuba RGB variant: llvm_ad_rgb (the CPU, "
+                                               "needs LLVM >= 16) or cuda_ad_rgb (an NVIDIA GPU, no LLVM needed; "
+                                               "native models run their fp16 Dr.Jit runtime there)"),
                    out: Path = typer.Option(..., "-o", "--out", callback=output_option(*IMAGE_OUT),
                                             help="output image (.png, .exr, .hdr)")) -> None:
     """Render SCENE with Mitsuba's integrator; `<bsdf type="neumat"><string name="material" value="..."/></bsdf>`
@@ -34,7 +37,7 @@ def mitsuba_render(scene_arg: Path = typer.Argument(..., metavar="SCENE", help="
         if not scene.is_file():
             raise InputError(f"scene file {str(scene)!r} does not exist")
         params = parse_overrides(define, "-D", text=True)  # Mitsuba substitutes the text as written
-        mi = mitsuba_translucent.register()  # the neumat BSDF and the translucent integrator
+        mi = mitsuba_translucent.register(variant)  # the neumat BSDF and the translucent integrator
         try:
             loaded = mi.load_file(str(scene), **params)
         except (RuntimeError, UnicodeDecodeError) as e:  # the parser: the message names the file, line, problem

@@ -29,5 +29,6 @@ def import_mitsuba(variant: str = VARIANT):
         if mi.variant() != variant:
             mi.set_variant(variant)
     except Exception as e:  # the variant failing to load
-        raise InputError(f"Mitsuba 3 with the {variant} variant failed to load: {type(e).__name__}: {e}") from e
+        hint = " (CUDA variants need an NVIDIA GPU and its driver)" if variant.startswith("cuda_") else ""
+        raise InputError(f"Mitsuba 3 with the {variant} variant failed to load{hint}: {type(e).__name__}: {e}") from e
     return mi
