@@ -121,7 +121,9 @@ def _keep_module_eval(evaluate):
 
 def check_sample_u(q: Query, u) -> torch.Tensor:
     """The uniform numbers u of `Material.sample(q, u)`: a floating-point tensor of shape (len(q), 2) with values
-    in [0, 1), else InputError."""
+    in [0, 1), else InputError; returned in the query's dtype and device (values that round up to 1 there kept just
+    below it), so a float64 u with a float32 query samples as the float32 u would (it used to fail inside some
+    materials with an error about Query.wo, a field the caller never gave)."""
     if not isinstance(u, torch.Tensor) or u.shape != (len(q), 2):
         raise InputError(f"u: expected a tensor of shape ({len(q)}, 2), got {getattr(u, 'shape', type(u))}")
     if not u.is_floating_point():
@@ -129,7 +131,10 @@ def check_sample_u(q: Query, u) -> torch.Tensor:
     if u.numel() and not bool(((u >= 0) & (u < 1)).all()):
         raise InputError(f"u: expected values in [0, 1), got [{u.min().item():.4g}, {u.max().item():.4g}]"
                          f"{' and NaN' if bool(u.isnan().any()) else ''}")
-    return u
+    if u.dtype == q.wi.dtype and u.device == q.wi.device:
+        return u
+    below_one = torch.nextafter(torch.ones((), dtype=q.wi.dtype), torch.zeros((), dtype=q.wi.dtype))
+    return u.to(q.wi.device, q.wi.dtype).clamp(max=float(below_one))
 
 
 def upper_hemisphere(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:

@@ -124,7 +124,7 @@ class AnalyticMaterial(Material):
 
     def sample(self, q: Query, u: torch.Tensor) -> Sample:
         """Draw wo given q.wi and u (N, 2) in [0, 1)^2; pdf and weight are 0 where sampling failed."""
-        check_sample_u(q, u)
+        u = check_sample_u(q, u)
         return by_rows(self._sample, self.chunk, q.wi, u)
 
     def _sample(self, wi: torch.Tensor, u: torch.Tensor) -> Sample:
