@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from btf_util import N_DIRS, SIZE, synthetic_btf
+from btf_util import N_DIRS, SIZE, synthetic_btf, unambiguous
 from neumat.core.query import Query
 from neumat.methods.sparse_btf.dictionary_train import train_dictionary
 from neumat.methods.sparse_btf.model import SparseBTF
@@ -43,15 +43,6 @@ def _queries(n: int, seed: int) -> Query:
     return Query(wi, wo, uv=torch.rand(n, 2, generator=g) * 4 - 1.5)
 
 
-def _unambiguous(model: SparseBTF, q: Query, gap: float = 1e-5) -> torch.Tensor:
-    k = model.cfg.neighbours
-    keep = torch.ones(len(q), dtype=torch.bool)
-    for dirs, w in ((model.light_dirs, q.wi), (model.view_dirs, q.wo)):
-        top = (w @ dirs.T).topk(k + 1, dim=-1).values
-        keep &= (top[:, k - 1] - top[:, k]) > gap
-    return keep
-
-
 def _runtime_eval(model: SparseBTF, q: Query, source=None) -> torch.Tensor:
     from drjit.llvm.ad import Array3f, Float
     from neumat.export.drjit.format import export_drjit
@@ -68,7 +59,7 @@ def _max_error(model: SparseBTF, q: Query, source=None) -> float:
     got = _runtime_eval(model, q, source)
     with torch.no_grad():
         ref = model.eval(q).double()
-    keep = _unambiguous(model, q)
+    keep = unambiguous(model, q)
     assert float(keep.float().mean()) > 0.95
     below = (q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)
     assert bool(below.any()) and bool((got[below] == 0).all())
@@ -137,7 +128,7 @@ def test_the_mitsuba_plugin_renders_a_sparse_btf_file_natively(dictionary, angul
     bsdf = mi.load_dict({"type": "neumat", "filename": str(path)})
     assert "NeumatNativeBSDF" in str(bsdf) and bsdf.runtime.manifest["program"] == "sparse-btf"
     q = _queries(2000, 2)
-    keep = _unambiguous(model, q) & (q.wi[:, 2] > 0) & (q.wo[:, 2] > 0)
+    keep = unambiguous(model, q) & (q.wi[:, 2] > 0) & (q.wo[:, 2] > 0)
     si = dr.zeros(mi.SurfaceInteraction3f, len(q))
     si.wi = mi_vector(mi, q.wi)
     si.uv = mi.Point2f(mi.Float(q.uv[:, 0].contiguous()), mi.Float(q.uv[:, 1].contiguous()))
