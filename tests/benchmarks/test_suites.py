@@ -11,6 +11,7 @@ from pathlib import Path
 
 import jsonschema
 import pytest
+import torch
 
 from benchmarks import harness
 from benchmarks.suites import SUITES, speed
@@ -164,6 +165,10 @@ def _check_speed(doc: dict) -> None:
     reads = next(t for t in doc["tables"] if t["name"] == "reads")["rows"]
     assert {(r["material"], r["read"]) for r in reads} >= {("multiscale", read) for read in speed.READS}
     assert all(r["evals/cpu s"] > 0 and r["path"] == rows[(r["material"], r["queries"])]["path"] for r in reads)
+    for r in next(t for t in doc["tables"] if t["name"] == "fixed")["rows"]:  # the intercept of the two batches
+        if r["us/call at 64"] is not None:
+            one, many = r["us/call at 1"], r["us/call at 64"]
+            assert r["fixed us"] == pytest.approx(min(max(one - (many - one) / 63, 0.0), one), rel=1e-3), r
     exports = next((t["rows"] for t in doc["tables"] if t["name"] == "exports"), [])
     for target in {r["target"] for r in exports if not r["target"].startswith("drjit")}:
         at = {r["material"]: r for r in exports if r["target"] == target}
@@ -180,6 +185,15 @@ def _check_speed(doc: dict) -> None:
         assert crop and len(larger) == 1 and {r["model"] for r in larger} == {"multiscale"}
         r = larger[0]
         assert r["x 32^2"] == pytest.approx(r["cpu s/step"] / crop[(r["batch"], r["phase"])], rel=1e-3)
+
+
+def test_raster_uv_walks_the_square_row_by_row():
+    """The texture-read table's coherent uv: pixel centres of a side x rows image, u fastest, every one inside."""
+    uv = speed.raster_uv(64)
+    assert uv.shape == (64, 2) and ((uv > 0) & (uv < 1)).all()
+    assert torch.equal(uv[:8, 0], (torch.arange(8) + 0.5) / 8) and (uv[:8, 1] == 1 / 16).all()
+    assert (uv[8:16, 1] == 3 / 16).all() and len(set(map(tuple, uv.tolist()))) == 64
+    assert speed.raster_uv(96)[-1].tolist() == pytest.approx([7.5 / 8, 11.5 / 12], rel=1e-7)  # 8 wide, 12 rows
 
 
 def test_committed_results_match_the_schema_and_name_their_command():
