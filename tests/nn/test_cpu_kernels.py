@@ -1,5 +1,9 @@
 """neumat.nn.cpu_kernels: the fused C kernels against float64 and the torch paths they replace, and their fallback."""
+import ctypes
 import math
+import os
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -355,12 +359,40 @@ def test_a_model_evaluated_by_a_kernel_still_copies_and_pickles(tmp_path):
 
 
 def test_a_damaged_cached_library_is_built_again(fresh_kernels):
+    """A cached library left damaged (an interrupted write by another process): the next process builds it again.
+    In a new process, as it happens: this one has the library loaded, and dlopen would hand back its copy."""
     if cpu_kernels.library() is None:
         pytest.skip(f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
     built = next(cpu_kernels._cache_dir().rglob("*.so"))
+    built.unlink()  # a new file under the old name (writing into the loaded one would pull it from under us)
     built.write_bytes(b"not a library")
-    cpu_kernels.reset()
-    assert cpu_kernels.library() is not None, cpu_kernels.unavailable()
+    code = ("from neumat.nn import cpu_kernels as c; import torch; lib = c.library(); assert lib is not None, "
+            "c.unavailable(); print(lib.nbrdf_eval.argtypes is not None)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "NEUMAT_CACHE_DIR": str(cpu_kernels._cache_dir().parent)})
+    assert done.returncode == 0 and done.stdout.strip() == "True", done.stderr[-2000:]
+    assert built.read_bytes()[:4] == b"\x7fELF"
+
+
+def test_every_kernel_is_declared_from_the_source():
+    """The ctypes declarations come from the C source's definitions: every exported kernel, each parameter typed
+    (pointers, long, int, float), and a call with a wrong argument type is refused before it reaches C."""
+    protos = cpu_kernels.prototypes(cpu_kernels.SOURCE.read_text())
+    assert {"nbrdf_eval", "neubrdf_eval", "multiscale_eval", "neumip_eval", "ggx_eval", "dipole_eval",
+            "mlp_forward"} <= set(protos)
+    assert protos["ggx_eval"] == [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_float, ctypes.c_float,
+                                  ctypes.c_int, *[ctypes.c_void_p] * 5]
+    with pytest.raises(RuntimeError, match="no ctypes type"):
+        cpu_kernels.prototypes("int k(const float *x, double y) {\n")
+    lib = cpu_kernels.library()
+    if lib is None:
+        pytest.skip(f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
+    assert all(getattr(lib, name).argtypes == types for name, types in protos.items())
+    x = torch.zeros(1, 3)
+    with pytest.raises(ctypes.ArgumentError):  # a float where the row count (long) goes
+        lib.ggx_eval(x.data_ptr(), x.data_ptr(), 1.0, 0.1, 0.1, 0, None, None, None, None, x.data_ptr())
+    with pytest.raises(TypeError):  # an argument short
+        lib.ggx_eval(x.data_ptr(), x.data_ptr(), 1, 0.1, 0.1, 0, None, None, None, None)
 
 
 @needs_kernels

@@ -20,6 +20,7 @@ import ctypes
 import hashlib
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -85,12 +86,44 @@ def _compile(retry: bool = True) -> ctypes.CDLL:
         finally:
             partial.unlink(missing_ok=True)
     try:
-        return ctypes.CDLL(str(lib))
+        return _declared(ctypes.CDLL(str(lib)))
     except OSError:
         if not retry:
             raise
         lib.unlink(missing_ok=True)  # a damaged cached copy (an interrupted disk write): built again, once
         return _compile(retry=False)
+
+
+_C_TYPES = {"long": ctypes.c_long, "int": ctypes.c_int, "float": ctypes.c_float}
+
+
+def prototypes(source: str) -> dict[str, list]:
+    """The ctypes argument types of each exported (`int name(...)` at a line's start) function of the C source:
+    pointers of any kind c_void_p, long / int / float scalars their own. Read from the source itself, so that the
+    declarations cannot drift from the definitions."""
+    out = {}
+    for name, params in re.findall(r"^int (\w+)\(([^)]*)\)\s*\{", source, re.M):
+        types = []
+        for param in params.split(","):
+            kind = param.rsplit(None, 1)[0].replace("const", "").strip()
+            if "*" in param:
+                types.append(ctypes.c_void_p)
+            elif kind in _C_TYPES:
+                types.append(_C_TYPES[kind])
+            else:
+                raise RuntimeError(f"cpu_kernels.c: {name}'s parameter {param.strip()!r} has no ctypes type")
+        out[name] = types
+    return out
+
+
+def _declared(lib: ctypes.CDLL) -> ctypes.CDLL:
+    """lib with every exported kernel's argument and return types declared (`prototypes`): a call with a wrong
+    argument type (a Python float for an int, a missing argument) raises ctypes.ArgumentError or TypeError instead
+    of passing the C function garbage."""
+    for name, types in prototypes(SOURCE.read_text()).items():
+        fn = getattr(lib, name)
+        fn.argtypes, fn.restype = types, ctypes.c_int
+    return lib
 
 
 def library() -> ctypes.CDLL | None:
