@@ -6,11 +6,14 @@ crop=64 --source-option crop_origin=R,C --source-option samples=8 --seed S`) and
 trainer's FitWarning reads it).
 
 Jobs run as subprocesses of the installed CLI, `--workers` at a time, one thread each; every finished job appends one
-JSON line to OUT/jobs.jsonl, so a rerun with the same OUT resumes. `--report` prints the per-crop and per-regime
-tables from OUT/jobs.jsonl.
+JSON line to OUT/jobs.jsonl (or the file `--jobs` names), so a rerun with the same OUT resumes. `--report` prints the
+per-crop and per-regime tables from that file. `--jobs` at a committed ledger (`results/*_jobs.jsonl`, inside the
+checkout) keeps each finished fit where a session that ends early leaves it, as an uncommitted change, and a rerun on
+another machine takes up where that one stopped (a fit takes 5-12 minutes; the whole protocol at two seeds, ~8 CPU
+hours, is longer than a session).
 
 Usage: python -m benchmarks.studies.multiscale.selection_free OUT [--workers 2] [--models multiscale,tripleplane]
-       [--seeds 0,1] [--steps N] [--set KEY=VALUE ... --variant NAME] [--only SET,...] [--report]
+       [--seeds 0,1] [--steps N] [--set KEY=VALUE ... --variant NAME] [--only SET,...] [--jobs FILE] [--report]
 """
 from __future__ import annotations
 
@@ -122,6 +125,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--only", default=None, help="comma-separated set names to restrict to")
     parser.add_argument("--crops-per-set", type=int, default=None, help="only the first N crops of each set")
     parser.add_argument("--report", action="store_true")
+    parser.add_argument("--jobs", type=Path, default=None, help="the JSON-lines file of finished jobs (default "
+                        "OUT/jobs.jsonl): read to resume, appended to as each job ends")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     crops_file = args.out / "crops.json"
@@ -131,7 +136,7 @@ def main(argv: list[str]) -> int:
             c["stats"] = crop_stats(c)
         crops_file.write_text(json.dumps(cs, indent=1))
     cs = json.loads(crops_file.read_text())
-    jobs_file = args.out / "jobs.jsonl"
+    jobs_file = args.jobs or args.out / "jobs.jsonl"
     if args.report:
         from .selection_free_report import report
         print(report(cs, [json.loads(line) for line in jobs_file.read_text().splitlines()]))
