@@ -126,6 +126,27 @@ def test_nbrdf_eval_equals_its_torch_path(config, n):
 
 
 @needs_kernels
+@pytest.mark.parametrize("n", [1, 65, 3000])
+def test_naive_mlp_eval_equals_its_torch_path(n):
+    from neumat.methods.baselines.naive_mlp import NaiveMLP
+
+    torch.manual_seed(n)
+    model = NaiveMLP()
+    q = Query(*_directions(n, seed=n))
+    before = cpu_kernels.calls[0]
+    with torch.no_grad():
+        got = model.eval(q)
+        with cpu_kernels.switched_off():
+            ref = model.eval(q)
+    assert cpu_kernels.calls[0] > before, "the kernel did not run"
+    torch.testing.assert_close(got, ref, rtol=2e-5, atol=1e-6)
+    assert (got[(q.wi[:, 2] <= 0) | (q.wo[:, 2] <= 0)] == 0).all()
+    out = model.eval(q)  # autograd on: the torch path, gradients reach the weights
+    out.sum().backward()
+    assert model.mlp.linears()[0].weight.grad is not None
+
+
+@needs_kernels
 def test_nbrdf_eval_split_over_threads_equals_one_thread():
     model = NBRDF(init_range=0.3)
     q = Query(*_directions(3 * cpu_kernels.PARALLEL_ROWS + 7, seed=3))

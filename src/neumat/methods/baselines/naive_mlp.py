@@ -17,6 +17,7 @@ from neumat.core.material import zero_below_horizon
 from neumat.core.query import Query
 from neumat.core.tensors import by_rows
 from neumat.models.base import LearnedMaterial
+from neumat.nn import cpu_kernels
 from neumat.nn.codebook import float_bits, storage_bytes
 from neumat.nn.mlp import MLP
 
@@ -64,6 +65,11 @@ class NaiveMLP(LearnedMaterial):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NaiveMLP.eval")
+        if cpu_kernels.usable(q.wi, q.wo, self.mlp.net[0].weight):
+            mlp = cpu_kernels.prepared(self, lambda: cpu_kernels.PackedMLP.pack(self.mlp.net))
+            if mlp is not None:  # the MLP as one fused C call (neumat.nn.cpu_kernels), exp and horizon in torch
+                f = torch.exp(cpu_kernels.mlp_forward(mlp, torch.cat([q.wi, q.wo], -1)))
+                return zero_below_horizon(f, q.wi, q.wo)
         return by_rows(self._eval_rows, self.eval_chunk, q)
 
     def _eval_rows(self, q: Query) -> torch.Tensor:
