@@ -96,49 +96,64 @@ typedef float vec __attribute__((vector_size(64)));
 #define VLEN 16
 #define NV (BLOCK / VLEN)
 
-static void dense(const float *restrict W, const float *restrict b, const float *restrict x, float *restrict y,
-                  int in, int out, int kind) {
+static inline __attribute__((always_inline)) void dense_nv(const float *restrict W, const float *restrict b,
+                                                           const float *restrict x, float *restrict y, int in,
+                                                           int out, int kind, const int nv) {
     const float slope = negative_slope(kind);
     int o = 0;
     for (; o + 4 <= out; o += 4) {
         vec a0[NV], a1[NV], a2[NV], a3[NV];
-        for (int v = 0; v < NV; ++v) {
+        for (int v = 0; v < nv; ++v) {
             a0[v] = (vec){} + b[o]; a1[v] = (vec){} + b[o + 1]; a2[v] = (vec){} + b[o + 2]; a3[v] = (vec){} + b[o + 3];
         }
         const float *w0 = W + (long)o * in, *w1 = w0 + in, *w2 = w1 + in, *w3 = w2 + in;
         for (int i = 0; i < in; ++i) {
             const vec *xi = (const vec *)(x + i * BLOCK);
             const float c0 = w0[i], c1 = w1[i], c2 = w2[i], c3 = w3[i];
-            for (int v = 0; v < NV; ++v) {
+            for (int v = 0; v < nv; ++v) {
                 a0[v] += c0 * xi[v]; a1[v] += c1 * xi[v]; a2[v] += c2 * xi[v]; a3[v] += c3 * xi[v];
             }
         }
         vec *yo = (vec *)(y + o * BLOCK);
-        for (int v = 0; v < NV; ++v) {
+        for (int v = 0; v < nv; ++v) {
             yo[v] = a0[v]; yo[NV + v] = a1[v]; yo[2 * NV + v] = a2[v]; yo[3 * NV + v] = a3[v];
         }
-        float *yf = y + o * BLOCK;
-        if (kind == ACT_SILU)
-            for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
-        else
-            for (int k = 0; k < 4 * BLOCK; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
+        for (int j = 0; j < 4; ++j) {
+            float *yf = y + (o + j) * BLOCK;
+            if (kind == ACT_SILU)
+                for (int k = 0; k < nv * VLEN; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
+            else
+                for (int k = 0; k < nv * VLEN; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
+        }
     }
     for (; o < out; ++o) {
         vec a[NV];
-        for (int v = 0; v < NV; ++v) a[v] = (vec){} + b[o];
+        for (int v = 0; v < nv; ++v) a[v] = (vec){} + b[o];
         const float *w = W + (long)o * in;
         for (int i = 0; i < in; ++i) {
             const vec *xi = (const vec *)(x + i * BLOCK);
-            for (int v = 0; v < NV; ++v) a[v] += w[i] * xi[v];
+            for (int v = 0; v < nv; ++v) a[v] += w[i] * xi[v];
         }
         vec *yo = (vec *)(y + o * BLOCK);
-        for (int v = 0; v < NV; ++v) yo[v] = a[v];
+        for (int v = 0; v < nv; ++v) yo[v] = a[v];
         float *yf = y + o * BLOCK;
         if (kind == ACT_SILU)
-            for (int k = 0; k < BLOCK; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
+            for (int k = 0; k < nv * VLEN; ++k) yf[k] = yf[k] / (1.f + fast_exp(-yf[k]));
         else
-            for (int k = 0; k < BLOCK; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
+            for (int k = 0; k < nv * VLEN; ++k) yf[k] = yf[k] >= 0.f ? yf[k] : slope * yf[k];
     }
+}
+
+/* dense on a whole block, and on its first VLEN columns only (a call of a few rows: the rest of the block's
+   columns are left as they were, and nothing reads them) */
+static void dense(const float *restrict W, const float *restrict b, const float *restrict x, float *restrict y,
+                  int in, int out, int kind) {
+    dense_nv(W, b, x, y, in, out, kind, NV);
+}
+
+static void dense_short(const float *restrict W, const float *restrict b, const float *restrict x,
+                        float *restrict y, int in, int out, int kind) {
+    dense_nv(W, b, x, y, in, out, kind, 1);
 }
 
 /* a call's four block buffers (MAX_WIDTH x BLOCK each), on the heap (256 KB: more than some threads' stacks hold);
@@ -147,12 +162,15 @@ static float *work_buffers(void) {
     return aligned_alloc(64, 4 * sizeof(float) * MAX_WIDTH * BLOCK);
 }
 
-/* the MLP on one transposed block: x (dims[0] x BLOCK) in buf0; returns the buffer holding the output */
+/* the MLP on one transposed block of which the first m rows are wanted: x (dims[0] x BLOCK) in buf0; returns the
+   buffer holding the output (its first m columns; all BLOCK when m > VLEN). A call of a few rows (a renderer's
+   single query) then costs a sixteen-row MLP, not a whole block's (naive-mlp's 64 x 3 layers: 24 -> 6 us) */
 static float *mlp_block(float *buf0, float *buf1, int layers, const int *dims, const float *const *W,
-                        const float *const *b, int hidden_act) {
+                        const float *const *b, int hidden_act, int m) {
     float *x = buf0, *y = buf1;
     for (int l = 0; l < layers; ++l) {
-        dense(W[l], b[l], x, y, dims[l], dims[l + 1], l < layers - 1 ? hidden_act : ACT_NONE);
+        (m <= VLEN ? dense_short : dense)(W[l], b[l], x, y, dims[l], dims[l + 1],
+                                          l < layers - 1 ? hidden_act : ACT_NONE);
         float *t = x; x = y; y = t;
     }
     return x;
@@ -224,7 +242,7 @@ int nbrdf_eval(const float *wi, const float *wo, long n, int layers, const int *
             buf0[3 * BLOCK + k] = flip * d[0]; buf0[4 * BLOCK + k] = flip * d[1]; buf0[5 * BLOCK + k] = d[2];
             res[out_dim * BLOCK + k] = pi[3 * k + 2] > 0.f && po[3 * k + 2] > 0.f ? 1.f : 0.f;  /* above the horizon */
         }
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
         if (exp_minus_one)
             for (int i = 0; i < out_dim * BLOCK; ++i) {
                 float v = fast_expm1(y[i]);
@@ -392,7 +410,7 @@ static void neubrdf_rest(float *res, int hidden, float *buf0, float *buf1, int f
         for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] / (1.f + fast_exp(-buf0[j]));
     else
         for (int j = 0; j < hidden * BLOCK; ++j) buf0[j] = buf0[j] >= 0.f ? buf0[j] : slope * buf0[j];
-    store_exp(mlp_block(buf0, buf1, layers, dims, W, b, hidden_act), m, out_dim, wi, wo, s, out);
+    store_exp(mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m), m, out_dim, wi, wo, s, out);
 }
 
 /* NeuBRDF's runtime form (Dou, Zheng et al. 2024; neumat.methods.neubrdf.model, uniform corner weights) of
@@ -821,7 +839,7 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
             gate_row(read_d, zt + k, ds, dd, row + dh);
         }
         transpose_rows(rows, width, buf0);
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
         store_exp(y, m, out_dim, wi, wo, s, out);
     }
     free(work);
@@ -879,7 +897,7 @@ int neumip_eval(const Latents *latents, const float *wi, const float *wo, long n
                 for (int j = 0; j < 3; ++j) { dirs[j * BLOCK + k] = h[j]; dirs[(3 + j) * BLOCK + k] = d[j]; }
             }
         }
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
         store_exp(y, m, out_dim, wi, wo, s, out);
     }
     free(work);
@@ -904,7 +922,7 @@ int neumip_offset_uv(const Latents *offset, const float *wo, long n, int channel
             long row = s + (k < m ? k : 0);
             for (int j = 0; j < 3; ++j) buf0[(channels + j) * BLOCK + k] = wo[3 * row + j];
         }
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
         for (int k = 0; k < m; ++k) {
             const long row = s + k;
             const float h = y[k] / size, c = wo[3 * row + 2] > min_cos ? wo[3 * row + 2] : min_cos;
@@ -1223,7 +1241,7 @@ int neumip_uv_eval(const float *finest, int h, int w, int ds, const float *wi, c
         for (int k = 0; k < BLOCK; ++k) bilinear_read(finest, h + 2, w + 2, ds, lx[k], ly[k], rows + k * ds);
         transpose_rows(rows, ds, buf0);
         memcpy(lz, dirs + 2 * BLOCK, sizeof lz);  /* wi's local z, for the surface form */
-        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
         for (int k = 0; k < m; ++k)
             for (int j = 0; j < out_dim; ++j) {
                 float v = y[j * BLOCK + k];
@@ -1575,7 +1593,7 @@ int mlp_forward(const float *x, long n, int layers, const int *dims, const float
             long r = s + (k < m ? k : 0);
             for (int i = 0; i < in; ++i) buf0[i * BLOCK + k] = x[in * r + i];
         }
-        float *y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act);
+        float *y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
         for (int k = 0; k < m; ++k)
             for (int c = 0; c < out_dim; ++c) out[out_dim * (s + k) + c] = y[c * BLOCK + k];
     }
