@@ -400,15 +400,16 @@ def test_every_kernel_is_declared_from_the_source():
     (pointers, long, int, float), and a call with a wrong argument type is refused before it reaches C."""
     protos = cpu_kernels.prototypes(cpu_kernels.SOURCE.read_text())
     assert {"nbrdf_eval", "neubrdf_eval", "multiscale_eval", "neumip_eval", "ggx_eval", "dipole_eval",
-            "mlp_forward"} <= set(protos)
-    assert protos["ggx_eval"] == [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_float, ctypes.c_float,
-                                  ctypes.c_int, *[ctypes.c_void_p] * 5]
+            "mlp_forward", "ring_pixels_of", "exp_values"} <= set(protos)
+    assert protos["ggx_eval"] == ([ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_float, ctypes.c_float,
+                                   ctypes.c_int, *[ctypes.c_void_p] * 5], ctypes.c_int)
+    assert protos["exp_values"] == ([ctypes.c_void_p, ctypes.c_long, ctypes.c_int, ctypes.c_void_p], None)
     with pytest.raises(RuntimeError, match="no ctypes type"):
         cpu_kernels.prototypes("int k(const float *x, double y) {\n")
     lib = cpu_kernels.library()
     if lib is None:
         pytest.skip(f"CPU kernels unavailable: {cpu_kernels.unavailable()}")
-    assert all(getattr(lib, name).argtypes == types for name, types in protos.items())
+    assert all((getattr(lib, name).argtypes, getattr(lib, name).restype) == p for name, p in protos.items())
     x = torch.zeros(1, 3)
     with pytest.raises(ctypes.ArgumentError):  # a float where the row count (long) goes
         lib.ggx_eval(x.data_ptr(), x.data_ptr(), 1.0, 0.1, 0.1, 0, None, None, None, None, x.data_ptr())

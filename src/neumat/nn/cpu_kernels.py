@@ -97,12 +97,12 @@ def _compile(retry: bool = True) -> ctypes.CDLL:
 _C_TYPES = {"long": ctypes.c_long, "int": ctypes.c_int, "float": ctypes.c_float}
 
 
-def prototypes(source: str) -> dict[str, list]:
-    """The ctypes argument types of each exported (`int name(...)` at a line's start) function of the C source:
-    pointers of any kind c_void_p, long / int / float scalars their own. Read from the source itself, so that the
-    declarations cannot drift from the definitions."""
+def prototypes(source: str) -> dict[str, tuple[list, type | None]]:
+    """The ctypes argument types and return type of each exported function of the C source (`int name(...)` or
+    `void name(...)` at a line's start): pointers of any kind c_void_p, long / int / float scalars their own. Read
+    from the source itself, so that the declarations cannot drift from the definitions."""
     out = {}
-    for name, params in re.findall(r"^int (\w+)\(([^)]*)\)\s*\{", source, re.M):
+    for result, name, params in re.findall(r"^(int|void) (\w+)\(([^)]*)\)\s*\{", source, re.M):
         types = []
         for param in params.split(","):
             kind = param.rsplit(None, 1)[0].replace("const", "").strip()
@@ -112,7 +112,7 @@ def prototypes(source: str) -> dict[str, list]:
                 types.append(_C_TYPES[kind])
             else:
                 raise RuntimeError(f"cpu_kernels.c: {name}'s parameter {param.strip()!r} has no ctypes type")
-        out[name] = types
+        out[name] = types, ctypes.c_int if result == "int" else None
     return out
 
 
@@ -120,9 +120,9 @@ def _declared(lib: ctypes.CDLL) -> ctypes.CDLL:
     """lib with every exported kernel's argument and return types declared (`prototypes`): a call with a wrong
     argument type (a Python float for an int, a missing argument) raises ctypes.ArgumentError or TypeError instead
     of passing the C function garbage."""
-    for name, types in prototypes(SOURCE.read_text()).items():
+    for name, (types, result) in prototypes(SOURCE.read_text()).items():
         fn = getattr(lib, name)
-        fn.argtypes, fn.restype = types, ctypes.c_int
+        fn.argtypes, fn.restype = types, result
     return lib
 
 
