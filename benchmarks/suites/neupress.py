@@ -33,8 +33,8 @@ BUDGET = {
                      "second seed (the floor)",
              "paper": paper_budget(MODELS[:1]) + " on a GPU, on path-traced observations of the bunny and kitten "
                       "(10^4 paths, 24-48 h per object); image FLIP 0.009-0.079 over its five scenes",
-             "expected_wall": "about 2.5 h (estimated: the default trace and NeuPreSS fit grew 4x in session 56; "
-                              "1.5 h before; --work keeps traces, references and fits)"},
+             "expected_wall": "about 2 h (measured: 6,731 s wall, 5,632 CPU s, on an EPYC beside other jobs; "
+                              "results/neupress/full.json; --work keeps traces, references and fits)"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
