@@ -3,9 +3,12 @@ import pytest
 import torch
 from torch import nn
 
-from neumat.core.material import Material
+from neumat.catalog.open_material import open_material
+from neumat.core.material import Material, check_sample_u
 from neumat.core.query import Query
+from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import build_model, load_all
+from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 SMALL = {"multiscale": {"spatial_size": 8}, "tripleplane": {"spatial_size": 8}, "neumip-frame": {"spatial_size": 8},
          "neumip": {"spatial_size": 8}, "nbrdf-uv": {"spatial_size": 8}, "ggx-mipmap": {"spatial_size": 8}}
@@ -63,16 +66,10 @@ def test_sample_takes_u_of_another_float_dtype_as_the_query_s():
     """A float64 u with a float32 query samples what the float32 u samples, on every kind of material (a texture
     set and a measured table used to refuse it with an error about Query.wo); u that rounds up to 1 in float32 is
     kept below 1."""
-    import torch
-    from neumat.catalog.open_material import open_material
-    from neumat.core.material import check_sample_u
-    from neumat.core.query import Query
-    from neumat.warp.hemisphere import sample_cosine_hemisphere
     g = torch.Generator().manual_seed(0)
     wi = sample_cosine_hemisphere(torch.rand(64, 2, generator=g))
     u64 = torch.rand(64, 2, generator=g, dtype=torch.float64)
     q = Query(wi, wi)
-    from neumat.io.shared_data import shared_data_dir
     specs = ["lambert", "ggx:roughness=0.3", "principled"]
     if shared_data_dir() is not None:  # a measured table (refused the float64 u before)
         specs.append(str(shared_data_dir() / "rgl" / "paper_white_rgb.bsdf"))

@@ -65,7 +65,7 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
                                                     "translucent)"),
           roughness: float = typer.Option(None, help="GGX alpha of the dielectric surface"),
           images: int = typer.Option(4000, min=1, help="views, each with its own light direction (the default: "
-                                                       "with NeuPreSS's default fit, object-pixel FLIP 0.107 / 0.109 "
+                                                       "with NeuPreSS's default fit, object-pixel FLIP 0.107-0.114 "
                                                        "on the bunny against 0.16 at 1000; ~23 CPU min there)"),
           resolution: int = typer.Option(None, min=1, help="rays per side of each view (default: "
                                                            "collect_observations')"),

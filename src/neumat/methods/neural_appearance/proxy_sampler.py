@@ -16,7 +16,7 @@ from typing import Callable
 import torch
 from torch import nn
 
-from neumat.core.checks import check_finite, check_int
+from neumat.core.checks import check_int
 from neumat.core.config import resolve_config
 from neumat.core.errors import InputError
 from neumat.core.material import Material, check_sample_u, material_device, sample_weight
@@ -53,8 +53,8 @@ def draw_sample(lobes: ProxyLobes, q: Query, u: torch.Tensor, brdf: Callable[[to
     """`Material.sample` with the lobes of q (from `proxy_from_raw`): wo from `sample_defensive`, its density and
     the weight brdf(wo) cos / pdf, brdf(wo) (N, 3) the material's value at q with those wo. Only u is checked:
     q's directions and the lobes are valid already."""
-    check_finite(check_sample_u(q, u), "u")
-    wo = sample_defensive(lobes, q.wi, u.to(q.wi.dtype), check=False)
+    u = check_sample_u(q, u)  # in [0, 1) (so finite), in the query's dtype and device
+    wo = sample_defensive(lobes, q.wi, u, check=False)
     pdf = defensive_pdf(lobes, q.wi, wo, check=False)
     return Sample(wo, pdf, sample_weight(brdf(wo), wo, pdf, pdf > 0))
 
