@@ -240,6 +240,7 @@ class Run:
         seed_all(self.seed)
         self.started = started = time.perf_counter()
         cpu0 = time.process_time()
+        code = {"commit": _git("rev-parse", "HEAD"), "dirty": _dirty()}  # the code that runs: read before it runs
         self.suite.run(self)
         mode = "quick" if self.quick else "full"
         return {
@@ -250,7 +251,7 @@ class Run:
             "description": self.suite.DESCRIPTION,
             "budget": self.suite.BUDGET[mode],
             "seed": self.seed,
-            "machine": machine(),
+            "machine": {**machine(), **code},
             "harness": {"timer": "best of N samples of process CPU seconds, each sample >= min_seconds of calls",
                         "repeats": self.repeats, "min_seconds": self.min_seconds,
                         "floor_seconds": timer_floor(self.repeats, self.min_seconds)},

@@ -95,6 +95,66 @@ def run(run: harness.Run) -> None:
             runtime_rates[name] = _eval_rate(run, materials[name], export_n)
     _exports(run, materials, export_n, runtime_rates, sgemm)
     _training(run)
+    tables = {t["name"]: t["rows"] for t in run.tables}
+    run.table("targets", "Issue 49's targets on this run's tables", targets(tables, export_n),
+              "each target against the tables above: '% sgemm' of the runtime forms at 2^16 queries, every eval "
+              "call's fixed cost, GGX's per-query cost from 2^16 to 2^20, NeuBRDF's GLSL (fp32, llvmpipe) against "
+              f"its rate at cdd2d0c ({GLSL_NEUBRDF_BEFORE:.3g} evaluations per CPU s) and against its own runtime, "
+              "the 1K-set training step against the crop's; 'met' empty where this run did not measure it "
+              "(--quick: its batches stop at 2^12)")
+
+
+#: issue 49's targets ("What it must show"), checked on every run's own tables (`targets`)
+BOUND_NEURAL_BRDF = 50.0      # % of sgemm at 2^16 queries: the NeuBRDF and NBRDF runtime forms
+BOUND_LATENT = 15.0           # % of sgemm at 2^16 queries: the latent-texture family and neural-appearance
+LATENT_FAMILY = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv",
+                 "neural-appearance")
+MAX_FIXED_US = 50.0           # fixed cost of an eval call
+MAX_GGX_GROWTH = 1.5          # GGX's per-query cost at 2^20 queries over its cost at 2^16
+GLSL_NEUBRDF_BEFORE = 1.66e5  # NeuBRDF's GLSL evaluations per CPU s on llvmpipe at cdd2d0c (the issue's table)
+MIN_GLSL_GAIN = 10.0
+MAX_GLSL_X_RUNTIME = 2.0      # NeuBRDF's GLSL cost over its own runtime's (torch or C kernel), per core
+MAX_STEP_RATIO = 3.0          # a multiscale / neural-appearance step on the 1K set over the same step on a crop
+
+
+def targets(tables: dict[str, list[dict]], n: int = 2 ** 16) -> list[dict]:
+    """Issue 49's targets against a run's tables (name -> rows, as `run.tables` holds them): a row per target and
+    model with the measured value, the bound and whether it is met (None: not measured in this run)."""
+    rows = []
+
+    def add(target: str, what: str, value: float | None, bound: str, met: bool) -> None:
+        rows.append({"target": target, "what": what, "measured": value, "bound": bound,
+                     "met": None if value is None else met})
+
+    at = {(r["material"], r["queries"]): r for r in tables.get("eval", [])}
+    for names, bound in ((("neubrdf", "nbrdf"), BOUND_NEURAL_BRDF), (LATENT_FAMILY, BOUND_LATENT)):
+        for name in names:
+            value = at.get((name, n), {}).get("% sgemm")
+            add(f"% sgemm at {n} queries", name, value, f">= {bound:g}", value is not None and value >= bound)
+    for row in tables.get("fixed", []):
+        if row.get("fixed us") is not None:
+            add("fixed cost of an eval call (us)", row["what"], row["fixed us"], f"<= {MAX_FIXED_US:g}",
+                row["fixed us"] <= MAX_FIXED_US)
+    for name in ("ggx:roughness=0.2", "ggx"):
+        small, large = at.get((name, n)), at.get((name, 2 ** 20))
+        growth = None if small is None or large is None else small["evals/cpu s"] / large["evals/cpu s"]
+        add(f"per-query cost at {2 ** 20} over {n} queries", name, growth, f"<= {MAX_GGX_GROWTH:g}",
+            growth is not None and growth <= MAX_GGX_GROWTH)
+    glsl = next((r for r in tables.get("exports", []) if r["material"] == "neubrdf"
+                 and r["target"].startswith("glsl") and r["precision"] == "fp32" and r["queries"] == n), None)
+    gain = None if glsl is None else glsl["evals/cpu s"] / GLSL_NEUBRDF_BEFORE
+    add("GLSL rate over its rate at cdd2d0c", "neubrdf", gain, f">= {MIN_GLSL_GAIN:g}",
+        gain is not None and gain >= MIN_GLSL_GAIN)
+    slower = None if glsl is None else glsl["x runtime"]
+    add("GLSL cost over its runtime's", "neubrdf", slower, f"<= {MAX_GLSL_X_RUNTIME:g}",
+        slower is not None and slower <= MAX_GLSL_X_RUNTIME)
+    for row in tables.get("training", []):
+        ratio = next((v for k, v in row.items() if k.startswith("x ") and v is not None), None)
+        if ratio is not None and row["model"] in ("multiscale", "neural-appearance") \
+                and row["texels"] == "1024^2":
+            add("1K-set training step over the crop's", f"{row['model']} ({row['phase']})", ratio,
+                f"<= {MAX_STEP_RATIO:g}", ratio <= MAX_STEP_RATIO)
+    return rows
 
 
 def _path(m, seed: int, q: Query | None = None) -> str:

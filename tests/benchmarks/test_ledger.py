@@ -171,3 +171,30 @@ def test_a_changed_ledger_or_result_does_not_make_the_code_dirty(tmp_path, monke
     assert harness._dirty() is False
     (tmp_path / "code.py").write_text("x = 2\n")
     assert harness._dirty() is True
+
+
+def test_results_name_the_code_as_it_was_when_the_run_started(tmp_path, monkeypatch):
+    """A run takes minutes to hours: a commit or an edit made while it runs is not the code that made its numbers,
+    so the commit and dirtiness are read when it starts."""
+    import subprocess
+
+    def git(*args):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=tmp_path, check=True,
+                       capture_output=True)
+
+    (tmp_path / "code.py").write_text("x = 1\n")
+    git("init", "-q")
+    git("add", "-A")
+    git("commit", "-qm", "c")
+    monkeypatch.setattr(harness, "ROOT", tmp_path)
+    started = harness._git("rev-parse", "HEAD")
+
+    def run(r):  # the code changes, then is committed, while the suite runs
+        (tmp_path / "code.py").write_text("x = 2\n")
+        git("commit", "-qam", "d")
+        r.table("t", "t", [{"a": 1}])
+
+    doc = harness.Run(types.SimpleNamespace(NAME="toy", run=run, BUDGET={"full": {}}, DESCRIPTION=""), False, 0, 1,
+                      1, ["toy"]).execute()
+    assert doc["machine"]["commit"] == started != harness._git("rev-parse", "HEAD")
+    assert doc["machine"]["dirty"] is False

@@ -178,6 +178,14 @@ def _check_speed(doc: dict) -> None:
             assert at["neubrdf"]["x GGX"] == pytest.approx(ggx / at["neubrdf"]["evals/cpu s"], rel=1e-3), target
     training = next(t for t in doc["tables"] if t["name"] == "training")["rows"]
     assert {r["phase"] for r in training if r["model"] == "neubrdf"} == {"coarse", "dense", "vq"}
+    written = next(t for t in doc["tables"] if t["name"] == "targets")["rows"]  # the last table, from the others
+    expected = speed.targets({t["name"]: t["rows"] for t in doc["tables"] if t["name"] != "targets"}, 2 ** 16)
+    assert [(r["target"], r["what"], r["met"]) for r in written] == [(r["target"], r["what"], r["met"])
+                                                                     for r in expected]
+    for w, e in zip(written, expected):
+        assert (w["measured"] is None) == (e["measured"] is None), w
+        assert w["measured"] is None or w["measured"] == pytest.approx(e["measured"], rel=1e-4), w
+    assert any(r["met"] is not None for r in written)  # the fixed costs at least are measured in a quick run
     assert all(r["cpu s/step"] > 0 for r in training)
     if shared_data_dir() is not None:  # multiscale on two crops, the larger's step over the smaller's
         crop = {(r["batch"], r["phase"]): r["cpu s/step"] for r in training if r.get("texels") == "32^2"}
@@ -185,6 +193,46 @@ def _check_speed(doc: dict) -> None:
         assert crop and len(larger) == 1 and {r["model"] for r in larger} == {"multiscale"}
         r = larger[0]
         assert r["x 32^2"] == pytest.approx(r["cpu s/step"] / crop[(r["batch"], r["phase"])], rel=1e-3)
+
+
+def test_targets_read_the_tables_and_say_what_is_not_measured():
+    """Issue 49's targets from a run's tables: met, missed at the bound's far side, None where not measured."""
+    n = 2 ** 16
+    evals = [{"material": "neubrdf", "queries": n, "% sgemm": 50.0, "evals/cpu s": 1.0},
+             {"material": "nbrdf", "queries": n, "% sgemm": 49.9, "evals/cpu s": 1.0},
+             {"material": "multiscale", "queries": n, "% sgemm": 15.0, "evals/cpu s": 1.0},
+             {"material": "ggx", "queries": n, "evals/cpu s": 3.0}, {"material": "ggx", "queries": 2 ** 20,
+                                                                     "evals/cpu s": 1.99}]
+    tables = {"eval": evals,
+              "fixed": [{"what": "a.eval", "fixed us": 50.0}, {"what": "b.eval", "fixed us": 50.1},
+                        {"what": "Query", "fixed us": None}],
+              "exports": [{"material": "neubrdf", "target": "glsl (llvmpipe)", "precision": "fp32", "queries": n,
+                           "evals/cpu s": 1.66e6, "x runtime": 2.5}],
+              "training": [{"model": "multiscale", "texels": "1024^2", "phase": "fit", "x 64^2": 3.0},
+                           {"model": "multiscale", "texels": "64^2", "phase": "fit", "x 64^2": None},
+                           {"model": "neumip", "texels": "1024^2", "phase": "fit", "x 64^2": 9.0}]}
+    rows = {(r["target"].split(" ")[0], r["what"]): r for r in speed.targets(tables, n)}
+    assert rows[("%", "neubrdf")]["met"] is True and rows[("%", "nbrdf")]["met"] is False
+    assert rows[("%", "multiscale")]["met"] is True and rows[("%", "neumip")]["met"] is None
+    assert {w for (t, w) in rows if t == "%"} == {"neubrdf", "nbrdf", *speed.LATENT_FAMILY}
+    assert rows[("fixed", "a.eval")]["met"] is True and rows[("fixed", "b.eval")]["met"] is False
+    assert ("fixed", "Query") not in rows
+    assert rows[("per-query", "ggx")]["measured"] == pytest.approx(3.0 / 1.99)
+    assert rows[("per-query", "ggx")]["met"] is False and rows[("per-query", "ggx:roughness=0.2")]["met"] is None
+    gain, slower = (r for r in speed.targets(tables, n) if r["target"].startswith("GLSL"))
+    assert gain["measured"] == pytest.approx(10.0) and gain["met"] is True
+    assert slower["measured"] == 2.5 and slower["met"] is False
+    assert rows[("1K-set", "multiscale (fit)")]["met"] is True and ("1K-set", "neumip (fit)") not in rows
+
+
+def test_the_latent_family_target_names_every_latent_texture_model():
+    """A new latent-texture model is held to the 15 % target too: the family is every neural model of the
+    latent_mlp folder (ggx-mipmap, its analytic baseline, aside) and neural-appearance."""
+    from neumat.models.registry import load_all
+
+    registry = load_all()
+    family = {n for n in registry.names() if registry.get(n).__module__.startswith("neumat.methods.latent_mlp.")}
+    assert set(speed.LATENT_FAMILY) == (family - {"ggx-mipmap"}) | {"neural-appearance"}
 
 
 def test_raster_uv_walks_the_square_row_by_row():
