@@ -558,6 +558,18 @@ static inline void bilinear_read(const float *tex, int H, int W, int C, float ix
     for (int k = 0; k < C; ++k) out[k] = wa * a[k] + wb * b[k] + wc * c[k] + wd * d[k];
 }
 
+/* bilinear_read of a texture, its usual channel counts as constants (8: every latent model's latents and
+   tripleplane's polar textures, 5: NeuMIP's offset texture, 12: ggx-mipmap's maps, 64: the gated model's polar
+   textures): the blend of the four corners then unrolls and vectorises (the offset model's evaluation 1.2x, the
+   others' 1.07x, on an AMD EPYC) */
+static inline void latent_read(const float *tex, int H, int W, int C, float ix, float iy, float *out) {
+    if (C == 8) bilinear_read(tex, H, W, 8, ix, iy, out);
+    else if (C == 5) bilinear_read(tex, H, W, 5, ix, iy, out);
+    else if (C == 12) bilinear_read(tex, H, W, 12, ix, iy, out);
+    else if (C == 64) bilinear_read(tex, H, W, 64, ix, iy, out);
+    else bilinear_read(tex, H, W, C, ix, iy, out);
+}
+
 /* remainder(x, period) as torch computes it for float32 (fmod, plus the period where the sign differs), for x in
    [-period, period] as atan2 gives (here fmod is x itself, or 0 at +-period) */
 static inline float remainder_near(float x, float period) {
@@ -674,7 +686,7 @@ static void atlas_trilinear(const Latents *L, int ds, float u, float v, float lo
         float ix = (gx + 1.f) / 2.f * (float)(L->Wa - 1), iy = (gy + 1.f) / 2.f * (float)(L->Ha - 1);
         ix = ix < 0.f ? 0.f : (ix > (float)(L->Wa - 1) ? (float)(L->Wa - 1) : ix);
         iy = iy < 0.f ? 0.f : (iy > (float)(L->Ha - 1) ? (float)(L->Ha - 1) : iy);
-        bilinear_read(L->atlas, L->Ha, L->Wa, ds, ix, iy, r[e]);
+        latent_read(L->atlas, L->Ha, L->Wa, ds, ix, iy, r[e]);
     }
     for (int k = 0; k < ds; ++k) acc[k] = acc[k] + (r[0][k] * w0 + r[1][k] * w1);
 }
@@ -713,7 +725,7 @@ static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
         long row = s + k < n ? s + k : s;
         float *zr = rows + k * ds;
         if (L->mode == 0) memcpy(zr, L->z + row * ds, ds * sizeof(float));
-        else if (L->mode == 1) bilinear_read(L->finest, L->h + 2, L->w + 2, ds, lx[k], ly[k], zr);
+        else if (L->mode == 1) latent_read(L->finest, L->h + 2, L->w + 2, ds, lx[k], ly[k], zr);
         else if (L->mode == 2) {
             for (int i = 0; i < ds; ++i) zr[i] = 0.f;
             atlas_trilinear(L, ds, L->uv[2 * row], L->uv[2 * row + 1], L->lod[row], 1.f, zr);
@@ -826,8 +838,8 @@ int multiscale_eval(const Latents *latents, const float *wi, const float *wo, lo
         polar_texels(r_h, phi_h, R, P, two_pi, tc, tc + BLOCK);  /* texel (x, y) of the half, then the diff texture */
         polar_texels(r_d, phi_d, R, P, pi, tc + 2 * BLOCK, tc + 3 * BLOCK);
         for (int k = 0; k < BLOCK; ++k) {
-            bilinear_read(tex_h, R, P + 2, dh * gate, tc[k], tc[BLOCK + k], read_h);
-            bilinear_read(tex_d, R, P + 2, dd * gate, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
+            latent_read(tex_h, R, P + 2, dh * gate, tc[k], tc[BLOCK + k], read_h);
+            latent_read(tex_d, R, P + 2, dd * gate, tc[2 * BLOCK + k], tc[3 * BLOCK + k], read_d);
             float *row = rows + k * width;
             if (!gated) {  /* tripleplane: the MLP reads [a_h, a_d, z] */
                 memcpy(row, read_h, sizeof(float) * dh);
@@ -1238,7 +1250,7 @@ int neumip_uv_eval(const float *finest, int h, int w, int ds, const float *wi, c
             }
         }
         latent_texels(uv, 0, BLOCK, h, w, lx, ly);
-        for (int k = 0; k < BLOCK; ++k) bilinear_read(finest, h + 2, w + 2, ds, lx[k], ly[k], rows + k * ds);
+        for (int k = 0; k < BLOCK; ++k) latent_read(finest, h + 2, w + 2, ds, lx[k], ly[k], rows + k * ds);
         transpose_rows(rows, ds, buf0);
         memcpy(lz, dirs + 2 * BLOCK, sizeof lz);  /* wi's local z, for the surface form */
         const float *restrict y = mlp_block(buf0, buf1, layers, dims, W, b, hidden_act, m);
