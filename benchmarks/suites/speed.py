@@ -1,6 +1,7 @@
 """speed: every registered model in its shipped runtime form, analytic GGX and a measured RGL table: FLOPs per
 query, evaluations and sample+pdf per CPU second at three batch sizes, % of this core's fp32 sgemm rate, cost
-against GGX in the same process, the GLSL (llvmpipe), Slang (slangpy CPU) and Dr.Jit runtime (LLVM) exports' rates, and training step
+against GGX in the same process, the GLSL (llvmpipe), Slang (slangpy CPU) and Dr.Jit runtime (LLVM) exports' rates
+(and the measured reference through Mitsuba's own `measured` plugin), training step
 CPU time per phase at two batch sizes through the library's trainer, texture-set models at two texture sizes (issue 49
 item 1; measures, asserts nothing)."""
 from __future__ import annotations
@@ -52,6 +53,8 @@ BUDGET = {
 #: the models a quick run times: one of each family that evaluates in milliseconds (every latent-texture model builds
 #: a paper-sized 1024^2 pyramid first, about 1.5 s; one stands for the family)
 QUICK_MODELS = ("ggx", "nbrdf", "neubrdf", "neural-appearance", "multiscale")
+#: the measured reference (in the shared data folder), timed also through Mitsuba's own `measured` plugin
+RGL_FILE = "rgl/paper_white_rgb.bsdf"
 
 
 def run(run: harness.Run) -> None:
@@ -250,7 +253,7 @@ def _materials(run: harness.Run) -> dict:
     if data is None:
         run.skip("measured reference", "shared data absent (neumat.io.shared_data)")
     else:
-        out["rgl:paper_white"] = open_material(data / "rgl" / "paper_white_rgb.bsdf")
+        out["rgl:paper_white"] = open_material(data / RGL_FILE)
     return out
 
 
@@ -333,7 +336,7 @@ def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, sge
     from neumat.export.glsl_common import GLSLExport
     from neumat.export.registry import load_formats
     from neumat.export.slang import slang_from_glsl
-    from neumat.testing.drjit_parity import drjit_available, drjit_evals_per_second
+    from neumat.testing.drjit_parity import drjit_available, drjit_evals_per_second, mitsuba_measured_evals_per_second
     from neumat.testing.glsl_ggx import ggx_glsl
     from neumat.testing.parity import glsl_evals_per_second, opengl_available
     from neumat.testing.slang_parity import slang_available, slang_evals_per_second
@@ -387,6 +390,16 @@ def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, sge
                          "x GGX": None if ggx_rate is None or name.startswith("harness") else ggx_rate / cpu,
                          "x runtime": runtime_rates[name] / cpu if name in runtime_rates else None,
                          "x torch ops": None if name not in torch_rates else torch_rates[name] / cpu})
+    rgl = materials.get("rgl:paper_white")
+    if rgl is not None and targets["drjit (llvm)"][0]:  # the measured reference against Mitsuba's own plugin
+        run.progress("mitsuba measured (llvm): rgl:paper_white")
+        both = _one_thread(mitsuba_measured_evals_per_second)(shared_data_dir() / RGL_FILE, queries(rgl, n,
+                                                                                                  run.seed),
+                                                              clock="both", repeats=max(run.repeats, 5))
+        rows.append({"material": "rgl:paper_white", "target": "mitsuba measured (llvm)", "precision": "fp32",
+                     "queries": n, "evals/wall s": both["wall"], "evals/cpu s": both["cpu"], "% sgemm": None,
+                     "x GGX": None, "x runtime": runtime_rates["rgl:paper_white"] / both["cpu"]
+                     if "rgl:paper_white" in runtime_rates else None, "x torch ops": None})
     run.table("exports", "Export targets (one thread where the target honours it)", rows,
               "marginal rates between n/8 and n queries (neumat.testing.parity.marginal_rate: start-up, "
               "compilation and uploads do not count), per wall second and per CPU second of this process, both "
@@ -397,7 +410,9 @@ def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, sge
               "package's own runtime (its torch operations or fused C kernel: the 'path' above) at the same batch, "
               "evals/cpu s / the row's; 'x torch ops' the same against the runtime's torch operations where its "
               "path is a C kernel (the kernels switched off); the floor row is the harness's "
-              "own cost (query upload, one fragment, read-back)")
+              "own cost (query upload, one fragment, read-back); the 'mitsuba measured' row is Mitsuba 3's own `measured` "
+              "plugin on the same RGL file in the Dr.Jit harness (its eval is BRDF x cos), its 'x runtime' neumat's "
+              "RGL reader's rate over Mitsuba's (below 1: neumat's is slower)")
 
 
 def _one_thread(rate):

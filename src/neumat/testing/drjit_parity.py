@@ -61,3 +61,32 @@ def drjit_evals_per_second(exported, q: Query, clock: str = "wall", repeats: int
     dict of the two)."""
     rt = _runtime(exported)
     return marginal_rate(lambda part: drjit_eval(rt, part), q, "drjit_evals_per_second", clock, repeats)
+
+
+
+def mitsuba_measured(path):
+    """`eval(q)` -> values (N, 3) (float32, CPU) of Mitsuba 3's own `measured` plugin (llvm_ad_rgb, its current
+    thread count) for the RGL file `path`: BRDF x cos, as Mitsuba's `eval` returns it, the queries uploaded and the
+    values read back on each call. The reference neumat's RGL reader is checked and timed against."""
+    import drjit as dr
+
+    from ..core.mitsuba import import_mitsuba
+
+    mi = import_mitsuba()
+    bsdf = mi.load_dict({"type": "measured", "filename": str(path)})
+    ctx = mi.BSDFContext()
+
+    def eval(q: Query) -> torch.Tensor:
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(np.ascontiguousarray(q.wi.T.float().cpu().numpy()))
+        out = bsdf.eval(ctx, si, mi.Vector3f(np.ascontiguousarray(q.wo.T.float().cpu().numpy())))
+        dr.eval(out)
+        return torch.from_numpy(np.array(out, dtype=np.float32).T.copy())
+    return eval
+
+
+def mitsuba_measured_evals_per_second(path, q: Query, clock: str = "wall",
+                                      repeats: int = 3) -> float | dict[str, float]:
+    """Evaluations per second of `mitsuba_measured(path)` at the queries q, in the harness of
+    `drjit_evals_per_second` (the `marginal_rate`: compilation and fixed costs do not count)."""
+    return marginal_rate(mitsuba_measured(path), q, "mitsuba_measured_evals_per_second", clock, repeats)
