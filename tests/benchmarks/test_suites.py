@@ -225,10 +225,13 @@ def test_targets_read_the_tables_and_say_what_is_not_measured():
     assert ("fixed", "Query") not in rows
     assert rows[("per-query", "ggx")]["measured"] == pytest.approx(3.0 / 1.99)
     assert rows[("per-query", "ggx")]["met"] is False and rows[("per-query", "ggx:roughness=0.2")]["met"] is None
-    gain, slower, slower_than_torch = (r for r in speed.targets(tables, n) if r["target"].startswith("GLSL"))
+    glsl = [r for r in speed.targets(tables, n) if r["target"].startswith("GLSL")]
+    assert [r["what"] for r in glsl] == ["neubrdf (fp32)"] * 3 + ["neubrdf (fp16)"] * 3
+    gain, slower, slower_than_torch = glsl[:3]
     assert gain["measured"] == pytest.approx(10.0) and gain["met"] is True
     assert slower["measured"] == 2.5 and slower["met"] is False
     assert slower_than_torch["measured"] == 1.5 and slower_than_torch["met"] is True
+    assert all(r["measured"] is None and r["met"] is None for r in glsl[3:])  # no fp16 row in these tables
     assert rows[("1K-set", "multiscale (fit)")]["met"] is True and ("1K-set", "neumip (fit)") not in rows
 
 
