@@ -40,3 +40,18 @@ def test_best_times_reads_every_clock_around_the_same_calls():
     calls = []
     best = timing.best_times(lambda: calls.append(1), 2, {k: (lambda k=k: next(ticks[k])) for k in ticks})
     assert best == {"a": 0.5, "b": 1.0} and len(calls) == 2
+
+
+def test_the_drjit_rate_uploads_each_batch_size_once():
+    """The Dr.Jit and Mitsuba rates' harness uploads a batch size's queries on its first call only, so that every
+    timed call traces the same input variables (fresh uploads gave Dr.Jit new variable orders, and a compile every
+    other call); each call still computes on the batch of its size."""
+    from neumat.testing import drjit_parity
+
+    uploads, calls = [], []
+    run = drjit_parity._uploaded_once(lambda part: uploads.append(len(part.wi)) or (len(part.wi),),
+                                      lambda size: calls.append(size))
+    q = _queries(800)
+    for part in (q[:64], q[:100], q, q[:100], q, q):
+        run(part)
+    assert uploads == [64, 100, 800] and calls == [64, 100, 800, 100, 800, 800]
