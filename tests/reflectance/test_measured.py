@@ -233,16 +233,16 @@ def test_rgl_matches_mitsuba_measured_plugin(rgl_files, gen):
 
 @pytest.mark.mitsuba
 def test_the_speed_suites_mitsuba_reference_evaluates_the_plugin_on_the_file(rgl_files, gen):
-    """`mitsuba_measured` (the speed suite's reference for the RGL reader) returns Mitsuba's BRDF x cos for the
+    """`MitsubaMeasured` (the speed suite's reference for the RGL reader) returns Mitsuba's BRDF x cos for the
     file it was given, at the queries given: equal to neumat's reader within the plugin test's tolerance; its rate
     is a positive number."""
     mitsuba_or_skip()
-    from neumat.testing.drjit_parity import mitsuba_measured, mitsuba_measured_evals_per_second
+    from neumat.testing.drjit_parity import MitsubaMeasured, mitsuba_measured_evals_per_second
 
     n = 2000
     q = Query(_hemisphere(n, gen, dtype=torch.float32), _hemisphere(n, gen, dtype=torch.float32))
     for path in rgl_files[:2]:
-        theirs = mitsuba_measured(path)(q).double()
+        theirs = MitsubaMeasured(path)(q).double()
         ours = RglMaterial.from_file(path).eval_cos(q).double()
         assert theirs.shape == (n, 3) and theirs.abs().max() > 0
         assert torch.all((ours - theirs).abs() <= 1e-3 * (theirs.abs() + 1e-3 * theirs.abs().max())), path.name

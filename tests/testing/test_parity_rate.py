@@ -49,8 +49,8 @@ def test_the_drjit_rate_uploads_each_batch_size_once():
     from neumat.testing import drjit_parity
 
     uploads, calls = [], []
-    run = drjit_parity._uploaded_once(lambda part: uploads.append(len(part.wi)) or (len(part.wi),),
-                                      lambda size: calls.append(size))
+    run = drjit_parity._uploaded_once(lambda part: uploads.append(len(part.wi)) or (len(part.wi), "x"),
+                                      lambda size, x: calls.append(size))
     q = _queries(800)
     for part in (q[:64], q[:100], q, q[:100], q, q):
         run(part)

@@ -72,10 +72,10 @@ def drjit_evals_per_second(exported, q: Query, clock: str = "wall", repeats: int
 
 
 def _uploaded_once(upload, call):
-    """run(part) for `marginal_rate`: each batch size's arrays uploaded on its first call only (upload(part) ->
-    (args, kwargs)), then call(args, kwargs). Uploading on every call gave the kernel fresh input variables whose
-    order could change its hash, so Dr.Jit compiled it again on every other call (NeuPreSS's: 5 s a time, and its
-    rate read 1.6e4 instead of 6e4 per CPU second)."""
+    """run(part) for `marginal_rate`: each batch size's inputs uploaded on its first call only (upload(part) -> a
+    tuple), then call(*that tuple). Uploading on every call gave the kernel fresh input variables whose order could
+    change its hash, so Dr.Jit compiled it again on every other call (NeuPreSS's: 5 s a time; its rate read 1.6e4
+    per CPU second for a runtime that runs 8e4)."""
     uploaded = {}
 
     def run(part: Query):
@@ -85,40 +85,39 @@ def _uploaded_once(upload, call):
     return run
 
 
-def mitsuba_measured(path):
-    """`eval(q)` -> values (N, 3) (float32, CPU) of Mitsuba 3's own `measured` plugin (llvm_ad_rgb, its current
-    thread count) for the RGL file `path`: BRDF x cos, as Mitsuba's `eval` returns it. The reference neumat's RGL
-    reader is checked and timed against. `eval.upload(q)` and `eval.on(uploaded)` split a call in two (the rate's
-    harness uploads once)."""
-    import drjit as dr
+class MitsubaMeasured:
+    """Mitsuba 3's own `measured` plugin (llvm_ad_rgb, its current thread count) on the RGL file `path`: called on
+    queries q, the values (N, 3) (float32, CPU) of its `eval`, BRDF x cos. The reference neumat's RGL reader is
+    checked and timed against; `upload(q)` and `on(uploaded)` are a call's two halves (the rate uploads once)."""
 
-    from ..core.mitsuba import import_mitsuba
+    def __init__(self, path) -> None:
+        from ..core.mitsuba import import_mitsuba
 
-    mi = import_mitsuba()
-    bsdf = mi.load_dict({"type": "measured", "filename": str(path)})
-    ctx = mi.BSDFContext()
+        self.mi = import_mitsuba()
+        self.bsdf = self.mi.load_dict({"type": "measured", "filename": str(path)})
+        self.ctx = self.mi.BSDFContext()
 
-    def upload(q: Query) -> tuple:
-        si = mi.SurfaceInteraction3f()
-        si.wi = mi.Vector3f(np.ascontiguousarray(q.wi.T.float().cpu().numpy()))
-        return si, mi.Vector3f(np.ascontiguousarray(q.wo.T.float().cpu().numpy()))
+    def upload(self, q: Query) -> tuple:
+        si = self.mi.SurfaceInteraction3f()
+        si.wi = self.mi.Vector3f(np.ascontiguousarray(q.wi.T.float().cpu().numpy()))
+        return si, self.mi.Vector3f(np.ascontiguousarray(q.wo.T.float().cpu().numpy()))
 
-    def on(uploaded: tuple) -> torch.Tensor:
-        out = bsdf.eval(ctx, *uploaded)
+    def on(self, si, wo) -> torch.Tensor:
+        import drjit as dr
+
+        out = self.bsdf.eval(self.ctx, si, wo)
         dr.eval(out)
         return torch.from_numpy(np.array(out, dtype=np.float32).T.copy())
 
-    def eval(q: Query) -> torch.Tensor:
-        return on(upload(q))
-    eval.upload, eval.on = upload, on
-    return eval
+    def __call__(self, q: Query) -> torch.Tensor:
+        return self.on(*self.upload(q))
 
 
 def mitsuba_measured_evals_per_second(path, q: Query, clock: str = "wall",
                                       repeats: int = 3) -> float | dict[str, float]:
-    """Evaluations per second of `mitsuba_measured(path)` at the queries q, in the harness of
+    """Evaluations per second of `MitsubaMeasured(path)` at the queries q, in the harness of
     `drjit_evals_per_second` (uploaded once per batch size; the `marginal_rate`: compilation and fixed costs do
     not count)."""
-    f = mitsuba_measured(path)
-    return marginal_rate(_uploaded_once(lambda part: (f.upload(part),), f.on), q,
-                         "mitsuba_measured_evals_per_second", clock, repeats)
+    plugin = MitsubaMeasured(path)
+    return marginal_rate(_uploaded_once(plugin.upload, plugin.on), q, "mitsuba_measured_evals_per_second", clock,
+                         repeats)
