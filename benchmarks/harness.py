@@ -109,9 +109,10 @@ def _cpu_kernels() -> str:
 
 
 def _dirty() -> bool:
-    """Whether the code differs from its commit: tracked files changed outside benchmarks/results (a ledger that a
-    run appends to, or results it writes, are not the code that made them)."""
-    return bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)benchmarks/results"))
+    """Whether the code differs from its commit: tracked files changed outside benchmarks/results and the studies'
+    results folders (a ledger that a run appends to, or results it writes, are not the code that made them)."""
+    return bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)benchmarks/results",
+                     ":(exclude,glob)benchmarks/studies/*/results/**"))
 
 
 def _git(*args: str) -> str:

@@ -161,6 +161,10 @@ def test_a_changed_ledger_or_result_does_not_make_the_code_dirty(tmp_path, monke
 
     (tmp_path / "benchmarks" / "results").mkdir(parents=True)
     (tmp_path / "benchmarks" / "results" / "full.jsonl").write_text("{}\n")
+    study = tmp_path / "benchmarks" / "studies" / "topic"
+    (study / "results").mkdir(parents=True)
+    (study / "results" / "jobs.jsonl").write_text("{}\n")
+    (study / "study.py").write_text("x = 1\n")
     (tmp_path / "code.py").write_text("x = 1\n")
     git("init", "-q")
     git("add", "-A")
@@ -168,6 +172,11 @@ def test_a_changed_ledger_or_result_does_not_make_the_code_dirty(tmp_path, monke
     monkeypatch.setattr(harness, "ROOT", tmp_path)
     assert harness._dirty() is False
     (tmp_path / "benchmarks" / "results" / "full.jsonl").write_text("{}\n{}\n")
+    (study / "results" / "jobs.jsonl").write_text("{}\n{}\n")  # a study's ledger
+    assert harness._dirty() is False
+    (study / "study.py").write_text("x = 2\n")  # a study's code
+    assert harness._dirty() is True
+    (study / "study.py").write_text("x = 1\n")
     assert harness._dirty() is False
     (tmp_path / "code.py").write_text("x = 2\n")
     assert harness._dirty() is True
