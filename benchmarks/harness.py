@@ -82,11 +82,16 @@ def sgemm_flops_per_second(n: int = 512, repeats: int = 5, min_seconds: float = 
     return 2 * n ** 3 / cpu_seconds(lambda: torch.mm(a, b), repeats, min_seconds)
 
 
-def machine() -> dict:
-    """Where and with what a run was made: commit, versions, threads, CPU model, device, load."""
+def code() -> dict:
+    """The code as it is now: its commit and whether it differs from it (`_dirty`)."""
+    return {"commit": _git("rev-parse", "HEAD"), "dirty": _dirty()}
+
+
+def machine(code_now: dict | None = None) -> dict:
+    """Where and with what a run was made: commit, versions, threads, CPU model, device, load; the commit and
+    dirtiness `code_now` (read by `code()` when the run started), else read now."""
     return {
-        "commit": _git("rev-parse", "HEAD"),
-        "dirty": _dirty(),
+        **(code_now or code()),
         "host": platform.node(),
         "cpu": _cpu_model(),
         "cores": os.cpu_count(),
@@ -209,9 +214,10 @@ class Run:
                     self.reused.append(entry["commit"])
                     return entry["result"]
             self.progress(f"{what}: running")
+            code_now = code()  # the code the job runs, read before it runs (a fit takes minutes to hours)
             result = compute()
             if self.ledger is not None and keep(result):
-                self.ledger.add(digest, what, result, self.command)
+                self.ledger.add(digest, what, result, self.command, code_now)
             return result
 
     @contextlib.contextmanager
@@ -241,7 +247,7 @@ class Run:
         seed_all(self.seed)
         self.started = started = time.perf_counter()
         cpu0 = time.process_time()
-        code = {"commit": _git("rev-parse", "HEAD"), "dirty": _dirty()}  # the code that runs: read before it runs
+        code_now = code()  # the code that runs: read before it runs (a run takes minutes to hours)
         self.suite.run(self)
         mode = "quick" if self.quick else "full"
         return {
@@ -252,7 +258,7 @@ class Run:
             "description": self.suite.DESCRIPTION,
             "budget": self.suite.BUDGET[mode],
             "seed": self.seed,
-            "machine": {**machine(), **code},
+            "machine": machine(code_now),
             "harness": {"timer": "best of N samples of process CPU seconds, each sample >= min_seconds of calls",
                         "repeats": self.repeats, "min_seconds": self.min_seconds,
                         "floor_seconds": timer_floor(self.repeats, self.min_seconds)},
@@ -288,10 +294,9 @@ class Ledger:
                     found = entry
         return found
 
-    def add(self, digest: str, what: str, result: dict, command: str) -> None:
-        """Append one entry."""
-        entry = {"key": digest, "what": what, "command": command, "commit": _git("rev-parse", "HEAD"),
-                 "dirty": _dirty(),
+    def add(self, digest: str, what: str, result: dict, command: str, code_then: dict | None = None) -> None:
+        """Append one entry; its commit and dirtiness `code_then` (`code()` when the job started), else read now."""
+        entry = {"key": digest, "what": what, "command": command, **(code_then or code()),
                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                  "result": result}
         line = json.dumps(entry, default=str) + "\n"

@@ -184,7 +184,7 @@ def test_a_changed_ledger_or_result_does_not_make_the_code_dirty(tmp_path, monke
 
 def test_results_name_the_code_as_it_was_when_the_run_started(tmp_path, monkeypatch):
     """A run takes minutes to hours: a commit or an edit made while it runs is not the code that made its numbers,
-    so the commit and dirtiness are read when it starts."""
+    so the commit and dirtiness are read when it starts, and a ledger entry's when its job starts."""
     import subprocess
 
     def git(*args):
@@ -198,12 +198,18 @@ def test_results_name_the_code_as_it_was_when_the_run_started(tmp_path, monkeypa
     monkeypatch.setattr(harness, "ROOT", tmp_path)
     started = harness._git("rev-parse", "HEAD")
 
-    def run(r):  # the code changes, then is committed, while the suite runs
+    def change() -> dict:  # the code changes, then is committed, while a job runs
         (tmp_path / "code.py").write_text("x = 2\n")
         git("commit", "-qam", "d")
+        return {"v": 1}
+
+    def run(r):
+        r.job("a", {"x": 1}, change, keep=lambda result: True)
         r.table("t", "t", [{"a": 1}])
 
     doc = harness.Run(types.SimpleNamespace(NAME="toy", run=run, BUDGET={"full": {}}, DESCRIPTION=""), False, 0, 1,
-                      1, ["toy"]).execute()
+                      1, ["toy"], ledger=tmp_path / "l.jsonl").execute()
     assert doc["machine"]["commit"] == started != harness._git("rev-parse", "HEAD")
     assert doc["machine"]["dirty"] is False
+    entry = json.loads((tmp_path / "l.jsonl").read_text())  # the job's ledger entry: the code it ran, too
+    assert entry["commit"] == started and entry["dirty"] is False
