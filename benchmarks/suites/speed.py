@@ -96,7 +96,7 @@ def run(run: harness.Run) -> None:
     if run.quick:  # its batches stop below the exports' (a full run has every material at export_n but those capped)
         for name in ("ggx:roughness=0.2", "neubrdf"):
             runtime_rates[name] = _eval_rate(run, materials[name], export_n)
-    _exports(run, materials, export_n, runtime_rates, sgemm)
+    _exports(run, materials, export_n, runtime_rates, {r["material"]: r["path"] for r in rows}, sgemm)
     _training(run)
     tables = {t["name"]: t["rows"] for t in run.tables}
     run.table("targets", "Issue 49's targets on this run's tables", targets(tables, export_n),
@@ -329,7 +329,7 @@ def _sample_rate(run: harness.Run, material, n: int) -> float:
     return n / _runtime_time(run, sample_and_pdf)
 
 
-def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, sgemm: float) -> None:
+def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, paths: dict, sgemm: float) -> None:
     """GLSL on llvmpipe (EGL) at both precisions and Slang on slangpy's CPU device, each beside GGX and the
     harness's floor (a shader returning wi + wo) in the same target, where the package exports the model:
     marginal rates per wall and
@@ -375,7 +375,7 @@ def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, sge
                     run.skip(f"{fmt} export of {name}", f"{type(e).__name__}: {str(e).splitlines()[0][:120]}")
         ggx_rate = None
         for name, _, _, m in jobs:  # the runtime's torch operations too, where a fused C kernel is its path
-            if name in names and name not in torch_rates and _path(m, run.seed) == "C kernel":
+            if name in names and name not in torch_rates and paths.get(name) == "C kernel":
                 with cpu_kernels.switched_off():
                     torch_rates[name] = _eval_rate(run, m, n)
         for name, precision, exported, m in jobs:

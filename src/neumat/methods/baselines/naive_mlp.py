@@ -66,15 +66,15 @@ class NaiveMLP(LearnedMaterial):
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the horizon."""
         q.require("wo", who="NaiveMLP.eval")
         if cpu_kernels.usable(q.wi, q.wo, self.mlp.net[0].weight):
-            mlp = cpu_kernels.prepared(self, lambda: cpu_kernels.PackedMLP.pack(self.mlp.net))
-            if mlp is not None:  # the MLP as one fused C call (neumat.nn.cpu_kernels), exp and horizon in torch
-                f = torch.exp(cpu_kernels.mlp_forward(mlp, torch.cat([q.wi, q.wo], -1)))
-                return zero_below_horizon(f, q.wi, q.wo)
-        return by_rows(self._eval_rows, self.eval_chunk, q)
+            packed = cpu_kernels.prepared(self, lambda: cpu_kernels.PackedMLP.pack(self.mlp.net))
+            if packed is not None:  # the MLP as one fused C call (neumat.nn.cpu_kernels), exp and horizon in torch
+                return self._value(q, lambda x: cpu_kernels.mlp_forward(packed, x))
+        return by_rows(lambda rows: self._value(rows, self.mlp), self.eval_chunk, q)
 
-    def _eval_rows(self, q: Query) -> torch.Tensor:
+    def _value(self, q: Query, mlp) -> torch.Tensor:
+        """exp(mlp([wi, wo])), 0 below the horizon, in q's dtype: mlp the module or its fused kernel."""
         dtype = self.mlp.linears()[0].weight.dtype
-        f = torch.exp(self.mlp(torch.cat([q.wi, q.wo], -1).to(dtype)))
+        f = torch.exp(mlp(torch.cat([q.wi, q.wo], -1).to(dtype)))
         f = zero_below_horizon(f, q.wi, q.wo)
         return f.to(q.dtype)
 
