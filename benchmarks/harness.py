@@ -87,11 +87,11 @@ def code() -> dict:
     return {"commit": _git("rev-parse", "HEAD"), "dirty": _dirty()}
 
 
-def machine(code_now: dict | None = None) -> dict:
+def machine(code_now: dict) -> dict:
     """Where and with what a run was made: commit, versions, threads, CPU model, device, load; the commit and
-    dirtiness `code_now` (read by `code()` when the run started), else read now."""
+    dirtiness `code_now` (read by `code()` when the run started)."""
     return {
-        **(code_now or code()),
+        **code_now,
         "host": platform.node(),
         "cpu": _cpu_model(),
         "cores": os.cpu_count(),
