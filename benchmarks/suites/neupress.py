@@ -27,14 +27,16 @@ BUDGET = {
               "paper": paper_budget(MODELS[:1]) + " on a GPU", "expected_wall": "about 40 s"},
     "full": {"ours": f"CPU recipes: {recipe_budget(MODELS)}; 2^16 synthetic observations, seeds 0 and 1; images: the "
                      "Stanford bunny (marble / ketchup, 4 mm) traced by `neumat translucent trace` at its defaults "
-                     "(4000 views x 32^2 rays x 256 paths), both models fitted at their defaults (seeds 0 and 1), a "
+                     "(8000 views x 32^2 rays x 256 paths), both models fitted at their defaults (seeds 0 and 1), a "
                      "held-out set of 400 views x 4^2 rays x 4096 paths, the full appearance at 64^2 under venice "
                      "sunset (never used in development), 256 spp MIS, against a 4096-spp Mitsuba reference and its "
                      "second seed (the floor)",
              "paper": paper_budget(MODELS[:1]) + " on a GPU, on path-traced observations of the bunny and kitten "
                       "(10^4 paths, 24-48 h per object); image FLIP 0.009-0.079 over its five scenes",
-             "expected_wall": "about 2 h (measured: 6,731 s wall, 5,632 CPU s, on an EPYC beside other jobs; "
-                              "results/neupress/full.json; --work keeps traces, references and fits)"},
+             "expected_wall": "about 3 h (estimated: 1.9 h measured at the earlier defaults, 4000 views and 9200 "
+                              "steps (6,731 s wall, 5,632 CPU s, on an EPYC beside other jobs; "
+                              "results/neupress/full.json), plus twice the tracing and the NeuPreSS fits; --work "
+                              "keeps traces, references and fits)"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
