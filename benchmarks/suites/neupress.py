@@ -3,6 +3,7 @@ response, and the image table (issue 51's protocol) on an object traced by Mitsu
 (`neumat translucent trace`, `neumat fit`), rendered under an environment map against a path-traced reference."""
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +110,7 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
         return
     scene, light = (str(setup[k]).format(data=data) for k in ("scene", "light"))
     media = ["--media", "marble,ketchup", "--size-mm", "4"]
-    with run.folder("images", setup, scene) as folder:
+    with run.folder("images", setup, scene, trace_defaults()) as folder:
         train, test = folder / "train.npz", folder / "test.npz"
         _kept(train, lambda out: cli(["translucent", "trace", "--scene", scene, *media, *setup["trace"], "--seed",
                                       str(run.seed), "-q", "-o", str(out)]))
@@ -133,6 +134,22 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
     run.table("images", "Image table: " + ("a traced sphere (numbers mean nothing; the suite runs)" if run.quick else
                                            "the bunny under a map never used in development (issue 51's protocol)"),
               rows)
+
+
+def trace_defaults() -> dict:
+    """The defaults the image table traces at: `neumat translucent trace`'s options, `collect_observations`' and
+    `TranslucentConfig`'s. Part of the table's folder key, so that a kept trace is traced again when they change (as
+    a kept fit is refitted when its preset changes)."""
+    from neumat.cli.translucent import trace
+    from neumat.core.config import config_to_dict
+    from neumat.fit.translucent_observations import collect_observations
+    from neumat.reflectance.translucent import TranslucentConfig
+
+    def defaults(function) -> dict:
+        return {name: getattr(p.default, "default", p.default) for name, p in
+                inspect.signature(function).parameters.items()}
+    return {"cli": defaults(trace), "observations": defaults(collect_observations),
+            "object": config_to_dict(TranslucentConfig())}
 
 
 def _kept(path: Path, make) -> Path:

@@ -369,3 +369,22 @@ def test_shards_are_refused_where_they_cannot_work(capsys, tmp_path):
                           (["neupress", "--workers", "2"], "suite neupress has no independent fit jobs")):
         status, _, err = _main(capsys, *args)
         assert status == 2 and message in err, (args, err)
+
+
+def test_the_image_tables_folder_key_follows_the_trace_defaults(monkeypatch):
+    """The suite keeps its trace of `neumat translucent trace`'s defaults under a folder keyed by them: a changed
+    default (4000 -> 8000 views in session 60) must trace again, not reuse the old file."""
+    import inspect
+
+    from benchmarks.suites import neupress
+    from neumat.cli import translucent
+    from neumat.fit.translucent_observations import collect_observations
+
+    option = inspect.signature(translucent.trace).parameters["images"].default
+    before = neupress.trace_defaults()
+    assert before["cli"]["images"] == option.default
+    assert before["observations"]["resolution"] == inspect.signature(
+        collect_observations).parameters["resolution"].default
+    monkeypatch.setattr(option, "default", option.default // 2)
+    assert neupress.trace_defaults()["cli"]["images"] == option.default
+    assert neupress.trace_defaults() != before
