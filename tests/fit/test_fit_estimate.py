@@ -64,3 +64,57 @@ def test_each_phase_announces_its_own_estimate(capsys):
     seconds, steps = re.search(r"about (\d+) s to go for (\d+) more steps", lines[2]).groups()
     remaining = end - PhasedNeuBRDF.started[120 - int(steps)]  # from the step the last estimate was announced at
     assert 0.5 * remaining <= max(int(seconds), 1) <= 2 * remaining + 1, (lines, remaining)
+
+
+class FakeClock:
+    """The trainer's clock: seconds pass only when a step says so (so the test does not depend on the machine)."""
+
+    now = 0.0
+
+    @classmethod
+    def perf_counter(cls) -> float:
+        return cls.now
+
+
+class LoadedNeuBRDF(NeuBRDF):
+    """A NeuBRDF whose first 24 steps take 1 s and the rest 0.05 s on the fake clock: a load on the machine that
+    goes away after the announcement (the steps it was measured on)."""
+
+    loaded = 24
+
+    def on_step(self, step: int, total_steps: int) -> None:  # the clock when step `step` + 1 ends
+        FakeClock.now = min(step + 1, self.loaded) * 1.0 + max(step + 1 - self.loaded, 0) * 0.05
+
+
+def test_an_estimate_that_stops_holding_is_said_again(capsys, monkeypatch):
+    """The announcement, measured on slow steps, is followed by one estimate at the later steps' speed (the steps
+    between two checks after it, the slow ones left out), which holds."""
+    import neumat.fit.trainer
+
+    monkeypatch.setattr(neumat.fit.trainer, "time", FakeClock)
+    FakeClock.now = 0.0
+    model = LoadedNeuBRDF(nside=2, index_bits=2, hidden=4)
+    recipe = replace(recipe_for("neubrdf", "paper"), steps=300, batch_size=64, log_every=10)
+    fit(model, parse_spec("plastic:roughness=0.3"), recipe, progress=True)
+    lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
+    assert len(lines) == 2, lines
+    (first, unit, n1), (second, _, n2) = (re.search(r"about (\d+) (s|min) to go for (\d+) more steps", x).groups()
+                                          for x in lines)
+    assert (first, unit, n1) == ("5", "min", "287") and "measured on the last 11)" in lines[0]  # after 10 s: 1 s a step
+    # checked 16 and 32 steps later (the steps between, 29-45, after the load): 0.05 s a step
+    assert int(n2) == 255 and int(second) == round(0.05 * 255) and "measured again on the last 16:" in lines[1], lines
+    faster = float(re.search(r"the steps run ([\d.]+)x faster than the estimate announced", lines[1]).group(1))
+    assert faster > 1.5, lines
+
+
+def test_an_estimate_that_holds_is_said_once(capsys, monkeypatch):
+    """Steps at one speed (the fake clock's 0.05 s) after the warm-up: the announcement is checked and not repeated."""
+    import neumat.fit.trainer
+
+    monkeypatch.setattr(neumat.fit.trainer, "time", FakeClock)
+    monkeypatch.setattr(LoadedNeuBRDF, "loaded", 2)
+    FakeClock.now = 0.0
+    recipe = replace(recipe_for("neubrdf", "paper"), steps=300, batch_size=64, log_every=10)
+    fit(LoadedNeuBRDF(nside=2, index_bits=2, hidden=4), parse_spec("plastic:roughness=0.3"), recipe, progress=True)
+    lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
+    assert len(lines) == 1 and "about 14 s to go for 278 more steps (measured on the last 20)" in lines[0], lines

@@ -7,6 +7,8 @@ the largest relative error against the torch runtime on 4096 of them. Variants:
 - `group-loop`: the hidden layer as a loop over its 16 output groups reading `const vec4` weights;
 - `packed-halves`: the first-layer table as halves packed in an RGBA32UI texture (8 fetches a row instead of 16),
   decoded by bit operations (subnormal halves flushed to 0);
+- `ssbo`, `ssbo-packed`: the first-layer table (float32, or the packed halves) in a shader storage buffer read by
+  index (`#version 430 core`) instead of a texture;
 - `uniform` (with --slow: Mesa compiles it for minutes): the weights as a `uniform vec4` array;
 - `cached`: the shipped shader at queries from 8 directions, so every table row it reads is in cache.
 
@@ -34,6 +36,7 @@ from neumat.methods.neubrdf import glsl as neubrdf_glsl  # noqa: E402
 from neumat.testing import parity  # noqa: E402
 
 _VERSION_400 = "#version 400 core"
+_VERSION_430 = "#version 430 core"
 _HIDDEN_GROUPS, _HIDDEN = 16, 64
 
 
@@ -85,34 +88,66 @@ def _uniform(source: str) -> tuple[str, np.ndarray]:
     return f"uniform vec4 NM_V[{len(vecs)}];\n" + out, np.array(vecs, np.float32)
 
 
-def _packed_halves(source: str, table: np.ndarray) -> tuple[str, np.ndarray]:
-    layers, rows, width, _ = table.shape
-    h = table.reshape(layers, rows, width // 16, 64).astype(np.float16)
-    h[np.abs(h) < np.float16(2 ** -14)] = 0  # no subnormals: the decode below (one multiply, not nm_half's branches)
-    packed = pack_halves(h.ravel()).reshape(layers, rows, width // 2, 4)
-    out = source.replace(
-        "uniform sampler2DArray nbrdf_first;\nivec2 nbrdf_first_row(int r) { return ivec2((r % 64) * 16, r / 64); }",
-        "uniform usampler2DArray nbrdf_first;\nivec2 nbrdf_first_row(int r) { return ivec2((r % 64) * 8, r / 64); }\n"
-        "vec4 nm_h4(uvec2 w) {\n    uvec4 h = uvec4(w.x & 65535u, w.x >> 16u, w.y & 65535u, w.y >> 16u);\n"
-        "    return uintBitsToFloat(((h & 32768u) << 16u) | ((h & 32767u) << 13u)) * 5.192296858534828e+33;\n}")
+_SHIPPED_TABLE = ("uniform sampler2DArray nbrdf_first;\n"
+                  "ivec2 nbrdf_first_row(int r) { return ivec2((r % 64) * 16, r / 64); }")
+_HALF4 = ("vec4 nm_h4(uvec2 w) {\n    uvec4 h = uvec4(w.x & 65535u, w.x >> 16u, w.y & 65535u, w.y >> 16u);\n"
+          "    return uintBitsToFloat(((h & 32768u) << 16u) | ((h & 32767u) << 13u)) * 5.192296858534828e+33;\n}")
 
+
+def _packed_fetches(read) -> callable:
+    """re.sub callback: the first-layer group nm_l0_j from packed halves, 8 per texel (read(row, texel) is the
+    uvec4 at texel `texel` of table row ri or ro), each texel read once."""
     def group(m):
         j = int(m.group(1))
         t, part = j // 2, ("xy" if j % 2 == 0 else "zw")
-        fetch = "" if part == "zw" else (
-            f"    uvec4 nm_ti{t} = texelFetch(nbrdf_first, ivec3(ri.x + {t}, ri.y, 0), 0), "
-            f"nm_to{t} = texelFetch(nbrdf_first, ivec3(ro.x + {t}, ro.y, 0), 0);\n")
+        fetch = "" if part == "zw" else f"    uvec4 nm_ti{t} = {read('ri', t)}, nm_to{t} = {read('ro', t)};\n"
         return fetch + f"    vec4 nm_l0_{j} = nm_h4(nm_ti{t}.{part}) + nm_h4(nm_to{t}.{part});\n"
-    out = re.sub(r"    vec4 nm_l0_(\d+) = texelFetch\(nbrdf_first, [^;]*;\n", group, out)
-    return out, packed
+    return group
 
 
-def _with_uploads(uniform: np.ndarray | None = None, uint_table: np.ndarray | None = None):
-    """parity's context factory, its programs given the uniform array NM_V and its RGBA32UI table."""
+def _packed_table(table: np.ndarray) -> np.ndarray:
+    """The float32 table (1, rows, width, 4) as halves packed two to a uint32 (1, rows, width / 2, 4); subnormal
+    halves flushed to 0 (the decode is one multiply, not nm_half's branches)."""
+    layers, rows, width, _ = table.shape
+    h = table.reshape(layers, rows, width // 16, 64).astype(np.float16)
+    h[np.abs(h) < np.float16(2 ** -14)] = 0
+    return pack_halves(h.ravel()).reshape(layers, rows, width // 2, 4)
+
+
+def _ssbo(source: str, packed: bool) -> str:
+    """The table as a `readonly buffer` of vec4 (or uvec4 of packed halves), row r at element r * 16 (r * 8)."""
+    per_row = 8 if packed else 16
+    out = source.replace(_SHIPPED_TABLE, "layout(std430, binding = 0) readonly buffer NbrdfFirst { "
+                         f"{'uvec4' if packed else 'vec4'} nbrdf_first_data[]; }};\n"
+                         f"int nbrdf_first_row(int r) {{ return r * {per_row}; }}" + ("\n" + _HALF4 if packed else ""))
+    out = re.sub(r"ivec2 (r[io]) = nbrdf_first_row", r"int \1 = nbrdf_first_row", out)
+    if packed:
+        return re.sub(r"    vec4 nm_l0_(\d+) = texelFetch\(nbrdf_first, [^;]*;\n",
+                      _packed_fetches(lambda row, t: f"nbrdf_first_data[{row} + {t}]"), out)
+    return re.sub(r"texelFetch\(nbrdf_first, ivec3\((r[io])\.x \+ (\d+), r[io]\.y, 0\), 0\)",
+                  r"nbrdf_first_data[\1 + \2]", out)
+
+
+def _packed_halves(source: str, table: np.ndarray) -> tuple[str, np.ndarray]:
+    """The table as packed halves in an RGBA32UI texture (8 fetches a row instead of 16): (source, its table)."""
+    out = source.replace(_SHIPPED_TABLE, "uniform usampler2DArray nbrdf_first;\n"
+                         "ivec2 nbrdf_first_row(int r) { return ivec2((r % 64) * 8, r / 64); }\n" + _HALF4)
+    read = lambda row, t: f"texelFetch(nbrdf_first, ivec3({row}.x + {t}, {row}.y, 0), 0)"  # noqa: E731
+    return re.sub(r"    vec4 nm_l0_(\d+) = texelFetch\(nbrdf_first, [^;]*;\n", _packed_fetches(read), out), \
+        _packed_table(table)
+
+
+def _with_uploads(uniform: np.ndarray | None = None, uint_table: np.ndarray | None = None,
+                  storage: np.ndarray | None = None):
+    """parity's context factory, its programs given the uniform array NM_V, its RGBA32UI table and the shader
+    storage buffer at binding 0."""
     make = parity._context
 
     def context(backend):
         moderngl, ctx = make(backend)
+        if storage is not None:
+            ctx.nm_storage = ctx.buffer(np.ascontiguousarray(storage).tobytes())
+            ctx.nm_storage.bind_to_storage_buffer(0)
         program, texture_array = ctx.program, ctx.texture_array
 
         def program_(**kw):
@@ -150,6 +185,10 @@ def main(argv: list[str]) -> int:
                  parity._context),
                 ("packed-halves", dataclasses.replace(shipped, source=packed_source, textures={"nbrdf_first": packed}),
                  q, glsl_common.GLSL_VERSION, _with_uploads(uint_table=packed)),
+                ("ssbo", dataclasses.replace(shipped, source=_ssbo(source, False), textures={}), q, _VERSION_430,
+                 _with_uploads(storage=shipped.textures["nbrdf_first"])),
+                ("ssbo-packed", dataclasses.replace(shipped, source=_ssbo(source, True), textures={}), q, _VERSION_430,
+                 _with_uploads(storage=packed)),
                 ("cached", shipped, cached, glsl_common.GLSL_VERSION, parity._context)]
     if args.slow:
         uniform_source, uniform = _uniform(source)

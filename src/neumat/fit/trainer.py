@@ -359,12 +359,18 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
 LONG_FIT_SECONDS = 15 * 60
 #: steps not counted in the announced estimate (the first steps pay one-off costs: allocation, caches)
 WARMUP_STEPS = 2
+#: the announced estimate is checked REESTIMATE_AFTER times as many steps after it as it was measured on, then each
+#: time twice as many, and said again when the speed since the previous check would end the phase more than
+#: REESTIMATE_FACTOR times later or sooner
+REESTIMATE_AFTER, REESTIMATE_FACTOR = 3, 1.5
 
 
 class _Progress:
     """Progress of a fit on stderr: a rich bar with the live loss on a terminal, a plain line every 30 s (and at
     the end of each phase) otherwise; nothing when `enabled` is false. Either way the fit announces once, after
-    its first steps, the time it will take, measured on this source and machine (not a constant)."""
+    its first steps, the time it will take, measured on this source and machine (not a constant), and once more
+    if the steps after it run at more than `REESTIMATE_FACTOR` times or less than its inverse (a load that came or
+    went: the first estimate would not hold)."""
 
     def __init__(self, enabled: bool, total: int, start: int, name: str) -> None:
         enabled = enabled and not os.environ.get("NEUMAT_QUIET")  # a command's --quiet (neumat.cli.common)
@@ -372,6 +378,8 @@ class _Progress:
         self.terminal = enabled and sys.stderr.isatty()
         self.t0 = self.last_line = time.perf_counter()
         self.start, self.warned, self.t_warm = start, False, self.t0
+        # (when, at which step, the estimate, (time, step) of the last check, steps after it of the next check)
+        self.announced: tuple | None = None
         self.phase_note = ""
         if self.terminal:
             from rich.console import Console
@@ -410,6 +418,7 @@ class _Progress:
         """Measure the time estimate again from the next step on and announce it once more (the steps from here
         cost differently: a phase's `slow_from`)."""
         self.start, self.warned, self.t_warm = self.done, False, time.perf_counter()
+        self.announced = None
 
     def estimate(self) -> float | None:
         """Seconds still to go at the speed of the steps after the first WARMUP_STEPS, or None before any."""
@@ -429,9 +438,35 @@ class _Progress:
                 counted >= 20 or time.perf_counter() - self.t_warm > 10 or self.done == self.total):
             self.warned = True
             eta = self.estimate()
+            now = time.perf_counter()
+            self.announced = (now, self.done, eta, None, max(REESTIMATE_AFTER * counted, 20) // 2)
             hint = "; pass --steps for a shorter run" if eta > LONG_FIT_SECONDS else ""
             self.note(f"fit {self.name}: about {_duration(eta)} to go for {self.total - self.done} more steps "
                       f"(measured on the last {counted}{self.phase_note}){hint}")
+        elif self.enabled and self.announced is not None:
+            self._check_estimate(counted)
+
+    def _check_estimate(self, counted: int) -> None:
+        """At checkpoints after the announcement (half `REESTIMATE_AFTER` times as many steps as it was measured on,
+        then twice as many each time): from the second on, the speed of the steps since the previous one (so that
+        the steps the announcement measured do not count), and if at that speed the phase would end more than
+        `REESTIMATE_FACTOR` times later or sooner than announced, the estimate again (once a phase)."""
+        when, step, eta, last, next_check = self.announced
+        since = self.done - step
+        if since < next_check or self.done == self.total:
+            return
+        t = time.perf_counter()
+        self.announced = (when, step, eta, (t, self.done), 2 * next_check)
+        if last is None:  # the first checkpoint starts the window of steps the next one measures
+            return
+        rate = (t - last[0]) / (self.done - last[1])
+        now = rate * (self.total - self.done)
+        ratio = (t - when + now) / max(eta, 1e-9)
+        if ratio > REESTIMATE_FACTOR or ratio < 1 / REESTIMATE_FACTOR:
+            self.announced = None
+            self.note(f"fit {self.name}: about {_duration(now)} to go for {self.total - self.done} more steps, "
+                      f"measured again on the last {self.done - last[1]}: the steps run {max(ratio, 1 / ratio):.1f}x "
+                      f"{'slower' if ratio > 1 else 'faster'} than the estimate announced {since} steps ago")
 
     def note(self, message: str) -> None:
         """Say `message` (an event of the fit, e.g. a rollback) on a line of its own, above the bar on a terminal;
