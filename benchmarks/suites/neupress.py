@@ -16,7 +16,7 @@ from neumat.fit.translucent_observations import Observations
 from neumat.warp.sphere import sample_uniform_sphere
 
 from .. import harness
-from .common import cli, method_key, paper_budget, recipe_budget
+from .common import cli, default_budget, method_key, paper_budget, recipe_budget
 
 NAME = "neupress"
 DESCRIPTION = "NeuPreSS and the dipole baselines: held-out error over held-out variance, through the trainer"
@@ -28,7 +28,8 @@ BUDGET = {
               "paper": paper_budget(MODELS[:1]) + " on a GPU", "expected_wall": "about 40 s"},
     "full": {"ours": f"CPU recipes: {recipe_budget(MODELS)}; 2^16 synthetic observations, seeds 0 and 1; images: the "
                      "Stanford bunny (marble / ketchup, 4 mm) traced by `neumat translucent trace` at its defaults "
-                     "(8000 views x 32^2 rays x 256 paths), both models fitted at their defaults (seeds 0 and 1), a "
+                     f"(8000 views x 32^2 rays x 256 paths), both models fitted at their defaults ({default_budget(MODELS)}; "
+                     "seeds 0 and 1), a "
                      "held-out set of 400 views x 4^2 rays x 4096 paths, the full appearance at 64^2 under venice "
                      "sunset (never used in development), 256 spp MIS, against a 4096-spp Mitsuba reference and its "
                      "second seed (the floor)",
