@@ -94,15 +94,15 @@ def test_an_estimate_that_stops_holding_is_said_again(capsys, monkeypatch):
     monkeypatch.setattr(neumat.fit.trainer, "time", FakeClock)
     FakeClock.now = 0.0
     model = LoadedNeuBRDF(nside=2, index_bits=2, hidden=4)
-    recipe = replace(recipe_for("neubrdf", "paper"), steps=300, batch_size=64, log_every=10)
+    recipe = replace(recipe_for("neubrdf", "paper"), steps=120, batch_size=64, log_every=10)
     fit(model, parse_spec("plastic:roughness=0.3"), recipe, progress=True)
     lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
     assert len(lines) == 2, lines
     (first, unit, n1), (second, _, n2) = (re.search(r"about (\d+) (s|min) to go for (\d+) more steps", x).groups()
                                           for x in lines)
-    assert (first, unit, n1) == ("5", "min", "287") and "measured on the last 11)" in lines[0]  # after 10 s: 1 s a step
+    assert (first, unit, n1) == ("2", "min", "107") and "measured on the last 11)" in lines[0]  # after 10 s: 1 s a step
     # checked 16 and 32 steps later (the steps between, 29-45, after the load): 0.05 s a step
-    assert int(n2) == 255 and int(second) == round(0.05 * 255) and "measured again on the last 16:" in lines[1], lines
+    assert int(n2) == 75 and int(second) == round(0.05 * 75) and "measured again on the last 16:" in lines[1], lines
     faster = float(re.search(r"the steps run ([\d.]+)x faster than the estimate announced", lines[1]).group(1))
     assert faster > 1.5, lines
 
@@ -114,7 +114,7 @@ def test_an_estimate_that_holds_is_said_once(capsys, monkeypatch):
     monkeypatch.setattr(neumat.fit.trainer, "time", FakeClock)
     monkeypatch.setattr(LoadedNeuBRDF, "loaded", 2)
     FakeClock.now = 0.0
-    recipe = replace(recipe_for("neubrdf", "paper"), steps=300, batch_size=64, log_every=10)
+    recipe = replace(recipe_for("neubrdf", "paper"), steps=120, batch_size=64, log_every=10)
     fit(LoadedNeuBRDF(nside=2, index_bits=2, hidden=4), parse_spec("plastic:roughness=0.3"), recipe, progress=True)
     lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
-    assert len(lines) == 1 and "about 14 s to go for 278 more steps (measured on the last 20)" in lines[0], lines
+    assert len(lines) == 1 and "about 5 s to go for 98 more steps (measured on the last 20)" in lines[0], lines
