@@ -28,17 +28,19 @@ BUDGET = {
               "paper": paper_budget(MODELS[:1]) + " on a GPU", "expected_wall": "about 40 s"},
     "full": {"ours": f"CPU recipes: {recipe_budget(MODELS)}; 2^16 synthetic observations, seeds 0 and 1; images: the "
                      "Stanford bunny (marble / ketchup, 4 mm) traced by `neumat translucent trace` at its defaults "
-                     f"(8000 views x 32^2 rays x 256 paths), both models fitted at their defaults ({default_budget(MODELS)}; "
-                     "seeds 0 and 1), a "
-                     "held-out set of 400 views x 4^2 rays x 4096 paths, the full appearance at 64^2 under venice "
-                     "sunset (never used in development), 256 spp MIS, against a 4096-spp Mitsuba reference and its "
-                     "second seed (the floor)",
+                     "(8000 views x 32^2 rays x 256 paths), both models fitted at their defaults "
+                     f"({default_budget(MODELS)}; seeds 0 and 1), a held-out set of 400 views x 4^2 rays x 4096 "
+                     "paths, the full appearance at 64^2 under venice sunset (never used in development), 256 spp "
+                     "MIS, against a 4096-spp Mitsuba reference and its second seed (the floor); then the same for the "
+                     "paper's Paperweight as built here (`--scene paperweight`, traced at 20^2 rays a view)",
              "paper": paper_budget(MODELS[:1]) + " on a GPU, on path-traced observations of the bunny and kitten "
                       "(10^4 paths, 24-48 h per object); image FLIP 0.009-0.079 over its five scenes",
-             "expected_wall": "about 3 h (estimated: 1.9 h measured at the earlier defaults, 4000 views and 9200 "
-                              "steps (6,731 s wall, 5,632 CPU s, on an EPYC beside other jobs; "
-                              "results/neupress/full.json), plus twice the tracing and the NeuPreSS fits; --work "
-                              "keeps traces, references and fits)"},
+             "expected_wall": "about 3 h for the bunny (estimated: 1.9 h measured at the earlier defaults, 4000 "
+                              "views and 9200 steps (6,731 s wall, 5,632 CPU s, on an EPYC beside other jobs; "
+                              "results/neupress/full.json), plus twice the tracing and the NeuPreSS fits) and about "
+                              "4 h more for the paperweight (estimated: its trace costs what the bunny's does per "
+                              "observation and path, 14 against 13 us in neupress_paperweight.md, its references "
+                              "more); --work keeps traces, references and fits, so a run can span sittings"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
@@ -87,14 +89,16 @@ IMAGE_SETUP = {
                       "dipole-bssrdf": ["--steps", "20", "--set", "samples=16", "--set", "texture_resolution=2"]},
               "light": "sky", "resolution": 16, "spp": 4, "reference_spp": 64},
 }
+#: the paper's Paperweight (Table 1) as `neumat translucent trace --scene paperweight` builds it (docs/neupress.md):
+#: the bunny's protocol, traced at 20^2 rays a view, not 32^2 (the cube covers about 2.4x the bunny's pixels: about as
+#: many observations, and CPU minutes, as the bunny's trace); its own media and size
+PAPERWEIGHT_SETUP = {**IMAGE_SETUP["full"], "scene": "paperweight", "trace": ["--resolution", "20"]}
 #: the seed of the held-out views and paths (separate from every training seed)
 TEST_SEED = 777
 
 
 def _images(run: harness.Run, seeds: list[int]) -> None:
-    """The image table: trace, fit each model per seed, score the held-out set and the full appearance against
-    the reference (the second reference's scores are the floor). Under --work the traces, references and fits
-    are kept and reused (a fit while its model's default preset is unchanged)."""
+    """The image tables: the bunny (the sphere in a quick run), then in a full run the paperweight."""
     from neumat.core.errors import InputError
     from neumat.core.llvm import usable_libllvm
     from neumat.io.shared_data import shared_data_dir
@@ -109,8 +113,20 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
     except InputError as e:
         run.skip("image table", f"Mitsuba's LLVM backend is unavailable here: {e}")
         return
+    _image_table(run, seeds, "images", "Image table: " + (
+        "a traced sphere (numbers mean nothing; the suite runs)" if run.quick else
+        "the bunny under a map never used in development (issue 51's protocol)"), setup, data,
+        ["--media", "marble,ketchup", "--size-mm", "4"])
+    if not run.quick:
+        _image_table(run, seeds, "paperweight", "Image table: the paper's Paperweight (Table 1) as built here "
+                     "(`--scene paperweight`), the bunny's protocol", PAPERWEIGHT_SETUP, data, [])
+
+
+def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setup: dict, data, media: list[str]):
+    """One object's image table: trace, fit each model per seed, score the held-out set and the full appearance
+    against the reference (the second reference's scores are the floor). Under --work the traces, references and
+    fits are kept and reused (a fit while its model's default preset is unchanged)."""
     scene, light = (str(setup[k]).format(data=data) for k in ("scene", "light"))
-    media = ["--media", "marble,ketchup", "--size-mm", "4"]
     with run.folder("images", setup, scene, trace_defaults()) as folder:
         train, test = folder / "train.npz", folder / "test.npz"
         _kept(train, lambda out: cli(["translucent", "trace", "--scene", scene, *media, *setup["trace"], "--seed",
@@ -120,21 +136,20 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
         scorer = _Scorer(folder, train, test, light, setup)
         rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
         for seed in seeds:
-            for name in MODELS:  # the preset's content in the name: a changed default fits again
-                preset = method_key(name, [])["preset"]
-                nmat = folder / f"{name}-{seed}-{preset[:12]}.nmat"
-                _kept(nmat, lambda out: cli(["fit", str(train), "--model", name, *setup["fit"].get(name, []), "--seed", str(seed),
-                                             "--threads", str(run.threads), "-q", "-o", str(out)]))
-                rows.append({"model": name, "seed": seed, **scorer.model(nmat)})
-    run.protocol["images"] = (f"the full appearance (surface reflection + subsurface + background) at "
-                              f"{setup['resolution']}^2, {setup['spp']} spp MIS, against a {setup['reference_spp']}-"
-                              "spp Mitsuba reference, ACES tone map; object FLIP over the object's pixels; the "
-                              "floor row is a second reference (another seed) scored the same way; held-out: mean "
-                              "and median squared error over the held-out values' variance (its mean is carried by "
-                              "a few observations, so the median ranks)")
-    run.table("images", "Image table: " + ("a traced sphere (numbers mean nothing; the suite runs)" if run.quick else
-                                           "the bunny under a map never used in development (issue 51's protocol)"),
-              rows)
+            for model in MODELS:  # the preset's content in the name: a changed default fits again
+                preset = method_key(model, [])["preset"]
+                nmat = folder / f"{model}-{seed}-{preset[:12]}.nmat"
+                _kept(nmat, lambda out: cli(["fit", str(train), "--model", model, *setup["fit"].get(model, []),
+                                             "--seed", str(seed), "--threads", str(run.threads), "-q", "-o",
+                                             str(out)]))
+                rows.append({"model": model, "seed": seed, **scorer.model(nmat)})
+    run.protocol[name] = (f"the full appearance (surface reflection + subsurface + background) at "
+                          f"{setup['resolution']}^2, {setup['spp']} spp MIS, against a {setup['reference_spp']}-"
+                          "spp Mitsuba reference, ACES tone map; object FLIP over the object's pixels; the "
+                          "floor row is a second reference (another seed) scored the same way; held-out: mean "
+                          "and median squared error over the held-out values' variance (its mean is carried by "
+                          "a few observations, so the median ranks)")
+    run.table(name, title, rows)
 
 
 def trace_defaults() -> dict:
