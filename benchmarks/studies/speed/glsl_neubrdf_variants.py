@@ -22,6 +22,7 @@ import dataclasses
 import os
 import re
 import sys
+from typing import Callable
 
 os.environ.setdefault("LP_NUM_THREADS", "1")
 
@@ -94,7 +95,7 @@ _HALF4 = ("vec4 nm_h4(uvec2 w) {\n    uvec4 h = uvec4(w.x & 65535u, w.x >> 16u, 
           "    return uintBitsToFloat(((h & 32768u) << 16u) | ((h & 32767u) << 13u)) * 5.192296858534828e+33;\n}")
 
 
-def _packed_fetches(read) -> callable:
+def _packed_fetches(read: Callable[[str, int], str]) -> Callable:
     """re.sub callback: the first-layer group nm_l0_j from packed halves, 8 per texel (read(row, texel) is the
     uvec4 at texel `texel` of table row ri or ro), each texel read once."""
     def group(m):

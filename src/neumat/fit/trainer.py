@@ -359,8 +359,8 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
 LONG_FIT_SECONDS = 15 * 60
 #: steps not counted in the announced estimate (the first steps pay one-off costs: allocation, caches)
 WARMUP_STEPS = 2
-#: the announced estimate is checked REESTIMATE_AFTER times as many steps after it as it was measured on, then each
-#: time twice as many, and said again when the speed since the previous check would end the phase more than
+#: the announced estimate is checked at half REESTIMATE_AFTER times as many steps after it as it was measured on, then
+#: each time at twice as many, and said again when the speed since the previous check would end the phase more than
 #: REESTIMATE_FACTOR times later or sooner
 REESTIMATE_AFTER, REESTIMATE_FACTOR = 3, 1.5
 
@@ -444,9 +444,9 @@ class _Progress:
             self.note(f"fit {self.name}: about {_duration(eta)} to go for {self.total - self.done} more steps "
                       f"(measured on the last {counted}{self.phase_note}){hint}")
         elif self.enabled and self.announced is not None:
-            self._check_estimate(counted)
+            self._check_estimate()
 
-    def _check_estimate(self, counted: int) -> None:
+    def _check_estimate(self) -> None:
         """At checkpoints after the announcement (half `REESTIMATE_AFTER` times as many steps as it was measured on,
         then twice as many each time): from the second on, the speed of the steps since the previous one (so that
         the steps the announcement measured do not count), and if at that speed the phase would end more than
@@ -460,11 +460,11 @@ class _Progress:
         if last is None:  # the first checkpoint starts the window of steps the next one measures
             return
         rate = (t - last[0]) / (self.done - last[1])
-        now = rate * (self.total - self.done)
-        ratio = (t - when + now) / max(eta, 1e-9)
+        to_go = rate * (self.total - self.done)
+        ratio = (t - when + to_go) / max(eta, 1e-9)
         if ratio > REESTIMATE_FACTOR or ratio < 1 / REESTIMATE_FACTOR:
             self.announced = None
-            self.note(f"fit {self.name}: about {_duration(now)} to go for {self.total - self.done} more steps, "
+            self.note(f"fit {self.name}: about {_duration(to_go)} to go for {self.total - self.done} more steps, "
                       f"measured again on the last {self.done - last[1]}: the steps run {max(ratio, 1 / ratio):.1f}x "
                       f"{'slower' if ratio > 1 else 'faster'} than the estimate announced {since} steps ago")
 
