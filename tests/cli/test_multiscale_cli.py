@@ -144,6 +144,13 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     write_texture_set(half, tmp_path / "half")
     assert default_model([str(tmp_path / "half")])[0] == "multiscale"
     assert default_model([str(tmp_path / "half")], {"crop": 8, "crop_origin": (0, 0)})[0] == "tripleplane"
+    # a source of more than 128^2 texels gets tripleplane whatever its statistics, a crop of it at most 128^2 the rule
+    h = w = 129
+    write_texture_set(texture_set(20, 0), tmp_path / "large")
+    name, why = default_model([str(tmp_path / "large")])
+    assert name == "tripleplane" and "a large set (129 x 129 texels, more than 16,384; mean normal tilt 20.0" in why
+    assert default_model([str(tmp_path / "large")], {"crop": 128, "crop_origin": (0, 0)})[0] == "multiscale"
+    assert default_model([str(tmp_path / "large")], preset="paper")[0] == "multiscale"
     (tmp_path / "a.nbtf").write_bytes(b"")
     assert default_model(["ggx:roughness=0.2"]) == ("neubrdf", "")
     assert default_model([str(tmp_path / "a.nbtf")]) == ("sparse-btf", "")

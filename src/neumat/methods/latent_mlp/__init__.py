@@ -64,18 +64,21 @@ def recommended(model: str) -> Preset:
         overrides={"recipe.loss": "relative_l2_robust", "recipe.grad_clip": 1.0}, by_recipe={"cpu": cpu})
 
 
-#: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe;
-#: benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
+#: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe) and
+#: larger sources (benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
-    "multiscale": "the default for texture sets with normal detail, and for near-mirrors (on a CPU; "
-                  "`neumat.methods.latent_mlp.regime`): at the current CPU default (4000 steps, 32-position "
-                  "targets), mean FLIP over 9 scales below tripleplane's on 21 of 30 random crops x seeds "
-                  "(median 0.935x; fabric, leather, paper, plaster, scratches, the polished plate 0.72x); the "
-                  "lowest mean FLIP of all latent-texture models over random crops at the session-47 default",
-    "tripleplane": "the default for flat, rough texture sets on a CPU (mean normal tilt < 3 degrees, roughness >= "
-                   "0.2): ahead of the gated model on flat metal and wood (Metal027: it scores 1.18-1.22x "
-                   "tripleplane's FLIP, Wood092 up to 1.10x) and the brushed metal (1.07x); behind it where "
-                   "normals vary (fabric, paper, plaster, scratches) and on the polished plate",
+    "multiscale": "the default for texture sets (or crops) of at most 128^2 texels with normal detail, and for "
+                  "near-mirrors (on a CPU; `neumat.methods.latent_mlp.regime`): at the current CPU default (4000 "
+                  "steps, 32-position targets), mean FLIP over 9 scales below tripleplane's on 21 of 30 random 64^2 "
+                  "crops x seeds (median 0.935x; fabric, leather, paper, plaster, scratches, the polished plate "
+                  "0.72x); the lowest mean FLIP of all latent-texture models over random crops at the session-47 "
+                  "default; behind tripleplane on larger sources (whole 1K sets: Fabric02 1.34x, Plaster001 1.21x)",
+    "tripleplane": "the default on a CPU for texture sets of more than 128^2 texels (ahead of the gated model on "
+                   "the whole 1K Fabric02 and Plaster001 sets: it scores 1.34x and 1.21x tripleplane's FLIP) and for "
+                   "flat, rough ones (mean normal tilt < 3 degrees, roughness >= 0.2): ahead of the gated model on "
+                   "flat metal and wood (Metal027 1.18-1.22x, Wood092 up to 1.10x) and the brushed metal (1.07x); "
+                   "behind it on 64^2 crops where normals vary (fabric, paper, plaster, scratches) and on the "
+                   "polished plate",
 }
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
