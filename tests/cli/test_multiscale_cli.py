@@ -98,8 +98,8 @@ def test_eval_scales_scores_a_texture_set_fit_across_texture_scales(shared_data,
 
 
 def test_fit_without_a_model_picks_the_sources_default(tmp_path):
-    """No --model: a texture-set folder fits the gated model, or tripleplane when it is flat and rough (and says
-    why), a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources the shared NeuBRDF; a missing
+    """No --model: a texture-set folder fits the gated model, or tripleplane when it is flat and rough or larger
+    than 128^2 texels (and says why), a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources the shared NeuBRDF; a missing
     file is one error line."""
     import pytest
     import torch
