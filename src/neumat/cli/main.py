@@ -5,6 +5,7 @@ import typer
 
 from . import (bench, btf, check, data, demo, exporting, fit_clusters, fit_many, fitting, listing, mitsuba, rendering,
                translucent)
+from ..core.allocator import retain_freed_memory
 from .common import add_threads, run_command
 
 app = typer.Typer(help="neumat: compact learned models of material appearance.", no_args_is_help=True,
@@ -27,6 +28,7 @@ def _print_version(value: bool) -> None:
 def main(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
                                       help="print the neumat version and exit")) -> None:
     """neumat: compact learned models of material appearance."""
+    retain_freed_memory()  # every command: large temporaries reused, not faulted in afresh (core/allocator.py)
 
 
 @app.command()

@@ -21,6 +21,7 @@ from typing import Any, Callable
 import torch
 from torch import nn
 
+from ..core.allocator import retain_freed_memory
 from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError, UnknownNameError
 from ..io.atomic import atomic_write
@@ -76,6 +77,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     if not isinstance(model, LearnedMaterial):
         raise InputError(f"fit: model must be a neumat.models.base.LearnedMaterial (a torch nn.Module "
                          f"implementing neumat.Material), got {type(model).__name__}")
+    retain_freed_memory()  # a step's large temporaries reused, not faulted in afresh (core/allocator.py)
     name = model_name(model)
     dev = torch.device(device) if device is not None else _model_device(model)
     recipe = replace(recipe if recipe is not None else default_recipe(model, source, dev))
