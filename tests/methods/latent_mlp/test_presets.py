@@ -1,9 +1,9 @@
 """The latent-texture models' recommended preset: on a CPU the measured CPU settings (lr 1e-2, no spatial
-preconditioner and the short-run optimiser where those were measured better), on a GPU the paper's rate and preconditioner; paper and cpu keep
-the paper's."""
+preconditioner, the short-run optimiser and small initial latents where those were measured better), on a GPU the
+paper's rate, preconditioner and initial scale; paper and cpu keep the paper's."""
 import neumat.methods  # noqa: F401  (registers the models)
 from neumat.fit.preset import resolve_preset
-from neumat.methods.latent_mlp import SHORT_RUN_OPTIMISER_ON_CPU, UNPRECONDITIONED_ON_CPU
+from neumat.methods.latent_mlp import SHORT_RUN_OPTIMISER_ON_CPU, SMALL_INIT_ON_CPU, UNPRECONDITIONED_ON_CPU
 
 MODELS = ("multiscale", "tripleplane", "neumip", "neumip-frame", "neumip-offset", "nbrdf-uv", "ggx-mipmap")
 
@@ -24,6 +24,9 @@ def test_recommended_on_a_cpu_and_elsewhere():
         assert (tuple(cpu.recipe.betas), cpu.recipe.ema) == (((0.9, 0.999), 0.02) if short else ((0.99, 0.999), 0.005))
         assert (tuple(gpu.recipe.betas), gpu.recipe.ema) == (tuple(paper.recipe.betas), paper.recipe.ema) \
             == ((0.99, 0.999), 0.005), name
+        if name in SMALL_INIT_ON_CPU:
+            assert cpu.config.init_std == 0.1, name
+            assert gpu.config.init_std == paper.config.init_std == 1.0, name
         # a user's --set wins over the preset's
         assert resolve_preset(name, "recommended", device="cpu",
                               overrides={"model.spatial_precondition": 3.0}).config.spatial_precondition == 3.0

@@ -1,14 +1,13 @@
 """The latent-texture model a texture set gets when no model is named (`neumat fit SET`): at the recommended
-preset on a CPU, tripleplane on a source of more than MAX_GATED_TEXELS texels and on a flat, rough one, the gated
-model elsewhere (normal detail, or a near-mirror, on a small set or crop); other presets and devices the gated
-model (the paper's Table 6, at its budget).
+preset on a CPU, tripleplane on a flat, rough set, the gated model elsewhere (normal detail, or a near-mirror);
+other presets and devices the gated model (the paper's Table 6, at its budget).
 
 On a flat set the filtered appearance is close to an average of the texels' BRDFs, the regime where concatenated
 spatial and directional features (tripleplane) are enough; a near-mirror keeps the gated model, whose gated
-angular textures hold the sharp lobe. On a large source the CPU recipe's fixed steps give each texel few queries
-(a 1K set about 16 over a fit, a 64^2 crop 4000), and there the gated model falls behind whatever the statistics.
-The thresholds come from issue 55's selection-free 64^2 crops and from 256^2 crops and whole 1K sets at the
-recommended preset's CPU recipe: NOTES.md, "model a texture set gets"; selection_free.md, "Beyond 64^2".
+angular textures hold the sharp lobe. The thresholds come from issue 55's selection-free 64^2 crops at the
+recommended preset's CPU recipe (NOTES.md, "model a texture set gets"). The source's size does not enter: the
+gated model's deficit on large sources at the recipe's former initial latent scale (std 1) was the untrained
+remainder of that initialisation, gone at std 0.1 (selection_free.md, "The latents' initial scale").
 """
 from __future__ import annotations
 
@@ -16,9 +15,6 @@ from neumat.fit.preset import DEFAULT_PRESET
 from neumat.io.texture_set import TextureSet
 from neumat.reflectance.texture_statistics import normal_tilt_deg
 
-#: most texels (height x width) of a source for which the texture statistics choose; a larger one gets tripleplane
-#: (measured ahead at 256^2 and 1K, module docstring; the boundary between 64^2 and 256^2 is not measured closer)
-MAX_GATED_TEXELS = 128 * 128
 #: mean normal-map tilt (degrees) below which a set counts as flat (measured: tripleplane ahead up to 2.5, the
 #: gated model from 3.3 except the brushed metal at 4.3)
 FLAT_TILT_DEG = 3.0
@@ -36,11 +32,6 @@ def model_for_texture_set(textures: TextureSet, preset: str = DEFAULT_PRESET, de
     tilt = float(normal_tilt_deg(textures).mean())
     rough = float(textures.roughness.float().mean())
     stats = f"mean normal tilt {tilt:.1f} deg, roughness {rough:.2f}"
-    h, w = textures.roughness.shape[-2:]
-    if h * w > MAX_GATED_TEXELS:
-        return "tripleplane", (f"a large set ({h} x {w} texels, more than {MAX_GATED_TEXELS:,}; {stats}), where "
-                               "tripleplane was measured ahead of the gated model at this preset's step budget "
-                               "(--model multiscale fits the gated model)")
     if tilt < FLAT_TILT_DEG and rough >= MIRROR_ROUGHNESS:
         return "tripleplane", (f"a flat, rough set ({stats}; tilt < {FLAT_TILT_DEG:g} and roughness >= "
                                f"{MIRROR_ROUGHNESS:g}), where tripleplane was measured ahead of the gated model")
