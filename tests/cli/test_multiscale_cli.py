@@ -144,8 +144,8 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     write_texture_set(half, tmp_path / "half")
     assert default_model([str(tmp_path / "half")])[0] == "multiscale"
     assert default_model([str(tmp_path / "half")], {"crop": 8, "crop_origin": (0, 0)})[0] == "tripleplane"
-    # the size does not decide (the std-1 latents' deficit on large sources, gone at the recipe's std 0.1): a
-    # tilted 256^2 set gets the gated model, a flat, rough one tripleplane
+    # the size does not decide (the std-1 latents' deficit on large sources mostly went with the recipe's std 0.1):
+    # a tilted 256^2 set gets the gated model, a flat, rough one tripleplane
     h = w = 256
     for tilt, expected in ((20, "multiscale"), (2, "tripleplane")):
         write_texture_set(texture_set(tilt, 0), tmp_path / f"large{tilt}")

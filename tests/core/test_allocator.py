@@ -35,4 +35,3 @@ def test_retained_blocks_are_reused_without_page_faults():
     _, default = _faults("default")
     assert default > 20 * 16384 * 0.9, f"glibc's default should fault every cycle in afresh ({default} faults)"
     assert retained < 16384, f"freed 64 MB blocks faulted in again: {retained} minor faults over 20 cycles"
-

@@ -5,10 +5,9 @@ other presets and devices the gated model (the paper's Table 6, at its budget).
 On a flat set the filtered appearance is close to an average of the texels' BRDFs, the regime where concatenated
 spatial and directional features (tripleplane) are enough; a near-mirror keeps the gated model, whose gated
 angular textures hold the sharp lobe. The thresholds come from issue 55's selection-free 64^2 crops at the
-recommended preset's CPU recipe (NOTES.md, "model a texture set gets"). The source's size does not enter: most of the
-gated model's deficit on large sources at the recipe's former initial latent scale (std 1) was the untrained
-remainder of that initialisation; at std 0.1 it leads on two of the three larger sources measured and trails by
-5-9 % on the third (selection_free.md, "The latents' initial scale").
+recommended preset's CPU recipe (NOTES.md, "model a texture set gets"). The source's size does not enter: at the
+recipe's initial latent scale (std 0.1) the larger sources measured split as the crops do (selection_free.md,
+"The latents' initial scale").
 """
 from __future__ import annotations
 
