@@ -125,14 +125,14 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
 def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setup: dict, data, media: list[str]):
     """One object's image table: trace, fit each model per seed, score the held-out set and the full appearance
     against the reference (the second reference's scores are the floor). Under --work the traces, references and
-    fits are kept and reused (a fit while its model's default preset is unchanged)."""
+    fits are kept and reused (a fit while its model's default preset is unchanged), and a trace cut off resumes."""
     scene, light = (str(setup[k]).format(data=data) for k in ("scene", "light"))
     with run.folder("images", setup, scene, trace_defaults()) as folder:
         train, test = folder / "train.npz", folder / "test.npz"
-        _kept(train, lambda out: cli(["translucent", "trace", "--scene", scene, *media, *setup["trace"], "--seed",
-                                      str(run.seed), "-q", "-o", str(out)]))
-        _kept(test, lambda out: cli(["translucent", "trace", "--scene", scene, *media, *setup["test"], "--seed",
-                                     str(TEST_SEED), "-q", "-o", str(out)]))
+        for npz, options, seed in ((train, setup["trace"], run.seed), (test, setup["test"], TEST_SEED)):
+            args = ["translucent", "trace", "--scene", scene, *media, *options, "--seed", str(seed), "-q",
+                    "--checkpoint", str(npz.with_suffix(".trace-checkpoint")), "--resume", "-o"]
+            _kept(npz, lambda out, args=args: cli([*args, str(out)]))
         scorer = _Scorer(folder, train, test, light, setup)
         rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
         for seed in seeds:
@@ -161,9 +161,10 @@ def trace_defaults() -> dict:
     from neumat.fit.translucent_observations import collect_observations
     from neumat.reflectance.translucent import TranslucentConfig
 
-    def defaults(function) -> dict:
+    def defaults(function) -> dict:  # the options that change what is traced
         return {name: getattr(p.default, "default", p.default) for name, p in
-                inspect.signature(function).parameters.items()}
+                inspect.signature(function).parameters.items()
+                if name not in ("checkpoint", "resume", "checkpoint_every_s", "progress", "quiet")}
     return {"cli": defaults(trace), "observations": defaults(collect_observations),
             "object": config_to_dict(TranslucentConfig())}
 

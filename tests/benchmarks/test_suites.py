@@ -385,6 +385,9 @@ def test_the_image_tables_folder_key_follows_the_trace_defaults(monkeypatch):
     assert before["cli"]["images"] == option.default
     assert before["observations"]["resolution"] == inspect.signature(
         collect_observations).parameters["resolution"].default
+    # how a trace is checkpointed or reported does not change it: a trace cut off resumes in the same folder
+    assert not {"checkpoint", "resume", "quiet"} & set(before["cli"])
+    assert not {"checkpoint", "resume", "checkpoint_every_s", "progress"} & set(before["observations"])
     monkeypatch.setattr(option, "default", option.default // 2)
     assert neupress.trace_defaults()["cli"]["images"] == option.default
     assert neupress.trace_defaults() != before

@@ -156,8 +156,10 @@ def test_trace_scene_options_and_noise_floor(tmp_path):
     assert 0 < noise["observations"] <= 16 and noise["variance"] > 0 and noise["relative"] > 0
     assert "noisefloor" in _said(r)
     r = _run("trace", "-o", tmp_path / "p.npz", "--images", 1, "--resolution", 4, "--spp", 1, "-q",
-             "--inner", '[{"scale": 0.3, "albedo": [0, 0, 0]}]', "--noise-check", 0)
+             "--inner", '[{"scale": 0.3, "albedo": [0, 0, 0]}]', "--noise-check", 0,
+             "--checkpoint", tmp_path / "p.ckpt", "--resume")  # no checkpoint yet: a trace from the start
     assert r.exit_code == 0, r.output
+    assert not (tmp_path / "p.ckpt").exists()  # removed when the trace ends
     source = Observations.load_source(tmp_path / "p.npz")
     assert "noise" not in source and source["object"]["inner"][0]["albedo"] == [0, 0, 0]
 
@@ -169,6 +171,8 @@ def test_trace_scene_option_errors(tmp_path, without_llvm):
     assert r.exit_code == 2 and "alistofobjects" in _said(r)
     r = _run("trace", "-o", tmp_path / "o.npz", "--roughness-range", "0.1")
     assert r.exit_code == 2 and "LO,HI" in _said(r)
+    r = _run("trace", "-o", tmp_path / "o.npz", "--resume")
+    assert r.exit_code == 2 and "--resumeneeds--checkpoint" in _said(r)
 
 
 def test_fit_and_translucent_fit_are_one_fit(tmp_path):

@@ -72,3 +72,40 @@ def test_a_malformed_source_is_refused(tmp_path, source, match):
     for read in (Observations.load, Observations.load_source):
         with pytest.raises(DataFormatError, match=match):
             read(tmp_path / "o.npz")
+
+
+@pytest.mark.mitsuba
+def test_a_cut_off_trace_resumes_to_the_uninterrupted_result(tmp_path):
+    """A trace checkpointed after every view and cut off at its third view, resumed by a fresh object, gives the
+    observations the uninterrupted trace gives; the checkpoint is gone at the end; another trace's checkpoint, or a
+    broken file, is refused with a line naming it."""
+    mitsuba_or_skip()
+    from neumat.reflectance.translucent import TranslucentObject
+    whole = collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=6, seed=1)
+    ckpt = tmp_path / "trace.ckpt"
+    cut = TranslucentObject(spp=2, seed=3)
+    calls, real = [], cut.trace
+
+    def trace_until_the_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    cut.trace = trace_until_the_third
+    with pytest.raises(KeyboardInterrupt):
+        collect_observations(cut, images=5, resolution=6, seed=1, checkpoint=ckpt, checkpoint_every_s=0)
+    assert ckpt.is_file()
+    with pytest.raises(InputError, match="another trace.*resolution"):
+        collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=7, seed=1, checkpoint=ckpt,
+                             resume=True)
+    resumed = collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=6, seed=1, checkpoint=ckpt,
+                                   resume=True)
+    assert not ckpt.exists()
+    for name in ("x", "n", "wo", "wi", "value"):
+        assert torch.equal(getattr(resumed, name), getattr(whole, name)), name
+    ckpt.write_bytes(b"not a checkpoint")
+    with pytest.raises(DataFormatError, match="trace checkpoint"):
+        collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=6, seed=1, checkpoint=ckpt,
+                             resume=True)
+    with pytest.raises(InputError, match="resume needs a checkpoint"):
+        collect_observations(None, images=5, resume=True)

@@ -89,14 +89,22 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
                                                  "neupress_variance.md)"),
           noise_check: int = typer.Option(2048, min=0, help="observations traced twice more to estimate the data's "
                                                            "Monte Carlo noise (0: skip)"),
+          checkpoint: Path = typer.Option(None, help="file written every two minutes of tracing with the views done "
+                                                     "so far (removed at the end)"),
+          resume: bool = typer.Option(False, "--resume", help="continue the trace in --checkpoint if it exists (with "
+                                                              "the same options: the file an uninterrupted trace "
+                                                              "writes)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
     def go():
         from ..core.config import config_to_dict
+        from ..core.errors import InputError
         from ..fit.translucent_observations import collect_observations
         from ..reflectance.translucent import TranslucentObject
 
         _check_suffix(out, ".npz", "trace OUT")
+        if resume and checkpoint is None:
+            raise InputError("--resume needs --checkpoint (the file a cut-off trace left)")
         given = {"media": None if media is None else tuple(m.strip() for m in media.split(",")),
                  "size_mm": size_mm, "roughness": roughness, "max_depth": max_depth,
                  "roughness_texture": None if roughness_texture is None else str(roughness_texture),
@@ -105,7 +113,8 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
         cfg = object_config(scene, None if inner is None else _inner_shapes(inner), given)
         obj = TranslucentObject(cfg, spp=spp, seed=seed)
         sizes = {} if resolution is None else {"resolution": resolution}
-        obs = collect_observations(obj, images, seed=seed, progress=not quiet, **sizes)
+        obs = collect_observations(obj, images, seed=seed, progress=not quiet, checkpoint=checkpoint, resume=resume,
+                                   **sizes)
         source = {"object": config_to_dict(cfg), "spp": spp, "seed": seed,
                   "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]}
         if noise_check:

@@ -7,6 +7,7 @@ bounding sphere from a direction uniform on the sphere, with jittered pixel posi
 from __future__ import annotations
 
 import json
+import time
 import zipfile
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -15,6 +16,7 @@ import numpy as np
 import torch
 
 from ..core.checks import check_int
+from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal
 from ..reflectance.translucent import TranslucentConfig, TranslucentObject
@@ -196,32 +198,85 @@ def orbit_rays(obj: TranslucentObject, view: torch.Tensor, resolution: int,
 
 
 def collect_observations(obj: TranslucentObject, images: int, resolution: int = 32, spp: int | None = None,
-                         seed: int = 0, progress: bool = False) -> Observations:
+                         seed: int = 0, progress: bool = False, checkpoint: str | Path | None = None,
+                         resume: bool = False, checkpoint_every_s: float = 120.0) -> Observations:
     """Observations from `images` orthographic views (resolution^2 jittered rays each), each with its own
     light direction uniform on the sphere and camera direction uniform on the sphere; `spp` paths per ray
-    (default: the object's)."""
+    (default: the object's).
+
+    checkpoint: a file written every `checkpoint_every_s` seconds of tracing with the views done so far and the
+    random state (a trace of the paper's size takes an hour or more); with `resume` an existing one is continued,
+    and the result is the one an uninterrupted trace gives. The file is removed when the trace ends."""
     for name, v in (("images", images), ("resolution", resolution)):
         check_int(v, f"collect_observations {name}")
+    if resume and checkpoint is None:
+        raise InputError("collect_observations: resume needs a checkpoint path")
     gen = torch.Generator().manual_seed(int(seed))
     dirs = sample_uniform_sphere(torch.rand(2 * images, 2, generator=gen, dtype=torch.float64))
     parts: dict[str, list[torch.Tensor]] = {f.name: [] for f in fields(Observations)}
-    views = range(images)
+    key = {"images": images, "resolution": resolution, "spp": obj.spp if spp is None else spp, "seed": int(seed),
+           "object_seed": obj.seed, "object": config_to_dict(obj.config)}
+    start = 0
+    if resume and Path(checkpoint).is_file():
+        start = _resume_trace(checkpoint, key, gen, obj, parts)
+    views = range(start, images)
     if progress:
         from rich.progress import track
-        views = track(views, description="path tracing views")
+        views = track(views, description="path tracing views" + (f" (resumed at {start})" if start else ""))
+    saved = time.monotonic()
     for k in views:
         light, view = dirs[2 * k], dirs[2 * k + 1]
         o, d = orbit_rays(obj, view, resolution, gen)
         hit, x, n = obj.first_hits(o, d)
-        if not bool(hit.any()):
-            continue
-        value = obj.trace(o[hit], d[hit], light, spp=spp)
-        m = int(hit.sum())
-        for name, t in (("x", x), ("n", n), ("wo", -d[hit]), ("wi", light.expand(m, 3)), ("value", value)):
-            parts[name].append(t.float())
+        if bool(hit.any()):
+            value = obj.trace(o[hit], d[hit], light, spp=spp)
+            m = int(hit.sum())
+            for name, t in (("x", x), ("n", n), ("wo", -d[hit]), ("wi", light.expand(m, 3)), ("value", value)):
+                parts[name].append(t.float())
+        if checkpoint is not None and k + 1 < images and time.monotonic() - saved >= checkpoint_every_s:
+            _save_trace(checkpoint, key, k + 1, gen, obj, parts)
+            saved = time.monotonic()
     if not parts["x"]:
         raise InputError("collect_observations: no view hit the object")
-    return Observations(**{name: torch.cat(ts) for name, ts in parts.items()})
+    obs = Observations(**{name: torch.cat(ts) for name, ts in parts.items()})
+    if checkpoint is not None:
+        Path(checkpoint).unlink(missing_ok=True)
+    return obs
+
+
+def _save_trace(path, key: dict, views: int, gen: torch.Generator, obj: TranslucentObject,
+                parts: dict[str, list[torch.Tensor]]) -> None:
+    """A trace's checkpoint: what it traced (key), the views done, the random state and the observations so far
+    (each field's parts joined, so that the next save appends to one tensor)."""
+    from ..io.atomic import atomic_write
+
+    for name, ts in parts.items():
+        if len(ts) > 1:
+            parts[name] = [torch.cat(ts)]
+    blob = {"trace": key, "views": views, "generator": gen.get_state(), "calls": obj.trace_calls,
+            "parts": {name: ts[0] if ts else torch.zeros(0, 3) for name, ts in parts.items()}}
+    atomic_write(path, lambda tmp: torch.save(blob, tmp))
+
+
+def _resume_trace(path, key: dict, gen: torch.Generator, obj: TranslucentObject,
+                  parts: dict[str, list[torch.Tensor]]) -> int:
+    """Load a trace's checkpoint into gen, obj and parts; the view to continue at. Errors name the file when it is
+    unreadable or was written for another trace."""
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        saved, views = blob["trace"], int(blob["views"])
+    except Exception as e:  # noqa: BLE001 - any unreadable file is reported the same way
+        raise DataFormatError(f"trace checkpoint {str(path)!r}: cannot be read ({e})") from None
+    if saved != key:
+        diff = sorted(k for k in key if saved.get(k) != key[k])
+        raise InputError(f"trace checkpoint {str(path)!r} was written for another trace (different "
+                         f"{', '.join(diff)}); trace with the same options or start a new checkpoint")
+    gen.set_state(blob["generator"])
+    obj.trace_calls = int(blob["calls"])
+    for name, t in blob["parts"].items():
+        if len(t):
+            parts[name].append(t)
+    return views
 
 
 def traced_object(path: str | Path, seed: int = 0) -> TranslucentObject:

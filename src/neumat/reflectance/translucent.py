@@ -148,7 +148,8 @@ class TranslucentObject(Material):
         _check_config(config)
         _check_spp(config, spp)
         self.spp, self.seed = spp, int(seed)
-        self._calls = 0  # each trace call draws fresh random numbers (seeded by seed and this count)
+        #: trace calls so far: each draws fresh random numbers seeded by (seed, this count); a resumed trace sets it
+        self.trace_calls = 0
         self.mi = mi = import_mitsuba()
         shape = _shape_dict(config)
         probe = mi.load_dict({"type": "scene", "shape": shape})
@@ -335,8 +336,8 @@ class TranslucentObject(Material):
 
     def _next_seed(self) -> int:
         """A seed for Mitsuba's sampler not used by an earlier call (paths of different calls independent)."""
-        self._calls += 1
-        return (self.seed * 1_000_003 + self._calls) % (1 << 31)
+        self.trace_calls += 1
+        return (self.seed * 1_000_003 + self.trace_calls) % (1 << 31)
 
     def _set_light(self, light: torch.Tensor) -> None:
         """Point the directional emitter of both scenes so that light arrives from `light`."""

@@ -47,7 +47,7 @@ def test_draw_is_reproducible_per_step_and_fresh_across_steps():
     from neumat.fit.translucent_online import OnlineObservations
     obj = _sphere()
     source = OnlineObservations(obj, resolution=8, spp=2, seed=3)
-    calls = obj._calls
+    calls = obj.trace_calls
     a, b, c = source.draw(5, 150), source.draw(5, 150), source.draw(6, 150)
     assert len(a) == len(c) == 150  # exactly n, from several views (a view has at most 64 rays)
     for name in ("x", "n", "wo", "wi", "value"):
@@ -55,7 +55,7 @@ def test_draw_is_reproducible_per_step_and_fresh_across_steps():
     assert not torch.equal(a.wi, c.wi) and not torch.equal(a.value, c.value)
     assert len(torch.unique(a.wi, dim=0)) >= 3  # one light per view
     assert torch.allclose(a.x.norm(dim=-1), torch.ones(150), atol=1e-5) and bool(((a.n * a.wo).sum(-1) > 0).all())
-    assert obj._calls == calls  # seeded traces leave the object's own call-counter stream alone
+    assert obj.trace_calls == calls  # seeded traces leave the object's own call-counter stream alone
     other = OnlineObservations(obj, resolution=8, spp=2, seed=4).draw(5, 150)
     assert not torch.equal(a.value, other.value)
 
