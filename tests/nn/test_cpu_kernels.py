@@ -526,3 +526,71 @@ def test_analytic_ggx_kernel_is_as_accurate_as_torch(spec):
     assert err_kernel.median() <= 2 * err_torch.median() + 1e-7
     assert err_kernel.max() <= 2 * err_torch.max() + 1e-7
     assert (got[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] == 0).all()
+
+
+def _svbrdf_source(seed=3):
+    """A principled SVBRDF of random 12 x 20 maps: tilted normals (one along +u, where the tangent degenerates),
+    roughness down to 0 (the alpha floor), metalness over [0, 1]."""
+    from neumat.io.texture_set import TextureSet
+    from neumat.reflectance.svbrdf import SVBRDF
+
+    g = torch.Generator().manual_seed(seed)
+    h, w = 12, 20
+    normal = torch.nn.functional.normalize(torch.randn(h, w, 3, generator=g) * torch.tensor([0.5, 0.5, 1.0])
+                                           + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
+    normal[0, 0] = torch.tensor([1.0, 0.0, 0.0])
+    roughness = torch.rand(h, w, generator=g)
+    roughness[1, :5] = 0.0
+    return SVBRDF(TextureSet(color=torch.rand(h, w, 3, generator=g), normal=normal, roughness=roughness,
+                             metalness=(torch.rand(h, w, generator=g) > 0.5).float() * torch.rand(h, w, generator=g),
+                             height=torch.zeros(h, w)), samples=7)
+
+
+@needs_kernels
+@pytest.mark.parametrize("symmetrise", [True, False])
+def test_svbrdf_point_value_is_as_accurate_as_torch(symmetrise):
+    """The principled SVBRDF's point value by the kernel against the float64 torch formulas, at uv beyond [0, 1)
+    (tiling): its relative error within 4x the float32 torch path's (median, and largest or 1e-3: bilinear texel
+    coordinates amplify uv's rounding as the latent kernels' do); 0 wherever a direction is below the horizon."""
+    src = _svbrdf_source()
+    wi, wo = _directions(5003, seed=12)
+    uv = torch.rand(5003, 2, generator=torch.Generator().manual_seed(4)) * 4 - 1.5
+    with torch.no_grad():
+        got = src.eval_point(wi, wo, uv, symmetrise)
+        with cpu_kernels.switched_off():
+            ref = src.eval_point(wi, wo, uv, symmetrise)
+            truth = src.eval_point(wi.double(), wo.double(), uv.double(), symmetrise)
+    scale = truth.abs() + 1e-6
+    err_kernel, err_torch = (got.double() - truth).abs() / scale, (ref.double() - truth).abs() / scale
+    assert err_kernel.median() <= 4 * err_torch.median() + 1e-6, (float(err_kernel.median()), float(err_torch.median()))
+    assert err_kernel.max() <= max(4 * err_torch.max(), 1e-3), (float(err_kernel.max()), float(err_torch.max()))
+    assert (got[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] == 0).all() and float(got.abs().sum()) > 0
+
+
+@needs_kernels
+@pytest.mark.parametrize("footprint", [False, True])
+def test_svbrdf_filtered_value_by_the_kernel_equals_the_torch_path(footprint):
+    """A footprint's mean (7 positions a query, lod or anisotropic footprints, 2051 queries: not a multiple of the
+    kernel's block) from the same positions (the generator reseeded) as the torch path's, within float32 rounding of
+    the sum; the kernel is used (the torch point evaluation is never called)."""
+    src = _svbrdf_source()
+    n = 2051
+    g = torch.Generator().manual_seed(8)
+    wi, wo = _directions(n, seed=13)
+    uv = torch.rand(n, 2, generator=g)
+    if footprint:
+        a = torch.randn(n, 2, 2, generator=g) * 0.05
+        q = Query(wi, wo, uv=uv, footprint=a @ a.transpose(1, 2) + 1e-6 * torch.eye(2))
+    else:
+        q = Query(wi, wo, uv=uv, lod=torch.rand(n, generator=g) * 4)
+    with torch.no_grad():
+        src.generator.manual_seed(5)
+        torch_path = src.eval_point
+        src.eval_point = None  # the filtered kernel path must not fall back to it
+        got = src.eval(q)
+        src.eval_point = torch_path
+        with cpu_kernels.switched_off():
+            src.generator.manual_seed(5)
+            ref = src.eval(q)
+    assert torch.allclose(got, ref, rtol=1e-5, atol=1e-6 * float(ref.abs().max())), float((got - ref).abs().max())
+    assert float(ref.abs().sum()) > 0

@@ -1079,6 +1079,105 @@ typedef struct {
 /* torch.lerp(a, b, w) */
 static inline float lerp(float a, float b, float w) { return w < 0.5f ? a + w * (b - a) : b - (b - a) * (1.f - w); }
 
+/* max and min as selects: unlike fmaxf / fminf (NaN rules), GCC vectorises them (inputs here are finite) */
+static inline float max_f(float a, float b) { return a > b ? a : b; }
+static inline float min_f(float a, float b) { return a < b ? a : b; }
+
+/* (1 - c)^5 of a cosine c clamped to [0, 1]: Schlick's weight */
+static inline float schlick_weight(float c) {
+    const float w = 1.f - min_f(max_f(c, 0.f), 1.f), w2 = w * w;
+    return w2 * w2 * w;
+}
+
+/* one channel of the principled BRDF times the cosine ratio (svbrdf_eval): base colour clamped, its diffuse part
+   (diffuse: the channel-independent (1 - metallic)(1 - F_d(cos_i)) times the cos_o factor) plus the GGX term spec
+   times lerp(F_d, F_m, metallic) (Schlick weight wd), 0 unless up */
+static inline float principled_channel(float base, float diffuse, float fd, float wd, float metal, float spec, int up,
+                                       float ratio) {
+    base = min_f(max_f(base, 0.f), 1.f);
+    const float f = diffuse * base + lerp(fd, base + (1.f - base) * wd, metal) * spec;
+    return up ? f * ratio : 0.f;
+}
+
+/* The principled SVBRDF's point value (neumat.reflectance.svbrdf.SVBRDF.eval_point) averaged over `samples`
+   positions per query (neumat.reflectance.footprint_filter.filtered_eval; one sample: the point value itself).
+   maps: the PBR stack padded circularly by one texel, (h + 2, w + 2, 8) channels-last (base colour 3, normal 3,
+   roughness, metalness); pts: n * samples x 2 uv, query-major; wi, wo: n x 3 world directions. Per position: the maps
+   bilinear, the unit normal's shading frame (the tangent +u projected onto its plane), wi and wo in it, the
+   isotropic principled BRDF (neumat.reflectance.microfacet.principled_eval at the `specular` level) times the cosine
+   ratio (symmetrise: the mean of wi's and wo's, else wi's), 0 unless both directions are above the geometric and the
+   shading surface. out: n x 3, the mean over each query's positions. Why: a latent-texture fit's targets are 32 such
+   positions per query, in torch about half of a CPU training step. */
+int svbrdf_eval(const float *maps, int h, int w, const float *wi, const float *wo, const float *pts, long n,
+                int samples, float specular, int symmetrise, float *out) {
+    const float tiny = 1.17549435e-38f, pi = 3.14159265358979f;
+    const float f0d = 0.08f * min_f(max_f(specular, 0.f), 1.f), diffuse_den = pi * (1.f - (f0d + (1.f - f0d) / 21.f));
+    const long total = n * (long)samples;
+    float ix[BLOCK], iy[BLOCK], p[8 * BLOCK], dirs[6 * BLOCK], res[3 * BLOCK];
+    for (long i = 0; i < 3 * n; ++i) out[i] = 0.f;
+    for (long s = 0; s < total; s += BLOCK) {
+        const int m = total - s < BLOCK ? (int)(total - s) : BLOCK;
+        latent_texels(pts, s, total, h, w, ix, iy);
+        /* gather: each position's maps and its query's directions, feature-major, so that the arithmetic below
+           runs over contiguous rows of BLOCK values (vectorised) */
+        for (int k = 0; k < BLOCK; ++k) {
+            float t[8];
+            bilinear_read(maps, h + 2, w + 2, 8, ix[k], iy[k], t);
+            for (int c = 0; c < 8; ++c) p[c * BLOCK + k] = t[c];
+            const long row = (s + (k < m ? k : 0)) / samples;
+            for (int c = 0; c < 3; ++c) {
+                dirs[c * BLOCK + k] = wi[3 * row + c];
+                dirs[(3 + c) * BLOCK + k] = wo[3 * row + c];
+            }
+        }
+        for (int k = 0; k < BLOCK; ++k) {
+            const float a0 = dirs[k], a1 = dirs[BLOCK + k], a2 = dirs[2 * BLOCK + k];
+            const float b0 = dirs[3 * BLOCK + k], b1 = dirs[4 * BLOCK + k], b2 = dirs[5 * BLOCK + k];
+            float nx = p[3 * BLOCK + k], ny = p[4 * BLOCK + k], nz = p[5 * BLOCK + k];
+            const float nl = max_f(sqrtf(nx * nx + ny * ny + nz * nz), 1e-12f);
+            nx /= nl; ny /= nl; nz /= nl;
+            float tx = 1.f - nx * nx, ty = -nx * ny, tz = -nx * nz;  /* +u minus its normal component */
+            const float tl = sqrtf(max_f(tx * tx + ty * ty + tz * tz, 1e-24f));
+            tx /= tl; ty /= tl; tz /= tl;
+            const float bx = ny * tz - nz * ty, by = nz * tx - nx * tz, bz = nx * ty - ny * tx;
+            const float lix = a0 * tx + a1 * ty + a2 * tz, liy = a0 * bx + a1 * by + a2 * bz;
+            const float liz = a0 * nx + a1 * ny + a2 * nz;
+            const float lox = b0 * tx + b1 * ty + b2 * tz, loy = b0 * bx + b1 * by + b2 * bz;
+            const float loz = b0 * nx + b1 * ny + b2 * nz;
+            const float metal = min_f(max_f(p[7 * BLOCK + k], 0.f), 1.f), r = min_f(max_f(p[6 * BLOCK + k], 0.f), 1.f);
+            const float al = max_f(r * r, 1e-3f);
+            /* diffuse: (1 - metallic)(1 - F_d(cos_i)) base (1 - F_d(cos_o)) / (pi (1 - F_d_avg)), both up */
+            const float albedo = (1.f - metal) * (1.f - (f0d + (1.f - f0d) * schlick_weight(liz)));
+            const float dscale = liz > 0.f && loz > 0.f ?
+                (1.f - (f0d + (1.f - f0d) * schlick_weight(loz))) / diffuse_den : 0.f;
+            /* GGX: D(h) G1(wi) G1(wo) / (4 cos_i cos_o), Fresnel lerp(F_d, F_m, metallic) at cos(wi, h) */
+            float hx = lix + lox, hy = liy + loy, hz = liz + loz;
+            const float hl = max_f(sqrtf(hx * hx + hy * hy + hz * hz), 1e-12f);
+            hx /= hl; hy /= hl; hz /= hl;
+            const float e = (hx / al) * (hx / al) + (hy / al) * (hy / al) + hz * hz;
+            const float d = hz > 0.f ? 1.f / (pi * al * al * e * e) : 0.f;
+            const float zi = max_f(liz, 0.f), zo = max_f(loz, 0.f);
+            const float ri = sqrtf(liz * liz + (al * lix) * (al * lix) + (al * liy) * (al * liy));
+            const float ro = sqrtf(loz * loz + (al * lox) * (al * lox) + (al * loy) * (al * loy));
+            const float g = (2.f * zi / max_f(zi + ri, tiny)) * (2.f * zo / max_f(zo + ro, tiny));
+            const float spec = d * g / max_f(4.f * liz * loz, tiny);
+            const float wd = schlick_weight(lix * hx + liy * hy + liz * hz), fd = f0d + (1.f - f0d) * wd;
+            const int up = a2 > 0.f && b2 > 0.f && liz > 0.f && loz > 0.f;
+            const float ratio_i = liz / max_f(a2, 1e-12f);
+            const float ratio = symmetrise ? 0.5f * (ratio_i + loz / max_f(b2, 1e-12f)) : ratio_i;
+            res[k] = principled_channel(p[k], albedo * dscale, fd, wd, metal, spec, up, ratio);
+            res[BLOCK + k] = principled_channel(p[BLOCK + k], albedo * dscale, fd, wd, metal, spec, up, ratio);
+            res[2 * BLOCK + k] = principled_channel(p[2 * BLOCK + k], albedo * dscale, fd, wd, metal, spec, up, ratio);
+        }
+        for (int k = 0; k < m; ++k) {
+            float *o = out + 3 * ((s + k) / samples);
+            o[0] += res[k]; o[1] += res[BLOCK + k]; o[2] += res[2 * BLOCK + k];
+        }
+    }
+    for (long i = 0; i < 3 * n; ++i) out[i] /= (float)samples;
+    return 0;
+}
+
 /* the value at flat index i of a table (S x size per slice) interpolated over the parameter slices sl (count) */
 static inline float sliced(const float *t, long size, const int *sl, const float *w, int count, long i) {
     float v = 0.f;

@@ -1,7 +1,7 @@
 """Fused CPU kernels that evaluate models without autograd (`cpu_kernels.c`), compiled at first use: NBRDF,
 NeuBRDF's runtime form, the gated multi-scale model and tripleplane, NeuMIP with nbrdf-uv, neumip-frame,
 neumip-offset and neural-appearance's BRDF decoder, the GGX parameter mip-map, analytic GGX and the RGL measured
-BRDFs' evaluation.
+BRDFs' evaluation, and the principled SVBRDF a texture-set source evaluates its targets with.
 
 Why: a small decoder's evaluation in torch is some 30 to 150 tensor operations (1 to 2 us of dispatch each, each a
 pass over memory) over layers too narrow for sgemm to run near its speed; one C call per batch costs a few
@@ -633,6 +633,27 @@ def ggx_eval(wi: torch.Tensor, wo: torch.Tensor, alpha_x: float, alpha_y: float,
         _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start), ctypes.c_float(alpha_x),
                   ctypes.c_float(alpha_y), GGX_FRESNEL[fresnel], *rgb, _ptr(out, start)))
     by_threads(run, len(wi))
+    return out
+
+
+def svbrdf_eval(padded_maps: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor, pts: torch.Tensor, specular: float,
+                symmetrise: bool) -> torch.Tensor:
+    """The principled SVBRDF's point value (`neumat.reflectance.svbrdf.SVBRDF.eval_point`) of float32 directions
+    (N, 3), averaged over the positions pts (N, S, 2) of each query (S = 1: the point value): (N, 3). padded_maps:
+    the source's PBR stack (1, 8, H + 2, W + 2) as `neumat.nn.latent_texture.padded_maps` keeps it (channels-last)."""
+    lib = library()
+    n, samples = pts.shape[0], pts.shape[1]
+    h, w = padded_maps.shape[2] - 2, padded_maps.shape[3] - 2
+    if padded_maps.shape[1] != 8 or not padded_maps.is_contiguous(memory_format=torch.channels_last):
+        raise ValueError("svbrdf_eval: expected the padded (1, 8, H + 2, W + 2) maps in channels-last order")
+    wi, wo, pts = wi.contiguous(), wo.contiguous(), pts.contiguous()
+    out = torch.empty(n, 3)
+    fn = lib.svbrdf_eval
+
+    def run(start: int, stop: int) -> None:
+        _check(fn(_ptr(padded_maps), h, w, _ptr(wi, start), _ptr(wo, start), _ptr(pts, start),
+                  ctypes.c_long(stop - start), samples, ctypes.c_float(specular), int(symmetrise), _ptr(out, start)))
+    by_threads(run, n)
     return out
 
 

@@ -38,14 +38,18 @@ def wrap_padded(tex: torch.Tensor) -> torch.Tensor:
 
 
 def bilinear_maps(owner: object, maps: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """`bilinear` of fixed data maps (C, H, W) (a source's PBR maps) at uv (N, 2), in uv's dtype and device: the
-    padded copy is made once per dtype and device and kept on `owner` (`derived_from`; made every call when maps
-    needs a gradient), in channels-last order so a lookup reads a texel's channels together. Why: a source's lookups
-    otherwise pad its whole texture on every call and miss the cache once per channel (a 1K set: 47 ms per 65k
-    lookups, 7 ms kept); same values as `bilinear`."""
-    padded = derived_from(owner, f"padded maps {maps.data_ptr()} {uv.dtype} {uv.device}", [maps], lambda: wrap_padded(
-        maps.to(uv.device, uv.dtype)).contiguous(memory_format=torch.channels_last), optimised=False)
-    return bilinear_padded(padded, uv)
+    """`bilinear` of fixed data maps (C, H, W) (a source's PBR maps) at uv (N, 2), in uv's dtype and device, read
+    from `padded_maps`. Why: a source's lookups otherwise pad its whole texture on every call and miss the cache once
+    per channel (a 1K set: 47 ms per 65k lookups, 7 ms kept); same values as `bilinear`."""
+    return bilinear_padded(padded_maps(owner, maps, uv.dtype, uv.device), uv)
+
+
+def padded_maps(owner: object, maps: torch.Tensor, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """`wrap_padded` of fixed data maps (C, H, W) in dtype on device, (1, C, H + 2, W + 2) in channels-last order
+    (a lookup reads a texel's channels together), made once per dtype and device and kept on `owner`
+    (`derived_from`; made every call when maps needs a gradient)."""
+    return derived_from(owner, f"padded maps {maps.data_ptr()} {dtype} {device}", [maps], lambda: wrap_padded(
+        maps.to(device, dtype)).contiguous(memory_format=torch.channels_last), optimised=False)
 
 
 def bilinear_padded(padded: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:

@@ -15,7 +15,8 @@ from ..core.frames import normal_map_frame, to_local, to_world
 from ..core.material import Material, sample_from_direction
 from ..core.query import Query, Sample
 from ..io.texture_set import TextureSet, load_texture_set
-from ..nn.latent_texture import bilinear_maps
+from ..nn import cpu_kernels
+from ..nn.latent_texture import bilinear_maps, padded_maps
 from ..warp.hemisphere import cosine_hemisphere_pdf, sample_cosine_hemisphere
 from .footprint_filter import filtered_eval, query_footprint
 from .lean import NormalGroup
@@ -102,6 +103,8 @@ class SVBRDF(Material):
     def eval_point(self, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
                    symmetrise: bool = True) -> torch.Tensor:
         """Unfiltered value f(wi, wo | uv) (N, 3) (module docstring), symmetrised unless told not to."""
+        if cpu_kernels.usable(wi, wo, uv, self.maps):
+            return self._kernel_mean(wi, wo, uv[:, None, :], symmetrise)
         p = self.parameters_at(uv)
         t, b, n = normal_map_frame(p["normal"])
         li, lo = to_local(wi, t, b, n), to_local(wo, t, b, n)
@@ -111,6 +114,14 @@ class SVBRDF(Material):
         ratio_i = li[:, 2] / wi[:, 2].clamp(min=1e-12)
         ratio = 0.5 * (ratio_i + lo[:, 2] / wo[:, 2].clamp(min=1e-12)) if symmetrise else ratio_i
         return torch.where(up.unsqueeze(-1), f * ratio.unsqueeze(-1), torch.zeros_like(f))
+
+    def _kernel_mean(self, wi: torch.Tensor, wo: torch.Tensor, pts: torch.Tensor,
+                     symmetrise: bool = True) -> torch.Tensor:
+        """The mean of `eval_point` over the positions pts (N, S, 2) of each query, by the fused CPU kernel (float32,
+        no gradient: `cpu_kernels.usable`). Why: a latent-texture fit's targets (32 positions a query) cost about half
+        of its CPU training step in torch."""
+        return cpu_kernels.svbrdf_eval(padded_maps(self, self.maps, torch.float32, wi.device), wi, wo, pts,
+                                       self.specular, symmetrise)
 
     # ----------------------------------------------------------------------------- filtered value
 
@@ -125,7 +136,8 @@ class SVBRDF(Material):
         cov = self.footprint_of(q)
         if cov is None:
             return self.eval_point(q.wi, q.wo, q.uv)
-        return filtered_eval(self.eval_point, q, cov, self.samples, self.chunk, self.generator)
+        fused = self._kernel_mean if cpu_kernels.usable(q.wi, q.wo, q.uv, self.maps) else None
+        return filtered_eval(self.eval_point, q, cov, self.samples, self.chunk, self.generator, fused)
 
     # ---------------------------------------------------------------------------------- sampling
 
