@@ -3,7 +3,7 @@ procedural detail set), each fitted through the CLI's default recipe (`neumat fi
 crop=64 --source-option crop_origin=R,C --source-option samples=8 --seed S`) and scored as the docs do (`neumat eval
 ... --source-option samples=64 --scales 9 --resolution 48 --no-image`), with each crop's texture statistics
 (`neumat.reflectance.texture_statistics`) beside it and each fit's loss history (final against lowest, as the
-trainer's FitWarning reads it).
+trainer's FitWarning reads it), and the commit the job ran at (rows from session 64 on).
 
 Jobs run as subprocesses of the installed CLI, `--workers` at a time, one thread each; every finished job appends one
 JSON line to OUT/jobs.jsonl (or the file `--jobs` names), so a rerun with the same OUT resumes. `--report` prints the
@@ -158,8 +158,11 @@ def main(argv: list[str]) -> int:
         parser.error("--set and --samples need a --variant label")
     print(f"{len(jobs)} jobs to run", file=sys.stderr)
 
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).parent).stdout.strip() or None
+
     def one(job):
-        row = run_job(job, args.steps, args.overrides, args.samples)
+        row = {**run_job(job, args.steps, args.overrides, args.samples), "commit": commit}
         with open(jobs_file, "a") as f:
             f.write(json.dumps(row) + "\n")
         print(f"{job['name']} {job['origin']} {job['model']} seed {job['seed']}: {row['status']} "
