@@ -115,11 +115,12 @@ def _fit_one(run: harness.Run, source: str, model: str, options: list[str], seed
 
 
 def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str],
-                     after: Callable[[dict], dict] | None = None) -> list[dict] | None:
-    """fit-many rows of `models` on every shared texture set at each model's default preset, what `neumat fit` gives
-    without flags (256^2 texels, two seeds), or of `quick_models` on one set at 32^2 for 10 steps with 8-sample
-    footprint targets in a quick run; None (the run says why) without shared data. The default, not the paper's exact
-    recipe (preset cpu): on these sets ggx-mipmap's paper loss diverges (loss 14-19x above its best, session 51)."""
+                     after: Callable[[dict], dict] | None = None, max_size: int | None = 256) -> list[dict] | None:
+    """fit-many rows of `models` on every shared texture set at each model's default preset, as `neumat fit` gives
+    without flags (two seeds), each set read whole or, with `max_size`, downsampled to at most that many texels a
+    side; or of `quick_models` on one set at 32^2 for 10 steps with 8-sample footprint targets in a quick run; None
+    (the run says why) without shared data. The default, not the paper's exact recipe (preset cpu): on these sets
+    ggx-mipmap's paper loss diverges (loss 14-19x above its best, session 51)."""
     data = shared_data_dir()
     if data is None:
         run.skip("every fit", "no texture sets: shared data absent (neumat.io.shared_data)")
@@ -131,8 +132,9 @@ def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str
                          "--source-option", "samples=8", "--n-configs", "4096", "--image-spp", "2",
                          "--image-resolution", "32"],
                         [run.seed], after)
-    return fit_many(run, sets, models, ["--source-option", "max_size=256", "--n-configs", str(2 ** 18),
-                                        "--image-spp", "64", "--image-resolution", "128"],
+    size = [] if max_size is None else ["--source-option", f"max_size={max_size}"]
+    return fit_many(run, sets, models, [*size, "--n-configs", str(2 ** 18), "--image-spp", "64",
+                                        "--image-resolution", "128"],
                     [run.seed, run.seed + 1], after)
 
 
