@@ -41,6 +41,12 @@ LONG_RUN = {"recipe.steps": 4000, "option.target_samples": 32}
 #: 0.46x, whole 1K sets 0.71-0.76x its FLIP at std 1; selection_free.md, "The latents' initial scale")
 SMALL_INIT_ON_CPU = UNPRECONDITIONED_ON_CPU
 SMALL_INIT = {"model.init_std": 0.1}
+#: the CPU recipe's departures from the paper's above: the models each applies to, its overrides, and how the
+#: recommended preset's description names it
+CPU_CHANGES = ((UNPRECONDITIONED_ON_CPU, {"model.spatial_precondition": 0.0}, " without the spatial preconditioner"),
+               (SHORT_RUN_OPTIMISER_ON_CPU, SHORT_RUN_OPTIMISER, ", Adam beta1 0.9 and EMA weight 0.02"),
+               (LONG_RUN_ON_CPU, LONG_RUN, ", 4000 steps on 32-sample footprint targets instead of 1000 on 256"),
+               (SMALL_INIT_ON_CPU, SMALL_INIT, ", latents initialised at standard deviation 0.1 instead of 1"))
 
 
 def recommended(model: str) -> Preset:
@@ -54,26 +60,15 @@ def recommended(model: str) -> Preset:
     keep Eq. 10 (`relative_l2_mix`) unclipped at 3e-3 with the paper's Adam and EMA.
     Evidence: benchmarks/studies/multiscale/results/polished_metal_stability.md (last section), selection_free.md
     and NOTES.md's decision table."""
-    cpu = {"recipe.lr": 1e-2}
-    plain = model in UNPRECONDITIONED_ON_CPU
-    if plain:
-        cpu["model.spatial_precondition"] = 0.0
-    short = model in SHORT_RUN_OPTIMISER_ON_CPU
-    if short:
-        cpu.update(SHORT_RUN_OPTIMISER)
-    long = model in LONG_RUN_ON_CPU
-    if long:
-        cpu.update(LONG_RUN)
-    small = model in SMALL_INIT_ON_CPU
-    if small:
-        cpu.update(SMALL_INIT)
+    cpu, said = {"recipe.lr": 1e-2}, ""
+    for models, overrides, description in CPU_CHANGES:
+        if model in models:
+            cpu.update(overrides)
+            said += description
     return Preset(
         "the paper's model, sized to the device, with the robust loss (Eq. 10 up to relative residual 10, a log "
         "tail beyond) and gradients clipped at norm 1 (no blow-up on polished metal or stall after a loss spike); "
-        "on a CPU at learning rate 1e-2" + (" without the spatial preconditioner" if plain else "")
-        + (", Adam beta1 0.9 and EMA weight 0.02" if short else "")
-        + (", 4000 steps on 32-sample footprint targets instead of 1000 on 256" if long else "")
-        + (", latents initialised at standard deviation 0.1 instead of 1" if small else "")
+        "on a CPU at learning rate 1e-2" + said
         + " (a lower mean FLIP on every crop measured than with the paper's settings at the CPU recipe)",
         overrides={"recipe.loss": "relative_l2_robust", "recipe.grad_clip": 1.0}, by_recipe={"cpu": cpu})
 
