@@ -594,3 +594,22 @@ def test_svbrdf_filtered_value_by_the_kernel_equals_the_torch_path(footprint):
             ref = src.eval(q)
     assert torch.allclose(got, ref, rtol=1e-5, atol=1e-6 * float(ref.abs().max())), float((got - ref).abs().max())
     assert float(ref.abs().sum()) > 0
+
+
+@needs_kernels
+@pytest.mark.parametrize("nside", [1, 2, 3, 5, 8, 64])
+def test_healpix_corner_vertices_equal_the_torch_path(nside):
+    """Every ring pixel's corner vertex ids by the kernel equal the int64 torch path's, bit for bit: at level 0 (any
+    nside), and for a power of two at every ancestor level, one for all pixels and one per pixel."""
+    from neumat.nn import healpix as hpx
+
+    pix = torch.arange(12 * nside * nside)
+    levels = [0]
+    if nside & (nside - 1) == 0:
+        levels += list(range(1, nside.bit_length())) + [torch.randint(0, nside.bit_length(), (len(pix),),
+                                                                     generator=torch.Generator().manual_seed(1))]
+    for level in levels:
+        got = hpx._corner_vertices(nside, pix, level)
+        with cpu_kernels.switched_off():
+            ref = hpx._corner_vertices(nside, pix, level)
+        assert got.dtype == torch.int64 and torch.equal(got, ref), level

@@ -824,6 +824,20 @@ def ring_pixels(nside: int, xyz: torch.Tensor, exact_atan2: bool = False) -> tor
     return out
 
 
+def healpix_corner_vertices(nside: int, pix: torch.Tensor, level: torch.Tensor | int) -> torch.Tensor:
+    """`neumat.nn.healpix._corner_vertices`: the corner vertex ids (..., 4) int64 of the level-`level` ancestors (an
+    int, or a tensor broadcast against pix) of ring pixels pix (...) int64, bit for bit."""
+    shape = pix.shape
+    pix = pix.to(torch.int64).reshape(-1).contiguous()
+    per_pixel = isinstance(level, torch.Tensor) and level.dim() > 0
+    if per_pixel:
+        level = level.to(torch.int64).expand(shape).reshape(-1).contiguous()
+    out = torch.empty(len(pix), 4, dtype=torch.int64)
+    library().healpix_corner_vertices(ctypes.c_long(nside), _ptr(pix), _ptr(level) if per_pixel else None,
+                                      0 if per_pixel else int(level), ctypes.c_long(len(pix)), _ptr(out))
+    return out.view(*shape, 4)  # not counted in `calls` (a lookup's geometry, not a model's evaluation)
+
+
 def exp_values(x: torch.Tensor, minus_one: bool) -> torch.Tensor:
     """The kernels' exp (or expm1) of float32 values (tests)."""
     x = x.float().contiguous()

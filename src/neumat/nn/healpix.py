@@ -19,6 +19,7 @@ import torch
 from neumat.core.checks import check_directions, check_finite, check_int
 from neumat.core.errors import InputError
 from neumat.core.tensors import cached_tensor
+from neumat.nn import cpu_kernels
 
 # face layout constants of the 12 base pixels (healpix_base.cc)
 _JRLL = (2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4)
@@ -333,7 +334,11 @@ def corner_vertices(nside: int, pix: torch.Tensor) -> torch.Tensor:
 
 
 def _corner_vertices(n: int, pix: torch.Tensor, level) -> torch.Tensor:
-    """Corner vertex ids (N, 4) of the level-`level` ancestor of ring pixels (level 0: the pixel itself)."""
+    """Corner vertex ids (N, 4) of the level-`level` ancestor of ring pixels (level 0: the pixel itself); on the CPU
+    by the fused kernel (`cpu_kernels.healpix_corner_vertices`, the same ids)."""
+    if pix.device.type == "cpu" and (not isinstance(level, torch.Tensor) or level.device.type == "cpu") \
+            and cpu_kernels.usable():
+        return cpu_kernels.healpix_corner_vertices(n, pix, level)
     ix, iy, face = _ring2xyf(n, pix)
     level = torch.as_tensor(level, device=pix.device)
     x0, y0, s = (ix >> level) << level, (iy >> level) << level, 1 << level
