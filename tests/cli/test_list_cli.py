@@ -26,7 +26,8 @@ def test_list_json_has_every_model_with_a_recipe():
     # the texture-set and BRDF defaults (neumat.cli.fitting.DEFAULT_MODELS) say why in their "measured" line
     assert models["multiscale"]["measured"].startswith("the default for texture sets")
     assert models["neubrdf"]["measured"].startswith("the default for BRDFs")
-    assert "scratches" in models["tripleplane"]["measured"] and models["ggx"]["measured"] == ""
+    assert "dielectric" in models["tripleplane"]["measured"] and "Wood092" in models["tripleplane"]["measured"]
+    assert models["ggx"]["measured"] == ""
 
 
 def test_list_tables_fit_80_columns():

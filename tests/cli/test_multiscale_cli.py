@@ -98,8 +98,8 @@ def test_eval_scales_scores_a_texture_set_fit_across_texture_scales(shared_data,
 
 
 def test_fit_without_a_model_picks_the_sources_default(tmp_path):
-    """No --model: a texture-set folder fits the gated model, or tripleplane when it is flat and rough (and says
-    why), whatever its size, a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources the shared NeuBRDF; a missing
+    """No --model: a texture-set folder fits the gated model, or tripleplane when it is a flat, rough dielectric
+    (and says why), whatever its size, a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources the shared NeuBRDF; a missing
     file is one error line."""
     import pytest
     import torch
@@ -113,9 +113,10 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     out = tmp_path / "foil.nmat"
     result = CliRunner().invoke(app, ["fit", str(folder), "-o", str(out), "--steps", "2", "--set", "batch_size=64"])
     assert result.exit_code == 0, result.output
-    assert "model multiscale: the default for this source: normal detail or a near-mirror" in result.output
+    assert "model multiscale: the default for this source: normal detail, metal or a near-mirror" in result.output
     assert load_model(out).name == "multiscale"
-    # flat and rough: normals tilted 2 degrees, roughness 0.5, metal or not; tilted 4 degrees, or a near-mirror, is not
+    # a flat, rough dielectric: normals tilted 2 degrees, roughness 0.5, metalness 0; tilted 4 degrees, a metal (mean
+    # metalness 0.5 or more), or a near-mirror, is not
     h = w = 16
     def texture_set(tilt_deg, metalness, roughness=0.5):
         t = torch.deg2rad(torch.tensor(float(tilt_deg)))
@@ -123,17 +124,19 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
         return TextureSet(color=torch.rand(h, w, 3, generator=torch.Generator().manual_seed(0)), normal=normal,
                           roughness=torch.full((h, w), roughness), metalness=torch.full((h, w), float(metalness)),
                           height=torch.zeros(h, w), name="flat")
-    for tilt, metal, rough, expected in ((2, 0, 0.5, "tripleplane"), (2, 1, 0.5, "tripleplane"),
-                                         (2, 1, 0.1, "multiscale"), (4, 0, 0.5, "multiscale")):
+    for tilt, metal, rough, expected in ((2, 0, 0.5, "tripleplane"), (2, 0.4, 0.5, "tripleplane"),
+                                         (2, 0.6, 0.5, "multiscale"), (2, 1, 0.5, "multiscale"),
+                                         (2, 0, 0.1, "multiscale"), (4, 0, 0.5, "multiscale")):
         write_texture_set(texture_set(tilt, metal, rough), tmp_path / f"flat{tilt}{metal}{rough}")
         name, why = default_model([str(tmp_path / f"flat{tilt}{metal}{rough}")])
-        said = re.search(r"mean normal tilt ([0-9.]+) deg, roughness ([0-9.]+)", why)
+        said = re.search(r"mean normal tilt ([0-9.]+) deg, roughness ([0-9.]+), metalness ([0-9.]+)", why)
         assert name == expected and abs(float(said[1]) - tilt) < 0.3 and abs(float(said[2]) - rough) < 0.01, why
+        assert abs(float(said[3]) - metal) < 0.01, why
     flat = tmp_path / "flat200.5"
     result = CliRunner().invoke(app, ["fit", str(flat), "-o", str(tmp_path / "flat.nmat"), "--steps", "2", "--set",
                                       "batch_size=64"])
     assert result.exit_code == 0, result.output
-    assert "model tripleplane: the default for this source: a flat, rough set" in result.output
+    assert "model tripleplane: the default for this source: a flat, rough dielectric" in result.output
     assert load_model(tmp_path / "flat.nmat").name == "tripleplane"
     # the rule was measured at the recommended preset on a CPU: elsewhere the paper's gated model
     assert default_model([str(flat)], preset="paper")[0] == "multiscale"

@@ -30,7 +30,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         model: str = typer.Option(None, "--model", "-m",
                                   help="registered model name (`neumat list`); default: the recommended model for "
                                        "the source (neumat.cli.fitting.default_model: neubrdf for a BRDF, "
-                                       "multiscale for a texture-set folder (tripleplane for a flat, rough one: "
+                                       "multiscale for a texture-set folder (tripleplane for a flat, rough dielectric: "
                                        "neumat.methods.latent_mlp.regime), sparse-btf for a BTF, neupress for "
                                        "translucent observations, shared-neubrdf for several BRDFs)"),
         preset: str = typer.Option(None, "--preset", help=PRESET_HELP),

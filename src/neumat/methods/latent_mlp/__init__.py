@@ -76,18 +76,17 @@ def recommended(model: str) -> Preset:
 #: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe) and
 #: larger sources (benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
-    "multiscale": "the default for texture sets with normal detail and for near-mirrors (on a CPU; "
-                  "`neumat.methods.latent_mlp.regime`): at the CPU default with latents initialised at std 0.1 "
-                  "(session 63; first crops, seed 0) mean FLIP over 9 scales 0.94-0.98x tripleplane's on leather, "
-                  "paper, plaster and flat metal, 1.06x on the fabric crop; on larger sources 0.72x (a 256^2 leather "
-                  "crop) and 0.96x (the whole 1K plaster set), 1.05-1.09x on the whole 1K fabric set; at std 1 "
-                  "(session 54) below tripleplane's on 21 of 30 random 64^2 crops x seeds (median 0.935x)",
-    "tripleplane": "the default on a CPU for flat, rough texture sets (mean normal tilt < 3 degrees, roughness >= "
-                   "0.2): at std 1 (session 54) ahead of the gated model on flat metal and wood (Metal027 "
-                   "1.18-1.22x, Wood092 up to 1.10x) and the brushed metal (1.07x), behind it where normals vary "
-                   "(fabric, paper, plaster, scratches) and on the polished plate; at the CPU default's std 0.1 "
-                   "(session 63, first crops) the two are within 4 % there (Wood092 1.035x, Metal027 0.98x), and "
-                   "tripleplane leads on the fabric crop and the whole 1K fabric set (1.05-1.09x)",
+    "multiscale": "the default for texture sets with normal detail, metals and near-mirrors (on a CPU; "
+                  "`neumat.methods.latent_mlp.regime`): at the CPU default (latents initialised at std 0.1), over "
+                  "all 29 random 64^2 crops x 2 seeds (session 64), mean FLIP over 9 scales below tripleplane's on "
+                  "44 of 58 (76 %), every Metal027 and Leather05 pair among them (0.93-1.00x); on larger sources "
+                  "0.72x (a 256^2 leather crop) and 0.96x (the whole 1K plaster set), 1.05-1.09x on the whole 1K "
+                  "fabric set (session 63)",
+    "tripleplane": "the default on a CPU for flat, rough dielectric texture sets (mean normal tilt < 3 degrees, "
+                   "roughness >= 0.2, metalness < 0.5): at the CPU default (std 0.1), over the 29 random crops x 2 "
+                   "seeds (session 64), ahead of the gated model on every Wood092 pair (1.01-1.16x) and six "
+                   "near-ties (at most 1.06x), behind it on the flat metal (Metal027 0.95-0.98x) and where normals "
+                   "vary; on the whole 1K fabric set 0.92-0.95x the gated model's (session 63)",
 }
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)

@@ -1,13 +1,15 @@
 """The latent-texture model a texture set gets when no model is named (`neumat fit SET`): at the recommended
-preset on a CPU, tripleplane on a flat, rough set, the gated model elsewhere (normal detail, or a near-mirror);
-other presets and devices the gated model (the paper's Table 6, at its budget).
+preset on a CPU, tripleplane on a flat, rough dielectric, the gated model elsewhere (normal detail, metal, or a
+near-mirror); other presets and devices the gated model (the paper's Table 6, at its budget).
 
-On a flat set the filtered appearance is close to an average of the texels' BRDFs, the regime where concatenated
-spatial and directional features (tripleplane) are enough; a near-mirror keeps the gated model, whose gated
-angular textures hold the sharp lobe. The thresholds come from issue 55's selection-free 64^2 crops at the
-recommended preset's CPU recipe (NOTES.md, "model a texture set gets"). The source's size does not enter: at the
-recipe's initial latent scale (std 0.1) the larger sources measured split as the crops do (selection_free.md,
-"The latents' initial scale").
+On a flat dielectric the filtered appearance is close to an average of the texels' BRDFs, a diffuse colour under a
+specular lobe that hardly varies: concatenated spatial and directional features (tripleplane) are enough. On a metal
+the texels' colours tint the specular lobe itself, a product of spatial and directional variation that the gated
+model's product of latent and angular features holds; a near-mirror keeps the gated model too, whose gated angular
+textures hold the sharp lobe. The thresholds come from issue 55's selection-free 64^2 crops at the recommended
+preset's CPU recipe (NOTES.md, "model a texture set gets"). The source's size does not enter: at the recipe's
+initial latent scale (std 0.1) the larger sources measured split as the crops do (selection_free.md, "The latents'
+initial scale").
 """
 from __future__ import annotations
 
@@ -20,6 +22,10 @@ from neumat.reflectance.texture_statistics import normal_tilt_deg
 FLAT_TILT_DEG = 3.0
 #: mean perceptual roughness below which a flat set counts as a near-mirror (measured: 0.09 gated, 0.48 tripleplane)
 MIRROR_ROUGHNESS = 0.2
+#: mean metalness from which a flat set counts as a metal (measured at the std-0.1 default, session 64: the flat
+#: metal Metal027, metalness 1, to the gated model on 8 of 8 (crop, seed) pairs; the flat dielectric Wood092,
+#: metalness 0, to tripleplane on 8 of 8)
+METAL = 0.5
 
 
 def model_for_texture_set(textures: TextureSet, preset: str = DEFAULT_PRESET, device_type: str = "cpu"
@@ -31,9 +37,11 @@ def model_for_texture_set(textures: TextureSet, preset: str = DEFAULT_PRESET, de
                               f"only with the {DEFAULT_PRESET} preset on a CPU)")
     tilt = float(normal_tilt_deg(textures).mean())
     rough = float(textures.roughness.float().mean())
-    stats = f"mean normal tilt {tilt:.1f} deg, roughness {rough:.2f}"
-    if tilt < FLAT_TILT_DEG and rough >= MIRROR_ROUGHNESS:
-        return "tripleplane", (f"a flat, rough set ({stats}; tilt < {FLAT_TILT_DEG:g} and roughness >= "
-                               f"{MIRROR_ROUGHNESS:g}), where tripleplane was measured ahead of the gated model")
-    return "multiscale", (f"normal detail or a near-mirror ({stats}), where the gated model was measured ahead "
-                          "of tripleplane")
+    metal = float(textures.metalness.float().mean())
+    stats = f"mean normal tilt {tilt:.1f} deg, roughness {rough:.2f}, metalness {metal:.2f}"
+    if tilt < FLAT_TILT_DEG and rough >= MIRROR_ROUGHNESS and metal < METAL:
+        return "tripleplane", (f"a flat, rough dielectric ({stats}; tilt < {FLAT_TILT_DEG:g}, roughness >= "
+                               f"{MIRROR_ROUGHNESS:g}, metalness < {METAL:g}), where tripleplane was measured ahead "
+                               "of the gated model")
+    return "multiscale", (f"normal detail, metal or a near-mirror ({stats}), where the gated model was measured "
+                          "ahead of tripleplane")
