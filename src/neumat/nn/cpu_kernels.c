@@ -1726,15 +1726,22 @@ void ring_pixels_of(const float *xyz, long n, int nside, int exact, int32_t *pix
 
 /* HEALPix integer geometry, as neumat.nn.healpix computes it in int64 (bit-exact): floor division and remainder
    with the divisor's sign (torch's rounding_mode "floor" and remainder), exact integer square root */
-static inline long floor_div(long a, long b) { long q = a / b; return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q; }
-static inline long floor_mod(long a, long b) { long r = a % b; return (r != 0 && ((r < 0) != (b < 0))) ? r + b : r; }
+static inline long floor_div(long a, long b) {
+    const long q = a / b;
+    return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
+}
+static inline long floor_mod(long a, long b) {
+    const long r = a % b;
+    return (r != 0 && ((r < 0) != (b < 0))) ? r + b : r;
+}
 static inline long isqrt_l(long x) {
     long r = (long)sqrt((double)x);
     if (r * r > x) r -= 1;
     if ((r + 1) * (r + 1) <= x) r += 1;
     return r;
 }
-static const long HPX_JRLL[12] = {2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4}, HPX_JPLL[12] = {1, 3, 5, 7, 0, 2, 4, 6, 1, 3, 5, 7};
+static const long HPX_JRLL[12] = {2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4};
+static const long HPX_JPLL[12] = {1, 3, 5, 7, 0, 2, 4, 6, 1, 3, 5, 7};
 
 /* face coordinates (ix, iy) and face of ring pixel pix (healpix._ring2xyf) */
 static inline void hpx_ring2xyf(long n, long pix, long *ix, long *iy, long *face) {
@@ -1764,7 +1771,8 @@ static inline void hpx_ring2xyf(long n, long pix, long *ix, long *iy, long *face
 static inline long hpx_ring_start(long n, long r) {
     if (r == 0) return 0;
     const long s = 4 * n - r;
-    return r <= n ? 1 + 2 * r * (r - 1) : (r >= 3 * n ? 12 * n * n + 1 - 2 * s * (s + 1) : 1 + 2 * n * (n - 1) + 4 * n * (r - n));
+    if (r <= n) return 1 + 2 * r * (r - 1);
+    return r >= 3 * n ? 12 * n * n + 1 - 2 * s * (s + 1) : 1 + 2 * n * (n - 1) + 4 * n * (r - n);
 }
 
 /* the vertex id of the face-coordinate point (x, y) in [0, n]^2 of face f (healpix._xyf2vertex) */
