@@ -19,6 +19,7 @@ from ..core.checks import check_int
 from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError
 from ..core.frames import frame_from_normal
+from ..io.atomic import atomic_write
 from ..reflectance.translucent import TranslucentConfig, TranslucentObject
 from ..warp.sphere import sample_uniform_sphere
 
@@ -248,8 +249,6 @@ def _save_trace(path, key: dict, views: int, gen: torch.Generator, obj: Transluc
                 parts: dict[str, list[torch.Tensor]]) -> None:
     """A trace's checkpoint: what it traced (key), the views done, the random state and the observations so far
     (each field's parts joined, so that the next save appends to one tensor)."""
-    from ..io.atomic import atomic_write
-
     for name, ts in parts.items():
         if len(ts) > 1:
             parts[name] = [torch.cat(ts)]
