@@ -15,7 +15,7 @@ import torch
 
 from neumat.catalog.open_material import open_material
 from neumat.core.query import Query
-from neumat.fit.preset import build_fit
+from neumat.fit.preset import DEFAULT_PRESET, build_fit
 from neumat.fit.trainer import FitWarning, fit
 from neumat.io.shared_data import shared_data_dir
 from neumat.models.registry import load_all
@@ -44,7 +44,8 @@ BUDGET = {
     "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries (a batch whose one call would take over "
                      f"{MAX_SECONDS_PER_CALL:g} CPU s skipped), best of 7 samples of >= 0.05 CPU s; the fixed cost "
                      "of a call at batches of 1 and 64; every export "
-                     "target; training steps of every BRDF / SVBRDF model at its CPU recipe, batches 2^10 and 2^13 (SVBRDF "
+                     "target; training steps of every BRDF / SVBRDF model at its default preset on the CPU recipe "
+                     "(multiscale also at the paper's, 'cpu'), batches 2^10 and 2^13 (SVBRDF "
                      "models on a 64^2 crop, and on the whole 1K set at 2^13)",
              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
              "expected_wall": "about 15 min on one thread (measured: 868 s wall, 801 CPU s, beside another speed "
@@ -159,7 +160,7 @@ def targets(tables: dict[str, list[dict]], n: int = 2 ** 16) -> list[dict]:
     for row in tables.get("training", []):
         ratio = next((v for k, v in row.items() if k.startswith("x ") and v is not None), None)
         if ratio is not None and row["model"] in ("multiscale", "neural-appearance") \
-                and row["texels"] == "1024^2":
+                and row["texels"] == "1024^2" and row.get("preset", DEFAULT_PRESET) == DEFAULT_PRESET:
             add("1K-set training step over the crop's", f"{row['model']} ({row['phase']})", ratio,
                 f"<= {MAX_STEP_RATIO:g}", ratio <= MAX_STEP_RATIO)
     return rows
@@ -443,18 +444,20 @@ def _training(run: harness.Run) -> None:
     crop, whole = (32, 64) if run.quick else (64, None)  # texels of the crop and of the "whole" set (None: 1K)
     svbrdf = shared_data_dir()
     if run.quick:
-        jobs = [("nbrdf", {}), ("neubrdf", {"nside": 8}), ("multiscale", {})]
+        jobs = [("nbrdf", {}, DEFAULT_PRESET), ("neubrdf", {"nside": 8}, DEFAULT_PRESET),
+                ("multiscale", {}, DEFAULT_PRESET)]
         run.skip("training steps of models other than nbrdf, neubrdf (N_side 8) and multiscale (crops of 32^2 and "
-                 "64^2 instead of 64^2 and the whole 1K set)", "--quick")
+                 "64^2 instead of 64^2 and the whole 1K set; no paper-recipe row)", "--quick")
     else:
-        jobs = [(n, {}) for n in load_all().names()
+        jobs = [(n, {}, DEFAULT_PRESET) for n in load_all().names()
                 if load_all().get(n).source_kinds[0] in ("brdf", "svbrdf") and n != "ggx"]
+        jobs.append(("multiscale", {}, "cpu"))  # the paper's recipe (its spatial preconditioner's FFTs) beside it
         for n in load_all().names():
             if load_all().get(n).source_kinds[0] not in ("brdf", "svbrdf"):
                 run.skip(f"training steps of {n}", f"source kind {load_all().get(n).source_kinds[0]!r} not timed")
     rows = []
-    for name, overrides in jobs:
-        run.progress(f"training steps of {name}")
+    for name, overrides, preset in jobs:
+        run.progress(f"training steps of {name} ({preset})")
         kind = load_all().get(name).source_kinds[0]
         if kind == "svbrdf" and svbrdf is None:
             run.skip(f"training steps of {name}", "no SVBRDF texture set: shared data absent")
@@ -469,27 +472,31 @@ def _training(run: harness.Run) -> None:
         at_crop = {}
         for texels, source, size_batches in sizes:
             for batch in size_batches:
-                for phase, seconds in step_seconds(name, overrides, source, batch, 3 if run.quick else 10, run.seed):
+                for phase, seconds in step_seconds(name, preset, overrides, source, batch, 3 if run.quick else 10,
+                                                   run.seed):
                     if texels == crop:
                         at_crop[(batch, phase)] = seconds
                     ratio = at_crop.get((batch, phase)) if texels not in (None, crop) else None
-                    rows.append({"model": name, "texels": None if texels is None else f"{texels}^2", "batch": batch,
-                                 "phase": phase, "cpu s/step": seconds,
+                    rows.append({"model": name, "preset": preset, "texels": None if texels is None else f"{texels}^2",
+                                 "batch": batch, "phase": phase, "cpu s/step": seconds,
                                  f"x {crop}^2": None if ratio is None else seconds / ratio})
     run.table("training", "Training step CPU time per phase (library trainer, CPU recipe)", rows,
-              "median over each phase's steps after its first; sources: analytic GGX (BRDF models), Wood092_1K "
+              f"median over each phase's steps after its first; each model at its default preset ({DEFAULT_PRESET!r}: "
+              "what `neumat fit` runs), multiscale also at 'cpu' (the paper's model and recipe, with its spatial "
+              "preconditioner); sources: analytic GGX (BRDF models), Wood092_1K "
               f"cropped to {crop}^2 and " + ("a 64^2 crop" if run.quick else "whole (1024^2)") +
               f" (SVBRDF models; 'x {crop}^2' = the step over the same step on the crop)" +
               ("; quick: neubrdf at N_side 8" if run.quick else ""))
 
 
-def step_seconds(name: str, overrides: dict, source, batch: int, per_phase: int, seed: int) -> list[tuple]:
-    """[(phase, median CPU seconds per step)] of a fit of `name` through `neumat.fit.trainer.fit` at its CPU recipe
-    with `batch`, long enough that every phase of the recipe gets about `per_phase` steps or more. A step is timed
+def step_seconds(name: str, preset: str, overrides: dict, source, batch: int, per_phase: int,
+                 seed: int) -> list[tuple]:
+    """[(phase, median CPU seconds per step)] of a fit of `name` through `neumat.fit.trainer.fit` at `preset` on the
+    CPU recipe with `batch`, long enough that every phase of the recipe gets about `per_phase` steps or more. A step is timed
     from the start of one (the trainer's `model.on_step` call) to the start of the next, with no history record or
     rollback snapshot between them (a snapshot copies the model and its optimiser state: on a 1K latent texture a
     good share of a step)."""
-    model, setting = build_fit(name, "cpu", source=source, overrides=overrides, seed=seed)
+    model, setting = build_fit(name, preset, source=source, overrides=overrides, seed=seed)
     recipe = setting.recipe
     fractions = [f for f in (_phase_fractions(recipe) or [1.0]) if f > 0]
     steps = int(per_phase / min(fractions)) + 1

@@ -16,7 +16,7 @@ from torch import nn
 
 from ..core.checks import check_finite, check_int, check_shape
 from ..core.errors import InputError
-from ..core.tensors import derived_from
+from ..core.tensors import derived_from, optimiser_steps
 from .preconditioner import FrequencyPreconditioner, flat_levels
 
 
@@ -141,13 +141,19 @@ def atlas_layout(sizes: tuple[tuple[int, int], ...], device: torch.device) -> di
 
 class _Atlas(torch.autograd.Function):
     """levels -> atlas (C, H_a, W_a): each level padded circularly by one texel and copied to (left, top) of its
-    padded block; the backward pass reads each level's block and folds the padding back onto the texels it
-    copies (no full-atlas gradient copies per level, as autograd's slice assignment would make)."""
+    padded block, in the store's earlier atlas when its shape, dtype and device match (a training step then
+    allocates and zeroes no 1K-sized atlas: about 50 MB, most of it page faults); the backward pass reads each
+    level's block and folds the padding back onto the texels it copies (no full-atlas gradient copies per level,
+    as autograd's slice assignment would make)."""
 
     @staticmethod
-    def forward(ctx, places, height, width, *levels):
+    def forward(ctx, places, height, width, store, *levels):
         ctx.places = places
-        atlas = levels[0].new_zeros(levels[0].shape[0], height, width)
+        shape = (levels[0].shape[0], height, width)
+        buffer = store[0] if store else None
+        reuse = buffer is not None and buffer.shape == shape and buffer.dtype == levels[0].dtype \
+            and buffer.device == levels[0].device
+        atlas = buffer if reuse else levels[0].new_zeros(shape)  # the blocks below overwrite what they cover
         for tex, (left, top) in zip(levels, places):
             h, w = tex.shape[1:]
             block = atlas[:, top:top + h + 2, left:left + w + 2]
@@ -155,7 +161,8 @@ class _Atlas(torch.autograd.Function):
             block[:, 0, 1:w + 1], block[:, h + 1, 1:w + 1] = tex[:, -1], tex[:, 0]
             block[:, :, 0], block[:, :, w + 1] = block[:, :, w], block[:, :, 1]
         ctx.shapes = [tex.shape for tex in levels]
-        return atlas
+        store[:] = [atlas]
+        return atlas.view_as(atlas)  # a view: the store itself keeps no autograd history
 
     @staticmethod
     def backward(ctx, grad):
@@ -163,25 +170,31 @@ class _Atlas(torch.autograd.Function):
         for shape, (left, top) in zip(ctx.shapes, ctx.places):
             h, w = shape[1:]
             block = grad[:, top:top + h + 2, left:left + w + 2]
-            cols = block[:, :, 1:w + 1].clone()
-            cols[:, :, w - 1] += block[:, :, 0]
-            cols[:, :, 0] += block[:, :, w + 1]
-            g = cols[:, 1:h + 1].clone()
-            g[:, h - 1] += cols[:, 0]
-            g[:, 0] += cols[:, h + 1]
+            g = block[:, 1:h + 1, 1:w + 1].clone()
+            g[:, :, w - 1] += block[:, 1:h + 1, 0]  # the padding columns, rows and corners onto their texels
+            g[:, :, 0] += block[:, 1:h + 1, w + 1]
+            g[:, h - 1] += block[:, 0, 1:w + 1]
+            g[:, 0] += block[:, h + 1, 1:w + 1]
+            g[:, h - 1, w - 1] += block[:, 0, 0]
+            g[:, h - 1, 0] += block[:, 0, w + 1]
+            g[:, 0, w - 1] += block[:, h + 1, 0]
+            g[:, 0, 0] += block[:, h + 1, w + 1]
             out.append(g)
-        return (None, None, None, *out)
+        return (None, None, None, None, *out)
 
 
-def build_atlas(levels: list[torch.Tensor]) -> torch.Tensor:
+def build_atlas(levels: list[torch.Tensor], store: list | None = None) -> torch.Tensor:
     """The atlas (1, C, H_a, W_a) of `atlas_layout` of levels [(C, H_l, W_l)]: each level padded circularly by
     one texel and copied into its place (unused texels 0; they are never read). The same texels as
-    `trilinear_flat`'s gather from `flat_levels`, with contiguous copies (and a folding backward) instead."""
+    `trilinear_flat`'s gather from `flat_levels`, with contiguous copies (and a folding backward) instead.
+    store: a list holding the tensor that an earlier call wrote (reused when the shapes match, then replaced),
+    or None for a new atlas; the earlier atlas's values are then overwritten (an autograd graph that still
+    needs them fails at its backward, loudly, as after any in-place change)."""
     sizes = tuple(tuple(int(v) for v in tex.shape[1:]) for tex in levels)
     layout = atlas_layout(sizes, levels[0].device)
     width, height = (int(v) for v in layout["shape"])
     places = [(left - 1, top - 1) for left, top in layout["origin"].long().tolist()]
-    return _Atlas.apply(places, height, width, *levels).unsqueeze(0)
+    return _Atlas.apply(places, height, width, [] if store is None else store, *levels).unsqueeze(0)
 
 
 def trilinear_flat(flat: torch.Tensor | None, sizes: list[tuple[int, int]], uv: torch.Tensor, lod: torch.Tensor,
@@ -311,10 +324,21 @@ class LatentPyramid(nn.Module):
         wanted (`derived_from`)."""
         return derived_from(self, "atlas", list(self.raw), lambda: _kept_channels_last(self._build_atlas()))
 
+    def __getstate__(self) -> dict:
+        state = super().__getstate__()
+        return {k: v for k, v in state.items() if k not in ("_atlas_store", "_atlas_versions")}  # copies need none
+
     def _build_atlas(self) -> torch.Tensor:
+        # the first atlas of a training step (an optimiser stepped or a level changed since the last one) is written
+        # into the last step's (`build_atlas`'s store), whose graph is gone; more lookups in the same step get their
+        # own, as does an atlas without autograd (`derived_from` keeps it)
+        versions = [optimiser_steps(), *((id(p), p._version) for p in self.raw)]
+        store = None
+        if torch.is_grad_enabled() and self.__dict__.get("_atlas_versions") != versions:
+            store, self._atlas_versions = self.__dict__.setdefault("_atlas_store", []), versions
         if isinstance(self.precondition, FrequencyPreconditioner):
-            return build_atlas(self.precondition.many(list(self.raw)))
-        return build_atlas(self.levels())
+            return build_atlas(self.precondition.many(list(self.raw)), store)
+        return build_atlas(self.levels(), store)
 
     def forward(self, uv: torch.Tensor, footprint: torch.Tensor | None = None,
                 lod: torch.Tensor | None = None, level_u: torch.Tensor | None = None) -> torch.Tensor:
