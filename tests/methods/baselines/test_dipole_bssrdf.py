@@ -97,6 +97,12 @@ def test_bad_input():
     with pytest.raises(InputError, match=r"\(8, 3\)"):
         m.set_surface(torch.zeros(4, 3), torch.zeros(4, 3), torch.ones(4))
     assert m.size_bytes("fp32") == 24
+    m.set_surface(torch.ones(8, 3), torch.ones(8, 3), torch.ones(8))  # the kept surface check follows the areas
+    assert torch.isfinite(m.eval(Query(wi=x, wo=x, x=x, n=x))).all()
+    with torch.no_grad():
+        m.areas.zero_()
+    with pytest.raises(InputError, match="set_surface"):
+        m.eval(Query(wi=x, wo=x, x=x, n=x))
 
 
 def test_texture_lookup_is_trilinear_over_the_box():

@@ -132,6 +132,15 @@ class DipoleBSSRDF(LearnedMaterial):
             self.normals.copy_(normals / normals.norm(dim=-1, keepdim=True))
             self.areas.copy_(areas)
 
+    def has_surface(self) -> bool:
+        """Whether set_surface gave the quadrature (its areas sum above 0); kept while the areas are unchanged
+        (their storage and in-place version), since summing them on every call was a tenth of a small call's cost."""
+        key = (self.areas.data_ptr(), self.areas._version)
+        kept = self.__dict__.get("_has_surface")
+        if kept is None or kept[0] != key:
+            kept = self.__dict__["_has_surface"] = (key, bool(self.areas.sum() > 0))
+        return kept[1]
+
     def set_bounds(self, lo: torch.Tensor, hi: torch.Tensor) -> None:
         """Object-space bounding box (3,), (3,) that the texture spans (the homogeneous model has none: ignored)."""
         lo, hi = torch.as_tensor(lo, dtype=torch.float32), torch.as_tensor(hi, dtype=torch.float32)
@@ -170,7 +179,7 @@ class DipoleBSSRDF(LearnedMaterial):
 
     def raw(self, wi: torch.Tensor, x: torch.Tensor, wo: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
         """S_hat (N, 3) for object-space wi, x, wo and the normal n at x, all (N, 3) (what fitting compares)."""
-        if not bool(self.areas.sum() > 0):
+        if not self.has_surface():
             raise InputError("DipoleBSSRDF: no surface quadrature yet; call set_surface (points of the object)")
         textured = self.textured
         sigma_a, sigma_s = self.coefficients(x if textured else None)  # at the exit points (module docstring)
