@@ -208,7 +208,7 @@ def test_training_steps_reuse_the_atlas_and_learn_the_same():
         losses = []
         for m, opt in zip((kept, fresh), opts):
             if m is fresh:
-                m.__dict__.pop("_atlas_versions", None)  # never reuses: every atlas new
+                m.__dict__.pop("_atlas_stamp", None)  # never reuses: every atlas new
                 m.__dict__.pop("_atlas_store", None)
             opt.zero_grad()
             loss = (m(uv, lod=lod) ** 2).sum() + m(uv * 0.5, lod=lod).sum()  # two lookups in one step

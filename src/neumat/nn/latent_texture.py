@@ -16,7 +16,7 @@ from torch import nn
 
 from ..core.checks import check_finite, check_int, check_shape
 from ..core.errors import InputError
-from ..core.tensors import derived_from, optimiser_steps
+from ..core.tensors import derived_from, module_stamp
 from .preconditioner import FrequencyPreconditioner, flat_levels
 
 
@@ -326,16 +326,17 @@ class LatentPyramid(nn.Module):
 
     def __getstate__(self) -> dict:
         state = super().__getstate__()
-        return {k: v for k, v in state.items() if k not in ("_atlas_store", "_atlas_versions")}  # copies need none
+        return {k: v for k, v in state.items() if k not in ("_atlas_store", "_atlas_stamp")}  # copies need none
 
     def _build_atlas(self) -> torch.Tensor:
         # the first atlas of a training step (an optimiser stepped or a level changed since the last one) is written
         # into the last step's (`build_atlas`'s store), whose graph is gone; more lookups in the same step get their
         # own, as does an atlas without autograd (`derived_from` keeps it)
-        versions = [optimiser_steps(), *((id(p), p._version) for p in self.raw)]
         store = None
-        if torch.is_grad_enabled() and self.__dict__.get("_atlas_versions") != versions:
-            store, self._atlas_versions = self.__dict__.setdefault("_atlas_store", []), versions
+        if torch.is_grad_enabled():
+            stamp = module_stamp(self)
+            if self.__dict__.get("_atlas_stamp") != stamp:
+                store, self.__dict__["_atlas_stamp"] = self.__dict__.setdefault("_atlas_store", []), stamp
         if isinstance(self.precondition, FrequencyPreconditioner):
             return build_atlas(self.precondition.many(list(self.raw)), store)
         return build_atlas(self.levels(), store)
