@@ -1,7 +1,10 @@
+import copy
+import pickle
+
 import torch
 
 from neumat.core.query import Query
-from neumat.core.tensors import DEVICE_ROWS, by_rows, derived_from, inference_call
+from neumat.core.tensors import DEVICE_ROWS, by_rows, derived_from, inference_call, module_stamp
 from neumat.methods.baselines.nbrdf import NBRDF
 
 
@@ -107,3 +110,18 @@ def test_by_rows_slices_for_the_cpu_cache_only_on_the_cpu():
     up = torch.tensor([0.0, 0.0, 1.0]).expand(40, 3)
     by_rows(lambda q: fn(q.wi), 16, Query(up, up))  # a Query (checked, so not on "meta"): its wi's device, the CPU
     assert sizes == [16, 16, 8]
+
+
+def test_module_stamp_follows_a_functional_call_swap_and_copies_collect_their_own():
+    from neumat.models.half_precision import with_half_parameters
+    model = NBRDF(hidden=8)
+    weight = next(model.parameters())
+    before = module_stamp(model)
+    seen = with_half_parameters(model, lambda: module_stamp(model))  # the swapped (non-leaf) tensors
+    assert seen[3] != before[3]
+    assert module_stamp(model)[2:] == before[2:]  # the model's own tensors again, not the swap's leftovers
+    with torch.no_grad():
+        weight.add_(1.0)
+    assert module_stamp(model)[2] != before[2]  # an in-place update of a real parameter is seen
+    for twin in (copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
+        assert module_stamp(twin)[3] == tuple(p.data_ptr() for p in twin.parameters())

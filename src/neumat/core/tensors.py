@@ -50,18 +50,41 @@ torch.nn.modules.module.register_module_buffer_registration_hook(_count_registra
 torch.nn.modules.module.register_module_module_registration_hook(_count_registration)
 
 
+class _StampTensors:
+    """The tensors `module_stamp` collected for one module, and the registration count they were collected at; a
+    copy of the module (deepcopy, pickle) collects its own, since these may be another module's or non-leaf tensors
+    that a swap left behind (`tensors_swapped`)."""
+    __slots__ = ("count", "tensors")
+
+    def __init__(self, count: int, tensors: tuple) -> None:
+        self.count, self.tensors = count, tensors
+
+    def __deepcopy__(self, memo) -> "_StampTensors":
+        return _StampTensors(-1, ())
+
+    def __reduce__(self):
+        return _StampTensors, (-1, ())
+
+
+def tensors_swapped() -> None:
+    """Declare that parameters or buffers were swapped without assignment (`torch.func.functional_call` writes
+    `module._parameters` directly, which no registration hook sees): `module_stamp` collects every module's tensors
+    anew. Call it after the swap and after the restore."""
+    _registrations[0] += 1
+
+
 def module_stamp(module: torch.nn.Module) -> tuple:
     """What anything derived from all of `module`'s parameters and buffers depends on: the optimiser steps taken
     (`optimiser_steps`) and each tensor's storage and in-place version; the list of tensors is collected again only
-    after some module anywhere had a parameter, buffer or submodule assigned. Why: a few microseconds for a model
-    of twenty tensors, where `derived_from`'s per-tensor stamp through module attribute lookups costs several times
-    that on every call of a shipped model."""
+    after some module anywhere had a parameter, buffer or submodule assigned (or `tensors_swapped`). Why: a few
+    microseconds for a model of twenty tensors, where `derived_from`'s per-tensor stamp through module attribute
+    lookups costs several times that on every call of a shipped model."""
     kept = module.__dict__.get("_stamp_tensors")
-    if kept is None or kept[0] != _registrations[0]:
-        kept = (_registrations[0], tuple(module.parameters()) + tuple(module.buffers()))
+    if kept is None or kept.count != _registrations[0]:
+        kept = _StampTensors(_registrations[0], tuple(module.parameters()) + tuple(module.buffers()))
         module.__dict__["_stamp_tensors"] = kept
-    tensors = kept[1]
-    return (_optimiser_steps[0], kept[0], tuple([t._version for t in tensors]),
+    tensors = kept.tensors
+    return (_optimiser_steps[0], kept.count, tuple([t._version for t in tensors]),
             tuple([t.data_ptr() for t in tensors]))
 
 

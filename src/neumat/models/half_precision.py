@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from ..core.errors import InputError
+from ..core.tensors import tensors_swapped
 from ..nn.angular_texture import AngularTexture
 from ..nn.codebook import VQFeatures
 from ..nn.latent_texture import LatentPyramid
@@ -103,7 +104,11 @@ def with_half_parameters(model: nn.Module, fn: Callable[[], Any]) -> Any:
     scales = _stored_scales(model)
     rounded = {f"model.{name}": p + (_stored_rounding(p, scales.get(name, 1.0), name) - p.detach())
                for name, p in model.named_parameters() if p.is_floating_point()}
-    return torch.func.functional_call(_Call(model), rounded, (fn,))
+    tensors_swapped()  # module_stamp must see the swapped tensors, then the model's own again
+    try:
+        return torch.func.functional_call(_Call(model), rounded, (fn,))
+    finally:
+        tensors_swapped()
 
 
 @torch.no_grad()
