@@ -87,15 +87,19 @@ MEASURED = {
                    "seeds (session 64), ahead of the gated model on every Wood092 pair (1.01-1.16x) and six "
                    "near-ties (at most 1.06x), behind it on the flat metal (Metal027 0.95-0.98x) and where normals "
                    "vary; on the whole 1K fabric set 0.92-0.95x the gated model's (session 63)",
-    "neumip": "a baseline: over the 29 random crops at the CPU default, seed 0 (session 65), mean FLIP 1.05x "
-              "tripleplane's (median; 0.88-1.05x on sets with normal detail, 1.2-1.5x on flat ones: Leather05, "
-              "Metal027, Wood092, a brushed metal)",
-    "neumip-frame": "a baseline: over the 29 random crops at the CPU default, seed 0 (session 65), mean FLIP 1.06x "
-                    "tripleplane's (median; 0.86-1.07x on sets with normal detail, 1.1-1.4x on flat ones)",
-    "neumip-offset": "a baseline: over the 29 random crops at the CPU default, seed 0 (session 65), mean FLIP 1.06x "
-                     "tripleplane's (median; 0.91-1.06x on sets with normal detail, 1.2-1.4x on flat ones)",
-    "nbrdf-uv": "a baseline: over the 29 random crops at the CPU default, seed 0 (session 65), mean FLIP 1.02x "
-                "tripleplane's (median; 0.86-1.18x but 1.21-1.34x on Wood092)",
+    "neumip": "a baseline: over the 29 random crops x 2 seeds at the CPU default (sessions 65-66), mean FLIP "
+              "1.07x tripleplane's (median; 0.87-1.06x on sets with normal detail, 1.1-1.56x on flat ones: "
+              "Leather05, Metal027, Wood092, a brushed metal); on a flat metal it is still learning at 4000 steps "
+              "(8000: 1.00-1.38x tripleplane's at 8000), so add --set recipe.steps=8000 there",
+    "neumip-frame": "a baseline: over the 29 random crops x 2 seeds at the CPU default (sessions 65-66), mean FLIP "
+                    "1.07x tripleplane's (median; 0.84-1.08x on sets with normal detail, 1.1-1.65x on flat ones); "
+                    "on a flat metal it is still learning at 4000 steps (8000: 1.05-1.25x tripleplane's at 8000), "
+                    "so add --set recipe.steps=8000 there",
+    "neumip-offset": "a baseline: over the 29 random crops x 2 seeds at the CPU default (sessions 65-66), mean FLIP "
+                     "1.07x tripleplane's (median; 0.84-1.06x on sets with normal detail, 1.1-1.55x on flat ones); "
+                     "on a flat metal it is still learning at 4000 steps, so add --set recipe.steps=8000 there",
+    "nbrdf-uv": "a baseline: over the 29 random crops x 2 seeds at the CPU default (sessions 65-66), mean FLIP "
+                "1.04x tripleplane's (median; 0.74-1.21x, up to 1.34x on Wood092)",
 }
 
 #: models with a Dr.Jit runtime translator (`neumat.export.drjit`)
