@@ -69,7 +69,7 @@ class _StampTensors:
 def tensors_swapped() -> None:
     """Declare that parameters or buffers were swapped without assignment (`torch.func.functional_call` writes
     `module._parameters` directly, which no registration hook sees): `module_stamp` collects every module's tensors
-    anew. Call it after the swap and after the restore."""
+    anew. Call it around the swap: before the code that reads the swapped tensors, and after the restore."""
     _registrations[0] += 1
 
 
