@@ -329,14 +329,25 @@ def _plain(row: dict) -> dict:
 
 
 def write(doc: dict, out: Path) -> tuple[Path, Path]:
-    """Write `doc` as JSON at `out` and regenerate the folder's page (README.md: every results file in it);
-    returns both paths."""
+    """Write `doc` as JSON at `out` and regenerate the folder's page (README.md: every results file in it, i.e.
+    each JSON file there that names this harness's schema; other JSON beside `--out` is left out, not a crash at the
+    end of a run of hours); returns both paths."""
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=1) + "\n")
     page = out.parent / "README.md"
-    docs = [json.loads(p.read_text()) for p in sorted(out.parent.glob("*.json"))]
-    page.write_text("\n".join(markdown(d) for d in docs))
+    page.write_text("\n".join(markdown(d) for d in map(_results_document, sorted(out.parent.glob("*.json")))
+                              if d is not None))
     return out, page
+
+
+def _results_document(path: Path) -> dict | None:
+    """The results document in `path`, or None when it holds something else (unreadable, not JSON, another
+    schema)."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return doc if isinstance(doc, dict) and doc.get("schema") == SCHEMA else None
 
 
 def markdown(doc: dict) -> str:
