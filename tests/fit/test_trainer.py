@@ -257,9 +257,10 @@ def test_a_fit_that_ends_far_above_its_best_loss_says_so():
     from neumat.fit.trainer import ENDS_ABOVE_BEST, FitWarning, ended_above_best
 
     recipe = Recipe(steps=40, batch_size=64, lr=1e-3, log_every=5)
-    with pytest.warns(FitWarning, match=r"phase 'fit' ended at loss .*x its lowest .* at step 5\)"):
+    with pytest.warns(FitWarning, match=r"phase 'fit' ended at loss .*x its lowest .* at step 5; medians of the"):
         res = fit(_Drifting(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
-    assert len(res.warnings) == 1 and res.history[-1]["loss"] > ENDS_ABOVE_BEST * min(r["loss"] for r in res.history)
+    medians = [r["loss_median"] for r in res.history]
+    assert len(res.warnings) == 1 and medians[-1] > ENDS_ABOVE_BEST * min(medians)
     history = [{"phase": "a", "step": 1, "loss": 1.0}, {"phase": "a", "step": 2, "loss": 1.9},
                {"phase": "b", "step": 3, "loss": 5.0}, {"phase": "b", "step": 4, "loss": 0.1}]
     assert ended_above_best(history, "m") == []
@@ -284,14 +285,41 @@ def test_the_end_of_a_fit_is_compared_with_its_lowest_record_after_the_warm_up()
     blowup = [40.0, 30.0, 25.0, 20.0, 18.0, 15.0, 14.0, 12.0, 11.0, 10.0, 9.0, 8.5, 8.0, 7.5, 7.0, 6.5, 6.2, 5.78,
               12.0, 26.1]
     (text,) = ended_above_best(_records(blowup), "m")
-    assert "ended at loss 26.1, 4.5x its lowest (5.78 at step 900)" in text
+    assert "ended at loss 26.1, 4.5x its lowest (5.78 at step 900;" in text
     # a low first record does not hide a later blow-up: compared with the lowest after the warm-up
     (text,) = ended_above_best(_records([0.5, 3.0, 2.0, 1.0, 1.0, 1.0, 1.2, 1.5, 2.5, 9.0]), "m")
-    assert "ended at loss 9, 9.0x its lowest (1 at step 200)" in text
+    assert "ended at loss 9, 9.0x its lowest (1 at step 200;" in text
     # phases: the second one's warm-up counts from its own start (step 1000), not from 0
     two = _records(blowup) + _records(transient, phase="refine", start=1000)
     (text,) = ended_above_best(two, "m")
     assert "phase 'fit' ended at loss 26.1" in text
+
+
+def test_records_keep_the_median_step_loss_and_the_end_check_reads_it():
+    """Issue 55: on a near-mirror one batch in a record's window can lift its mean loss 2.3x above the fit's lowest
+    while the fit is at its best (the polished plate at 8000 steps); each record keeps the median of its steps'
+    losses, which the end-of-fit check compares. Checked against the same fit recorded at every step."""
+    from neumat.fit.trainer import ended_above_best
+
+    def run(every):
+        torch.manual_seed(0)
+        m = NeuBRDF(nside=2, index_bits=2, hidden=4)
+        return fit(m, Blinn(), Recipe(steps=20, batch_size=64, lr=1e-2, log_every=every), progress=False).history
+
+    per_step, windows = run(1), run(5)
+    losses = torch.tensor([r["loss"] for r in per_step], dtype=torch.float64)
+    for k, r in enumerate(windows):
+        window = losses[5 * k: 5 * k + 5]
+        assert r["loss_median"] == pytest.approx(window.median().item(), rel=1e-6)
+        assert r["loss"] == pytest.approx(window.mean().item(), rel=1e-5)
+    # one heavy step in the last window: its mean 2.3x the lowest, its median level -> silent
+    heavy = [dict(r, loss_median=m) for r, m in zip(_records([1.0, 0.5, 0.4, 0.3, 0.2, 0.16, 0.14, 0.13, 0.12, 0.28]),
+                                                       [1.0, 0.5, 0.4, 0.3, 0.2, 0.15, 0.13, 0.12, 0.11, 0.12])]
+    assert ended_above_best(heavy, "m") == []
+    # every step of the last window high: its median too -> warns
+    heavy[-1]["loss_median"] = 0.25
+    (text,) = ended_above_best(heavy, "m")
+    assert "ended at loss 0.25, 2.3x its lowest (0.11 at step 450;" in text
 
 
 def test_a_loss_spike_that_stalls_the_fit_says_so():

@@ -76,7 +76,7 @@ def crop_stats(crop: dict) -> dict:
 
 def run_job(job: dict, steps: int | None, overrides: list[str], samples: int) -> dict:
     """Fit and score one (crop, model, seed); the row of jobs.jsonl."""
-    from neumat.fit.trainer import WARMUP_FRACTION
+    from neumat.fit.trainer import WARMUP_FRACTION, record_loss
 
     src_opts = ["--source-option", f"crop={CROP}", "--source-option",
                 f"crop_origin={job['origin'][0]},{job['origin'][1]}"]
@@ -97,7 +97,7 @@ def run_job(job: dict, steps: int | None, overrides: list[str], samples: int) ->
         if fit.returncode != 0:
             return {**job, "status": "error", "error": (fit.stderr.strip().splitlines() or ["?"])[-1]}
         history = torch.load(ckpt, weights_only=False)["history"]
-        losses = [r["loss"] for r in history]
+        losses = [record_loss(r) for r in history]
         settled = losses[int(len(losses) * WARMUP_FRACTION):]  # as the trainer's FitWarning reads a fit
         ev = subprocess.run([neumat(), "eval", str(nmat), "--against", job["set"], *src_opts, "--source-option",
                              "samples=64", "--scales", "9", "--resolution", "48", "--no-image", "--json",

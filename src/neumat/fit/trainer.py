@@ -38,8 +38,9 @@ from .rollback import CHECKPOINT_KEYS, NonFiniteGuard
 @dataclass
 class FitResult:
     """model: the fitted model (the EMA weights when the recipe uses an EMA), in eval mode.
-    history: one record {"step", "phase", "loss", <each named loss>, "lr", "seconds"} per `log_every` steps
-    and at the end of each phase (losses averaged over the steps since the last record), with "rollback": the
+    history: one record {"step", "phase", "loss", <each named loss>, "loss_median", "lr", "seconds"} per
+    `log_every` steps and at the end of each phase (losses averaged over the steps since the last record,
+    "loss_median" the median of those steps' losses), with "rollback": the
     step whose state was restored, when the fit rolled back since the last record (`neumat.fit.rollback`).
     seconds: training time (summed over resumed runs). steps: steps taken in total. recipe: the recipe run
     (with the steps actually taken)."""
@@ -157,6 +158,9 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                     for k, v in values.items():
                         running[k] = running.get(k, torch.zeros((), device=dev)) + v.detach()
                     running["_steps"] = running.get("_steps", torch.zeros((), device=dev)) + 1
+                    step_loss = sum(v.detach() for v in values.values()).reshape(1)
+                    running["_window"] = torch.cat([running["_window"], step_loss]) if "_window" in running \
+                        else step_loss
                 done = step + 1
                 bar.advance()
                 if done % recipe.log_every == 0 or done % recipe.checkpoint_every == 0 or done == end:
@@ -196,7 +200,11 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                      recipe=replace(recipe, steps=total), warnings=problems)
 
 
-#: a phase whose last recorded loss is this many times its lowest says so: fits that blew up used to end silently
+#: a phase whose last recorded loss is this many times its lowest says so: fits that blew up used to end silently.
+#: The records compared are each window's median step loss ("loss_median"), not its mean: on a near-mirror a batch's
+#: loss is carried by a few queries (issue 55's polished plate: per-step p99 15x the median, single steps 1e3-1e4x),
+#: so one step could lift a 50-step mean 2.3x above the fit's lowest while its median sat at 1.2x and the fit's
+#: FLIP was the best it had reached (benchmarks/studies/multiscale/results/selection_free.md)
 ENDS_ABOVE_BEST = 2.0
 
 #: the records of a phase's first this fraction of steps are not a "lowest" to compare its end with: they average
@@ -216,10 +224,16 @@ class FitWarning(UserWarning):
     """A fit finished, but not well (it ended far above its best loss, or its loss spiked on the way)."""
 
 
+def record_loss(record: dict) -> float:
+    """The loss of a history record that the end-of-fit check compares: its window's median step loss, or its mean
+    for records written before medians were kept."""
+    return record.get("loss_median", record["loss"])
+
+
 def ended_above_best(history: list[dict], name: str) -> list[str]:
-    """One message per phase of `history` whose last recorded loss is more than ENDS_ABOVE_BEST times its lowest
-    record after the phase's first WARMUP_FRACTION of steps (phases with at least two finite, positive records
-    there; a phase starts where the one recorded before it ended)."""
+    """One message per phase of `history` whose last record's loss (`record_loss`) is more than ENDS_ABOVE_BEST
+    times its lowest after the phase's first WARMUP_FRACTION of steps (phases with at least two finite, positive
+    records there; a phase starts where the one recorded before it ended)."""
     out = []
     begin = 0
     for phase in dict.fromkeys(r["phase"] for r in history):
@@ -227,14 +241,15 @@ def ended_above_best(history: list[dict], name: str) -> list[str]:
         end = records[-1]["step"]
         settled = begin + WARMUP_FRACTION * (end - begin)
         begin = end
-        losses = [(r["loss"], r["step"]) for r in records if r["step"] > settled and math.isfinite(r["loss"])]
+        losses = [(record_loss(r), r["step"]) for r in records
+                  if r["step"] > settled and math.isfinite(record_loss(r))]
         if len(losses) < 2 or min(losses)[0] <= 0:
             continue
         (best, at), last = min(losses), losses[-1][0]
         if last > ENDS_ABOVE_BEST * best:
             out.append(f"fit {name}: phase {phase!r} ended at loss {last:.4g}, {last / best:.1f}x its lowest "
-                       f"({best:.4g} at step {at}): the fit became unstable; try a lower learning rate "
-                       "(--set lr=...) or another seed")
+                       f"({best:.4g} at step {at}; medians of the steps between records): the fit became "
+                       "unstable; try a lower learning rate (--set lr=...) or another seed")
     return out
 
 
@@ -262,13 +277,16 @@ def loss_spikes(history: list[dict], name: str, grad_clip: float = 0.0) -> list[
 
 def _record(running: dict, done: int, phase: str, lr: float, seconds: float) -> dict:
     """One history record from the running sums (which it resets): each named loss averaged over the steps
-    taken since the last record, "loss" their sum (NaN when every step since was skipped)."""
+    taken since the last record, "loss" their sum (NaN when every step since was skipped), and "loss_median" the
+    median of those steps' losses (what `ended_above_best` reads: a batch loss can be heavy-tailed)."""
     n = float(running.pop("_steps", torch.zeros(())).item())
+    window = running.pop("_window", None)
+    median = window.median().item() if window is not None and window.numel() else math.nan
     losses = {k: v.item() / n if n else math.nan for k, v in running.items()}
     running.clear()
     extra = {k: v for k, v in losses.items() if k != "loss"}
     loss = losses["loss"] if "loss" in losses and not extra else sum(losses.values()) if n else math.nan
-    return {"step": done, "phase": phase, "loss": loss, **extra, "lr": lr, "seconds": seconds}
+    return {"step": done, "phase": phase, "loss": loss, **extra, "loss_median": median, "lr": lr, "seconds": seconds}
 
 
 def _optimizer(phase: Phase, params: list[nn.Parameter] | None, recipe: Recipe) -> torch.optim.Optimizer | None:

@@ -31,7 +31,7 @@ from neumat.warp.microfacet_proxy import ProxyLobes, proxy_pdf, sample_proxy
 @dataclass
 class SamplerFit:
     """sampler: the trained sampler (eval mode); history: the trainer's records ({"step", "phase", "loss",
-    "lr", "seconds"} every recipe.log_every steps); seconds: training time."""
+    "loss_median", "lr", "seconds"} every recipe.log_every steps); seconds: training time."""
 
     sampler: ProxySampler
     history: list[dict]
