@@ -20,8 +20,9 @@ BUDGET = {
                      "1 (60 fits); sphere images 128^2 at 64 spp; the scale series (9 scales x 4 lights x 3 tilts, 48^2 pixels) "
                      "of every fit",
              "paper": paper_budget(MODELS) + " on a GPU, at the sets' full resolution",
-             "expected_wall": "about 11 h one fit after another (one thread; estimated: a default fit of a whole "
-                              "1K set about 7 CPU min in session 64, then its images and scale series)"},
+             "expected_wall": "about 13 h one fit after another (one thread; estimated: a default fit of a whole "
+                              "1K set about 7 CPU min in session 64, twice that for neumip at its 8000-step "
+                              "default, then its images and scale series)"},
 }
 
 

@@ -19,9 +19,12 @@ BUDGET = {
                      "and 1 (36 fits); sphere images 128^2 at 64 spp; sampler variance of each neural-appearance fit at 64 "
                      "texture points x 1024 samples x 3 elevations",
              "paper": paper_budget(MODELS[:1]) + " on a GPU (the paper's own layered materials, not available)",
-             "expected_wall": "about 12 h one job after another (one thread; measured on a loaded core: a "
-                              "neural-appearance fit 26 min, a neumip-frame fit 13 min, each set's reference "
-                              "renderings about 6 min, once per run); --workers 2: about half"},
+             "expected_wall": "about 3 h one job after another (one thread; measured in sessions 66-67 at "
+                              "--workers 2: 28 of the 36 jobs in 40 min with each set's reference renderings "
+                              "(about 6 min, once per run) already made; fits of a 256^2 set: neural-appearance "
+                              "about 3 min, neumip-frame 1.2-2 min at 4000 steps, twice that at its 8000-step "
+                              "default, ggx-mipmap 1-1.4 min; the first fit of a sitting up to 7 min); "
+                              "--workers 2: about half"},
 }
 
 
