@@ -121,3 +121,45 @@ def test_proxy_sampler_fit_resumes_bit_for_bit(tmp_path):
     for k, v in ref_sampler.state_dict().items():
         assert torch.equal(v, sampler.state_dict()[k]), k
     assert _strip(res.history) == _strip(ref.history)
+
+
+def test_encoder_lr_scale_sets_the_encoder_phase_rate_only():
+    """Option encoder_lr_scale multiplies the rate of the encoder phase: at 1e-3 of it the encoder barely leaves its
+    initial weights (Adam's step is proportional to the rate) while the latents phase still trains at the recipe's."""
+    def run(scale):
+        source = _source()
+        torch.manual_seed(0)
+        model = NeuralAppearance(**config_for_source(source))
+        start = [p.detach().clone() for p in model.encoder.parameters()]
+        recipe = recipe_for("neural-appearance")
+        recipe = replace(recipe, steps=STEPS, batch_size=32, lr=1e-2, log_every=1,
+                         options={**recipe.options, "half_finish": 0.0, "encoder_lr_scale": scale})
+        baked = {}
+        result = fit(model, source, recipe, progress=False,
+                     callback=lambda r: baked.setdefault("latents", model.spatial.raw[0].detach().clone())
+                     if r["phase"] == "latents" else None)
+        moved = sum((p.detach() - s).abs().sum().item() for p, s in zip(model.encoder.parameters(), start))
+        latents = (model.spatial.raw[0].detach() - baked["latents"]).abs().sum().item()
+        return moved, latents, result
+
+    full, full_latents, _ = run(1.0)
+    slow, slow_latents, result = run(1e-3)
+    assert 0 < slow < 0.01 * full
+    assert slow_latents > 0.1 * full_latents > 0  # the latents phase moves its latents at the recipe's rate
+    assert all(r["lr"] > 0 for r in result.history)
+
+
+def test_recommended_preset_on_a_cpu_and_elsewhere():
+    """On a CPU the recommended preset runs the latents phase at 1e-2 and the encoder phase at 3e-3 (0.3 of it); on a
+    GPU and in paper / cpu the paper's 3e-3 for both; a user's --set wins."""
+    import neumat.methods  # noqa: F401  (registers the models)
+    from neumat.fit.preset import resolve_preset
+
+    cpu = resolve_preset("neural-appearance", "recommended", device="cpu")
+    assert (cpu.recipe.lr, cpu.recipe.options["encoder_lr_scale"]) == (1e-2, 0.3)
+    assert cpu.recipe.lr * cpu.recipe.options["encoder_lr_scale"] == pytest.approx(3e-3)
+    for resolved in (resolve_preset("neural-appearance", "recommended", device="cuda"),
+                     resolve_preset("neural-appearance", "paper"), resolve_preset("neural-appearance", "cpu")):
+        assert (resolved.recipe.lr, resolved.recipe.options["encoder_lr_scale"]) == (3e-3, 1.0)
+    mine = resolve_preset("neural-appearance", "recommended", device="cpu", overrides={"recipe.lr": 5e-3})
+    assert mine.recipe.lr == 5e-3 and mine.recipe.options["encoder_lr_scale"] == 0.3
