@@ -35,7 +35,7 @@ LONG_RUN = {"recipe.steps": 4000, "option.target_samples": 32}
 #: the NeuMIP variants' CPU budget: twice LONG_RUN's steps. They learn a flat metal's specular lobe from Cartesian
 #: directions more slowly than the others do in angular textures: at 4000 steps their fits there were still
 #: descending and ended up to 1.65x tripleplane's FLIP (issue 55's bound: 1.5x); at 8000 they were lower on every
-#: flat-set pair refitted but two of neumip-frame's, 0.65-1.34x tripleplane's default fit but one (1.52x;
+#: flat-set pair refitted but two of neumip-frame's, 0.65-1.35x tripleplane's default fit but one (1.52x;
 #: selection_free.md, "Every latent-texture model over the protocol"). A departure from the paper's one budget for
 #: every model; a 64^2 crop's fit takes 2-6 min, a whole 1K set's about 26 (`--set recipe.steps=4000` gives the
 #: gated model's budget back)
@@ -101,7 +101,7 @@ MEASURED = {
     "neumip": "a baseline: over the 29 random crops x 2 seeds at 4000 steps (sessions 65-66), mean FLIP 1.07x "
               "tripleplane's (median; 0.87-1.06x on sets with normal detail, 1.1-1.56x on flat ones: Leather05, "
               "Metal027, Wood092, a brushed metal), still learning on the flat metals; at its CPU default, 8000 "
-              "steps (session 67), 0.81-1.34x tripleplane's default fit on every flat-set and polished pair measured",
+              "steps (session 67), 0.81-1.35x tripleplane's default fit on every flat-set and polished pair measured",
     "neumip-frame": "a baseline: over the 29 random crops x 2 seeds at 4000 steps (sessions 65-66), mean FLIP "
                     "1.07x tripleplane's (median; 0.84-1.08x on sets with normal detail, 1.1-1.65x on flat ones); "
                     "at its CPU default, 8000 steps (session 67), 0.65-1.26x tripleplane's default fit on the "
