@@ -40,7 +40,7 @@ LONG_RUN = {"recipe.steps": 4000, "option.target_samples": 32}
 #: every model; a 64^2 crop's fit takes 2-6 min, a whole 1K set's about 26 (`--set recipe.steps=4000` gives the
 #: gated model's budget back)
 LONGER_RUN_ON_CPU = ("neumip", "neumip-frame", "neumip-offset")
-LONGER_RUN = {"recipe.steps": 8000, "option.target_samples": 32}
+LONGER_RUN = {**LONG_RUN, "recipe.steps": 2 * LONG_RUN["recipe.steps"]}
 #: the CPU recipe's initial scale of the latents for these models: N(0, 0.1^2) instead of N(0, 1) (`init_std`).
 #: Without the preconditioner a texel keeps what the fit's queries leave of its initial value, and the CPU budget's
 #: queries leave much of it (a whole 1K set: about 16 queries a texel): at std 1 that remainder is noise in every
