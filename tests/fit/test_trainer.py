@@ -128,7 +128,8 @@ def test_resume_with_other_recipe_or_bad_file_raises(tmp_path):
 
 
 def _constant_fit(ema: float) -> tuple[Constant, list[torch.Tensor]]:
-    """Fit a Constant; returns it and the parameters it had before each step."""
+    """Fit a Constant; returns it and the parameters it had at each draw of queries before a step (the first
+    draw is the initialisation's; the trainer's end-of-fit check draws once more, after the last step)."""
     m = Constant()
     seen = []
 
@@ -137,7 +138,8 @@ def _constant_fit(ema: float) -> tuple[Constant, list[torch.Tensor]]:
         return QUERY_SAMPLERS.get("cosine")(Blinn())(n, generator, device)
 
     fit(m, Blinn(), Recipe(steps=7, batch_size=32, lr=0.1, ema=ema, loss="l2"), progress=False, queries=queries)
-    return m, seen
+    assert len(seen) == 9
+    return m, seen[:8]
 
 
 def test_ema_matches_hand_computation():
@@ -341,3 +343,56 @@ def test_a_loss_spike_that_stalls_the_fit_says_so():
     phases = _records([1e-6, 1e-6]) + _records([SPIKE * 2e-6, 1.0], phase="refine", start=100)
     assert loss_spikes(phases, "m") == []
     assert loss_spikes(_records([1.0, float("nan"), 0.0, SPIKE * 1.01]), "m")[0].startswith("fit m: phase 'fit' spiked")
+
+
+class _Dead(NeuBRDF):
+    """A NeuBRDF whose output is 1e-30 of what its network computes: a network that died (every unit inactive)."""
+
+    def eval(self, q):
+        return super().eval(q) * 1e-30
+
+
+class _Flat(Material):
+    """A source without variation: the same value for every query."""
+
+    name = "flat"
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return torch.full((len(q), 3), 0.2, dtype=q.dtype, device=q.device)
+
+
+def test_a_fit_whose_output_collapsed_says_so():
+    """A network that dies early (neural-appearance at lr 1e-2 on Metal027: output 1e-27 of the source's) ends with
+    its loss flat at its lowest, which neither loss check sees; the end-of-fit check on held-out queries does:
+    near zero, or near constant while the source varies. Sound fits, and a source without variation, stay silent."""
+    from neumat.fit.trainer import COLLAPSED, FitWarning
+
+    recipe = Recipe(steps=30, batch_size=64, lr=1e-2, log_every=5)
+    with pytest.warns(FitWarning, match=r"output is near zero \(mean \|output\| .* against the source's .*, at 4096 "
+                                        r"of the fit's queries\); after a full recipe this is a network that died early"):
+        res = fit(_Dead(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
+    assert len(res.warnings) == 1
+    with pytest.warns(FitWarning, match=r"output is near constant \(its spread over the queries at most 0x"):
+        fit(Constant(), Blinn(), recipe, progress=False)
+    torch.manual_seed(0)
+    sound = fit(NeuBRDF(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
+    assert sound.warnings == []
+    assert fit(Constant(), _Flat(), recipe, progress=False).warnings == []
+    # the bounds, with models that are the source scaled: by a factor (size), or about its mean (spread)
+    for size, spread, warns in [(2 * COLLAPSED, 1.0, None), (COLLAPSED / 2, 1.0, "near zero"),
+                                (1.0, 2 * COLLAPSED, None), (1.0, COLLAPSED / 2, "near constant")]:
+        res = fit(_Scaled(size, spread), Blinn(), Recipe(steps=1, batch_size=8, lr=1e-3), progress=False)
+        assert [warns in w for w in res.warnings] == ([True] if warns else [])
+
+
+class _Scaled(LearnedMaterial):
+    """Blinn's value scaled by `size`, its variation about a level of 0.1 by `spread` (one idle parameter)."""
+
+    name = "scaled"
+
+    def __init__(self, size: float, spread: float) -> None:
+        super().__init__()
+        self.size, self.spread, self.idle = size, spread, nn.Parameter(torch.zeros(()))
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return self.size * (0.1 + self.spread * (Blinn().eval(q) - 0.1)) + 0 * self.idle

@@ -28,7 +28,7 @@ from ..io.atomic import atomic_write
 from ..models.base import LearnedMaterial
 from neumat.fit import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
 from .ema import EMA
-from .phase import FitContext, Phase, model_name, online_phase
+from .phase import FitContext, Phase, check_source, model_name, online_phase, query_draw
 from .preset import default_recipe
 from .recipe import Recipe, check_recipe, learning_rate
 from .method import phases_for, typed_options
@@ -52,7 +52,7 @@ class FitResult:
     recipe: Recipe | None = None
     warnings: list[str] = field(default_factory=list)
     """What went wrong without stopping the fit: a phase that ended far above its best loss after its warm-up
-    (`ENDS_ABOVE_BEST`, `WARMUP_FRACTION`)."""
+    (`ENDS_ABOVE_BEST`, `WARMUP_FRACTION`), a loss spike (`SPIKE`), an output that collapsed (`COLLAPSED`)."""
 
 
 def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: int | None = None,
@@ -193,7 +193,8 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     if ema is not None:
         model.load_state_dict(ema.state_dict())
     model.train(False)
-    problems = ended_above_best(state["history"], name) + loss_spikes(state["history"], name, recipe.grad_clip)
+    problems = ended_above_best(state["history"], name) + loss_spikes(state["history"], name, recipe.grad_clip) \
+        + collapsed_output(ctx)
     for text in problems:
         warnings.warn(text, FitWarning, stacklevel=2)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
@@ -273,6 +274,47 @@ def loss_spikes(history: list[dict], name: str, grad_clip: float = 0.0) -> list[
                        + (f"a lower learning rate (--set recipe.lr=...; gradients were clipped at norm {grad_clip:g})"
                           if grad_clip > 0 else "--set recipe.grad_clip=1"))
     return out
+
+
+def collapsed_output(ctx: FitContext) -> list[str]:
+    """One message when the fitted model's output at COLLAPSE_QUERIES of the fit's queries (drawn with seed
+    recipe.seed + 2) is near zero or near constant (mean |output|, or its spread over the queries in every channel,
+    below COLLAPSED times the source's), for sources that give online targets; none for a source without variation.
+    After a full recipe such a network died early: its loss sits flat at its lowest, so neither loss check sees
+    it (a fit of a few steps can also end here, still near its initialisation)."""
+    try:
+        check_source(ctx.model, ctx.source)
+        draw = query_draw(ctx)
+    except InputError:  # not an online source (translucent observations, a BTF table)
+        return []
+    q = draw(COLLAPSE_QUERIES, torch.Generator(device=ctx.device).manual_seed(ctx.recipe.seed + 2), ctx.device)
+    with torch.no_grad():
+        target = ctx.source.eval(q).double().reshape(COLLAPSE_QUERIES, -1)
+        pred = ctx.model.eval(q).double().reshape(COLLAPSE_QUERIES, -1)
+    size_t, size_p = target.abs().mean(), pred.abs().mean()
+    spread_t, spread_p = target.std(0), pred.std(0)
+    if not (torch.isfinite(size_p) and size_t > 0 and bool((spread_t > 0).any())):
+        return []
+    if size_p < COLLAPSED * size_t:
+        what = f"near zero (mean |output| {size_p:.3g} against the source's {size_t:.3g}"
+    elif bool((spread_p < COLLAPSED * spread_t).all()):
+        what = (f"near constant (its spread over the queries at most {float((spread_p / spread_t).max()):.2g}x "
+                "the source's")
+    else:
+        return []
+    return [f"fit {model_name(ctx.model)}: the fitted model learned none of the source's variation: its output is "
+            f"{what}, at {COLLAPSE_QUERIES} of the fit's queries); after a full recipe this is a network that died "
+            "early: try a lower learning rate (--set recipe.lr=...) or another seed"]
+
+
+#: the queries `collapsed_output` draws (a fraction of a second for any model here)
+COLLAPSE_QUERIES = 4096
+
+#: an output this many times the source's size, or spread, has collapsed: neural-appearance at lr 1e-2 on Metal027
+#: died in its encoder phase's first 200 steps, its loss flat at its lowest to the end and its output 1e-27 of the
+#: source's, without a warning (benchmarks/studies/neural_appearance/results/learning_rate.md); the sound fit of the
+#: same set reaches 1.01x the source's mean and 1.05x its spread
+COLLAPSED = 0.01
 
 
 def _record(running: dict, done: int, phase: str, lr: float, seconds: float) -> dict:
