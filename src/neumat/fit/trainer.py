@@ -311,7 +311,7 @@ def collapsed_output(ctx: FitContext) -> list[str]:
 COLLAPSE_QUERIES = 4096
 
 #: an output this many times the source's size, or spread, has collapsed: neural-appearance at lr 1e-2 on Metal027
-#: died in its encoder phase's first 200 steps, its loss flat at its lowest to the end and its output 1e-27 of the
+#: died in its encoder phase's first 200 steps, its loss flat at its lowest to the end and its output 3e-27 of the
 #: source's, without a warning (benchmarks/studies/neural_appearance/results/learning_rate.md); the sound fit of the
 #: same set reaches 1.01x the source's mean and 1.05x its spread
 COLLAPSED = 0.01
