@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import threading
 from pathlib import Path
 
 from ..core.errors import InputError
@@ -30,13 +31,26 @@ def register(variant: str | None = None):
     llvm_ad_rgb when none is set)."""
     mi = current_mitsuba() if variant is None else set_variant(variant)
     check_rgb(mi.variant())
+    from ..export import drjit  # noqa: F401  (every runtime program, imported here, before Mitsuba's loader threads)
     mi.register_bsdf(PLUGIN_NAME, lambda props: make_bsdf(mi, props))
     return mi
 
 
+#: held while the plugin factory builds a BSDF: Mitsuba instantiates a scene's plugins on several threads, and the
+#: factory's first imports (the runtime's program modules, torch's side for a `.nmat`) from two threads at once can
+#: leave one thread with a package only partly initialised (a CI run under load: "unknown program
+#: 'healpix-grid-mlp'", the programs the package registers after the first two missing)
+_BUILDING = threading.RLock()
+
+
 def make_bsdf(mi, props):
     """The plugin factory: a native BSDF for a drjit export or a `.nmat` with a Dr.Jit translator (unless the
-    property `native` is false), the torch bridge's BSDF otherwise."""
+    property `native` is false), the torch bridge's BSDF otherwise. One at a time (`_BUILDING`)."""
+    with _BUILDING:
+        return _make_bsdf(mi, props)
+
+
+def _make_bsdf(mi, props):
     source = None
     for key in ("filename", "material"):
         if key in props:
