@@ -28,7 +28,7 @@ from ..io.atomic import atomic_write
 from ..models.base import LearnedMaterial
 from neumat.fit import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
 from .ema import EMA
-from .phase import FitContext, Phase, check_source, model_name, online_phase, query_draw
+from .phase import FitContext, Phase, check_source, model_name, online_phase, online_targets, query_draw
 from .preset import default_recipe
 from .recipe import Recipe, check_recipe, learning_rate
 from .method import phases_for, typed_options
@@ -288,8 +288,8 @@ def collapsed_output(ctx: FitContext) -> list[str]:
     except InputError:  # not an online source (translucent observations, a BTF table)
         return []
     q = draw(COLLAPSE_QUERIES, torch.Generator(device=ctx.device).manual_seed(ctx.recipe.seed + 2), ctx.device)
+    target = online_targets(ctx, q).double().reshape(COLLAPSE_QUERIES, -1)
     with torch.no_grad():
-        target = ctx.source.eval(q).double().reshape(COLLAPSE_QUERIES, -1)
         pred = ctx.model.eval(q).double().reshape(COLLAPSE_QUERIES, -1)
     size_t, size_p = target.abs().mean(), pred.abs().mean()
     spread_t, spread_p = target.std(0), pred.std(0)
