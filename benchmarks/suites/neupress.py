@@ -125,7 +125,8 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
 def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setup: dict, data, media: list[str]):
     """One object's image table: trace, fit each model per seed, score the held-out set and the full appearance
     against the reference (the second reference's scores are the floor). Under --work the traces, references and
-    fits are kept and reused (a fit while its model's default preset is unchanged), and a trace cut off resumes."""
+    fits are kept and reused (a fit while its model's default preset is unchanged), and a trace or fit cut off
+    resumes (from its last checkpoint: at most 1000 steps lost)."""
     scene, light = (str(setup[k]).format(data=data) for k in ("scene", "light"))
     with run.folder("images", setup, scene, trace_defaults()) as folder:
         train, test = folder / "train.npz", folder / "test.npz"
@@ -140,8 +141,9 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                 preset = method_key(model, [])["preset"]
                 nmat = folder / f"{model}-{seed}-{preset[:12]}.nmat"
                 _kept(nmat, lambda out: cli(["fit", str(train), "--model", model, *setup["fit"].get(model, []),
-                                             "--seed", str(seed), "--threads", str(run.threads), "-q", "-o",
-                                             str(out)]))
+                                             "--seed", str(seed), "--threads", str(run.threads), "-q",
+                                             "--checkpoint", str(nmat.with_suffix(".checkpoint")), "--resume",
+                                             "-o", str(out)]))
                 rows.append({"model": model, "seed": seed, **scorer.model(nmat)})
     run.protocol[name] = (f"the full appearance (surface reflection + subsurface + background) at "
                           f"{setup['resolution']}^2, {setup['spp']} spp MIS, against a {setup['reference_spp']}-"

@@ -60,7 +60,7 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     if suite in NEEDS_DATA and shared_data_dir() is None:
         pytest.skip("shared data absent: the suite's sources are the shared texture sets")
     out = tmp_path / suite / "quick.json"
-    extra = ["--work", str(out.parent / "work")] if suite == "sparsebtf" else []  # then rerun: it must resume
+    extra = ["--work", str(out.parent / "work")] if suite in ("sparsebtf", "neupress") else []  # kept, resumable
     if suite == "sparsebtf":  # two shards share the work folder: the BTF generated once, under a lock
         extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
     extra += ["--repeats", "1"] if suite == "speed" else []  # the schema and the arithmetic, not the rates: one sample
@@ -87,19 +87,25 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_sharing(doc)
         _check_ledger(out, doc, run.stderr)
     if suite == "neupress":
-        _check_neupress_images(doc)
+        _check_neupress_images(doc, out.parent / "work")
     if suite == "sparsebtf":
         _check_resume(out, doc, run.stderr)
         _check_equal_bytes(doc)
 
 
-def _check_neupress_images(doc: dict) -> None:
+def _check_neupress_images(doc: dict, work: Path) -> None:
     """The image table where Mitsuba runs: the floor row, then each model of the fitted seed, each scored (finite
-    FLIP in [0, 1], object FLIP too, held-out errors); without LLVM it is skipped with the reason."""
+    FLIP in [0, 1], object FLIP too, held-out errors), each kept fit beside the checkpoint of its last step (a fit
+    cut off in a full run, hours long, resumes from there); without LLVM it is skipped with the reason."""
     from neumat.testing.drjit_parity import drjit_available
     if not drjit_available():
         assert any(s["what"] == "image table" for s in doc["skipped"])
         return
+    fits = sorted(work.glob("neupress-quick-*/*.nmat"))
+    assert [f.name.split("-")[0] for f in fits] == ["dipole", "neupress"], fits
+    for nmat in fits:
+        state = torch.load(nmat.with_suffix(".checkpoint"), weights_only=True)
+        assert state["step"] == 20, (nmat, sorted(state))
     rows = next(t for t in doc["tables"] if t["name"] == "images")["rows"]
     assert [(r["model"], r["seed"]) for r in rows] == [("reference, another seed (floor)", None),
                                                        ("neupress", 0), ("dipole-bssrdf", 0)]
