@@ -40,7 +40,8 @@ BUDGET = {
                               "results/neupress/full.json), plus twice the tracing and the NeuPreSS fits) and about "
                               "4 h more for the paperweight (estimated: its trace costs what the bunny's does per "
                               "observation and path, 14 against 13 us in neupress_paperweight.md, its references "
-                              "more); --work keeps traces, references and fits, so a run can span sittings"},
+                              "more); --work keeps traces, references and fits (a cut-off fit resumes from its checkpoint) "
+                              "and --ledger the synthetic fits, so a run can span sittings"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
@@ -57,22 +58,27 @@ def observations(n: int, seed: int) -> Observations:
 
 
 def run(run: harness.Run) -> None:
-    """Fit each model, score held-out MSE over the held-out values' variance (1 = predicting the mean)."""
+    """Fit each model, score held-out MSE over the held-out values' variance (1 = predicting the mean); each fit is
+    a job of the run (`harness.Run.job`: under --ledger a run cut off keeps the fits it finished)."""
     n, steps = (2000, 20) if run.quick else (2 ** 16, None)
     seeds = [run.seed] if run.quick else [run.seed, run.seed + 1]
     test = observations(n // 4, 10_000)
-    rows = []
-    for seed in seeds:
+
+    def synthetic(name: str, seed: int) -> dict:
         train = observations(n, seed)
-        for name in MODELS:
-            model, setting = build_fit(name, "cpu", source=train, overrides=SMALL[name] if run.quick else {},
-                                       seed=seed)
-            result = fit(model, train, setting.recipe, steps=steps, progress=False)
-            with torch.no_grad():
-                pred = result.model.eval(Query(test.wi, test.wo, x=test.x, n=test.n))
-            rows.append({"model": name, "seed": seed, "steps": result.steps, "fit s": result.seconds,
-                         "held-out mse / var": ((pred - test.value) ** 2).mean() / test.value.var(),
-                         "bytes": model.size_bytes()})
+        model, setting = build_fit(name, "cpu", source=train, overrides=SMALL[name] if run.quick else {}, seed=seed)
+        result = fit(model, train, setting.recipe, steps=steps, progress=False)
+        with torch.no_grad():
+            pred = result.model.eval(Query(test.wi, test.wo, x=test.x, n=test.n))
+        return {"model": name, "seed": seed, "steps": result.steps, "fit s": result.seconds,
+                "held-out mse / var": float(((pred - test.value) ** 2).mean() / test.value.var()),
+                "bytes": model.size_bytes()}
+
+    rows = [run.job(f"synthetic response x {name} (seed {seed})",
+                    {"job": "synthetic", "model": name, "seed": seed, "observations": n, "steps": steps,
+                     "overrides": SMALL[name] if run.quick else {}, **method_key(name, ["--preset", "cpu"])},
+                    lambda name=name, seed=seed: synthetic(name, seed), keep=lambda _: True)
+            for seed in seeds for name in MODELS]
     run.table("fits", "Synthetic translucent response", rows)
     _images(run, seeds)
 

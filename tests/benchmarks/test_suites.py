@@ -66,6 +66,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     extra += ["--repeats", "1"] if suite == "speed" else []  # the schema and the arithmetic, not the rates: one sample
     if suite == "neubrdf":  # two shard processes fill a ledger; then a rerun must take every job from it
         extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
+    if suite == "neupress":  # its synthetic fits are jobs: a run cut off keeps the ones it finished
+        extra += ["--ledger", str(out.parent / "ledger.jsonl")]
     run = _bench(suite, "--quick", "--json", "--out", str(out), *extra)
     assert run.returncode == 0, run.stderr[-3000:]
     doc = json.loads(run.stdout)
@@ -88,6 +90,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_ledger(out, doc, run.stderr)
     if suite == "neupress":
         _check_neupress_images(doc, out.parent / "work")
+        entries = [json.loads(line) for line in (out.parent / "ledger.jsonl").read_text().splitlines()]
+        assert sorted(e["result"]["model"] for e in entries) == ["dipole-bssrdf", "neupress"]
     if suite == "sparsebtf":
         _check_resume(out, doc, run.stderr)
         _check_equal_bytes(doc)
