@@ -40,8 +40,8 @@ BUDGET = {
                               "results/neupress/full.json), plus twice the tracing and the NeuPreSS fits) and about "
                               "4 h more for the paperweight (estimated: its trace costs what the bunny's does per "
                               "observation and path, 14 against 13 us in neupress_paperweight.md, its references "
-                              "more); --work keeps traces, references and fits (a cut-off fit resumes from its checkpoint) "
-                              "and --ledger the synthetic fits, so a run can span sittings"},
+                              "more); --work keeps traces, references and fits (a cut-off fit resumes from its "
+                              "checkpoint) and --ledger the synthetic fits, so a run can span sittings"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
