@@ -112,7 +112,8 @@ MEASURED = {
     "neumip": "a baseline: over the 29 random crops x 2 seeds at 4000 steps (sessions 65-66), mean FLIP 1.07x "
               "tripleplane's (median; 0.87-1.06x on sets with normal detail, 1.1-1.56x on flat ones: Leather05, "
               "Metal027, Wood092, a brushed metal), still learning on the flat metals; at its CPU default, 8000 "
-              "steps (session 67), 0.81-1.35x tripleplane's default fit on every flat-set and polished pair measured",
+              "steps (sessions 67, 69), 0.77-1.35x tripleplane's default fit on all 58 (crop, seed) pairs of the "
+              "protocol",
     "neumip-frame": "a baseline: over the 29 random crops x 2 seeds at 4000 steps (sessions 65-66), mean FLIP "
                     "1.07x tripleplane's (median; 0.84-1.08x on sets with normal detail, 1.1-1.65x on flat ones); "
                     "at its CPU default, 8000 steps with the rate halved at 50 % and 75 % (session 69), 0.59-1.28x "
@@ -120,8 +121,8 @@ MEASURED = {
                     "plate and the held-out sets with normal detail)",
     "neumip-offset": "a baseline: over the 29 random crops x 2 seeds at 4000 steps (sessions 65-66), mean FLIP "
                      "1.07x tripleplane's (median; 0.84-1.06x on sets with normal detail, 1.1-1.55x on flat ones); "
-                     "at its CPU default, 8000 steps (session 67), 0.81-1.32x tripleplane's default fit on every "
-                     "flat-set and polished pair measured",
+                     "at its CPU default, 8000 steps (sessions 67, 69), 0.78-1.34x tripleplane's default fit on "
+                     "all 58 (crop, seed) pairs of the protocol",
     "nbrdf-uv": "a baseline: over the 29 random crops x 2 seeds at the CPU default (sessions 65-66), mean FLIP "
                 "1.04x tripleplane's (median; 0.74-1.21x, up to 1.34x on Wood092)",
 }
