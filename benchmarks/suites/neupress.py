@@ -64,9 +64,9 @@ def run(run: harness.Run) -> None:
     seeds = [run.seed] if run.quick else [run.seed, run.seed + 1]
     test = observations(n // 4, 10_000)
 
-    def synthetic(name: str, seed: int) -> dict:
+    def synthetic(name: str, seed: int, overrides: dict) -> dict:
         train = observations(n, seed)
-        model, setting = build_fit(name, "cpu", source=train, overrides=SMALL[name] if run.quick else {}, seed=seed)
+        model, setting = build_fit(name, "cpu", source=train, overrides=overrides, seed=seed)
         result = fit(model, train, setting.recipe, steps=steps, progress=False)
         with torch.no_grad():
             pred = result.model.eval(Query(test.wi, test.wo, x=test.x, n=test.n))
@@ -74,10 +74,11 @@ def run(run: harness.Run) -> None:
                 "held-out mse / var": float(((pred - test.value) ** 2).mean() / test.value.var()),
                 "bytes": model.size_bytes()}
 
+    overrides = {name: SMALL[name] if run.quick else {} for name in MODELS}
     rows = [run.job(f"synthetic response x {name} (seed {seed})",
                     {"job": "synthetic", "model": name, "seed": seed, "observations": n, "steps": steps,
-                     "overrides": SMALL[name] if run.quick else {}, **method_key(name, ["--preset", "cpu"])},
-                    lambda name=name, seed=seed: synthetic(name, seed), keep=lambda _: True)
+                     "overrides": overrides[name], **method_key(name, ["--preset", "cpu"])},
+                    lambda name=name, seed=seed: synthetic(name, seed, overrides[name]), keep=lambda _: True)
             for seed in seeds for name in MODELS]
     run.table("fits", "Synthetic translucent response", rows)
     _images(run, seeds)
