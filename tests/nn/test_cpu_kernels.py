@@ -417,6 +417,44 @@ def test_every_kernel_is_declared_from_the_source():
         lib.ggx_eval(x.data_ptr(), x.data_ptr(), 1, 0.1, 0.1, 0, None, None, None, None)
 
 
+def test_on_huge_pages_copies_values_into_memory_aligned_to_a_huge_page():
+    import gc
+    import mmap
+
+    big = torch.randn(3, 700, 500)  # 4.2 MB
+    moved = cpu_kernels.on_huge_pages(big.permute(1, 0, 2))
+    assert moved.is_contiguous() and torch.equal(moved, big.permute(1, 0, 2))
+    if hasattr(mmap, "MADV_HUGEPAGE"):
+        assert moved.data_ptr() % cpu_kernels.HUGE_PAGE == 0
+    view = moved[5:7]
+    del moved
+    gc.collect()  # the tensor keeps its memory map alive
+    assert torch.equal(view, big.permute(1, 0, 2)[5:7])
+    small = torch.randn(100, 8)
+    assert cpu_kernels.on_huge_pages(small).data_ptr() == small.data_ptr()  # under 2 MB: as it was
+
+
+@needs_kernels
+@pytest.mark.parametrize("name", ["multiscale", "neumip-offset"])
+@pytest.mark.parametrize("mode", ["none", "lod"])
+def test_kernels_read_latents_of_a_1k_texture_on_huge_pages_as_torch_does(name, mode):
+    """At 1024^2 texels (32 MB a latent: the tables move to huge pages) the kernel still reads what torch reads."""
+    from neumat.models.registry import model_class
+
+    torch.manual_seed(0)
+    model = model_class(name)(spatial_size=1024)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.2 * torch.randn_like(p))
+    model = model.runtime().eval()
+    q = _texture_queries(3000, 7, mode)
+    with torch.no_grad():
+        got = model.eval(q)
+        with cpu_kernels.switched_off():
+            ref = model.eval(q)
+    _as_accurate_as_torch(model, q, got, ref)
+
+
 @needs_kernels
 @pytest.mark.parametrize("name", ["neumip", "nbrdf-uv", "neumip-frame", "neumip-offset", "neural-appearance"])
 @pytest.mark.parametrize("mode", ["none", "lod", "footprint"])

@@ -636,9 +636,16 @@ __attribute__((optimize("fp-contract=off"), noinline))
 static void latent_texels(const float *uv, long s, long n, int h, int w, float *ix, float *iy) {
     const float sx = (float)(2.0 / (double)(w + 1)), sy = (float)(2.0 / (double)(h + 1));
     const float wx = (float)(w + 1), wy = (float)(h + 1);
+    float us[BLOCK], vs[BLOCK];  /* the block's uv, gathered first so that the loop below vectorises */
+    if (s + BLOCK <= n)
+        for (int k = 0; k < BLOCK; ++k) { us[k] = uv[2 * (s + k)]; vs[k] = uv[2 * (s + k) + 1]; }
+    else
+        for (int k = 0; k < BLOCK; ++k) {
+            long row = s + k < n ? s + k : s;
+            us[k] = uv[2 * row]; vs[k] = uv[2 * row + 1];
+        }
     for (int k = 0; k < BLOCK; ++k) {
-        long row = s + k < n ? s + k : s;
-        float u = uv[2 * row], v = uv[2 * row + 1];
+        float u = us[k], v = vs[k];
         u -= floorf(u);  /* torch.remainder(u, 1): fmod (exact), + 1 below 0 (one rounding, as here) */
         v -= floorf(v);
         float x = u * (float)w - 0.5f, y = (1.f - v) * (float)h - 0.5f;

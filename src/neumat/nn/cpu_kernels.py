@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import hashlib
+import mmap
 import os
 import platform
 import re
@@ -284,6 +285,33 @@ def _check(status: int) -> None:
         raise MemoryError("neumat.nn.cpu_kernels: no memory for a kernel's block buffers (192 KB)")
 
 
+HUGE_PAGE = 1 << 21
+"""Bytes of a transparent huge page on x86-64 and most ARM64 Linux kernels (2 MB)."""
+
+
+def on_huge_pages(t: torch.Tensor) -> torch.Tensor:
+    """t's values (CPU), contiguous, in memory the kernel is asked to back with huge pages (Linux transparent huge
+    pages: madvise(MADV_HUGEPAGE) on an anonymous map aligned to 2 MB); t contiguous where t is under 2 MB or the
+    system offers no such advice. Why: the latent textures the kernels read at random uv (a 1K latent is 32 MB)
+    otherwise cost a TLB miss per texel on 4 KB pages (issue 49: the multi-scale model's and neumip-offset's
+    evaluation 1.15x and 1.2x; measurements in benchmarks/results/speed)."""
+    t = t.detach().contiguous()
+    nbytes = t.numel() * t.element_size()
+    advice = getattr(mmap, "MADV_HUGEPAGE", None)
+    if advice is None or nbytes < HUGE_PAGE or t.device.type != "cpu":
+        return t
+    region = mmap.mmap(-1, nbytes + HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)  # shared: no THP
+    try:
+        region.madvise(advice)
+    except OSError:  # a kernel without transparent huge pages
+        region.close()
+        return t
+    address = ctypes.addressof(ctypes.c_char.from_buffer(region))
+    out = torch.frombuffer(region, dtype=t.dtype, count=t.numel(), offset=-address % HUGE_PAGE).view(t.shape)
+    out.copy_(t)
+    return out
+
+
 def _ptr(t: torch.Tensor, row: int = 0) -> int:
     """The address of t's row `row`, as an int (the kernels' pointer arguments are declared c_void_p, which takes
     one: a tenth of the cost of building a c_void_p, 0.9 us, of which a call passes a dozen)."""
@@ -428,7 +456,7 @@ class PyramidTables:
     def finest(self) -> torch.Tensor:
         if self._finest is None:
             with torch.inference_mode(False), torch.no_grad():
-                self._finest = self.pyramid.finest_padded().permute(0, 2, 3, 1).contiguous()
+                self._finest = on_huge_pages(self.pyramid.finest_padded().permute(0, 2, 3, 1))
         return self._finest
 
     def atlas(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -438,7 +466,7 @@ class PyramidTables:
             with torch.inference_mode(False), torch.no_grad():
                 raw = self.pyramid.raw
                 layout = atlas_layout(tuple(tuple(int(v) for v in t.shape[1:]) for t in raw), torch.device("cpu"))
-                self._atlas = (self.pyramid.atlas().permute(0, 2, 3, 1).contiguous(),
+                self._atlas = (on_huge_pages(self.pyramid.atlas().permute(0, 2, 3, 1)),
                                layout["size"].to(torch.int32).contiguous(),
                                layout["origin"].to(torch.float32).contiguous())
         return self._atlas
@@ -763,7 +791,7 @@ def sparse_btf_eval(model, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor,
 def _sparse_btf_tables(model, yuv_rgb: torch.Tensor) -> SimpleNamespace:
     """What `sparse_btf_eval` reads: the model's tables contiguous (the direction sets transposed, 3 x count) and
     their pointers."""
-    keep = {name: getattr(model, name).contiguous() for name in (
+    keep = {name: on_huge_pages(getattr(model, name)) for name in (
         "membership", "counts", "values", "index", "dict_1", "dict_2", "dict_3", "dict_4", "mean", "std")}
     keep.update(light=model.light_dirs.t().contiguous(), view=model.view_dirs.t().contiguous(),
                 yuv_rgb=yuv_rgb.float().contiguous())
@@ -796,9 +824,9 @@ def pca_btf_eval(model, wi: torch.Tensor, wo: torch.Tensor, uv: torch.Tensor, yu
 def _pca_btf_tables(model, yuv_rgb: torch.Tensor) -> SimpleNamespace:
     """What `pca_btf_eval` reads: the model's tables contiguous (the direction sets transposed, 3 x count) and their
     pointers."""
-    keep = {"coeffs": model.coeffs.contiguous(), "basis": model.basis.contiguous(), "mean": model.mean.contiguous(),
-            "light": model.light_dirs.t().contiguous(), "view": model.view_dirs.t().contiguous(),
-            "yuv_rgb": yuv_rgb.float().contiguous()}
+    keep = {"coeffs": on_huge_pages(model.coeffs), "basis": on_huge_pages(model.basis),
+            "mean": model.mean.contiguous(), "light": model.light_dirs.t().contiguous(),
+            "view": model.view_dirs.t().contiguous(), "yuv_rgb": yuv_rgb.float().contiguous()}
     return SimpleNamespace(keep=keep, R=keep["basis"].shape[-1], **{name: _ptr(v) for name, v in keep.items()})
 
 
