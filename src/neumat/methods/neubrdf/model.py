@@ -586,7 +586,8 @@ class NeuBRDF(LearnedMaterial):
                 for south in (False, True))
             return self.train(False)
         self._pixel_features = self._pixel_mean_features()
-        self._runtime_table = self._pixel_first_layer(self._pixel_features)
+        # on huge pages: a 24 MB table read at random rows (the kernel 1.00-1.07x, NOTES.md)
+        self._runtime_table = cpu_kernels.on_huge_pages(self._pixel_first_layer(self._pixel_features))
         return self.train(False)
 
     @torch.no_grad()
