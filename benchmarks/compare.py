@@ -1,14 +1,15 @@
 """`python -m benchmarks compare COMMITTED.json RERUN.json`: does a rerun reproduce a suite's committed quality
-numbers within their seed spread? Rows are matched by their text columns and seed; each quality number of the rerun
-must lie within the committed run's spread over seeds of the same row (max - min of that column over the seeds, or
-the row's own "<column> seed spread"; at least 1e-4 of the value, for deterministic methods whose seeds agree and
-whose numbers still move with the machine's arithmetic); sizes and counts (bytes, steps, ...) must be equal; times
-and rates are machine-dependent and not judged. Exit status 0 when every judged number agrees, 1 otherwise, 2 for unusable files."""
+numbers within their seed spread? Rows are matched by their text columns and seed (and their sizes and counts where
+those alone repeat); each quality number of the rerun must lie within the committed run's spread over seeds of the
+same row (max - min of that column over the seeds, or the row's own "<column> seed spread"; at least 1e-4 of the
+value, for deterministic methods whose seeds agree and whose numbers still move with the machine's arithmetic);
+sizes and counts (bytes, steps, ...) must be equal; times and rates are machine-dependent and not judged. Exit status 0 when every judged number agrees, 1 otherwise, 2 for unusable files."""
 from __future__ import annotations
 
 import json
 import re
 import sys
+from collections import Counter
 from pathlib import Path
 
 #: columns that measure the machine, not the method: never judged
@@ -32,10 +33,11 @@ def compare(committed: dict, rerun: dict) -> dict:
         if new is None:
             out["missing"].append(f"table {table['name']!r}")
             continue
-        new_rows = {_key(r): r for r in new["rows"]}
-        spreads = _spreads(table["rows"])
+        repeated = _repeated(table["rows"])
+        new_rows = {_key(r, repeated): r for r in new["rows"]}
+        spreads = _spreads(table["rows"], repeated)
         for row in table["rows"]:
-            key = _key(row)
+            key = _key(row, repeated)
             other = new_rows.get(key)
             if other is None:
                 out["missing"].append(f"{table['name']}: {_label(key)}")
@@ -67,9 +69,18 @@ def _number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _key(row: dict) -> tuple:
-    """A row's identity: its text columns and its seed."""
-    return tuple(sorted((k, v) for k, v in row.items() if isinstance(v, str) or k == "seed"))
+def _key(row: dict, repeated: frozenset = frozenset()) -> tuple:
+    """A row's identity: its text columns and its seed, and its sizes and counts (`EXACT`) where text and seed alone
+    name several rows of the committed table (`_repeated`: the speed suite's rows of one model at three batch
+    sizes)."""
+    key = tuple(sorted((k, v) for k, v in row.items() if isinstance(v, str) or k == "seed"))
+    return key + tuple(sorted((k, v) for k, v in row.items() if k in EXACT)) if key in repeated else key
+
+
+def _repeated(rows: list[dict]) -> frozenset:
+    """The text-and-seed keys that more than one of `rows` has."""
+    counts = Counter(_key(r) for r in rows)
+    return frozenset(k for k, c in counts.items() if c > 1)
 
 
 def _group(key: tuple) -> tuple:
@@ -80,7 +91,7 @@ def _label(key: tuple) -> str:
     return ", ".join(f"{k} {v}" for k, v in key)
 
 
-def _spreads(rows: list[dict]) -> dict:
+def _spreads(rows: list[dict], repeated: frozenset) -> dict:
     """{(group, column): max - min over the group's seeds} for groups with two seeds or more."""
     values: dict = {}
     for row in rows:
@@ -88,7 +99,7 @@ def _spreads(rows: list[dict]) -> dict:
             continue
         for column, v in row.items():
             if _number(v) and column != "seed":
-                values.setdefault((_group(_key(row)), column), {})[row["seed"]] = v
+                values.setdefault((_group(_key(row, repeated)), column), {})[row["seed"]] = v
     return {k: max(v.values()) - min(v.values()) for k, v in values.items() if len(v) >= 2}
 
 

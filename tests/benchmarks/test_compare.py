@@ -35,6 +35,22 @@ def test_a_rerun_within_the_seed_spread_agrees_and_one_outside_is_named():
         ("model m", "log_err mean"), ("model m, seed 0, source a", "log_err"), ("model m, seed 1, source b", "bytes")]
 
 
+def test_rows_that_differ_only_in_size_are_matched_by_it():
+    """The speed suite's rows of one model at three batch sizes: each is compared with its own size's row, not
+    with whichever came last."""
+    rows = [{"material": "m", "seed": 0, "queries": q, "flops/query": 10, "evals/cpu s": 1e6 * q}
+            for q in (1024, 65536, 1048576)]
+    old = {"suite": "speed", "tables": [{"name": "eval", "rows": rows}]}
+    new = copy.deepcopy(old)
+    new["tables"][0]["rows"].reverse()
+    result = compare.compare(old, new)
+    assert result["outside"] == 0 and not result["missing"] and result["checked"] == 3 * 2
+    new["tables"][0]["rows"][0]["flops/query"] = 11     # the 2^20 row's count changed: its row is not reproduced
+    result = compare.compare(old, new)
+    assert result["missing"] == ["eval: material m, seed 0, flops/query 10, queries 1048576"]
+    assert result["checked"] == 2 * 2
+
+
 def test_the_command_reports_and_exits_by_the_result(tmp_path, capsys):
     old, new = tmp_path / "old.json", tmp_path / "new.json"
     old.write_text(json.dumps(_doc()))
