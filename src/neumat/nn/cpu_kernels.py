@@ -300,7 +300,10 @@ def on_huge_pages(t: torch.Tensor) -> torch.Tensor:
     advice = getattr(mmap, "MADV_HUGEPAGE", None)
     if advice is None or nbytes < HUGE_PAGE or t.device.type != "cpu":
         return t
-    region = mmap.mmap(-1, nbytes + HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)  # shared: no THP
+    try:
+        region = mmap.mmap(-1, nbytes + HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)  # shared: no THP
+    except OSError:  # no address space for the map: torch's own memory will do
+        return t
     try:
         region.madvise(advice)
     except OSError:  # a kernel without transparent huge pages
