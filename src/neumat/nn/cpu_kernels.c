@@ -673,54 +673,97 @@ typedef struct {
     const float *origin;
 } Latents;
 
-/* trilinear_flat of one lookup: acc (ds) += the bilinear reads of the two levels around lod (clamped to the
-   pyramid) at uv, blended by (1 - t, t) times scale; float32 step by step as there, without fused multiply-adds */
-__attribute__((optimize("fp-contract=off"), noinline))
-static void atlas_trilinear(const Latents *L, int ds, float u, float v, float lod, float scale, float *acc) {
-    const float top = (float)(L->levels - 1);
-    lod = lod < 0.f ? 0.f : (lod > top ? top : lod);
-    const float lo = floorf(lod), t = lod - lo;
-    const int l0 = (int)lo, l1 = l0 + 1 < L->levels ? l0 + 1 : L->levels - 1;
-    u -= floorf(u);  /* torch.remainder(u, 1) */
-    v -= floorf(v);
-    const float fv = 1.f - v, sx = 2.f / (float)(L->Wa - 1), sy = 2.f / (float)(L->Ha - 1);
-    const float w0 = (1.f - t) * scale, w1 = t * scale;
-    float r[2][64];
-    for (int e = 0; e < 2; ++e) {
-        const int l = e ? l1 : l0;
-        float tx = u * (float)L->size[2 * l] - 0.5f, ty = fv * (float)L->size[2 * l + 1] - 0.5f;
-        float gx = (tx + L->origin[2 * l]) * sx - 1.f, gy = (ty + L->origin[2 * l + 1]) * sy - 1.f;
-        float ix = (gx + 1.f) / 2.f * (float)(L->Wa - 1), iy = (gy + 1.f) / 2.f * (float)(L->Ha - 1);
-        ix = ix < 0.f ? 0.f : (ix > (float)(L->Wa - 1) ? (float)(L->Wa - 1) : ix);
-        iy = iy < 0.f ? 0.f : (iy > (float)(L->Ha - 1) ? (float)(L->Ha - 1) : iy);
-        latent_read(L->atlas, L->Ha, L->Wa, ds, ix, iy, r[e]);
-    }
-    for (int k = 0; k < ds; ++k) acc[k] = acc[k] + (r[0][k] * w0 + r[1][k] * w1);
+/* the clamped texel (ix, iy) in the atlas of level l at (u, fv) (u wrapped into [0, 1), fv = 1 - v wrapped):
+   trilinear_flat's grid, float32 step by step as there */
+static inline __attribute__((always_inline)) void atlas_texel(const Latents *L, int l, float u, float fv, float *ix,
+                                                               float *iy) {
+    const float wa = (float)(L->Wa - 1), ha = (float)(L->Ha - 1), sx = 2.f / wa, sy = 2.f / ha;
+    float tx = u * (float)L->size[2 * l] - 0.5f, ty = fv * (float)L->size[2 * l + 1] - 0.5f;
+    float gx = (tx + L->origin[2 * l]) * sx - 1.f, gy = (ty + L->origin[2 * l + 1]) * sy - 1.f;
+    float x = (gx + 1.f) / 2.f * wa, y = (gy + 1.f) / 2.f * ha;
+    *ix = x < 0.f ? 0.f : (x > wa ? wa : x);
+    *iy = y < 0.f ? 0.f : (y > ha ? ha : y);
 }
 
-/* filter_anisotropic of one lookup at uv with the footprint fp (2 x 2, uv^2) (neumat.nn.latent_texture: probes
-   along the major axis, each a trilinear read of weight 1 / probes); z (ds) */
+/* acc (ds) += w[0] times the atlas's bilinear read at (x[0], y[0]) plus w[1] times its read at (x[1], y[1]).
+   Not inlined into the block's loop: there, the 12-channel reads of the GGX mip-map ran 1.3x slower */
 __attribute__((optimize("fp-contract=off"), noinline))
-static void atlas_anisotropic(const Latents *L, int ds, float u, float v, const float *fp, float *z) {
+static void atlas_blend(const Latents *L, int ds, const float *x, const float *y, const float *w, float *acc) {
+    float r[2][64];
+    for (int e = 0; e < 2; ++e) latent_read(L->atlas, L->Ha, L->Wa, ds, x[e], y[e], r[e]);
+    for (int c = 0; c < ds; ++c) acc[c] = acc[c] + (r[0][c] * w[0] + r[1][c] * w[1]);
+}
+
+/* trilinear_flat of a block of lookups: for each row k with on[k], acc + k ds (ds) += the bilinear reads of the two
+   levels around lod[k] (clamped to the pyramid) at (u[k], v[k]), blended by (1 - t, t) times scale[k]; float32
+   step by step as there, without fused multiply-adds. The coordinates of the whole block first (vectorised: one
+   row at a time they were most of a footprint's cost), then the reads row by row. */
+__attribute__((optimize("fp-contract=off"), noinline))
+static void atlas_trilinear_block(const Latents *L, int ds, const float *u, const float *v, const float *lod,
+                                  const float *scale, const int *on, float *acc) {
+    const float top = (float)(L->levels - 1);
+    float ix[2][BLOCK], iy[2][BLOCK], w[2][BLOCK];
+    for (int k = 0; k < BLOCK; ++k) {
+        const float d = lod[k] < 0.f ? 0.f : (lod[k] > top ? top : lod[k]);
+        const float lo = floorf(d), t = d - lo;
+        const int l0 = (int)lo, l1 = l0 + 1 < L->levels ? l0 + 1 : L->levels - 1;
+        const float uk = u[k] - floorf(u[k]), fv = 1.f - (v[k] - floorf(v[k]));  /* torch.remainder(., 1) */
+        w[0][k] = (1.f - t) * scale[k];
+        w[1][k] = t * scale[k];
+        atlas_texel(L, l0, uk, fv, &ix[0][k], &iy[0][k]);
+        atlas_texel(L, l1, uk, fv, &ix[1][k], &iy[1][k]);
+    }
+    for (int k = 0; k < BLOCK; ++k) {
+        if (!on[k]) continue;
+        const float x[2] = {ix[0][k], ix[1][k]}, y[2] = {iy[0][k], iy[1][k]}, wk[2] = {w[0][k], w[1][k]};
+        atlas_blend(L, ds, x, y, wk, acc + k * ds);
+    }
+}
+
+/* filter_anisotropic of a block's lookups (rows s .. s + BLOCK - 1, past n row s again) at their uv and footprints
+   (2 x 2, uv^2) (neumat.nn.latent_texture: probes along the major axis, each a trilinear read of weight
+   1 / probes); rows: BLOCK x ds. Each row's probe count, lod, spacing and axis first, then probe by probe the
+   block's trilinear reads (each row's probes added in order, as one row at a time) */
+__attribute__((optimize("fp-contract=off"), noinline))
+static void atlas_anisotropic_block(const Latents *L, int ds, long s, long n, float *rows) {
     const float W = (float)L->size[0], H = (float)L->size[1];
-    float a = fp[0] * W * W, b = fp[1] * W * H, c = fp[3] * H * H;  /* the covariance in level-0 texels^2 */
-    float mean = (a + c) / 2.f, diff = (a - c) / 2.f, half = sqrtf(diff * diff + b * b);
-    float theta = 0.5f * atan2f(2.f * b, a - c);
-    float up = mean + half, down = mean - half;
-    float major = sqrtf(up > 0.f ? up : 0.f), minor = sqrtf(down > 0.f ? down : 0.f);
-    minor = minor > 1e-12f ? minor : 1e-12f;
-    float count = ceilf(major / minor);
-    count = count < 1.f ? 1.f : (count > (float)L->max_probes ? (float)L->max_probes : count);
-    float per = major / (float)L->max_probes, sigma = minor > per ? minor : per;
-    float two_sigma = 2.f * sigma;
-    float lod = log2f(two_sigma > 1e-12f ? two_sigma : 1e-12f);
-    float spread = 12.f * (major * major - sigma * sigma), pairs = count * count - 1.f;
-    float spacing = sqrtf((spread > 0.f ? spread : 0.f) / (pairs > 1.f ? pairs : 1.f));
-    float ax = cosf(theta), ay = sinf(theta), weight = 1.f / count, centre = (count - 1.f) / 2.f;
-    for (int k = 0; k < ds; ++k) z[k] = 0.f;
-    for (int p = 0; p < (int)count; ++p) {
-        float offset = ((float)p - centre) * spacing;
-        atlas_trilinear(L, ds, u + offset * ax / W, v + offset * ay / H, lod, weight, z);
+    float u[BLOCK], v[BLOCK], lod[BLOCK], weight[BLOCK], centre[BLOCK], spacing[BLOCK], ax[BLOCK], ay[BLOCK];
+    float pu[BLOCK], pv[BLOCK];
+    int count[BLOCK], on[BLOCK], most = 0;
+    for (int k = 0; k < BLOCK; ++k) {
+        const long row = s + k < n ? s + k : s;
+        const float *fp = L->footprint + 4 * row;
+        float a = fp[0] * W * W, b = fp[1] * W * H, c = fp[3] * H * H;  /* the covariance in level-0 texels^2 */
+        float mean = (a + c) / 2.f, diff = (a - c) / 2.f, half = sqrtf(diff * diff + b * b);
+        float theta = 0.5f * atan2f(2.f * b, a - c);
+        float up = mean + half, down = mean - half;
+        float major = sqrtf(up > 0.f ? up : 0.f), minor = sqrtf(down > 0.f ? down : 0.f);
+        minor = minor > 1e-12f ? minor : 1e-12f;
+        float probes = ceilf(major / minor);
+        probes = probes < 1.f ? 1.f : (probes > (float)L->max_probes ? (float)L->max_probes : probes);
+        float per = major / (float)L->max_probes, sigma = minor > per ? minor : per;
+        float two_sigma = 2.f * sigma;
+        float spread = 12.f * (major * major - sigma * sigma), pairs = probes * probes - 1.f;
+        lod[k] = log2f(two_sigma > 1e-12f ? two_sigma : 1e-12f);
+        spacing[k] = sqrtf((spread > 0.f ? spread : 0.f) / (pairs > 1.f ? pairs : 1.f));
+        ax[k] = cosf(theta);
+        ay[k] = sinf(theta);
+        weight[k] = 1.f / probes;
+        centre[k] = (probes - 1.f) / 2.f;
+        count[k] = (int)probes;
+        most = count[k] > most ? count[k] : most;
+        u[k] = L->uv[2 * row];
+        v[k] = L->uv[2 * row + 1];
+    }
+    memset(rows, 0, sizeof(float) * BLOCK * ds);
+    for (int p = 0; p < most; ++p) {
+        for (int k = 0; k < BLOCK; ++k) {
+            float offset = ((float)p - centre[k]) * spacing[k];
+            pu[k] = u[k] + offset * ax[k] / W;
+            pv[k] = v[k] + offset * ay[k] / H;
+            on[k] = p < count[k];
+        }
+        atlas_trilinear_block(L, ds, pu, pv, lod, weight, on, rows);
     }
 }
 
@@ -728,16 +771,23 @@ static void atlas_anisotropic(const Latents *L, int ds, float u, float v, const 
 static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
     float lx[BLOCK], ly[BLOCK], rows[64 * BLOCK];  /* the block's latents row by row, then transposed into zt */
     if (L->mode == 1) latent_texels(L->uv, s, n, L->h, L->w, lx, ly);
-    for (int k = 0; k < BLOCK; ++k) {
-        long row = s + k < n ? s + k : s;
-        float *zr = rows + k * ds;
-        if (L->mode == 0) memcpy(zr, L->z + row * ds, ds * sizeof(float));
-        else if (L->mode == 1) latent_read(L->finest, L->h + 2, L->w + 2, ds, lx[k], ly[k], zr);
-        else if (L->mode == 2) {
-            for (int i = 0; i < ds; ++i) zr[i] = 0.f;
-            atlas_trilinear(L, ds, L->uv[2 * row], L->uv[2 * row + 1], L->lod[row], 1.f, zr);
-        } else atlas_anisotropic(L, ds, L->uv[2 * row], L->uv[2 * row + 1], L->footprint + 4 * row, zr);
-    }
+    if (L->mode == 2) {
+        float u[BLOCK], v[BLOCK], lod[BLOCK], one[BLOCK];
+        int on[BLOCK];
+        for (int k = 0; k < BLOCK; ++k) {
+            const long row = s + k < n ? s + k : s;
+            u[k] = L->uv[2 * row]; v[k] = L->uv[2 * row + 1]; lod[k] = L->lod[row]; one[k] = 1.f; on[k] = 1;
+        }
+        memset(rows, 0, sizeof(float) * BLOCK * ds);
+        atlas_trilinear_block(L, ds, u, v, lod, one, on, rows);
+    } else if (L->mode == 3) atlas_anisotropic_block(L, ds, s, n, rows);
+    else
+        for (int k = 0; k < BLOCK; ++k) {
+            long row = s + k < n ? s + k : s;
+            float *zr = rows + k * ds;
+            if (L->mode == 0) memcpy(zr, L->z + row * ds, ds * sizeof(float));
+            else latent_read(L->finest, L->h + 2, L->w + 2, ds, lx[k], ly[k], zr);
+        }
     transpose_rows(rows, ds, zt);
 }
 
