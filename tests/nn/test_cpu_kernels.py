@@ -436,9 +436,10 @@ def test_on_huge_pages_copies_values_into_memory_aligned_to_a_huge_page():
 
 @needs_kernels
 @pytest.mark.parametrize("name", ["multiscale", "neumip-offset"])
-@pytest.mark.parametrize("mode", ["none", "lod"])
+@pytest.mark.parametrize("mode", ["none", "lod", "footprint"])
 def test_kernels_read_latents_of_a_1k_texture_on_huge_pages_as_torch_does(name, mode):
-    """At 1024^2 texels (32 MB a latent: the tables move to huge pages) the kernel still reads what torch reads."""
+    """At 1024^2 texels (32 MB a latent: the tables move to huge pages) the kernel still reads what torch reads;
+    the footprints there span up to some 100 texels, so rows of one block take from 1 to every probe."""
     from neumat.models.registry import model_class
 
     torch.manual_seed(0)
