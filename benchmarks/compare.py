@@ -3,7 +3,8 @@ numbers within their seed spread? Rows are matched by their text columns and see
 those alone repeat); each quality number of the rerun must lie within the committed run's spread over seeds of the
 same row (max - min of that column over the seeds, or the row's own "<column> seed spread"; at least 1e-4 of the
 value, for deterministic methods whose seeds agree and whose numbers still move with the machine's arithmetic);
-sizes and counts (bytes, steps, ...) must be equal; times and rates are machine-dependent and not judged. Exit status 0 when every judged number agrees, 1 otherwise, 2 for unusable files."""
+sizes and counts (bytes, steps, ...) must be equal; times and rates are machine-dependent and not judged. Exit
+status 0 when every judged number agrees, 1 otherwise, 2 for unusable files."""
 from __future__ import annotations
 
 import json

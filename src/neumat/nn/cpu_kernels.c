@@ -643,6 +643,19 @@ static void warp_block(float *r, const float *p, int terms) {
     memcpy(r, out, sizeof out);
 }
 
+/* the block's uv (rows s .. s + BLOCK - 1 of uv (n x 2); past n, row s again) as u and v (BLOCK each), so that the
+   loops over them vectorise (a gather of the clamped row index keeps GCC's loop scalar); a whole block's rows in
+   a loop of constant stride */
+static inline void block_uv(const float *uv, long s, long n, float *u, float *v) {
+    if (s + BLOCK <= n)
+        for (int k = 0; k < BLOCK; ++k) { u[k] = uv[2 * (s + k)]; v[k] = uv[2 * (s + k) + 1]; }
+    else
+        for (int k = 0; k < BLOCK; ++k) {
+            const long row = s + k < n ? s + k : s;
+            u[k] = uv[2 * row]; v[k] = uv[2 * row + 1];
+        }
+}
+
 /* texel coordinates (ix, iy) (BLOCK each) of uv (rows s .. s + BLOCK - 1; past n, row s again) in a latent texture
    of h x w texels padded circularly by one: neumat.nn.latent_texture.bilinear_padded's grid, unnormalised and
    clamped as grid_sample's border padding does, float32 step by step as there, without fused multiply-adds (a
@@ -652,14 +665,8 @@ __attribute__((optimize("fp-contract=off"), noinline))
 static void latent_texels(const float *uv, long s, long n, int h, int w, float *ix, float *iy) {
     const float sx = (float)(2.0 / (double)(w + 1)), sy = (float)(2.0 / (double)(h + 1));
     const float wx = (float)(w + 1), wy = (float)(h + 1);
-    float us[BLOCK], vs[BLOCK];  /* the block's uv, gathered first so that the loop below vectorises */
-    if (s + BLOCK <= n)
-        for (int k = 0; k < BLOCK; ++k) { us[k] = uv[2 * (s + k)]; vs[k] = uv[2 * (s + k) + 1]; }
-    else
-        for (int k = 0; k < BLOCK; ++k) {
-            long row = s + k < n ? s + k : s;
-            us[k] = uv[2 * row]; vs[k] = uv[2 * row + 1];
-        }
+    float us[BLOCK], vs[BLOCK];
+    block_uv(uv, s, n, us, vs);
     for (int k = 0; k < BLOCK; ++k) {
         float u = us[k], v = vs[k];
         u -= floorf(u);  /* torch.remainder(u, 1): fmod (exact), + 1 below 0 (one rounding, as here) */
@@ -748,10 +755,10 @@ static void atlas_anisotropic_block(const Latents *L, int ds, long s, long n, fl
     float pu[BLOCK], pv[BLOCK];
     float f0[BLOCK], f1[BLOCK], f3[BLOCK];  /* the block's footprints (uv^2), gathered so that the loop vectorises */
     int count[BLOCK], on[BLOCK], most = 0;
+    block_uv(L->uv, s, n, u, v);
     for (int k = 0; k < BLOCK; ++k) {
         const long row = s + k < n ? s + k : s;
         f0[k] = L->footprint[4 * row]; f1[k] = L->footprint[4 * row + 1]; f3[k] = L->footprint[4 * row + 3];
-        u[k] = L->uv[2 * row]; v[k] = L->uv[2 * row + 1];
     }
     for (int k = 0; k < BLOCK; ++k) {
         float a = f0[k] * W * W, b = f1[k] * W * H, c = f3[k] * H * H;  /* the covariance in level-0 texels^2 */
@@ -793,9 +800,9 @@ static void latents_block(const Latents *L, long s, long n, int ds, float *zt) {
     if (L->mode == 2) {
         float u[BLOCK], v[BLOCK], lod[BLOCK], one[BLOCK];
         int on[BLOCK];
+        block_uv(L->uv, s, n, u, v);
         for (int k = 0; k < BLOCK; ++k) {
-            const long row = s + k < n ? s + k : s;
-            u[k] = L->uv[2 * row]; v[k] = L->uv[2 * row + 1]; lod[k] = L->lod[row]; one[k] = 1.f; on[k] = 1;
+            lod[k] = L->lod[s + k < n ? s + k : s]; one[k] = 1.f; on[k] = 1;
         }
         memset(rows, 0, sizeof(float) * BLOCK * ds);
         atlas_trilinear_block(L, ds, u, v, lod, one, on, rows);

@@ -292,9 +292,9 @@ HUGE_PAGE = 1 << 21
 def on_huge_pages(t: torch.Tensor) -> torch.Tensor:
     """t's values (CPU), contiguous, in memory the kernel is asked to back with huge pages (Linux transparent huge
     pages: madvise(MADV_HUGEPAGE) on a private anonymous map aligned to 2 MB); t contiguous where t is under 2 MB
-    or the system offers no such advice or map. Why: the latent textures the kernels read at random uv (a 1K latent is 32 MB)
-    otherwise cost a TLB miss per texel on 4 KB pages (issue 49: the latent models' evaluation 1.1-1.35x at random
-    uv; measurements in neumat/methods/latent_mlp/NOTES.md)."""
+    or the system offers no such advice or map. Why: the latent textures the kernels read at random uv (a 1K
+    latent is 32 MB) otherwise cost a TLB miss per texel on 4 KB pages (issue 49: the latent models' evaluation
+    1.1-1.35x at random uv; measurements in neumat/methods/latent_mlp/NOTES.md)."""
     t = t.detach().contiguous()
     nbytes = t.numel() * t.element_size()
     advice = getattr(mmap, "MADV_HUGEPAGE", None)
