@@ -184,6 +184,18 @@ def test_nmat_round_trip_is_bit_identical(name, tmp_path):
         assert torch.equal(model.eval(q), loaded.eval(q))
 
 
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_module_itself_pickles(name, tmp_path):
+    """`torch.save` of the module (what multiprocessing and users' own checkpoints do), not only its state: it
+    loads back and evaluates bit for bit (a lambda among its hooks made NeuBRDF's fail)."""
+    model = _model(name)
+    torch.save(model, tmp_path / "model.pt")
+    loaded = torch.load(tmp_path / "model.pt", weights_only=False)
+    q = _queries(model)
+    with torch.no_grad():
+        assert torch.equal(model.eval(q), loaded.eval(q))
+
 def _python_source(kind: str, args: list[str]):
     """The in-process source of `kind` that the command-line arguments `args` (from `_sources`) name."""
     if kind == "translucent":

@@ -156,6 +156,12 @@ class NeuralTexture(nn.Module):
         return sum(p.numel() for p in self.levels)
 
 
+def _after_load(module: "NeuBRDF", keys) -> None:
+    """`load_state_dict`'s post-hook: the pruning levels follow the loaded grids (a function, not a lambda, so that
+    a model pickles)."""
+    module._update_pruning()
+
+
 class NeuBRDF(LearnedMaterial):
     """NeuBRDF material model (see module docstring).
 
@@ -201,7 +207,7 @@ class NeuBRDF(LearnedMaterial):
         # (lookup level S+, S-, coarse training levels S+, S-) per pixel of pruned grids (`prune`), else None
         self._pruning: tuple[torch.Tensor, ...] | None = None
         self._training_steps = False  # set by `on_step` (the trainer), cleared by `train`
-        self.register_load_state_dict_post_hook(lambda module, keys: module._update_pruning())
+        self.register_load_state_dict_post_hook(_after_load)
         self.register_state_dict_post_hook(shipped_state)
         self.register_load_state_dict_pre_hook(unpack_levels)
         self.register_load_state_dict_pre_hook(regridded_state)

@@ -112,6 +112,12 @@ class MaterialQuery(Query):
         return self._map(lambda name, t: t.to(device=device) if name == "material" else t.to(device, dtype))
 
 
+def _after_load(module: "SharedNeuBRDF", keys) -> None:
+    """`load_state_dict`'s post-hook: the loaded pruning levels are checked (a function, not a lambda, so that a
+    model pickles)."""
+    module._check_levels()
+
+
 class SharedNeuBRDF(LearnedMaterial):
     """t NeuBRDF materials with one shared MLP and codebook and one index grid each.
 
@@ -138,7 +144,7 @@ class SharedNeuBRDF(LearnedMaterial):
                        cfg.activation)
         self.register_buffer("level_i", torch.zeros(t, 12 * n * n, dtype=torch.int8))
         self.register_buffer("level_o", torch.zeros(t, 12 * n * n, dtype=torch.int8))
-        self.register_load_state_dict_post_hook(lambda module, keys: module._check_levels())
+        self.register_load_state_dict_post_hook(_after_load)
         self.register_buffer("vertex_dirs", hpx.vertex2vec(n, torch.arange(hpx.nvertices(n)), torch.float32),
                              persistent=False)
         self.active = 0
