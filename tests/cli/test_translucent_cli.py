@@ -154,7 +154,8 @@ def test_trace_scene_options_and_noise_floor(tmp_path):
     assert cfg["sampler"] == "orthogonal" and cfg["interior_emitter_sampling"] is False
     noise = source["noise"]
     assert 0 < noise["observations"] <= 16 and noise["variance"] > 0 and noise["relative"] > 0
-    assert "noisefloor" in _said(r)
+    assert "noisefloor" in _said(r) and "CPUmin" in _said(r)
+    assert source["trace_cpu_seconds"] >= 0  # recorded with the observations
     r = _run("trace", "-o", tmp_path / "p.npz", "--images", 1, "--resolution", 4, "--spp", 1, "-q",
              "--inner", '[{"scale": 0.3, "albedo": [0, 0, 0]}]', "--noise-check", 0,
              "--checkpoint", tmp_path / "p.ckpt", "--resume")  # no checkpoint yet: a trace from the start

@@ -1,4 +1,6 @@
 """Observations of a path-traced translucent object: geometry of the views, values, file round trip."""
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -81,7 +83,9 @@ def test_a_cut_off_trace_resumes_to_the_uninterrupted_result(tmp_path):
     broken file, is refused with a line naming it."""
     mitsuba_or_skip()
     from neumat.reflectance.translucent import TranslucentObject
-    whole = collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=6, seed=1)
+    uninterrupted = TranslucentObject(spp=2, seed=3)
+    whole = collect_observations(uninterrupted, images=5, resolution=6, seed=1)
+    assert uninterrupted.trace_cpu_seconds > 0  # what the observations cost, counted by `trace`
     ckpt = tmp_path / "trace.ckpt"
     cut = TranslucentObject(spp=2, seed=3)
     calls, real = [], cut.trace
@@ -98,8 +102,16 @@ def test_a_cut_off_trace_resumes_to_the_uninterrupted_result(tmp_path):
     with pytest.raises(InputError, match="another trace.*resolution"):
         collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=7, seed=1, checkpoint=ckpt,
                              resume=True)
-    resumed = collect_observations(TranslucentObject(spp=2, seed=3), images=5, resolution=6, seed=1, checkpoint=ckpt,
-                                   resume=True)
+    stale = tmp_path / "stale.ckpt"  # a checkpoint written before it recorded CPU seconds
+    blob = torch.load(ckpt, weights_only=True)
+    blob.pop("cpu_seconds")
+    torch.save(blob, stale)
+    old = TranslucentObject(spp=2, seed=3)
+    collect_observations(old, images=5, resolution=6, seed=1, checkpoint=stale, resume=True)
+    assert math.isnan(old.trace_cpu_seconds)  # unknown, not an undercount
+    again = TranslucentObject(spp=2, seed=3)
+    resumed = collect_observations(again, images=5, resolution=6, seed=1, checkpoint=ckpt, resume=True)
+    assert again.trace_cpu_seconds > cut.trace_cpu_seconds > 0  # the cut trace's CPU carried over
     assert not ckpt.exists()
     for name in ("x", "n", "wo", "wi", "value"):
         assert torch.equal(getattr(resumed, name), getattr(whole, name)), name

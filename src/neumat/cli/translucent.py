@@ -1,6 +1,7 @@
 """`neumat translucent trace | fit | render`: NeuPreSS on a path-traced translucent object (Mitsuba 3)."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -115,8 +116,10 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
         sizes = {} if resolution is None else {"resolution": resolution}
         obs = collect_observations(obj, images, seed=seed, progress=not quiet, checkpoint=checkpoint, resume=resume,
                                    **sizes)
+        cpu = obj.trace_cpu_seconds  # the observations' (the noise check's traces come after)
         source = {"object": config_to_dict(cfg), "spp": spp, "seed": seed,
-                  "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()]}
+                  "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()],
+                  **({} if math.isnan(cpu) else {"trace_cpu_seconds": round(cpu, 1)})}
         if noise_check:
             source["noise"] = noise = observation_noise(obj, obs, noise_check, seed)
             share = ("" if noise["relative"] is None else
@@ -125,7 +128,9 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
             print(f"noise floor: an observation's Monte Carlo variance at {spp} spp is {noise['variance']:.3g}{share}; "
                   f"{noise['observations']} observations traced twice")
         obs.save(out, source=source)
-        print(f"wrote {out}: {len(obs)} observations x {spp} paths ({obj.describe()})")
+        spent = ("CPU time unknown: resumed from a checkpoint that did not record it" if math.isnan(cpu) else
+                 f"traced in {cpu / 60:.1f} CPU min")
+        print(f"wrote {out}: {len(obs)} observations x {spp} paths ({obj.describe()}); {spent}")
     run_command(go)
 
 

@@ -134,7 +134,8 @@ class Observations:
 
 #: the fields of an observations file's `source` (`neumat translucent trace`) but "object" (a TranslucentConfig)
 #: and "bbox" (the box [[lo], [hi]]), and their kinds (`neumat.io.tagged_file.FIELD_KINDS`)
-SOURCE_FIELDS = {"spp": "a positive integer", "seed": "a non-negative integer", "noise": "a JSON object"}
+SOURCE_FIELDS = {"spp": "a positive integer", "seed": "a non-negative integer", "noise": "a JSON object",
+                 "trace_cpu_seconds": "a finite number"}
 
 
 def _check_source(source, where: str) -> None:
@@ -207,7 +208,8 @@ def collect_observations(obj: TranslucentObject, images: int, resolution: int = 
 
     checkpoint: a file written every `checkpoint_every_s` seconds of tracing with the views done so far and the
     random state (a trace of the paper's size takes an hour or more); with `resume` an existing one is continued,
-    and the result is the one an uninterrupted trace gives. The file is removed when the trace ends."""
+    and the result is the one an uninterrupted trace gives. The file is removed when the trace ends. What the
+    trace cost is in `obj.trace_cpu_seconds` (a resumed trace's earlier sittings included)."""
     for name, v in (("images", images), ("resolution", resolution)):
         check_int(v, f"collect_observations {name}")
     if resume and checkpoint is None:
@@ -253,6 +255,7 @@ def _save_trace(path, key: dict, views: int, gen: torch.Generator, obj: Transluc
         if len(ts) > 1:
             parts[name] = [torch.cat(ts)]
     blob = {"trace": key, "views": views, "generator": gen.get_state(), "calls": obj.trace_calls,
+            "cpu_seconds": obj.trace_cpu_seconds,
             "parts": {name: ts[0] if ts else torch.zeros(0, 3) for name, ts in parts.items()}}
     atomic_write(path, lambda tmp: torch.save(blob, tmp))
 
@@ -272,6 +275,7 @@ def _resume_trace(path, key: dict, gen: torch.Generator, obj: TranslucentObject,
                          f"{', '.join(diff)}); trace with the same options or start a new checkpoint")
     gen.set_state(blob["generator"])
     obj.trace_calls = int(blob["calls"])
+    obj.trace_cpu_seconds = float(blob.get("cpu_seconds", float("nan")))  # checkpoints before it: unknown
     for name, t in blob["parts"].items():
         if len(t):
             parts[name].append(t)

@@ -12,6 +12,7 @@ Details: docs/notes/reflectance.md, section `neumat.reflectance.translucent`.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -150,6 +151,9 @@ class TranslucentObject(Material):
         self.spp, self.seed = spp, int(seed)
         #: trace calls so far: each draws fresh random numbers seeded by (seed, this count); a resumed trace sets it
         self.trace_calls = 0
+        #: CPU seconds of this process (all its threads, Mitsuba's included) spent in `trace` so far: what traced
+        #: observations cost; a resumed trace restores it (NaN where its checkpoint did not record it)
+        self.trace_cpu_seconds = 0.0
         self.mi = mi = import_mitsuba()
         shape = _shape_dict(config)
         probe = mi.load_dict({"type": "scene", "shape": shape})
@@ -268,6 +272,7 @@ class TranslucentObject(Material):
         _check_spp(self.config, spp)
         if seed is not None:
             check_int(seed, "trace seed", 0)
+        started = time.process_time()
         self._set_light(light)
         n = o.shape[0]
         rays_per_call = max(1, WAVEFRONT // spp)
@@ -279,6 +284,7 @@ class TranslucentObject(Material):
             call = self._next_seed() if seed is None else call_seed(seed, start)
             diff = self._radiance("medium", oo, dd, call, spp=spp) - self._radiance("black", oo, dd, call, spp=spp)
             out[sl] = diff.reshape(-1, spp, 3).mean(1)
+        self.trace_cpu_seconds += time.process_time() - started
         # not clamped: the difference is unbiased but one ray's mean can be negative (on a concave object a path
         # that reflects off the surface and meets it again diverges between the two traces); clamping would bias it
         return out
