@@ -142,6 +142,7 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                     "--checkpoint", str(npz.with_suffix(".trace-checkpoint")), "--resume", "-o"]
             _kept(npz, lambda out, args=args: cli([*args, str(out)]))
         scorer = _Scorer(folder, train, test, light, setup)
+        traced = Observations.load_source(train).get("trace_cpu_seconds")  # absent from traces made before it
         rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
         for seed in seeds:
             for model in MODELS:  # the preset's content in the name: a changed default fits again
@@ -151,13 +152,16 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                                              "--seed", str(seed), "--threads", str(run.threads), "-q",
                                              "--checkpoint", str(nmat.with_suffix(".checkpoint")), "--resume",
                                              "-o", str(out)]))
-                rows.append({"model": model, "seed": seed, **scorer.model(nmat)})
+                rows.append({"model": model, "seed": seed, **scorer.model(nmat),
+                             "trace CPU min": None if traced is None else traced / 60})
     run.protocol[name] = (f"the full appearance (surface reflection + subsurface + background) at "
                           f"{setup['resolution']}^2, {setup['spp']} spp MIS, against a {setup['reference_spp']}-"
                           "spp Mitsuba reference, ACES tone map; object FLIP over the object's pixels; the "
                           "floor row is a second reference (another seed) scored the same way; held-out: mean "
                           "and median squared error over the held-out values' variance (its mean is carried by "
-                          "a few observations, so the median ranks)")
+                          "a few observations, so the median ranks); the budget: 'trace CPU min' the training "
+                          "trace's CPU (all threads, as `neumat translucent trace` records it), 'fit CPU min' the "
+                          "fit's (as `neumat fit` records it in the model file)")
     run.table(name, title, rows)
 
 
@@ -213,6 +217,7 @@ class _Scorer:
 
     def model(self, nmat: Path) -> dict:
         from neumat.catalog.modelfile import load_model
+        from neumat.io.modelfile import read_header
         from neumat.render.translucent import render_translucent
 
         model = load_model(nmat, device="cpu")
@@ -223,8 +228,9 @@ class _Scorer:
         err = ((pred.double() - t.value.double()) ** 2).mean(-1) / t.value.double().var(0).mean()
         image = render_translucent(model, self.obj, self.env, self.camera, self.setup["resolution"],
                                    spp=self.setup["spp"], seed=0, appearance="full")
+        fit_cpu = read_header(nmat)["metrics"].get("fit_cpu_seconds")  # absent from fits made before it
         return {"held-out mean": err.mean(), "held-out median": err.median(), **self._image(image),
-                "bytes": model.size_bytes()}
+                "bytes": model.size_bytes(), "fit CPU min": None if fit_cpu is None else fit_cpu / 60}
 
     def _image(self, image: torch.Tensor) -> dict:
         from neumat.render.translucent import image_scores

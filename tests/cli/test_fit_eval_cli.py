@@ -41,6 +41,7 @@ def test_fit_writes_a_model_with_overrides_applied(app, teacher, tmp_path):
     assert h["config"]["nside"] == 2 and h["config"]["hidden"] == 8
     assert h["recipe"]["batch_size"] == 256 and h["recipe"]["steps"] == 10 and h["recipe"]["seed"] == 3
     assert h["source"]["name"] == "teacher.nmat" and h["metrics"]["final_loss"] > 0
+    assert h["metrics"]["fit_cpu_seconds"] > 0 and "CPU s" in res.stdout  # what the fit cost, recorded and said
     assert isinstance(load_model(out), NeuBRDF)
 
 

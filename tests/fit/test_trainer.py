@@ -102,8 +102,10 @@ def test_resume_equals_uninterrupted_run(tmp_path):
     ckpt = tmp_path / "fit.ckpt"
     with pytest.raises(Interrupt):
         _small_fit(checkpoint=ckpt, callback=stop_at_6)
-    assert torch.load(ckpt, weights_only=True)["step"] == 6
+    blob = torch.load(ckpt, weights_only=True)
+    assert blob["step"] == 6 and blob["cpu_seconds"] > 0
     model, res = _small_fit(checkpoint=ckpt, resume=True)
+    assert ref.cpu_seconds > 0 and res.cpu_seconds > blob["cpu_seconds"]  # the cut run's CPU seconds carried over
     ref_state, state = ref_model.state_dict(), model.state_dict()
     assert ref_state.keys() == state.keys()
     for k in ref_state:
@@ -113,6 +115,10 @@ def test_resume_equals_uninterrupted_run(tmp_path):
     # a finished checkpoint resumes to the same result without training further
     again, res2 = _small_fit(checkpoint=ckpt, resume=True)
     assert all(torch.equal(again.state_dict()[k], state[k]) for k in state)
+    blob = torch.load(ckpt, weights_only=True)  # one written before CPU seconds were recorded: unknown
+    del blob["cpu_seconds"]
+    torch.save(blob, ckpt)
+    assert math.isnan(_small_fit(checkpoint=ckpt, resume=True)[1].cpu_seconds)
 
 
 def test_resume_with_other_recipe_or_bad_file_raises(tmp_path):

@@ -1,6 +1,7 @@
 """`neumat fit` and `neumat eval`."""
 from __future__ import annotations
 
+import math
 import sys
 import time
 import warnings
@@ -101,14 +102,16 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
     for text in result.warnings:
         print(f"warning: {text}", file=sys.stderr)
     last = result.history[-1] if result.history else {}
-    metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds}
+    cpu = None if math.isnan(result.cpu_seconds) else result.cpu_seconds  # unknown after an old checkpoint
+    metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds, "fit_cpu_seconds": cpu}
     report = method_for(model).report
     extra, row = report(result.model, src, result) if report is not None else ({}, {})
     metrics.update(extra)
     shipped = result.model.runtime()
     save_model(shipped, out, recipe=result.recipe, source=sources[0] if len(sources) == 1 else sources,
                metrics=metrics, preset={"name": resolved.preset, "overrides": resolved.applied})
-    print(f"wrote {out} ({model}, preset {resolved.preset}, {result.steps} steps, {result.seconds:.1f} s, final "
+    spent = f"{result.seconds:.1f} s" + ("" if cpu is None else f", {cpu:.1f} CPU s")
+    print(f"wrote {out} ({model}, preset {resolved.preset}, {result.steps} steps, {spent}, final "
           f"loss {metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} "
           "bytes stored at fp16)")
     if row:

@@ -43,13 +43,15 @@ class FitResult:
     "loss_median" the median of those steps' losses), with "rollback": the
     step whose state was restored, when the fit rolled back since the last record (`neumat.fit.rollback`).
     seconds: training time (summed over resumed runs). steps: steps taken in total. recipe: the recipe run
-    (with the steps actually taken)."""
+    (with the steps actually taken). cpu_seconds: this process's CPU seconds over the fit, all its threads (summed
+    over resumed runs; NaN when a checkpoint written before they were recorded was resumed): what the fit cost."""
 
     model: nn.Module
     history: list[dict]
     seconds: float
     steps: int
     recipe: Recipe | None = None
+    cpu_seconds: float = math.nan
     warnings: list[str] = field(default_factory=list)
     """What went wrong without stopping the fit: a phase that ended far above its best loss after its warm-up
     (`ENDS_ABOVE_BEST`, `WARMUP_FRACTION`), a loss spike (`SPIKE`), an output that collapsed (`COLLAPSED`)."""
@@ -97,13 +99,15 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     except UnknownNameError:  # a model without a method, fitted with an explicit recipe
         build = None
     started = time.perf_counter()  # the fit's seconds include the phase builder's own work (e.g. GGX's trial starts)
+    cpu_started = time.process_time()
     phases = build(ctx) if build is not None else [online_phase(ctx)]
     ema = EMA(model, recipe.ema) if recipe.ema > 0 else None
-    state = {"step": 0, "history": [], "seconds": 0.0, "running": {}, "optimizer": None, "guard": {}}
+    state = {"step": 0, "history": [], "seconds": 0.0, "cpu_seconds": 0.0, "running": {}, "optimizer": None,
+             "guard": {}}
     if resuming:
         state = _load_checkpoint(checkpoint, recipe, model, ema, phases, gen, source)
     total = sum(p.steps for p in phases)
-    t0 = started - state["seconds"]
+    t0, cpu0 = started - state["seconds"], cpu_started - state["cpu_seconds"]
     with _Progress(progress, total, state["step"], name) as bar:
         guard = NonFiniteGuard(model, ema, name, state.pop("guard"), report=bar.note)
         begin = 0
@@ -180,7 +184,8 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                     state["history"].append(record)
                     bar.show(record, total)
                 if checkpoint is not None and (done % recipe.checkpoint_every == 0 or done == end):
-                    state.update(step=done, seconds=time.perf_counter() - t0, running=running,
+                    state.update(step=done, seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - cpu0,
+                                 running=running,
                                  optimizer=opt.state_dict() if opt is not None and done < end else None)
                     _save_checkpoint(checkpoint, recipe, model, ema, phases, gen, source,
                                      state | guard.checkpoint_state(done))
@@ -189,7 +194,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
             state["step"] = end
             state["running"] = {}
             begin = end
-    seconds = time.perf_counter() - t0
+    seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - cpu0
     if ema is not None:
         model.load_state_dict(ema.state_dict())
     model.train(False)
@@ -198,7 +203,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     for text in problems:
         warnings.warn(text, FitWarning, stacklevel=2)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
-                     recipe=replace(recipe, steps=total), warnings=problems)
+                     recipe=replace(recipe, steps=total), warnings=problems, cpu_seconds=cpu_seconds)
 
 
 #: a phase whose last recorded loss is this many times its lowest says so: fits that blew up used to end silently.
@@ -414,6 +419,7 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
     if "cuda" in rng and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(rng["cuda"])
     state = {k: blob[k] for k in ("step", "history", "seconds", "running", "optimizer")}
+    state["cpu_seconds"] = float(blob.get("cpu_seconds", math.nan))  # checkpoints before it: unknown
     return state | {"guard": {k: blob[k] for k in CHECKPOINT_KEYS if k in blob}}
 
 
