@@ -173,6 +173,22 @@ def test_sampler_kl_recovers_the_lobe_width():
         assert float(at) < float(sampler_kl(m, obs.x[:16], obs.wo[:16], obs.n[:16], grid))
 
 
+def test_sampler_kl_is_the_same_whatever_rows_its_target_takes_at_once(monkeypatch):
+    """The frozen appearance module's target is evaluated in chunks of TARGET_ROWS rows: chunks that do not divide
+    the points x bins give the one-call value (float32 rounding apart)."""
+    from neumat.methods.neupress import targets
+    torch.manual_seed(0)
+    m = NeuPreSS(**SMALL)
+    obs = _synthetic(64)
+    grid = light_grid(8, 16)
+    with torch.no_grad():
+        monkeypatch.setattr(targets, "TARGET_ROWS", 10 ** 6)
+        whole = sampler_kl(m, obs.x[:7], obs.wo[:7], obs.n[:7], grid)
+        monkeypatch.setattr(targets, "TARGET_ROWS", 100)  # 7 x 128 rows: 9 chunks, the last of 96
+        torch.testing.assert_close(sampler_kl(m, obs.x[:7], obs.wo[:7], obs.n[:7], grid), whole, rtol=1e-5, atol=0)
+    assert float(whole) > 0
+
+
 def test_light_grid_covers_the_sphere():
     w, area = light_grid(32, 64, dtype=torch.float64)
     assert w.shape == (2048, 3) and abs(float(area.sum()) - 4 * math.pi) < 1e-12

@@ -30,6 +30,11 @@ def light_grid(n_theta: int, n_phi: int, dtype=torch.float32) -> tuple[torch.Ten
     return w.to(dtype), band.repeat_interleave(n_phi).to(dtype)
 
 
+#: rows of the frozen appearance module evaluated at once for the KL's target, so that its layers' activations stay
+#: in cache (about half the sampler phase's time: NOTES.md, `neumat.methods.neupress.train`)
+TARGET_ROWS = 4096
+
+
 def sampler_kl(model: NeuPreSS, x: torch.Tensor, wo: torch.Tensor, n: torch.Tensor,
                grid: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
     """Mean over the B points (x, wo, n) (B, 3) of KL(target || lobe) on the light-direction bins `grid`:
@@ -38,7 +43,9 @@ def sampler_kl(model: NeuPreSS, x: torch.Tensor, wo: torch.Tensor, n: torch.Tens
     w, area = grid
     b, k = x.shape[0], w.shape[0]
     with torch.no_grad():
-        f = model.raw(w.repeat(b, 1), x.repeat_interleave(k, 0), wo.repeat_interleave(k, 0))
+        wi, xs, wos = w.repeat(b, 1), x.repeat_interleave(k, 0), wo.repeat_interleave(k, 0)
+        f = torch.cat([model.raw(wi[i:i + TARGET_ROWS], xs[i:i + TARGET_ROWS], wos[i:i + TARGET_ROWS])
+                       for i in range(0, len(wi), TARGET_ROWS)])
         target = f.clamp(min=0).mean(-1).reshape(b, k) * area
         keep = target.sum(-1) > 0
         target = target / target.sum(-1, keepdim=True).clamp(min=1e-30)
