@@ -68,7 +68,7 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
           images: int = typer.Option(8000, min=1, help="views, each with its own light direction (the default: "
                                                        "with NeuPreSS's default fit, object-pixel FLIP 0.098 / 0.112 "
                                                        "on the bunny and 0.094 on the kitten against 0.112-0.114 and "
-                                                       "0.113 at 4000 views; ~60 CPU min there)"),
+                                                       "0.113 at 4000 views; 47-60 CPU min there on the bunny)"),
           resolution: int = typer.Option(None, min=1, help="rays per side of each view (default: "
                                                            "collect_observations')"),
           spp: int = typer.Option(256, min=1, help="paths per ray (the default: the best image per CPU second "
