@@ -14,7 +14,8 @@ from collections import Counter
 from pathlib import Path
 
 #: columns that measure the machine, not the method: never judged
-MACHINE = re.compile(r"(^fit s$|second|/s\b|/cpu s|/wall s|us/|wall|gflop|% sgemm|x ggx|x torch|x runtime|^time)", re.I)
+MACHINE = re.compile(r"(^fit s$|second|/s\b|/cpu s|\bcpu min\b|/wall s|us/|wall|gflop|% sgemm|x ggx|x torch|x runtime|^time)",
+                     re.I)
 #: the least tolerance, relative to the committed value (module docstring)
 FLOOR = 1e-4
 #: columns that must be equal in a rerun (sizes and counts)

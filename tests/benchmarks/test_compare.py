@@ -9,10 +9,10 @@ from benchmarks.__main__ import main
 
 
 def _doc() -> dict:
-    rows = [{"source": "a", "model": "m", "seed": 0, "log_err": 0.10, "bytes": 100, "fit s": 5.0},
-            {"source": "a", "model": "m", "seed": 1, "log_err": 0.12, "bytes": 100, "fit s": 6.0},
-            {"source": "b", "model": "m", "seed": 0, "log_err": 0.30, "bytes": 100, "fit s": 5.0},
-            {"source": "b", "model": "m", "seed": 1, "log_err": 0.30, "bytes": 100, "fit s": 5.0}]
+    rows = [{"source": "a", "model": "m", "seed": 0, "log_err": 0.10, "bytes": 100, "fit s": 5.0, "fit CPU min": 0.1},
+            {"source": "a", "model": "m", "seed": 1, "log_err": 0.12, "bytes": 100, "fit s": 6.0, "fit CPU min": 0.1},
+            {"source": "b", "model": "m", "seed": 0, "log_err": 0.30, "bytes": 100, "fit s": 5.0, "fit CPU min": 0.1},
+            {"source": "b", "model": "m", "seed": 1, "log_err": 0.30, "bytes": 100, "fit s": 5.0, "fit CPU min": 0.1}]
     summary = [{"model": "m", "seeds": 2, "log_err mean": 0.2, "log_err seed spread": 0.01}]
     return {"suite": "toy", "tables": [{"name": "fits", "rows": rows}, {"name": "summary", "rows": summary}]}
 
@@ -22,6 +22,7 @@ def test_a_rerun_within_the_seed_spread_agrees_and_one_outside_is_named():
     new = copy.deepcopy(old)
     new["tables"][0]["rows"][0]["log_err"] = 0.115      # within a's spread 0.02
     new["tables"][0]["rows"][0]["fit s"] = 50.0         # a time: not judged
+    new["tables"][0]["rows"][0]["fit CPU min"] = 0.9    # nor a CPU budget
     new["tables"][1]["rows"][0]["log_err mean"] = 0.205  # within its own seed spread column
     result = compare.compare(old, new)
     assert result["outside"] == 0 and not result["missing"]
