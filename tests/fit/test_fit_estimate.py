@@ -45,8 +45,8 @@ class PhasedNeuBRDF(NeuBRDF):
 
 
 def test_each_phase_announces_its_own_estimate(capsys):
-    """A fit of several phases announces an estimate in each, measured on that phase's steps; all but the last say
-    which phases are still to be measured; the last one's estimate holds within 2x."""
+    """A fit of several phases announces an estimate in each, of that phase's steps and measured on them; all but
+    the last name the phases still to be measured and their steps; each estimate holds within 2x."""
     import torch
 
     from neumat.fit.preset import build_fit
@@ -59,11 +59,14 @@ def test_each_phase_announces_its_own_estimate(capsys):
     end = time.perf_counter()
     lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
     assert len(lines) == 3, lines  # coarse, dense, vq
-    assert "of phase 'coarse', at its speed; 'dense', 'vq' measured when they start" in lines[0]
-    assert "'vq' measured when it starts" in lines[1] and "measured when" not in lines[2]
-    seconds, steps = re.search(r"about (\d+) s to go for (\d+) more steps", lines[2]).groups()
-    remaining = end - PhasedNeuBRDF.started[120 - int(steps)]  # from the step the last estimate was announced at
-    assert 0.5 * remaining <= max(int(seconds), 1) <= 2 * remaining + 1, (lines, remaining)
+    assert "of phase 'coarse'; then 'dense' (36 steps), 'vq' (36 steps), measured when they start" in lines[0]
+    assert "of phase 'dense'; then 'vq' (36 steps), measured when it starts" in lines[1]
+    assert "measured when" not in lines[2]
+    for line, phase_end in zip(lines, (48, 84, 120)):  # each estimate of its own phase's remaining steps
+        seconds, steps = re.search(r"about (\d+) s to go for (\d+) more steps", line).groups()
+        ended = end if phase_end == 120 else PhasedNeuBRDF.started[phase_end]
+        remaining = ended - PhasedNeuBRDF.started[phase_end - int(steps)]  # from the step it was announced at
+        assert 0.5 * remaining <= max(int(seconds), 1) <= 2 * remaining + 1, (line, remaining)
 
 
 class FakeClock:
@@ -74,6 +77,8 @@ class FakeClock:
     @classmethod
     def perf_counter(cls) -> float:
         return cls.now
+
+    process_time = perf_counter  # the fit's CPU seconds
 
 
 class LoadedNeuBRDF(NeuBRDF):
@@ -118,3 +123,23 @@ def test_an_estimate_that_holds_is_said_once(capsys, monkeypatch):
     fit(LoadedNeuBRDF(nside=2, index_bits=2, hidden=4), parse_spec("plastic:roughness=0.3"), recipe, progress=True)
     lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
     assert len(lines) == 1 and "about 5 s to go for 98 more steps (measured on the last 20)" in lines[0], lines
+
+
+class VerySlowNeuBRDF(NeuBRDF):
+    """A NeuBRDF whose steps take 11 s each on the fake clock (online batches traced on a CPU take seconds)."""
+
+    def on_step(self, step: int, total_steps: int) -> None:
+        FakeClock.now = (step + 1) * 11.0
+
+
+def test_slow_steps_are_announced_after_10_s_but_on_three_steps_at_least(capsys, monkeypatch):
+    """Steps of more than 10 s: the estimate comes without waiting for 20 of them, but is measured on 3 (one step
+    after a change, e.g. the first online batch, pays one-off costs)."""
+    import neumat.fit.trainer
+
+    monkeypatch.setattr(neumat.fit.trainer, "time", FakeClock)
+    FakeClock.now = 0.0
+    recipe = replace(recipe_for("neubrdf", "paper"), steps=40, batch_size=64, log_every=10)
+    fit(VerySlowNeuBRDF(nside=2, index_bits=2, hidden=4), parse_spec("plastic:roughness=0.3"), recipe, progress=True)
+    lines = [x for x in capsys.readouterr().err.splitlines() if "to go for" in x]
+    assert len(lines) == 1 and "about 6 min to go for 35 more steps (measured on the last 3)" in lines[0], lines

@@ -114,7 +114,7 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
         for index, phase in enumerate(phases):
             end = begin + phase.steps
             if state["step"] < end:  # each phase's steps cost their own: its estimate is measured in it
-                bar.start_phase(phase.name, [p.name for p in phases[index + 1:]])
+                bar.start_phase(phase.name, end, [(p.name, p.steps) for p in phases[index + 1:]])
             if phase.start is not None:
                 phase.start()
             if state["step"] >= end:
@@ -427,6 +427,8 @@ def _load_checkpoint(path, recipe, model, ema, phases, gen, source) -> dict:
 LONG_FIT_SECONDS = 15 * 60
 #: steps not counted in the announced estimate (the first steps pay one-off costs: allocation, caches)
 WARMUP_STEPS = 2
+#: the fewest steps an estimate is measured on (a first step after a change, e.g. online batches, costs extra)
+MIN_COUNTED = 3
 #: the announced estimate is checked at half REESTIMATE_AFTER times as many steps after it as it was measured on, then
 #: each time at twice as many, and said again when the speed since the previous check would end the phase more than
 #: REESTIMATE_FACTOR times later or sooner
@@ -435,14 +437,16 @@ REESTIMATE_AFTER, REESTIMATE_FACTOR = 3, 1.5
 
 class _Progress:
     """Progress of a fit on stderr: a rich bar with the live loss on a terminal, a plain line every 30 s (and at
-    the end of each phase) otherwise; nothing when `enabled` is false. Either way the fit announces once, after
-    its first steps, the time it will take, measured on this source and machine (not a constant), and once more
-    if the steps after it run at more than `REESTIMATE_FACTOR` times or less than its inverse (a load that came or
-    went: the first estimate would not hold)."""
+    the end of each phase) otherwise; nothing when `enabled` is false. Either way each phase announces once, after
+    its first steps, the time its remaining steps will take, measured on this source and machine (not a constant;
+    later phases, whose steps cost their own, are named with their step counts and measured when they start), and
+    once more if the steps after it run at more than `REESTIMATE_FACTOR` times or less than its inverse (a load
+    that came or went: the first estimate would not hold)."""
 
     def __init__(self, enabled: bool, total: int, start: int, name: str) -> None:
         enabled = enabled and not os.environ.get("NEUMAT_QUIET")  # a command's --quiet (neumat.cli.common)
         self.enabled, self.total, self.done, self.name = enabled, total, start, name
+        self.phase_end = total  # the last step of the phase the estimates measure
         self.terminal = enabled and sys.stderr.isatty()
         self.t0 = self.last_line = time.perf_counter()
         self.start, self.warned, self.t_warm = start, False, self.t0
@@ -472,15 +476,17 @@ class _Progress:
         if estimate is not None:
             return estimate
         rate = (time.perf_counter() - self.t_warm) / max(self.done - self.start, 1)
-        return rate * (self.total - self.done)
+        return rate * (self.phase_end - self.done)
 
-    def start_phase(self, name: str, later: list[str]) -> None:
-        """A phase begins (`name`, with phases `later` after it): its estimate is measured on its own steps and
-        says that the later phases are measured when they start (NeuBRDF's coarse steps cost half its VQ ones)."""
+    def start_phase(self, name: str, end: int, later: list[tuple[str, int]]) -> None:
+        """A phase begins (`name`, ending at step `end`, with phases `later` (name, steps) after it): its estimate
+        is of its own steps, measured on them, and names the later phases, measured when they start (their steps cost
+        their own: NeuBRDF's coarse steps half its VQ ones, NeuPreSS's sampler steps 8x its appearance steps)."""
         self.remeasure()
+        self.phase_end = end
         when = "it starts" if len(later) == 1 else "they start"
         self.phase_note = "" if not later else \
-            f" of phase {name!r}, at its speed; {', '.join(map(repr, later))} measured when {when}"
+            f" of phase {name!r}; then {', '.join(f'{n!r} ({k} steps)' for n, k in later)}, measured when {when}"
 
     def remeasure(self) -> None:
         """Measure the time estimate again from the next step on and announce it once more (the steps from here
@@ -489,11 +495,12 @@ class _Progress:
         self.announced = None
 
     def estimate(self) -> float | None:
-        """Seconds still to go at the speed of the steps after the first WARMUP_STEPS, or None before any."""
+        """Seconds still to go in this phase at the speed of its steps after the first WARMUP_STEPS, or None before
+        any."""
         counted = self.done - self.start - WARMUP_STEPS
         if counted < 1:
             return None
-        return (time.perf_counter() - self.t_warm) / counted * (self.total - self.done)
+        return (time.perf_counter() - self.t_warm) / counted * (self.phase_end - self.done)
 
     def advance(self) -> None:
         self.done += 1
@@ -502,15 +509,16 @@ class _Progress:
         if self.terminal:
             self.bar.advance(self.task)
         counted = self.done - self.start - WARMUP_STEPS
-        if self.enabled and not self.warned and counted > 0 and (
-                counted >= 20 or time.perf_counter() - self.t_warm > 10 or self.done == self.total):
+        if self.enabled and not self.warned and counted > 0 and (  # slow steps: after 10 s, but 3 steps at least
+                counted >= 20 or (counted >= MIN_COUNTED and time.perf_counter() - self.t_warm > 10)
+                or self.done == self.phase_end):
             self.warned = True
             eta = self.estimate()
             now = time.perf_counter()
             self.announced = (now, self.done, eta, None, max(REESTIMATE_AFTER * counted, 20) // 2)
             hint = "; pass --steps for a shorter run" if eta > LONG_FIT_SECONDS else ""
-            self.note(f"fit {self.name}: about {_duration(eta)} to go for {self.total - self.done} more steps "
-                      f"(measured on the last {counted}{self.phase_note}){hint}")
+            self.note(f"fit {self.name}: about {_duration(eta)} to go for {self.phase_end - self.done} more steps"
+                      f"{self.phase_note} (measured on the last {counted}){hint}")
         elif self.enabled and self.announced is not None:
             self._check_estimate()
 
@@ -521,20 +529,21 @@ class _Progress:
         `REESTIMATE_FACTOR` times later or sooner than announced, the estimate again (once a phase)."""
         when, step, eta, last, next_check = self.announced
         since = self.done - step
-        if since < next_check or self.done == self.total:
+        if since < next_check or self.done == self.phase_end:
             return
         t = time.perf_counter()
         self.announced = (when, step, eta, (t, self.done), 2 * next_check)
         if last is None:  # the first checkpoint starts the window of steps the next one measures
             return
         rate = (t - last[0]) / (self.done - last[1])
-        to_go = rate * (self.total - self.done)
+        to_go = rate * (self.phase_end - self.done)
         ratio = (t - when + to_go) / max(eta, 1e-9)
         if ratio > REESTIMATE_FACTOR or ratio < 1 / REESTIMATE_FACTOR:
             self.announced = None
-            self.note(f"fit {self.name}: about {_duration(to_go)} to go for {self.total - self.done} more steps, "
-                      f"measured again on the last {self.done - last[1]}: the steps run {max(ratio, 1 / ratio):.1f}x "
-                      f"{'slower' if ratio > 1 else 'faster'} than the estimate announced {since} steps ago")
+            self.note(f"fit {self.name}: about {_duration(to_go)} to go for {self.phase_end - self.done} more steps"
+                      f"{self.phase_note}, measured again on the last {self.done - last[1]}: the steps run "
+                      f"{max(ratio, 1 / ratio):.1f}x {'slower' if ratio > 1 else 'faster'} than the estimate "
+                      f"announced {since} steps ago")
 
     def note(self, message: str) -> None:
         """Say `message` (an event of the fit, e.g. a rollback) on a line of its own, above the bar on a terminal;
@@ -550,7 +559,8 @@ class _Progress:
         elif self.enabled and (time.perf_counter() - self.last_line > 30 or record["step"] == total):
             self.last_line = time.perf_counter()
             print(f"fit {self.name}: step {record['step']}/{total} ({record['phase']}) loss {record['loss']:.4g}, "
-                  f"{time.perf_counter() - self.t0:.0f} s, about {self._eta():.0f} s to go", file=sys.stderr,
+                  f"{time.perf_counter() - self.t0:.0f} s, about {self._eta():.0f} s to go"
+                  f"{' in the phase' if self.phase_end < self.total else ''}", file=sys.stderr,
                   flush=True)
 
 
