@@ -9,6 +9,7 @@ import math
 import torch
 
 from neumat.core.coords import spherical_to_dir
+from neumat.core.tensors import by_rows
 from neumat.methods.neupress.model import NeuPreSS
 from neumat.warp.azimuthal_gaussian import azimuthal_gaussian_pdf
 
@@ -43,9 +44,7 @@ def sampler_kl(model: NeuPreSS, x: torch.Tensor, wo: torch.Tensor, n: torch.Tens
     w, area = grid
     b, k = x.shape[0], w.shape[0]
     with torch.no_grad():
-        wi, xs, wos = w.repeat(b, 1), x.repeat_interleave(k, 0), wo.repeat_interleave(k, 0)
-        f = torch.cat([model.raw(wi[i:i + TARGET_ROWS], xs[i:i + TARGET_ROWS], wos[i:i + TARGET_ROWS])
-                       for i in range(0, len(wi), TARGET_ROWS)])
+        f = by_rows(model.raw, TARGET_ROWS, w.repeat(b, 1), x.repeat_interleave(k, 0), wo.repeat_interleave(k, 0))
         target = f.clamp(min=0).mean(-1).reshape(b, k) * area
         keep = target.sum(-1) > 0
         target = target / target.sum(-1, keepdim=True).clamp(min=1e-30)
