@@ -171,8 +171,7 @@ def _fit_and_evaluate(job: FitJob) -> dict:
     if loss is not None and not math.isfinite(loss):
         raise DataFormatError(f"fit of {job.model!r} to {job.source!r} ended with a non-finite loss ({loss})")
     save_model(result.model.runtime(), job.out, recipe=result.recipe, source=job.source,
-               metrics={"final_loss": loss, "fit_seconds": result.seconds,
-                        "fit_cpu_seconds": None if math.isnan(result.cpu_seconds) else result.cpu_seconds},
+               metrics={"final_loss": loss, "fit_seconds": result.seconds, "fit_cpu_seconds": result.cpu_seconds},
                preset={"name": resolved.preset, "overrides": resolved.applied})  # the shipped form, as `neumat fit`
     fitted = load_model(job.out, device=device)
     metrics = _checked(evaluate_against(fitted, src, job, device), job)

@@ -1,7 +1,6 @@
 """`neumat fit` and `neumat eval`."""
 from __future__ import annotations
 
-import math
 import sys
 import time
 import warnings
@@ -102,7 +101,7 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
     for text in result.warnings:
         print(f"warning: {text}", file=sys.stderr)
     last = result.history[-1] if result.history else {}
-    cpu = None if math.isnan(result.cpu_seconds) else result.cpu_seconds  # unknown after an old checkpoint
+    cpu = result.cpu_seconds  # None: unknown after an old checkpoint
     metrics = {"final_loss": last.get("loss"), "fit_seconds": result.seconds, "fit_cpu_seconds": cpu}
     report = method_for(model).report
     extra, row = report(result.model, src, result) if report is not None else ({}, {})

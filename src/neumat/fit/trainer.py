@@ -44,14 +44,14 @@ class FitResult:
     step whose state was restored, when the fit rolled back since the last record (`neumat.fit.rollback`).
     seconds: training time (summed over resumed runs). steps: steps taken in total. recipe: the recipe run
     (with the steps actually taken). cpu_seconds: this process's CPU seconds over the fit, all its threads (summed
-    over resumed runs; NaN when a checkpoint written before they were recorded was resumed): what the fit cost."""
+    over resumed runs; None when a checkpoint written before they were recorded was resumed): what the fit cost."""
 
     model: nn.Module
     history: list[dict]
     seconds: float
     steps: int
     recipe: Recipe | None = None
-    cpu_seconds: float = math.nan
+    cpu_seconds: float | None = None
     warnings: list[str] = field(default_factory=list)
     """What went wrong without stopping the fit: a phase that ended far above its best loss after its warm-up
     (`ENDS_ABOVE_BEST`, `WARMUP_FRACTION`), a loss spike (`SPIKE`), an output that collapsed (`COLLAPSED`)."""
@@ -203,7 +203,8 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
     for text in problems:
         warnings.warn(text, FitWarning, stacklevel=2)
     return FitResult(model=model, history=state["history"], seconds=seconds, steps=total,
-                     recipe=replace(recipe, steps=total), warnings=problems, cpu_seconds=cpu_seconds)
+                     recipe=replace(recipe, steps=total), warnings=problems,
+                     cpu_seconds=None if math.isnan(cpu_seconds) else cpu_seconds)
 
 
 #: a phase whose last recorded loss is this many times its lowest says so: fits that blew up used to end silently.
