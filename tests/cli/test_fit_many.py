@@ -374,3 +374,63 @@ def test_mistyped_paths_are_refused_before_any_job(app, tmp_path):
 def test_help_shows_the_ray_extra(app):
     r = CliRunner().invoke(app, ["--help"], terminal_width=200)
     assert "pip install 'neumat[ray]'" in r.output, r.output
+
+
+def test_a_job_stopped_with_its_process_resumes_its_fit_from_its_checkpoint(tmp_path, monkeypatch):
+    """A job whose process stops mid-fit (here Ctrl-C after the first checkpoint) leaves its checkpoint; run again, it
+    resumes from it (the trainer loads it once, at step 4) and ends with the model an uninterrupted job fits, bit for
+    bit, and no checkpoint. A job whose options changed since (another seed) removes the old checkpoint and fits from
+    the start; a job that fails removes its own."""
+    from neumat.catalog.modelfile import load_model
+    from neumat.fit import trainer
+
+    source = _teachers(tmp_path / "src", 1)[0]
+
+    def job(folder: str, **kw) -> FitJob:
+        return FitJob(**{"source": source, "name": "teacher0", "model": "ggx", "out_dir": str(tmp_path / folder),
+                         "steps": 10, "overrides": {"batch_size": 256, "checkpoint_every": 4}, "device": "cpu",
+                         "eval_n": 2048, "image_spp": 0} | kw)
+
+    whole = run_fit_job(job("whole"))
+    save = trainer._save_checkpoint
+
+    def save_then_stop(*args, **kwargs):
+        save(*args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer, "_save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_fit_job(job("stopped"))
+    monkeypatch.setattr(trainer, "_save_checkpoint", save)
+    (checkpoint,) = (tmp_path / "stopped").glob("*.ckpt")
+    assert checkpoint == fit_job_module.checkpoint_path(job("stopped"), "cpu") and not job("stopped").out.exists()
+    loads, load = [], trainer._load_checkpoint
+
+    def counted_load(*args):
+        state = load(*args)
+        loads.append(state["step"])
+        return state
+
+    monkeypatch.setattr(trainer, "_load_checkpoint", counted_load)
+    resumed = run_fit_job(job("stopped"))
+    assert resumed["status"] == "ok" and loads == [4] and resumed["steps"] == whole["steps"] == 10
+    for name, value in load_model(whole["nmat"]).state_dict().items():
+        assert torch.equal(load_model(resumed["nmat"]).state_dict()[name], value), name
+    assert not list((tmp_path / "stopped").glob("*.ckpt"))
+
+    monkeypatch.setattr(trainer, "_save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_fit_job(job("stopped"))
+    monkeypatch.setattr(trainer, "_save_checkpoint", save)
+    loads.clear()
+    other = run_fit_job(job("stopped", seed=3))
+    assert other["status"] == "ok" and loads == [] and not list((tmp_path / "stopped").glob("*.ckpt"))
+
+    monkeypatch.setattr(trainer, "_save_checkpoint", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_fit_job(job("failed"))
+    monkeypatch.setattr(fit_job_module, "evaluate_against", lambda *a: 1 / 0)
+    monkeypatch.setattr(trainer, "_save_checkpoint", save)
+    failed = run_fit_job(job("failed"))
+    assert failed["status"] == "error" and "ZeroDivisionError" in failed["error"]
+    assert not list((tmp_path / "failed").glob("*.ckpt"))

@@ -8,6 +8,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import socket
 import time
 from dataclasses import asdict, dataclass, field
@@ -134,6 +135,7 @@ def run_fit_job(job: FitJob) -> dict:
         except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
             if not job.evaluate_only:  # an evaluation that failed keeps the model it could not evaluate
                 job.out.unlink(missing_ok=True)
+            _remove_checkpoints(job)  # a failed job is fitted from the start when run again
             row = error_row(job, e)
     row["seconds"] = time.perf_counter() - t0
     return row
@@ -166,13 +168,17 @@ def _fit_and_evaluate(job: FitJob) -> dict:
                 "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
     model, resolved = build_fit(job.model, job.preset, device=device, source=src, overrides=job.overrides,
                                 seed=job.seed)
-    result = fit(model, src, resolved.recipe, steps=job.steps, device=device, progress=False)
+    checkpoint = checkpoint_path(job, device)
+    _remove_checkpoints(job, keep=checkpoint)  # of a job whose options, defaults or source have changed since
+    result = fit(model, src, resolved.recipe, steps=job.steps, device=device, progress=False, checkpoint=checkpoint,
+                 resume=True)
     loss = result.history[-1]["loss"] if result.history else None
     if loss is not None and not math.isfinite(loss):
         raise DataFormatError(f"fit of {job.model!r} to {job.source!r} ended with a non-finite loss ({loss})")
     save_model(result.model.runtime(), job.out, recipe=result.recipe, source=job.source,
                metrics={"final_loss": loss, "fit_seconds": result.seconds, "fit_cpu_seconds": result.cpu_seconds},
                preset={"name": resolved.preset, "overrides": resolved.applied})  # the shipped form, as `neumat fit`
+    checkpoint.unlink(missing_ok=True)
     fitted = load_model(job.out, device=device)
     metrics = _checked(evaluate_against(fitted, src, job, device), job)
     return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
@@ -180,6 +186,26 @@ def _fit_and_evaluate(job: FitJob) -> dict:
             "metrics": metrics, "steps": result.steps,
             "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device),
             "warnings": result.warnings}
+
+
+def checkpoint_path(job: FitJob, device) -> Path:
+    """The file where the job's fit keeps its training state while it runs, so that a job stopped with its process
+    (a session's end, a lost Ray worker, Ctrl-C) resumes where it was when run again: named by the job and by the
+    hash of everything its fit takes (options, the code's defaults on `device`, the source's bytes), so a fit never
+    resumes another's state. Removed when the job ends, fitted or failed."""
+    key = _sha256({"fit": job.fit_sha256(), "defaults": job.defaults_sha256(str(device)),
+                   "source": source_sha256(job.source)})
+    return Path(job.out_dir) / f"{job.name}.{job.model}.{key[:16]}.ckpt"
+
+
+def _remove_checkpoints(job: FitJob, keep: Path | None = None) -> None:
+    """Remove the job's checkpoints (`checkpoint_path`, any key) but `keep`."""
+    folder, prefix = Path(job.out_dir), f"{job.name}.{job.model}."
+    if folder.is_dir():
+        for path in folder.iterdir():
+            if path.name.startswith(prefix) and re.fullmatch(r"[0-9a-f]{16}\.ckpt", path.name[len(prefix):]) \
+                    and path != keep:
+                path.unlink(missing_ok=True)
 
 
 def _checked(metrics: dict[str, float], job: FitJob) -> dict[str, float]:

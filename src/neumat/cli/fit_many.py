@@ -69,9 +69,10 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
     failing source gets its error row and the others go on. Run the same command again to resume: rows whose
     .nmat, source hash, options and the code's defaults (recipe contents, model config) match are kept, those
     whose evaluation options alone changed (--n-configs, --image-spp, --image-resolution) are evaluated again
-    without refitting, the others (failed, new, changed) are fitted. Without Ray installed, --engine auto runs
-    the jobs one after another here (install Ray: pip install 'neumat\\[ray]'). Exit code 1 when some job
-    failed."""
+    without refitting, the others (failed, new, changed) are fitted; a job stopped with its process (a killed run, a
+    lost Ray worker) resumes its fit from its checkpoint, OUT/<source>.<model>.<key>.ckpt. Without Ray
+    installed, --engine auto runs the jobs one after another here (install Ray: pip install 'neumat\\[ray]').
+    Exit code 1 when some job failed."""
 
     def go() -> bool:
         from ..catalog.open_material import material_source
