@@ -9,10 +9,9 @@ from neumat.methods.neupress.model import NeuPreSS
 
 #: measured better than the paper's on path-traced observations (NOTES.md, "preset and budget" and "loss")
 PRESETS = {"recommended": Preset(
-    "the paper's model without its skip connections, the learning rate cosine-annealed to 0, the prediction-relative "
-    "L2 loss, 8x the paper's 2300 steps: lower image error than the paper's on the traced bunny and kitten",
-    overrides={"model.skips": False, "recipe.schedule": "cosine", "recipe.lr_min": 0.0, "recipe.loss": "relative",
-               "recipe.steps": 18400})}
+    "the paper's model, the learning rate cosine-annealed to 0, the prediction-relative L2 loss, 8x the paper's 2300 "
+    "steps: lower image error than the paper's on the traced bunny and kitten",
+    overrides={"recipe.schedule": "cosine", "recipe.lr_min": 0.0, "recipe.loss": "relative", "recipe.steps": 18400})}
 
 register_method(Method("neupress", NeuPreSS, {"paper": train.RECIPE, "cpu": train.CPU_RECIPE},
                        options=train.Options, phases=train.phases, glsl=export_neupress, report=observation_report,
