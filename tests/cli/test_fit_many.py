@@ -180,7 +180,7 @@ def test_threads_set_torch_threads_for_each_job_only_and_keep_the_rows(app, tmp_
     seen = []
     real_fit = fit_job_module._fit_and_evaluate
     monkeypatch.setattr(fit_job_module, "_fit_and_evaluate",
-                        lambda job: (seen.append(torch.get_num_threads()), real_fit(job))[1])
+                        lambda job, sha: (seen.append(torch.get_num_threads()), real_fit(job, sha))[1])
     torch.set_num_threads(2)
     try:
         assert CliRunner().invoke(app, [*args, "--threads", "1"]).exit_code == 0
@@ -403,7 +403,8 @@ def test_a_job_stopped_with_its_process_resumes_its_fit_from_its_checkpoint(tmp_
         run_fit_job(job("stopped"))
     monkeypatch.setattr(trainer, "_save_checkpoint", save)
     (checkpoint,) = (tmp_path / "stopped").glob("*.ckpt")
-    assert checkpoint == fit_job_module.checkpoint_path(job("stopped"), "cpu") and not job("stopped").out.exists()
+    assert checkpoint == fit_job_module.checkpoint_path(job("stopped"), "cpu", fit_job_module.source_sha256(source))
+    assert not job("stopped").out.exists()
     loads, load = [], trainer._load_checkpoint
 
     def counted_load(*args):

@@ -130,8 +130,9 @@ def run_fit_job(job: FitJob) -> dict:
     t0 = time.perf_counter()
     with torch_threads(job.threads):
         try:
-            row = error_row(job, None) | {"source_sha256": source_sha256(job.source)}
-            row |= _fit_and_evaluate(job) | {"status": "ok"}
+            sha = source_sha256(job.source)
+            row = error_row(job, None) | {"source_sha256": sha}
+            row |= _fit_and_evaluate(job, sha) | {"status": "ok"}
         except Exception as e:  # noqa: BLE001 - every failure of one source becomes its row
             if not job.evaluate_only:  # an evaluation that failed keeps the model it could not evaluate
                 job.out.unlink(missing_ok=True)
@@ -152,7 +153,7 @@ def error_row(job: FitJob, error: BaseException | None) -> dict:
                                           "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
 
-def _fit_and_evaluate(job: FitJob) -> dict:
+def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
     from ..catalog.modelfile import load_model, save_model
     from ..core.config import config_to_dict
     from ..fit.trainer import fit
@@ -168,7 +169,7 @@ def _fit_and_evaluate(job: FitJob) -> dict:
                 "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
     model, resolved = build_fit(job.model, job.preset, device=device, source=src, overrides=job.overrides,
                                 seed=job.seed)
-    checkpoint = checkpoint_path(job, device)
+    checkpoint = checkpoint_path(job, device, source_sha)
     _remove_checkpoints(job, keep=checkpoint)  # of a job whose options, defaults or source have changed since
     result = fit(model, src, resolved.recipe, steps=job.steps, device=device, progress=False, checkpoint=checkpoint,
                  resume=True)
@@ -188,13 +189,12 @@ def _fit_and_evaluate(job: FitJob) -> dict:
             "warnings": result.warnings}
 
 
-def checkpoint_path(job: FitJob, device) -> Path:
+def checkpoint_path(job: FitJob, device, source_sha: str) -> Path:
     """The file where the job's fit keeps its training state while it runs, so that a job stopped with its process
     (a session's end, a lost Ray worker, Ctrl-C) resumes where it was when run again: named by the job and by the
-    hash of everything its fit takes (options, the code's defaults on `device`, the source's bytes), so a fit never
-    resumes another's state. Removed when the job ends, fitted or failed."""
-    key = _sha256({"fit": job.fit_sha256(), "defaults": job.defaults_sha256(str(device)),
-                   "source": source_sha256(job.source)})
+    hash of everything its fit takes (options, the code's defaults on `device`, the source's bytes: `source_sha`,
+    its `source_sha256`), so a fit never resumes another's state. Removed when the job ends, fitted or failed."""
+    key = _sha256({"fit": job.fit_sha256(), "defaults": job.defaults_sha256(str(device)), "source": source_sha})
     return Path(job.out_dir) / f"{job.name}.{job.model}.{key[:16]}.ckpt"
 
 
