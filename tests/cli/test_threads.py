@@ -22,7 +22,7 @@ def test_a_busy_process_is_counted():
         spinner.wait()
 
 
-@pytest.mark.parametrize("busy, cores, threads", [(0, 2, None), (1, 2, 1), (5, 2, 1), (1, 8, 7), (3, 8, 5)])
+@pytest.mark.parametrize("busy, cores, threads", [(0, 2, None), (1, 2, 1), (5, 2, 1), (1, 8, 7), (3, 8, 5), (1, 1, None)])
 def test_free_threads_leaves_the_busy_cores_and_keeps_one(monkeypatch, busy, cores, threads):
     monkeypatch.setattr(common, "busy_cores", lambda: busy)
     assert common.free_threads(cores) == threads

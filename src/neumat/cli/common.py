@@ -47,8 +47,8 @@ def free_threads(cores: int) -> int | None:
     """torch threads for a command that was given none: None (torch's own count, all `cores`) when no other work is
     busy, else the cores it leaves free, at least 1. Why: torch's OpenMP threads wait for each other by spinning, so
     a thread without a core of its own stalls every operation (measured on 2 cores beside one busy process: 180 ms
-    a training step on 2 threads, 11 ms on 1; idle 7 and 8.5 ms)."""
-    busy = busy_cores()
+    a training step on 2 threads, 11 ms on 1; idle 7 and 8.5 ms). One core: None without sampling the machine."""
+    busy = busy_cores() if cores > 1 else 0
     return None if busy == 0 else max(1, cores - busy)
 
 
