@@ -3,6 +3,7 @@ response, and the image table (issue 51's protocol) on an object traced by Mitsu
 (`neumat translucent trace`, `neumat fit`), rendered under an environment map against a path-traced reference."""
 from __future__ import annotations
 
+import contextlib
 import inspect
 from pathlib import Path
 
@@ -41,7 +42,8 @@ BUDGET = {
                               "4 h more for the paperweight (estimated: its trace costs what the bunny's does per "
                               "observation and path, 14 against 13 us in neupress_paperweight.md, its references "
                               "more); --work keeps traces, references and fits (a cut-off fit resumes from its "
-                              "checkpoint) and --ledger the synthetic fits, so a run can span sittings"},
+                              "checkpoint) and --ledger each synthetic fit and image-table row, so a run can span "
+                              "sittings"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
@@ -131,29 +133,51 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
 
 def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setup: dict, data, media: list[str]):
     """One object's image table: trace, fit each model per seed, score the held-out set and the full appearance
-    against the reference (the second reference's scores are the floor). Under --work the traces, references and
-    fits are kept and reused (a fit while its model's default preset is unchanged), and a trace or fit cut off
-    resumes (from its last checkpoint: at most 1000 steps lost)."""
+    against the reference (the second reference's scores are the floor). Each row is a job of the run: under --ledger
+    a table finished in one sitting is not traced again in the next (the paperweight's takes hours more than the
+    bunny's). Under --work the traces, references and fits are kept and reused (a fit while its model's default preset
+    is unchanged), and a trace or fit cut off resumes (from its last checkpoint: at most 1000 steps lost)."""
     scene, light = (str(setup[k]).format(data=data) for k in ("scene", "light"))
-    with run.folder("images", setup, scene, trace_defaults()) as folder:
-        train, test = folder / "train.npz", folder / "test.npz"
-        for npz, options, seed in ((train, setup["trace"], run.seed), (test, setup["test"], TEST_SEED)):
-            args = ["translucent", "trace", "--scene", scene, *media, *options, "--seed", str(seed), "-q",
-                    "--checkpoint", str(npz.with_suffix(".trace-checkpoint")), "--resume", "-o"]
-            _kept(npz, lambda out, args=args: cli([*args, str(out)]))
-        scorer = _Scorer(folder, train, test, light, setup)
-        traced = Observations.load_source(train).get("trace_cpu_seconds")  # absent from traces made before it
-        rows = [{"model": "reference, another seed (floor)", "seed": None, **scorer.floor()}]
+    made: dict = {}  # the folder, traces and scorer, made by the first row the ledger does not hold
+    held = contextlib.ExitStack()  # the folder, for as long as the table is built (a temporary one is removed after)
+
+    def scorer() -> _Scorer:
+        if not made:
+            folder = held.enter_context(run.folder("images", setup, scene, trace_defaults()))
+            train, test = folder / "train.npz", folder / "test.npz"
+            for npz, options, seed in ((train, setup["trace"], run.seed), (test, setup["test"], TEST_SEED)):
+                args = ["translucent", "trace", "--scene", scene, *media, *options, "--seed", str(seed), "-q",
+                        "--checkpoint", str(npz.with_suffix(".trace-checkpoint")), "--resume", "-o"]
+                _kept(npz, lambda out, args=args: cli([*args, str(out)]))
+            made.update(folder=folder, train=train, scorer=_Scorer(folder, train, test, light, setup),
+                        traced=Observations.load_source(train).get("trace_cpu_seconds"))  # absent before it
+        return made["scorer"]
+
+    def fitted(model: str, seed: int, preset: str) -> dict:
+        score = scorer()
+        nmat = made["folder"] / f"{model}-{seed}-{preset[:12]}.nmat"  # the preset's content: a new default refits
+        _kept(nmat, lambda out: cli(["fit", str(made["train"]), "--model", model, *setup["fit"].get(model, []),
+                                     "--seed", str(seed), "--threads", str(run.threads), "-q",
+                                     "--checkpoint", str(nmat.with_suffix(".checkpoint")), "--resume",
+                                     "-o", str(out)]))
+        traced = made["traced"]
+        return {"model": model, "seed": seed, **score.model(nmat),
+                "trace CPU min": None if traced is None else traced / 60}
+
+    # the scene as the setup names it (not the shared data's path on this machine), the trace's defaults and seed
+    table_key = {"job": "image table", "table": name, "setup": setup, "media": media, "trace": trace_defaults(),
+                 "trace seed": run.seed, "test seed": TEST_SEED}
+    with held:
+        rows = [run.job(f"{name}: reference, another seed (floor)", {**table_key, "row": "floor"},
+                        lambda: {"model": "reference, another seed (floor)", "seed": None, **scorer().floor()},
+                        keep=lambda _: True)]
         for seed in seeds:
-            for model in MODELS:  # the preset's content in the name: a changed default fits again
-                preset = method_key(model, [])["preset"]
-                nmat = folder / f"{model}-{seed}-{preset[:12]}.nmat"
-                _kept(nmat, lambda out: cli(["fit", str(train), "--model", model, *setup["fit"].get(model, []),
-                                             "--seed", str(seed), "--threads", str(run.threads), "-q",
-                                             "--checkpoint", str(nmat.with_suffix(".checkpoint")), "--resume",
-                                             "-o", str(out)]))
-                rows.append({"model": model, "seed": seed, **scorer.model(nmat),
-                             "trace CPU min": None if traced is None else traced / 60})
+            for model in MODELS:
+                key = method_key(model, [])
+                rows.append(run.job(f"{name}: {model} (seed {seed})",
+                                    {**table_key, "row": model, "seed": seed, **key},
+                                    lambda model=model, seed=seed, preset=key["preset"]: fitted(model, seed, preset),
+                                    keep=lambda _: True))
     run.protocol[name] = (f"the full appearance (surface reflection + subsurface + background) at "
                           f"{setup['resolution']}^2, {setup['spp']} spp MIS, against a {setup['reference_spp']}-"
                           "spp Mitsuba reference, ACES tone map; object FLIP over the object's pixels; the "
@@ -229,7 +253,7 @@ class _Scorer:
         image = render_translucent(model, self.obj, self.env, self.camera, self.setup["resolution"],
                                    spp=self.setup["spp"], seed=0, appearance="full")
         fit_cpu = read_header(nmat)["metrics"].get("fit_cpu_seconds")  # absent from fits made before it
-        return {"held-out mean": err.mean(), "held-out median": err.median(), **self._image(image),
+        return {"held-out mean": float(err.mean()), "held-out median": float(err.median()), **self._image(image),
                 "bytes": model.size_bytes(), "fit CPU min": None if fit_cpu is None else fit_cpu / 60}
 
     def _image(self, image: torch.Tensor) -> dict:

@@ -66,7 +66,7 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     extra += ["--repeats", "1"] if suite == "speed" else []  # the schema and the arithmetic, not the rates: one sample
     if suite == "neubrdf":  # two shard processes fill a ledger; then a rerun must take every job from it
         extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
-    if suite == "neupress":  # its synthetic fits are jobs: a run cut off keeps the ones it finished
+    if suite == "neupress":  # its fits and image rows are jobs: a run cut off keeps the ones it finished
         extra += ["--ledger", str(out.parent / "ledger.jsonl")]
     run = _bench(suite, "--quick", "--json", "--out", str(out), *extra)
     assert run.returncode == 0, run.stderr[-3000:]
@@ -90,8 +90,7 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
         _check_ledger(out, doc, run.stderr)
     if suite == "neupress":
         _check_neupress_images(doc, out.parent / "work")
-        entries = [json.loads(line) for line in (out.parent / "ledger.jsonl").read_text().splitlines()]
-        assert sorted(e["result"]["model"] for e in entries) == ["dipole-bssrdf", "neupress"]
+        _check_neupress_ledger(out, doc)
     if suite == "sparsebtf":
         _check_resume(out, doc, run.stderr)
         _check_equal_bytes(doc)
@@ -116,6 +115,22 @@ def _check_neupress_images(doc: dict, work: Path) -> None:
     for r in rows:
         assert 0 < r["FLIP"] < 1 and 0 < r["object FLIP"] < 1 and r["MSE"] > 0, r
     assert all(r["held-out mean"] > 0 and r["held-out median"] > 0 for r in rows[1:])
+
+
+def _check_neupress_ledger(out: Path, doc: dict) -> None:
+    """Each synthetic fit and image row is in the ledger; a rerun with it and an empty --work takes every row from it
+    and traces, renders and fits nothing (a full table takes hours: one sitting's table is not redone in the next)."""
+    entries = [json.loads(line) for line in (out.parent / "ledger.jsonl").read_text().splitlines()]
+    images = next((t for t in doc["tables"] if t["name"] == "images"), None)
+    assert len(entries) == 2 + (len(images["rows"]) if images else 0)
+    assert sorted(e["result"]["model"] for e in entries[:2]) == ["dipole-bssrdf", "neupress"]
+    work = out.parent / "work-again"
+    run = _bench("neupress", "--quick", "--json", "--ledger", str(out.parent / "ledger.jsonl"), "--work", str(work))
+    assert run.returncode == 0, run.stderr[-3000:]
+    again = json.loads(run.stdout)
+    assert again["ledger"]["entries_reused"] == len(entries) and "running" not in run.stderr, run.stderr[-2000:]
+    assert [t["rows"] for t in again["tables"]] == [t["rows"] for t in doc["tables"]]
+    assert not list(work.glob("*"))  # nothing traced or fitted
 
 
 def _check_sharing(doc: dict) -> None:
