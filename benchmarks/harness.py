@@ -25,7 +25,6 @@ import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = Path(__file__).resolve().parent / "results"
 SCHEMA_PATH = Path(__file__).resolve().parent / "schema.json"
 #: the results format's version (schema.json's "schema" constant)
 SCHEMA = "neumat-bench/1"
@@ -394,8 +393,3 @@ def _cell(v) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v)
-
-
-def default_out(suite_name: str, quick: bool) -> Path:
-    """benchmarks/results/<suite>/<quick|full>.json."""
-    return RESULTS / suite_name / f"{'quick' if quick else 'full'}.json"

@@ -29,11 +29,6 @@ def _count_step(optimizer, args, kwargs) -> None:
     _optimiser_steps[0] += 1
 
 
-def optimiser_steps() -> int:
-    """Optimiser steps taken in this process so far: part of the stamp of anything derived from parameters."""
-    return _optimiser_steps[0]
-
-
 register_optimizer_step_post_hook(_count_step)
 
 #: parameters, buffers and submodules assigned to any module in this process: `module_stamp` collects a module's
@@ -75,7 +70,7 @@ def tensors_swapped() -> None:
 
 def module_stamp(module: torch.nn.Module) -> tuple:
     """What anything derived from all of `module`'s parameters and buffers depends on: the optimiser steps taken
-    (`optimiser_steps`) and each tensor's storage and in-place version; the list of tensors is collected again only
+    (`_optimiser_steps`) and each tensor's storage and in-place version; the list of tensors is collected again only
     after some module anywhere had a parameter, buffer or submodule assigned (or `tensors_swapped`). Why: a few
     microseconds for a model of twenty tensors, where `derived_from`'s per-tensor stamp through module attribute
     lookups costs several times that on every call of a shipped model."""

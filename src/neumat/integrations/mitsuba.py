@@ -26,7 +26,7 @@ from ..core.material import Material, material_device
 from ..core.query import Query
 from ..warp.hemisphere import sample_cosine_hemisphere
 from . import mitsuba_native
-from .mitsuba_native import check_rgb as _check_rgb, current_mitsuba as _current_mitsuba, set_variant as _set_variant
+from .mitsuba_native import current_mitsuba as _current_mitsuba
 
 #: the plugin name registered with Mitsuba
 PLUGIN_NAME = "neumat"
