@@ -7,7 +7,7 @@ import numbers
 import os
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 import typer
 from rich.console import Console
@@ -17,56 +17,14 @@ from rich.table import Table
 from ..core.checks import check_device
 from ..core.config import parse_value
 from ..core.errors import InputError, NeumatError
+from ..core.threads import shared_threads
 
 console = Console(stderr=True)
 
 #: help of the --threads options of `neumat fit` and `neumat fit-many`
 THREADS_HELP = ("torch threads of the command, per fit where it runs several (default: the cores that other work "
-                "leaves free when it starts, all when none is busy: a NeuBRDF-sized training step on 2 threads of 2 "
-                "cores ran 16x slower beside one busy process than on 1 thread)")
-
-
-def busy_cores(samples: int = 3) -> int:
-    """How many cores other work keeps busy now: the least count of runnable tasks in /proc/loadavg over a few
-    samples 10 ms apart, less this process; 0 where the count cannot be read (not Linux)."""
-    import time
-
-    counts = []
-    for i in range(samples):
-        try:
-            with open("/proc/loadavg") as f:
-                counts.append(int(f.read().split()[3].split("/")[0]))
-        except (OSError, ValueError, IndexError):
-            return 0
-        if i + 1 < samples:
-            time.sleep(0.01)
-    return max(0, min(counts) - 1)
-
-
-def free_threads(cores: int) -> int | None:
-    """torch threads for a command that was given none: None (torch's own count, all `cores`) when no other work is
-    busy, else the cores it leaves free, at least 1. Why: torch's OpenMP threads wait for each other by spinning, so
-    a thread without a core of its own stalls every operation (measured on 2 cores beside one busy process: 180 ms
-    a training step on 2 threads, 11 ms on 1; idle 7 and 8.5 ms). One core: None without sampling the machine."""
-    busy = busy_cores() if cores > 1 else 0
-    return None if busy == 0 else max(1, cores - busy)
-
-
-@contextmanager
-def torch_threads(threads: int | None) -> Iterator[None]:
-    """torch's intra-op threads set to `threads` inside the block (None: `free_threads`; 0: left as they are), the
-    caller's count restored afterwards, also when the block raises."""
-    import torch
-
-    before = torch.get_num_threads()
-    if threads is None:
-        threads = free_threads(before)
-    if threads:
-        torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+                "leaves free, all when none is busy, looked at again every 10 s of a fit: a NeuBRDF-sized training "
+                "step on 2 threads of 2 cores ran 16x slower beside one busy process than on 1 thread)")
 
 
 def run_command(fn: Callable[[], Any]) -> Any:
@@ -135,7 +93,7 @@ def with_threads(command: Callable) -> Callable:
     """`command` with a --threads option (torch's intra-op threads for its run), for commands that compute and
     do not take one themselves."""
     return _with_option(command, "threads", "int", typer.Option(None, "--threads", min=1, help=THREADS_HELP),
-                        torch_threads)
+                        shared_threads)
 
 
 @contextmanager

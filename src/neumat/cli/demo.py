@@ -14,8 +14,8 @@ from pathlib import Path
 
 import typer
 
-from .common import (SEED_RANGE, THREADS_HELP, console, device_option, parse_overrides, print_table, run_command,
-                     torch_threads)
+from ..core.threads import shared_threads
+from .common import SEED_RANGE, THREADS_HELP, console, device_option, parse_overrides, print_table, run_command
 
 #: default material: a smooth analytic plastic (exact values, no table to interpolate)
 DEFAULT_SOURCE = "plastic:diffuse=0.35/0.12/0.05,roughness=0.2,eta=1.5"
@@ -46,7 +46,7 @@ def demo(out: Path = typer.Option(Path("out/demo"), "-o", "--out", help="output 
          quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output (the last line stays)")) -> None:
     """Fit NeuBRDF to a material as `neumat fit` does, render reference | shipped model | FLIP, write
     OUT/report.html, OUT/metrics.json and OUT/viewer.html."""
-    with torch_threads(threads):
+    with shared_threads(threads):
         run_command(lambda: run_demo(out, source, preset, parse_overrides(set_), steps, spp, resolution, device,
                                      seed, quiet))
 

@@ -15,8 +15,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..core.errors import DataFormatError
+from ..core.threads import shared_threads
 from ..fit.preset import DEFAULT_PRESET
-from .common import torch_threads
 
 #: the row keys, in the order results.json and results.md show them
 ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "defaults_sha256",
@@ -128,7 +128,7 @@ def run_fit_job(job: FitJob) -> dict:
     """Fit, save, reload and evaluate `job`; its row (ROW_KEYS) with status "ok", or "error" and the error
     (the .nmat of a failed job is removed)."""
     t0 = time.perf_counter()
-    with torch_threads(job.threads):
+    with shared_threads(job.threads):
         try:
             sha = source_sha256(job.source)
             row = error_row(job, None) | {"source_sha256": sha}

@@ -9,8 +9,9 @@ from pathlib import Path
 import typer
 
 from ..core.errors import InputError
+from ..core.threads import shared_threads
 from .common import (SEED_RANGE, THREADS_HELP, default_device, device_option, output_option, parse_overrides, print_json,
-                     print_table, run_command, torch_threads)
+                     print_table, run_command)
 
 
 def register(app: typer.Typer) -> None:
@@ -68,7 +69,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                       "--model NAME)")
         run_fit(chosen, sources, preset_name, parse_overrides(set_), out, steps=steps,
                 device=device, seed=seed, checkpoint=checkpoint, resume=resume, quiet=quiet, source_options=options)
-    with torch_threads(threads):
+    with shared_threads(threads):
         run_command(go)
 
 

@@ -24,6 +24,7 @@ from torch import nn
 from ..core.allocator import retain_freed_memory
 from ..core.config import config_to_dict
 from ..core.errors import DataFormatError, InputError, UnknownNameError
+from ..core.threads import adapt as adapt_threads
 from ..io.atomic import atomic_write
 from ..models.base import LearnedMaterial
 from neumat.fit import footprint_queries  # noqa: F401  (registers the "footprint" query sampler)
@@ -167,6 +168,9 @@ def fit(model: nn.Module, source: Any, recipe: Recipe | None = None, *, steps: i
                         else step_loss
                 done = step + 1
                 bar.advance()
+                if (threads := adapt_threads()) is not None:  # only under a command given no thread count
+                    bar.note(f"fit {name}: {threads}")
+                    bar.remeasure()  # the rate changes with the threads: the time estimate is measured again
                 if done % recipe.log_every == 0 or done % recipe.checkpoint_every == 0 or done == end:
                     guard.check(done, phase.name, scheduled_lr, snapshot=done < end)
                 record = None
@@ -491,7 +495,7 @@ class _Progress:
 
     def remeasure(self) -> None:
         """Measure the time estimate again from the next step on and announce it once more (the steps from here
-        cost differently: a phase's `slow_from`)."""
+        cost differently: a phase's `slow_from`, or a change of torch threads)."""
         self.start, self.warned, self.t_warm = self.done, False, time.perf_counter()
         self.announced = None
 
