@@ -14,6 +14,7 @@ import os
 import platform
 import random
 import shlex
+import signal
 import subprocess
 import sys
 import tempfile
@@ -21,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Callable, Iterator
 
+import click
 import numpy as np
 import torch
 
@@ -241,13 +243,22 @@ class Run:
         self.progress(f"skipped {what}: {reason}")
 
     def execute(self) -> dict:
-        """Pin threads, seed, run the suite and return its results document."""
+        """Pin threads, seed, run the suite and return its results document; `cut_off` is set when the run was
+        interrupted (SIGINT or SIGTERM: a full run outlasts a sitting), and the document then holds the tables
+        finished before it, with the rest named in "skipped"."""
         pin_threads(self.threads)
         seed_all(self.seed)
         self.started = started = time.perf_counter()
         cpu0 = time.process_time()
         code_now = code()  # the code that runs: read before it runs (a run takes minutes to hours)
-        self.suite.run(self)
+        self.cut_off = None
+        with _interrupted_by_sigterm():
+            try:
+                self.suite.run(self)
+            except (KeyboardInterrupt, click.exceptions.Abort):  # Abort: what a neumat command run in-process raises
+                self.cut_off = f"cut off after {time.perf_counter() - started:.0f} s"
+                self.skip("the rest of the run", f"{self.cut_off} (interrupted); the tables above are whole; the "
+                          "same command goes on from there (--ledger keeps the finished jobs, --work what they made)")
         mode = "quick" if self.quick else "full"
         return {
             "schema": SCHEMA,
@@ -269,6 +280,23 @@ class Run:
             "wall_seconds": round(time.perf_counter() - started, 2),
             "cpu_seconds": round(time.process_time() - cpu0, 2),
         }
+
+
+@contextlib.contextmanager
+def _interrupted_by_sigterm() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt inside the block (as SIGINT does), so a run stopped either way keeps its
+    finished tables; the handler before is restored after. Main thread only (elsewhere the block does nothing)."""
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+    try:
+        before = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 class Ledger:

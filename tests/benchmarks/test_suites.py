@@ -419,3 +419,30 @@ def test_the_image_tables_folder_key_follows_the_trace_defaults(monkeypatch):
     monkeypatch.setattr(option, "default", option.default // 2)
     assert neupress.trace_defaults()["cli"]["images"] == option.default
     assert neupress.trace_defaults() != before
+
+
+def test_a_run_cut_off_keeps_its_finished_tables_and_the_same_command_goes_on(tmp_path):
+    """SIGTERM after the neupress quick run's first table (a full run outlasts a sitting): --out holds that table,
+    "skipped" names the rest, status 130; the same command then finishes, taking the finished jobs from the ledger."""
+    import signal
+
+    out = tmp_path / "quick.json"
+    args = [sys.executable, "-m", "benchmarks", "neupress", "--quick", "--out", str(out), "--ledger",
+            str(tmp_path / "ledger.jsonl"), "--work", str(tmp_path / "work")]
+    run = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    for line in run.stderr:
+        if "table 'fits' done" in line:
+            run.send_signal(signal.SIGTERM)
+            break
+    err = run.stderr.read()
+    assert run.wait(timeout=600) == 130, err[-3000:]
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
+    assert [t["name"] for t in doc["tables"]] == ["fits"]
+    assert doc["skipped"][-1]["what"] == "the rest of the run" and "cut off after" in doc["skipped"][-1]["reason"]
+    assert "the results hold the tables finished before it" in err
+    again = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-3000:]
+    doc = json.loads(out.read_text())
+    assert doc["tables"][0]["name"] == "fits" and doc["ledger"]["entries_reused"] >= 2
+    assert not any(s["what"] == "the rest of the run" for s in doc["skipped"])
