@@ -36,14 +36,14 @@ BUDGET = {
                      "paper's Paperweight as built here (`--scene paperweight`, traced at 20^2 rays a view)",
              "paper": paper_budget(MODELS[:1]) + " on a GPU, on path-traced observations of the bunny and kitten "
                       "(10^4 paths, 24-48 h per object); image FLIP 0.009-0.079 over its five scenes",
-             "expected_wall": "about 3 h for the bunny (estimated: 1.9 h measured at the earlier defaults, 4000 "
-                              "views and 9200 steps (6,731 s wall, 5,632 CPU s, on an EPYC beside other jobs; "
-                              "results/neupress/full.json), plus twice the tracing and the NeuPreSS fits) and about "
-                              "4 h more for the paperweight (estimated: its trace costs what the bunny's does per "
-                              "observation and path, 14 against 13 us in neupress_paperweight.md, its references "
-                              "more); --work keeps traces, references and fits (a cut-off fit resumes from its "
-                              "checkpoint) and --ledger each synthetic fit and image-table row, so a run can span "
-                              "sittings"},
+             "expected_wall": "about 1.5 h for the bunny (measured in session 73 on the 2-core Xeon: its trace 44.8 "
+                              "CPU min on both cores, each NeuPreSS fit 24.0-24.6 CPU min on one, each dipole fit "
+                              "2.3-2.4, the test trace 0.8, references and scoring a few minutes: about 100 CPU min; "
+                              "75 min wall beside other work, the seed-1 fits run beside it) and about 4 h more for the paperweight "
+                              "(estimated: its trace costs what the bunny's does per observation and path, 14 against "
+                              "13 us in neupress_paperweight.md, its references more); --work keeps traces, references "
+                              "and fits (a cut-off fit resumes from its checkpoint) and --ledger each synthetic fit and "
+                              "image-table row, so a run can span sittings"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
