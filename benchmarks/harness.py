@@ -22,7 +22,6 @@ import time
 from pathlib import Path
 from typing import Callable, Iterator
 
-import click
 import numpy as np
 import torch
 
@@ -255,7 +254,7 @@ class Run:
         with _interrupted_by_sigterm():
             try:
                 self.suite.run(self)
-            except (KeyboardInterrupt, click.exceptions.Abort):  # Abort: what a neumat command run in-process raises
+            except KeyboardInterrupt:
                 self.cut_off = f"cut off after {time.perf_counter() - started:.0f} s"
                 self.skip("the rest of the run", f"{self.cut_off} (interrupted); the tables above are whole; the "
                           "same command goes on from there (--ledger keeps the finished jobs, --work what they made)")

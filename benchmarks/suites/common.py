@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+import typer
+
 from neumat.cli.main import app
 from neumat.fit.method import recipe_for
 from neumat.io.shared_data import shared_data_dir
@@ -21,10 +23,16 @@ METRICS = ("log_err", "rmse_hdr", "img_mae", "img_ssim", "img_flip", "img_floor_
 
 
 def cli(args: list[str]) -> None:
-    """Run a `neumat` command in this process, its output on stderr (stdout stays the suite's table or JSON);
-    SystemExit of a failed command propagates."""
+    """Run a `neumat` command in this process, its output on stderr (stdout stays the suite's table or JSON). A
+    failed command raises SystemExit with its exit status (its error line already printed), an interrupted one
+    KeyboardInterrupt (typer returns status 130 for it): in this mode click returns a command's status instead of
+    raising it, and a suite must not go on after a failed trace or fit."""
     with contextlib.redirect_stdout(sys.stderr):
-        app(args, standalone_mode=False)
+        status = typer.main.get_command(app).main(list(args), prog_name="neumat", standalone_mode=False)
+    if status == 130:
+        raise KeyboardInterrupt
+    if isinstance(status, int) and status != 0:
+        raise SystemExit(status)
 
 
 def fit_many(run: harness.Run, sources: list[str], models: list[str], options: list[str], seeds: list[int],

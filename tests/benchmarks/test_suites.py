@@ -446,3 +446,25 @@ def test_a_run_cut_off_keeps_its_finished_tables_and_the_same_command_goes_on(tm
     doc = json.loads(out.read_text())
     assert doc["tables"][0]["name"] == "fits" and doc["ledger"]["entries_reused"] >= 2
     assert not any(s["what"] == "the rest of the run" for s in doc["skipped"])
+
+
+def test_a_failed_or_interrupted_command_stops_the_suite_that_ran_it(tmp_path):
+    """`cli` (a neumat command in the suite's process): a failed command raises SystemExit with its status, an
+    interrupted one KeyboardInterrupt (the harness then writes the finished tables), a good one returns."""
+    import os
+    import signal
+    import threading
+
+    from benchmarks.suites.common import cli
+
+    with pytest.raises(SystemExit) as failed:
+        cli(["fit", str(tmp_path / "missing.bsdf"), "--model", "neubrdf", "-o", str(tmp_path / "a.nmat")])
+    assert failed.value.code == 2
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        cli(["fit", "plastic:roughness=0.2", "--model", "neubrdf", "--steps", "1000000", "-q", "-o",
+             str(tmp_path / "b.nmat")])
+    timer.join()
+    cli(["fit", "plastic:roughness=0.2", "--model", "neubrdf", "--steps", "2", "-q", "-o", str(tmp_path / "c.nmat")])
+    assert (tmp_path / "c.nmat").exists()
