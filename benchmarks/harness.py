@@ -213,9 +213,11 @@ class Run:
                 if (entry := self.ledger.get(digest)) is not None:   # finished while this shard looked
                     self.reused.append(entry["commit"])
                     return entry["result"]
+            self.running = what
             self.progress(f"{what}: running")
             code_now = code()  # the code the job runs, read before it runs (a fit takes minutes to hours)
             result = compute()
+            self.running = None
             if self.ledger is not None and keep(result):
                 self.ledger.add(digest, what, result, self.command, code_now)
             return result
@@ -250,14 +252,15 @@ class Run:
         self.started = started = time.perf_counter()
         cpu0 = time.process_time()
         code_now = code()  # the code that runs: read before it runs (a run takes minutes to hours)
-        self.cut_off = None
+        self.cut_off, self.running = None, None  # running: the job under way (`job`)
         with _interrupted_by_sigterm():
             try:
                 self.suite.run(self)
             except KeyboardInterrupt:
                 self.cut_off = f"cut off after {time.perf_counter() - started:.0f} s"
-                self.skip("the rest of the run", f"{self.cut_off} (interrupted); the tables above are whole; the "
-                          "same command goes on from there (--ledger keeps the finished jobs, --work what they made)")
+                self.skip("the rest of the run", f"{self.cut_off} (interrupted" + (
+                    f", in job '{self.running}'" if self.running else "") + "); the tables above are whole; the same "
+                    "command goes on from there (--ledger keeps the finished jobs, --work what they made)")
         mode = "quick" if self.quick else "full"
         return {
             "schema": SCHEMA,

@@ -422,8 +422,9 @@ def test_the_image_tables_folder_key_follows_the_trace_defaults(monkeypatch):
 
 
 def test_a_run_cut_off_keeps_its_finished_tables_and_the_same_command_goes_on(tmp_path):
-    """SIGTERM after the neupress quick run's first table (a full run outlasts a sitting): --out holds that table,
-    "skipped" names the rest, status 130; the same command then finishes, taking the finished jobs from the ledger."""
+    """SIGTERM in the neupress quick run's first image job (a full run outlasts a sitting): --out holds the table
+    before it, "skipped" names the rest and the job it stopped in, status 130; the same command then finishes,
+    taking the finished jobs from the ledger."""
     import signal
 
     out = tmp_path / "quick.json"
@@ -431,7 +432,7 @@ def test_a_run_cut_off_keeps_its_finished_tables_and_the_same_command_goes_on(tm
             str(tmp_path / "ledger.jsonl"), "--work", str(tmp_path / "work")]
     run = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     for line in run.stderr:
-        if "table 'fits' done" in line:
+        if "images: reference, another seed (floor): running" in line:  # after the first table, in a job
             run.send_signal(signal.SIGTERM)
             break
     err = run.stderr.read()
@@ -440,6 +441,7 @@ def test_a_run_cut_off_keeps_its_finished_tables_and_the_same_command_goes_on(tm
     jsonschema.validate(doc, SCHEMA)
     assert [t["name"] for t in doc["tables"]] == ["fits"]
     assert doc["skipped"][-1]["what"] == "the rest of the run" and "cut off after" in doc["skipped"][-1]["reason"]
+    assert "in job 'images: reference, another seed (floor)'" in doc["skipped"][-1]["reason"]
     assert "the results hold the tables finished before it" in err
     again = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
