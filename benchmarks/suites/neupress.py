@@ -39,11 +39,11 @@ BUDGET = {
              "expected_wall": "about 1.5 h for the bunny (measured in session 73 on the 2-core Xeon: its trace 44.8 "
                               "CPU min on both cores, each NeuPreSS fit 24.0-24.6 CPU min on one, each dipole fit "
                               "2.3-2.4, the test trace 0.8, references and scoring a few minutes: about 100 CPU min; "
-                              "75 min wall beside other work, the seed-1 fits run beside it) and about 4 h more for the paperweight "
-                              "(estimated: its trace costs what the bunny's does per observation and path, 14 against "
-                              "13 us in neupress_paperweight.md, its references more); --work keeps traces, references "
-                              "and fits (a cut-off fit resumes from its checkpoint) and --ledger each synthetic fit and "
-                              "image-table row, so a run can span sittings"},
+                              "75 min wall beside other work, the seed-1 fits run beside it) and about 4 h more for "
+                              "the paperweight (estimated: its trace costs what the bunny's does per observation and "
+                              "path, 14 against 13 us in neupress_paperweight.md, its references more); --work keeps "
+                              "traces, references and fits (a cut-off fit resumes from its checkpoint) and --ledger "
+                              "each synthetic fit and image-table row, so a run can span sittings"},
 }
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
