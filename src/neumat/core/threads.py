@@ -38,7 +38,7 @@ def own_runnable_threads() -> int:
                 stat = f.read()
         except OSError:  # the thread ended while we looked
             continue
-        count += stat[stat.rfind(")") + 2:stat.rfind(")") + 3] == "R"  # the state follows "(name) "
+        count += stat[stat.rfind(")") + 2:][:1] == "R"  # the state follows "(name) "
     return max(count, 1)
 
 
