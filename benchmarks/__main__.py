@@ -66,7 +66,13 @@ def main(argv: list[str]) -> int:
         ledger = args.ledger or (Path(tmp) / "ledger.jsonl" if args.workers > 1 else None)
         scratch = Path(tmp) / "work" if args.workers > 1 and args.work is None else None
         if args.workers > 1:
-            _shards(args, ledger, repeats, args.work or scratch)
+            try:
+                with harness.interrupted_by_sigterm():
+                    _shards(args, ledger, repeats, args.work or scratch)
+            except KeyboardInterrupt:
+                print(f"{args.suite}: cut off while its shards ran (stopped with it); the ledger keeps the jobs they "
+                      "finished, and the same command goes on from there", file=sys.stderr)
+                return 130
         run = harness.Run(load(args.suite), args.quick, args.seed, args.threads, repeats, argv, work=args.work,
                           ledger=ledger, shard=args.shard, scratch=scratch)
         doc = run.execute()
@@ -93,15 +99,22 @@ def _shard(text: str) -> tuple[int, int]:
 def _shards(args: argparse.Namespace, ledger: Path, repeats: int, work: Path) -> None:
     """Run the suite's jobs in `args.workers` shard processes at once, each adding its jobs to `ledger` and sharing
     `work` (what they make, e.g. generated sources, is made once); the tables are then built from the ledger (a
-    shard that failed leaves its jobs to that last pass)."""
+    shard that failed leaves its jobs to that last pass). Interrupted, it stops the shards and raises."""
     common = [args.suite, "--ledger", str(ledger.resolve()), "--seed", str(args.seed), "--threads", str(args.threads),
               "--repeats", str(repeats), "--work", str(work.resolve())] + (["--quick"] if args.quick else [])
     shards = [subprocess.Popen([sys.executable, "-m", "benchmarks", *common, "--shard", f"{i}/{args.workers}"],
                                cwd=harness.ROOT, stdout=subprocess.DEVNULL) for i in range(args.workers)]
-    for i, shard in enumerate(shards):
-        if shard.wait():
-            print(f"shard {i}/{args.workers} exited with status {shard.returncode}: this process runs what it left",
-                  file=sys.stderr)
+    try:
+        for i, shard in enumerate(shards):
+            if shard.wait():
+                print(f"shard {i}/{args.workers} exited with status {shard.returncode}: this process runs what it "
+                      "left", file=sys.stderr)
+    except KeyboardInterrupt:  # stop the shards too (each keeps its finished jobs in the ledger)
+        for shard in shards:
+            shard.terminate()
+        for shard in shards:
+            shard.wait()
+        raise
 
 
 if __name__ == "__main__":

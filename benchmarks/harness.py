@@ -253,7 +253,7 @@ class Run:
         cpu0 = time.process_time()
         code_now = code()  # the code that runs: read before it runs (a run takes minutes to hours)
         self.cut_off, self.running = None, None  # running: the job under way (`job`)
-        with _interrupted_by_sigterm():
+        with interrupted_by_sigterm():
             try:
                 self.suite.run(self)
             except KeyboardInterrupt:
@@ -285,7 +285,7 @@ class Run:
 
 
 @contextlib.contextmanager
-def _interrupted_by_sigterm() -> Iterator[None]:
+def interrupted_by_sigterm() -> Iterator[None]:
     """SIGTERM raises KeyboardInterrupt inside the block (as SIGINT does), so a run stopped either way keeps its
     finished tables; the handler before is restored after. Main thread only (elsewhere the block does nothing)."""
     def interrupt(signum, frame):

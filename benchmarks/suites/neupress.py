@@ -4,6 +4,7 @@ response, and the image table (issue 51's protocol) on an object traced by Mitsu
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import inspect
 from pathlib import Path
 
@@ -43,8 +44,12 @@ BUDGET = {
                               "the paperweight (estimated: its trace costs what the bunny's does per observation and "
                               "path, 14 against 13 us in neupress_paperweight.md, its references more); --work keeps "
                               "traces, references and fits (a cut-off fit resumes from its checkpoint) and --ledger "
-                              "each synthetic fit and image-table row, so a run can span sittings"},
+                              "each synthetic fit and image-table row, so a run can span sittings; --workers 2 runs "
+                              "the fits beside each other (estimated: the bunny in about 1 h)"},
 }
+#: its fits and image rows are independent jobs: --workers / --shard share them out (a table's traces and references
+#: made once, locked); the image fits run on one core each, beside each other
+SHARDS = True
 SMALL = {"neupress": dict(features=16, width=16, layers=2, sampler_hidden=[8]),
          "dipole-bssrdf": dict(samples=16, texture_resolution=2)}
 
@@ -82,7 +87,7 @@ def run(run: harness.Run) -> None:
                      "overrides": overrides[name], **method_key(name, ["--preset", "cpu"])},
                     lambda name=name, seed=seed: synthetic(name, seed, overrides[name]), keep=lambda _: True)
             for seed in seeds for name in MODELS]
-    run.table("fits", "Synthetic translucent response", rows)
+    run.table("fits", "Synthetic translucent response", [r for r in rows if r is not None])  # None: another shard's
     _images(run, seeds)
 
 
@@ -145,12 +150,14 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
         if not made:
             folder = held.enter_context(run.folder("images", setup, scene, trace_defaults()))
             train, test = folder / "train.npz", folder / "test.npz"
-            for npz, options, seed in ((train, setup["trace"], run.seed), (test, setup["test"], TEST_SEED)):
-                args = ["translucent", "trace", "--scene", scene, *media, *options, "--seed", str(seed), "-q",
-                        "--checkpoint", str(npz.with_suffix(".trace-checkpoint")), "--resume", "-o"]
-                _kept(npz, lambda out, args=args: cli([*args, str(out)]))
-            made.update(folder=folder, train=train, scorer=_Scorer(folder, train, test, light, setup),
-                        traced=Observations.load_source(train).get("trace_cpu_seconds"))  # absent before it
+            with open(folder / "make.lock", "w") as lock:  # shards sharing the folder: one traces, the others wait
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                for npz, options, seed in ((train, setup["trace"], run.seed), (test, setup["test"], TEST_SEED)):
+                    args = ["translucent", "trace", "--scene", scene, *media, *options, "--seed", str(seed), "-q",
+                            "--checkpoint", str(npz.with_suffix(".trace-checkpoint")), "--resume", "-o"]
+                    _kept(npz, lambda out, args=args: cli([*args, str(out)]))
+                made.update(folder=folder, train=train, scorer=_Scorer(folder, train, test, light, setup),
+                            traced=Observations.load_source(train).get("trace_cpu_seconds"))  # absent before it
         return made["scorer"]
 
     def fitted(model: str, seed: int, preset: str) -> dict:
@@ -186,7 +193,7 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                           "a few observations, so the median ranks); the budget: 'trace CPU min' the training "
                           "trace's CPU (all threads, as `neumat translucent trace` records it), 'fit CPU min' the "
                           "fit's (as `neumat fit` records it in the model file)")
-    run.table(name, title, rows)
+    run.table(name, title, [r for r in rows if r is not None])  # None: a row another shard is running
 
 
 def trace_defaults() -> dict:

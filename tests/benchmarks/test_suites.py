@@ -66,8 +66,8 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     extra += ["--repeats", "1"] if suite == "speed" else []  # the schema and the arithmetic, not the rates: one sample
     if suite == "neubrdf":  # two shard processes fill a ledger; then a rerun must take every job from it
         extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
-    if suite == "neupress":  # its fits and image rows are jobs: a run cut off keeps the ones it finished
-        extra += ["--ledger", str(out.parent / "ledger.jsonl")]
+    if suite == "neupress":  # its fits and image rows are jobs, shared by two shards (one traces, the other waits)
+        extra += ["--ledger", str(out.parent / "ledger.jsonl"), "--workers", "2"]
     run = _bench(suite, "--quick", "--json", "--out", str(out), *extra)
     assert run.returncode == 0, run.stderr[-3000:]
     doc = json.loads(run.stdout)
@@ -394,7 +394,7 @@ def test_shards_are_refused_where_they_cannot_work(capsys, tmp_path):
                            "takes neither --out"),
                           (["neubrdf", "--shard", "2/2", "--ledger", ledger], "expected 0 <= I < N"),
                           (["neubrdf", "--shard", "x", "--ledger", ledger], "expected I/N"),
-                          (["neupress", "--workers", "2"], "suite neupress has no independent fit jobs")):
+                          (["speed", "--workers", "2"], "suite speed has no independent fit jobs")):
         status, _, err = _main(capsys, *args)
         assert status == 2 and message in err, (args, err)
 
@@ -470,3 +470,24 @@ def test_a_failed_or_interrupted_command_stops_the_suite_that_ran_it(tmp_path):
     timer.join()
     cli(["fit", "plastic:roughness=0.2", "--model", "neubrdf", "--steps", "2", "-q", "-o", str(tmp_path / "c.nmat")])
     assert (tmp_path / "c.nmat").exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="looks for the shard processes with pgrep")
+def test_a_run_with_workers_cut_off_stops_its_shards(tmp_path):
+    """SIGTERM to a --workers 2 run while its shards work: it stops them (none left running), says the ledger keeps
+    what they finished and exits 130."""
+    import signal
+
+    ledger = tmp_path / "ledger.jsonl"
+    run = subprocess.Popen([sys.executable, "-m", "benchmarks", "neupress", "--quick", "--workers", "2", "--ledger",
+                            str(ledger), "--work", str(tmp_path / "work")], cwd=ROOT, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True)
+    for line in run.stderr:
+        if "[shard" in line and "running" in line:
+            run.send_signal(signal.SIGTERM)
+            break
+    err = run.stderr.read()
+    assert run.wait(timeout=600) == 130, err[-3000:]
+    assert "cut off while its shards ran" in err
+    left = subprocess.run(["pgrep", "-f", str(ledger)], capture_output=True, text=True).stdout.split()
+    assert left == [], left
