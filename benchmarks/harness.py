@@ -338,11 +338,20 @@ class Ledger:
 
 
 def _relative(path: Path) -> str:
-    """`path` relative to the repository root where it lies inside it (results name no machine's folders)."""
-    try:
-        return str(path.resolve().relative_to(ROOT))
-    except ValueError:
-        return str(path)
+    """`path` relative to the root of the checkout it lies in (this one, or another one's ledger when the suite runs
+    from a frozen worktree): results name no machine's folders."""
+    path = path.resolve()
+    roots = [ROOT]
+    top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=path.parent if path.parent.is_dir() else ROOT,
+                         capture_output=True, text=True)
+    if top.returncode == 0:
+        roots.append(Path(top.stdout.strip()).resolve())
+    for root in roots:
+        try:
+            return str(path.relative_to(root))
+        except ValueError:
+            continue
+    return str(path)
 
 
 def _plain(row: dict) -> dict:

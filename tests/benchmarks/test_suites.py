@@ -491,3 +491,13 @@ def test_a_run_with_workers_cut_off_stops_its_shards(tmp_path):
     assert "cut off while its shards ran" in err
     left = subprocess.run(["pgrep", "-f", str(ledger)], capture_output=True, text=True).stdout.split()
     assert left == [], left
+
+
+def test_results_name_a_ledger_relative_to_its_own_checkout(tmp_path):
+    """A ledger in another checkout (a suite run from a frozen worktree writing main's ledger) is named relative to
+    that checkout's root, one outside any checkout by its path."""
+    subprocess.run(["git", "init", "-q", str(tmp_path / "repo")], check=True)
+    (tmp_path / "repo" / "results").mkdir()
+    assert harness._relative(tmp_path / "repo" / "results" / "l.jsonl") == "results/l.jsonl"
+    assert harness._relative(tmp_path / "l.jsonl") == str((tmp_path / "l.jsonl").resolve())
+    assert harness._relative(harness.ROOT / "benchmarks" / "x.json") == "benchmarks/x.json"
