@@ -120,11 +120,11 @@ def _dirty() -> bool:
                      ":(exclude,glob)benchmarks/studies/*/results/**"))
 
 
-def _git(*args: str, cwd: Path = ROOT) -> str:
+def _git(*args: str, cwd: Path | None = None) -> str:
     """git's answer in the checkout (or the one at `cwd`), or "unknown" (no git, or a copy of the tree without its
     .git)."""
     try:
-        out = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True)
+        out = subprocess.run(["git", *args], cwd=cwd or ROOT, capture_output=True, text=True)
     except OSError:
         return "unknown"
     return out.stdout.strip() if out.returncode == 0 else "unknown"
@@ -342,7 +342,7 @@ def _relative(path: Path) -> str:
     """`path` relative to the root of the checkout it lies in (this one, or another one's ledger when the suite runs
     from a frozen worktree): results name no machine's folders."""
     path = path.resolve()
-    top = _git("rev-parse", "--show-toplevel", cwd=path.parent if path.parent.is_dir() else ROOT)
+    top = _git("rev-parse", "--show-toplevel", cwd=path.parent if path.parent.is_dir() else None)
     for root in (ROOT, None if top == "unknown" else Path(top).resolve()):
         if root is not None and path.is_relative_to(root):
             return str(path.relative_to(root))
