@@ -77,7 +77,7 @@ def main(argv: list[str]) -> int:
                           ledger=ledger, shard=args.shard, scratch=scratch)
         doc = run.execute()
     if args.out is not None:
-        harness.write(doc, args.out)
+        doc = harness.write(doc, args.out)
     print(json.dumps(doc, indent=1) if args.json else harness.markdown(doc))
     if run.cut_off is not None:
         print(f"{args.suite}: {run.cut_off}: the results hold the tables finished before it", file=sys.stderr)

@@ -3,8 +3,11 @@ as JSON (benchmarks/schema.json) and the Markdown page rendered from them; one p
 are taken and recorded the same way."""
 from __future__ import annotations
 
+import base64
 import contextlib
+import copy
 import datetime
+import io
 import fcntl
 import hashlib
 import importlib.metadata
@@ -174,11 +177,12 @@ class Run:
         """`cpu_seconds` at this run's repeats and sample length."""
         return cpu_seconds(fn, self.repeats, self.min_seconds, grad)
 
-    def table(self, name: str, title: str, rows: list[dict], notes: str = "") -> None:
-        """Record a table: rows of {column: number, text, bool or None}, columns in the first row's order."""
+    def table(self, name: str, title: str, rows: list[dict], notes: str = "", figure: dict | None = None) -> None:
+        """Record a table: rows of {column: number, text, bool or None}, columns in the first row's order; `figure`
+        ({"caption": text, "png": `png_base64(...)`}) a picture shown under it (`write` puts it in a PNG file)."""
         columns = list(dict.fromkeys(k for row in rows for k in row))
         self.tables.append({"name": name, "title": title, "columns": columns, "rows": [_plain(r) for r in rows],
-                            "notes": notes})
+                            "notes": notes, **({"figure": figure} if figure is not None else {})})
         self.progress(f"table '{name}' done ({len(rows)} rows)")
 
     @contextlib.contextmanager
@@ -361,16 +365,34 @@ def _plain(row: dict) -> dict:
     return out
 
 
-def write(doc: dict, out: Path) -> tuple[Path, Path]:
-    """Write `doc` as JSON at `out` and regenerate the folder's page (README.md: every results file in it, i.e.
-    each JSON file there that names this harness's schema; other JSON beside `--out` is left out, not a crash at the
-    end of a run of hours); returns both paths."""
+def png_base64(image: np.ndarray) -> str:
+    """A uint8 (H, W, 3) picture as base64 PNG text: how a figure travels in a ledger entry and a results document
+    until `write` puts it in its file."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG", optimize=True)
+    return base64.b64encode(buffer.getvalue()).decode()
+
+
+def write(doc: dict, out: Path) -> dict:
+    """Write `doc` as JSON at `out`, each table's figure as the PNG file `STEM.TABLE.png` beside it (`full.images.png`,
+    named in the JSON), and regenerate the folder's page (README.md: every results file in it, i.e. each JSON file
+    there that names this harness's schema; other JSON beside `--out` is left out, not a crash at the end of a run of
+    hours); returns the document as written."""
     out.parent.mkdir(parents=True, exist_ok=True)
+    doc = copy.deepcopy(doc)
+    for table in doc["tables"]:
+        figure = table.get("figure")
+        if figure is not None and "png" in figure:
+            file = out.with_name(f"{out.stem}.{table['name']}.png")
+            file.write_bytes(base64.b64decode(figure["png"]))
+            table["figure"] = {"caption": figure["caption"], "file": file.name}
     out.write_text(json.dumps(doc, indent=1) + "\n")
     page = out.parent / "README.md"
     page.write_text("\n".join(markdown(d) for d in map(_results_document, sorted(out.parent.glob("*.json")))
                               if d is not None))
-    return out, page
+    return doc
 
 
 def _results_document(path: Path) -> dict | None:
@@ -414,6 +436,10 @@ def markdown(doc: dict) -> str:
             continue
         lines += ["| " + " | ".join(t["columns"]) + " |", "|" + "---|" * len(t["columns"])]
         lines += ["| " + " | ".join(_cell(r.get(c)) for c in t["columns"]) + " |" for r in t["rows"]]
+        if "figure" in t:
+            figure = t["figure"]
+            lines += ["", f"![{t['name']}]({figure['file']})", "", figure["caption"]] if "file" in figure else \
+                ["", "(its figure: `--out` writes it as a PNG file)"]
     if doc["skipped"]:
         lines += ["", "## Not measured here", ""] + [f"- {s['what']}: {s['reason']}" for s in doc["skipped"]]
     return "\n".join(lines) + "\n"

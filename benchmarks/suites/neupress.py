@@ -15,6 +15,7 @@ from neumat.core.query import Query
 from neumat.fit.preset import build_fit
 from neumat.fit.trainer import fit
 from neumat.fit.translucent_observations import Observations
+from neumat.viz.compare import compare_image
 from neumat.warp.sphere import sample_uniform_sphere
 
 from .. import harness
@@ -160,16 +161,27 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                             traced=Observations.load_source(train).get("trace_cpu_seconds"))  # absent before it
         return made["scorer"]
 
-    def fitted(model: str, seed: int, preset: str) -> dict:
-        score = scorer()
+    def model_file(model: str, seed: int, preset: str) -> Path:
+        scorer()
         nmat = made["folder"] / f"{model}-{seed}-{preset[:12]}.nmat"  # the preset's content: a new default refits
-        _kept(nmat, lambda out: cli(["fit", str(made["train"]), "--model", model, *setup["fit"].get(model, []),
-                                     "--seed", str(seed), "--threads", str(run.threads), "-q",
-                                     "--checkpoint", str(nmat.with_suffix(".checkpoint")), "--resume",
-                                     "-o", str(out)]))
+        return _kept(nmat, lambda out: cli(["fit", str(made["train"]), "--model", model, *setup["fit"].get(model, []),
+                                            "--seed", str(seed), "--threads", str(run.threads), "-q",
+                                            "--checkpoint", str(nmat.with_suffix(".checkpoint")), "--resume",
+                                            "-o", str(out)]))
+
+    def fitted(model: str, seed: int, preset: str) -> dict:
+        nmat = model_file(model, seed, preset)
         traced = made["traced"]
-        return {"model": model, "seed": seed, **score.model(nmat),
+        return {"model": model, "seed": seed, **scorer().model(nmat),
                 "trace CPU min": None if traced is None else traced / 60}
+
+    def picture(rows: list[dict], seed: int, presets: dict) -> dict:
+        score = scorer()
+        images = {f"{model} (seed {seed})": score.image(model_file(model, seed, presets[model])) for model in MODELS}
+        images[rows[0]["model"]] = score.references[1]
+        metrics = {f"{r['model']} (seed {r['seed']})" if r["seed"] is not None else r["model"]:
+                   {k: r[k] for k in ("object FLIP", "FLIP", "SSIM")} for r in rows}
+        return {"png": harness.png_base64(compare_image(score.references[0], images, metrics, tonemap="aces"))}
 
     # the scene as the setup names it (not the shared data's path on this machine), the trace's defaults and seed
     table_key = {"job": "image table", "table": name, "setup": setup, "media": media, "trace": trace_defaults(),
@@ -185,6 +197,16 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                                     {**table_key, "row": model, "seed": seed, **key},
                                     lambda model=model, seed=seed, preset=key["preset"]: fitted(model, seed, preset),
                                     keep=lambda _: True))
+        figure = None
+        if all(r is not None for r in rows):  # in a shard, the last pass draws what other shards' rows show
+            presets = {model: method_key(model, [])["preset"] for model in MODELS}
+            shown = [rows[0]] + [r for r in rows[1:] if r["seed"] == seeds[0]]
+            drawn = run.job(f"{name}: figure", {**table_key, "row": "figure", "seed": seeds[0], "presets": presets},
+                            lambda: picture(shown, seeds[0], presets), keep=lambda _: True)
+            if drawn is not None:
+                figure = {"caption": f"Each row: the {setup['reference_spp']}-spp reference | the image scored "
+                                     f"against it (seed {seeds[0]}'s models, then the reference's second seed, the "
+                                     "floor) | its FLIP error (0 black, 1 yellow), ACES tone map", "png": drawn["png"]}
     run.protocol[name] = (f"the full appearance (surface reflection + subsurface + background) at "
                           f"{setup['resolution']}^2, {setup['spp']} spp MIS, against a {setup['reference_spp']}-"
                           "spp Mitsuba reference, ACES tone map; object FLIP over the object's pixels; the "
@@ -193,7 +215,7 @@ def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setu
                           "a few observations, so the median ranks); the budget: 'trace CPU min' the training "
                           "trace's CPU (all threads, as `neumat translucent trace` records it), 'fit CPU min' the "
                           "fit's (as `neumat fit` records it in the model file)")
-    run.table(name, title, [r for r in rows if r is not None])  # None: a row another shard is running
+    run.table(name, title, [r for r in rows if r is not None], figure=figure)  # None: another shard's row
 
 
 def trace_defaults() -> dict:
@@ -249,7 +271,6 @@ class _Scorer:
     def model(self, nmat: Path) -> dict:
         from neumat.catalog.modelfile import load_model
         from neumat.io.modelfile import read_header
-        from neumat.render.translucent import render_translucent
 
         model = load_model(nmat, device="cpu")
         t = self.test
@@ -257,11 +278,28 @@ class _Scorer:
             pred = torch.cat([model.eval(Query(wi=t.wi[i:i + 8192], wo=t.wo[i:i + 8192], x=t.x[i:i + 8192],
                                                n=t.n[i:i + 8192])) for i in range(0, len(t), 8192)])
         err = ((pred.double() - t.value.double()) ** 2).mean(-1) / t.value.double().var(0).mean()
-        image = render_translucent(model, self.obj, self.env, self.camera, self.setup["resolution"],
-                                   spp=self.setup["spp"], seed=0, appearance="full")
+        image = self.render(model, nmat)
         fit_cpu = read_header(nmat)["metrics"].get("fit_cpu_seconds")  # absent from fits made before it
         return {"held-out mean": float(err.mean()), "held-out median": float(err.median()), **self._image(image),
                 "bytes": model.size_bytes(), "fit CPU min": None if fit_cpu is None else fit_cpu / 60}
+
+    def render(self, model, nmat: Path) -> torch.Tensor:
+        """`model`'s image at the table's protocol, also kept beside its file `nmat` (for the figure)."""
+        from neumat.render.translucent import render_translucent
+
+        image = render_translucent(model, self.obj, self.env, self.camera, self.setup["resolution"],
+                                   spp=self.setup["spp"], seed=0, appearance="full")
+        path = nmat.with_suffix(".image.npy")
+        path.unlink(missing_ok=True)
+        _kept(path, lambda out: np.save(out, image.numpy()))
+        return image
+
+    def image(self, nmat: Path) -> torch.Tensor:
+        """The image its row scored: kept, or rendered again (a row made before images were kept)."""
+        from neumat.catalog.modelfile import load_model
+
+        path = nmat.with_suffix(".image.npy")
+        return torch.from_numpy(np.load(path)) if path.exists() else self.render(load_model(nmat, device="cpu"), nmat)
 
     def _image(self, image: torch.Tensor) -> dict:
         from neumat.render.translucent import image_scores

@@ -3,6 +3,7 @@ that match benchmarks/schema.json with its command, commit and machine, every co
 benchmarks (suites and studies) hold no sys.path edit and no training loop of their own. Speed numbers are checked for sanity only."""
 from __future__ import annotations
 
+import base64
 import json
 import re
 import subprocess
@@ -10,8 +11,10 @@ import sys
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from benchmarks import harness
 from benchmarks.suites import SUITES, speed
@@ -115,6 +118,12 @@ def _check_neupress_images(doc: dict, work: Path) -> None:
     for r in rows:
         assert 0 < r["FLIP"] < 1 and 0 < r["object FLIP"] < 1 and r["MSE"] > 0, r
     assert all(r["held-out mean"] > 0 and r["held-out median"] > 0 for r in rows[1:])
+    figure = next(t for t in doc["tables"] if t["name"] == "images")["figure"]
+    assert figure["file"] == "quick.images.png" and "FLIP error" in figure["caption"]
+    picture = np.asarray(Image.open(work.parent / figure["file"]))  # three rows of three panels of 16^2, enlarged
+    assert picture.ndim == 3 and picture.shape[0] > 3 * 160 and picture.shape[1] > 3 * 160, picture.shape
+    image = np.load(fits[1].with_suffix(".image.npy"))  # the image its row scored, kept for the figure
+    assert image.shape == (16, 16, 3) and np.isfinite(image).all()
 
 
 def _check_neupress_ledger(out: Path, doc: dict) -> None:
@@ -122,7 +131,7 @@ def _check_neupress_ledger(out: Path, doc: dict) -> None:
     and traces, renders and fits nothing (a full table takes hours: one sitting's table is not redone in the next)."""
     entries = [json.loads(line) for line in (out.parent / "ledger.jsonl").read_text().splitlines()]
     images = next((t for t in doc["tables"] if t["name"] == "images"), None)
-    assert len(entries) == 2 + (len(images["rows"]) if images else 0)
+    assert len(entries) == 2 + (len(images["rows"]) + 1 if images else 0)  # the rows and the figure
     assert sorted(e["result"]["model"] for e in entries[:2]) == ["dipole-bssrdf", "neupress"]
     work = out.parent / "work-again"
     run = _bench("neupress", "--quick", "--json", "--ledger", str(out.parent / "ledger.jsonl"), "--work", str(work))
@@ -130,6 +139,9 @@ def _check_neupress_ledger(out: Path, doc: dict) -> None:
     again = json.loads(run.stdout)
     assert again["ledger"]["entries_reused"] == len(entries) and "running" not in run.stderr, run.stderr[-2000:]
     assert [t["rows"] for t in again["tables"]] == [t["rows"] for t in doc["tables"]]
+    if images:  # the figure too, from the ledger (as the written one's PNG)
+        png = next(t for t in again["tables"] if t["name"] == "images")["figure"]["png"]
+        assert base64.b64decode(png) == (out.parent / "quick.images.png").read_bytes()
     assert not list(work.glob("*"))  # nothing traced or fitted
 
 
