@@ -8,6 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import typer
@@ -74,6 +75,8 @@ def test_three_good_sources_and_a_corrupt_one_then_a_rerun_fits_only_the_failed(
         assert 0 <= r["metrics"]["rmse_hdr"] < 1 and "img_flip" in r["metrics"] and r["bytes_fp16"] > 0
         assert Path(r["nmat"]).is_file() and r["source"] in sources and len(r["source_sha256"]) == 64
         assert r["worker"] and r["device"] == "cpu" and r["fit_seconds"] > 0 and r["recipe"]["steps"] == 10
+        assert r["picture"] == str(out / f"{name}.ggx.png") and f"![{name} x ggx]({name}.ggx.png)" in (
+            out / "results.md").read_text()
     assert rows["corrupt"]["status"] == "error" and "DataFormatError" in rows["corrupt"]["error"]
     assert not (out / "corrupt.ggx.nmat").exists()
     assert "corrupt" in (out / "results.md").read_text() and "| ggx | 3 | 1 |" in (out / "results.md").read_text()
@@ -219,6 +222,32 @@ def test_changed_evaluation_options_evaluate_the_saved_models_again_without_refi
     res = CliRunner().invoke(app, [*args, "--image-spp", "2"])
     assert "(1 of them fitted before: evaluated again)" in " ".join(res.output.split()), res.output
     assert _rows(out)["teacher0"]["nmat_sha256"] == first["nmat_sha256"]
+
+
+def test_each_fit_gets_its_picture_and_a_rerun_without_it_evaluates_again_without_refitting(app, tmp_path):
+    """Evaluated on images, a fit's picture is OUT/<source>.<model>.png: reference | model | FLIP error, then the
+    floor's row, with the row's scores; a row whose picture is gone (or made before pictures existed) is evaluated
+    again, keeping its fit, and the same scores come back (the same renders)."""
+    from PIL import Image
+
+    from neumat.viz.compare import compare_image
+
+    src = _teachers(tmp_path / "src", 1)
+    out = tmp_path / "out"
+    args = [*src, *FAST, "--image-spp", "2", "--image-resolution", "16", "--engine", "local", "-o", str(out)]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    (first,) = _rows(out).values()
+    picture = np.asarray(Image.open(first["picture"]))
+    two_rows = compare_image(np.zeros((16, 16, 3)), {"ggx": np.zeros((16, 16, 3)), "floor": np.zeros((16, 16, 3))})
+    assert picture.shape == two_rows.shape and picture.std() > 0  # two rows of three panels, not blank
+    Path(first["picture"]).unlink()
+    res = CliRunner().invoke(app, args)
+    assert "1 to fit (1 of them fitted before: evaluated again)" in " ".join(res.output.split()), res.output
+    (again,) = _rows(out).values()
+    assert again["nmat_sha256"] == first["nmat_sha256"] and again["metrics"] == first["metrics"]
+    assert np.array_equal(np.asarray(Image.open(again["picture"])), picture)
+    res = CliRunner().invoke(app, args)  # with its picture: kept
+    assert "1 already done (kept), 0 to fit" in " ".join(res.output.split()), res.output
 
 
 def test_preset_cpu_fits_with_the_cpu_recipe_and_counts_as_other_options(app, tmp_path):

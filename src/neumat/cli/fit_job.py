@@ -20,7 +20,7 @@ from ..fit.preset import DEFAULT_PRESET
 
 #: the row keys, in the order results.json and results.md show them
 ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "defaults_sha256",
-            "nmat", "nmat_sha256", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds",
+            "nmat", "nmat_sha256", "picture", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds",
             "device", "worker", "warnings", "error")
 #: the row keys an evaluation of an already fitted model takes over from the fit's row
 FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings", "defaults_sha256")
@@ -165,8 +165,8 @@ def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
     if job.evaluate_only:
         fitted = load_model(job.out, device=device).runtime()  # files of older versions hold the training form
         return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
-                "metrics": _checked(evaluate_against(fitted, src, job, device), job),
-                "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
+                "metrics": _checked(evaluate_against(fitted, src, job, device, picture_path(job)), job),
+                "picture": _picture(job), "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
     model, resolved = build_fit(job.model, job.preset, device=device, source=src, overrides=job.overrides,
                                 seed=job.seed)
     checkpoint = checkpoint_path(job, device, source_sha)
@@ -181,12 +181,24 @@ def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
                preset={"name": resolved.preset, "overrides": resolved.applied})  # the shipped form, as `neumat fit`
     checkpoint.unlink(missing_ok=True)
     fitted = load_model(job.out, device=device)
-    metrics = _checked(evaluate_against(fitted, src, job, device), job)
-    return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
+    metrics = _checked(evaluate_against(fitted, src, job, device, picture_path(job)), job)
+    return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "picture": _picture(job),
+            "file_bytes": job.out.stat().st_size,
             "recipe": config_to_dict(result.recipe), "defaults_sha256": job.defaults_sha256(str(device)),
             "metrics": metrics, "steps": result.steps,
             "bytes_fp16": int(fitted.size_bytes("fp16")), "fit_seconds": result.seconds, "device": str(device),
             "warnings": result.warnings}
+
+
+def picture_path(job: FitJob) -> Path | None:
+    """Where the job's picture goes (OUT/<source>.<model>.png: reference | model | FLIP error, and the floor), when
+    it is evaluated on images (image_spp > 0)."""
+    return job.out.with_suffix(".png") if job.image_spp > 0 else None
+
+
+def _picture(job: FitJob) -> str | None:
+    path = picture_path(job)
+    return None if path is None else str(path)
 
 
 def checkpoint_path(job: FitJob, device, source_sha: str) -> Path:
@@ -215,20 +227,33 @@ def _checked(metrics: dict[str, float], job: FitJob) -> dict[str, float]:
     return metrics
 
 
-def evaluate_against(model, reference, job: FitJob, device) -> dict[str, float]:
+def evaluate_against(model, reference, job: FitJob, device, picture: Path | None = None) -> dict[str, float]:
     """`neumat eval`'s quality metrics of `model` against `reference`: reflectance errors over `job.eval_n`
     cosine-weighted queries and, with `job.image_spp` > 0, image metrics of sphere renderings (img_*) with the
-    reference's noise floor (img_floor_*, `neumat.render.comparison`)."""
+    reference's noise floor (img_floor_*, `neumat.render.comparison`), and then the rows reference | model | FLIP
+    error and reference | floor | FLIP error written to `picture` (a PNG), when given."""
     from ..metrics.hdr import reflectance_errors
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
     if job.image_spp > 0:
-        from ..render.comparison import image_comparison
+        from ..render.comparison import FLOOR_NAME, comparison_images, image_comparison
 
         renders = reference_renders_of(reference, job, device)
+        test = comparison_images({"test": model}, job.image_spp, job.image_resolution, seed=0, device=device)["test"]
         img = image_comparison(model, reference, job.image_spp, job.image_resolution, seed=0, device=device,
-                               renders=renders)
+                               renders=renders, test=test)
         out.update({f"img_{k}": float(v) for k, v in img.items()})
+        if picture is not None:
+            from PIL import Image
+
+            from ..io.atomic import atomic_write
+            from ..viz.compare import compare_image
+
+            shown = ("flip", "ssim", "mae")
+            image = compare_image(renders[0], {job.model: test, FLOOR_NAME: renders[1]},
+                                  {job.model: {k: img[k] for k in shown},
+                                   FLOOR_NAME: {k: img[f"floor_{k}"] for k in shown}})
+            atomic_write(picture, lambda tmp: Image.fromarray(image).save(tmp, format="PNG"))
     return out
 
 

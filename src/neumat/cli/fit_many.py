@@ -60,18 +60,20 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                                                        "image metrics, for later runs and other processes (default: "
                                                        "OUT/reference-renders)"),
              quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per job (the summary stays)"),
-             out: Path = typer.Option(..., "-o", "--out", help="output folder: <source>.<model>.nmat, "
-                                                               "results.json, results.md")) -> None:
+             out: Path = typer.Option(..., "-o", "--out", help="output folder: <source>.<model>.nmat "
+                                                               "and .png, results.json, results.md")) -> None:
     """Fit every MODEL to every source as independent jobs (Ray tasks), evaluate each fitted model against its
     source (`neumat eval`'s reflectance errors and, with --image-spp > 0, sphere-image metrics), and write
     OUT/<source>.<model>.nmat, OUT/results.json (one row per source and model: source and its hash, model,
-    recipe, metrics, bytes, fit seconds, device, worker, or the error that stopped it) and OUT/results.md. A
-    failing source gets its error row and the others go on. Run the same command again to resume: rows whose
-    .nmat, source hash, options and the code's defaults (recipe contents, model config) match are kept, those
-    whose evaluation options alone changed (--n-configs, --image-spp, --image-resolution) are evaluated again
-    without refitting, the others (failed, new, changed) are fitted; a job stopped with its process (a killed run, a
-    lost Ray worker) resumes its fit from its checkpoint, OUT/<source>.<model>.<key>.ckpt. Without Ray
-    installed, --engine auto runs the jobs one after another here (install Ray: pip install 'neumat\\[ray]').
+    recipe, metrics, bytes, fit seconds, device, worker, or the error that stopped it), OUT/results.md and, with
+    --image-spp > 0, each fit's picture OUT/<source>.<model>.png (reference | model | FLIP error). A failing
+    source gets its error row and the others go on. Run the same command again to resume: rows whose .nmat,
+    source hash, options and the code's defaults (recipe contents, model config) match are kept, those whose
+    evaluation options alone changed (--n-configs, --image-spp, --image-resolution) or whose picture is missing
+    are evaluated again without refitting, the others (failed, new, changed) are fitted; a job stopped with its
+    process (a killed run, a lost Ray worker) resumes its fit from its checkpoint, OUT/<source>.<model>.<key>.ckpt.
+    Without Ray installed, --engine auto runs the jobs one after another here (install Ray: pip install
+    'neumat\\[ray]').
     Exit code 1 when some job failed."""
 
     def go() -> bool:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..core.errors import DataFormatError
 from ..io.atomic import atomic_write
-from .fit_job import FitJob, file_sha256
+from .fit_job import FitJob, file_sha256, picture_path
 
 #: metrics shown in results.md, in this order, where some row has them
 TABLE_METRICS = ("rmse_hdr", "mae_hdr", "rel_err", "log_err", "img_mae", "img_rmse", "img_ssim", "img_flip",
@@ -37,8 +37,11 @@ def write_rows(path: Path, rows: list[dict], run: dict) -> None:
 
 def is_done(row: dict | None, job: FitJob, source_sha256: str) -> bool:
     """Whether `row` (from a previous run) already holds `job`: fitted and evaluated without error with the same
-    options to a source of the same hash, and its .nmat is still the file it wrote."""
-    return is_fitted(row, job, source_sha256) and row.get("options_sha256") == job.options_sha256()
+    options to a source of the same hash, its .nmat still the file it wrote, and its picture there when it is
+    evaluated on images (a row made before pictures existed is evaluated again)."""
+    picture = picture_path(job)
+    return is_fitted(row, job, source_sha256) and row.get("options_sha256") == job.options_sha256() and (
+        picture is None or (row.get("picture") == str(picture) and picture.is_file()))
 
 
 def is_fitted(row: dict | None, job: FitJob, source_sha256: str) -> bool:
@@ -78,7 +81,12 @@ def markdown(rows: list[dict], title: str, notes: list[str]) -> str:
         cells = [_mean([(r["metrics"] or {}).get(k) for r in ok]) for k in metrics]
         means.append(f"| {model} | {len(ok)} | {n - len(ok)} | " + " | ".join(_num(c) for c in cells) +
                      f" | {_int(_mean([r['bytes_fp16'] for r in ok]))} | {_num(_mean([r['fit_seconds'] for r in ok]), '.1f')} |")
-    return "\n".join(lines + ["", "## Mean per model (sources without error)", ""] + means) + "\n"
+    pictures = [f"![{r['name']} x {r['model']}]({Path(r['picture']).name})" for r in rows
+                if r["status"] == "ok" and r.get("picture")]
+    if pictures:
+        pictures = ["", "## Pictures", "", "Each: the reference | the model | its FLIP error, then the reference "
+                    "rendered like the model (the floor).", "", *pictures]
+    return "\n".join(lines + ["", "## Mean per model (sources without error)", ""] + means + pictures) + "\n"
 
 
 def _mean(values: list) -> float | None:
