@@ -20,8 +20,8 @@ from ..fit.preset import DEFAULT_PRESET
 
 #: the row keys, in the order results.json and results.md show them
 ROW_KEYS = ("name", "model", "status", "source", "source_sha256", "options_sha256", "fit_sha256", "defaults_sha256",
-            "nmat", "nmat_sha256", "picture", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds", "seconds",
-            "device", "worker", "warnings", "error")
+            "nmat", "nmat_sha256", "picture", "recipe", "metrics", "bytes_fp16", "file_bytes", "steps", "fit_seconds",
+            "seconds", "device", "worker", "warnings", "error")
 #: the row keys an evaluation of an already fitted model takes over from the fit's row
 FIT_KEYS = ("recipe", "steps", "fit_seconds", "warnings", "defaults_sha256")
 #: version of the image metrics' protocol (`neumat.render.comparison`); part of the options hash, so rows
@@ -162,11 +162,13 @@ def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
 
     device = resolve_device(job.device)
     src = open_training_source(job.model, [job.source], job.source_options)
+    picture = picture_path(job)
     if job.evaluate_only:
         fitted = load_model(job.out, device=device).runtime()  # files of older versions hold the training form
         return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "file_bytes": job.out.stat().st_size,
-                "metrics": _checked(evaluate_against(fitted, src, job, device, picture_path(job)), job),
-                "picture": _picture(job), "bytes_fp16": int(fitted.size_bytes("fp16")), "device": str(device)}
+                "metrics": _checked(evaluate_against(fitted, src, job, device, picture), job),
+                "picture": picture and str(picture), "bytes_fp16": int(fitted.size_bytes("fp16")),
+                "device": str(device)}
     model, resolved = build_fit(job.model, job.preset, device=device, source=src, overrides=job.overrides,
                                 seed=job.seed)
     checkpoint = checkpoint_path(job, device, source_sha)
@@ -181,8 +183,8 @@ def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
                preset={"name": resolved.preset, "overrides": resolved.applied})  # the shipped form, as `neumat fit`
     checkpoint.unlink(missing_ok=True)
     fitted = load_model(job.out, device=device)
-    metrics = _checked(evaluate_against(fitted, src, job, device, picture_path(job)), job)
-    return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "picture": _picture(job),
+    metrics = _checked(evaluate_against(fitted, src, job, device, picture), job)
+    return {"nmat": str(job.out), "nmat_sha256": file_sha256(job.out), "picture": picture and str(picture),
             "file_bytes": job.out.stat().st_size,
             "recipe": config_to_dict(result.recipe), "defaults_sha256": job.defaults_sha256(str(device)),
             "metrics": metrics, "steps": result.steps,
@@ -194,11 +196,6 @@ def picture_path(job: FitJob) -> Path | None:
     """Where the job's picture goes (OUT/<source>.<model>.png: reference | model | FLIP error, and the floor), when
     it is evaluated on images (image_spp > 0)."""
     return job.out.with_suffix(".png") if job.image_spp > 0 else None
-
-
-def _picture(job: FitJob) -> str | None:
-    path = picture_path(job)
-    return None if path is None else str(path)
 
 
 def checkpoint_path(job: FitJob, device, source_sha: str) -> Path:
