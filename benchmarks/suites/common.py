@@ -48,8 +48,8 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     called before a job of that source runs (so jobs the ledger holds need no source), its text keying the job
     instead of the file's hash. Shards take the sources in a rotated order, so they make different ones first."""
     if run.work is not None:
-        run.protocol["fits"] = (f"fit-many folders kept under {run.work} (a rerun resumes); wall and CPU seconds are "
-                                f"this sitting's, each row's 'fit s' its own fit's")
+        run.protocol["fits"] = ("fit-many folders kept under --work (a rerun resumes); wall and CPU seconds are "
+                                "this sitting's, each row's 'fit s' its own fit's")  # no machine's folder in results
     from neumat.cli.fit_job import source_sha256  # of a file's bytes, a folder's files or a spec: never a path
 
     made = made or {}
