@@ -3,13 +3,16 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import typer
 from typer.testing import CliRunner
 
 from neumat.catalog.modelfile import load_model, save_model
+from neumat.catalog.open_material import open_material
 from neumat.io.modelfile import read_header
 from neumat.methods.neubrdf.model import NeuBRDF
 
@@ -127,6 +130,35 @@ def test_eval_with_image_table(app, teacher):
     assert res.exit_code == 0, res.output
     for key in ("rmse_hdr", "psnr", "flip", "bytes_fp16", "evals_per_second"):
         assert key in res.stdout
+
+
+def test_eval_picture_shows_the_renderings_it_scored(app, teacher, tmp_path):
+    """--picture: reference | model | FLIP error and the floor's row, the FLIP printed under the model being the
+    score in the JSON (the same renderings); the same scores as without it; refused with --no-image or a suffix
+    that is not an image, before any work."""
+    from PIL import Image
+
+    from neumat.render.comparison import comparison_images, reference_renders
+    from neumat.viz.compare import comparison_picture
+
+    args = ["eval", teacher, "--against", "lambert", "--n-configs", "2048", "--spp", "2", "--resolution", "16",
+            "--json"]
+    out = tmp_path / "eval.png"
+    res = CliRunner().invoke(app, [*args, "--picture", str(out)])
+    assert res.exit_code == 0, res.output
+    row = json.loads(res.stdout)
+    plain = json.loads(CliRunner().invoke(app, args).stdout)
+    assert {k: v for k, v in row.items() if k != "evals_per_second"} == \
+        {k: v for k, v in plain.items() if k != "evals_per_second"}
+    ref = open_material("lambert")
+    renders = reference_renders(ref, 2, 16, 0, "cpu")
+    test = comparison_images({"m": load_model(teacher)}, 2, 16, 0, "cpu")["m"]
+    expected = comparison_picture(renders, test, Path(teacher).stem, row)
+    assert np.array_equal(np.asarray(Image.open(out)), expected)
+    res = CliRunner().invoke(app, [*args, "--no-image", "--picture", str(out)])
+    assert res.exit_code == 2 and "--no-image" in output_text(res)
+    res = CliRunner().invoke(app, [*args, "--picture", str(tmp_path / "eval.exr")])
+    assert res.exit_code == 2 and ".png" in output_text(res)
 
 
 def test_eval_missing_model(app, tmp_path):

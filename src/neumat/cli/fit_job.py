@@ -233,7 +233,7 @@ def evaluate_against(model, reference, job: FitJob, device, picture: Path | None
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
     if job.image_spp > 0:
-        from ..render.comparison import FLOOR_NAME, comparison_images, image_comparison
+        from ..render.comparison import comparison_images, image_comparison
 
         renders = reference_renders_of(reference, job, device)
         test = comparison_images({"test": model}, job.image_spp, job.image_resolution, seed=0, device=device)["test"]
@@ -244,12 +244,9 @@ def evaluate_against(model, reference, job: FitJob, device, picture: Path | None
             from PIL import Image
 
             from ..io.atomic import atomic_write
-            from ..viz.compare import compare_image
+            from ..viz.compare import comparison_picture
 
-            shown = ("flip", "ssim", "mae")
-            image = compare_image(renders[0], {job.model: test, FLOOR_NAME: renders[1]},
-                                  {job.model: {k: img[k] for k in shown},
-                                   FLOOR_NAME: {k: img[f"floor_{k}"] for k in shown}})
+            image = comparison_picture(renders, test, job.model, img)
             atomic_write(picture, lambda tmp: Image.fromarray(image).save(tmp, format="PNG"))
     return out
 

@@ -240,6 +240,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
              member: int = typer.Option(None, "--member", min=0,
                                         help="shared-neubrdf: evaluate material i of the set (its bytes: "
                                              "its own index grid plus its share of the codebook and MLP)"),
+             picture: Path = typer.Option(None, "--picture", callback=output_option(".png", ".jpg", ".jpeg"),
+                                          help="also write the renderings scored: reference | model | FLIP error, "
+                                               "then the floor's row (the reference rendered like the model)"),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
     """Compare MODEL, as stored in its file, with a reference: reflectance errors, rendered-image metrics, size
     and speed. The defaults take about a minute on a CPU for a small model; raise --n, --spp and --resolution
@@ -250,6 +253,8 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
         from ..catalog.open_material import open_material
         from ..metrics.hdr import reflectance_errors
 
+        if picture is not None and not image:
+            raise InputError("--picture: it shows the sphere renderings, which --no-image turns off")
         dev = resolve_device(device)
         m = load_model(model, device=dev)
         if member is not None:
@@ -261,9 +266,17 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
         row = {"model": str(model), "against": against}
         row.update(reflectance_errors(m, ref, n=n_configs, seed=seed, device=dev))
         if image:
-            from ..render.comparison import PROTOCOL, image_comparison
+            from ..render.comparison import PROTOCOL, comparison_images, image_comparison, reference_renders
 
-            row.update(image_comparison(m, ref, spp, resolution, seed=seed, device=dev), image_protocol=PROTOCOL)
+            renders = reference_renders(ref, spp, resolution, seed, dev)
+            test = comparison_images({"model": m}, spp, resolution, seed, dev)["model"]
+            scores = image_comparison(m, ref, spp, resolution, seed=seed, device=dev, renders=renders, test=test)
+            row.update(scores, image_protocol=PROTOCOL)
+            if picture is not None:
+                from ..io.images import write_image_ldr
+                from ..viz.compare import comparison_picture
+
+                write_image_ldr(picture, comparison_picture(renders, test, Path(model).stem, scores))
         series = None
         if scales:
             from ..render.scale_series import score_scale_series

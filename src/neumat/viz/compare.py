@@ -53,6 +53,17 @@ def compare_image(ref, others: dict, metrics: dict | None = None, tonemap: str =
     return np.concatenate(rows, axis=0)
 
 
+def comparison_picture(renders: tuple, test, name: str, scores: dict[str, float],
+                       shown: tuple[str, ...] = ("flip", "ssim", "mae")) -> np.ndarray:
+    """The picture of one `neumat.render.comparison.image_comparison`: reference | `name`'s rendering `test` | its
+    FLIP error, then reference | the reference rendered like the model (the floor) | its FLIP error, each row with
+    its `shown` scores (`scores` holds them, and "floor_" + each); `renders` are `reference_renders`'."""
+    from ..render.comparison import FLOOR_NAME
+
+    return compare_image(renders[0], {name: test, FLOOR_NAME: renders[1]},
+                         {name: {k: scores[k] for k in shown}, FLOOR_NAME: {k: scores[f"floor_{k}"] for k in shown}})
+
+
 def _to_uint8(x: np.ndarray) -> np.ndarray:
     return np.round(np.clip(x, 0.0, 1.0) * 255.0).astype(np.uint8)
 
