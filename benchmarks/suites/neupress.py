@@ -38,15 +38,14 @@ BUDGET = {
                      "paper's Paperweight as built here (`--scene paperweight`, traced at 20^2 rays a view)",
              "paper": paper_budget(MODELS[:1]) + " on a GPU, on path-traced observations of the bunny and kitten "
                       "(10^4 paths, 24-48 h per object); image FLIP 0.009-0.079 over its five scenes",
-             "expected_wall": "about 1.5 h for the bunny (measured in session 73 on the 2-core Xeon: its trace 44.8 "
-                              "CPU min on both cores, each NeuPreSS fit 24.0-24.6 CPU min on one, each dipole fit "
-                              "2.3-2.4, the test trace 0.8, references and scoring a few minutes: about 100 CPU min; "
-                              "75 min wall beside other work, the seed-1 fits run beside it) and about 4 h more for "
-                              "the paperweight (estimated: its trace costs what the bunny's does per observation and "
-                              "path, 14 against 13 us in neupress_paperweight.md, its references more); --work keeps "
-                              "traces, references and fits (a cut-off fit resumes from its checkpoint) and --ledger "
-                              "each synthetic fit and image-table row, so a run can span sittings; --workers 2 runs "
-                              "the fits beside each other (estimated: the bunny in about 1 h)"},
+             "expected_wall": "about 3 h one job after another, about 2 h with --workers 2 (measured on the 2-core "
+                              "Xeon, sessions 73-74: the bunny's trace 44.8 CPU min on both cores, each NeuPreSS fit "
+                              "24.0-24.6 CPU min on one, each dipole fit 2.3-2.4, the test trace 0.8, references and "
+                              "scoring a few minutes: about 100 CPU min; the paperweight's trace 25.4 CPU min, its "
+                              "fits 25.3-25.8 and 2.4-2.5, its two 4096-spp references 20 s each: about 85 CPU min, "
+                              "its fits 30 min wall with --workers 2); --work keeps traces, references and fits (a "
+                              "cut-off fit resumes from its checkpoint) and --ledger each synthetic fit, image-table "
+                              "row and figure, so a run can span sittings"},
 }
 #: its fits and image rows are independent jobs: --workers / --shard share them out (a table's traces and references
 #: made once, locked); the image fits run on one core each, beside each other
