@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 import typer
 
 from neumat.cli.main import app
@@ -78,6 +79,48 @@ def fit_many(run: harness.Run, sources: list[str], models: list[str], options: l
     return [rows[k] for k in ((seed, s, m) for seed in seeds for s in sources for m in models) if k in rows]
 
 
+def fits_figure(run: harness.Run, rows: list[dict], source: str, models: list[str], options: list[str]) -> dict | None:
+    """A table's figure (`harness.Run.table`): fit-many's picture of each of `models` fitted to `source` at the
+    run's seed (reference | model | FLIP error | the floor's FLIP error, `neumat.viz.compare.comparison_picture`),
+    one row each, from `fit_many(run, ..., models, options, ...)`'s `rows`. A job of the run (the ledger keeps the
+    PNG), drawn once each of those fits is finished (in a shard, the last pass draws it): the pictures come from the
+    fits' kept folders, where fit-many evaluates a fit again whose picture is missing and fits one that is gone.
+    None while a fit is missing or failed."""
+    from PIL import Image
+
+    from neumat.cli.fit_job import source_sha256
+
+    name = Path(source).name
+    shown = {r["model"]: r for r in rows if r["seed"] == run.seed and Path(r["source"]).name == name}
+    if sorted(shown) != sorted(models) or any(r["status"] != "ok" for r in shown.values()):
+        return None
+    defaults = {model: method_key(model, options) for model in models}
+
+    def draw() -> dict:
+        def picture(row: dict) -> dict:  # read while the fit's folder exists (a temporary one is removed after)
+            return {"image": np.asarray(Image.open(row["picture"]).convert("RGB"))} if row.get("picture") else {}
+
+        pictures = []
+        for model in models:
+            row = _fit_one(run, source, model, _own(options, model, models), run.seed, picture, defaults[model])
+            if "image" not in row:
+                return {"status": "error", "error": str(row.get("error") or "fit-many drew no picture")}
+            pictures.append(row["image"])
+        return {"status": "ok", "png": harness.png_base64(np.concatenate(pictures, axis=0))}
+
+    drawn = run.job(f"{name}: figure (seed {run.seed})",
+                    {"job": "fit-many figure", "source": name, "source_sha256": source_sha256(source),
+                     "models": models, "options": options, "seed": run.seed, "defaults": defaults},
+                    draw, keep=lambda r: r["status"] == "ok")
+    if drawn is None or drawn["status"] != "ok":
+        if drawn is not None:
+            run.skip(f"the figure of {name}", drawn["error"])
+        return None
+    return {"caption": f"{name}, seed {run.seed}, a row per model: the reference | the model | its FLIP error | the "
+                       "FLIP error of the reference rendered like the model (the floor: what noise alone gives), "
+                       "under the image protocol", "png": drawn["png"]}
+
+
 def method_key(model: str, options: list[str]) -> dict:
     """What a fit of `model` with these CLI options takes from the code's defaults, for a job's key: the hash of the
     preset it names (`--preset`, else the default; `FitJob.fit_sha256`) and the content of the model's CPU and paper
@@ -123,27 +166,29 @@ def _fit_one(run: harness.Run, source: str, model: str, options: list[str], seed
 
 
 def texture_set_fits(run: harness.Run, models: list[str], quick_models: list[str],
-                     after: Callable[[dict], dict] | None = None, max_size: int | None = 256) -> list[dict] | None:
+                     after: Callable[[dict], dict] | None = None, max_size: int | None = 256
+                     ) -> tuple[list[dict], dict | None] | None:
     """fit-many rows of `models` on every shared texture set at each model's default preset, as `neumat fit` gives
     without flags (two seeds), each set read whole or, with `max_size`, downsampled to at most that many texels a
-    side; or of `quick_models` on one set at 32^2 for 10 steps with 8-sample footprint targets in a quick run; None
-    (the run says why) without shared data. The default, not the paper's exact recipe (preset cpu): on these sets
-    ggx-mipmap's paper loss diverges (loss 14-19x above its best, session 51)."""
+    side; or of `quick_models` on one set at 32^2 for 10 steps with 8-sample footprint targets in a quick run; with
+    the figure of the first set (`fits_figure`); None (the run says why) without shared data. The default, not the
+    paper's exact recipe (preset cpu): on these sets ggx-mipmap's paper loss diverges (loss 14-19x above its best,
+    session 51)."""
     data = shared_data_dir()
     if data is None:
         run.skip("every fit", "no texture sets: shared data absent (neumat.io.shared_data)")
         return None
     sets = sorted(str(p) for p in (data / "svbrdf").iterdir() if p.is_dir())
     if run.quick:
-        return fit_many(run, sets[-1:], quick_models,
-                        ["--steps", "10", "--set", "batch_size=256", "--source-option", "max_size=32",
-                         "--source-option", "samples=8", "--n-configs", "4096", "--image-spp", "2",
-                         "--image-resolution", "32"],
-                        [run.seed], after)
-    size = [] if max_size is None else ["--source-option", f"max_size={max_size}"]
-    return fit_many(run, sets, models, [*size, "--n-configs", str(2 ** 18), "--image-spp", "64",
-                                        "--image-resolution", "128"],
-                    [run.seed, run.seed + 1], after)
+        sets, models, seeds = sets[-1:], quick_models, [run.seed]
+        options = ["--steps", "10", "--set", "batch_size=256", "--source-option", "max_size=32", "--source-option",
+                   "samples=8", "--n-configs", "4096", "--image-spp", "2", "--image-resolution", "32"]
+    else:
+        size = [] if max_size is None else ["--source-option", f"max_size={max_size}"]
+        options, seeds = [*size, "--n-configs", str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"], \
+            [run.seed, run.seed + 1]
+    rows = fit_many(run, sets, models, options, seeds, after)
+    return rows, fits_figure(run, rows, sets[0], models, options)
 
 
 def quality_rows(rows: list[dict]) -> list[dict]:

@@ -45,10 +45,12 @@ def run(run: harness.Run) -> None:
                                     n_scales=n_scales, resolution=resolution)
         return {"scales": series}
 
-    rows = texture_set_fits(run, MODELS, ["multiscale", "ggx-mipmap"], after=scale_series, max_size=None)
-    if rows is None:
+    fits = texture_set_fits(run, MODELS, ["multiscale", "ggx-mipmap"], after=scale_series, max_size=None)
+    if fits is None:
         return
-    run.table("fits", "Texture sets x models (sphere images: the texture at about one scale)", quality_rows(rows))
+    rows, figure = fits
+    run.table("fits", "Texture sets x models (sphere images: the texture at about one scale)", quality_rows(rows),
+              figure=figure)
     run.table("summary", "Per model: mean over the sets, seed spread", summary_rows(rows))
     run.table("scales", "Scale series: FLIP per scale (scale 0 the finest; floor: the reference against itself)",
               [{"source": r["name"], "model": r["model"], "seed": r["seed"],

@@ -12,7 +12,7 @@ from neumat.cli.fit_job import source_sha256
 from neumat.io.shared_data import shared_data_dir
 
 from .. import harness
-from .common import cli, fit_many, method_key, paper_budget, quality_rows, recipe_budget, summary_rows
+from .common import cli, fit_many, fits_figure, method_key, paper_budget, quality_rows, recipe_budget, summary_rows
 
 NAME = "neubrdf"
 DESCRIPTION = ("NeuBRDF's Tables 3 (RGL) and 4 (MERL-like) against NBRDF and GGX, and pruning, through neumat "
@@ -64,7 +64,8 @@ def run(run: harness.Run) -> None:
     if run.quick:
         sources = ["ggx:roughness=0.2", *rgl[-1:]]
         rows = fit_many(run, sources, TABLE4_MODELS, QUICK, seeds)
-        run.table("table3", "Quick: tiny fits (numbers mean nothing; the suite runs)", quality_rows(rows))
+        run.table("table3", "Quick: tiny fits (numbers mean nothing; the suite runs)", quality_rows(rows),
+                  figure=fits_figure(run, rows, sources[0], TABLE4_MODELS, QUICK))
         run.table("summary", "Quick: per-model means", summary_rows(rows))
         run.table("sharing", "Quick: the sources in one shared-neubrdf cluster",
                   _sharing(run, sources, QUICK_CLUSTERS, run.seed, rows))
@@ -83,13 +84,17 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     """The full run's tables."""
     if not rgl:
         return
-    rows3 = fit_many(run, rgl, TABLE3_MODELS, FULL_EVAL, seeds) + _paper_model(run, rgl, seeds)
+    rows3 = fit_many(run, rgl, TABLE3_MODELS, FULL_EVAL, seeds)
+    figure3 = fits_figure(run, rows3, rgl[0], TABLE3_MODELS, FULL_EVAL)
+    rows3 += _paper_model(run, rgl, seeds)
     run.table("table3", "Table 3: RGL materials (default presets; neubrdf-paper: the paper's model)",
-              quality_rows(rows3))
+              quality_rows(rows3), figure=figure3)
     run.table("table3_summary", "Table 3 per model: mean over the RGL files, seed spread", summary_rows(rows3))
-    rows4 = fit_many(run, merl, TABLE4_MODELS, FULL_EVAL, seeds) + _paper_model(run, merl, seeds)
+    rows4 = fit_many(run, merl, TABLE4_MODELS, FULL_EVAL, seeds)
+    figure4 = fits_figure(run, rows4, merl[0], TABLE4_MODELS, FULL_EVAL) if merl else None
+    rows4 += _paper_model(run, merl, seeds)
     run.table("table4", "Table 4: MERL-like tables (default presets; neubrdf-paper: the paper's model)",
-              quality_rows(rows4))
+              quality_rows(rows4), figure=figure4)
     run.table("table4_summary", "Table 4 per model: mean over the tables, seed spread", summary_rows(rows4))
     pruned = fit_many(run, rgl, ["neubrdf"], ["--preset", "paper", *FULL_EVAL, "--set", "queries=replay",
                                               "--set", "prune=true"], seeds[:1])

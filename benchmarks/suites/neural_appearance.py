@@ -78,10 +78,11 @@ def run(run: harness.Run) -> None:
 
         return {"sampler": sampler_variance(load_model(row["nmat"]), points, samples, seed=run.seed)}
 
-    rows = texture_set_fits(run, MODELS, MODELS[:1], after=after)
-    if rows is None:
+    fits = texture_set_fits(run, MODELS, MODELS[:1], after=after)
+    if fits is None:
         return
-    run.table("fits", "Texture sets x models", quality_rows(rows))
+    rows, figure = fits
+    run.table("fits", "Texture sets x models", quality_rows(rows), figure=figure)
     run.table("summary", "Per model: mean over the sets, seed spread", summary_rows(rows))
     run.table("sampler", "Sampler variance (Sec. 6.3): relative variance of the albedo estimate with the model's "
                          "sampler and with cosine sampling, their ratio, and the largest |bias| / standard error",

@@ -91,6 +91,10 @@ def test_quick_run_writes_schema_valid_results(suite, tmp_path):
     if suite == "neubrdf":
         _check_sharing(doc)
         _check_ledger(out, doc, run.stderr)
+    if suite in ("multiscale", "neural-appearance"):  # the set's figure: a row of 4 panels per model fitted
+        figure = next(t for t in doc["tables"] if t["name"] == "fits")["figure"]
+        picture = np.asarray(Image.open(out.parent / figure["file"]))
+        assert picture.shape[1] == 4 * 160 + 5 * 4 and picture.shape[0] > 160 * len(doc["tables"][0]["rows"])
     if suite == "neupress":
         _check_neupress_images(doc, out.parent / "work")
         _check_neupress_ledger(out, doc)
@@ -158,17 +162,28 @@ def _check_sharing(doc: dict) -> None:
 
 
 def _check_ledger(out: Path, first: dict, stderr: str) -> None:
-    """Both shards ran jobs (4 fits and the clusters), each job once; the same command again without --workers
-    runs none: every job from the ledger, the same tables, the ledger's commits named."""
+    """Both shards ran jobs (4 fits, the clusters and the first source's figure), each job once; the same command
+    again without --workers runs none: every job from the ledger, the same tables, the ledger's commits named. The
+    figure stacks the first source's pictures, one row per model (drawn by the shard that finished last, or the
+    last pass)."""
     ledger = out.parent / "ledger.jsonl"
     entries = [json.loads(line) for line in ledger.read_text().splitlines()]
-    assert len(entries) == len({e["key"] for e in entries}) == 5
+    assert len(entries) == len({e["key"] for e in entries}) == 6
     assert re.search(r"\[shard 0/2\]: .*: running", stderr) and re.search(r"\[shard 1/2\]: .*: running", stderr)
-    assert first["ledger"]["entries_reused"] == 5 and first["ledger"]["their_commits"] == [first["machine"]["commit"]]
+    assert first["ledger"]["entries_reused"] in (5, 6)
+    assert first["ledger"]["their_commits"] == [first["machine"]["commit"]]
+    figure = first["tables"][0]["figure"]
+    assert figure["file"] == "quick.table3.png" and figure["caption"].startswith("ggx:roughness=0.2, seed 0, a row per")
+    picture = np.asarray(Image.open(out.parent / figure["file"]))
+    assert picture.shape[1] == 4 * 160 + 5 * 4 and picture.shape[0] > 2 * 160  # two models' rows of 4 panels
     again = _bench("neubrdf", "--quick", "--json", "--ledger", str(ledger))
     assert again.returncode == 0, again.stderr[-3000:]
     assert ": running" not in again.stderr
-    assert json.loads(again.stdout)["tables"] == first["tables"]
+    tables = json.loads(again.stdout)["tables"]  # its figure as PNG text (no --out), the first run's in its file
+    png = tables[0]["figure"].pop("png")
+    assert base64.b64decode(png) == (out.parent / figure["file"]).read_bytes()
+    assert tables == [{**t, "figure": {"caption": t["figure"]["caption"]}} if "figure" in t else t
+                      for t in first["tables"]]
 
 
 def _check_drjit_rows(doc: dict) -> None:
@@ -295,18 +310,23 @@ def test_raster_uv_walks_the_square_row_by_row():
 
 
 def test_committed_results_match_the_schema_and_name_their_command():
+    """Every results file validates and names its command, every ledger entry its command and commit; besides them
+    the folders hold their pages and the figures the results files name (each one there)."""
     files = sorted((ROOT / "benchmarks" / "results").rglob("*.json"))
+    figures = set()
     for path in files:
         doc = json.loads(path.read_text())
         jsonschema.validate(doc, SCHEMA)
         assert doc["command"].startswith(f"python -m benchmarks {doc['suite']}"), path
+        figures |= {path.parent / t["figure"]["file"] for t in doc["tables"] if "figure" in t}
+    assert all(f.is_file() for f in figures), figures
     for path in sorted((ROOT / "benchmarks" / "results").rglob("*.jsonl")):  # ledgers: every job with its command
         for line in path.read_text().splitlines():
             entry = json.loads(line)
             assert entry["command"].startswith(f"python -m benchmarks {path.parent.name}"), path
             assert re.fullmatch(r"[0-9a-f]{40}", entry["commit"]) and entry["result"], path
     assert not [p for p in (ROOT / "benchmarks" / "results").rglob("*") if p.is_file()
-                and p.suffix not in (".json", ".jsonl", ".md")]
+                and p.suffix not in (".json", ".jsonl", ".md") and p not in figures]
 
 
 def test_no_sys_path_edit_and_no_training_loop_in_the_benchmarks():

@@ -133,9 +133,9 @@ def test_eval_with_image_table(app, teacher):
 
 
 def test_eval_picture_shows_the_renderings_it_scored(app, teacher, tmp_path):
-    """--picture: reference | model | FLIP error and the floor's row, the FLIP printed under the model being the
-    score in the JSON (the same renderings); the same scores as without it; refused with --no-image or a suffix
-    that is not an image, before any work."""
+    """--picture: reference | model | FLIP error | the floor's FLIP error, drawn from the renderings it scored (the
+    picture made from them again is the same, bit for bit); the same scores as without it; refused with --no-image
+    or a suffix that is not an image, before any work."""
     from PIL import Image
 
     from neumat.render.comparison import comparison_images, reference_renders

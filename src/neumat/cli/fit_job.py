@@ -193,7 +193,7 @@ def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
 
 
 def picture_path(job: FitJob) -> Path | None:
-    """Where the job's picture goes (OUT/<source>.<model>.png: reference | model | FLIP error, and the floor), when
+    """Where the job's picture goes (OUT/<source>.<model>.png: reference | model | FLIP error | the floor's FLIP error), when
     it is evaluated on images (image_spp > 0)."""
     return job.out.with_suffix(".png") if job.image_spp > 0 else None
 
@@ -227,8 +227,8 @@ def _checked(metrics: dict[str, float], job: FitJob) -> dict[str, float]:
 def evaluate_against(model, reference, job: FitJob, device, picture: Path | None = None) -> dict[str, float]:
     """`neumat eval`'s quality metrics of `model` against `reference`: reflectance errors over `job.eval_n`
     cosine-weighted queries and, with `job.image_spp` > 0, image metrics of sphere renderings (img_*) with the
-    reference's noise floor (img_floor_*, `neumat.render.comparison`), and then the rows reference | model | FLIP
-    error and reference | floor | FLIP error written to `picture` (a PNG), when given."""
+    reference's noise floor (img_floor_*, `neumat.render.comparison`), and then their picture written to `picture`
+    (a PNG: `neumat.viz.compare.comparison_picture`), when given."""
     from ..metrics.hdr import reflectance_errors
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}

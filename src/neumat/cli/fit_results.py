@@ -84,8 +84,8 @@ def markdown(rows: list[dict], title: str, notes: list[str]) -> str:
     pictures = [f"![{r['name']} x {r['model']}]({Path(r['picture']).name})" for r in rows
                 if r["status"] == "ok" and r.get("picture")]
     if pictures:
-        pictures = ["", "## Pictures", "", "Each: the reference | the model | its FLIP error, then the reference "
-                    "rendered like the model (the floor).", "", *pictures]
+        pictures = ["", "## Pictures", "", "Each: the reference | the model | its FLIP error | the FLIP error of "
+                    "the reference rendered like the model (the floor: what noise alone gives).", "", *pictures]
     return "\n".join(lines + ["", "## Mean per model (sources without error)", ""] + means + pictures) + "\n"
 
 

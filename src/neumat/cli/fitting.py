@@ -242,7 +242,7 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
                                              "its own index grid plus its share of the codebook and MLP)"),
              picture: Path = typer.Option(None, "--picture", callback=output_option(".png", ".jpg", ".jpeg"),
                                           help="also write the renderings scored: reference | model | FLIP error, "
-                                               "then the floor's row (the reference rendered like the model)"),
+                                               "and the floor's FLIP error (the reference rendered like the model)"),
              json: bool = typer.Option(False, "--json", help="print one JSON object instead of a table")) -> None:
     """Compare MODEL, as stored in its file, with a reference: reflectance errors, rendered-image metrics, size
     and speed. The defaults take about a minute on a CPU for a small model; raise --n, --spp and --resolution

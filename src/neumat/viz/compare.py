@@ -54,14 +54,23 @@ def compare_image(ref, others: dict, metrics: dict | None = None, tonemap: str =
 
 
 def comparison_picture(renders: tuple, test, name: str, scores: dict[str, float],
-                       shown: tuple[str, ...] = ("flip", "ssim", "mae")) -> np.ndarray:
-    """The picture of one `neumat.render.comparison.image_comparison`: reference | `name`'s rendering `test` | its
-    FLIP error, then reference | the reference rendered like the model (the floor) | its FLIP error, each row with
-    its `shown` scores (`scores` holds them, and "floor_" + each); `renders` are `reference_renders`'."""
-    from ..render.comparison import FLOOR_NAME
+                       shown: tuple[str, ...] = ("flip", "ssim", "mae"), tonemap: str = "clip") -> np.ndarray:
+    """The picture of one `neumat.render.comparison.image_comparison`, one row: the reference | `name`'s rendering
+    `test` | its FLIP error | the FLIP error of the reference rendered like the model (the floor: what noise alone
+    gives), with the `shown` scores of both below (`scores` holds them and "floor_" + each); `renders` are
+    `reference_renders`'. Rows of one source stack into a table's figure (the same width)."""
+    from matplotlib import colormaps
 
-    return compare_image(renders[0], {name: test, FLOOR_NAME: renders[1]},
-                         {name: {k: scores[k] for k in shown}, FLOOR_NAME: {k: scores[f"floor_{k}"] for k in shown}})
+    ref = image_to_numpy(renders[0], "comparison_picture: reference")
+    scale = max(1, math.ceil(MIN_PANEL_WIDTH / ref.shape[1]))
+    panels = [_to_uint8(to_ldr(ref, tonemap=tonemap)),
+              _to_uint8(to_ldr(image_to_numpy(test, "comparison_picture: test"), tonemap=tonemap))]
+    for img in (test, renders[1]):
+        panels.append(_to_uint8(colormaps["magma"](flip_map(ref, img, tonemap=tonemap))[:, :, :3]))
+    items = _format_metrics({k: scores[k] for k in shown}) + \
+        ["floor: " + "  ".join(_format_metrics({k: scores[f"floor_{k}"] for k in shown}))]
+    return _row([_enlarge(p, scale) for p in panels], ["reference", name, "FLIP error", "floor's FLIP error"], items,
+                ImageFont.load_default(size=FONT_SIZE))
 
 
 def _to_uint8(x: np.ndarray) -> np.ndarray:
