@@ -89,6 +89,7 @@ def fits_figure(run: harness.Run, rows: list[dict], source: str, models: list[st
     from PIL import Image
 
     from neumat.cli.fit_job import source_sha256
+    from neumat.viz.compare import BACKGROUND
 
     name = Path(source).name
     shown = {r["model"]: r for r in rows if r["seed"] == run.seed and Path(r["source"]).name == name}
@@ -106,6 +107,9 @@ def fits_figure(run: harness.Run, rows: list[dict], source: str, models: list[st
             if "image" not in row:
                 return {"status": "error", "error": str(row.get("error") or "fit-many drew no picture")}
             pictures.append(row["image"])
+        width = max(p.shape[1] for p in pictures)  # a picture kept from older code may be narrower: padded
+        pictures = [np.pad(p, ((0, 0), (0, width - p.shape[1]), (0, 0)), constant_values=BACKGROUND[0])
+                    for p in pictures]  # its grey
         return {"status": "ok", "png": harness.png_base64(np.concatenate(pictures, axis=0))}
 
     drawn = run.job(f"{name}: figure (seed {run.seed})",
