@@ -7,10 +7,10 @@ import base64
 import contextlib
 import copy
 import datetime
-import io
 import fcntl
 import hashlib
 import importlib.metadata
+import io
 import json
 import math
 import os

@@ -193,8 +193,8 @@ def _fit_and_evaluate(job: FitJob, source_sha: str) -> dict:
 
 
 def picture_path(job: FitJob) -> Path | None:
-    """Where the job's picture goes (OUT/<source>.<model>.png: reference | model | FLIP error | the floor's FLIP error), when
-    it is evaluated on images (image_spp > 0)."""
+    """Where the job's picture goes (OUT/<source>.<model>.png: reference | model | FLIP error | the floor's FLIP
+    error), when it is evaluated on images (image_spp > 0)."""
     return job.out.with_suffix(".png") if job.image_spp > 0 else None
 
 

@@ -1,4 +1,5 @@
-"""Side-by-side comparison picture: one row per model, "reference | model | FLIP error map"."""
+"""Side-by-side comparison pictures: one row per model, "reference | model | FLIP error map" (`compare_image`), and
+the one-row picture of an image comparison with its noise floor's error beside (`comparison_picture`)."""
 from __future__ import annotations
 
 import math
