@@ -101,12 +101,14 @@ def _agreement(a: list[torch.Tensor], b: list[torch.Tensor]) -> tuple[float, flo
     return float((d ** 2).mean() / var.mean()), float(d.mean() / (var.sum().sqrt() / d.numel()))
 
 
-def test_the_object_alone_matches_the_standalone_render(mi):
+@pytest.mark.parametrize("shape", ["sphere", "cube"])
+def test_the_object_alone_matches_the_standalone_render(mi, shape):
+    """The sphere, and the cube (the paperweight's outer shape: Mitsuba's cube, a mesh placed by its vertices)."""
     from neumat.reflectance.translucent import TranslucentConfig, TranslucentObject
     from neumat.render.lights import EnvironmentMap
     from neumat.render.translucent import orbit_camera, render_translucent
     nt = _nt()
-    config, env = TranslucentConfig(), _env()
+    config, env = TranslucentConfig(shape=shape), _env()
     model = _model([-1.0] * 3, [1.0] * 3)
     obj = TranslucentObject(config, spp=1)
     camera = orbit_camera(obj, RES)
@@ -220,6 +222,8 @@ def test_misuse_gives_clear_errors(mi, shared_data):
     cube.pop("radius")
     with pytest.raises(InputError, match="not the same mesh"):
         render(cube, _integrator(mi, model, bunny))
+    with pytest.raises(InputError, match="expected the mesh 'cube'"):  # a cube's model, a sphere in the scene
+        render(nt.translucent_shape(config), _integrator(mi, model, TranslucentConfig(shape="cube")))
     props = mi.Properties(nt.PLUGIN_NAME)
     props["shape"] = "translucent"
     with pytest.raises(InputError, match="'model' property is required"):

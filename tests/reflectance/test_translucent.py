@@ -63,7 +63,7 @@ def test_white_furnace(monkeypatch):
     monkeypatch.setitem(translucent.JENSEN_MEDIA, "white", ((3.0, 3.0, 3.0), (0.0, 0.0, 0.0)))
     obj = _object(media=("white", "white"), roughness=0.01, size_mm=2.0)
     for key, scene in obj.scenes.items():  # swap the directional light for a constant environment
-        desc = translucent._scene_dict(obj.config, translucent._shape_dict(obj.config), key,
+        desc = translucent._scene_dict(obj.config, translucent.outer_shape_dict(obj.config), key,
                                        *translucent.medium_grids(obj.config, obj.bbox_min, obj.bbox_max),
                                        obj.bbox_min, obj.bbox_max)
         desc["light"] = {"type": "constant", "radiance": 1.0}

@@ -61,7 +61,7 @@ class Variant:
         self.scenes = {}
         cfg = dataclasses.replace(obj.config, **config)
         for interior in ("medium", "black"):
-            desc = translucent._scene_dict(cfg, translucent._shape_dict(obj.config), interior, *obj._grids)
+            desc = translucent._scene_dict(cfg, translucent.outer_shape_dict(obj.config), interior, *obj._grids)
             desc["integrator"] = {**desc["integrator"], **integrator}
             self.scenes[interior] = mi.load_dict(desc)
         self.params = {k: mi.traverse(s) for k, s in self.scenes.items()}

@@ -112,12 +112,14 @@ def object_config(source):
 
 def translucent_shape(source, to_world=None, shape_id: str = "translucent") -> dict:
     """The `mi.load_dict` entry of the object of `source` (see `object_config`): its outer surface ("sphere": the
-    unit sphere, or the PLY mesh) with the rough dielectric of its config (GGX alpha, ior) and a black interior,
-    placed by `to_world` (a `mi.ScalarTransform4f`, a 4 x 4 matrix, or None), with id `shape_id` (what the
-    integrator's "shape" names)."""
+    unit sphere, "cube": Mitsuba's [-1, 1]^3, or the PLY mesh) with the rough dielectric of its config (GGX alpha,
+    ior) and a black interior, placed by `to_world` (a `mi.ScalarTransform4f`, a 4 x 4 matrix, or None), with id
+    `shape_id` (what the integrator's "shape" names)."""
+    from ..reflectance.translucent import outer_shape_dict
+
     cfg = object_config(source)
     mi = mitsuba_native.current_mitsuba()
-    shape = {"type": "sphere", "radius": 1.0} if cfg.shape == "sphere" else {"type": "ply", "filename": str(cfg.shape)}
+    shape = outer_shape_dict(cfg)
     shape.update(id=shape_id, interior=dict(BLACK_MEDIUM),
                  bsdf={"type": "roughdielectric", "distribution": "ggx", "alpha": cfg.roughness,
                        "int_ior": cfg.ior, "ext_ior": 1.0})
@@ -366,7 +368,9 @@ def _make_integrator_class(mi) -> type:
 
         def _vertices(self) -> np.ndarray:
             if self._object_vertices is None:
-                mesh = mi.load_dict({"type": "ply", "filename": str(self.config.shape)})
+                from ..reflectance.translucent import outer_shape_dict
+
+                mesh = mi.load_dict(outer_shape_dict(self.config))  # a PLY mesh, or Mitsuba's cube (a mesh too)
                 self._object_vertices = np.array(mi.traverse(mesh)["vertex_positions"],
                                                  dtype=np.float64).reshape(-1, 3)
             return self._object_vertices

@@ -155,7 +155,7 @@ class TranslucentObject(Material):
         #: observations cost; a resumed trace restores it (NaN where its checkpoint did not record it)
         self.trace_cpu_seconds = 0.0
         self.mi = mi = import_mitsuba()
-        shape = _shape_dict(config)
+        shape = outer_shape_dict(config)
         probe = mi.load_dict({"type": "scene", "shape": shape})
         box = probe.bbox()
         self.bbox_min = np.array(box.min, dtype=np.float64)
@@ -311,7 +311,7 @@ class TranslucentObject(Material):
         fine = np.repeat(np.repeat(image, 4, 0), 4, 1)
         scenes = {}
         for interior, scene in self.scenes.items():
-            desc = _scene_dict(self.config, _shape_dict(self.config), interior, *self._grids)
+            desc = _scene_dict(self.config, outer_shape_dict(self.config), interior, *self._grids)
             desc["light"] = {"type": "envmap", "bitmap": self.mi.Bitmap(fine)}
             scenes[interior] = self.mi.load_dict(desc)
         out = torch.zeros(o.shape[0], 3, dtype=torch.float64)
@@ -532,7 +532,9 @@ def _check_config(c: TranslucentConfig) -> None:
                          f"{c.interior_emitter_sampling!r}")
 
 
-def _shape_dict(c: TranslucentConfig) -> dict:
+def outer_shape_dict(c: TranslucentConfig) -> dict:
+    """The `mi.load_dict` entry of the object's outer surface in object space (sphere, cube or PLY mesh), without its
+    BSDF and media: the tracer and the Mitsuba integrator (`integrations.mitsuba_translucent`) build on it."""
     if c.shape == "sphere":
         return {"type": "sphere", "radius": 1.0}
     if c.shape == "cube":
