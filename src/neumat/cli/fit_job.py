@@ -233,12 +233,10 @@ def evaluate_against(model, reference, job: FitJob, device, picture: Path | None
 
     out = {k: float(v) for k, v in reflectance_errors(model, reference, n=job.eval_n, seed=0, device=device).items()}
     if job.image_spp > 0:
-        from ..render.comparison import comparison_images, image_comparison
+        from ..render.comparison import compared_images
 
-        renders = reference_renders_of(reference, job, device)
-        test = comparison_images({"test": model}, job.image_spp, job.image_resolution, seed=0, device=device)["test"]
-        img = image_comparison(model, reference, job.image_spp, job.image_resolution, seed=0, device=device,
-                               renders=renders, test=test)
+        img, renders, test = compared_images(model, reference, job.image_spp, job.image_resolution, seed=0,
+                                             device=device, renders=reference_renders_of(reference, job, device))
         out.update({f"img_{k}": float(v) for k, v in img.items()})
         if picture is not None:
             from PIL import Image

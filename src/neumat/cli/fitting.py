@@ -266,11 +266,9 @@ def evaluate(model: Path = typer.Argument(..., help="model file (.nmat)"),
         row = {"model": str(model), "against": against}
         row.update(reflectance_errors(m, ref, n=n_configs, seed=seed, device=dev))
         if image:
-            from ..render.comparison import PROTOCOL, comparison_images, image_comparison, reference_renders
+            from ..render.comparison import PROTOCOL, compared_images
 
-            renders = reference_renders(ref, spp, resolution, seed, dev)
-            test = comparison_images({"model": m}, spp, resolution, seed, dev)["model"]
-            scores = image_comparison(m, ref, spp, resolution, seed=seed, device=dev, renders=renders, test=test)
+            scores, renders, test = compared_images(m, ref, spp, resolution, seed=seed, device=dev)
             row.update(scores, image_protocol=PROTOCOL)
             if picture is not None:
                 from ..io.images import write_image_ldr

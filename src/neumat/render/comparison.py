@@ -72,20 +72,25 @@ def per_pixel_footprint_budget(material: Material, factor: int) -> Material:
 
 
 def image_comparison(material: Material, reference: Material, spp: int, resolution: int, seed: int = 0,
-                     device=None, floor: bool = True, renders: tuple | None = None,
-                     test: torch.Tensor | None = None) -> dict[str, float]:
+                     device=None, floor: bool = True, renders: tuple | None = None) -> dict[str, float]:
     """`image_metrics` keys of `material` (rendered at spp with `seed`) against the converged reference, and with
     `floor` the same keys prefixed "floor_" for the reference rendered like the material (module docstring).
     renders: `reference_renders` of the same settings, when several materials are compared with one reference
-    (else rendered here); test: the material's rendering at these settings (`comparison_images`), when the caller
-    keeps it, e.g. for a picture (else rendered here)."""
+    (else rendered here)."""
+    return compared_images(material, reference, spp, resolution, seed, device, floor, renders)[0]
+
+
+def compared_images(material: Material, reference: Material, spp: int, resolution: int, seed: int = 0,
+                    device=None, floor: bool = True, renders: tuple | None = None
+                    ) -> tuple[dict[str, float], tuple, torch.Tensor]:
+    """`image_comparison`'s scores with the renderings they score, for a caller that shows them (a picture):
+    (scores, the reference renders (the scoring reference, and with `floor` the floor), the material's rendering)."""
     if renders is None:
         renders = reference_renders(reference, spp, resolution, seed, device) if floor else \
             (comparison_images({"ref": NonNegative(reference)}, REFERENCE_FACTOR * spp, resolution, seed + 1,
                                device)["ref"],)
-    if test is None:
-        test = comparison_images({"test": material}, spp, resolution, seed, device)["test"]
+    test = comparison_images({"test": material}, spp, resolution, seed, device)["test"]
     out = image_metrics(renders[0], test)
     if floor:
         out.update({f"floor_{k}": v for k, v in image_metrics(renders[0], renders[1]).items()})
-    return out
+    return out, renders, test
