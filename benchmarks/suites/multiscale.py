@@ -20,9 +20,10 @@ BUDGET = {
                      "1 (60 fits); sphere images 128^2 at 64 spp; the scale series (9 scales x 4 lights x 3 tilts, 48^2 pixels) "
                      "of every fit",
              "paper": paper_budget(MODELS) + " on a GPU, at the sets' full resolution",
-             "expected_wall": "about 13 h one fit after another (one thread; estimated: a default fit of a whole "
-                              "1K set about 7 CPU min in session 64, twice that for neumip at its 8000-step "
-                              "default, then its images and scale series)"},
+             "expected_wall": "about 12 h one job after another, about half with --workers 2 (measured on the "
+                              "2-core Xeon, sessions 70-75, two shards side by side: the 60 jobs' own times sum to "
+                              "12.0 h, a job (fit, images, scale series) 3-25 min, median 7-9 for the 4000-step "
+                              "models and 15 for neumip at 8000; plus each set's references, made once: a few minutes a set)"},
 }
 
 
@@ -52,6 +53,9 @@ def run(run: harness.Run) -> None:
     run.table("fits", "Texture sets x models (sphere images: the texture at about one scale)", quality_rows(rows),
               figure=figure)
     run.table("summary", "Per model: mean over the sets, seed spread", summary_rows(rows))
+    series = [{**r, "metrics": {"scale_flip": r["scales"]["flip_mean"]}} for r in rows if r["status"] == "ok"]
+    run.table("scales_summary", "Scale series per model (the paper's Table 6 metric): each fit's mean FLIP over the "
+                                "scales, mean over the sets, seed spread", summary_rows(series, ("scale_flip",)))
     run.table("scales", "Scale series: FLIP per scale (scale 0 the finest; floor: the reference against itself)",
               [{"source": r["name"], "model": r["model"], "seed": r["seed"],
                 "texels per pixel": " ".join(f"{t:.3g}" for t in r["scales"]["texels_per_pixel"]),
