@@ -16,14 +16,15 @@ BUDGET = {
               "paper": paper_budget(MODELS) + " on a GPU", "expected_wall": "about 10 s"},
     "full": {"ours": f"default presets on a CPU: {default_budget(MODELS)}; "
                      "the 6 texture sets whole (1K: the texel density the paper fits and `neumat fit SET` reads; "
-                     "downsampled, their normal detail flattens) x 5 models, seeds 0 and "
-                     "1 (60 fits); sphere images 128^2 at 64 spp; the scale series (9 scales x 4 lights x 3 tilts, 48^2 pixels) "
-                     "of every fit",
+                     "downsampled, their normal detail flattens) x 5 models, seeds 0 and 1 (60 fits); sphere "
+                     "images 128^2 at 64 spp; the scale series (9 scales x 4 lights x 3 tilts, 48^2 pixels) of "
+                     "every fit",
              "paper": paper_budget(MODELS) + " on a GPU, at the sets' full resolution",
              "expected_wall": "about 12 h one job after another, about half with --workers 2 (measured on the "
                               "2-core Xeon, sessions 70-75, two shards side by side: the 60 jobs' own times sum to "
                               "12.0 h, a job (fit, images, scale series) 3-25 min, median 7-9 for the 4000-step "
-                              "models and 15 for neumip at 8000; plus each set's references, made once: a few minutes a set)"},
+                              "models and 15 for neumip at 8000; plus each set's references, made once: a few "
+                              "minutes a set)"},
 }
 
 
