@@ -98,8 +98,8 @@ def test_eval_scales_scores_a_texture_set_fit_across_texture_scales(shared_data,
 
 
 def test_fit_without_a_model_picks_the_sources_default(tmp_path):
-    """No --model: a texture-set folder fits the gated model, or tripleplane when it is a flat, rough dielectric
-    (and says why), whatever its size, a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources
+    """No --model: a texture-set folder fits the gated model, or tripleplane when it is a flat, rough dielectric,
+    or NeuMIP when it is large and not (and says why), a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources
     the shared NeuBRDF; a missing file is one error line."""
     import pytest
     import torch
@@ -147,12 +147,16 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     write_texture_set(half, tmp_path / "half")
     assert default_model([str(tmp_path / "half")])[0] == "multiscale"
     assert default_model([str(tmp_path / "half")], {"crop": 8, "crop_origin": (0, 0)})[0] == "tripleplane"
-    # the size does not decide (the std-1 latents' deficit on large sources mostly went with the recipe's std 0.1):
-    # a tilted 256^2 set gets the gated model, a flat, rough one tripleplane
-    h = w = 256
-    for tilt, expected in ((20, "multiscale"), (2, "tripleplane")):
-        write_texture_set(texture_set(tilt, 0), tmp_path / f"large{tilt}")
-        assert default_model([str(tmp_path / f"large{tilt}")])[0] == expected, tilt
+    # the size decides past regime.LARGE_SOURCE_TEXELS (512^2): a tilted 256^2 set or a 512^2 metal gets the gated
+    # model, the same on 520 x 512 texels NeuMIP (and says so); a flat, rough dielectric tripleplane at any size
+    for (h, w), tilt, metal, expected in (((256, 256), 20, 0, "multiscale"), ((512, 512), 2, 1, "multiscale"),
+                                          ((520, 512), 20, 0, "neumip"), ((520, 512), 2, 1, "neumip"),
+                                          ((520, 512), 2, 0, "tripleplane")):
+        folder = tmp_path / f"large{h}{tilt}{metal}"
+        write_texture_set(texture_set(tilt, metal), folder)
+        name, why = default_model([str(folder)])
+        assert name == expected and f"{h} x {w} texels" in why, (h, tilt, metal, why)
+        assert ("a large source" in why) == (expected == "neumip"), why
     (tmp_path / "a.nbtf").write_bytes(b"")
     assert default_model(["ggx:roughness=0.2"]) == ("neubrdf", "")
     assert default_model([str(tmp_path / "a.nbtf")]) == ("sparse-btf", "")

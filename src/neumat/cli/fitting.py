@@ -31,7 +31,8 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
         model: str = typer.Option(None, "--model", "-m",
                                   help="registered model name (`neumat list`); default: the recommended model for "
                                        "the source (neumat.cli.fitting.default_model: neubrdf for a BRDF, "
-                                       "multiscale for a texture-set folder (tripleplane for a flat, rough dielectric: "
+                                       "multiscale for a texture-set folder (on a CPU tripleplane for a flat, rough "
+                                       "dielectric, neumip for one of more than 512^2 texels: "
                                        "neumat.methods.latent_mlp.regime), sparse-btf for a BTF, neupress for "
                                        "translucent observations, shared-neubrdf for several BRDFs)"),
         preset: str = typer.Option(None, "--preset", help=PRESET_HELP),
@@ -120,8 +121,8 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
 
 #: the model `neumat fit` fits when --model is not given, by what the source is (a `neumat.catalog.sources` key,
 #: "observations" for a translucent object's .npz, "several" for a set of sources): each kind's best model we
-#: measured; a texture-set folder ("folder") gets the gated model or tripleplane by its statistics
-#: (`neumat.methods.latent_mlp.regime`)
+#: measured; a texture-set folder ("folder") gets the gated model, tripleplane or NeuMIP by its statistics and
+#: size (`neumat.methods.latent_mlp.regime`)
 DEFAULT_MODELS = {"several": "shared-neubrdf", "observations": "neupress", ".nbtf": "sparse-btf",
                   ".btf": "sparse-btf"}
 #: ... and for every other source (a measured or analytic BRDF, a model file, a layered description)
