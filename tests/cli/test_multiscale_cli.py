@@ -99,8 +99,8 @@ def test_eval_scales_scores_a_texture_set_fit_across_texture_scales(shared_data,
 
 def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     """No --model: a texture-set folder fits the gated model, or tripleplane when it is a flat, rough dielectric,
-    or NeuMIP when it is large and not (and says why), a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS, several sources
-    the shared NeuBRDF; a missing file is one error line."""
+    or NeuMIP when it is large and not (and says why), a BRDF spec NeuBRDF, a BTF SparseBTF, observations NeuPreSS,
+    several sources the shared NeuBRDF; a missing file is one error line."""
     import pytest
     import torch
 
