@@ -105,7 +105,7 @@ MEASURED = {
                   "44 of 58 (76 %), every Metal027 and Leather05 pair among them (0.93-1.00x); on larger sources "
                   "0.72x (a 256^2 leather crop) and 0.96x (the whole 1K plaster set), 1.05-1.09x on the whole 1K "
                   "fabric set (session 63); on the six whole 1K sets at both seeds (the multiscale suite, session "
-                  "75) the last of the neural models, 1.14-2.33x the best one's FLIP",
+                  "75) the last of the neural models on average, 1.14-2.33x the best one's FLIP",
     "tripleplane": "the default on a CPU for flat, rough dielectric texture sets (mean normal tilt < 3 degrees, "
                    "roughness >= 0.2, metalness < 0.5): at the CPU default (std 0.1), over the 29 random crops x 2 "
                    "seeds (session 64), ahead of the gated model on every Wood092 pair (1.01-1.16x) and six "
