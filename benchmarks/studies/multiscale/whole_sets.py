@@ -35,7 +35,8 @@ def fit_and_score(source: str, model: str, seed: int, out: Path) -> dict:
                                "--threads", "1", "-o", str(nmat)], capture_output=True, text=True)
         (out / f"{name}.{model}.s{seed}.log").write_text(done.stdout + done.stderr)
         if done.returncode:
-            raise SystemExit(f"{name} x {model}: the fit failed: {done.stderr.strip().splitlines()[-1:]}")
+            said = done.stderr.strip().splitlines() or ["no message"]
+            raise SystemExit(f"{name} x {model}: the fit failed: {said[-1]}")
     fit_wall, fit_cpu = time.time() - start, resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime - cpu
     torch.set_num_threads(1)
     series = score_scale_series(load_model(str(nmat)), open_material(source), n_scales=9, resolution=48)
