@@ -75,6 +75,8 @@ def test_three_good_sources_and_a_corrupt_one_then_a_rerun_fits_only_the_failed(
         assert 0 <= r["metrics"]["rmse_hdr"] < 1 and "img_flip" in r["metrics"] and r["bytes_fp16"] > 0
         assert Path(r["nmat"]).is_file() and r["source"] in sources and len(r["source_sha256"]) == 64
         assert r["worker"] and r["device"] == "cpu" and r["fit_seconds"] > 0 and r["recipe"]["steps"] == 10
+        # CPU seconds beside wall seconds: the fit's within its job's
+        assert 0 < r["fit_cpu_seconds"] < r["cpu_seconds"] and 0 < r["fit_seconds"] < r["seconds"]
         assert r["picture"] == str(out / f"{name}.ggx.png") and f"![{name} x ggx]({name}.ggx.png)" in (
             out / "results.md").read_text()
     assert rows["corrupt"]["status"] == "error" and "DataFormatError" in rows["corrupt"]["error"]
@@ -209,6 +211,7 @@ def test_changed_evaluation_options_evaluate_the_saved_models_again_without_refi
     assert res.exit_code == 0 and "1 to fit (1 of them fitted before: evaluated again)" in text, res.output
     (again,) = _rows(out).values()
     assert again["nmat_sha256"] == first["nmat_sha256"] and again["fit_seconds"] == first["fit_seconds"]
+    assert again["fit_cpu_seconds"] == first["fit_cpu_seconds"] and again["cpu_seconds"] != first["cpu_seconds"]
     assert again["recipe"] == first["recipe"] and again["steps"] == first["steps"]
     assert again["metrics"]["img_mae"] != first["metrics"]["img_mae"] and "img_floor_mae" in again["metrics"]
     assert again["metrics"]["log_err"] == first["metrics"]["log_err"]  # same model, same queries
