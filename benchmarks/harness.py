@@ -160,6 +160,7 @@ class Run:
         self.work, self.shard, self.scratch = work, shard, scratch
         self.ledger = Ledger(ledger) if ledger is not None else None
         self.reused: list[str] = []  # commits of the ledger entries this run took instead of running the job
+        self.job_times: list[tuple[float | None, float | None]] = []  # (wall, CPU) seconds of each job, as recorded
         self.command = shlex.join(["python", "-m", "benchmarks", *argv])
         self.tables: list[dict] = []
         self.skipped: list[dict] = []
@@ -209,6 +210,7 @@ class Run:
                                            default=str).encode()).hexdigest()
         if self.ledger is not None and (entry := self.ledger.get(digest)) is not None:
             self.reused.append(entry["commit"])
+            self.job_times.append(job_seconds(entry))
             return entry["result"]
         with contextlib.ExitStack() as held:
             if self.shard[1] > 1:
@@ -217,14 +219,19 @@ class Run:
                     return None
                 if (entry := self.ledger.get(digest)) is not None:   # finished while this shard looked
                     self.reused.append(entry["commit"])
+                    self.job_times.append(job_seconds(entry))
                     return entry["result"]
             self.running = what
             self.progress(f"{what}: running")
             code_now = code()  # the code the job runs, read before it runs (a fit takes minutes to hours)
+            wall, cpu = time.perf_counter(), cpu_seconds_now()
             result = compute()
+            times = {"wall_seconds": round(time.perf_counter() - wall, 2),
+                     "cpu_seconds": round(cpu_seconds_now() - cpu, 2)}
+            self.job_times.append((times["wall_seconds"], times["cpu_seconds"]))
             self.running = None
             if self.ledger is not None and keep(result):
-                self.ledger.add(digest, what, result, self.command, code_now)
+                self.ledger.add(digest, what, result, self.command, code_now, times)
             return result
 
     @contextlib.contextmanager
@@ -282,11 +289,39 @@ class Run:
             "protocol": self.protocol,
             **({"ledger": {"path": _relative(self.ledger.path), "entries_reused": len(self.reused),
                            "their_commits": sorted(set(self.reused))}} if self.ledger is not None else {}),
+            **({"jobs": jobs_summary(self.job_times)} if self.job_times else {}),
             "tables": self.tables,
             "skipped": self.skipped,
             "wall_seconds": round(time.perf_counter() - started, 2),
             "cpu_seconds": round(time.process_time() - cpu0, 2),
         }
+
+
+def cpu_seconds_now() -> float:
+    """CPU seconds of this process and of its children that have ended (a job's subprocesses count)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def job_seconds(entry: dict) -> tuple[float | None, float | None]:
+    """A ledger entry's (wall, CPU) seconds: those `Run.job` recorded, else the wall seconds of a fit-many row
+    (entries from before the job was timed; their CPU unknown)."""
+    if "wall_seconds" in entry:
+        return entry["wall_seconds"], entry.get("cpu_seconds")
+    result = entry.get("result")
+    seconds = result.get("seconds") if isinstance(result, dict) else None
+    cpu = result.get("cpu_seconds") if isinstance(result, dict) else None
+    return (seconds if isinstance(seconds, (int, float)) else None), (cpu if isinstance(cpu, (int, float)) else None)
+
+
+def jobs_summary(times: list[tuple[float | None, float | None]]) -> dict:
+    """The run's jobs and their own times summed, in seconds: what a run one job after another on one thread takes
+    (`--workers N`: about 1/N), measured, beside the budget's expected wall time. CPU time is not inflated by a
+    paused or crowded job; each sum covers the jobs that recorded it."""
+    walls = [w for w, _ in times if w is not None]
+    cpus = [c for _, c in times if c is not None]
+    return {"count": len(times), "timed_wall": len(walls), "wall_seconds": round(sum(walls), 1),
+            "timed_cpu": len(cpus), "cpu_seconds": round(sum(cpus), 1)}
 
 
 @contextlib.contextmanager
@@ -308,7 +343,8 @@ def interrupted_by_sigterm() -> Iterator[None]:
 
 class Ledger:
     """A JSON-lines file of finished jobs (`Run.job`), one line each: its key's digest, what it was, the command,
-    commit (and whether the tree was dirty) and date that made it and its result. Shards append to one ledger at once (each line one locked write);
+    commit (and whether the tree was dirty) and date that made it, its wall and CPU seconds and its result. Shards
+    append to one ledger at once (each line one locked write);
     committed between sittings, it carries a full run of many hours across machines. A line cut off by a killed
     run is ignored."""
 
@@ -328,11 +364,13 @@ class Ledger:
                     found = entry
         return found
 
-    def add(self, digest: str, what: str, result: dict, command: str, code_then: dict | None = None) -> None:
-        """Append one entry; its commit and dirtiness `code_then` (`code()` when the job started), else read now."""
+    def add(self, digest: str, what: str, result: dict, command: str, code_then: dict | None = None,
+            times: dict | None = None) -> None:
+        """Append one entry; its commit and dirtiness `code_then` (`code()` when the job started), else read now;
+        `times`: the job's wall_seconds and cpu_seconds."""
         entry = {"key": digest, "what": what, "command": command, **(code_then or code()),
                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                 "result": result}
+                 **(times or {}), "result": result}
         line = json.dumps(entry, default=str) + "\n"
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.path, "a") as f:
@@ -405,6 +443,11 @@ def _results_document(path: Path) -> dict | None:
     return doc if isinstance(doc, dict) and doc.get("schema") == SCHEMA else None
 
 
+def _duration(seconds: float) -> str:
+    """A duration for the page: hours to two decimals, or seconds below a tenth of an hour."""
+    return f"{seconds / 3600:.2f} h" if seconds >= 360 else f"{seconds:.1f} s"
+
+
 def markdown(doc: dict) -> str:
     """The Markdown page of one results document (generated: edit the suite, not the page)."""
     m = doc["machine"]
@@ -423,6 +466,12 @@ def markdown(doc: dict) -> str:
              f"{doc['harness']['min_seconds']} s); its floor: {doc['harness']['floor_seconds']:.3g} s per call."]
     for key, text in doc["protocol"].items():
         lines += ["", f"Protocol ({key}): {text}"]
+    if "jobs" in doc:
+        jobs = doc["jobs"]
+        cpu = (f" and {_duration(jobs['cpu_seconds'])} CPU (the {jobs['timed_cpu']} that recorded it; a paused or crowded "
+               "job's wall time overstates it)") if jobs["timed_cpu"] else ""
+        lines += ["", f"Jobs: {jobs['count']}; their own times sum to {_duration(jobs['wall_seconds'])} wall (the "
+                      f"{jobs['timed_wall']} that recorded it){cpu}."]
     if "ledger" in doc:
         ledger = doc["ledger"]
         lines += ["", f"Ledger `{ledger['path']}`: {ledger['entries_reused']} of the jobs taken from it, made at "

@@ -213,3 +213,33 @@ def test_results_name_the_code_as_it_was_when_the_run_started(tmp_path, monkeypa
     assert doc["machine"]["dirty"] is False
     entry = json.loads((tmp_path / "l.jsonl").read_text())  # the job's ledger entry: the code it ran, too
     assert entry["commit"] == started and entry["dirty"] is False
+
+
+def _busy(seconds: float) -> dict:
+    """Spin on the CPU for about `seconds`, then sleep as long (wall time without CPU time)."""
+    end = time.process_time() + seconds
+    while time.process_time() < end:
+        pass
+    time.sleep(seconds)
+    return {"status": "ok"}
+
+
+def test_jobs_record_their_wall_and_cpu_seconds_and_the_run_sums_them(tmp_path):
+    """Each job's own wall and CPU seconds go into its ledger entry (a sleeping job: wall about twice its CPU), a
+    run that takes it from the ledger sums them as one that ran it does, and an entry from before jobs were timed
+    counts its fit-many row's wall seconds with its CPU unknown."""
+    ledger = tmp_path / "l.jsonl"
+    run = _run(ledger)
+    run.job("a", {"x": 1}, lambda: _busy(0.2), keep=lambda r: True)
+    entry = json.loads(ledger.read_text())
+    assert 0.18 <= entry["cpu_seconds"] <= 0.3 and 0.38 <= entry["wall_seconds"] <= 1.0, entry
+    old = {"key": "old", "what": "b", "command": "c", "commit": "0" * 40, "dirty": False, "date": "d",
+           "result": {"seconds": 7200.0, "status": "ok"}}
+    assert harness.job_seconds(old) == (7200.0, None)
+    again = _run(ledger)
+    again.job("a", {"x": 1}, lambda: _busy(5), keep=lambda r: True)  # taken from the ledger, not run
+    summary = harness.jobs_summary(again.job_times + [harness.job_seconds(old)])
+    assert summary["count"] == 2 and summary["timed_wall"] == 2 and summary["timed_cpu"] == 1
+    assert summary["wall_seconds"] == round(entry["wall_seconds"] + 7200, 1)
+    assert summary["cpu_seconds"] == round(entry["cpu_seconds"], 1)
+    assert harness.jobs_summary(run.job_times) == harness.jobs_summary(again.job_times)
