@@ -468,8 +468,8 @@ def markdown(doc: dict) -> str:
         lines += ["", f"Protocol ({key}): {text}"]
     if "jobs" in doc:
         jobs = doc["jobs"]
-        cpu = (f" and {_duration(jobs['cpu_seconds'])} CPU (the {jobs['timed_cpu']} that recorded it; a paused or crowded "
-               "job's wall time overstates it)") if jobs["timed_cpu"] else ""
+        cpu = (f" and {_duration(jobs['cpu_seconds'])} CPU (the {jobs['timed_cpu']} that recorded it; a paused or "
+               "crowded job's wall time overstates it)") if jobs["timed_cpu"] else ""
         lines += ["", f"Jobs: {jobs['count']}; their own times sum to {_duration(jobs['wall_seconds'])} wall (the "
                       f"{jobs['timed_wall']} that recorded it){cpu}."]
     if "ledger" in doc:

@@ -232,7 +232,7 @@ def test_jobs_record_their_wall_and_cpu_seconds_and_the_run_sums_them(tmp_path):
     run = _run(ledger)
     run.job("a", {"x": 1}, lambda: _busy(0.2), keep=lambda r: True)
     entry = json.loads(ledger.read_text())
-    assert 0.18 <= entry["cpu_seconds"] <= 0.3 and 0.38 <= entry["wall_seconds"] <= 1.0, entry
+    assert 0.18 <= entry["cpu_seconds"] <= 0.3 and entry["wall_seconds"] >= entry["cpu_seconds"] + 0.19, entry
     old = {"key": "old", "what": "b", "command": "c", "commit": "0" * 40, "dirty": False, "date": "d",
            "result": {"seconds": 7200.0, "status": "ok"}}
     assert harness.job_seconds(old) == (7200.0, None)
