@@ -107,6 +107,7 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     from neumat.cli.fitting import default_model
     from neumat.core.errors import InputError
     from neumat.io.texture_set import TextureSet, write_texture_set
+    from neumat.methods.latent_mlp.regime import LARGE_SOURCE_TEXELS
 
     folder = tmp_path / "foil"
     assert CliRunner().invoke(app, ["data", "texture-set", "foil", "-o", str(folder), "--size", "16"]).exit_code == 0
@@ -147,11 +148,13 @@ def test_fit_without_a_model_picks_the_sources_default(tmp_path):
     write_texture_set(half, tmp_path / "half")
     assert default_model([str(tmp_path / "half")])[0] == "multiscale"
     assert default_model([str(tmp_path / "half")], {"crop": 8, "crop_origin": (0, 0)})[0] == "tripleplane"
-    # the size decides past regime.LARGE_SOURCE_TEXELS (512^2): a tilted 256^2 set or a 512^2 metal gets the gated
-    # model, the same on 520 x 512 texels NeuMIP (and says so); a flat, rough dielectric tripleplane at any size
-    for (h, w), tilt, metal, expected in (((256, 256), 20, 0, "multiscale"), ((512, 512), 2, 1, "multiscale"),
-                                          ((520, 512), 20, 0, "neumip"), ((520, 512), 2, 1, "neumip"),
-                                          ((520, 512), 2, 0, "tripleplane")):
+    # the size decides past regime.LARGE_SOURCE_TEXELS (2 x 256^2): a tilted 256^2 set or a 362^2 metal gets the
+    # gated model, the same on 363 x 362 texels and on 512^2 NeuMIP (and says so); a flat, rough dielectric
+    # tripleplane at any size
+    assert LARGE_SOURCE_TEXELS == 2 * 256 * 256 and 362 * 362 <= LARGE_SOURCE_TEXELS < 363 * 362
+    for (h, w), tilt, metal, expected in (((256, 256), 20, 0, "multiscale"), ((362, 362), 2, 1, "multiscale"),
+                                          ((363, 362), 20, 0, "neumip"), ((363, 362), 2, 1, "neumip"),
+                                          ((512, 512), 20, 0, "neumip"), ((363, 362), 2, 0, "tripleplane")):
         folder = tmp_path / f"large{h}{tilt}{metal}"
         write_texture_set(texture_set(tilt, metal), folder)
         name, why = default_model([str(folder)])

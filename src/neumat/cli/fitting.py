@@ -32,7 +32,7 @@ def fit(sources: list[str] = typer.Argument(..., help="training source: a materi
                                   help="registered model name (`neumat list`); default: the recommended model for "
                                        "the source (neumat.cli.fitting.default_model: neubrdf for a BRDF, "
                                        "multiscale for a texture-set folder (on a CPU tripleplane for a flat, rough "
-                                       "dielectric, neumip for one of more than 512^2 texels: "
+                                       "dielectric, neumip for one of more than 2 x 256^2 texels: "
                                        "neumat.methods.latent_mlp.regime), sparse-btf for a BTF, neupress for "
                                        "translucent observations, shared-neubrdf for several BRDFs)"),
         preset: str = typer.Option(None, "--preset", help=PRESET_HELP),

@@ -98,22 +98,25 @@ def recommended(model: str) -> Preset:
 #: when to choose each model, from issue 55's selection-free protocol (random 64^2 crops, the default recipe) and
 #: larger sources (benchmarks/studies/multiscale/results/selection_free.md), as `neumat list` shows it
 MEASURED = {
-    "multiscale": "the default for texture sets of at most 512^2 texels with normal detail, metals and "
+    "multiscale": "the default for texture sets of at most 2 x 256^2 texels with normal detail, metals and "
                   "near-mirrors (on a CPU; `neumat.methods.latent_mlp.regime`): at the CPU default (latents "
                   "initialised at std 0.1), over "
                   "all 29 random 64^2 crops x 2 seeds (session 64), mean FLIP over 9 scales below tripleplane's on "
                   "44 of 58 (76 %), every Metal027 and Leather05 pair among them (0.93-1.00x); on larger sources "
                   "0.72x (a 256^2 leather crop) and 0.96x (the whole 1K plaster set), 1.05-1.09x on the whole 1K "
                   "fabric set (session 63); on the six whole 1K sets at both seeds (the multiscale suite, session "
-                  "75) the last of the neural models on average, 1.14-2.33x the best one's FLIP",
+                  "75) the last of the neural models on average, 1.14-2.33x the best one's FLIP; against NeuMIP "
+                  "0.99x its FLIP on average on four procedural 256^2 sets, 1.13x at 512^2 (session 76)",
     "tripleplane": "the default on a CPU for flat, rough dielectric texture sets (mean normal tilt < 3 degrees, "
                    "roughness >= 0.2, metalness < 0.5): at the CPU default (std 0.1), over the 29 random crops x 2 "
                    "seeds (session 64), ahead of the gated model on every Wood092 pair (1.01-1.16x) and six "
                    "near-ties (at most 1.06x), behind it on the flat metal (Metal027 0.95-0.98x) and where normals "
                    "vary; on the whole 1K fabric set 0.92-0.95x the gated model's (session 63); on the whole 1K "
                    "Wood092 set the best of the five models at both seeds (the multiscale suite, session 75)",
-    "neumip": "the default on a CPU for texture sets of more than 512^2 texels with normal detail, metals and "
-              "near-mirrors (a whole 1K set): on the six whole 1K sets at both seeds (the multiscale suite, session "
+    "neumip": "the default on a CPU for texture sets of more than 2 x 256^2 texels with normal detail, metals and "
+              "near-mirrors (a 512^2 or a whole 1K set): ahead of the gated model on 3 of 4 procedural 512^2 sets "
+              "and tied on the fourth, and on 512^2 crops of Metal027 and Plaster001 (session 76); on the six whole "
+              "1K sets at both seeds (the multiscale suite, session "
               "75) the best model on 9 of the 10 such pairs (mean FLIP over 9 scales 0.0367 against the gated "
               "model's 0.0504, means over the six), and on the 4 held-out procedural 1K sets; on 64^2 crops a "
               "baseline: over the 29 random crops x 2 seeds at 4000 steps (sessions 65-66), mean FLIP 1.07x "

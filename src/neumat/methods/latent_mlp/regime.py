@@ -31,10 +31,11 @@ MIRROR_ROUGHNESS = 0.2
 #: metal Metal027, metalness 1, to the gated model on 8 of 8 (crop, seed) pairs; the flat dielectric Wood092,
 #: metalness 0, to tripleplane on 8 of 8)
 METAL = 0.5
-#: texels above which a source counts as large (NeuMIP instead of the gated model): measured at 64^2 and 256^2
-#: (the gated model ahead or level) and on whole 1K sets of 600 x 1024 texels and more (NeuMIP ahead); the
-#: boundary between them is not placed closer
-LARGE_SOURCE_TEXELS = 512 * 512
+#: texels above which a source counts as large (NeuMIP instead of the gated model): 2 x 256^2 (about 362^2), the
+#: geometric midpoint of the sizes measured on either side (session 76): at 256^2 the gated model's FLIP is 0.99x
+#: NeuMIP's on average over four procedural sets (0.79-1.06x), at 512^2 1.13x (1.01-1.36x) and on two held-out
+#: shared-set crops 1.25x and 1.44x; on whole 1K sets of 600 x 1024 texels and more 1.1-2.3x (session 75)
+LARGE_SOURCE_TEXELS = 2 * 256 * 256
 
 
 def model_for_texture_set(textures: TextureSet, preset: str = DEFAULT_PRESET, device_type: str = "cpu"
@@ -55,8 +56,8 @@ def model_for_texture_set(textures: TextureSet, preset: str = DEFAULT_PRESET, de
                                "of the other latent models")
     if h * w > LARGE_SOURCE_TEXELS:
         return "neumip", (f"a large source with normal detail, metal or a near-mirror ({stats}; more than "
-                          f"{math.isqrt(LARGE_SOURCE_TEXELS)}^2 texels), where NeuMIP was measured ahead of the "
-                          "gated model and tripleplane: the CPU recipe's queries are too few a texel for the gated "
-                          "model")
+                          f"{LARGE_SOURCE_TEXELS} texels, about {math.isqrt(LARGE_SOURCE_TEXELS)}^2), where NeuMIP "
+                          "was measured ahead of the gated model and tripleplane: the CPU recipe's queries are too "
+                          "few a texel for the gated model")
     return "multiscale", (f"normal detail, metal or a near-mirror on a small source ({stats}), where the gated model "
                           "was measured ahead of tripleplane")
