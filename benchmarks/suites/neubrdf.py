@@ -44,7 +44,10 @@ BUDGET = {
                      "codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the default preset, seed 0",
              "paper": paper_budget(TABLE4_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 17 h one fit after another (one thread; --workers 2: about half)"},
+             "expected_wall": "about 8-9 h one fit after another at one thread, about half with --workers 2 (from "
+                              "the CPU seconds of the first 90 fits, session 76: Table 3's ggx, nbrdf and neubrdf "
+                              "fits 30, 72 and 145 s, Table 4's nbrdf and neubrdf jobs 78 and 181 s, medians; the full "
+                              "run's results page sums them all)"},
 }
 
 
