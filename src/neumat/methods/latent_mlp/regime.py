@@ -34,7 +34,7 @@ METAL = 0.5
 #: texels above which a source counts as large (NeuMIP instead of the gated model): 2 x 256^2 (about 362^2), the
 #: geometric midpoint of the sizes measured on either side (session 76): at 256^2 the gated model's FLIP is 0.99x
 #: NeuMIP's on average over four procedural sets (0.79-1.06x), at 512^2 1.13x (1.01-1.36x) and on two held-out
-#: shared-set crops 1.25x and 1.44x; on whole 1K sets of 600 x 1024 texels and more 1.1-2.3x (session 75)
+#: shared-set crops at two seeds 1.03-1.44x; on whole 1K sets of 600 x 1024 texels and more 1.1-2.3x (session 75)
 LARGE_SOURCE_TEXELS = 2 * 256 * 256
 
 
