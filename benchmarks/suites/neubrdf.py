@@ -71,7 +71,7 @@ def run(run: harness.Run) -> None:
                   figure=fits_figure(run, rows, sources[0], TABLE4_MODELS, QUICK))
         run.table("summary", "Quick: per-model means", summary_rows(rows))
         run.table("sharing", "Quick: the sources in one shared-neubrdf cluster",
-                  _sharing(run, sources, QUICK_CLUSTERS, run.seed, rows))
+                  _sharing_rows(_clusters(run, sources, QUICK_CLUSTERS, run.seed), rows, run.seed))
         run.skip("Table 4 (MERL-like) and pruning", "--quick")
         return
     _full(run, rgl, merl, seeds)
@@ -87,6 +87,8 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     """The full run's tables."""
     if not rgl:
         return
+    # the longest job (about 1.5 h at one thread) first: with --workers / --shard the fits run beside it, not after
+    shared = _clusters(run, merl, CLUSTERS, seeds[0]) if merl else None
     rows3 = fit_many(run, rgl, TABLE3_MODELS, FULL_EVAL, seeds)
     figure3 = fits_figure(run, rows3, rgl[0], TABLE3_MODELS, FULL_EVAL)
     rows3 += _paper_model(run, rgl, seeds)
@@ -104,14 +106,12 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     run.table("pruning", "Pruning: NeuBRDF on replayed RGL measurements, pruned grid", quality_rows(pruned))
     run.table("sharing", "Shared codebooks (Sec. 3.3): fit-clusters -k 6 of the MERL-like tables, each member "
                          "beside its own NeuBRDF fit of Table 4 (same seed, same queries)",
-              _sharing(run, merl, CLUSTERS, seeds[0], rows4))
+              _sharing_rows(shared, rows4, seeds[0]))
 
 
-def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int, own: list[dict]) -> list[dict]:
-    """One row per source of a `neumat fit-clusters` run (one job of the run: from its ledger or a --work folder
-    when either holds it; no rows in a shard that leaves it to another): its cluster, bytes (its index grid and a
-    share of the cluster's codebook and MLP) and reflectance errors, beside its own NeuBRDF fit's in `own`
-    (fit-many rows of model "neubrdf": the default preset in a full run)."""
+def _clusters(run: harness.Run, sources: list[str], options: list[str], seed: int) -> dict | None:
+    """The clusters.json of a `neumat fit-clusters` run, one job of the run (from its ledger or a --work folder
+    when either holds it); None in a shard that leaves it to another."""
     def clusters() -> dict:
         with run.folder("fit-clusters", sources, options, seed) as out:
             if not (out / "clusters.json").exists():
@@ -121,7 +121,13 @@ def _sharing(run: harness.Run, sources: list[str], options: list[str], seed: int
 
     key = {"job": "fit-clusters", "sources": {Path(s).name: source_sha256(s) for s in sources}, "options": options,
            "seed": seed, **method_key("neubrdf", options)}
-    doc = run.job(f"fit-clusters of {len(sources)} sources (seed {seed})", key, clusters, keep=lambda _: True)
+    return run.job(f"fit-clusters of {len(sources)} sources (seed {seed})", key, clusters, keep=lambda _: True)
+
+
+def _sharing_rows(doc: dict | None, own: list[dict], seed: int) -> list[dict]:
+    """One row per source of a fit-clusters document `doc` (`_clusters`; none for None): its cluster, bytes (its
+    index grid and a share of the cluster's codebook and MLP) and reflectance errors, beside its own NeuBRDF
+    fit's in `own` (fit-many rows of model "neubrdf" at `seed`, the default preset in a full run)."""
     if doc is None:
         return []
     alone = {r["name"]: r for r in own if r["model"] == "neubrdf" and r["seed"] == seed and r["status"] == "ok"}
