@@ -159,6 +159,18 @@ def test_slang_export_of_the_other_families_matches_torch(name):
 
 
 @needs_slang
+def test_slang_export_applies_the_multiscale_output_bound():
+    model = _model(OTHER_FAMILIES["tripleplane"])
+    q = _queries(1024, True)
+    with torch.no_grad(), cpu_kernels.switched_off():  # a bound below most outputs: the clamp is exercised
+        model.target_max.copy_(model.eval(q).median(0).values)
+        ref = model.eval(q)
+    out = slang_eval(SlangKernel(export_slang(model, "fp32")), q)
+    assert bool((ref == model.target_max).any())
+    assert _relative(out, ref) < EVAL_TOL
+
+
+@needs_slang
 def test_slang_export_of_sparse_btf_matches_torch():
     """SparseBTF's coefficient-space reconstruction (its GLSL export) through the same rewrite."""
     from btf_util import synthetic_btf

@@ -149,7 +149,7 @@ def online_phase(ctx: FitContext, name: str = "fit", steps: int | None = None,
     """Online targets at the recipe's queries, the recipe's loss, all trainable parameters (or `params`), the
     model's own optimiser when it brings one (`model.optimizer(lr, betas, eps)`, e.g. NeuBRDF's row-sparse
     Adam). On a fresh fit, a model's `init_from_targets(target (N, C))` sees the source's values at one batch
-    drawn with seed recipe.seed + 1 (its output scale from the data)."""
+    drawn with seed recipe.seed + 1 (its output scale from the data); `observe_targets` sees every batch's."""
     model, recipe, dev = ctx.model, ctx.recipe, ctx.device
     check_source(model, ctx.source)
     loss_fn = loss_module(ctx)
@@ -164,6 +164,7 @@ def online_phase(ctx: FitContext, name: str = "fit", steps: int | None = None,
     def losses(step: int) -> dict[str, torch.Tensor]:
         q = draw(recipe.batch_size, ctx.generator, dev)
         target = online_targets(ctx, q)
+        model.observe_targets(target)
         pred = model.eval(q)
         return {"loss": loss_fn(pred, target.to(pred.dtype), q)}
 

@@ -2,7 +2,7 @@
 exporters and `neumat list` use.
 
 Class attributes: `name`, `Config`, `paper`, `source_kinds`. Hooks with do-nothing defaults: `on_step`,
-`init_from_targets`, `optimizer`, `runtime`, `size_bytes`, `flops`.
+`init_from_targets`, `observe_targets`, `optimizer`, `runtime`, `size_bytes`, `flops`.
 
 Details: docs/notes/fit.md, section `neumat.models.base`.
 """
@@ -45,6 +45,9 @@ class LearnedMaterial(nn.Module, Material):
 
     def init_from_targets(self, target: torch.Tensor) -> None:
         """Called once before a fresh online fit with the source's values (N, C) at one batch of queries."""
+
+    def observe_targets(self, target: torch.Tensor) -> None:
+        """Called with every online training batch's targets (N, C), e.g. to bound the fitted output by them."""
 
     def optimizer(self, lr: float, betas: tuple[float, float], eps: float) -> torch.optim.Optimizer | None:
         """The model's own optimiser over all its trainable parameters, or None for Adam."""

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from neumat.core.errors import InputError
+from neumat.core.errors import DataFormatError, InputError
 from neumat.core.query import Query
 from neumat.methods.latent_mlp.multiscale import MultiScale
 from neumat.methods.latent_mlp.tripleplane import TriplePlane
@@ -98,6 +98,26 @@ def test_runtime_matches_torch(drjit_llvm, cls, config, footprint):
     if footprint and not model.spatially_varying:
         pytest.skip("a homogeneous model reads no footprint")
     assert _parity(model, footprint) < 1e-4
+
+
+@pytest.mark.parametrize("cls", [MultiScale, TriplePlane], ids=["multiscale", "tripleplane"])
+def test_runtime_applies_the_output_bound(drjit_llvm, cls):
+    from neumat.export.drjit.format import export_drjit
+    from neumat.export.drjit.runtime import load_runtime
+    model = _model(cls)
+    g = torch.Generator().manual_seed(1)
+    q = Query(_dirs(N, g), _dirs(N, g), uv=torch.rand(N, 2, generator=g))
+    with torch.no_grad():  # a bound below most outputs, so that the clamp is exercised
+        model.target_max.copy_(model.eval(q).median(0).values)
+    exported = export_drjit(model)
+    assert exported.manifest["output_bound"] == pytest.approx(model.target_max.tolist())
+    assert _parity(model, False) < 1e-4
+    got = _runtime_eval(model, q.wi, q.wo, q.uv, None)
+    assert bool((got <= model.target_max.double() * (1 + 1e-6)).all())
+    assert float((got >= model.target_max.double() * (1 - 1e-6)).double().mean()) > 0.2
+    for bad in ([1.0, -1.0, 2.0], [1.0, 2.0], "1"):
+        with pytest.raises(DataFormatError, match="output_bound must be three positive numbers"):
+            load_runtime((dict(exported.manifest, output_bound=bad), exported.arrays), "llvm")
 
 
 def test_export_files_round_trip_and_refusals(drjit_llvm, tmp_path):

@@ -75,6 +75,20 @@ def test_glsl_matches_torch(name, footprint):
 
 
 @needs_gl
+@pytest.mark.parametrize("name", ["gated", "tripleplane"])
+def test_glsl_applies_the_output_bound(name):
+    model = _model(CONFIGS[name])
+    q = _queries(2048, 0.1, True, True)
+    with torch.no_grad():  # a bound below most outputs, so that the clamp is exercised
+        model.target_max.copy_(model.eval(q).median(0).values)
+    source = export_glsl(model, "fp32").source
+    assert "min(exp(" in source
+    out, bound = glsl_eval(export_glsl(model, "fp32"), q), model.target_max
+    assert bool((out == bound).any()) and bool((out <= bound * (1 + 1e-6)).all())
+    assert float(_relative_error(model, q).max()) < 1e-4
+
+
+@needs_gl
 def test_glsl_is_zero_below_the_horizon():
     model = _model(CONFIGS["homogeneous"])
     q = Query(wi=torch.tensor([[0.0, 0.6, -0.8], [0.0, 0.0, 1.0]]),

@@ -270,3 +270,84 @@ def test_eval_without_autograd_reuses_textures_until_a_step_changes_them(name):
         model.eval(q).sum().backward()
         opt.step()
     assert not torch.allclose(before[0], before[1])  # the step changed what the kept textures give
+
+
+def _unbounded(model, q):
+    with torch.no_grad():
+        return model.train(True).eval(q), model.train(False)
+
+
+@pytest.mark.parametrize("name", ["multiscale", "tripleplane"])
+def test_a_fit_bounds_the_output_by_its_largest_target(name):
+    """The trainer shows the model every batch's targets; outside training the output is at most their maximum
+    per channel (on the fused kernel and the torch path alike), inside it is not (the loss must see overshoots)."""
+    from neumat.fit.trainer import fit
+    from neumat.reflectance.procedural_texture import procedural_texture_set
+    from neumat.reflectance.svbrdf import SVBRDF
+
+    source = SVBRDF(procedural_texture_set("bumps", 16, 0), samples=1)
+    seen = []
+    observe = MultiScale.observe_targets
+
+    def spy(self, target):
+        seen.append(target[:, :3].amax(0))
+        observe(self, target)
+
+    torch.manual_seed(0)
+    model = build_model({"type": name, **SMALL})
+    recipe = replace(recipe_for(name), steps=6, batch_size=256, lr=1e-2)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(MultiScale, "observe_targets", spy)
+        fit(model, source, recipe, progress=False)
+    assert len(seen) == 6
+    torch.testing.assert_close(model.target_max, torch.stack(seen).amax(0))
+    with torch.no_grad():  # a bound below most outputs: the clamp is exercised, not only present
+        model.target_max.copy_(model.eval(_queries(512)).median(0).values)
+    bound = model.target_max.clone()
+    q = _queries(512, seed=1)
+    raw, model = _unbounded(model, q)
+    assert bool((raw > bound).any()), "the test's bound clamps nothing"
+    with torch.no_grad():
+        fast = model.eval(q)
+        with cpu_kernels.switched_off():
+            slow = model.eval(q)
+    torch.testing.assert_close(fast, torch.minimum(raw, bound), rtol=1e-5, atol=0)
+    torch.testing.assert_close(slow, torch.minimum(raw, bound), rtol=1e-5, atol=0)
+    unbounded = model_class(name)(config=replace(model.cfg, output_bound=False))
+    assert model.flops() == unbounded.flops() + 3
+
+
+def test_the_output_bound_is_off_when_configured_so_or_never_fitted_and_old_files_load_without_it(tmp_path):
+    from neumat.catalog.modelfile import load_model, save_model
+
+    torch.manual_seed(0)
+    q = _queries(256)
+    fresh = MultiScale(**SMALL).train(False)
+    raw, _ = _unbounded(fresh, q)
+    assert fresh.output_bound_values() is None
+    torch.testing.assert_close(fresh.eval(q), raw, rtol=1e-5, atol=0)
+    fresh.observe_targets(torch.full((4, 3), 0.01))
+    assert fresh.output_bound_values() == pytest.approx([0.01] * 3)
+    with torch.no_grad():
+        assert float(fresh.eval(q).max()) <= 0.01
+    off = MultiScale(**SMALL, output_bound=False).train(False)
+    off.load_state_dict(fresh.state_dict())
+    assert off.output_bound_values() is None
+    torch.testing.assert_close(off.eval(q), raw, rtol=1e-5, atol=0)
+    # a model file keeps the bound; one written before it (no target_max) loads unbounded
+    save_model(fresh, tmp_path / "m.nmat")
+    torch.testing.assert_close(load_model(tmp_path / "m.nmat").eval(q), fresh.eval(q), rtol=0, atol=0)
+    old = {k: v for k, v in fresh.state_dict().items() if k != "target_max"}
+    before = MultiScale(**SMALL).train(False)
+    before.load_state_dict(old)
+    assert before.output_bound_values() is None
+    torch.testing.assert_close(before.eval(q), raw, rtol=1e-5, atol=0)
+
+
+@pytest.mark.parametrize("name", ["multiscale", "tripleplane"])
+def test_the_paper_presets_leave_the_output_unbounded(name):
+    from neumat.fit.preset import resolve_preset
+
+    assert resolve_preset(name, "paper").config.output_bound is False
+    assert resolve_preset(name, "cpu").config.output_bound is False
+    assert resolve_preset(name, "recommended").config.output_bound is True

@@ -270,9 +270,10 @@ def _softplus(x):
 
 class LatentMlp(Runtime):
     """Program "latent-mlp" (module docstring). Manifest: spatial (bool), gating, frame, warps, channels
-    (spatial, half, diff), warp_terms, max_probes, activation ("silu"), output ("exp"). Arrays: level{l}
-    (C, H_l, W_l) (the preconditioned pyramid), half_texture / diff_texture (C, R, P), frame_weight (6, C) (scale
-    folded in) / frame_bias, warp_h_* / warp_d_* (weight (2K, C) and bias, or params (2K,)), layer{i}_*."""
+    (spatial, half, diff), warp_terms, max_probes, activation ("silu"), output ("exp"), output_bound (the output's
+    per-channel bound: three numbers, or absent / null for none). Arrays: level{l} (C, H_l, W_l) (the
+    preconditioned pyramid), half_texture / diff_texture (C, R, P), frame_weight (6, C) (scale folded in) /
+    frame_bias, warp_h_* / warp_d_* (weight (2K, C) and bias, or params (2K,)), layer{i}_*."""
 
     def __init__(self, manifest: dict, arrays: dict, backend: Backend, compute: str,
                  mlp_form: str | None = None) -> None:
@@ -313,6 +314,12 @@ class LatentMlp(Runtime):
                     self.warps[tag] = ("decode", arrays[f"warp_{tag}_weight"].astype(np.float32),
                                        arrays[f"warp_{tag}_bias"].astype(np.float32))
         self.mlp = Mlp(b, mlp_layers(arrays), manifest.get("activation", "silu"), compute, mlp_form)
+        bound = manifest.get("output_bound")
+        if bound is not None and (not isinstance(bound, list) or len(bound) != 3 or not all(
+                isinstance(x, (int, float)) and math.isfinite(x) and x > 0 for x in bound)):
+            raise DataFormatError(f"drjit export ({self.describe()}): output_bound must be three positive numbers, "
+                                  f"got {bound!r}")
+        self.bound = bound
 
     def _warp(self, tag: str, r, z):
         import drjit as dr
@@ -374,6 +381,8 @@ class LatentMlp(Runtime):
         else:
             x = a_h + a_d + (z if z is not None else [])
         out = [dr.exp(v) for v in self.mlp(x)]
+        if self.bound is not None:
+            out = [dr.minimum(v, bound) for v, bound in zip(out, self.bound)]
         return dr.select(ok, b.Array3f(*out), 0.0)
 
 

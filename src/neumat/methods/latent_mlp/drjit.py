@@ -64,6 +64,7 @@ def translate(model: MultiScale) -> tuple[dict, dict]:
                 "frame": model.frame is not None, "warps": model.warp_h is not None,
                 "channels": [c.spatial_channels, c.half_channels, c.diff_channels], "warp_terms": c.warp_terms,
                 "max_probes": c.max_probes, "activation": "silu", "output": "exp",
+                "output_bound": model.output_bound_values(),
                 "describe": f"{model.name} ({'gated' if c.gating and spatial else 'concatenated'}, "
                             f"{'spatial ' + str(c.spatial_size) + '^2 x ' + str(c.spatial_channels) if spatial else 'homogeneous'}, "
                             f"MLP {c.hidden}x{c.hidden_layers})"}

@@ -98,7 +98,11 @@ def export_multiscale(model: MultiScale) -> GLSLExport:
             decode.append(f"    for (int i = 0; i < {ds}; ++i) x[{dh + dd} + i] = {zs};\n")
     mlp_consts, mlp_body, out = mlp_chain("NM_L", model.mlp, "x[i]", "nm_silu")
     consts += mlp_consts
-    decode.append(mlp_body + f"    return exp(vec3({out}[0], {out}[1], {out}[2]));\n")
+    f = f"exp(vec3({out}[0], {out}[1], {out}[2]))"
+    bound = model.output_bound_values()  # the fitted model's output bound (multiscale.Config.output_bound)
+    if bound is not None:
+        f = f"min({f}, vec3({', '.join(format(b, '.9e') for b in bound)}))"
+    decode.append(mlp_body + f"    return {f};\n")
 
     z_param = f", vec4 z[{zl}]" if spatial else ""
     parts.append("\n".join(consts))

@@ -86,6 +86,10 @@ class Config:
     """Start the MLP's output biases at log of the median target of the fit's first batch, per channel
     (`init_from_targets`), instead of init_log_value: at -2 the CPU recipe's fits lost a quarter to a half of
     their 1000 steps overpredicting (NOTES.md, "output initialisation")."""
+    output_bound: bool = True
+    """Bound the fitted model's output per channel by the largest target its fit saw (`target_max`; not in the
+    paper): a whole 1K set's fit at the CPU recipe reached 100-10,000x the reference at grazing forward reflection
+    on up to 1.7e-4 of queries (fireflies; NOTES.md, "output bound"). Applies outside training only."""
 
 
 def _check_config(c: Config) -> None:
@@ -199,6 +203,8 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         self.mlp = MLP(dh + dd + (0 if gated or cfg.homogeneous else ds), cfg.hidden, cfg.hidden_layers, 3, "silu")
         with torch.no_grad():
             self.mlp.linears()[-1].bias.fill_(cfg.init_log_value)
+        #: the largest target per channel that the fit has seen (`observe_targets`); 0: none seen, no bound
+        self.register_buffer("target_max", torch.zeros(3))
 
     @property
     def config(self) -> Config:
@@ -213,6 +219,28 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         """With `init_from_data`, the fit starts at the data's scale (`start_at_data_scale`; trainer hook)."""
         if self.cfg.init_from_data:
             start_at_data_scale(self.mlp, target, self.name)
+
+    @torch.no_grad()
+    def observe_targets(self, target: torch.Tensor) -> None:
+        """Raise `target_max` to the largest value per channel of a training batch's targets (N, 3)."""
+        self.target_max.copy_(torch.maximum(self.target_max, target[:, :3].amax(0).to(self.target_max)))
+
+    def output_bound_values(self) -> list[float] | None:
+        """The per-channel bound on the output outside training (`Config.output_bound`), or None: not configured,
+        or no target seen (a model from before the bound, or never fitted)."""
+        if not self.cfg.output_bound or not bool((self.target_max > 0).all()):
+            return None
+        return [float(x) for x in self.target_max]
+
+    def _bounded(self, f: torch.Tensor) -> torch.Tensor:
+        """`f` at most the output bound outside training (inside, its gradient must reach overpredictions)."""
+        bound = None if self.training else self.output_bound_values()
+        return f if bound is None else torch.minimum(f, torch.tensor(bound, dtype=f.dtype, device=f.device))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        # model files from before the output bound have no target_max: they load without a bound
+        state_dict.setdefault(prefix + "target_max", torch.zeros(3))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def latents(self, q: Query) -> torch.Tensor:
         """MLP input: [z_h, z_d] (N, D_h + D_d), or [z_h, z_d, z_s] without gating."""
@@ -242,7 +270,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
     def eval(self, q: Query) -> torch.Tensor:
         """BRDF value (N, 3), linear RGB, cosine excluded; 0 below the geometric horizon."""
         fast = self._kernel_eval(q)
-        return fast if fast is not None else by_rows(self._eval_rows, self.eval_chunk, q)
+        return self._bounded(fast if fast is not None else by_rows(self._eval_rows, self.eval_chunk, q))
 
     def _kernel_eval(self, q: Query) -> torch.Tensor | None:
         """`eval` as one fused C call, the spatial read (finest level, lod or footprint) included
@@ -293,6 +321,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         shading frame and angular texture reads; not the spatial texture fetch (done by texture units)."""
         c = self.cfg
         total = self.mlp.flops() + 3  # + exp
+        total += 3 if self.output_bound_values() is not None else 0
         total += self.half_texture.flops() + self.diff_texture.flops()
         if self.warp_h is not None:
             total += self.warp_h.flops() + self.warp_d.flops()
