@@ -110,6 +110,12 @@ def test_data_info_loads_models_and_names_btfs(tmp_path):
     save_model(load_all().get("ggx")(), tmp_path / "g.nmat")
     d = _json(runner.invoke(app, ["data", "info", str(tmp_path / "g.nmat"), "--json"]))
     assert d["kind"] == "neumat model (ggx)" and d["valid"] is True and d["sampled_value_max"] > 0
+    assert "output_bound" not in d
+    gated = load_all().get("multiscale")(spatial_size=8)
+    gated.observe_targets(torch.tensor([[0.5, 2.0, 81.75]]))
+    save_model(gated, tmp_path / "m.nmat")
+    d = _json(runner.invoke(app, ["data", "info", str(tmp_path / "m.nmat"), "--json"]))
+    assert d["output_bound"] == "0.5, 2, 81.75"
     dirs = torch.tensor([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
     write_btf(tmp_path / "b.nbtf", BTFTable(torch.full((2, 2, 4, 4, 3), 0.25), dirs, dirs, "flat"))
     d = _json(runner.invoke(app, ["data", "info", str(tmp_path / "b.nbtf"), "--json"]))

@@ -97,6 +97,9 @@ def _describe_model(path: Path) -> dict[str, Any]:
     out = {"kind": f"neumat model ({header.get('type', '?')})", **_on_disk(path),
            "neumat_version": header.get("neumat_version", "?"), "material": model.describe(),
            "parameters": sum(p.numel() for p in model.parameters())}
+    bound = getattr(model, "output_bound_values", lambda: None)()  # a latent model's bound on its output
+    if bound is not None:
+        out["output_bound"] = ", ".join(f"{b:.4g}" for b in bound)
     source = header.get("source") or {}
     if source:
         out["source"] = source.get("name", "?")
