@@ -127,15 +127,23 @@ def fits_figure(run: harness.Run, rows: list[dict], source: str, models: list[st
 
 def method_key(model: str, options: list[str]) -> dict:
     """What a fit of `model` with these CLI options takes from the code's defaults, for a job's key: the hash of the
-    preset it names (`--preset`, else the default; `FitJob.fit_sha256`) and the content of the model's CPU and paper
-    recipes (a preset starts from one of them), so a changed default fits again."""
+    preset it names (`--preset`, else the default; `FitJob.fit_sha256`), that preset's overrides (fit_sha256 names
+    "paper" and "cpu" only), the content of the model's CPU and paper recipes (a preset starts from one of them) and
+    its config defaults, so a changed default fits again (session 77: the gated model's new `output_bound` default
+    had left every key as it was, and a rerun would have taken the unbounded fits from the ledger)."""
     from neumat.cli.fit_job import FitJob
     from neumat.core.config import config_to_dict
-    from neumat.fit.preset import DEFAULT_PRESET
+    from neumat.fit.preset import DEFAULT_PRESET, preset_named
+    from neumat.models.registry import model_class
 
     preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
+    named = preset_named(model, preset)
     return {"preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
-            "recipes": {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")}}
+            "preset_overrides": {"recipe": named.recipe, "overrides": dict(named.overrides),
+                                 "by_source": {k: dict(v) for k, v in named.by_source.items()},
+                                 "by_recipe": {k: dict(v) for k, v in named.by_recipe.items()}},
+            "recipes": {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")},
+            "config": config_to_dict(model_class(model).Config())}
 
 
 def _own(options: list[str], model: str, models: list[str]) -> list[str]:

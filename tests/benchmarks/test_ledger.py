@@ -10,6 +10,8 @@ import time
 import types
 from pathlib import Path
 
+import pytest
+
 from benchmarks import harness
 
 SUITE = types.SimpleNamespace(NAME="toy")
@@ -148,6 +150,43 @@ def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
     monkeypatch.setattr(common, "recipe_for", lambda model, name: changed if name == "cpu" else recipe_for(model, name))
     common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
     assert len(folders) == 2 and folders[1] != folders[0] and folders[0].parent == folders[1].parent
+
+
+@pytest.mark.parametrize("change", ["config", "preset"])
+def test_a_fit_job_runs_again_when_its_model_defaults_or_preset_change(tmp_path, monkeypatch, change):
+    """The same for a changed config default (the gated model's output_bound, session 77) and a changed override of
+    a "paper" or "cpu" preset, which FitJob.fit_sha256 names only."""
+    import dataclasses
+
+    from benchmarks.suites import common
+    from neumat.fit import preset as presets
+    from neumat.fit.preset import Preset
+    from neumat.methods.baselines.nbrdf import NBRDF
+
+    folders = []
+
+    def fit_many_cli(args):
+        out = Path(args[args.index("-o") + 1])
+        folders.append(out)
+        (out / "results.json").write_text(json.dumps({"rows": [{"name": "s", "model": args[3], "status": "ok"}]}))
+
+    monkeypatch.setattr(common, "cli", fit_many_cli)
+    run = lambda: harness.Run(SUITE, False, 0, 1, 1, ["toy"], work=tmp_path / "work",  # noqa: E731
+                              ledger=tmp_path / "l.jsonl")
+    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    assert len(folders) == 1
+    if change == "config":
+        @dataclasses.dataclass
+        class Config(NBRDF.Config):
+            hidden: int = NBRDF.Config().hidden + 1
+        monkeypatch.setattr(NBRDF, "Config", Config)
+    else:
+        named = presets.preset_named
+        monkeypatch.setattr(presets, "preset_named", lambda model, name: Preset(
+            "changed", recipe="cpu", overrides={"model.hidden": 3}) if name == "cpu" else named(model, name))
+    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    assert len(folders) == 2 and folders[1] != folders[0]
 
 
 def test_a_changed_ledger_or_result_does_not_make_the_code_dirty(tmp_path, monkeypatch):
