@@ -234,8 +234,9 @@ class MultiScale(LearnedMaterial, SpatialLatent):
 
     def _bounded(self, f: torch.Tensor) -> torch.Tensor:
         """`f` at most the output bound outside training (inside, its gradient must reach overpredictions)."""
-        bound = None if self.training else self.output_bound_values()
-        return f if bound is None else torch.minimum(f, torch.tensor(bound, dtype=f.dtype, device=f.device))
+        if self.training or not self.cfg.output_bound or not bool((self.target_max > 0).all()):
+            return f
+        return torch.minimum(f, self.target_max.to(f.dtype))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         # model files from before the output bound have no target_max: they load without a bound
