@@ -17,6 +17,8 @@ def test_fit_multiscale_on_a_texture_set_folder(shared_data, tmp_path):
     assert result.exit_code == 0, result.output
     model = load_model(out)
     assert model.name == "multiscale" and model.cfg.spatial_size == 16 and model.spatially_varying
+    bound = model.output_bound_values()
+    assert bound is not None and f"bounded by the largest target the fit saw: {bound[0]:.4g}" in result.output
 
 
 def test_fit_rejects_unknown_model_option(shared_data, tmp_path):

@@ -115,6 +115,10 @@ def run_fit(model: str, sources: list[str], preset: str, overrides: dict, out: P
     print(f"wrote {out} ({model}, preset {resolved.preset}, {result.steps} steps, {spent}, final "
           f"loss {metrics['final_loss']}; {out.stat().st_size:,} bytes on disk, {shipped.size_bytes('fp16'):,} "
           "bytes stored at fp16)")
+    bound = getattr(shipped, "output_bound_values", lambda: None)()  # the gated model's (multiscale.Config)
+    if bound is not None:
+        print(f"its output is bounded by the largest target the fit saw: {', '.join(f'{b:.4g}' for b in bound)} "
+              "(RGB; --set output_bound=false for none)")
     if row:
         print_table(f"{model} fit report", [row])
 
