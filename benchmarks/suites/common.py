@@ -129,8 +129,8 @@ def method_key(model: str, options: list[str]) -> dict:
     """What a fit of `model` with these CLI options takes from the code's defaults, for a job's key: the hash of the
     preset it names (`--preset`, else the default; `FitJob.fit_sha256`), that preset's overrides (fit_sha256 names
     "paper" and "cpu" only), the content of the model's CPU and paper recipes (a preset starts from one of them) and
-    its config defaults, so a changed default fits again (session 77: the gated model's new `output_bound` default
-    had left every key as it was, and a rerun would have taken the unbounded fits from the ledger)."""
+    its config defaults, so a changed default fits again (a new config default, such as the gated model's
+    `output_bound`, would otherwise leave every key as it was, and a rerun take the old fits from the ledger)."""
     from neumat.cli.fit_job import FitJob
     from neumat.core.config import config_to_dict
     from neumat.fit.preset import DEFAULT_PRESET, preset_named
