@@ -124,6 +124,26 @@ def test_a_source_folder_keys_by_its_content_not_its_path(tmp_path):
     assert source_sha256("ggx:roughness=0.2") == source_sha256("ggx:roughness=0.2")
 
 
+def _stub_fit_many(tmp_path, monkeypatch):
+    """fit-many replaced by a stub that records each folder it is run in; returns (folders, fit), fit() running
+    `common.fit_many` of nbrdf at preset cpu on one analytic source with one ledger and work folder."""
+    from benchmarks.suites import common
+
+    folders = []
+
+    def fit_many_cli(args):
+        out = Path(args[args.index("-o") + 1])
+        folders.append(out)
+        (out / "results.json").write_text(json.dumps({"rows": [{"name": "s", "model": args[3], "status": "ok"}]}))
+
+    monkeypatch.setattr(common, "cli", fit_many_cli)
+
+    def fit():
+        run = harness.Run(SUITE, False, 0, 1, 1, ["toy"], work=tmp_path / "work", ledger=tmp_path / "l.jsonl")
+        common.fit_many(run, ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    return folders, fit
+
+
 def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
     """fit_many's ledger key and its kept fit-many folder (--work) hold the model's recipe content: the same options
     after a changed default are a new job fitted in a new folder (fit-many would keep the old folder's fit, whose
@@ -133,22 +153,13 @@ def test_a_fit_job_runs_again_when_its_recipe_changes(tmp_path, monkeypatch):
     from benchmarks.suites import common
     from neumat.fit.method import recipe_for
 
-    folders = []
-
-    def fit_many_cli(args):
-        out = Path(args[args.index("-o") + 1])
-        folders.append(out)
-        (out / "results.json").write_text(json.dumps({"rows": [{"name": "s", "model": args[3], "status": "ok"}]}))
-
-    monkeypatch.setattr(common, "cli", fit_many_cli)
-    run = lambda: harness.Run(SUITE, False, 0, 1, 1, ["toy"], work=tmp_path / "work",  # noqa: E731
-                              ledger=tmp_path / "l.jsonl")
-    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
-    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    folders, fit = _stub_fit_many(tmp_path, monkeypatch)
+    fit()
+    fit()
     assert len(folders) == 1
     changed = dataclasses.replace(recipe_for("nbrdf", "cpu"), steps=7)
     monkeypatch.setattr(common, "recipe_for", lambda model, name: changed if name == "cpu" else recipe_for(model, name))
-    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    fit()
     assert len(folders) == 2 and folders[1] != folders[0] and folders[0].parent == folders[1].parent
 
 
@@ -158,23 +169,13 @@ def test_a_fit_job_runs_again_when_its_model_defaults_or_preset_change(tmp_path,
     a "paper" or "cpu" preset, which FitJob.fit_sha256 names only."""
     import dataclasses
 
-    from benchmarks.suites import common
     from neumat.fit import preset as presets
     from neumat.fit.preset import Preset
     from neumat.methods.baselines.nbrdf import NBRDF
 
-    folders = []
-
-    def fit_many_cli(args):
-        out = Path(args[args.index("-o") + 1])
-        folders.append(out)
-        (out / "results.json").write_text(json.dumps({"rows": [{"name": "s", "model": args[3], "status": "ok"}]}))
-
-    monkeypatch.setattr(common, "cli", fit_many_cli)
-    run = lambda: harness.Run(SUITE, False, 0, 1, 1, ["toy"], work=tmp_path / "work",  # noqa: E731
-                              ledger=tmp_path / "l.jsonl")
-    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
-    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    folders, fit = _stub_fit_many(tmp_path, monkeypatch)
+    fit()
+    fit()
     assert len(folders) == 1
     if change == "config":
         @dataclasses.dataclass
@@ -185,7 +186,7 @@ def test_a_fit_job_runs_again_when_its_model_defaults_or_preset_change(tmp_path,
         named = presets.preset_named
         monkeypatch.setattr(presets, "preset_named", lambda model, name: Preset(
             "changed", recipe="cpu", overrides={"model.hidden": 3}) if name == "cpu" else named(model, name))
-    common.fit_many(run(), ["ggx:roughness=0.2"], ["nbrdf"], ["--preset", "cpu"], [0])
+    fit()
     assert len(folders) == 2 and folders[1] != folders[0]
 
 
