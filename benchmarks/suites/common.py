@@ -137,11 +137,8 @@ def method_key(model: str, options: list[str]) -> dict:
     from neumat.models.registry import model_class
 
     preset = options[options.index("--preset") + 1] if "--preset" in options else DEFAULT_PRESET
-    named = preset_named(model, preset)
     return {"preset": FitJob(source="", name="", model=model, out_dir="", preset=preset).fit_sha256(),
-            "preset_overrides": {"recipe": named.recipe, "overrides": dict(named.overrides),
-                                 "by_source": {k: dict(v) for k, v in named.by_source.items()},
-                                 "by_recipe": {k: dict(v) for k, v in named.by_recipe.items()}},
+            "preset_overrides": preset_named(model, preset).contents(),
             "recipes": {name: config_to_dict(recipe_for(model, name)) for name in ("cpu", "paper")},
             "config": config_to_dict(model_class(model).Config())}
 

@@ -97,11 +97,9 @@ class FitJob:
             if self.preset != "cpu":
                 from ..fit.preset import preset_named
 
-                preset = preset_named(self.model, self.preset)
-                options["preset"] = {"recipe": preset.recipe, "overrides": dict(preset.overrides),
-                                     "by_source": {k: dict(v) for k, v in preset.by_source.items()}}
-                if preset.by_recipe:  # only then: rows written before by_recipe existed keep their key
-                    options["preset"]["by_recipe"] = {k: dict(v) for k, v in preset.by_recipe.items()}
+                options["preset"] = preset_named(self.model, self.preset).contents()
+                if not options["preset"]["by_recipe"]:  # rows written before by_recipe existed keep their key
+                    del options["preset"]["by_recipe"]
         return options
 
 

@@ -35,6 +35,12 @@ class Preset:
     by_source: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     by_recipe: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
+    def contents(self) -> dict:
+        """What the preset sets, as plain dicts (its doc left out): for hashes that must change with it."""
+        return {"recipe": self.recipe, "overrides": dict(self.overrides),
+                "by_source": {k: dict(v) for k, v in self.by_source.items()},
+                "by_recipe": {k: dict(v) for k, v in self.by_recipe.items()}}
+
 
 @dataclass
 class Resolved:
