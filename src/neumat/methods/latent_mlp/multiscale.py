@@ -225,18 +225,18 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         """Raise `target_max` to the largest value per channel of a training batch's targets (N, 3)."""
         self.target_max.copy_(torch.maximum(self.target_max, target[:, :3].amax(0).to(self.target_max)))
 
+    def _has_bound(self) -> bool:
+        """Whether the output is bounded (`Config.output_bound`): configured, and a target seen (not a model from
+        before the bound, or never fitted)."""
+        return self.cfg.output_bound and bool((self.target_max > 0).all())
+
     def output_bound_values(self) -> list[float] | None:
-        """The per-channel bound on the output outside training (`Config.output_bound`), or None: not configured,
-        or no target seen (a model from before the bound, or never fitted)."""
-        if not self.cfg.output_bound or not bool((self.target_max > 0).all()):
-            return None
-        return [float(x) for x in self.target_max]
+        """The per-channel bound on the output outside training, or None (`_has_bound`)."""
+        return [float(x) for x in self.target_max] if self._has_bound() else None
 
     def _bounded(self, f: torch.Tensor) -> torch.Tensor:
         """`f` at most the output bound outside training (inside, its gradient must reach overpredictions)."""
-        if self.training or not self.cfg.output_bound or not bool((self.target_max > 0).all()):
-            return f
-        return torch.minimum(f, self.target_max.to(f.dtype))
+        return f if self.training or not self._has_bound() else torch.minimum(f, self.target_max.to(f.dtype))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         # model files from before the output bound have no target_max: they load without a bound
@@ -322,7 +322,7 @@ class MultiScale(LearnedMaterial, SpatialLatent):
         shading frame and angular texture reads; not the spatial texture fetch (done by texture units)."""
         c = self.cfg
         total = self.mlp.flops() + 3  # + exp
-        total += 3 if self.output_bound_values() is not None else 0
+        total += 3 if self._has_bound() else 0
         total += self.half_texture.flops() + self.diff_texture.flops()
         if self.warp_h is not None:
             total += self.warp_h.flops() + self.warp_d.flops()
