@@ -1,4 +1,4 @@
-"""neubrdf: NeuBRDF (Gokbudak et al. 2024) Tables 3 and 4 on our data, and sparse-measurement pruning, all through
+"""neubrdf: NeuBRDF (Dou, Zheng et al. 2024) Tables 3 and 4 on our data, and sparse-measurement pruning, all through
 `neumat fit-many` on the CPU path: RGL files (Table 3: against NBRDF and fitted GGX), the 25 MERL-like tables of
 the shared NBRDF networks (Table 4), the RGL files again with replayed measurements and a pruned grid. NeuBRDF
 runs twice: at the default preset (recommended) and as the paper's exact model (preset cpu). Shared codebooks (Sec.
@@ -23,6 +23,10 @@ TABLE4_MODELS = ["neubrdf", "nbrdf"]
 FULL_EVAL = ["--n-configs", str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"]
 #: the paper's exact model on the CPU path, beside the default
 PAPER_MODEL = ["--preset", "cpu"]
+#: pruning needs the paper's recipe (no coarse grid to regrid); on a CPU at 1/8 of its samples (2500 x 16384 instead
+#: of 20000 x 16384, its step schedule compressed alike: the "cpu" preset's share): about 12 CPU min a fit, not 1.6 h
+PRUNING = ["--preset", "paper", "--steps", "2500", "--set", "lr_decay_every=625", "--set", "checkpoint_every=250",
+           "--set", "queries=replay", "--set", "prune=true"]
 QUICK = ["--preset", "cpu", "--steps", "30", "--set", "neubrdf:nside=4", "--set", "neubrdf:index_bits=4",
          "--set", "batch_size=1024", "--n-configs", "4096", "--image-spp", "4", "--image-resolution", "32"]
 #: fit-clusters of a full run: the clusters of the shared-codebook study (k 6 over the 25 MERL-like tables), at the
@@ -40,14 +44,16 @@ BUDGET = {
               "expected_wall": "about 15 s"},
     "full": {"ours": f"CPU recipes: {recipe_budget(TABLE3_MODELS)}; Table 3: 5 RGL files x 3 models, Table 4: 25 "
                      "MERL-like tables x 2 models, each with neubrdf also as the paper's model (preset cpu), seeds 0 "
-                     "and 1; pruning: 5 RGL files x neubrdf, seed 0 (195 fits); images 128^2 at 64 spp; shared "
-                     "codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the default preset, seed 0",
+                     "and 1; pruning: 5 RGL files x neubrdf at preset paper, 2500 x 16384 (1/8 of its samples), seed "
+                     "0 (195 fits); images 128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like "
+                     "tables at the default preset, seed 0",
              "paper": paper_budget(TABLE4_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 8-9 h one fit after another at one thread, about half with --workers 2 (from "
-                              "the CPU seconds of the first 90 fits, session 76: Table 3's ggx, nbrdf and neubrdf "
-                              "fits 30, 72 and 145 s, Table 4's nbrdf and neubrdf jobs 78 and 181 s, medians; the full "
-                              "run's results page sums them all)"},
+             "expected_wall": "about 10 h one job after another at one thread, 5-6 h with --workers 2 (CPU "
+                              "seconds, medians, sessions 76-78: Table 3's ggx, nbrdf, neubrdf and neubrdf-paper fits "
+                              "30, 72, 145 and 180 s, Table 4's nbrdf, neubrdf and neubrdf-paper jobs 78, 181 and "
+                              "200 s, the fit-clusters job 73 min, each pruning fit about 12 min; the results page "
+                              "sums them all)"},
 }
 
 
@@ -101,9 +107,9 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     run.table("table4", "Table 4: MERL-like tables (default presets; neubrdf-paper: the paper's model)",
               quality_rows(rows4), figure=figure4)
     run.table("table4_summary", "Table 4 per model: mean over the tables, seed spread", summary_rows(rows4))
-    pruned = fit_many(run, rgl, ["neubrdf"], ["--preset", "paper", *FULL_EVAL, "--set", "queries=replay",
-                                              "--set", "prune=true"], seeds[:1])
-    run.table("pruning", "Pruning: NeuBRDF on replayed RGL measurements, pruned grid", quality_rows(pruned))
+    pruned = fit_many(run, rgl, ["neubrdf"], PRUNING + FULL_EVAL, seeds[:1])
+    run.table("pruning", "Pruning: NeuBRDF (the paper's model and recipe at 2500 x 16384) on replayed RGL "
+                         "measurements, pruned grid", quality_rows(pruned))
     run.table("sharing", "Shared codebooks (Sec. 3.3): fit-clusters -k 6 of the MERL-like tables, each member "
                          "beside its own NeuBRDF fit of Table 4 (same seed, same queries)",
               _sharing_rows(shared, rows4, seeds[0]))
