@@ -1,8 +1,9 @@
 """neubrdf: NeuBRDF (Dou, Zheng et al. 2024) Tables 3 and 4 on our data, and sparse-measurement pruning, all through
-`neumat fit-many` on the CPU path: RGL files (Table 3: against NBRDF and fitted GGX), the 25 MERL-like tables of
-the shared NBRDF networks (Table 4), the RGL files again with replayed measurements and a pruned grid. NeuBRDF
-runs twice: at the default preset (recommended) and as the paper's exact model (preset cpu). Shared codebooks (Sec.
-3.3) through `neumat fit-clusters` on the MERL-like tables, each member beside its own fit of Table 4."""
+`neumat fit-many` on the CPU path: Table 3 (image losses against NBRDF; GGX on RGL) on the RGL files and on the 25
+MERL-like tables of the shared NBRDF networks (the paper's MERL), Table 4 (the grid without quantisation, with 4-bit
+features, with the codebook) on the MERL-like tables, the RGL files again with replayed measurements and a pruned
+grid. NeuBRDF runs at the default preset (recommended) and as the paper's exact model (preset cpu). Shared codebooks
+(Sec. 3.3) through `neumat fit-clusters` on the MERL-like tables, each member beside its own fit."""
 from __future__ import annotations
 
 import json
@@ -15,14 +16,21 @@ from .. import harness
 from .common import cli, fit_many, fits_figure, method_key, paper_budget, quality_rows, recipe_budget, summary_rows
 
 NAME = "neubrdf"
-DESCRIPTION = ("NeuBRDF's Tables 3 (RGL) and 4 (MERL-like) against NBRDF and GGX, and pruning, through neumat "
-               "fit-many")
+DESCRIPTION = ("NeuBRDF's Table 3 (RGL and MERL-like, against NBRDF and GGX), Table 4 (quantisation), pruning and "
+               "shared codebooks, through neumat fit-many")
 TABLE3_MODELS = ["neubrdf", "nbrdf", "ggx"]
-TABLE4_MODELS = ["neubrdf", "nbrdf"]
+MERL_MODELS = ["neubrdf", "nbrdf"]
 #: fit-many's evaluation options of a full run (the eval protocol's image metrics at 64 spp, 128^2)
 FULL_EVAL = ["--n-configs", str(2 ** 18), "--image-spp", "64", "--image-resolution", "128"]
 #: the paper's exact model on the CPU path, beside the default
 PAPER_MODEL = ["--preset", "cpu"]
+#: Table 4's grids besides the codebook (PAPER_MODEL's rows), on the CPU path of the paper's model: "w/o
+#: quantization" its dense grid to the end; "w low-bit" 4-bit features, trained in one phase (a 4-bit grid has no
+#: coarse start to be regridded from)
+QUANTISATION = {"neubrdf-dense": PAPER_MODEL + ["--set", "dense_warmup=0", "--set", "vq_candidates=0"],
+                "neubrdf-lowbit4": PAPER_MODEL + ["--set", "features=lowbit", "--set", "lowbit_bits=4", "--set",
+                                                  "coarse_fraction=0", "--set", "dense_warmup=0", "--set",
+                                                  "vq_candidates=0"]}
 #: pruning needs the paper's recipe (no coarse grid to regrid); on a CPU at 1/8 of its samples (2500 x 16384 instead
 #: of 20000 x 16384, its step schedule compressed alike: the "cpu" preset's share): about 12 CPU min a fit, not 1.6 h
 PRUNING = ["--preset", "paper", "--steps", "2500", "--set", "lr_decay_every=625", "--set", "checkpoint_every=250",
@@ -40,19 +48,21 @@ SHARDS = True
 BUDGET = {
     "quick": {"ours": "neubrdf (N_side 4, b 4) and nbrdf, 30 steps x 1024 on analytic GGX and paper_white, one seed; "
                       "images 32^2 at 4 spp; the two in one shared-neubrdf cluster",
-              "paper": paper_budget(TABLE4_MODELS) + " on a GPU",
+              "paper": paper_budget(MERL_MODELS) + " on a GPU",
               "expected_wall": "about 15 s"},
-    "full": {"ours": f"CPU recipes: {recipe_budget(TABLE3_MODELS)}; Table 3: 5 RGL files x 3 models, Table 4: 25 "
-                     "MERL-like tables x 2 models, each with neubrdf also as the paper's model (preset cpu), seeds 0 "
-                     "and 1; pruning: 5 RGL files x neubrdf at preset paper, 2500 x 16384 (1/8 of its samples), seed "
-                     "0 (195 fits); images 128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like "
-                     "tables at the default preset, seed 0",
-             "paper": paper_budget(TABLE4_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
+    "full": {"ours": f"CPU recipes: {recipe_budget(TABLE3_MODELS)}; Table 3: 5 RGL files x 3 models and 25 MERL-like "
+                     "tables x 2 models, each with neubrdf also as the paper's model (preset cpu); Table 4: the 25 "
+                     "MERL-like tables x the paper's model's dense and 4-bit grids; seeds 0 and 1; pruning: 5 RGL "
+                     "files x neubrdf at preset paper, 2500 x 16384 (1/8 of its samples), seed 0 (295 fits); "
+                     "images 128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the "
+                     "default preset, seed 0",
+             "paper": paper_budget(MERL_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 10 h one job after another at one thread, 5-6 h with --workers 2 (CPU "
-                              "seconds, medians, sessions 76-78: Table 3's ggx, nbrdf, neubrdf and neubrdf-paper fits "
-                              "30, 72, 145 and 180 s, Table 4's nbrdf, neubrdf and neubrdf-paper jobs 78, 181 and "
-                              "200 s, the fit-clusters job 73 min, each pruning fit about 12 min; the results page "
+             "expected_wall": "about 15-16 h one job after another at one thread, 8 h with --workers 2 "
+                              "(CPU seconds, medians, sessions 76-78: on RGL the ggx, nbrdf, neubrdf and "
+                              "neubrdf-paper fits 30, 72, 145 and 180 s, on the MERL-like tables the nbrdf, neubrdf "
+                              "and neubrdf-paper jobs 78, 181 and 200 s, Table 4's dense and 4-bit grids about 200 s "
+                              "each, the fit-clusters job 73 min, each pruning fit about 12 min; the results page "
                               "sums them all)"},
 }
 
@@ -72,21 +82,21 @@ def run(run: harness.Run) -> None:
         merl = [str(p) for p in sorted((data / "merl" / "nbrdf_fits").glob("*.h5"))]
     if run.quick:
         sources = ["ggx:roughness=0.2", *rgl[-1:]]
-        rows = fit_many(run, sources, TABLE4_MODELS, QUICK, seeds)
+        rows = fit_many(run, sources, MERL_MODELS, QUICK, seeds)
         run.table("table3", "Quick: tiny fits (numbers mean nothing; the suite runs)", quality_rows(rows),
-                  figure=fits_figure(run, rows, sources[0], TABLE4_MODELS, QUICK))
+                  figure=fits_figure(run, rows, sources[0], MERL_MODELS, QUICK))
         run.table("summary", "Quick: per-model means", summary_rows(rows))
         run.table("sharing", "Quick: the sources in one shared-neubrdf cluster",
                   _sharing_rows(_clusters(run, sources, QUICK_CLUSTERS, run.seed), rows, run.seed))
-        run.skip("Table 4 (MERL-like) and pruning", "--quick")
+        run.skip("the MERL-like tables (Tables 3 and 4) and pruning", "--quick")
         return
     _full(run, rgl, merl, seeds)
 
 
-def _paper_model(run: harness.Run, sources: list[str], seeds: list[int]) -> list[dict]:
-    """Rows of NeuBRDF fits as the paper's exact model (preset cpu), named "neubrdf-paper" in the tables."""
-    rows = fit_many(run, sources, ["neubrdf"], PAPER_MODEL + FULL_EVAL, seeds)
-    return [{**r, "model": "neubrdf-paper"} for r in rows]
+def _neubrdf_as(run: harness.Run, name: str, options: list[str], sources: list[str], seeds: list[int]) -> list[dict]:
+    """Rows of NeuBRDF fits with `options` (and the full evaluation), named `name` in the tables."""
+    rows = fit_many(run, sources, ["neubrdf"], options + FULL_EVAL, seeds)
+    return [{**r, "model": name} for r in rows]
 
 
 def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -> None:
@@ -97,22 +107,31 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     shared = _clusters(run, merl, CLUSTERS, seeds[0]) if merl else None
     rows3 = fit_many(run, rgl, TABLE3_MODELS, FULL_EVAL, seeds)
     figure3 = fits_figure(run, rows3, rgl[0], TABLE3_MODELS, FULL_EVAL)
-    rows3 += _paper_model(run, rgl, seeds)
-    run.table("table3", "Table 3: RGL materials (default presets; neubrdf-paper: the paper's model)",
+    rows3 += _neubrdf_as(run, "neubrdf-paper", PAPER_MODEL, rgl, seeds)
+    run.table("table3", "Table 3 on the RGL files (default presets; neubrdf-paper: the paper's model)",
               quality_rows(rows3), figure=figure3)
-    run.table("table3_summary", "Table 3 per model: mean over the RGL files, seed spread", summary_rows(rows3))
-    rows4 = fit_many(run, merl, TABLE4_MODELS, FULL_EVAL, seeds)
-    figure4 = fits_figure(run, rows4, merl[0], TABLE4_MODELS, FULL_EVAL) if merl else None
-    rows4 += _paper_model(run, merl, seeds)
-    run.table("table4", "Table 4: MERL-like tables (default presets; neubrdf-paper: the paper's model)",
-              quality_rows(rows4), figure=figure4)
-    run.table("table4_summary", "Table 4 per model: mean over the tables, seed spread", summary_rows(rows4))
+    run.table("table3_summary", "Table 3 on the RGL files per model: mean over the files, seed spread",
+              summary_rows(rows3))
+    merl_rows = fit_many(run, merl, MERL_MODELS, FULL_EVAL, seeds)
+    figure_merl = fits_figure(run, merl_rows, merl[0], MERL_MODELS, FULL_EVAL) if merl else None
+    codebook = _neubrdf_as(run, "neubrdf-paper", PAPER_MODEL, merl, seeds)
+    run.table("table3_merl", "Table 3 on the MERL-like tables (the paper's data is MERL; default presets; "
+                             "neubrdf-paper: the paper's model)", quality_rows(merl_rows + codebook),
+              figure=figure_merl)
+    run.table("table3_merl_summary", "Table 3 on the MERL-like tables per model: mean over the tables, seed spread",
+              summary_rows(merl_rows + codebook))
     pruned = fit_many(run, rgl, ["neubrdf"], PRUNING + FULL_EVAL, seeds[:1])
     run.table("pruning", "Pruning: NeuBRDF (the paper's model and recipe at 2500 x 16384) on replayed RGL "
                          "measurements, pruned grid", quality_rows(pruned))
+    grids = [row for name, options in QUANTISATION.items() for row in _neubrdf_as(run, name, options, merl, seeds)]
+    run.table("table4", "Table 4 on the MERL-like tables: the paper's model without quantisation (dense), with 4-bit "
+                        "features (lowbit4) and with its codebook (paper); bytes include the MLP (2 x 64, 12,935 "
+                        "bytes), which the paper's memory column leaves out", quality_rows(grids + codebook))
+    run.table("table4_summary", "Table 4 per grid: mean over the tables, seed spread (the paper's MSE: rmse_hdr^2)",
+              summary_rows(grids + codebook, ("log_err", "rmse_hdr", "img_mae", "img_ssim", "img_flip")))
     run.table("sharing", "Shared codebooks (Sec. 3.3): fit-clusters -k 6 of the MERL-like tables, each member "
-                         "beside its own NeuBRDF fit of Table 4 (same seed, same queries)",
-              _sharing_rows(shared, rows4, seeds[0]))
+                         "beside its own NeuBRDF fit at the default preset (same seed, same queries)",
+              _sharing_rows(shared, merl_rows, seeds[0]))
 
 
 def _clusters(run: harness.Run, sources: list[str], options: list[str], seed: int) -> dict | None:
