@@ -31,10 +31,12 @@ QUANTISATION = {"neubrdf-dense": PAPER_MODEL + ["--set", "dense_warmup=0", "--se
                 "neubrdf-lowbit4": PAPER_MODEL + ["--set", "features=lowbit", "--set", "lowbit_bits=4", "--set",
                                                   "coarse_fraction=0", "--set", "dense_warmup=0", "--set",
                                                   "vq_candidates=0"]}
-#: pruning needs the paper's recipe (no coarse grid to regrid); on a CPU at 1/8 of its samples (2500 x 16384 instead
-#: of 20000 x 16384, its step schedule compressed alike: the "cpu" preset's share): about 12 CPU min a fit, not 1.6 h
-PRUNING = ["--preset", "paper", "--steps", "2500", "--set", "lr_decay_every=625", "--set", "checkpoint_every=250",
-           "--set", "queries=replay", "--set", "prune=true"]
+#: the RGL files' own measurements replayed, pruned to (PRUNING) and not (REPLAY): pruning needs the paper's recipe
+#: (no coarse grid to regrid); on a CPU at 1/8 of its samples (2500 x 16384 instead of 20000 x 16384, its step
+#: schedule compressed alike: the "cpu" preset's share), 12 CPU min a fit instead of 1.6 h
+REPLAY = ["--preset", "paper", "--steps", "2500", "--set", "lr_decay_every=625", "--set", "checkpoint_every=250",
+          "--set", "queries=replay"]
+PRUNING = REPLAY + ["--set", "prune=true"]
 QUICK = ["--preset", "cpu", "--steps", "30", "--set", "neubrdf:nside=4", "--set", "neubrdf:index_bits=4",
          "--set", "batch_size=1024", "--n-configs", "4096", "--image-spp", "4", "--image-resolution", "32"]
 #: fit-clusters of a full run: the clusters of the shared-codebook study (k 6 over the 25 MERL-like tables), at the
@@ -53,16 +55,16 @@ BUDGET = {
     "full": {"ours": f"CPU recipes: {recipe_budget(TABLE3_MODELS)}; Table 3: 5 RGL files x 3 models and 25 MERL-like "
                      "tables x 2 models, each with neubrdf also as the paper's model (preset cpu); Table 4: the 25 "
                      "MERL-like tables x the paper's model's dense and 4-bit grids; seeds 0 and 1; pruning: 5 RGL "
-                     "files x neubrdf at preset paper, 2500 x 16384 (1/8 of its samples), seed 0 (295 fits); "
-                     "images 128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the "
-                     "default preset, seed 0",
+                     "files x neubrdf at preset paper, 2500 x 16384 (1/8 of its samples), pruned and not, seed 0 "
+                     "(300 fits); images 128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like "
+                     "tables at the default preset, seed 0",
              "paper": paper_budget(MERL_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 15-16 h one job after another at one thread, 8 h with --workers 2 "
+             "expected_wall": "about 16-17 h one job after another at one thread, 8-9 h with --workers 2 "
                               "(CPU seconds, medians, sessions 76-78: on RGL the ggx, nbrdf, neubrdf and "
                               "neubrdf-paper fits 30, 72, 145 and 180 s, on the MERL-like tables the nbrdf, neubrdf "
                               "and neubrdf-paper jobs 78, 181 and 200 s, Table 4's dense and 4-bit grids about 200 s "
-                              "each, the fit-clusters job 73 min, each pruning fit about 12 min; the results page "
+                              "each, the fit-clusters job 73 min, each pruning fit 12 min; the results page "
                               "sums them all)"},
 }
 
@@ -120,9 +122,10 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
               figure=figure_merl)
     run.table("table3_merl_summary", "Table 3 on the MERL-like tables per model: mean over the tables, seed spread",
               summary_rows(merl_rows + codebook))
-    pruned = fit_many(run, rgl, ["neubrdf"], PRUNING + FULL_EVAL, seeds[:1])
-    run.table("pruning", "Pruning: NeuBRDF (the paper's model and recipe at 2500 x 16384) on replayed RGL "
-                         "measurements, pruned grid", quality_rows(pruned))
+    pruned = _neubrdf_as(run, "neubrdf-pruned", PRUNING, rgl, seeds[:1])
+    pruned += _neubrdf_as(run, "neubrdf-unpruned", REPLAY, rgl, seeds[:1])
+    run.table("pruning", "Pruning: NeuBRDF (the paper's model and recipe at 2500 x 16384) on the RGL files' replayed "
+                         "measurements, its grid pruned to them and not", quality_rows(pruned))
     grids = [row for name, options in QUANTISATION.items() for row in _neubrdf_as(run, name, options, merl, seeds)]
     run.table("table4", "Table 4 on the MERL-like tables: the paper's model without quantisation (dense), with 4-bit "
                         "features (lowbit4) and with its codebook (paper); bytes include the MLP (2 x 64, 12,935 "
