@@ -1,7 +1,6 @@
 """The neubrdf suite's full run, its fits replaced by stubs: the paper's Table 3 on both data sets, its Table 4 from
 the three grids of the paper's model (the codebook rows shared with Table 3), pruning (beside the same fit unpruned)
-and sharing, each fit asked
-for with the options its ledger key holds."""
+and sharing, each fit asked for with the options its ledger key holds."""
 from __future__ import annotations
 
 import types
