@@ -31,12 +31,12 @@ QUANTISATION = {"neubrdf-dense": PAPER_MODEL + ["--set", "dense_warmup=0", "--se
                 "neubrdf-lowbit4": PAPER_MODEL + ["--set", "features=lowbit", "--set", "lowbit_bits=4", "--set",
                                                   "coarse_fraction=0", "--set", "dense_warmup=0", "--set",
                                                   "vq_candidates=0"]}
-#: the RGL files' own measurements replayed, pruned to (PRUNING) and not (REPLAY): pruning needs the paper's recipe
-#: (no coarse grid to regrid); on a CPU at 1/8 of its samples (2500 x 16384 instead of 20000 x 16384, its step
-#: schedule compressed alike: the "cpu" preset's share), 12 CPU min a fit instead of 1.6 h
-REPLAY = ["--preset", "paper", "--steps", "2500", "--set", "lr_decay_every=625", "--set", "checkpoint_every=250",
-          "--set", "queries=replay"]
+#: the RGL files' own measurements replayed, pruned to (PRUNING) and not (REPLAY), by the paper's model on the CPU path
+#: less its coarse start (a pruned grid cannot be regridded), drawn balanced over direction cells ("replay_cells");
+#: and pruned on uniform draws of the measurements (PRUNING_UNIFORM), the plain replay the cells are measured against
+REPLAY = PAPER_MODEL + ["--set", "coarse_fraction=0", "--set", "queries=replay_cells"]
 PRUNING = REPLAY + ["--set", "prune=true"]
+PRUNING_UNIFORM = PAPER_MODEL + ["--set", "coarse_fraction=0", "--set", "queries=replay", "--set", "prune=true"]
 QUICK = ["--preset", "cpu", "--steps", "30", "--set", "neubrdf:nside=4", "--set", "neubrdf:index_bits=4",
          "--set", "batch_size=1024", "--n-configs", "4096", "--image-spp", "4", "--image-resolution", "32"]
 #: fit-clusters of a full run: the clusters of the shared-codebook study (k 6 over the 25 MERL-like tables), at the
@@ -55,17 +55,17 @@ BUDGET = {
     "full": {"ours": f"CPU recipes: {recipe_budget(TABLE3_MODELS)}; Table 3: 5 RGL files x 3 models and 25 MERL-like "
                      "tables x 2 models, each with neubrdf also as the paper's model (preset cpu); Table 4: the 25 "
                      "MERL-like tables x the paper's model's dense and 4-bit grids; seeds 0 and 1; pruning: 5 RGL "
-                     "files x neubrdf at preset paper, 2500 x 16384 (1/8 of its samples), pruned and not, seed 0 "
-                     "(300 fits); images 128^2 at 64 spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like "
-                     "tables at the default preset, seed 0",
+                     "files x the paper's model (preset cpu, no coarse start) on their replayed measurements, pruned "
+                     "and not, and pruned on uniform draws, seed 0 (305 fits); images 128^2 at 64 spp; shared "
+                     "codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the default preset, seed 0",
              "paper": paper_budget(MERL_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
-             "expected_wall": "about 16-17 h one job after another at one thread, 8-9 h with --workers 2 "
-                              "(CPU seconds, medians, sessions 76-78: on RGL the ggx, nbrdf, neubrdf and "
+             "expected_wall": "about 15 h one job after another at one thread, 7-8 h with --workers 2 "
+                              "(CPU seconds, medians, sessions 76-79: on RGL the ggx, nbrdf, neubrdf and "
                               "neubrdf-paper fits 30, 72, 145 and 180 s, on the MERL-like tables the nbrdf, neubrdf "
-                              "and neubrdf-paper jobs 78, 181 and 200 s, Table 4's dense and 4-bit grids about 200 s "
-                              "each, the fit-clusters job 73 min, each pruning fit 12 min; the results page "
-                              "sums them all)"},
+                              "and neubrdf-paper jobs 78, 181 and 200 s, Table 4's dense grids 150 s (its 4-bit "
+                              "grids not yet measured; taken as 200 s), the fit-clusters job 73 min, a pruning fit "
+                              "about 4 min (182 CPU s its fit alone); the results page sums them all)"},
 }
 
 
@@ -124,8 +124,10 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
               summary_rows(merl_rows + codebook))
     pruned = _neubrdf_as(run, "neubrdf-pruned", PRUNING, rgl, seeds[:1])
     pruned += _neubrdf_as(run, "neubrdf-unpruned", REPLAY, rgl, seeds[:1])
-    run.table("pruning", "Pruning: NeuBRDF (the paper's model and recipe at 2500 x 16384) on the RGL files' replayed "
-                         "measurements, its grid pruned to them and not", quality_rows(pruned))
+    pruned += _neubrdf_as(run, "neubrdf-pruned-uniform", PRUNING_UNIFORM, rgl, seeds[:1])
+    run.table("pruning", "Pruning: the paper's model (preset cpu, no coarse start) on the RGL files' replayed "
+                         "measurements drawn balanced over direction cells, its grid pruned to them and not; and "
+                         "pruned on uniform draws of them (pruned-uniform)", quality_rows(pruned))
     grids = [row for name, options in QUANTISATION.items() for row in _neubrdf_as(run, name, options, merl, seeds)]
     run.table("table4", "Table 4 on the MERL-like tables: the paper's model without quantisation (dense), with 4-bit "
                         "features (lowbit4) and with its codebook (paper); bytes include the MLP (2 x 64, 12,935 "

@@ -101,10 +101,23 @@ def test_cli_fit_with_pruning(app, rgl, tmp_path):
     assert (tmp_path / "pruned.nmat").stat().st_size < (tmp_path / "full.nmat").stat().st_size
 
 
+def test_cli_fit_pruned_on_replay_cells(app, rgl, tmp_path):
+    """queries=replay_cells (draws balanced over direction cells) trains a pruned model on the measurements too."""
+    res = CliRunner().invoke(app, ["fit", rgl, *SMALL, "--preset", "paper", "--set", "queries=replay_cells",
+                                   "--set", "measured_azimuths=1", "--set", "prune=true", "-o",
+                                   str(tmp_path / "cells.nmat")])
+    assert res.exit_code == 0, res.output
+    model = load_model(tmp_path / "cells.nmat")
+    s = rgl_samples(open_material(rgl), azimuths=1)
+    sup = hpx.supervised_pixels(8, hpx.hemisphere_direction(s.wi, False))
+    assert model.pruned and torch.equal(model.level_i.long(), hpx.pruned_levels(8, sup))
+
+
 @pytest.mark.parametrize("source, sets, match", [
     ("rgl", ["prune=true"], "prune=true: needs queries=replay"),
     ("ggx:roughness=0.3", ["queries=replay"], "holds no measurement samples"),
     ("ggx:roughness=0.3", ["queries=replay", "prune=true"], "holds no measurement samples"),
+    ("ggx:roughness=0.3", ["queries=replay_cells"], "queries=replay_cells: the source .* holds no measurement"),
     ("rgl", ["queries=replay", "prune=yes"], "option.prune: expected true/false"),
     ("rgl", ["queries=replay", "measured_azimuths=0"], "option.measured_azimuths: expected a value >= 1, got 0"),
 ])

@@ -131,3 +131,46 @@ def test_full_sphere_source_raises(name):
 def test_replay_needs_measured_samples():
     with pytest.raises(InputError, match="MeasuredSamples.*plain"):
         QUERY_SAMPLERS.get("replay")(_Plain(), None)
+
+
+def _clustered_samples():
+    """Samples in three (wi, wo) HEALPix cells at N_side 4, holding 1, 3 and 12 samples, each near its pixels'
+    centres: a crowded cell, as an RGL file's nodes crowd into its specular peak."""
+    from neumat.nn import healpix as hpx
+
+    gen = torch.Generator().manual_seed(3)
+    parts = []
+    for n, (pi, po) in zip((1, 3, 12), ((2, 2), (30, 2), (33, 40))):
+        near = lambda p: torch.nn.functional.normalize(  # noqa: E731
+            hpx.pix2vec(4, torch.tensor([p]), torch.float32) + 0.01 * torch.randn(n, 3, generator=gen), dim=-1)
+        parts.append((near(pi), near(po)))
+    wi, wo = (torch.cat(p) for p in zip(*parts))
+    cells = hpx.vec2pix(4, wi) * 192 + hpx.vec2pix(4, wo)
+    assert torch.unique(cells).numel() == 3 and bool((wi[:, 2] > 0).all() and (wo[:, 2] > 0).all())
+    return MeasuredSamples(wi, wo, torch.rand(wi.shape[0], 3, generator=gen)), cells
+
+
+def test_replay_cells_draws_every_cell_equally_and_uniformly_within():
+    from neumat.fit.query_samplers import replay_cell_weights
+
+    samples, cells = _clustered_samples()
+    weights = replay_cell_weights(samples)
+    expected = torch.tensor([1 / 3] + [1 / 9] * 3 + [1 / 36] * 12, dtype=torch.float64)
+    torch.testing.assert_close(weights, expected, rtol=1e-12, atol=0)
+    n = 36_000
+    q = QUERY_SAMPLERS.get("replay_cells")(samples, None)(n, torch.Generator().manual_seed(4), "cpu")
+    torch.testing.assert_close(samples.eval(q), samples.value[q.index], rtol=0, atol=0)
+    counts = torch.bincount(q.index, minlength=len(samples)).double()
+    stat = float(((counts - n * expected) ** 2 / (n * expected)).sum())
+    assert stat < 37.7  # chi-square, 15 degrees of freedom, p = 0.001
+    per_cell = torch.stack([counts[cells == c].sum() for c in torch.unique(cells)])
+    assert float(((per_cell - n / 3) ** 2 / (n / 3)).sum()) < 13.8  # chi-square, 2 degrees of freedom, p = 0.001
+
+
+def test_replay_cells_is_reproducible_and_needs_measured_samples():
+    samples, _ = _clustered_samples()
+    draw = QUERY_SAMPLERS.get("replay_cells")(samples, None)
+    a, b = (draw(100, torch.Generator().manual_seed(9), "cpu").index for _ in range(2))
+    assert torch.equal(a, b)
+    with pytest.raises(InputError, match="replay_cells.*MeasuredSamples.*plain"):
+        QUERY_SAMPLERS.get("replay_cells")(_Plain(), None)

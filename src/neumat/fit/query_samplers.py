@@ -4,7 +4,7 @@
 from `generator` (drawn on the generator's device, then moved to `device`), so a fit is reproducible from
 its seed and resumable from the generator state. Methods may register their own.
 
-Built-ins: "cosine", "rusinkiewicz", "merl", "cosine_merl", "replay".
+Built-ins: "cosine", "rusinkiewicz", "merl", "cosine_merl", "replay", "replay_cells".
 
 Details: docs/notes/fit.md, section `neumat.fit.query_samplers`.
 """
@@ -20,6 +20,7 @@ from ..core.errors import InputError
 from ..core.material import Material
 from ..core.query import Query
 from ..core.registry import Registry
+from ..nn import healpix as hpx
 from ..warp.hemisphere import sample_cosine_hemisphere
 from ..warp.uniform import uniform
 from .measured_samples import MeasuredSamples
@@ -102,16 +103,51 @@ def cosine_merl_queries(source: Material, model=None) -> QueryDraw:
     return draw
 
 
+def _require_samples(source: Material, sampler: str) -> None:
+    if not isinstance(source, MeasuredSamples):
+        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        raise InputError(f"query sampler {sampler!r} needs a neumat.fit.measured_samples.MeasuredSamples source, "
+                         f"got {name!r} ({type(source).__name__})")
+
+
 @QUERY_SAMPLERS.register("replay")
 def replay_queries(source: Material, model=None) -> QueryDraw:
     """Uniform draws of the stored samples of a MeasuredSamples source."""
-    if not isinstance(source, MeasuredSamples):
-        name = source.describe() if hasattr(source, "describe") else type(source).__name__
-        raise InputError(f"query sampler 'replay' needs a neumat.fit.measured_samples.MeasuredSamples source, "
-                         f"got {name!r} ({type(source).__name__})")
+    _require_samples(source, "replay")
 
     def draw(n: int, generator: torch.Generator, device) -> Query:
         index = torch.randint(len(source), (n,), generator=generator, device=generator.device).to(device)
         return source.query(index)
+
+    return draw
+
+
+#: HEALPix N_side of the direction cells "replay_cells" balances its draws over (96 cells per hemisphere): of
+#: N_side 4 and 8 the better on a replayed RGL file (docs/neubrdf.md, "Sparse measurements and pruning")
+REPLAY_CELLS_NSIDE = 4
+
+
+def replay_cell_weights(source: MeasuredSamples, nside: int = REPLAY_CELLS_NSIDE) -> torch.Tensor:
+    """Draw probability (N,) float64 of each stored sample under "replay_cells": 1 / (occupied cells x samples in
+    its cell), a cell being the pair (HEALPix pixel of wi, of wo) at `nside` (uv not split)."""
+    pixels = 12 * nside * nside
+    cell = hpx.vec2pix(nside, source.wi) * pixels + hpx.vec2pix(nside, source.wo)
+    _, inverse, counts = torch.unique(cell, return_inverse=True, return_counts=True)
+    return 1.0 / (counts.numel() * counts[inverse].double())
+
+
+@QUERY_SAMPLERS.register("replay_cells")
+def replay_cells_queries(source: Material, model=None) -> QueryDraw:
+    """Draws of the stored samples of a MeasuredSamples source in which every occupied (wi, wo) direction cell
+    is equally likely (uniform within a cell): measurements crowd where their device put them (an RGL file's
+    nodes into the specular peak), and the fit learns the rest of the hemisphere only if it is drawn."""
+    _require_samples(source, "replay_cells")
+    cdf = torch.cumsum(replay_cell_weights(source), 0)
+    cdf /= cdf[-1].clone()
+
+    def draw(n: int, generator: torch.Generator, device) -> Query:
+        u = torch.rand(n, generator=generator, device=generator.device, dtype=torch.float64)
+        index = torch.searchsorted(cdf.to(u.device), u, right=True).clamp(max=len(source) - 1)
+        return source.query(index.to(device))
 
     return draw

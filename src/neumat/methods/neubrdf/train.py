@@ -41,9 +41,9 @@ class Options(GridOptions):
     direction_features: float = bounded(0.0, ge=0)
     """Scale of a direction-coded start of the first 3 dense feature channels (0: random start)."""
     prune: bool = False
-    """Prune the grid to the measured directions before training (paper Sec. 3.2.1); needs queries=replay."""
+    """Prune the grid to the measured directions before training (paper Sec. 3.2.1); needs replay queries."""
     measured_azimuths: int = bounded(64, ge=1)
-    """With queries=replay on an isotropic RGL file: incident azimuths its measured one is rotated to."""
+    """With replay queries on an isotropic RGL file: incident azimuths its measured one is rotated to."""
     runtime_fraction: float = bounded(0.0, ge=0, lt=1)
     """Last fraction of the steps trained in the 1/4-weight runtime form against pixel-pair averages (0: off)."""
     runtime_samples: int = bounded(32, ge=1)
@@ -70,6 +70,8 @@ DENSE_RECIPE = replace(CPU_RECIPE, loss="log_cos_eps", queries="cosine_merl",
                        options=config_to_dict(Options(coarse_fraction=0.4, direction_features=10.0,
                                                               runtime_fraction=0.2)))
 NAMED_RECIPES = {"dense": DENSE_RECIPE}
+#: the query samplers that draw a source's measured samples (`neumat.fit.query_samplers`)
+REPLAY_QUERIES = ("replay", "replay_cells")
 
 #: the recommended setting's queries and loss; on RGL measured files they are left at the paper's (see PRESETS)
 _DENSE_SAMPLING = {"recipe.queries": "cosine_merl", "recipe.loss": "log_cos_eps"}
@@ -91,7 +93,7 @@ PRESETS = {
 def phases(ctx: FitContext) -> list[Phase]:
     """One online phase, or the stages the options ask for, in this order (each with the learning-rate schedule
     over its own steps; all on the measured samples of the source and with a pruned model under options
-    queries="replay" / prune, see `_measured`):
+    queries "replay" or "replay_cells" / prune, see `_measured`):
 
     "coarse" (option coarse_fraction = c > 0): round(c steps) steps on a dense grid at coarse_nside (the model
     is regridded to it now); at its end `NeuBRDF.regrid` back to the model's N_side.
@@ -208,10 +210,10 @@ def _runtime_steps(ctx: FitContext) -> int:
     if frac == 0:
         return 0
     queries = ctx.queries if ctx.queries is not None else ctx.recipe.queries
-    if queries == "replay":
+    if queries in REPLAY_QUERIES:
         raise InputError(f"neubrdf recipe option runtime_fraction={frac}: needs a source it can evaluate anywhere "
-                         "(its targets average the source over pixel pairs); queries=replay fits measured samples "
-                         "only")
+                         f"(its targets average the source over pixel pairs); queries={queries} fits measured "
+                         "samples only")
     form = getattr(getattr(ctx.model, "cfg", None), "runtime_interpolation", None)
     if form != "uniform":
         raise InputError(f"neubrdf recipe option runtime_fraction={frac}: the model's runtime_interpolation is "
@@ -244,9 +246,9 @@ def _coarse_nside(n: int, fine: int) -> int:
 
 
 def _measured(ctx: FitContext) -> FitContext:
-    """The fit's context for sparse measurements: with queries "replay" the source must hold measurement
-    samples (a `MeasuredSamples`, or an RGL file whose measurement directions `rgl_samples` gives, then the
-    source of the fit); with option prune the model is pruned to their directions first (`NeuBRDF.prune`,
+    """The fit's context for sparse measurements: with replay queries (`REPLAY_QUERIES`) the source must hold
+    measurement samples (a `MeasuredSamples`, or an RGL file whose measurement directions `rgl_samples` gives, then
+    the source of the fit); with option prune the model is pruned to their directions first (`NeuBRDF.prune`,
     deterministic, so a resumed fit prunes the same way). InputError for prune without replay queries and
     for replay on a source without measurement samples."""
     from neumat.reflectance.measured import RglMaterial
@@ -254,17 +256,17 @@ def _measured(ctx: FitContext) -> FitContext:
 
     prune = ctx.opts.prune
     queries = ctx.queries if ctx.queries is not None else ctx.recipe.queries
-    if queries != "replay":
+    if queries not in REPLAY_QUERIES:
         if prune:
-            raise InputError(f"neubrdf recipe option prune=true: needs queries=replay (the model is pruned to the "
-                             f"measured directions and must train on them), got queries={queries!r}")
+            raise InputError(f"neubrdf recipe option prune=true: needs queries=replay or replay_cells (the model is "
+                             f"pruned to the measured directions and must train on them), got queries={queries!r}")
         return ctx
     source = ctx.source
     if isinstance(source, RglMaterial):
         source = rgl_samples(source, ctx.opts.measured_azimuths)
     elif not isinstance(source, MeasuredSamples):
         name = source.describe() if hasattr(source, "describe") else type(source).__name__
-        raise InputError(f"neubrdf with queries=replay{' and prune=true' if prune else ''}: the source "
+        raise InputError(f"neubrdf with queries={queries}{' and prune=true' if prune else ''}: the source "
                          f"{name!r} holds no measurement samples; give an RGL *_rgb.bsdf file or "
                          f"neumat.fit.measured_samples.MeasuredSamples")
     if prune:
