@@ -10,7 +10,8 @@ import torch
 from neumat.core.errors import InputError
 from neumat.core.material import Material
 from neumat.fit.measured_samples import MeasuredSamples
-from neumat.fit.query_samplers import QUERY_SAMPLERS
+from neumat.fit.query_samplers import QUERY_SAMPLERS, REPLAY_CELLS_NSIDE, replay_cell_weights
+from neumat.nn import healpix as hpx
 from neumat.testing.chi2 import chi2_2d, chi2_directions
 
 
@@ -134,25 +135,22 @@ def test_replay_needs_measured_samples():
 
 
 def _clustered_samples():
-    """Samples in three (wi, wo) HEALPix cells at N_side 4, holding 1, 3 and 12 samples, each near its pixels'
-    centres: a crowded cell, as an RGL file's nodes crowd into its specular peak."""
-    from neumat.nn import healpix as hpx
+    """Samples in three (wi, wo) HEALPix cells of "replay_cells", holding 1, 3 and 12 samples, each near its
+    pixels' centres: a crowded cell, as an RGL file's nodes crowd into its specular peak."""
+    nside, gen = REPLAY_CELLS_NSIDE, torch.Generator().manual_seed(3)
 
-    gen = torch.Generator().manual_seed(3)
-    parts = []
-    for n, (pi, po) in zip((1, 3, 12), ((2, 2), (30, 2), (33, 40))):
-        near = lambda p: torch.nn.functional.normalize(  # noqa: E731
-            hpx.pix2vec(4, torch.tensor([p]), torch.float32) + 0.01 * torch.randn(n, 3, generator=gen), dim=-1)
-        parts.append((near(pi), near(po)))
+    def near(pixel: int, n: int) -> torch.Tensor:
+        centre = hpx.pix2vec(nside, torch.tensor([pixel]), torch.float32)
+        return torch.nn.functional.normalize(centre + 0.01 * torch.randn(n, 3, generator=gen), dim=-1)
+
+    parts = [(near(pi, n), near(po, n)) for n, (pi, po) in zip((1, 3, 12), ((2, 2), (30, 2), (33, 40)))]
     wi, wo = (torch.cat(p) for p in zip(*parts))
-    cells = hpx.vec2pix(4, wi) * 192 + hpx.vec2pix(4, wo)
+    cells = hpx.vec2pix(nside, wi) * (12 * nside ** 2) + hpx.vec2pix(nside, wo)
     assert torch.unique(cells).numel() == 3 and bool((wi[:, 2] > 0).all() and (wo[:, 2] > 0).all())
     return MeasuredSamples(wi, wo, torch.rand(wi.shape[0], 3, generator=gen)), cells
 
 
 def test_replay_cells_draws_every_cell_equally_and_uniformly_within():
-    from neumat.fit.query_samplers import replay_cell_weights
-
     samples, cells = _clustered_samples()
     weights = replay_cell_weights(samples)
     expected = torch.tensor([1 / 3] + [1 / 9] * 3 + [1 / 36] * 12, dtype=torch.float64)
