@@ -33,10 +33,12 @@ QUANTISATION = {"neubrdf-dense": PAPER_MODEL + ["--set", "dense_warmup=0", "--se
                                                   "vq_candidates=0"]}
 #: the RGL files' own measurements replayed, pruned to (PRUNING) and not (REPLAY), by the paper's model on the CPU path
 #: less its coarse start (a pruned grid cannot be regridded), drawn balanced over direction cells ("replay_cells");
-#: and pruned on uniform draws of the measurements (PRUNING_UNIFORM), the plain replay the cells are measured against
+#: and the same on uniform draws of the measurements (PRUNING_UNIFORM, REPLAY_UNIFORM): neither draw is the better
+#: on every file (docs/neubrdf.md, "Sparse measurements and pruning")
 REPLAY = PAPER_MODEL + ["--set", "coarse_fraction=0", "--set", "queries=replay_cells"]
 PRUNING = REPLAY + ["--set", "prune=true"]
-PRUNING_UNIFORM = PAPER_MODEL + ["--set", "coarse_fraction=0", "--set", "queries=replay", "--set", "prune=true"]
+REPLAY_UNIFORM = PAPER_MODEL + ["--set", "coarse_fraction=0", "--set", "queries=replay"]
+PRUNING_UNIFORM = REPLAY_UNIFORM + ["--set", "prune=true"]
 QUICK = ["--preset", "cpu", "--steps", "30", "--set", "neubrdf:nside=4", "--set", "neubrdf:index_bits=4",
          "--set", "batch_size=1024", "--n-configs", "4096", "--image-spp", "4", "--image-resolution", "32"]
 #: fit-clusters of a full run: the clusters of the shared-codebook study (k 6 over the 25 MERL-like tables), at the
@@ -56,16 +58,17 @@ BUDGET = {
                      "tables x 2 models, each with neubrdf also as the paper's model (preset cpu); Table 4: the 25 "
                      "MERL-like tables x the paper's model's dense and 4-bit grids; seeds 0 and 1; pruning: 5 RGL "
                      "files x the paper's model (preset cpu, no coarse start) on their replayed measurements, pruned "
-                     "and not, and pruned on uniform draws, seed 0 (305 fits); images 128^2 at 64 spp; shared "
-                     "codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the default preset, seed 0",
+                     "and not, drawn balanced over cells and uniformly, seed 0 (310 fits); images 128^2 at 64 "
+                     "spp; shared codebooks: fit-clusters -k 6 of the 25 MERL-like tables at the default preset, "
+                     "seed 0",
              "paper": paper_budget(MERL_MODELS) + " on a GPU; MERL's 100 measured tables (we have 25 NBRDF "
                       "stand-ins) and RGL's 51",
              "expected_wall": "about 15 h one job after another at one thread, 7-8 h with --workers 2 "
                               "(CPU seconds, medians, sessions 76-79: on RGL the ggx, nbrdf, neubrdf and "
                               "neubrdf-paper fits 30, 72, 145 and 180 s, on the MERL-like tables the nbrdf, neubrdf "
                               "and neubrdf-paper jobs 78, 181 and 200 s, Table 4's dense grids 150 s (its 4-bit "
-                              "grids not yet measured; taken as 200 s), the fit-clusters job 73 min, a pruning fit "
-                              "about 4 min (182 CPU s its fit alone); the results page sums them all)"},
+                              "grids not yet measured; taken as 200 s), the fit-clusters job 73 min, a pruning job "
+                              "170 s; the results page sums them all)"},
 }
 
 
@@ -125,9 +128,10 @@ def _full(run: harness.Run, rgl: list[str], merl: list[str], seeds: list[int]) -
     pruned = _neubrdf_as(run, "neubrdf-pruned", PRUNING, rgl, seeds[:1])
     pruned += _neubrdf_as(run, "neubrdf-unpruned", REPLAY, rgl, seeds[:1])
     pruned += _neubrdf_as(run, "neubrdf-pruned-uniform", PRUNING_UNIFORM, rgl, seeds[:1])
+    pruned += _neubrdf_as(run, "neubrdf-unpruned-uniform", REPLAY_UNIFORM, rgl, seeds[:1])
     run.table("pruning", "Pruning: the paper's model (preset cpu, no coarse start) on the RGL files' replayed "
-                         "measurements drawn balanced over direction cells, its grid pruned to them and not; and "
-                         "pruned on uniform draws of them (pruned-uniform)", quality_rows(pruned))
+                         "measurements, its grid pruned to them and not, the measurements drawn balanced over "
+                         "direction cells and (-uniform) uniformly", quality_rows(pruned))
     grids = [row for name, options in QUANTISATION.items() for row in _neubrdf_as(run, name, options, merl, seeds)]
     run.table("table4", "Table 4 on the MERL-like tables: the paper's model without quantisation (dense), with 4-bit "
                         "features (lowbit4) and with its codebook (paper); bytes include the MLP (2 x 64, 12,935 "

@@ -1,6 +1,6 @@
 """The neubrdf suite's full run, its fits replaced by stubs: the paper's Table 3 on both data sets, its Table 4 from
-the three grids of the paper's model (the codebook rows shared with Table 3), pruning (beside the same fit unpruned
-and pruned on uniform draws) and sharing, each fit asked for with the options its ledger key holds."""
+the three grids of the paper's model (the codebook rows shared with Table 3), pruning (pruned and not, on
+balanced and uniform draws) and sharing, each fit asked for with the options its ledger key holds."""
 from __future__ import annotations
 
 import types
@@ -45,6 +45,7 @@ def test_the_full_run_asks_for_each_table_s_fits_and_tabulates_tables_3_and_4(mo
     assert (tuple(rgl), ("neubrdf",), (*neubrdf.PRUNING, *neubrdf.FULL_EVAL), (0,)) in calls
     assert (tuple(rgl), ("neubrdf",), (*neubrdf.REPLAY, *neubrdf.FULL_EVAL), (0,)) in calls
     assert (tuple(rgl), ("neubrdf",), (*neubrdf.PRUNING_UNIFORM, *neubrdf.FULL_EVAL), (0,)) in calls
+    assert (tuple(rgl), ("neubrdf",), (*neubrdf.REPLAY_UNIFORM, *neubrdf.FULL_EVAL), (0,)) in calls
     assert {r["model"] for r in tables["pruning"]["rows"]} == {"neubrdf-pruned", "neubrdf-unpruned",
-                                                               "neubrdf-pruned-uniform"}
-    assert len(calls) == 9
+                                                               "neubrdf-pruned-uniform", "neubrdf-unpruned-uniform"}
+    assert len(calls) == 10
