@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import torch
 from torch import nn
@@ -92,6 +93,12 @@ class NonNegative(Material):
 
     def describe(self) -> str:
         return self.material.describe()
+
+
+def describe_source(source: Any) -> str:
+    """One line naming a fit's source: its `describe()`, else its type's name (target sources such as measured
+    samples need not be materials)."""
+    return source.describe() if hasattr(source, "describe") else type(source).__name__
 
 
 def material_device(*materials: Material) -> torch.device:

@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from ..core.errors import InputError
-from ..core.material import Material
+from ..core.material import Material, describe_source
 from .losses import LOSSES
 from .query_samplers import QUERY_SAMPLERS
 from .recipe import Recipe
@@ -100,10 +100,6 @@ def model_name(model: Any) -> str:
     return getattr(model, "name", type(model).__name__)
 
 
-def describe(source: Any) -> str:
-    return source.describe() if hasattr(source, "describe") else type(source).__name__
-
-
 def check_source(model: nn.Module, source: Material) -> None:
     """Raise InputError if `source` cannot supervise `model` by online targets (no eval, spatial variation
     or sphere mismatch)."""
@@ -112,11 +108,11 @@ def check_source(model: nn.Module, source: Material) -> None:
                          "open files and specs with neumat.open_material")
     mname = model_name(model)
     if getattr(source, "spatially_varying", False) and not getattr(model, "spatially_varying", False):
-        raise InputError(f"fit: source {describe(source)!r} is spatially varying, but model {mname!r} is a "
+        raise InputError(f"fit: source {describe_source(source)!r} is spatially varying, but model {mname!r} is a "
                          "plain BRDF (give it a neural texture / latent texture to fit spatial variation)")
     if getattr(source, "full_sphere", False) != getattr(model, "full_sphere", False):
         kind = "spans the whole sphere" if getattr(source, "full_sphere", False) else "is an upper-hemisphere BRDF"
-        raise InputError(f"fit: source {describe(source)!r} {kind}, but model {mname!r} does not match "
+        raise InputError(f"fit: source {describe_source(source)!r} {kind}, but model {mname!r} does not match "
                          f"(model full_sphere = {getattr(model, 'full_sphere', False)})")
 
 
@@ -139,7 +135,7 @@ def online_targets(ctx: FitContext, q) -> torch.Tensor:
     with torch.no_grad():
         target = ctx.source.eval(q)
     if not bool(torch.isfinite(target).all()):
-        raise InputError(f"fit: source {describe(ctx.source)!r} returned non-finite values (NaN or inf); "
+        raise InputError(f"fit: source {describe_source(ctx.source)!r} returned non-finite values (NaN or inf); "
                          "fix or clamp the source")
     return target
 

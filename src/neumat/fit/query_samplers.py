@@ -17,7 +17,7 @@ import torch
 
 from ..core.coords import rusinkiewicz_to_io
 from ..core.errors import InputError
-from ..core.material import Material
+from ..core.material import Material, describe_source
 from ..core.query import Query
 from ..core.registry import Registry
 from ..nn import healpix as hpx
@@ -36,7 +36,7 @@ def _needs_uv(source: Material, model) -> bool:
 
 def _require_hemisphere(source: Material, sampler: str) -> None:
     if getattr(source, "full_sphere", False):
-        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        name = describe_source(source)
         raise InputError(f"query sampler {sampler!r} draws BRDF queries on the upper hemisphere, but the source "
                          f"{name!r} spans the whole sphere")
 
@@ -105,7 +105,7 @@ def cosine_merl_queries(source: Material, model=None) -> QueryDraw:
 
 def _require_samples(source: Material, sampler: str) -> None:
     if not isinstance(source, MeasuredSamples):
-        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        name = describe_source(source)
         raise InputError(f"query sampler {sampler!r} needs a neumat.fit.measured_samples.MeasuredSamples source, "
                          f"got {name!r} ({type(source).__name__})")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import Material, describe_source, upper_hemisphere
 from neumat.core.query import Query
 from neumat.nn import healpix as hpx
 
@@ -41,7 +41,7 @@ class PixelPairAverage(Material):
         self.spatially_varying = getattr(reference, "spatially_varying", False)
 
     def describe(self) -> str:
-        inner = self.reference.describe() if hasattr(self.reference, "describe") else type(self.reference).__name__
+        inner = describe_source(self.reference)
         return f"{inner} averaged over N_side {self.nside} pixel pairs ({self.samples} points)"
 
     def _jitter(self, w: torch.Tensor) -> torch.Tensor:

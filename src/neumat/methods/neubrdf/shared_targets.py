@@ -18,7 +18,7 @@ import torch
 
 from neumat.core.coords import rusinkiewicz_to_io
 from neumat.core.errors import InputError
-from neumat.core.material import Material, upper_hemisphere
+from neumat.core.material import Material, describe_source, upper_hemisphere
 from neumat.core.query import Query
 from neumat.methods.neubrdf.shared_model import MaterialQuery, SharedNeuBRDF
 from neumat.nn.conv_autoencoder import ConvAutoencoder, train_autoencoder
@@ -127,11 +127,7 @@ class JointSource(Material):
         return out
 
     def describe(self) -> str:
-        return f"joint source of {len(self.sources)} materials ({', '.join(_describe(s) for s in self.sources)})"
-
-
-def _describe(m) -> str:
-    return m.describe() if hasattr(m, "describe") else type(m).__name__
+        return f"joint source of {len(self.sources)} materials ({', '.join(describe_source(s) for s in self.sources)})"
 
 
 @QUERY_SAMPLERS.register("joint")

@@ -12,6 +12,7 @@ from typing import Literal
 
 from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
+from neumat.core.material import describe_source
 from neumat.methods.neubrdf.feature_sensitivity import feature_sensitivity
 from neumat.fit.phase import FitContext, Phase, online_phase, query_draw
 from neumat.fit.preset import Preset
@@ -265,7 +266,7 @@ def _measured(ctx: FitContext) -> FitContext:
     if isinstance(source, RglMaterial):
         source = rgl_samples(source, ctx.opts.measured_azimuths)
     elif not isinstance(source, MeasuredSamples):
-        name = source.describe() if hasattr(source, "describe") else type(source).__name__
+        name = describe_source(source)
         raise InputError(f"neubrdf with queries={queries}{' and prune=true' if prune else ''}: the source "
                          f"{name!r} holds no measurement samples; give an RGL *_rgb.bsdf file or "
                          f"neumat.fit.measured_samples.MeasuredSamples")

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from neumat.core.errors import InputError
+from neumat.core.material import describe_source
 from neumat.core.query import Query
 from neumat.fit.phase import FitContext, Phase
 from neumat.methods.neural_appearance.proxy_train import proxy_kl_loss
@@ -44,7 +45,7 @@ def phases(ctx: FitContext) -> list[Phase]:
         raise InputError("proxy-sampler fit: the source must be the material the sampler is attached to "
                          "(fit(SampledMaterial(material, sampler), material))")
     features = model.sampler.cfg.features
-    who = material.describe() if hasattr(material, "describe") else type(material).__name__
+    who = describe_source(material)
 
     def losses(step: int) -> dict[str, torch.Tensor]:
         u = torch.rand(batch, 6, generator=gen, device=gen.device).to(dev)
