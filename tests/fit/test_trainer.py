@@ -268,7 +268,9 @@ def test_a_fit_that_ends_far_above_its_best_loss_says_so():
     with pytest.warns(FitWarning, match=r"phase 'fit' ended at loss .*x its lowest .* at step 5; medians of the"):
         res = fit(_Drifting(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
     medians = [r["loss_median"] for r in res.history]
-    assert len(res.warnings) == 1 and medians[-1] > ENDS_ABOVE_BEST * min(medians)
+    # the output 40x its fit also reflects more light than it receives: that check speaks too
+    assert [w.split(": ")[1][:20] for w in res.warnings] == ["phase 'fit' ended at", "the fitted model ref"]
+    assert medians[-1] > ENDS_ABOVE_BEST * min(medians)
     history = [{"phase": "a", "step": 1, "loss": 1.0}, {"phase": "a", "step": 2, "loss": 1.9},
                {"phase": "b", "step": 3, "loss": 5.0}, {"phase": "b", "step": 4, "loss": 0.1}]
     assert ended_above_best(history, "m") == []
@@ -382,8 +384,8 @@ def test_a_fit_whose_output_collapsed_says_so():
         fit(Constant(), Blinn(), recipe, progress=False)
     torch.manual_seed(0)
     sound = fit(NeuBRDF(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
-    assert sound.warnings == []
-    assert fit(Constant(), _Flat(), recipe, progress=False).warnings == []
+    assert not [w for w in sound.warnings if "learned none" in w]  # (30 steps: its albedo is Blinn's + 10 %)
+    assert not [w for w in fit(Constant(), _Flat(), recipe, progress=False).warnings if "learned none" in w]
     # the bounds, with models that are the source scaled: by a factor (size), or about its mean (spread)
     for size, spread, warns in [(2 * COLLAPSED, 1.0, None), (COLLAPSED / 2, 1.0, "near zero"),
                                 (1.0, 2 * COLLAPSED, None), (1.0, COLLAPSED / 2, "near constant")]:
@@ -402,3 +404,100 @@ class _Scaled(LearnedMaterial):
 
     def eval(self, q: Query) -> torch.Tensor:
         return self.size * (0.1 + self.spread * (Blinn().eval(q) - 0.1)) + 0 * self.idle
+
+
+class _Lambert(Material):
+    """A Lambertian source of directional albedo `albedo` (over 1: a source that itself gains energy)."""
+
+    name = "lambert"
+
+    def __init__(self, albedo: float) -> None:
+        self.albedo = albedo
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return torch.full((len(q), 3), self.albedo / math.pi, dtype=q.dtype, device=q.device)
+
+
+class _Lobe(LearnedMaterial):
+    """`gain` times an energy-conserving Phong lobe about the mirror direction (albedo at most 0.95 at every
+    incidence; at exponent 2000 a polished metal, whose cosine-weighted albedo estimates are heavy-tailed)."""
+
+    name = "lobe"
+
+    def __init__(self, gain: float = 1.0, exponent: int = 2000) -> None:
+        super().__init__()
+        self.gain, self.exponent, self.idle = gain, exponent, nn.Parameter(torch.zeros(()))
+
+    def eval(self, q: Query) -> torch.Tensor:
+        mirror = q.wi * torch.tensor([-1.0, -1.0, 1.0], dtype=q.dtype)
+        n = self.exponent
+        lobe = (mirror * q.wo).sum(-1).clamp(min=0) ** n * ((n + 2) / (2 * math.pi)) / q.wo[:, 2].clamp(min=1e-3)
+        return (self.gain * 0.95 * lobe).unsqueeze(-1).expand(len(q), 3) + 0 * self.idle
+
+
+def _energy(model, source, queries: str | None = None) -> list[str]:
+    from neumat.fit.phase import FitContext
+    from neumat.fit.trainer import energy_gain
+
+    recipe = Recipe(steps=1, batch_size=8, lr=1e-3, queries=queries or "cosine")
+    return energy_gain(FitContext(model, source, recipe, torch.device("cpu"), torch.Generator()))
+
+
+def test_a_fit_that_reflects_more_light_than_it_receives_says_so():
+    """The end-of-fit energy check: a fitted BRDF whose directional albedo exceeds 1, and the source's where that
+    is more, by ENERGY_MARGIN beyond its noise (the neubrdf suite's replay fits of clear-coated RGL files reach 5
+    to 20 at 80 degrees against the files' 0.2-0.3; their losses show nothing). Lambertian models have exact
+    estimates (f pi at every sample), so the bounds are checked to the margin; a sharp, physical lobe, whose
+    estimates are heavy-tailed, stays silent (the check is blind to a gain confined to such a lobe: a handful of its
+    2048 directions fall in it); sparse measurements get their own advice."""
+    from neumat.fit.measured_samples import MeasuredSamples
+    from neumat.fit.trainer import ENERGY_MARGIN, FitWarning
+
+    half = _Lambert(0.5)
+    assert _energy(_Scaled_of(half, 1.0), half) == []
+    assert _energy(_Scaled_of(half, 2.0), half) == []  # albedo 1.0: at the bound
+    (text,) = _energy(_Scaled_of(half, 3.0), half)
+    assert text == ("fit scaled-of: the fitted model reflects more light than it receives: directional albedo 1.5 "
+                    "(channel 0) at normal incidence (at most 1 for a physical BRDF; the source's 0.5); the fit "
+                    "overshoots where its queries are few: try more steps (--set recipe.steps=...) or another seed")
+    bright = _Lambert(1.2)  # a source over 1 (measured noise): the model is held to the source's albedo
+    assert _energy(_Scaled_of(bright, 1.0), bright) == []
+    assert _energy(_Scaled_of(bright, 1 + 0.8 * ENERGY_MARGIN / 1.2), bright) == []
+    assert "albedo 1.26 " in _energy(_Scaled_of(bright, 1 + 1.2 * ENERGY_MARGIN / 1.2), bright)[0]
+    assert _energy(_Lobe(), _Lobe()) == [] and _energy(_Lobe(1.5), _Lobe()) == []
+    assert _energy(_Lobe(exponent=50), _Lobe(exponent=50)) == []
+    (text,) = _energy(_Lobe(1.5, exponent=50), _Lobe(exponent=50))  # the same directions: their ratio is exact
+    model_albedo, source_albedo = (float(text.split(k)[1].split(" ")[0].rstrip(");")) for k in ("albedo ", "source's "))
+    assert model_albedo / source_albedo == pytest.approx(1.5, rel=0.01)
+    # sparse measurements: no albedo of their own (the bound is 1), and the advice to measure or balance
+    g = torch.Generator().manual_seed(0)
+    q = Query(sample_cosine_hemisphere(torch.rand(512, 2, generator=g)),
+              sample_cosine_hemisphere(torch.rand(512, 2, generator=g)))
+    samples = MeasuredSamples.from_material(half, q)
+    (text,) = _energy(_Scaled_of(half, 3.0), samples, "replay")
+    assert text.endswith("(at most 1 for a physical BRDF); where the measurements are few (far from the specular "
+                         "peak, at grazing angles) the fit is unconstrained, and renders too bright there: measure "
+                         "more directions, or draw the measurements balanced over directions "
+                         "(--set queries=replay_cells)")
+    assert _energy(_Scaled_of(half, 3.0), samples, "replay_cells")[0].endswith("measure more directions")
+    # not a BRDF: spatially varying or full-sphere models are not checked
+    for attribute in ("spatially_varying", "full_sphere"):
+        model = _Scaled_of(half, 3.0)
+        setattr(model, attribute, True)
+        assert _energy(model, half) == []
+    with pytest.warns(FitWarning, match="reflects more light than it receives: directional albedo 1.5 "):
+        res = fit(_Scaled_of(half, 3.0), half, Recipe(steps=2, batch_size=8, lr=1e-3), progress=False)
+    assert len(res.warnings) == 1
+
+
+class _Scaled_of(LearnedMaterial):
+    """`source` scaled by `gain` (one idle parameter)."""
+
+    name = "scaled-of"
+
+    def __init__(self, source: Material, gain: float) -> None:
+        super().__init__()
+        self.source, self.gain, self.idle = source, gain, nn.Parameter(torch.zeros(()))
+
+    def eval(self, q: Query) -> torch.Tensor:
+        return self.gain * self.source.eval(q) + 0 * self.idle
