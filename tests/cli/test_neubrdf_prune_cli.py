@@ -113,6 +113,21 @@ def test_cli_fit_pruned_on_replay_cells(app, rgl, tmp_path):
     assert model.pruned and torch.equal(model.level_i.long(), hpx.pruned_levels(8, sup))
 
 
+def test_cli_fit_on_reciprocal_measurements(app, rgl, tmp_path):
+    """measured_reciprocal=true trains on each measurement and its reciprocal (wi and wo exchanged): pruned, the
+    incident grid keeps the pixels of the measured outgoing directions too."""
+    res = CliRunner().invoke(app, ["fit", rgl, *SMALL, "--preset", "paper", "--set", "queries=replay",
+                                   "--set", "measured_azimuths=1", "--set", "measured_reciprocal=true",
+                                   "--set", "prune=true", "-o", str(tmp_path / "reciprocal.nmat")])
+    assert res.exit_code == 0, res.output
+    model = load_model(tmp_path / "reciprocal.nmat")
+    s = rgl_samples(open_material(rgl), azimuths=1)
+    one_way = hpx.supervised_pixels(8, hpx.hemisphere_direction(s.wi, False))
+    both = hpx.supervised_pixels(8, hpx.hemisphere_direction(torch.cat([s.wi, s.wo]), False))
+    assert int(both.sum()) > int(one_way.sum())
+    assert model.pruned and torch.equal(model.level_i.long(), hpx.pruned_levels(8, both))
+
+
 @pytest.mark.parametrize("source, sets, match", [
     ("rgl", ["prune=true"], "prune=true: needs queries=replay"),
     ("ggx:roughness=0.3", ["queries=replay"], "holds no measurement samples"),

@@ -63,3 +63,18 @@ def test_bad_samples_raise(change, match, gen):
     args.update(change)
     with pytest.raises(InputError, match=match):
         MeasuredSamples(**args)
+
+
+def test_reciprocal_adds_each_sample_with_its_directions_exchanged(gen):
+    """`reciprocal()`: 2N samples, the first N these, the rest with wi and wo exchanged and the same values (a
+    BRDF's reciprocity), uv carried along; replayed queries of the exchanged ones are answered exactly."""
+    wi, wo, uv = _dirs(30, gen), _dirs(30, gen), torch.rand(30, 2, generator=gen)
+    value = torch.rand(30, 3, generator=gen)
+    both = MeasuredSamples(wi, wo, value, uv=uv, name="sparse").reciprocal()
+    assert len(both) == 60 and both.name == "sparse and their reciprocals" and both.spatially_varying
+    assert torch.equal(both.wi, torch.cat([wi, wo])) and torch.equal(both.wo, torch.cat([wo, wi]))
+    assert torch.equal(both.value, torch.cat([value, value])) and torch.equal(both.uv, torch.cat([uv, uv]))
+    idx = torch.tensor([31, 0, 59])
+    q = both.query(idx)
+    assert torch.equal(q.wi[0], wo[1]) and torch.equal(q.wo[0], wi[1]) and torch.equal(both.eval(q), value[[1, 0, 29]])
+    assert MeasuredSamples(wi, wo, value).reciprocal().uv is None

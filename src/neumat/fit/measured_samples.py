@@ -62,6 +62,15 @@ class MeasuredSamples(Material):
             value = material.eval(q)
         return cls(q.wi, q.wo, value, uv=q.uv, name=name or f"samples of {material.describe()}")
 
+    def reciprocal(self) -> "MeasuredSamples":
+        """These samples and each again with wi and wo exchanged (2N; a BRDF is reciprocal, f(wi, wo) = f(wo, wi)).
+        Why: a measurement device's outgoing directions are few where its incident ones are many and the other way
+        round (an RGL file: 32 x 32 nodes crowded into the specular peak at each of 8 incident elevations), so the
+        exchanged pairs cover grazing outgoing directions with the grazing incident measurements."""
+        uv = None if self.uv is None else torch.cat([self.uv, self.uv])
+        return MeasuredSamples(torch.cat([self.wi, self.wo]), torch.cat([self.wo, self.wi]),
+                               torch.cat([self.value, self.value]), uv=uv, name=f"{self.name} and their reciprocals")
+
     def __len__(self) -> int:
         return self.wi.shape[0]
 

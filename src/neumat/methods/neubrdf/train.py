@@ -45,6 +45,8 @@ class Options(GridOptions):
     """Prune the grid to the measured directions before training (paper Sec. 3.2.1); needs replay queries."""
     measured_azimuths: int = bounded(64, ge=1)
     """With replay queries on an isotropic RGL file: incident azimuths its measured one is rotated to."""
+    measured_reciprocal: bool = False
+    """With replay queries: each measured (wi, wo) also trained as (wo, wi) (`MeasuredSamples.reciprocal`)."""
     runtime_fraction: float = bounded(0.0, ge=0, lt=1)
     """Last fraction of the steps trained in the 1/4-weight runtime form against pixel-pair averages (0: off)."""
     runtime_samples: int = bounded(32, ge=1)
@@ -249,9 +251,9 @@ def _coarse_nside(n: int, fine: int) -> int:
 def _measured(ctx: FitContext) -> FitContext:
     """The fit's context for sparse measurements: with replay queries (`REPLAY_QUERIES`) the source must hold
     measurement samples (a `MeasuredSamples`, or an RGL file whose measurement directions `rgl_samples` gives, then
-    the source of the fit); with option prune the model is pruned to their directions first (`NeuBRDF.prune`,
-    deterministic, so a resumed fit prunes the same way). InputError for prune without replay queries and
-    for replay on a source without measurement samples."""
+    the source of the fit), with their reciprocal pairs under option measured_reciprocal; with option prune the model
+    is pruned to their directions first (`NeuBRDF.prune`, deterministic, so a resumed fit prunes the same way).
+    InputError for prune without replay queries and for replay on a source without measurement samples."""
     from neumat.reflectance.measured import RglMaterial
     from neumat.fit.measured_samples import MeasuredSamples, rgl_samples
 
@@ -270,6 +272,8 @@ def _measured(ctx: FitContext) -> FitContext:
         raise InputError(f"neubrdf with queries={queries}{' and prune=true' if prune else ''}: the source "
                          f"{name!r} holds no measurement samples; give an RGL *_rgb.bsdf file or "
                          f"neumat.fit.measured_samples.MeasuredSamples")
+    if ctx.opts.measured_reciprocal:
+        source = source.reciprocal()
     if prune:
         ctx.model.prune(source.wi.to(ctx.device), source.wo.to(ctx.device))
     return replace(ctx, source=source)
