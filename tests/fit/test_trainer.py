@@ -394,16 +394,18 @@ def test_a_fit_whose_output_collapsed_says_so():
 
 
 class _Scaled(LearnedMaterial):
-    """Blinn's value scaled by `size`, its variation about a level of 0.1 by `spread` (one idle parameter)."""
+    """`source`'s value (Blinn's by default) scaled by `size`, its variation about a level of 0.1 by `spread` (at
+    spread 1 exactly `size` times the source; one idle parameter)."""
 
     name = "scaled"
 
-    def __init__(self, size: float, spread: float) -> None:
+    def __init__(self, size: float, spread: float = 1.0, source: Material | None = None) -> None:
         super().__init__()
         self.size, self.spread, self.idle = size, spread, nn.Parameter(torch.zeros(()))
+        self.source = Blinn() if source is None else source
 
     def eval(self, q: Query) -> torch.Tensor:
-        return self.size * (0.1 + self.spread * (Blinn().eval(q) - 0.1)) + 0 * self.idle
+        return self.size * (self.spread * self.source.eval(q) + (1 - self.spread) * 0.1) + 0 * self.idle
 
 
 class _Lambert(Material):
@@ -454,16 +456,16 @@ def test_a_fit_that_reflects_more_light_than_it_receives_says_so():
     from neumat.fit.trainer import ENERGY_MARGIN, FitWarning
 
     half = _Lambert(0.5)
-    assert _energy(_Scaled_of(half, 1.0), half) == []
-    assert _energy(_Scaled_of(half, 2.0), half) == []  # albedo 1.0: at the bound
-    (text,) = _energy(_Scaled_of(half, 3.0), half)
-    assert text == ("fit scaled-of: the fitted model reflects more light than it receives: directional albedo 1.5 "
+    assert _energy(_Scaled(source=half, size=1.0), half) == []
+    assert _energy(_Scaled(source=half, size=2.0), half) == []  # albedo 1.0: at the bound
+    (text,) = _energy(_Scaled(source=half, size=3.0), half)
+    assert text == ("fit scaled: the fitted model reflects more light than it receives: directional albedo 1.5 "
                     "(channel 0) at normal incidence (at most 1 for a physical BRDF; the source's 0.5); the fit "
                     "overshoots where its queries are few: try more steps (--set recipe.steps=...) or another seed")
     bright = _Lambert(1.2)  # a source over 1 (measured noise): the model is held to the source's albedo
-    assert _energy(_Scaled_of(bright, 1.0), bright) == []
-    assert _energy(_Scaled_of(bright, 1 + 0.8 * ENERGY_MARGIN / 1.2), bright) == []
-    assert "albedo 1.26 " in _energy(_Scaled_of(bright, 1 + 1.2 * ENERGY_MARGIN / 1.2), bright)[0]
+    assert _energy(_Scaled(source=bright, size=1.0), bright) == []
+    assert _energy(_Scaled(source=bright, size=1 + 0.8 * ENERGY_MARGIN / 1.2), bright) == []
+    assert "albedo 1.26 " in _energy(_Scaled(source=bright, size=1 + 1.2 * ENERGY_MARGIN / 1.2), bright)[0]
     assert _energy(_Lobe(), _Lobe()) == [] and _energy(_Lobe(1.5), _Lobe()) == []
     assert _energy(_Lobe(exponent=50), _Lobe(exponent=50)) == []
     (text,) = _energy(_Lobe(1.5, exponent=50), _Lobe(exponent=50))  # the same directions: their ratio is exact
@@ -474,30 +476,17 @@ def test_a_fit_that_reflects_more_light_than_it_receives_says_so():
     q = Query(sample_cosine_hemisphere(torch.rand(512, 2, generator=g)),
               sample_cosine_hemisphere(torch.rand(512, 2, generator=g)))
     samples = MeasuredSamples.from_material(half, q)
-    (text,) = _energy(_Scaled_of(half, 3.0), samples, "replay")
+    (text,) = _energy(_Scaled(source=half, size=3.0), samples, "replay")
     assert text.endswith("(at most 1 for a physical BRDF); where the measurements are few (far from the specular "
                          "peak, at grazing angles) the fit is unconstrained, and renders too bright there: measure "
                          "more directions, or draw the measurements balanced over directions "
                          "(--set queries=replay_cells)")
-    assert _energy(_Scaled_of(half, 3.0), samples, "replay_cells")[0].endswith("measure more directions")
+    assert _energy(_Scaled(source=half, size=3.0), samples, "replay_cells")[0].endswith("measure more directions")
     # not a BRDF: spatially varying or full-sphere models are not checked
     for attribute in ("spatially_varying", "full_sphere"):
-        model = _Scaled_of(half, 3.0)
+        model = _Scaled(source=half, size=3.0)
         setattr(model, attribute, True)
         assert _energy(model, half) == []
     with pytest.warns(FitWarning, match="reflects more light than it receives: directional albedo 1.5 "):
-        res = fit(_Scaled_of(half, 3.0), half, Recipe(steps=2, batch_size=8, lr=1e-3), progress=False)
+        res = fit(_Scaled(source=half, size=3.0), half, Recipe(steps=2, batch_size=8, lr=1e-3), progress=False)
     assert len(res.warnings) == 1
-
-
-class _Scaled_of(LearnedMaterial):
-    """`source` scaled by `gain` (one idle parameter)."""
-
-    name = "scaled-of"
-
-    def __init__(self, source: Material, gain: float) -> None:
-        super().__init__()
-        self.source, self.gain, self.idle = source, gain, nn.Parameter(torch.zeros(()))
-
-    def eval(self, q: Query) -> torch.Tensor:
-        return self.gain * self.source.eval(q) + 0 * self.idle
