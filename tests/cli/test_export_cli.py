@@ -105,6 +105,21 @@ def test_export_check_runs_a_neubrdf_with_its_texture(tmp_path):
     assert rel < 1e-4
 
 
+@needs_gl
+def test_export_check_runs_a_neubrdf_table_as_an_image_and_through_a_sampler(tmp_path):
+    path = _saved(tmp_path, {"type": "neubrdf", "nside": 8, "feature_dim": 8, "index_bits": 5, "hidden": 16,
+                             "interpolation": "uniform"})
+    result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--check", "500",
+                                      "--precision", "fp32"])
+    assert result.exit_code == 0, result.output
+    assert "fastest under #version 420 core, where nbrdf_first is an image2DArray at image unit 0" in result.output
+    manifest = json.loads((tmp_path / "glsl" / "manifest.json").read_text())
+    assert manifest["textures"]["nbrdf_first"]["image_unit"] == 0
+    for version in ("#version 420 core", "#version 330 core"):
+        line = result.output.split(f"shader ({version}) vs torch on 500 Sec. 4.2 queries: ")[1]
+        assert float(line.split("max relative difference ")[1].split(",")[0]) < 1e-4, version
+
+
 def test_export_web_writes_the_viewer_page(tmp_path):
     path = _saved(tmp_path, {"type": "neubrdf", "nside": 4, "feature_dim": 4, "index_bits": 3, "hidden": 8})
     result = CliRunner().invoke(app, ["export", str(path), "-o", str(tmp_path / "glsl"), "--web"])

@@ -125,6 +125,8 @@ OTHER_FAMILIES = {
                                    "direction_inputs": "hd"},
     "neubrdf (warped direction inputs)": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16,
                                           "direction_inputs": "hd_warp"},
+    "neubrdf (first-layer table)": {"type": "neubrdf", "nside": 4, "index_bits": 4, "hidden": 16,
+                                    "interpolation": "uniform"},
 }
 
 

@@ -16,6 +16,10 @@ import torch
 from ..core.errors import InputError
 
 GLSL_VERSION = "#version 330 core"
+"""The GLSL every export compiles under (WebGL 2's GLSL ES 3.00 too, and macOS's OpenGL 4.1)."""
+
+GLSL_IMAGE_VERSION = "#version 420 core"
+"""The GLSL from which an export reads its `GLSLExport.images` as images (OpenGL 4.2's image load / store)."""
 
 
 @dataclass
@@ -39,6 +43,20 @@ class GLSLExport:
     the fp16 form (`to_half`) stores these instead."""
     weight_values: int | None = None
     """Decoder weights in the source (set by `to_half`; an fp32 export counts its `const float` arrays)."""
+    images: dict[str, int] = field(default_factory=dict)
+    """Textures (float32: listed in `exact`) that the source reads with imageLoad, from this image unit, when
+    compiled under `GLSL_IMAGE_VERSION` or later, and with texelFetch from a sampler2DArray below (`table_texture`):
+    llvmpipe's image loads cost less than its texel fetches."""
+
+    def __post_init__(self):
+        if not set(self.images) <= set(self.exact) & set(self.textures):
+            raise InputError(f"GLSLExport: images {sorted(set(self.images) - set(self.exact))} must be float32 "
+                             "textures of the export (listed in exact): their image format is rgba32f")
+
+    def glsl_version(self) -> str:
+        """The #version line this export runs fastest under: `GLSL_IMAGE_VERSION` where it has `images`, else
+        `GLSL_VERSION` (under which every export runs)."""
+        return GLSL_IMAGE_VERSION if self.images else GLSL_VERSION
 
     def entry_points(self) -> list[str]:
         """GLSL signatures of the entry points the source defines."""
@@ -71,7 +89,10 @@ class GLSLExport:
                             for p, b in sizes.items())
                 + (f" (fp16 / fp32 = {sizes['fp16']['total'] / sizes['fp32']['total']:.3f})" if sizes["fp32"]["total"]
                    else "") + f"; written: {self.precision}"
-                + (f", float32 at both: {', '.join(self.exact)}" if self.exact else ""))
+                + (f", float32 at both: {', '.join(self.exact)}" if self.exact else "")
+                + (f"\ncompiles under {GLSL_VERSION}; fastest under {self.glsl_version()}, where "
+                   + ", ".join(f"{name} is an image2DArray at image unit {unit}" for name, unit in self.images.items())
+                   + " (manifest.json)" if self.images else ""))
 
     def write(self, folder: str | Path) -> Path:
         """Write neumat.glsl, one raw little-endian file per texture (<name>.f32, or <name>.f16 for a float16
@@ -82,6 +103,8 @@ class GLSLExport:
         (folder / "neumat.glsl").write_text(self.source)
         manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "precision": self.precision,
                     "bytes": self.storage_bytes(), "textures": {}, "entry": self.entry_points()}
+        if self.images:
+            manifest["fastest_glsl_version"] = self.glsl_version()
         for name, data in self.textures.items():
             layers, height, width, _ = data.shape
             half = data.dtype == np.float16
@@ -90,8 +113,27 @@ class GLSLExport:
             manifest["textures"][name] = {"file": file, "target": "sampler2DArray",
                                           "format": "RGBA16F" if half else "RGBA32F",
                                           "width": width, "height": height, "layers": layers}
+            if name in self.images:  # under GLSL_IMAGE_VERSION and later: an image2DArray at this unit
+                manifest["textures"][name]["image_unit"] = self.images[name]
         (folder / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
         return folder
+
+
+def table_texture(name: str, unit: int) -> str:
+    """GLSL declaring the float32 texture `name` read texel by texel, and `vec4 <name>_texel(ivec2 p)`, its texel p
+    of layer 0: an image2DArray read with imageLoad at image unit `unit` under `GLSL_IMAGE_VERSION` and later, a
+    sampler2DArray read with texelFetch below (GLSL 3.30, GLSL ES 3.00). Why: llvmpipe's texel fetch goes through
+    its sampler (a call of about 200 instructions), its image load does not; NeuBRDF's shader gains 30-50 %
+    (docs/formats/glsl.md). An export using it lists the texture in `GLSLExport.images` and `exact`."""
+    return f"""
+#if __VERSION__ >= {GLSL_IMAGE_VERSION.split()[1]}
+layout(rgba32f, binding = {unit}) readonly uniform image2DArray {name};
+vec4 {name}_texel(ivec2 p) {{ return imageLoad({name}, ivec3(p, 0)); }}
+#else
+uniform sampler2DArray {name};
+vec4 {name}_texel(ivec2 p) {{ return texelFetch({name}, ivec3(p, 0), 0); }}
+#endif
+"""
 
 
 def _floats(name: str, values: torch.Tensor) -> str:

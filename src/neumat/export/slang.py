@@ -196,8 +196,11 @@ def glsl_to_slang(source: str, textures: dict[str, np.ndarray], runtime: tuple[s
     `StructuredBuffer<float4>` globals read by index. `runtime`: names of one-layer float textures whose size is
     known only at run time (the environment of a neupress export): each becomes a `StructuredBuffer<float4>`
     (rows x columns) with `uniform int <name>_width, <name>_height`, which `textureSize(name, 0)` reads. Raises
-    RuntimeError if GLSL spellings remain (a generator that emits something this rewrite does not know)."""
-    src = re.sub(r"^const (\w+) (\w+)\[(\d+)\] = \1\[\]\((.*)\);$", r"static const \1 \2[\3] = { \4 };", source,
+    RuntimeError if GLSL spellings remain (a generator that emits something this rewrite does not know). A block
+    `#if __VERSION__ >= N ... #else ... #endif` (`neumat.export.glsl_common.table_texture`) keeps its #else side:
+    its texelFetch form."""
+    src = re.sub(r"^#if __VERSION__ >= \d+\n.*?^#else\n(.*?)^#endif\n", r"\1", source, flags=re.M | re.S)
+    src = re.sub(r"^const (\w+) (\w+)\[(\d+)\] = \1\[\]\((.*)\);$", r"static const \1 \2[\3] = { \4 };", src,
                  flags=re.M)
     src = re.sub(r"^const ", "static const ", src, flags=re.M)
     for name, data in textures.items():

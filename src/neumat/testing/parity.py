@@ -3,8 +3,9 @@
 `glsl_eval(export, q)` draws one fragment per query into an RGBA32F framebuffer: the fragment shader reads
 its query (wi, wo, uv, footprint or lod) from float textures with `texelFetch`, calls the export's
 `neumat_eval` and writes the value. `glsl_run(export, inputs, call)` does the same for any entry point
-(the NeuPreSS export's, say). Needs `moderngl` and an OpenGL 3.3 context; by default a headless EGL one
-(Mesa llvmpipe runs it on the CPU).
+(the NeuPreSS export's, say). Each compiles the export under its fastest GLSL (`GLSLExport.glsl_version`: 4.20
+where it reads images) or the `version` given. Needs `moderngl` and an OpenGL 3.3 context (4.2 for images); by
+default a headless EGL one (Mesa llvmpipe runs it on the CPU).
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import torch
 
 from ..core.errors import InputError
 from ..core.query import Query
-from ..export.glsl_common import GLSL_VERSION, GLSLExport
+from ..export.glsl_common import GLSL_IMAGE_VERSION, GLSL_VERSION, GLSLExport
 from .timing import best_times
 
 _VERTEX = GLSL_VERSION + """
@@ -55,19 +56,19 @@ def opengl_available(backend: str | None = "egl") -> bool:
 
 
 def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: int = 256, entry: str = "eval",
-              u: torch.Tensor | None = None) -> torch.Tensor:
+              u: torch.Tensor | None = None, version: str | None = None) -> torch.Tensor:
     """Values (N, 3) of the exported material at the queries q (float32, on q's device). Spatially varying
     exports use q.footprint if given, else q.lod (0 when absent); they need q.uv. entry "pdf" (density in
     channel 0) and "sample" (wo for u (N, 2); q.wo unused) call the sampler entry points of exports that
     have them (with q.footprint). A NeuPreSS export gives S_hat at the object-space position q.x, as the Slang
-    and Dr.Jit evaluators do."""
+    and Dr.Jit evaluators do. version: the #version line (default `export.glsl_version()`)."""
     n = len(q.wi)
     if n == 0:
         return q.wi.new_zeros(0, 3)
     if entry == "eval" and any("neumat_translucent" in e for e in export.entry or ()):
         q.require("x", who="glsl_eval (NeuPreSS export)")
         inputs = {"wi": q.wi, "x": q.x, "wo": q.wo}
-        return glsl_run(export, inputs, _TRANSLUCENT_CALL, backend, width)[:, :3].to(q.wi.device)
+        return glsl_run(export, inputs, _TRANSLUCENT_CALL, backend, width, version)[:, :3].to(q.wi.device)
     if entry not in ("eval", "pdf", "sample"):
         raise InputError(f"glsl_eval entry: expected 'eval', 'pdf' or 'sample', got {entry!r}")
     if entry != "eval":
@@ -95,15 +96,17 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
     uv = q.uv if export.spatially_varying else torch.zeros(n, 2)
     inputs = {"q_wi": q.wi, "q_wo": u if entry == "sample" else q.wo, "q_uv": uv, "q_filter": filt}
     call = "vec3 wi = q_wi.xyz, wo = q_wo.xyz; vec2 uv = q_uv.xy; vec4 f = q_filter;\n    " + call
-    return glsl_run(export, inputs, call, backend, width)[:, :3].to(q.wi.device)
+    return glsl_run(export, inputs, call, backend, width, version)[:, :3].to(q.wi.device)
 
 
 def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "egl", clock: str = "wall",
-                          repeats: int = 3) -> float | dict[str, float]:
+                          repeats: int = 3, version: str | None = None) -> float | dict[str, float]:
     """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine), the
     `marginal_rate` (context creation, compilation and uploads do not count); per wall or per CPU second of this
-    process (`clock` "cpu": llvmpipe's threads included, a loaded machine's waits not; "both": a dict of the two)."""
-    return marginal_rate(lambda part: glsl_eval(export, part, backend), q, "glsl_evals_per_second", clock, repeats)
+    process (`clock` "cpu": llvmpipe's threads included, a loaded machine's waits not; "both": a dict of the two),
+    under `version` (default: the export's fastest, `GLSLExport.glsl_version`)."""
+    return marginal_rate(lambda part: glsl_eval(export, part, backend, version=version), q, "glsl_evals_per_second",
+                         clock, repeats)
 
 
 #: clocks of `marginal_rate`
@@ -138,11 +141,14 @@ def marginal_rate(run, q: Query, who: str, clock: str = "wall", repeats: int = 3
 
 
 def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, backend: str | None = "egl",
-             width: int = 256) -> torch.Tensor:
+             width: int = 256, version: str | None = None) -> torch.Tensor:
     """Run `call` (GLSL statements that set `vec4 colour`) once per row of the inputs, with the export's source
-    and textures (float16 ones uploaded as RGBA16F); each input (N, k <= 4) is a vec4 variable of its name
-    (zero-padded). Returns colour (N, 4) float32 on the CPU. One fragment per row of an RGBA32F framebuffer
-    `width` wide."""
+    and textures (float16 ones uploaded as RGBA16F; its `images` bound read-only to their image units under GLSL
+    4.20 and later) compiled under `version` (a #version line; default `export.glsl_version()`); each input (N,
+    k <= 4) is a vec4 variable of its name (zero-padded). Returns colour (N, 4) float32 on the CPU. One fragment
+    per row of an RGBA32F framebuffer `width` wide."""
+    version = export.glsl_version() if version is None else version
+    images = export.images if _version_number(version) >= _version_number(GLSL_IMAGE_VERSION) else {}
     n = len(next(iter(inputs.values())))
     if any(v.shape[0] != n or v.dim() != 2 or v.shape[1] > 4 for v in inputs.values()):
         raise InputError(f"glsl_run inputs: expected (N, k <= 4) tensors with one N, got "
@@ -165,7 +171,8 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         fragment = _FRAGMENT.format(
             uniforms="\n".join(f"uniform sampler2D {name}_in;" for name in inputs), material=export.source,
             reads="\n".join(f"    vec4 {name} = texelFetch({name}_in, p, 0);" for name in inputs), call=call)
-        program = ctx.program(vertex_shader=_VERTEX, fragment_shader=fragment)
+        program = ctx.program(vertex_shader=_VERTEX.replace(GLSL_VERSION, version, 1),
+                              fragment_shader=fragment.replace(GLSL_VERSION, version, 1))
         keep = []
         for unit, (name, values) in enumerate(inputs.items()):
             if f"{name}_in" in program:  # unused inputs (uv of a homogeneous export) are compiled away
@@ -180,8 +187,11 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
                                     np.ascontiguousarray(data, np.float16 if half else np.float32).tobytes(),
                                     dtype="f2" if half else "f4")
             tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            tex.use(unit)
             keep.append(tex)
+            if name in images:  # its unit is in the source (layout binding)
+                tex.bind_to_image(images[name], read=True, write=False)
+                continue
+            tex.use(unit)
             program[name] = unit
         quad = ctx.buffer(np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32).tobytes())
         vao = ctx.vertex_array(program, [(quad, "2f", "position")])
@@ -194,6 +204,14 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         return torch.from_numpy(out.copy())
     finally:
         ctx.release()
+
+
+def _version_number(version: str) -> int:
+    """The number of a #version line ("#version 420 core" -> 420); InputError for anything else."""
+    parts = version.split() if isinstance(version, str) else []
+    if len(parts) not in (2, 3) or parts[0] != "#version" or not parts[1].isdigit():
+        raise InputError(f"glsl version: expected a #version line such as {GLSL_VERSION!r}, got {version!r}")
+    return int(parts[1])
 
 
 _TRANSLUCENT_CALL = "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);"

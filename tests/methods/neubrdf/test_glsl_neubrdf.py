@@ -3,12 +3,14 @@ against `neumat.nn.healpix` and healpy, and `neumat_eval` against `NeuBRDF.eval`
 both corner weightings, pruned grids, the runtime mode, the neural texture and the paper's sizes."""
 import json
 
+import numpy as np
 import pytest
 import torch
 
 from neumat.core.errors import InputError
 from neumat.core.query import Query
 from neumat.export.glsl import export_glsl
+from neumat.export.glsl_common import GLSL_IMAGE_VERSION, GLSL_VERSION, GLSLExport
 from neumat.methods.neubrdf.glsl import hemisphere_pixels
 from neumat.methods.neubrdf.model import NeuBRDF
 from neumat.models.half_precision import half_rounded
@@ -86,17 +88,17 @@ def _model(spec: dict, seed: int = 1) -> NeuBRDF:
 
 
 def _parity(model: NeuBRDF, n: int = 4096, lod: bool = False, seed: int = 2, precision: str = "fp32",
-            reference: NeuBRDF | None = None) -> float:
-    """Largest relative difference of the shader (at `precision`) from `reference`.eval (default: the model) over
-    random queries (both directions on the hemisphere, uv over three tiles), leaving out lookups within 1e-5 rad
-    of a pixel boundary."""
+            reference: NeuBRDF | None = None, version: str | None = None) -> float:
+    """Largest relative difference of the shader (at `precision`, compiled under `version`, default its fastest)
+    from `reference`.eval (default: the model) over random queries (both directions on the hemisphere, uv over
+    three tiles), leaving out lookups within 1e-5 rad of a pixel boundary."""
     g = torch.Generator().manual_seed(seed)
     wi, wo = _directions(n, g, upper=True), _directions(n, g, upper=True)
     uv = torch.rand(n, 2, generator=g) * 3 - 1 if model.texture is not None else None
     q = Query(wi=wi, wo=wo, uv=uv, lod=torch.rand(n, generator=g) * 5 - 1 if lod else None)
     with torch.no_grad():
         reference = (reference or model).eval(q)
-    out = glsl_eval(export_glsl(model, precision), q)
+    out = glsl_eval(export_glsl(model, precision), q, version=version)
     nside = model.cfg.nside
     keep = ~(_near_boundary(nside, wi, g) | _near_boundary(nside, wo * torch.tensor([1.0, 1.0, -1.0]), g))
     assert int(keep.sum()) > 0.9 * n
@@ -199,6 +201,20 @@ def test_tables_are_compact_and_written(tmp_path):
     manifest = json.loads((shader.write(tmp_path) / "manifest.json").read_text())
     assert manifest["entry"] == ["vec3 neumat_eval(vec3 wi, vec3 wo)"]
     assert (tmp_path / "nbrdf_index.f32").stat().st_size == shader.textures["nbrdf_index"].nbytes
+    assert shader.glsl_version() == GLSL_VERSION and "fastest_glsl_version" not in manifest  # samplers only
+    assert runtime.images == {"nbrdf_first": 0} and runtime.glsl_version() == GLSL_IMAGE_VERSION
+    manifest = json.loads((runtime.write(tmp_path / "runtime") / "manifest.json").read_text())
+    assert manifest["glsl_version"] == GLSL_VERSION and manifest["fastest_glsl_version"] == GLSL_IMAGE_VERSION
+    assert manifest["textures"]["nbrdf_first"]["image_unit"] == 0
+
+
+def test_an_image_is_a_float32_texture_and_a_version_is_a_version_line():
+    with pytest.raises(InputError, match="rgba32f"):
+        GLSLExport("", {"t": np.zeros((1, 1, 1, 4), np.float16)}, images={"t": 0})
+    g = torch.Generator().manual_seed(0)
+    q = Query(wi=_directions(4, g, upper=True), wo=_directions(4, g, upper=True))
+    with pytest.raises(InputError, match="#version"):
+        glsl_eval(export_glsl(_model(SMALL).runtime()), q, version="420")
 
 
 def test_unsupported_activation_is_refused():
@@ -219,7 +235,8 @@ def test_first_layer_table_matches_torch(features, kind, precision):
     spec = {**SMALL, "features": features, "direction_inputs": kind}
     model = _model(spec).runtime()
     assert "nbrdf_first" in export_glsl(model, precision).textures
-    assert _parity(model, precision=precision) < 1e-4
+    for version in (GLSL_VERSION, GLSL_IMAGE_VERSION):  # the table as a sampler2DArray, then as an image
+        assert _parity(model, precision=precision, version=version) < 1e-4, version
     trained = _model({**spec, "interpolation": "uniform", "hidden": 18, "texture_height": 8, "texture_width": 8,
                       "texture_channels": 5})
     shader = export_glsl(trained, precision)
