@@ -38,8 +38,8 @@ MAX_SECONDS_PER_CALL = 2.0
 BUDGET = {
     "quick": {"ours": "ggx, nbrdf, neubrdf, neural-appearance and multiscale at batches of 2^10 and 2^12 queries, "
                       "best of 3; "
-                      "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL fp32, its table "
-                      "as an image (GLSL 4.20) and through the sampler (3.30), beside GLSL GGX and Dr.Jit fp32 at "
+                      "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL fp32, its tables "
+                      "as images (GLSL 4.20) and through samplers (3.30), beside GLSL GGX and Dr.Jit fp32 at "
                       "2^16 queries, Slang fp16 at 2^13); training steps of nbrdf, a small neubrdf and multiscale (on "
                       "32^2 "
                       "and 64^2 crops) at batches 2^8 and 2^10",
@@ -404,7 +404,7 @@ def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, pat
                     run.skip(f"{fmt} export of {name}", f"{type(e).__name__}: {str(e).splitlines()[0][:120]}")
                     continue
                 jobs.append((name, precision, exported, m, target, rate))
-                if fmt == "glsl" and exported.images:  # its tables as images (4.20); also as samplers (3.30)
+                if fmt == "glsl" and exported.images:  # its textures as images (4.20); also as samplers (3.30)
                     jobs.append((name, precision, exported, m, "glsl 3.30 (llvmpipe)",
                                  functools.partial(rate, version=GLSL_VERSION)))
         ggx_rate = None
@@ -441,8 +441,9 @@ def _exports(run: harness.Run, materials: dict, n: int, runtime_rates: dict, pat
               "compilation and uploads do not count), per wall second and per CPU second of this process, both "
               "read around the same calls (best of the run's repeats, at least 5 in a full run; llvmpipe's thread "
               "counted in CPU seconds, a loaded machine's waits not); llvmpipe with LP_NUM_THREADS = the run's "
-              "threads; 'glsl (llvmpipe)' compiles each export under its fastest GLSL (4.20 where it reads tables as "
-              "images), 'glsl 3.30' under the GLSL 3.30 every export runs under (those tables through the sampler); "
+              "threads; 'glsl (llvmpipe)' compiles each export under its fastest GLSL (4.20 where it reads textures "
+              "as images), 'glsl 3.30' under the GLSL 3.30 every export runs under (those textures through "
+              "samplers); "
               "'% sgemm' from the CPU rate and the model's "
               "FLOPs; 'x GGX' = GGX's CPU rate in the same target and harness / the row's; 'x runtime' = the "
               "package's own runtime (its torch operations or fused C kernel: the 'path' above) at the same batch, "

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from ..core.errors import InputError
 from ..fit.method import load_methods
-from .glsl_common import GLSLExport
+from .glsl_common import GLSLExport, read_as_images
 from .half_precision import to_half
 from .registry import EXPORT_FORMATS, ExportFormat
 
@@ -31,7 +31,8 @@ def export_glsl(model, precision: str = "fp16") -> GLSLExport:
     (`neumat.methods.neupress.glsl`): any model whose method declares a GLSL generator (`glsl_models()`);
     anything else raises InputError. precision "fp16" stores textures and weights as halves
     (`neumat.export.half_precision`; textures a generator lists in `GLSLExport.exact` stay float32), "fp32" as
-    floats."""
+    floats. The textures the shader reads texel by texel are images under GLSL 4.20 and later
+    (`neumat.export.glsl_common.read_as_images`)."""
     if precision not in PRECISIONS:
         raise InputError(f"export_glsl precision: expected one of {', '.join(PRECISIONS)}, got {precision!r}")
     name = getattr(model, "name", None)
@@ -40,7 +41,7 @@ def export_glsl(model, precision: str = "fp16") -> GLSLExport:
                          f"(neumip, neumip-frame, neural-appearance), a neubrdf, a sparse-btf or a neupress, got "
                          f"{type(model).__name__} ({getattr(model, 'name', '?')})")
     exported = load_methods().get(name).glsl(model)
-    return to_half(exported) if precision == "fp16" else exported
+    return read_as_images(to_half(exported) if precision == "fp16" else exported)
 
 
 def glsl_models() -> list[str]:

@@ -5,6 +5,7 @@ A method declares its generator `glsl(model) -> GLSLExport` in its `neumat.fit.m
 `neumat.export.glsl.export_glsl` looks it up."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from dataclasses import dataclass, field
@@ -44,14 +45,8 @@ class GLSLExport:
     weight_values: int | None = None
     """Decoder weights in the source (set by `to_half`; an fp32 export counts its `const float` arrays)."""
     images: dict[str, int] = field(default_factory=dict)
-    """Textures (float32: listed in `exact`) that the source reads with imageLoad, from this image unit, when
-    compiled under `GLSL_IMAGE_VERSION` or later, and with texelFetch from a sampler2DArray below (`table_texture`):
-    llvmpipe's image loads cost less than its texel fetches."""
-
-    def __post_init__(self):
-        if not set(self.images) <= set(self.exact) & set(self.textures):
-            raise InputError(f"GLSLExport: images {sorted(set(self.images) - set(self.exact))} must be float32 "
-                             "textures of the export (listed in exact): their image format is rgba32f")
+    """Textures that the source reads with imageLoad, from this image unit, when compiled under
+    `GLSL_IMAGE_VERSION` or later, and with texelFetch from a sampler2DArray below (`read_as_images`)."""
 
     def glsl_version(self) -> str:
         """The #version line this export runs fastest under: `GLSL_IMAGE_VERSION` where it has `images`, else
@@ -119,21 +114,65 @@ class GLSLExport:
         return folder
 
 
-def table_texture(name: str, unit: int) -> str:
-    """GLSL declaring the float32 texture `name` read texel by texel, and `vec4 <name>_texel(ivec2 p)`, its texel p
-    of layer 0: an image2DArray read with imageLoad at image unit `unit` under `GLSL_IMAGE_VERSION` and later, a
-    sampler2DArray read with texelFetch below (GLSL 3.30, GLSL ES 3.00). Why: llvmpipe's texel fetch goes through
-    its sampler (a call of about 200 instructions), its image load does not; NeuBRDF's shader gains 30-50 %
-    (docs/formats/glsl.md). An export using it lists the texture in `GLSLExport.images` and `exact`."""
-    return f"""
-#if __VERSION__ >= {GLSL_IMAGE_VERSION.split()[1]}
-layout(rgba32f, binding = {unit}) readonly uniform image2DArray {name};
-vec4 {name}_texel(ivec2 p) {{ return imageLoad({name}, ivec3(p, 0)); }}
+#: image uniforms a fragment shader may declare in any OpenGL 4.2 (GL_MAX_FRAGMENT_IMAGE_UNIFORMS' minimum)
+MAX_IMAGES = 8
+
+
+def read_as_images(export: GLSLExport) -> GLSLExport:
+    """`export` with each of its textures that the source reads only as `texelFetch(name, p, 0)` (no filtering, no
+    size query; the first MAX_IMAGES) declared twice: under `GLSL_IMAGE_VERSION` and later a read-only
+    image2DArray (rgba32f, or rgba16f for a float16 texture) at its own image unit, read with imageLoad; below
+    (GLSL 3.30, GLSL ES 3.00) the sampler2DArray it was, read with texelFetch; each read becomes
+    `nm_texel_<name>(p)`. The units are in `images`. Why: llvmpipe's texelFetch runs its sampler's code (a
+    called function of about 200 instructions for each fetch), its imageLoad a bounds-checked load, so the
+    shaders that fetch much run 20-50 % faster (docs/formats/glsl.md); every export keeps the GLSL 3.30 form."""
+    source, images = export.source, dict(export.images)
+    for name, data in export.textures.items():
+        declaration = f"uniform sampler2DArray {name};"
+        if len(images) == MAX_IMAGES or name in images or source.count(declaration) != 1:
+            continue
+
+        def fetch(args: list[str], name=name) -> str:
+            if args[0] == name and len(args) == 3 and args[2] == "0":
+                return f"nm_texel_{name}({args[1]})"
+            return f"texelFetch({', '.join(args)})"
+        rewritten = glsl_calls(source, "texelFetch", fetch)
+        code = re.sub(r"//[^\n]*", "", rewritten).replace(declaration, "")
+        if re.search(rf"\b{name}\b", code) is not None:  # read another way (textureSize, texture, a lod > 0)
+            continue
+        unit = len(images)
+        images[name] = unit
+        fmt = "rgba16f" if data.dtype == np.float16 else "rgba32f"
+        source = rewritten.replace(declaration, f"""#if __VERSION__ >= {GLSL_IMAGE_VERSION.split()[1]}
+layout({fmt}, binding = {unit}) readonly uniform image2DArray {name};
+vec4 nm_texel_{name}(ivec3 p) {{ return imageLoad({name}, p); }}
 #else
 uniform sampler2DArray {name};
-vec4 {name}_texel(ivec2 p) {{ return texelFetch({name}, ivec3(p, 0), 0); }}
-#endif
-"""
+vec4 nm_texel_{name}(ivec3 p) {{ return texelFetch({name}, p, 0); }}
+#endif""")
+    return dataclasses.replace(export, source=source, images=images)
+
+
+def glsl_calls(src: str, name: str, rewrite) -> str:
+    """`src` with every call `name(a, b, ...)` (`name` a regular expression) replaced by rewrite([a, b, ...])
+    (top-level arguments, stripped)."""
+    out, pos = [], 0
+    pattern = re.compile(rf"\b{name}\s*\(")
+    while (m := pattern.search(src, pos)) is not None:
+        depth, args, start, i = 1, [], m.end(), m.end()
+        while depth:
+            c = src[i]
+            if c in "([":
+                depth += 1
+            elif c in ")]":
+                depth -= 1
+            if (c == "," and depth == 1) or depth == 0:
+                args.append(src[start:i].strip())
+                start = i + 1
+            i += 1
+        out += [src[pos:m.start()], rewrite(args)]
+        pos = i
+    return "".join(out) + src[pos:]
 
 
 def _floats(name: str, values: torch.Tensor) -> str:

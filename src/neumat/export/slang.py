@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from .glsl import glsl_models
-from .glsl_common import GLSLExport
+from .glsl_common import GLSLExport, glsl_calls
 from .registry import EXPORT_FORMATS, ExportFormat, load_formats
 
 #: floats per query in the compute entry point's input buffer `neumat_queries` (offsets in QUERY_LAYOUT)
@@ -167,27 +167,6 @@ float nm_mod(float x, float y) { return x - y * floor(x / y); }
 """
 
 
-def _calls(src: str, name: str, rewrite) -> str:
-    """`src` with every call `name(a, b, ...)` replaced by rewrite([a, b, ...]) (top-level arguments, stripped)."""
-    out, pos = [], 0
-    pattern = re.compile(rf"\b{name}\s*\(")
-    while (m := pattern.search(src, pos)) is not None:
-        depth, args, start, i = 1, [], m.end(), m.end()
-        while depth:
-            c = src[i]
-            if c in "([":
-                depth += 1
-            elif c in ")]":
-                depth -= 1
-            if (c == "," and depth == 1) or depth == 0:
-                args.append(src[start:i].strip())
-                start = i + 1
-            i += 1
-        out += [src[pos:m.start()], rewrite(args)]
-        pos = i
-    return "".join(out) + src[pos:]
-
-
 def glsl_to_slang(source: str, textures: dict[str, np.ndarray], runtime: tuple[str, ...] = ()) -> str:
     """Slang spelling of GLSL `source` in the subset the neumat GLSL generators emit: vector / matrix types,
     mix / fract / two-argument atan / mod, `const T name[n] = T[](...)` arrays and local `T[](...)` array
@@ -197,7 +176,7 @@ def glsl_to_slang(source: str, textures: dict[str, np.ndarray], runtime: tuple[s
     known only at run time (the environment of a neupress export): each becomes a `StructuredBuffer<float4>`
     (rows x columns) with `uniform int <name>_width, <name>_height`, which `textureSize(name, 0)` reads. Raises
     RuntimeError if GLSL spellings remain (a generator that emits something this rewrite does not know). A block
-    `#if __VERSION__ >= N ... #else ... #endif` (`neumat.export.glsl_common.table_texture`) keeps its #else side:
+    `#if __VERSION__ >= N ... #else ... #endif` (`neumat.export.glsl_common.read_as_images`) keeps its #else side:
     its texelFetch form."""
     src = re.sub(r"^#if __VERSION__ >= \d+\n.*?^#else\n(.*?)^#endif\n", r"\1", source, flags=re.M | re.S)
     src = re.sub(r"^const (\w+) (\w+)\[(\d+)\] = \1\[\]\((.*)\);$", r"static const \1 \2[\3] = { \4 };", src,
@@ -232,10 +211,10 @@ float4 nm_fetch_{name}(int3 p) {{ return {name}[p.y * {name}_width + p.x]; }}"""
 
     for name, data in textures.items():  # a layer count used as an opaque loop bound (Mesa compile time)
         src = src.replace(f"textureSize({name}, 0).z", str(data.shape[0]))
-    src = _calls(src, "texelFetch", fetch)
+    src = glsl_calls(src, "texelFetch", fetch)
     # local array initialisers T[](a, b, ...) -> { a, b, ... }
-    src = _calls(src, r"(?:float|int|i?vec[234])\[\]", lambda args: "{ " + ", ".join(args) + " }")
-    src = _calls(src, "atan", lambda args: f"{'atan2' if len(args) == 2 else 'atan'}({', '.join(args)})")
+    src = glsl_calls(src, r"(?:float|int|i?vec[234])\[\]", lambda args: "{ " + ", ".join(args) + " }")
+    src = glsl_calls(src, "atan", lambda args: f"{'atan2' if len(args) == 2 else 'atan'}({', '.join(args)})")
     for glsl, slang in _TYPES.items():
         src = re.sub(rf"\b{glsl}\b", slang, src)
     for glsl, slang in _FUNCTIONS.items():

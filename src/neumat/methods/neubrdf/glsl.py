@@ -6,8 +6,7 @@ pre-activations) and the rest of the MLP; inverse-distance weights: analytic HEA
 layer. The MLP is unrolled in vec4 groups (`neumat.export.glsl_common.mlp_vec4`), then exp. Entry points
 `neumat_eval(wi, wo[, uv[, footprint]])` and `neumat_eval_lod`; tables are RGBA32F (RGBA16F for the codebook /
 features of an fp16 export) `sampler2DArray`s (`nbrdf_first`, or `nbrdf_index`, `nbrdf_features`,
-`nbrdf_levels`, `nbrdf_vertices`); `nbrdf_first` is an `image2DArray` at image unit 0 when the source is compiled
-under GLSL 4.20 or later (`GLSLExport.images`).
+`nbrdf_levels`, `nbrdf_vertices`; `export_glsl` makes them images under GLSL 4.20, `read_as_images`).
 
 Details: docs/formats/glsl.md, section `neumat.methods.neubrdf.glsl`.
 """
@@ -21,7 +20,7 @@ from neumat.methods.neubrdf.model import DIRECTION_INPUTS, NeuBRDF
 from neumat.models.half_precision import half_rounded
 from neumat.nn import healpix as hpx
 from neumat.nn.codebook import VQFeatures
-from neumat.export.glsl_common import _COMMON, GLSLExport, mlp_vec4, pyramid_reader, table_texture, vec4_components
+from neumat.export.glsl_common import _COMMON, GLSLExport, mlp_vec4, pyramid_reader, vec4_components
 
 TABLE_WIDTH = 1024
 """Texels per row of the lookup tables."""
@@ -177,14 +176,13 @@ float {name}_at(int m) {{
 """
 
 
-def _rows(name: str, texels: int, image_unit: int | None = None) -> str:
+def _rows(name: str, texels: int) -> str:
     """GLSL of a `_table` of rows `texels` texels wide: `ivec2 <name>_row(int r)`, the texel of row r's first
-    value; its others follow along x. Declared as a sampler2DArray, or with an `image_unit` as
-    `neumat.export.glsl_common.table_texture` (an image from GLSL 4.20, read by `<name>_texel(p)`)."""
+    value; its others follow along x."""
     per_row = _per_row(texels)
-    declaration = f"uniform sampler2DArray {name};\n" if image_unit is None else table_texture(name, image_unit)
     return f"""
-{declaration}ivec2 {name}_row(int r) {{ return ivec2((r % {per_row}) * {texels}, r / {per_row}); }}
+uniform sampler2DArray {name};
+ivec2 {name}_row(int r) {{ return ivec2((r % {per_row}) * {texels}, r / {per_row}); }}
 """
 
 
@@ -259,7 +257,7 @@ def export_neubrdf(model: NeuBRDF) -> GLSLExport:
                 table = source.pixel_first_layer_table()
                 first[precision] = _table(torch.cat([table[:p], table[12 * n * n:12 * n * n + p]]), hidden)
             textures["nbrdf_first"] = first["fp32"]
-            parts.append(f"const int NM_HEMISPHERE_PIXELS = {p};" + _rows("nbrdf_first", h4, image_unit=0))
+            parts.append(f"const int NM_HEMISPHERE_PIXELS = {p};" + _rows("nbrdf_first", h4))
         else:
             if vq:
                 textures["nbrdf_index"] = _table(model.grid.indices().double())
@@ -320,7 +318,7 @@ void nm_lookup(vec3 w, bool south, out vec4 psi[{k4}]) {{
         lookup = """    ivec2 ri = nbrdf_first_row(nm_vec2pix(vec3(wi.xy, max(wi.z, 0.0))));
     ivec2 ro = nbrdf_first_row(NM_HEMISPHERE_PIXELS + nm_vec2pix(vec3(wo.xy, max(wo.z, 0.0))));
 """
-        init = [f"nbrdf_first_texel(ri + ivec2({j}, 0)) + nbrdf_first_texel(ro + ivec2({j}, 0))" for j in range(h4)]
+        init = [f"{_texel('nbrdf_first', 'ri', j)} + {_texel('nbrdf_first', 'ro', j)}" for j in range(h4)]
         consts, body, out = mlp_vec4("NM_L", model.mlp, more, "nm_act4", init, slice(2 * k, None))
     else:
         lookup = f"""    vec4 pi_[{k4}], po[{k4}];
@@ -367,5 +365,4 @@ vec3 neumat_eval(vec3 wi, vec3 wo) {
     exact = tuple(name for name in ("nbrdf_first", "nbrdf_index", "nbrdf_levels", "nbrdf_vertices")
                   if name in textures)
     return GLSLExport(header + "\n".join(parts), textures, textured, entry, exact=exact,
-                      fp16_textures={"nbrdf_first": first["fp16"]} if uniform else {},
-                      images={"nbrdf_first": 0} if uniform else {})
+                      fp16_textures={"nbrdf_first": first["fp16"]} if uniform else {})
