@@ -12,7 +12,6 @@ from neumat import InputError, Query
 from neumat.fit.losses import LogCosLoss
 from neumat.catalog.modelfile import load_model, save_model
 from neumat.fit.method import recipe_for
-from neumat.methods.neural_appearance.train import config_for_source
 from neumat.fit.trainer import fit
 from neumat.warp.uniform import uniform
 from neumat.methods.neural_appearance.model import NeuralAppearance
@@ -132,6 +131,21 @@ def test_storage_leaves_out_the_encoder():
     encoder = sum(p.numel() for p in model.encoder.parameters())
     assert model.size_bytes("fp16") == 2 * (everything - encoder)
     assert model.cfg.frames == 2 and model.frame.decode.out_features == 12   # two frames from 12 neurons
+
+
+def test_the_latents_phase_steps_the_pyramid_with_fused_adam(bumps, monkeypatch):
+    """The latents phase's optimiser is the latent-texture models' fused Adam (`spatial_latent.fused_adam`, the
+    same update as torch.optim.Adam: tests/methods/latent_mlp/test_multiscale.py), so that a 1K set's step does not
+    pay a per-tensor Adam over its pyramid; the encoder phase keeps its own (scaled) Adam."""
+    made = []
+    init = torch.optim.Adam.__init__
+
+    def spy(self, params, *args, fused=None, **kwargs):
+        made.append(fused)
+        init(self, params, *args, fused=fused, **kwargs)
+    monkeypatch.setattr(torch.optim.Adam, "__init__", spy)
+    _fit(NeuralAppearance(spatial_size=SIZE), bumps, steps=4, batch_size=64)
+    assert made == [None, True]  # encoder, latents
 
 
 def test_bad_input_is_refused(bumps):

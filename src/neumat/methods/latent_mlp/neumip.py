@@ -160,7 +160,7 @@ class NeuMIP(LearnedMaterial, SpatialLatent):
     def optimizer(self, lr: float, betas: tuple[float, float], eps: float) -> torch.optim.Optimizer:
         """Adam with the fused kernel (`spatial_latent.fused_adam`: the same update, a fifth of the time per step
         on a 1K pyramid)."""
-        return fused_adam(self, lr, betas, eps)
+        return fused_adam(self.parameters(), lr, betas, eps)
 
     def init_from_targets(self, target: torch.Tensor) -> None:
         """With `init_from_data`, the fit starts at the data's scale (`multiscale.start_at_data_scale`; trainer

@@ -16,6 +16,7 @@ from torch import nn
 from neumat.core.config import bounded, config_to_dict
 from neumat.core.errors import InputError
 from neumat.core.query import Query
+from neumat.methods.latent_mlp.spatial_latent import fused_adam
 from neumat.methods.neural_appearance.directional_blur import blur_angle, blurred_eval
 from neumat.fit.footprint_queries import FootprintOptions, footprint_queries, with_target_samples
 from neumat.fit.phase import FitContext, Phase, loss_module, query_draw
@@ -183,4 +184,4 @@ def phases(ctx: FitContext) -> list[Phase]:
                   decoders + list(model.encoder.parameters()), after=lambda: model.bake(source), stateful=stateful,
                   optimizer=encoder_optimizer),
             Phase("latents", latent_steps, latent_losses, decoders + list(model.spatial.parameters()),
-                  after=(lambda: snap_to_half_(model)) if half_from < latent_steps else None)]
+                  after=(lambda: snap_to_half_(model)) if half_from < latent_steps else None, optimizer=fused_adam)]
