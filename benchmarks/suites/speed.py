@@ -53,8 +53,9 @@ BUDGET = {
                      "(multiscale also at the paper's, 'cpu'), batches 2^10 and 2^13 (SVBRDF "
                      "models on a 64^2 crop, and on the whole 1K set at 2^13)",
              "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
-             "expected_wall": "about 15 min on one thread (measured: 806 s wall on the idle Xeon VM, two passes "
-                              "of evaluation rates; results/speed/full.json)"},
+             "expected_wall": "about 16 min on one thread (measured: 934 s wall on the idle Xeon VM at 75c50ad, "
+                              "two passes of evaluation rates, every GLSL export under 4.20 and 3.30; "
+                              "results/speed/full.json)"},
 }
 #: passes over every model of the evaluation table (by quick): each rate is the best over them, so that a few slow
 #: minutes of a shared machine do not decide a row (the best-of-7 samples of one pass all fall within a second)
