@@ -8,6 +8,8 @@ from neumat.export.glsl import export_glsl
 from neumat.export.glsl_common import GLSL_IMAGE_VERSION, GLSL_VERSION, MAX_IMAGES, GLSLExport, read_as_images
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.models.registry import build_model
+from neumat.core.errors import InputError
+from neumat.testing import parity
 from neumat.testing.parity import glsl_eval, opengl_available
 
 needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
@@ -80,3 +82,32 @@ def test_every_family_computes_the_same_with_images_and_with_samplers(name, prec
     assert bool(torch.isfinite(images).all()) and float(images.abs().max()) > 0
     scale = images.abs().clamp(min=1e-6 * float(images.abs().max()))
     assert float(((images - samplers).abs() / scale).max()) < 1e-6, name
+
+
+@needs_gl
+def test_an_opengl_below_4_2_runs_the_samplers(monkeypatch):
+    """By default `glsl_eval` compiles under the export's fastest GLSL; a context below 4.2 (macOS's 4.1, here the
+    same context reporting 410) runs the GLSL 3.30 form instead, and refuses 4.20 asked for by name."""
+    torch.manual_seed(0)
+    model = build_model(FAMILIES["multiscale"]).train(False)
+    export = export_glsl(model, "fp32")
+    q = footprint_queries(model, model)(256, torch.Generator().manual_seed(1), torch.device("cpu"))
+    samplers = glsl_eval(export, q, version=GLSL_VERSION)
+    make = parity._context
+
+    class Older:
+        version_code = 410
+
+        def __init__(self, ctx):
+            self._ctx = ctx
+
+        def __getattr__(self, name):
+            return getattr(self._ctx, name)
+
+    def older(backend):
+        moderngl, ctx = make(backend)
+        return moderngl, Older(ctx)
+    monkeypatch.setattr(parity, "_context", older)
+    assert torch.equal(glsl_eval(export, q), samplers)
+    with pytest.raises(InputError, match="cannot compile '#version 420 core'"):
+        glsl_eval(export, q, version=GLSL_IMAGE_VERSION)

@@ -54,7 +54,7 @@ def export_check(fmt: str, exported, model, n: int, precision: str) -> list[str]
     runs = []  # (output, what it ran as)
     if fmt == "glsl":
         runs.append((glsl_eval(exported, q), what))
-        if exported.images:  # its tables as images (its fastest GLSL), then through samplers (the GLSL 3.30 form)
+        if exported.images:  # its textures as images (its fastest GLSL), then through samplers (the GLSL 3.30 form)
             runs = [(runs[0][0], f"{what} ({exported.glsl_version()})"),
                     (glsl_eval(exported, q, version=GLSL_VERSION), f"{what} ({GLSL_VERSION})")]
     else:

@@ -146,9 +146,10 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
     and textures (float16 ones uploaded as RGBA16F; its `images` bound read-only to their image units under GLSL
     4.20 and later) compiled under `version` (a #version line; default `export.glsl_version()`); each input (N,
     k <= 4) is a vec4 variable of its name (zero-padded). Returns colour (N, 4) float32 on the CPU. One fragment
-    per row of an RGBA32F framebuffer `width` wide."""
+    per row of an RGBA32F framebuffer `width` wide. By default an OpenGL below 4.2 compiles it under GLSL 3.30."""
+    asked = version
     version = export.glsl_version() if version is None else version
-    images = export.images if _version_number(version) >= _version_number(GLSL_IMAGE_VERSION) else {}
+    _version_number(version)
     n = len(next(iter(inputs.values())))
     if any(v.shape[0] != n or v.dim() != 2 or v.shape[1] > 4 for v in inputs.values()):
         raise InputError(f"glsl_run inputs: expected (N, k <= 4) tensors with one N, got "
@@ -157,6 +158,11 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         return torch.zeros(0, 4)
     moderngl, ctx = _context(backend)
     try:
+        if _version_number(version) > ctx.version_code:
+            if asked is not None:
+                raise InputError(f"glsl_run: this OpenGL context ({ctx.version_code}) cannot compile {version!r}")
+            version = GLSL_VERSION  # an older OpenGL (macOS's 4.1): the export's samplers
+        images = export.images if _version_number(version) >= _version_number(GLSL_IMAGE_VERSION) else {}
         cols = min(width, n)
         rows = -(-n // cols)
 
