@@ -41,8 +41,7 @@ BUDGET = {
                       "the fixed cost of a call at batches of 1 and 64; exports of neubrdf only (GLSL fp32, its tables "
                       "as images (GLSL 4.20) and through samplers (3.30), beside GLSL GGX and Dr.Jit fp32 at "
                       "2^16 queries, Slang fp16 at 2^13); training steps of nbrdf, a small neubrdf and multiscale (on "
-                      "32^2 "
-                      "and 64^2 crops) at batches 2^8 and 2^10",
+                      "32^2 and 64^2 crops) at batches 2^8 and 2^10",
               "paper": "none (the papers time on GPUs: NeuBRDF Table 5, Timonen et al. Table 6)",
               "expected_wall": "about 30 s"},
     "full": {"ours": "batches of 2^10, 2^16 and 2^20 queries (a batch whose one call would take over "
