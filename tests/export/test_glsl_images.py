@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from neumat.export.glsl import export_glsl
-from neumat.export.glsl_common import GLSL_IMAGE_VERSION, GLSL_VERSION, MAX_IMAGES, GLSLExport, read_as_images
+from neumat.export.glsl_common import (GLSL_IMAGE_VERSION, GLSL_VERSION, MAX_IMAGES, GLSLExport, glsl_version_number,
+                                      read_as_images)
 from neumat.fit.footprint_queries import footprint_queries
 from neumat.models.registry import build_model
 from neumat.core.errors import InputError
@@ -13,6 +14,13 @@ from neumat.testing import parity
 from neumat.testing.parity import glsl_eval, opengl_available
 
 needs_gl = pytest.mark.skipif(not opengl_available(), reason="no moderngl or no headless OpenGL 3.3 context (EGL)")
+
+
+def test_version_lines_parse_and_anything_else_is_refused():
+    assert glsl_version_number(GLSL_VERSION) == 330 and glsl_version_number("#version 450") == 450
+    for bad in ("330", "#version", "#version four", "#version 330 core extra", None):
+        with pytest.raises(InputError, match="expected a #version line"):
+            glsl_version_number(bad)
 
 
 def _texture(dtype=np.float32) -> np.ndarray:
@@ -32,7 +40,7 @@ vec4 f(ivec2 p) {
     export = read_as_images(GLSLExport(source, {"a": _texture(), "b": _texture(np.float16), "c": _texture(),
                                                 "d": _texture()}, False))
     assert export.images == {"a": 0, "b": 1}  # c's size is queried, d is read at level 1: samplers still
-    assert export.glsl_version() == GLSL_IMAGE_VERSION
+    assert export.fastest_glsl_version() == GLSL_IMAGE_VERSION
     out = export.source
     assert "layout(rgba32f, binding = 0) readonly uniform image2DArray a;" in out
     assert "layout(rgba16f, binding = 1) readonly uniform image2DArray b;" in out  # a float16 texture's format
@@ -41,7 +49,7 @@ vec4 f(ivec2 p) {
     assert "texelFetch(c, ivec3(p, 0), 0)" in out and "texelFetch(d, ivec3(p, 0), 1)" in out
     assert read_as_images(export).source == out  # applying it twice changes nothing
     none = read_as_images(GLSLExport("vec3 neumat_eval(vec3 wi, vec3 wo) { return wi; }", {}, False))
-    assert none.images == {} and none.glsl_version() == GLSL_VERSION
+    assert none.images == {} and none.fastest_glsl_version() == GLSL_VERSION
 
 
 def test_at_most_max_images_textures_become_images():
@@ -76,7 +84,7 @@ def test_every_family_computes_the_same_with_images_and_with_samplers(name, prec
     torch.manual_seed(0)
     model = build_model(FAMILIES[name]).train(False)
     export = export_glsl(model, precision)
-    assert export.images and export.glsl_version() == GLSL_IMAGE_VERSION
+    assert export.images and export.fastest_glsl_version() == GLSL_IMAGE_VERSION
     q = footprint_queries(model, model)(512, torch.Generator().manual_seed(1), torch.device("cpu"))
     images, samplers = glsl_eval(export, q), glsl_eval(export, q, version=GLSL_VERSION)
     assert bool(torch.isfinite(images).all()) and float(images.abs().max()) > 0

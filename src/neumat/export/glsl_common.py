@@ -23,6 +23,14 @@ GLSL_IMAGE_VERSION = "#version 420 core"
 """The GLSL from which an export reads its `GLSLExport.images` as images (OpenGL 4.2's image load / store)."""
 
 
+def glsl_version_number(version: str) -> int:
+    """The number of a #version line ("#version 420 core" -> 420); InputError for anything else."""
+    parts = version.split() if isinstance(version, str) else []
+    if len(parts) not in (2, 3) or parts[0] != "#version" or not parts[1].isdigit():
+        raise InputError(f"glsl version: expected a #version line such as {GLSL_VERSION!r}, got {version!r}")
+    return int(parts[1])
+
+
 @dataclass
 class GLSLExport:
     """GLSL source (without a #version line) and its textures: name -> array (layers, H, W, 4), float32, or
@@ -48,7 +56,7 @@ class GLSLExport:
     """Textures that the source reads with imageLoad, from this image unit, when compiled under
     `GLSL_IMAGE_VERSION` or later, and with texelFetch from a sampler2DArray below (`read_as_images`)."""
 
-    def glsl_version(self) -> str:
+    def fastest_glsl_version(self) -> str:
         """The #version line this export runs fastest under: `GLSL_IMAGE_VERSION` where it has `images`, else
         `GLSL_VERSION` (under which every export runs)."""
         return GLSL_IMAGE_VERSION if self.images else GLSL_VERSION
@@ -85,7 +93,7 @@ class GLSLExport:
                 + (f" (fp16 / fp32 = {sizes['fp16']['total'] / sizes['fp32']['total']:.3f})" if sizes["fp32"]["total"]
                    else "") + f"; written: {self.precision}"
                 + (f", float32 at both: {', '.join(self.exact)}" if self.exact else "")
-                + (f"\ncompiles under {GLSL_VERSION}; fastest under {self.glsl_version()}, where "
+                + (f"\ncompiles under {GLSL_VERSION}; fastest under {self.fastest_glsl_version()}, where "
                    + ", ".join(f"{name} is an image2DArray at image unit {unit}" for name, unit in self.images.items())
                    + " (manifest.json)" if self.images else ""))
 
@@ -99,7 +107,7 @@ class GLSLExport:
         manifest = {"source": "neumat.glsl", "glsl_version": GLSL_VERSION, "precision": self.precision,
                     "bytes": self.storage_bytes(), "textures": {}, "entry": self.entry_points()}
         if self.images:
-            manifest["fastest_glsl_version"] = self.glsl_version()
+            manifest["fastest_glsl_version"] = self.fastest_glsl_version()
         for name, data in self.textures.items():
             layers, height, width, _ = data.shape
             half = data.dtype == np.float16
@@ -143,7 +151,7 @@ def read_as_images(export: GLSLExport) -> GLSLExport:
         unit = len(images)
         images[name] = unit
         fmt = "rgba16f" if data.dtype == np.float16 else "rgba32f"
-        source = rewritten.replace(declaration, f"""#if __VERSION__ >= {GLSL_IMAGE_VERSION.split()[1]}
+        source = rewritten.replace(declaration, f"""#if __VERSION__ >= {glsl_version_number(GLSL_IMAGE_VERSION)}
 layout({fmt}, binding = {unit}) readonly uniform image2DArray {name};
 vec4 nm_texel_{name}(ivec3 p) {{ return imageLoad({name}, p); }}
 #else

@@ -51,16 +51,14 @@ def export_check(fmt: str, exported, model, n: int, precision: str) -> list[str]
     with torch.no_grad(), cpu_kernels.switched_off():  # the formulas the export was translated from
         ref = model.eval(q)
         half = half_rounded(model).eval(q) if precision == "fp16" else None
-    runs = []  # (output, what it ran as)
-    if fmt == "glsl":
-        runs.append((glsl_eval(exported, q), what))
-        if exported.images:  # its textures as images (its fastest GLSL), then through samplers (the GLSL 3.30 form)
-            runs = [(runs[0][0], f"{what} ({exported.glsl_version()})"),
-                    (glsl_eval(exported, q, version=GLSL_VERSION), f"{what} ({GLSL_VERSION})")]
+    if fmt == "glsl":  # with images: as images (its fastest GLSL), then through samplers (the GLSL 3.30 form)
+        runs = [(glsl_eval(exported, q), f"{what} ({exported.fastest_glsl_version()})" if exported.images else what)]
+        if exported.images:
+            runs.append((glsl_eval(exported, q, version=GLSL_VERSION), f"{what} ({GLSL_VERSION})"))
     else:
         from .slang_parity import slang_eval
 
-        runs.append((slang_eval(exported, q), what))
+        runs = [(slang_eval(exported, q), what)]  # (output, what it ran as)
     lines = []
     for got, name in runs:
         first = f"{name} vs torch on {n} Sec. 4.2 queries" if fmt == "glsl" else f"{name} vs torch on the same queries"

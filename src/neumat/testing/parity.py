@@ -3,7 +3,7 @@
 `glsl_eval(export, q)` draws one fragment per query into an RGBA32F framebuffer: the fragment shader reads
 its query (wi, wo, uv, footprint or lod) from float textures with `texelFetch`, calls the export's
 `neumat_eval` and writes the value. `glsl_run(export, inputs, call)` does the same for any entry point
-(the NeuPreSS export's, say). Each compiles the export under its fastest GLSL (`GLSLExport.glsl_version`: 4.20
+(the NeuPreSS export's, say). Each compiles the export under its fastest GLSL (`GLSLExport.fastest_glsl_version`: 4.20
 where it reads images) or the `version` given. Needs `moderngl` and an OpenGL 3.3 context (4.2 for images); by
 default a headless EGL one (Mesa llvmpipe runs it on the CPU).
 """
@@ -17,7 +17,7 @@ import torch
 
 from ..core.errors import InputError
 from ..core.query import Query
-from ..export.glsl_common import GLSL_IMAGE_VERSION, GLSL_VERSION, GLSLExport
+from ..export.glsl_common import GLSL_IMAGE_VERSION, GLSL_VERSION, GLSLExport, glsl_version_number
 from .timing import best_times
 
 _VERTEX = GLSL_VERSION + """
@@ -61,7 +61,7 @@ def glsl_eval(export: GLSLExport, q: Query, backend: str | None = "egl", width: 
     exports use q.footprint if given, else q.lod (0 when absent); they need q.uv. entry "pdf" (density in
     channel 0) and "sample" (wo for u (N, 2); q.wo unused) call the sampler entry points of exports that
     have them (with q.footprint). A NeuPreSS export gives S_hat at the object-space position q.x, as the Slang
-    and Dr.Jit evaluators do. version: the #version line (default `export.glsl_version()`)."""
+    and Dr.Jit evaluators do. version: the #version line (default `export.fastest_glsl_version()`)."""
     n = len(q.wi)
     if n == 0:
         return q.wi.new_zeros(0, 3)
@@ -104,7 +104,7 @@ def glsl_evals_per_second(export: GLSLExport, q: Query, backend: str | None = "e
     """Evaluations per second of `glsl_eval(export, q)` on this OpenGL (llvmpipe on a CPU-only machine), the
     `marginal_rate` (context creation, compilation and uploads do not count); per wall or per CPU second of this
     process (`clock` "cpu": llvmpipe's threads included, a loaded machine's waits not; "both": a dict of the two),
-    under `version` (default: the export's fastest, `GLSLExport.glsl_version`)."""
+    under `version` (default: the export's fastest, `GLSLExport.fastest_glsl_version`)."""
     return marginal_rate(lambda part: glsl_eval(export, part, backend, version=version), q, "glsl_evals_per_second",
                          clock, repeats)
 
@@ -144,12 +144,12 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
              width: int = 256, version: str | None = None) -> torch.Tensor:
     """Run `call` (GLSL statements that set `vec4 colour`) once per row of the inputs, with the export's source
     and textures (float16 ones uploaded as RGBA16F; its `images` bound read-only to their image units under GLSL
-    4.20 and later) compiled under `version` (a #version line; default `export.glsl_version()`); each input (N,
+    4.20 and later) compiled under `version` (a #version line; default `export.fastest_glsl_version()`); each input (N,
     k <= 4) is a vec4 variable of its name (zero-padded). Returns colour (N, 4) float32 on the CPU. One fragment
     per row of an RGBA32F framebuffer `width` wide. By default an OpenGL below 4.2 compiles it under GLSL 3.30."""
     asked = version
-    version = export.glsl_version() if version is None else version
-    _version_number(version)
+    version = export.fastest_glsl_version() if version is None else version
+    number = glsl_version_number(version)
     n = len(next(iter(inputs.values())))
     if any(v.shape[0] != n or v.dim() != 2 or v.shape[1] > 4 for v in inputs.values()):
         raise InputError(f"glsl_run inputs: expected (N, k <= 4) tensors with one N, got "
@@ -158,11 +158,11 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         return torch.zeros(0, 4)
     moderngl, ctx = _context(backend)
     try:
-        if _version_number(version) > ctx.version_code:
+        if number > ctx.version_code:
             if asked is not None:
                 raise InputError(f"glsl_run: this OpenGL context ({ctx.version_code}) cannot compile {version!r}")
-            version = GLSL_VERSION  # an older OpenGL (macOS's 4.1): the export's samplers
-        images = export.images if _version_number(version) >= _version_number(GLSL_IMAGE_VERSION) else {}
+            version, number = GLSL_VERSION, glsl_version_number(GLSL_VERSION)  # an older OpenGL (macOS 4.1)
+        images = export.images if number >= glsl_version_number(GLSL_IMAGE_VERSION) else {}
         cols = min(width, n)
         rows = -(-n // cols)
 
@@ -210,14 +210,6 @@ def glsl_run(export: GLSLExport, inputs: dict[str, torch.Tensor], call: str, bac
         return torch.from_numpy(out.copy())
     finally:
         ctx.release()
-
-
-def _version_number(version: str) -> int:
-    """The number of a #version line ("#version 420 core" -> 420); InputError for anything else."""
-    parts = version.split() if isinstance(version, str) else []
-    if len(parts) not in (2, 3) or parts[0] != "#version" or not parts[1].isdigit():
-        raise InputError(f"glsl version: expected a #version line such as {GLSL_VERSION!r}, got {version!r}")
-    return int(parts[1])
 
 
 _TRANSLUCENT_CALL = "colour = vec4(neumat_translucent(wi.xyz, x.xyz, wo.xyz), 1.0);"

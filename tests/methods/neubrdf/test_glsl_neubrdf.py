@@ -202,7 +202,7 @@ def test_tables_are_compact_and_written(tmp_path):
     assert (tmp_path / "nbrdf_index.f32").stat().st_size == shader.textures["nbrdf_index"].nbytes
     assert shader.images == {"nbrdf_index": 0, "nbrdf_features": 1, "nbrdf_vertices": 2}
     assert manifest["fastest_glsl_version"] == GLSL_IMAGE_VERSION
-    assert runtime.images == {"nbrdf_first": 0} and runtime.glsl_version() == GLSL_IMAGE_VERSION
+    assert runtime.images == {"nbrdf_first": 0} and runtime.fastest_glsl_version() == GLSL_IMAGE_VERSION
     manifest = json.loads((runtime.write(tmp_path / "runtime") / "manifest.json").read_text())
     assert manifest["glsl_version"] == GLSL_VERSION and manifest["fastest_glsl_version"] == GLSL_IMAGE_VERSION
     assert manifest["textures"]["nbrdf_first"]["image_unit"] == 0
