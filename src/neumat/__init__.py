@@ -11,7 +11,8 @@ from .core.version import __version__
 #: public name -> (module, attribute)
 _LAZY = {"load": ("neumat.catalog.modelfile", "load_model"), "open_material": ("neumat.catalog.open_material",
                                                                               "open_material"),
-         "DataFormatError": ("neumat.core.errors", "DataFormatError"), "InputError": ("neumat.core.errors", "InputError"),
+         "DataFormatError": ("neumat.core.errors", "DataFormatError"),
+         "InputError": ("neumat.core.errors", "InputError"),
          "NeumatError": ("neumat.core.errors", "NeumatError"), "UnknownNameError": ("neumat.core.errors",
                                                                                   "UnknownNameError"),
          "Material": ("neumat.core.material", "Material"), "Query": ("neumat.core.query", "Query"),

@@ -1,6 +1,6 @@
-"""benchmarks/studies/neubrdf/neubrdf_table3_summary.py: its per-source table read back with --from-table gives the same summary as
-the results.json it came from, results override table rows, and a missing file or one without the table is refused
-by name."""
+"""benchmarks/studies/neubrdf/neubrdf_table3_summary.py: its per-source table read back with --from-table gives the same
+summary as the results.json it came from, results override table rows, and a missing file or one without the table is
+refused by name."""
 import json
 import subprocess
 import sys
@@ -72,7 +72,8 @@ def test_a_table_row_is_compared_at_its_printed_rounding(tmp_path):
         _row("plastic", "neubrdf", 0.0035, 0.9866), _row("plastic", "nbrdf", 0.00118, 0.9936)])
     md = tmp_path / "table.md"
     md.write_text(_summary(baseline)[1])  # nbrdf's 0.00118 is printed as 0.0012
-    new = _results(tmp_path / "b.json", [_row("gold", "neubrdf", 0.00124, 0.999), _row("steel", "neubrdf", 0.00104, 0.99),
+    new = _results(tmp_path / "b.json", [_row("gold", "neubrdf", 0.00124, 0.999),
+                                         _row("steel", "neubrdf", 0.00104, 0.99),
                                          _row("plastic", "neubrdf", 0.00126, 0.99)])
     rc, out, err = _summary(new, "--from-table", md, "--table-models", "nbrdf")
     assert rc == 0, err

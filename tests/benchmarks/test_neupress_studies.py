@@ -1,5 +1,6 @@
-"""benchmarks/studies/neupress/neupress_studies.py on tiny synthetic inputs (no Mitsuba, no images): the skip / layer ablation and
-the baselines study give a row per variant, and their score is the held-out MSE over the held-out variance."""
+"""benchmarks/studies/neupress/neupress_studies.py on tiny synthetic inputs (no Mitsuba, no images): the skip / layer
+ablation and the baselines study give a row per variant, and their score is the held-out MSE over the held-out
+variance."""
 import importlib
 from argparse import Namespace
 

@@ -1,6 +1,7 @@
 """The benchmark suites (`python -m benchmarks`): --list names every suite, every suite's --quick run writes results
 that match benchmarks/schema.json with its command, commit and machine, every committed results file does, and the
-benchmarks (suites and studies) hold no sys.path edit and no training loop of their own. Speed numbers are checked for sanity only."""
+benchmarks (suites and studies) hold no sys.path edit and no training loop of their own. Speed numbers are checked for
+sanity only."""
 from __future__ import annotations
 
 import base64

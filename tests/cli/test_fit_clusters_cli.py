@@ -108,7 +108,8 @@ def test_bad_input_is_one_clear_error(app, tmp_path, case):
     sources, extra, out = SOURCES[:3], [], tmp_path / "run"
     expected = {"k_too_large": "-k 4: more clusters than materials; expected at most 3",
                 "svbrdf": "is spatially varying", "num_materials": "--set num_materials",
-                "unknown_key": "unknown key 'cluster_step' of shared-neubrdf (did you mean option.cluster_steps", "out_is_file": "is a file; expected a folder",
+                "unknown_key": "unknown key 'cluster_step' of shared-neubrdf (did you mean option.cluster_steps",
+                "out_is_file": "is a file; expected a folder",
                 "missing_file": "does not exist"}[case]
     k = "4" if case == "k_too_large" else "2"
     if case == "svbrdf":

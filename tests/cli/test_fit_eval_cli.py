@@ -113,7 +113,8 @@ def test_fit_non_brdf_source_and_bad_output(app, tmp_path):
 
 def test_eval_json(app, teacher, tmp_path):
     pytest.importorskip("neumat.metrics.hdr")
-    res = CliRunner().invoke(app, ["eval", teacher, "--against", teacher, "--json", "--n-configs", "4096", "--no-image"])
+    res = CliRunner().invoke(app, ["eval", teacher, "--against", teacher, "--json", "--n-configs", "4096",
+                                   "--no-image"])
     assert res.exit_code == 0, res.output
     row = json.loads(res.stdout)
     assert row["rmse_hdr"] == 0.0 and row["rel_err"] == 0.0  # a model against itself
@@ -187,8 +188,8 @@ def test_fit_neubrdf_at_defaults_writes_the_small_runtime_form(app, tmp_path):
     wi, wo = (torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1).abs() for _ in range(2))
     with torch.no_grad():
         assert torch.equal(load_model(out).eval(Query(wi, wo)), reference.eval(Query(wi, wo)))
-    res = CliRunner().invoke(app, ["eval", str(out), "--against", "plastic:roughness=0.3", "--json", "--n-configs", "4096",
-                                   "--no-image"])
+    res = CliRunner().invoke(app, ["eval", str(out), "--against", "plastic:roughness=0.3", "--json", "--n-configs",
+                                   "4096", "--no-image"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["bytes_fp16"] == h["size_bytes"]["fp16"]
 

@@ -112,7 +112,8 @@ def test_the_variant_option(tmp_path):
     mitsuba_or_skip()
     scene = tmp_path / "scene.xml"
     scene.write_text(SCENE)
-    for variant, message in (("llvm_ad_rbg", "installedMitsubavariants"), ("llvm_ad_spectral", "unpolarisedRGBvariant")):
+    for variant, message in (("llvm_ad_rbg", "installedMitsubavariants"),
+                             ("llvm_ad_spectral", "unpolarisedRGBvariant")):
         r = CliRunner().invoke(app, ["mitsuba-render", str(scene), "--variant", variant, "-o",
                                      str(tmp_path / "x.png")])
         assert r.exit_code == 2 and message in _said(r), (variant, r.output)

@@ -50,7 +50,8 @@ def test_neubrdf_default_is_the_measured_setting_by_source_kind():
     assert source_kind(rgl) == "rgl" and source_kind([plastic, plastic]) == "analytic"
     r = resolve_preset("neubrdf", device="cpu", source=rgl)
     assert r.config.direction_inputs == "hd_warp"
-    assert (r.recipe.queries, r.recipe.loss) == (recipe_for("neubrdf", "cpu").queries, recipe_for("neubrdf", "cpu").loss)
+    assert (r.recipe.queries, r.recipe.loss) == (recipe_for("neubrdf", "cpu").queries,
+                                                 recipe_for("neubrdf", "cpu").loss)
 
 
 def test_keys_are_namespaced_and_checked():
@@ -146,8 +147,8 @@ def test_model_files_of_format_version_1_still_load(tmp_path):
 
 
 def test_every_computing_command_takes_threads_and_one_device_default():
-    """One CLI grammar: every command but list / version / data info takes --threads and --quiet; every --device defaults to
-    the same resolver (cuda when torch sees a GPU, else cpu)."""
+    """One CLI grammar: every command but list / version / data info takes --threads and --quiet; every --device
+    defaults to the same resolver (cuda when torch sees a GPU, else cpu)."""
     import typer
 
     from neumat.cli.common import default_device, device_option

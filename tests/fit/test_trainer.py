@@ -377,7 +377,8 @@ def test_a_fit_whose_output_collapsed_says_so():
 
     recipe = Recipe(steps=30, batch_size=64, lr=1e-2, log_every=5)
     with pytest.warns(FitWarning, match=r"output is near zero \(mean \|output\| .* against the source's .*, at 4096 "
-                                        r"of the fit's queries\); after a full recipe this is a network that died early"):
+                                        r"of the fit's queries\); after a full recipe this is a network that "
+                                        r"died early"):
         res = fit(_Dead(nside=2, index_bits=2, hidden=4), Blinn(), recipe, progress=False)
     assert len(res.warnings) == 1
     with pytest.warns(FitWarning, match=r"output is near constant \(its spread over the queries at most 0x"):

@@ -26,7 +26,8 @@ def test_the_factory_builds_one_bsdf_at_a_time(monkeypatch):
     monkeypatch.setattr(mitsuba_native, "_BRIDGE", lambda mi: (lambda props: ("bridge", props["filename"])))
     mi = SimpleNamespace(Float=float)
     built = []
-    threads = [threading.Thread(target=lambda k=k: built.append(mitsuba_native.make_bsdf(mi, {"filename": f"m{k}.nmat"})))
+    threads = [threading.Thread(target=lambda k=k: built.append(mitsuba_native.make_bsdf(mi,
+                                                                                         {"filename": f"m{k}.nmat"})))
                for k in range(4)]
     for t in threads:
         t.start()

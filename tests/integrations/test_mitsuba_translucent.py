@@ -45,8 +45,8 @@ def _env() -> np.ndarray:
     """A smooth (8, 16, 3) map, bright above (low noise at small spp)."""
     theta = (torch.arange(8) + 0.5) / 8
     phi = 2 * math.pi * (torch.arange(16) + 0.5) / 16
-    img = torch.stack([1.5 - theta[:, None] + 0.3 * torch.cos(phi)[None], 1.0 + 0.5 * torch.sin(phi)[None].expand(8, 16),
-                       (0.6 + theta[:, None]).expand(8, 16)], -1)
+    img = torch.stack([1.5 - theta[:, None] + 0.3 * torch.cos(phi)[None],
+                       1.0 + 0.5 * torch.sin(phi)[None].expand(8, 16), (0.6 + theta[:, None]).expand(8, 16)], -1)
     return img.numpy().astype(np.float32)
 
 

@@ -52,7 +52,8 @@ def numpy_errors(f: np.ndarray, g: np.ndarray, cos_i: np.ndarray) -> dict[str, f
     cos_i = np.maximum(cos_i, 0)[:, None]
     return {"rmse_hdr": float(np.sqrt(np.mean(d * d))), "mae_hdr": float(np.mean(np.abs(d))),
             "rel_err": float(np.abs(d).sum() / np.abs(f).sum()),
-            "log_err": float(np.mean(np.abs(np.log(1 + np.maximum(f * cos_i, 0)) - np.log(1 + np.maximum(g * cos_i, 0)))))}
+            "log_err": float(np.mean(np.abs(np.log(1 + np.maximum(f * cos_i, 0))
+                                            - np.log(1 + np.maximum(g * cos_i, 0)))))}
 
 
 def recording_sampler(store: list):

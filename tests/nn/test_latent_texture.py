@@ -4,8 +4,8 @@ import pytest
 import torch
 
 from neumat.core.errors import InputError
-from neumat.nn.latent_texture import (LatentPyramid, bilinear, bilinear_maps, box_pyramid, check_footprint, filter_anisotropic,
-                                      footprint_axes, isotropic_footprint, trilinear)
+from neumat.nn.latent_texture import (LatentPyramid, bilinear, bilinear_maps, box_pyramid, check_footprint,
+                                      filter_anisotropic, footprint_axes, isotropic_footprint, trilinear)
 
 
 def _band_limited(size=64, seed=0):

@@ -7,7 +7,8 @@ from neumat.warp.hemisphere import sample_cosine_hemisphere
 
 def _dirs(n, seed=0):
     g = torch.Generator().manual_seed(seed)
-    return sample_cosine_hemisphere(torch.rand(n, 2, generator=g)), sample_cosine_hemisphere(torch.rand(n, 2, generator=g))
+    return (sample_cosine_hemisphere(torch.rand(n, 2, generator=g)),
+            sample_cosine_hemisphere(torch.rand(n, 2, generator=g)))
 
 
 def test_identity_at_initialisation():

@@ -96,7 +96,8 @@ def test_fresnel_conductor_matches_complex_closed_form():
         e, kk = np.array(eta), np.array(k)
         np.testing.assert_allclose(f[-1], ((e - 1) ** 2 + kk ** 2) / ((e + 1) ** 2 + kk ** 2), rtol=1e-12)
         np.testing.assert_allclose(f[0], 1.0, atol=1e-12)  # grazing
-    gold = fresnel_conductor(torch.tensor([1.0]), torch.tensor(CONDUCTORS["gold"][0]), torch.tensor(CONDUCTORS["gold"][1]))
+    gold = fresnel_conductor(torch.tensor([1.0]), torch.tensor(CONDUCTORS["gold"][0]),
+                             torch.tensor(CONDUCTORS["gold"][1]))
     assert gold.dtype == torch.float32 and gold[0, 0] > gold[0, 2]  # gold reflects red more than blue
 
 
@@ -111,7 +112,8 @@ def test_fresnel_dielectric_known_values():
         assert np.all(f[tir] == 1)
         np.testing.assert_allclose(f[-1], ((eta - 1) / (eta + 1)) ** 2, rtol=1e-12)
     brewster = torch.tensor([math.cos(math.atan(1.5))], dtype=F64)  # r_p = 0 there
-    r_s = ((brewster - 1.5 * (1 - (1 - brewster ** 2) / 2.25).sqrt()) / (brewster + 1.5 * (1 - (1 - brewster ** 2) / 2.25).sqrt()))
+    r_s = ((brewster - 1.5 * (1 - (1 - brewster ** 2) / 2.25).sqrt())
+           / (brewster + 1.5 * (1 - (1 - brewster ** 2) / 2.25).sqrt()))
     torch.testing.assert_close(fresnel_dielectric(brewster, 1.5), 0.5 * r_s ** 2)
     # from inside: cos < 0 means eta is inverted; internal reflection equals external at the refracted angle
     cos_i = torch.tensor([0.9, 0.5], dtype=F64)
@@ -408,7 +410,8 @@ def test_ggx_conductor_matches_mitsuba_roughconductor():
         (GGX(0.05, eta=(0.2, 0.9, 1.1), k=(3.9, 2.4, 2.1)),
          {"type": "roughconductor", "distribution": "ggx", "alpha": 0.05, "eta": _rgb((0.2, 0.9, 1.1)),
           "k": _rgb((3.9, 2.4, 2.1))}),
-        (GGX(0.6, material="copper"), {"type": "roughconductor", "distribution": "ggx", "alpha": 0.6, "material": "Cu"}),
+        (GGX(0.6, material="copper"),
+         {"type": "roughconductor", "distribution": "ggx", "alpha": 0.6, "material": "Cu"}),
     ]
     for mat, bsdf in cases:
         ours = mat.eval(Query(wi.double(), wo.double())).numpy()

@@ -235,8 +235,8 @@ def flat_set(n: int = 6) -> TextureSet:
     normal = torch.zeros(n, n, 3)
     normal[..., 2] = 1
     return TextureSet(color=torch.rand(n, n, 3, generator=g), normal=normal,
-                      roughness=0.2 + 0.3 * torch.rand(n, n, generator=g), metalness=(torch.rand(n, n, generator=g) > 0.5).float(),
-                      height=torch.zeros(n, n), name="flat")
+                      roughness=0.2 + 0.3 * torch.rand(n, n, generator=g),
+                      metalness=(torch.rand(n, n, generator=g) > 0.5).float(), height=torch.zeros(n, n), name="flat")
 
 
 def test_fibres_on_a_flat_surface_are_the_anisotropic_principled_brdf_in_the_rotated_frame():

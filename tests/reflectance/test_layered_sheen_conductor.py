@@ -122,7 +122,8 @@ def test_sampling_matches_pdf(material):
     m = _conductor() if material == "conductor" else _sheened_conductor()
     wi = torch.tensor([0.5, 0.2, 0.84])
     wi = wi / wi.norm()
-    result = chi2_material(m, wi, n_samples=100_000, res=(20, 40), template=Query(wi[None], uv=torch.tensor([[0.3, 0.7]])))
+    result = chi2_material(m, wi, n_samples=100_000, res=(20, 40),
+                           template=Query(wi[None], uv=torch.tensor([[0.3, 0.7]])))
     assert result, result.message
 
 

@@ -15,7 +15,8 @@ def test_spec_names():
     ("lambert", Lambert, {"albedo": (0.5, 0.5, 0.5)}),
     ("Lambert: albedo = 0.8/0.5/0.2 ", Lambert, {"albedo": (0.8, 0.5, 0.2)}),
     ("ggx:roughness=0.2,fresnel=dielectric,eta=1.5", GGX, {"alpha_x": 0.2, "alpha_y": 0.2, "eta": 1.5}),
-    ("ggx:alpha_x=0.3,alpha_y=0.05,material=gold", GGX, {"alpha_x": 0.3, "alpha_y": 0.05, "eta": CONDUCTORS["gold"][0]}),
+    ("ggx:alpha_x=0.3,alpha_y=0.05,material=gold", GGX,
+     {"alpha_x": 0.3, "alpha_y": 0.05, "eta": CONDUCTORS["gold"][0]}),
     ("ggx:eta=0.2/0.9/1.1,k=3.9/2.4/2.1", GGX, {"k": (3.9, 2.4, 2.1)}),
     ("ggx:fresnel=schlick,f0=0.9", GGX, {"f0": (0.9, 0.9, 0.9)}),
     ("ggx:fresnel=none,roughness=0.5", GGX, {"fresnel": "none"}),
@@ -35,7 +36,8 @@ def test_conductor_presets(name):
     assert parse_spec(f"ggx:roughness=0.2,material={name}").k == CONDUCTORS[name][1]
 
 
-@pytest.mark.parametrize("spec", ["lambert:albedo=0.3", "ggx", "ggx:alpha_x=0.1,alpha_y=0.7,fresnel=schlick,f0=0.1/0.2/0.3",
+@pytest.mark.parametrize("spec", ["lambert:albedo=0.3", "ggx",
+                                  "ggx:alpha_x=0.1,alpha_y=0.7,fresnel=schlick,f0=0.1/0.2/0.3",
                                   "ggx:eta=0.2/0.9/1.1,k=3.9/2.4/2.1,roughness=0.123456789",
                                   "plastic", "principled:anisotropy=0.3,specular=0.1"])
 def test_describe_round_trips(spec):

@@ -34,7 +34,8 @@ def _octahedron(path, scale=1.0):
     faces = [(0, 2, 4), (2, 1, 4), (1, 3, 4), (3, 0, 4), (2, 0, 5), (1, 2, 5), (3, 1, 5), (0, 3, 5)]
     head = ("ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
             "element face 8\nproperty list uchar int vertex_indices\nend_header\n")
-    path.write_text(head + "".join(f"{a} {b} {c}\n" for a, b, c in v) + "".join(f"3 {a} {b} {c}\n" for a, b, c in faces))
+    path.write_text(head + "".join(f"{a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"3 {a} {b} {c}\n" for a, b, c in faces))
     return path
 
 

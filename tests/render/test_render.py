@@ -227,7 +227,8 @@ def test_mesh_render_matches_mitsuba(shared_data):
     scene = mi.load_dict({
         "type": "scene", "integrator": {"type": "direct"}, "sensor": sensor,
         "mesh": {"type": "ply", "filename": str(path),
-                 "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}}},
+                 "bsdf": {"type": "twosided",
+                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}}},
         "sun": {"type": "directional", "direction": (-light_dir).tolist(), "irradiance": {"type": "rgb", "value": 3.0}},
     })
     ref = np.array(mi.render(scene, seed=0))[..., :3]

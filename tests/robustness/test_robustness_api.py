@@ -107,8 +107,8 @@ def test_query_accepts_valid_directions_or_raises_input_error(wi, wo):
 def _unit(draw, n: int, dtype) -> torch.Tensor:
     theta = draw(st.lists(st.floats(0, math.pi), min_size=n, max_size=n))  # below the horizon too
     phi = draw(st.lists(st.floats(0, 2 * math.pi), min_size=n, max_size=n))
-    return torch.tensor([[math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), math.cos(a)] for a, b in zip(theta, phi)],
-                        dtype=dtype).reshape(n, 3)
+    return torch.tensor([[math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), math.cos(a)]
+                         for a, b in zip(theta, phi)], dtype=dtype).reshape(n, 3)
 
 
 @st.composite
@@ -231,7 +231,8 @@ def test_reflectance_errors_refuse_a_nan_reference():
         def eval(self, q):
             return torch.full((len(q), 3), float("nan"), dtype=q.dtype)
 
-    with pytest.raises(InputError, match=r"the reference \(nan-material\) returned 192 NaN or infinite value\(s\) on 64 queries"):
+    with pytest.raises(InputError, match=r"the reference \(nan-material\) returned 192 NaN or infinite value\(s\) "
+                                         r"on 64 queries"):
         reflectance_errors(parse_spec("lambert"), NaNMaterial(), n=64)
 
 

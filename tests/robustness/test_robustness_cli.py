@@ -232,7 +232,8 @@ def _checked_cases(t: Path) -> dict[str, tuple[list[str], str]]:
         "layered-cycle": (["render", str(t / "cycle_a.json"), "--resolution", "8", "-o", out],
                           "cycle_b.json -> "),
         "layered-self": (["data", "info", str(t / "cycle_self.json")], "its base leads back to itself"),
-        "btf-png-suffix": (["data", "btf-generate", "procedural:bumps", "-o", str(t / "b.png"), "--size", "8"], ".nbtf"),
+        "btf-png-suffix": (["data", "btf-generate", "procedural:bumps", "-o", str(t / "b.png"), "--size", "8"],
+                           ".nbtf"),
         "fit-lr-nan": (["fit", "lambert", "-m", "ggx", "--set", "lr=nan", "-o", str(t / "m.nmat")], "Recipe.lr"),
         "fit-obs-empty": ([*fit, str(t / "empty.npz")], "empty.npz: not a neumat observations file"),
         "fit-obs-truncated": ([*fit, str(t / "truncated.npz")], "truncated.npz: not a neumat observations file"),
@@ -323,8 +324,8 @@ def test_fifo_in_a_texture_set_is_refused_not_a_hang(tmp_path):
 def test_failed_writes_leave_nothing_and_outputs_are_0644(tmp_path):
     from neumat.io.atomic import atomic_write
     from neumat.core.errors import InputError
-    r = CliRunner().invoke(app, ["data", "btf-generate", "procedural:bumps", "-o", str(tmp_path / "b.nbtf"), "--size", "4",
-                                 "--directions", "4", "--spp", "1"])
+    r = CliRunner().invoke(app, ["data", "btf-generate", "procedural:bumps", "-o", str(tmp_path / "b.nbtf"),
+                                 "--size", "4", "--directions", "4", "--spp", "1"])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "b.nbtf").stat().st_mode & 0o777 == 0o644 & ~_umask()
     (tmp_path / "dir.nmat").mkdir()

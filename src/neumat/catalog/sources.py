@@ -1,11 +1,11 @@
 """The material sources `open_material` knows: a registry keyed by file suffix, plus "folder" and "spec".
 
-`SOURCES` is a `neumat.core.registry.Registry` of data records: each entry is a `Source`: a human-readable `kind`, the `reader(path, **options)` that builds the Material and the
-`noun` error messages name one by. Keys are lowercase file suffixes (".binary", ".bsdf", ...), "folder" (a PBR
-texture-set folder) and "spec" (an analytic spec string such as ``ggx:roughness=0.2``; its reader takes the
-string). A module of `neumat.catalog` may register more with `register_source`; `load_sources()` imports them all
-(discovered with pkgutil, `neumat.core.registry.import_package_modules`, as the model registry), so no entry is
-listed twice."""
+`SOURCES` is a `neumat.core.registry.Registry` of data records: each entry is a `Source`: a human-readable `kind`, the
+`reader(path, **options)` that builds the Material and the `noun` error messages name one by. Keys are lowercase file
+suffixes (".binary", ".bsdf", ...), "folder" (a PBR texture-set folder) and "spec" (an analytic spec string such as
+``ggx:roughness=0.2``; its reader takes the string). A module of `neumat.catalog` may register more with
+`register_source`; `load_sources()` imports them all (discovered with pkgutil,
+`neumat.core.registry.import_package_modules`, as the model registry), so no entry is listed twice."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -44,8 +44,8 @@ def register(app: typer.Typer) -> None:
             device: str = typer.Option(None, "--device", callback=device_option),
             quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
         """Train the SparseBTF dictionary ensemble once on a few BTFs. Warns when the data points are too few for K
-        (fewer than the paper's 360 per dictionary: neumat.methods.sparse_btf.dictionary_train.training_size_warning); the BTFs'
-        texels must split into --patch x --patch patches (btf-generate's default --size does)."""
+        (fewer than the paper's 360 per dictionary: neumat.methods.sparse_btf.dictionary_train.training_size_warning);
+        the BTFs' texels must split into --patch x --patch patches (btf-generate's default --size does)."""
         from neumat.methods.sparse_btf.dictionary_train import train_dictionary
         from ..reflectance.btf import read_btf
 

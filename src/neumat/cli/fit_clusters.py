@@ -1,7 +1,8 @@
 """`neumat fit-clusters`: NeuBRDF with codebooks shared per cluster (Dou et al. 2024, Sec. 3.3) from the command
-line. Clusters the sources (convolutional autoencoder + k-means, `neumat.methods.neubrdf.shared_targets.cluster_materials`),
-fits one shared-neubrdf per cluster through the one trainer, scores every member against its source, and
-writes OUT/cluster<c>.nmat per cluster and OUT/clusters.json (which material went where, and how well)."""
+line. Clusters the sources (convolutional autoencoder + k-means,
+`neumat.methods.neubrdf.shared_targets.cluster_materials`), fits one shared-neubrdf per cluster through the one trainer,
+scores every member against its source, and writes OUT/cluster<c>.nmat per cluster and OUT/clusters.json (which material
+went where, and how well)."""
 from __future__ import annotations
 
 import json

@@ -33,9 +33,9 @@ IMAGE_PROTOCOL = ("sphere/sky, mis-lobes, sobol, model and floor against the ref
 @dataclass(frozen=True)
 class FitJob:
     """What to fit and how. source: a file path or spec (as `neumat fit` takes it); name: the source's short
-    name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo) queries of the reflectance
-    errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0: no image metrics);
-    preset: a preset of the model (`neumat.fit.preset`); evaluate_only: the model
+    name (the model is saved as `out_dir/<name>.<model>.nmat`); overrides: `--set` values; eval_n: random (wi, wo)
+    queries of the reflectance errors; image_spp / image_resolution: sphere renderings of both materials (image_spp 0:
+    no image metrics); preset: a preset of the model (`neumat.fit.preset`); evaluate_only: the model
     at `out` was fitted with these fit options before: only evaluate it; threads: torch intra-op threads of the
     job (None: torch's default, all cores); reference_cache: a folder where the sources' reference renderings are
     kept (`reference_renders`). The last three are not part of the hashes."""

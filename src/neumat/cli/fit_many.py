@@ -141,7 +141,8 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
         for row in stream:
             key = (row["source"], row["model"])
             if row["status"] == "ok" and key in previous and row["fit_sha256"] == previous[key].get("fit_sha256"):
-                row |= {k: previous[key].get(k) for k in FIT_KEYS if row.get(k) is None}  # evaluated again, not refitted
+                row |= {k: previous[key].get(k)
+                        for k in FIT_KEYS if row.get(k) is None}  # evaluated again, not refitted
             rows[key] = row
             ordered = [rows[(j.source, j.model)] for j in jobs if (j.source, j.model) in rows]
             write_rows(results, ordered, run | {"wall_seconds": time.perf_counter() - t0})
@@ -155,7 +156,8 @@ def fit_many(sources: list[str] = typer.Argument(..., help="material files, fold
                  f"cosine-weighted (wi, wo)" + (f"; img_*: {image_resolution}^2 sphere renderings at {image_spp} "
                                                   f"spp, {PROTOCOL}" if image_spp else "")
                  + "; bytes at fp16; fit_s: training seconds."]
-        (out / "results.md").write_text(markdown(ordered, f"fit-many: {len(named)} sources x {', '.join(model)}", notes))
+        (out / "results.md").write_text(markdown(ordered, f"fit-many: {len(named)} sources x {', '.join(model)}",
+                                                 notes))
         console.print(f"wrote {out}/results.json and results.md: {len(ordered) - len(failed)} ok, {len(failed)} "
                       f"failed; {run['wall_seconds']:.1f} s", highlight=False, soft_wrap=True)
         for r in failed:

@@ -80,7 +80,8 @@ def markdown(rows: list[dict], title: str, notes: list[str]) -> str:
         n = sum(r["model"] == model for r in rows)
         cells = [_mean([(r["metrics"] or {}).get(k) for r in ok]) for k in metrics]
         means.append(f"| {model} | {len(ok)} | {n - len(ok)} | " + " | ".join(_num(c) for c in cells) +
-                     f" | {_int(_mean([r['bytes_fp16'] for r in ok]))} | {_num(_mean([r['fit_seconds'] for r in ok]), '.1f')} |")
+                     f" | {_int(_mean([r['bytes_fp16'] for r in ok]))}"
+                     f" | {_num(_mean([r['fit_seconds'] for r in ok]), '.1f')} |")
     pictures = [f"![{r['name']} x {r['model']}]({Path(r['picture']).name})" for r in rows
                 if r["status"] == "ok" and r.get("picture")]
     if pictures:

@@ -10,8 +10,8 @@ import typer
 
 from ..core.errors import InputError
 from ..core.threads import shared_threads
-from .common import (SEED_RANGE, THREADS_HELP, default_device, device_option, output_option, parse_overrides, print_json,
-                     print_table, run_command)
+from .common import (SEED_RANGE, THREADS_HELP, default_device, device_option, output_option, parse_overrides,
+                     print_json, print_table, run_command)
 
 
 def register(app: typer.Typer) -> None:

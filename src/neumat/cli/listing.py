@@ -48,8 +48,8 @@ def catalogue() -> dict:
 
 
 def model_catalogue(model: str) -> dict:
-    """{"model", "paper", "default_preset", "presets": [{name, doc, recipe, overrides, by_recipe, by_source}], "keys": [{key,
-    type, default, range, doc}]} of one model, as `neumat list MODEL --json` prints it."""
+    """{"model", "paper", "default_preset", "presets": [{name, doc, recipe, overrides, by_recipe, by_source}], "keys":
+    [{key, type, default, range, doc}]} of one model, as `neumat list MODEL --json` prints it."""
     import dataclasses
 
     from ..core.config import field_docs, range_text, type_text

@@ -241,7 +241,8 @@ def render(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)")
            elevation: float = typer.Option(None, help="camera elevation in degrees (default: orbit_camera's)"),
            seed: int = typer.Option(0, **SEED_RANGE),
            device: str = typer.Option(None, "--device", callback=device_option,
-                                      help="torch device the model is evaluated on (default: cuda if available, else cpu)")) -> None:
+                                      help="torch device the model is evaluated on (default: cuda if available, "
+                                           "else cpu)")) -> None:
     """Render MODEL on the geometry of its object under an environment map (Eq. 5)."""
     def go():
         import time
@@ -311,7 +312,8 @@ def prt(model: Path = typer.Argument(..., help="NeuPreSS model file (.nmat)"),
                                                                "(10 4^s + 2 vertices)"),
         batch_size: int = typer.Option(16384, min=1, help="network evaluations per batch"),
         device: str = typer.Option(None, "--device", callback=device_option,
-                                   help="torch device the model is evaluated on (default: cuda if available, else cpu)"),
+                                   help="torch device the model is evaluated on (default: cuda if available, "
+                                        "else cpu)"),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar")) -> None:
     """Precompute the SH PRT table of MODEL (NeuPreSS Sec. 4.3) at every vertex of its object's mesh."""
     def go():
@@ -363,7 +365,8 @@ def prt_render(table: Path = typer.Argument(..., help="SH PRT table from `neumat
                elevation: float = typer.Option(None, help="camera elevation in degrees (default: orbit_camera's)"),
                seed: int = typer.Option(0, **SEED_RANGE),
                device: str = typer.Option(None, "--device", callback=device_option,
-                                          help="torch device of the table and the model (default: cuda if available, else cpu)")) -> None:
+                                          help="torch device of the table and the model (default: cuda if available, "
+                                               "else cpu)")) -> None:
     """Render an SH PRT table (Eq. 11) under an environment map, optionally against the network and the
     path-traced reference (subsurface light only, as `translucent render`)."""
     def go():

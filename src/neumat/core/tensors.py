@@ -88,14 +88,15 @@ def derived_from(owner: object, key: str, params: Sequence[torch.Tensor], make: 
     """make(), a tensor computed from `params` alone (a preconditioned texture, a padded lookup atlas), kept on
     `owner` under `key` and reused while no gradient is wanted (autograd off or no param requires grad) and every
     param is unchanged: the same storage, shape, dtype, device and in-place version (copy_ and load_state_dict
-    bump it), and no optimiser has stepped since. With a gradient wanted it is make() every time. Why: a shipped model's evaluation
-    otherwise re-derives these from its parameters on every call (the latent pyramid's preconditioned atlas was
-    three quarters of a multiscale evaluation of 2^16 queries). The kept tensor is plain (built outside inference
+    bump it), and no optimiser has stepped since. With a gradient wanted it is make() every time. Why: a shipped model's
+    evaluation otherwise re-derives these from its parameters on every call (the latent pyramid's preconditioned atlas
+    was three quarters of a multiscale evaluation of 2^16 queries). The kept tensor is plain (built outside inference
     mode, without autograd); never modify it. `optimised=False`: params are fixed data that no optimiser steps (a
     source's maps), so a training step elsewhere does not make it anew."""
     if torch.is_grad_enabled() and any(p.requires_grad for p in params):
         return make()
-    stamp = (_optimiser_steps[0] if optimised else None, *((p.data_ptr(), p._version, tuple(p.shape), p.dtype, p.device) for p in params))
+    stamp = (_optimiser_steps[0] if optimised else None,
+             *((p.data_ptr(), p._version, tuple(p.shape), p.dtype, p.device) for p in params))
     kept = owner.__dict__.setdefault("_derived_tensors", {})
     hit = kept.get(key)
     if hit is not None and hit[0] == stamp:

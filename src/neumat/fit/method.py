@@ -24,11 +24,12 @@ class Method:
     options: the typed recipe options (a dataclass) or None; phases(ctx): the staged training, None for one online
     phase; config_for_source(source, options): config fields that follow the source; presets: added to or
     replacing the built-in paper / cpu / recommended; glsl(model): its GLSL generator (Slang and the web viewer
-    are spelled from it), None when it has no shader; drjit(model): its Dr.Jit runtime translator (model -> (manifest,
-arrays) for `neumat.export.drjit.runtime`: Mitsuba renders it natively), None when it has none; small: a tiny config for the conformance suite; prepare:
-    what a fresh small model needs before it evaluates (set by training from the source); report(model, source,
-    result): (metrics saved in the .nmat, a table row) a fit reports beyond its loss (held-back error, ...);
-    measured: when to choose it, in one line, from our benchmarks (`neumat list` shows it)."""
+    are spelled from it), None when it has no shader; drjit(model): its Dr.Jit runtime translator (model ->
+    (manifest, arrays) for `neumat.export.drjit.runtime`: Mitsuba renders it natively), None when it has none; small:
+    a tiny config for the conformance suite; prepare: what a fresh small model needs before it evaluates (set by
+    training from the source); report(model, source, result): (metrics saved in the .nmat, a table row) a fit
+    reports beyond its loss (held-back error, ...); measured: when to choose it, in one line, from our benchmarks
+    (`neumat list` shows it)."""
 
     name: str
     model: type | None

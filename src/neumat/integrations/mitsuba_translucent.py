@@ -1,5 +1,5 @@
-"""Mitsuba 3 integrator plugin that puts a NeuPreSS translucent object (a model of `neumat fit OBS.npz --model neupress`) in a
-Mitsuba scene with other objects and lights.
+"""Mitsuba 3 integrator plugin that puts a NeuPreSS translucent object (a model of
+`neumat fit OBS.npz --model neupress`) in a Mitsuba scene with other objects and lights.
 
 `register()` adds the integrator "neumat_translucent", `translucent_shape(observations, to_world=T)` places
 the object, `render(scene, spp)` renders (evaluated mode). The inner integrator renders the object's rough
@@ -353,7 +353,8 @@ def _make_integrator_class(mi) -> type:
             if (not str(shape.bsdf()).startswith("RoughDielectric") or alpha is None or eta is None
                     or not np.allclose(alpha, cfg.roughness, rtol=1e-4) or not np.allclose(eta, cfg.ior, rtol=1e-4)):
                 raise InputError(f"{what}: expected the object's rough dielectric BSDF (roughdielectric, ggx, alpha "
-                                 f"{cfg.roughness}, int_ior {cfg.ior}, ext_ior 1), got {str(shape.bsdf()).split('[')[0]}"
+                                 f"{cfg.roughness}, int_ior {cfg.ior}, ext_ior 1), "
+                                 f"got {str(shape.bsdf()).split('[')[0]}"
                                  f" (alpha {alpha}, eta {eta}); `translucent_shape` builds the shape")
             if shape.interior_medium() is None:
                 raise InputError(f"{what}: expected a black interior medium (homogeneous, albedo 0, sigma_t 1e6) so "

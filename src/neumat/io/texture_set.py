@@ -178,8 +178,8 @@ def load_texture_set(folder: str | Path, height_scale: float = DEFAULT_HEIGHT_SC
     from height). `max_size` downscales (antialiased) so that max(H, W) <= max_size before normals are
     derived. `crop` instead keeps crop x crop texels at full resolution (no resampling; normals
     from height are derived on the whole map first, so the crop's are those of the full set), from the top-left
-    corner or from `crop_origin` = (row, col). Raises InputError for a bad folder or argument, DataFormatError for missing, unreadable or
-    mismatched maps.
+    corner or from `crop_origin` = (row, col). Raises InputError for a bad folder or argument, DataFormatError for
+    missing, unreadable or mismatched maps.
     """
     folder = Path(folder)
     if not folder.is_dir():

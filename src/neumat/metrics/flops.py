@@ -92,8 +92,8 @@ def paper_flops_of(fn, *inputs, batch: int) -> float:
 
 
 def paper_flops(model, query: Query) -> float:
-    """FLOPs per query of `model.eval`, counted as the paper does (src/neumat/methods/latent_mlp/NOTES.md): the count over the query
-    batch twice minus the count over it once, over its size, without the spatial texture fetch."""
+    """FLOPs per query of `model.eval`, counted as the paper does (src/neumat/methods/latent_mlp/NOTES.md): the count
+    over the query batch twice minus the count over it once, over its size, without the spatial texture fetch."""
     from ..nn import cpu_kernels
 
     n = len(query)

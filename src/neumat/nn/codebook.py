@@ -157,8 +157,8 @@ class VQFeatures(nn.Module):
     def restrict(self, candidates: torch.Tensor) -> None:
         """Keep per vertex only the logits of its K candidate codewords `candidates` (num_vertices, K) int
         (distinct rows of the codebook per vertex), taken from the current logits, so that each training
-        step costs O(K) per vertex instead of O(2^b) (src/neumat/methods/neubrdf/NOTES.md). Build the optimiser again afterwards:
-        the logits are a new parameter."""
+        step costs O(K) per vertex instead of O(2^b) (src/neumat/methods/neubrdf/NOTES.md). Build the optimiser again
+        afterwards: the logits are a new parameter."""
         if self.frozen:
             raise InputError("VQFeatures.restrict: the indices are frozen")
         if self.candidates is not None:

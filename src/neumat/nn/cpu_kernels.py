@@ -378,10 +378,11 @@ def neubrdf_idw_eval(mlp: PackedMLP, wi: torch.Tensor, wo: torch.Tensor, materia
 
     def run(start: int, stop: int) -> None:
         _check(fn(_ptr(wi, start), _ptr(wo, start), ctypes.c_long(stop - start),
-                  ctypes.c_void_p(None) if keep is None else _ptr(keep, start), active, nside, _ptr(corners[0]), _ptr(corners[1]),
-                  int(corners[0].shape[0] > 1), ctypes.c_long(slots_per_material), ctypes.c_long(south_offset),
-                  _ptr(vertex_dirs), _ptr(table), _ptr(bias), table.shape[1], dir_ptr, int(warp), first_act,
-                  mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim, _ptr(out, start)))
+                  ctypes.c_void_p(None) if keep is None else _ptr(keep, start), active, nside, _ptr(corners[0]),
+                  _ptr(corners[1]), int(corners[0].shape[0] > 1), ctypes.c_long(slots_per_material),
+                  ctypes.c_long(south_offset), _ptr(vertex_dirs), _ptr(table), _ptr(bias), table.shape[1], dir_ptr,
+                  int(warp), first_act, mlp.layers, mlp.dims, mlp.w, mlp.b, mlp.hidden_act, mlp.out_dim,
+                  _ptr(out, start)))
     by_threads(run, len(wi))
     return out
 

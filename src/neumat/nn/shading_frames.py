@@ -39,7 +39,8 @@ def frame_from_vectors(normal: torch.Tensor, tangent: torch.Tensor) -> tuple[tor
 
 class ShadingFrame(nn.Module):
     """forward(z (N, D), wi (N, 3), wo (N, 3)) -> (wi', wo'), each (N, 3 frames): directions in every learned
-    frame, lifted, frame after frame. weight_scale: factor on the decoder weights (src/neumat/methods/latent_mlp/NOTES.md)."""
+    frame, lifted, frame after frame. weight_scale: factor on the decoder weights
+    (src/neumat/methods/latent_mlp/NOTES.md)."""
 
     def __init__(self, latent_dim: int, weight_scale: float = 0.1, frames: int = 1) -> None:
         super().__init__()

@@ -125,7 +125,8 @@ def detail_texture_set(kind: str, size: int = 256, seed: int = 0) -> TextureSet:
     "detail_<kind>_<seed>": height the maker's displacement rescaled to [0, 1], height_scale its range in
     texture widths, normals from it."""
     if kind not in _MAKERS:
-        raise InputError(f"detail texture set: unknown kind {kind!r}; expected one of {', '.join(DETAIL_KINDS + POLISHED_KINDS)}")
+        raise InputError(f"detail texture set: unknown kind {kind!r}; expected one of "
+                         f"{', '.join(DETAIL_KINDS + POLISHED_KINDS)}")
     check_int(size, "detail texture set size", 16)
     check_int(seed, "detail texture set seed", 0)
     g = torch.Generator().manual_seed(seed)

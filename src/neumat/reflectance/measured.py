@@ -224,7 +224,8 @@ class Marginal2D:
         row0 = iy * wm
         prev = (ix - 1).clamp(min=0)
         # the conditional CDF before column ix and at the row's end, on rows iy and iy + 1: one gather
-        c = self._lookup(cond, sl, wts, torch.stack([row0 + prev, row0 + wm + prev, row0 + wm - 1, row0 + 2 * wm - 1], 1))
+        c = self._lookup(cond, sl, wts,
+                         torch.stack([row0 + prev, row0 + wm + prev, row0 + wm - 1, row0 + 2 * wm - 1], 1))
         b0, b1, r0, r1 = c.unbind(1)
         before = torch.lerp(b0, b1, fy)
         sx = sx + torch.where(ix > 0, before, torch.zeros_like(before))

@@ -6,7 +6,8 @@ G = G1(wi) G1(wo), as in Mitsuba 3's `roughconductor` / `roughplastic`, so the t
 
 Principled model: glTF 2.0 metallic-roughness parameters (with a `specular` level as in Disney /
 KHR_materials_specular), diffuse and specular coupled like a coated plastic so that energy is bounded:
-    f = (1 - metallic) base_color (1 - F_d(cos_i)) (1 - F_d(cos_o)) / (pi (1 - F_d_avg)) + S lerp(F_d, F_m, metallic)(wi.h)
+    f = (1 - metallic) base_color (1 - F_d(cos_i)) (1 - F_d(cos_o)) / (pi (1 - F_d_avg)) +
+        S lerp(F_d, F_m, metallic)(wi.h)
     S = D(h) G1(wi) G1(wo) / (4 cos_i cos_o),  F_d = Schlick(0.08 specular),  F_m = Schlick(base_color)
 F_d_avg = F0 + (1 - F0) / 21 is the cosine-weighted hemispherical average of Schlick's F_d, so the diffuse
 albedo is exactly (1 - metallic)(1 - F_d(cos_i)) base_color. (glTF's own coupling (1 - F_d(wi.h)) gains up

@@ -1,8 +1,8 @@
 """Analytic materials from one-line spec strings: "name" or "name:key=value,key=value".
 
 Names are looked up in `neumat.reflectance.spec_registry.SPEC_MATERIALS`, where each material class registers
-its name (`@register_spec`). Values are numbers ("0.2"), RGB triples ("0.8/0.5/0.2") or names ("dielectric", "gold"). Keys are the keyword
-arguments of the material's constructor (`neumat.reflectance.analytic`), for example
+its name (`@register_spec`). Values are numbers ("0.2"), RGB triples ("0.8/0.5/0.2") or names ("dielectric", "gold").
+Keys are the keyword arguments of the material's constructor (`neumat.reflectance.analytic`), for example
 
     lambert:albedo=0.8/0.5/0.2
     ggx:roughness=0.2,fresnel=dielectric,eta=1.5

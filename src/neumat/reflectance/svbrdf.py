@@ -58,8 +58,8 @@ class SVBRDF(Material):
 
     @classmethod
     def from_folder(cls, folder, height_scale: float | None = None, max_size: int | None = None,
-                    crop: int | None = None, crop_origin: tuple[int, int] | None = None, samples: int = 256, seed: int = 0, chunk: int = 1 << 20,
-                    specular: float = 0.5) -> "SVBRDF":
+                    crop: int | None = None, crop_origin: tuple[int, int] | None = None, samples: int = 256,
+                    seed: int = 0, chunk: int = 1 << 20, specular: float = 0.5) -> "SVBRDF":
         """Read a texture-set folder (`neumat.io.texture_set.load_texture_set`) and wrap it; the other
         arguments are those of the constructor."""
         extra = {} if height_scale is None else {"height_scale": height_scale}
@@ -87,8 +87,8 @@ class SVBRDF(Material):
         n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         return {"base_color": m[:, 0:3], "normal": n, "roughness": m[:, 6], "metallic": m[:, 7]}
 
-    #: features `sampling_features` gives a learned sampler (`neumat.methods.neural_appearance.proxy_sampler`) and the encoder of
-    #: `neumat.methods.neural_appearance.model` (its surface parameters k(x))
+    #: features `sampling_features` gives a learned sampler (`neumat.methods.neural_appearance.proxy_sampler`) and the
+    #: encoder of `neumat.methods.neural_appearance.model` (its surface parameters k(x))
     sampling_feature_dim = 8
     #: the normal (channels 3-5) and principled roughness (6, alpha = roughness^2) among them, for LEAN
     #: prefiltering of coarse levels (`neumat.reflectance.lean`)

@@ -297,8 +297,8 @@ class TranslucentObject(Material):
 
     def trace_environment(self, o: torch.Tensor, d: torch.Tensor, image: np.ndarray, seed: int = 0,
                           part: str = "subsurface") -> torch.Tensor:
-        """Radiance (N, 3) float64 (its `part`, below) along rays o + t d (N, 3), one path each, under the equirectangular
-        environment `image` (H, W, 3) (the mapping of `neumat.render.envmaps`, nearest-texel radiance as
+        """Radiance (N, 3) float64 (its `part`, below) along rays o + t d (N, 3), one path each, under the
+        equirectangular environment `image` (H, W, 3) (the mapping of `neumat.render.envmaps`, nearest-texel radiance as
         `EnvironmentMap` looks it up: each texel is repeated 4 x 4 before Mitsuba's bilinear lookup).
 
         part: "subsurface" (real minus black interior), "full" (the real interior alone: surface reflection plus
@@ -655,7 +655,8 @@ def paperweight_config(mesh: str | Path | None = None, fill: float = 0.7) -> Tra
     _check_shape(str(path), "paperweight mesh")
     check_number(fill, "paperweight fill", 0.0, strict=True)
     if fill >= 1:
-        raise InputError(f"paperweight fill: expected a number in (0, 1) (the mesh must fit inside the cube), got {fill!r}")
+        raise InputError("paperweight fill: expected a number in (0, 1) (the mesh must fit inside the cube), "
+                         f"got {fill!r}")
     box = import_mitsuba().load_dict({"type": "ply", "filename": str(path)}).bbox()
     lo, hi = np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)
     scale = 2 * fill / float((hi - lo).max())

@@ -60,8 +60,8 @@ def reference_renders(reference: Material, spp: int, resolution: int, seed: int 
 def per_pixel_footprint_budget(material: Material, factor: int) -> Material:
     """`material` with 1 / factor of its Monte Carlo footprint positions per evaluation (at least 1), for a render
     at factor x spp: the same positions per pixel. Materials that filter by Monte Carlo keep the count in an int
-    `samples` and draw from their `generator` (`neumat.reflectance.footprint_filter.filtered_eval`'s arguments); others are
-    returned as they are. The copy shares the maps and draws from a generator of the same seed."""
+    `samples` and draw from their `generator` (`neumat.reflectance.footprint_filter.filtered_eval`'s arguments); others
+    are returned as they are. The copy shares the maps and draws from a generator of the same seed."""
     samples, generator = getattr(material, "samples", None), getattr(material, "generator", None)
     if not isinstance(samples, int) or isinstance(samples, bool) or not isinstance(generator, torch.Generator):
         return material

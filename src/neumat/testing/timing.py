@@ -27,7 +27,8 @@ def best_time(fn: Callable[[], object], repeats: int = 3, warmup: bool = True,
               clock: Callable[[], float] | None = None) -> float:
     """Seconds of the fastest of `repeats` calls of fn() (after one untimed warm-up call unless `warmup` is
     False), without gradients: the least disturbed run on a shared machine. `clock`: wall (None:
-    time.perf_counter) or, say, `time.process_time` (CPU seconds of every thread of this process: a loaded machine's waits do not count)."""
+    time.perf_counter) or, say, `time.process_time` (CPU seconds of every thread of this process: a loaded machine's
+    waits do not count)."""
     check_int(repeats, "best_time repeats", 1)
     if warmup:
         with torch.no_grad():

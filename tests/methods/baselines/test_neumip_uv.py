@@ -162,8 +162,8 @@ def test_fused_kernel_is_as_close_to_float64_as_the_torch_path(name):
     p[:4] = torch.tensor([[0, 0, 1.0], [0, 0, -1.0], [-1.0, 0, 0], [-1.0, -1e-8, 0]])
     x = p + model.centre
     normal = torch.nn.functional.normalize(p + 0.3 * torch.randn(n, 3, generator=g), dim=-1)
-    q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)), sample_uniform_sphere(torch.rand(n, 2, generator=g)),
-              x=x, n=normal)
+    q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)),
+              sample_uniform_sphere(torch.rand(n, 2, generator=g)), x=x, n=normal)
     q64 = Query(q.wi.double(), q.wo.double(), x=x.double(), n=normal.double())
     fast, kernel, torch32 = kernel_and_torch_errors(model, q, q64, floor=1e-3)
     assert model.eval(q).requires_grad  # with autograd on, the torch path: training gets its gradients

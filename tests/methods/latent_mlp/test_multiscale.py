@@ -179,8 +179,8 @@ def test_fit_small_svbrdf_on_cpu(shared_data):
 def test_flop_count_matches_measured_matrix_products():
     """The matrix-product part of the analytic count (MLP, frame and warp decoders) equals torch's FLOP counter
     per query: the counter's total grows by that much per query (the spatial preconditioner's block-diagonal
-    product builds the atlas once, kept by the first call); the gating products are elementwise multiply-adds on the texture
-    reads (2 D_s (D_h + D_d)), not seen by the counter; the rest (activations, exp, texture reads, warps, frame
+    product builds the atlas once, kept by the first call); the gating products are elementwise multiply-adds on the
+    texture reads (2 D_s (D_h + D_d)), not seen by the counter; the rest (activations, exp, texture reads, warps, frame
     maths) is stated per block."""
     from neumat.metrics.flops import measured_matmul_flops, model_flops
 

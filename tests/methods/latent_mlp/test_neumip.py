@@ -38,7 +38,8 @@ def test_mlp_reads_latent_and_directions():
     """neumip: MLP([z_s, wi, wo]); nbrdf-uv: MLP([z_s, h, d]); neumip-frame: a frame, identity at initialisation."""
     torch.manual_seed(1)
     q = _queries(32)
-    for name, dirs in (("neumip", torch.cat([q.wi, q.wo], -1)), ("nbrdf-uv", torch.cat(half_difference(q.wi, q.wo), -1)),
+    for name, dirs in (("neumip", torch.cat([q.wi, q.wo], -1)),
+                       ("nbrdf-uv", torch.cat(half_difference(q.wi, q.wo), -1)),
                        ("neumip-frame", torch.cat([q.wi, q.wo], -1))):
         m = build_model({"type": name, **SMALL})
         z = m.spatial(q.uv, q.footprint)

@@ -1,4 +1,5 @@
-"""NeuMIP's neural offset module (`neumat.methods.latent_mlp.neumip`, Config.offset; registered on as "neumip-offset")."""
+"""NeuMIP's neural offset module (`neumat.methods.latent_mlp.neumip`, Config.offset; registered on as
+"neumip-offset")."""
 from dataclasses import replace
 
 import pytest

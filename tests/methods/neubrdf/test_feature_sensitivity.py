@@ -90,7 +90,8 @@ def test_kmeans_weights_refuses_unknown_values_and_fits_without_a_warmup():
     source = open_material("ggx:roughness=0.3")
     r = recipe_for("neubrdf")
     bad = replace(r, steps=4, batch_size=64, options={**r.options, "dense_warmup": 0.5, "kmeans_weights": "fisher"})
-    with pytest.raises(InputError, match="option.kmeans_weights: expected one of 'uniform', 'sensitivity', got 'fisher'"):
+    with pytest.raises(InputError, match="option.kmeans_weights: expected one of 'uniform', 'sensitivity', "
+                                         "got 'fisher'"):
         fit(NeuBRDF(nside=2, hidden=4, features="dense"), source, bad, progress=False)
     no_warmup = replace(bad, options={**r.options, "kmeans_weights": "sensitivity"})
     with pytest.raises(InputError, match="needs dense_warmup > 0"):

@@ -296,8 +296,8 @@ def test_small_batches_run_the_row_kernel_as_close_to_float64_as_torch(config):
     kernel = torch32 = 0.0
     for _ in range(10):
         n = cpu_kernels.NEUPRESS_ROWS
-        q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)), sample_uniform_sphere(torch.rand(n, 2, generator=g)),
-                  x=torch.rand(n, 3, generator=g) - 0.5)
+        q = Query(sample_uniform_sphere(torch.rand(n, 2, generator=g)),
+                  sample_uniform_sphere(torch.rand(n, 2, generator=g)), x=torch.rand(n, 3, generator=g) - 0.5)
         _, k, t = kernel_and_torch_errors(m, q, Query(q.wi.double(), q.wo.double(), x=q.x.double()), floor=1e-6)
         kernel, torch32 = max(kernel, k), max(torch32, t)
     assert kernel <= 2 * torch32, (kernel, torch32)

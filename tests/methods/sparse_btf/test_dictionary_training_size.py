@@ -9,7 +9,8 @@ from typer.testing import CliRunner
 from btf_util import synthetic_btf
 from neumat.cli import btf as btf_cli
 from neumat.core.errors import InputError
-from neumat.methods.sparse_btf.dictionary_train import PAPER_POINTS_PER_DICTIONARY, train_dictionary, training_size_warning
+from neumat.methods.sparse_btf.dictionary_train import (PAPER_POINTS_PER_DICTIONARY, train_dictionary,
+                                                        training_size_warning)
 from neumat.io.btf import write_btf
 from neumat.methods.sparse_btf.model import Config
 

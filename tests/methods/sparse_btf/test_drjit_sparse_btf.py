@@ -1,6 +1,6 @@
 """Parity of the Dr.Jit runtime program "sparse-btf" (`neumat.export.drjit.sparse_btf`) with `SparseBTF.eval`
-(angular "coefficient" and "value" interpolation), fp32 compute, on random queries (directions on the whole sphere, uv well
-outside [0, 1]: wrap-around) and at bins and texel centres (the table's entries). As for the GLSL export
+(angular "coefficient" and "value" interpolation), fp32 compute, on random queries (directions on the whole sphere, uv
+well outside [0, 1]: wrap-around) and at bins and texel centres (the table's entries). As for the GLSL export
 (test_glsl_sparse_btf.py): queries whose k-th and (k+1)-th nearest bins are within 1e-5 in dot product are left
 out (a tie either implementation may break its own way: k-nearest interpolation jumps there), and the relative
 error is taken against max(|f|, 1e-3) (f = exp(.) - eps clamps to 0 in the darkest texels)."""

@@ -39,7 +39,8 @@ def test_fit_with_the_default_dictionary(tmp_path):
     model = load(out)
     ref = read_btf(src)
     # the trained ensemble codes an unseen material better than untrained (identity) bases at the same tau
-    # (measured: 0.69x the MSE; the benchmark comparison with PCA is in benchmarks/studies/btf/results/btf_vs_pca.md, section 14)
+    # (measured: 0.69x the MSE; the benchmark comparison with PCA is in benchmarks/studies/btf/results/btf_vs_pca.md,
+    # section 14)
     d = BTFDictionary.load("default")
     identity = BTFDictionary([Ensemble([torch.eye(m).expand(8, m, m).clone() for m in (10, 10, 17, 17)])] * 3,
                              d.light_dirs, d.view_dirs, d.patch, d.tau_train, d.log_eps, {})

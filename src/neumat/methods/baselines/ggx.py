@@ -84,8 +84,9 @@ def _logit(p: float) -> float:
     return math.log(p / (1 - p))
 
 
-def _ggx_eval(wi: torch.Tensor, wo: torch.Tensor, diffuse_pi: torch.Tensor, f0: torch.Tensor, one_minus_f0: torch.Tensor,
-              a2: torch.Tensor, inv_a2: torch.Tensor, pi_ax_ay: torch.Tensor, zero: torch.Tensor) -> torch.Tensor:
+def _ggx_eval(wi: torch.Tensor, wo: torch.Tensor, diffuse_pi: torch.Tensor, f0: torch.Tensor,
+              one_minus_f0: torch.Tensor, a2: torch.Tensor, inv_a2: torch.Tensor, pi_ax_ay: torch.Tensor,
+              zero: torch.Tensor) -> torch.Tensor:
     """diffuse / pi + D(h) G1(wi) G1(wo) F(wi . h) / (4 cos_i cos_o) (N, 3), 0 unless both directions are up:
     `microfacet_brdf` with Schlick Fresnel in few tensor operations, so that a small batch costs little more than
     their dispatch. G1(w) / (2 cos) = 1 / (w_z + sqrt(ax^2 x^2 + ay^2 y^2 + z^2)) for both directions at once (wi, wo

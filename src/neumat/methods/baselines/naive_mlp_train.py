@@ -1,7 +1,8 @@
 """Training recipe of the naive MLP baseline (no paper: NeuBRDF-like online fit, NBRDF's loss).
 
 CPU_RECIPE: half the steps (10k of 8192, the cosine decay over them): a step takes 0.035 - 0.06 CPU seconds
-(benchmarks/studies/neubrdf/results/cpu_recipes.md), so the 20k steps of RECIPE take 12 - 21 minutes on one core, 10k 6 - 10.
+(benchmarks/studies/neubrdf/results/cpu_recipes.md), so the 20k steps of RECIPE take 12 - 21 minutes on one core,
+10k 6 - 10.
 """
 from neumat.fit.recipe import Recipe
 

@@ -1,8 +1,8 @@
-"""Training recipe of the NeuMIP-on-UV baseline of NeuPreSS (`neumat.methods.baselines.neumip_uv`): every parameter (latent
-texture and MLP) fitted by L2 to path-traced observations exactly as NeuPreSS's appearance phase
+"""Training recipe of the NeuMIP-on-UV baseline of NeuPreSS (`neumat.methods.baselines.neumip_uv`): every parameter
+(latent texture and MLP) fitted by L2 to path-traced observations exactly as NeuPreSS's appearance phase
 (`neumat.fit.translucent_fit`, `neumat.methods.neupress.train`): Adam lr 1e-3 halved at 50 % and 75 %, batches of
-4096, 5 % held back for early stopping, 2000 steps (the budget of benchmarks/studies/neupress/results/neupress.md, where it
-scores 0.435 of the held-out variance). The projection centre is the middle of the bounding box
+4096, 5 % held back for early stopping, 2000 steps (the budget of benchmarks/studies/neupress/results/neupress.md, where
+it scores 0.435 of the held-out variance). The projection centre is the middle of the bounding box
 (`neumat.fit.translucent_fit.set_bounds_from`: option bounds, else the object's recorded box, else the points').
 
 CPU_RECIPE: RECIPE itself, which is CPU-sized: its fit, as NeuPreSS's appearance phase (79 s in

@@ -60,13 +60,13 @@ def translate(model: MultiScale) -> tuple[dict, dict]:
     for i, layer in enumerate(model.mlp.linears()):
         arrays[f"layer{i}_weight"] = _np(layer.weight)
         arrays[f"layer{i}_bias"] = _np(layer.bias)
+    latents = f"spatial {c.spatial_size}^2 x {c.spatial_channels}" if spatial else "homogeneous"
     manifest = {"program": "latent-mlp", "spatial": spatial, "gating": bool(c.gating and spatial),
                 "frame": model.frame is not None, "warps": model.warp_h is not None,
                 "channels": [c.spatial_channels, c.half_channels, c.diff_channels], "warp_terms": c.warp_terms,
                 "max_probes": c.max_probes, "activation": "silu", "output": "exp",
                 "output_bound": model.output_bound_values(),
-                "describe": f"{model.name} ({'gated' if c.gating and spatial else 'concatenated'}, "
-                            f"{'spatial ' + str(c.spatial_size) + '^2 x ' + str(c.spatial_channels) if spatial else 'homogeneous'}, "
+                "describe": f"{model.name} ({'gated' if c.gating and spatial else 'concatenated'}, {latents}, "
                             f"MLP {c.hidden}x{c.hidden_layers})"}
     return manifest, arrays
 

@@ -132,7 +132,7 @@ def _parallax(model: NeuMIP) -> tuple[str, dict[str, np.ndarray]]:
     consts, body, out = mlp_chain("NM_O", model.offset_mlp, inputs, "nm_silu")
     src += "\n".join(consts) + f"""
 
-// the offset module's lookup point uv' of the offset latent zo at uv (neumat.methods.latent_mlp.neumip NeuMIP.offset_uv)
+// the offset module's lookup point uv' of the offset latent zo at uv (neumip.NeuMIP.offset_uv)
 vec2 nm_parallax_shift(vec3 wo, vec2 uv, vec4 zo[{layers}]) {{
 {body}    float h = {out}[0] / {cfg.spatial_size}.0;
     return uv + h * wo.xy / max(wo.z, {cfg.offset_min_cos:.9e});

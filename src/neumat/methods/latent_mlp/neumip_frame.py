@@ -29,6 +29,7 @@ class NeuMIPFrame(neumip.NeuMIP):
     """Latent pyramid + learned shading frame + MLP (see module docstring)."""
 
     name = "neumip-frame"
-    paper = "NeuMIP with a learned shading frame (Zeltner-style): baseline of the multi-scale model (Timonen et al. 2025)"
+    paper = ("NeuMIP with a learned shading frame (Zeltner-style): baseline of the multi-scale model "
+             "(Timonen et al. 2025)")
     source_kinds = ("svbrdf",)
     Config = Config

@@ -1,6 +1,7 @@
 """The spatial latent of models built on a learned latent pyramid (`self.spatial`, `cfg.spatial_channels`):
 z_s at a query, and the same z_s without gradient as the features a learned importance sampler conditions on
-(`neumat.methods.neural_appearance.proxy_sampler`, as Zeltner et al. 2024 feed their sampling decoder the latent code)."""
+(`neumat.methods.neural_appearance.proxy_sampler`, as Zeltner et al. 2024 feed their sampling decoder the latent
+code)."""
 from __future__ import annotations
 
 import torch

@@ -100,7 +100,8 @@ class Config:
     "hd", our extension: the Rusinkiewicz half and difference vectors (hx, hy, hz, dx, dy, dz) of (wi, wo),
     NBRDF's 6 inputs (`NBRDF.encode`), appended last, 6 x hidden more MLP weights; or "hd_warp": the same with
     the half vector's (hx, hy) warped to MERL's sqrt(theta_h) coordinate (`direction_inputs`). Why: the MLP,
-    given h, places highlights finer than 2^b codewords can (src/neumat/methods/neubrdf/NOTES.md, "Config.direction_inputs")."""
+    given h, places highlights finer than 2^b codewords can (src/neumat/methods/neubrdf/NOTES.md,
+    "Config.direction_inputs")."""
     pruned_ancestor_fraction: float = bounded(0.5, gt=0, le=1)
     """Share of training lookups in supervised pixels of a pruned grid made at an ancestor level (`NeuBRDF.prune`)."""
     index_lr_scale: float = bounded(10.0, gt=0)

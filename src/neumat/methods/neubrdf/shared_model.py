@@ -3,8 +3,8 @@
 A cluster of t similar materials shares one MLP and one codebook D (2^b, k); each material keeps only its
 own spherical index grid (2 n b-bit indices). The clusters come from a convolutional autoencoder trained to
 reconstruct tabulated reflectance, then k-means on its bottleneck codes; the shared modules and the t index
-grids are trained jointly. Both are training code, in the fit package: methods/neubrdf/shared_targets.py (`cluster_materials`,
-`fit_shared`, `fit_clusters`) and the recipe methods/neubrdf/shared_train.py.
+grids are trained jointly. Both are training code, in the fit package: methods/neubrdf/shared_targets.py
+(`cluster_materials`, `fit_shared`, `fit_clusters`) and the recipe methods/neubrdf/shared_train.py.
 
 A `MaterialQuery` carries, per row, the index of the material it asks; the model evaluates every row on
 that material's index grid, so one training batch mixes all materials (`fit(model, [source_0, ...])`).

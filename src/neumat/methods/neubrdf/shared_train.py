@@ -19,8 +19,8 @@ from neumat.methods.neubrdf.train import GridOptions, training_phases
 
 @dataclass
 class Options(GridOptions):
-    """The clustering of `neumat.methods.neubrdf.shared_targets.cluster_materials` (paper: a convolutional autoencoder on
-    tabulated reflectance, then k-means on its codes; sizes are ours) and NeuBRDF's staged grid training."""
+    """The clustering of `neumat.methods.neubrdf.shared_targets.cluster_materials` (paper: a convolutional autoencoder
+    on tabulated reflectance, then k-means on its codes; sizes are ours) and NeuBRDF's staged grid training."""
 
     cluster_resolution: int = bounded(16, ge=2)
     """R^3 cells of the Rusinkiewicz table the autoencoder reads."""

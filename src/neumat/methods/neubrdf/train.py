@@ -1,8 +1,8 @@
 """Training recipe and presets of NeuBRDF (Dou, Zheng et al., CVPR 2024).
 
 RECIPE is the paper's end-to-end VQ training (its optimiser settings are in a supplement we do not have; ours
-are argued in src/neumat/methods/neubrdf/NOTES.md); CPU_RECIPE trains the paper's model coarse to fine on dense features,
-then quantises them into the codebook (about 4-8 minutes on one core). `Options` are the typed recipe options;
+are argued in src/neumat/methods/neubrdf/NOTES.md); CPU_RECIPE trains the paper's model coarse to fine on dense
+features, then quantises them into the codebook (about 4-8 minutes on one core). `Options` are the typed recipe options;
 `PRESETS` the named settings, "recommended" the best we measured (src/neumat/methods/neubrdf/NOTES.md, with evidence).
 """
 from __future__ import annotations
@@ -21,7 +21,8 @@ from neumat.fit.recipe import Recipe
 
 @dataclass
 class GridOptions:
-    """The staged training of a feature grid, shared by NeuBRDF and SharedNeuBRDF (src/neumat/methods/neubrdf/NOTES.md)."""
+    """The staged training of a feature grid, shared by NeuBRDF and SharedNeuBRDF
+    (src/neumat/methods/neubrdf/NOTES.md)."""
 
     coarse_fraction: float = bounded(0.0, ge=0, lt=1)
     """Fraction of the steps trained first on a coarse dense grid, then regridded to the model's N_side (0: off)."""
@@ -61,7 +62,8 @@ RECIPE = Recipe(steps=20000, batch_size=2 ** 14, lr=1e-2, betas=(0.9, 0.999), ep
                 lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
                 log_every=100, schedule="step", checkpoint_every=2000, options=config_to_dict(Options()))
 
-#: the paper's model on one CPU core: coarse N_side 16, dense N_side 64, then the codebook (src/neumat/methods/neubrdf/NOTES.md)
+#: the paper's model on one CPU core: coarse N_side 16, dense N_side 64, then the codebook
+#: (src/neumat/methods/neubrdf/NOTES.md)
 CPU_RECIPE = Recipe(steps=5000, batch_size=2 ** 13, lr=1e-2, betas=(0.9, 0.999), eps=1e-8, lr_decay=0.5,
                     lr_decay_every=5000, ema=0.01, loss="log_cos", queries="cosine", seed=0, grad_clip=0.0,
                     log_every=100, schedule="halves", checkpoint_every=500,

@@ -3,9 +3,9 @@ translucent object under distant light.
 
 Appearance specification module (Sec. 4.1): S_hat(wi; x, wo) = SkipMLP(F(v)) with the 7-vector
 v = (theta_i, phi_i, theta_o, phi_o, x, y, z) of object-space spherical angles and position, Fourier
-features F (Eq. 8: 256 rows of G ~ N(18, 1); our default N(0, 0.3^2), see Config), 7 ReLU layers of 128 with skip connections between
-alternate layers, linear RGB output trained with L2 (Eq. 6). Importance sampling module: the same kind
-of features of the 5-vector (x, y, z, theta_o, phi_o), a ReLU MLP 512-128-32 and a standard deviation
+features F (Eq. 8: 256 rows of G ~ N(18, 1); our default N(0, 0.3^2), see Config), 7 ReLU layers of 128 with skip
+connections between alternate layers, linear RGB output trained with L2 (Eq. 6). Importance sampling module: the same
+kind of features of the 5-vector (x, y, z, theta_o, phi_o), a ReLU MLP 512-128-32 and a standard deviation
 sigma of a Gaussian lobe in the azimuthal equidistant projection around the surface normal n_o
 (Sec. 3.2), trained with a KL divergence against the appearance module's binned output (Sec. 4.2).
 

@@ -274,8 +274,8 @@ class SHPRT:
         material: a full-sphere material (`full_sphere = True`, e.g. NeuPreSS) whose `eval(Query(wi, wo, x, n))`
         gives S_hat (N, 3); points, normals (V, 3): object-space vertices and unit normals; faces: optional
         (F, 3) triangles, kept with the table. Evaluation is in `config.precision` on `device` (default: the
-        device of `points`), in chunks of about `config.batch_size` evaluations (whole light sets of (vertex, view) pairs),
-        each chunk projected by one float32 matrix product. A NeuPreSS model is evaluated through
+        device of `points`), in chunks of about `config.batch_size` evaluations (whole light sets of (vertex, view)
+        pairs), each chunk projected by one float32 matrix product. A NeuPreSS model is evaluated through
         `_SeparableNeuPreSS` (no per-query Fourier features); other materials through `eval(Query)`.
         """
         cfg = check_config(PRTConfig() if config is None else config)

@@ -31,8 +31,8 @@ from neumat.warp.microfacet_proxy import ProxyLobes
 
 @dataclass
 class Config(neumip.Config):
-    """Fields of `neumat.methods.latent_mlp.neumip.Config` (latent pyramid and BRDF decoder) with the paper's choices, and
-    the encoder and sampler sizes."""
+    """Fields of `neumat.methods.latent_mlp.neumip.Config` (latent pyramid and BRDF decoder) with the paper's choices,
+    and the encoder and sampler sizes."""
 
     spatial_size: int = 256
     hidden: int = 32
@@ -55,9 +55,9 @@ class Config(neumip.Config):
     sampler_layers: int = 3
     """Hidden layers of the sampling decoder (paper: 3)."""
     sampler_lobes: str = "anisotropic"
-    """The sampler's lobes (`neumat.methods.neural_appearance.proxy_sampler.Config.lobes`): "anisotropic", the paper's (elliptical,
-    non-centred GGX and tilted cosine lobe), or "isotropic", its ablation (Sec. 6.3, Fig. 11: a diffuse weight and
-    one roughness; centred isotropic GGX, untilted cosine lobe; no GLSL / Slang export)."""
+    """The sampler's lobes (`neumat.methods.neural_appearance.proxy_sampler.Config.lobes`): "anisotropic", the paper's
+    (elliptical, non-centred GGX and tilted cosine lobe), or "isotropic", its ablation (Sec. 6.3, Fig. 11: a diffuse
+    weight and one roughness; centred isotropic GGX, untilted cosine lobe; no GLSL / Slang export)."""
     lean: bool = True
     """`bake` fills coarse levels from LEAN-prefiltered surface parameters (Sec. 5.1; `neumat.reflectance.lean`)
     where the source names its normal and roughness channels (`surface_normal_groups`); else, or when False,

@@ -1,10 +1,10 @@
 """Training recipe of the neural importance sampler attached to a material (`SampledMaterial`, model name
 "proxy-sampler"; not a registered model: it wraps a material the caller brings). One phase, "sampler": every
 step draws `batch_size` queries (wi uniform over the upper hemisphere, uv uniform, u for the proxy's directions)
-and takes an Adam step on the sampler's parameters alone against `neumat.methods.neural_appearance.proxy_train.proxy_kl_loss`
-(Zeltner et al. 2024, Sec. 5.2); the learning rate halves at 50 % and 75 % of the steps. Call it through
-`neumat.methods.neural_appearance.proxy_train.fit_sampler(material)` or `neumat.fit.trainer.fit(SampledMaterial(material, sampler),
-material)`.
+and takes an Adam step on the sampler's parameters alone against
+`neumat.methods.neural_appearance.proxy_train.proxy_kl_loss` (Zeltner et al. 2024, Sec. 5.2); the learning rate halves
+at 50 % and 75 % of the steps. Call it through `neumat.methods.neural_appearance.proxy_train.fit_sampler(material)` or
+`neumat.fit.trainer.fit(SampledMaterial(material, sampler), material)`.
 
 CPU_RECIPE: RECIPE itself: 2000 steps of 4096 sampler queries, sized for a CPU already (its time follows the
 material's evaluation).

@@ -1,9 +1,9 @@
-"""Training of the neural importance sampler (`neumat.methods.neural_appearance.proxy_sampler.ProxySampler`, Zeltner et al. 2024,
-Sec. 4.3, 5.2) on any BRDF, through the one trainer.
+"""Training of the neural importance sampler (`neumat.methods.neural_appearance.proxy_sampler.ProxySampler`, Zeltner
+et al. 2024, Sec. 4.3, 5.2) on any BRDF, through the one trainer.
 
 The pair (material, sampler) is a `SampledMaterial`, a `LearnedMaterial` named "proxy-sampler" whose recipe
-(`neumat.methods.neural_appearance.proxy_recipe`) has one phase: directions drawn from the sampler's current proxy are scored
-against the material's f cos(theta_o) with the KL divergence KL(f cos / a || p), through its score-function
+(`neumat.methods.neural_appearance.proxy_recipe`) has one phase: directions drawn from the sampler's current proxy are
+scored against the material's f cos(theta_o) with the KL divergence KL(f cos / a || p), through its score-function
 gradient -E_p[(f cos / p) grad log p] (Mueller et al. 2019); f is the luminance of the material's value, wi
 uniform over the upper hemisphere and uv uniform over the texture. One sample per query, so the per-query
 normaliser a(wi, uv) is replaced by the batch mean of f cos / p: queries with a higher albedo weigh more. The
@@ -58,8 +58,8 @@ def fit_sampler(material: Material, sampler: ProxySampler | None = None, *, step
                 checkpoint: str | Path | None = None, resume: bool = False) -> SamplerFit:
     """Train `sampler` (default a new `ProxySampler` with the material's feature count, initialised from torch's
     global generator) on `material` through `neumat.fit.trainer.fit` (module docstring). steps / batch / lr /
-    seed override the recipe `neumat.methods.neural_appearance.proxy_recipe.RECIPE` (None: its defaults); device, checkpoint
-    and resume are the trainer's."""
+    seed override the recipe `neumat.methods.neural_appearance.proxy_recipe.RECIPE` (None: its defaults); device,
+    checkpoint and resume are the trainer's."""
     from neumat.fit.method import recipe_for
     from neumat.fit.trainer import fit
 

@@ -53,7 +53,8 @@ def image_statistics(yuv: torch.Tensor, statistics: str = "image") -> tuple[torc
     std = yuv.std(dim=dims, unbiased=False, keepdim=True)
     std = torch.where(std > MIN_STD, std, torch.ones_like(std))
     shape = (yuv.shape[0], yuv.shape[1], yuv.shape[-1])
-    return mean.reshape(-1, mean.shape[1], 3).expand(shape).clone(), std.reshape(-1, std.shape[1], 3).expand(shape).clone()
+    return (mean.reshape(-1, mean.shape[1], 3).expand(shape).clone(),
+            std.reshape(-1, std.shape[1], 3).expand(shape).clone())
 
 
 def to_data_points(z: torch.Tensor, patch: int) -> torch.Tensor:
@@ -325,7 +326,8 @@ class BTFDictionary:
                    header_field(meta, "info", "a JSON object", where, default={}))
 
 
-#: dictionaries shipped with the package: name -> file under neumat/methods/sparse_btf/data (docs/btf.md, "Shipped dictionary")
+#: dictionaries shipped with the package: name -> file under neumat/methods/sparse_btf/data (docs/btf.md,
+#: "Shipped dictionary")
 SHIPPED_DICTIONARIES = {"default": "sparse_btf_rings3x30.nmat"}
 
 

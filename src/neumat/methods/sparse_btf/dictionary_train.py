@@ -181,8 +181,8 @@ def training_size_warning(n_points: int, num_dictionaries: int, tau_train: tuple
       so fewer than max_n m_n / min(tau_l, m_n) members leave basis directions no training point constrains
       (the smallest tau_l counts);
     - the paper's ratio: at least `PAPER_POINTS_PER_DICTIONARY` (360) members, the training set the paper's
-      results come from (benchmarks/studies/btf/results/btf_vs_pca.md, section 14, measures the SparseBTF / PCA ratio from
-      75 to 2880 points at 17 x 17 directions).
+      results come from (benchmarks/studies/btf/results/btf_vs_pca.md, section 14, measures the SparseBTF / PCA ratio
+      from 75 to 2880 points at 17 x 17 directions).
     """
     per = n_points / num_dictionaries
     tau = min(tau_train)
@@ -216,9 +216,9 @@ def train_dictionary(btfs: list, num_dictionaries: int | None = None,
 
     sample_fraction: the random fraction of data points used (the paper: 10%). statistics: the standardisation
     of the training points (SparseBTF Config.statistics; recorded in info["statistics"]). Warns when the kept points are
-    too few for K (`training_size_warning`); refuses BTFs whose texels do not split into patches. Defaults: num_dictionaries,
-    tau_train, patch, log_eps from `neumat.methods.sparse_btf.model.Config`; sample_fraction, max_iters, tol, seed
-    from the sparse-btf recipe.
+    too few for K (`training_size_warning`); refuses BTFs whose texels do not split into patches. Defaults:
+    num_dictionaries, tau_train, patch, log_eps from `neumat.methods.sparse_btf.model.Config`; sample_fraction,
+    max_iters, tol, seed from the sparse-btf recipe.
     """
     from neumat.methods.sparse_btf.model import Config
     cfg, defaults = Config(), _recipe_defaults()

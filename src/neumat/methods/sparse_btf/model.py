@@ -1,6 +1,6 @@
 """SparseBTF (Kavoosi et al., EGSR 2023): a BTF stored as sparse coefficients of a dictionary ensemble that
-was trained once (`neumat.methods.sparse_btf.dictionary`; its training is in the fit package, methods/sparse_btf/dictionary_train.py),
-evaluated as a spatially varying `Material`.
+was trained once (`neumat.methods.sparse_btf.dictionary`; its training is in the fit package,
+methods/sparse_btf/dictionary_train.py), evaluated as a spatially varying `Material`.
 
 Stored per BTF (Sec. 3.3-3.4), per YUV channel c: for every p x p patch (data point) its dictionary index
 (membership), its number of non-zero coefficients (count), and that many values with their 4D index tuples
@@ -513,7 +513,8 @@ def unpack_codes(module: SparseBTF, state_dict: dict, prefix: str, local_metadat
         return
     counts = state_dict[key].long()
     t = module.values.shape[-1]
-    if counts.shape != module.counts.shape or (counts.numel() and not (0 <= int(counts.min()) <= int(counts.max()) <= t)):
+    if (counts.shape != module.counts.shape
+            or (counts.numel() and not (0 <= int(counts.min()) <= int(counts.max()) <= t))):
         raise DataFormatError(f"sparse-btf counts: expected {tuple(module.counts.shape)} integers in [0, {t}], got "
                               f"{tuple(counts.shape)}")
     values, index = state_dict[prefix + "values"], state_dict[prefix + "index"]

@@ -104,9 +104,9 @@ class PCABTF(LearnedMaterial):
 
     @torch.no_grad()
     def load_components(self, decomposition, light_dirs: torch.Tensor, view_dirs: torch.Tensor) -> "PCABTF":
-        """Keep the leading cfg.ranks components of `decomposition` (a `Decomposition` of methods/sparse_btf/pca_solve.py, of a
-        BTF of this size and log eps: mean (3, LV), eigenvalues, basis (3, LV, R), coeffs (3, HW, R)); returns
-        self."""
+        """Keep the leading cfg.ranks components of `decomposition` (a `Decomposition` of
+        methods/sparse_btf/pca_solve.py, of a BTF of this size and log eps: mean (3, LV), eigenvalues, basis (3, LV, R),
+        coeffs (3, HW, R)); returns self."""
         c = self.cfg
         if not c.ranks:
             raise InputError("PCABTF.load_components: the model has no ranks yet; choose them first (set_ranks, "

@@ -2,7 +2,8 @@
 truncated PCA of the source BTF (`neumat.methods.sparse_btf.pca_solve.decompose`, then the model keeps its cfg.ranks
 leading components; a model built without ranks, the default, keeps the most that fit the option budget_bytes, by
 default SparseBTF's per-BTF bytes, split over Y, U, V by least error). `fit(PCABTF.for_btf(btf), btf)`; the source
-is one tabulated BTF (`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the truncation.
+is one tabulated BTF (`neumat.io.btf.read_btf`). The step logs "mse", the model-space mean squared error of the
+truncation.
 
 `Options` are those of the solve (`decompose`). steps, batch_size, lr and the schedule are unused.
 

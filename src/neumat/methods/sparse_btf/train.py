@@ -20,8 +20,8 @@ from neumat.methods.sparse_btf.dictionary import BTFDictionary, code_points
 from neumat.fit.phase import FitContext, Phase
 from neumat.fit.recipe import Recipe
 from neumat.fit.method import typed_options
-from neumat.methods.sparse_btf.dictionary_train import (check_points, ensemble_iteration, has_converged, init_ensemble, keep_count,
-                                 objective)
+from neumat.methods.sparse_btf.dictionary_train import (check_points, ensemble_iteration, has_converged, init_ensemble,
+                                                        keep_count, objective)
 
 
 
@@ -74,7 +74,8 @@ def phases(ctx: FitContext) -> list[Phase]:
         raise InputError(f"sparse-btf recipe: expected a SparseBTF model, got {type(model).__name__}")
     if isinstance(btf, (list, tuple)):
         raise InputError("sparse-btf: the source is ONE BTF to code; train a dictionary on several BTFs with "
-                         "`neumat fit-dictionary` (neumat.methods.sparse_btf.dictionary_train.train_dictionary) and give it as "
+                         "`neumat fit-dictionary` (neumat.methods.sparse_btf.dictionary_train.train_dictionary) "
+                         "and give it as "
                          "option 'dictionary'")
     model.check_source(btf)
     cfg, dev = model.cfg, ctx.device
