@@ -115,6 +115,7 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
     """The image tables: the bunny (the sphere in a quick run), then in a full run the paperweight."""
     from neumat.core.errors import InputError
     from neumat.core.llvm import usable_libllvm
+    from neumat.core.mitsuba import mitsuba_threads
     from neumat.io.shared_data import shared_data_dir
 
     setup = IMAGE_SETUP["quick" if run.quick else "full"]
@@ -127,13 +128,14 @@ def _images(run: harness.Run, seeds: list[int]) -> None:
     except InputError as e:
         run.skip("image table", f"Mitsuba's LLVM backend is unavailable here: {e}")
         return
-    _image_table(run, seeds, "images", "Image table: " + (
-        "a traced sphere (numbers mean nothing; the suite runs)" if run.quick else
-        "the bunny under a map never used in development (issue 51's protocol)"), setup, data,
-        ["--media", "marble,ketchup", "--size-mm", "4"])
-    if not run.quick:
-        _image_table(run, seeds, "paperweight", "Image table: the paper's Paperweight (Table 1) as built here "
-                     "(`--scene paperweight`), the bunny's protocol", PAPERWEIGHT_SETUP, data, [])
+    with mitsuba_threads(run.threads):  # traces and references the same bit for bit at one thread, run to run
+        _image_table(run, seeds, "images", "Image table: " + (
+            "a traced sphere (numbers mean nothing; the suite runs)" if run.quick else
+            "the bunny under a map never used in development (issue 51's protocol)"), setup, data,
+            ["--media", "marble,ketchup", "--size-mm", "4"])
+        if not run.quick:
+            _image_table(run, seeds, "paperweight", "Image table: the paper's Paperweight (Table 1) as built here "
+                         "(`--scene paperweight`), the bunny's protocol", PAPERWEIGHT_SETUP, data, [])
 
 
 def _image_table(run: harness.Run, seeds: list[int], name: str, title: str, setup: dict, data, media: list[str]):

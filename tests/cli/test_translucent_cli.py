@@ -165,6 +165,32 @@ def test_trace_scene_options_and_noise_floor(tmp_path):
     assert "noise" not in source and source["object"]["inner"][0]["albedo"] == [0, 0, 0]
 
 
+@pytest.mark.mitsuba
+def test_trace_threads_set_mitsubas_threads_for_the_trace_and_restore_them(tmp_path, monkeypatch):
+    """--threads N: the scene is built and traced on N Dr.Jit threads (the count the trace sees), the process's count
+    restored after; without it the count is left alone."""
+    mitsuba_or_skip()
+    import drjit as dr
+
+    from neumat.fit import translucent_observations
+
+    seen = []
+    collect = translucent_observations.collect_observations
+
+    def spy(*args, **kwargs):
+        seen.append(dr.thread_count())
+        return collect(*args, **kwargs)
+    monkeypatch.setattr(translucent_observations, "collect_observations", spy)
+    before = dr.thread_count()
+    for extra in (["--threads", 1], []):
+        r = _run("trace", "-o", tmp_path / "o.npz", "--images", 1, "--resolution", 4, "--spp", 1, "-q",
+                 "--noise-check", 0, *extra)
+        assert r.exit_code == 0, r.output
+        assert dr.thread_count() == before
+    assert seen == [1, before]
+    assert _run("trace", "-o", tmp_path / "o.npz", "--threads", 0).exit_code != 0  # at least one
+
+
 def test_trace_scene_option_errors(tmp_path, without_llvm):
     r = _run("trace", "-o", tmp_path / "o.npz", "--inner", "[{oops")
     assert r.exit_code == 2 and "--inner" in _said(r)

@@ -95,11 +95,15 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
           resume: bool = typer.Option(False, "--resume", help="continue the trace in --checkpoint if it exists (with "
                                                               "the same options: the file an uninterrupted trace "
                                                               "writes)"),
+          threads: int = typer.Option(None, min=1, help="Mitsuba's (Dr.Jit's) CPU threads (default: all cores); "
+                                                        "1 traces the same file bit for bit every run (with more, a "
+                                                        "mesh's paths vary run to run)"),
           quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress output")) -> None:
     """Path-trace training observations of S_hat under random directional lights (NeuPreSS Sec. 4.2)."""
     def go():
         from ..core.config import config_to_dict
         from ..core.errors import InputError
+        from ..core.mitsuba import mitsuba_threads
         from ..fit.translucent_observations import collect_observations
         from ..reflectance.translucent import TranslucentObject
 
@@ -112,16 +116,18 @@ def trace(out: Path = typer.Option(..., "-o", "--out", callback=output_option(".
                  "roughness_range": None if roughness_range is None else _pair(roughness_range, "--roughness-range"),
                  "albedo_texture": None if albedo_texture is None else str(albedo_texture), "sampler": sampler}
         cfg = object_config(scene, None if inner is None else _inner_shapes(inner), given)
-        obj = TranslucentObject(cfg, spp=spp, seed=seed)
         sizes = {} if resolution is None else {"resolution": resolution}
-        obs = collect_observations(obj, images, seed=seed, progress=not quiet, checkpoint=checkpoint, resume=resume,
-                                   **sizes)
-        cpu = obj.trace_cpu_seconds  # the observations' (the noise check's traces come after)
-        source = {"object": config_to_dict(cfg), "spp": spp, "seed": seed,
-                  "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()],
-                  **({} if math.isnan(cpu) else {"trace_cpu_seconds": round(cpu, 1)})}
-        if noise_check:
-            source["noise"] = noise = observation_noise(obj, obs, noise_check, seed)
+        with mitsuba_threads(threads):  # the scene built (its BVH) and traced on these threads
+            obj = TranslucentObject(cfg, spp=spp, seed=seed)
+            obs = collect_observations(obj, images, seed=seed, progress=not quiet, checkpoint=checkpoint,
+                                       resume=resume, **sizes)
+            cpu = obj.trace_cpu_seconds  # the observations' (the noise check's traces come after)
+            source = {"object": config_to_dict(cfg), "spp": spp, "seed": seed,
+                      "bbox": [obj.bbox_min.tolist(), obj.bbox_max.tolist()],
+                      **({} if math.isnan(cpu) else {"trace_cpu_seconds": round(cpu, 1)})}
+            noise = observation_noise(obj, obs, noise_check, seed) if noise_check else None
+        if noise is not None:
+            source["noise"] = noise
             share = ("" if noise["relative"] is None else
                      f", {noise['relative']:.3g} +- {noise['relative_se']:.2g} of the values' variance (the least "
                      "held-out MSE / variance a fit can show)")
