@@ -40,10 +40,12 @@ def import_mitsuba(variant: str = VARIANT):
 def mitsuba_threads(threads: int | None) -> Iterator[None]:
     """Dr.Jit's CPU worker threads (Mitsuba's LLVM kernels) set to `threads` inside the block, restored after (None:
     left as they are). Why: a trace of a mesh on one thread is the same file bit for bit every run, on two it is
-    not (measured on the bunny: up to 2.6 % of an observation at 4096 spp; methods/neupress/NOTES.md)."""
+    not (measured on the bunny: up to 2.6 % of an observation at 4096 spp; methods/neupress/NOTES.md). Loads
+    Mitsuba first (`import_mitsuba`: InputError without a usable LLVM), as Dr.Jit loads its LLVM on import."""
     if threads is None:
         yield
         return
+    import_mitsuba()
     import drjit as dr
 
     before = dr.thread_count()
