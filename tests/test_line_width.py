@@ -12,4 +12,4 @@ def test_no_line_is_wider_than_the_house_width():
     long = [f"{path.relative_to(ROOT)}:{number} ({len(line)} characters)"
             for folder in ("src", "tests") for path in sorted((ROOT / folder).rglob("*.py"))
             for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1) if len(line) > MAX_WIDTH]
-    assert not long, "lines wider than 120 characters:\n" + "\n".join(long)
+    assert not long, f"lines wider than {MAX_WIDTH} characters:\n" + "\n".join(long)

@@ -462,13 +462,10 @@ def _one_thread(rate):
     takes = set(inspect.signature(rate).parameters)
 
     def wrapped(exported, q, **kwargs):
-        import drjit as dr
-        before = dr.thread_count()
-        dr.set_thread_count(1)
-        try:
+        from neumat.core.mitsuba import mitsuba_threads
+
+        with mitsuba_threads(1):
             return rate(exported, q, **{k: v for k, v in kwargs.items() if k in takes})
-        finally:
-            dr.set_thread_count(before)
     return wrapped
 
 
